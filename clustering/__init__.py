@@ -1,0 +1,1 @@
+"""Clustering: drivers into styles, typical drivers and reference lines."""

@@ -1,0 +1,1 @@
+"""Dashboard: the Streamlit app over the workspace (the only package importing streamlit)."""

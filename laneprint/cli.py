@@ -1,0 +1,50 @@
+"""The `laneprint` command line: wires the stages together (see DESIGN.md).
+
+Each stage owns its command in its own package (`<stage>/cli.py`); this module
+only registers them, plus `run`, which chains ingest and analysis (and training
+when asked).
+"""
+
+from __future__ import annotations
+
+import typer
+
+from clustering.cli import analyze_command
+from dashboard.cli import dashboard_command
+from ingest.cli import ingest_command
+from laneprint.simulator.cli import simulate_command
+from laneprint.pipeline_cli import run_command_cli
+from rl.cli import evaluate_command, train_command
+
+app = typer.Typer(
+    name="laneprint",
+    help="Driver-in-the-loop pipeline for personalised automated lane changes.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+app.command("simulate", help="Generate a synthetic driver-in-the-loop study (CSV and MCAP logs).")(simulate_command)
+app.command("ingest", help="Read, validate and store simulator logs in the workspace.")(ingest_command)
+app.command("analyze", help="Indicators at decisions, per-driver fits and driving styles.")(analyze_command)
+app.command("train", help="Train a DQN agent for a style or a driver.")(train_command)
+app.command("evaluate", help="Evaluate a trained run against the drivers' decisions.")(evaluate_command)
+app.command("dashboard", help="Serve the Streamlit dashboard.")(dashboard_command)
+app.command("run", help="Everything end to end: ingest PATHs, analyze, and train/evaluate the styles.")(run_command_cli)
+
+
+def main() -> None:
+    """Entry point: the app, with a last guard so a user's mistake never shows a traceback."""
+    import sys
+
+    from laneprint.errors import UserError
+
+    try:
+        app()
+    except UserError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,68 @@
+"""What every command shares: the --workspace and --json options, one-line errors,
+JSON output and a Rich progress bar.
+
+A stage's command is a plain function returning a JSON-ready dict; `run_command`
+turns its errors into one line on stderr with exit status 1 and prints either the
+dict (--json) or the human summary drawn by `render`.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated, Any, Callable, Iterator
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from laneprint.errors import UserError
+from laneprint.progress import ProgressFn
+from laneprint.workspace import DEFAULT_WORKSPACE
+
+WorkspaceOpt = Annotated[
+    Path, typer.Option("--workspace", "-w", help="Workspace folder.", envvar="LANEPRINT_WORKSPACE")
+]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON document instead of the summary.")]
+
+console = Console(stderr=False)
+err_console = Console(stderr=True)
+
+DEFAULT_WS = DEFAULT_WORKSPACE
+
+
+def run_command(work: Callable[[], dict[str, Any]], as_json: bool,
+                render: Callable[[dict[str, Any], Console], None]) -> dict[str, Any]:
+    """Run `work`; print its result as JSON or via `render`; exit 1 on a UserError."""
+    try:
+        result = work()
+    except UserError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(1) from None
+    except KeyboardInterrupt:
+        err_console.print("interrupted", markup=False)
+        raise typer.Exit(130) from None
+    if as_json:
+        sys.stdout.write(json.dumps(result, indent=2, default=str) + "\n")
+    else:
+        render(result, console)
+    if result.get("exit_code"):
+        raise typer.Exit(int(result["exit_code"]))
+    return result
+
+
+@contextmanager
+def progress_bar(enabled: bool = True) -> Iterator[ProgressFn]:
+    """A `ProgressFn` drawing a Rich bar on stderr (silent when disabled or not a terminal under --json)."""
+    if not enabled:
+        yield lambda done, total, message="": None
+        return
+    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                   TimeElapsedColumn(), console=err_console, transient=False)
+    task = bar.add_task("", total=None)
+    with bar:
+        def update(done: int, total: int, message: str = "") -> None:
+            bar.update(task, completed=done, total=total, description=message[:60])
+        yield update

@@ -1,0 +1,219 @@
+"""The workspace store: Parquet files in folders, queried through DuckDB.
+
+Layout under the workspace root (default `./workspace`)::
+
+    recordings/<recording_id>/meta.parquet   one RECORDINGS row
+    recordings/<recording_id>/ego.parquet    EGO table
+    recordings/<recording_id>/traffic.parquet TRAFFIC table
+    rejected/<key>.json                      one REJECTED row per refused file
+    <stage>/<table>.parquet                  a stage's result tables (e.g. analysis/)
+    <stage>/meta.json                        the stage's config, code version, data fingerprint
+    runs/<run_id>/...                        training runs (see rl/)
+
+Every write is atomic: files are written under `.tmp/` and renamed into place,
+so a reader (the dashboard, a second process) never sees half a recording or half
+an analysis. A recording folder is created by one `rename`; when two ingests of the
+same bytes race, one rename wins and the other reports a duplicate. The catalogue
+is a DuckDB view over the folders, so there is no shared database file to lock.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import uuid
+from pathlib import Path
+from typing import Any, Iterator
+
+import duckdb
+import pandas as pd
+
+from laneprint.errors import UserError
+from laneprint.schemas import EGO, RECORDINGS, REJECTED, TRAFFIC, Schema, validate
+
+DEFAULT_WORKSPACE = Path("workspace")
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write `data` to `path` so readers see the old file or the new one, never a mix."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def atomic_write_json(path: Path, obj: Any) -> None:
+    """Write `obj` as indented JSON, atomically."""
+    atomic_write_bytes(path, (json.dumps(obj, indent=2, default=str) + "\n").encode())
+
+
+class Workspace:
+    """A folder holding everything laneprint has ingested, analysed and trained."""
+
+    def __init__(self, root: Path | str = DEFAULT_WORKSPACE) -> None:
+        self.root = Path(root).resolve()
+
+    # --- paths -------------------------------------------------------------
+
+    @property
+    def recordings_dir(self) -> Path:
+        return self.root / "recordings"
+
+    @property
+    def rejected_dir(self) -> Path:
+        return self.root / "rejected"
+
+    @property
+    def runs_dir(self) -> Path:
+        return self.root / "runs"
+
+    def stage_dir(self, stage: str) -> Path:
+        return self.root / stage
+
+    def ensure(self) -> "Workspace":
+        """Create the workspace folders if needed; refuse a path that is a file."""
+        if self.root.exists() and not self.root.is_dir():
+            raise UserError(f"workspace {self.root} is a file, not a folder")
+        for d in (self.recordings_dir, self.rejected_dir, self.runs_dir, self.root / ".tmp"):
+            d.mkdir(parents=True, exist_ok=True)
+        return self
+
+    def _tmp_dir(self) -> Path:
+        self.ensure()
+        d = self.root / ".tmp" / uuid.uuid4().hex
+        d.mkdir()
+        return d
+
+    # --- recordings ----------------------------------------------------------
+
+    def has_recording(self, recording_id: str) -> bool:
+        return (self.recordings_dir / recording_id / "meta.parquet").exists()
+
+    def write_recording(self, meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame) -> bool:
+        """Store one recording atomically. Returns False if it was already there."""
+        meta_df = validate(pd.DataFrame([meta]), RECORDINGS)
+        validate(ego, EGO)
+        validate(traffic, TRAFFIC)
+        rid = meta["recording_id"]
+        final = self.recordings_dir / rid
+        if final.exists():
+            return False
+        tmp = self._tmp_dir()
+        try:
+            ego.to_parquet(tmp / "ego.parquet", index=False)
+            traffic.to_parquet(tmp / "traffic.parquet", index=False)
+            meta_df.to_parquet(tmp / "meta.parquet", index=False)
+            try:
+                os.rename(tmp, final)
+            except OSError:  # another process stored the same bytes first
+                return False
+            return True
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+    def recordings(self) -> pd.DataFrame:
+        """The catalogue: one RECORDINGS row per stored recording, sorted by driver and session."""
+        files = sorted(self.recordings_dir.glob("*/meta.parquet"))
+        if not files:
+            return pd.DataFrame({c: pd.Series(dtype="object") for c in RECORDINGS.names})
+        with duckdb.connect() as con:
+            df = con.execute(
+                "SELECT * FROM read_parquet(?, union_by_name=true) ORDER BY driver_id, session_id",
+                [[str(f) for f in files]],
+            ).df()
+        return df
+
+    def load_recording(self, recording_id: str) -> tuple[dict[str, Any], pd.DataFrame, pd.DataFrame]:
+        """Return (meta, ego, traffic) of one stored recording."""
+        d = self.recordings_dir / recording_id
+        if not (d / "meta.parquet").exists():
+            raise UserError(f"no recording {recording_id!r} in workspace {self.root}")
+        meta = pd.read_parquet(d / "meta.parquet").iloc[0].to_dict()
+        return meta, pd.read_parquet(d / "ego.parquet"), pd.read_parquet(d / "traffic.parquet")
+
+    def iter_recordings(self) -> Iterator[tuple[dict[str, Any], pd.DataFrame, pd.DataFrame]]:
+        """Yield (meta, ego, traffic) for every stored recording, in catalogue order."""
+        for rid in self.recordings()["recording_id"]:
+            yield self.load_recording(rid)
+
+    # --- rejected files ------------------------------------------------------
+
+    def record_rejected(self, row: dict[str, Any]) -> None:
+        """Remember a refused file and its reason (latest attempt per content wins)."""
+        validate(pd.DataFrame([row]), REJECTED)
+        key = row["content_hash"] or uuid.uuid5(uuid.NAMESPACE_URL, row["source_path"]).hex[:16]
+        atomic_write_json(self.rejected_dir / f"{key}.json", row)
+
+    def forget_rejected(self, content_hash: str) -> None:
+        """Drop the rejection record of content that has now been ingested."""
+        (self.rejected_dir / f"{content_hash}.json").unlink(missing_ok=True)
+
+    def rejected(self) -> pd.DataFrame:
+        """All REJECTED rows, newest first."""
+        rows = [json.loads(p.read_text()) for p in sorted(self.rejected_dir.glob("*.json"))]
+        df = pd.DataFrame(rows, columns=REJECTED.names)
+        return df.sort_values("rejected_at", ascending=False, ignore_index=True)
+
+    # --- stage results -------------------------------------------------------
+
+    def write_tables(self, stage: str, tables: dict[str, pd.DataFrame], meta: dict[str, Any],
+                     schemas: dict[str, Schema] | None = None) -> Path:
+        """Replace a stage's result folder with `tables` (+ `meta.json`) in one swap.
+
+        Tables named in `schemas` are validated first; nothing is written if any fails.
+        """
+        for name, schema in (schemas or {}).items():
+            validate(tables[name], schema)
+        tmp = self._tmp_dir()
+        for name, df in tables.items():
+            df.to_parquet(tmp / f"{name}.parquet", index=False)
+        atomic_write_json(tmp / "meta.json", meta)
+        final = self.stage_dir(stage)
+        old = None
+        if final.exists():
+            old = self.root / ".tmp" / f"old-{uuid.uuid4().hex}"
+            os.rename(final, old)
+        os.rename(tmp, final)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+        return final
+
+    def has_table(self, stage: str, name: str) -> bool:
+        return (self.stage_dir(stage) / f"{name}.parquet").exists()
+
+    def read_table(self, stage: str, name: str) -> pd.DataFrame:
+        """Read one result table; a clear error if the stage has not run."""
+        path = self.stage_dir(stage) / f"{name}.parquet"
+        if not path.exists():
+            raise UserError(f"no {stage} table {name!r} in {self.root}: run `laneprint {stage if stage != 'analysis' else 'analyze'}` first")
+        return pd.read_parquet(path)
+
+    def read_meta(self, stage: str) -> dict[str, Any]:
+        path = self.stage_dir(stage) / "meta.json"
+        return json.loads(path.read_text()) if path.exists() else {}
+
+    # --- queries -------------------------------------------------------------
+
+    def query(self, sql: str) -> pd.DataFrame:
+        """Run SQL over the workspace: views `recordings`, `rejected`, and `<stage>_<table>`."""
+        with duckdb.connect() as con:
+            recs = self.recordings()
+            con.register("recordings", recs)
+            con.register("rejected", self.rejected())
+            for p in self.root.glob("*/*.parquet"):
+                con.execute(f"CREATE VIEW {p.parent.name}_{p.stem} AS SELECT * FROM read_parquet('{p}')")
+            return con.execute(sql).df()
+
+    def fingerprint(self) -> str:
+        """A short hash of which recordings are in the workspace (their ids are content hashes)."""
+        import hashlib
+
+        ids = sorted(p.name for p in self.recordings_dir.glob("*") if (p / "meta.parquet").exists())
+        return hashlib.sha256("\n".join(ids).encode()).hexdigest()[:16]

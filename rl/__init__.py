@@ -1,0 +1,1 @@
+"""RL: the lane-change decision environment, DQN trainer, greedy benchmark, evaluation."""

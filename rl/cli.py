@@ -1,0 +1,14 @@
+"""Command-line entry of this stage (placeholder until the stage lands)."""
+
+from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt
+from laneprint.errors import UserError
+
+
+def train_command(workspace: WorkspaceOpt = DEFAULT_WS, as_json: JsonOpt = False) -> None:
+    """Not implemented yet."""
+    raise UserError("this command is not implemented yet")
+
+
+def evaluate_command(workspace: WorkspaceOpt = DEFAULT_WS, as_json: JsonOpt = False) -> None:
+    """Not implemented yet."""
+    raise UserError("this command is not implemented yet")
