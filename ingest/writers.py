@@ -143,7 +143,7 @@ def _wide_traffic(t: np.ndarray, traffic: pd.DataFrame) -> list[tuple[str, pa.Ar
         out.append((f"{vid}_v", pa.array(v[:, j], mask=np.isnan(v[:, j]))))
         lane_j = np.nan_to_num(lane[:, j], nan=0).astype(np.int16)
         out.append((f"{vid}_lane", pa.array(lane_j, mask=np.isnan(lane[:, j]))))
-        if y is not None:
+        if y is not None and not np.isnan(y[:, j]).all():
             out.append((f"{vid}_y", pa.array(y[:, j], mask=np.isnan(y[:, j]))))
         if length is not None:
             out.append((f"{vid}_length", pa.array(length[:, j], mask=np.isnan(length[:, j]))))
