@@ -1,0 +1,145 @@
+"""Plotly figures the dashboard needs that no stage draws, and the stages' plots.
+
+`recording_timeline` (the Data page's viewer) is the dashboard's own. The other
+figures come from the stages (`indicators.plots`, `clustering.plots`, `rl.plots`);
+`stage_plot(module, name)` returns the stage's function, or a plain fallback drawn
+here when that stage is not installed yet.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any, Callable
+
+import numpy as np
+import pandas as pd
+import plotly.graph_objects as go
+from plotly.subplots import make_subplots
+
+MAX_POINTS = 20_000
+
+
+def press_times(ego: pd.DataFrame) -> pd.DataFrame:
+    """Rising edges of the lane-change button: t_s, direction, ego speed and lane at the press."""
+    pressed = ego["lc_button"].astype(bool).to_numpy()
+    rising = np.flatnonzero(pressed & ~np.concatenate([[False], pressed[:-1]]))
+    out = ego.iloc[rising][["t_s", "ego_v_mps", "ego_lane"]].copy()
+    out["direction"] = ego["lc_direction"].iloc[rising].fillna("").to_numpy() if "lc_direction" in ego else ""
+    return out.reset_index(drop=True)
+
+
+def lane_gaps(ego: pd.DataFrame, traffic: pd.DataFrame, tolerance_s: float = 0.1) -> pd.DataFrame:
+    """Bumper-to-bumper gaps to the nearest leader and follower in the ego's lane over time [m].
+
+    Traffic samples are matched to the nearest ego sample within `tolerance_s`; NaN when
+    no such vehicle is in the scene.
+    """
+    cols = ["t_s", "lead_gap_m", "follow_gap_m"]
+    if traffic.empty or ego.empty:
+        return pd.DataFrame(columns=cols)
+    e = ego[["t_s", "ego_x_m", "ego_lane", "ego_length_m"]].sort_values("t_s")
+    tr = traffic[["t_s", "x_m", "lane", "length_m"]].sort_values("t_s")
+    m = pd.merge_asof(tr, e, on="t_s", direction="nearest", tolerance=tolerance_s).dropna(subset=["ego_x_m"])
+    m = m[m["lane"] == m["ego_lane"]]
+    if m.empty:
+        return pd.DataFrame({"t_s": e["t_s"], "lead_gap_m": np.nan, "follow_gap_m": np.nan})
+    gap = (m["x_m"] - m["ego_x_m"]).abs() - (m["length_m"] + m["ego_length_m"]) / 2
+    ahead = m["x_m"] > m["ego_x_m"]
+    lead = gap[ahead].groupby(m.loc[ahead, "t_s"]).min().rename("lead_gap_m")
+    follow = gap[~ahead].groupby(m.loc[~ahead, "t_s"]).min().rename("follow_gap_m")
+    out = pd.concat([lead, follow], axis=1).sort_index()
+    out.index.name = "t_s"
+    return out.reset_index()[cols]
+
+
+def _thin(df: pd.DataFrame, max_points: int = MAX_POINTS) -> pd.DataFrame:
+    step = max(1, int(np.ceil(len(df) / max_points)))
+    return df.iloc[::step]
+
+
+def recording_timeline(ego: pd.DataFrame, traffic: pd.DataFrame, title: str = "") -> go.Figure:
+    """Ego speed, lane and gaps to the ego-lane leader/follower over time, presses marked."""
+    fig = make_subplots(rows=3, cols=1, shared_xaxes=True, vertical_spacing=0.05,
+                        row_heights=[0.4, 0.2, 0.4])
+    e = _thin(ego)
+    fig.add_trace(go.Scatter(x=e["t_s"], y=e["ego_v_mps"], name="ego speed", mode="lines"), row=1, col=1)
+    fig.add_trace(go.Scatter(x=e["t_s"], y=e["ego_lane"], name="ego lane", mode="lines",
+                             line_shape="hv"), row=2, col=1)
+    gaps = _thin(lane_gaps(ego, traffic))
+    fig.add_trace(go.Scatter(x=gaps["t_s"], y=gaps["lead_gap_m"], name="gap to leader", mode="lines"),
+                  row=3, col=1)
+    fig.add_trace(go.Scatter(x=gaps["t_s"], y=gaps["follow_gap_m"], name="gap to follower", mode="lines"),
+                  row=3, col=1)
+    presses = press_times(ego)
+    if len(presses):
+        fig.add_trace(go.Scatter(
+            x=presses["t_s"], y=presses["ego_v_mps"], mode="markers", name="button press",
+            marker=dict(symbol="triangle-down", size=11, color="crimson"),
+            text=[f"press {i + 1} {d}".strip() for i, d in enumerate(presses["direction"])],
+            hovertemplate="%{text}<br>t = %{x:.2f} s<br>v = %{y:.2f} m/s<extra></extra>"), row=1, col=1)
+        for t in presses["t_s"]:
+            for row in (1, 2, 3):
+                fig.add_vline(x=float(t), line=dict(color="crimson", width=1, dash="dot"), row=row, col=1)
+    fig.update_yaxes(title_text="ego speed [m/s]", row=1, col=1)
+    fig.update_yaxes(title_text="lane [index, 0 = right]", dtick=1, row=2, col=1)
+    fig.update_yaxes(title_text="gap in ego lane [m]", row=3, col=1)
+    fig.update_xaxes(title_text="time [s]", row=3, col=1)
+    fig.update_layout(title=title or None, height=640, margin=dict(t=40 if title else 20),
+                      legend=dict(orientation="h", y=-0.12))
+    return fig
+
+
+def runs_curves(metrics: dict[str, pd.DataFrame], column: str, label: str) -> go.Figure:
+    """One metric per episode for several runs on one plot (run comparison)."""
+    fig = go.Figure()
+    for run_id, df in metrics.items():
+        if column in df:
+            fig.add_trace(go.Scatter(x=df["episode"], y=df[column], mode="lines", name=run_id))
+    fig.update_layout(xaxis_title="episode [-]", yaxis_title=label, height=360,
+                      legend=dict(orientation="h", y=-0.25))
+    return fig
+
+
+# --- the stages' figures, with plain fallbacks --------------------------------
+
+def _fallback_indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: str,
+                                 indicator: str) -> go.Figure:
+    col = {"t_f": "t_f_s", "t_nf": "t_nf_s", "dv_nb": "dv_nb_mps"}[indicator]
+    d = decisions[(decisions["driver_id"] == driver_id) & (decisions["label"] == "change")]
+    fig = go.Figure(go.Scatter(x=d["ego_v_mps"], y=d[col], mode="markers", name=indicator))
+    unit = "m/s" if indicator == "dv_nb" else "s"
+    fig.update_layout(xaxis_title="ego speed v_e [m/s]", yaxis_title=f"{indicator} [{unit}]")
+    return fig
+
+
+def _fallback_table(df: pd.DataFrame, *args: Any, **kwargs: Any) -> go.Figure:
+    return go.Figure(go.Table(header=dict(values=list(df.columns)),
+                              cells=dict(values=[df[c].astype(str) for c in df.columns])))
+
+
+def _fallback_training_curves(metrics: pd.DataFrame, *args: Any, **kwargs: Any) -> go.Figure:
+    fig = make_subplots(rows=1, cols=2, subplot_titles=("loss", "mean step reward"))
+    if len(metrics):
+        fig.add_trace(go.Scatter(x=metrics["episode"], y=metrics.get("loss"), name="loss"), row=1, col=1)
+        fig.add_trace(go.Scatter(x=metrics["episode"], y=metrics.get("mean_step_reward"),
+                                 name="mean step reward"), row=1, col=2)
+    fig.update_xaxes(title_text="episode [-]")
+    fig.update_yaxes(title_text="loss [-]", row=1, col=1)
+    fig.update_yaxes(title_text="reward per step [-]", row=1, col=2)
+    return fig
+
+
+_FALLBACKS: dict[tuple[str, str], Callable[..., go.Figure]] = {
+    ("indicators.plots", "indicator_vs_speed"): _fallback_indicator_vs_speed,
+    ("indicators.plots", "correlation_table"): _fallback_table,
+    ("rl.plots", "training_curves"): _fallback_training_curves,
+}
+
+
+def stage_plot(module: str, name: str) -> Callable[..., go.Figure] | None:
+    """The stage's plot function `module.name`, else the fallback here, else None."""
+    try:
+        fn = getattr(importlib.import_module(module), name, None)
+    except ImportError:
+        fn = None
+    return fn or _FALLBACKS.get((module, name))

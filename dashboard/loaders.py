@@ -1,0 +1,69 @@
+"""Cached, thin readers of the workspace for the pages.
+
+Every loader takes the workspace root and a `stamp` of the folders it reads
+(modification times: the store writes by renaming into place, so a new recording,
+rejection or analysis changes the folder's mtime). Pages call `stamp(root, ...)` on
+every run, so a cached result is reused only while the workspace is unchanged.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import streamlit as st
+
+from laneprint.workspace import Workspace
+
+ANALYSIS_TABLES = ("decisions", "correlations", "fits", "styles", "reference_lines", "skipped")
+
+
+def stamp(root: Path, *parts: str) -> tuple[int, ...]:
+    """Modification times [ns] of `root/<part>` (0 when missing): the cache key of a loader."""
+    out = []
+    for part in parts:
+        try:
+            out.append((root / part).stat().st_mtime_ns)
+        except OSError:
+            out.append(0)
+    return tuple(out)
+
+
+def recordings_stamp(root: Path) -> tuple[int, ...]:
+    return stamp(root, "recordings", "rejected")
+
+
+def analysis_stamp(root: Path) -> tuple[int, ...]:
+    return stamp(root, "analysis", "analysis/meta.json")
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def recordings(root: str, key: tuple[int, ...]) -> pd.DataFrame:
+    """The RECORDINGS catalogue."""
+    return Workspace(root).recordings()
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def rejected(root: str, key: tuple[int, ...]) -> pd.DataFrame:
+    """Files the ingest refused, newest first."""
+    return Workspace(root).rejected()
+
+
+@st.cache_data(show_spinner=False, max_entries=8)
+def recording(root: str, recording_id: str) -> tuple[dict[str, Any], pd.DataFrame, pd.DataFrame]:
+    """(meta, ego, traffic) of one recording; its id is a content hash, so it never goes stale."""
+    return Workspace(root).load_recording(recording_id)
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def analysis(root: str, key: tuple[int, ...]) -> dict[str, pd.DataFrame]:
+    """The analysis tables that exist (name -> frame); empty when `analyze` has not run."""
+    ws = Workspace(root)
+    return {name: ws.read_table("analysis", name) for name in ANALYSIS_TABLES if ws.has_table("analysis", name)}
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def analysis_meta(root: str, key: tuple[int, ...]) -> dict[str, Any]:
+    """`analysis/meta.json` (settings, fingerprint), {} when missing."""
+    return Workspace(root).read_meta("analysis")

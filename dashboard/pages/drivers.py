@@ -1,0 +1,60 @@
+"""Drivers: one driver's indicators against speed with the OLS fits, correlations, fit summary."""
+
+import streamlit as st
+
+from dashboard import figures, loaders, views
+from dashboard.context import workspace
+
+INDICATORS = ("t_f", "t_nf", "dv_nb")
+
+
+def main() -> None:
+    st.title("Drivers")
+    ws = workspace()
+    tables = loaders.analysis(str(ws.root), loaders.analysis_stamp(ws.root))
+    if "decisions" not in tables:
+        st.info("No analysis yet: ingest logs on the Data page, then run the analysis on the Styles page "
+                "(or `laneprint analyze`).")
+        return
+    decisions, fits = tables["decisions"], tables.get("fits")
+    drivers = views.drivers_of(tables)
+    driver = st.selectbox("Driver", drivers, key="driver")
+    styles = views.for_driver(tables.get("styles"), driver)
+    n_press = int(((decisions["driver_id"] == driver) & (decisions["label"] == "change")).sum())
+    style_txt = f", style **{styles.iloc[0]['style']}**" if len(styles) and "style" in styles else ""
+    st.markdown(f"**{driver}**: {n_press} lane-change decisions{style_txt}")
+
+    plot = figures.stage_plot("indicators.plots", "indicator_vs_speed")
+    cols = st.columns(len(INDICATORS))
+    for col, ind in zip(cols, INDICATORS):
+        with col:
+            st.plotly_chart(plot(decisions, fits, driver, ind), key=f"ivs_{ind}")
+
+    st.subheader("Correlation with ego speed")
+    corr = views.for_driver(tables.get("correlations"), driver)
+    if len(corr):
+        st.dataframe(corr, hide_index=True, width="stretch")
+    else:
+        st.caption("No correlations for this driver.")
+    st.subheader("Fits  I = A·v_e + b")
+    fit = views.for_driver(fits, driver)
+    if len(fit):
+        st.dataframe(fit, hide_index=True, width="stretch")
+    else:
+        st.caption("No fits for this driver.")
+
+    st.subheader("Decisions with undefined indicators")
+    bad = views.undefined_decisions(decisions, driver)
+    if len(bad):
+        st.caption(f"{len(bad)} of {n_press} presses: 'absent' = no such vehicle, 'not_closing' = the gap "
+                   "is not closing (TTC undefined), 'far' = follower beyond the no-influence distance.")
+        st.dataframe(bad, hide_index=True, width="stretch")
+    else:
+        st.caption("All indicators defined at every press.")
+    skipped = views.for_driver(tables.get("skipped"), driver)
+    if len(skipped):
+        with st.expander(f"Skipped by the analysis ({len(skipped)})"):
+            st.dataframe(skipped, hide_index=True, width="stretch")
+
+
+main()

@@ -1,0 +1,79 @@
+"""Styles: the drivers' clusters, members and typical drivers, reference lines; rerun with other k."""
+
+import streamlit as st
+
+from dashboard import figures, loaders, views
+from dashboard.context import workspace
+from laneprint.errors import UserError
+
+CHOOSE_K = {"fixed k": None, "silhouette": "silhouette", "BIC": "bic"}
+
+
+def rerun_form(ws, current: dict) -> None:
+    """k and the way it is chosen; 'Run analysis' calls the analysis stage."""
+    with st.form("analysis_form"):
+        c1, c2, c3 = st.columns(3)
+        k = c1.number_input("Number of styles k", min_value=2, max_value=8, step=1,
+                            value=int(current.get("k", 3)), key="k")
+        labels = list(CHOOSE_K)
+        chosen = next((lab for lab, v in CHOOSE_K.items() if v == current.get("choose_k")), "fixed k")
+        how = c2.selectbox("k chosen by", labels, index=labels.index(chosen), key="choose_k")
+        fits = ["theilsen", "huber", "ols"]
+        fit = c3.selectbox("Feature line fit", fits, key="feature_fit",
+                           index=fits.index(current.get("feature_fit", "theilsen"))
+                           if current.get("feature_fit", "theilsen") in fits else 0)
+        go = st.form_submit_button("Run analysis", type="primary")
+    if go:
+        from clustering.pipeline import analyze
+        from indicators.settings import AnalysisSettings
+
+        base = {k_: v for k_, v in current.items() if k_ in AnalysisSettings.__dataclass_fields__}
+        base = {k_: tuple(v) if isinstance(v, list) else v for k_, v in base.items()}
+        settings = AnalysisSettings(**base).with_(k=int(k), choose_k=CHOOSE_K[how], feature_fit=fit)
+        bar = st.progress(0.0, text="Analysing...")
+        try:
+            analyze(ws, settings, lambda done, total, msg="": bar.progress(
+                min(1.0, done / max(total, 1)), text=msg or "Analysing..."))
+        except UserError as exc:  # the stage's one-line reason; keep the app alive
+            bar.empty()
+            st.warning(f"Analysis did not run: {exc}")
+            return
+        bar.empty()
+        st.rerun()
+
+
+def main() -> None:
+    st.title("Styles")
+    ws = workspace()
+    key = loaders.analysis_stamp(ws.root)
+    tables = loaders.analysis(str(ws.root), key)
+    meta = loaders.analysis_meta(str(ws.root), key)
+    if loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root)).empty:
+        st.info("No recordings yet: upload logs on the Data page first.")
+        return
+    rerun_form(ws, meta.get("settings", {}))
+    styles = tables.get("styles")
+    if styles is None:
+        st.info("No analysis yet: press 'Run analysis'.")
+        return
+    cluster_scatter = figures.stage_plot("clustering.plots", "cluster_scatter")
+    ref_plot = figures.stage_plot("clustering.plots", "reference_lines")
+    left, right = st.columns(2)
+    with left:
+        st.subheader("Drivers in feature space")
+        if cluster_scatter:
+            st.plotly_chart(cluster_scatter(styles), key="clusters")
+    with right:
+        st.subheader("Members and typical drivers")
+        st.dataframe(views.style_summary(styles), hide_index=True, width="stretch")
+    st.subheader("Reference lines per style")
+    lines = tables.get("reference_lines")
+    if lines is not None and ref_plot:
+        st.plotly_chart(ref_plot(lines), key="ref_lines")
+        with st.expander("Reference lines table"):
+            st.dataframe(lines, hide_index=True, width="stretch")
+    with st.expander("Per-driver style assignment"):
+        st.dataframe(styles, hide_index=True, width="stretch")
+
+
+main()

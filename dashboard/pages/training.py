@@ -1,0 +1,90 @@
+"""Training: launch DQN runs in the background, watch them live, cancel, list past runs."""
+
+import streamlit as st
+
+from dashboard import figures, jobs, loaders, training
+from dashboard.context import poll_seconds, workspace
+
+
+def launch_form(ws) -> None:
+    tables = loaders.analysis(str(ws.root), loaders.analysis_stamp(ws.root))
+    recs = loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root))
+    lines_table = tables.get("reference_lines")
+    kind = st.radio("Imitate", ["style", "driver"], horizontal=True, key="target_kind")
+    names = (training.style_targets(lines_table) if kind == "style"
+             else training.driver_targets(lines_table, recs))
+    with st.form("train_form"):
+        c1, c2, c3 = st.columns(3)
+        name = c1.selectbox(kind.capitalize(), names, key="target_name")
+        reward = c2.selectbox("Reward", training.rewards(), key="reward")
+        line_opts = ["analysis", "paper"] if lines_table is not None else ["paper"]
+        lines = c3.selectbox("Reference lines", line_opts, key="lines",
+                             help="'analysis': lines fitted on this workspace; 'paper': Table 1 of the study")
+        c4, c5 = st.columns(2)
+        episodes = c4.number_input("Episodes", min_value=1, max_value=100_000, step=100,
+                                   value=training.default_episodes(), key="episodes")
+        seed = c5.number_input("Seed", min_value=0, value=0, step=1, key="seed")
+        with st.expander("Hyperparameters (Table 2 of the study)"):
+            st.json(training.hyperparameters(), expanded=True)
+        submitted = st.form_submit_button("Start training", type="primary", disabled=not names)
+    if not names:
+        st.info("Nothing to train for yet: ingest logs (Data page) and run the analysis (Styles page).")
+    if submitted and name:
+        req = jobs.TrainRequest(kind, str(name), int(episodes), int(seed), reward, lines)
+        run_id = jobs.launch(ws, req)
+        st.session_state.setdefault("launched", []).append(run_id)
+        st.toast(f"Started run {run_id}")
+
+
+def run_panel(ws, run_id: str, status: dict, live: bool) -> None:
+    """Progress, curves and a Cancel button for one run."""
+    done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
+    frac = min(1.0, done / total) if total else 0.0
+    st.progress(frac, text=f"{run_id}: {status.get('state')} — episode {done}/{total or '?'}")
+    metrics = jobs.read_metrics(ws.runs_dir / run_id / "metrics.jsonl")
+    if len(metrics):
+        plot = figures.stage_plot("rl.plots", "training_curves")
+        st.plotly_chart(plot(metrics), key=f"curves_{run_id}_{len(metrics)}" if live else f"curves_{run_id}")
+    if status.get("state") in jobs.ACTIVE_STATES:
+        if st.button("Cancel", key=f"cancel_{run_id}"):
+            jobs.cancel(ws, run_id)
+    elif status.get("log"):
+        st.code(status["log"], language=None)
+
+
+def main() -> None:
+    st.title("Training")
+    ws = workspace()
+    launch_form(ws)
+
+    active = [rid for rid in jobs.run_ids(ws) if jobs.run_status(ws, rid).get("state") in jobs.ACTIVE_STATES]
+
+    @st.fragment(run_every=poll_seconds() if active else None)
+    def live_runs() -> None:
+        st.subheader("Running")
+        still = []
+        for rid in active:
+            status = jobs.run_status(ws, rid)
+            run_panel(ws, rid, status, live=True)
+            if status.get("state") in jobs.ACTIVE_STATES:
+                still.append(rid)
+        if not active:
+            st.caption("No training running.")
+        elif len(still) < len(active):
+            st.rerun()  # a run ended: redraw the page (past runs, polling off when none is left)
+
+    live_runs()
+
+    st.subheader("Runs")
+    table = jobs.runs_table(ws)
+    if table.empty:
+        st.caption("No runs yet.")
+        return
+    st.dataframe(table, hide_index=True, width="stretch")
+    finished = [r for r in table["run_id"] if r not in active]
+    if finished:
+        rid = st.selectbox("Show run", finished, key="show_run")
+        run_panel(ws, rid, jobs.run_status(ws, rid), live=False)
+
+
+main()

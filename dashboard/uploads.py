@@ -1,0 +1,87 @@
+"""Saving browser uploads under the workspace, safely, before they are ingested.
+
+An upload's name comes from the user's browser and is not trusted: only its last
+path component is kept, reduced to `[A-Za-z0-9._-]`, and the resolved target is
+checked to lie inside `workspace/uploads/`. Bytes are copied to disk in chunks.
+Each file goes to `uploads/<content hash>/<safe name>`, so the original file name
+(the session id when the log has none) is kept and the same bytes land in the
+same place however often they are uploaded.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import shutil
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import BinaryIO
+
+LOG_SUFFIXES = (".csv", ".csv.gz", ".mcap")
+_CHUNK = 1 << 20
+_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+def safe_filename(name: str) -> str:
+    """A file name that cannot leave its folder: last path part, safe characters, no leading dots."""
+    base = re.split(r"[\\/]", name or "")[-1]
+    base = _UNSAFE.sub("_", base).lstrip(".")
+    base = base[-120:] if len(base) > 120 else base
+    return base if base.strip("._-") else "upload"
+
+
+def has_log_suffix(name: str) -> bool:
+    """True for .csv, .csv.gz and .mcap names (case-insensitive)."""
+    return name.lower().endswith(LOG_SUFFIXES)
+
+
+@dataclass(frozen=True)
+class SavedUpload:
+    """One upload after saving: `path` is set when it was written, else `reason` says why not."""
+
+    name: str
+    size: int
+    path: Path | None = None
+    reason: str = ""
+
+
+def save_upload(name: str, size: int, stream: BinaryIO, uploads_dir: Path, max_bytes: int) -> SavedUpload:
+    """Copy one upload to `uploads_dir/<hash>/<safe name>`, or refuse it with a reason.
+
+    Refuses names that are not logs, empty files and files over `max_bytes` without
+    writing anything; what the bytes hold is the ingest's to judge.
+    """
+    if not has_log_suffix(name):
+        return SavedUpload(name, size, reason="not a log: expected a .csv, .csv.gz or .mcap file")
+    if size == 0:
+        return SavedUpload(name, size, reason="empty file (0 bytes): nothing to ingest")
+    if size > max_bytes:
+        return SavedUpload(
+            name, size,
+            reason=(f"too large for the browser upload ({size / 2**20:.0f} MB > {max_bytes / 2**20:.0f} MB): "
+                    f"ingest it from the command line with `laneprint ingest PATH`"))
+    uploads_dir = uploads_dir.resolve()
+    staging = uploads_dir / ".partial"
+    staging.mkdir(parents=True, exist_ok=True)
+    tmp = staging / uuid.uuid4().hex
+    digest = hashlib.sha256()
+    stream.seek(0)
+    with open(tmp, "wb") as out:
+        while chunk := stream.read(_CHUNK):
+            digest.update(chunk)
+            out.write(chunk)
+    folder = uploads_dir / digest.hexdigest()[:16]
+    target = (folder / safe_filename(name)).resolve()
+    if not target.is_relative_to(uploads_dir):  # cannot happen after safe_filename; kept as a guard
+        tmp.unlink(missing_ok=True)
+        return SavedUpload(name, size, reason="refused: file name points outside the workspace")
+    folder.mkdir(exist_ok=True)
+    os.replace(tmp, target)
+    return SavedUpload(name, size, path=target)
+
+
+def clear_partial(uploads_dir: Path) -> None:
+    """Remove half-written uploads left by an interrupted session."""
+    shutil.rmtree(uploads_dir / ".partial", ignore_errors=True)

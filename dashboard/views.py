@@ -1,0 +1,116 @@
+"""Small pure helpers that shape tables for display (no Streamlit, no I/O)."""
+
+from __future__ import annotations
+
+from typing import Any, Iterable
+
+import pandas as pd
+
+from dashboard.uploads import SavedUpload
+
+UPLOAD_COLUMNS = ["file", "status", "reason", "recording_id", "driver_id"]
+RECORDING_COLUMNS = ["recording_id", "driver_id", "session_id", "speed_limit_kph", "format", "n_samples",
+                     "duration_s", "n_presses", "n_vehicles", "status", "warnings", "source_name"]
+
+
+def _file_entries(report: dict[str, Any]) -> list[dict[str, Any]]:
+    """The per-file entries of an `IngestReport.to_dict()` (a list under 'files' or similar)."""
+    for key in ("files", "results", "items"):
+        if isinstance(report.get(key), list):
+            return report[key]
+    return []
+
+
+def upload_rows(saved: Iterable[SavedUpload], report: dict[str, Any] | None) -> pd.DataFrame:
+    """One row per uploaded file: its ingest status and reason, or why it was not even saved."""
+    by_path: dict[str, dict[str, Any]] = {}
+    for entry in _file_entries(report or {}):
+        path = entry.get("path") or entry.get("source_path") or ""
+        by_path[str(path)] = entry
+        by_path.setdefault(str(entry.get("source_name", "")), entry)
+    rows = []
+    for s in saved:
+        if s.path is None:
+            rows.append({"file": s.name, "status": "refused", "reason": s.reason, "recording_id": "",
+                         "driver_id": ""})
+            continue
+        e = by_path.get(str(s.path)) or by_path.get(s.path.name) or {}
+        rows.append({"file": s.name, "status": e.get("status", "unknown"), "reason": e.get("reason") or "",
+                     "recording_id": e.get("recording_id") or "", "driver_id": e.get("driver_id") or ""})
+    return pd.DataFrame(rows, columns=UPLOAD_COLUMNS)
+
+
+def recordings_view(recs: pd.DataFrame) -> pd.DataFrame:
+    """The catalogue columns worth showing, in a stable order."""
+    return recs[[c for c in RECORDING_COLUMNS if c in recs.columns]]
+
+
+def recording_label(row: pd.Series) -> str:
+    """'D03 / session (ab12cd34...)' for a recording picker."""
+    return f"{row['driver_id']} / {row['session_id']} ({str(row['recording_id'])[:8]})"
+
+
+STATUS_COLUMNS = {"t_f": "t_f_status", "t_nf": "t_nf_status", "dv_nb": "dv_nb_status"}
+
+
+def undefined_decisions(decisions: pd.DataFrame, driver_id: str) -> pd.DataFrame:
+    """The driver's presses with at least one undefined indicator, and why each is undefined."""
+    d = decisions[(decisions["driver_id"] == driver_id) & (decisions["label"] == "change")]
+    status = d[list(STATUS_COLUMNS.values())]
+    bad = d[(status != "ok").any(axis=1)]
+    cols = ["session_id", "t_s", "ego_v_mps", *STATUS_COLUMNS.values(), "t_f_s", "t_nf_s", "dv_nb_mps"]
+    return bad[[c for c in cols if c in bad.columns]].reset_index(drop=True)
+
+
+def for_driver(df: pd.DataFrame | None, driver_id: str) -> pd.DataFrame:
+    """Rows of `df` about one driver (all rows when it has no driver column; empty for None)."""
+    if df is None:
+        return pd.DataFrame()
+    for col in ("driver_id", "driver", "name"):
+        if col in df.columns:
+            return df[df[col].astype(str) == driver_id].reset_index(drop=True)
+    return df
+
+
+def drivers_of(tables: dict[str, pd.DataFrame]) -> list[str]:
+    """Driver ids known to the analysis, sorted."""
+    ids: set[str] = set()
+    for name in ("decisions", "styles", "fits"):
+        df = tables.get(name)
+        if df is not None and "driver_id" in df.columns:
+            ids |= set(df["driver_id"].astype(str))
+    return sorted(ids)
+
+
+def style_summary(styles: pd.DataFrame) -> pd.DataFrame:
+    """Per style: number of members, the typical driver and the members."""
+    if styles is None or styles.empty or "style" not in styles:
+        return pd.DataFrame(columns=["style", "drivers", "typical driver", "members"])
+    rows = []
+    for style, g in styles.groupby("style", sort=False):
+        typical = g.loc[g["typical"].astype(bool), "driver_id"].tolist() if "typical" in g else []
+        rows.append({"style": style, "drivers": len(g), "typical driver": ", ".join(map(str, typical)),
+                     "members": ", ".join(sorted(map(str, g["driver_id"])))})
+    return pd.DataFrame(rows)
+
+
+def evaluation_table(evaluation: dict[str, Any]) -> pd.DataFrame:
+    """Agent vs greedy vs driver, one row per policy, from a run's evaluation.json."""
+    for key in ("table", "summary", "rows"):
+        rows = evaluation.get(key)
+        if isinstance(rows, list) and rows and isinstance(rows[0], dict):
+            return pd.DataFrame(rows)
+    policies = {k: v for k, v in evaluation.items() if isinstance(v, dict)
+                and all(not isinstance(x, (dict, list)) for x in v.values())}
+    if policies:
+        return pd.DataFrame.from_dict(policies, orient="index").rename_axis("policy").reset_index()
+    return pd.DataFrame([{k: v for k, v in evaluation.items() if not isinstance(v, (dict, list))}])
+
+
+def compare_runs(tables: dict[str, pd.DataFrame]) -> pd.DataFrame:
+    """Several runs' evaluation tables stacked, with the run id in front."""
+    parts = [t.assign(run_id=rid) for rid, t in tables.items() if len(t)]
+    if not parts:
+        return pd.DataFrame()
+    out = pd.concat(parts, ignore_index=True)
+    return out[["run_id", *[c for c in out.columns if c != "run_id"]]]
