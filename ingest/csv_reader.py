@@ -1,0 +1,223 @@
+"""Read a wide CSV log (plain or gzip) into a `RawLog`, with pyarrow and vectorised reshaping."""
+
+from __future__ import annotations
+
+import csv
+import io
+import re
+import zlib
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+
+from ingest.logformat import CSV_EGO_REQUIRED, CSV_TIME, DEFAULT_LENGTH_M
+from ingest.mapping import Mapping
+from ingest.rawlog import RawLog, Rejected, first_line
+
+_STRING_COLUMNS = ("driver_id", "session_id", "simulator", "lc_direction")
+_EGO_FLOATS = {  # CSV canonical column -> EGO column (positions scaled with position_scale)
+    "ego_x": "ego_x_m", "ego_y": "ego_y_m", "ego_length": "ego_length_m",
+    "ego_v": "ego_v_mps", "ego_lane": "ego_lane",
+    "steer": "steer_rad", "throttle": "throttle", "brake": "brake",
+}
+_POSITIONS = ("ego_x", "ego_y", "ego_length")
+
+
+def gunzip(data: bytes) -> bytes:
+    """Decompress gzip bytes; `Rejected` with the reason when they are not valid gzip."""
+    if data[:2] != b"\x1f\x8b":
+        raise Rejected("not gzip-compressed although the name ends in .gz (no gzip magic bytes at byte 0)")
+    try:
+        d = zlib.decompressobj(wbits=31)
+        out = d.decompress(data)
+        if not d.eof:
+            raise Rejected(f"truncated gzip: the compressed stream ends early ({len(data)} bytes read, "
+                           f"{len(out)} bytes decompressed)")
+        return out
+    except zlib.error as exc:
+        raise Rejected(f"corrupt gzip data: {first_line(exc)}") from None
+
+
+def _header(text: bytes) -> list[str]:
+    nul = text.find(b"\x00", 0, 65536)
+    if nul >= 0:
+        raise Rejected(f"not a text CSV file (binary byte at offset {nul})")
+    end = text.find(b"\n")
+    line = text[: end if end >= 0 else len(text)]
+    try:
+        decoded = line.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise Rejected(f"malformed CSV: the header row is not UTF-8 text (byte {exc.start})") from None
+    names = next(csv.reader([decoded.rstrip("\r")]), [])
+    if not any(n.strip() for n in names):
+        raise Rejected("malformed CSV: the first row (header) is empty")
+    seen: set[str] = set()
+    for n in names:
+        if n in seen:
+            raise Rejected(f"malformed CSV: column {n!r} appears twice in the header")
+        seen.add(n)
+    return names
+
+
+def _missing_reason(missing: list[str], mapping: Mapping) -> str:
+    parts = [f"{c}" + (f" (looked for {mapping.column(c)!r})" if mapping.column(c) != c else "") for c in missing]
+    example = missing[0]
+    return (f"missing required column(s) {', '.join(parts)}: name your column with "
+            f'{example} = "<your column>" under [csv.columns] {mapping.hint()}')
+
+
+def _vehicle_columns(names: list[str], known: set[str], mapping: Mapping) -> dict[str, dict[str, str]]:
+    """Vehicle id -> canonical field -> file column, in the order the vehicles first appear."""
+    rx = re.compile(mapping.traffic_pattern)
+    tokens = mapping.vehicle_field_by_token
+    out: dict[str, dict[str, str]] = {}
+    for name in names:
+        if name in known or name.startswith("ego_"):
+            continue
+        m = rx.match(name)
+        if not m or m.group("field") not in tokens:
+            continue
+        out.setdefault(m.group("id"), {})[tokens[m.group("field")]] = name
+    for vid, cols in out.items():
+        lacking = [f for f in ("x", "v", "lane") if f not in cols]
+        if lacking:
+            have = ", ".join(sorted(cols.values()))
+            raise Rejected(f"traffic vehicle {vid!r} has {have} but no {'/'.join(lacking)} column(s): "
+                           f"every vehicle needs x, v and lane ([csv.traffic] in a --mapping file sets the pattern)")
+    return out
+
+
+def _const(table: pa.Table, column: str, label: str) -> str | float | None:
+    values = [v for v in table.column(column).unique().to_pylist() if v is not None and v == v]
+    if not values:
+        return None
+    if len(values) > 1:
+        shown = ", ".join(map(str, values[:3])) + (", ..." if len(values) > 3 else "")
+        raise Rejected(f"{label} column has several values ({shown}): write one file per recording")
+    return values[0]
+
+
+def read_csv_log(data: bytes, fmt: str, mapping: Mapping) -> RawLog:
+    """Parse CSV bytes (gzip when `fmt` is 'csv.gz') into a `RawLog`; `Rejected` on bad input."""
+    if fmt == "csv.gz":
+        data = gunzip(data)
+        if not data.strip():
+            raise Rejected("empty CSV inside the gzip file")
+    names = _header(data)
+    col = mapping.column
+    required = [CSV_TIME, *CSV_EGO_REQUIRED]
+    missing = [c for c in required if col(c) not in names]
+    if missing:
+        raise Rejected(_missing_reason(missing, mapping))
+
+    canonical_present = {c: col(c) for c in (*_STRING_COLUMNS, "speed_limit_kph", "lc_button", *_EGO_FLOATS, CSV_TIME)
+                         if col(c) in names}
+    known = set(canonical_present.values())
+    vehicles = _vehicle_columns(names, known, mapping)
+
+    types: dict[str, pa.DataType] = {}
+    for c, name in canonical_present.items():
+        types[name] = pa.string() if c in _STRING_COLUMNS else pa.bool_() if c == "lc_button" else pa.float64()
+    for cols in vehicles.values():
+        for name in cols.values():
+            types[name] = pa.float64()
+    include = list(types)
+    try:
+        table = pacsv.read_csv(
+            io.BytesIO(data),
+            read_options=pacsv.ReadOptions(block_size=1 << 22),
+            convert_options=pacsv.ConvertOptions(column_types=types, include_columns=include,
+                                                 strings_can_be_null=True),
+        )
+    except (pa.ArrowInvalid, pa.ArrowTypeError, UnicodeDecodeError) as exc:
+        raise Rejected(f"malformed CSV: {first_line(exc)}") from None
+
+    n = table.num_rows
+    meta = {}
+    for c in ("driver_id", "session_id", "simulator"):
+        meta[c] = _const(table, canonical_present[c], canonical_present[c]) if c in canonical_present else None
+    warnings: list[str] = []
+    if "speed_limit_kph" in canonical_present:
+        try:
+            meta["speed_limit_kph"] = _const(table, canonical_present["speed_limit_kph"], "speed_limit_kph")
+        except Rejected:
+            meta["speed_limit_kph"] = None
+            warnings.append("speed_limit_kph changes within the file; the catalogue leaves it empty")
+    else:
+        meta["speed_limit_kph"] = None
+
+    def floats(name: str) -> np.ndarray:
+        return table.column(name).to_numpy().astype(float, copy=False)
+
+    t_abs = floats(col(CSV_TIME)) * mapping.time_scale
+    ego: dict[str, np.ndarray] = {}
+    for c, target in _EGO_FLOATS.items():
+        if c in canonical_present:
+            a = floats(canonical_present[c])
+            if c in _POSITIONS and mapping.position_scale != 1.0:
+                a = a * mapping.position_scale
+            if c == "ego_v" and mapping.speed_scale != 1.0:
+                a = a * mapping.speed_scale
+            ego[target] = a
+        else:
+            ego[target] = np.full(n, DEFAULT_LENGTH_M if c == "ego_length" else np.nan)
+    has_button = "lc_button" in canonical_present
+    if has_button:
+        ego["lc_button"] = table.column(canonical_present["lc_button"]).fill_null(False).to_numpy(zero_copy_only=False)
+    else:
+        ego["lc_button"] = np.zeros(n, dtype=bool)
+    if "lc_direction" in canonical_present:
+        ego["lc_direction"] = np.asarray(table.column(canonical_present["lc_direction"]).to_pylist(), dtype=object)
+    else:
+        ego["lc_direction"] = np.full(n, None, dtype=object)
+
+    t0 = t_abs[0] if n else 0.0
+    traffic = _long_traffic(table, vehicles, t_abs - t0, mapping)
+    return RawLog(
+        format=fmt, meta=meta, t_abs_s=t_abs, t_s=t_abs - t0, ego=ego, traffic=traffic,
+        locate=lambda i: f"line {i + 2}", time_name=col(CSV_TIME),
+        names={"ego_x_m": col("ego_x"), "ego_v_mps": col("ego_v"), "ego_lane": col("ego_lane")},
+        has_button=has_button, warnings=warnings,
+    )
+
+
+def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.ndarray,
+                  mapping: Mapping) -> dict[str, np.ndarray]:
+    """Wide `<id>_<field>` columns -> long-form arrays, one row per vehicle present per sample."""
+    n = table.num_rows
+    ids = list(vehicles)
+    if not ids or n == 0:
+        empty = np.zeros(0)
+        return {"t_s": empty, "vehicle_id": np.zeros(0, dtype=object), "x_m": empty, "y_m": empty,
+                "v_mps": empty, "lane": empty, "length_m": empty}
+
+    def grid(fld: str, fill: float) -> np.ndarray:
+        g = np.empty((n, len(ids)))
+        for j, vid in enumerate(ids):
+            name = vehicles[vid].get(fld)
+            g[:, j] = table.column(name).to_numpy() if name else fill
+        return g
+
+    x = grid("x", np.nan)
+    rows, cols = np.nonzero(~np.isnan(x))
+    out = {"t_s": t[rows], "vehicle_id": np.asarray(ids, dtype=object)[cols]}
+    for fld, key, fill, scale in (("x", "x_m", np.nan, mapping.position_scale),
+                                  ("v", "v_mps", np.nan, mapping.speed_scale),
+                                  ("lane", "lane", np.nan, 1.0),
+                                  ("y", "y_m", np.nan, mapping.position_scale),
+                                  ("length", "length_m", DEFAULT_LENGTH_M, mapping.position_scale)):
+        g = x if fld == "x" else grid(fld, fill)
+        vals = g[rows, cols]
+        if scale != 1.0:
+            vals = vals * scale
+        out[key] = vals
+    for key, fld in (("v_mps", "v"), ("lane", "lane")):
+        bad = np.isnan(out[key])
+        if bad.any():
+            k = int(np.argmax(bad))
+            vid = out["vehicle_id"][k]
+            raise Rejected(f"traffic vehicle {vid!r}: {vehicles[vid][fld]} is empty at line {rows[k] + 2} "
+                           f"while {vehicles[vid]['x']} is given (a present vehicle needs x, v and lane)")
+    out["length_m"] = np.where(np.isnan(out["length_m"]), DEFAULT_LENGTH_M, out["length_m"])
+    return out

@@ -1,0 +1,354 @@
+"""Read an MCAP log (JSON messages) into a `RawLog`.
+
+Indexed files (chunk indexes + summary) are read through `mcap.reader.SeekingReader`
+and the summary; files without a usable summary (written unchunked, or by a recorder
+that never finished) are read record by record from the start (`StreamReader`). A
+file that ends without the closing footer magic is truncated: it is rejected with
+the byte offset where the last complete record ends (`mcap recover` can salvage it).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from typing import Any, Callable
+
+import numpy as np
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.reader import SeekingReader
+from mcap.stream_reader import StreamReader, breakup_chunk
+
+from ingest.logformat import (
+    DEFAULT_LENGTH_M,
+    NS_PER_S,
+    TOPIC_BUTTON,
+    TOPIC_CONTROLS,
+    TOPIC_EGO,
+    TOPIC_TRAFFIC,
+)
+from ingest.mapping import Mapping
+from ingest.rawlog import RawLog, Rejected, first_line
+
+MAGIC = b"\x89MCAP0\r\n"
+
+
+class _Collected:
+    """Messages grouped by channel, plus the channels and the session metadata."""
+
+    def __init__(self) -> None:
+        self.channels: dict[int, Channel] = {}
+        self.times: dict[int, list[int]] = {}
+        self.datas: dict[int, list[bytes]] = {}
+        self.metadata: dict[str, dict[str, str]] = {}
+
+    def add(self, channel_id: int, log_time: int, data: bytes) -> None:
+        times = self.times.get(channel_id)
+        if times is None:
+            times = self.times[channel_id] = []
+            self.datas[channel_id] = []
+        times.append(log_time)
+        self.datas[channel_id].append(data)
+
+
+def _collect_indexed(data: bytes, meta_name: str) -> _Collected | None:
+    """Read through the summary; None when the file has no usable chunk index."""
+    try:
+        reader = SeekingReader(io.BytesIO(data))
+        summary = reader.get_summary()
+    except Exception:  # a damaged summary: fall back to the linear read, which names the problem
+        return None
+    if summary is None or not summary.chunk_indexes:
+        return None
+    got = _Collected()
+    got.channels = dict(summary.channels)
+    try:
+        for _, channel, msg in reader.iter_messages(log_time_order=False):
+            got.add(channel.id, msg.log_time, msg.data)
+        for md in reader.iter_metadata():
+            got.metadata[md.name] = dict(md.metadata)
+    except Exception as exc:
+        raise Rejected(f"corrupt MCAP: cannot read a chunk listed in the index ({first_line(exc)})") from None
+    return got
+
+
+def _collect_stream(data: bytes) -> _Collected:
+    """Read record by record from the start: for unindexed files and to locate damage."""
+    got = _Collected()
+    bio = io.BytesIO(data)
+    last_end = len(MAGIC)
+    finished = False
+
+    def take(rec: Any) -> None:
+        if isinstance(rec, Message):
+            got.add(rec.channel_id, rec.log_time, rec.data)
+        elif isinstance(rec, Channel):
+            got.channels[rec.id] = rec
+        elif isinstance(rec, Metadata):
+            got.metadata[rec.name] = dict(rec.metadata)
+
+    try:
+        for rec in StreamReader(bio, emit_chunks=True).records:
+            if isinstance(rec, Chunk):
+                for inner in breakup_chunk(rec):
+                    take(inner)
+            elif not isinstance(rec, Schema):
+                take(rec)
+            last_end = bio.tell()
+        finished = True
+    except Exception as exc:
+        truncated = not data.endswith(MAGIC)
+        if truncated and last_end >= len(data):
+            raise Rejected(f"truncated MCAP: the file ends after the last complete record (byte {last_end}) "
+                           f"without a footer; the recorder did not finish it (try `mcap recover`)") from None
+        if truncated:
+            raise Rejected(f"truncated MCAP: stream ended inside a record at byte {last_end} of {len(data)} "
+                           f"(try `mcap recover`)") from None
+        raise Rejected(f"corrupt MCAP: unreadable record at byte {last_end} ({first_line(exc)})") from None
+    assert finished
+    return got
+
+
+def _getter(path: str) -> Callable[[dict], Any]:
+    if "." not in path:
+        return lambda m: m.get(path)
+    parts = path.split(".")
+
+    def get(m: Any) -> Any:
+        for p in parts:
+            if not isinstance(m, dict):
+                return None
+            m = m.get(p)
+        return m
+    return get
+
+
+def _decode(topic: str, datas: list[bytes], times: list[int]) -> list[Any]:
+    """JSON-decode all messages of a topic in one call (falling back to locate a bad one)."""
+    try:
+        return json.loads(b"[" + b",".join(datas) + b"]")
+    except (ValueError, UnicodeDecodeError):
+        for i, d in enumerate(datas):
+            try:
+                json.loads(d)
+            except (ValueError, UnicodeDecodeError) as exc:
+                raise Rejected(f"message {i} on {topic} (log_time {times[i]} ns) is not valid JSON: "
+                               f"{first_line(exc)}") from None
+        raise Rejected(f"messages on {topic} are not valid JSON")
+
+
+def _floats(values: list[Any], scale: float = 1.0) -> np.ndarray:
+    try:
+        a = np.array(values, dtype=float)
+    except (TypeError, ValueError):
+        a = np.array([v if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+                      for v in values], dtype=float)
+    return a * scale if scale != 1.0 else a
+
+
+def read_mcap_log(data: bytes, mapping: Mapping) -> RawLog:
+    """Parse MCAP bytes into a `RawLog`; `Rejected` with a precise reason on bad input."""
+    if not data.startswith(MAGIC):
+        raise Rejected("not an MCAP file: it does not start with the MCAP magic bytes")
+    got = _collect_indexed(data, mapping.metadata_name) if data.endswith(MAGIC) else None
+    if got is None:
+        got = _collect_stream(data)
+
+    by_topic: dict[str, list[int]] = {}
+    for cid, ch in got.channels.items():
+        by_topic.setdefault(ch.topic, []).append(cid)
+
+    def messages(canonical: str, required: bool) -> tuple[list[int], list[bytes]] | None:
+        topic = mapping.topic(canonical)
+        cids = by_topic.get(topic)
+        if not cids:
+            if not required:
+                return None
+            known = ", ".join(sorted(by_topic)) or "none"
+            hint = f'"{canonical}" = "<your topic>" under [mcap.topics] {mapping.hint()}'
+            looked = f" (looked for {topic})" if topic != canonical else ""
+            raise Rejected(f"missing required topic {canonical}{looked}; topics in the file: {known}; map it with {hint}")
+        for cid in cids:
+            enc = got.channels[cid].message_encoding
+            if enc != "json":
+                raise Rejected(f"unknown message encoding {enc!r} on topic {topic}: laneprint decodes JSON "
+                               f"messages only (message_encoding \"json\"); convert the topic to JSON")
+        times: list[int] = []
+        datas: list[bytes] = []
+        for cid in cids:
+            times += got.times.get(cid, [])
+            datas += got.datas.get(cid, [])
+        return times, datas
+
+    ego_raw = messages(TOPIC_EGO, True)
+    traffic_raw = messages(TOPIC_TRAFFIC, True)
+    assert ego_raw is not None and traffic_raw is not None
+    if not ego_raw[0]:
+        raise Rejected(f"no messages on {mapping.topic(TOPIC_EGO)}: the log has no ego samples")
+
+    ego_times = np.asarray(ego_raw[0], dtype=np.int64)
+    order = np.argsort(ego_times, kind="stable")
+    ego_times = ego_times[order]
+    ego_msgs = _decode(mapping.topic(TOPIC_EGO), ego_raw[1], ego_raw[0])
+    if not np.all(order[1:] > order[:-1]):
+        ego_msgs = [ego_msgs[i] for i in order]
+    t0 = int(ego_times[0])
+    t_s = (ego_times - t0) / NS_PER_S
+    t_abs = ego_times / NS_PER_S
+
+    f = lambda fld: mapping.msg_field(TOPIC_EGO, fld)  # noqa: E731
+    ego: dict[str, np.ndarray] = {}
+    for fld, key, scale in (("x", "ego_x_m", mapping.position_scale), ("y", "ego_y_m", mapping.position_scale),
+                            ("v", "ego_v_mps", mapping.speed_scale), ("lane", "ego_lane", 1.0),
+                            ("length", "ego_length_m", mapping.position_scale)):
+        get = _getter(f(fld))
+        vals = _floats([get(m) if isinstance(m, dict) else None for m in ego_msgs], scale)
+        if fld in ("x", "v", "lane") and np.isnan(vals).all():
+            raise Rejected(f"field {f(fld)!r} is absent from every {mapping.topic(TOPIC_EGO)} message: "
+                           f'map it with {fld} = "<your field>" under [mcap.fields."{TOPIC_EGO}"] {mapping.hint()}')
+        ego[key] = vals
+    ego["ego_length_m"] = np.where(np.isnan(ego["ego_length_m"]), DEFAULT_LENGTH_M, ego["ego_length_m"])
+
+    _controls(ego, messages(TOPIC_CONTROLS, False), ego_times, mapping)
+    button = messages(TOPIC_BUTTON, False)
+    _button(ego, button, ego_times, mapping)
+    traffic = _traffic(traffic_raw, t0, mapping)
+
+    meta_rec = got.metadata.get(mapping.metadata_name, {})
+    meta: dict[str, Any] = {k: meta_rec.get(mapping.meta_key(k)) or None
+                            for k in ("driver_id", "session_id", "simulator", "speed_limit_kph")}
+    warnings: list[str] = []
+    if meta["speed_limit_kph"] is not None:
+        try:
+            meta["speed_limit_kph"] = float(meta["speed_limit_kph"])
+        except ValueError:
+            warnings.append(f"speed_limit_kph {meta['speed_limit_kph']!r} in the metadata is not a number; ignored")
+            meta["speed_limit_kph"] = None
+    topic_ego = mapping.topic(TOPIC_EGO)
+    return RawLog(
+        format="mcap", meta=meta, t_abs_s=t_abs, t_s=t_s, ego=ego, traffic=traffic,
+        locate=lambda i: f"message {i} of {topic_ego} (log_time {int(ego_times[i])} ns)",
+        time_name=f"{topic_ego} log_time",
+        names={"ego_x_m": f"{topic_ego}.{f('x')}", "ego_v_mps": f"{topic_ego}.{f('v')}",
+               "ego_lane": f"{topic_ego}.{f('lane')}"},
+        has_button=button is not None, warnings=warnings,
+    )
+
+
+def _asof(ego_times: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Index of the last message at or before each ego sample (-1 when none yet)."""
+    return np.searchsorted(times, ego_times, side="right") - 1
+
+
+def _controls(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | None,
+              ego_times: np.ndarray, mapping: Mapping) -> None:
+    n = len(ego_times)
+    for key in ("steer_rad", "throttle", "brake"):
+        ego[key] = np.full(n, np.nan)
+    if raw is None or not raw[0]:
+        return
+    topic = mapping.topic(TOPIC_CONTROLS)
+    times = np.asarray(raw[0], dtype=np.int64)
+    order = np.argsort(times, kind="stable")
+    msgs = _decode(topic, raw[1], raw[0])
+    idx = _asof(ego_times, times[order])
+    valid = idx >= 0
+    for fld, key in (("steer", "steer_rad"), ("throttle", "throttle"), ("brake", "brake")):
+        get = _getter(mapping.msg_field(TOPIC_CONTROLS, fld))
+        vals = _floats([get(m) if isinstance(m, dict) else None for m in msgs])[order]
+        ego[key][valid] = vals[idx[valid]]
+
+
+def _button(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | None,
+            ego_times: np.ndarray, mapping: Mapping) -> None:
+    """Button state on the ego samples (state of the last message), each press on >= 1 sample."""
+    n = len(ego_times)
+    pressed = np.zeros(n, dtype=bool)
+    direction = np.full(n, None, dtype=object)
+    ego["lc_button"], ego["lc_direction"] = pressed, direction
+    if raw is None or not raw[0]:
+        return
+    topic = mapping.topic(TOPIC_BUTTON)
+    times = np.asarray(raw[0], dtype=np.int64)
+    order = np.argsort(times, kind="stable")
+    msgs = _decode(topic, raw[1], raw[0])
+    get_p = _getter(mapping.msg_field(TOPIC_BUTTON, "pressed"))
+    get_d = _getter(mapping.msg_field(TOPIC_BUTTON, "direction"))
+    states = np.array([bool(get_p(msgs[i])) if isinstance(msgs[i], dict) else False for i in order])
+    dirs = [get_d(msgs[i]) if isinstance(msgs[i], dict) else None for i in order]
+    stimes = times[order]
+    idx = _asof(ego_times, stimes)
+    pressed[idx >= 0] = states[idx[idx >= 0]]
+    prev = np.concatenate([[False], states[:-1]])
+    for k in np.flatnonzero(states & ~prev):
+        i = int(np.searchsorted(ego_times, stimes[k], side="left"))
+        if i < n:
+            pressed[i] = True
+            if dirs[k] is not None:
+                direction[i] = dirs[k]
+
+
+def _traffic(raw: tuple[list[int], list[bytes]], t0: int, mapping: Mapping) -> dict[str, np.ndarray]:
+    topic = mapping.topic(TOPIC_TRAFFIC)
+    times, datas = raw
+    msgs = _decode(topic, datas, times)
+    fld = lambda name: mapping.msg_field(TOPIC_TRAFFIC, name)  # noqa: E731
+    vkey = fld("vehicles")
+    simple = all("." not in fld(k) for k in ("vehicles", "id", "x", "y", "v", "lane", "length"))
+    rows: list[int] = []
+    ids: list[Any] = []
+    xs: list[Any] = []
+    ys: list[Any] = []
+    vs: list[Any] = []
+    lanes: list[Any] = []
+    lengths: list[Any] = []
+    kid, kx, ky, kv, kl, klen = (fld(k) for k in ("id", "x", "y", "v", "lane", "length"))
+    if simple:
+        for i, m in enumerate(msgs):
+            vehicles = m.get(vkey) if isinstance(m, dict) else None
+            if not vehicles:
+                continue
+            rows.extend([i] * len(vehicles))
+            for veh in vehicles:
+                g = veh.get
+                ids.append(g(kid))
+                xs.append(g(kx))
+                ys.append(g(ky))
+                vs.append(g(kv))
+                lanes.append(g(kl))
+                lengths.append(g(klen))
+    else:
+        gv, gid, gx, gy, gvv, gl, glen = (_getter(fld(k)) for k in ("vehicles", "id", "x", "y", "v", "lane", "length"))
+        for i, m in enumerate(msgs):
+            vehicles = gv(m) if isinstance(m, dict) else None
+            for veh in vehicles or []:
+                rows.append(i)
+                ids.append(gid(veh))
+                xs.append(gx(veh))
+                ys.append(gy(veh))
+                vs.append(gvv(veh))
+                lanes.append(gl(veh))
+                lengths.append(glen(veh))
+    t_msg = (np.asarray(times, dtype=np.int64) - t0) / NS_PER_S
+    row_idx = np.asarray(rows, dtype=np.int64)
+    out = {
+        "t_s": t_msg[row_idx] if len(row_idx) else np.zeros(0),
+        "vehicle_id": np.asarray([i if isinstance(i, str) else (None if i is None else str(i)) for i in ids],
+                                 dtype=object),
+        "x_m": _floats(xs, mapping.position_scale),
+        "y_m": _floats(ys, mapping.position_scale),
+        "v_mps": _floats(vs, mapping.speed_scale),
+        "lane": _floats(lanes),
+        "length_m": _floats(lengths, mapping.position_scale),
+    }
+    out["length_m"] = np.where(np.isnan(out["length_m"]), DEFAULT_LENGTH_M, out["length_m"])
+    for key, name in (("vehicle_id", "id"), ("x_m", "x"), ("v_mps", "v"), ("lane", "lane")):
+        bad = (out[key] == None) if key == "vehicle_id" else np.isnan(out[key])  # noqa: E711
+        if np.any(bad):
+            k = int(np.argmax(bad))
+            raise Rejected(f"{topic}: a vehicle without {fld(name)!r} in message {rows[k]} "
+                           f"(log_time {times[rows[k]]} ns); map the field under [mcap.fields.\"{TOPIC_TRAFFIC}\"] "
+                           f"{mapping.hint()}")
+    if len(row_idx) and np.any(np.diff(t_msg) < 0):
+        order = np.argsort(out["t_s"], kind="stable")
+        out = {k: v[order] for k, v in out.items()}
+    return out

@@ -1,0 +1,40 @@
+"""What a reader hands to validation: one log's signals as arrays, before checks.
+
+Readers (`csv_reader`, `mcap_reader`) fill a `RawLog` with canonical names and SI
+units (the mapping already applied); `validate.canonicalise` checks it and turns it
+into the EGO / TRAFFIC tables. A reader that cannot go on raises `Rejected`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+
+class Rejected(Exception):
+    """A log that cannot be ingested; the message is the one-line reason shown to the user."""
+
+
+@dataclass
+class RawLog:
+    """Signals of one log, canonical names, SI units; arrays are aligned on the ego samples."""
+
+    format: str  # 'csv', 'csv.gz' or 'mcap'
+    meta: dict[str, Any]  # driver_id / session_id / speed_limit_kph / simulator found in the file
+    t_abs_s: np.ndarray  # ego sample times as in the file [s] (for messages)
+    t_s: np.ndarray  # ego sample times relative to the first sample [s]
+    ego: dict[str, np.ndarray]  # EGO columns except t_s (floats with NaN where empty)
+    traffic: dict[str, np.ndarray]  # TRAFFIC columns (t_s relative to the first ego sample)
+    locate: Callable[[int], str]  # ego sample index -> where it is in the file ("line 12")
+    time_name: str  # what the time signal is called in the file, for messages
+    names: dict[str, str] = field(default_factory=dict)  # canonical signal -> name in the file
+    has_button: bool = True  # whether the log records the lane-change button at all
+    warnings: list[str] = field(default_factory=list)
+
+
+def first_line(text: str, limit: int = 200) -> str:
+    """The first line of an error text, shortened for a one-line reason."""
+    line = str(text).strip().splitlines()[0] if str(text).strip() else type(text).__name__
+    return line if len(line) <= limit else line[: limit - 3] + "..."

@@ -1,0 +1,160 @@
+"""Checks on a `RawLog` and its conversion into the canonical EGO / TRAFFIC tables.
+
+Every check either passes, adds a warning (the recording is kept), or raises
+`Rejected` with one line saying what is wrong, where, and what fixes it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ingest.mapping import Mapping
+from ingest.rawlog import RawLog, Rejected
+from laneprint.schemas import EGO, TRAFFIC
+
+KMH_MEDIAN_MPS = 45.0  # [m/s] a median ego speed above this (162 km/h) is taken for km/h
+MAX_LANE = 20  # lane indices above this are taken for a wrong column
+
+
+@dataclass
+class Canonical:
+    """A validated recording: catalogue fields, tables and warnings."""
+
+    meta: dict[str, Any]  # driver_id, session_id, speed_limit_kph, simulator
+    ego: pd.DataFrame
+    traffic: pd.DataFrame
+    n_presses: int
+    warnings: list[str]
+
+
+def _check_time(raw: RawLog) -> None:
+    t = raw.t_abs_s
+    if np.isnan(t).any():
+        i = int(np.argmax(np.isnan(t)))
+        raise Rejected(f"time {raw.time_name!r} is empty at {raw.locate(i)}")
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0)
+    if len(bad):
+        i = int(bad[0])
+        more = f" ({len(bad) - 1} more)" if len(bad) > 1 else ""
+        if dt[i] == 0:
+            raise Rejected(f"duplicated time {raw.time_name}={t[i]:.6g} s at {raw.locate(i)} and {raw.locate(i + 1)}"
+                           f"{more}: each sample needs its own time")
+        raise Rejected(f"time not strictly increasing at {raw.locate(i + 1)}: {raw.time_name}={t[i + 1]:.6g} s "
+                       f"after {t[i]:.6g} s{more}; sort the samples by time")
+
+
+def _check_gaps(raw: RawLog) -> None:
+    for key in ("ego_x_m", "ego_v_mps", "ego_lane"):
+        nan = np.isnan(raw.ego[key])
+        if not nan.any():
+            continue
+        edges = np.diff(np.concatenate([[0], nan.astype(np.int8), [0]]))
+        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+        s, e = int(starts[0]), int(stops[0])
+        name = raw.names.get(key, key)
+        more = f" (and {len(starts) - 1} more gap(s), {int(nan.sum())} empty values in all)" if len(starts) > 1 else ""
+        span = (f"at {raw.locate(s)} (t={raw.t_s[s]:.3f} s)" if s == e else
+                f"from {raw.locate(s)} to {raw.locate(e)} (t={raw.t_s[s]:.3f}-{raw.t_s[e]:.3f} s)")
+        raise Rejected(f"gap in required signal {name}: {e - s + 1} empty value(s) {span}{more}; "
+                       f"fill or cut the gap before ingesting")
+
+
+def _check_values(raw: RawLog, mapping: Mapping) -> None:
+    v = raw.ego["ego_v_mps"]
+    med = float(np.median(v))
+    if med > KMH_MEDIAN_MPS:
+        raise Rejected(f"ego speed looks like km/h, not m/s (median {med:.1f}, i.e. {med * 3.6:.0f} km/h if it "
+                       f"were m/s): set speed = \"km/h\" under [units] {mapping.hint()}")
+    lane = raw.ego["ego_lane"]
+    frac = lane != np.round(lane)
+    if frac.any() or (lane < 0).any() or (lane > MAX_LANE).any():
+        i = int(np.argmax(frac | (lane < 0) | (lane > MAX_LANE)))
+        raise Rejected(f"{raw.names.get('ego_lane', 'ego_lane')} must be a lane index 0..{MAX_LANE}, "
+                       f"got {lane[i]:g} at {raw.locate(i)}")
+
+
+def _directions(pressed: np.ndarray, raw_dirs: np.ndarray, warnings: list[str]) -> tuple[np.ndarray, int]:
+    """Directions kept on the press samples only (first one given during the hold)."""
+    n = len(pressed)
+    out = np.full(n, None, dtype=object)
+    edges = np.diff(np.concatenate([[0], pressed.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    odd: set[str] = set()
+    for s, e in zip(starts, stops):
+        for d in raw_dirs[s:e]:
+            if d is None or d != d:
+                continue
+            d = str(d).strip().lower()
+            if d in ("left", "right"):
+                out[s] = d
+                break
+            odd.add(d)
+    if odd:
+        warnings.append(f"lc_direction values {', '.join(sorted(odd))} are not left/right; ignored")
+    return out, len(starts)
+
+
+def resolve_driver(file_id: Any, default: Any, override: str | None, warnings: list[str]) -> str:
+    """The file's own driver id wins; `--driver` fills in when it has none (a conflict warns)."""
+    own = str(file_id).strip() if file_id not in (None, "") else ""
+    if own:
+        if override and override != own:
+            warnings.append(f"file says driver {own!r}; --driver {override!r} ignored for it")
+        return own
+    if override:
+        return override
+    if default not in (None, ""):
+        return str(default)
+    raise Rejected("no driver id: the file has no driver_id (CSV column or MCAP session metadata); "
+                   "give one with --driver ID or a driver_id default under [metadata] in a --mapping file")
+
+
+def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: str | None) -> Canonical:
+    """Check `raw` and build the EGO / TRAFFIC tables; `Rejected` on the first problem."""
+    if len(raw.t_s) == 0:
+        raise Rejected("no samples: the log has a header but no data rows")
+    _check_time(raw)
+    _check_gaps(raw)
+    _check_values(raw, mapping)
+    warnings = list(raw.warnings)
+    meta = dict(raw.meta)
+    meta["driver_id"] = resolve_driver(meta.get("driver_id"), mapping.defaults.get("driver_id"), driver, warnings)
+    meta["session_id"] = str(meta.get("session_id") or mapping.defaults.get("session_id") or session_default)
+    for key in ("speed_limit_kph", "simulator"):
+        if meta.get(key) is None and mapping.defaults.get(key) is not None:
+            meta[key] = mapping.defaults[key]
+    sl = meta.get("speed_limit_kph")
+    meta["speed_limit_kph"] = float(sl) if sl is not None else float("nan")
+    meta["simulator"] = None if meta.get("simulator") is None else str(meta["simulator"])
+
+    e = raw.ego
+    pressed = e["lc_button"].astype(bool)
+    directions, n_presses = _directions(pressed, e["lc_direction"], warnings)
+    if n_presses == 0:
+        warnings.append("no lane-change button presses: the recording holds no decisions"
+                        + ("" if raw.has_button else " (no lc_button signal in the file)"))
+    length = np.where(np.isnan(e["ego_length_m"]), 4.5, e["ego_length_m"])
+    ego = pd.DataFrame({
+        "t_s": raw.t_s, "ego_x_m": e["ego_x_m"], "ego_y_m": e["ego_y_m"], "ego_v_mps": e["ego_v_mps"],
+        "ego_lane": e["ego_lane"].astype(np.int64), "ego_length_m": length,
+        "steer_rad": e["steer_rad"], "throttle": e["throttle"], "brake": e["brake"],
+        "lc_button": pressed, "lc_direction": pd.Series(directions, dtype=object),
+    })
+    tr = raw.traffic
+    lane = tr["lane"]
+    if len(lane) and ((lane != np.round(lane)) | (lane < 0) | (lane > MAX_LANE)).any():
+        k = int(np.argmax((lane != np.round(lane)) | (lane < 0) | (lane > MAX_LANE)))
+        raise Rejected(f"traffic vehicle {tr['vehicle_id'][k]!r} has lane {lane[k]:g} at t={tr['t_s'][k]:.3f} s; "
+                       f"lanes are indices 0..{MAX_LANE}")
+    traffic = pd.DataFrame({
+        "t_s": tr["t_s"], "vehicle_id": pd.Series(tr["vehicle_id"], dtype=object),
+        "x_m": tr["x_m"], "y_m": tr["y_m"], "v_mps": tr["v_mps"],
+        "lane": lane.astype(np.int64), "length_m": tr["length_m"],
+    })
+    return Canonical(meta=meta, ego=ego[EGO.names], traffic=traffic[TRAFFIC.names],
+                     n_presses=n_presses, warnings=warnings)
