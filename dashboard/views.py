@@ -25,7 +25,7 @@ def upload_rows(saved: Iterable[SavedUpload], report: dict[str, Any] | None) -> 
     """One row per uploaded file: its ingest status and reason, or why it was not even saved."""
     by_path: dict[str, dict[str, Any]] = {}
     for entry in _file_entries(report or {}):
-        path = entry.get("path") or entry.get("source_path") or ""
+        path = entry.get("source") or entry.get("path") or entry.get("source_path") or ""
         by_path[str(path)] = entry
         by_path.setdefault(str(entry.get("source_name", "")), entry)
     rows = []
@@ -35,7 +35,8 @@ def upload_rows(saved: Iterable[SavedUpload], report: dict[str, Any] | None) -> 
                          "driver_id": ""})
             continue
         e = by_path.get(str(s.path)) or by_path.get(s.path.name) or {}
-        rows.append({"file": s.name, "status": e.get("status", "unknown"), "reason": e.get("reason") or "",
+        reason = "; ".join(([e["reason"]] if e.get("reason") else []) + list(e.get("warnings") or []))
+        rows.append({"file": s.name, "status": e.get("status", "unknown"), "reason": reason,
                      "recording_id": e.get("recording_id") or "", "driver_id": e.get("driver_id") or ""})
     return pd.DataFrame(rows, columns=UPLOAD_COLUMNS)
 
@@ -69,6 +70,9 @@ def for_driver(df: pd.DataFrame | None, driver_id: str) -> pd.DataFrame:
     for col in ("driver_id", "driver", "name"):
         if col in df.columns:
             return df[df[col].astype(str) == driver_id].reset_index(drop=True)
+    if "id" in df.columns:  # the analysis' skipped table: 'D01' or 'D01:t_nf'
+        ids = df["id"].astype(str)
+        return df[(ids == driver_id) | ids.str.startswith(driver_id + ":")].reset_index(drop=True)
     return df
 
 
@@ -88,7 +92,8 @@ def style_summary(styles: pd.DataFrame) -> pd.DataFrame:
         return pd.DataFrame(columns=["style", "drivers", "typical driver", "members"])
     rows = []
     for style, g in styles.groupby("style", sort=False):
-        typical = g.loc[g["typical"].astype(bool), "driver_id"].tolist() if "typical" in g else []
+        flag = next((c for c in ("is_typical", "typical") if c in g), None)
+        typical = g.loc[g[flag].astype(bool), "driver_id"].tolist() if flag else []
         rows.append({"style": style, "drivers": len(g), "typical driver": ", ".join(map(str, typical)),
                      "members": ", ".join(sorted(map(str, g["driver_id"])))})
     return pd.DataFrame(rows)

@@ -39,7 +39,7 @@ def upload_section(ws) -> None:
     if results is not None and len(results):
         counts = results["status"].value_counts().to_dict()
         summary = ", ".join(f"{n} {s}" for s, n in counts.items())
-        if set(counts) <= {"ingested", "duplicate"}:
+        if set(counts) <= {"ingested", "warning", "duplicate"}:
             st.success(f"Last upload: {summary}")
         else:
             st.warning(f"Last upload: {summary}. Reasons below.")

@@ -1,0 +1,97 @@
+"""Workspaces for the dashboard tests: empty, and a small sample one built once per session."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+from laneprint.workspace import Workspace, atomic_write_json
+
+ROOT = Path(__file__).resolve().parents[2]
+APP = ROOT / "dashboard" / "app.py"
+PAGES = ROOT / "dashboard" / "pages"
+
+
+def page_path(name: str) -> str:
+    return str(PAGES / f"{name}.py")
+
+
+def write_fake_run(ws: Workspace, run_id: str, state: str = "done", episodes: int = 6,
+                   pid: int | None = None, summary: list[dict] | None = None) -> Path:
+    """A run folder as the trainer writes it (config, status, metrics, evaluation)."""
+    d = ws.runs_dir / run_id
+    d.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(d / "config.json", {"target": {"style": "Normal"}, "reward": {"name": "timing"}})
+    atomic_write_json(d / "status.json", {
+        "state": state, "pid": pid, "episode": episodes if state == "done" else 2, "episodes": episodes,
+        "started_at": "2026-11-22T00:00:00+00:00", "updated_at": "2026-11-22T00:01:00+00:00", "message": ""})
+    with open(d / "metrics.jsonl", "w") as fh:
+        for e in range(1, episodes + 1):
+            fh.write(json.dumps({"episode": e, "loss": 1.0 / e, "mean_step_reward": 1.0 + e / 10, "epsilon": 0.8,
+                                 "length": 10, "changed": e % 2 == 0, "return": 5.0, "env_steps": 10 * e,
+                                 "wall_s": 0.1 * e}) + "\n")
+    if state == "done":
+        atomic_write_json(d / "evaluation.json", {"summary": summary or [
+            {"who": "agent", "recall": 0.96, "balanced_accuracy": 0.9, "timing_mae_s": 0.5},
+            {"who": "greedy", "recall": 0.84, "balanced_accuracy": 0.7, "timing_mae_s": 1.5},
+            {"who": "driver", "recall": 1.0, "balanced_accuracy": 1.0, "timing_mae_s": 0.0}]})
+    return d
+
+
+def build_sample_workspace(root: Path) -> Workspace:
+    """Two recordings and an analysis of a synthetic 6-driver study (real stage code, no simulator)."""
+    from clustering.pipeline import analyze_tables
+    from indicators.synthetic import make_decision_table, make_recording
+
+    ws = Workspace(root).ensure()
+    for i, driver in enumerate(["D0000", "D0001"]):
+        meta, ego, traffic = make_recording(
+            20.0, 10.0, 22.0, [(0, 0), (8.0, 1)], presses=[(6.0, 0.5, "left")],
+            vehicles=[("lead", 40.0, 18.0, 0, 4.5), ("nb", -30.0, 20.0, 1, 4.5)],
+            recording_id=f"{i:016x}", driver_id=driver)
+        meta.update(simulator="test", source_name=f"rec{i}.csv", source_path=f"/x/rec{i}.csv", format="csv",
+                    n_samples=len(ego), duration_s=float(ego["t_s"].iloc[-1]), n_presses=1, n_vehicles=2,
+                    status="ok", warnings="", ingested_at="2026-11-22T00:00:00+00:00")
+        ws.write_recording(meta, ego, traffic)
+    decisions, _truth = make_decision_table(6, 12, seed=1)
+    tables = analyze_tables(decisions)
+    ws.write_tables("analysis", tables, {"settings": {"k": 3}})
+    write_fake_run(ws, "Normal-old-0001")
+    write_fake_run(ws, "Normal-old-0002")
+    return ws
+
+
+@pytest.fixture(scope="session")
+def sample_ws(tmp_path_factory) -> Workspace:
+    return build_sample_workspace(tmp_path_factory.mktemp("sample_ws"))
+
+
+@pytest.fixture
+def empty_ws(tmp_path, monkeypatch) -> Workspace:
+    ws = Workspace(tmp_path / "ws")
+    monkeypatch.setenv("LANEPRINT_WORKSPACE", str(ws.root))
+    return ws
+
+
+@pytest.fixture
+def use_sample(sample_ws, monkeypatch) -> Workspace:
+    monkeypatch.setenv("LANEPRINT_WORKSPACE", str(sample_ws.root))
+    return sample_ws
+
+
+def log_bytes(tmp_path: Path, driver_id: str | None = "D77", fmt: str = "csv", seed: int = 0) -> bytes:
+    """A small valid log (one press, two traffic cars) as the bytes of a CSV or MCAP file."""
+    from indicators.synthetic import make_recording
+    from ingest.writers import write_csv, write_mcap
+
+    meta, ego, traffic = make_recording(
+        12.0, 10.0, 21.0 + seed, [(0, 0), (6.0, 1)], presses=[(4.0, 0.5, "left")],
+        vehicles=[("lead", 35.0, 17.0, 0, 4.5), ("nb", -25.0, 19.0, 1, 4.5)],
+        recording_id=f"s{seed}", driver_id=driver_id or "")
+    meta = {k: v for k, v in meta.items() if k != "recording_id" and (k != "driver_id" or driver_id)}
+    path = tmp_path / f"log_{seed}.{fmt}"
+    (write_csv if fmt == "csv" else write_mcap)(path, meta, ego, traffic)
+    return path.read_bytes()

@@ -1,0 +1,106 @@
+"""Each page under Streamlit's AppTest, on an empty and on a sample workspace."""
+
+import json
+
+import pytest
+from streamlit.testing.v1 import AppTest
+
+from conftest import APP, log_bytes, page_path
+
+PAGES = ["data", "drivers", "styles", "training", "results"]
+
+
+def run_page(name: str) -> AppTest:
+    at = AppTest.from_file(page_path(name), default_timeout=60).run()
+    assert not at.exception, [e.value for e in at.exception]
+    return at
+
+
+def charts(at: AppTest) -> list[dict]:
+    return [json.loads(el.proto.spec) for el in at.get("plotly_chart")]
+
+
+@pytest.mark.parametrize("name", PAGES)
+def test_page_on_empty_workspace(empty_ws, name):
+    at = run_page(name)
+    assert at.title[0].value == name.capitalize()
+    if name != "training":
+        assert at.info, "an empty workspace should say what to do first"
+
+
+def test_navigation_runs_default_page(empty_ws):
+    at = AppTest.from_file(str(APP), default_timeout=60).run()
+    assert not at.exception
+    assert at.title[0].value == "Data"
+
+
+def test_data_page_lists_recordings_and_views_one(use_sample):
+    at = run_page("data")
+    assert at.subheader[1].value == "Recordings (2)"
+    assert at.selectbox(key="recording").options[0].startswith("D0000 / ")
+    fig = charts(at)[0]
+    assert fig["layout"]["yaxis"]["title"]["text"] == "ego speed [m/s]"
+
+
+def test_drivers_page_shows_three_indicators(use_sample):
+    at = run_page("drivers")
+    assert at.selectbox(key="driver").value == "D0000"
+    figs = charts(at)
+    assert len(figs) == 3
+    for fig in figs:
+        assert "[" in fig["layout"]["xaxis"]["title"]["text"]  # units on the axis
+    at.selectbox(key="driver").set_value("D0004").run()
+    assert not at.exception and "D0004" in at.markdown[0].value
+
+
+def test_styles_page_summary(use_sample):
+    at = run_page("styles")
+    summary = at.dataframe[0].value
+    assert summary["drivers"].sum() == 6
+    assert set(summary["style"]) <= {"Defensive", "Normal", "Aggressive"}
+
+
+def test_results_page_compares_two_runs(use_sample):
+    at = run_page("results")
+    table = at.dataframe[0].value
+    assert table["who"].tolist() == ["agent", "greedy", "driver"]
+    assert at.dataframe[1].value["run_id"].nunique() == 2
+
+
+def test_training_page_defaults_from_table2(use_sample):
+    at = run_page("training")
+    assert at.number_input(key="episodes").value >= 1
+    assert at.selectbox(key="target_name").options == ["Defensive", "Normal", "Aggressive"] or \
+        len(at.selectbox(key="target_name").options) >= 2
+    assert "Normal-old-0001" in at.dataframe[0].value["run_id"].tolist()
+
+
+def test_upload_ingests_and_refuses_with_reasons(empty_ws, tmp_path):
+    at = run_page("data")
+    good = log_bytes(tmp_path, driver_id=None)
+    at.file_uploader[0].set_value([
+        ("drive one.csv", good, "text/csv"),
+        ("../../../escape.csv", log_bytes(tmp_path, driver_id="D05", seed=1), "text/csv"),
+        ("empty.csv", b"", "text/csv"),
+        ("notes.txt", b"hello", "text/plain"),
+        ("garbage.mcap", b"not an mcap file at all", "application/octet-stream"),
+    ]).run()
+    at.text_input(key="driver_id").set_value("D11").run()
+    at.button(key="ingest").click().run()
+    assert not at.exception, [e.value for e in at.exception]
+    rows = at.dataframe[0].value.set_index("file")
+    assert rows.loc["drive one.csv", "status"] == "ingested" and rows.loc["drive one.csv", "driver_id"] == "D11"
+    assert rows.loc["../../../escape.csv", "status"] == "warning"  # the file names D05, not D11
+    assert "D05" in rows.loc["../../../escape.csv", "reason"]
+    assert rows.loc["empty.csv", "status"] == "refused" and "empty" in rows.loc["empty.csv", "reason"]
+    assert rows.loc["notes.txt", "reason"].startswith("not a log")
+    assert rows.loc["garbage.mcap", "status"] == "rejected" and rows.loc["garbage.mcap", "reason"]
+    assert at.warning, "a partly refused upload is a warning"
+    saved = sorted(p.relative_to(empty_ws.root).parts[0] for p in empty_ws.root.rglob("escape.csv"))
+    assert saved == ["uploads"]
+    assert not (empty_ws.root.parent / "escape.csv").exists()
+    assert at.subheader[1].value == "Recordings (2)"
+    # the same bytes again: a duplicate, not a second recording
+    at.file_uploader[0].set_value([("again.csv", good, "text/csv")]).run()
+    at.button(key="ingest").click().run()
+    assert at.dataframe[0].value["status"].tolist() == ["duplicate"]

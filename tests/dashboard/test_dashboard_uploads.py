@@ -1,0 +1,47 @@
+import io
+
+import pytest
+
+from dashboard.uploads import has_log_suffix, safe_filename, save_upload
+
+
+@pytest.mark.parametrize("name, expected", [
+    ("rec.csv", "rec.csv"),
+    ("../../x.csv", "x.csv"),
+    ("..\\..\\evil.mcap", "evil.mcap"),
+    ("/etc/passwd", "passwd"),
+    (".hidden.csv", "hidden.csv"),
+    ("a b;rm -rf.csv.gz", "a_b_rm_-rf.csv.gz"),
+    ("", "upload"),
+    ("..", "upload"),
+    ("../", "upload"),
+])
+def test_safe_filename(name, expected):
+    assert safe_filename(name) == expected
+
+
+def test_has_log_suffix():
+    assert [has_log_suffix(n) for n in ("a.CSV", "a.csv.gz", "b.mcap", "c.txt", "d.gz")] == [
+        True, True, True, False, False]
+
+
+def test_traversal_name_stays_inside(tmp_path):
+    updir = tmp_path / "ws" / "uploads"
+    s = save_upload("../../../x.csv", 3, io.BytesIO(b"a,b"), updir, 1000)
+    assert s.path is not None and s.path.is_relative_to(updir.resolve())
+    assert s.path.name == "x.csv" and s.path.read_bytes() == b"a,b"
+    assert not (tmp_path / "x.csv").exists()
+    assert sorted(p.name for p in tmp_path.rglob("x.csv")) == ["x.csv"]
+
+
+def test_same_bytes_same_place_and_refusals(tmp_path):
+    a = save_upload("r.csv", 3, io.BytesIO(b"abc"), tmp_path, 1000)
+    b = save_upload("r.csv", 3, io.BytesIO(b"abc"), tmp_path, 1000)
+    c = save_upload("r.csv", 3, io.BytesIO(b"abd"), tmp_path, 1000)
+    assert a.path == b.path != c.path
+    assert save_upload("e.csv", 0, io.BytesIO(b""), tmp_path, 1000).reason.startswith("empty file")
+    big = save_upload("big.mcap", 2000, io.BytesIO(b"x" * 2000), tmp_path, 1000)
+    assert big.path is None and "laneprint ingest" in big.reason
+    txt = save_upload("notes.txt", 3, io.BytesIO(b"abc"), tmp_path, 1000)
+    assert txt.path is None and txt.reason.startswith("not a log")
+    assert not list((tmp_path / ".partial").iterdir())

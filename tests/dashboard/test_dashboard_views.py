@@ -1,0 +1,48 @@
+from pathlib import Path
+
+import pandas as pd
+
+from dashboard import views
+from dashboard.uploads import SavedUpload
+
+
+def test_upload_rows_joins_report_by_path():
+    saved = [SavedUpload("a.csv", 3, Path("/w/uploads/h1/a.csv")), SavedUpload("e.csv", 0, None, "empty file"),
+             SavedUpload("b.mcap", 5, Path("/w/uploads/h2/b.mcap"))]
+    report = {"files": [
+        {"path": "/w/uploads/h1/a.csv", "status": "ingested", "reason": "", "recording_id": "r1", "driver_id": "D1"},
+        {"path": "/w/uploads/h2/b.mcap", "status": "rejected", "reason": "no /ego/state topic"}]}
+    rows = views.upload_rows(saved, report)
+    assert rows["status"].tolist() == ["ingested", "refused", "rejected"]
+    assert rows["reason"].tolist() == ["", "empty file", "no /ego/state topic"]
+    assert rows["recording_id"].tolist() == ["r1", "", ""]
+
+
+def test_undefined_decisions_lists_only_presses_with_a_reason():
+    dec = pd.DataFrame({
+        "driver_id": ["D1", "D1", "D1", "D2"], "label": ["change", "change", "keep", "change"],
+        "session_id": "s", "t_s": [1.0, 2.0, 0.5, 3.0], "ego_v_mps": 20.0,
+        "t_f_status": ["ok", "not_closing", "absent", "absent"], "t_nf_status": ["ok", "ok", "ok", "ok"],
+        "dv_nb_status": ["ok", "ok", "ok", "ok"]})
+    bad = views.undefined_decisions(dec, "D1")
+    assert bad["t_s"].tolist() == [2.0] and bad["t_f_status"].tolist() == ["not_closing"]
+
+
+def test_style_summary_and_for_driver():
+    styles = pd.DataFrame({"driver_id": ["D1", "D2", "D3"], "style": ["Normal", "Normal", "Aggressive"],
+                           "is_typical": [False, True, True]})
+    s = views.style_summary(styles)
+    assert s.to_dict("records") == [
+        {"style": "Normal", "drivers": 2, "typical driver": "D2", "members": "D1, D2"},
+        {"style": "Aggressive", "drivers": 1, "typical driver": "D3", "members": "D3"}]
+    skipped = pd.DataFrame({"what": ["driver", "indicator", "indicator"], "id": ["D1", "D1:t_nf", "D10:t_f"],
+                            "reason": ["a", "b", "c"]})
+    assert views.for_driver(skipped, "D1")["reason"].tolist() == ["a", "b"]
+
+
+def test_evaluation_table_from_summary_and_compare():
+    ev = {"summary": [{"who": "agent", "recall": 0.9}, {"who": "greedy", "recall": 0.8}], "n_decisions": 3}
+    t = views.evaluation_table(ev)
+    assert t["who"].tolist() == ["agent", "greedy"]
+    both = views.compare_runs({"r1": t, "r2": t.head(1)})
+    assert both["run_id"].tolist() == ["r1", "r1", "r2"] and list(both.columns)[:2] == ["run_id", "who"]
