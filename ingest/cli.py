@@ -1,9 +1,70 @@
-"""Command-line entry of this stage (placeholder until the stage lands)."""
+"""`laneprint ingest PATH... [--driver ID] [--mapping FILE]`: store logs in the workspace."""
 
-from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt
-from laneprint.errors import UserError
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
+from ingest.mapping import load_mapping
+from laneprint.workspace import Workspace
+
+_STYLE = {"ingested": "green", "warning": "yellow", "duplicate": "cyan", "rejected": "red", "skipped": "dim"}
 
 
-def ingest_command(workspace: WorkspaceOpt = DEFAULT_WS, as_json: JsonOpt = False) -> None:
-    """Not implemented yet."""
-    raise UserError("this command is not implemented yet")
+def ingest_result(paths: list[Path], driver: str | None, mapping: Path | None, workspace: Path,
+                  show_progress: bool) -> dict[str, Any]:
+    """Run the ingest and return the JSON-ready report (exit_code 1 when nothing could be processed)."""
+    from ingest.pipeline import check_paths, ingest_paths
+
+    load_mapping(mapping)  # a bad mapping file is one error line, before any bar is drawn
+    check_paths(paths)
+    with progress_bar(show_progress) as progress:
+        report = ingest_paths(paths, Workspace(workspace), driver_id=driver, mapping=mapping, progress=progress)
+    out = report.to_dict()
+    counts = out["counts"]
+    processed = counts["ingested"] + counts["warning"] + counts["duplicate"] + counts["rejected"]
+    if processed == 0:
+        out["exit_code"] = 1
+        out["error"] = "no log files found (.csv, .csv.gz or .mcap) under the given paths"
+    return out
+
+
+def render_ingest(result: dict[str, Any], console: Console) -> None:
+    """The human summary: one row per file, then the counts."""
+    table = Table(title=f"ingest into {result['workspace']}", show_lines=False)
+    for col in ("file", "status", "driver", "session", "samples", "reason / warnings"):
+        table.add_column(col, overflow="fold")
+    shown = [f for f in result["files"] if f["status"] != "skipped"]
+    for f in shown:
+        note = f["reason"] or "; ".join(f["warnings"])
+        if f["reason"] and f["warnings"]:
+            note += " (" + "; ".join(f["warnings"]) + ")"
+        style = _STYLE.get(f["status"], "")
+        table.add_row(Path(f["source"]).name, f"[{style}]{f['status']}[/]", f["driver_id"], f["session_id"],
+                      str(f["n_samples"] or ""), note)
+    if shown:
+        console.print(table)
+    c = result["counts"]
+    console.print(f"{c['ingested']} ingested, {c['warning']} ingested with warnings, {c['duplicate']} duplicate, "
+                  f"{c['rejected']} rejected, {c['skipped']} skipped (not logs)", highlight=False)
+    if result.get("error"):
+        console.print(f"error: {result['error']}", markup=False, highlight=False)
+
+
+def ingest_command(
+    paths: Annotated[list[Path], typer.Argument(help="Log files (.csv, .csv.gz, .mcap) or folders to walk.")],
+    driver: Annotated[Optional[str], typer.Option(
+        "--driver", help="Driver id for files that carry none (a file's own id wins; a conflict warns).")] = None,
+    mapping: Annotated[Optional[Path], typer.Option(
+        "--mapping", help="TOML/YAML file mapping your column/topic/field names and units onto the log format.")] = None,
+    workspace: WorkspaceOpt = DEFAULT_WS,
+    as_json: JsonOpt = False,
+) -> None:
+    """Read, validate and store simulator logs in the workspace."""
+    run_command(lambda: ingest_result(paths, driver, mapping, workspace, show_progress=not as_json),
+                as_json, render_ingest)

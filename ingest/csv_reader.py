@@ -60,6 +60,15 @@ def _header(text: bytes) -> list[str]:
     return names
 
 
+def _ragged_line(data: bytes, n_fields: int) -> str | None:
+    """'line N has M fields, the header has K' for the first ragged row (error path only)."""
+    text = data.decode("utf-8", errors="replace").splitlines()
+    for lineno, row in enumerate(csv.reader(text), start=1):
+        if row and len(row) != n_fields:
+            return f"line {lineno} has {len(row)} fields, the header has {n_fields}"
+    return None
+
+
 def _missing_reason(missing: list[str], mapping: Mapping) -> str:
     parts = [f"{c}" + (f" (looked for {mapping.column(c)!r})" if mapping.column(c) != c else "") for c in missing]
     example = missing[0]
@@ -131,7 +140,7 @@ def read_csv_log(data: bytes, fmt: str, mapping: Mapping) -> RawLog:
                                                  strings_can_be_null=True),
         )
     except (pa.ArrowInvalid, pa.ArrowTypeError, UnicodeDecodeError) as exc:
-        raise Rejected(f"malformed CSV: {first_line(exc)}") from None
+        raise Rejected(f"malformed CSV: {_ragged_line(data, len(names)) or first_line(exc)}") from None
 
     n = table.num_rows
     meta = {}

@@ -248,6 +248,17 @@ class _Batch:
         return result
 
 
+def check_paths(paths: list[Path]) -> list[Path]:
+    """`UserError` when no path is given or none exists (nothing to process at all)."""
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise UserError("no paths given: name log files or folders to ingest")
+    if not any(p.exists() for p in paths):
+        missing = ", ".join(str(p) for p in paths[:3]) + (" ..." if len(paths) > 3 else "")
+        raise UserError(f"no such file or folder: {missing}")
+    return paths
+
+
 def ingest_paths(paths: list[Path], workspace: Workspace, driver_id: str | None = None,
                  mapping: Path | None = None, progress: ProgressFn | None = None) -> IngestReport:
     """Ingest every log under `paths` into `workspace`; a report with one result per file.
@@ -255,12 +266,7 @@ def ingest_paths(paths: list[Path], workspace: Workspace, driver_id: str | None 
     Raises `UserError` only when nothing can be done at all (no path exists, a bad
     mapping file, a workspace that is a file).
     """
-    paths = [Path(p) for p in paths]
-    if not paths:
-        raise UserError("no paths given: name log files or folders to ingest")
-    if not any(p.exists() for p in paths):
-        missing = ", ".join(str(p) for p in paths[:3]) + (" ..." if len(paths) > 3 else "")
-        raise UserError(f"no such file or folder: {missing}")
+    paths = check_paths(paths)
     the_mapping = load_mapping(mapping)
     ws = workspace.ensure()
     batch = _Batch(ws, the_mapping, driver_id.strip() if driver_id and driver_id.strip() else None)
