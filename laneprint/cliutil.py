@@ -39,7 +39,7 @@ def run_command(work: Callable[[], dict[str, Any]], as_json: bool,
     try:
         result = work()
     except UserError as exc:
-        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        err_console.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(1) from None
     except KeyboardInterrupt:
         err_console.print("interrupted", markup=False)
