@@ -1,9 +1,80 @@
-"""Command-line entry of this stage (placeholder until the stage lands)."""
+"""`laneprint analyze`: decisions, per-driver statistics and styles of a workspace."""
 
-from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
 from laneprint.errors import UserError
+from laneprint.workspace import Workspace
 
 
-def analyze_command(workspace: WorkspaceOpt = DEFAULT_WS, as_json: JsonOpt = False) -> None:
-    """Not implemented yet."""
-    raise UserError("this command is not implemented yet")
+def _fmt(x: Any, spec: str = ".3g") -> str:
+    return "-" if x is None else format(x, spec)
+
+
+def render(result: dict[str, Any], console: Console) -> None:
+    """Human summary of an analysis report."""
+    s = result["summary"]
+    console.print(f"[bold]analysis[/bold] of {s['n_drivers']} driver(s): {s['n_presses']} presses, "
+                  f"{s['n_keep_states']} keep states, {s['n_skipped']} skipped item(s)")
+    share = s["share_significant"]
+    console.print("drivers with a significant linear correlation with speed: "
+                  + ", ".join(f"{k} {_fmt(None if v is None else 100 * v, '.0f')} %" for k, v in share.items())
+                  + f"; all three {_fmt(None if s['share_drivers_all_significant'] is None else 100 * s['share_drivers_all_significant'], '.0f')} %")
+    table = Table(title="drivers")
+    for col in ("driver", "presses", "style", "conf.", "typical", "t_f A / b", "t_nf A / b", "dv_nb A / b"):
+        table.add_column(col)
+    for d, info in result["drivers"].items():
+        fits = {f["indicator"]: f for f in info["fits"]}
+        cells = []
+        for ind in ("t_f", "t_nf", "dv_nb"):
+            f = fits.get(ind)
+            cells.append(f"{f['A']:.2f} / {f['b']:.2f}" if f and f["status"] == "ok" else "skipped")
+        table.add_row(d, str(info["n_decisions"]), info["style"], f"{info['confidence']:.2f}",
+                      "yes" if info["is_typical"] else "", *cells)
+    console.print(table)
+    for name, st in result["styles"].items():
+        lines = [ln for ln in st["reference_lines"] if ln["kind"] == "typical"]
+        txt = ", ".join(f"{ln['indicator']} = {ln['A']:.2f} v + {ln['b']:.2f}" for ln in lines)
+        console.print(f"[bold]{name}[/bold] ({len(st['members'])}): typical {', '.join(st['typical'])}: {txt}")
+    if result["skipped"]:
+        console.print(f"skipped ({len(result['skipped'])}), first ones:")
+        for row in result["skipped"][:8]:
+            console.print(f"  {row['what']} {row['id']}: {row['reason']}", markup=False, highlight=False)
+    console.print(f"stored in {result['workspace']}/analysis")
+
+
+def analyze_command(
+    workspace: WorkspaceOpt = DEFAULT_WS,
+    as_json: JsonOpt = False,
+    k: Annotated[int, typer.Option("--k", help="Number of styles.", min=1)] = 3,
+    choose_k: Annotated[Optional[str], typer.Option("--choose-k", help="Choose k by 'silhouette' or 'bic'.")] = None,
+    far_follower_m: Annotated[float, typer.Option("--far-follower-m", help="Target-lane follower beyond this gap has no influence [m].")] = 100.0,
+    step_s: Annotated[float, typer.Option("--step-s", help="Spacing of the 'not yet' states before a press [s].")] = 0.5,
+    feature_fit: Annotated[str, typer.Option("--feature-fit", help="Line fit for the clustering features: theilsen, huber or ols.")] = "theilsen",
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the clustering.")] = 0,
+) -> None:
+    """Indicators at every decision, per-driver correlations and fits, styles and reference lines."""
+    from clustering.pipeline import analyze
+    from indicators.settings import AnalysisSettings
+
+    def work() -> dict[str, Any]:
+        if choose_k not in (None, "silhouette", "bic"):
+            raise UserError(f"--choose-k must be 'silhouette' or 'bic', not {choose_k!r}")
+        if feature_fit not in ("theilsen", "huber", "ols"):
+            raise UserError(f"--feature-fit must be theilsen, huber or ols, not {feature_fit!r}")
+        if step_s <= 0:
+            raise UserError("--step-s must be positive")
+        settings = AnalysisSettings(k=k, choose_k=choose_k, far_follower_m=far_follower_m, step_s=step_s,
+                                    feature_fit=feature_fit, random_state=seed)
+        ws = Workspace(Path(workspace))
+        with progress_bar(enabled=not as_json) as progress:
+            return analyze(ws, settings, progress)
+
+    run_command(work, as_json, render)

@@ -1,0 +1,267 @@
+"""The analysis stage wired together.
+
+`analyze_tables(decisions, settings)` is everything after decision extraction and
+is pure (frames in, frames out). `analyze(workspace, settings, progress)` reads the
+workspace's recordings, extracts decisions, calls `analyze_tables`, stores the
+`analysis/` stage folder in one swap and returns a JSON-ready report.
+"""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+import laneprint
+from clustering.features import driver_features, feature_names, transform_features
+from clustering.styles import StyleClusterer
+from indicators.decisions import empty_decisions, extract_decisions
+from indicators.settings import AnalysisSettings
+from indicators.stats import INDICATORS, correlate, fit_lines, fit_pooled, indicator_points
+from laneprint.errors import UserError
+from laneprint.progress import ProgressFn, report
+from laneprint.reference import PAPER_TABLE1
+from laneprint.schemas import DECISIONS, REFERENCE_LINES
+from laneprint.workspace import Workspace
+
+SKIPPED_COLUMNS = ["what", "id", "reason"]
+STYLE_COLUMNS = ["driver_id", "style", "cluster", "confidence", "margin", "is_typical", "n_decisions",
+                 "defensiveness", "assigned_by", "note"]
+REF_COLUMNS = REFERENCE_LINES.names
+
+
+def _n_decisions(decisions: pd.DataFrame, drivers: list[str]) -> pd.Series:
+    presses = decisions[decisions["label"] == "change"]
+    return presses.groupby("driver_id")["decision_id"].nunique().reindex(drivers, fill_value=0).astype(int)
+
+
+def assign_styles(feats: pd.DataFrame, notes: dict[str, list[str]], n_dec: pd.Series, fits: pd.DataFrame,
+                  settings: AnalysisSettings) -> tuple[pd.DataFrame, StyleClusterer | None, list[dict[str, str]]]:
+    """Cluster drivers with enough presses, assign the rest to the nearest centre, pick typical drivers."""
+    skipped: list[dict[str, str]] = []
+    usable = feats.notna().any(axis=1)
+    enough = n_dec.reindex(feats.index) >= settings.min_cluster_decisions
+    fit_on = feats.index[usable & enough]
+    if len(fit_on) == 0:  # few presses everywhere: cluster whoever has features
+        fit_on = feats.index[usable]
+    styles = pd.DataFrame({"driver_id": feats.index.astype(str), "style": "unassigned", "cluster": -1,
+                           "confidence": 0.0, "margin": 0.0, "is_typical": False,
+                           "n_decisions": n_dec.reindex(feats.index).to_numpy(), "defensiveness": np.nan,
+                           "assigned_by": "none", "note": [("; ".join(notes.get(d, []))) for d in feats.index]})
+    styles = styles.set_index("driver_id", drop=False)
+    for d in feats.index[~usable]:
+        skipped.append({"what": "driver", "id": str(d), "reason": "no style: no defined values of "
+                        + "/".join(settings.feature_indicators) + " at any press"})
+    if len(fit_on) == 0:
+        return styles.reset_index(drop=True), None, skipped
+    Xt = transform_features(feats, settings)
+    clf = StyleClusterer(k=settings.k, choose_k=settings.choose_k, k_range=settings.k_range,
+                         n_init=settings.n_init, random_state=settings.random_state).fit(Xt.loc[fit_on])
+    rows = feats.index[usable]
+    labels, conf, margin = clf.predict_confidence(Xt.loc[rows])
+    Z = clf._standardise(Xt.loc[rows][clf.feature_names_in_])
+    ttc = np.array([c.endswith("_s") for c in clf.feature_names_in_])
+    defn = Z[:, ttc].mean(axis=1) if ttc.any() else Z.mean(axis=1)
+    styles.loc[rows, "cluster"] = labels
+    styles.loc[rows, "style"] = [clf.names_[i] for i in labels]
+    styles.loc[rows, "confidence"] = conf
+    styles.loc[rows, "margin"] = margin
+    styles.loc[rows, "defensiveness"] = defn
+    fitted = set(fit_on)
+    styles.loc[rows, "assigned_by"] = ["clustered" if d in fitted else "nearest centre" for d in rows]
+    for d in rows:
+        if d not in fitted:
+            styles.loc[d, "note"] = "; ".join(filter(None, [styles.loc[d, "note"],
+                                     f"only {n_dec[d]} presses: assigned to the nearest centre"]))
+    # typical driver: nearest the centre among members with enough presses and all fits ok
+    dist = pd.Series(clf.distances(Xt.loc[rows]).min(axis=1), index=rows)
+    ok_fits = fits[fits["status"] == "ok"].groupby("driver_id")["indicator"].nunique()
+    for c in range(clf.k_):
+        members = [d for d, lab in zip(rows, labels) if lab == c]
+        if not members:
+            continue
+        def rank(d: str) -> tuple:
+            return (-int(n_dec[d] >= settings.min_typical_decisions), -int(ok_fits.get(d, 0)), float(dist[d]))
+        styles.loc[min(members, key=rank), "is_typical"] = True
+    styles["cluster"] = styles["cluster"].astype("int64")
+    styles["n_decisions"] = styles["n_decisions"].astype("int64")
+    styles["is_typical"] = styles["is_typical"].astype(bool)
+    return styles.reset_index(drop=True), clf, skipped
+
+
+def reference_lines(styles: pd.DataFrame, fits: pd.DataFrame, points: pd.DataFrame,
+                    settings: AnalysisSettings) -> tuple[pd.DataFrame, list[dict[str, str]]]:
+    """Per style the typical driver's and the pooled lines, per driver its own, plus Table 1."""
+    rows, skipped = [], []
+    ok = fits[fits["status"] == "ok"].set_index(["driver_id", "indicator"])
+
+    def from_fit(scope: str, name: str, kind: str, ind: str, f: Any, source: str) -> dict[str, Any]:
+        return {"scope": scope, "name": name, "kind": kind, "indicator": ind, "A": float(f["A"]),
+                "b": float(f["b"]), "A_lo": float(f["A_lo"]), "A_hi": float(f["A_hi"]), "b_lo": float(f["b_lo"]),
+                "b_hi": float(f["b_hi"]), "r2": float(f["r2"]), "n": int(f["n"]), "source": source}
+
+    assigned = styles[styles["cluster"] >= 0]
+    for style, members in assigned.sort_values("cluster").groupby("style", sort=False):
+        typical = members[members["is_typical"]]["driver_id"].tolist()
+        drivers = members["driver_id"].tolist()
+        for ind in INDICATORS:
+            if typical and (typical[0], ind) in ok.index:
+                rows.append(from_fit("style", style, "typical", ind, ok.loc[(typical[0], ind)],
+                                     f"typical driver {typical[0]}"))
+            else:
+                skipped.append({"what": "reference_line", "id": f"{style}:typical:{ind}",
+                                "reason": f"typical driver {typical[0] if typical else '-'} has no {ind} fit"})
+            fit, why = fit_pooled(points, drivers, ind, settings)
+            if fit is not None:
+                rows.append(from_fit("style", style, "pooled", ind, fit.__dict__,
+                                     f"pooled over {len(drivers)} driver(s)"))
+            else:
+                skipped.append({"what": "reference_line", "id": f"{style}:pooled:{ind}", "reason": why})
+    for (drv, ind), f in ok.iterrows():
+        rows.append(from_fit("driver", str(drv), "driver", ind, f, f"driver {drv}"))
+    for style, lines in PAPER_TABLE1.items():
+        for ind, (A, b) in lines.items():
+            rows.append({"scope": "style", "name": style, "kind": "paper", "indicator": ind, "A": A, "b": b,
+                         "A_lo": np.nan, "A_hi": np.nan, "b_lo": np.nan, "b_hi": np.nan, "r2": np.nan, "n": 0,
+                         "source": "Table 1 (Li & Liu), SI units"})
+    out = pd.DataFrame(rows, columns=REF_COLUMNS)
+    out["n"] = out["n"].astype("int64")
+    return out, skipped
+
+
+def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = None) -> dict[str, pd.DataFrame]:
+    """Correlations, fits, styles, reference lines and skipped rows from a decisions table (pure)."""
+    settings = settings or AnalysisSettings()
+    drivers = sorted(decisions["driver_id"].astype(str).unique())
+    points = indicator_points(decisions, settings)
+    correlations = correlate(decisions, settings, points)
+    fits = fit_lines(decisions, settings, points)
+    n_dec = _n_decisions(decisions, drivers)
+    feats, notes = driver_features(points, drivers, settings)
+    styles, clf, skipped = assign_styles(feats, notes, n_dec, fits, settings)
+    styles = styles.merge(feats.reset_index(), on="driver_id", how="left")
+    refs, ref_skipped = reference_lines(styles, fits, points, settings)
+    for d in drivers:
+        if n_dec[d] == 0:
+            skipped.append({"what": "driver", "id": d, "reason": "no presses (only keep states)"})
+    for _, f in fits[fits["status"] != "ok"].iterrows():
+        skipped.append({"what": "indicator", "id": f"{f['driver_id']}:{f['indicator']}", "reason": f["reason"]})
+    skipped.extend(ref_skipped)
+    return {
+        "decisions": decisions,
+        "correlations": correlations,
+        "fits": fits,
+        "styles": styles[STYLE_COLUMNS + [c for c in feature_names(settings)]],
+        "reference_lines": refs,
+        "skipped": pd.DataFrame(skipped, columns=SKIPPED_COLUMNS),
+        "k_scores": pd.DataFrame({"k": list(clf.k_scores_), "score": list(clf.k_scores_.values())})
+        if clf is not None else pd.DataFrame({"k": pd.Series(dtype="int64"), "score": pd.Series(dtype=float)}),
+    }
+
+
+def extract_all(workspace: Workspace, settings: AnalysisSettings,
+                progress: ProgressFn | None = None) -> tuple[pd.DataFrame, list[dict[str, str]], int]:
+    """Decisions of every stored recording, what was skipped, and the number of recordings."""
+    catalogue = workspace.recordings()
+    total = len(catalogue)
+    frames, skipped = [], []
+    for i, rid in enumerate(catalogue["recording_id"]):
+        report(progress, i, total, f"decisions {rid}")
+        meta, ego, traffic = workspace.load_recording(rid)
+        try:
+            dec, sk = extract_decisions(meta, ego, traffic, settings)
+        except Exception as exc:  # a malformed recording must not stop the others
+            dec, sk = empty_decisions(), [{"what": "recording", "id": str(rid),
+                                           "reason": f"decision extraction failed: {type(exc).__name__}: {exc}"}]
+        frames.append(dec)
+        skipped.extend(sk)
+    report(progress, total, total, "decisions extracted")
+    non_empty = [f for f in frames if len(f)]
+    decisions = pd.concat(non_empty, ignore_index=True) if non_empty else empty_decisions()
+    return decisions, skipped, total
+
+
+def code_version() -> dict[str, str | None]:
+    """laneprint version and the git commit of the source tree when available."""
+    commit = None
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent,
+                                capture_output=True, text=True, timeout=5).stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return {"version": laneprint.__version__, "git_commit": commit}
+
+
+def summary(tables: dict[str, pd.DataFrame]) -> dict[str, Any]:
+    """Headline numbers: counts and the share of drivers with a significant correlation."""
+    corr = tables["correlations"]
+    dec = tables["decisions"]
+    drivers = sorted(dec["driver_id"].astype(str).unique()) if len(dec) else []
+    tested = corr[corr["reason"] == ""]
+    share = {}
+    for ind in INDICATORS:
+        t = tested[tested["indicator"] == ind]
+        share[ind] = float(t["significant"].mean()) if len(t) else None
+    by_driver = tested.groupby("driver_id")["significant"]
+    return {
+        "n_drivers": len(drivers),
+        "n_presses": int((dec["label"] == "change").sum()) if len(dec) else 0,
+        "n_keep_states": int((dec["label"] == "keep").sum()) if len(dec) else 0,
+        "share_significant": share,
+        "share_drivers_all_significant": float(by_driver.all().mean()) if len(tested) else None,
+        "share_drivers_any_significant": float(by_driver.any().mean()) if len(tested) else None,
+        "n_skipped": int(len(tables["skipped"])),
+    }
+
+
+def _records(df: pd.DataFrame) -> list[dict[str, Any]]:
+    return [{k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in r.items()}
+            for r in df.to_dict("records")]
+
+
+def build_report(tables: dict[str, pd.DataFrame], meta: dict[str, Any]) -> dict[str, Any]:
+    """JSON-ready report: per driver decisions/correlations/fits/style; per style members and lines."""
+    styles = tables["styles"].set_index("driver_id")
+    corr, fits = tables["correlations"], tables["fits"]
+    drivers = {}
+    for d in styles.index:
+        s = styles.loc[d]
+        drivers[d] = {
+            "n_decisions": int(s["n_decisions"]), "style": s["style"], "confidence": float(s["confidence"]),
+            "is_typical": bool(s["is_typical"]), "note": s["note"],
+            "correlations": _records(corr[corr["driver_id"] == d].drop(columns="driver_id")),
+            "fits": _records(fits[fits["driver_id"] == d][["indicator", "A", "b", "A_lo", "A_hi", "b_lo", "b_hi",
+                                                           "r2", "n", "status", "reason"]]),
+        }
+    refs = tables["reference_lines"]
+    style_rep = {}
+    for name, g in styles[styles["cluster"] >= 0].sort_values("cluster").groupby("style", sort=False):
+        lines = refs[(refs["scope"] == "style") & (refs["name"] == name)]
+        style_rep[name] = {"members": list(g.index), "typical": [d for d in g.index if g.loc[d, "is_typical"]],
+                           "reference_lines": _records(lines.drop(columns=["scope", "name"]))}
+    return {"workspace": meta.get("workspace"), "summary": meta["summary"], "drivers": drivers,
+            "styles": style_rep, "skipped": _records(tables["skipped"]), "settings": meta["settings"],
+            "fingerprint": meta.get("data_fingerprint"), "code": meta.get("code")}
+
+
+def analyze(workspace: Workspace, settings: AnalysisSettings | None = None,
+            progress: ProgressFn | None = None) -> dict[str, Any]:
+    """Run the stage on a workspace: store `analysis/` and return the JSON-ready report."""
+    settings = settings or AnalysisSettings()
+    if not workspace.root.is_dir() or workspace.recordings().empty:
+        raise UserError(f"no recordings in workspace {workspace.root}: run `laneprint ingest PATH` first")
+    decisions, skipped, n_rec = extract_all(workspace, settings, progress)
+    report(progress, 0, 1, "fits and styles")
+    tables = analyze_tables(decisions, settings)
+    extra = pd.DataFrame(skipped, columns=SKIPPED_COLUMNS)
+    tables["skipped"] = pd.concat([extra, tables["skipped"]], ignore_index=True)
+    meta = {"stage": "analysis", "workspace": str(workspace.root), "settings": settings.to_dict(),
+            "code": code_version(), "data_fingerprint": workspace.fingerprint(), "n_recordings": n_rec,
+            "summary": summary(tables)}
+    workspace.write_tables("analysis", tables, meta,
+                           schemas={"decisions": DECISIONS, "reference_lines": REFERENCE_LINES})
+    report(progress, 1, 1, "analysis stored")
+    return build_report(tables, meta)

@@ -1,0 +1,259 @@
+"""Decision points of one recording: button presses and the 'not yet' states before them.
+
+A decision is a rising edge of `lc_button`. Its target lane is the lane the ego
+occupies after the lane change that follows (within `lane_change_lookahead_s` and
+before the next press); when the ego never leaves its lane the press is
+`cancelled` and the target comes from `lc_direction` (left = lane + 1). Before each
+press, states every `step_s` back over the approach (to the previous lane change
+plus `settle_s`, the previous press, the recording start, or `max_approach_s`)
+are labelled 'keep'.
+
+At every state the scene is read as: the ego's latest sample at or before the
+state's time and, per traffic vehicle, its latest sample at or before it (at most
+`traffic_tolerance_s` old), both carried forward to the state's time with their
+speeds (no change when the clocks are shared, as in CSV logs). Then
+`C_f` = nearest vehicle ahead in the ego lane, `C_nf` / `C_nb` = nearest ahead /
+behind (or alongside) in the target lane; gap = |dx| - (len_a + len_b) / 2;
+TTC = max(gap, 0) / (v_ego - v_other) when closing, else NaN with status
+'not_closing'; no vehicle: NaN with status 'absent'. `dv_nb` = v_ego - v_nb, with
+status 'far' (value kept) when the follower's gap exceeds `far_follower_m`.
+
+Everything is computed for all states of a recording at once (vectorised).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from indicators.settings import AnalysisSettings
+from indicators.stats import fit_reasons
+from laneprint.schemas import DECISIONS
+
+#: Columns added to the DECISIONS contract by this stage.
+EXTRA_COLUMNS: tuple[str, ...] = (
+    "press_index", "lc_direction", "lane_change_t_s", "f_id", "nf_id", "nb_id",
+    "t_f_reason", "t_nf_reason", "dv_nb_reason",
+)
+COLUMNS: list[str] = DECISIONS.names + list(EXTRA_COLUMNS)
+
+
+def empty_decisions() -> pd.DataFrame:
+    """A decisions table with no rows and the right columns/dtypes."""
+    kinds = {c.name: c.kind for c in DECISIONS.columns}
+    dtypes = {"float": "float64", "int": "int64", "bool": "bool", "str": "object"}
+    cols = {name: pd.Series(dtype=dtypes[kind]) for name, kind in kinds.items()}
+    cols.update({"press_index": pd.Series(dtype="int64"), "lc_direction": pd.Series(dtype="object"),
+                 "lane_change_t_s": pd.Series(dtype="float64"), "f_id": pd.Series(dtype="object"),
+                 "nf_id": pd.Series(dtype="object"), "nb_id": pd.Series(dtype="object")})
+    cols.update({f"{ind}_reason": pd.Series(dtype="object") for ind in ("t_f", "t_nf", "dv_nb")})
+    return pd.DataFrame(cols)[COLUMNS]
+
+
+def _skip(what: str, id_: str, reason: str) -> dict[str, str]:
+    return {"what": what, "id": id_, "reason": reason}
+
+
+def find_presses(ego: pd.DataFrame, settings: AnalysisSettings) -> tuple[pd.DataFrame, list[dict[str, str]]]:
+    """One row per rising edge of the button: press time, lane, target lane, cancelled.
+
+    Returns (presses, skipped); a press whose target lane cannot be told is skipped
+    with its reason (it keeps its `press_index`, so decision ids stay stable).
+    """
+    t = ego["t_s"].to_numpy(dtype=float)
+    btn = ego["lc_button"].to_numpy(dtype=bool)
+    lane = ego["ego_lane"].to_numpy(dtype=np.int64)
+    prev = np.r_[False, btn[:-1]]
+    press_idx = np.flatnonzero(btn & ~prev)
+    lane_events = np.flatnonzero(lane[1:] != lane[:-1]) + 1  # first sample in the new lane
+    direction = ego["lc_direction"] if "lc_direction" in ego.columns else pd.Series([None] * len(ego))
+    direction = direction.astype(object).where(direction.notna(), None).to_numpy()
+    # end of each held span, to read the direction anywhere while the button is held
+    release_idx = np.flatnonzero(~btn & prev)
+
+    rows, skipped = [], []
+    for i, p in enumerate(press_idx):
+        t_press = t[p]
+        t_next = t[press_idx[i + 1]] if i + 1 < len(press_idx) else np.inf
+        horizon = min(t_press + settings.lane_change_lookahead_s, t_next)
+        k = np.searchsorted(lane_events, p, side="right")
+        changed = k < len(lane_events) and t[lane_events[k]] <= horizon and t[lane_events[k]] < t_next
+        r = np.searchsorted(release_idx, p, side="right")
+        end = release_idx[r] if r < len(release_idx) else len(t)
+        dirs = [d for d in direction[p:end] if d in ("left", "right")]
+        d = dirs[0] if dirs else None
+        # the last lane change before the press bounds the approach
+        k_before = np.searchsorted(lane_events, p, side="right") - 1
+        last_lc = t[lane_events[k_before]] if k_before >= 0 else -np.inf
+        row = {"press_index": i, "sample": int(p), "press_t_s": t_press, "ego_lane": int(lane[p]),
+               "lc_direction": d, "last_lane_change_t_s": last_lc,
+               "prev_press_t_s": t[press_idx[i - 1]] if i > 0 else -np.inf}
+        if changed:
+            j = lane_events[k]
+            row.update(target_lane=int(lane[j]), cancelled=False, lane_change_t_s=t[j])
+        elif d is not None:
+            row.update(target_lane=int(lane[p]) + (1 if d == "left" else -1), cancelled=True,
+                       lane_change_t_s=np.nan)
+        else:
+            skipped.append(("press", i, f"no lane change within {settings.lane_change_lookahead_s:g} s "
+                                        "of the press and no lc_direction recorded: target lane unknown"))
+            continue
+        if row["target_lane"] < 0:
+            skipped.append(("press", i, "target lane would be right of lane 0 (lc_direction 'right' in lane 0)"))
+            continue
+        rows.append(row)
+    cols = ["press_index", "sample", "press_t_s", "ego_lane", "lc_direction", "last_lane_change_t_s",
+            "prev_press_t_s", "target_lane", "cancelled", "lane_change_t_s"]
+    skipped_rows = [_skip("decision", str(idx), reason) for _, idx, reason in skipped]
+    return pd.DataFrame(rows, columns=cols), skipped_rows
+
+
+def _state_times(presses: pd.DataFrame, t0: float, settings: AnalysisSettings) -> pd.DataFrame:
+    """The press itself plus keep states every step_s back over the approach."""
+    press_t = presses["press_t_s"].to_numpy()
+    start = np.maximum.reduce([
+        np.full(len(presses), t0),
+        press_t - settings.max_approach_s,
+        presses["last_lane_change_t_s"].to_numpy() + settings.settle_s,
+        presses["prev_press_t_s"].to_numpy() + 1e-6,  # after (not at) the previous press
+    ])
+    n_keep = np.floor((press_t - start) / settings.step_s + 1e-9).astype(int)
+    n_keep = np.clip(n_keep, 0, None)
+    # states: k = 0 (the press) .. n_keep (earliest keep state)
+    reps = n_keep + 1
+    which = np.repeat(np.arange(len(presses)), reps)
+    k = np.concatenate([np.arange(r) for r in reps]) if len(reps) else np.array([], dtype=int)
+    t_state = press_t[which] - k * settings.step_s
+    keep_ok = t_state >= start[which] - 1e-9
+    out = pd.DataFrame({"p": which, "k": k, "t_s": t_state})
+    return out[keep_ok | (k == 0)].reset_index(drop=True)
+
+
+def _nearest(cands: pd.DataFrame, key: str, ascending: bool) -> pd.DataFrame:
+    """Per state, the candidate with the smallest (ascending) or largest dx."""
+    c = cands.sort_values(["state", key], ascending=[True, ascending], kind="mergesort")
+    return c.drop_duplicates("state", keep="first").set_index("state")
+
+
+def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame,
+                      settings: AnalysisSettings | None = None) -> tuple[pd.DataFrame, list[dict[str, str]]]:
+    """Decision points of one recording (DECISIONS columns + extras) and what was skipped.
+
+    `meta` is the recording's RECORDINGS row (driver_id, recording_id, session_id,
+    speed_limit_kph); `ego`/`traffic` are its EGO/TRAFFIC tables.
+    """
+    settings = settings or AnalysisSettings()
+    rid = str(meta.get("recording_id", ""))
+    if len(ego) == 0:
+        return empty_decisions(), [_skip("recording", rid, "no ego samples")]
+    ego = ego.sort_values("t_s", kind="mergesort").reset_index(drop=True)
+    presses, skipped = find_presses(ego, settings)
+    for s in skipped:
+        s["id"] = f"{rid}:{s['id']}"
+    if len(presses) == 0:
+        if not skipped:
+            skipped.append(_skip("recording", rid, "no lane-change button presses"))
+        return empty_decisions(), skipped
+
+    states = _state_times(presses, float(ego["t_s"].iloc[0]), settings)
+    states["state"] = np.arange(len(states))
+    # ego at each state: latest sample at or before, carried forward with its speed
+    e = pd.merge_asof(states.sort_values("t_s"), ego.rename(columns={"t_s": "ego_t_s"}),
+                      left_on="t_s", right_on="ego_t_s", direction="backward")
+    e = e.sort_values("state").reset_index(drop=True)
+    e["ego_x_m"] = e["ego_x_m"] + e["ego_v_mps"] * (e["t_s"] - e["ego_t_s"])
+    p = presses.iloc[e["p"].to_numpy()].reset_index(drop=True)
+    in_lane = (e["ego_lane"].to_numpy() == p["ego_lane"].to_numpy()) | (e["k"].to_numpy() == 0)
+    e, p = e[in_lane].reset_index(drop=True), p[in_lane].reset_index(drop=True)
+    e["state"] = np.arange(len(e))
+    e["target_lane"] = p["target_lane"].to_numpy()
+
+    n = len(e)
+    cols: dict[str, Any] = {}
+    for role in ("f", "nf", "nb"):
+        cols[f"{role}_x_m"] = np.full(n, np.nan)
+        cols[f"{role}_v_mps"] = np.full(n, np.nan)
+        cols[f"{role}_gap_m"] = np.full(n, np.nan)
+        cols[f"{role}_id"] = np.full(n, None, dtype=object)
+
+    if len(traffic):
+        tr = traffic[["t_s", "vehicle_id", "x_m", "v_mps", "lane", "length_m"]].sort_values("t_s", kind="mergesort")
+        vids = tr["vehicle_id"].unique()
+        left = pd.DataFrame({"state": np.repeat(e["state"].to_numpy(), len(vids)),
+                             "t_s": np.repeat(e["t_s"].to_numpy(), len(vids)),
+                             "vehicle_id": np.tile(vids, n)}).sort_values("t_s", kind="mergesort")
+        m = pd.merge_asof(left, tr.rename(columns={"t_s": "veh_t_s"}), left_on="t_s", right_on="veh_t_s",
+                          by="vehicle_id", direction="backward",
+                          tolerance=settings.traffic_tolerance_s)
+        m = m.dropna(subset=["veh_t_s"])
+        m["x_m"] = m["x_m"] + m["v_mps"] * (m["t_s"] - m["veh_t_s"])
+        st = m["state"].to_numpy()
+        m["dx"] = m["x_m"].to_numpy() - e["ego_x_m"].to_numpy()[st]
+        m["gap"] = np.abs(m["dx"].to_numpy()) - (m["length_m"].to_numpy() + e["ego_length_m"].to_numpy()[st]) / 2
+        lane_v = m["lane"].to_numpy()
+        picks = {
+            "f": _nearest(m[(lane_v == e["ego_lane"].to_numpy()[st]) & (m["dx"].to_numpy() > 0)], "dx", True),
+            "nf": _nearest(m[(lane_v == e["target_lane"].to_numpy()[st]) & (m["dx"].to_numpy() > 0)], "dx", True),
+            "nb": _nearest(m[(lane_v == e["target_lane"].to_numpy()[st]) & (m["dx"].to_numpy() <= 0)], "dx", False),
+        }
+        for role, pk in picks.items():
+            idx = pk.index.to_numpy()
+            cols[f"{role}_x_m"][idx] = pk["x_m"].to_numpy()
+            cols[f"{role}_v_mps"][idx] = pk["v_mps"].to_numpy()
+            cols[f"{role}_gap_m"][idx] = pk["gap"].to_numpy()
+            cols[f"{role}_id"][idx] = pk["vehicle_id"].astype(str).to_numpy()
+
+    v_e = e["ego_v_mps"].to_numpy(dtype=float)
+    out = pd.DataFrame({
+        "driver_id": str(meta.get("driver_id", "")),
+        "recording_id": rid,
+        "session_id": str(meta.get("session_id", "")),
+        "decision_id": [f"{rid}:{i}" for i in p["press_index"]],
+        "t_s": e["t_s"].to_numpy(dtype=float),
+        "press_t_s": p["press_t_s"].to_numpy(dtype=float),
+        "label": np.where(e["k"].to_numpy() == 0, "change", "keep"),
+        "speed_limit_kph": _float_or_nan(meta.get("speed_limit_kph")),
+        "ego_v_mps": v_e,
+        "ego_x_m": e["ego_x_m"].to_numpy(dtype=float),
+        "ego_lane": e["ego_lane"].to_numpy(dtype=np.int64),
+        "target_lane": p["target_lane"].to_numpy(dtype=np.int64),
+        "cancelled": p["cancelled"].to_numpy(dtype=bool),
+    })
+    for role in ("f", "nf"):
+        present = ~np.isnan(cols[f"{role}_x_m"])
+        closing = v_e - cols[f"{role}_v_mps"]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ttc = np.where(present & (closing > 0), np.maximum(cols[f"{role}_gap_m"], 0.0) / closing, np.nan)
+        out[f"{role}_present"] = present
+        out[f"{role}_x_m"] = cols[f"{role}_x_m"]
+        out[f"{role}_v_mps"] = cols[f"{role}_v_mps"]
+        out[f"{role}_gap_m"] = cols[f"{role}_gap_m"]
+        out[f"t_{role}_s"] = ttc
+        out[f"t_{role}_status"] = np.where(~present, "absent", np.where(closing > 0, "ok", "not_closing"))
+    nb_present = ~np.isnan(cols["nb_x_m"])
+    out["nb_present"] = nb_present
+    out["nb_x_m"] = cols["nb_x_m"]
+    out["nb_v_mps"] = cols["nb_v_mps"]
+    out["nb_gap_m"] = cols["nb_gap_m"]
+    out["dv_nb_mps"] = np.where(nb_present, v_e - cols["nb_v_mps"], np.nan)
+    with np.errstate(invalid="ignore"):
+        far = cols["nb_gap_m"] > settings.far_follower_m
+    out["dv_nb_status"] = np.where(~nb_present, "absent", np.where(far, "far", "ok"))
+    out["press_index"] = p["press_index"].to_numpy(dtype=np.int64)
+    out["lc_direction"] = p["lc_direction"].to_numpy(dtype=object)
+    out["lane_change_t_s"] = p["lane_change_t_s"].to_numpy(dtype=float)
+    for role in ("f", "nf", "nb"):
+        out[f"{role}_id"] = cols[f"{role}_id"]
+    for ind, why in fit_reasons(out, settings).items():
+        out[f"{ind}_reason"] = why
+    out = out.sort_values(["press_index", "t_s"], kind="mergesort").reset_index(drop=True)
+    return out[COLUMNS], skipped
+
+
+def _float_or_nan(x: Any) -> float:
+    try:
+        return float(x) if x is not None else np.nan
+    except (TypeError, ValueError):
+        return np.nan

@@ -1,0 +1,95 @@
+"""Settings of the analysis stage (`laneprint analyze`), in one typed dataclass.
+
+Decision extraction (`indicators/`), per-driver statistics and style clustering
+(`clustering/`) all read the same `AnalysisSettings`; it is stored whole in
+`analysis/meta.json` beside the results.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+from laneprint.reference import FAR_FOLLOWER_M, SPEED_LIMITS_KPH
+
+
+@dataclass(frozen=True)
+class AnalysisSettings:
+    """Everything that changes what `analyze` computes. Units in brackets."""
+
+    # --- decision points ---------------------------------------------------
+    step_s: float = 0.5
+    """Spacing of the 'not yet' (keep) states before each press [s]."""
+    max_approach_s: float = 15.0
+    """Keep states go back at most this far before the press [s]."""
+    settle_s: float = 1.0
+    """Keep states start this long after the previous lane change crossed lanes [s]
+    (the ego is still moving sideways right after the crossing)."""
+    lane_change_lookahead_s: float = 8.0
+    """A lane change counts as following a press if the lane flips within this time
+    after it (and before the next press) [s]."""
+    far_follower_m: float = FAR_FOLLOWER_M
+    """A target-lane follower whose gap to the ego exceeds this has no influence
+    (dv_nb_status 'far') [m]; the study uses 100 m."""
+    traffic_tolerance_s: float = 0.5
+    """A traffic vehicle's latest sample must be at most this old at a state's time
+    to count as present [s]; its position is carried forward with its speed."""
+
+    # --- per-driver statistics -----------------------------------------------
+    alpha: float = 0.05
+    """Significance level of the correlation tests and the width of the
+    confidence/prediction intervals (1 - alpha)."""
+    min_fit_points: int = 5
+    """Fewer defined points than this: no fit / no correlation, with a reason."""
+    min_speed_spread_mps: float = 1.0
+    """A driver's decision speeds must span at least this (max - min) for a fit [m/s]."""
+    fit_far_followers: bool = False
+    """Include dv_nb values whose follower is 'far' in the fits and correlations."""
+    min_closing_mps: float = 1.0
+    """A TTC whose closing speed is below this is left out of the fits and
+    correlations (reason 'following'; the value stays in the table): the driver is
+    following a slow leader, and gap / (tiny closing speed) gives tens or hundreds of
+    seconds that say nothing about the gap the driver accepts [m/s]."""
+    fit_cancelled: bool = True
+    """Include presses not followed by a lane change in the fits (the press is
+    still the driver's judgement of the gap)."""
+
+    # --- styles ----------------------------------------------------------------
+    k: int = 3
+    """Number of styles when `choose_k` is None."""
+    choose_k: str | None = None
+    """None (use `k`), 'silhouette' or 'bic': choose k in `k_range`."""
+    k_range: tuple[int, int] = (2, 6)
+    """Smallest and largest k tried when choosing k (capped by the number of drivers - 1)."""
+    feature_indicators: tuple[str, ...] = ("t_f", "t_nf")
+    """Indicators whose per-driver lines make the clustering features. dv_nb is left
+    out by default: its lines are set by the traffic (slope ~1 for every style in
+    Table 1) and carry no style information, only noise."""
+    feature_speeds_kph: tuple[float, ...] = tuple(float(v) for v in SPEED_LIMITS_KPH)
+    """Speeds at which each driver's line is evaluated to make the features [km/h]."""
+    feature_fit: str = "theilsen"
+    """How a driver's line is fitted for the features: 'theilsen' (robust, default),
+    'huber' (statsmodels RLM) or 'ols'."""
+    feature_log: bool = True
+    """Fit the feature lines on log(TTC): heavy tails (tens of seconds behind a slow
+    leader) then pull far less. Features are reported back in seconds."""
+    min_cluster_decisions: int = 8
+    """Drivers with fewer usable presses are not used to place the cluster centres;
+    they are assigned to the nearest centre afterwards, with a note."""
+    min_typical_decisions: int = 15
+    """A typical driver needs at least this many presses (else the best available)."""
+    n_init: int = 50
+    """K-means restarts."""
+    n_bootstrap: int = 0
+    """Bootstrap resamples of each driver's presses for the 'stability' column
+    (0 = off); confidence is always given from the distances to the centres."""
+    random_state: int = 0
+    """Seed of every random choice in clustering."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-ready dict (tuples as lists)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+
+    def with_(self, **changes: Any) -> "AnalysisSettings":
+        """A copy with some fields changed."""
+        return replace(self, **changes)
