@@ -7,7 +7,7 @@ environment defaults to the traffic fields here (`traffic_v_min_mps`,
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Any
 
 from laneprint.reference import FAR_FOLLOWER_M, SPEED_LIMITS_KPH
@@ -84,8 +84,6 @@ class StudySettings:
     steering_ratio: float = 15.0  # steering-wheel angle per road-wheel angle
     steer_noise_rad: float = 0.003  # [rad] sd of steering jitter
     throttle_noise: float = 0.01  # sd of throttle jitter
-
-    notes: dict[str, Any] = field(default_factory=dict)  # free text carried into ground_truth.json
 
     def __post_init__(self) -> None:
         if self.n_drivers < 1:

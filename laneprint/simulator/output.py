@@ -51,6 +51,20 @@ def planned_files(study: Study, fmt: str, gzip_csv: bool = True) -> list[tuple[s
     return out
 
 
+def read_ground_truth(folder: Path) -> dict[str, Any]:
+    """The `ground_truth.json` of a study folder (raises `UserError` when there is none)."""
+    path = Path(folder) / GROUND_TRUTH
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise UserError(f"{path} not found: is {folder} a folder written by laneprint simulate?") from None
+    except (OSError, ValueError) as exc:
+        raise UserError(f"{path} is not readable JSON: {exc}") from None
+    if not isinstance(data, dict) or data.get("generator") != GENERATOR:
+        raise UserError(f"{path} was not written by laneprint simulate")
+    return data
+
+
 def previous_study_files(folder: Path) -> Optional[list[str]]:
     """Relative paths written by a previous study in `folder`, or None when it holds none."""
     gt = folder / GROUND_TRUTH

@@ -43,6 +43,21 @@ class Study:
     def decisions(self) -> list[dict[str, Any]]:
         return self.ground_truth["decisions"]
 
+    def decisions_frame(self) -> pd.DataFrame:
+        """The ground-truth decisions as a flat table (nested fields joined with '.')."""
+        return decisions_frame(self.ground_truth)
+
+
+def decisions_frame(ground_truth: dict[str, Any]) -> pd.DataFrame:
+    """Flatten `ground_truth["decisions"]` (e.g. `line.t_f`, `from_preference.dv_nb`) into a DataFrame.
+
+    Adds each decision's driver `style` and `typical` flag.
+    """
+    df = pd.json_normalize(ground_truth["decisions"], sep=".")
+    drivers = pd.DataFrame([{"driver_id": d["driver_id"], "style": d["style"], "typical": d["typical"]}
+                            for d in ground_truth["drivers"]])
+    return df.merge(drivers, on="driver_id", how="left")
+
 
 def session_id(driver_id: str, speed_limit_kph: float) -> str:
     """`D03_S80`: driver and section."""
@@ -58,6 +73,8 @@ def case_plan(settings: StudySettings, rng: np.random.Generator) -> list[list[st
         CASE_FAR_FOLLOWER: round(settings.share_far_follower * n),
         CASE_CANCELLED: round(settings.share_cancelled * n),
     }
+    while sum(counts.values()) > n:  # tiny studies: drop untidy cases before clean ones vanish
+        counts[max(counts, key=counts.get)] -= 1
     counts[CASE_CLEAN] = n - sum(counts.values())
     cases = [c for c, k in counts.items() for _ in range(k)]
     cases = [cases[i] for i in rng.permutation(len(cases))]

@@ -133,3 +133,17 @@ def test_written_logs_ingest_back_with_the_same_presses_and_indicators(tmp_path,
                     assert got[k] == pytest.approx(d[key], abs=0.02)
             seen += 1
     assert seen == 26
+
+
+def test_ground_truth_reads_back_as_a_table(both_formats, tmp_path):
+    from laneprint.simulator import decisions_frame, read_ground_truth
+
+    out, gt = both_formats
+    again = read_ground_truth(out)
+    assert again == gt
+    df = decisions_frame(again)
+    assert len(df) == 26
+    assert {"press_t_s", "case", "line.t_f", "from_preference.dv_nb", "style", "typical"} <= set(df.columns)
+    assert df["typical"].all() and df["style"].iloc[0] == "Normal"
+    with pytest.raises(UserError, match="not found"):
+        read_ground_truth(tmp_path)
