@@ -26,7 +26,7 @@ def streamlit_command(port: int, host: str, workspace: Path) -> list[str]:
     return [sys.executable, "-m", "streamlit", "run", str(APP),
             "--server.headless", "true", "--server.port", str(port), "--server.address", host,
             "--server.maxUploadSize", str(MAX_UPLOAD_MB), "--server.fileWatcherType", "none",
-            "--browser.gatherUsageStats", "false",
+            "--browser.gatherUsageStats", "false", "--client.toolbarMode", "viewer",
             "--", "--workspace", str(workspace)]
 
 

@@ -95,3 +95,92 @@ def log_bytes(tmp_path: Path, driver_id: str | None = "D77", fmt: str = "csv", s
     path = tmp_path / f"log_{seed}.{fmt}"
     (write_csv if fmt == "csv" else write_mcap)(path, meta, ego, traffic)
     return path.read_bytes()
+
+
+# --- real server + headless Chromium (see ../shared/recipes/BROWSER_TESTS.md) ---------------
+
+CHROMIUM = os.environ.get("CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+SHOT_DIR = ROOT / "test-results" / "dashboard"
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_healthy(url: str, proc, timeout: float = 60) -> None:
+    import time
+    import urllib.request
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"streamlit exited early with code {proc.returncode}")
+        try:
+            with urllib.request.urlopen(url + "/_stcore/health", timeout=2) as r:
+                if r.status == 200 and r.read().strip() == b"ok":
+                    return
+        except OSError:
+            pass
+        time.sleep(0.1)
+    raise TimeoutError(f"{url}/_stcore/health not ok after {timeout}s")
+
+
+@pytest.fixture(scope="session")
+def browser():
+    if not os.path.exists(CHROMIUM):
+        if os.environ.get("LANEPRINT_REQUIRE_BROWSER"):
+            pytest.fail(f"{CHROMIUM} missing: apt-get install -y chromium")
+        pytest.skip(f"{CHROMIUM} missing: apt-get update && apt-get install -y chromium")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="session")
+def server(browser, tmp_path_factory):
+    """`laneprint dashboard`'s streamlit command on a free port over a fresh sample workspace."""
+    import signal
+    import subprocess
+
+    from dashboard.cli import streamlit_command
+
+    ws = build_sample_workspace(tmp_path_factory.mktemp("browser_ws"))
+    port = _free_port()
+    url = f"http://127.0.0.1:{port}"
+    env = dict(os.environ, LANEPRINT_WORKSPACE=str(ws.root), LANEPRINT_DASHBOARD_EPISODES="60",
+               LANEPRINT_DASHBOARD_POLL_S="0.5")
+    log_path = tmp_path_factory.mktemp("streamlit") / "server.log"
+    with open(log_path, "w+") as log:
+        proc = subprocess.Popen(streamlit_command(port, "127.0.0.1", ws.root), cwd=ROOT, env=env, stdout=log,
+                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
+        try:
+            _wait_healthy(url, proc)
+            yield url, ws
+        finally:
+            os.killpg(proc.pid, signal.SIGTERM)  # also ends training runs that outlived the test
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+            log.seek(0)
+            tail = log.read()[-3000:]
+            if tail.strip():
+                print("\n--- streamlit log (tail) ---\n" + tail)
+
+
+@pytest.fixture
+def page(browser):
+    ctx = browser.new_context(viewport={"width": 1400, "height": 1500})
+    pg = ctx.new_page()
+    yield pg
+    ctx.close()

@@ -1,0 +1,87 @@
+"""The dashboard in headless Chromium: every page, an upload, a short training run."""
+
+import os
+
+import pytest
+from playwright.sync_api import expect
+
+from conftest import SHOT_DIR, log_bytes
+
+pytestmark = pytest.mark.browser
+
+ERRORS = '[data-testid="stException"], [data-testid="stAlertContentError"]'
+
+
+def settle(page) -> None:
+    """Wait until the script run is over (elements are drawn faded during a run)."""
+    page.wait_for_timeout(300)
+    expect(page.locator('[data-testid="stApp"][data-test-script-state="notRunning"]')).to_be_attached(
+        timeout=60_000)
+
+
+def no_errors(page) -> None:
+    assert page.locator(ERRORS).count() == 0, page.locator(ERRORS).first.inner_text()
+
+
+def shot(page, name: str) -> None:
+    SHOT_DIR.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(SHOT_DIR / f"{name}.png"), animations="disabled")
+
+
+def open_page(page, url: str, path: str, title: str) -> None:
+    page.goto(f"{url}/{path}")
+    expect(page.get_by_role("heading", name=title, exact=True).first).to_be_visible(timeout=60_000)
+    settle(page)
+
+
+def test_every_page_renders(server, page):
+    url, _ws = server
+    for path, title, expect_chart in [("", "Data", True), ("drivers", "Drivers", True),
+                                      ("styles", "Styles", True), ("training", "Training", False),
+                                      ("results", "Results", True)]:
+        open_page(page, url, path, title)
+        if expect_chart:
+            expect(page.locator('[data-testid="stPlotlyChart"] .js-plotly-plot').first).to_be_visible(
+                timeout=30_000)
+            settle(page)
+        no_errors(page)
+        shot(page, f"page_{title.lower()}")
+
+
+def test_upload_logs(server, page, tmp_path):
+    url, ws = server
+    good = tmp_path / "drive_b1.mcap"
+    good.write_bytes(log_bytes(tmp_path, driver_id="D42", fmt="mcap", seed=3))
+    empty = tmp_path / "empty.csv"
+    empty.write_bytes(b"")
+    open_page(page, url, "", "Data")
+    page.locator('[data-testid="stFileUploader"] input[type="file"]').set_input_files([str(good), str(empty)])
+    button = page.get_by_role("button", name="Ingest 2 file(s)")
+    expect(button).to_be_enabled(timeout=30_000)
+    button.click()
+    expect(page.get_by_text("Last upload: 1 ingested, 1 refused")).to_be_visible(timeout=60_000)
+    settle(page)
+    no_errors(page)
+    assert "D42" in set(ws.recordings()["driver_id"])
+    expect(page.get_by_text("Recordings (3)")).to_be_visible()
+    shot(page, "upload_result")
+
+
+def test_training_progress_moves(server, page):
+    url, ws = server
+    open_page(page, url, "training", "Training")
+    page.get_by_role("button", name="Start training").click()
+    bar = page.locator('[data-testid="stProgress"] [role="progressbar"]').first
+    expect(bar).to_be_visible(timeout=60_000)
+    seen = set()
+    for _ in range(600):
+        seen.add(bar.get_attribute("aria-valuenow"))
+        if len(seen - {None, "0"}) >= 2:
+            break
+        page.wait_for_timeout(200)
+    assert len(seen - {None, "0"}) >= 2, f"progress never moved: {seen}"
+    no_errors(page)
+    settle(page)
+    shot(page, "training_live")
+    runs = [p.name for p in ws.runs_dir.iterdir() if (p / "metrics.jsonl").exists()]
+    assert len(runs) >= 3

@@ -1,0 +1,54 @@
+import signal
+import subprocess
+import sys
+import time
+
+from conftest import write_fake_run
+from dashboard import jobs
+from laneprint.workspace import Workspace, atomic_write_json
+
+
+def test_train_command_line(tmp_path):
+    req = jobs.TrainRequest("driver", "D03", 40, seed=7, reward="timing", lines="paper")
+    cmd = jobs.train_command(req, tmp_path, "r1")
+    assert cmd[:4] == [sys.executable, "-m", "laneprint.cli", "train"]
+    assert cmd[4:] == ["--driver", "D03", "--episodes", "40", "--seed", "7", "--run-id", "r1",
+                       "--workspace", str(tmp_path), "--reward", "timing", "--lines", "paper"]
+    rid = jobs.new_run_id(jobs.TrainRequest("style", "Very Normal/..", 1))
+    assert rid.startswith("Very_Normal___-") and "/" not in rid
+
+
+def test_status_of_dead_and_unknown_runs(tmp_path):
+    ws = Workspace(tmp_path).ensure()
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    write_fake_run(ws, "lost", state="running", pid=dead.pid)
+    assert jobs.run_status(ws, "lost")["state"] == "lost"
+    # launched, died before writing status.json
+    jobs.jobs_dir(ws).mkdir(parents=True)
+    atomic_write_json(jobs.jobs_dir(ws) / "early.json", {"pid": dead.pid, "request": {"episodes": 5}})
+    (jobs.jobs_dir(ws) / "early.log").write_text("Traceback ...\nUserError: no reference lines\n")
+    st = jobs.run_status(ws, "early")
+    assert st["state"] == "failed" and "no reference lines" in st["log"]
+    write_fake_run(ws, "fine")
+    assert jobs.run_status(ws, "fine")["state"] == "done"
+    table = jobs.runs_table(ws)
+    assert set(table["run_id"]) == {"lost", "early", "fine"}
+    assert table.set_index("run_id").loc["fine", "evaluated"]
+
+
+def test_cancel_sends_sigterm_to_a_running_run(tmp_path):
+    ws = Workspace(tmp_path).ensure()
+    code = "import signal, sys, time\nsignal.signal(signal.SIGTERM, lambda *a: sys.exit(42))\ntime.sleep(30)"
+    proc = subprocess.Popen([sys.executable, "-c", code], start_new_session=True)
+    try:
+        time.sleep(0.3)  # let it install its handler
+        write_fake_run(ws, "r", state="running", pid=proc.pid)
+        assert jobs.run_status(ws, "r")["state"] == "running"
+        assert jobs.cancel(ws, "r")
+        assert proc.wait(timeout=10) == 42
+        assert not jobs.cancel(ws, "r")  # nothing left to cancel
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
