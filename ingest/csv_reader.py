@@ -198,7 +198,7 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
     ids = list(vehicles)
     if not ids or n == 0:
         empty = np.zeros(0)
-        return {"t_s": empty, "vehicle_id": np.zeros(0, dtype=object), "x_m": empty, "y_m": empty,
+        return {"t_s": empty, "vehicle_id": pa.array([], pa.string()), "x_m": empty, "y_m": empty,
                 "v_mps": empty, "lane": empty, "length_m": empty}
 
     def grid(fld: str, fill: float) -> np.ndarray:
@@ -210,7 +210,7 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
 
     x = grid("x", np.nan)
     rows, cols = np.nonzero(~np.isnan(x))
-    out = {"t_s": t[rows], "vehicle_id": np.asarray(ids, dtype=object)[cols]}
+    out = {"t_s": t[rows], "vehicle_id": pa.array(ids, pa.string()).take(pa.array(cols))}
     for fld, key, fill, scale in (("x", "x_m", np.nan, mapping.position_scale),
                                   ("v", "v_mps", np.nan, mapping.speed_scale),
                                   ("lane", "lane", np.nan, 1.0),
@@ -225,7 +225,7 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
         bad = np.isnan(out[key])
         if bad.any():
             k = int(np.argmax(bad))
-            vid = out["vehicle_id"][k]
+            vid = ids[cols[k]]
             raise Rejected(f"traffic vehicle {vid!r}: {vehicles[vid][fld]} is empty at line {rows[k] + 2} "
                            f"while {vehicles[vid]['x']} is given (a present vehicle needs x, v and lane)")
     out["length_m"] = np.where(np.isnan(out["length_m"]), DEFAULT_LENGTH_M, out["length_m"])

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 
 from ingest.mapping import Mapping
 from ingest.rawlog import RawLog, Rejected
@@ -114,6 +115,12 @@ def resolve_driver(file_id: Any, default: Any, override: str | None, warnings: l
                    "give one with --driver ID or a driver_id default under [metadata] in a --mapping file")
 
 
+def _strings(values: Any) -> pd.Series:
+    """An Arrow-backed string column (cheap to validate and to write as Parquet)."""
+    arr = values if isinstance(values, pa.Array) else pa.array(values, pa.string())
+    return pd.Series(pd.arrays.ArrowStringArray(arr))
+
+
 def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: str | None) -> Canonical:
     """Check `raw` and build the EGO / TRAFFIC tables; `Rejected` on the first problem."""
     if len(raw.t_s) == 0:
@@ -149,10 +156,11 @@ def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: st
     lane = tr["lane"]
     if len(lane) and ((lane != np.round(lane)) | (lane < 0) | (lane > MAX_LANE)).any():
         k = int(np.argmax((lane != np.round(lane)) | (lane < 0) | (lane > MAX_LANE)))
-        raise Rejected(f"traffic vehicle {tr['vehicle_id'][k]!r} has lane {lane[k]:g} at t={tr['t_s'][k]:.3f} s; "
+        vid = pa.array(tr["vehicle_id"], pa.string())[k].as_py()
+        raise Rejected(f"traffic vehicle {vid!r} has lane {lane[k]:g} at t={tr['t_s'][k]:.3f} s; "
                        f"lanes are indices 0..{MAX_LANE}")
     traffic = pd.DataFrame({
-        "t_s": tr["t_s"], "vehicle_id": pd.Series(tr["vehicle_id"], dtype=object),
+        "t_s": tr["t_s"], "vehicle_id": _strings(tr["vehicle_id"]),
         "x_m": tr["x_m"], "y_m": tr["y_m"], "v_mps": tr["v_mps"],
         "lane": lane.astype(np.int64), "length_m": tr["length_m"],
     })

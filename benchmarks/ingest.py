@@ -1,0 +1,146 @@
+"""Ingest throughput vs the floor, side by side in one run.
+
+Generates a 10-minute, 20-vehicle, 50 Hz recording in memory, writes it as CSV,
+CSV.gz and MCAP to a temporary folder, then times (median of several repetitions):
+
+- our ingest: `ingest.pipeline.ingest_paths` into a fresh workspace (read, map,
+  validate, hash, store as Parquet), and its read+validate part alone;
+- the floor for the same bytes: `pyarrow.csv.read_csv` (after gunzip for .csv.gz),
+  and the `mcap` reader iterating every message and `json.loads`-ing it without
+  building any table.
+
+Goal: our ingest at least half as fast as the floor (ratio >= 0.5).
+
+    /work/venv/bin/python benchmarks/ingest.py [--reps 5] [--minutes 10] [--vehicles 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import io
+import json
+import shutil
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import sys
+
+# this script is named like the `ingest` package: keep its own folder off the import path
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+import pyarrow.csv as pacsv  # noqa: E402
+from mcap.reader import make_reader  # noqa: E402
+
+from ingest.mapping import IDENTITY  # noqa: E402
+from ingest.pipeline import ingest_paths, read_log, session_stem  # noqa: E402
+from ingest.validate import canonicalise  # noqa: E402
+from ingest.writers import write_csv, write_mcap  # noqa: E402
+from laneprint.workspace import Workspace  # noqa: E402
+
+
+def make_recording(minutes: float, n_vehicles: int, hz: int = 50, seed: int = 0):
+    """A synthetic two-lane recording: ego plus `n_vehicles` cars present the whole time."""
+    rng = np.random.default_rng(seed)
+    n = int(minutes * 60 * hz)
+    t = np.arange(n) / hz
+    v = 22.0 + 2.0 * np.sin(t / 30.0) + rng.normal(0, 0.05, n)
+    x = np.cumsum(v) / hz
+    lane = ((t // 40) % 2).astype(np.int64)
+    button = np.zeros(n, dtype=bool)
+    for s in np.flatnonzero(np.diff(lane) != 0):
+        button[max(s - 100, 0):max(s - 90, 1)] = True
+    ego = pd.DataFrame({
+        "t_s": t, "ego_x_m": x, "ego_y_m": lane * 3.5, "ego_v_mps": v, "ego_lane": lane, "ego_length_m": 4.5,
+        "steer_rad": rng.normal(0, 0.01, n), "throttle": rng.uniform(0, 0.5, n), "brake": np.zeros(n),
+        "lc_button": button, "lc_direction": None,
+    })
+    vv = rng.uniform(15, 30, n_vehicles)
+    x0 = rng.uniform(-300, 300, n_vehicles)
+    vlane = rng.integers(0, 2, n_vehicles)
+    ids = np.array([f"v{k}" for k in range(n_vehicles)], dtype=object)
+    traffic = pd.DataFrame({
+        "t_s": np.repeat(t, n_vehicles),
+        "vehicle_id": np.tile(ids, n),
+        "x_m": (x0[None, :] + vv[None, :] * t[:, None]).ravel(),
+        "y_m": np.tile(vlane * 3.5, n),
+        "v_mps": np.tile(vv, n),
+        "lane": np.tile(vlane, n),
+        "length_m": np.tile(rng.uniform(4, 5, n_vehicles), n),
+    })
+    meta = {"driver_id": "B01", "session_id": None, "speed_limit_kph": 80, "simulator": "benchmark"}
+    return meta, ego, traffic
+
+
+def median_time(fn, reps: int) -> float:
+    times = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def floor_csv(data: bytes, gz: bool) -> None:
+    pacsv.read_csv(io.BytesIO(gzip.decompress(data) if gz else data))
+
+
+def floor_mcap(data: bytes) -> None:
+    reader = make_reader(io.BytesIO(data))
+    for _, _, msg in reader.iter_messages():
+        json.loads(msg.data)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--reps", type=int, default=5)
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--vehicles", type=int, default=20)
+    args = ap.parse_args()
+
+    meta, ego, traffic = make_recording(args.minutes, args.vehicles)
+    n = len(ego)
+    tmp = Path(tempfile.mkdtemp(prefix="lp-bench-"))
+    try:
+        files = {"csv": tmp / "rec.csv", "csv.gz": tmp / "rec.csv.gz", "mcap": tmp / "rec.mcap"}
+        for fmt, path in files.items():
+            t0 = time.perf_counter()
+            (write_mcap if fmt == "mcap" else write_csv)(path, meta, ego, traffic)
+            print(f"wrote {path.name}: {path.stat().st_size / 1e6:.1f} MB in {time.perf_counter() - t0:.2f} s")
+        print(f"{n} samples ({args.minutes:g} min at 50 Hz), {args.vehicles} vehicles, "
+              f"{len(traffic)} traffic rows; median of {args.reps} runs\n")
+
+        rows = []
+        for fmt, path in files.items():
+            data = path.read_bytes()
+            mb = len(data) / 1e6
+            floor = median_time((lambda d=data, g=fmt == "csv.gz": floor_csv(d, g)) if fmt != "mcap"
+                                else (lambda d=data: floor_mcap(d)), args.reps)
+            read = median_time(lambda d=data, f=fmt, p=path: canonicalise(read_log(d, f, IDENTITY), IDENTITY,
+                                                                          session_stem(p), None), args.reps)
+            k = [0]
+
+            def full(p=path) -> None:
+                k[0] += 1
+                ws = Workspace(tmp / f"ws{k[0]}")
+                rep = ingest_paths([p], ws)
+                assert rep.files[0].status in ("ingested", "warning"), rep.files[0].reason
+                shutil.rmtree(ws.root)
+            ours = median_time(full, args.reps)
+            floor_name = "pyarrow.csv.read_csv" if fmt != "mcap" else "mcap iter + json.loads"
+            for label, secs in ((floor_name + " (floor)", floor), ("read + validate", read), ("ingest (stored)", ours)):
+                rows.append((fmt, label, secs, mb / secs, n / secs, floor / secs))
+        print(f"{'format':7} {'what':34} {'time s':>8} {'MB/s':>8} {'samples/s':>11} {'vs floor':>9}")
+        for fmt, label, secs, mbs, sps, ratio in rows:
+            print(f"{fmt:7} {label:34} {secs:8.3f} {mbs:8.1f} {sps:11,.0f} {ratio:9.2f}")
+        print("\ngoal: 'ingest (stored)' >= 0.5 x floor for each format")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
