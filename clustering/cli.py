@@ -74,6 +74,8 @@ def analyze_command(
         settings = AnalysisSettings(k=k, choose_k=choose_k, far_follower_m=far_follower_m, step_s=step_s,
                                     feature_fit=feature_fit, random_state=seed)
         ws = Workspace(Path(workspace))
+        if not ws.root.is_dir() or ws.recordings().empty:  # before the progress bar draws anything
+            raise UserError(f"no recordings in workspace {ws.root}: run `laneprint ingest PATH` first")
         with progress_bar(enabled=not as_json) as progress:
             return analyze(ws, settings, progress)
 

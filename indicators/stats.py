@@ -162,8 +162,8 @@ def _why_not(g: Group, settings: AnalysisSettings) -> str:
 
 def iter_groups(points: pd.DataFrame, drivers: list[str], indicators: tuple[str, ...] = INDICATORS):
     """A `Group` for every driver x indicator (in that order), empty ones included."""
-    d_code = pd.Categorical(points["driver_id"].astype(str), categories=drivers).codes.astype(np.int64)
-    i_code = pd.Categorical(points["indicator"], categories=list(indicators)).codes.astype(np.int64)
+    d_code = pd.Index(drivers).get_indexer(points["driver_id"].astype(str)).astype(np.int64)
+    i_code = pd.Index(list(indicators)).get_indexer(points["indicator"]).astype(np.int64)
     key = d_code * len(indicators) + i_code
     key[(d_code < 0) | (i_code < 0)] = -1  # rows of other drivers/indicators sort first, outside every group
     order = np.argsort(key, kind="stable")

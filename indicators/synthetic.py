@@ -108,3 +108,21 @@ def make_decision_table(n_drivers: int, n_decisions: int, seed: int = 0, keep_pe
         for c in ("x_m", "v_mps", "gap_m"):
             df[f"{role}_{c}"] = np.nan
     return df, truth
+
+
+def catalogue_row(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame) -> dict[str, Any]:
+    """A RECORDINGS row for frames built in memory (tests, benchmarks), so they can be
+    stored with `Workspace.write_recording` without going through files and ingest."""
+    import hashlib
+
+    sid = str(meta.get("session_id") or meta.get("recording_id"))
+    rid = meta.get("recording_id") or hashlib.sha256(f"{meta.get('driver_id')}/{sid}".encode()).hexdigest()[:16]
+    btn = ego["lc_button"].to_numpy(dtype=bool)
+    return {
+        "recording_id": str(rid), "driver_id": str(meta["driver_id"]), "session_id": sid,
+        "speed_limit_kph": meta.get("speed_limit_kph"), "simulator": meta.get("simulator", "in memory"),
+        "source_name": f"{sid}.memory", "source_path": f"/memory/{sid}", "format": "csv",
+        "n_samples": int(len(ego)), "duration_s": float(ego["t_s"].iloc[-1] - ego["t_s"].iloc[0]) if len(ego) else 0.0,
+        "n_presses": int((btn & ~np.r_[False, btn[:-1]]).sum()), "n_vehicles": int(traffic["vehicle_id"].nunique()),
+        "status": "ok", "warnings": "", "ingested_at": "2026-01-01T00:00:00Z",
+    }

@@ -1,0 +1,74 @@
+"""`analyze` on a real workspace and `laneprint analyze` end to end."""
+
+import json
+from dataclasses import replace
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from clustering.pipeline import analyze
+from indicators.settings import AnalysisSettings
+from indicators.synthetic import catalogue_row, make_recording
+from laneprint.cli import app
+from laneprint.simulator import StudySettings, simulate_study
+from laneprint.workspace import Workspace
+
+STUDY = replace(StudySettings(), n_drivers=6, speed_limits_kph=(60, 90), decisions_per_driver=16)
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory):
+    ws = Workspace(tmp_path_factory.mktemp("ws")).ensure()
+    study = simulate_study(STUDY, seed=3)
+    for meta, ego, traffic in study.recordings:
+        ws.write_recording(catalogue_row(meta, ego, traffic), ego, traffic)
+    # a recording without any press
+    meta, ego, traffic = make_recording(10, 10, 20.0, [(0, 0)], vehicles=[("A", 60, 15, 0, 4.5)],
+                                        recording_id="nopress0000000000", driver_id="D01")
+    ws.write_recording(catalogue_row(meta, ego, traffic), ego, traffic)
+    return ws, study
+
+
+def test_analyze_writes_stage_and_report(workspace):
+    ws, study = workspace
+    report = analyze(ws, AnalysisSettings())
+    for name in ("decisions", "correlations", "fits", "styles", "reference_lines", "skipped"):
+        assert ws.has_table("analysis", name)
+    meta = ws.read_meta("analysis")
+    assert meta["data_fingerprint"] == ws.fingerprint()
+    assert meta["settings"]["far_follower_m"] == 100.0 and meta["code"]["version"]
+    assert set(report["drivers"]) == {d["driver_id"] for d in study.ground_truth["drivers"]}
+    assert report["summary"]["n_presses"] == 6 * 16
+    skipped = ws.read_table("analysis", "skipped")
+    assert ((skipped["what"] == "recording") & (skipped["id"] == "nopress0000000000")).any()
+    refs = ws.read_table("analysis", "reference_lines")
+    for style in report["styles"]:
+        assert len(refs.query("scope == 'style' and kind == 'typical' and name == @style")) == 3
+    assert set(report["styles"]) <= {"Defensive", "Normal", "Aggressive"}
+    truth = {d["driver_id"]: d["style"] for d in study.ground_truth["drivers"]}
+    assert {d: info["style"] for d, info in report["drivers"].items()} == truth
+    json.dumps(report)  # JSON-ready
+
+
+def test_cli_json_and_human(workspace):
+    ws, _ = workspace
+    runner = CliRunner()
+    res = runner.invoke(app, ["analyze", "-w", str(ws.root), "--json", "--far-follower-m", "120"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert doc["settings"]["far_follower_m"] == 120.0
+    assert "drivers" in doc and "styles" in doc and "skipped" in doc
+    human = runner.invoke(app, ["analyze", "-w", str(ws.root), "--choose-k", "silhouette"])
+    assert human.exit_code == 0, human.output
+    assert "analysis of 6 driver(s)" in human.stdout
+
+
+def test_cli_errors_are_one_line(tmp_path):
+    runner = CliRunner()
+    empty = runner.invoke(app, ["analyze", "-w", str(tmp_path / "ws")])
+    assert empty.exit_code == 1
+    assert empty.stderr.strip().count("\n") == 0
+    assert "no recordings in workspace" in empty.stderr and "laneprint ingest" in empty.stderr
+    bad = runner.invoke(app, ["analyze", "-w", str(tmp_path / "ws"), "--choose-k", "elbow"])
+    assert bad.exit_code == 1 and "--choose-k" in bad.stderr

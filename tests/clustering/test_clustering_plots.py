@@ -1,0 +1,58 @@
+"""Plot functions return Plotly figures with the expected traces and units on the axes."""
+
+import plotly.graph_objects as go
+import pytest
+
+from clustering.pipeline import analyze_tables
+from clustering.plots import cluster_scatter, reference_lines
+from indicators.plots import correlation_table, indicator_vs_speed
+from indicators.synthetic import make_decision_table
+
+
+@pytest.fixture(scope="module")
+def tables():
+    df, _ = make_decision_table(6, 20, seed=2, keep_per_press=1)
+    return analyze_tables(df)
+
+
+def test_indicator_vs_speed(tables):
+    fig = indicator_vs_speed(tables["decisions"], tables["fits"], "D0000", "t_f")
+    assert isinstance(fig, go.Figure)
+    names = [t.name for t in fig.data]
+    assert names == ["used", "prediction band", "confidence band", "OLS line"]
+    assert "[m/s]" in fig.layout.xaxis.title.text and "[s]" in fig.layout.yaxis.title.text
+    assert len(fig.data[0].x) == 20
+
+
+def test_indicator_vs_speed_without_fit(tables):
+    dec = tables["decisions"]
+    fits = tables["fits"].copy()
+    fits.loc[:, "status"] = "skipped"
+    fits.loc[:, "reason"] = "too few defined values: 1 < 5"
+    fig = indicator_vs_speed(dec, fits, "D0001", "dv_nb")
+    assert [t.name for t in fig.data] == ["used"]
+    assert "no fit: too few" in fig.layout.title.text and "[m/s]" in fig.layout.yaxis.title.text
+
+
+def test_correlation_table(tables):
+    fig = correlation_table(tables["correlations"])
+    assert isinstance(fig.data[0], go.Table)
+    assert len(fig.data[0].cells.values[0]) == len(tables["correlations"])
+
+
+def test_cluster_scatter_marks_typical(tables):
+    fig = cluster_scatter(tables["styles"])
+    names = [t.name for t in fig.data]
+    assert names[-1] == "typical drivers" and len(fig.data[-1].x) == 3
+    assert set(names[:-1]) == {"Defensive", "Normal", "Aggressive"}
+    assert fig.layout.xaxis.title.text == "t_f at 80 km/h [s]"
+    assert fig.layout.yaxis.title.text == "t_nf at 80 km/h [s]"
+
+
+def test_reference_lines_one_panel_per_indicator(tables):
+    fig = reference_lines(tables["reference_lines"])
+    names = {t.name for t in fig.data}
+    assert {"Defensive typical", "Normal typical", "Aggressive typical", "Defensive paper"} <= names
+    assert len(fig.data) == 3 * 3 * 2
+    assert fig.layout.xaxis3.title.text == "ego speed v_e [m/s]"
+    assert "[m/s]" in fig.layout.yaxis3.title.text and "[s]" in fig.layout.yaxis.title.text
