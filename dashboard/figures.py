@@ -102,21 +102,6 @@ def runs_curves(metrics: dict[str, pd.DataFrame], column: str, label: str) -> go
 
 # --- the stages' figures, with plain fallbacks --------------------------------
 
-def _fallback_indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: str,
-                                 indicator: str) -> go.Figure:
-    col = {"t_f": "t_f_s", "t_nf": "t_nf_s", "dv_nb": "dv_nb_mps"}[indicator]
-    d = decisions[(decisions["driver_id"] == driver_id) & (decisions["label"] == "change")]
-    fig = go.Figure(go.Scatter(x=d["ego_v_mps"], y=d[col], mode="markers", name=indicator))
-    unit = "m/s" if indicator == "dv_nb" else "s"
-    fig.update_layout(xaxis_title="ego speed v_e [m/s]", yaxis_title=f"{indicator} [{unit}]")
-    return fig
-
-
-def _fallback_table(df: pd.DataFrame, *args: Any, **kwargs: Any) -> go.Figure:
-    return go.Figure(go.Table(header=dict(values=list(df.columns)),
-                              cells=dict(values=[df[c].astype(str) for c in df.columns])))
-
-
 def _fallback_training_curves(metrics: pd.DataFrame, *args: Any, **kwargs: Any) -> go.Figure:
     fig = make_subplots(rows=1, cols=2, subplot_titles=("loss", "mean step reward"))
     if len(metrics):
@@ -130,8 +115,6 @@ def _fallback_training_curves(metrics: pd.DataFrame, *args: Any, **kwargs: Any) 
 
 
 _FALLBACKS: dict[tuple[str, str], Callable[..., go.Figure]] = {
-    ("indicators.plots", "indicator_vs_speed"): _fallback_indicator_vs_speed,
-    ("indicators.plots", "correlation_table"): _fallback_table,
     ("rl.plots", "training_curves"): _fallback_training_curves,
 }
 

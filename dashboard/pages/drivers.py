@@ -2,8 +2,9 @@
 
 import streamlit as st
 
-from dashboard import figures, loaders, views
+from dashboard import loaders, views
 from dashboard.context import workspace
+from indicators.plots import correlation_table, indicator_vs_speed
 
 INDICATORS = ("t_f", "t_nf", "dv_nb")
 
@@ -24,18 +25,24 @@ def main() -> None:
     style_txt = f", style **{styles.iloc[0]['style']}**" if len(styles) and "style" in styles else ""
     st.markdown(f"**{driver}**: {n_press} lane-change decisions{style_txt}")
 
-    plot = figures.stage_plot("indicators.plots", "indicator_vs_speed")
     cols = st.columns(len(INDICATORS))
     for col, ind in zip(cols, INDICATORS):
         with col:
-            st.plotly_chart(plot(decisions, fits, driver, ind), key=f"ivs_{ind}")
+            st.plotly_chart(indicator_vs_speed(decisions, fits, driver, ind), key=f"ivs_{ind}")
 
     st.subheader("Correlation with ego speed")
     corr = views.for_driver(tables.get("correlations"), driver)
     if len(corr):
-        st.dataframe(corr, hide_index=True, width="stretch")
+        fig = correlation_table(corr)
+        fig.update_layout(height=120 + 30 * len(corr), margin=dict(t=40, b=0))
+        st.plotly_chart(fig, key="correlations")
     else:
         st.caption("No correlations for this driver.")
+    share = loaders.analysis_meta(str(ws.root), loaders.analysis_stamp(ws.root)).get("summary", {}).get(
+        "share_significant")
+    if share:
+        st.caption("Drivers with a significant linear correlation (all drivers): " + ", ".join(
+            f"{k} {v:.0%}" for k, v in share.items() if v is not None) + " (the study reports 80 %).")
     st.subheader("Fits  I = A·v_e + b")
     fit = views.for_driver(fits, driver)
     if len(fit):

@@ -2,7 +2,8 @@
 
 import streamlit as st
 
-from dashboard import figures, loaders, views
+from clustering.plots import cluster_scatter, reference_lines
+from dashboard import loaders, views
 from dashboard.context import workspace
 from laneprint.errors import UserError
 
@@ -56,20 +57,17 @@ def main() -> None:
     if styles is None:
         st.info("No analysis yet: press 'Run analysis'.")
         return
-    cluster_scatter = figures.stage_plot("clustering.plots", "cluster_scatter")
-    ref_plot = figures.stage_plot("clustering.plots", "reference_lines")
     left, right = st.columns(2)
     with left:
         st.subheader("Drivers in feature space")
-        if cluster_scatter:
-            st.plotly_chart(cluster_scatter(styles), key="clusters")
+        st.plotly_chart(cluster_scatter(styles), key="clusters")
     with right:
         st.subheader("Members and typical drivers")
         st.dataframe(views.style_summary(styles), hide_index=True, width="stretch")
     st.subheader("Reference lines per style")
     lines = tables.get("reference_lines")
-    if lines is not None and ref_plot:
-        st.plotly_chart(ref_plot(lines), key="ref_lines")
+    if lines is not None:
+        st.plotly_chart(reference_lines(lines), key="ref_lines")
         with st.expander("Reference lines table"):
             st.dataframe(lines, hide_index=True, width="stretch")
     with st.expander("Per-driver style assignment"):

@@ -46,9 +46,11 @@ def test_drivers_page_shows_three_indicators(use_sample):
     at = run_page("drivers")
     assert at.selectbox(key="driver").value == "D0000"
     figs = charts(at)
-    assert len(figs) == 3
-    for fig in figs:
-        assert "[" in fig["layout"]["xaxis"]["title"]["text"]  # units on the axis
+    assert len(figs) == 4  # three indicators and the correlation table
+    for fig in figs[:3]:
+        assert "[m/s]" in fig["layout"]["xaxis"]["title"]["text"]  # units on every axis
+        assert "[" in fig["layout"]["yaxis"]["title"]["text"]
+    assert figs[3]["data"][0]["type"] == "table"
     at.selectbox(key="driver").set_value("D0004").run()
     assert not at.exception and "D0004" in at.markdown[0].value
 
