@@ -54,6 +54,15 @@ def atomic_write_json(path: Path, obj: Any) -> None:
     atomic_write_bytes(path, (json.dumps(obj, indent=2, default=str) + "\n").encode())
 
 
+def _plain_strings(df: pd.DataFrame) -> pd.DataFrame:
+    """Give every text column pandas' default string dtype, whatever dtype it was stored with,
+    so frames from different writers merge and compare without dtype surprises."""
+    for col in df.columns:
+        if isinstance(df[col].dtype, pd.StringDtype) or df[col].dtype == object:
+            df[col] = df[col].astype("str").where(df[col].notna(), None)
+    return df
+
+
 class Workspace:
     """A folder holding everything laneprint has ingested, analysed and trained."""
 
@@ -136,7 +145,8 @@ class Workspace:
         if not (d / "meta.parquet").exists():
             raise UserError(f"no recording {recording_id!r} in workspace {self.root}")
         meta = pd.read_parquet(d / "meta.parquet").iloc[0].to_dict()
-        return meta, pd.read_parquet(d / "ego.parquet"), pd.read_parquet(d / "traffic.parquet")
+        return meta, _plain_strings(pd.read_parquet(d / "ego.parquet")), _plain_strings(
+            pd.read_parquet(d / "traffic.parquet"))
 
     def iter_recordings(self) -> Iterator[tuple[dict[str, Any], pd.DataFrame, pd.DataFrame]]:
         """Yield (meta, ego, traffic) for every stored recording, in catalogue order."""
