@@ -179,11 +179,16 @@ def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataF
         cols[f"{role}_id"] = np.full(n, None, dtype=object)
 
     if len(traffic):
-        tr = traffic[["t_s", "vehicle_id", "x_m", "v_mps", "lane", "length_m"]].sort_values("t_s", kind="mergesort")
-        vids = tr["vehicle_id"].unique()
+        tr = traffic[["t_s", "x_m", "v_mps", "lane", "length_m"]].copy()
+        # merge on integer codes: ids may come as any string dtype (object, arrow, python)
+        codes, vids = pd.factorize(traffic["vehicle_id"].astype(str).to_numpy(dtype=object))
+        tr["vehicle_id"] = codes.astype(np.int64)
+        tr = tr.sort_values("t_s", kind="mergesort")
+        vid_names = np.asarray(vids, dtype=object)
         left = pd.DataFrame({"state": np.repeat(e["state"].to_numpy(), len(vids)),
                              "t_s": np.repeat(e["t_s"].to_numpy(), len(vids)),
-                             "vehicle_id": np.tile(vids, n)}).sort_values("t_s", kind="mergesort")
+                             "vehicle_id": np.tile(np.arange(len(vids), dtype=np.int64), n)}
+                            ).sort_values("t_s", kind="mergesort")
         m = pd.merge_asof(left, tr.rename(columns={"t_s": "veh_t_s"}), left_on="t_s", right_on="veh_t_s",
                           by="vehicle_id", direction="backward",
                           tolerance=settings.traffic_tolerance_s)
@@ -203,7 +208,7 @@ def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataF
             cols[f"{role}_x_m"][idx] = pk["x_m"].to_numpy()
             cols[f"{role}_v_mps"][idx] = pk["v_mps"].to_numpy()
             cols[f"{role}_gap_m"][idx] = pk["gap"].to_numpy()
-            cols[f"{role}_id"][idx] = pk["vehicle_id"].astype(str).to_numpy()
+            cols[f"{role}_id"][idx] = vid_names[pk["vehicle_id"].to_numpy(dtype=np.int64)]
 
     v_e = e["ego_v_mps"].to_numpy(dtype=float)
     out = pd.DataFrame({
