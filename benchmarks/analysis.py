@@ -1,0 +1,155 @@
+"""Benchmark and accuracy check of the analysis stage (`laneprint analyze`).
+
+Prints:
+1. the shipped study (optional, `--workspace W` holding `sample_logs/` ingested): ARI of the
+   styles against `sample_logs/ground_truth.json`, and for the study's typical drivers
+   whether Table 1's A and b fall inside the recovered 95 % intervals;
+2. over `--seeds` simulator seeds (default 20): mean/min ARI, and how often each typical
+   driver's true A and b fall inside the recovered intervals (per style x indicator);
+   also decision-extraction time per recording (median) and agreement of the extracted
+   indicators with the simulator's own ground truth;
+3. timing of `analyze_tables` for 10 x 50 and 1,000 x 50 drivers x decisions (tables
+   generated in memory, 10 keep states per press), median of `--repeats` runs.
+
+Run: /work/venv/bin/python benchmarks/analysis.py [--seeds 20] [--workspace /tmp/ws]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from sklearn.metrics import adjusted_rand_score
+
+from clustering.pipeline import analyze, analyze_tables
+from indicators.decisions import extract_decisions
+from indicators.settings import AnalysisSettings
+from indicators.synthetic import make_decision_table
+from laneprint.reference import INDICATORS
+from laneprint.simulator import StudySettings, simulate_study
+from laneprint.workspace import Workspace
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def coverage(fits: pd.DataFrame, drivers: list[dict]) -> list[dict]:
+    """Per ground-truth typical driver and indicator: is the true A / b inside the 95 % CI?"""
+    f = fits.set_index(["driver_id", "indicator"])
+    rows = []
+    for d in drivers:
+        if not d["typical"]:
+            continue
+        for ind in INDICATORS:
+            A, b = d["lines"][ind]["A"], d["lines"][ind]["b"]
+            r = f.loc[(d["driver_id"], ind)] if (d["driver_id"], ind) in f.index else None
+            ok = r is not None and r["status"] == "ok"
+            rows.append({"style": d["style"], "driver_id": d["driver_id"], "indicator": ind, "A_true": A, "b_true": b,
+                         "A": r["A"] if ok else np.nan, "A_lo": r["A_lo"] if ok else np.nan,
+                         "A_hi": r["A_hi"] if ok else np.nan, "b": r["b"] if ok else np.nan,
+                         "b_lo": r["b_lo"] if ok else np.nan, "b_hi": r["b_hi"] if ok else np.nan,
+                         "A_in": bool(ok and r["A_lo"] <= A <= r["A_hi"]),
+                         "b_in": bool(ok and r["b_lo"] <= b <= r["b_hi"]),
+                         "n": int(r["n"]) if ok else 0})
+    return rows
+
+
+def ari(styles: pd.DataFrame, drivers: list[dict]) -> float:
+    truth = {d["driver_id"]: d["style"] for d in drivers}
+    st = styles[styles["driver_id"].isin(truth)]
+    return float(adjusted_rand_score([truth[d] for d in st["driver_id"]], st["style"]))
+
+
+def shipped(workspace: Path) -> None:
+    gt = json.loads((ROOT / "sample_logs" / "ground_truth.json").read_text())
+    ws = Workspace(workspace)
+    t0 = time.perf_counter()
+    analyze(ws, AnalysisSettings())
+    dt = time.perf_counter() - t0
+    styles = ws.read_table("analysis", "styles")
+    fits = ws.read_table("analysis", "fits")
+    print(f"== shipped study ({workspace}): analyze {dt:.1f} s")
+    print(f"ARI against ground truth: {ari(styles, gt['drivers']):.3f}")
+    named = dict(zip(styles["driver_id"], styles["style"]))
+    truth = {d["driver_id"]: d["style"] for d in gt["drivers"]}
+    print(f"style names equal to the true names: {sum(named.get(d) == s for d, s in truth.items())}/{len(truth)}")
+    for r in coverage(fits, gt["drivers"]):
+        print(f"  {r['style']:<10} {r['driver_id']} {r['indicator']:<5} "
+              f"A {r['A']:.3f} [{r['A_lo']:.3f}, {r['A_hi']:.3f}] true {r['A_true']:.2f} {'in' if r['A_in'] else 'OUT'}   "
+              f"b {r['b']:.2f} [{r['b_lo']:.2f}, {r['b_hi']:.2f}] true {r['b_true']:.2f} {'in' if r['b_in'] else 'OUT'}"
+              f"   n={r['n']}")
+
+
+def seeds(n_seeds: int) -> None:
+    print(f"== {n_seeds} simulator seeds (default study settings)")
+    aris, cov_rows, extract_times, samples, mism = [], [], [], [], 0
+    n_checked = 0
+    settings = AnalysisSettings()
+    for seed in range(n_seeds):
+        study = simulate_study(StudySettings(), seed=seed)
+        frames = []
+        for meta, ego, traffic in study.recordings:
+            meta = dict(meta, recording_id=meta["session_id"])
+            t0 = time.perf_counter()
+            dec, _ = extract_decisions(meta, ego, traffic, settings)
+            extract_times.append(time.perf_counter() - t0)
+            samples.append(len(ego))
+            frames.append(dec)
+        dec = pd.concat(frames, ignore_index=True)
+        # extracted indicators at the presses against the simulator's own values
+        gt = pd.DataFrame(study.ground_truth["decisions"])
+        pr = dec[dec["label"] == "change"].merge(gt, on=["session_id", "press_t_s"], suffixes=("", "_gt"))
+        for c in ("t_f_s", "t_nf_s", "dv_nb_mps"):
+            a, b = pr[c].to_numpy(float), pr[c + "_gt"].astype(float).to_numpy()
+            mism += int((~np.isclose(a, b, atol=1e-6, equal_nan=True)).sum())
+        n_checked += len(pr) * 3
+        out = analyze_tables(dec, settings)
+        aris.append(ari(out["styles"], study.ground_truth["drivers"]))
+        cov_rows += coverage(out["fits"], study.ground_truth["drivers"])
+        print(f"  seed {seed:2d}: ARI {aris[-1]:.3f}", flush=True)
+    cov = pd.DataFrame(cov_rows)
+    print(f"mean ARI {np.mean(aris):.3f} (min {np.min(aris):.3f}, ARI = 1 in {sum(a == 1.0 for a in aris)}/{len(aris)} seeds)")
+    print(f"extracted indicators equal to the simulator's at the presses: {n_checked - mism}/{n_checked}")
+    print("true line inside the recovered 95 % CI, typical drivers (share of seeds):")
+    tab = cov.groupby(["style", "indicator"])[["A_in", "b_in"]].mean().unstack("indicator")
+    print(tab.round(2).to_string())
+    print(f"overall: A {cov['A_in'].mean():.3f}, b {cov['b_in'].mean():.3f} (nominal 0.95)")
+    ms = np.array(extract_times) * 1000
+    print(f"decision extraction: median {np.median(ms):.1f} ms per recording "
+          f"(median {int(np.median(samples))} samples at 50 Hz, ~12 presses), "
+          f"{np.sum(samples) / np.sum(extract_times) / 1e3:.0f} k samples/s")
+
+
+def timing(repeats: int) -> None:
+    print("== analyze_tables timing (decision tables generated in memory, 10 keep states per press)")
+    for n_drivers in (10, 1000):
+        df, truth = make_decision_table(n_drivers, 50, seed=0)
+        times = []
+        for _ in range(repeats if n_drivers <= 10 else max(1, repeats // 2)):
+            t0 = time.perf_counter()
+            out = analyze_tables(df)
+            times.append(time.perf_counter() - t0)
+        a = adjusted_rand_score([truth[d] for d in out["styles"]["driver_id"]], out["styles"]["style"])
+        print(f"  {n_drivers:5d} drivers x 50 decisions ({len(df):,} rows): median {statistics.median(times):.2f} s "
+              f"over {len(times)} run(s), ARI {a:.3f}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--workspace", type=Path, default=None, help="workspace with sample_logs/ ingested")
+    args = ap.parse_args()
+    if args.workspace:
+        shipped(args.workspace)
+    timing(args.repeats)
+    if args.seeds:
+        seeds(args.seeds)
+
+
+if __name__ == "__main__":
+    main()
