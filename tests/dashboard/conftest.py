@@ -41,24 +41,21 @@ def write_fake_run(ws: Workspace, run_id: str, state: str = "done", episodes: in
     return d
 
 
+SAMPLE_LOGS = ROOT / "sample_logs"
+SAMPLE_DRIVERS = ("D01", "D02", "D03", "D04", "D05", "D06")
+
+
 def build_sample_workspace(root: Path) -> Workspace:
-    """Two recordings and an analysis of a synthetic 6-driver study (real stage code, no simulator)."""
-    from clustering.pipeline import analyze_tables
-    from indicators.synthetic import make_decision_table, make_recording
+    """Six drivers' 80 km/h sections of the shipped study, ingested and analysed by the real stages."""
+    from clustering.pipeline import analyze
+    from ingest.pipeline import ingest_paths
 
     ws = Workspace(root).ensure()
-    for i, driver in enumerate(["D0000", "D0001"]):
-        meta, ego, traffic = make_recording(
-            20.0, 10.0, 22.0, [(0, 0), (8.0, 1)], presses=[(6.0, 0.5, "left")],
-            vehicles=[("lead", 40.0, 18.0, 0, 4.5), ("nb", -30.0, 20.0, 1, 4.5)],
-            recording_id=f"{i:016x}", driver_id=driver)
-        meta.update(simulator="test", source_name=f"rec{i}.csv", source_path=f"/x/rec{i}.csv", format="csv",
-                    n_samples=len(ego), duration_s=float(ego["t_s"].iloc[-1]), n_presses=1, n_vehicles=2,
-                    status="ok", warnings="", ingested_at="2026-11-22T00:00:00+00:00")
-        ws.write_recording(meta, ego, traffic)
-    decisions, _truth = make_decision_table(6, 12, seed=1)
-    tables = analyze_tables(decisions)
-    ws.write_tables("analysis", tables, {"settings": {"k": 3}})
+    files = [p for d in SAMPLE_DRIVERS for p in sorted(SAMPLE_LOGS.glob(f"{d}_S80.*"))]
+    assert len(files) == len(SAMPLE_DRIVERS), f"sample logs missing in {SAMPLE_LOGS}: run `laneprint simulate`"
+    report = ingest_paths(files, ws)
+    assert report.counts["rejected"] == 0, report.to_dict()
+    analyze(ws)
     write_fake_run(ws, "Normal-old-0001")
     write_fake_run(ws, "Normal-old-0002")
     return ws

@@ -36,23 +36,23 @@ def test_navigation_runs_default_page(empty_ws):
 
 def test_data_page_lists_recordings_and_views_one(use_sample):
     at = run_page("data")
-    assert at.subheader[1].value == "Recordings (2)"
-    assert at.selectbox(key="recording").options[0].startswith("D0000 / ")
+    assert at.subheader[1].value == "Recordings (6)"
+    assert at.selectbox(key="recording").options[0].startswith("D01 / D01_S80")
     fig = charts(at)[0]
     assert fig["layout"]["yaxis"]["title"]["text"] == "ego speed [m/s]"
 
 
 def test_drivers_page_shows_three_indicators(use_sample):
     at = run_page("drivers")
-    assert at.selectbox(key="driver").value == "D0000"
+    assert at.selectbox(key="driver").value == "D01"
     figs = charts(at)
     assert len(figs) == 4  # three indicators and the correlation table
     for fig in figs[:3]:
         assert "[m/s]" in fig["layout"]["xaxis"]["title"]["text"]  # units on every axis
         assert "[" in fig["layout"]["yaxis"]["title"]["text"]
     assert figs[3]["data"][0]["type"] == "table"
-    at.selectbox(key="driver").set_value("D0004").run()
-    assert not at.exception and "D0004" in at.markdown[0].value
+    at.selectbox(key="driver").set_value("D04").run()
+    assert not at.exception and "D04" in at.markdown[0].value
 
 
 def test_styles_page_summary(use_sample):
