@@ -93,3 +93,20 @@ def test_settings_reject_nonsense():
         replace(StudySettings(), decisions_per_driver=2)
     with pytest.raises(ValueError):
         replace(StudySettings(), share_slowed=0.9, share_no_target_leader=0.2)
+
+
+def test_shipped_sample_logs_are_the_default_study(default_study):
+    """sample_logs/ is what `laneprint simulate --out sample_logs --seed 0` writes today (no drift)."""
+    import json
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[2] / "sample_logs"
+    shipped = json.loads((folder / "ground_truth.json").read_text())
+    files = shipped.pop("files")
+    assert shipped.pop("format") == "mixed"
+    assert shipped == json.loads(json.dumps(default_study.ground_truth))
+    assert len(files) == 40 and len({f["session_id"] for f in files}) == 40
+    for f in files:
+        assert (folder / f["path"]).stat().st_size == f["bytes"]
+    total = sum(p.stat().st_size for p in folder.iterdir())
+    assert total < 25e6
