@@ -1,1 +1,10 @@
-"""RL: the lane-change decision environment, DQN trainer, greedy benchmark, evaluation."""
+"""RL: the lane-change decision environment, DQN trainer, greedy benchmark, evaluation.
+
+Importing `rl` registers the environment as ``laneprint/LaneChangeDecision-v0``.
+"""
+
+from rl.env import ENV_ID, register
+
+register()
+
+__all__ = ["ENV_ID"]

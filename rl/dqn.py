@@ -1,0 +1,309 @@
+"""DQN in torch, CleanRL-style: one settings dataclass, a loop that reads top to bottom.
+
+Defaults are the study's Table 2 and network (8-128-128-128-2, ReLU). Two things
+the study leaves open are settled here: the optimiser is Adam and the loss the
+squared TD error of its eq. 5 (``loss="huber"`` for SB3's smooth L1).
+
+Vectorised collection (``num_envs > 1``): the loop steps ``num_envs`` copies of
+the environment together (`VecLaneChangeEnv`) and, per vector step, makes
+``gradient_steps`` updates of ``batch_size`` transitions. With ``num_envs=1,
+batch_size=32, gradient_steps=1`` this is the study's DQN (one update of 32 per
+environment step). With N envs it changes three things, all measurable:
+(1) the replay ratio, gradient samples per collected transition, becomes
+``gradient_steps * batch_size / num_envs`` (32 in the study); (2) each update
+averages over a larger batch, so fewer, larger, less noisy steps at the same
+learning rate; (3) the data is collected by a policy that is up to N
+transitions staler. Epsilon still decays per finished episode and the target
+network is still copied every `target_update_episodes` finished episodes;
+replay memory and learning start stay in transitions.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import torch
+from torch import nn
+
+from rl.env import EnvConfig, VecLaneChangeEnv
+from rl.rewards import CHANGE, TERMS
+
+
+@dataclass(frozen=True)
+class DQNSettings:
+    """Training settings (defaults: the study's Table 2, plus our vectorisation)."""
+
+    episodes: int = 10000  # N_e: stop after this many finished episodes
+    learning_rate: float = 0.005  # eta, Adam step size
+    eps_start: float = 0.8  # epsilon_s, initial exploration
+    eps_end: float = 0.1  # epsilon_e, final exploration
+    exploration_fraction: float = 1.0  # share of `episodes` over which epsilon falls linearly
+    gamma: float = 0.98  # discount factor per step
+    buffer_size: int = 10000  # M_r, replay memory [transitions]
+    learning_starts: int = 2000  # M_i, transitions stored before the first update
+    batch_size: int = 32  # M_m, transitions per update
+    target_update_episodes: int = 20  # N_u, copy the target network every this many episodes
+    hidden: tuple[int, ...] = (128, 128, 128)  # hidden layer widths (ReLU)
+    num_envs: int = 16  # environments stepped together (1 = the study's loop)
+    gradient_steps: int = 1  # updates per vector step
+    loss: str = "mse"  # 'mse' (eq. 5) or 'huber'
+    max_grad_norm: float = 10.0  # gradient clipping (0 = none)
+    threads: int = 1  # torch intra-op threads (small nets oversubscribe with more)
+    seed: int = 0  # seeds numpy (environments, exploration, sampling) and torch (init)
+    checkpoint_every: int = 500  # save a checkpoint every this many episodes (0 = never)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> "DQNSettings":
+        d = dict(d)
+        if "hidden" in d:
+            d["hidden"] = tuple(d["hidden"])
+        return DQNSettings(**d)
+
+
+def q_network(hidden: tuple[int, ...] = (128, 128, 128), n_obs: int = 8, n_actions: int = 2) -> nn.Sequential:
+    """The study's fully connected Q network: 8 -> 128 -> 128 -> 128 -> 2, ReLU."""
+    layers: list[nn.Module] = []
+    width = n_obs
+    for h in hidden:
+        layers += [nn.Linear(width, h), nn.ReLU()]
+        width = h
+    layers.append(nn.Linear(width, n_actions))
+    return nn.Sequential(*layers)
+
+
+def greedy_actions(net: nn.Module, obs: np.ndarray) -> np.ndarray:
+    """argmax_a Q(obs, a) for a batch of observations (ties go to TO CHANGE, index 0)."""
+    with torch.no_grad():
+        q = net(torch.as_tensor(obs, dtype=torch.float32))
+    return q.argmax(dim=1).numpy()
+
+
+def q_values(net: nn.Module, obs: np.ndarray) -> np.ndarray:
+    with torch.no_grad():
+        return net(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+
+
+class ReplayBuffer:
+    """A ring buffer of transitions in numpy arrays."""
+
+    def __init__(self, size: int, n_obs: int = 8) -> None:
+        self.size = size
+        self.obs = np.zeros((size, n_obs), np.float32)
+        self.next_obs = np.zeros((size, n_obs), np.float32)
+        self.actions = np.zeros(size, np.int64)
+        self.rewards = np.zeros(size, np.float32)
+        self.terminated = np.zeros(size, np.float32)
+        self.pos = 0
+        self.full = False
+
+    def __len__(self) -> int:
+        return self.size if self.full else self.pos
+
+    def add(self, obs, next_obs, actions, rewards, terminated) -> None:
+        n = len(actions)
+        idx = (self.pos + np.arange(n)) % self.size
+        self.obs[idx], self.next_obs[idx] = obs, next_obs
+        self.actions[idx], self.rewards[idx], self.terminated[idx] = actions, rewards, terminated
+        self.full = self.full or self.pos + n >= self.size
+        self.pos = int((self.pos + n) % self.size)
+
+    def sample(self, rng: np.random.Generator, batch: int) -> tuple[torch.Tensor, ...]:
+        idx = rng.integers(0, len(self), batch)
+        return (torch.from_numpy(self.obs[idx]), torch.from_numpy(self.actions[idx]),
+                torch.from_numpy(self.rewards[idx]), torch.from_numpy(self.next_obs[idx]),
+                torch.from_numpy(self.terminated[idx]))
+
+    def state_dict(self) -> dict[str, Any]:
+        n = len(self)
+        return {"obs": torch.from_numpy(self.obs[:n].copy()), "next_obs": torch.from_numpy(self.next_obs[:n].copy()),
+                "actions": torch.from_numpy(self.actions[:n].copy()), "rewards": torch.from_numpy(self.rewards[:n].copy()),
+                "terminated": torch.from_numpy(self.terminated[:n].copy()), "pos": self.pos, "full": self.full}
+
+    def load_state_dict(self, s: dict[str, Any]) -> None:
+        n = len(s["actions"])
+        self.obs[:n], self.next_obs[:n] = s["obs"].numpy(), s["next_obs"].numpy()
+        self.actions[:n], self.rewards[:n], self.terminated[:n] = s["actions"].numpy(), s["rewards"].numpy(), s["terminated"].numpy()
+        self.pos, self.full = int(s["pos"]), bool(s["full"])
+
+
+@dataclass
+class EpisodeStats:
+    """Running sums of the episodes in progress, one slot per environment."""
+
+    n: int
+    ret: np.ndarray = field(init=False)
+    length: np.ndarray = field(init=False)
+    terms: dict[str, np.ndarray] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.ret = np.zeros(self.n)
+        self.length = np.zeros(self.n, np.int64)
+        self.terms = {k: np.zeros(self.n) for k in TERMS}
+
+
+class DQNTrainer:
+    """Trains a Q network on the lane-change environment; resumable.
+
+    ``trainer.train(on_episode=..., should_stop=...)`` runs until `settings.episodes`
+    episodes have finished or `should_stop()` is true. `on_episode(row)` receives one
+    metrics dict per finished episode; `on_checkpoint(trainer)` is called every
+    `checkpoint_every` episodes; `on_vector_step(trainer)` after every vector step
+    (returning True stops training, as an SB3 callback returning False would).
+    """
+
+    def __init__(self, env_config: EnvConfig, settings: DQNSettings | None = None) -> None:
+        self.env_config = env_config
+        self.settings = s = settings or DQNSettings()
+        torch.set_num_threads(s.threads)
+        # --- seeding, in one block ---
+        torch.manual_seed(s.seed)
+        self.rng = np.random.default_rng(s.seed)
+        self.envs = VecLaneChangeEnv(env_config, s.num_envs, np.random.default_rng([s.seed, 1]))
+        self.q = q_network(s.hidden)
+        self.target = q_network(s.hidden)
+        self.target.load_state_dict(self.q.state_dict())
+        self.optimizer = torch.optim.Adam(self.q.parameters(), lr=s.learning_rate)
+        self.buffer = ReplayBuffer(s.buffer_size)
+        self.stats = EpisodeStats(s.num_envs)
+        self.obs = self.envs.observe()
+        self.episodes_done = 0
+        self.env_steps = 0
+        self.updates = 0
+        self.wall_s = 0.0
+        self._losses: list[float] = []
+
+    def epsilon(self) -> float:
+        s = self.settings
+        frac = min(1.0, self.episodes_done / max(1.0, s.exploration_fraction * s.episodes))
+        return s.eps_start + frac * (s.eps_end - s.eps_start)
+
+    def _update(self) -> float:
+        s = self.settings
+        obs, actions, rewards, next_obs, terminated = self.buffer.sample(self.rng, s.batch_size)
+        with torch.no_grad():
+            target_max = self.target(next_obs).max(dim=1).values
+            td_target = rewards + s.gamma * target_max * (1.0 - terminated)
+        q = self.q(obs).gather(1, actions[:, None]).squeeze(1)
+        loss = nn.functional.mse_loss(q, td_target) if s.loss == "mse" else nn.functional.smooth_l1_loss(q, td_target)
+        self.optimizer.zero_grad()
+        loss.backward()
+        if s.max_grad_norm:
+            nn.utils.clip_grad_norm_(self.q.parameters(), s.max_grad_norm)
+        self.optimizer.step()
+        self.updates += 1
+        return float(loss.detach())
+
+    def train(self, on_episode: Callable[[dict], None] | None = None,
+              should_stop: Callable[[], bool] | None = None,
+              on_checkpoint: Callable[["DQNTrainer"], None] | None = None,
+              on_vector_step: Callable[["DQNTrainer"], bool] | None = None) -> "DQNTrainer":
+        """Run the training loop (see the class doc). Returns self."""
+        s = self.settings
+        n = s.num_envs
+        start = time.perf_counter() - self.wall_s
+        while self.episodes_done < s.episodes:
+            if should_stop is not None and should_stop():
+                break
+            # 1. act: epsilon-greedy over the N environments
+            eps = self.epsilon()
+            actions = greedy_actions(self.q, self.obs)
+            explore = self.rng.random(n) < eps
+            actions = np.where(explore, self.rng.integers(0, 2, n), actions)
+            # 2. step, store (bootstrapping through truncation: store the true last observation)
+            out = self.envs.step(actions)
+            self.buffer.add(self.obs, out["final_obs"], actions, out["reward"], out["terminated"].astype(np.float32))
+            self.obs = out["obs"]
+            self.env_steps += n
+            st = self.stats
+            st.ret += out["reward"]
+            st.length += 1
+            for k in TERMS:
+                st.terms[k] += out["terms"][k]
+            # 3. learn
+            if len(self.buffer) >= s.learning_starts:
+                for _ in range(s.gradient_steps):
+                    self._losses.append(self._update())
+            # 4. book-keeping of finished episodes
+            done = out["terminated"] | out["truncated"]
+            for i in np.flatnonzero(done):
+                if self.episodes_done >= s.episodes:
+                    break
+                self.episodes_done += 1
+                self.wall_s = time.perf_counter() - start
+                if on_episode is not None:
+                    length = int(st.length[i])
+                    on_episode({
+                        "episode": self.episodes_done,
+                        "loss": float(np.mean(self._losses)) if self._losses else None,
+                        "mean_step_reward": float(st.ret[i] / length),
+                        "epsilon": eps,
+                        "length": length,
+                        "changed": bool(actions[i] == CHANGE and out["terminated"][i] and not out["reached_leader"][i]),
+                        "reached_leader": bool(out["reached_leader"][i]),
+                        "return": float(st.ret[i]),
+                        **{f"term_{k}": float(st.terms[k][i]) for k in TERMS},
+                        "env_steps": self.env_steps,
+                        "wall_s": round(self.wall_s, 4),
+                    })
+                    self._losses = []
+                st.ret[i] = 0.0
+                st.length[i] = 0
+                for k in TERMS:
+                    st.terms[k][i] = 0.0
+                if self.episodes_done % s.target_update_episodes == 0:
+                    self.target.load_state_dict(self.q.state_dict())
+                if on_checkpoint is not None and s.checkpoint_every and self.episodes_done % s.checkpoint_every == 0:
+                    on_checkpoint(self)
+            self.wall_s = time.perf_counter() - start
+            if on_vector_step is not None and on_vector_step(self):
+                break
+        return self
+
+    # --- checkpoints (everything as tensors / plain values: loadable with weights_only=True) ---
+
+    def state_dict(self) -> dict[str, Any]:
+        env_state = self.envs.state_dict()
+        return {
+            "q": self.q.state_dict(),
+            "target": self.target.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "buffer": self.buffer.state_dict(),
+            "env_scene": {k: torch.from_numpy(np.asarray(v).copy()) for k, v in env_state["scene"].items()},
+            "env_steps_in_episode": torch.from_numpy(env_state["steps"]),
+            "obs": torch.from_numpy(self.obs.copy()),
+            "stats": {"ret": torch.from_numpy(self.stats.ret.copy()), "length": torch.from_numpy(self.stats.length.copy()),
+                      **{f"term_{k}": torch.from_numpy(v.copy()) for k, v in self.stats.terms.items()}},
+            "rng": json.dumps(self.rng.bit_generator.state),
+            "env_rng": json.dumps(self.envs.rng.bit_generator.state),
+            "torch_rng": torch.get_rng_state(),
+            "counters": {"episodes_done": self.episodes_done, "env_steps": self.env_steps,
+                         "updates": self.updates, "wall_s": self.wall_s},
+            "losses": list(self._losses),
+            "settings": json.dumps(self.settings.to_dict()),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.q.load_state_dict(state["q"])
+        self.target.load_state_dict(state["target"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.buffer.load_state_dict(state["buffer"])
+        self.envs.load_state_dict({"scene": {k: v.numpy() for k, v in state["env_scene"].items()},
+                                   "steps": state["env_steps_in_episode"].numpy()})
+        self.obs = state["obs"].numpy().copy()
+        st = state["stats"]
+        self.stats.ret, self.stats.length = st["ret"].numpy().copy(), st["length"].numpy().copy()
+        self.stats.terms = {k: st[f"term_{k}"].numpy().copy() for k in TERMS}
+        self.rng.bit_generator.state = json.loads(state["rng"])
+        self.envs.rng.bit_generator.state = json.loads(state["env_rng"])
+        torch.set_rng_state(state["torch_rng"])
+        c = state["counters"]
+        self.episodes_done, self.env_steps = int(c["episodes_done"]), int(c["env_steps"])
+        self.updates, self.wall_s = int(c["updates"]), float(c["wall_s"])
+        self._losses = [float(x) for x in state["losses"]]

@@ -1,0 +1,336 @@
+"""The lane-change decision environment (`laneprint/LaneChangeDecision-v0`).
+
+A two-lane highway. The ego drives at a constant speed behind a slower leader
+``C_f``; the target lane holds a leader ``C_nf`` and a follower ``C_nb``. Every
+vehicle keeps its speed, so the times to collision fall by exactly ``dt`` per
+step and ``dv_nb`` is constant: the question is only *when* to change lane.
+
+Action Space
+    ``Discrete(2)``: 0 = TO CHANGE lane (ends the episode), 1 = NOT TO CHANGE.
+
+Observation Space
+    ``Box(0, 1, (8,), float32)``: ``[v_e, x_e, v_f, x_f, v_nf, x_nf, v_nb, x_nb]``
+    normalised to (0, 1] (see `rl.scene.observe`): speeds over ``v_max_mps``;
+    positions ego-centred over ``+-range_m`` (the ego is always 0.5). An absent
+    ``C_nf`` / ``C_nb`` shows as nothing within range: at the front / rear edge,
+    at the ego's speed.
+
+Rewards
+    From the target's reference lines, `paper` or `timing` (see `rl.rewards`);
+    ``info["terms"]`` holds the named terms of each step.
+
+Episode End
+    Terminated on TO CHANGE, or when the ego reaches ``C_f`` (gap <= 0) without
+    changing (``end_at_leader``). Truncated after ``max_steps`` steps.
+
+Starting State
+    Matched to the synthetic study (`laneprint.simulator.config`): ego speed
+    uniform over the sections' limits +-5 km/h, traffic speeds Uniform(5, 14) m/s,
+    cars 4-5 m and 10 % trucks 10-16 m. ``C_f`` is placed so that its initial time
+    to collision is uniform in ``t_f0_s`` (every episode then crosses the moment a
+    driver would change); ``C_nf`` so that ``t_nf - t_f`` is uniform in
+    ``nf_ttc_offset_s`` (as the study's presses, where both sit near the driver's
+    lines), present with ``nf_present_prob``; ``C_nb`` behind at a uniform gap
+    (beyond 100 m it is "far" and has no influence). All randomness comes
+    from ``self.np_random`` (seeded by ``reset(seed=...)``).
+
+Replay mode (``approaches=[...]``): each episode is one recorded approach from
+the workspace's decisions table: the not-yet states and the press, in time
+order, then (if the agent has not changed by the press) the press scene moved on
+at constant speeds every ``dt_s``. See `approaches_from_decisions`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+
+from laneprint.reference import FAR_FOLLOWER_M
+from rl.rewards import CHANGE, TERMS, ReferenceLines, RewardSettings, step_reward
+from rl.scene import Scene, indicators, observe
+
+ENV_ID = "laneprint/LaneChangeDecision-v0"
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Everything that defines the environment, in one place (units in comments)."""
+
+    dt_s: float = 0.5  # time between two decisions [s] (the analysis's not-yet step)
+    max_steps: int = 200  # episode truncation (Table 2, N_s) [steps]
+    ego_speed_mps: tuple[float, float] = (55 / 3.6, 95 / 3.6)  # ego speed, uniform: limits 60-90 km/h +-5 [m/s]
+    traffic_speed_mps: tuple[float, float] = (5.0, 14.0)  # C_f, C_nf, C_nb speeds, uniform [m/s]
+    t_f0_s: tuple[float, float] = (1.0, 25.0)  # initial time to collision with C_f, uniform [s]
+    nf_present_prob: float = 0.88  # probability of a leader in the target lane
+    nf_ttc_offset_s: tuple[float, float] = (-4.0, 6.0)  # initial t_nf - t_f, uniform [s] (gap >= 1 m)
+    nb_present_prob: float = 1.0  # probability of a follower in the target lane
+    nb_gap0_m: tuple[float, float] = (5.0, 140.0)  # initial gap to C_nb, uniform [m]
+    ego_length_m: float = 4.5  # [m]
+    car_length_m: tuple[float, float] = (4.0, 5.0)  # traffic car length, uniform [m]
+    truck_share: float = 0.1  # share of traffic vehicles that are trucks
+    truck_length_m: tuple[float, float] = (10.0, 16.0)  # truck length, uniform [m]
+    range_m: float = 150.0  # sensing range ahead and behind; farther vehicles are not seen [m]
+    v_max_mps: float = 40.0  # speed that normalises to 1 [m/s]
+    far_follower_m: float = FAR_FOLLOWER_M  # C_nb farther than this has no influence [m]
+    end_at_leader: bool = True  # terminate when the ego reaches C_f without changing
+    reward: RewardSettings = field(default_factory=RewardSettings)  # which reward, its parameters
+    lines: ReferenceLines = field(default_factory=lambda: ReferenceLines.paper("Normal"))  # target lines
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> "EnvConfig":
+        d = dict(d)
+        d["reward"] = RewardSettings(**d.get("reward", {}))
+        if "lines" in d:
+            d["lines"] = ReferenceLines.from_dict(d["lines"])
+        for k, v in list(d.items()):
+            if isinstance(v, list):
+                d[k] = tuple(v)
+        return EnvConfig(**d)
+
+
+def default_config() -> EnvConfig:
+    """The default configuration (matched to the synthetic study's traffic)."""
+    return EnvConfig()
+
+
+def _half_lengths(rng: np.random.Generator, cfg: EnvConfig, n: int) -> np.ndarray:
+    """Half of (ego length + a traffic vehicle's length) for `n` vehicles [m]."""
+    truck = rng.random(n) < cfg.truck_share
+    length = np.where(truck, rng.uniform(*cfg.truck_length_m, n), rng.uniform(*cfg.car_length_m, n))
+    return (cfg.ego_length_m + length) / 2.0
+
+
+def sample_scenes(rng: np.random.Generator, cfg: EnvConfig, n: int) -> Scene:
+    """`n` random starting scenes (see the module doc, Starting State)."""
+    u = rng.uniform
+    v_e = u(*cfg.ego_speed_mps, n)
+    v_f, v_nf, v_nb = (u(*cfg.traffic_speed_mps, n) for _ in range(3))
+    hl_f, hl_nf, hl_nb = (_half_lengths(rng, cfg, n) for _ in range(3))
+    t_f0 = u(*cfg.t_f0_s, n)
+    t_nf0 = t_f0 + u(*cfg.nf_ttc_offset_s, n)
+    x_e = np.zeros(n)
+    x_f = x_e + hl_f + t_f0 * np.maximum(v_e - v_f, 0.1)
+    x_nf = x_e + hl_nf + np.maximum(t_nf0 * (v_e - v_nf), 1.0)
+    x_nb = x_e - hl_nb - u(*cfg.nb_gap0_m, n)
+    return Scene(
+        v_e=v_e, x_e=x_e,
+        f_present=np.ones(n, bool), v_f=v_f, x_f=x_f, hl_f=hl_f,
+        nf_present=rng.random(n) < cfg.nf_present_prob, v_nf=v_nf, x_nf=x_nf, hl_nf=hl_nf,
+        nb_present=rng.random(n) < cfg.nb_present_prob, v_nb=v_nb, x_nb=x_nb, hl_nb=hl_nb,
+    )
+
+
+def transition(scene: Scene, actions: np.ndarray, cfg: EnvConfig) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    """Apply `actions` to a batch of scenes (in place).
+
+    Returns (reward, named terms, terminated, reached_leader). The reward is that of
+    the action in the scene where it was taken; kept scenes then move on by dt.
+    """
+    ind = indicators(scene, cfg.far_follower_m, cfg.range_m)
+    reward, terms = step_reward(ind, actions, cfg.lines, cfg.reward, cfg.dt_s)
+    changed = np.asarray(actions) == CHANGE
+    scene.advance(cfg.dt_s)
+    gap_f = np.where(scene.f_present, scene.x_f - scene.x_e - scene.hl_f, np.inf)
+    reached = ~changed & (gap_f <= 0.0) if cfg.end_at_leader else np.zeros_like(changed)
+    return reward, terms, changed | reached, reached
+
+
+# --- replay of recorded approaches -------------------------------------------------
+
+
+@dataclass
+class Approach:
+    """One recorded approach: the not-yet states and the press, in time order."""
+
+    decision_id: str
+    driver_id: str
+    t_s: np.ndarray  # time of each recorded state [s]; the last is the press
+    scene: Scene  # the recorded scenes, same length
+
+    @property
+    def press_t_s(self) -> float:
+        return float(self.t_s[-1])
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+
+#: Why a recorded decision is not replayed (see `approaches_from_decisions`).
+SKIP_REASONS = {
+    "no_closing_leader": "no closing ego-lane leader at the press (t_f undefined): outside the decision problem",
+    "following": "the ego was following its leader at the press (closing speed below the analysis's "
+                 "min_closing_mps, t_f_reason 'following'): the line does not describe these presses",
+    "no_press": "no 'change' row for the decision",
+}
+
+
+def scenes_from_decisions(rows: pd.DataFrame, vehicle_length_m: float = 4.5) -> Scene:
+    """Scenes of DECISIONS rows (one per row); absent vehicles flagged, gaps kept exact."""
+    def col(name: str) -> np.ndarray:
+        return rows[name].to_numpy(dtype=float, na_value=np.nan)
+
+    x_e, v_e = col("ego_x_m"), col("ego_v_mps")
+
+    def part(prefix: str, ahead: bool) -> dict[str, np.ndarray]:
+        present = rows[f"{prefix}_present"].to_numpy(dtype=bool)
+        x, v, gap = col(f"{prefix}_x_m"), col(f"{prefix}_v_mps"), col(f"{prefix}_gap_m")
+        dist = (x - x_e) if ahead else (x_e - x)
+        hl = np.where(present & np.isfinite(gap) & np.isfinite(dist), dist - gap, vehicle_length_m)
+        return {f"{prefix}_present": present, f"v_{prefix}": np.where(present, v, v_e),
+                f"x_{prefix}": np.where(present, x, x_e), f"hl_{prefix}": hl}
+
+    return Scene(v_e=v_e, x_e=x_e, **part("f", True), **part("nf", True), **part("nb", False))
+
+
+def approaches_from_decisions(decisions: pd.DataFrame, vehicle_length_m: float = 4.5) -> tuple[list[Approach], dict[str, int]]:
+    """Recorded approaches from a DECISIONS table, and how many were skipped, by reason.
+
+    Rule: a decision is skipped when its press has no closing ego-lane leader
+    (``t_f_status != 'ok'``) or the analysis marks its t_f as 'following' (closing
+    slower than its ``min_closing_mps``: the driver had slowed behind the leader
+    and waited for a gap, which the constant-speed decision problem does not
+    model and the analysis leaves out of the fits); a decision without a press
+    row is skipped too. Undefined ``t_nf`` or
+    ``dv_nb`` are kept: the environment models absent and far vehicles.
+    """
+    skipped = {k: 0 for k in SKIP_REASONS}
+    out: list[Approach] = []
+    df = decisions.sort_values(["decision_id", "t_s"], kind="stable")
+    for did, rows in df.groupby("decision_id", sort=True):
+        press = rows[rows["label"] == "change"]
+        if press.empty:
+            skipped["no_press"] += 1
+            continue
+        if press["t_f_status"].iloc[-1] != "ok":
+            skipped["no_closing_leader"] += 1
+            continue
+        if "t_f_reason" in press and press["t_f_reason"].iloc[-1] == "following":
+            skipped["following"] += 1
+            continue
+        press_t = float(press["t_s"].iloc[-1])
+        rows = pd.concat([rows[(rows["label"] == "keep") & (rows["t_s"] < press_t)], press.iloc[[-1]]])
+        out.append(Approach(str(did), str(rows["driver_id"].iloc[0]), rows["t_s"].to_numpy(float),
+                            scenes_from_decisions(rows, vehicle_length_m)))
+    return out, skipped
+
+
+# --- the gymnasium environment ------------------------------------------------------
+
+
+class LaneChangeDecisionEnv(gym.Env):
+    """The study's lane-change decision as a gymnasium environment (see the module doc)."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, config: EnvConfig | None = None, approaches: list[Approach] | None = None,
+                 **overrides: Any) -> None:
+        cfg = config or default_config()
+        self.config = replace(cfg, **overrides) if overrides else cfg
+        self.approaches = approaches
+        if approaches is not None and len(approaches) == 0:
+            raise ValueError("replay mode needs at least one approach")
+        self.action_space = gym.spaces.Discrete(2)
+        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(8,), dtype=np.float32)
+        self._scene: Scene | None = None
+        self._steps = 0
+        self._approach: Approach | None = None
+        self._replay_i = 0
+
+    def _obs(self) -> np.ndarray:
+        return observe(self._scene, self.config.range_m, self.config.v_max_mps)[0]
+
+    def _info(self) -> dict[str, Any]:
+        ind = indicators(self._scene, self.config.far_follower_m, self.config.range_m)
+        # undefined indicators are None (NaN would make equal infos compare unequal)
+        info = {k: (None if np.isnan(x := float(getattr(ind, k)[0])) else x) for k in ("v_e", "t_f", "t_nf", "dv_nb")}
+        if self._approach is not None:
+            info["decision_id"] = self._approach.decision_id
+            info["recorded"] = self._replay_i < len(self._approach)
+        return info
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        self._steps = 0
+        if self.approaches is None:
+            self._approach = None
+            self._scene = sample_scenes(self.np_random, self.config, 1)
+        else:
+            idx = (options or {}).get("approach")
+            if idx is None:
+                idx = int(self.np_random.integers(len(self.approaches)))
+            self._approach = self.approaches[idx]
+            self._replay_i = 0
+            self._scene = self._approach.scene.take(slice(0, 1))
+        return self._obs(), self._info()
+
+    def step(self, action):
+        if self._scene is None:
+            raise RuntimeError("call reset() before step()")
+        act = np.array([int(action)])
+        reward, terms, terminated, reached = transition(self._scene, act, self.config)
+        self._steps += 1
+        if self._approach is not None and not terminated[0]:
+            self._replay_i += 1
+            if self._replay_i < len(self._approach):  # next recorded state replaces the extrapolation
+                self._scene = self._approach.scene.take(slice(self._replay_i, self._replay_i + 1))
+        truncated = bool(self._steps >= self.config.max_steps and not terminated[0])
+        info = self._info()
+        info.update(terms={k: float(terms[k][0]) for k in TERMS}, changed=bool(act[0] == CHANGE),
+                    reached_leader=bool(reached[0]))
+        return self._obs(), float(reward[0]), bool(terminated[0]), truncated, info
+
+
+class VecLaneChangeEnv:
+    """`num_envs` random-start environments stepped together with numpy (for the trainer).
+
+    Same model as `LaneChangeDecisionEnv` (shared `sample_scenes` / `transition`),
+    auto-resetting: `step` returns the next observations, in which finished
+    environments already show their new episode's first state; their last
+    observation is in ``final_obs``.
+    """
+
+    def __init__(self, config: EnvConfig, num_envs: int, rng: np.random.Generator) -> None:
+        self.config = config
+        self.num_envs = num_envs
+        self.rng = rng
+        self.scene = sample_scenes(rng, config, num_envs)
+        self.steps = np.zeros(num_envs, dtype=np.int64)
+
+    def observe(self) -> np.ndarray:
+        return observe(self.scene, self.config.range_m, self.config.v_max_mps)
+
+    def step(self, actions: np.ndarray) -> dict[str, Any]:
+        """Step all environments; returns a dict of arrays (see the class doc)."""
+        reward, terms, terminated, reached = transition(self.scene, actions, self.config)
+        self.steps += 1
+        truncated = ~terminated & (self.steps >= self.config.max_steps)
+        done = terminated | truncated
+        final_obs = self.observe()
+        if done.any():
+            idx = np.flatnonzero(done)
+            self.scene.put(idx, sample_scenes(self.rng, self.config, len(idx)))
+            self.steps[idx] = 0
+        return {"obs": self.observe(), "final_obs": final_obs, "reward": reward, "terms": terms,
+                "terminated": terminated, "truncated": truncated, "reached_leader": reached}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"scene": {k: v.copy() for k, v in self.scene.as_arrays().items()}, "steps": self.steps.copy()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.scene = Scene(**{k: np.asarray(v).copy() for k, v in state["scene"].items()})
+        self.steps = np.asarray(state["steps"]).copy()
+
+
+def register() -> None:
+    """Register the environment with gymnasium (idempotent)."""
+    if ENV_ID not in gym.registry:
+        gym.register(id=ENV_ID, entry_point="rl.env:LaneChangeDecisionEnv",
+                     max_episode_steps=None, disable_env_checker=False)
+

@@ -1,0 +1,181 @@
+"""Rewards of the decision problem from reference lines ``I = A * v_e + b``.
+
+Two formulations, both built from the study's per-indicator closeness score
+(eqs. 10 and 12): with ``e = |i_actual - i_reference(v_e)|``::
+
+    score(e) = 1                   for e <= m
+               (n - e) / (n - m)   for m < e < n
+               0                   for e >= n
+
+``m, n = 0.2, 2`` [s] for t_f and t_nf, ``0.5, 5`` [m/s] for dv_nb.
+
+- ``paper`` (eqs. 10-13, with the eq. 11 typo fixed): every step, TO CHANGE earns
+  ``sum_i score_i`` and NOT TO CHANGE earns ``sum_i (1 - score_i)``, so the two
+  always sum to 3. Named terms ``r_f, r_nf, r_nb`` (of the action taken).
+- ``timing`` (ours): TO CHANGE earns ``sum_i score_i`` once, as the episode ends;
+  NOT TO CHANGE earns 0 while the leader is farther than the reference
+  (``t_f >= t_f_ref(v_e)``) and ``-late_penalty_per_s * dt`` once the reference
+  moment has passed. The return is then largest for changing when the scene is
+  closest to the driver's line, which is what teaches the driver's timing; the
+  paper's constant-sum keep reward instead pays for waiting (see README of rl/).
+  Named terms ``r_f, r_nf, r_nb`` (on a change) and ``late`` (on a keep).
+
+Undefined indicators: without a target-lane leader closing in, or a follower
+within `FAR_FOLLOWER_M`, nothing in that lane constrains the change, so t_nf's
+or dv_nb's change score is `undefined_score` (default 1, "no objection");
+without a closing ego-lane leader there is nothing to pass, so t_f's change
+score is `undefined_t_f_score` (default 0, "no reason"). Keep scores are the
+complements. This is a rule on the score, not a sentinel
+value of the indicator: the indicator itself stays undefined.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import pandas as pd
+
+from laneprint.errors import UserError
+from laneprint.reference import INDICATORS, PAPER_TABLE1
+from rl.scene import Indicators
+
+REWARDS: tuple[str, ...] = ("paper", "timing")
+TERMS: tuple[str, ...] = ("r_f", "r_nf", "r_nb", "base", "late")
+
+CHANGE, KEEP = 0, 1  # action indices: 0 = TO CHANGE, 1 = NOT TO CHANGE
+
+
+@dataclass(frozen=True)
+class ReferenceLines:
+    """The three reference lines of one style or driver: indicator -> (A, b)."""
+
+    t_f: tuple[float, float]  # A [s per m/s], b [s]
+    t_nf: tuple[float, float]  # A [s per m/s], b [s]
+    dv_nb: tuple[float, float]  # A [1], b [m/s]
+    source: str = ""  # provenance, e.g. "Table 1 (Normal)"
+
+    def at(self, v_e: np.ndarray | float) -> dict[str, np.ndarray]:
+        """Reference value of each indicator at ego speed(s) `v_e` [m/s]."""
+        v = np.asarray(v_e, dtype=float)
+        return {k: getattr(self, k)[0] * v + getattr(self, k)[1] for k in INDICATORS}
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict) -> "ReferenceLines":
+        return ReferenceLines(tuple(d["t_f"]), tuple(d["t_nf"]), tuple(d["dv_nb"]), d.get("source", ""))
+
+    @staticmethod
+    def paper(style: str) -> "ReferenceLines":
+        """Table 1 of the study for `style` (Defensive, Normal, Aggressive)."""
+        key = style.capitalize()
+        if key not in PAPER_TABLE1:
+            raise UserError(f"unknown style {style!r}: Table 1 has {', '.join(PAPER_TABLE1)}")
+        t = PAPER_TABLE1[key]
+        return ReferenceLines(t["t_f"], t["t_nf"], t["dv_nb"], f"Table 1 ({key})")
+
+    @staticmethod
+    def from_table(lines: pd.DataFrame, *, style: str | None = None, driver: str | None = None) -> "ReferenceLines":
+        """Lines of a style (scope='style', kind='typical') or a driver (scope='driver') from REFERENCE_LINES."""
+        if (style is None) == (driver is None):
+            raise UserError("give exactly one of --style or --driver")
+        if style is not None:
+            sel = lines[(lines["scope"] == "style") & (lines["name"].str.lower() == style.lower())
+                        & (lines["kind"] == "typical")]
+            what = f"style {style!r}"
+        else:
+            sel = lines[(lines["scope"] == "driver") & (lines["name"].astype(str) == str(driver))]
+            what = f"driver {driver!r}"
+        if sel.empty:
+            known = sorted(lines.loc[lines["scope"] == ("style" if style else "driver"), "name"].astype(str).unique())
+            raise UserError(f"no reference lines for {what} in the analysis (known: {', '.join(known) or 'none'})")
+        got = {r["indicator"]: (float(r["A"]), float(r["b"])) for _, r in sel.iterrows()}
+        missing = [k for k in INDICATORS if k not in got]
+        if missing:
+            raise UserError(f"reference lines for {what} lack indicator(s) {', '.join(missing)}")
+        source = "; ".join(sorted(set(sel["source"].astype(str))))
+        return ReferenceLines(got["t_f"], got["t_nf"], got["dv_nb"], source)
+
+
+@dataclass(frozen=True)
+class RewardSettings:
+    """Which reward and its parameters."""
+
+    name: str = "timing"  # 'paper' (eqs. 10-13) or 'timing' (ours, see module doc)
+    m_ttc_s: float | None = None  # maximum acceptable error of t_f, t_nf [s]; None: 0.2 paper, 1.0 timing
+    n_ttc_s: float = 2.0  # maximum effective error of t_f, t_nf [s]
+    m_dv_mps: float | None = None  # maximum acceptable error of dv_nb [m/s]; None: 0.5 paper, 2.0 timing
+    n_dv_mps: float = 5.0  # maximum effective error of dv_nb [m/s]
+    undefined_score: float = 1.0  # change score of an undefined t_nf or dv_nb: no objection [0-1]
+    undefined_t_f_score: float = 0.0  # change score of an undefined t_f: no leader to pass, no reason [0-1]
+    change_baseline: float = 2.4  # timing: subtracted from the closeness sum on a change [0-3]
+    late_penalty_per_s: float = 0.0  # timing: keep reward once past the reference t_f, negated [1/s]
+
+    def __post_init__(self) -> None:
+        if self.name not in REWARDS:
+            raise UserError(f"unknown reward {self.name!r}: choose one of {', '.join(REWARDS)}")
+        if self.m_ttc_s is None:
+            object.__setattr__(self, "m_ttc_s", 0.2 if self.name == "paper" else 1.0)
+        if self.m_dv_mps is None:
+            object.__setattr__(self, "m_dv_mps", 0.5 if self.name == "paper" else 2.0)
+
+
+def closeness(error: np.ndarray, m: float, n: float) -> np.ndarray:
+    """Eq. 10: 1 for e <= m, (n - e) / (n - m) between, 0 for e >= n."""
+    return np.clip((n - error) / (n - m), 0.0, 1.0)
+
+
+def change_scores(ind: Indicators, lines: ReferenceLines, settings: RewardSettings) -> dict[str, np.ndarray]:
+    """Per-indicator change score in [0, 1] (the `undefined_*` scores where undefined)."""
+    ref = lines.at(ind.v_e)
+    out = {}
+    for key, term, ok, m, n, undefined in (
+        ("t_f", "r_f", ind.t_f_ok, settings.m_ttc_s, settings.n_ttc_s, settings.undefined_t_f_score),
+        ("t_nf", "r_nf", ind.t_nf_ok, settings.m_ttc_s, settings.n_ttc_s, settings.undefined_score),
+        ("dv_nb", "r_nb", ind.dv_nb_ok, settings.m_dv_mps, settings.n_dv_mps, settings.undefined_score),
+    ):
+        err = np.abs(np.where(ok, getattr(ind, key), 0.0) - ref[key])
+        out[term] = np.where(ok, closeness(err, m, n), undefined)
+    return out
+
+
+def past_reference(ind: Indicators, lines: ReferenceLines) -> np.ndarray:
+    """True where the ego-lane leader is closer (in time) than the reference t_f."""
+    ref = lines.at(ind.v_e)["t_f"]
+    return ind.t_f_ok & (np.where(ind.t_f_ok, ind.t_f, np.inf) < ref)
+
+
+def action_terms(ind: Indicators, lines: ReferenceLines, settings: RewardSettings,
+                 dt: float) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Named reward terms of TO CHANGE and of NOT TO CHANGE for every scene."""
+    c = change_scores(ind, lines, settings)
+    zero = np.zeros_like(ind.v_e, dtype=float)
+    change = {**c, "late": zero}
+    if settings.name == "timing":
+        change["base"] = np.full_like(zero, -settings.change_baseline)
+    else:
+        change["base"] = zero
+    if settings.name == "paper":
+        keep = {k: 1.0 - v for k, v in c.items()} | {"late": zero, "base": zero}
+    else:
+        late = np.where(past_reference(ind, lines), -settings.late_penalty_per_s * dt, 0.0)
+        keep = {"r_f": zero, "r_nf": zero, "r_nb": zero, "late": late, "base": zero}
+    return change, keep
+
+
+def action_rewards(ind: Indicators, lines: ReferenceLines, settings: RewardSettings,
+                   dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Total reward of TO CHANGE and of NOT TO CHANGE for every scene."""
+    change, keep = action_terms(ind, lines, settings, dt)
+    return sum(change.values()), sum(keep.values())
+
+
+def step_reward(ind: Indicators, actions: np.ndarray, lines: ReferenceLines, settings: RewardSettings,
+                dt: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Reward of the actions taken (0 = change, 1 = keep) and its named terms."""
+    change, keep = action_terms(ind, lines, settings, dt)
+    is_change = np.asarray(actions) == CHANGE
+    terms = {k: np.where(is_change, change[k], keep[k]) for k in TERMS}
+    return sum(terms.values()), terms

@@ -1,0 +1,78 @@
+"""Hand-made DECISIONS tables for tests and benchmarks when no study is at hand.
+
+A rule-following driver whose indicators at the press are its reference lines
+plus noise; the not-yet states are the same scene earlier. Rows follow `laneprint.schemas.DECISIONS`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from laneprint.schemas import DECISIONS, validate
+from rl.env import EnvConfig, sample_scenes
+from rl.rewards import ReferenceLines
+from rl.scene import Scene, indicators
+
+
+def _rows(scene: Scene, cfg: EnvConfig) -> dict[str, np.ndarray]:
+    ind = indicators(scene, cfg.far_follower_m, cfg.range_m)
+
+    def status(ok: np.ndarray, present: np.ndarray, absent_word: str = "absent", bad: str = "not_closing") -> np.ndarray:
+        return np.where(ok, "ok", np.where(present, bad, absent_word))
+
+    gap = lambda d, hl, p: np.where(p, d - hl, np.nan)  # noqa: E731
+    return {
+        "ego_v_mps": scene.v_e, "ego_x_m": scene.x_e,
+        "f_present": scene.f_present, "f_x_m": np.where(scene.f_present, scene.x_f, np.nan),
+        "f_v_mps": np.where(scene.f_present, scene.v_f, np.nan),
+        "f_gap_m": gap(scene.x_f - scene.x_e, scene.hl_f, scene.f_present),
+        "t_f_s": ind.t_f, "t_f_status": status(ind.t_f_ok, scene.f_present),
+        "nf_present": scene.nf_present, "nf_x_m": np.where(scene.nf_present, scene.x_nf, np.nan),
+        "nf_v_mps": np.where(scene.nf_present, scene.v_nf, np.nan),
+        "nf_gap_m": gap(scene.x_nf - scene.x_e, scene.hl_nf, scene.nf_present),
+        "t_nf_s": ind.t_nf, "t_nf_status": status(ind.t_nf_ok, scene.nf_present),
+        "nb_present": scene.nb_present, "nb_x_m": np.where(scene.nb_present, scene.x_nb, np.nan),
+        "nb_v_mps": np.where(scene.nb_present, scene.v_nb, np.nan),
+        "nb_gap_m": gap(scene.x_e - scene.x_nb, scene.hl_nb, scene.nb_present),
+        "dv_nb_mps": ind.dv_nb, "dv_nb_status": status(ind.dv_nb_ok, scene.nb_present, bad="far"),
+    }
+
+
+def rule_driver_decisions(lines: ReferenceLines, n: int, seed: int = 0, cfg: EnvConfig | None = None,
+                          driver_id: str = "D01", noise: tuple[float, float, float] = (0.3, 0.5, 1.0),
+                          window_s: float = 3.0, every_s: float = 0.5) -> pd.DataFrame:
+    """`n` decisions of a driver whose indicators at the press are its lines plus noise.
+
+    Each press scene is built backwards: ego and traffic speeds as in `cfg`, the
+    leaders placed so that t_f and t_nf equal the lines + Normal(0, noise) at the
+    press, the follower's speed so that dv_nb does; the not-yet states are the same
+    vehicles `window_s` .. `every_s` seconds earlier (constant speeds).
+    """
+    cfg = cfg or EnvConfig()
+    rng = np.random.default_rng(seed)
+    scene = sample_scenes(rng, cfg, n)
+    ref = lines.at(scene.v_e)
+    t_f = np.maximum(ref["t_f"] + rng.normal(0, noise[0], n), 0.5)
+    t_nf = np.maximum(ref["t_nf"] + rng.normal(0, noise[1], n), 0.5)
+    dv_nb = ref["dv_nb"] + rng.normal(0, noise[2], n)
+    scene.x_f = scene.x_e + scene.hl_f + t_f * (scene.v_e - scene.v_f)
+    scene.x_nf = scene.x_e + scene.hl_nf + t_nf * (scene.v_e - scene.v_nf)
+    scene.nf_present[:] = True
+    scene.v_nb = scene.v_e - dv_nb
+    scene.x_nb = scene.x_e - scene.hl_nb - rng.uniform(5.0, 60.0, n)
+    scene.nb_present[:] = True
+    offsets = np.arange(-window_s, 1e-9, every_s)
+    frames = []
+    for k, off in enumerate(offsets):
+        s = scene.copy()
+        s.advance(off)
+        frames.append(pd.DataFrame({
+            "driver_id": driver_id, "recording_id": "rec0", "session_id": "s0",
+            "decision_id": [f"rec0:{i:04d}" for i in range(n)],
+            "t_s": 100.0 * np.arange(n) + off, "press_t_s": 100.0 * np.arange(n),
+            "label": "change" if k == len(offsets) - 1 else "keep",
+            "speed_limit_kph": np.nan, "ego_lane": 0, "target_lane": 1, "cancelled": False, **_rows(s, cfg),
+        }))
+    df = pd.concat(frames, ignore_index=True).sort_values(["decision_id", "t_s"], ignore_index=True)
+    return validate(df, DECISIONS)
