@@ -76,13 +76,17 @@ def make_recording(minutes: float, n_vehicles: int, hz: int = 50, seed: int = 0)
     return meta, ego, traffic
 
 
-def median_time(fn, reps: int) -> float:
-    times = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
+def interleaved(fns, reps: int) -> list[float]:
+    """Median seconds of each function, running them in turn `reps` times (after one warm-up)."""
+    for fn in fns:
         fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    times: list[list[float]] = [[] for _ in fns]
+    for _ in range(reps):
+        for i, fn in enumerate(fns):
+            t0 = time.perf_counter()
+            fn()
+            times[i].append(time.perf_counter() - t0)
+    return [statistics.median(t) for t in times]
 
 
 def floor_csv(data: bytes, gz: bool) -> None:
@@ -118,11 +122,13 @@ def main() -> None:
         for fmt, path in files.items():
             data = path.read_bytes()
             mb = len(data) / 1e6
-            floor = median_time((lambda d=data, g=fmt == "csv.gz": floor_csv(d, g)) if fmt != "mcap"
-                                else (lambda d=data: floor_mcap(d)), args.reps)
-            read = median_time(lambda d=data, f=fmt, p=path: canonicalise(read_log(d, f, IDENTITY), IDENTITY,
-                                                                          session_stem(p), None), args.reps)
             k = [0]
+
+            def floor(d=data, f=fmt) -> None:
+                floor_mcap(d) if f == "mcap" else floor_csv(d, f == "csv.gz")
+
+            def read(d=data, f=fmt, p=path) -> None:
+                canonicalise(read_log(d, f, IDENTITY), IDENTITY, session_stem(p), None)
 
             def full(p=path) -> None:
                 k[0] += 1
@@ -130,10 +136,12 @@ def main() -> None:
                 rep = ingest_paths([p], ws)
                 assert rep.files[0].status in ("ingested", "warning"), rep.files[0].reason
                 shutil.rmtree(ws.root)
-            ours = median_time(full, args.reps)
+
+            # interleaved, so a busy machine slows all three alike
+            times = interleaved([floor, read, full], args.reps)
             floor_name = "pyarrow.csv.read_csv" if fmt != "mcap" else "mcap iter + json.loads"
-            for label, secs in ((floor_name + " (floor)", floor), ("read + validate", read), ("ingest (stored)", ours)):
-                rows.append((fmt, label, secs, mb / secs, n / secs, floor / secs))
+            for label, secs in zip((floor_name + " (floor)", "read + validate", "ingest (stored)"), times):
+                rows.append((fmt, label, secs, mb / secs, n / secs, times[0] / secs))
         print(f"{'format':7} {'what':34} {'time s':>8} {'MB/s':>8} {'samples/s':>11} {'vs floor':>9}")
         for fmt, label, secs, mbs, sps, ratio in rows:
             print(f"{fmt:7} {label:34} {secs:8.3f} {mbs:8.1f} {sps:11,.0f} {ratio:9.2f}")

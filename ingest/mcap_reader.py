@@ -14,6 +14,9 @@ import json
 from typing import Any, Callable
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.json as pajson
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.reader import SeekingReader
 from mcap.stream_reader import StreamReader, breakup_chunk
@@ -136,6 +139,35 @@ def _decode(topic: str, datas: list[bytes], times: list[int]) -> list[Any]:
         raise Rejected(f"messages on {topic} are not valid JSON")
 
 
+def _arrow_table(datas: list[bytes], schema: pa.Schema) -> pa.Table | None:
+    """Decode JSON messages into columns with Arrow's JSON reader (C++, one pass).
+
+    None when the messages do not fit this fast path (a newline inside a message, a
+    value of another type, invalid JSON): the caller then decodes them one by one
+    with `json.loads`, which also names the offending message.
+    """
+    if not datas or len(set(schema.names)) != len(schema.names):
+        return None
+    blob = b"\n".join(datas)
+    if blob.count(b"\n") != len(datas) - 1:
+        return None
+    try:
+        table = pajson.read_json(
+            io.BytesIO(blob),
+            read_options=pajson.ReadOptions(block_size=max(1 << 20, 2 * max(map(len, datas)))),
+            parse_options=pajson.ParseOptions(explicit_schema=schema, unexpected_field_behavior="ignore"),
+        )
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
+        return None
+    return table if table.num_rows == len(datas) else None
+
+
+def _column_floats(col: pa.ChunkedArray | pa.Array, scale: float = 1.0) -> np.ndarray:
+    a = col.to_numpy() if isinstance(col, pa.ChunkedArray) else col.to_numpy(zero_copy_only=False)
+    a = a.astype(float, copy=False)
+    return a * scale if scale != 1.0 else a
+
+
 def _floats(values: list[Any], scale: float = 1.0) -> np.ndarray:
     try:
         a = np.array(values, dtype=float)
@@ -187,21 +219,29 @@ def read_mcap_log(data: bytes, mapping: Mapping) -> RawLog:
 
     ego_times = np.asarray(ego_raw[0], dtype=np.int64)
     order = np.argsort(ego_times, kind="stable")
+    sorted_already = bool(np.all(order[1:] > order[:-1]))
     ego_times = ego_times[order]
-    ego_msgs = _decode(mapping.topic(TOPIC_EGO), ego_raw[1], ego_raw[0])
-    if not np.all(order[1:] > order[:-1]):
-        ego_msgs = [ego_msgs[i] for i in order]
     t0 = int(ego_times[0])
     t_s = (ego_times - t0) / NS_PER_S
     t_abs = ego_times / NS_PER_S
 
     f = lambda fld: mapping.msg_field(TOPIC_EGO, fld)  # noqa: E731
+    ego_fields = (("x", "ego_x_m", mapping.position_scale), ("y", "ego_y_m", mapping.position_scale),
+                  ("v", "ego_v_mps", mapping.speed_scale), ("lane", "ego_lane", 1.0),
+                  ("length", "ego_length_m", mapping.position_scale))
+    table = None
+    if all("." not in f(fld) for fld, _, _ in ego_fields):
+        table = _arrow_table(ego_raw[1], pa.schema([(f(fld), pa.float64()) for fld, _, _ in ego_fields]))
+    ego_msgs = None if table is not None else _decode(mapping.topic(TOPIC_EGO), ego_raw[1], ego_raw[0])
     ego: dict[str, np.ndarray] = {}
-    for fld, key, scale in (("x", "ego_x_m", mapping.position_scale), ("y", "ego_y_m", mapping.position_scale),
-                            ("v", "ego_v_mps", mapping.speed_scale), ("lane", "ego_lane", 1.0),
-                            ("length", "ego_length_m", mapping.position_scale)):
-        get = _getter(f(fld))
-        vals = _floats([get(m) if isinstance(m, dict) else None for m in ego_msgs], scale)
+    for fld, key, scale in ego_fields:
+        if table is not None:
+            vals = _column_floats(table.column(f(fld)), scale)
+        else:
+            get = _getter(f(fld))
+            vals = _floats([get(m) if isinstance(m, dict) else None for m in ego_msgs], scale)
+        if not sorted_already:
+            vals = vals[order]
         if fld in ("x", "v", "lane") and np.isnan(vals).all():
             raise Rejected(f"field {f(fld)!r} is absent from every {mapping.topic(TOPIC_EGO)} message: "
                            f'map it with {fld} = "<your field>" under [mcap.fields."{TOPIC_EGO}"] {mapping.hint()}')
@@ -287,13 +327,32 @@ def _button(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | Non
                 direction[i] = dirs[k]
 
 
-def _traffic(raw: tuple[list[int], list[bytes]], t0: int, mapping: Mapping) -> dict[str, np.ndarray]:
-    topic = mapping.topic(TOPIC_TRAFFIC)
-    times, datas = raw
+def _traffic_arrow(datas: list[bytes], names: dict[str, str], mapping: Mapping) -> dict[str, Any] | None:
+    """Traffic columns via Arrow's JSON reader; None when the fast path does not apply."""
+    fields = ("id", "x", "y", "v", "lane", "length")
+    if any("." in n for n in names.values()) or len({names[k] for k in fields}) != len(fields):
+        return None
+    vehicle = pa.struct([(names["id"], pa.string())] + [(names[k], pa.float64()) for k in fields[1:]])
+    table = _arrow_table(datas, pa.schema([(names["vehicles"], pa.list_(vehicle))]))
+    if table is None:
+        return None
+    lists = table.column(names["vehicles"]).combine_chunks()
+    flat = lists.flatten()
+    return {
+        "rows": pc.list_parent_indices(lists).to_numpy(zero_copy_only=False).astype(np.int64),
+        "vehicle_id": flat.field(names["id"]),
+        "x_m": _column_floats(flat.field(names["x"]), mapping.position_scale),
+        "y_m": _column_floats(flat.field(names["y"]), mapping.position_scale),
+        "v_mps": _column_floats(flat.field(names["v"]), mapping.speed_scale),
+        "lane": _column_floats(flat.field(names["lane"])),
+        "length_m": _column_floats(flat.field(names["length"]), mapping.position_scale),
+    }
+
+
+def _traffic_python(topic: str, datas: list[bytes], times: list[int], names: dict[str, str],
+                    mapping: Mapping) -> dict[str, Any]:
+    """Traffic columns by `json.loads` and a loop (any message shape the mapping can name)."""
     msgs = _decode(topic, datas, times)
-    fld = lambda name: mapping.msg_field(TOPIC_TRAFFIC, name)  # noqa: E731
-    vkey = fld("vehicles")
-    simple = all("." not in fld(k) for k in ("vehicles", "id", "x", "y", "v", "lane", "length"))
     rows: list[int] = []
     ids: list[Any] = []
     xs: list[Any] = []
@@ -301,54 +360,52 @@ def _traffic(raw: tuple[list[int], list[bytes]], t0: int, mapping: Mapping) -> d
     vs: list[Any] = []
     lanes: list[Any] = []
     lengths: list[Any] = []
-    kid, kx, ky, kv, kl, klen = (fld(k) for k in ("id", "x", "y", "v", "lane", "length"))
-    if simple:
-        for i, m in enumerate(msgs):
-            vehicles = m.get(vkey) if isinstance(m, dict) else None
-            if not vehicles:
-                continue
-            rows.extend([i] * len(vehicles))
-            for veh in vehicles:
-                g = veh.get
-                ids.append(g(kid))
-                xs.append(g(kx))
-                ys.append(g(ky))
-                vs.append(g(kv))
-                lanes.append(g(kl))
-                lengths.append(g(klen))
-    else:
-        gv, gid, gx, gy, gvv, gl, glen = (_getter(fld(k)) for k in ("vehicles", "id", "x", "y", "v", "lane", "length"))
-        for i, m in enumerate(msgs):
-            vehicles = gv(m) if isinstance(m, dict) else None
-            for veh in vehicles or []:
-                rows.append(i)
-                ids.append(gid(veh))
-                xs.append(gx(veh))
-                ys.append(gy(veh))
-                vs.append(gvv(veh))
-                lanes.append(gl(veh))
-                lengths.append(glen(veh))
-    t_msg = (np.asarray(times, dtype=np.int64) - t0) / NS_PER_S
-    row_idx = np.asarray(rows, dtype=np.int64)
-    out = {
-        "t_s": t_msg[row_idx] if len(row_idx) else np.zeros(0),
-        "vehicle_id": np.asarray([i if isinstance(i, str) else (None if i is None else str(i)) for i in ids],
-                                 dtype=object),
+    gv, gid, gx, gy, gvv, gl, glen = (_getter(names[k]) for k in ("vehicles", "id", "x", "y", "v", "lane", "length"))
+    for i, m in enumerate(msgs):
+        vehicles = gv(m) if isinstance(m, dict) else None
+        if not isinstance(vehicles, list):
+            continue
+        for veh in vehicles:
+            if not isinstance(veh, dict):
+                veh = {}
+            rows.append(i)
+            ids.append(gid(veh))
+            xs.append(gx(veh))
+            ys.append(gy(veh))
+            vs.append(gvv(veh))
+            lanes.append(gl(veh))
+            lengths.append(glen(veh))
+    return {
+        "rows": np.asarray(rows, dtype=np.int64),
+        "vehicle_id": pa.array([i if isinstance(i, str) or i is None else str(i) for i in ids], pa.string()),
         "x_m": _floats(xs, mapping.position_scale),
         "y_m": _floats(ys, mapping.position_scale),
         "v_mps": _floats(vs, mapping.speed_scale),
         "lane": _floats(lanes),
         "length_m": _floats(lengths, mapping.position_scale),
     }
+
+
+def _traffic(raw: tuple[list[int], list[bytes]], t0: int, mapping: Mapping) -> dict[str, Any]:
+    topic = mapping.topic(TOPIC_TRAFFIC)
+    times, datas = raw
+    names = {k: mapping.msg_field(TOPIC_TRAFFIC, k) for k in ("vehicles", "id", "x", "y", "v", "lane", "length")}
+    cols = _traffic_arrow(datas, names, mapping) if datas else None
+    if cols is None:
+        cols = _traffic_python(topic, datas, times, names, mapping)
+    row_idx = cols.pop("rows")
+    t_msg = (np.asarray(times, dtype=np.int64) - t0) / NS_PER_S
+    out: dict[str, Any] = {"t_s": t_msg[row_idx] if len(row_idx) else np.zeros(0), **cols}
     out["length_m"] = np.where(np.isnan(out["length_m"]), DEFAULT_LENGTH_M, out["length_m"])
     for key, name in (("vehicle_id", "id"), ("x_m", "x"), ("v_mps", "v"), ("lane", "lane")):
-        bad = (out[key] == None) if key == "vehicle_id" else np.isnan(out[key])  # noqa: E711
+        bad = (out[key].is_null().to_numpy(zero_copy_only=False) if key == "vehicle_id"
+               else np.isnan(out[key]))
         if np.any(bad):
             k = int(np.argmax(bad))
-            raise Rejected(f"{topic}: a vehicle without {fld(name)!r} in message {rows[k]} "
-                           f"(log_time {times[rows[k]]} ns); map the field under [mcap.fields.\"{TOPIC_TRAFFIC}\"] "
+            raise Rejected(f"{topic}: a vehicle without {names[name]!r} in message {row_idx[k]} "
+                           f"(log_time {times[row_idx[k]]} ns); map the field under [mcap.fields.\"{TOPIC_TRAFFIC}\"] "
                            f"{mapping.hint()}")
-    if len(row_idx) and np.any(np.diff(t_msg) < 0):
+    if len(row_idx) and np.any(np.diff(out["t_s"]) < 0):
         order = np.argsort(out["t_s"], kind="stable")
-        out = {k: v[order] for k, v in out.items()}
+        out = {k: (v.take(pa.array(order)) if isinstance(v, pa.Array) else v[order]) for k, v in out.items()}
     return out

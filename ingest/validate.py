@@ -156,7 +156,7 @@ def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: st
     lane = tr["lane"]
     if len(lane) and ((lane != np.round(lane)) | (lane < 0) | (lane > MAX_LANE)).any():
         k = int(np.argmax((lane != np.round(lane)) | (lane < 0) | (lane > MAX_LANE)))
-        vid = pa.array(tr["vehicle_id"], pa.string())[k].as_py()
+        vid = _strings(tr["vehicle_id"]).iloc[k]
         raise Rejected(f"traffic vehicle {vid!r} has lane {lane[k]:g} at t={tr['t_s'][k]:.3f} s; "
                        f"lanes are indices 0..{MAX_LANE}")
     traffic = pd.DataFrame({

@@ -263,3 +263,39 @@ def test_gzipped_csv_with_traffic_value_missing(tmp_path, recording):
     _, res = _batch(tmp_path, recording, "hole.csv.gz",
                     lambda p: p.write_bytes(gzip.compress(("\n".join(lines) + "\n").encode())))
     assert res.reason == "traffic vehicle 'a': a_v is empty at line 6 while a_x is given (a present vehicle needs x, v and lane)"
+
+
+def test_mcap_traffic_lane_out_of_range_and_vehicle_without_id(tmp_path, recording):
+    meta, ego, traffic = recording
+    odd = traffic.assign(lane=traffic["lane"].where(traffic["vehicle_id"] != "b", 42))
+    _, res = _batch(tmp_path, recording, "lane.mcap", lambda p: write_mcap(p, dict(meta, session_id="l"), ego, odd))
+    assert res.reason == "traffic vehicle 'b' has lane 42 at t=1.000 s; lanes are indices 0..20"
+
+    def no_id(p):
+        with open(p, "wb") as fh:
+            w = Writer(fh)
+            w.start()
+            e = w.register_channel("/ego/state", "json", 0)
+            tr = w.register_channel("/traffic/vehicles", "json", 0)
+            w.add_metadata("session", {"driver_id": "D1"})
+            for i in range(3):
+                w.add_message(e, i * 10**8, b'{"x":1,"v":20,"lane":0}', 0)
+                w.add_message(tr, i * 10**8, b'{"vehicles":[{"x":5,"v":20,"lane":1}]}', 0)
+            w.finish()
+    (tmp_path / "two").mkdir()
+    _, res = _batch(tmp_path / "two", recording, "noid.mcap", no_id)
+    assert res.reason.startswith("/traffic/vehicles: a vehicle without 'id' in message 0 (log_time 0 ns)")
+
+
+def test_mcap_invalid_json_names_the_message(tmp_path, recording):
+    def bad(p):
+        with open(p, "wb") as fh:
+            w = Writer(fh)
+            w.start()
+            e = w.register_channel("/ego/state", "json", 0)
+            w.register_channel("/traffic/vehicles", "json", 0)
+            w.add_message(e, 0, b'{"x":1,"v":20,"lane":0}', 0)
+            w.add_message(e, 10**8, b'{"x":1,"v":20,', 0)
+            w.finish()
+    _, res = _batch(tmp_path, recording, "badjson.mcap", bad)
+    assert res.reason.startswith("message 1 on /ego/state (log_time 100000000 ns) is not valid JSON")
