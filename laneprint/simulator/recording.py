@@ -35,6 +35,7 @@ from laneprint.simulator.drivers import Driver
 
 _MIN_SPACING_M = 2.0  # [m] bumper-to-bumper distance kept between traffic cars of one lane
 _MAX_TRIES = 400
+_Car = tuple[str, int, float, float, float]  # role, lane, v [m/s], dx from the ego's centre at the press [m], length [m]
 
 
 @dataclass
@@ -128,6 +129,51 @@ class RecordingBuilder:
             return hi
         return float(self.rng.uniform(lo, hi))
 
+    def _place_cars(self, case: str, v: float, t_f: float, t_nf: float, dv_nb: float, slowed_leader_v: float | None,
+                    from_lane: int, to_lane: int, t_app: float, t_cut: float) -> list[_Car]:
+        """The episode's cars as (role, lane, v, dx from the ego's centre at the press, length).
+
+        Redrawn until no two cars of a lane touch between `t_app` before and `t_cut` after the press.
+        """
+        s, rng = self.s, self.rng
+        le = s.ego_length_m
+        range_gap = s.scene_range_m - 5.0
+        has_nf = case != CASE_NO_TARGET_LEADER
+        for _ in range(_MAX_TRIES):
+            cars: list[_Car] = []
+            lf = self._length()
+            if slowed_leader_v is not None:  # following at the leader's speed (or creeping a little faster)
+                vf = slowed_leader_v
+                gap_f = _u(rng, s.slowed_headway_s) * v
+            else:
+                vf = self._speed_between(max(s.traffic_v_min_mps, v - (range_gap - (le + lf) / 2) / t_f),
+                                         min(s.traffic_v_max_mps, v - 0.5))
+                gap_f = t_f * (v - vf)
+            cars.append(("f", from_lane, vf, gap_f + (le + lf) / 2, lf))
+            if has_nf:
+                lnf = self._length()
+                hi = min(s.traffic_v_max_mps, v - 0.5)
+                lo = max(min(s.traffic_v_min_mps, hi - 2.0), v - (range_gap - (le + lnf) / 2) / t_nf)
+                vnf = self._speed_between(lo, hi)
+                cars.append(("nf", to_lane, vnf, t_nf * (v - vnf) + (le + lnf) / 2, lnf))
+            lnb = self._length()
+            if case == CASE_FAR_FOLLOWER:
+                vnb = _u(rng, (s.traffic_v_min_mps, s.traffic_v_max_mps))
+                gap_nb = _u(rng, s.far_follower_gap_m)
+            else:
+                vnb = v - dv_nb
+                closing = max(0.0, vnb - v)  # a faster follower closes in during the change
+                gap_nb = _u(rng, s.nb_gap_m) + closing * (t_cut + 1.0)
+            cars.append(("nb", to_lane, vnb, -(gap_nb + (le + lnb) / 2), lnb))
+            for role, lane, ahead in (("f2", from_lane, cars[0]), ("nf2", to_lane, cars[1] if has_nf else None)):
+                if ahead is not None and rng.random() < s.extra_leader_prob:
+                    l2 = self._length()
+                    dx = ahead[3] + (ahead[4] + l2) / 2 + _u(rng, s.extra_leader_gap_m)
+                    cars.append((role, lane, _u(rng, (s.traffic_v_min_mps, s.traffic_v_max_mps)), dx, l2))
+            if _lanes_ordered(cars, -t_app, t_cut):
+                return cars
+        raise RuntimeError(f"{self.session_id}: could not place a consistent scene")  # pragma: no cover
+
     # --- one episode ---------------------------------------------------------------
 
     def add_episode(self, case: str) -> None:
@@ -146,8 +192,8 @@ class RecordingBuilder:
         ramp = _ramp(self.v_last, v_cruise, s.speed_change_mps2, hz)
         if case == CASE_SLOWED:
             v_f = _u(rng, s.slowed_leader_v_mps)
-            closing_creep = 0.0 if rng.random() < s.slowed_not_closing_share else _u(rng, s.slowed_creep_mps)
-            v_press = v_f + closing_creep
+            creep = 0.0 if rng.random() < s.slowed_not_closing_share else _u(rng, s.slowed_creep_mps)
+            v_press = v_f + creep
             cruise = np.full(int(round(_u(rng, (1.0, 4.0)) * hz)), v_cruise)
             brake = _ramp(v_cruise, v_press, _u(rng, s.slowed_decel_mps2), hz)
             follow = np.full(int(round(_u(rng, s.slowed_follow_s) * hz)), v_press)
@@ -178,49 +224,9 @@ class RecordingBuilder:
         else:
             n_man = 0
             n_cut = n_hold + int(round(_u(rng, (0.3, 0.6)) * hz))
-        t_app = p / hz
-        t_cut = n_cut / hz
 
-        # traffic at the press, relative to the ego's centre; retried until lanes stay ordered
-        range_gap = s.scene_range_m - 5.0
-        for _ in range(_MAX_TRIES):
-            cars: list[tuple[str, int, float, float, float]] = []  # role, lane, v, dx at press, length
-            lf = self._length()
-            if case == CASE_SLOWED:
-                gap_f = _u(rng, s.slowed_headway_s) * v
-                vf = v_f
-            else:
-                vf = self._speed_between(max(s.traffic_v_min_mps, v - (range_gap - (le + lf) / 2) / t_f),
-                                         min(s.traffic_v_max_mps, v - 0.5))
-                gap_f = t_f * (v - vf)
-            cars.append(("f", from_lane, vf, gap_f + (le + lf) / 2, lf))
-            if has_nf:
-                lnf = self._length()
-                hi = min(s.traffic_v_max_mps, v - 0.5)
-                lo = max(min(s.traffic_v_min_mps, hi - 2.0), v - (range_gap - (le + lnf) / 2) / t_nf)
-                vnf = self._speed_between(lo, hi)
-                cars.append(("nf", to_lane, vnf, t_nf * (v - vnf) + (le + lnf) / 2, lnf))
-            lnb = self._length()
-            if case == CASE_FAR_FOLLOWER:
-                vnb = _u(rng, (s.traffic_v_min_mps, s.traffic_v_max_mps))
-                gap_nb = _u(rng, s.far_follower_gap_m)
-            else:
-                vnb = v - dv_nb
-                closing = max(0.0, vnb - v)  # a faster follower closes in during the change
-                gap_nb = _u(rng, s.nb_gap_m) + closing * (t_cut + 1.0)
-            cars.append(("nb", to_lane, vnb, -(gap_nb + (le + lnb) / 2), lnb))
-            for role, lane in (("f2", from_lane), ("nf2", to_lane)):
-                if role == "nf2" and not has_nf:
-                    continue
-                if rng.random() < s.extra_leader_prob:
-                    ahead = cars[0] if role == "f2" else cars[1]
-                    l2 = self._length()
-                    dx = ahead[3] + (ahead[4] + l2) / 2 + _u(rng, s.extra_leader_gap_m)
-                    cars.append((role, lane, _u(rng, (s.traffic_v_min_mps, s.traffic_v_max_mps)), dx, l2))
-            if _lanes_ordered(cars, -t_app, t_cut):
-                break
-        else:  # pragma: no cover - the retries above practically always succeed
-            raise RuntimeError(f"{self.session_id}: could not place a consistent scene")
+        cars = self._place_cars(case, v, t_f, t_nf, dv_nb, v_f if case == CASE_SLOWED else None,
+                                from_lane, to_lane, p / hz, n_cut / hz)
 
         # ego arrays for the whole episode
         after_v: list[np.ndarray] = [np.full(n_man, v)]
@@ -371,7 +377,7 @@ class RecordingBuilder:
         return RecordingResult(meta, ego, traffic, self.decisions)
 
 
-def _lanes_ordered(cars: list[tuple[str, int, float, float, float]], tau0: float, tau1: float) -> bool:
+def _lanes_ordered(cars: list[_Car], tau0: float, tau1: float) -> bool:
     """True when no two cars of one lane touch between press-relative times tau0 and tau1.
 
     Constant speeds make each distance linear in time, so the window's ends suffice.
