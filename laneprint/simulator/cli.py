@@ -17,7 +17,7 @@ DriversOpt = Annotated[int, typer.Option("--drivers", help="Number of drivers.")
 DecisionsOpt = Annotated[int, typer.Option("--decisions", help="Button presses per driver, over all sections.")]
 SeedOpt = Annotated[int, typer.Option("--seed", help="Random seed (same seed, same study).")]
 FormatOpt = Annotated[str, typer.Option(
-    "--format", help="mixed (odd drivers MCAP, even gzipped CSV), csv, mcap, or both (csv/ and mcap/).")]
+    "--format", help="mixed (odd drivers MCAP, even drivers .csv.gz), csv (all .csv.gz), mcap, or both (csv/ and mcap/).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Write into a folder that holds other files.")]
 
 
