@@ -201,23 +201,26 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
         return {"t_s": empty, "vehicle_id": pa.array([], pa.string()), "x_m": empty, "y_m": empty,
                 "v_mps": empty, "lane": empty, "length_m": empty}
 
-    def grid(fld: str, fill: float) -> np.ndarray:
-        g = np.empty((n, len(ids)))
+    def stacked(fld: str, fill: float) -> np.ndarray:
+        """(vehicles, samples) values of one field, each vehicle's row contiguous."""
+        g = np.empty((len(ids), n))
         for j, vid in enumerate(ids):
             name = vehicles[vid].get(fld)
-            g[:, j] = table.column(name).to_numpy() if name else fill
-        return g
+            g[j] = table.column(name).to_numpy() if name else fill
+        return g.reshape(-1)
 
-    x = grid("x", np.nan)
-    rows, cols = np.nonzero(~np.isnan(x))
+    x = stacked("x", np.nan)
+    # time-major order (by sample, then vehicle) of the cells where a vehicle is present
+    flat_tm = np.flatnonzero(~np.isnan(x.reshape(len(ids), n).T))
+    rows, cols = np.divmod(flat_tm, len(ids))
+    take = cols * n + rows  # the same cells in the vehicle-major arrays
     out = {"t_s": t[rows], "vehicle_id": pa.array(ids, pa.string()).take(pa.array(cols))}
     for fld, key, fill, scale in (("x", "x_m", np.nan, mapping.position_scale),
                                   ("v", "v_mps", np.nan, mapping.speed_scale),
                                   ("lane", "lane", np.nan, 1.0),
                                   ("y", "y_m", np.nan, mapping.position_scale),
                                   ("length", "length_m", DEFAULT_LENGTH_M, mapping.position_scale)):
-        g = x if fld == "x" else grid(fld, fill)
-        vals = g[rows, cols]
+        vals = (x if fld == "x" else stacked(fld, fill))[take]
         if scale != 1.0:
             vals = vals * scale
         out[key] = vals

@@ -151,7 +151,7 @@ def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: st
         "ego_lane": e["ego_lane"].astype(np.int64), "ego_length_m": length,
         "steer_rad": e["steer_rad"], "throttle": e["throttle"], "brake": e["brake"],
         "lc_button": pressed, "lc_direction": pd.Series(directions, dtype=object),
-    })
+    }, copy=False)
     tr = raw.traffic
     lane = tr["lane"]
     if len(lane) and ((lane != np.round(lane)) | (lane < 0) | (lane > MAX_LANE)).any():
@@ -163,6 +163,6 @@ def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: st
         "t_s": tr["t_s"], "vehicle_id": _strings(tr["vehicle_id"]),
         "x_m": tr["x_m"], "y_m": tr["y_m"], "v_mps": tr["v_mps"],
         "lane": lane.astype(np.int64), "length_m": tr["length_m"],
-    })
+    }, copy=False)  # no consolidation copy: each column stays its own block
     return Canonical(meta=meta, ego=ego[EGO.names], traffic=traffic[TRAFFIC.names],
                      n_presses=n_presses, warnings=warnings)
