@@ -126,3 +126,26 @@ def stage_plot(module: str, name: str) -> Callable[..., go.Figure] | None:
     except ImportError:
         fn = None
     return fn or _FALLBACKS.get((module, name))
+
+
+def compact(fig: go.Figure, height: int = 440) -> go.Figure:
+    """Fit a stage's figure into a narrow column: title wrapped and smaller, legend below."""
+    title = fig.layout.title.text or ""
+    fig.update_layout(title=dict(text=title.replace(" — ", "<br>").replace(" (", "<br>("), font=dict(size=13)),
+                      legend=dict(orientation="h", yanchor="top", y=-0.22, x=0), height=height,
+                      margin=dict(l=10, r=10, t=80, b=10))
+    return fig
+
+
+def bare_table(fig: go.Figure, n_rows: int) -> go.Figure:
+    """A Plotly table without its title, as tall as its rows."""
+    fig.update_layout(title=None, height=40 + 26 * (n_rows + 1), margin=dict(l=0, r=0, t=0, b=0))
+    return fig
+
+
+def k_scores(scores: pd.DataFrame, method: str) -> go.Figure:
+    """The score of each k tried when k was chosen automatically; the chosen one marked."""
+    fig = go.Figure(go.Scatter(x=scores["k"], y=scores["score"], mode="lines+markers", name=method))
+    fig.update_layout(xaxis_title="number of styles k [-]", yaxis_title=f"{method} score [-]", height=300,
+                      xaxis=dict(dtick=1), margin=dict(t=20))
+    return fig

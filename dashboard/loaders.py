@@ -16,7 +16,7 @@ import streamlit as st
 
 from laneprint.workspace import Workspace
 
-ANALYSIS_TABLES = ("decisions", "correlations", "fits", "styles", "reference_lines", "skipped")
+ANALYSIS_TABLES = ("decisions", "correlations", "fits", "styles", "reference_lines", "skipped", "k_scores")
 
 
 def stamp(root: Path, *parts: str) -> tuple[int, ...]:

@@ -2,7 +2,7 @@
 
 import streamlit as st
 
-from dashboard import loaders, views
+from dashboard import figures, loaders, views
 from dashboard.context import workspace
 from indicators.plots import correlation_table, indicator_vs_speed
 
@@ -28,14 +28,13 @@ def main() -> None:
     cols = st.columns(len(INDICATORS))
     for col, ind in zip(cols, INDICATORS):
         with col:
-            st.plotly_chart(indicator_vs_speed(decisions, fits, driver, ind), key=f"ivs_{ind}")
+            fig = figures.compact(indicator_vs_speed(decisions, fits, driver, ind))
+            st.plotly_chart(fig, key=f"ivs_{ind}")
 
     st.subheader("Correlation with ego speed")
     corr = views.for_driver(tables.get("correlations"), driver)
     if len(corr):
-        fig = correlation_table(corr)
-        fig.update_layout(height=120 + 30 * len(corr), margin=dict(t=40, b=0))
-        st.plotly_chart(fig, key="correlations")
+        st.plotly_chart(figures.bare_table(correlation_table(corr), len(corr)), key="correlations")
     else:
         st.caption("No correlations for this driver.")
     share = loaders.analysis_meta(str(ws.root), loaders.analysis_stamp(ws.root)).get("summary", {}).get(

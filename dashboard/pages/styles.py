@@ -3,7 +3,7 @@
 import streamlit as st
 
 from clustering.plots import cluster_scatter, reference_lines
-from dashboard import loaders, views
+from dashboard import figures, loaders, views
 from dashboard.context import workspace
 from laneprint.errors import UserError
 
@@ -57,13 +57,15 @@ def main() -> None:
     if styles is None:
         st.info("No analysis yet: press 'Run analysis'.")
         return
-    left, right = st.columns(2)
-    with left:
-        st.subheader("Drivers in feature space")
-        st.plotly_chart(cluster_scatter(styles), key="clusters")
-    with right:
-        st.subheader("Members and typical drivers")
-        st.dataframe(views.style_summary(styles), hide_index=True, width="stretch")
+    scores = tables.get("k_scores")
+    if scores is not None and len(scores):
+        how = meta.get("settings", {}).get("choose_k") or "k"
+        st.caption(f"k chosen by {how}: {styles['style'].nunique()} styles")
+        st.plotly_chart(figures.k_scores(scores, how), key="k_scores")
+    st.subheader("Drivers in feature space")
+    st.plotly_chart(cluster_scatter(styles), key="clusters")
+    st.subheader("Members and typical drivers")
+    st.dataframe(views.style_summary(styles), hide_index=True, width="stretch")
     st.subheader("Reference lines per style")
     lines = tables.get("reference_lines")
     if lines is not None:

@@ -106,3 +106,20 @@ def test_upload_ingests_and_refuses_with_reasons(empty_ws, tmp_path):
     at.file_uploader[0].set_value([("again.csv", good, "text/csv")]).run()
     at.button(key="ingest").click().run()
     assert at.dataframe[0].value["status"].tolist() == ["duplicate"]
+
+
+def test_styles_rerun_with_other_k(sample_ws, tmp_path, monkeypatch):
+    import shutil
+
+    from laneprint.workspace import Workspace
+
+    ws = Workspace(shutil.copytree(sample_ws.root, tmp_path / "ws"))
+    monkeypatch.setenv("LANEPRINT_WORKSPACE", str(ws.root))
+    at = run_page("styles")
+    assert at.number_input(key="k").value == 3
+    at.number_input(key="k").set_value(2)
+    at.button[0].click().run()  # the form's "Run analysis"
+    assert not at.exception, [e.value for e in at.exception]
+    assert ws.read_meta("analysis")["settings"]["k"] == 2
+    assert ws.read_table("analysis", "styles")["style"].nunique() == 2
+    assert len(at.dataframe[0].value) == 2  # the page shows the new clusters, not cached old ones
