@@ -21,7 +21,7 @@ import pandas as pd
 from indicators.settings import AnalysisSettings
 from indicators.stats import INDICATOR_COLUMNS, iter_groups
 
-_LOG_FLOOR_S = 0.05  # TTCs are clipped here before the log (a zero gap gives TTC 0)
+LOG_FLOOR_S = 0.05  # TTCs are clipped here before the log (a zero gap gives TTC 0)
 
 
 def feature_name(indicator: str, kph: float) -> str:
@@ -55,35 +55,57 @@ def robust_line(v: np.ndarray, y: np.ndarray, method: str) -> tuple[float, float
     raise ValueError(f"unknown feature_fit {method!r}: use 'theilsen', 'huber' or 'ols'")
 
 
-def driver_features(points: pd.DataFrame, drivers: list[str],
-                    settings: AnalysisSettings | None = None) -> tuple[pd.DataFrame, dict[str, list[str]]]:
-    """Feature table (index driver_id) and per driver the notes on features not from a line.
+def group_values(v: np.ndarray, y: np.ndarray, indicator: str, settings: AnalysisSettings,
+                 speeds_mps: np.ndarray) -> tuple[np.ndarray, str]:
+    """Feature values of one driver/indicator at `speeds_mps`, in the clustering space
+    (log seconds for TTCs when `feature_log`), and a note when not from a line."""
+    is_ttc = INDICATOR_COLUMNS[indicator][2] == "s"
+    yt = np.log(np.maximum(y, LOG_FLOOR_S)) if (is_ttc and settings.feature_log) else y
+    if len(v) < 3 or np.ptp(v) < settings.min_speed_spread_mps:
+        why = "too few points" if len(v) < 3 else "no speed spread"
+        return np.full(len(speeds_mps), float(np.median(yt))), f"{indicator}: {why}, median used"
+    A, b = robust_line(v, yt, settings.feature_fit)
+    return A * speeds_mps + b, ""
 
-    `points` is `indicators.stats.indicator_points(decisions)`.
-    """
-    settings = settings or AnalysisSettings()
-    speeds = np.asarray(settings.feature_speeds_kph, dtype=float) / 3.6
-    names = feature_names(settings)
-    values = np.full((len(drivers), len(names)), np.nan)
-    notes: dict[str, list[str]] = {d: [] for d in drivers}
-    n_speeds = len(speeds)
+
+def feature_groups(points: pd.DataFrame, drivers: list[str], settings: AnalysisSettings):
+    """(driver index, indicator index, Group) for every driver x feature indicator."""
     inds = tuple(settings.feature_indicators)
     for j, g in enumerate(iter_groups(points, drivers, inds)):
         di, ii = divmod(j, len(inds))
-        ind, drv = g.indicator, g.driver_id
+        yield di, ii, g
+
+
+def to_units(values: np.ndarray, settings: AnalysisSettings) -> np.ndarray:
+    """Clustering-space feature matrix back to the indicators' units (seconds for TTCs)."""
+    out = values.copy()
+    if settings.feature_log:
+        n = len(settings.feature_speeds_kph)
+        for ii, ind in enumerate(settings.feature_indicators):
+            if INDICATOR_COLUMNS[ind][2] == "s":
+                out[:, ii * n:(ii + 1) * n] = np.exp(out[:, ii * n:(ii + 1) * n])
+    return out
+
+
+def driver_features(points: pd.DataFrame, drivers: list[str],
+                    settings: AnalysisSettings | None = None) -> tuple[pd.DataFrame, dict[str, list[str]]]:
+    """Feature table (index driver_id, indicators' units) and per driver the notes on
+    features not from a line. `points` is `indicators.stats.indicator_points(decisions)`."""
+    settings = settings or AnalysisSettings()
+    speeds = np.asarray(settings.feature_speeds_kph, dtype=float) / 3.6
+    n = len(speeds)
+    values = np.full((len(drivers), len(feature_names(settings))), np.nan)
+    notes: dict[str, list[str]] = {d: [] for d in drivers}
+    for di, ii, g in feature_groups(points, drivers, settings):
         if len(g.v) == 0:
-            notes[drv].append(f"{ind}: no defined values, imputed")
+            notes[g.driver_id].append(f"{g.indicator}: no defined values, imputed")
             continue
-        is_ttc = INDICATOR_COLUMNS[ind][2] == "s"
-        yt = np.log(np.maximum(g.y, _LOG_FLOOR_S)) if (is_ttc and settings.feature_log) else g.y
-        if len(g.v) < 3 or np.ptp(g.v) < settings.min_speed_spread_mps:
-            vals = np.full(n_speeds, float(np.median(yt)))
-            notes[drv].append(f"{ind}: {'too few points' if len(g.v) < 3 else 'no speed spread'}, median used")
-        else:
-            A, b = robust_line(g.v, yt, settings.feature_fit)
-            vals = A * speeds + b
-        values[di, ii * n_speeds:(ii + 1) * n_speeds] = np.exp(vals) if (is_ttc and settings.feature_log) else vals
-    feats = pd.DataFrame(values, index=pd.Index(drivers, name="driver_id"), columns=names)
+        vals, note = group_values(g.v, g.y, g.indicator, settings, speeds)
+        if note:
+            notes[g.driver_id].append(note)
+        values[di, ii * n:(ii + 1) * n] = vals
+    feats = pd.DataFrame(to_units(values, settings), index=pd.Index(drivers, name="driver_id"),
+                         columns=feature_names(settings))
     return feats, notes
 
 
@@ -93,5 +115,5 @@ def transform_features(feats: pd.DataFrame, settings: AnalysisSettings) -> pd.Da
     if settings.feature_log:
         for c in out.columns:
             if c.endswith("_s"):
-                out[c] = np.log(np.maximum(out[c], _LOG_FLOOR_S))
+                out[c] = np.log(np.maximum(out[c], LOG_FLOOR_S))
     return out

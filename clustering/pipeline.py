@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 import laneprint
+from clustering.confidence import bootstrap_stability
 from clustering.features import driver_features, feature_names, transform_features
 from clustering.styles import StyleClusterer
 from indicators.decisions import empty_decisions, extract_decisions
@@ -28,8 +29,8 @@ from laneprint.schemas import DECISIONS, REFERENCE_LINES
 from laneprint.workspace import Workspace
 
 SKIPPED_COLUMNS = ["what", "id", "reason"]
-STYLE_COLUMNS = ["driver_id", "style", "cluster", "confidence", "margin", "is_typical", "n_decisions",
-                 "defensiveness", "assigned_by", "note"]
+STYLE_COLUMNS = ["driver_id", "style", "cluster", "confidence", "posterior", "stability", "margin", "is_typical",
+                 "n_decisions", "defensiveness", "assigned_by", "note"]
 REF_COLUMNS = REFERENCE_LINES.names
 
 
@@ -39,8 +40,12 @@ def _n_decisions(decisions: pd.DataFrame, drivers: list[str]) -> pd.Series:
 
 
 def assign_styles(feats: pd.DataFrame, notes: dict[str, list[str]], n_dec: pd.Series, fits: pd.DataFrame,
-                  settings: AnalysisSettings) -> tuple[pd.DataFrame, StyleClusterer | None, list[dict[str, str]]]:
-    """Cluster drivers with enough presses, assign the rest to the nearest centre, pick typical drivers."""
+                  settings: AnalysisSettings, points: pd.DataFrame | None = None) -> tuple[pd.DataFrame, StyleClusterer | None, list[dict[str, str]]]:
+    """Cluster drivers with enough presses, assign the rest to the nearest centre, pick typical drivers.
+
+    confidence = bootstrap stability when computed (see `clustering.confidence`), else
+    the mixture posterior of `StyleClusterer`; both are kept as their own columns.
+    """
     skipped: list[dict[str, str]] = []
     usable = feats.notna().any(axis=1)
     enough = n_dec.reindex(feats.index) >= settings.min_cluster_decisions
@@ -48,7 +53,8 @@ def assign_styles(feats: pd.DataFrame, notes: dict[str, list[str]], n_dec: pd.Se
     if len(fit_on) == 0:  # few presses everywhere: cluster whoever has features
         fit_on = feats.index[usable]
     styles = pd.DataFrame({"driver_id": feats.index.astype(str), "style": "unassigned", "cluster": -1,
-                           "confidence": 0.0, "margin": 0.0, "is_typical": False,
+                           "confidence": 0.0, "posterior": 0.0, "stability": np.nan, "margin": 0.0,
+                           "is_typical": False,
                            "n_decisions": n_dec.reindex(feats.index).to_numpy(), "defensiveness": np.nan,
                            "assigned_by": "none", "note": [("; ".join(notes.get(d, []))) for d in feats.index]})
     styles = styles.set_index("driver_id", drop=False)
@@ -67,9 +73,14 @@ def assign_styles(feats: pd.DataFrame, notes: dict[str, list[str]], n_dec: pd.Se
     defn = Z[:, ttc].mean(axis=1) if ttc.any() else Z.mean(axis=1)
     styles.loc[rows, "cluster"] = labels
     styles.loc[rows, "style"] = [clf.names_[i] for i in labels]
+    styles.loc[rows, "posterior"] = conf
     styles.loc[rows, "confidence"] = conf
     styles.loc[rows, "margin"] = margin
     styles.loc[rows, "defensiveness"] = defn
+    if settings.n_bootstrap > 0 and len(rows) <= settings.bootstrap_max_drivers and points is not None:
+        stab = bootstrap_stability(points, list(rows), labels, clf, settings)
+        styles.loc[rows, "stability"] = stab
+        styles.loc[rows, "confidence"] = stab
     fitted = set(fit_on)
     styles.loc[rows, "assigned_by"] = ["clustered" if d in fitted else "nearest centre" for d in rows]
     for d in rows:
@@ -141,7 +152,7 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
     fits = fit_lines(decisions, settings, points)
     n_dec = _n_decisions(decisions, drivers)
     feats, notes = driver_features(points, drivers, settings)
-    styles, clf, skipped = assign_styles(feats, notes, n_dec, fits, settings)
+    styles, clf, skipped = assign_styles(feats, notes, n_dec, fits, settings, points)
     styles = styles.merge(feats.reset_index(), on="driver_id", how="left")
     refs, ref_skipped = reference_lines(styles, fits, points, settings)
     for d in drivers:

@@ -80,9 +80,12 @@ class AnalysisSettings:
     """A typical driver needs at least this many presses (else the best available)."""
     n_init: int = 50
     """K-means restarts."""
-    n_bootstrap: int = 0
-    """Bootstrap resamples of each driver's presses for the 'stability' column
-    (0 = off); confidence is always given from the distances to the centres."""
+    n_bootstrap: int = 100
+    """Bootstrap resamples of each driver's presses for the 'stability' column, which
+    then is the 'confidence' (0 = off: confidence is the mixture posterior)."""
+    bootstrap_max_drivers: int = 200
+    """Above this many drivers the bootstrap is skipped (it costs ~n_bootstrap times
+    the feature fits) and confidence is the mixture posterior."""
     random_state: int = 0
     """Seed of every random choice in clustering."""
 
