@@ -201,18 +201,22 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
         return {"t_s": empty, "vehicle_id": pa.array([], pa.string()), "x_m": empty, "y_m": empty,
                 "v_mps": empty, "lane": empty, "length_m": empty}
 
-    def stacked(fld: str, fill: float) -> np.ndarray:
-        """(vehicles, samples) values of one field, each vehicle's row contiguous."""
-        g = np.empty((len(ids), n))
-        for j, vid in enumerate(ids):
-            name = vehicles[vid].get(fld)
-            g[j] = table.column(name).to_numpy() if name else fill
-        return g.reshape(-1)
+    def stacked(fld: str, fill: float) -> np.ndarray | None:
+        """Values of one field, vehicle after vehicle (None when no vehicle has the field)."""
+        names = [vehicles[vid].get(fld) for vid in ids]
+        if not any(names):
+            return None
+        fill_arr = pa.array(np.full(n, fill))
+        chunks = [c for name in names for c in (table.column(name).chunks if name else [fill_arr])]
+        return pa.concat_arrays(chunks).to_numpy(zero_copy_only=False)
 
     x = stacked("x", np.nan)
+    assert x is not None
     # time-major order (by sample, then vehicle) of the cells where a vehicle is present
-    flat_tm = np.flatnonzero(~np.isnan(x.reshape(len(ids), n).T))
-    rows, cols = np.divmod(flat_tm, len(ids))
+    present = ~np.isnan(x.reshape(len(ids), n).T)
+    flat_tm = np.flatnonzero(present)
+    rows = np.repeat(np.arange(n), present.sum(axis=1))
+    cols = flat_tm - rows * len(ids)
     take = cols * n + rows  # the same cells in the vehicle-major arrays
     out = {"t_s": t[rows], "vehicle_id": pa.array(ids, pa.string()).take(pa.array(cols))}
     for fld, key, fill, scale in (("x", "x_m", np.nan, mapping.position_scale),
@@ -220,7 +224,8 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
                                   ("lane", "lane", np.nan, 1.0),
                                   ("y", "y_m", np.nan, mapping.position_scale),
                                   ("length", "length_m", DEFAULT_LENGTH_M, mapping.position_scale)):
-        vals = (x if fld == "x" else stacked(fld, fill))[take]
+        col = x if fld == "x" else stacked(fld, fill)
+        vals = np.full(len(take), fill) if col is None else col[take]
         if scale != 1.0:
             vals = vals * scale
         out[key] = vals
