@@ -1,14 +1,123 @@
-"""Command-line entry of this stage (placeholder until the stage lands)."""
+"""`laneprint train` and `laneprint evaluate`."""
 
-from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Annotated, Any, Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
 from laneprint.errors import UserError
+from laneprint.workspace import Workspace
+from rl.dqn import DQNSettings
+from rl.env import EnvConfig
+from rl.rewards import REWARDS, RewardSettings
+from rl.runs import Target, evaluate_run, resolve_lines, train_run
 
 
-def train_command(workspace: WorkspaceOpt = DEFAULT_WS, as_json: JsonOpt = False) -> None:
-    """Not implemented yet."""
-    raise UserError("this command is not implemented yet")
+def _fmt(x: Any, pct: bool = False) -> str:
+    if x is None:
+        return "-"
+    return f"{100 * x:.1f} %" if pct else f"{x:.2f}"
 
 
-def evaluate_command(workspace: WorkspaceOpt = DEFAULT_WS, as_json: JsonOpt = False) -> None:
-    """Not implemented yet."""
-    raise UserError("this command is not implemented yet")
+def _summary_table(rows: list[dict[str, Any]], title: str) -> Table:
+    t = Table(title=title)
+    for col in ("who", "recall", "balanced acc.", "timing MAE [s]", "never", "MAE t_f [s]", "MAE t_nf [s]",
+                "MAE dv_nb [m/s]"):
+        t.add_column(col)
+    for r in rows:
+        t.add_row(r["who"], _fmt(r["recall"], True), _fmt(r["balanced_accuracy"], True), _fmt(r["timing_mae_s"]),
+                  _fmt(r["never_rate"], True), _fmt(r["mae_t_f"]), _fmt(r["mae_t_nf"]), _fmt(r["mae_dv_nb"]))
+    return t
+
+
+def _render_eval(ev: dict[str, Any], console: Console) -> None:
+    for group in ("typical", "members"):
+        rows = ev.get(f"summary_{group}")
+        if rows:
+            who = ev["typical_driver"] if group == "typical" else ", ".join(ev["drivers"])
+            skipped = {k: v for k, v in ev.get(f"skipped_{group}", {}).items() if v}
+            console.print(_summary_table(rows, f"{group}: {who} — {ev[f'n_decisions_{group}']} decisions, "
+                                               f"{ev[f'n_states_{group}']} states, skipped {skipped or 'none'}"))
+
+
+def train_command(
+    style: Annotated[Optional[str], typer.Option("--style", help="Imitate a style (its typical driver's lines).")] = None,
+    driver: Annotated[Optional[str], typer.Option("--driver", help="Imitate one driver (its own lines).")] = None,
+    episodes: Annotated[Optional[int], typer.Option("--episodes", help="Episodes to train (Table 2: 10000).")] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of everything random.")] = 0,
+    reward: Annotated[str, typer.Option("--reward", help=f"Reward: {' or '.join(REWARDS)}.")] = "timing",
+    lines: Annotated[str, typer.Option("--lines", help="Reference lines: 'analysis' or 'paper' (Table 1).")] = "analysis",
+    run_id: Annotated[Optional[str], typer.Option("--run-id", help="Id of the new run (default: time-target-reward-seed).")] = None,
+    resume: Annotated[Optional[str], typer.Option("--resume", help="Continue an interrupted run from its checkpoint.")] = None,
+    lr: Annotated[Optional[float], typer.Option("--lr", help="Learning rate (0.005).")] = None,
+    gamma: Annotated[Optional[float], typer.Option("--gamma", help="Discount per step (0.98).")] = None,
+    eps_start: Annotated[Optional[float], typer.Option("--eps-start", help="Initial exploration (0.8).")] = None,
+    eps_end: Annotated[Optional[float], typer.Option("--eps-end", help="Final exploration (0.1).")] = None,
+    batch_size: Annotated[Optional[int], typer.Option("--batch-size", help="Transitions per update.")] = None,
+    buffer_size: Annotated[Optional[int], typer.Option("--buffer-size", help="Replay memory (10000).")] = None,
+    learning_starts: Annotated[Optional[int], typer.Option("--learning-starts", help="Transitions before learning (2000).")] = None,
+    target_update: Annotated[Optional[int], typer.Option("--target-update", help="Episodes between target copies (20).")] = None,
+    num_envs: Annotated[Optional[int], typer.Option("--num-envs", help="Environments stepped together (1 = the study's loop).")] = None,
+    gradient_steps: Annotated[Optional[int], typer.Option("--gradient-steps", help="Updates per vector step.")] = None,
+    threads: Annotated[Optional[int], typer.Option("--threads", help="torch threads (1).")] = None,
+    dt: Annotated[Optional[float], typer.Option("--dt", help="Seconds between decisions (0.5).")] = None,
+    checkpoint_every: Annotated[Optional[int], typer.Option("--checkpoint-every", help="Episodes between checkpoints.")] = None,
+    evaluate: Annotated[bool, typer.Option("--evaluate/--no-evaluate", help="Evaluate against the drivers at the end.")] = True,
+    workspace: WorkspaceOpt = DEFAULT_WS,
+    as_json: JsonOpt = False,
+) -> None:
+    """Train a DQN agent for a style or a driver; prints the run id."""
+
+    def work() -> dict[str, Any]:
+        ws = Workspace(workspace)
+        if resume:
+            if style or driver:
+                raise UserError("--resume takes the run's own target: leave out --style/--driver")
+            with progress_bar(not as_json) as progress:
+                return train_run(ws, None, None, None, resume=resume, episodes=episodes, evaluate=evaluate,
+                                 progress=progress)
+        if (style is None) == (driver is None):
+            raise UserError("give exactly one of --style NAME or --driver ID")
+        target = Target("style", style) if style else Target("driver", str(driver))
+        ref = resolve_lines(ws, target, lines)
+        env = EnvConfig(lines=ref, reward=RewardSettings(name=reward))
+        if dt is not None:
+            env = replace(env, dt_s=dt)
+        overrides = {k: v for k, v in {
+            "episodes": episodes, "seed": seed, "learning_rate": lr, "gamma": gamma, "eps_start": eps_start,
+            "eps_end": eps_end, "batch_size": batch_size, "buffer_size": buffer_size,
+            "learning_starts": learning_starts, "target_update_episodes": target_update, "num_envs": num_envs,
+            "gradient_steps": gradient_steps, "threads": threads, "checkpoint_every": checkpoint_every,
+        }.items() if v is not None}
+        try:
+            settings = DQNSettings(**overrides)
+        except (TypeError, ValueError) as exc:
+            raise UserError(f"bad training setting: {exc}") from None
+        with progress_bar(not as_json) as progress:
+            return train_run(ws, target, env, settings, run_id=run_id, lines_source=lines,
+                             evaluate=evaluate, progress=progress)
+
+    def render(res: dict[str, Any], console: Console) -> None:
+        console.print(res["run_id"])
+        console.print(f"{res['state']}: {res['target']}, reward {res['reward']}, {res['episodes']} episodes, "
+                      f"{res['env_steps']} steps in {res['wall_s']} s — {res['folder']}", highlight=False)
+        if res.get("evaluation"):
+            console.print(_summary_table(res["evaluation"], "against the drivers"))
+        if res.get("evaluation_note"):
+            console.print(res["evaluation_note"], highlight=False)
+
+    run_command(work, as_json, render)
+
+
+def evaluate_command(
+    run_id: Annotated[str, typer.Argument(help="Run to evaluate (see the workspace's runs/).")],
+    workspace: WorkspaceOpt = DEFAULT_WS,
+    as_json: JsonOpt = False,
+) -> None:
+    """Evaluate a run against the drivers' recorded decisions (agent, greedy, driver)."""
+    run_command(lambda: evaluate_run(Workspace(workspace), run_id), as_json, _render_eval)

@@ -25,7 +25,8 @@ Episode End
 
 Starting State
     Matched to the synthetic study (`laneprint.simulator.config`): ego speed
-    uniform over the sections' limits +-5 km/h, traffic speeds Uniform(5, 14) m/s,
+    uniform over the sections' limits +-5 km/h, leaders' speeds Uniform(5, 14) m/s,
+    followers' Uniform(6, 11) m/s (the study's presses: 8.5 +- 1.4),
     cars 4-5 m and 10 % trucks 10-16 m. ``C_f`` is placed so that its initial time
     to collision is uniform in ``t_f0_s`` (every episode then crosses the moment a
     driver would change); ``C_nf`` so that ``t_nf - t_f`` is uniform in
@@ -63,10 +64,11 @@ class EnvConfig:
     dt_s: float = 0.5  # time between two decisions [s] (the analysis's not-yet step)
     max_steps: int = 200  # episode truncation (Table 2, N_s) [steps]
     ego_speed_mps: tuple[float, float] = (55 / 3.6, 95 / 3.6)  # ego speed, uniform: limits 60-90 km/h +-5 [m/s]
-    traffic_speed_mps: tuple[float, float] = (5.0, 14.0)  # C_f, C_nf, C_nb speeds, uniform [m/s]
+    traffic_speed_mps: tuple[float, float] = (5.0, 14.0)  # C_f, C_nf speeds, uniform [m/s]
+    nb_speed_mps: tuple[float, float] = (6.0, 11.0)  # C_nb speed, uniform [m/s] (the study's followers: ~9)
     t_f0_s: tuple[float, float] = (1.0, 25.0)  # initial time to collision with C_f, uniform [s]
     nf_present_prob: float = 0.88  # probability of a leader in the target lane
-    nf_ttc_offset_s: tuple[float, float] = (-4.0, 6.0)  # initial t_nf - t_f, uniform [s] (gap >= 1 m)
+    nf_ttc_offset_s: tuple[float, float] = (-3.0, 4.0)  # initial t_nf - t_f, uniform [s] (gap >= 1 m)
     nb_present_prob: float = 1.0  # probability of a follower in the target lane
     nb_gap0_m: tuple[float, float] = (5.0, 140.0)  # initial gap to C_nb, uniform [m]
     ego_length_m: float = 4.5  # [m]
@@ -111,7 +113,8 @@ def sample_scenes(rng: np.random.Generator, cfg: EnvConfig, n: int) -> Scene:
     """`n` random starting scenes (see the module doc, Starting State)."""
     u = rng.uniform
     v_e = u(*cfg.ego_speed_mps, n)
-    v_f, v_nf, v_nb = (u(*cfg.traffic_speed_mps, n) for _ in range(3))
+    v_f, v_nf = u(*cfg.traffic_speed_mps, n), u(*cfg.traffic_speed_mps, n)
+    v_nb = u(*cfg.nb_speed_mps, n)
     hl_f, hl_nf, hl_nb = (_half_lengths(rng, cfg, n) for _ in range(3))
     t_f0 = u(*cfg.t_f0_s, n)
     t_nf0 = t_f0 + u(*cfg.nf_ttc_offset_s, n)

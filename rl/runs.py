@@ -1,0 +1,426 @@
+"""Training runs in the workspace: `runs/<run_id>/`, written while training so a
+dashboard can follow a run live.
+
+Files of a run folder:
+
+- ``config.json``: target, reward, reference lines used, environment and trainer
+  settings, seed, code version (git commit), data fingerprint, created_at;
+- ``status.json`` (atomic): state running/done/failed/cancelled, pid, episode,
+  episodes, started_at, updated_at, message;
+- ``metrics.jsonl``: one JSON line per finished episode, flushed as written;
+- ``checkpoint.pt``: everything to resume (`laneprint train --resume RUN_ID`);
+- ``weights.pt``: the Q network's state dict (load with ``weights_only=True``);
+- ``evaluation.json`` + ``eval_states.parquet``, ``eval_changes.parquet``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import re
+import signal
+import subprocess
+import time
+from dataclasses import asdict, dataclass, replace
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import torch
+
+from laneprint.errors import UserError
+from laneprint.progress import ProgressFn, report
+from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
+from rl.dqn import DQNSettings, DQNTrainer, q_network
+from rl.env import EnvConfig, approaches_from_decisions
+from rl.evaluate import agent_policy, evaluate_policies, greedy_policy
+from rl.rewards import ReferenceLines
+
+RUN_STATES = ("running", "done", "failed", "cancelled")
+
+
+@dataclass(frozen=True)
+class Target:
+    """Whom an agent imitates: a style (its typical driver's lines) or one driver."""
+
+    kind: str  # 'style' or 'driver'
+    name: str  # style name or driver id
+
+    @property
+    def label(self) -> str:
+        return f"{self.kind} {self.name}"
+
+
+def now_iso() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def new_run_id(target: Target, reward: str, seed: int) -> str:
+    """A readable, sortable run id, e.g. ``20261122-013000-normal-timing-s0``."""
+    slug = re.sub(r"[^a-z0-9]+", "-", target.name.lower()).strip("-") or "run"
+    return f"{datetime.now(timezone.utc):%Y%m%d-%H%M%S}-{slug}-{reward}-s{seed}"
+
+
+def code_version() -> dict[str, Any]:
+    """Package version and git commit of the code (None when not in a git checkout)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        pkg = version("laneprint")
+    except PackageNotFoundError:  # pragma: no cover
+        pkg = None
+    commit, dirty = None, None
+    try:
+        here = Path(__file__).resolve().parent
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True,
+                                timeout=5).stdout.strip() or None
+        dirty = bool(subprocess.run(["git", "status", "--porcelain", "--", "rl"], cwd=here.parent,
+                                    capture_output=True, text=True, timeout=5).stdout.strip())
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return {"laneprint": pkg, "git_commit": commit, "rl_dirty": dirty, "torch": torch.__version__}
+
+
+def resolve_lines(workspace: Workspace, target: Target, lines: str) -> ReferenceLines:
+    """The reference lines to train on: the analysis's (default) or Table 1 (`lines='paper'`)."""
+    if lines == "paper":
+        if target.kind != "style":
+            raise UserError("--lines paper needs --style (Table 1 has the three typical drivers only)")
+        return ReferenceLines.paper(target.name)
+    if lines != "analysis":
+        raise UserError(f"unknown --lines {lines!r}: choose 'analysis' or 'paper'")
+    if not workspace.has_table("analysis", "reference_lines"):
+        raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first or pass --lines paper")
+    table = workspace.read_table("analysis", "reference_lines")
+    if target.kind == "style":
+        return ReferenceLines.from_table(table, style=target.name)
+    return ReferenceLines.from_table(table, driver=target.name)
+
+
+# --- run folder I/O ------------------------------------------------------------------
+
+
+def run_dir(workspace: Workspace, run_id: str) -> Path:
+    return workspace.runs_dir / run_id
+
+
+def _save_torch(path: Path, obj: Any) -> None:
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+class RunWriter:
+    """Writes status, metrics and checkpoints of one run."""
+
+    def __init__(self, folder: Path, episodes: int, started_at: str | None = None) -> None:
+        self.folder = folder
+        self.episodes = episodes
+        self.started_at = started_at or now_iso()
+        self._last_status = 0.0
+        self._metrics = open(folder / "metrics.jsonl", "a", encoding="utf-8")
+
+    def status(self, state: str, episode: int, message: str = "", force: bool = True) -> None:
+        if not force and time.monotonic() - self._last_status < 0.5:
+            return
+        self._last_status = time.monotonic()
+        atomic_write_json(self.folder / "status.json", {
+            "state": state, "pid": os.getpid(), "episode": int(episode), "episodes": int(self.episodes),
+            "started_at": self.started_at, "updated_at": now_iso(), "message": message,
+        })
+
+    def metric(self, row: dict[str, Any]) -> None:
+        self._metrics.write(json.dumps(row) + "\n")
+
+    def flush(self) -> None:
+        self._metrics.flush()
+
+    def close(self) -> None:
+        self._metrics.close()
+
+
+def _truncate_metrics(path: Path, episodes_done: int) -> None:
+    """Drop metrics lines written after the checkpoint a run resumes from."""
+    if not path.exists():
+        return
+    keep = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            if json.loads(line)["episode"] <= episodes_done:
+                keep.append(line)
+        except (ValueError, KeyError):
+            continue
+    atomic_write_bytes(path, ("\n".join(keep) + ("\n" if keep else "")).encode())
+
+
+class _StopFlag:
+    """Set by SIGTERM/SIGINT so the loop can checkpoint and exit cleanly."""
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> "_StopFlag":
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            try:
+                self._old[sig] = signal.signal(sig, self._handle)
+            except ValueError:  # not the main thread: no signal handling
+                pass
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        self.signal = signum
+
+    def __exit__(self, *exc: Any) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+    def __call__(self) -> bool:
+        return self.signal is not None
+
+
+def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig | None,
+              settings: DQNSettings | None, *, run_id: str | None = None, lines_source: str = "analysis",
+              resume: str | None = None, episodes: int | None = None, evaluate: bool = True,
+              progress: ProgressFn | None = None) -> dict[str, Any]:
+    """Train (or resume) one run in the workspace; returns a JSON-ready summary.
+
+    `episodes` on a resume changes the run's total (its epsilon schedule follows).
+
+    On SIGTERM/SIGINT the run saves a checkpoint and ends with state 'cancelled'.
+    """
+    workspace.ensure()
+    if resume:
+        folder = run_dir(workspace, resume)
+        if not (folder / "config.json").exists():
+            raise UserError(f"no run {resume!r} in {workspace.root}")
+        if not (folder / "checkpoint.pt").exists():
+            raise UserError(f"run {resume!r} has no checkpoint to resume from")
+        config = json.loads((folder / "config.json").read_text())
+        run_id = resume
+        target = Target(**config["target"])
+        env_config = EnvConfig.from_dict(config["env"])
+        settings = DQNSettings.from_dict(config["dqn"])
+        if episodes is not None and episodes != settings.episodes:
+            settings = replace(settings, episodes=episodes)
+            config["dqn"]["episodes"] = episodes
+        config.setdefault("resumed_at", []).append(now_iso())
+        atomic_write_json(folder / "config.json", config)
+        state = torch.load(folder / "checkpoint.pt", weights_only=True)
+        old_status = json.loads((folder / "status.json").read_text()) if (folder / "status.json").exists() else {}
+        started_at = old_status.get("started_at")
+    else:
+        assert target is not None and env_config is not None and settings is not None
+        run_id = run_id or new_run_id(target, env_config.reward.name, settings.seed)
+        if not re.fullmatch(r"[A-Za-z0-9._-]+", run_id):
+            raise UserError(f"run id {run_id!r}: use letters, digits, '.', '_' or '-'")
+        folder = run_dir(workspace, run_id)
+        if (folder / "config.json").exists():
+            raise UserError(f"run {run_id!r} exists already (pass --resume {run_id} to continue it)")
+        folder.mkdir(parents=True, exist_ok=True)
+        config = {
+            "run_id": run_id, "target": asdict(target), "reward": env_config.reward.name,
+            "lines_source": lines_source, "lines": env_config.lines.to_dict(), "seed": settings.seed,
+            "env": env_config.to_dict(), "dqn": settings.to_dict(), "code_version": code_version(),
+            "data_fingerprint": workspace.fingerprint(), "created_at": now_iso(),
+        }
+        atomic_write_json(folder / "config.json", config)
+        state, started_at = None, None
+
+    trainer = DQNTrainer(env_config, settings)
+    if state is not None:
+        trainer.load_state_dict(state)
+        _truncate_metrics(folder / "metrics.jsonl", trainer.episodes_done)
+    writer = RunWriter(folder, settings.episodes, started_at)
+    writer.status("running", trainer.episodes_done, "resumed" if resume else "training")
+
+    def checkpoint(t: DQNTrainer) -> None:
+        writer.flush()
+        _save_torch(folder / "checkpoint.pt", t.state_dict())
+
+    def on_episode(row: dict[str, Any]) -> None:
+        writer.metric(row)
+
+    def on_vector_step(t: DQNTrainer) -> bool:
+        writer.flush()
+        writer.status("running", t.episodes_done, "training", force=False)
+        report(progress, t.episodes_done, settings.episodes, f"{target.label}: episode {t.episodes_done}")
+        return False
+
+    final = "done"
+    message = ""
+    try:
+        with _StopFlag() as stop:
+            trainer.train(on_episode=on_episode, should_stop=stop, on_checkpoint=checkpoint,
+                          on_vector_step=on_vector_step)
+        if stop.signal is not None:
+            final, message = "cancelled", f"stopped by signal {signal.Signals(stop.signal).name}"
+    except Exception as exc:
+        writer.flush()
+        checkpoint(trainer)
+        writer.status("failed", trainer.episodes_done, f"{type(exc).__name__}: {exc}")
+        writer.close()
+        raise
+    checkpoint(trainer)
+    _save_torch(folder / "weights.pt", trainer.q.state_dict())
+    writer.status(final if final != "done" else "running", trainer.episodes_done,
+                  message or ("evaluating" if evaluate else "done"))
+    result: dict[str, Any] = {"run_id": run_id, "folder": str(folder), "state": final,
+                              "episodes": trainer.episodes_done, "env_steps": trainer.env_steps,
+                              "wall_s": round(trainer.wall_s, 2), "target": target.label,
+                              "reward": env_config.reward.name, "message": message}
+    if final == "done" and evaluate:
+        try:
+            ev = evaluate_run(workspace, run_id)
+            result["evaluation"] = ev.get("summary_typical") or ev.get("summary")
+            result["evaluation_note"] = ev.get("note", "")
+        except UserError as exc:
+            result["evaluation_note"] = str(exc)
+    writer.status(final, trainer.episodes_done, message or "done")
+    writer.close()
+    return result
+
+
+# --- evaluation of a run ----------------------------------------------------------------
+
+
+def _load_q(folder: Path, settings: DQNSettings) -> torch.nn.Module:
+    net = q_network(settings.hidden)
+    path = folder / "weights.pt"
+    if not path.exists():
+        raise UserError(f"run {folder.name!r} has no weights yet (still training or failed)")
+    net.load_state_dict(torch.load(path, weights_only=True))
+    net.eval()
+    return net
+
+
+def _eval_drivers(workspace: Workspace, target: Target) -> tuple[list[str], str | None]:
+    """Drivers whose decisions judge a run: the driver, or a style's members (typical first)."""
+    if target.kind == "driver":
+        return [target.name], target.name
+    if not workspace.has_table("analysis", "styles"):
+        raise UserError("no analysis styles table: run `laneprint analyze` first")
+    styles = workspace.read_table("analysis", "styles")
+    members = styles[styles["style"].str.lower() == target.name.lower()]
+    if members.empty:
+        raise UserError(f"no drivers of style {target.name!r} in the analysis")
+    typical = members.loc[members["is_typical"].astype(bool), "driver_id"].astype(str).tolist()
+    rest = sorted(set(members["driver_id"].astype(str)) - set(typical))
+    return typical + rest, (typical[0] if typical else None)
+
+
+def evaluate_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
+    """Evaluate a run against the drivers' recorded decisions; writes evaluation.json + tables."""
+    folder = run_dir(workspace, run_id)
+    if not (folder / "config.json").exists():
+        raise UserError(f"no run {run_id!r} in {workspace.root}")
+    config = json.loads((folder / "config.json").read_text())
+    target = Target(**config["target"])
+    cfg = EnvConfig.from_dict(config["env"])
+    settings = DQNSettings.from_dict(config["dqn"])
+    net = _load_q(folder, settings)
+    if not workspace.has_table("analysis", "decisions"):
+        raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first to evaluate against the drivers")
+    decisions = workspace.read_table("analysis", "decisions")
+    drivers, typical = _eval_drivers(workspace, target)
+    policies = {"agent": agent_policy(net, cfg), "greedy": greedy_policy(cfg)}
+    out: dict[str, Any] = {"run_id": run_id, "target": asdict(target), "reward": cfg.reward.name,
+                           "drivers": drivers, "typical_driver": typical, "evaluated_at": now_iso(),
+                           "data_fingerprint": workspace.fingerprint()}
+    tables = {}
+    groups = {"members": drivers}
+    if typical is not None and target.kind == "style":
+        groups = {"typical": [typical], "members": drivers}
+    for group, ids in groups.items():
+        sel = decisions[decisions["driver_id"].astype(str).isin(ids)]
+        approaches, skipped = approaches_from_decisions(sel)
+        ev = evaluate_policies(policies, approaches, cfg, skipped)
+        out[f"summary_{group}"] = ev["summary"]
+        out[f"n_decisions_{group}"] = ev["n_decisions"]
+        out[f"n_states_{group}"] = ev["n_states"]
+        out[f"skipped_{group}"] = ev["skipped"]
+        if group == "members":
+            tables = {"eval_states": ev["states"], "eval_changes": ev["changes"]}
+    out["summary"] = out.get("summary_typical") or out["summary_members"]
+    out["note"] = ("figures on the typical driver's decisions first ('summary_typical'), then on all members"
+                   if "summary_typical" in out else "figures on the driver's decisions")
+    for name, df in tables.items():
+        buf = io.BytesIO()
+        df.to_parquet(buf, index=False)
+        atomic_write_bytes(folder / f"{name}.parquet", buf.getvalue())
+    atomic_write_json(folder / "evaluation.json", out)
+    return out
+
+
+# --- for the dashboard ----------------------------------------------------------------
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def read_metrics(path: Path) -> pd.DataFrame:
+    """metrics.jsonl as a frame (a half-written last line is ignored)."""
+    rows = []
+    if path.exists():
+        for line in path.read_text(encoding="utf-8").splitlines():
+            try:
+                rows.append(json.loads(line))
+            except ValueError:
+                continue
+    return pd.DataFrame(rows)
+
+
+def list_runs(workspace: Workspace) -> pd.DataFrame:
+    """One row per run folder: id, target, reward, seed, state, progress, times, headline figures."""
+    cols = ["run_id", "target_kind", "target", "reward", "lines_source", "seed", "state", "episode", "episodes",
+            "started_at", "updated_at", "message", "recall", "balanced_accuracy", "timing_mae_s"]
+    rows = []
+    root = workspace.runs_dir
+    for folder in sorted(root.glob("*")) if root.exists() else []:
+        config = _read_json(folder / "config.json")
+        if config is None:
+            continue
+        status = _read_json(folder / "status.json") or {}
+        ev = _read_json(folder / "evaluation.json") or {}
+        agent = next((r for r in ev.get("summary", []) if r.get("who") == "agent"), {})
+        rows.append({
+            "run_id": folder.name, "target_kind": config["target"]["kind"], "target": config["target"]["name"],
+            "reward": config.get("reward"), "lines_source": config.get("lines_source"), "seed": config.get("seed"),
+            "state": status.get("state"), "episode": status.get("episode"), "episodes": status.get("episodes"),
+            "started_at": status.get("started_at"), "updated_at": status.get("updated_at"),
+            "message": status.get("message"), "recall": agent.get("recall"),
+            "balanced_accuracy": agent.get("balanced_accuracy"), "timing_mae_s": agent.get("timing_mae_s"),
+        })
+    return pd.DataFrame(rows, columns=cols)
+
+
+def load_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
+    """Everything of one run: config, status, metrics (frame), evaluation (dict or None) and its tables."""
+    folder = run_dir(workspace, run_id)
+    config = _read_json(folder / "config.json")
+    if config is None:
+        raise UserError(f"no run {run_id!r} in {workspace.root}")
+    out: dict[str, Any] = {
+        "run_id": run_id, "folder": folder, "config": config,
+        "status": _read_json(folder / "status.json"), "metrics": read_metrics(folder / "metrics.jsonl"),
+        "evaluation": _read_json(folder / "evaluation.json"), "has_weights": (folder / "weights.pt").exists(),
+    }
+    for name in ("eval_states", "eval_changes"):
+        path = folder / f"{name}.parquet"
+        out[name] = pd.read_parquet(path) if path.exists() else None
+    return out
+
+
+def load_weights(workspace: Workspace, run_id: str) -> torch.nn.Module:
+    """The run's trained Q network (weights loaded with weights_only=True)."""
+    folder = run_dir(workspace, run_id)
+    config = _read_json(folder / "config.json")
+    if config is None:
+        raise UserError(f"no run {run_id!r} in {workspace.root}")
+    return _load_q(folder, DQNSettings.from_dict(config["dqn"]))

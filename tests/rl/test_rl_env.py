@@ -1,0 +1,101 @@
+"""The environment: gymnasium contract, dynamics, observation, replay mode."""
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import rl
+from rl.env import EnvConfig, LaneChangeDecisionEnv, VecLaneChangeEnv, approaches_from_decisions, sample_scenes
+from rl.rewards import ReferenceLines
+from rl.scene import Scene, indicators, observe
+from rl.testing import rule_driver_decisions
+
+
+def one_scene(**kw) -> Scene:
+    base = dict(v_e=20.0, x_e=0.0, f_present=True, v_f=10.0, x_f=54.5, hl_f=4.5, nf_present=True, v_nf=12.0,
+                x_nf=44.5, hl_nf=4.5, nb_present=True, v_nb=9.0, x_nb=-24.5, hl_nb=4.5)
+    base.update(kw)
+    return Scene(**{k: np.atleast_1d(np.asarray(v)) for k, v in base.items()})
+
+
+def test_registered_and_passes_check_env():
+    env = gym.make(rl.ENV_ID)
+    check_env(env.unwrapped)
+    obs, _ = env.reset(seed=3)
+    assert obs.shape == (8,) and obs.dtype == np.float32
+    assert (obs > 0).all() and (obs <= 1).all()
+
+
+def test_indicators_hand_computed():
+    ind = indicators(one_scene())
+    assert ind.t_f[0] == pytest.approx(50.0 / 10.0)  # gap 54.5 - 4.5 = 50 m, closing 10 m/s
+    assert ind.t_nf[0] == pytest.approx(40.0 / 8.0)
+    assert ind.dv_nb[0] == pytest.approx(11.0)
+    far = indicators(one_scene(x_nb=-110.0))  # gap 105.5 m > 100 m: no influence
+    assert not far.dv_nb_ok[0] and np.isnan(far.dv_nb[0])
+    pulling_away = indicators(one_scene(v_nf=25.0))
+    assert not pulling_away.t_nf_ok[0]
+
+
+def test_ttc_falls_by_dt_per_step_and_change_ends_episode():
+    env = LaneChangeDecisionEnv(EnvConfig(dt_s=0.5))
+    _, info = env.reset(seed=1)
+    _, _, term, trunc, info2 = env.step(1)
+    if info["t_f"] is not None and info2["t_f"] is not None:
+        assert info["t_f"] - info2["t_f"] == pytest.approx(0.5)
+    assert not term and not trunc
+    _, _, term, _, info3 = env.step(0)
+    assert term and info3["changed"]
+
+
+def test_absent_and_out_of_range_vehicles_are_shown_at_the_edges():
+    obs = observe(one_scene(nf_present=False, nb_present=False), range_m=150.0, v_max_mps=40.0)[0]
+    assert obs[5] == 1.0 and obs[4] == pytest.approx(20.0 / 40.0)  # nothing ahead in the target lane
+    assert obs[7] == pytest.approx(1e-3) and obs[6] == pytest.approx(0.5)
+    beyond = observe(one_scene(x_f=400.0), range_m=150.0, v_max_mps=40.0)[0]
+    assert beyond[3] == 1.0 and beyond[2] == pytest.approx(0.5)
+    assert observe(one_scene(), 150.0, 40.0)[0, 1] == 0.5  # the ego is the centre
+
+
+def test_reset_is_seeded_and_vec_env_matches_model():
+    a, _ = LaneChangeDecisionEnv().reset(seed=7)
+    b, _ = LaneChangeDecisionEnv().reset(seed=7)
+    np.testing.assert_array_equal(a, b)
+    vec = VecLaneChangeEnv(EnvConfig(), 4, np.random.default_rng(0))
+    out = vec.step(np.ones(4, int))
+    assert out["obs"].shape == (4, 8) and out["reward"].shape == (4,)
+
+
+def test_replay_mode_follows_the_recorded_states_then_extrapolates():
+    lines = ReferenceLines.paper("Normal")
+    dec = rule_driver_decisions(lines, 3, seed=0, window_s=1.0, every_s=0.5)
+    approaches, skipped = approaches_from_decisions(dec)
+    assert len(approaches) == 3 and sum(skipped.values()) == 0
+    a = approaches[0]
+    assert len(a) == 3 and a.t_s[-1] == a.press_t_s
+    env = LaneChangeDecisionEnv(EnvConfig(lines=lines), approaches=approaches)
+    _, info = env.reset(seed=0, options={"approach": 0})
+    recorded_tf = dec[dec.decision_id == a.decision_id]["t_f_s"].to_numpy()
+    assert info["t_f"] == pytest.approx(recorded_tf[0])
+    _, _, _, _, info = env.step(1)
+    assert info["t_f"] == pytest.approx(recorded_tf[1])
+    env.step(1)
+    _, _, _, _, info = env.step(1)  # past the press: the press scene moved on by dt
+    assert info["recorded"] is False
+    assert info["t_f"] == pytest.approx(recorded_tf[2] - 0.5)
+
+
+def test_skip_rule_counts_undefined_leaders():
+    dec = rule_driver_decisions(ReferenceLines.paper("Normal"), 4, seed=0, window_s=1.0)
+    press = dec.index[(dec.decision_id == dec.decision_id.iloc[0]) & (dec.label == "change")]
+    dec.loc[press, ["t_f_status", "t_f_s"]] = ["not_closing", np.nan]
+    approaches, skipped = approaches_from_decisions(dec)
+    assert len(approaches) == 3 and skipped["no_closing_leader"] == 1
+
+
+def test_sample_scenes_put_leaders_ahead():
+    s = sample_scenes(np.random.default_rng(0), EnvConfig(), 500)
+    assert (s.x_f - s.x_e - s.hl_f > 0).all() and (s.x_nb < s.x_e).all()
+    assert (s.v_e > s.v_f).all()
