@@ -1,1 +1,22 @@
-"""Indicators: decision points, t_f / t_nf / dv_nb, correlations and per-driver OLS fits."""
+"""Indicators: decision points, t_f / t_nf / dv_nb, correlations and per-driver OLS fits.
+
+Modules (pure functions of DataFrames; only `clustering.pipeline.analyze` touches the workspace):
+
+- `settings`: `AnalysisSettings`, every knob of `laneprint analyze`, one comment per field.
+- `decisions`: `extract_decisions(meta, ego, traffic, settings) -> (decisions, skipped)`, one
+  recording at a time, vectorised over all its states. Presses are labelled 'change', the
+  states every `step_s` before them 'keep' (schema `laneprint.schemas.DECISIONS` plus
+  `press_index`, `lc_direction`, `lane_change_t_s`, `f_id`/`nf_id`/`nb_id` and
+  `<indicator>_reason`: why a value is left out of the fits, '' when used).
+- `stats`: `correlate` (Pearson + Spearman per driver and indicator) and `fit_lines` (statsmodels
+  OLS `I = A v_e + b` with SEs, 95 % CIs, R², n, and `cov_Ab`/`resid_sd`/`df_resid` so bands
+  can be drawn from the table alone: `LineFit.from_row(row).bands(v)`).
+- `plots`: `indicator_vs_speed`, `correlation_table` (Plotly figures).
+- `synthetic`: tiny hand-checkable recordings and large in-memory decision tables (tests, benchmarks).
+
+Which presses feed the statistics: label 'change' (cancelled presses included unless
+`fit_cancelled=False`), values with status 'ok' only; 'far' followers are out unless
+`fit_far_followers`; a TTC whose closing speed is below `min_closing_mps` (the driver was
+following a slow leader: TTC of tens or hundreds of seconds) is out with reason 'following'.
+The values stay in the decisions table either way.
+"""
