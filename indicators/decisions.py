@@ -5,7 +5,7 @@ occupies after the lane change that follows (within `lane_change_lookahead_s` an
 before the next press); when the ego never leaves its lane the press is
 `cancelled` and the target comes from `lc_direction` (left = lane + 1). Before each
 press, states every `step_s` back over the approach (to the previous lane change
-plus `settle_s`, the previous press, the recording start, or `max_approach_s`)
+end, the previous press, the recording start, or `max_approach_s`)
 are labelled 'keep'.
 
 At every state the scene is read as: the ego's latest sample at or before the
@@ -56,6 +56,24 @@ def _skip(what: str, id_: str, reason: str) -> dict[str, str]:
     return {"what": what, "id": id_, "reason": reason}
 
 
+def _lane_change_ends(ego: pd.DataFrame, t: np.ndarray, lane_events: np.ndarray,
+                      settings: AnalysisSettings) -> np.ndarray:
+    """Time each lane change ends: the first sample after the lane flip whose lateral speed is
+    below `settled_lateral_mps` (when ego_y is logged), else the flip + `settle_s`."""
+    fallback = t[lane_events] + settings.settle_s if len(lane_events) else np.array([])
+    if "ego_y_m" not in ego.columns or len(lane_events) == 0:
+        return fallback
+    y = ego["ego_y_m"].to_numpy(dtype=float)
+    if np.isnan(y).any() or len(y) < 3:
+        return fallback
+    dy = np.gradient(y, t)
+    still = np.flatnonzero(np.abs(dy) < settings.settled_lateral_mps)
+    k = np.searchsorted(still, lane_events, side="left")
+    ends = np.where(k < len(still), t[still[np.minimum(k, len(still) - 1)]], np.inf)
+    # a lateral move that never settles within max_settle_s: fall back
+    return np.where(ends - t[lane_events] <= settings.max_settle_s, ends, fallback)
+
+
 def find_presses(ego: pd.DataFrame, settings: AnalysisSettings) -> tuple[pd.DataFrame, list[dict[str, str]]]:
     """One row per rising edge of the button: press time, lane, target lane, cancelled.
 
@@ -68,6 +86,7 @@ def find_presses(ego: pd.DataFrame, settings: AnalysisSettings) -> tuple[pd.Data
     prev = np.r_[False, btn[:-1]]
     press_idx = np.flatnonzero(btn & ~prev)
     lane_events = np.flatnonzero(lane[1:] != lane[:-1]) + 1  # first sample in the new lane
+    settled = _lane_change_ends(ego, t, lane_events, settings)
     direction = ego["lc_direction"] if "lc_direction" in ego.columns else pd.Series([None] * len(ego))
     direction = direction.astype(object).where(direction.notna(), None).to_numpy()
     # end of each held span, to read the direction anywhere while the button is held
@@ -86,7 +105,7 @@ def find_presses(ego: pd.DataFrame, settings: AnalysisSettings) -> tuple[pd.Data
         d = dirs[0] if dirs else None
         # the last lane change before the press bounds the approach
         k_before = np.searchsorted(lane_events, p, side="right") - 1
-        last_lc = t[lane_events[k_before]] if k_before >= 0 else -np.inf
+        last_lc = settled[k_before] if k_before >= 0 else -np.inf
         row = {"press_index": i, "sample": int(p), "press_t_s": t_press, "ego_lane": int(lane[p]),
                "lc_direction": d, "last_lane_change_t_s": last_lc,
                "prev_press_t_s": t[press_idx[i - 1]] if i > 0 else -np.inf}
@@ -116,7 +135,7 @@ def _state_times(presses: pd.DataFrame, t0: float, settings: AnalysisSettings) -
     start = np.maximum.reduce([
         np.full(len(presses), t0),
         press_t - settings.max_approach_s,
-        presses["last_lane_change_t_s"].to_numpy() + settings.settle_s,
+        presses["last_lane_change_t_s"].to_numpy(),
         presses["prev_press_t_s"].to_numpy() + 1e-6,  # after (not at) the previous press
     ])
     n_keep = np.floor((press_t - start) / settings.step_s + 1e-9).astype(int)

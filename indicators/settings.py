@@ -22,9 +22,14 @@ class AnalysisSettings:
     """Spacing of the 'not yet' (keep) states before each press [s]."""
     max_approach_s: float = 15.0
     """Keep states go back at most this far before the press [s]."""
+    settled_lateral_mps: float = 0.1
+    """A lane change has ended when the ego's lateral speed (from ego_y) drops below
+    this after the lane flip; keep states of the next press start there [m/s]."""
+    max_settle_s: float = 5.0
+    """If the lateral speed does not settle within this after the flip, or ego_y is
+    not logged, the lane change ends `settle_s` after the flip [s]."""
     settle_s: float = 1.0
-    """Keep states start this long after the previous lane change crossed lanes [s]
-    (the ego is still moving sideways right after the crossing)."""
+    """Fallback: keep states start this long after the previous lane flip [s]."""
     lane_change_lookahead_s: float = 8.0
     """A lane change counts as following a press if the lane flips within this time
     after it (and before the next press) [s]."""

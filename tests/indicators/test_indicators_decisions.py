@@ -134,3 +134,12 @@ def test_decisions_table_has_no_sentinels():
     for col in ("t_f_s", "t_nf_s", "dv_nb_mps"):
         assert not (dec[col] == -1).any()
     assert isinstance(dec, pd.DataFrame)
+
+
+def test_approach_starts_when_the_lateral_move_has_settled():
+    meta, ego, traffic = scene()
+    t = ego["t_s"].to_numpy()
+    ego["ego_y_m"] = np.clip((t - 6.0) / 2.0, 0.0, 1.0) * 3.5  # lateral move 6.0 -> 8.0 s, flip at 7.0
+    dec, _ = extract_decisions(meta, ego, traffic)
+    # lateral speed first below 0.1 m/s at t = 8.1 (central differences): keep states from there
+    assert list(dec[dec["press_index"] == 1]["t_s"]) == pytest.approx([8.5, 9.0])
