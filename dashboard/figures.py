@@ -1,15 +1,12 @@
-"""Plotly figures the dashboard needs that no stage draws, and the stages' plots.
+"""Plotly figures the dashboard needs that no stage draws, and layout fixes for the stages' ones.
 
-`recording_timeline` (the Data page's viewer) is the dashboard's own. The other
-figures come from the stages (`indicators.plots`, `clustering.plots`, `rl.plots`);
-`stage_plot(module, name)` returns the stage's function, or a plain fallback drawn
-here when that stage is not installed yet.
+The analysis and training figures come from the stages (`indicators.plots`,
+`clustering.plots`, `rl.plots`); here are the Data page's recording viewer, the run
+comparison, the k-score curve, and `compact`/`bare_table` to fit a stage figure in a
+column.
 """
 
 from __future__ import annotations
-
-import importlib
-from typing import Any, Callable
 
 import numpy as np
 import pandas as pd
@@ -98,34 +95,6 @@ def runs_curves(metrics: dict[str, pd.DataFrame], column: str, label: str) -> go
     fig.update_layout(xaxis_title="episode [-]", yaxis_title=label, height=360,
                       legend=dict(orientation="h", y=-0.25))
     return fig
-
-
-# --- the stages' figures, with plain fallbacks --------------------------------
-
-def _fallback_training_curves(metrics: pd.DataFrame, *args: Any, **kwargs: Any) -> go.Figure:
-    fig = make_subplots(rows=1, cols=2, subplot_titles=("loss", "mean step reward"))
-    if len(metrics):
-        fig.add_trace(go.Scatter(x=metrics["episode"], y=metrics.get("loss"), name="loss"), row=1, col=1)
-        fig.add_trace(go.Scatter(x=metrics["episode"], y=metrics.get("mean_step_reward"),
-                                 name="mean step reward"), row=1, col=2)
-    fig.update_xaxes(title_text="episode [-]")
-    fig.update_yaxes(title_text="loss [-]", row=1, col=1)
-    fig.update_yaxes(title_text="reward per step [-]", row=1, col=2)
-    return fig
-
-
-_FALLBACKS: dict[tuple[str, str], Callable[..., go.Figure]] = {
-    ("rl.plots", "training_curves"): _fallback_training_curves,
-}
-
-
-def stage_plot(module: str, name: str) -> Callable[..., go.Figure] | None:
-    """The stage's plot function `module.name`, else the fallback here, else None."""
-    try:
-        fn = getattr(importlib.import_module(module), name, None)
-    except ImportError:
-        fn = None
-    return fn or _FALLBACKS.get((module, name))
 
 
 def compact(fig: go.Figure, height: int = 440) -> go.Figure:

@@ -130,21 +130,6 @@ def read_json(path: Path) -> dict[str, Any] | None:
         return None
 
 
-def read_metrics(path: Path) -> pd.DataFrame:
-    """`metrics.jsonl` as a frame (a partly written last line is skipped)."""
-    rows = []
-    try:
-        with open(path) as fh:
-            for line in fh:
-                try:
-                    rows.append(json.loads(line))
-                except ValueError:
-                    break
-    except OSError:
-        pass
-    return pd.DataFrame(rows)
-
-
 def log_tail(ws: Workspace, run_id: str, n_chars: int = 2000) -> str:
     """The end of a launched run's process output ('' when none)."""
     try:
@@ -214,43 +199,19 @@ def run_ids(ws: Workspace) -> list[str]:
 
 
 def runs_table(ws: Workspace) -> pd.DataFrame:
-    """One row per run: id, state, progress, target, reward, start time, message."""
-    rows = []
-    for rid in run_ids(ws):
-        st = run_status(ws, rid)
-        cfg = read_json(ws.runs_dir / rid / "config.json") or {}
-        job = read_json(jobs_dir(ws) / f"{rid}.json") or {}
-        req = job.get("request", {})
-        rows.append({
-            "run_id": rid,
-            "state": st.get("state"),
-            "episode": st.get("episode"),
-            "episodes": st.get("episodes"),
-            "target": _target(cfg) or f"{req.get('target', '')} {req.get('name', '')}".strip(),
-            "reward": _find(cfg, "reward") or req.get("reward"),
-            "started_at": st.get("started_at") or job.get("launched_at"),
-            "evaluated": (ws.runs_dir / rid / "evaluation.json").exists(),
-            "message": st.get("message", ""),
-        })
-    return pd.DataFrame(rows, columns=["run_id", "state", "episode", "episodes", "target", "reward",
-                                       "started_at", "evaluated", "message"])
+    """`rl.runs.list_runs` with the launcher's view of each state ('starting', 'lost'), newest first,
+    plus launched runs that have no run folder yet."""
+    from rl.runs import list_runs
 
-
-def _find(cfg: Any, key: str) -> Any:
-    """First value under `key` anywhere in a nested config dict."""
-    if isinstance(cfg, dict):
-        if key in cfg and not isinstance(cfg[key], dict):
-            return cfg[key]
-        for v in cfg.values():
-            found = _find(v, key)
-            if found is not None:
-                return found
-    return None
-
-
-def _target(cfg: dict[str, Any]) -> str:
-    for key in ("style", "driver", "driver_id"):
-        v = _find(cfg, key)
-        if v:
-            return f"{'style' if key == 'style' else 'driver'} {v}"
-    return ""
+    table = list_runs(ws)
+    known = set(table["run_id"])
+    extra = [{"run_id": rid, **{k: v for k, v in run_status(ws, rid).items() if k in table.columns}}
+             for rid in run_ids(ws) if rid not in known]
+    if extra:
+        table = pd.concat([table, pd.DataFrame(extra, columns=table.columns)], ignore_index=True)
+    if len(table):
+        status = {rid: run_status(ws, rid) for rid in table["run_id"]}
+        table["state"] = [status[r].get("state") for r in table["run_id"]]
+        table["message"] = [status[r].get("message") for r in table["run_id"]]
+    order = {rid: i for i, rid in enumerate(run_ids(ws))}
+    return table.sort_values("run_id", key=lambda s: s.map(order)).reset_index(drop=True)

@@ -67,3 +67,15 @@ def analysis(root: str, key: tuple[int, ...]) -> dict[str, pd.DataFrame]:
 def analysis_meta(root: str, key: tuple[int, ...]) -> dict[str, Any]:
     """`analysis/meta.json` (settings, fingerprint), {} when missing."""
     return Workspace(root).read_meta("analysis")
+
+
+def run_stamp(root: Path, run_id: str) -> tuple[int, ...]:
+    return stamp(root / "runs" / run_id, "status.json", "metrics.jsonl", "evaluation.json")
+
+
+@st.cache_data(show_spinner=False, max_entries=32)
+def run(root: str, run_id: str, key: tuple[int, ...]) -> dict[str, Any]:
+    """`rl.runs.load_run`: config, status, metrics, evaluation and its tables of one run."""
+    from rl.runs import load_run
+
+    return load_run(Workspace(root), run_id)

@@ -6,7 +6,6 @@ until then the study's Table 2 values below are shown.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import pandas as pd
@@ -14,36 +13,48 @@ import pandas as pd
 from dashboard.context import EPISODES_ENV, env_int
 from laneprint.reference import STYLES
 
-#: Table 2 of the study (PAPER_NOTES.md), the fallback when rl/ has no settings class yet.
-TABLE2: dict[str, Any] = {
-    "learning_rate": 0.005, "epsilon_start": 0.8, "epsilon_end": 0.1, "gamma": 0.98,
-    "replay_size": 10000, "learning_starts": 2000, "batch_size": 32, "target_update_episodes": 20,
-    "max_steps": 200, "episodes": 10000,
+#: Trainer settings the form offers -> (label, `laneprint train` option); defaults from rl.dqn.DQNSettings.
+FORM_SETTINGS: dict[str, tuple[str, str]] = {
+    "learning_rate": ("learning rate", "--lr"),
+    "gamma": ("discount gamma", "--gamma"),
+    "eps_start": ("epsilon start", "--eps-start"),
+    "eps_end": ("epsilon end", "--eps-end"),
+    "buffer_size": ("replay memory [transitions]", "--buffer-size"),
+    "learning_starts": ("learning starts [transitions]", "--learning-starts"),
+    "batch_size": ("minibatch [transitions]", "--batch-size"),
+    "target_update_episodes": ("target copy every [episodes]", "--target-update"),
+    "num_envs": ("environments stepped together", "--num-envs"),
+    "gradient_steps": ("updates per vector step", "--gradient-steps"),
 }
 
 
 def rewards() -> list[str]:
-    """Reward formulations the trainer knows (its default first)."""
-    try:
-        from rl.rewards import REWARDS, RewardSettings
-        default = RewardSettings().name
-        return [default, *[r for r in REWARDS if r != default]]
-    except (ImportError, AttributeError, TypeError):
-        return ["paper"]
+    """Reward formulations the trainer knows, its default first."""
+    from rl.rewards import REWARDS, RewardSettings
+
+    default = RewardSettings().name
+    return [default, *[r for r in REWARDS if r != default]]
 
 
 def hyperparameters() -> dict[str, Any]:
-    """Trainer settings and their defaults (Table 2), flat name -> value."""
-    try:
-        from rl.dqn import DQNSettings  # type: ignore[import-not-found]
-        return {f.name: getattr(DQNSettings(), f.name) for f in dataclasses.fields(DQNSettings)}
-    except ImportError:
-        return dict(TABLE2)
+    """The form's trainer settings with their defaults (the study's Table 2)."""
+    from rl.dqn import DQNSettings
+
+    defaults = DQNSettings()
+    return {name: getattr(defaults, name) for name in FORM_SETTINGS}
+
+
+def changed_options(values: dict[str, Any]) -> dict[str, str]:
+    """`laneprint train` options for the settings that differ from their defaults."""
+    defaults = hyperparameters()
+    return {FORM_SETTINGS[k][1]: str(v) for k, v in values.items() if k in defaults and v != defaults[k]}
 
 
 def default_episodes() -> int:
     """Episodes pre-filled in the form: $LANEPRINT_DASHBOARD_EPISODES, else the trainer's default."""
-    return env_int(EPISODES_ENV, None) or int(hyperparameters().get("episodes", TABLE2["episodes"]))
+    from rl.dqn import DQNSettings
+
+    return env_int(EPISODES_ENV, None) or DQNSettings().episodes
 
 
 def style_targets(reference_lines: pd.DataFrame | None) -> list[str]:

@@ -99,17 +99,30 @@ def style_summary(styles: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def evaluation_table(evaluation: dict[str, Any]) -> pd.DataFrame:
-    """Agent vs greedy vs driver, one row per policy, from a run's evaluation.json."""
-    for key in ("table", "summary", "rows"):
-        rows = evaluation.get(key)
-        if isinstance(rows, list) and rows and isinstance(rows[0], dict):
-            return pd.DataFrame(rows)
-    policies = {k: v for k, v in evaluation.items() if isinstance(v, dict)
-                and all(not isinstance(x, (dict, list)) for x in v.values())}
-    if policies:
-        return pd.DataFrame.from_dict(policies, orient="index").rename_axis("policy").reset_index()
-    return pd.DataFrame([{k: v for k, v in evaluation.items() if not isinstance(v, (dict, list))}])
+#: evaluation summary column -> (shown name, scale); shares are shown in percent.
+EVAL_COLUMNS = {
+    "recall": ("recall at the presses [%]", 100.0),
+    "balanced_accuracy": ("balanced accuracy [%]", 100.0),
+    "specificity": ("keeps before the press [%]", 100.0),
+    "timing_mae_s": ("timing MAE [s]", 1.0),
+    "timing_bias_s": ("timing bias [s]", 1.0),
+    "never_rate": ("never changes [%]", 100.0),
+    "mae_t_f": ("MAE t_f [s]", 1.0),
+    "mae_t_nf": ("MAE t_nf [s]", 1.0),
+    "mae_dv_nb": ("MAE dv_nb [m/s]", 1.0),
+}
+
+
+def evaluation_table(summary: list[dict[str, Any]] | None) -> pd.DataFrame:
+    """Agent vs greedy vs driver: one row per policy with the evaluation figures, units in the names."""
+    df = pd.DataFrame(summary or [])
+    if df.empty:
+        return pd.DataFrame(columns=["policy", *[v[0] for v in EVAL_COLUMNS.values()]])
+    out = pd.DataFrame({"policy": df["who"]})
+    for col, (name, scale) in EVAL_COLUMNS.items():
+        if col in df:
+            out[name] = (pd.to_numeric(df[col], errors="coerce") * scale).round(2)
+    return out
 
 
 def compare_runs(tables: dict[str, pd.DataFrame]) -> pd.DataFrame:

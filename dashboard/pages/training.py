@@ -2,7 +2,9 @@
 
 import streamlit as st
 
-from dashboard import figures, jobs, loaders, training
+from dashboard import jobs, loaders, training
+from rl.plots import training_curves
+from rl.runs import read_metrics
 from dashboard.context import poll_seconds, workspace
 
 
@@ -24,27 +26,34 @@ def launch_form(ws) -> None:
         episodes = c4.number_input("Episodes", min_value=1, max_value=100_000, step=100,
                                    value=training.default_episodes(), key="episodes")
         seed = c5.number_input("Seed", min_value=0, value=0, step=1, key="seed")
-        with st.expander("Hyperparameters (Table 2 of the study)"):
-            st.json(training.hyperparameters(), expanded=True)
+        values = {}
+        with st.expander("Hyperparameters (defaults: Table 2 of the study)"):
+            cols = st.columns(3)
+            for i, (field, default) in enumerate(training.hyperparameters().items()):
+                label = training.FORM_SETTINGS[field][0]
+                values[field] = cols[i % 3].number_input(
+                    label, value=default, key=f"hp_{field}",
+                    format="%g" if isinstance(default, float) else "%d",
+                    step=None if isinstance(default, float) else 1)
         submitted = st.form_submit_button("Start training", type="primary", disabled=not names)
     if not names:
         st.info("Nothing to train for yet: ingest logs (Data page) and run the analysis (Styles page).")
     if submitted and name:
-        req = jobs.TrainRequest(kind, str(name), int(episodes), int(seed), reward, lines)
+        req = jobs.TrainRequest(kind, str(name), int(episodes), int(seed), reward, lines,
+                                training.changed_options(values))
         run_id = jobs.launch(ws, req)
         st.session_state.setdefault("launched", []).append(run_id)
         st.toast(f"Started run {run_id}")
 
 
-def run_panel(ws, run_id: str, status: dict, live: bool) -> None:
+def run_panel(ws, run_id: str, status: dict) -> None:
     """Progress, curves and a Cancel button for one run."""
     done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
     frac = min(1.0, done / total) if total else 0.0
     st.progress(frac, text=f"{run_id}: {status.get('state')} — episode {done}/{total or '?'}")
-    metrics = jobs.read_metrics(ws.runs_dir / run_id / "metrics.jsonl")
+    metrics = read_metrics(ws.runs_dir / run_id / "metrics.jsonl")
     if len(metrics):
-        plot = figures.stage_plot("rl.plots", "training_curves")
-        st.plotly_chart(plot(metrics), key=f"curves_{run_id}_{len(metrics)}" if live else f"curves_{run_id}")
+        st.plotly_chart(training_curves(metrics), key=f"curves_{run_id}")
     if status.get("state") in jobs.ACTIVE_STATES:
         if st.button("Cancel", key=f"cancel_{run_id}"):
             jobs.cancel(ws, run_id)
@@ -65,7 +74,7 @@ def main() -> None:
         still = []
         for rid in active:
             status = jobs.run_status(ws, rid)
-            run_panel(ws, rid, status, live=True)
+            run_panel(ws, rid, status)
             if status.get("state") in jobs.ACTIVE_STATES:
                 still.append(rid)
         if not active:
@@ -84,7 +93,7 @@ def main() -> None:
     finished = [r for r in table["run_id"] if r not in active]
     if finished:
         rid = st.selectbox("Show run", finished, key="show_run")
-        run_panel(ws, rid, jobs.run_status(ws, rid), live=False)
+        run_panel(ws, rid, jobs.run_status(ws, rid))
 
 
 main()

@@ -24,7 +24,8 @@ def write_fake_run(ws: Workspace, run_id: str, state: str = "done", episodes: in
     """A run folder as the trainer writes it (config, status, metrics, evaluation)."""
     d = ws.runs_dir / run_id
     d.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(d / "config.json", {"target": {"style": "Normal"}, "reward": {"name": "timing"}})
+    atomic_write_json(d / "config.json", {"run_id": run_id, "target": {"kind": "style", "name": "Normal"},
+                                          "reward": "timing", "lines_source": "paper", "seed": 0})
     atomic_write_json(d / "status.json", {
         "state": state, "pid": pid, "episode": episodes if state == "done" else 2, "episodes": episodes,
         "started_at": "2026-11-22T00:00:00+00:00", "updated_at": "2026-11-22T00:01:00+00:00", "message": ""})
@@ -56,9 +57,20 @@ def build_sample_workspace(root: Path) -> Workspace:
     report = ingest_paths(files, ws)
     assert report.counts["rejected"] == 0, report.to_dict()
     analyze(ws)
-    write_fake_run(ws, "Normal-old-0001")
-    write_fake_run(ws, "Normal-old-0002")
+    for seed in (0, 1):  # two short real runs, trained and evaluated in-process
+        train_short_run(ws, f"Normal-seed{seed}", seed)
     return ws
+
+
+def train_short_run(ws: Workspace, run_id: str, seed: int, episodes: int = 30) -> dict:
+    from rl.dqn import DQNSettings
+    from rl.env import EnvConfig
+    from rl.rewards import RewardSettings
+    from rl.runs import Target, resolve_lines, train_run
+
+    target = Target("style", "Normal")
+    env = EnvConfig(lines=resolve_lines(ws, target, "analysis"), reward=RewardSettings())
+    return train_run(ws, target, env, DQNSettings(episodes=episodes, seed=seed), run_id=run_id)
 
 
 @pytest.fixture(scope="session")

@@ -34,7 +34,9 @@ def test_status_of_dead_and_unknown_runs(tmp_path):
     assert jobs.run_status(ws, "fine")["state"] == "done"
     table = jobs.runs_table(ws)
     assert set(table["run_id"]) == {"lost", "early", "fine"}
-    assert table.set_index("run_id").loc["fine", "evaluated"]
+    table = table.set_index("run_id")
+    assert table.loc["fine", "recall"] == 0.96 and table.loc["lost", "state"] == "lost"
+    assert table.loc["early", "state"] == "failed"
 
 
 def test_cancel_sends_sigterm_to_a_running_run(tmp_path):

@@ -65,8 +65,11 @@ def test_styles_page_summary(use_sample):
 def test_results_page_compares_two_runs(use_sample):
     at = run_page("results")
     table = at.dataframe[0].value
-    assert table["who"].tolist() == ["agent", "greedy", "driver"]
-    assert at.dataframe[1].value["run_id"].nunique() == 2
+    assert table["policy"].tolist() == ["agent", "greedy", "driver"]
+    assert table.loc[2, "recall at the presses [%]"] == 100.0
+    figs = charts(at)
+    assert "[s]" in figs[0]["layout"]["yaxis"]["title"]["text"]  # Fig. 10 has units
+    assert at.dataframe[2].value["run_id"].nunique() == 2
 
 
 def test_training_page_defaults_from_table2(use_sample):
@@ -74,7 +77,8 @@ def test_training_page_defaults_from_table2(use_sample):
     assert at.number_input(key="episodes").value >= 1
     assert at.selectbox(key="target_name").options == ["Defensive", "Normal", "Aggressive"] or \
         len(at.selectbox(key="target_name").options) >= 2
-    assert "Normal-old-0001" in at.dataframe[0].value["run_id"].tolist()
+    assert at.dataframe[0].value["run_id"].tolist() == ["Normal-seed1", "Normal-seed0"]  # newest first
+    assert at.number_input(key="hp_learning_rate").value == 0.005 and at.number_input(key="hp_gamma").value == 0.98
 
 
 def test_upload_ingests_and_refuses_with_reasons(empty_ws, tmp_path):
@@ -123,3 +127,48 @@ def test_styles_rerun_with_other_k(sample_ws, tmp_path, monkeypatch):
     assert ws.read_meta("analysis")["settings"]["k"] == 2
     assert ws.read_table("analysis", "styles")["style"].nunique() == 2
     assert len(at.dataframe[0].value) == 2  # the page shows the new clusters, not cached old ones
+
+
+@pytest.mark.slow
+def test_two_runs_at_once_and_cancel(sample_ws, tmp_path, monkeypatch):
+    """Launch a long and a short run from the form; the short one finishes while the long one
+    runs, then Cancel stops the long one (the trainer checkpoints and marks it cancelled)."""
+    import shutil
+    import time
+
+    from dashboard import jobs
+    from laneprint.workspace import Workspace
+
+    ws = Workspace(shutil.copytree(sample_ws.root, tmp_path / "ws"))
+    monkeypatch.setenv("LANEPRINT_WORKSPACE", str(ws.root))
+    monkeypatch.setenv("LANEPRINT_DASHBOARD_POLL_S", "0.2")
+    at = run_page("training")
+    start = next(b for b in at.button if b.label == "Start training")
+    at.number_input(key="episodes").set_value(100_000)
+    start.click().run()
+    at.number_input(key="episodes").set_value(200)
+    at.number_input(key="seed").set_value(1)
+    next(b for b in at.button if b.label == "Start training").click().run()
+    assert not at.exception, [e.value for e in at.exception]
+    launched = at.session_state["launched"]
+    assert len(launched) == 2
+    long_id, short_id = launched
+
+    def state(rid):
+        return jobs.run_status(ws, rid)["state"]
+
+    deadline = time.monotonic() + 90
+    while time.monotonic() < deadline and not (state(short_id) == "done" and state(long_id) == "running"):
+        time.sleep(0.3)
+    assert (state(short_id), state(long_id)) == ("done", "running"), jobs.log_tail(ws, short_id)
+    at.run()
+    assert not at.exception
+    cancel = next(b for b in at.button if b.key == f"cancel_{long_id}")
+    cancel.click().run()
+    while time.monotonic() < deadline and state(long_id) == "running":
+        time.sleep(0.3)
+    assert state(long_id) == "cancelled"
+    assert (ws.runs_dir / long_id / "checkpoint.pt").exists()
+    at.run()
+    table = at.dataframe[0].value.set_index("run_id")
+    assert table.loc[short_id, "state"] == "done" and table.loc[long_id, "state"] == "cancelled"
