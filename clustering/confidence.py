@@ -18,6 +18,16 @@ from indicators.settings import AnalysisSettings
 from indicators.stats import INDICATOR_COLUMNS
 
 
+def _row_nanmedian(x: np.ndarray) -> np.ndarray:
+    """Median of each row ignoring NaN (np.nanmedian, several times faster: one sort)."""
+    srt = np.sort(x, axis=1)  # NaN last
+    c = (~np.isnan(x)).sum(axis=1)
+    rows = np.arange(len(x))
+    lo = srt[rows, np.maximum((c - 1) // 2, 0)]
+    hi = srt[rows, np.maximum(c // 2, 0)]
+    return np.where(c > 0, (lo + hi) / 2, np.nan)
+
+
 def _resampled_lines(v: np.ndarray, y: np.ndarray, idx: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray]:
     """(A, b) of each resample (rows of `idx`), vectorised over resamples."""
     V, Y = v[idx], y[idx]
@@ -26,7 +36,7 @@ def _resampled_lines(v: np.ndarray, y: np.ndarray, idx: np.ndarray, method: str)
         dv = V[:, j] - V[:, i]
         with np.errstate(invalid="ignore", divide="ignore"):
             slopes = np.where(dv != 0, (Y[:, j] - Y[:, i]) / dv, np.nan)
-        A = np.nanmedian(slopes, axis=1)
+        A = _row_nanmedian(slopes)
         return A, np.median(Y, axis=1) - A * np.median(V, axis=1)
     # OLS (also used for 'huber' here: the bootstrap is about spread, not the tails)
     vm, ym = V.mean(axis=1, keepdims=True), Y.mean(axis=1, keepdims=True)
