@@ -135,7 +135,6 @@ def read_csv_log(data: bytes, fmt: str, mapping: Mapping) -> RawLog:
     try:
         table = pacsv.read_csv(
             io.BytesIO(data),
-            read_options=pacsv.ReadOptions(block_size=1 << 22),
             convert_options=pacsv.ConvertOptions(column_types=types, include_columns=include,
                                                  strings_can_be_null=True),
         )
@@ -206,19 +205,20 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
         names = [vehicles[vid].get(fld) for vid in ids]
         if not any(names):
             return None
-        fill_arr = pa.array(np.full(n, fill))
+        fill_arr = pa.array(np.full(n, fill)) if not all(names) else None
         chunks = [c for name in names for c in (table.column(name).chunks if name else [fill_arr])]
         return pa.concat_arrays(chunks).to_numpy(zero_copy_only=False)
 
+    k = len(ids)
     x = stacked("x", np.nan)
     assert x is not None
+    present_vm = ~np.isnan(x).reshape(k, n)  # (vehicles, samples)
     # time-major order (by sample, then vehicle) of the cells where a vehicle is present
-    present = ~np.isnan(x.reshape(len(ids), n).T)
-    flat_tm = np.flatnonzero(present)
-    rows = np.repeat(np.arange(n), present.sum(axis=1))
-    cols = flat_tm - rows * len(ids)
+    flat_tm = np.flatnonzero(present_vm.T)
+    rows = np.repeat(np.arange(n), present_vm.sum(axis=0))
+    cols = flat_tm - rows * k
     take = cols * n + rows  # the same cells in the vehicle-major arrays
-    out = {"t_s": t[rows], "vehicle_id": pa.array(ids, pa.string()).take(pa.array(cols))}
+    out = {"t_s": t[rows], "vehicle_id": pa.array(ids, pa.string()).take(pa.array(cols.astype(np.int32)))}
     for fld, key, fill, scale in (("x", "x_m", np.nan, mapping.position_scale),
                                   ("v", "v_mps", np.nan, mapping.speed_scale),
                                   ("lane", "lane", np.nan, 1.0),
@@ -236,5 +236,7 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
             vid = ids[cols[k]]
             raise Rejected(f"traffic vehicle {vid!r}: {vehicles[vid][fld]} is empty at line {rows[k] + 2} "
                            f"while {vehicles[vid]['x']} is given (a present vehicle needs x, v and lane)")
-    out["length_m"] = np.where(np.isnan(out["length_m"]), DEFAULT_LENGTH_M, out["length_m"])
+    gaps = np.isnan(out["length_m"])
+    if gaps.any():
+        out["length_m"][gaps] = DEFAULT_LENGTH_M
     return out
