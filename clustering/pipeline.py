@@ -59,8 +59,9 @@ def assign_styles(feats: pd.DataFrame, notes: dict[str, list[str]], n_dec: pd.Se
                            "assigned_by": "none", "note": [("; ".join(notes.get(d, []))) for d in feats.index]})
     styles = styles.set_index("driver_id", drop=False)
     for d in feats.index[~usable]:
-        skipped.append({"what": "driver", "id": str(d), "reason": "no style: no defined values of "
-                        + "/".join(settings.feature_indicators) + " at any press"})
+        why = ("no presses" if n_dec.get(d, 0) == 0 else
+               "no defined values of " + "/".join(settings.feature_indicators) + " at any press")
+        skipped.append({"what": "driver", "id": str(d), "reason": f"no style: {why}"})
     if len(fit_on) == 0:
         return styles.reset_index(drop=True), None, skipped
     Xt = transform_features(feats, settings)
@@ -143,13 +144,17 @@ def reference_lines(styles: pd.DataFrame, fits: pd.DataFrame, points: pd.DataFra
     return out, skipped
 
 
-def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = None) -> dict[str, pd.DataFrame]:
-    """Correlations, fits, styles, reference lines and skipped rows from a decisions table (pure)."""
+def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
+                   drivers: list[str] | None = None) -> dict[str, pd.DataFrame]:
+    """Correlations, fits, styles, reference lines and skipped rows from a decisions table (pure).
+
+    `drivers`: drivers to report even when they have no decisions (e.g. the catalogue's).
+    """
     settings = settings or AnalysisSettings()
-    drivers = sorted(decisions["driver_id"].astype(str).unique())
+    drivers = sorted(set(decisions["driver_id"].astype(str)) | set(map(str, drivers or [])))
     points = indicator_points(decisions, settings)
-    correlations = correlate(decisions, settings, points)
-    fits = fit_lines(decisions, settings, points)
+    correlations = correlate(decisions, settings, points, drivers)
+    fits = fit_lines(decisions, settings, points, drivers)
     n_dec = _n_decisions(decisions, drivers)
     feats, notes = driver_features(points, drivers, settings)
     styles, clf, skipped = assign_styles(feats, notes, n_dec, fits, settings, points)
@@ -157,7 +162,9 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
     refs, ref_skipped = reference_lines(styles, fits, points, settings)
     for d in drivers:
         if n_dec[d] == 0:
-            skipped.append({"what": "driver", "id": d, "reason": "no presses (only keep states)"})
+            has_states = bool(len(decisions)) and (decisions["driver_id"].astype(str) == d).any()
+            skipped.append({"what": "driver", "id": d,
+                            "reason": "no presses (only keep states)" if has_states else "no decisions in any recording"})
     for _, f in fits[fits["status"] != "ok"].iterrows():
         skipped.append({"what": "indicator", "id": f"{f['driver_id']}:{f['indicator']}", "reason": f["reason"]})
     skipped.extend(ref_skipped)
@@ -210,7 +217,7 @@ def summary(tables: dict[str, pd.DataFrame]) -> dict[str, Any]:
     """Headline numbers: counts and the share of drivers with a significant correlation."""
     corr = tables["correlations"]
     dec = tables["decisions"]
-    drivers = sorted(dec["driver_id"].astype(str).unique()) if len(dec) else []
+    drivers = list(tables["styles"]["driver_id"])
     tested = corr[corr["reason"] == ""]
     share = {}
     for ind in INDICATORS:
@@ -266,7 +273,7 @@ def analyze(workspace: Workspace, settings: AnalysisSettings | None = None,
         raise UserError(f"no recordings in workspace {workspace.root}: run `laneprint ingest PATH` first")
     decisions, skipped, n_rec = extract_all(workspace, settings, progress)
     report(progress, 0, 1, "fits and styles")
-    tables = analyze_tables(decisions, settings)
+    tables = analyze_tables(decisions, settings, drivers=list(workspace.recordings()["driver_id"].astype(str)))
     extra = pd.DataFrame(skipped, columns=SKIPPED_COLUMNS)
     tables["skipped"] = pd.concat([extra, tables["skipped"]], ignore_index=True)
     meta = {"stage": "analysis", "workspace": str(workspace.root), "settings": settings.to_dict(),

@@ -150,8 +150,8 @@ def _why_not(g: Group, settings: AnalysisSettings) -> str:
     """Reason a driver/indicator gets no fit, or '' when it can be fitted."""
     if len(g.v) == 0:
         labels, counts = np.unique(g.statuses, return_counts=True)
-        detail = ", ".join(f"{n} {s}" for s, n in zip(labels, counts)) or "no presses"
-        return f"no defined values ({detail})"
+        detail = ", ".join(f"{n} {s}" for s, n in zip(labels, counts))
+        return f"no defined values ({detail})" if detail else "no presses"
     if len(g.v) < settings.min_fit_points:
         return f"too few defined values: {len(g.v)} < {settings.min_fit_points}"
     spread = float(g.v.max() - g.v.min())
@@ -212,7 +212,7 @@ def ranks(x: np.ndarray) -> np.ndarray:
 
 
 def correlate(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
-              points: pd.DataFrame | None = None) -> pd.DataFrame:
+              points: pd.DataFrame | None = None, drivers: list[str] | None = None) -> pd.DataFrame:
     """Pearson and Spearman correlation of each indicator with ego speed, per driver.
 
     `significant` = Pearson p < alpha (a linear correlation, as the study counts).
@@ -220,7 +220,7 @@ def correlate(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
     settings = settings or AnalysisSettings()
     points = indicator_points(decisions, settings) if points is None else points
     rows = []
-    for g in iter_groups(points, _drivers(decisions)):
+    for g in iter_groups(points, drivers if drivers is not None else _drivers(decisions)):
         reason = _why_not(g, settings)
         row = {"driver_id": g.driver_id, "indicator": g.indicator, "n": int(len(g.v)), "pearson_r": np.nan,
                "pearson_p": np.nan, "spearman_rho": np.nan, "spearman_p": np.nan, "significant": False,
@@ -239,12 +239,12 @@ def correlate(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
 
 
 def fit_lines(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
-              points: pd.DataFrame | None = None) -> pd.DataFrame:
+              points: pd.DataFrame | None = None, drivers: list[str] | None = None) -> pd.DataFrame:
     """OLS `I = A * v_e + b` per driver and indicator, with SEs, CIs, R², n; 'skipped' rows say why."""
     settings = settings or AnalysisSettings()
     points = indicator_points(decisions, settings) if points is None else points
     rows = []
-    for g in iter_groups(points, _drivers(decisions)):
+    for g in iter_groups(points, drivers if drivers is not None else _drivers(decisions)):
         reason = _why_not(g, settings)
         row = {c: np.nan for c in FIT_COLUMNS}
         row.update(driver_id=g.driver_id, indicator=g.indicator, n=int(len(g.v)), status="skipped", reason=reason,

@@ -72,3 +72,17 @@ def test_cli_errors_are_one_line(tmp_path):
     assert "no recordings in workspace" in empty.stderr and "laneprint ingest" in empty.stderr
     bad = runner.invoke(app, ["analyze", "-w", str(tmp_path / "ws"), "--choose-k", "elbow"])
     assert bad.exit_code == 1 and "--choose-k" in bad.stderr
+
+
+def test_workspace_without_any_press_completes(tmp_path):
+    ws = Workspace(tmp_path / "ws").ensure()
+    meta, ego, traffic = make_recording(10, 10, 20.0, [(0, 0)], vehicles=[("A", 60, 15, 0, 4.5)],
+                                        recording_id="nopress", driver_id="D07")
+    ws.write_recording(catalogue_row(meta, ego, traffic), ego, traffic)
+    report = analyze(ws)
+    assert report["drivers"]["D07"]["style"] == "unassigned"
+    assert report["drivers"]["D07"]["fits"][0]["reason"] == "no presses"
+    reasons = {(r["what"], r["id"]): r["reason"] for r in report["skipped"]}
+    assert reasons[("recording", "nopress")] == "no lane-change button presses"
+    assert reasons[("driver", "D07")] in ("no style: no presses", "no decisions in any recording")
+    assert len(ws.read_table("analysis", "decisions")) == 0
