@@ -299,3 +299,25 @@ def test_mcap_invalid_json_names_the_message(tmp_path, recording):
             w.finish()
     _, res = _batch(tmp_path, recording, "badjson.mcap", bad)
     assert res.reason.startswith("message 1 on /ego/state (log_time 100000000 ns) is not valid JSON")
+
+
+def test_csv_with_two_drivers_is_rejected_and_varying_limit_warns(tmp_path, recording):
+    lines = _csv_text(tmp_path, recording, session_id="two")
+    header = lines[0].split(",")
+    i_drv, i_lim = header.index("driver_id"), header.index("speed_limit_kph")
+    mixed = list(lines)
+    row = mixed[100].split(",")
+    row[i_drv] = "D08"
+    mixed[100] = ",".join(row)
+    _, res = _batch(tmp_path, recording, "two.csv", lambda p: _write_lines(p, mixed))
+    assert res.reason == "driver_id column has several values (D07, D08): write one file per recording"
+
+    limits = list(lines)
+    for k in range(150, len(limits)):
+        row = limits[k].split(",")
+        row[i_lim] = "90"
+        limits[k] = ",".join(row)
+    (tmp_path / "b").mkdir()
+    _, res2 = _batch(tmp_path / "b", recording, "limits.csv", lambda p: _write_lines(p, limits))
+    assert res2.status == "warning"
+    assert res2.warnings == ["speed_limit_kph changes within the file; the catalogue leaves it empty"]
