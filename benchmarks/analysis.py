@@ -11,7 +11,9 @@ Prints:
 3. timing of `analyze_tables` for 10 x 50 and 1,000 x 50 drivers x decisions (tables
    generated in memory, 10 keep states per press), median of `--repeats` runs.
 
-Run: /work/venv/bin/python benchmarks/analysis.py [--seeds 20] [--workspace /tmp/ws]
+4. optionally (`--messy N`), harder studies: ARI per clustering-feature variant.
+
+Run: /work/venv/bin/python benchmarks/analysis.py [--seeds 20] [--workspace /tmp/ws] [--messy 12]
 """
 
 from __future__ import annotations
@@ -138,10 +140,41 @@ def timing(repeats: int) -> None:
               f"over {len(times)} run(s), ARI {a:.3f}")
 
 
+MESSY = dict(share_slowed=0.25, share_no_target_leader=0.45, noise_ttc_s=0.8, noise_dv_mps=2.0,
+             sample_rate_hz=10.0, slowed_creep_mps=(0.5, 3.0))
+
+
+def messy(n_seeds: int) -> None:
+    """Harder studies (more decisions behind slow leaders with TTCs of tens of seconds, no
+    target-lane leader in 45 %, twice the noise, 10 Hz): ARI per feature-line variant."""
+    from dataclasses import replace
+
+    print(f"== messy studies ({MESSY}), {n_seeds} seeds: ARI per clustering-feature variant")
+    base = AnalysisSettings(n_bootstrap=0)
+    variants = {"huber on log TTC (default)": base, "theilsen on log TTC": base.with_(feature_fit="theilsen"),
+                "ols on log TTC": base.with_(feature_fit="ols"),
+                "ols on raw TTC": base.with_(feature_fit="ols", feature_log=False),
+                "huber, with dv_nb features": base.with_(feature_indicators=("t_f", "t_nf", "dv_nb"))}
+    res: dict[str, list[float]] = {k: [] for k in variants}
+    for seed in range(n_seeds):
+        try:
+            study = simulate_study(replace(StudySettings(), **MESSY), seed=seed)
+        except RuntimeError as exc:  # the simulator cannot always place such scenes
+            print(f"  seed {seed:2d}: simulator failed ({exc})")
+            continue
+        dec = pd.concat([extract_decisions(dict(m, recording_id=m["session_id"]), e, t, base)[0]
+                         for m, e, t in study.recordings], ignore_index=True)
+        for name, s in variants.items():
+            res[name].append(ari(analyze_tables(dec, s)["styles"], study.ground_truth["drivers"]))
+    for name, v in res.items():
+        print(f"  {name:<32} mean ARI {np.mean(v):.3f}, ARI = 1 in {sum(a == 1.0 for a in v)}/{len(v)}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--messy", type=int, default=0, help="also run this many seeds of harder studies")
     ap.add_argument("--workspace", type=Path, default=None, help="workspace with sample_logs/ ingested")
     args = ap.parse_args()
     if args.workspace:
@@ -149,6 +182,8 @@ def main() -> None:
     timing(args.repeats)
     if args.seeds:
         seeds(args.seeds)
+    if args.messy:
+        messy(args.messy)
 
 
 if __name__ == "__main__":

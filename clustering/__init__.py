@@ -1,6 +1,6 @@
 """Clustering: drivers into styles, typical drivers and reference lines.
 
-- `features`: per driver, a robust line (Theil-Sen on log TTC by default) of each of
+- `features`: per driver, a robust line (Huber on log TTC by default) of each of
   `feature_indicators` (t_f, t_nf) evaluated at 60/70/80/90 km/h.
 - `styles`: `StyleClusterer` (scikit-learn-like): robust standardisation, median imputation
   of missing features, k-means (k fixed or chosen by silhouette/BIC), clusters ordered and

@@ -57,7 +57,7 @@ def analyze_command(
     choose_k: Annotated[Optional[str], typer.Option("--choose-k", help="Choose k by 'silhouette' or 'bic'.")] = None,
     far_follower_m: Annotated[float, typer.Option("--far-follower-m", help="Target-lane follower beyond this gap has no influence [m].")] = 100.0,
     step_s: Annotated[float, typer.Option("--step-s", help="Spacing of the 'not yet' states before a press [s].")] = 0.5,
-    feature_fit: Annotated[str, typer.Option("--feature-fit", help="Line fit for the clustering features: theilsen, huber or ols.")] = "theilsen",
+    feature_fit: Annotated[str, typer.Option("--feature-fit", help="Line fit for the clustering features: huber, theilsen or ols.")] = "huber",
     seed: Annotated[int, typer.Option("--seed", help="Seed of the clustering.")] = 0,
 ) -> None:
     """Indicators at every decision, per-driver correlations and fits, styles and reference lines."""

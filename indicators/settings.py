@@ -72,9 +72,10 @@ class AnalysisSettings:
     Table 1) and carry no style information, only noise."""
     feature_speeds_kph: tuple[float, ...] = tuple(float(v) for v in SPEED_LIMITS_KPH)
     """Speeds at which each driver's line is evaluated to make the features [km/h]."""
-    feature_fit: str = "theilsen"
-    """How a driver's line is fitted for the features: 'theilsen' (robust, default),
-    'huber' (statsmodels RLM) or 'ols'."""
+    feature_fit: str = "huber"
+    """How a driver's line is fitted for the features: 'huber' (Huber M-estimator, as
+    statsmodels RLM; default), 'theilsen' or 'ols'. On harder synthetic studies
+    (benchmarks/analysis.py --messy) Huber on log TTC recovered the styles most often."""
     feature_log: bool = True
     """Fit the feature lines on log(TTC): heavy tails (tens of seconds behind a slow
     leader) then pull far less. Features are reported back in seconds."""

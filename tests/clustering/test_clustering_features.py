@@ -1,0 +1,34 @@
+"""Robust per-driver lines behind the clustering features."""
+
+import numpy as np
+import pandas as pd
+import pytest
+import statsmodels.api as sm
+from scipy import stats
+
+from clustering.features import driver_features, lines_by_row, robust_line
+from indicators.settings import AnalysisSettings
+
+
+def test_huber_and_theilsen_match_statsmodels_and_scipy():
+    rng = np.random.default_rng(5)
+    v = rng.uniform(16, 26, 45)
+    y = 0.3 * v + rng.standard_t(2, 45)
+    rlm = sm.RLM(y, sm.add_constant(v), M=sm.robust.norms.HuberT()).fit()
+    assert robust_line(v, y, "huber") == pytest.approx((rlm.params[1], rlm.params[0]), rel=1e-6)
+    ts = stats.theilslopes(y, v)
+    assert robust_line(v, y, "theilsen") == pytest.approx((ts.slope, ts.intercept))
+    assert robust_line(v, y, "ols") == pytest.approx(tuple(np.polyfit(v, y, 1)))
+    # vectorised over rows = one call per row
+    A, b = lines_by_row(np.vstack([v, v[::-1]]), np.vstack([y, y[::-1]]), "huber")
+    assert A[0] == pytest.approx(A[1]) and b[0] == pytest.approx(b[1])
+
+
+def test_features_are_line_values_in_seconds():
+    v = np.array([16.0, 18.0, 20.0, 22.0, 24.0, 26.0])
+    pts = pd.DataFrame({"driver_id": "D1", "decision_id": [f"d{i}" for i in range(6)], "indicator": "t_f",
+                        "v": v, "y": np.exp(0.1 * v), "status": "ok", "used": True})
+    feats, notes = driver_features(pts, ["D1"], AnalysisSettings())
+    assert feats.loc["D1", "t_f_at_70kph_s"] == pytest.approx(np.exp(0.1 * 70 / 3.6))
+    assert np.isnan(feats.loc["D1", "t_nf_at_80kph_s"])
+    assert notes["D1"] == ["t_nf: no defined values, imputed"]
