@@ -34,6 +34,7 @@ from laneprint.errors import UserError
 from laneprint.schemas import EGO, RECORDINGS, REJECTED, TRAFFIC, Schema, validate
 
 DEFAULT_WORKSPACE = Path("workspace")
+_TRAFFIC_DICT_COLUMNS = ("vehicle_id", "lane", "length_m", "y_m")
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -117,7 +118,10 @@ class Workspace:
         tmp = self._tmp_dir()
         try:
             ego.to_parquet(tmp / "ego.parquet", index=False)
-            traffic.to_parquet(tmp / "traffic.parquet", index=False)
+            # dictionary-encode only the low-cardinality columns: trying it on positions and
+            # times costs about a third of the write time for a file only ~6 % smaller
+            traffic.to_parquet(tmp / "traffic.parquet", index=False,
+                               use_dictionary=[c for c in _TRAFFIC_DICT_COLUMNS if c in traffic.columns])
             meta_df.to_parquet(tmp / "meta.parquet", index=False)
             try:
                 os.rename(tmp, final)
