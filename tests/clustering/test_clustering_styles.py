@@ -75,3 +75,11 @@ def test_choose_k_through_settings(synthetic):
     out = analyze_tables(df, AnalysisSettings(choose_k="silhouette", k_range=(2, 5)))
     assert len(out["k_scores"]) == 4
     assert out["styles"]["cluster"].max() + 1 == out["k_scores"].loc[out["k_scores"]["score"].idxmax(), "k"]
+
+
+def test_bic_picks_three_styles_on_few_drivers(synthetic):
+    df, truth, _ = synthetic
+    out = analyze_tables(df, AnalysisSettings(choose_k="bic", n_bootstrap=0))
+    st = out["styles"]
+    assert st["cluster"].max() + 1 == 3
+    assert adjusted_rand_score([truth[d] for d in st["driver_id"]], st["style"]) == 1.0
