@@ -39,7 +39,7 @@ def gunzip(data: bytes) -> bytes:
         raise Rejected(f"corrupt gzip data: {first_line(exc)}") from None
 
 
-def _header(text: bytes) -> list[str]:
+def _header(text: bytes, delimiter: str = ",") -> list[str]:
     nul = text.find(b"\x00", 0, 65536)
     if nul >= 0:
         raise Rejected(f"not a text CSV file (binary byte at offset {nul})")
@@ -49,7 +49,7 @@ def _header(text: bytes) -> list[str]:
         decoded = line.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise Rejected(f"malformed CSV: the header row is not UTF-8 text (byte {exc.start})") from None
-    names = next(csv.reader([decoded.rstrip("\r")]), [])
+    names = next(csv.reader([decoded.rstrip("\r")], delimiter=delimiter), [])
     if not any(n.strip() for n in names):
         raise Rejected("malformed CSV: the first row (header) is empty")
     seen: set[str] = set()
@@ -60,16 +60,21 @@ def _header(text: bytes) -> list[str]:
     return names
 
 
-def _ragged_line(data: bytes, n_fields: int) -> str | None:
+def _ragged_line(data: bytes, n_fields: int, delimiter: str) -> str | None:
     """'line N has M fields, the header has K' for the first ragged row (error path only)."""
     text = data.decode("utf-8", errors="replace").splitlines()
-    for lineno, row in enumerate(csv.reader(text), start=1):
+    for lineno, row in enumerate(csv.reader(text, delimiter=delimiter), start=1):
         if row and len(row) != n_fields:
             return f"line {lineno} has {len(row)} fields, the header has {n_fields}"
     return None
 
 
-def _missing_reason(missing: list[str], mapping: Mapping) -> str:
+def _missing_reason(missing: list[str], mapping: Mapping, names: list[str]) -> str:
+    if len(names) == 1:
+        for sep, label in ((";", ";"), ("\t", "\\t"), ("|", "|")):
+            if sep in names[0] and sep != mapping.csv_delimiter:
+                return (f"the header has one column only ({names[0][:40]!r}...): the file looks {label}-separated; "
+                        f'set delimiter = "{label}" under [csv] {mapping.hint()}')
     parts = [f"{c}" + (f" (looked for {mapping.column(c)!r})" if mapping.column(c) != c else "") for c in missing]
     example = missing[0]
     return (f"missing required column(s) {', '.join(parts)}: name your column with "
@@ -113,12 +118,12 @@ def read_csv_log(data: bytes, fmt: str, mapping: Mapping) -> RawLog:
         data = gunzip(data)
         if not data.strip():
             raise Rejected("empty CSV inside the gzip file")
-    names = _header(data)
+    names = _header(data, mapping.csv_delimiter)
     col = mapping.column
     required = [CSV_TIME, *CSV_EGO_REQUIRED]
     missing = [c for c in required if col(c) not in names]
     if missing:
-        raise Rejected(_missing_reason(missing, mapping))
+        raise Rejected(_missing_reason(missing, mapping, names))
 
     canonical_present = {c: col(c) for c in (*_STRING_COLUMNS, "speed_limit_kph", "lc_button", *_EGO_FLOATS, CSV_TIME)
                          if col(c) in names}
@@ -135,11 +140,12 @@ def read_csv_log(data: bytes, fmt: str, mapping: Mapping) -> RawLog:
     try:
         table = pacsv.read_csv(
             io.BytesIO(data),
+            parse_options=pacsv.ParseOptions(delimiter=mapping.csv_delimiter),
             convert_options=pacsv.ConvertOptions(column_types=types, include_columns=include,
                                                  strings_can_be_null=True),
         )
     except (pa.ArrowInvalid, pa.ArrowTypeError, UnicodeDecodeError) as exc:
-        raise Rejected(f"malformed CSV: {_ragged_line(data, len(names)) or first_line(exc)}") from None
+        raise Rejected(f"malformed CSV: {_ragged_line(data, len(names), mapping.csv_delimiter) or first_line(exc)}") from None
 
     n = table.num_rows
     meta = {}

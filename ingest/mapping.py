@@ -4,6 +4,7 @@ A mapping is a TOML file (YAML also accepted when PyYAML is installed) with any 
 these sections; everything is optional and unnamed things keep their v1 names.
 See `ingest/README.md` for a full example.
 
+    [csv] delimiter = ";"  (default ",")
     [csv.columns]       canonical column = column in your file   (t, driver_id, ego_x, ...)
     [csv.traffic]       pattern = regex with named groups `id` and `field`
     [csv.traffic.fields] canonical vehicle field = field token in your columns (x, v, lane, y, length)
@@ -59,6 +60,7 @@ class Mapping:
     """How names and units in a user's logs map onto log format v1 (identity by default)."""
 
     csv_columns: dict[str, str] = field(default_factory=dict)  # canonical -> file column
+    csv_delimiter: str = ","  # field separator of the CSV files
     traffic_pattern: str = DEFAULT_TRAFFIC_PATTERN  # regex with groups `id`, `field`
     traffic_fields: dict[str, str] = field(default_factory=dict)  # canonical field -> token
     mcap_topics: dict[str, str] = field(default_factory=dict)  # canonical -> file topic
@@ -131,7 +133,10 @@ def mapping_from_dict(doc: dict[str, Any], source: str = "") -> Mapping:
     """Build a `Mapping` from a parsed TOML/YAML document; `UserError` on unknown keys."""
     _check_keys("top level", doc, {"csv", "mcap", "units", "metadata"})
     csv = doc.get("csv", {}) or {}
-    _check_keys("csv", csv, {"columns", "traffic"})
+    _check_keys("csv", csv, {"columns", "traffic", "delimiter"})
+    delimiter = csv.get("delimiter", ",")
+    if not isinstance(delimiter, str) or len(delimiter) != 1 or delimiter in "\"\r\n":
+        raise UserError("mapping: [csv] delimiter must be one character, e.g. \";\" or \"\\t\"")
     columns = _str_dict("csv.columns", csv.get("columns", {}) or {})
     _check_keys("csv.columns", columns, CSV_COLUMNS)
     traffic = csv.get("traffic", {}) or {}
@@ -163,7 +168,7 @@ def mapping_from_dict(doc: dict[str, Any], source: str = "") -> Mapping:
     defaults = dict(doc.get("metadata", {}) or {})
     _check_keys("metadata", defaults, META_KEYS)
     return Mapping(
-        csv_columns=columns, traffic_pattern=pattern, traffic_fields=tfields,
+        csv_columns=columns, csv_delimiter=delimiter, traffic_pattern=pattern, traffic_fields=tfields,
         mcap_topics=topics, mcap_fields=fields,
         metadata_name=str(mcap.get("metadata_name", METADATA_NAME)), metadata_keys=meta_keys,
         speed_scale=_scale(units, "speed", _SPEED_UNITS),

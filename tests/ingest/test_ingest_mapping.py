@@ -138,3 +138,14 @@ def test_bad_mapping_is_one_user_error(tmp_path, text, message):
     with pytest.raises(UserError) as err:
         load_mapping(tmp_path / "bad.toml")
     assert message in str(err.value)
+
+
+def test_semicolon_csv_gets_a_hint_then_reads_with_a_delimiter(tmp_path):
+    (tmp_path / "semi.csv").write_text("\ufefft;driver_id;ego_x;ego_v;ego_lane;lc_button\r\n0;D1;1;20;0;0\r\n0.1;D1;3;20;0;1\r\n")
+    ws = Workspace(tmp_path / "ws")
+    res = ingest_paths([tmp_path / "semi.csv"], ws).files[0]
+    assert res.status == "rejected"
+    assert res.reason.endswith('the file looks ;-separated; set delimiter = ";" under [csv] in a --mapping file')
+    (tmp_path / "semi.toml").write_text('[csv]\ndelimiter = ";"\n')
+    res = ingest_paths([tmp_path / "semi.csv"], ws, mapping=tmp_path / "semi.toml").files[0]
+    assert (res.status, res.n_samples, res.n_presses) == ("ingested", 2, 1)
