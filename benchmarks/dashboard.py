@@ -29,7 +29,7 @@ from streamlit.testing.v1 import AppTest  # noqa: E402
 
 from laneprint.workspace import Workspace, atomic_write_json  # noqa: E402
 
-PAGES = Path(__file__).resolve().parents[1] / "dashboard" / "pages"
+PAGES = Path(__file__).resolve().parents[1] / "dashboard" / "app_pages"
 
 
 def build(root: Path, n_drivers: int, n_decisions: int) -> Workspace:

@@ -6,7 +6,7 @@ import streamlit as st
 
 from dashboard.context import workspace_root
 
-PAGES = Path(__file__).parent / "pages"
+PAGES = Path(__file__).parent / "app_pages"  # not pages/: Streamlit would also serve those files alone
 
 st.set_page_config(page_title="laneprint", page_icon=":material/alt_route:", layout="wide")
 nav = st.navigation([

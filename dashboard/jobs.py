@@ -205,8 +205,14 @@ def runs_table(ws: Workspace) -> pd.DataFrame:
 
     table = list_runs(ws)
     known = set(table["run_id"])
-    extra = [{"run_id": rid, **{k: v for k, v in run_status(ws, rid).items() if k in table.columns}}
-             for rid in run_ids(ws) if rid not in known]
+    extra = []
+    for rid in run_ids(ws):
+        if rid in known:
+            continue
+        req = (read_json(jobs_dir(ws) / f"{rid}.json") or {}).get("request", {})
+        extra.append({"run_id": rid, "target_kind": req.get("target"), "target": req.get("name"),
+                      "reward": req.get("reward"), "lines_source": req.get("lines"), "seed": req.get("seed"),
+                      **{k: v for k, v in run_status(ws, rid).items() if k in table.columns}})
     if extra:
         table = pd.concat([table, pd.DataFrame(extra, columns=table.columns)], ignore_index=True)
     if len(table):

@@ -12,7 +12,7 @@ from laneprint.workspace import Workspace, atomic_write_json
 
 ROOT = Path(__file__).resolve().parents[2]
 APP = ROOT / "dashboard" / "app.py"
-PAGES = ROOT / "dashboard" / "pages"
+PAGES = ROOT / "dashboard" / "app_pages"
 
 
 def page_path(name: str) -> str:
@@ -155,17 +155,18 @@ def browser():
 
 
 @pytest.fixture(scope="session")
-def server(browser, tmp_path_factory):
-    """`laneprint dashboard`'s streamlit command on a free port over a fresh sample workspace."""
+def server(browser, sample_ws, tmp_path_factory):
+    """`laneprint dashboard`'s streamlit command on a free port over a copy of the sample workspace."""
+    import shutil
     import signal
     import subprocess
 
     from dashboard.cli import streamlit_command
 
-    ws = build_sample_workspace(tmp_path_factory.mktemp("browser_ws"))
+    ws = Workspace(shutil.copytree(sample_ws.root, tmp_path_factory.mktemp("browser") / "ws"))
     port = _free_port()
     url = f"http://127.0.0.1:{port}"
-    env = dict(os.environ, LANEPRINT_WORKSPACE=str(ws.root), LANEPRINT_DASHBOARD_EPISODES="60",
+    env = dict(os.environ, LANEPRINT_WORKSPACE=str(ws.root), LANEPRINT_DASHBOARD_EPISODES="3000",
                LANEPRINT_DASHBOARD_POLL_S="0.5")
     log_path = tmp_path_factory.mktemp("streamlit") / "server.log"
     with open(log_path, "w+") as log:
