@@ -53,7 +53,7 @@ class _Collected:
         self.datas[channel_id].append(data)
 
 
-def _collect_indexed(data: bytes, meta_name: str) -> _Collected | None:
+def _collect_indexed(data: bytes) -> _Collected | None:
     """Read through the summary; None when the file has no usable chunk index."""
     try:
         reader = SeekingReader(io.BytesIO(data))
@@ -67,8 +67,13 @@ def _collect_indexed(data: bytes, meta_name: str) -> _Collected | None:
     try:
         for _, channel, msg in reader.iter_messages(log_time_order=False):
             got.add(channel.id, msg.log_time, msg.data)
-        for md in reader.iter_metadata():
-            got.metadata[md.name] = dict(md.metadata)
+        if summary.metadata_indexes:
+            for md in reader.iter_metadata():
+                got.metadata[md.name] = dict(md.metadata)
+        else:  # metadata written without an index: scan the records (chunks stay compressed)
+            for rec in StreamReader(io.BytesIO(data), emit_chunks=True).records:
+                if isinstance(rec, Metadata):
+                    got.metadata[rec.name] = dict(rec.metadata)
     except Exception as exc:
         raise Rejected(f"corrupt MCAP: cannot read a chunk listed in the index ({first_line(exc)})") from None
     return got
@@ -181,7 +186,7 @@ def read_mcap_log(data: bytes, mapping: Mapping) -> RawLog:
     """Parse MCAP bytes into a `RawLog`; `Rejected` with a precise reason on bad input."""
     if not data.startswith(MAGIC):
         raise Rejected("not an MCAP file: it does not start with the MCAP magic bytes")
-    got = _collect_indexed(data, mapping.metadata_name) if data.endswith(MAGIC) else None
+    got = _collect_indexed(data) if data.endswith(MAGIC) else None
     if got is None:
         got = _collect_stream(data)
 

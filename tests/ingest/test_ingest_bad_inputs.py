@@ -321,3 +321,26 @@ def test_csv_with_two_drivers_is_rejected_and_varying_limit_warns(tmp_path, reco
     _, res2 = _batch(tmp_path / "b", recording, "limits.csv", lambda p: _write_lines(p, limits))
     assert res2.status == "warning"
     assert res2.warnings == ["speed_limit_kph changes within the file; the catalogue leaves it empty"]
+
+
+def test_mcap_metadata_without_metadata_index_is_still_found(tmp_path, recording):
+    meta, ego, traffic = recording
+    src = tmp_path / "src.mcap"
+    write_mcap(src, meta, ego, traffic)
+    from mcap.reader import make_reader
+
+    def rewrite(p):
+        with open(src, "rb") as fh, open(p, "wb") as out:
+            r = make_reader(fh)
+            w = Writer(out, index_types=IndexType.CHUNK | IndexType.MESSAGE)
+            w.start()
+            ids = {}
+            for schema, channel, msg in r.iter_messages():
+                if channel.topic not in ids:
+                    sid = w.register_schema(schema.name, schema.encoding, schema.data)
+                    ids[channel.topic] = w.register_channel(channel.topic, "json", sid)
+                w.add_message(ids[channel.topic], msg.log_time, msg.data, msg.publish_time)
+            w.add_metadata("session", {"driver_id": "D33", "session_id": "noidx"})
+            w.finish()
+    _, res = _batch(tmp_path, recording, "noidx.mcap", rewrite)
+    assert (res.status, res.driver_id, res.session_id) == ("ingested", "D33", "noidx")
