@@ -1,9 +1,81 @@
-"""Command-line entry of this stage (placeholder until the stage lands)."""
+"""`laneprint run PATH...`: the whole pipeline end to end.
 
-from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt
+Ingest the logs, analyse the workspace (indicators, fits, styles), then train and
+evaluate one agent per style found, and say how to open the dashboard. Each stage
+is the same function its own command calls, so `run` adds no behaviour of its own.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import typer
+from rich.console import Console
+
+from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
 from laneprint.errors import UserError
+from laneprint.workspace import Workspace
 
 
-def run_command_cli(workspace: WorkspaceOpt = DEFAULT_WS, as_json: JsonOpt = False) -> None:
-    """Not implemented yet."""
-    raise UserError("this command is not implemented yet")
+def run_pipeline(paths: list[Path], workspace: Path, driver: str | None, mapping: Path | None,
+                 train: bool, episodes: int | None, seed: int, show_progress: bool) -> dict[str, Any]:
+    """Ingest -> analyze -> train and evaluate one agent per style; a JSON-ready report."""
+    from clustering.pipeline import analyze
+    from ingest.cli import ingest_result
+    from indicators.settings import AnalysisSettings
+
+    ingest = ingest_result(paths, driver, mapping, workspace, show_progress)
+    ws = Workspace(workspace)
+    if ws.recordings().empty:
+        raise UserError(f"no recordings could be stored from {', '.join(map(str, paths))}; see the reasons above "
+                        "(`laneprint ingest --json` lists them)")
+    with progress_bar(show_progress) as progress:
+        analysis = analyze(ws, AnalysisSettings(random_state=seed), progress)
+    runs = []
+    if train:
+        from rl.dqn import DQNSettings
+        from rl.env import EnvConfig
+        from rl.runs import Target, resolve_lines, train_run
+
+        overrides = {"seed": seed} | ({"episodes": episodes} if episodes else {})
+        for style in analysis["styles"]:
+            target = Target("style", style)
+            env = EnvConfig(lines=resolve_lines(ws, target, "analysis"))
+            with progress_bar(show_progress) as progress:
+                runs.append(train_run(ws, target, env, DQNSettings(**overrides), progress=progress))
+    return {"workspace": str(ws.root), "ingest": ingest, "analysis": analysis, "runs": runs,
+            "dashboard": f"laneprint dashboard --workspace {ws.root}"}
+
+
+def render_run(result: dict[str, Any], console: Console) -> None:
+    """Each stage's own summary, then where to look next."""
+    from clustering.cli import render as render_analysis
+    from ingest.cli import render_ingest
+
+    render_ingest(result["ingest"], console)
+    render_analysis(result["analysis"], console)
+    if result["runs"]:
+        from rl.cli import _summary_table
+
+        for run in result["runs"]:
+            console.print(f"run {run['run_id']}: {run['state']}, {run['target']}, reward {run['reward']}, "
+                          f"{run['episodes']} episodes in {run['wall_s']} s", highlight=False)
+            if run.get("evaluation"):
+                console.print(_summary_table(run["evaluation"], f"{run['target']} against its typical driver"))
+    console.print(f"open the dashboard: {result['dashboard']}", markup=False, highlight=False)
+
+
+def run_command_cli(
+    paths: Annotated[list[Path], typer.Argument(help="Log files or folders (e.g. sample_logs).")],
+    driver: Annotated[Optional[str], typer.Option("--driver", help="Driver id for files that carry none.")] = None,
+    mapping: Annotated[Optional[Path], typer.Option("--mapping", help="Name/unit mapping file (see ingest/README.md).")] = None,
+    train: Annotated[bool, typer.Option("--train/--no-train", help="Train and evaluate one agent per style.")] = True,
+    episodes: Annotated[Optional[int], typer.Option("--episodes", help="Training episodes per agent (default: the trainer's).")] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the clustering and the training.")] = 0,
+    workspace: WorkspaceOpt = DEFAULT_WS,
+    as_json: JsonOpt = False,
+) -> None:
+    """Ingest PATHs, analyze, and train/evaluate one agent per style."""
+    run_command(lambda: run_pipeline(paths, workspace, driver, mapping, train, episodes, seed, not as_json),
+                as_json, render_run)

@@ -1,0 +1,32 @@
+"""`laneprint run`: the stages chained through the real command line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from laneprint.cli import app
+
+SAMPLE = Path(__file__).resolve().parents[2] / "sample_logs"
+
+
+def test_run_ingests_and_analyzes_sample_logs(tmp_path):
+    logs = [str(SAMPLE / "D01_S60.mcap"), str(SAMPLE / "D02_S80.csv.gz")]
+    result = CliRunner().invoke(app, ["run", *logs, "--no-train", "-w", str(tmp_path / "ws"), "--json"])
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    assert out["ingest"]["counts"]["ingested"] == 2
+    assert set(out["analysis"]["drivers"]) == {"D01", "D02"}
+    assert out["runs"] == []
+    assert (tmp_path / "ws" / "analysis" / "decisions.parquet").exists()
+
+
+def test_run_with_only_bad_files_is_one_line_error(tmp_path):
+    bad = tmp_path / "broken.mcap"
+    bad.write_bytes(b"not an mcap at all")
+    result = CliRunner().invoke(app, ["run", str(bad), "-w", str(tmp_path / "ws")])
+    assert result.exit_code == 1
+    assert "Traceback" not in result.output
+    assert "no recordings could be stored" in result.output
