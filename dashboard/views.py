@@ -132,3 +132,14 @@ def compare_runs(tables: dict[str, pd.DataFrame]) -> pd.DataFrame:
         return pd.DataFrame()
     out = pd.concat(parts, ignore_index=True)
     return out[["run_id", *[c for c in out.columns if c != "run_id"]]]
+
+
+FIT_SUMMARY_COLUMNS = ["indicator", "status", "A", "A_lo", "A_hi", "b", "b_lo", "b_hi", "r2", "n", "v_min", "v_max",
+                       "reason"]
+
+
+def fit_summary(fits: pd.DataFrame) -> pd.DataFrame:
+    """The fit columns a reader needs (speeds in m/s), numbers rounded."""
+    out = fits[[c for c in FIT_SUMMARY_COLUMNS if c in fits.columns]].copy()
+    out = out.rename(columns={"v_min": "v_min [m/s]", "v_max": "v_max [m/s]"})
+    return out.round(3)

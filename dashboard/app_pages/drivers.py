@@ -45,7 +45,9 @@ def main() -> None:
     st.subheader("Fits  I = A·v_e + b")
     fit = views.for_driver(fits, driver)
     if len(fit):
-        st.dataframe(fit, hide_index=True, width="stretch")
+        st.caption("A in s per m/s for the TTCs (t_f, t_nf) and in m/s per m/s for dv_nb; b in s or m/s; "
+                   "[lo, hi] are 95 % confidence intervals.")
+        st.dataframe(views.fit_summary(fit), hide_index=True, width="stretch")
     else:
         st.caption("No fits for this driver.")
 

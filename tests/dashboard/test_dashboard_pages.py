@@ -172,3 +172,15 @@ def test_two_runs_at_once_and_cancel(sample_ws, tmp_path, monkeypatch):
     at.run()
     table = at.dataframe[0].value.set_index("run_id")
     assert table.loc[short_id, "state"] == "done" and table.loc[long_id, "state"] == "cancelled"
+
+
+def test_too_large_upload_is_refused_with_a_hint(empty_ws, tmp_path, monkeypatch):
+    monkeypatch.setenv("LANEPRINT_DASHBOARD_MAX_UPLOAD_MB", "0.001")  # 1 kB for the test
+    at = run_page("data")
+    at.file_uploader[0].set_value([("big.csv", b"t,ego_x\n" + b"0,0\n" * 600, "text/csv")]).run()
+    at.button(key="ingest").click().run()
+    assert not at.exception
+    row = at.dataframe[0].value.iloc[0]
+    assert row["status"] == "refused" and "laneprint ingest" in row["reason"]
+    assert not list((empty_ws.root / "uploads").rglob("big.csv"))
+    assert at.info  # still no recordings, the page keeps working

@@ -1,0 +1,39 @@
+import re
+import sys
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from dashboard.cli import MAX_UPLOAD_MB, streamlit_command
+from laneprint.cli import app
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_streamlit_command_is_local_headless_and_private(tmp_path):
+    cmd = streamlit_command(8999, "127.0.0.1", tmp_path)
+    assert cmd[:4] == [sys.executable, "-m", "streamlit", "run"] and cmd[4].endswith("dashboard/app.py")
+    args = cmd[5:]
+    pairs = dict(zip(args[:args.index("--")][::2], args[:args.index("--")][1::2]))
+    assert pairs["--server.address"] == "127.0.0.1" and pairs["--server.port"] == "8999"
+    assert pairs["--server.headless"] == "true" and pairs["--browser.gatherUsageStats"] == "false"
+    assert pairs["--server.maxUploadSize"] == str(MAX_UPLOAD_MB)
+    assert args[args.index("--") + 1:] == ["--workspace", str(tmp_path)]
+
+
+def test_bad_port_is_one_line_exit_1(tmp_path):
+    res = CliRunner().invoke(app, ["dashboard", "--port", "70000", "-w", str(tmp_path / "ws")])
+    assert res.exit_code == 1
+    assert "port 70000 is not a valid TCP port" in res.output and "Traceback" not in res.output
+
+
+def test_only_the_dashboard_imports_streamlit():
+    mine = {ROOT / "benchmarks" / "dashboard.py"}
+    offenders = []
+    for path in ROOT.rglob("*.py"):
+        rel = path.relative_to(ROOT)
+        if rel.parts[0] in ("dashboard", ".venv", "build") or rel.parts[:2] == ("tests", "dashboard") or path in mine:
+            continue
+        if re.search(r"^\s*(import|from)\s+streamlit\b", path.read_text(errors="ignore"), re.M):
+            offenders.append(str(rel))
+    assert offenders == []
