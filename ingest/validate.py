@@ -79,6 +79,27 @@ def _check_values(raw: RawLog, mapping: Mapping) -> None:
                        f"got {lane[i]:g} at {raw.locate(i)}")
 
 
+def _unit_warnings(raw: RawLog) -> list[str]:
+    """A warning when the ego speed disagrees with how fast ego_x changes (a unit mix-up)."""
+    t, x, v = raw.t_abs_s, raw.ego["ego_x_m"], raw.ego["ego_v_mps"]
+    if len(t) < 3:
+        return []
+    rate = np.abs(np.diff(x) / np.diff(t))
+    moving = np.abs(v[1:]) > 1.0
+    if moving.sum() < 2:
+        return []
+    observed = float(np.median(rate[moving]))
+    logged = float(np.median(np.abs(v[1:][moving])))
+    if observed <= 0 or not np.isfinite(observed):
+        return []
+    ratio = logged / observed
+    if 0.5 <= ratio <= 2.0:
+        return []
+    return [f"ego speed (median {logged:.3g}) is {ratio:.3g}x the rate at which {raw.names.get('ego_x_m', 'ego_x')} "
+            f"changes ({observed:.3g} per {raw.time_name} unit): check the units ([units] speed/position/time "
+            f"in a --mapping file)"]
+
+
 def _directions(pressed: np.ndarray, raw_dirs: np.ndarray, warnings: list[str]) -> tuple[np.ndarray, int]:
     """Directions kept on the press samples only (first one given during the hold)."""
     n = len(pressed)
@@ -128,7 +149,7 @@ def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: st
     _check_time(raw)
     _check_gaps(raw)
     _check_values(raw, mapping)
-    warnings = list(raw.warnings)
+    warnings = list(raw.warnings) + _unit_warnings(raw)
     meta = dict(raw.meta)
     meta["driver_id"] = resolve_driver(meta.get("driver_id"), mapping.defaults.get("driver_id"), driver, warnings)
     meta["session_id"] = str(meta.get("session_id") or mapping.defaults.get("session_id") or session_default)

@@ -344,3 +344,12 @@ def test_mcap_metadata_without_metadata_index_is_still_found(tmp_path, recording
             w.finish()
     _, res = _batch(tmp_path, recording, "noidx.mcap", rewrite)
     assert (res.status, res.driver_id, res.session_id) == ("ingested", "D33", "noidx")
+
+
+def test_time_in_milliseconds_warns_about_units(tmp_path, recording):
+    meta, ego, traffic = recording
+    ms = ego.assign(t_s=ego["t_s"] * 1000)
+    _, res = _batch(tmp_path, recording, "ms.csv",
+                    lambda p: write_csv(p, dict(meta, session_id="ms"), ms, traffic.assign(t_s=traffic["t_s"] * 1000)))
+    assert res.status == "warning"
+    assert res.warnings[0].startswith("ego speed (median 25.1) is 1e+03x the rate at which ego_x changes (0.025 per t unit)")

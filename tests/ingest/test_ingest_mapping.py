@@ -110,7 +110,7 @@ def test_mcap_with_other_topics_and_fields(tmp_path):
         w.add_metadata("info", {"subject": "S4"})
         for i in range(5):
             t = 5_000_000_000 + i * 20_000_000
-            w.add_message(ego, t, json.dumps({"pos": {"x": 1.0 + i}, "speed": 20, "lane_index": 0}).encode(), t)
+            w.add_message(ego, t, json.dumps({"pos": {"x": 1.0 + 0.4 * i}, "speed": 20, "lane_index": 0}).encode(), t)
             w.add_message(obj, t, json.dumps({"objects": [{"track_id": 7, "px": 30.5, "v": 18.0, "lane": 1}]}).encode(), t)
         w.add_message(hmi, 5_040_000_000, b'{"active": true}', 0)
         w.add_message(hmi, 5_060_000_000, b'{"active": false}', 0)
@@ -121,7 +121,7 @@ def test_mcap_with_other_topics_and_fields(tmp_path):
     assert res.status == "ingested", res.reason
     assert (res.driver_id, res.session_id, res.n_presses) == ("S4", "other", 1)
     _, ego_df, traffic = ws.load_recording(res.recording_id)
-    np.testing.assert_allclose(ego_df["ego_x_m"], [1, 2, 3, 4, 5])
+    np.testing.assert_allclose(ego_df["ego_x_m"], [1, 1.4, 1.8, 2.2, 2.6])
     assert ego_df["lc_button"].tolist() == [False, False, True, False, False]
     assert traffic["vehicle_id"].unique().tolist() == ["7"]
     np.testing.assert_allclose(traffic["t_s"], [0, 0.02, 0.04, 0.06, 0.08])
