@@ -7,6 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 from rich.console import Console
+from rich import box
 from rich.table import Table
 
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
@@ -27,27 +28,27 @@ def render(result: dict[str, Any], console: Console) -> None:
     console.print("drivers with a significant linear correlation with speed: "
                   + ", ".join(f"{k} {_fmt(None if v is None else 100 * v, '.0f')} %" for k, v in share.items())
                   + f"; all three {_fmt(None if s['share_drivers_all_significant'] is None else 100 * s['share_drivers_all_significant'], '.0f')} %")
-    table = Table(title="drivers")
-    for col in ("driver", "presses", "style", "conf.", "typical", "t_f A / b", "t_nf A / b", "dv_nb A / b"):
-        table.add_column(col)
+    table = Table(title="drivers: lines I = A v_e + b shown as A/b; * typical", box=box.SIMPLE_HEAD, pad_edge=False)
+    for col in ("driver", "n", "style", "conf", "", "t_f", "t_nf", "dv_nb"):
+        table.add_column(col, no_wrap=True, min_width=11 if col in ("t_f", "t_nf", "dv_nb") else len(col))
     for d, info in result["drivers"].items():
         fits = {f["indicator"]: f for f in info["fits"]}
         cells = []
         for ind in ("t_f", "t_nf", "dv_nb"):
             f = fits.get(ind)
-            cells.append(f"{f['A']:.2f} / {f['b']:.2f}" if f and f["status"] == "ok" else "skipped")
+            cells.append(f"{f['A']:.2f}/{f['b']:.2f}" if f and f["status"] == "ok" else "-")
         table.add_row(d, str(info["n_decisions"]), info["style"], f"{info['confidence']:.2f}",
-                      "yes" if info["is_typical"] else "", *cells)
+                      "*" if info["is_typical"] else "", *cells)
     console.print(table)
     for name, st in result["styles"].items():
         lines = [ln for ln in st["reference_lines"] if ln["kind"] == "typical"]
-        txt = ", ".join(f"{ln['indicator']} = {ln['A']:.2f} v + {ln['b']:.2f}" for ln in lines)
+        txt = ", ".join(f"{ln['indicator']} = {ln['A']:.2f} v {ln['b']:+.2f}" for ln in lines)
         console.print(f"[bold]{name}[/bold] ({len(st['members'])}): typical {', '.join(st['typical'])}: {txt}")
     if result["skipped"]:
         console.print(f"skipped ({len(result['skipped'])}), first ones:")
         for row in result["skipped"][:8]:
             console.print(f"  {row['what']} {row['id']}: {row['reason']}", markup=False, highlight=False)
-    console.print(f"stored in {result['workspace']}/analysis")
+    console.print(f"stored in {result['workspace']}/analysis", markup=False, highlight=False)
 
 
 def analyze_command(

@@ -69,9 +69,7 @@ def assign_styles(feats: pd.DataFrame, notes: dict[str, list[str]], n_dec: pd.Se
                          n_init=settings.n_init, random_state=settings.random_state).fit(Xt.loc[fit_on])
     rows = feats.index[usable]
     labels, conf, margin = clf.predict_confidence(Xt.loc[rows])
-    Z = clf._standardise(Xt.loc[rows][clf.feature_names_in_])
-    ttc = np.array([c.endswith("_s") for c in clf.feature_names_in_])
-    defn = Z[:, ttc].mean(axis=1) if ttc.any() else Z.mean(axis=1)
+    defn = clf.defensiveness(Xt.loc[rows])
     styles.loc[rows, "cluster"] = labels
     styles.loc[rows, "style"] = [clf.names_[i] for i in labels]
     styles.loc[rows, "posterior"] = conf

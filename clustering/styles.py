@@ -112,9 +112,7 @@ class StyleClusterer:
             k, self.k_scores_ = min(self.k, len(Z)), {}
         km = self._kmeans(Z, k)
         centres = km.cluster_centers_
-        ttc = np.array([c.endswith("_s") for c in self.feature_names_in_])
-        cols = ttc if ttc.any() else np.ones(len(ttc), dtype=bool)
-        score = centres[:, cols].mean(axis=1)
+        score = self._defensiveness(centres)
         order = np.argsort(-score, kind="stable")  # most defensive first
         self.cluster_centers_ = centres[order]
         self.defensiveness_ = score[order]
@@ -144,6 +142,15 @@ class StyleClusterer:
         margin = 1 - d[:, 0] / d[:, 1] if d.shape[1] > 1 else np.ones(len(Z))
         margin = np.where(np.isfinite(margin), margin, 0.0)
         return labels, conf, margin
+
+    def _defensiveness(self, Z: np.ndarray) -> np.ndarray:
+        ttc = np.array([c.endswith("_s") for c in self.feature_names_in_])
+        cols = ttc if ttc.any() else np.ones(len(ttc), dtype=bool)
+        return Z[:, cols].mean(axis=1)
+
+    def defensiveness(self, features: pd.DataFrame) -> np.ndarray:
+        """Mean standardised TTC feature of each row (larger = more defensive)."""
+        return self._defensiveness(self._standardise(features[self.feature_names_in_].astype(float)))
 
     def predict(self, features: pd.DataFrame) -> np.ndarray:
         """Cluster index (0 = most defensive) of each row."""
