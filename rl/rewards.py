@@ -12,13 +12,19 @@ Two formulations, both built from the study's per-indicator closeness score
 - ``paper`` (eqs. 10-13, with the eq. 11 typo fixed): every step, TO CHANGE earns
   ``sum_i score_i`` and NOT TO CHANGE earns ``sum_i (1 - score_i)``, so the two
   always sum to 3. Named terms ``r_f, r_nf, r_nb`` (of the action taken).
-- ``timing`` (ours): TO CHANGE earns ``sum_i score_i`` once, as the episode ends;
-  NOT TO CHANGE earns 0 while the leader is farther than the reference
-  (``t_f >= t_f_ref(v_e)``) and ``-late_penalty_per_s * dt`` once the reference
-  moment has passed. The return is then largest for changing when the scene is
-  closest to the driver's line, which is what teaches the driver's timing; the
-  paper's constant-sum keep reward instead pays for waiting (see README of rl/).
-  Named terms ``r_f, r_nf, r_nb`` (on a change) and ``late`` (on a keep).
+- ``timing`` (ours): TO CHANGE earns ``sum_i score_i - change_baseline`` once, as
+  the episode ends: the advantage of changing, as in the paper's greedy
+  comparison (its ``r_change - r_keep = 2 sum_i score_i - 3``), but paid once
+  instead of every step. NOT TO CHANGE earns 0, or ``-pass_penalty`` when a
+  change would have earned a positive reward (a gap the driver would take,
+  passed up; it widens the margin between the two actions, which otherwise is
+  only the discount), and optionally ``-late_penalty_per_s * dt`` once t_f is
+  below its reference. The closeness is tolerant (``m`` = 1 s, 2 m/s: about
+  the drivers' own spread around their lines), so the agent changes at the
+  first moment the whole scene is within the driver's tolerance. The paper's
+  constant-sum keep reward instead pays for waiting: with gamma 0.98 keeping
+  earns up to 1.5 / (1 - gamma) = 75, more than any change (at most 3).
+  Named terms ``r_f, r_nf, r_nb, base`` (on a change), ``pass, late`` (on a keep).
 
 Undefined indicators: without a target-lane leader closing in, or a follower
 within `FAR_FOLLOWER_M`, nothing in that lane constrains the change, so t_nf's
@@ -41,7 +47,7 @@ from laneprint.reference import INDICATORS, PAPER_TABLE1
 from rl.scene import Indicators
 
 REWARDS: tuple[str, ...] = ("paper", "timing")
-TERMS: tuple[str, ...] = ("r_f", "r_nf", "r_nb", "base", "late")
+TERMS: tuple[str, ...] = ("r_f", "r_nf", "r_nb", "base", "pass", "late")
 
 CHANGE, KEEP = 0, 1  # action indices: 0 = TO CHANGE, 1 = NOT TO CHANGE
 
@@ -110,7 +116,8 @@ class RewardSettings:
     n_dv_mps: float = 5.0  # maximum effective error of dv_nb [m/s]
     undefined_score: float = 1.0  # change score of an undefined t_nf or dv_nb: no objection [0-1]
     undefined_t_f_score: float = 0.0  # change score of an undefined t_f: no leader to pass, no reason [0-1]
-    change_baseline: float = 2.4  # timing: subtracted from the closeness sum on a change [0-3]
+    change_baseline: float = 2.75  # timing: subtracted from the closeness sum on a change [0-3]
+    pass_penalty: float = 0.5  # timing: cost of keeping when a change would earn a positive reward [1]
     late_penalty_per_s: float = 0.0  # timing: keep reward once past the reference t_f, negated [1/s]
 
     def __post_init__(self) -> None:
@@ -152,16 +159,15 @@ def action_terms(ind: Indicators, lines: ReferenceLines, settings: RewardSetting
     """Named reward terms of TO CHANGE and of NOT TO CHANGE for every scene."""
     c = change_scores(ind, lines, settings)
     zero = np.zeros_like(ind.v_e, dtype=float)
-    change = {**c, "late": zero}
-    if settings.name == "timing":
-        change["base"] = np.full_like(zero, -settings.change_baseline)
-    else:
-        change["base"] = zero
+    change = {**c, "base": zero, "pass": zero, "late": zero}
     if settings.name == "paper":
-        keep = {k: 1.0 - v for k, v in c.items()} | {"late": zero, "base": zero}
+        keep = {k: 1.0 - v for k, v in c.items()} | {"base": zero, "pass": zero, "late": zero}
     else:
-        late = np.where(past_reference(ind, lines), -settings.late_penalty_per_s * dt, 0.0)
-        keep = {"r_f": zero, "r_nf": zero, "r_nb": zero, "late": late, "base": zero}
+        change["base"] = np.full_like(zero, -settings.change_baseline)
+        acceptable = sum(c.values()) > settings.change_baseline
+        keep = {"r_f": zero, "r_nf": zero, "r_nb": zero, "base": zero,
+                "pass": np.where(acceptable, -settings.pass_penalty, 0.0),
+                "late": np.where(past_reference(ind, lines), -settings.late_penalty_per_s * dt, 0.0)}
     return change, keep
 
 

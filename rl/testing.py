@@ -41,7 +41,8 @@ def _rows(scene: Scene, cfg: EnvConfig) -> dict[str, np.ndarray]:
 
 def rule_driver_decisions(lines: ReferenceLines, n: int, seed: int = 0, cfg: EnvConfig | None = None,
                           driver_id: str = "D01", noise: tuple[float, float, float] = (0.3, 0.5, 1.0),
-                          window_s: float = 3.0, every_s: float = 0.5) -> pd.DataFrame:
+                          window_s: float = 3.0, every_s: float = 0.5, with_nf: bool = True,
+                          nb_gap_m: tuple[float, float] = (5.0, 60.0)) -> pd.DataFrame:
     """`n` decisions of a driver whose indicators at the press are its lines plus noise.
 
     Each press scene is built backwards: ego and traffic speeds as in `cfg`, the
@@ -58,9 +59,9 @@ def rule_driver_decisions(lines: ReferenceLines, n: int, seed: int = 0, cfg: Env
     dv_nb = ref["dv_nb"] + rng.normal(0, noise[2], n)
     scene.x_f = scene.x_e + scene.hl_f + t_f * (scene.v_e - scene.v_f)
     scene.x_nf = scene.x_e + scene.hl_nf + t_nf * (scene.v_e - scene.v_nf)
-    scene.nf_present[:] = True
+    scene.nf_present[:] = with_nf
     scene.v_nb = scene.v_e - dv_nb
-    scene.x_nb = scene.x_e - scene.hl_nb - rng.uniform(5.0, 60.0, n)
+    scene.x_nb = scene.x_e - scene.hl_nb - rng.uniform(*nb_gap_m, n)
     scene.nb_present[:] = True
     offsets = np.arange(-window_s, 1e-9, every_s)
     frames = []

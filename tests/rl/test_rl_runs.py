@@ -1,0 +1,113 @@
+"""Run folders and the `train` / `evaluate` commands, including SIGTERM and resume."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pandas as pd
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from laneprint.cli import app
+from laneprint.workspace import Workspace
+from rl.dqn import q_network
+from rl.env import EnvConfig
+from rl.plots import decision_agreement, indicators_at_decisions, training_curves
+from rl.rewards import ReferenceLines
+from rl.runs import list_runs, load_run
+from rl.testing import rule_driver_decisions
+
+FAST = ["--num-envs", "8", "--batch-size", "64", "--learning-starts", "100"]
+
+
+def analysed_workspace(root) -> Workspace:
+    """A workspace with a hand-made analysis: one Normal driver following Table 1's Normal lines."""
+    ws = Workspace(root).ensure()
+    lines = ReferenceLines.paper("Normal")
+    dec = rule_driver_decisions(lines, 12, seed=0, cfg=EnvConfig(lines=lines), driver_id="D01")
+    refs = pd.DataFrame([{"scope": "style", "name": "Normal", "kind": "typical", "indicator": k, "A": a, "b": b,
+                          "A_lo": None, "A_hi": None, "b_lo": None, "b_hi": None, "r2": None, "n": 12,
+                          "source": "typical driver D01"} for k, (a, b) in
+                         (("t_f", lines.t_f), ("t_nf", lines.t_nf), ("dv_nb", lines.dv_nb))])
+    styles = pd.DataFrame({"driver_id": ["D01"], "style": ["Normal"], "is_typical": [True]})
+    ws.write_tables("analysis", {"decisions": dec, "reference_lines": refs, "styles": styles}, meta={})
+    return ws
+
+
+def test_train_needs_an_analysis_or_paper_lines(tmp_path):
+    res = CliRunner().invoke(app, ["train", "--style", "Normal", "-w", str(tmp_path)])
+    assert res.exit_code == 1
+    assert "run `laneprint analyze` first or pass --lines paper" in res.output
+
+
+def test_train_with_paper_lines_writes_the_run_folder(tmp_path):
+    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--episodes", "150", "--run-id",
+                                   "r1", "-w", str(tmp_path), "--json", *FAST])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert out["run_id"] == "r1" and out["state"] == "done"
+    run = load_run(Workspace(tmp_path), "r1")
+    assert run["status"]["state"] == "done" and run["status"]["episode"] == 150
+    assert list(run["metrics"]["episode"]) == list(range(1, 151))
+    assert {"loss", "mean_step_reward", "epsilon", "length", "changed", "return", "env_steps", "wall_s"} <= set(
+        run["metrics"].columns)
+    cfg = run["config"]
+    assert cfg["lines"]["source"] == "Table 1 (Normal)" and cfg["reward"] == "timing" and cfg["seed"] == 0
+    assert "git_commit" in cfg["code_version"] and len(cfg["data_fingerprint"]) == 16
+    net = q_network()
+    net.load_state_dict(torch.load(run["folder"] / "weights.pt", weights_only=True))
+    assert "analyze" in out["evaluation_note"]  # nothing to evaluate against yet
+    runs = list_runs(Workspace(tmp_path))
+    assert runs.loc[0, "run_id"] == "r1" and runs.loc[0, "state"] == "done"
+    assert training_curves(run["metrics"]).data
+    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--run-id", "r1",
+                                   "-w", str(tmp_path)])
+    assert res.exit_code == 1 and "exists already" in res.output
+
+
+def test_evaluate_against_the_drivers(tmp_path):
+    ws = analysed_workspace(tmp_path)
+    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--episodes", "100", "--run-id", "r2",
+                                   "--no-evaluate", "-w", str(tmp_path), *FAST])
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(app, ["evaluate", "r2", "-w", str(tmp_path), "--json"])
+    assert res.exit_code == 0, res.output
+    ev = json.loads(res.stdout)
+    assert ev["typical_driver"] == "D01" and ev["n_decisions_typical"] == 12
+    rows = {r["who"]: r for r in ev["summary_typical"]}
+    assert set(rows) == {"agent", "greedy", "driver"}
+    assert rows["driver"]["recall"] == 1.0 and rows["driver"]["timing_mae_s"] == 0.0
+    assert 0.0 <= rows["agent"]["balanced_accuracy"] <= 1.0
+    run = load_run(ws, "r2")
+    assert len(run["eval_states"]) == ev["n_states_members"]
+    assert indicators_at_decisions(run["eval_changes"], run["config"]["lines"]).data
+    assert decision_agreement(run["eval_states"]).data
+    assert CliRunner().invoke(app, ["evaluate", "nope", "-w", str(tmp_path)]).exit_code == 1
+
+
+def test_sigterm_cancels_cleanly_and_resume_finishes(tmp_path):
+    cmd = [sys.executable, "-m", "laneprint.cli", "train", "--style", "Normal", "--lines", "paper",
+           "--episodes", "10000000", "--run-id", "sig", "-w", str(tmp_path), "--json", *FAST]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    metrics = tmp_path / "runs" / "sig" / "metrics.jsonl"
+    deadline = time.time() + 60
+    while time.time() < deadline and not (metrics.exists() and metrics.stat().st_size > 300):
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 0, stderr
+    assert json.loads(stdout)["state"] == "cancelled"
+    status = json.loads((tmp_path / "runs" / "sig" / "status.json").read_text())
+    assert status["state"] == "cancelled" and status["pid"] == proc.pid
+    assert (tmp_path / "runs" / "sig" / "checkpoint.pt").exists()
+    done = status["episode"]
+    res = CliRunner().invoke(app, ["train", "--resume", "sig", "--episodes", str(done + 40), "-w", str(tmp_path),
+                                   "--json"])
+    assert res.exit_code == 0, res.output
+    run = load_run(Workspace(tmp_path), "sig")
+    assert run["status"]["state"] == "done"
+    assert list(run["metrics"]["episode"]) == list(range(1, done + 41))
