@@ -82,6 +82,18 @@ def save_upload(name: str, size: int, stream: BinaryIO, uploads_dir: Path, max_b
     return SavedUpload(name, size, path=target)
 
 
+def discard(path: Path, uploads_dir: Path) -> None:
+    """Delete a saved upload (and its folder when empty); refuses paths outside `uploads_dir`."""
+    path, uploads_dir = path.resolve(), uploads_dir.resolve()
+    if not path.is_relative_to(uploads_dir) or path == uploads_dir:
+        return
+    path.unlink(missing_ok=True)
+    try:
+        path.parent.rmdir()
+    except OSError:
+        pass
+
+
 def clear_partial(uploads_dir: Path) -> None:
     """Remove half-written uploads left by an interrupted session."""
     shutil.rmtree(uploads_dir / ".partial", ignore_errors=True)

@@ -41,6 +41,14 @@ def upload_rows(saved: Iterable[SavedUpload], report: dict[str, Any] | None) -> 
     return pd.DataFrame(rows, columns=UPLOAD_COLUMNS)
 
 
+_MD_SPECIAL = "\\`*_{}[]()#+-.!|<>~$"
+
+
+def md_escape(text: str) -> str:
+    """Text shown verbatim inside Streamlit markdown (file names come from the user's browser)."""
+    return "".join("\\" + c if c in _MD_SPECIAL else c for c in str(text))
+
+
 def recordings_view(recs: pd.DataFrame) -> pd.DataFrame:
     """The catalogue columns worth showing, in a stable order."""
     return recs[[c for c in RECORDING_COLUMNS if c in recs.columns]]

@@ -1,5 +1,7 @@
 """Data: upload logs, see what the ingest did with each, browse the recordings."""
 
+from pathlib import Path
+
 import streamlit as st
 
 from dashboard import figures, loaders, uploads, views
@@ -21,6 +23,9 @@ def ingest_uploads(ws, files, driver_id: str) -> None:
                                   min(1.0, done / max(total, 1)), text=msg or "Ingesting..."))
         report = report.to_dict()
         bar.empty()
+        for entry in report["files"]:
+            if entry.get("status") == "rejected":  # the refusal is recorded; its bytes need not stay
+                uploads.discard(Path(entry["source"]), ws.root / "uploads")
     st.session_state["upload_results"] = views.upload_rows(saved, report)
     st.session_state["uploader_gen"] = st.session_state.get("uploader_gen", 0) + 1  # empties the uploader
 
@@ -44,6 +49,9 @@ def upload_section(ws) -> None:
         else:
             st.warning(f"Last upload: {summary}. Reasons below.")
         st.dataframe(results, hide_index=True, width="stretch")
+        refused = results[~results["status"].isin(["ingested", "duplicate"])]
+        if len(refused):
+            st.markdown("\n".join(f"- **{views.md_escape(r.file)}** ({r.status}): {views.md_escape(r.reason)}" for r in refused.itertuples()))
 
 
 def recordings_section(ws) -> None:

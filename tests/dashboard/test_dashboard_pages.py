@@ -101,6 +101,8 @@ def test_upload_ingests_and_refuses_with_reasons(empty_ws, tmp_path):
     assert rows.loc["empty.csv", "status"] == "refused" and "empty" in rows.loc["empty.csv", "reason"]
     assert rows.loc["notes.txt", "reason"].startswith("not a log")
     assert rows.loc["garbage.mcap", "status"] == "rejected" and rows.loc["garbage.mcap", "reason"]
+    assert not list(empty_ws.root.rglob("garbage.mcap"))  # a rejected upload is not kept
+    assert "**garbage\\.mcap** (rejected): not an MCAP file" in at.markdown[-1].value
     assert at.warning, "a partly refused upload is a warning"
     saved = sorted(p.relative_to(empty_ws.root).parts[0] for p in empty_ws.root.rglob("escape.csv"))
     assert saved == ["uploads"]

@@ -45,3 +45,15 @@ def test_same_bytes_same_place_and_refusals(tmp_path):
     txt = save_upload("notes.txt", 3, io.BytesIO(b"abc"), tmp_path, 1000)
     assert txt.path is None and txt.reason.startswith("not a log")
     assert not list((tmp_path / ".partial").iterdir())
+
+
+def test_discard_only_inside_uploads(tmp_path):
+    from dashboard.uploads import discard
+
+    s = save_upload("r.csv", 3, io.BytesIO(b"abc"), tmp_path / "uploads", 1000)
+    outside = tmp_path / "keep.csv"
+    outside.write_text("x")
+    discard(outside, tmp_path / "uploads")
+    assert outside.exists()
+    discard(s.path, tmp_path / "uploads")
+    assert not s.path.exists() and not s.path.parent.exists()

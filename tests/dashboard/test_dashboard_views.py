@@ -50,3 +50,7 @@ def test_evaluation_table_in_percent_and_compare():
     assert t["MAE t_f [s]"].isna().tolist() == [True, False]
     both = views.compare_runs({"r1": t, "r2": t.head(1)})
     assert both["run_id"].tolist() == ["r1", "r1", "r2"] and list(both.columns)[:2] == ["run_id", "policy"]
+
+
+def test_md_escape_keeps_names_verbatim():
+    assert views.md_escape("[x](http://e).csv") == "\\[x\\]\\(http://e\\)\\.csv"
