@@ -87,3 +87,16 @@ def test_catalogue_lists_all_formats_and_empty_metadata(tmp_path, recording):
     assert cat["session_id"].tolist() == ["one", "two"]  # file stems
     assert cat["format"].tolist() == ["csv", "mcap"]
     assert pd.isna(cat["speed_limit_kph"].iloc[0]) and cat["speed_limit_kph"].iloc[1] == 80.0
+
+
+@pytest.mark.parametrize("fmt", ["csv", "mcap"])
+def test_a_recording_without_traffic(tmp_path, recording, fmt):
+    meta, ego, traffic = recording
+    path = tmp_path / f"empty_road.{fmt}"
+    WRITERS[fmt](path, meta, ego, traffic.iloc[0:0])
+    ws = Workspace(tmp_path / "ws")
+    res = ingest_paths([path], ws).files[0]
+    assert res.status == "ingested", res.reason
+    got_meta, got_ego, got_traffic = ws.load_recording(res.recording_id)
+    assert got_meta["n_vehicles"] == 0 and len(got_ego) == 200 and got_traffic.empty
+    assert list(got_traffic.columns)[:3] == ["t_s", "vehicle_id", "x_m"]
