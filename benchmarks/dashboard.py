@@ -1,19 +1,23 @@
 """Time to first render of each dashboard page on a workspace of 100 drivers x 50 decisions.
 
-    python benchmarks/dashboard.py [--drivers 100] [--decisions 50] [--repeat 5]
+    python benchmarks/dashboard.py [--drivers 100] [--decisions 50] [--repeat 5] [--browser]
 
 The workspace is generated in a temporary folder: one short recording per driver
 (`indicators.synthetic.make_recording`), the analysis of a synthetic decisions
-table (`make_decision_table` + the real `analyze_tables`), and two finished runs
-with metrics and evaluation. Each page is rendered with Streamlit's AppTest (the
+table (`make_decision_table` + the real `analyze_tables`), and two short real
+training runs (`rl.runs.train_run`, 300 episodes, evaluated). Each page is rendered with Streamlit's AppTest (the
 script run, not the browser's drawing): 'cold' clears Streamlit's caches first (the
 first visit after the workspace changed), 'warm' is a second visit. Medians [s].
+
+With `--browser` each page is also loaded in headless Chromium from a real server
+(`laneprint dashboard`'s command): time from `goto` until the page's title is shown,
+the script run is over and, where the page has them, the first Plotly chart is drawn;
+'cold' touches the workspace folders first so the cached loaders miss.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import sys
@@ -27,7 +31,7 @@ sys.path = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).re
 import streamlit as st  # noqa: E402
 from streamlit.testing.v1 import AppTest  # noqa: E402
 
-from laneprint.workspace import Workspace, atomic_write_json  # noqa: E402
+from laneprint.workspace import Workspace  # noqa: E402
 
 PAGES = Path(__file__).resolve().parents[1] / "dashboard" / "app_pages"
 
@@ -48,19 +52,15 @@ def build(root: Path, n_drivers: int, n_decisions: int) -> Workspace:
         ws.write_recording(meta, ego, traffic)
     decisions, _ = make_decision_table(n_drivers, n_decisions, seed=0)
     ws.write_tables("analysis", analyze_tables(decisions), {"settings": {}})
-    for r in range(2):
-        d = ws.runs_dir / f"bench-{r}"
-        d.mkdir(parents=True)
-        atomic_write_json(d / "status.json", {"state": "done", "pid": None, "episode": 2000, "episodes": 2000,
-                                              "message": ""})
-        with open(d / "metrics.jsonl", "w") as fh:
-            for e in range(1, 2001):
-                fh.write(json.dumps({"episode": e, "loss": 1 / e, "mean_step_reward": 1.4, "epsilon": 0.1,
-                                     "length": 20, "changed": True, "return": 3.0, "env_steps": 20 * e,
-                                     "wall_s": e / 100}) + "\n")
-        atomic_write_json(d / "evaluation.json", {"summary": [
-            {"who": w, "recall": 0.9, "balanced_accuracy": 0.8, "timing_mae_s": 1.0}
-            for w in ("agent", "greedy", "driver")]})
+    from rl.dqn import DQNSettings
+    from rl.env import EnvConfig
+    from rl.rewards import RewardSettings
+    from rl.runs import Target, resolve_lines, train_run
+
+    for seed in (0, 1):  # two short real runs, evaluated against the style's members
+        target = Target("style", "Normal")
+        env = EnvConfig(lines=resolve_lines(ws, target, "analysis"), reward=RewardSettings())
+        train_run(ws, target, env, DQNSettings(episodes=300, seed=seed), run_id=f"bench-{seed}")
     return ws
 
 
@@ -76,6 +76,70 @@ def render(page: str, cold: bool) -> float:
     return dt
 
 
+def browser_times(ws: Workspace, repeat: int) -> dict[str, tuple[float, float]]:
+    """(cold, warm) median seconds to a drawn page in headless Chromium."""
+    import signal
+    import socket
+    import subprocess
+    import urllib.request
+
+    from playwright.sync_api import expect, sync_playwright
+
+    from dashboard.cli import streamlit_command
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    url = f"http://127.0.0.1:{port}"
+    proc = subprocess.Popen(streamlit_command(port, "127.0.0.1", ws.root), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True,
+                            env=dict(os.environ, LANEPRINT_WORKSPACE=str(ws.root)))
+    out = {}
+    try:
+        for _ in range(600):
+            try:
+                urllib.request.urlopen(url + "/_stcore/health", timeout=1)
+                break
+            except OSError:
+                time.sleep(0.1)
+        args = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=args)
+
+            def visit(path: str, title: str, chart: bool) -> float:
+                ctx = browser.new_context(viewport={"width": 1400, "height": 1200})
+                page = ctx.new_page()
+                t0 = time.perf_counter()
+                page.goto(f"{url}/{path}")
+                expect(page.get_by_role("heading", name=title, exact=True).first).to_be_visible(timeout=120_000)
+                if chart:
+                    expect(page.locator(".js-plotly-plot").first).to_be_visible(timeout=120_000)
+                expect(page.locator('[data-testid="stApp"][data-test-script-state="notRunning"]')).to_be_attached(
+                    timeout=120_000)
+                dt = time.perf_counter() - t0
+                ctx.close()
+                return dt
+
+            pages = [("", "Data", True), ("drivers", "Drivers", True), ("styles", "Styles", True),
+                     ("training", "Training", False), ("results", "Results", True)]
+            for path, title, chart in pages:
+                visit(path, title, chart)  # imports out of the way
+            for path, title, chart in pages:
+                cold, warm = [], []
+                for _ in range(repeat):
+                    for sub in ("recordings", "analysis"):
+                        os.utime(ws.root / sub)  # new cache keys: the loaders read again
+                    cold.append(visit(path, title, chart))
+                    warm.append(visit(path, title, chart))
+                out[title.lower()] = (statistics.median(cold), statistics.median(warm))
+            browser.close()
+    finally:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait()
+    return out
+
+
 def main() -> None:
     import logging
 
@@ -84,6 +148,7 @@ def main() -> None:
     ap.add_argument("--drivers", type=int, default=100)
     ap.add_argument("--decisions", type=int, default=50)
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--browser", action="store_true", help="also time the pages in headless Chromium")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
@@ -98,6 +163,10 @@ def main() -> None:
             cold = statistics.median(render(page, cold=True) for _ in range(args.repeat))
             warm = statistics.median(render(page, cold=False) for _ in range(args.repeat))
             print(f"{page:<10} {cold:>9.3f} {warm:>9.3f}")
+        if args.browser:
+            print(f"\nheadless Chromium, goto -> page drawn: {'page':<10} {'cold [s]':>9} {'warm [s]':>9}")
+            for page, (cold, warm) in browser_times(ws, args.repeat).items():
+                print(f"{'':38}{page:<10} {cold:>9.3f} {warm:>9.3f}")
 
 
 if __name__ == "__main__":

@@ -8,7 +8,8 @@ from rl.plots import decision_agreement, indicators_at_decisions, training_curve
 
 
 def evaluated_runs(ws) -> list[str]:
-    return [rid for rid in jobs.run_ids(ws) if (ws.runs_dir / rid / "evaluation.json").exists()]
+    return [rid for rid in jobs.run_ids(ws) if (ws.runs_dir / rid / "evaluation.json").exists()
+            and (ws.runs_dir / rid / "config.json").exists()]
 
 
 def one_run(ws, run_id: str) -> None:
