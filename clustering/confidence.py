@@ -12,10 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from clustering.features import LOG_FLOOR_S, feature_groups, feature_names, group_values, lines_by_row
+from clustering.features import feature_groups, feature_names, group_values, lines_by_row, to_space
 from clustering.styles import StyleClusterer
 from indicators.settings import AnalysisSettings
-from indicators.stats import INDICATOR_COLUMNS
 
 
 def bootstrap_stability(points: pd.DataFrame, drivers: list[str], labels: np.ndarray, clf: StyleClusterer,
@@ -29,8 +28,7 @@ def bootstrap_stability(points: pd.DataFrame, drivers: list[str], labels: np.nda
     for di, ii, g in feature_groups(points, drivers, settings):
         if len(g.v) == 0:
             continue
-        is_ttc = INDICATOR_COLUMNS[g.indicator][2] == "s"
-        ys = np.log(np.maximum(g.y, LOG_FLOOR_S)) if (is_ttc and settings.feature_log) else g.y
+        ys = to_space(g.y, g.indicator, settings)
         idx = rng.integers(0, len(g.v), (B, len(g.v)))
         if group_values(g.v, g.y, g.indicator, settings, speeds)[1]:
             # too few points / no speed spread: the feature is the median, so resample the median

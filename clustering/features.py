@@ -35,32 +35,36 @@ def feature_names(settings: AnalysisSettings) -> list[str]:
 def lines_by_row(V: np.ndarray, Y: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray]:
     """(A, b) of Y[r] = A[r] V[r] + b[r] for every row r, by 'theilsen', 'huber' or 'ols'.
 
-    Vectorised over rows (a driver's points, or the resamples of a bootstrap).
-    'theilsen': median of pairwise slopes, intercept median(y) - A median(v), as scipy's
-    `theilslopes`; 'huber': IRLS with Huber's t = 1.345 and MAD scale (about zero)
-    re-estimated every step, as statsmodels' `RLM(M=HuberT())`.
+    Vectorised over rows (all drivers at once, or the resamples of a bootstrap); rows
+    of different lengths are padded with NaN. 'theilsen': median of pairwise slopes,
+    intercept median(y) - A median(v), as scipy's `theilslopes`; 'huber': IRLS with
+    Huber's t = 1.345 and MAD scale (about zero) re-estimated every step, as
+    statsmodels' `RLM(M=HuberT())`.
     """
     V = np.atleast_2d(np.asarray(V, dtype=float))
     Y = np.atleast_2d(np.asarray(Y, dtype=float))
+    ok = np.isfinite(V) & np.isfinite(Y)
     if method == "theilsen":
         i, j = np.triu_indices(V.shape[1], 1)
         dv = V[:, j] - V[:, i]
         with np.errstate(invalid="ignore", divide="ignore"):
-            slopes = np.where(dv != 0, (Y[:, j] - Y[:, i]) / dv, np.nan)
+            slopes = np.where(ok[:, i] & ok[:, j] & (dv != 0), (Y[:, j] - Y[:, i]) / dv, np.nan)
         A = _row_nanmedian(slopes)
-        return A, np.median(Y, axis=1) - A * np.median(V, axis=1)
+        return A, _row_nanmedian(np.where(ok, Y, np.nan)) - A * _row_nanmedian(np.where(ok, V, np.nan))
+    V0, Y0, W1 = np.where(ok, V, 0.0), np.where(ok, Y, 0.0), ok.astype(float)
     if method == "ols":
-        return _wls(V, Y, np.ones_like(V))
+        return _wls(V0, Y0, W1)
     if method == "huber":
-        A, b = _wls(V, Y, np.ones_like(V))
+        A, b = _wls(V0, Y0, W1)
         for _ in range(_HUBER_MAXITER):
-            r = Y - (A[:, None] * V + b[:, None])
-            scale = np.median(np.abs(r), axis=1) / 0.6744897501960817
+            r = Y0 - (A[:, None] * V0 + b[:, None])
+            scale = _row_nanmedian(np.where(ok, np.abs(r), np.nan)) / 0.6744897501960817
             scale = np.where(scale > 0, scale, 1.0)
             z = np.abs(r) / scale[:, None]
-            w = np.where(z <= _HUBER_T, 1.0, _HUBER_T / np.maximum(z, 1e-300))
-            A_new, b_new = _wls(V, Y, w)
-            done = np.all(np.abs(A_new - A) <= 1e-10 * (1 + np.abs(A))) and np.all(np.abs(b_new - b) <= 1e-10 * (1 + np.abs(b)))
+            w = np.where(z <= _HUBER_T, 1.0, _HUBER_T / np.maximum(z, 1e-300)) * W1
+            A_new, b_new = _wls(V0, Y0, w)
+            done = (np.all(np.abs(A_new - A) <= 1e-10 * (1 + np.abs(A)))
+                    and np.all(np.abs(b_new - b) <= 1e-10 * (1 + np.abs(b))))
             A, b = A_new, b_new
             if done:
                 break
@@ -98,12 +102,17 @@ def robust_line(v: np.ndarray, y: np.ndarray, method: str) -> tuple[float, float
     return float(A[0]), float(b[0])
 
 
+def to_space(y: np.ndarray, indicator: str, settings: AnalysisSettings) -> np.ndarray:
+    """Indicator values in the clustering space (log seconds for TTCs when `feature_log`)."""
+    is_ttc = INDICATOR_COLUMNS[indicator][2] == "s"
+    return np.log(np.maximum(y, LOG_FLOOR_S)) if (is_ttc and settings.feature_log) else y
+
+
 def group_values(v: np.ndarray, y: np.ndarray, indicator: str, settings: AnalysisSettings,
                  speeds_mps: np.ndarray) -> tuple[np.ndarray, str]:
     """Feature values of one driver/indicator at `speeds_mps`, in the clustering space
     (log seconds for TTCs when `feature_log`), and a note when not from a line."""
-    is_ttc = INDICATOR_COLUMNS[indicator][2] == "s"
-    yt = np.log(np.maximum(y, LOG_FLOOR_S)) if (is_ttc and settings.feature_log) else y
+    yt = to_space(y, indicator, settings)
     if len(v) < 3 or np.ptp(v) < settings.min_speed_spread_mps:
         why = "too few points" if len(v) < 3 else "no speed spread"
         return np.full(len(speeds_mps), float(np.median(yt))), f"{indicator}: {why}, median used"
@@ -139,14 +148,28 @@ def driver_features(points: pd.DataFrame, drivers: list[str],
     n = len(speeds)
     values = np.full((len(drivers), len(feature_names(settings))), np.nan)
     notes: dict[str, list[str]] = {d: [] for d in drivers}
+    lines = []  # (di, ii, v, y in the clustering space) of groups fitted with a line
     for di, ii, g in feature_groups(points, drivers, settings):
         if len(g.v) == 0:
             notes[g.driver_id].append(f"{g.indicator}: no defined values, imputed")
             continue
-        vals, note = group_values(g.v, g.y, g.indicator, settings, speeds)
-        if note:
+        if len(g.v) < 3 or np.ptp(g.v) < settings.min_speed_spread_mps:
+            vals, note = group_values(g.v, g.y, g.indicator, settings, speeds)
             notes[g.driver_id].append(note)
-        values[di, ii * n:(ii + 1) * n] = vals
+            values[di, ii * n:(ii + 1) * n] = vals
+            continue
+        lines.append((di, ii, g.v, to_space(g.y, g.indicator, settings)))
+    # all lines in one vectorised fit, rows padded with NaN to the longest
+    for start in range(0, len(lines), 4096):
+        chunk = lines[start:start + 4096]
+        width = max(len(c[2]) for c in chunk)
+        V = np.full((len(chunk), width), np.nan)
+        Y = np.full((len(chunk), width), np.nan)
+        for r, (_, _, v, y) in enumerate(chunk):
+            V[r, :len(v)], Y[r, :len(y)] = v, y
+        A, b = lines_by_row(V, Y, settings.feature_fit)
+        for r, (di, ii, _, _) in enumerate(chunk):
+            values[di, ii * n:(ii + 1) * n] = A[r] * speeds + b[r]
     feats = pd.DataFrame(to_units(values, settings), index=pd.Index(drivers, name="driver_id"),
                          columns=feature_names(settings))
     return feats, notes

@@ -149,7 +149,7 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
     `drivers`: drivers to report even when they have no decisions (e.g. the catalogue's).
     """
     settings = settings or AnalysisSettings()
-    drivers = sorted(set(decisions["driver_id"].astype(str)) | set(map(str, drivers or [])))
+    drivers = sorted(set(map(str, decisions["driver_id"].unique())) | set(map(str, drivers or [])))
     points = indicator_points(decisions, settings)
     correlations = correlate(decisions, settings, points, drivers)
     fits = fit_lines(decisions, settings, points, drivers)

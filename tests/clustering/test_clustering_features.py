@@ -32,3 +32,14 @@ def test_features_are_line_values_in_seconds():
     assert feats.loc["D1", "t_f_at_70kph_s"] == pytest.approx(np.exp(0.1 * 70 / 3.6))
     assert np.isnan(feats.loc["D1", "t_nf_at_80kph_s"])
     assert notes["D1"] == ["t_nf: no defined values, imputed"]
+
+
+@pytest.mark.parametrize("method", ["huber", "theilsen", "ols"])
+def test_rows_padded_with_nan_fit_like_unpadded(method):
+    rng = np.random.default_rng(8)
+    v = rng.uniform(16, 26, 30)
+    y = 0.2 * v + rng.standard_t(3, 30)
+    V = np.vstack([np.r_[v, np.full(10, np.nan)], np.r_[v, rng.uniform(16, 26, 10)]])
+    Y = np.vstack([np.r_[y, np.full(10, np.nan)], np.r_[y, rng.normal(size=10)]])
+    A, b = lines_by_row(V, Y, method)
+    assert (A[0], b[0]) == pytest.approx(robust_line(v, y, method))
