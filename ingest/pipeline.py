@@ -24,10 +24,11 @@ import pandas as pd
 from ingest.csv_reader import read_csv_log
 from ingest.mapping import Mapping, load_mapping
 from ingest.mcap_reader import read_mcap_log
-from ingest.rawlog import RawLog, Rejected
+from ingest.rawlog import RawLog, Rejected, first_line
 from ingest.validate import canonicalise
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
+from laneprint.schemas import SchemaError
 from laneprint.workspace import Workspace
 
 LOG_SUFFIXES = (".csv.gz", ".csv", ".mcap")
@@ -211,6 +212,10 @@ class _Batch:
             rec = canonicalise(raw, self.mapping, session_stem(path), self.driver)
         except Rejected as exc:
             return self.reject(path, fmt, rid, str(exc))
+        except (ValueError, TypeError, KeyError, IndexError, OverflowError, MemoryError) as exc:
+            # a file shape no check anticipated: refuse it, keep the batch going
+            return self.reject(path, fmt, rid, f"unexpected content ({type(exc).__name__}: {first_line(exc)}); "
+                                               f"please report this file")
         driver_id, session_id = rec.meta["driver_id"], rec.meta["session_id"]
         result = FileResult(str(path), "warning" if rec.warnings else "ingested", fmt, rid, driver_id,
                             session_id, len(rec.ego), rec.n_presses, warnings=rec.warnings)
@@ -236,6 +241,9 @@ class _Batch:
         }
         try:
             stored = self.ws.write_recording(meta, rec.ego, rec.traffic)
+        except SchemaError as exc:
+            _release_claim(self.ws, driver_id, session_id, rid)
+            return self.reject(path, fmt, rid, f"does not fit the recording tables: {exc}")
         except BaseException:
             _release_claim(self.ws, driver_id, session_id, rid)
             raise
@@ -268,7 +276,10 @@ def ingest_paths(paths: list[Path], workspace: Workspace, driver_id: str | None 
     """
     paths = check_paths(paths)
     the_mapping = load_mapping(mapping)
-    ws = workspace.ensure()
+    try:
+        ws = workspace.ensure()
+    except OSError as exc:
+        raise UserError(f"cannot use workspace {workspace.root}: {exc.strerror or exc}") from None
     batch = _Batch(ws, the_mapping, driver_id.strip() if driver_id and driver_id.strip() else None)
     found = discover(paths)
     total = sum(1 for _, why in found if why is None)
