@@ -230,6 +230,8 @@ def summary(tables: dict[str, pd.DataFrame]) -> dict[str, Any]:
         "share_drivers_all_significant": float(by_driver.all().mean()) if len(tested) else None,
         "share_drivers_any_significant": float(by_driver.any().mean()) if len(tested) else None,
         "n_skipped": int(len(tables["skipped"])),
+        "styles": {str(k): int(v) for k, v in tables["styles"]["style"].value_counts().items()},
+        "typical_drivers": {str(r.style): str(r.driver_id) for r in tables["styles"].itertuples() if r.is_typical},
     }
 
 
