@@ -57,11 +57,11 @@ def render_ingest(result: dict[str, Any], console: Console) -> None:
 
 
 def ingest_command(
-    paths: Annotated[list[Path], typer.Argument(help="Log files (.csv, .csv.gz, .mcap) or folders to walk.")],
+    paths: Annotated[list[Path], typer.Argument(metavar="PATH", help="Log files (.csv, .csv.gz, .mcap) or folders to walk.", show_default=False)],
     driver: Annotated[Optional[str], typer.Option(
-        "--driver", help="Driver id for files that carry none (a file's own id wins; a conflict warns).")] = None,
+        "--driver", metavar="ID", help="Driver id for files that carry none (a file's own id wins; a conflict warns).")] = None,
     mapping: Annotated[Optional[Path], typer.Option(
-        "--mapping", help="TOML/YAML file mapping your column/topic/field names and units onto the log format.")] = None,
+        "--mapping", metavar="FILE", help="TOML/YAML file mapping your column/topic/field names and units onto the log format.")] = None,
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,
 ) -> None:
