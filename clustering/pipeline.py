@@ -142,6 +142,26 @@ def reference_lines(styles: pd.DataFrame, fits: pd.DataFrame, points: pd.DataFra
     return out, skipped
 
 
+_ROLE = {"t_f": "leader in the ego lane", "t_nf": "leader in the target lane", "dv_nb": "follower in the target lane"}
+
+
+def excluded_values(points: pd.DataFrame, settings: AnalysisSettings) -> list[dict[str, str]]:
+    """One 'value' row per press and indicator left out of the fits, with why."""
+    out = points[~points["used"].to_numpy(dtype=bool)]
+    if out.empty:
+        return []
+    why = {
+        "absent": lambda ind: f"{ind} undefined: no {_ROLE[ind]}",
+        "not_closing": lambda ind: f"{ind} undefined: the gap to the {_ROLE[ind]} is not closing",
+        "following": lambda ind: f"{ind} left out of fits: closing speed below {settings.min_closing_mps:g} m/s "
+                                 "(following a slow leader)",
+        "far": lambda ind: f"{ind} left out of fits: {_ROLE[ind]} beyond {settings.far_follower_m:g} m (no influence)",
+    }
+    return [{"what": "value", "id": f"{d}:{ind}",
+             "reason": why[st](ind) if st in why else f"{ind} left out of fits: {st}"}
+            for d, ind, st in zip(out["decision_id"], out["indicator"], out["status"])]
+
+
 def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
                    drivers: list[str] | None = None) -> dict[str, pd.DataFrame]:
     """Correlations, fits, styles, reference lines and skipped rows from a decisions table (pure).
@@ -166,6 +186,7 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
     for _, f in fits[fits["status"] != "ok"].iterrows():
         skipped.append({"what": "indicator", "id": f"{f['driver_id']}:{f['indicator']}", "reason": f["reason"]})
     skipped.extend(ref_skipped)
+    skipped.extend(excluded_values(points, settings))
     return {
         "decisions": decisions,
         "correlations": correlations,

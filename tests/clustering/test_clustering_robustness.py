@@ -36,6 +36,9 @@ def test_awkward_drivers_complete_with_reasons():
     assert why[("indicator", "NONF:t_nf")] == "no defined values (20 absent)"
     assert why[("driver", "KEEPONLY")] == "no presses (only keep states)"
     assert ("driver", "KEEPONLY") in why
+    # every press value left out of a fit is listed with its reason
+    values = skipped[skipped["what"] == "value"]
+    assert ((values["id"] == "r0002:0:t_nf") & (values["reason"] == "t_nf undefined: no leader in the target lane")).any()
 
     st = out["styles"].set_index("driver_id")
     # every driver with any feature gets a style and says how
