@@ -7,6 +7,9 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
+from rich.console import Console
+
+from clustering.cli import render
 from clustering.pipeline import analyze
 from indicators.settings import AnalysisSettings
 from indicators.synthetic import catalogue_row, make_recording
@@ -30,9 +33,13 @@ def workspace(tmp_path_factory):
     return ws, study
 
 
-def test_analyze_writes_stage_and_report(workspace):
+@pytest.fixture(scope="module")
+def report(workspace):
+    return analyze(workspace[0], AnalysisSettings(n_bootstrap=20))
+
+
+def test_analyze_writes_stage_and_report(workspace, report):
     ws, study = workspace
-    report = analyze(ws, AnalysisSettings())
     for name in ("decisions", "correlations", "fits", "styles", "reference_lines", "skipped"):
         assert ws.has_table("analysis", name)
     meta = ws.read_meta("analysis")
@@ -51,17 +58,23 @@ def test_analyze_writes_stage_and_report(workspace):
     json.dumps(report)  # JSON-ready
 
 
-def test_cli_json_and_human(workspace):
+def test_cli_json(workspace):
     ws, _ = workspace
-    runner = CliRunner()
-    res = runner.invoke(app, ["analyze", "-w", str(ws.root), "--json", "--far-follower-m", "120"])
+    res = CliRunner().invoke(app, ["analyze", "-w", str(ws.root), "--json", "--far-follower-m", "120",
+                                   "--choose-k", "silhouette"])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
-    assert doc["settings"]["far_follower_m"] == 120.0
+    assert doc["settings"]["far_follower_m"] == 120.0 and doc["settings"]["choose_k"] == "silhouette"
     assert "drivers" in doc and "styles" in doc and "skipped" in doc
-    human = runner.invoke(app, ["analyze", "-w", str(ws.root), "--choose-k", "silhouette"])
-    assert human.exit_code == 0, human.output
-    assert "analysis of 6 driver(s)" in human.stdout
+
+
+def test_human_summary(workspace, report):
+    ws, _ = workspace
+    console = Console(record=True, width=100)
+    render(report, console)
+    text = console.export_text()
+    assert "analysis of 6 driver(s): 96 presses" in text
+    assert "typical" in text and f"stored in {ws.root}/analysis" in text
 
 
 def test_cli_errors_are_one_line(tmp_path):

@@ -4,6 +4,7 @@ import numpy as np
 import pandas as pd
 
 from clustering.pipeline import analyze_tables
+from indicators.settings import AnalysisSettings
 from indicators.synthetic import make_decision_table
 
 
@@ -65,13 +66,14 @@ def test_no_presses_at_all_still_completes():
 
 def test_heavy_tailed_ttc_does_not_move_styles():
     df, truth = make_decision_table(9, 40, seed=11, keep_per_press=0)
-    base = analyze_tables(df)["styles"].set_index("driver_id")["style"]
+    fast = AnalysisSettings(n_bootstrap=0)
+    base = analyze_tables(df, fast)["styles"].set_index("driver_id")["style"]
     # a tenth of every driver's presses made while following a slow leader: TTC 20-200 s,
     # closing speed unknown in this table (so not flagged 'following'): only robustness helps
     rng = np.random.default_rng(0)
     tail = rng.random(len(df)) < 0.1
     noisy = df.copy()
     noisy.loc[tail, "t_f_s"] = rng.uniform(20, 200, tail.sum())
-    styles = analyze_tables(noisy)["styles"].set_index("driver_id")["style"]
+    styles = analyze_tables(noisy, fast)["styles"].set_index("driver_id")["style"]
     assert (styles == base).all()
     assert (styles == pd.Series(truth)).all()

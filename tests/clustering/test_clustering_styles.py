@@ -72,7 +72,7 @@ def test_style_names():
 
 def test_choose_k_through_settings(synthetic):
     df, _, _ = synthetic
-    out = analyze_tables(df, AnalysisSettings(choose_k="silhouette", k_range=(2, 5)))
+    out = analyze_tables(df, AnalysisSettings(choose_k="silhouette", k_range=(2, 5), n_bootstrap=0))
     assert len(out["k_scores"]) == 4
     assert out["styles"]["cluster"].max() + 1 == out["k_scores"].loc[out["k_scores"]["score"].idxmax(), "k"]
 
