@@ -80,7 +80,8 @@ def main() -> None:
         if not active:
             st.caption("No training running.")
         elif len(still) < len(active):
-            st.rerun()  # a run ended: redraw the page (past runs, polling off when none is left)
+            st.session_state["show_run"] = next(r for r in active if r not in still)  # show the one that ended
+            st.rerun()  # redraw the whole page: past runs, polling off when none is left
 
     live_runs()
 

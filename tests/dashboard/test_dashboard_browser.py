@@ -46,6 +46,9 @@ def test_every_page_renders(server, page):
             settle(page)
         no_errors(page)
         shot(page, f"page_{title.lower()}")
+        if title == "Data":  # the recording viewer alone, below the fold of the page shot
+            page.locator('[data-testid="stPlotlyChart"]').first.screenshot(
+                path=str(SHOT_DIR / "data_recording_viewer.png"), animations="disabled")
 
 
 def test_upload_logs(server, page, tmp_path):
@@ -81,7 +84,15 @@ def test_training_progress_moves(server, page):
         page.wait_for_timeout(200)
     assert len(seen - {None, "0"}) >= 2, f"progress never moved: {seen}"
     no_errors(page)
-    settle(page)
     shot(page, "training_live")
-    runs = [p.name for p in ws.runs_dir.iterdir() if (p / "metrics.jsonl").exists()]
-    assert len(runs) >= 3
+    # when it ends, the page redraws itself: no run left under "Running", the run listed as done
+    expect(page.get_by_text("No training running.")).to_be_visible(timeout=120_000)
+    settle(page)
+    no_errors(page)
+    shot(page, "training_done")
+    from rl.runs import list_runs
+
+    runs = list_runs(ws).set_index("run_id")
+    new = [r for r in runs.index if r.startswith("Defensive-")]
+    assert len(new) == 1 and runs.loc[new[0], "state"] == "done" and runs.loc[new[0], "episode"] == 3000
+    expect(page.get_by_text(f"{new[0]}: done — episode 3000/3000")).to_be_visible()  # the finished run shown
