@@ -40,7 +40,8 @@ def _n_decisions(decisions: pd.DataFrame, drivers: list[str]) -> pd.Series:
 
 
 def assign_styles(feats: pd.DataFrame, notes: dict[str, list[str]], n_dec: pd.Series, fits: pd.DataFrame,
-                  settings: AnalysisSettings, points: pd.DataFrame | None = None) -> tuple[pd.DataFrame, StyleClusterer | None, list[dict[str, str]]]:
+                  settings: AnalysisSettings, points: pd.DataFrame | None = None
+                  ) -> tuple[pd.DataFrame, StyleClusterer | None, list[dict[str, str]]]:
     """Cluster drivers with enough presses, assign the rest to the nearest centre, pick typical drivers.
 
     confidence = bootstrap stability when computed (see `clustering.confidence`), else
@@ -253,6 +254,8 @@ def summary(tables: dict[str, pd.DataFrame]) -> dict[str, Any]:
         "n_skipped": int(len(tables["skipped"])),
         "styles": {str(k): int(v) for k, v in tables["styles"]["style"].value_counts().items()},
         "typical_drivers": {str(r.style): str(r.driver_id) for r in tables["styles"].itertuples() if r.is_typical},
+        "confidence_is": ("bootstrap stability" if tables["styles"]["stability"].notna().any()
+                          else "mixture posterior"),
     }
 
 
