@@ -198,12 +198,22 @@ def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataF
         cols[f"{role}_id"] = np.full(n, None, dtype=object)
 
     if len(traffic):
-        tr = traffic[["t_s", "x_m", "v_mps", "lane", "length_m"]].copy()
+        # only the samples that can be the latest one before a state (within the tolerance)
+        t_tr = traffic["t_s"].to_numpy(dtype=float)
+        st_sorted = np.sort(e["t_s"].to_numpy(dtype=float))
+        nxt = np.searchsorted(st_sorted, t_tr, side="left")
+        near = nxt < len(st_sorted)
+        near[near] = st_sorted[nxt[near]] - t_tr[near] <= settings.traffic_tolerance_s
+        sub = traffic[near]
         # merge on integer codes: ids may come as any string dtype (object, arrow, python)
-        codes, vids = pd.factorize(traffic["vehicle_id"].astype(str).to_numpy(dtype=object))
-        tr["vehicle_id"] = codes.astype(np.int64)
-        tr = tr.sort_values("t_s", kind="mergesort")
-        vid_names = np.asarray(vids, dtype=object)
+        codes, vids = pd.factorize(sub["vehicle_id"])
+        tr = pd.DataFrame({"t_s": t_tr[near], "x_m": sub["x_m"].to_numpy(dtype=float),
+                           "v_mps": sub["v_mps"].to_numpy(dtype=float), "lane": sub["lane"].to_numpy(dtype=np.int64),
+                           "length_m": sub["length_m"].to_numpy(dtype=float),
+                           "vehicle_id": codes.astype(np.int64)})
+        if len(tr) > 1 and np.any(np.diff(tr["t_s"].to_numpy()) < 0):
+            tr = tr.sort_values("t_s", kind="mergesort")
+        vid_names = np.asarray([str(v) for v in vids], dtype=object)
         left = pd.DataFrame({"state": np.repeat(e["state"].to_numpy(), len(vids)),
                              "t_s": np.repeat(e["t_s"].to_numpy(), len(vids)),
                              "vehicle_id": np.tile(np.arange(len(vids), dtype=np.int64), n)}
