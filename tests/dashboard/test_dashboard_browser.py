@@ -1,6 +1,6 @@
 """The dashboard in headless Chromium: every page, an upload, a short training run."""
 
-import os
+import re
 
 import pytest
 from playwright.sync_api import expect
@@ -85,6 +85,10 @@ def test_training_progress_moves(server, page):
     assert len(seen - {None, "0"}) >= 2, f"progress never moved: {seen}"
     no_errors(page)
     shot(page, "training_live")
+    # a reload starts a new session: the run is found again from the workspace, not from the session
+    rid = next(p.stem for p in (ws.root / "dashboard" / "jobs").glob("Defensive-*.json"))
+    page.reload()
+    expect(page.get_by_text(re.compile(rf"{rid}: (running|done)")).first).to_be_visible(timeout=60_000)
     # when it ends, the page redraws itself: no run left under "Running", the run listed as done
     expect(page.get_by_text("No training running.")).to_be_visible(timeout=120_000)
     settle(page)
