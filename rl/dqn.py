@@ -43,7 +43,8 @@ class DQNSettings:
     """
 
     episodes: int = 10000  # N_e: stop after this many finished episodes
-    learning_rate: float = 0.005  # eta, Adam step size
+    learning_rate: float = 0.005  # eta, Adam step size at the start
+    learning_rate_end: float | None = 0.0005  # the step size falls linearly to this over `episodes` (None: constant)
     eps_start: float = 0.8  # epsilon_s, initial exploration
     eps_end: float = 0.1  # epsilon_e, final exploration
     exploration_fraction: float = 1.0  # share of `episodes` over which epsilon falls linearly
@@ -56,6 +57,7 @@ class DQNSettings:
     num_envs: int = 8  # environments stepped together (1 = the study's loop)
     gradient_steps: int = 1  # updates per vector step
     loss: str = "mse"  # 'mse' (eq. 5) or 'huber'
+    double_q: bool = False  # Double DQN target: the online net picks the next action, the target net values it
     max_grad_norm: float = 10.0  # gradient clipping (0 = none)
     threads: int = 1  # torch intra-op threads (small nets oversubscribe with more)
     seed: int = 0  # seeds numpy (environments, exploration, sampling) and torch (init)
@@ -189,11 +191,24 @@ class DQNTrainer:
         frac = min(1.0, self.episodes_done / max(1.0, s.exploration_fraction * s.episodes))
         return s.eps_start + frac * (s.eps_end - s.eps_start)
 
+    def learning_rate(self) -> float:
+        s = self.settings
+        if s.learning_rate_end is None:
+            return s.learning_rate
+        frac = min(1.0, self.episodes_done / max(1, s.episodes))
+        return s.learning_rate + frac * (s.learning_rate_end - s.learning_rate)
+
     def _update(self) -> float:
         s = self.settings
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.learning_rate()
         obs, actions, rewards, next_obs, terminated = self.buffer.sample(self.rng, s.batch_size)
         with torch.no_grad():
-            target_max = self.target(next_obs).max(dim=1).values
+            if s.double_q:
+                best = self.q(next_obs).argmax(dim=1, keepdim=True)
+                target_max = self.target(next_obs).gather(1, best).squeeze(1)
+            else:
+                target_max = self.target(next_obs).max(dim=1).values
             td_target = rewards + s.gamma * target_max * (1.0 - terminated)
         q = self.q(obs).gather(1, actions[:, None]).squeeze(1)
         loss = nn.functional.mse_loss(q, td_target) if s.loss == "mse" else nn.functional.smooth_l1_loss(q, td_target)
