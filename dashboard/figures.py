@@ -108,7 +108,7 @@ def compact(fig: go.Figure, height: int = 440) -> go.Figure:
 
 def bare_table(fig: go.Figure, n_rows: int) -> go.Figure:
     """A Plotly table without its title, as tall as its rows."""
-    fig.update_layout(title=None, height=40 + 26 * (n_rows + 1), margin=dict(l=0, r=0, t=0, b=0))
+    fig.update_layout(title=None, height=30 + 22 * (n_rows + 1), margin=dict(l=0, r=0, t=0, b=0))
     return fig
 
 

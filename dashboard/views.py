@@ -49,6 +49,12 @@ def md_escape(text: str) -> str:
     return "".join("\\" + c if c in _MD_SPECIAL else c for c in str(text))
 
 
+def reasons_markdown(results: pd.DataFrame) -> str:
+    """A markdown list '- **file** (status): reason' of the uploads that were not ingested as they are."""
+    todo = results[~results["status"].isin(["ingested", "duplicate"])]
+    return "\n".join(f"- **{md_escape(r.file)}** ({r.status}): {md_escape(r.reason)}" for r in todo.itertuples())
+
+
 def recordings_view(recs: pd.DataFrame) -> pd.DataFrame:
     """The catalogue columns worth showing, in a stable order."""
     return recs[[c for c in RECORDING_COLUMNS if c in recs.columns]]
@@ -151,3 +157,12 @@ def fit_summary(fits: pd.DataFrame) -> pd.DataFrame:
     out = fits[[c for c in FIT_SUMMARY_COLUMNS if c in fits.columns]].copy()
     out = out.rename(columns={"v_min": "v_min [m/s]", "v_max": "v_max [m/s]"})
     return out.round(3)
+
+
+def analysis_settings(saved: dict[str, Any], **changes: Any):
+    """`AnalysisSettings` from the dict stored in analysis/meta.json (lists back to tuples), with `changes`."""
+    from indicators.settings import AnalysisSettings
+
+    fields = AnalysisSettings.__dataclass_fields__
+    base = {k: tuple(v) if isinstance(v, list) else v for k, v in saved.items() if k in fields}
+    return AnalysisSettings(**base).with_(**changes)

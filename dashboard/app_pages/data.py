@@ -6,6 +6,8 @@ import streamlit as st
 
 from dashboard import figures, loaders, uploads, views
 from dashboard.context import max_upload_bytes, workspace
+from dashboard.widgets import progress_to
+from laneprint.errors import UserError
 
 
 def ingest_uploads(ws, files, driver_id: str) -> None:
@@ -18,10 +20,11 @@ def ingest_uploads(ws, files, driver_id: str) -> None:
     report = None
     if paths:
         bar = st.progress(0.0, text="Ingesting...")
-        report = ingest_paths(paths, ws, driver_id=driver_id.strip() or None,
-                              progress=lambda done, total, msg="": bar.progress(
-                                  min(1.0, done / max(total, 1)), text=msg or "Ingesting..."))
-        report = report.to_dict()
+        try:
+            report = ingest_paths(paths, ws, driver_id=driver_id.strip() or None,
+                                  progress=progress_to(bar, "Ingesting...")).to_dict()
+        except UserError as exc:  # nothing could be done at all (e.g. a bad workspace): say why
+            report = {"files": [{"source": str(p), "status": "rejected", "reason": str(exc)} for p in paths]}
         bar.empty()
         for entry in report["files"]:
             if entry.get("status") == "rejected":  # the refusal is recorded; its bytes need not stay
@@ -49,9 +52,9 @@ def upload_section(ws) -> None:
         else:
             st.warning(f"Last upload: {summary}. Reasons below.")
         st.dataframe(results, hide_index=True, width="stretch")
-        refused = results[~results["status"].isin(["ingested", "duplicate"])]
-        if len(refused):
-            st.markdown("\n".join(f"- **{views.md_escape(r.file)}** ({r.status}): {views.md_escape(r.reason)}" for r in refused.itertuples()))
+        reasons = views.reasons_markdown(results)
+        if reasons:
+            st.markdown(reasons)
 
 
 def recordings_section(ws) -> None:

@@ -5,6 +5,7 @@ import streamlit as st
 from clustering.plots import cluster_scatter, reference_lines
 from dashboard import figures, loaders, views
 from dashboard.context import workspace
+from dashboard.widgets import progress_to
 from laneprint.errors import UserError
 
 CHOOSE_K = {"fixed k": None, "silhouette": "silhouette", "BIC": "bic"}
@@ -26,15 +27,11 @@ def rerun_form(ws, current: dict) -> None:
         go = st.form_submit_button("Run analysis", type="primary")
     if go:
         from clustering.pipeline import analyze
-        from indicators.settings import AnalysisSettings
 
-        base = {k_: v for k_, v in current.items() if k_ in AnalysisSettings.__dataclass_fields__}
-        base = {k_: tuple(v) if isinstance(v, list) else v for k_, v in base.items()}
-        settings = AnalysisSettings(**base).with_(k=int(k), choose_k=CHOOSE_K[how], feature_fit=fit)
+        settings = views.analysis_settings(current, k=int(k), choose_k=CHOOSE_K[how], feature_fit=fit)
         bar = st.progress(0.0, text="Analysing...")
         try:
-            analyze(ws, settings, lambda done, total, msg="": bar.progress(
-                min(1.0, done / max(total, 1)), text=msg or "Analysing..."))
+            analyze(ws, settings, progress_to(bar, "Analysing..."))
         except UserError as exc:  # the stage's one-line reason; keep the app alive
             bar.empty()
             st.warning(f"Analysis did not run: {exc}")

@@ -54,3 +54,17 @@ def test_evaluation_table_in_percent_and_compare():
 
 def test_md_escape_keeps_names_verbatim():
     assert views.md_escape("[x](http://e).csv") == "\\[x\\]\\(http://e\\)\\.csv"
+
+
+def test_analysis_settings_round_trip_from_meta():
+    from indicators.settings import AnalysisSettings
+
+    saved = AnalysisSettings(k=4, feature_speeds_kph=(70.0, 80.0)).to_dict()
+    s = views.analysis_settings(saved, k=2, choose_k="bic")
+    assert (s.k, s.choose_k, s.feature_speeds_kph) == (2, "bic", (70.0, 80.0))
+
+
+def test_reasons_markdown_lists_only_what_was_not_ingested():
+    rows = pd.DataFrame({"file": ["a.csv", "b_1.csv"], "status": ["ingested", "rejected"],
+                         "reason": ["", "bad header"]})
+    assert views.reasons_markdown(rows) == "- **b\\_1\\.csv** (rejected): bad header"
