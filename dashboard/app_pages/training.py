@@ -3,9 +3,9 @@
 import streamlit as st
 
 from dashboard import jobs, loaders, training
+from dashboard.context import poll_seconds, workspace
 from rl.plots import training_curves
 from rl.runs import read_metrics
-from dashboard.context import poll_seconds, workspace
 
 
 def launch_form(ws) -> None:

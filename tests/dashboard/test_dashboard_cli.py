@@ -40,3 +40,30 @@ def test_only_the_dashboard_imports_streamlit():
         if re.search(r"^\s*(import|from)\s+streamlit\b", path.read_text(errors="ignore"), re.M):
             offenders.append(str(rel))
     assert offenders == []
+
+
+def test_laneprint_dashboard_serves_and_stops(tmp_path):
+    import os
+    import signal
+    import subprocess
+
+    from conftest import _free_port, _wait_healthy
+
+    port = _free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "laneprint.cli", "dashboard", "--port", str(port),
+                             "-w", str(tmp_path / "ws")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True)
+    try:
+        _wait_healthy(f"http://127.0.0.1:{port}", proc)
+        proc.send_signal(signal.SIGTERM)  # to the CLI only: it must stop the server it started
+        out, _ = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert f"http://127.0.0.1:{port}" in out
+    assert (tmp_path / "ws" / "recordings").is_dir()
+    import socket
+
+    with socket.socket() as s:  # nobody listens on the port any more: no server left behind
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # TIME_WAIT of the health checks is fine
+        s.bind(("127.0.0.1", port))
