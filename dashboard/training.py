@@ -28,6 +28,17 @@ FORM_SETTINGS: dict[str, tuple[str, str]] = {
 }
 
 
+def defaults_note() -> str:
+    """How the trainer's defaults relate to the study's Table 2."""
+    from rl.dqn import DQNSettings
+
+    d = DQNSettings()
+    lr = (f"the learning rate falls linearly from {d.learning_rate:g} to {d.learning_rate_end:g} over the run"
+          if getattr(d, "learning_rate_end", None) else f"constant learning rate {d.learning_rate:g}")
+    return (f"Table 2 of the study, stepped as {d.num_envs} environments at once with one minibatch of "
+            f"{d.batch_size} per step (1 environment and minibatch 32 is the study's own loop); {lr}.")
+
+
 def rewards() -> list[str]:
     """Reward formulations the trainer knows, its default first."""
     from rl.rewards import REWARDS, RewardSettings

@@ -27,7 +27,8 @@ def launch_form(ws) -> None:
                                    value=training.default_episodes(), key="episodes")
         seed = c5.number_input("Seed", min_value=0, value=0, step=1, key="seed")
         values = {}
-        with st.expander("Hyperparameters (defaults: Table 2 of the study)"):
+        with st.expander("Hyperparameters (the trainer's defaults, from Table 2 of the study)"):
+            st.caption(training.defaults_note())
             cols = st.columns(3)
             for i, (field, default) in enumerate(training.hyperparameters().items()):
                 label = training.FORM_SETTINGS[field][0]
