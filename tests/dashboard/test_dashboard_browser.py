@@ -5,7 +5,7 @@ import re
 import pytest
 from playwright.sync_api import expect
 
-from conftest import SHOT_DIR, log_bytes
+from dashboard_support import SHOT_DIR, log_bytes
 
 pytestmark = pytest.mark.browser
 

@@ -47,14 +47,14 @@ def test_laneprint_dashboard_serves_and_stops(tmp_path):
     import signal
     import subprocess
 
-    from conftest import _free_port, _wait_healthy
+    from dashboard_support import free_port, wait_healthy
 
-    port = _free_port()
+    port = free_port()
     proc = subprocess.Popen([sys.executable, "-m", "laneprint.cli", "dashboard", "--port", str(port),
                              "-w", str(tmp_path / "ws")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True, start_new_session=True)
     try:
-        _wait_healthy(f"http://127.0.0.1:{port}", proc)
+        wait_healthy(f"http://127.0.0.1:{port}", proc)
         proc.send_signal(signal.SIGTERM)  # to the CLI only: it must stop the server it started
         out, _ = proc.communicate(timeout=20)
     finally:

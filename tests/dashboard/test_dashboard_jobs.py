@@ -3,7 +3,7 @@ import subprocess
 import sys
 import time
 
-from conftest import write_fake_run
+from dashboard_support import write_fake_run
 from dashboard import jobs
 from laneprint.workspace import Workspace, atomic_write_json
 

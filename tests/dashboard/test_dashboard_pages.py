@@ -5,7 +5,7 @@ import json
 import pytest
 from streamlit.testing.v1 import AppTest
 
-from conftest import APP, log_bytes, page_path
+from dashboard_support import APP, log_bytes, page_path
 
 PAGES = ["data", "drivers", "styles", "training", "results"]
 
