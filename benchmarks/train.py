@@ -90,7 +90,7 @@ def run_ours(cfg: EnvConfig, settings: DQNSettings, scorer: Scorer, check_every:
             return time.perf_counter() - t0 - state["eval_s"] > budget_s
         state["next"] += check_every
         e0 = time.perf_counter()
-        ok, s = scorer(t.q)
+        ok, s = scorer(t.policy_net)
         state["eval_s"] += time.perf_counter() - e0
         state["last"] = s
         if ok and state["hit"] is None:

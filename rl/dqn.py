@@ -16,6 +16,12 @@ learning rate; (3) the data is collected by a policy that is up to N
 transitions staler. Epsilon still decays per finished episode and the target
 network is still copied every `target_update_episodes` finished episodes;
 replay memory and learning start stay in transitions.
+
+Two stabilisers of ours, both settings: the learning rate falls linearly from
+Table 2's 0.005 to ``learning_rate_end``, and the policy kept at the end is a
+Polyak average of the online weights (``average_tau``; the updates themselves are
+unchanged). Without them the greedy policy at the end of training swings
+between runs and checkpoints (the press states sit on its decision boundary).
 """
 
 from __future__ import annotations
@@ -59,6 +65,7 @@ class DQNSettings:
     loss: str = "mse"  # 'mse' (eq. 5) or 'huber'
     double_q: bool = False  # Double DQN target: the online net picks the next action, the target net values it
     max_grad_norm: float = 10.0  # gradient clipping (0 = none)
+    average_tau: float = 0.005  # if > 0, the policy saved is a Polyak average of the online weights (step tau)
     threads: int = 1  # torch intra-op threads (small nets oversubscribe with more)
     seed: int = 0  # seeds numpy (environments, exploration, sampling) and torch (init)
     checkpoint_every: int = 500  # save a checkpoint every this many episodes (0 = never)
@@ -176,6 +183,8 @@ class DQNTrainer:
         self.q = q_network(s.hidden)
         self.target = q_network(s.hidden)
         self.target.load_state_dict(self.q.state_dict())
+        self.q_avg = q_network(s.hidden)
+        self.q_avg.load_state_dict(self.q.state_dict())
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=s.learning_rate)
         self.buffer = ReplayBuffer(s.buffer_size)
         self.stats = EpisodeStats(s.num_envs)
@@ -185,6 +194,11 @@ class DQNTrainer:
         self.updates = 0
         self.wall_s = 0.0
         self._losses: list[float] = []
+
+    @property
+    def policy_net(self) -> nn.Module:
+        """The network whose greedy actions are the trained policy (the averaged one if `average_tau`)."""
+        return self.q_avg if self.settings.average_tau > 0 else self.q
 
     def epsilon(self) -> float:
         s = self.settings
@@ -217,6 +231,10 @@ class DQNTrainer:
         if s.max_grad_norm:
             nn.utils.clip_grad_norm_(self.q.parameters(), s.max_grad_norm)
         self.optimizer.step()
+        if s.average_tau > 0:
+            with torch.no_grad():
+                for a, p in zip(self.q_avg.parameters(), self.q.parameters()):
+                    a.lerp_(p, s.average_tau)
         self.updates += 1
         return float(loss.detach())
 
@@ -293,6 +311,7 @@ class DQNTrainer:
         return {
             "q": self.q.state_dict(),
             "target": self.target.state_dict(),
+            "q_avg": self.q_avg.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "buffer": self.buffer.state_dict(),
             "env_scene": {k: torch.from_numpy(np.asarray(v).copy()) for k, v in env_state["scene"].items()},
@@ -312,6 +331,7 @@ class DQNTrainer:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.q.load_state_dict(state["q"])
         self.target.load_state_dict(state["target"])
+        self.q_avg.load_state_dict(state["q_avg"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.buffer.load_state_dict(state["buffer"])
         self.envs.load_state_dict({"scene": {k: v.numpy() for k, v in state["env_scene"].items()},

@@ -30,8 +30,9 @@ Starting State
     cars 4-5 m and 10 % trucks 10-16 m. ``C_f`` is placed so that its initial time
     to collision is uniform in ``t_f0_s`` (every episode then crosses the moment a
     driver would change); ``C_nf`` so that ``t_nf - t_f`` is uniform in
-    ``nf_ttc_offset_s`` (as the study's presses, where both sit near the driver's
-    lines), present with ``nf_present_prob``; ``C_nb`` behind at a uniform gap
+    ``nf_ttc_offset_s`` (covering the study's presses, where both sit near the
+    driver's lines, and target-lane cars being passed early in an approach),
+    present with ``nf_present_prob``; ``C_nb`` behind at a uniform gap
     (beyond 100 m it is "far" and has no influence). All randomness comes
     from ``self.np_random`` (seeded by ``reset(seed=...)``).
 
@@ -68,7 +69,7 @@ class EnvConfig:
     nb_speed_mps: tuple[float, float] = (6.0, 11.0)  # C_nb speed, uniform [m/s] (the study's followers: ~9)
     t_f0_s: tuple[float, float] = (1.0, 25.0)  # initial time to collision with C_f, uniform [s]
     nf_present_prob: float = 0.88  # probability of a leader in the target lane
-    nf_ttc_offset_s: tuple[float, float] = (-3.0, 4.0)  # initial t_nf - t_f, uniform [s] (gap >= 1 m)
+    nf_ttc_offset_s: tuple[float, float] = (-10.0, 4.0)  # initial t_nf - t_f, uniform [s] (gap >= 1 m)
     nb_present_prob: float = 1.0  # probability of a follower in the target lane
     nb_gap0_m: tuple[float, float] = (5.0, 140.0)  # initial gap to C_nb, uniform [m]
     ego_length_m: float = 4.5  # [m]

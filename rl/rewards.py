@@ -116,7 +116,7 @@ class RewardSettings:
     n_dv_mps: float = 5.0  # maximum effective error of dv_nb [m/s]
     undefined_score: float = 1.0  # change score of an undefined t_nf or dv_nb: no objection [0-1]
     undefined_t_f_score: float = 0.0  # change score of an undefined t_f: no leader to pass, no reason [0-1]
-    change_baseline: float = 2.75  # timing: subtracted from the closeness sum on a change [0-3]
+    change_baseline: float = 2.6  # timing: subtracted from the closeness sum on a change [0-3]
     pass_penalty: float = 0.5  # timing: cost of keeping when a change would earn a positive reward [1]
     late_penalty_per_s: float = 0.0  # timing: keep reward once past the reference t_f, negated [1/s]
 

@@ -264,7 +264,7 @@ def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig
         writer.close()
         raise
     checkpoint(trainer)
-    _save_torch(folder / "weights.pt", trainer.q.state_dict())
+    _save_torch(folder / "weights.pt", trainer.policy_net.state_dict())
     writer.status(final if final != "done" else "running", trainer.episodes_done,
                   message or ("evaluating" if evaluate else "done"))
     result: dict[str, Any] = {"run_id": run_id, "folder": str(folder), "state": final,

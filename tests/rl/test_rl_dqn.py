@@ -35,7 +35,7 @@ def test_learns_the_drivers_moment_and_beats_greedy():
                                 noise=(0.2, 0.2, 0.5))
     approaches, _ = approaches_from_decisions(dec)
     trainer = DQNTrainer(TINY, DQNSettings(episodes=2000, seed=0, **FAST)).train()
-    ev = evaluate_policies({"agent": agent_policy(trainer.q, TINY), "greedy": greedy_policy(TINY)}, approaches, TINY)
+    ev = evaluate_policies({"agent": agent_policy(trainer.policy_net, TINY), "greedy": greedy_policy(TINY)}, approaches, TINY)
     s = pd.DataFrame(ev["summary"]).set_index("who")
     assert s.loc["greedy", "balanced_accuracy"] == 0.5  # the paper's greedy always changes here
     assert s.loc["agent", "balanced_accuracy"] >= 0.8  # 0.925 when written
@@ -72,3 +72,4 @@ def test_checkpoint_resume_continues_exactly_and_loads_weights_only():
     net.load_state_dict(torch.load(buf, weights_only=True))
     obs = np.random.default_rng(0).random((4, 8), dtype=np.float32)
     assert torch.equal(net(torch.from_numpy(obs)), straight.q(torch.from_numpy(obs)))
+    assert straight.policy_net is straight.q_avg

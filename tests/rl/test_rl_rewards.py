@@ -31,13 +31,13 @@ def test_paper_reward_actions_sum_to_three():
 
 
 def test_timing_reward_is_one_off_advantage():
-    timing = RewardSettings(name="timing")  # m = 1 s, 2 m/s; baseline 2.75; pass penalty 0.5
+    timing = RewardSettings(name="timing")  # m = 1 s, 2 m/s; baseline 2.6; pass penalty 0.5
     r, terms = step_reward(ind(5.0, 4.0, 10.0), np.array([0]), LINES, timing, dt=0.5)
-    assert r[0] == pytest.approx(3.0 - 2.75) and terms["base"][0] == -2.75
+    assert r[0] == pytest.approx(3.0 - 2.6) and terms["base"][0] == -2.6
     r, terms = step_reward(ind(5.0, 4.0, 10.0), np.array([1]), LINES, timing, dt=0.5)
     assert r[0] == -0.5 and terms["pass"][0] == -0.5  # an acceptable gap passed up
     r, _ = step_reward(ind(7.0, 4.0, 10.0), np.array([1]), LINES, timing, dt=0.5)
-    assert r[0] == 0.0  # t_f 3 s off: (2 - 3)/1 -> 0, sum 2 < 2.75: nothing passed up
+    assert r[0] == 0.0  # t_f 3 s off: (2 - 3)/1 -> 0, sum 2 < 2.6: nothing passed up
     late = RewardSettings(name="timing", late_penalty_per_s=1.0, pass_penalty=0.0)
     r, terms = step_reward(ind(3.0, 4.0, 10.0), np.array([1]), LINES, late, dt=0.5)
     assert r[0] == pytest.approx(-0.5) and terms["late"][0] == pytest.approx(-0.5)
