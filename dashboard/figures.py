@@ -87,11 +87,13 @@ def recording_timeline(ego: pd.DataFrame, traffic: pd.DataFrame, title: str = ""
 
 
 def runs_curves(metrics: dict[str, pd.DataFrame], column: str, label: str) -> go.Figure:
-    """One metric per episode for several runs on one plot (run comparison)."""
+    """One metric per episode for several runs on one plot, as rolling means (run comparison)."""
     fig = go.Figure()
     for run_id, df in metrics.items():
         if column in df:
-            fig.add_trace(go.Scatter(x=df["episode"], y=df[column], mode="lines", name=run_id))
+            window = max(1, min(50, len(df) // 10))  # a rolling mean: per-episode values are noisy
+            y = pd.to_numeric(df[column], errors="coerce").rolling(window, min_periods=1).mean()
+            fig.add_trace(go.Scatter(x=df["episode"], y=y, mode="lines", name=run_id))
     fig.update_layout(xaxis_title="episode [-]", yaxis_title=label, height=360,
                       legend=dict(orientation="h", y=-0.25))
     return fig

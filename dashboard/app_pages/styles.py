@@ -13,17 +13,16 @@ CHOOSE_K = {"fixed k": None, "silhouette": "silhouette", "BIC": "bic"}
 
 def rerun_form(ws, current: dict) -> None:
     """k and the way it is chosen; 'Run analysis' calls the analysis stage."""
+    now = views.analysis_settings(current)  # the last run's settings, defaults where missing
     with st.form("analysis_form"):
         c1, c2, c3 = st.columns(3)
-        k = c1.number_input("Number of styles k", min_value=2, max_value=8, step=1,
-                            value=int(current.get("k", 3)), key="k")
+        k = c1.number_input("Number of styles k", min_value=2, max_value=8, step=1, value=int(now.k), key="k")
         labels = list(CHOOSE_K)
-        chosen = next((lab for lab, v in CHOOSE_K.items() if v == current.get("choose_k")), "fixed k")
+        chosen = next((lab for lab, v in CHOOSE_K.items() if v == now.choose_k), "fixed k")
         how = c2.selectbox("k chosen by", labels, index=labels.index(chosen), key="choose_k")
-        fits = ["theilsen", "huber", "ols"]
+        fits = list(dict.fromkeys([now.feature_fit, "huber", "theilsen", "ols"]))
         fit = c3.selectbox("Feature line fit", fits, key="feature_fit",
-                           index=fits.index(current.get("feature_fit", "theilsen"))
-                           if current.get("feature_fit", "theilsen") in fits else 0)
+                           help="How each driver's line is fitted to make the clustering features")
         go = st.form_submit_button("Run analysis", type="primary")
     if go:
         from clustering.pipeline import analyze

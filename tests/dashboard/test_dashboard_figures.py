@@ -31,3 +31,12 @@ def test_timeline_marks_presses_and_has_units():
     assert titles == ["ego speed [m/s]", "lane [index, 0 = right]", "gap in ego lane [m]", "time [s]"]
     press = [tr for tr in fig.data if tr.name == "button press"][0]
     assert list(press.x) == [0.5]
+
+
+def test_runs_curves_rolling_mean_per_run():
+    m = pd.DataFrame({"episode": range(1, 21), "loss": [0.0, 2.0] * 10})
+    fig = figures.runs_curves({"a": m, "b": m.head(4)}, "loss", "loss [-]")
+    assert [t.name for t in fig.data] == ["a", "b"]
+    assert list(fig.data[0].y[:3]) == pytest.approx([0.0, 1.0, 1.0])  # window 2 for 20 episodes
+    assert list(fig.data[1].y) == [0.0, 2.0, 0.0, 2.0]  # window 1 for 4 episodes
+    assert fig.layout.xaxis.title.text == "episode [-]" and fig.layout.yaxis.title.text == "loss [-]"
