@@ -1,1 +1,20 @@
-"""Dashboard: the Streamlit app over the workspace (the only package importing streamlit)."""
+"""Dashboard: the Streamlit app over the workspace (the only package importing streamlit).
+
+Run it with `laneprint dashboard [--workspace W] [--port P] [--host H]` (127.0.0.1:8501
+by default, headless, no usage statistics, uploads up to 1024 MB), or
+`streamlit run dashboard/app.py -- --workspace W`.
+
+- `app.py`: `st.navigation` over the pages in `app_pages/` (Data, Drivers, Styles,
+  Training, Results); each page is a thin `main()` calling the modules below and the
+  stages' own functions and plots.
+- `context.py`: the workspace (`--workspace` after `--`, else $LANEPRINT_WORKSPACE)
+  and the tunables read from the environment: $LANEPRINT_DASHBOARD_EPISODES (episodes
+  pre-filled in the Training form), $LANEPRINT_DASHBOARD_POLL_S (refresh of the live
+  training view, default 1 s), $LANEPRINT_DASHBOARD_MAX_UPLOAD_MB (default 1024).
+- `loaders.py`: cached readers keyed on the modification times of the folders they read.
+- `uploads.py`: browser uploads saved under `workspace/uploads/<hash>/<safe name>`.
+- `jobs.py`: `laneprint train` subprocesses (own session, so they outlive the page and
+  the server), their status, cancel (SIGTERM).
+- `training.py`, `views.py`, `figures.py`, `widgets.py`: form defaults, table shaping,
+  the recording viewer and layout helpers.
+"""
