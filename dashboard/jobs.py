@@ -103,7 +103,7 @@ def reap() -> None:
 
 
 def pid_alive(pid: int | None) -> bool:
-    """True if a process with this pid exists (and is not a zombie of ours)."""
+    """True if this pid is a live laneprint process (not a zombie, not a reused pid)."""
     if not pid:
         return False
     reap()
@@ -115,11 +115,17 @@ def pid_alive(pid: int | None) -> bool:
     except ProcessLookupError:
         return False
     except PermissionError:
+        return False  # another user's process: not a run of ours
+    proc_dir = Path(f"/proc/{int(pid)}")
+    if not proc_dir.is_dir():  # no /proc (not Linux): trust kill(0)
         return True
-    try:  # a zombie still answers kill(0)
-        return Path(f"/proc/{int(pid)}/stat").read_text().split(") ", 1)[1][0] != "Z"
+    try:
+        state = (proc_dir / "stat").read_text().split(") ", 1)[1][0]
+        cmdline = (proc_dir / "cmdline").read_bytes()
     except (OSError, IndexError):
-        return True
+        return False
+    # a zombie still answers kill(0); a pid reused by another program must not be signalled
+    return state != "Z" and b"laneprint" in cmdline
 
 
 def read_json(path: Path) -> dict[str, Any] | None:

@@ -42,7 +42,7 @@ def test_status_of_dead_and_unknown_runs(tmp_path):
 def test_cancel_sends_sigterm_to_a_running_run(tmp_path):
     ws = Workspace(tmp_path).ensure()
     code = "import signal, sys, time\nsignal.signal(signal.SIGTERM, lambda *a: sys.exit(42))\ntime.sleep(30)"
-    proc = subprocess.Popen([sys.executable, "-c", code], start_new_session=True)
+    proc = subprocess.Popen([sys.executable, "-c", code, "laneprint-fake-trainer"], start_new_session=True)
     try:
         time.sleep(0.3)  # let it install its handler
         write_fake_run(ws, "r", state="running", pid=proc.pid)
@@ -54,3 +54,17 @@ def test_cancel_sends_sigterm_to_a_running_run(tmp_path):
         if proc.poll() is None:
             proc.send_signal(signal.SIGKILL)
             proc.wait()
+
+
+def test_a_reused_pid_is_not_a_run(tmp_path):
+    """A status that names the pid of some other program: the run is lost, and Cancel signals nothing."""
+    ws = Workspace(tmp_path).ensure()
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"], start_new_session=True)
+    try:
+        write_fake_run(ws, "r", state="running", pid=other.pid)
+        assert jobs.run_status(ws, "r")["state"] == "lost"
+        assert not jobs.cancel(ws, "r")
+        assert other.poll() is None
+    finally:
+        other.kill()
+        other.wait()
