@@ -45,6 +45,19 @@ def recordings(root: str, key: tuple[int, ...]) -> pd.DataFrame:
 
 
 @st.cache_data(show_spinner=False, max_entries=16)
+def fingerprint(root: str, key: tuple[int, ...]) -> str:
+    """`Workspace.fingerprint()`: which recordings are stored."""
+    return Workspace(root).fingerprint()
+
+
+def analysis_is_stale(root: Path) -> bool:
+    """True when recordings were added or removed since the analysis ran."""
+    meta = analysis_meta(str(root), analysis_stamp(root))
+    stored = meta.get("data_fingerprint")
+    return bool(stored) and stored != fingerprint(str(root), recordings_stamp(root))
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
 def rejected(root: str, key: tuple[int, ...]) -> pd.DataFrame:
     """Files the ingest refused, newest first."""
     return Workspace(root).rejected()

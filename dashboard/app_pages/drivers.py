@@ -17,6 +17,8 @@ def main() -> None:
         st.info("No analysis yet: ingest logs on the Data page, then run the analysis on the Styles page "
                 "(or `laneprint analyze`).")
         return
+    if loaders.analysis_is_stale(ws.root):
+        st.info("Recordings were added or removed since this analysis ran: run it again on the Styles page.")
     decisions, fits = tables["decisions"], tables.get("fits")
     drivers = views.drivers_of(tables)
     driver = st.selectbox("Driver", drivers, key="driver")

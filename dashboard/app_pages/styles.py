@@ -48,7 +48,10 @@ def main() -> None:
     if loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root)).empty:
         st.info("No recordings yet: upload logs on the Data page first.")
         return
+    if loaders.analysis_is_stale(ws.root):
+        st.info("Recordings were added or removed since this analysis ran: press 'Run analysis' to update it.")
     rerun_form(ws, meta.get("settings", {}))
+
     styles = tables.get("styles")
     if styles is None:
         st.info("No analysis yet: press 'Run analysis'.")

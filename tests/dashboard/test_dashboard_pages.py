@@ -186,3 +186,15 @@ def test_too_large_upload_is_refused_with_a_hint(empty_ws, tmp_path, monkeypatch
     assert row["status"] == "refused" and "laneprint ingest" in row["reason"]
     assert not list((empty_ws.root / "uploads").rglob("big.csv"))
     assert at.info  # still no recordings, the page keeps working
+
+
+def test_stale_analysis_is_flagged(sample_ws, tmp_path, monkeypatch):
+    import shutil
+
+    from laneprint.workspace import Workspace
+
+    ws = Workspace(shutil.copytree(sample_ws.root, tmp_path / "ws"))
+    monkeypatch.setenv("LANEPRINT_WORKSPACE", str(ws.root))
+    assert not any("since this analysis ran" in i.value for i in run_page("drivers").info)
+    shutil.rmtree(ws.recordings_dir / ws.recordings()["recording_id"].iloc[0])
+    assert any("since this analysis ran" in i.value for i in run_page("drivers").info)
