@@ -68,6 +68,18 @@ def default_episodes() -> int:
     return env_int(EPISODES_ENV, None) or DQNSettings().episodes
 
 
+def check_target(ws, req) -> str:
+    """Why the trainer would refuse this target and these lines at once ('' when it would not)."""
+    from laneprint.errors import UserError
+    from rl.runs import Target, resolve_lines
+
+    try:
+        resolve_lines(ws, Target(req.target, req.name), req.lines or "analysis")
+    except (UserError, ValueError, KeyError) as exc:
+        return str(exc)
+    return ""
+
+
 def style_targets(reference_lines: pd.DataFrame | None) -> list[str]:
     """Styles with reference lines in the analysis, else the study's three."""
     if reference_lines is not None and "scope" in reference_lines:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import hashlib
 import os
 import re
-import shutil
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -92,8 +91,3 @@ def discard(path: Path, uploads_dir: Path) -> None:
         path.parent.rmdir()
     except OSError:
         pass
-
-
-def clear_partial(uploads_dir: Path) -> None:
-    """Remove half-written uploads left by an interrupted session."""
-    shutil.rmtree(uploads_dir / ".partial", ignore_errors=True)

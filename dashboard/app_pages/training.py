@@ -19,7 +19,8 @@ def launch_form(ws) -> None:
         c1, c2, c3 = st.columns(3)
         name = c1.selectbox(kind.capitalize(), names, key="target_name")
         reward = c2.selectbox("Reward", training.rewards(), key="reward")
-        line_opts = ["analysis", "paper"] if lines_table is not None else ["paper"]
+        line_opts = [o for o in ("analysis", "paper")
+                     if (o == "analysis" and lines_table is not None) or (o == "paper" and kind == "style")]
         lines = c3.selectbox("Reference lines", line_opts, key="lines",
                              help="'analysis': lines fitted on this workspace; 'paper': Table 1 of the study")
         c4, c5 = st.columns(2)
@@ -36,12 +37,16 @@ def launch_form(ws) -> None:
                     label, value=default, key=f"hp_{field}",
                     format="%g" if isinstance(default, float) else "%d",
                     step=None if isinstance(default, float) else 1)
-        submitted = st.form_submit_button("Start training", type="primary", disabled=not names)
-    if not names:
+        submitted = st.form_submit_button("Start training", type="primary", disabled=not (names and line_opts))
+    if not (names and line_opts):
         st.info("Nothing to train for yet: ingest logs (Data page) and run the analysis (Styles page).")
     if submitted and name:
         req = jobs.TrainRequest(kind, str(name), int(episodes), int(seed), reward, lines,
                                 training.changed_options(values))
+        problem = training.check_target(ws, req)
+        if problem:
+            st.warning(f"Not started: {problem}")
+            return
         run_id = jobs.launch(ws, req)
         st.session_state.setdefault("launched", []).append(run_id)
         st.toast(f"Started run {run_id}")

@@ -68,3 +68,12 @@ def test_a_reused_pid_is_not_a_run(tmp_path):
     finally:
         other.kill()
         other.wait()
+
+
+def test_check_target_says_why_the_trainer_would_refuse(tmp_path):
+    from dashboard.training import check_target
+
+    ws = Workspace(tmp_path).ensure()
+    assert check_target(ws, jobs.TrainRequest("style", "Normal", 10, lines="paper")) == ""
+    assert "needs --style" in check_target(ws, jobs.TrainRequest("driver", "D01", 10, lines="paper"))
+    assert "no analysis" in check_target(ws, jobs.TrainRequest("style", "Normal", 10, lines="analysis"))

@@ -198,3 +198,11 @@ def test_stale_analysis_is_flagged(sample_ws, tmp_path, monkeypatch):
     assert not any("since this analysis ran" in i.value for i in run_page("drivers").info)
     shutil.rmtree(ws.recordings_dir / ws.recordings()["recording_id"].iloc[0])
     assert any("since this analysis ran" in i.value for i in run_page("drivers").info)
+
+
+def test_training_for_a_driver_needs_an_analysis(empty_ws):
+    at = run_page("training")
+    assert not next(b for b in at.button if b.label == "Start training").disabled  # styles: Table 1 lines
+    at.radio(key="target_kind").set_value("driver").run()
+    assert next(b for b in at.button if b.label == "Start training").disabled
+    assert "Nothing to train for yet" in at.info[0].value
