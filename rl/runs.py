@@ -354,6 +354,19 @@ def evaluate_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
     return out
 
 
+def replay_env(workspace: Workspace, target: Target, config: EnvConfig | None = None) -> "LaneChangeDecisionEnv":
+    """The environment in replay mode over the recorded approaches of a driver or a style's members."""
+    from rl.env import LaneChangeDecisionEnv
+
+    decisions = workspace.read_table("analysis", "decisions")
+    drivers, _ = _eval_drivers(workspace, target)
+    approaches, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(drivers)])
+    if not approaches:
+        raise UserError(f"no recorded approaches for {target.label}")
+    return LaneChangeDecisionEnv(config or EnvConfig(lines=resolve_lines(workspace, target, "analysis")),
+                                 approaches=approaches)
+
+
 # --- for the dashboard ----------------------------------------------------------------
 
 

@@ -99,3 +99,15 @@ def test_sample_scenes_put_leaders_ahead():
     s = sample_scenes(np.random.default_rng(0), EnvConfig(), 500)
     assert (s.x_f - s.x_e - s.hl_f > 0).all() and (s.x_nb < s.x_e).all()
     assert (s.v_e > s.v_f).all()
+
+
+def test_trains_unchanged_with_stable_baselines3():
+    sb3 = pytest.importorskip("stable_baselines3")
+    import torch
+
+    torch.set_num_threads(1)
+    model = sb3.DQN("MlpPolicy", gym.make(rl.ENV_ID), learning_starts=50, buffer_size=500, batch_size=16,
+                    policy_kwargs={"net_arch": [16]}, seed=0, device="cpu")
+    model.learn(total_timesteps=200)
+    action, _ = model.predict(LaneChangeDecisionEnv().reset(seed=0)[0], deterministic=True)
+    assert int(action) in (0, 1)

@@ -18,7 +18,7 @@ from rl.dqn import q_network
 from rl.env import EnvConfig
 from rl.plots import decision_agreement, indicators_at_decisions, training_curves
 from rl.rewards import ReferenceLines
-from rl.runs import list_runs, load_run
+from rl.runs import Target, list_runs, load_run, replay_env
 from rl.testing import rule_driver_decisions
 
 FAST = ["--num-envs", "8", "--batch-size", "64", "--learning-starts", "100"]
@@ -87,6 +87,10 @@ def test_evaluate_against_the_drivers(tmp_path):
     assert indicators_at_decisions(run["eval_changes"], run["config"]["lines"]).data
     assert decision_agreement(run["eval_states"]).data
     assert CliRunner().invoke(app, ["evaluate", "nope", "-w", str(tmp_path)]).exit_code == 1
+    env = replay_env(ws, Target("style", "Normal"))
+    assert len(env.approaches) == 12
+    obs, info = env.reset(seed=0, options={"approach": 3})
+    assert info["decision_id"] == env.approaches[3].decision_id and info["recorded"]
 
 
 def test_sigterm_cancels_cleanly_and_resume_finishes(tmp_path):
