@@ -5,7 +5,8 @@ occupies after the lane change that follows (within `lane_change_lookahead_s` an
 before the next press); when the ego never leaves its lane the press is
 `cancelled` and the target comes from `lc_direction` (left = lane + 1). Before each
 press, states every `step_s` back over the approach (to the previous lane change
-end, the previous press, the recording start, or `max_approach_s`)
+end, the previous press, the recording start, or `max_approach_s`, and, with
+`same_leader_approach`, only while the ego-lane leader is the press's leader)
 are labelled 'keep'.
 
 At every state the scene is read as: the ego's latest sample at or before the
@@ -282,8 +283,21 @@ def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataF
         out[f"{role}_id"] = cols[f"{role}_id"]
     for ind, why in fit_reasons(out, settings).items():
         out[f"{ind}_reason"] = why
+    if settings.same_leader_approach:
+        out = _same_leader_run(out)
     out = out.sort_values(["press_index", "t_s"], kind="mergesort").reset_index(drop=True)
     return out[COLUMNS], skipped
+
+
+def _same_leader_run(states: pd.DataFrame) -> pd.DataFrame:
+    """Keep each press and the unbroken run of keep states before it whose ego-lane
+    leader is the press's leader (all of them when the press has no leader)."""
+    press_leader = states.loc[states["label"] == "change"].set_index("press_index")["f_id"]
+    leader = states["press_index"].map(press_leader)
+    same = (states["f_id"] == leader) | leader.isna() | (states["label"] == "change")
+    newest_first = states.sort_values(["press_index", "t_s"], ascending=[True, False], kind="mergesort")
+    unbroken = same.loc[newest_first.index].astype(int).groupby(newest_first["press_index"]).cumprod()
+    return states.loc[unbroken.index[unbroken.to_numpy() == 1]]
 
 
 def _float_or_nan(x: Any) -> float:

@@ -30,6 +30,11 @@ class AnalysisSettings:
     not logged, the lane change ends `settle_s` after the flip [s]."""
     settle_s: float = 1.0
     """Fallback: keep states start this long after the previous lane flip [s]."""
+    same_leader_approach: bool = True
+    """Keep states go back only while the ego-lane leader is the one the driver faces
+    at the press: the approach to that leader. Before it the driver was deciding about
+    another scene (a leader since gone), so those states say nothing about waiting for
+    this gap. Presses with no leader keep the time-based window."""
     lane_change_lookahead_s: float = 8.0
     """A lane change counts as following a press if the lane flips within this time
     after it (and before the next press) [s]."""

@@ -62,7 +62,8 @@ def test_keep_states_every_step_back_to_the_start():
 
 def test_cancelled_press_uses_direction_and_approach_starts_after_lane_change():
     meta, ego, traffic = scene()
-    dec, _ = extract_decisions(meta, ego, traffic)
+    # C passes the ego at 8.0 s and leads from then on: the time window alone is tested here
+    dec, _ = extract_decisions(meta, ego, traffic, AnalysisSettings(same_leader_approach=False))
     second = dec[dec["press_index"] == 1]
     # previous lane change crossed at 7.0, settle 1.0 s -> keep states at 8.0 and 8.5
     assert list(second["t_s"]) == pytest.approx([8.0, 8.5, 9.0])
@@ -143,3 +144,16 @@ def test_approach_starts_when_the_lateral_move_has_settled():
     dec, _ = extract_decisions(meta, ego, traffic)
     # lateral speed first below 0.1 m/s at t = 8.1 (central differences): keep states from there
     assert list(dec[dec["press_index"] == 1]["t_s"]) == pytest.approx([8.5, 9.0])
+
+
+def test_keep_states_cover_only_the_approach_to_the_press_leader():
+    # OLD leads in lane 0 until it leaves the scene (last sample 2.9 s, counted 0.5 s more);
+    # from then on A is the leader the driver faces at the press at 5 s.
+    meta, ego, traffic = scene(vehicles=VEHICLES + [("OLD", 30, 15, 0, 4.5)], presses=[(5.0, 0.5, None)])
+    traffic = traffic[~((traffic["vehicle_id"] == "OLD") & (traffic["t_s"] >= 3.0 - 1e-9))]
+    dec, _ = extract_decisions(meta, ego, traffic)
+    keep = dec[dec["label"] == "keep"]
+    assert keep["t_s"].tolist() == pytest.approx([3.5, 4.0, 4.5])
+    assert set(keep["f_id"]) == {"A"}
+    dec_all, _ = extract_decisions(meta, ego, traffic, AnalysisSettings(same_leader_approach=False))
+    assert (dec_all["label"] == "keep").sum() == 10  # 0.0 .. 4.5 s, OLD leading the first ones
