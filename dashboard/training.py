@@ -13,7 +13,7 @@ import pandas as pd
 from dashboard.context import EPISODES_ENV, env_int
 from laneprint.reference import STYLES
 
-#: Trainer settings the form offers -> (label, `laneprint train` option); defaults from rl.dqn.DQNSettings.
+#: Trainer settings the form offers -> (label, `laneprint train` option); defaults from rl.settings.DQNSettings.
 FORM_SETTINGS: dict[str, tuple[str, str]] = {
     "learning_rate": ("learning rate", "--lr"),
     "gamma": ("discount gamma", "--gamma"),
@@ -30,7 +30,7 @@ FORM_SETTINGS: dict[str, tuple[str, str]] = {
 
 def defaults_note() -> str:
     """How the trainer's defaults relate to the study's Table 2."""
-    from rl.dqn import DQNSettings
+    from rl.settings import DQNSettings
 
     d = DQNSettings()
     lr = (f"the learning rate falls linearly from {d.learning_rate:g} to {d.learning_rate_end:g} over the run"
@@ -49,7 +49,7 @@ def rewards() -> list[str]:
 
 def hyperparameters() -> dict[str, Any]:
     """The form's trainer settings with their defaults (the study's Table 2)."""
-    from rl.dqn import DQNSettings
+    from rl.settings import DQNSettings
 
     defaults = DQNSettings()
     return {name: getattr(defaults, name) for name in FORM_SETTINGS}
@@ -63,7 +63,7 @@ def changed_options(values: dict[str, Any]) -> dict[str, str]:
 
 def default_episodes() -> int:
     """Episodes pre-filled in the form: $LANEPRINT_DASHBOARD_EPISODES, else the trainer's default."""
-    from rl.dqn import DQNSettings
+    from rl.settings import DQNSettings
 
     return env_int(EPISODES_ENV, None) or DQNSettings().episodes
 

@@ -12,10 +12,8 @@ from rich.table import Table
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
-from rl.dqn import DQNSettings
-from rl.env import EnvConfig
 from rl.rewards import REWARDS, RewardSettings
-from rl.runs import Target, evaluate_run, resolve_lines, train_run
+from rl.settings import DQNSettings
 
 
 def _fmt(x: Any, pct: bool = False) -> str:
@@ -74,6 +72,9 @@ def train_command(
     """Train a DQN agent for a style or a driver; prints the run id."""
 
     def work() -> dict[str, Any]:
+        from rl.env import EnvConfig  # heavy imports (torch) only when the command runs
+        from rl.runs import Target, resolve_lines, train_run
+
         ws = Workspace(workspace)
         if resume:
             if style or driver:
@@ -120,4 +121,9 @@ def evaluate_command(
     as_json: JsonOpt = False,
 ) -> None:
     """Evaluate a run against the drivers' recorded decisions (agent, greedy, driver)."""
-    run_command(lambda: evaluate_run(Workspace(workspace), run_id), as_json, _render_eval)
+    def work() -> dict[str, Any]:
+        from rl.runs import evaluate_run  # torch only when the command runs
+
+        return evaluate_run(Workspace(workspace), run_id)
+
+    run_command(work, as_json, _render_eval)

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
@@ -37,48 +37,9 @@ from torch import nn
 
 from rl.env import EnvConfig, VecLaneChangeEnv
 from rl.rewards import CHANGE, TERMS
+from rl.settings import DQNSettings
 
-
-@dataclass(frozen=True)
-class DQNSettings:
-    """Training settings (defaults: the study's Table 2, plus our vectorisation).
-
-    The default 8 environments x one update of 256 per vector step keep the
-    study's replay ratio (32 sampled transitions per collected one) with 8 times
-    fewer, 8 times larger updates; ``num_envs=1, batch_size=32`` is the study's loop.
-    """
-
-    episodes: int = 10000  # N_e: stop after this many finished episodes
-    learning_rate: float = 0.005  # eta, Adam step size at the start
-    learning_rate_end: float | None = 0.0005  # the step size falls linearly to this over `episodes` (None: constant)
-    eps_start: float = 0.8  # epsilon_s, initial exploration
-    eps_end: float = 0.1  # epsilon_e, final exploration
-    exploration_fraction: float = 1.0  # share of `episodes` over which epsilon falls linearly
-    gamma: float = 0.98  # discount factor per step
-    buffer_size: int = 10000  # M_r, replay memory [transitions]
-    learning_starts: int = 2000  # M_i, transitions stored before the first update
-    batch_size: int = 256  # transitions per update (the study's M_m = 32 with num_envs = 1)
-    target_update_episodes: int = 20  # N_u, copy the target network every this many episodes
-    hidden: tuple[int, ...] = (128, 128, 128)  # hidden layer widths (ReLU)
-    num_envs: int = 8  # environments stepped together (1 = the study's loop)
-    gradient_steps: int = 1  # updates per vector step
-    loss: str = "mse"  # 'mse' (eq. 5) or 'huber'
-    double_q: bool = False  # Double DQN target: the online net picks the next action, the target net values it
-    max_grad_norm: float = 10.0  # gradient clipping (0 = none)
-    average_tau: float = 0.02  # if > 0, the policy saved is a Polyak average of the online weights (step tau)
-    threads: int = 1  # torch intra-op threads (small nets oversubscribe with more)
-    seed: int = 0  # seeds numpy (environments, exploration, sampling) and torch (init)
-    checkpoint_every: int = 500  # save a checkpoint every this many episodes (0 = never)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @staticmethod
-    def from_dict(d: dict[str, Any]) -> "DQNSettings":
-        d = dict(d)
-        if "hidden" in d:
-            d["hidden"] = tuple(d["hidden"])
-        return DQNSettings(**d)
+__all__ = ["DQNSettings", "DQNTrainer", "ReplayBuffer", "greedy_actions", "q_network", "q_values"]
 
 
 def q_network(hidden: tuple[int, ...] = (128, 128, 128), n_obs: int = 8, n_actions: int = 2) -> nn.Sequential:
