@@ -6,6 +6,7 @@ import csv
 import io
 import re
 import zlib
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pyarrow as pa
@@ -22,6 +23,7 @@ _EGO_FLOATS = {  # CSV canonical column -> EGO column (positions scaled with pos
     "steer": "steer_rad", "throttle": "throttle", "brake": "brake",
 }
 _POSITIONS = ("ego_x", "ego_y", "ego_length")
+PART_MIN_BYTES = 4 << 20  # [bytes] a CSV is parsed in parts side by side from 2 x this size
 
 
 def gunzip(data: bytes) -> bytes:
@@ -112,6 +114,43 @@ def _const(table: pa.Table, column: str, label: str) -> str | float | None:
     return values[0]
 
 
+def _parse(data: bytes, parse_options: pacsv.ParseOptions, convert_options: pacsv.ConvertOptions) -> pa.Table:
+    """pyarrow's CSV reader over `data`; a large file is cut into parts parsed side by side.
+
+    On these wide logs pyarrow's own multi-threaded reader costs ~15 % more CPU than its
+    single-threaded one (a task per 1 MB block and column), so a file is cut at line ends
+    into one part per core, each part (with the header line in front) parsed by a
+    single-threaded reader in its own thread. Rows keep their order. Cutting at a line end
+    is what pyarrow does itself: it does not allow newlines inside values by default.
+    """
+    parts = max(1, min(pa.cpu_count(), len(data) // PART_MIN_BYTES))
+    end_header = data.find(b"\n") + 1
+    cuts = [end_header]
+    for i in range(1, parts):
+        cut = data.find(b"\n", max(cuts[-1], len(data) * i // parts)) + 1
+        if 0 < cut < len(data):
+            cuts.append(cut)
+    cuts.append(len(data))
+    read_options = pacsv.ReadOptions(use_threads=False)
+
+    def read(i: int | None) -> pa.Table:
+        piece = (data if i is None else memoryview(data)[:cuts[1]] if i == 0
+                 else data[:end_header] + data[cuts[i]:cuts[i + 1]])
+        return pacsv.read_csv(pa.BufferReader(piece), read_options=read_options, parse_options=parse_options,
+                              convert_options=convert_options)
+
+    if len(cuts) == 2:  # a small file, or nothing to cut at
+        return read(None)
+    try:
+        with ThreadPoolExecutor(len(cuts) - 2) as pool:  # pyarrow releases the GIL while it parses
+            rest = [pool.submit(read, i) for i in range(1, len(cuts) - 1)]
+            first = read(0)
+            return pa.concat_tables([first, *(f.result() for f in rest)])
+    except (pa.ArrowInvalid, pa.ArrowTypeError, UnicodeDecodeError):
+        # a part numbers its rows from its own start: parse the whole file for the error message
+        return read(None)
+
+
 def read_csv_log(data: bytes, fmt: str, mapping: Mapping) -> RawLog:
     """Parse CSV bytes (gzip when `fmt` is 'csv.gz') into a `RawLog`; `Rejected` on bad input."""
     if fmt == "csv.gz":
@@ -136,14 +175,10 @@ def read_csv_log(data: bytes, fmt: str, mapping: Mapping) -> RawLog:
     for cols in vehicles.values():
         for name in cols.values():
             types[name] = pa.float64()
-    include = list(types)
     try:
-        table = pacsv.read_csv(
-            io.BytesIO(data),
-            parse_options=pacsv.ParseOptions(delimiter=mapping.csv_delimiter),
-            convert_options=pacsv.ConvertOptions(column_types=types, include_columns=include,
-                                                 strings_can_be_null=True),
-        )
+        table = _parse(data, pacsv.ParseOptions(delimiter=mapping.csv_delimiter),
+                       pacsv.ConvertOptions(column_types=types, include_columns=list(types),
+                                            strings_can_be_null=True))
     except (pa.ArrowInvalid, pa.ArrowTypeError, UnicodeDecodeError) as exc:
         raise Rejected(f"malformed CSV: {_ragged_line(data, len(names), mapping.csv_delimiter) or first_line(exc)}") from None
 
@@ -187,62 +222,82 @@ def read_csv_log(data: bytes, fmt: str, mapping: Mapping) -> RawLog:
         ego["lc_direction"] = np.full(n, None, dtype=object)
 
     t0 = t_abs[0] if n else 0.0
-    traffic = _long_traffic(table, vehicles, t_abs - t0, mapping)
+    traffic, n_vehicles = _long_traffic(table, vehicles, t_abs - t0, mapping)
     return RawLog(
         format=fmt, meta=meta, t_abs_s=t_abs, t_s=t_abs - t0, ego=ego, traffic=traffic,
         locate=lambda i: f"line {i + 2}", time_name=col(CSV_TIME),
         names={"ego_x_m": col("ego_x"), "ego_v_mps": col("ego_v"), "ego_lane": col("ego_lane")},
-        has_button=has_button, warnings=warnings,
+        has_button=has_button, warnings=warnings, n_vehicles=n_vehicles,
     )
 
 
+def _grid(table: pa.Table, names: list[str | None], n: int) -> np.ndarray:
+    """(samples, vehicles) float values of one field, NaN where a column is missing or empty."""
+    out = np.empty((len(names), n))  # filled row by row (contiguous), then transposed once
+    for j, name in enumerate(names):
+        if name is None:
+            out[j] = np.nan
+            continue
+        i = 0
+        for chunk in table.column(name).chunks:
+            out[j, i:i + len(chunk)] = chunk.to_numpy(zero_copy_only=False)
+            i += len(chunk)
+    return np.ascontiguousarray(out.T)
+
+
 def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.ndarray,
-                  mapping: Mapping) -> dict[str, np.ndarray]:
-    """Wide `<id>_<field>` columns -> long-form arrays, one row per vehicle present per sample."""
+                  mapping: Mapping) -> tuple[dict[str, np.ndarray], int]:
+    """Wide `<id>_<field>` columns -> long-form arrays, one row per vehicle present per sample,
+    and the number of vehicles present at least once.
+
+    Rows are time-major (by sample, then by vehicle in header order). Each field is laid
+    out as a (samples, vehicles) grid; when every vehicle is present in every sample
+    (the usual simulator log) the long column is that grid flattened, without a copy.
+    """
     n = table.num_rows
     ids = list(vehicles)
+    k = len(ids)
     if not ids or n == 0:
         empty = np.zeros(0)
         return {"t_s": empty, "vehicle_id": pa.array([], pa.string()), "x_m": empty, "y_m": empty,
-                "v_mps": empty, "lane": empty, "length_m": empty}
+                "v_mps": empty, "lane": empty, "length_m": empty}, 0
 
-    def stacked(fld: str, fill: float) -> np.ndarray | None:
-        """Values of one field, vehicle after vehicle (None when no vehicle has the field)."""
+    x = _grid(table, [vehicles[vid]["x"] for vid in ids], n)
+    present = ~np.isnan(x)
+    everywhere = bool(present.all())
+    if everywhere:
+        t_long = np.repeat(t, k)
+        codes = np.tile(np.arange(k, dtype=np.int32), n)
+        n_vehicles = k
+    else:
+        t_long = np.repeat(t, present.sum(axis=1))
+        codes = np.nonzero(present)[1].astype(np.int32)
+        n_vehicles = int(present.any(axis=0).sum())
+
+    def pick(grid: np.ndarray) -> np.ndarray:
+        return grid.reshape(-1) if everywhere else grid[present]
+
+    out = {"t_s": t_long, "vehicle_id": pa.array(ids, pa.string()).take(pa.array(codes))}
+    for fld, key, scale in (("x", "x_m", mapping.position_scale), ("v", "v_mps", mapping.speed_scale),
+                            ("lane", "lane", 1.0), ("y", "y_m", mapping.position_scale),
+                            ("length", "length_m", mapping.position_scale)):
         names = [vehicles[vid].get(fld) for vid in ids]
         if not any(names):
-            return None
-        fill_arr = pa.array(np.full(n, fill)) if not all(names) else None
-        chunks = [c for name in names for c in (table.column(name).chunks if name else [fill_arr])]
-        return pa.concat_arrays(chunks).to_numpy(zero_copy_only=False)
-
-    k = len(ids)
-    x = stacked("x", np.nan)
-    assert x is not None
-    present_vm = ~np.isnan(x).reshape(k, n)  # (vehicles, samples)
-    # time-major order (by sample, then vehicle) of the cells where a vehicle is present
-    flat_tm = np.flatnonzero(present_vm.T)
-    rows = np.repeat(np.arange(n), present_vm.sum(axis=0))
-    cols = flat_tm - rows * k
-    take = cols * n + rows  # the same cells in the vehicle-major arrays
-    out = {"t_s": t[rows], "vehicle_id": pa.array(ids, pa.string()).take(pa.array(cols.astype(np.int32)))}
-    for fld, key, fill, scale in (("x", "x_m", np.nan, mapping.position_scale),
-                                  ("v", "v_mps", np.nan, mapping.speed_scale),
-                                  ("lane", "lane", np.nan, 1.0),
-                                  ("y", "y_m", np.nan, mapping.position_scale),
-                                  ("length", "length_m", DEFAULT_LENGTH_M, mapping.position_scale)):
-        col = x if fld == "x" else stacked(fld, fill)
-        vals = np.full(len(take), fill) if col is None else col[take]
-        if scale != 1.0:
-            vals = vals * scale
+            vals = np.full(len(codes), DEFAULT_LENGTH_M if fld == "length" else np.nan)
+        else:
+            vals = pick(x if fld == "x" else _grid(table, names, n))
+            if scale != 1.0:
+                vals *= scale  # vals is a fresh array of ours
         out[key] = vals
     for key, fld in (("v_mps", "v"), ("lane", "lane")):
         bad = np.isnan(out[key])
         if bad.any():
-            k = int(np.argmax(bad))
-            vid = ids[cols[k]]
-            raise Rejected(f"traffic vehicle {vid!r}: {vehicles[vid][fld]} is empty at line {rows[k] + 2} "
+            i = int(np.argmax(bad))
+            vid = ids[codes[i]]
+            row = int(np.nonzero(present)[0][i])
+            raise Rejected(f"traffic vehicle {vid!r}: {vehicles[vid][fld]} is empty at line {row + 2} "
                            f"while {vehicles[vid]['x']} is given (a present vehicle needs x, v and lane)")
     gaps = np.isnan(out["length_m"])
     if gaps.any():
         out["length_m"][gaps] = DEFAULT_LENGTH_M
-    return out
+    return out, n_vehicles

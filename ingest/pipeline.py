@@ -235,7 +235,7 @@ class _Batch:
             "speed_limit_kph": rec.meta["speed_limit_kph"], "simulator": rec.meta["simulator"],
             "source_name": path.name, "source_path": str(path.resolve()), "format": fmt,
             "n_samples": len(rec.ego), "duration_s": float(rec.ego["t_s"].iloc[-1] - rec.ego["t_s"].iloc[0]),
-            "n_presses": rec.n_presses, "n_vehicles": int(rec.traffic["vehicle_id"].nunique()),
+            "n_presses": rec.n_presses, "n_vehicles": rec.n_vehicles,
             "status": "warning" if rec.warnings else "ok", "warnings": "; ".join(rec.warnings),
             "ingested_at": _now(),
         }

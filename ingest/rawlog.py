@@ -32,6 +32,7 @@ class RawLog:
     names: dict[str, str] = field(default_factory=dict)  # canonical signal -> name in the file
     has_button: bool = True  # whether the log records the lane-change button at all
     warnings: list[str] = field(default_factory=list)
+    n_vehicles: int | None = None  # distinct traffic vehicles, when the reader knows it without counting
 
 
 def first_line(text: str, limit: int = 200) -> str:

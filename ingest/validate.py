@@ -30,6 +30,7 @@ class Canonical:
     traffic: pd.DataFrame
     n_presses: int
     warnings: list[str]
+    n_vehicles: int = 0  # distinct traffic vehicles
 
 
 def _check_time(raw: RawLog) -> None:
@@ -175,15 +176,19 @@ def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: st
     }, copy=False)
     tr = raw.traffic
     lane = tr["lane"]
-    if len(lane) and ((lane != np.round(lane)) | (lane < 0) | (lane > MAX_LANE)).any():
+    with np.errstate(invalid="ignore"):  # NaN or huge lanes do not survive the cast: caught just below
+        lane_i = lane.astype(np.int64)
+    if len(lane) and (lane_i.min() < 0 or lane_i.max() > MAX_LANE or not np.array_equal(lane_i, lane)):
         k = int(np.argmax((lane != np.round(lane)) | (lane < 0) | (lane > MAX_LANE)))
         vid = _strings(tr["vehicle_id"]).iloc[k]
         raise Rejected(f"traffic vehicle {vid!r} has lane {lane[k]:g} at t={tr['t_s'][k]:.3f} s; "
                        f"lanes are indices 0..{MAX_LANE}")
+    vehicle_id = _strings(tr["vehicle_id"])
+    n_vehicles = raw.n_vehicles if raw.n_vehicles is not None else int(vehicle_id.nunique())
     traffic = pd.DataFrame({
-        "t_s": tr["t_s"], "vehicle_id": _strings(tr["vehicle_id"]),
+        "t_s": tr["t_s"], "vehicle_id": vehicle_id,
         "x_m": tr["x_m"], "y_m": tr["y_m"], "v_mps": tr["v_mps"],
-        "lane": lane.astype(np.int64), "length_m": tr["length_m"],
+        "lane": lane_i, "length_m": tr["length_m"],
     }, copy=False)  # no consolidation copy: each column stays its own block
     return Canonical(meta=meta, ego=ego[EGO.names], traffic=traffic[TRAFFIC.names],
-                     n_presses=n_presses, warnings=warnings)
+                     n_presses=n_presses, warnings=warnings, n_vehicles=n_vehicles)

@@ -56,9 +56,11 @@ def validate(df: pd.DataFrame, schema: Schema) -> pd.DataFrame:
         raise SchemaError(f"{schema.name}: missing column(s) {', '.join(missing)}")
     for col in schema.columns:
         series = df[col.name]
-        if not col.nullable and series.isna().any():
+        na = series.isna()
+        has_na = bool(na.any())
+        if not col.nullable and has_na:
             raise SchemaError(f"{schema.name}: column {col.name} has empty values")
-        non_null = series.dropna()
+        non_null = series[~na] if has_na else series  # no copy of a column without empty values
         if len(non_null) and not _KIND_CHECKS[col.kind](non_null.infer_objects()):
             raise SchemaError(f"{schema.name}: column {col.name} should be {col.kind}, got {series.dtype}")
     return df
