@@ -146,7 +146,11 @@ class DQNTrainer:
         self.target.load_state_dict(self.q.state_dict())
         self.q_avg = q_network(s.hidden)
         self.q_avg.load_state_dict(self.q.state_dict())
-        self.optimizer = torch.optim.Adam(self.q.parameters(), lr=s.learning_rate)
+        # parameter lists cached and multi-tensor kernels: for a net this small the per-tensor
+        # Python loops of Adam, clipping and averaging cost as much as the maths
+        self._params = list(self.q.parameters())
+        self._avg_params = list(self.q_avg.parameters())
+        self.optimizer = torch.optim.Adam(self._params, lr=s.learning_rate, fused=True)
         self.buffer = ReplayBuffer(s.buffer_size)
         self.stats = EpisodeStats(s.num_envs)
         self.obs = self.envs.observe()
@@ -187,15 +191,14 @@ class DQNTrainer:
             td_target = rewards + s.gamma * target_max * (1.0 - terminated)
         q = self.q(obs).gather(1, actions[:, None]).squeeze(1)
         loss = nn.functional.mse_loss(q, td_target) if s.loss == "mse" else nn.functional.smooth_l1_loss(q, td_target)
-        self.optimizer.zero_grad()
+        self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         if s.max_grad_norm:
-            nn.utils.clip_grad_norm_(self.q.parameters(), s.max_grad_norm)
+            nn.utils.clip_grad_norm_(self._params, s.max_grad_norm, foreach=True)
         self.optimizer.step()
         if s.average_tau > 0:
             with torch.no_grad():
-                for a, p in zip(self.q_avg.parameters(), self.q.parameters()):
-                    a.lerp_(p, s.average_tau)
+                torch._foreach_lerp_(self._avg_params, self._params, s.average_tau)
         self.updates += 1
         return float(loss.detach())
 
