@@ -114,14 +114,17 @@ def _const(table: pa.Table, column: str, label: str) -> str | float | None:
     return values[0]
 
 
-def _parse(data: bytes, parse_options: pacsv.ParseOptions, convert_options: pacsv.ConvertOptions) -> pa.Table:
+def _parse(data: bytes, names: list[str], parse_options: pacsv.ParseOptions,
+           convert_options: pacsv.ConvertOptions) -> pa.Table:
     """pyarrow's CSV reader over `data`; a large file is cut into parts parsed side by side.
 
     On these wide logs pyarrow's own multi-threaded reader costs ~15 % more CPU than its
     single-threaded one (a task per 1 MB block and column), so a file is cut at line ends
-    into one part per core, each part (with the header line in front) parsed by a
-    single-threaded reader in its own thread. Rows keep their order. Cutting at a line end
-    is what pyarrow does itself: it does not allow newlines inside values by default.
+    into one part per core, each part parsed by a single-threaded reader in its own thread
+    (the parts after the first one told the header's column `names`). Rows keep their order.
+    Cutting at a line end is what pyarrow does itself: it does not allow newlines inside
+    values by default. Any error is reported from a parse of the whole file, so that the
+    row numbers in pyarrow's message count from the file's start.
     """
     parts = max(1, min(pa.cpu_count(), len(data) // PART_MIN_BYTES))
     end_header = data.find(b"\n") + 1
@@ -131,13 +134,13 @@ def _parse(data: bytes, parse_options: pacsv.ParseOptions, convert_options: pacs
         if 0 < cut < len(data):
             cuts.append(cut)
     cuts.append(len(data))
-    read_options = pacsv.ReadOptions(use_threads=False)
+    with_header = pacsv.ReadOptions(use_threads=False)
+    headless = pacsv.ReadOptions(use_threads=False, column_names=names)
 
     def read(i: int | None) -> pa.Table:
-        piece = (data if i is None else memoryview(data)[:cuts[1]] if i == 0
-                 else data[:end_header] + data[cuts[i]:cuts[i + 1]])
-        return pacsv.read_csv(pa.BufferReader(piece), read_options=read_options, parse_options=parse_options,
-                              convert_options=convert_options)
+        piece = data if i is None else memoryview(data)[0 if i == 0 else cuts[i]:cuts[i + 1]]
+        return pacsv.read_csv(pa.BufferReader(piece), read_options=with_header if not i else headless,
+                              parse_options=parse_options, convert_options=convert_options)
 
     if len(cuts) == 2:  # a small file, or nothing to cut at
         return read(None)
@@ -176,7 +179,7 @@ def read_csv_log(data: bytes, fmt: str, mapping: Mapping) -> RawLog:
         for name in cols.values():
             types[name] = pa.float64()
     try:
-        table = _parse(data, pacsv.ParseOptions(delimiter=mapping.csv_delimiter),
+        table = _parse(data, names, pacsv.ParseOptions(delimiter=mapping.csv_delimiter),
                        pacsv.ConvertOptions(column_types=types, include_columns=list(types),
                                             strings_can_be_null=True))
     except (pa.ArrowInvalid, pa.ArrowTypeError, UnicodeDecodeError) as exc:
