@@ -150,7 +150,7 @@ class DQNTrainer:
         # Python loops of Adam, clipping and averaging cost as much as the maths
         self._params = list(self.q.parameters())
         self._avg_params = list(self.q_avg.parameters())
-        self.optimizer = torch.optim.Adam(self._params, lr=s.learning_rate, fused=True)
+        self.optimizer = torch.optim.Adam(self._params, lr=s.learning_rate, foreach=True)
         self.buffer = ReplayBuffer(s.buffer_size)
         self.stats = EpisodeStats(s.num_envs)
         self.obs = self.envs.observe()
