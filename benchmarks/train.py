@@ -4,13 +4,15 @@ Both train on the same environment (`LaneChangeDecisionEnv`, same reward, same
 reference lines) with the study's hyperparameters (Table 2 network, lr 0.005,
 gamma 0.98, replay 10000, start 2000, epsilon 0.8 -> 0.1, target copy every 20
 episodes; SB3 counts it in steps: 20 x the mean episode length of our run), one
-torch thread each, side by side in this process. Every `--check-every` env
+torch thread each, side by side in this process, interleaved (ours seed 0, SB3
+seed 0, ours seed 1, ...) so the shared machine's load falls on both. Every `--check-every` env
 steps the greedy policy is scored on the drivers' recorded states of the style's
 typical driver (`analysis/decisions` of the workspace); the clock stops while it
 is scored. The target: recall at the presses >= the study's figure for the style
 (95.9 / 100 / 98.6 %) and balanced accuracy >= the greedy benchmark's + 5 points.
 
-    python benchmarks/train.py -w /tmp/wsbench --style Normal --repeats 3
+    python benchmarks/train.py -w /tmp/wsbench --style Normal --repeats 5 --check-every 1000
+    python benchmarks/train.py ... --set gradient_steps=2 --set batch_size=128   # a variant of ours
 
 With no analysis in the workspace, `sample_logs/` is ingested and analysed first.
 Prints per repeat: seconds and env steps to the target, env steps per second, and
@@ -145,6 +147,19 @@ def run_sb3(cfg: EnvConfig, scorer: Scorer, seed: int, total_steps: int, explora
             "exploration_fraction": exploration_fraction, "total_timesteps": total_steps}
 
 
+def parse_overrides(items: list[str]) -> dict:
+    """``["batch_size=128", "loss=huber"]`` -> typed DQNSettings overrides (values parsed as JSON, else strings)."""
+    out = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    DQNSettings(**out)  # fails early on an unknown key
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("-w", "--workspace", default="/tmp/laneprint-bench")
@@ -154,7 +169,8 @@ def main() -> None:
     ap.add_argument("--check-every", type=int, default=2000, help="env steps between accuracy checks")
     ap.add_argument("--budget-s", type=float, default=240.0, help="give up after this much training time")
     ap.add_argument("--sb3-repeats", type=int, default=None, help="SB3 repeats (default: --repeats)")
-    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override one of our DQNSettings (repeatable), e.g. --set batch_size=128")
     args = ap.parse_args()
 
     torch.set_num_threads(1)
@@ -166,21 +182,34 @@ def main() -> None:
     print(f"style {args.style}, typical driver {scorer.typical}: target recall >= {scorer.target_recall:.3f}, "
           f"balanced accuracy >= {scorer.target_bacc:.3f} (greedy {scorer.greedy['balanced_accuracy']:.3f})",
           flush=True)
+    overrides = parse_overrides(args.set)
+    n_ours, n_sb3 = args.repeats, args.sb3_repeats if args.sb3_repeats is not None else args.repeats
     ours, sb3 = [], []
-    for seed in range(args.repeats):  # the full run (all episodes), noting when the target is first met
-        r = run_ours(cfg, DQNSettings(episodes=args.episodes, seed=seed, checkpoint_every=0), scorer,
-                     args.check_every, args.budget_s)
+    sched: dict[str, float] = {}
+
+    def one_ours(seed: int) -> None:  # the full run (all episodes), noting when the target is first met
+        r = run_ours(cfg, DQNSettings(**{"episodes": args.episodes, "checkpoint_every": 0, **overrides, "seed": seed}),
+                     scorer, args.check_every, args.budget_s)
         ours.append(r)
         print(f"ours  seed {seed}: {json.dumps(r)}", flush=True)
-    mean_len = statistics.mean(r["mean_episode_length"] for r in ours)
-    # SB3's epsilon reaches 0.1 after as many steps as ours took for all its episodes, then stays
-    schedule = int(statistics.median(r["env_steps"] for r in ours))
-    total = max(3 * schedule, 150_000)
-    for seed in range(args.sb3_repeats if args.sb3_repeats is not None else args.repeats):
-        r = run_sb3(cfg, scorer, seed, total, schedule / total, max(1, round(20 * mean_len)), args.check_every,
-                    args.budget_s)
+        if not sched:  # SB3's schedules from our first full run (episode length and steps vary < 1 % by seed)
+            # SB3's epsilon reaches 0.1 after as many steps as ours took for all its episodes, then stays
+            sched["schedule"] = r["env_steps"]
+            sched["total"] = max(3 * r["env_steps"], 150_000)
+            sched["target_update"] = max(1, round(20 * r["mean_episode_length"]))
+
+    def one_sb3(seed: int) -> None:
+        r = run_sb3(cfg, scorer, seed, sched["total"], sched["schedule"] / sched["total"], sched["target_update"],
+                    args.check_every, args.budget_s)
         sb3.append(r)
         print(f"sb3   seed {seed}: {json.dumps(r)}", flush=True)
+
+    # interleaved (ours 0, SB3 0, ours 1, SB3 1, ...): the machine's load falls on both alike
+    for seed in range(max(n_ours, n_sb3)):
+        if seed < n_ours or not sched:
+            one_ours(seed)
+        if seed < n_sb3:
+            one_sb3(seed)
 
     def med(rows: list[dict], key: str) -> float | None:
         vals = [r["hit"][key] if r["hit"] else None for r in rows]
@@ -190,7 +219,8 @@ def main() -> None:
         return statistics.median(vals) if vals else None
 
     summary = {
-        "style": args.style, "typical_driver": scorer.typical, "target_recall": scorer.target_recall,
+        "style": args.style, "typical_driver": scorer.typical, "ours_overrides": overrides,
+        "check_every": args.check_every, "target_recall": scorer.target_recall,
         "target_balanced_accuracy": scorer.target_bacc,
         "ours_hits": sum(r["hit"] is not None for r in ours), "sb3_hits": sum(r["hit"] is not None for r in sb3),
         "ours_median_s_to_target": med(ours, "wall_s"), "sb3_median_s_to_target": med(sb3, "wall_s"),
