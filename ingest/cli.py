@@ -7,6 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
@@ -45,8 +46,9 @@ def render_ingest(result: dict[str, Any], console: Console) -> None:
         if f["reason"] and f["warnings"]:
             note += " (" + "; ".join(f["warnings"]) + ")"
         style = _STYLE.get(f["status"], "")
-        table.add_row(Path(f["source"]).name, f"[{style}]{f['status']}[/]", f["driver_id"], f["session_id"],
-                      str(f["n_samples"] or ""), note)
+        table.add_row(escape(Path(f["source"]).name), f"[{style}]{f['status']}[/]", escape(f["driver_id"] or ""),
+                      escape(f["session_id"] or ""),
+                      str(f["n_samples"] or ""), escape(note))
     if shown:
         console.print(table)
     c = result["counts"]
