@@ -284,6 +284,12 @@ def _asof(ego_times: np.ndarray, times: np.ndarray) -> np.ndarray:
     return np.searchsorted(times, ego_times, side="right") - 1
 
 
+def _decoded_in_time_order(raw: tuple[list[int], list[bytes]], topic: str) -> tuple[np.ndarray, np.ndarray, list]:
+    """(log times, the stable order that sorts them, decoded messages) of one topic."""
+    times = np.asarray(raw[0], dtype=np.int64)
+    return times, np.argsort(times, kind="stable"), _decode(topic, raw[1], raw[0])
+
+
 def _controls(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | None,
               ego_times: np.ndarray, mapping: Mapping) -> None:
     n = len(ego_times)
@@ -291,10 +297,7 @@ def _controls(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | N
         ego[key] = np.full(n, np.nan)
     if raw is None or not raw[0]:
         return
-    topic = mapping.topic(TOPIC_CONTROLS)
-    times = np.asarray(raw[0], dtype=np.int64)
-    order = np.argsort(times, kind="stable")
-    msgs = _decode(topic, raw[1], raw[0])
+    times, order, msgs = _decoded_in_time_order(raw, mapping.topic(TOPIC_CONTROLS))
     idx = _asof(ego_times, times[order])
     valid = idx >= 0
     for fld, key in (("steer", "steer_rad"), ("throttle", "throttle"), ("brake", "brake")):
@@ -312,10 +315,7 @@ def _button(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | Non
     ego["lc_button"], ego["lc_direction"] = pressed, direction
     if raw is None or not raw[0]:
         return
-    topic = mapping.topic(TOPIC_BUTTON)
-    times = np.asarray(raw[0], dtype=np.int64)
-    order = np.argsort(times, kind="stable")
-    msgs = _decode(topic, raw[1], raw[0])
+    times, order, msgs = _decoded_in_time_order(raw, mapping.topic(TOPIC_BUTTON))
     get_p = _getter(mapping.msg_field(TOPIC_BUTTON, "pressed"))
     get_d = _getter(mapping.msg_field(TOPIC_BUTTON, "direction"))
     states = np.array([bool(get_p(msgs[i])) if isinstance(msgs[i], dict) else False for i in order])

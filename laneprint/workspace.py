@@ -29,7 +29,6 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import duckdb
-import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -68,41 +67,12 @@ def _plain_strings(df: pd.DataFrame) -> pd.DataFrame:
     return df
 
 
-def _plain_numeric(series: pd.Series) -> bool:
-    """A NumPy int/float/bool column without NaN: Arrow can take its buffer as it is."""
-    dtype = series.dtype
-    if not isinstance(dtype, np.dtype) or dtype.kind not in "fiub":
-        return False
-    return dtype.kind != "f" or not np.isnan(series.to_numpy()).any()
-
-
-def _arrow_table(df: pd.DataFrame) -> pa.Table:
-    """The table `pa.Table.from_pandas(df, preserve_index=False)` makes (same types, values and
-    pandas metadata), without its NaN scan and copy of every NumPy numeric column that has no
-    NaN (the bulk of a recording): those buffers are handed to Arrow as they are."""
-    names = list(df.columns)
-    fast = [c for c in names if _plain_numeric(df[c])] if all(isinstance(c, str) for c in names) \
-        and len(set(names)) == len(names) else []
-    if not fast:
-        return pa.Table.from_pandas(df, preserve_index=False)
-    rest = [c for c in names if c not in fast]
-    converted = pa.Table.from_pandas(df[rest], preserve_index=False) if rest else None
-    pandas_md = json.loads(pa.Table.from_pandas(df[fast].iloc[:0], preserve_index=False).schema.metadata[b"pandas"])
-    entries = {e["name"]: e for e in pandas_md["columns"]}
-    if converted is not None:
-        entries.update({e["name"]: e for e in json.loads(converted.schema.metadata[b"pandas"])["columns"]})
-    pandas_md["columns"] = [entries[c] for c in names]
-    arrays = [pa.array(df[c].to_numpy()) if c in fast else converted.column(c) for c in names]
-    fields = [pa.field(c, a.type) for c, a in zip(names, arrays)]
-    return pa.Table.from_arrays(arrays, schema=pa.schema(fields, metadata={b"pandas": json.dumps(pandas_md).encode()}))
-
-
 def _write_parquet(df: pd.DataFrame, path: Path, dictionary: tuple[str, ...] = ()) -> None:
     """Write `df` as Parquet (snappy): the named columns dictionary-encoded, float columns
     BYTE_STREAM_SPLIT-encoded (measured: a third of the write time of plain or dictionary
     encoding of float columns, for files 5-25 % larger), other columns plain; no min/max
     statistics for text columns."""
-    table = _arrow_table(df)
+    table = pa.Table.from_pandas(df, preserve_index=False)
     floats = [f.name for f in table.schema if pa.types.is_floating(f.type) and f.name not in dictionary]
     # min/max statistics of text columns cost a third of writing them and serve no query here
     stats = [f.name for f in table.schema if not (pa.types.is_string(f.type) or pa.types.is_large_string(f.type))]

@@ -8,6 +8,7 @@ import os
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 from mcap.writer import IndexType, Writer
 
 from ingest.pipeline import ingest_paths
@@ -193,27 +194,31 @@ def test_no_button_presses_is_kept_with_a_warning(tmp_path, recording):
     assert row["status"] == "warning" and row["warnings"].startswith("no lane-change button presses")
 
 
+def _copy_mcap(src, dst, session: dict, **writer_options) -> None:
+    """Re-write every message of `src` into `dst` with other writer options and session metadata."""
+    with open(src, "rb") as fh, open(dst, "wb") as out:
+        w = Writer(out, **writer_options)
+        w.start()
+        ids = {}
+        for schema, channel, msg in make_reader(fh).iter_messages():
+            if channel.topic not in ids:
+                sid = w.register_schema(schema.name, schema.encoding, schema.data)
+                ids[channel.topic] = w.register_channel(channel.topic, "json", sid)
+            w.add_message(ids[channel.topic], msg.log_time, msg.data, msg.publish_time)
+        w.add_metadata("session", session)
+        w.finish()
+
+
 def test_unindexed_mcap_is_read_by_streaming(tmp_path, recording):
     meta, ego, traffic = recording
     src = tmp_path / "src.mcap"
     write_mcap(src, meta, ego, traffic)
-    from mcap.reader import make_reader
+    with open(src, "rb") as fh:
+        session = dict(next(iter(make_reader(fh).iter_metadata())).metadata, session_id="flat")
 
-    def bad(p):  # re-write the same messages without chunks, index or summary
-        with open(src, "rb") as fh, open(p, "wb") as out:
-            r = make_reader(fh)
-            w = Writer(out, use_chunking=False, index_types=IndexType.NONE, repeat_channels=False, repeat_schemas=False,
-                       use_statistics=False, use_summary_offsets=False)
-            w.start()
-            ids = {}
-            for schema, channel, msg in r.iter_messages():
-                if channel.topic not in ids:
-                    sid = w.register_schema(schema.name, schema.encoding, schema.data)
-                    ids[channel.topic] = w.register_channel(channel.topic, "json", sid)
-                w.add_message(ids[channel.topic], msg.log_time, msg.data, msg.publish_time)
-            w.add_metadata("session", dict(next(iter(make_reader(open(src, "rb")).iter_metadata())).metadata,
-                                           session_id="flat"))
-            w.finish()
+    def bad(p):  # the same messages without chunks, index or summary
+        _copy_mcap(src, p, session, use_chunking=False, index_types=IndexType.NONE, repeat_channels=False,
+                   repeat_schemas=False, use_statistics=False, use_summary_offsets=False)
     _, res = _batch(tmp_path, recording, "flat.mcap", bad)
     assert (res.status, res.session_id, res.n_samples, res.n_presses) == ("ingested", "flat", 200, 2)
 
@@ -327,21 +332,10 @@ def test_mcap_metadata_without_metadata_index_is_still_found(tmp_path, recording
     meta, ego, traffic = recording
     src = tmp_path / "src.mcap"
     write_mcap(src, meta, ego, traffic)
-    from mcap.reader import make_reader
 
     def rewrite(p):
-        with open(src, "rb") as fh, open(p, "wb") as out:
-            r = make_reader(fh)
-            w = Writer(out, index_types=IndexType.CHUNK | IndexType.MESSAGE)
-            w.start()
-            ids = {}
-            for schema, channel, msg in r.iter_messages():
-                if channel.topic not in ids:
-                    sid = w.register_schema(schema.name, schema.encoding, schema.data)
-                    ids[channel.topic] = w.register_channel(channel.topic, "json", sid)
-                w.add_message(ids[channel.topic], msg.log_time, msg.data, msg.publish_time)
-            w.add_metadata("session", {"driver_id": "D33", "session_id": "noidx"})
-            w.finish()
+        _copy_mcap(src, p, {"driver_id": "D33", "session_id": "noidx"},
+                   index_types=IndexType.CHUNK | IndexType.MESSAGE)
     _, res = _batch(tmp_path, recording, "noidx.mcap", rewrite)
     assert (res.status, res.driver_id, res.session_id) == ("ingested", "D33", "noidx")
 

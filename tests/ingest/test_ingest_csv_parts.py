@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 import pytest
 
@@ -12,7 +11,6 @@ from ingest.csv_reader import read_csv_log
 from ingest.mapping import IDENTITY
 from ingest.rawlog import Rejected
 from ingest.writers import write_csv
-from laneprint.workspace import _arrow_table
 
 
 @pytest.fixture
@@ -59,14 +57,3 @@ def test_errors_in_a_later_part_name_the_files_line(csv_bytes, monkeypatch):
 
     ragged = "\n".join(lines[:150] + [lines[150] + ",1"] + lines[151:]) + "\n"
     assert str(_read(ragged.encode(), 3, monkeypatch)) == "malformed CSV: line 151 has 30 fields, the header has 29"
-
-
-def test_arrow_table_is_what_from_pandas_makes(recording):
-    _, ego, traffic = recording
-    frames = [ego, traffic, traffic.iloc[3:40],
-              pd.DataFrame({"f": [1.0, np.nan], "i": [1, 2], "b": [True, False], "s": ["x", None]}),
-              pd.DataFrame({"I": pd.array([1, None], "Int64"), "f": [0.5, 0.25], "c": pd.Categorical(["a", "b"])}),
-              pd.DataFrame({"f": np.arange(6.0)[::2], "u": np.array([1, 2, 3], np.uint8)}),
-              pd.DataFrame({0: [1.0], 1: [2.0]})]
-    for df in frames:
-        assert _arrow_table(df).equals(pa.Table.from_pandas(df, preserve_index=False), check_metadata=True)
