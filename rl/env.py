@@ -316,12 +316,13 @@ class VecLaneChangeEnv:
         self.steps += 1
         truncated = ~terminated & (self.steps >= self.config.max_steps)
         done = terminated | truncated
-        final_obs = self.observe()
+        final_obs = obs = self.observe()
         if done.any():
             idx = np.flatnonzero(done)
             self.scene.put(idx, sample_scenes(self.rng, self.config, len(idx)))
             self.steps[idx] = 0
-        return {"obs": self.observe(), "final_obs": final_obs, "reward": reward, "terms": terms,
+            obs = self.observe()
+        return {"obs": obs, "final_obs": final_obs, "reward": reward, "terms": terms,
                 "terminated": terminated, "truncated": truncated, "reached_leader": reached}
 
     def state_dict(self) -> dict[str, Any]:

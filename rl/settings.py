@@ -33,7 +33,7 @@ class DQNSettings:
     loss: str = "mse"  # 'mse' (eq. 5) or 'huber'
     double_q: bool = False  # Double DQN target: the online net picks the next action, the target net values it
     max_grad_norm: float = 10.0  # gradient clipping (0 = none)
-    average_tau: float = 0.02  # if > 0, the policy saved is a Polyak average of the online weights (step tau)
+    average_tau: float = 0.0  # if > 0, the policy is a Polyak average of the online weights (step tau per update)
     threads: int = 1  # torch intra-op threads (small nets oversubscribe with more)
     seed: int = 0  # seeds numpy (environments, exploration, sampling) and torch (init)
     checkpoint_every: int = 500  # save a checkpoint every this many episodes (0 = never)

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from rl.dqn import DQNSettings, DQNTrainer, q_network
+from rl.dqn import DQNSettings, DQNTrainer, mlp_forward, q_network
 from rl.env import EnvConfig, approaches_from_decisions
 from rl.evaluate import agent_policy, evaluate_policies, greedy_policy
 from rl.rewards import ReferenceLines, RewardSettings
@@ -30,11 +30,17 @@ def test_network_is_the_studys():
     assert DQNSettings().learning_rate == 0.005 and DQNSettings().gamma == 0.98
 
 
+def test_trainer_forward_is_the_modules():
+    net = q_network()
+    obs = torch.from_numpy(np.random.default_rng(0).random((16, 8), dtype=np.float32))
+    assert torch.equal(mlp_forward(list(net.parameters()), obs), net(obs))
+
+
 def test_learns_the_drivers_moment_and_beats_greedy():
     dec = rule_driver_decisions(LINES, 60, seed=1, cfg=TINY, with_nf=False, nb_gap_m=(110.0, 140.0),
                                 noise=(0.2, 0.2, 0.5))
     approaches, _ = approaches_from_decisions(dec)
-    trainer = DQNTrainer(TINY, DQNSettings(episodes=2000, seed=0, average_tau=0.0, **FAST)).train()
+    trainer = DQNTrainer(TINY, DQNSettings(episodes=2000, seed=0, **FAST)).train()
     ev = evaluate_policies({"agent": agent_policy(trainer.policy_net, TINY), "greedy": greedy_policy(TINY)}, approaches, TINY)
     s = pd.DataFrame(ev["summary"]).set_index("who")
     assert s.loc["greedy", "balanced_accuracy"] == 0.5  # the paper's greedy always changes here
@@ -52,7 +58,8 @@ def test_train_twice_same_weights():
 
 
 def test_checkpoint_resume_continues_exactly_and_loads_weights_only():
-    s = DQNSettings(episodes=400, seed=2, num_envs=8, batch_size=64, learning_starts=100, target_update_episodes=7)
+    s = DQNSettings(episodes=400, seed=2, num_envs=8, batch_size=64, learning_starts=100, target_update_episodes=7,
+                    average_tau=0.02)  # the averaged policy is part of the checkpoint too
     straight = DQNTrainer(TINY, s).train()
     first = DQNTrainer(TINY, s)
     first.train(should_stop=lambda: first.episodes_done >= 200)
@@ -73,3 +80,5 @@ def test_checkpoint_resume_continues_exactly_and_loads_weights_only():
     obs = np.random.default_rng(0).random((4, 8), dtype=np.float32)
     assert torch.equal(net(torch.from_numpy(obs)), straight.q(torch.from_numpy(obs)))
     assert straight.policy_net is straight.q_avg
+    for x, y in zip(straight.q_avg.parameters(), second.q_avg.parameters()):
+        assert torch.equal(x, y)
