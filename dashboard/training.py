@@ -35,7 +35,8 @@ def defaults_note() -> str:
     d = DQNSettings()
     lr = (f"the learning rate falls linearly from {d.learning_rate:g} to {d.learning_rate_end:g} over the run"
           if getattr(d, "learning_rate_end", None) else f"constant learning rate {d.learning_rate:g}")
-    return (f"Table 2 of the study, stepped as {d.num_envs} environments at once with one minibatch of "
+    updates = "one minibatch" if d.gradient_steps == 1 else f"{d.gradient_steps} minibatches"
+    return (f"Table 2 of the study, stepped as {d.num_envs} environments at once with {updates} of "
             f"{d.batch_size} per step (1 environment and minibatch 32 is the study's own loop); {lr}.")
 
 

@@ -11,9 +11,10 @@ from typing import Any
 class DQNSettings:
     """Training settings (defaults: the study's Table 2, plus our vectorisation).
 
-    The default 8 environments x one update of 256 per vector step keep the
+    The default 16 environments x two updates of 256 per vector step keep the
     study's replay ratio (32 sampled transitions per collected one) with 8 times
-    fewer, 8 times larger updates; ``num_envs=1, batch_size=32`` is the study's loop.
+    fewer, 8 times larger updates; ``num_envs=1, gradient_steps=1, batch_size=32``
+    is the study's loop.
     """
 
     episodes: int = 10000  # N_e: stop after this many finished episodes
@@ -28,12 +29,13 @@ class DQNSettings:
     batch_size: int = 256  # transitions per update (the study's M_m = 32 with num_envs = 1)
     target_update_episodes: int = 20  # N_u, copy the target network every this many episodes
     hidden: tuple[int, ...] = (128, 128, 128)  # hidden layer widths (ReLU)
-    num_envs: int = 8  # environments stepped together (1 = the study's loop)
-    gradient_steps: int = 1  # updates per vector step
+    num_envs: int = 16  # environments stepped together (1 = the study's loop)
+    gradient_steps: int = 2  # updates per vector step
     loss: str = "mse"  # 'mse' (eq. 5) or 'huber'
     double_q: bool = False  # Double DQN target: the online net picks the next action, the target net values it
     max_grad_norm: float = 10.0  # gradient clipping (0 = none)
-    average_tau: float = 0.0  # if > 0, the policy is a Polyak average of the online weights (step tau per update)
+    average_tau: float = 0.02  # if > 0, the policy is a Polyak average of the online weights (step tau per update) ...
+    average_from: float = 0.5  # ... from this share of `episodes` on (before it, the online net is the policy)
     threads: int = 1  # torch intra-op threads (small nets oversubscribe with more)
     seed: int = 0  # seeds numpy (environments, exploration, sampling) and torch (init)
     checkpoint_every: int = 500  # save a checkpoint every this many episodes (0 = never)

@@ -57,6 +57,16 @@ def test_train_twice_same_weights():
         assert torch.equal(x, y)
 
 
+def test_policy_is_the_online_net_then_its_average():
+    t = DQNTrainer(TINY, DQNSettings(episodes=200, seed=3, num_envs=8, batch_size=64, learning_starts=100,
+                                     average_tau=0.02, average_from=0.5))
+    t.train(should_stop=lambda: t.episodes_done >= 60)
+    assert t.policy_net is t.q
+    t.train()
+    assert t.policy_net is t.q_avg
+    assert not all(torch.equal(a, b) for a, b in zip(t.q_avg.parameters(), t.q.parameters()))
+
+
 def test_checkpoint_resume_continues_exactly_and_loads_weights_only():
     s = DQNSettings(episodes=400, seed=2, num_envs=8, batch_size=64, learning_starts=100, target_update_episodes=7,
                     average_tau=0.02)  # the averaged policy is part of the checkpoint too
