@@ -11,10 +11,12 @@ typical driver (`analysis/decisions` of the workspace); the clock stops while it
 is scored. The target: recall at the presses >= the study's figure for the style
 (95.9 / 100 / 98.6 %) and balanced accuracy >= the greedy benchmark's + 5 points.
 
-    python benchmarks/train.py -w /tmp/wsbench --style Normal --repeats 5 --check-every 1000
+    python benchmarks/train.py -w /tmp/wsbench --style Normal --repeats 20 --check-every 1000  # ~12 min
     python benchmarks/train.py ... --set gradient_steps=2 --set batch_size=128   # a variant of ours
 
 With no analysis in the workspace, `sample_logs/` is ingested and analysed first.
+Take about 20 seeds: the first hit of one seed moves by 10000-30000 steps with
+one press on the policy's decision boundary, so 5 seeds give no stable median.
 Prints per repeat: seconds and env steps to the target, env steps per second, and
 the medians and ratio.
 """
