@@ -34,10 +34,12 @@ def defaults_note() -> str:
 
     d = DQNSettings()
     lr = (f"the learning rate falls linearly from {d.learning_rate:g} to {d.learning_rate_end:g} over the run"
-          if getattr(d, "learning_rate_end", None) else f"constant learning rate {d.learning_rate:g}")
+          if d.learning_rate_end is not None else f"constant learning rate {d.learning_rate:g}")
     updates = "one minibatch" if d.gradient_steps == 1 else f"{d.gradient_steps} minibatches"
+    policy = (f"; from {d.average_from:.0%} of the episodes on, the policy is an average of the weights"
+              if d.average_tau > 0 else "")
     return (f"Table 2 of the study, stepped as {d.num_envs} environments at once with {updates} of "
-            f"{d.batch_size} per step (1 environment and minibatch 32 is the study's own loop); {lr}.")
+            f"{d.batch_size} per step (1 environment and minibatch 32 is the study's own loop); {lr}{policy}.")
 
 
 def rewards() -> list[str]:

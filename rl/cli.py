@@ -62,6 +62,9 @@ def train_command(
     target_update: Annotated[Optional[int], typer.Option("--target-update", help="Episodes between target copies (20).")] = None,
     num_envs: Annotated[Optional[int], typer.Option("--num-envs", help="Environments stepped together (1 = the study's loop).")] = None,
     gradient_steps: Annotated[Optional[int], typer.Option("--gradient-steps", help="Updates per vector step.")] = None,
+    lr_end: Annotated[Optional[float], typer.Option("--lr-end", min=0.0, help="Learning rate at the end of the run (0.0005; = --lr for a constant one).")] = None,
+    average_tau: Annotated[Optional[float], typer.Option("--average-tau", min=0.0, max=1.0, help="Polyak step of the averaged policy (0.02; 0 = the online net is the policy).")] = None,
+    average_from: Annotated[Optional[float], typer.Option("--average-from", min=0.0, max=1.0, help="Share of the episodes after which the averaged net is the policy (0.5).")] = None,
     threads: Annotated[Optional[int], typer.Option("--threads", help="torch threads (1).")] = None,
     dt: Annotated[Optional[float], typer.Option("--dt", help="Seconds between decisions (0.5).")] = None,
     checkpoint_every: Annotated[Optional[int], typer.Option("--checkpoint-every", help="Episodes between checkpoints.")] = None,
@@ -94,6 +97,7 @@ def train_command(
             "eps_end": eps_end, "batch_size": batch_size, "buffer_size": buffer_size,
             "learning_starts": learning_starts, "target_update_episodes": target_update, "num_envs": num_envs,
             "gradient_steps": gradient_steps, "threads": threads, "checkpoint_every": checkpoint_every,
+            "learning_rate_end": lr_end, "average_tau": average_tau, "average_from": average_from,
         }.items() if v is not None}
         try:
             settings = DQNSettings(**overrides)

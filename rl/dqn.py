@@ -177,19 +177,27 @@ class DQNTrainer:
         self.env_steps = 0
         self.updates = 0
         self.wall_s = 0.0
+        self.averaging = False  # True once the policy is the averaged net (see `_start_average`)
         self._losses: list[float] = []
 
     @property
     def policy_net(self) -> nn.Module:
         """The network whose greedy actions are the trained policy (the averaged one once averaging started)."""
-        return self.q_avg if self._averaging() else self.q
+        return self.q_avg if self.averaging else self.q
 
-    def _average_start(self) -> int:
-        """The finished-episode count from which the policy is the averaged net."""
-        return int(self.settings.average_from * self.settings.episodes)
+    def _average_due(self) -> bool:
+        """Whether the run has reached `average_from` of its episodes (and averages at all)."""
+        s = self.settings
+        return s.average_tau > 0 and self.episodes_done >= int(s.average_from * s.episodes)
 
-    def _averaging(self) -> bool:
-        return self.settings.average_tau > 0 and self.episodes_done >= self._average_start()
+    def _start_average(self) -> None:
+        """Start the average afresh from the online weights; from now on it is the policy.
+
+        A flag, not a test of the episode count: a resume may change `episodes`, and
+        the average must still start from the online net, not from stale weights.
+        """
+        self.q_avg.load_state_dict(self.q.state_dict())
+        self.averaging = True
 
     def epsilon(self) -> float:
         s = self.settings
@@ -226,7 +234,7 @@ class DQNTrainer:
             if norm + 1e-6 > s.max_grad_norm:
                 nn.utils.clip_grads_with_norm_(self._params, s.max_grad_norm, norm, foreach=True)
         self.optimizer.step()
-        if self._averaging():
+        if self.averaging:
             with torch.no_grad():
                 torch._foreach_lerp_(self._avg_params, self._params, s.average_tau)
         self.updates += 1
@@ -299,8 +307,8 @@ class DQNTrainer:
                 st.length[i] = 0
                 for k in TERMS:
                     st.terms[k][i] = 0.0
-                if s.average_tau > 0 and self.episodes_done == self._average_start():
-                    self.q_avg.load_state_dict(self.q.state_dict())  # the average starts from here
+                if not self.averaging and self._average_due():
+                    self._start_average()
                 if self.episodes_done % s.target_update_episodes == 0:
                     self.target.load_state_dict(self.q.state_dict())
                 if on_checkpoint is not None and s.checkpoint_every and self.episodes_done % s.checkpoint_every == 0:
@@ -329,7 +337,7 @@ class DQNTrainer:
             "env_rng": json.dumps(self.envs.rng.bit_generator.state),
             "torch_rng": torch.get_rng_state(),
             "counters": {"episodes_done": self.episodes_done, "env_steps": self.env_steps,
-                         "updates": self.updates, "wall_s": self.wall_s},
+                         "updates": self.updates, "wall_s": self.wall_s, "averaging": self.averaging},
             "losses": list(self._losses),
             "settings": json.dumps(self.settings.to_dict()),
         }
@@ -352,4 +360,6 @@ class DQNTrainer:
         c = state["counters"]
         self.episodes_done, self.env_steps = int(c["episodes_done"]), int(c["env_steps"])
         self.updates, self.wall_s = int(c["updates"]), float(c["wall_s"])
+        # checkpoints from before the flag averaged from the first update
+        self.averaging = bool(c.get("averaging", self._average_due()))
         self._losses = [float(x) for x in state["losses"]]

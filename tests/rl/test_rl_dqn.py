@@ -1,6 +1,7 @@
 """The DQN trainer: learning on a tiny case, determinism, checkpoints."""
 
 import io
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -65,6 +66,19 @@ def test_policy_is_the_online_net_then_its_average():
     t.train()
     assert t.policy_net is t.q_avg
     assert not all(torch.equal(a, b) for a, b in zip(t.q_avg.parameters(), t.q.parameters()))
+
+
+def test_resume_with_fewer_episodes_starts_the_average_from_the_online_net():
+    s = DQNSettings(episodes=400, seed=3, num_envs=8, batch_size=64, learning_starts=100, average_from=0.5)
+    first = DQNTrainer(TINY, s)
+    first.train(should_stop=lambda: first.episodes_done >= 150)  # before its average would start (200)
+    second = DQNTrainer(TINY, replace(s, episodes=200))  # `--resume --episodes 200`: the average is due at 100
+    second.load_state_dict(first.state_dict())
+    assert second.policy_net is second.q
+    second.train(on_vector_step=lambda t: t.episodes_done > 150)
+    assert second.policy_net is second.q_avg
+    for a, b in zip(second.q_avg.parameters(), second.q.parameters()):
+        assert torch.equal(a, b)  # started from the online weights, not from the untouched initial ones
 
 
 def test_checkpoint_resume_continues_exactly_and_loads_weights_only():

@@ -46,7 +46,7 @@ def test_train_needs_an_analysis_or_paper_lines(tmp_path):
 
 def test_train_with_paper_lines_writes_the_run_folder(tmp_path):
     res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--episodes", "150", "--run-id",
-                                   "r1", "-w", str(tmp_path), "--json", *FAST])
+                                   "r1", "-w", str(tmp_path), "--json", "--average-from", "0.2", *FAST])
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["run_id"] == "r1" and out["state"] == "done"
@@ -57,6 +57,7 @@ def test_train_with_paper_lines_writes_the_run_folder(tmp_path):
         run["metrics"].columns)
     cfg = run["config"]
     assert cfg["lines"]["source"] == "Table 1 (Normal)" and cfg["reward"] == "timing" and cfg["seed"] == 0
+    assert cfg["dqn"]["average_from"] == 0.2 and cfg["dqn"]["num_envs"] == 8
     assert "git_commit" in cfg["code_version"] and len(cfg["data_fingerprint"]) == 16
     net = q_network()
     net.load_state_dict(torch.load(run["folder"] / "weights.pt", weights_only=True))
@@ -67,6 +68,9 @@ def test_train_with_paper_lines_writes_the_run_folder(tmp_path):
     res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--run-id", "r1",
                                    "-w", str(tmp_path)])
     assert res.exit_code == 1 and "exists already" in res.output
+    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--average-from", "2",
+                                   "-w", str(tmp_path)])
+    assert res.exit_code == 2 and "--average-from" in res.output  # a share of the episodes, refused before training
 
 
 def test_evaluate_against_the_drivers(tmp_path):
