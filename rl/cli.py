@@ -13,7 +13,14 @@ from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, r
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from rl.rewards import REWARDS, RewardSettings
-from rl.settings import DQNSettings
+from rl.settings import DEFAULT_REWARD, OBSERVATIONS, SCENES, DQNSettings, resolve_formulation
+
+RewardOpt = Annotated[Optional[str], typer.Option(
+    "--reward", help=f"Reward: {', '.join(REWARDS)} (default {DEFAULT_REWARD}; timing with --lines paper).")]
+ScenesOpt = Annotated[Optional[str], typer.Option(
+    "--scenes", help=f"Where episodes come from: {' or '.join(SCENES)} (default: the reward's own, rl/README.md).")]
+ObservationOpt = Annotated[Optional[str], typer.Option(
+    "--observation", help=f"What the agent sees: {' or '.join(OBSERVATIONS)} (default: the reward's own).")]
 
 
 def _fmt(x: Any, pct: bool = False) -> str:
@@ -48,7 +55,9 @@ def train_command(
     driver: Annotated[Optional[str], typer.Option("--driver", help="Imitate one driver (its own lines).")] = None,
     episodes: Annotated[Optional[int], typer.Option("--episodes", help="Episodes to train (Table 2: 10000).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of everything random.")] = 0,
-    reward: Annotated[str, typer.Option("--reward", help=f"Reward: {' or '.join(REWARDS)}.")] = "timing",
+    reward: RewardOpt = None,
+    scenes: ScenesOpt = None,
+    observation: ObservationOpt = None,
     lines: Annotated[str, typer.Option("--lines", help="Reference lines: 'analysis' or 'paper' (Table 1).")] = "analysis",
     run_id: Annotated[Optional[str], typer.Option("--run-id", help="Id of the new run (default: time-target-reward-seed).")] = None,
     resume: Annotated[Optional[str], typer.Option("--resume", help="Continue an interrupted run from its checkpoint.")] = None,
@@ -89,7 +98,8 @@ def train_command(
             raise UserError("give exactly one of --style NAME or --driver ID")
         target = Target("style", style) if style else Target("driver", str(driver))
         ref = resolve_lines(ws, target, lines)
-        env = EnvConfig(lines=ref, reward=RewardSettings(name=reward))
+        name, scn, obs = resolve_formulation(reward, scenes, observation, lines)
+        env = EnvConfig(lines=ref, reward=RewardSettings(name=name), scenes=scn, observation=obs)
         if dt is not None:
             env = replace(env, dt_s=dt)
         overrides = {k: v for k, v in {
@@ -131,3 +141,71 @@ def evaluate_command(
         return evaluate_run(Workspace(workspace), run_id)
 
     run_command(work, as_json, _render_eval)
+
+
+def _cv_table(res: dict[str, Any]) -> Table:
+    t = Table(title=f"held out ({res['folds']} folds by {res['settings']['split']}): {res['target']['kind']} "
+                    f"{res['target']['name']} — {res['n_decisions_scored']} of {res['n_decisions_total']} decisions scored")
+    for col in ("who", "balanced acc. [95 % CI]", "recall", "specificity", "timing MAE [s]", "never"):
+        t.add_column(col)
+    for r in res["summary"]:
+        lo, hi = r["balanced_accuracy_ci"]
+        t.add_row(r["who"], f"{100 * r['balanced_accuracy']:.1f} % [{100 * lo:.1f}, {100 * hi:.1f}]",
+                  _fmt(r["recall"], True), _fmt(r["specificity"], True), _fmt(r["timing_mae_s"]),
+                  _fmt(r["never_rate"], True))
+    return t
+
+
+def _render_cv(res: dict[str, Any], console: Console) -> None:
+    for r in res.get("results", [res]):
+        console.print(_cv_table(r))
+        if r.get("unscored"):
+            console.print(f"not scored: {r['unscored']}", highlight=False)
+        console.print(f"stored as crossval/{r['crossval_id']}", highlight=False)
+
+
+def crossval_command(
+    style: Annotated[Optional[str], typer.Option("--style", help="Hold out sessions of a style's drivers.")] = None,
+    driver: Annotated[Optional[str], typer.Option("--driver", help="Hold out sessions of one driver.")] = None,
+    all_styles: Annotated[bool, typer.Option("--all", help="Every style of the analysis, one result each.")] = False,
+    run: Annotated[Optional[str], typer.Option("--run", help="Take target and settings from a trained run.")] = None,
+    folds: Annotated[int, typer.Option("--folds", min=2, help="K: sessions are split into K folds.")] = 4,
+    split: Annotated[str, typer.Option("--split", help="'session' (each driver's sessions dealt to folds) or "
+                                                      "'section' (whole speed sections held out).")] = "session",
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the folds, bootstrap, classifier and agents.")] = 0,
+    episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, help="Episodes per fold's agent (10000).")] = None,
+    reward: RewardOpt = None,
+    scenes: ScenesOpt = None,
+    observation: ObservationOpt = None,
+    lines: Annotated[str, typer.Option("--lines", help="'analysis' (refitted per fold) or 'paper' (Table 1).")] = "analysis",
+    bootstrap: Annotated[int, typer.Option("--bootstrap", min=10, help="Bootstrap resamples for the intervals.")] = 1000,
+    workspace: WorkspaceOpt = DEFAULT_WS,
+    as_json: JsonOpt = False,
+) -> None:
+    """Held-out figures: agent, greedy and imitation scored on sessions none of them was fitted on."""
+
+    def work() -> dict[str, Any]:
+        from rl.crossval import CrossvalSettings
+        from rl.crossval_io import crossval_run, run_crossval, style_names, target_env
+        from rl.env import EnvConfig
+        from rl.runs import Target
+
+        ws = Workspace(workspace)
+        cv = CrossvalSettings(folds=folds, split=split, seed=seed, n_bootstrap=bootstrap)
+        with progress_bar(not as_json) as progress:
+            if run:
+                if style or driver or all_styles:
+                    raise UserError("--run takes the run's own target: leave out --style/--driver/--all")
+                return crossval_run(ws, run, cv, episodes, progress)
+            if sum(x is not None and x is not False for x in (style, driver, all_styles or None)) != 1:
+                raise UserError("give exactly one of --style NAME, --driver ID, --all or --run RUN_ID")
+            targets = ([Target("style", s) for s in style_names(ws)] if all_styles
+                       else [Target("style", style)] if style else [Target("driver", str(driver))])
+            dqn = DQNSettings(seed=seed, **({"episodes": episodes} if episodes else {}))
+            name, scn, obs = resolve_formulation(reward, scenes, observation, lines)
+            base = EnvConfig(reward=RewardSettings(name=name), scenes=scn, observation=obs)
+            results = [run_crossval(ws, t, target_env(ws, t, base, lines), dqn, cv, lines, progress=progress)
+                       for t in targets]
+        return {"results": results} if all_styles else results[0]
+
+    run_command(work, as_json, _render_cv)

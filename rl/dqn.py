@@ -39,7 +39,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from rl.env import EnvConfig, VecLaneChangeEnv
+from rl.env import Approach, EnvConfig, make_vec_env, observation_names
 from rl.rewards import CHANGE, TERMS
 from rl.settings import DQNSettings
 
@@ -151,18 +151,20 @@ class DQNTrainer:
     (returning True stops training, as an SB3 callback returning False would).
     """
 
-    def __init__(self, env_config: EnvConfig, settings: DQNSettings | None = None) -> None:
+    def __init__(self, env_config: EnvConfig, settings: DQNSettings | None = None,
+                 approaches: list[Approach] | None = None) -> None:
         self.env_config = env_config
         self.settings = s = settings or DQNSettings()
         torch.set_num_threads(s.threads)
         # --- seeding, in one block ---
         torch.manual_seed(s.seed)
         self.rng = np.random.default_rng(s.seed)
-        self.envs = VecLaneChangeEnv(env_config, s.num_envs, np.random.default_rng([s.seed, 1]))
-        self.q = q_network(s.hidden)
-        self.target = q_network(s.hidden)
+        self.envs = make_vec_env(env_config, s.num_envs, np.random.default_rng([s.seed, 1]), approaches)
+        n_obs = len(observation_names(env_config))
+        self.q = q_network(s.hidden, n_obs)
+        self.target = q_network(s.hidden, n_obs)
         self.target.load_state_dict(self.q.state_dict())
-        self.q_avg = q_network(s.hidden)
+        self.q_avg = q_network(s.hidden, n_obs)
         self.q_avg.load_state_dict(self.q.state_dict())
         # parameter lists cached, multi-tensor kernels and Adam's fused kernel: for a net this
         # small the per-tensor Python loops of Adam, clipping and averaging cost as much as the maths
@@ -170,7 +172,7 @@ class DQNTrainer:
         self._avg_params = list(self.q_avg.parameters())
         self._target_params = list(self.target.parameters())
         self.optimizer = torch.optim.Adam(self._params, lr=s.learning_rate, fused=True)
-        self.buffer = ReplayBuffer(s.buffer_size)
+        self.buffer = ReplayBuffer(s.buffer_size, n_obs)
         self.stats = EpisodeStats(s.num_envs)
         self.obs = self.envs.observe()
         self.episodes_done = 0
@@ -330,6 +332,7 @@ class DQNTrainer:
             "buffer": self.buffer.state_dict(),
             "env_scene": {k: torch.from_numpy(np.asarray(v).copy()) for k, v in env_state["scene"].items()},
             "env_steps_in_episode": torch.from_numpy(env_state["steps"]),
+            "env_replay": {k: torch.from_numpy(env_state[k]) for k in ("index", "late") if k in env_state},
             "obs": torch.from_numpy(self.obs.copy()),
             "stats": {"ret": torch.from_numpy(self.stats.ret.copy()), "length": torch.from_numpy(self.stats.length.copy()),
                       **{f"term_{k}": torch.from_numpy(v.copy()) for k, v in self.stats.terms.items()}},
@@ -349,11 +352,13 @@ class DQNTrainer:
         self.optimizer.load_state_dict(state["optimizer"])
         self.buffer.load_state_dict(state["buffer"])
         self.envs.load_state_dict({"scene": {k: v.numpy() for k, v in state["env_scene"].items()},
-                                   "steps": state["env_steps_in_episode"].numpy()})
+                                   "steps": state["env_steps_in_episode"].numpy(),
+                                   **{k: v.numpy() for k, v in state.get("env_replay", {}).items()}})
         self.obs = state["obs"].numpy().copy()
         st = state["stats"]
         self.stats.ret, self.stats.length = st["ret"].numpy().copy(), st["length"].numpy().copy()
-        self.stats.terms = {k: st[f"term_{k}"].numpy().copy() for k in TERMS}
+        self.stats.terms = {k: st[f"term_{k}"].numpy().copy() if f"term_{k}" in st else np.zeros(self.stats.n)
+                            for k in TERMS}
         self.rng.bit_generator.state = json.loads(state["rng"])
         self.envs.rng.bit_generator.state = json.loads(state["env_rng"])
         torch.set_rng_state(state["torch_rng"])

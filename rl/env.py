@@ -51,11 +51,14 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
+from laneprint.errors import UserError
 from laneprint.reference import FAR_FOLLOWER_M
-from rl.rewards import CHANGE, TERMS, ReferenceLines, RewardSettings, step_reward
-from rl.scene import Scene, indicators, observe
+from rl.rewards import CHANGE, TERMS, ReferenceLines, RewardSettings, decisions_step_reward, step_reward
+from rl.settings import OBSERVATIONS, SCENES
+from rl.scene import INDICATOR_FEATURES, OBS_NAMES, Scene, indicator_features, indicators, observe
 
 ENV_ID = "laneprint/LaneChangeDecision-v0"
+
 
 
 @dataclass(frozen=True)
@@ -80,8 +83,20 @@ class EnvConfig:
     v_max_mps: float = 40.0  # speed that normalises to 1 [m/s]
     far_follower_m: float = FAR_FOLLOWER_M  # C_nb farther than this has no influence [m]
     end_at_leader: bool = True  # terminate when the ego reaches C_f without changing
+    scenes: str = "synthetic"  # 'synthetic' (drawn from the ranges above) or 'recorded' (replayed approaches)
+    replay_late_s: float = 10.0  # recorded scenes: after the press, an approach runs on at most this long [s]
+    observation: str = "paper"  # 'paper' (8 values) or 'indicators' (the 8 + t_f, t_nf, dv_nb and their flags)
     reward: RewardSettings = field(default_factory=RewardSettings)  # which reward, its parameters
     lines: ReferenceLines = field(default_factory=lambda: ReferenceLines.paper("Normal"))  # target lines
+
+    def __post_init__(self) -> None:
+        if self.scenes not in SCENES:
+            raise UserError(f"unknown scenes {self.scenes!r}: choose one of {', '.join(SCENES)}")
+        if self.observation not in OBSERVATIONS:
+            raise UserError(f"unknown observation {self.observation!r}: choose one of {', '.join(OBSERVATIONS)}")
+        if self.reward.name == "decisions" and self.scenes != "recorded":
+            raise UserError("the 'decisions' reward is paid by the driver's recorded presses: it needs "
+                            "recorded scenes (--scenes recorded)")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -89,6 +104,8 @@ class EnvConfig:
     @staticmethod
     def from_dict(d: dict[str, Any]) -> "EnvConfig":
         d = dict(d)
+        d.setdefault("scenes", "synthetic")  # runs from before these settings
+        d.setdefault("observation", "paper")
         d["reward"] = RewardSettings(**d.get("reward", {}))
         if "lines" in d:
             d["lines"] = ReferenceLines.from_dict(d["lines"])
@@ -96,6 +113,19 @@ class EnvConfig:
             if isinstance(v, list):
                 d[k] = tuple(v)
         return EnvConfig(**d)
+
+
+def observation_names(cfg: EnvConfig) -> tuple[str, ...]:
+    """Names of the observation's values, in order."""
+    return OBS_NAMES + (INDICATOR_FEATURES if cfg.observation == "indicators" else ())
+
+
+def observation(scene: Scene, cfg: EnvConfig) -> np.ndarray:
+    """What the agent sees of each scene, shape (n, len(observation_names(cfg))) float32."""
+    obs = observe(scene, cfg.range_m, cfg.v_max_mps)
+    if cfg.observation == "indicators":
+        obs = np.concatenate([obs, indicator_features(scene, cfg.far_follower_m, cfg.range_m)], axis=1)
+    return obs
 
 
 def default_config() -> EnvConfig:
@@ -131,14 +161,22 @@ def sample_scenes(rng: np.random.Generator, cfg: EnvConfig, n: int) -> Scene:
     )
 
 
-def transition(scene: Scene, actions: np.ndarray, cfg: EnvConfig) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, np.ndarray]:
+def transition(scene: Scene, actions: np.ndarray, cfg: EnvConfig,
+               t_from_press_s: np.ndarray | None = None) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, np.ndarray]:
     """Apply `actions` to a batch of scenes (in place).
 
     Returns (reward, named terms, terminated, reached_leader). The reward is that of
     the action in the scene where it was taken; kept scenes then move on by dt.
+    `t_from_press_s` (recorded scenes: time from the driver's press) pays the
+    `decisions` reward.
     """
-    ind = indicators(scene, cfg.far_follower_m, cfg.range_m)
-    reward, terms = step_reward(ind, actions, cfg.lines, cfg.reward, cfg.dt_s)
+    if cfg.reward.name == "decisions":
+        if t_from_press_s is None:
+            raise ValueError("the 'decisions' reward needs the time from the press of every scene")
+        reward, terms = decisions_step_reward(t_from_press_s, actions, cfg.reward)
+    else:
+        ind = indicators(scene, cfg.far_follower_m, cfg.range_m)
+        reward, terms = step_reward(ind, actions, cfg.lines, cfg.reward, cfg.dt_s)
     changed = np.asarray(actions) == CHANGE
     scene.advance(cfg.dt_s)
     gap_f = np.where(scene.f_present, scene.x_f - scene.x_e - scene.hl_f, np.inf)
@@ -168,12 +206,12 @@ class Approach:
 
 #: Why a recorded decision is not replayed (see `approaches_from_decisions`).
 SKIP_REASONS = {
-    "no_closing_leader": "no closing ego-lane leader at the press (t_f undefined): outside the decision problem",
+    "no_closing_leader": "no closing ego-lane leader at the press (t_f undefined); scored unless "
+                         "include_following=False (the study's rule)",
     "following": "the ego was following its leader at the press (closing speed below the analysis's "
-                 "min_closing_mps, t_f_reason 'following'): the line does not describe these presses",
-    "no_press": "no 'change' row for the decision",
+                 "min_closing_mps, t_f_reason 'following'); scored unless include_following=False",
+    "no_press": "no 'change' row for the decision (its press was dropped by the analysis)",
 }
-
 
 def scenes_from_decisions(rows: pd.DataFrame, vehicle_length_m: float = 4.5) -> Scene:
     """Scenes of DECISIONS rows (one per row); absent vehicles flagged, gaps kept exact."""
@@ -193,16 +231,16 @@ def scenes_from_decisions(rows: pd.DataFrame, vehicle_length_m: float = 4.5) -> 
     return Scene(v_e=v_e, x_e=x_e, **part("f", True), **part("nf", True), **part("nb", False))
 
 
-def approaches_from_decisions(decisions: pd.DataFrame, vehicle_length_m: float = 4.5) -> tuple[list[Approach], dict[str, int]]:
+def approaches_from_decisions(decisions: pd.DataFrame, vehicle_length_m: float = 4.5,
+                              include_following: bool = True) -> tuple[list[Approach], dict[str, int]]:
     """Recorded approaches from a DECISIONS table, and how many were skipped, by reason.
 
-    Rule: a decision is skipped when its press has no closing ego-lane leader
-    (``t_f_status != 'ok'``) or the analysis marks its t_f as 'following' (closing
-    slower than its ``min_closing_mps``: the driver had slowed behind the leader
-    and waited for a gap, which the constant-speed decision problem does not
-    model and the analysis leaves out of the fits); a decision without a press
-    row is skipped too. Undefined ``t_nf`` or
-    ``dv_nb`` are kept: the environment models absent and far vehicles.
+    Every decision with a press row is replayed, including presses made while
+    following a slow leader or with no closing leader at all (t_f undefined): the
+    driver decided there too, and a held-out score that leaves them out flatters
+    every policy. ``include_following=False`` restores the study's rule, which
+    skips them (counted as 'no_closing_leader' / 'following'). Undefined ``t_nf``
+    or ``dv_nb`` are always kept: the scene models absent and far vehicles.
     """
     skipped = {k: 0 for k in SKIP_REASONS}
     out: list[Approach] = []
@@ -212,12 +250,13 @@ def approaches_from_decisions(decisions: pd.DataFrame, vehicle_length_m: float =
         if press.empty:
             skipped["no_press"] += 1
             continue
-        if press["t_f_status"].iloc[-1] != "ok":
-            skipped["no_closing_leader"] += 1
-            continue
-        if "t_f_reason" in press and press["t_f_reason"].iloc[-1] == "following":
-            skipped["following"] += 1
-            continue
+        if not include_following:
+            if press["t_f_status"].iloc[-1] != "ok":
+                skipped["no_closing_leader"] += 1
+                continue
+            if "t_f_reason" in press and press["t_f_reason"].iloc[-1] == "following":
+                skipped["following"] += 1
+                continue
         press_t = float(press["t_s"].iloc[-1])
         rows = pd.concat([rows[(rows["label"] == "keep") & (rows["t_s"] < press_t)], press.iloc[[-1]]])
         out.append(Approach(str(did), str(rows["driver_id"].iloc[0]), rows["t_s"].to_numpy(float),
@@ -240,15 +279,18 @@ class LaneChangeDecisionEnv(gym.Env):
         self.approaches = approaches
         if approaches is not None and len(approaches) == 0:
             raise ValueError("replay mode needs at least one approach")
+        if approaches is None and self.config.scenes == "recorded":
+            raise ValueError("recorded scenes need approaches (see approaches_from_decisions)")
         self.action_space = gym.spaces.Discrete(2)
-        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(8,), dtype=np.float32)
+        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(len(observation_names(self.config)),),
+                                                dtype=np.float32)
         self._scene: Scene | None = None
         self._steps = 0
         self._approach: Approach | None = None
         self._replay_i = 0
 
     def _obs(self) -> np.ndarray:
-        return observe(self._scene, self.config.range_m, self.config.v_max_mps)[0]
+        return observation(self._scene, self.config)[0]
 
     def _info(self) -> dict[str, Any]:
         ind = indicators(self._scene, self.config.far_follower_m, self.config.range_m)
@@ -274,17 +316,27 @@ class LaneChangeDecisionEnv(gym.Env):
             self._scene = self._approach.scene.take(slice(0, 1))
         return self._obs(), self._info()
 
+    def _t_from_press(self) -> np.ndarray | None:
+        a = self._approach
+        if a is None:
+            return None
+        if self._replay_i < len(a):
+            return np.array([a.t_s[self._replay_i] - a.press_t_s])
+        return np.array([(self._replay_i - len(a) + 1) * self.config.dt_s])
+
     def step(self, action):
         if self._scene is None:
             raise RuntimeError("call reset() before step()")
         act = np.array([int(action)])
-        reward, terms, terminated, reached = transition(self._scene, act, self.config)
+        reward, terms, terminated, reached = transition(self._scene, act, self.config, self._t_from_press())
         self._steps += 1
+        late = False
         if self._approach is not None and not terminated[0]:
             self._replay_i += 1
             if self._replay_i < len(self._approach):  # next recorded state replaces the extrapolation
                 self._scene = self._approach.scene.take(slice(self._replay_i, self._replay_i + 1))
-        truncated = bool(self._steps >= self.config.max_steps and not terminated[0])
+            late = float(self._t_from_press()[0]) > self.config.replay_late_s
+        truncated = bool((self._steps >= self.config.max_steps or late) and not terminated[0])
         info = self._info()
         info.update(terms={k: float(terms[k][0]) for k in TERMS}, changed=bool(act[0] == CHANGE),
                     reached_leader=bool(reached[0]))
@@ -308,7 +360,7 @@ class VecLaneChangeEnv:
         self.steps = np.zeros(num_envs, dtype=np.int64)
 
     def observe(self) -> np.ndarray:
-        return observe(self.scene, self.config.range_m, self.config.v_max_mps)
+        return observation(self.scene, self.config)
 
     def step(self, actions: np.ndarray) -> dict[str, Any]:
         """Step all environments; returns a dict of arrays (see the class doc)."""
@@ -331,6 +383,91 @@ class VecLaneChangeEnv:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.scene = Scene(**{k: np.asarray(v).copy() for k, v in state["scene"].items()})
         self.steps = np.asarray(state["steps"]).copy()
+
+
+class VecReplayEnv:
+    """`num_envs` environments replaying recorded approaches (``EnvConfig.scenes = 'recorded'``).
+
+    The trainer's counterpart of `LaneChangeDecisionEnv`'s replay mode, with the
+    interface of `VecLaneChangeEnv`. An episode starts at a recorded state drawn
+    uniformly over all states of all approaches (an epsilon-greedy agent that
+    starts at the first state would seldom live to see the press) and steps through
+    the approach's later states; after the press the press scene runs on at
+    constant speeds for at most ``replay_late_s``. While a next recorded state
+    exists the data, not the constant-speed model, says what happened: reaching
+    the leader is only tested on extrapolated steps.
+    """
+
+    def __init__(self, config: EnvConfig, approaches: list[Approach], num_envs: int,
+                 rng: np.random.Generator) -> None:
+        if not approaches:
+            raise UserError("no recorded approaches to replay for this target")
+        self.config = config
+        self.num_envs = num_envs
+        self.rng = rng
+        self.states = Scene.concat([a.scene for a in approaches])
+        lengths = np.array([len(a) for a in approaches])
+        starts = np.r_[0, np.cumsum(lengths)[:-1]]
+        self.last = np.repeat(starts + lengths - 1, lengths)  # index of the press of each state's approach
+        self.t_rel = np.concatenate([a.t_s - a.press_t_s for a in approaches])
+        self.index = self.rng.integers(len(self.t_rel), size=num_envs)  # current recorded state, or its press
+        self.late = np.zeros(num_envs)  # time run on past the press [s] (0 while recorded)
+        self.scene = self.states.take(self.index)
+        self.steps = np.zeros(num_envs, dtype=np.int64)
+
+    def observe(self) -> np.ndarray:
+        return observation(self.scene, self.config)
+
+    def t_from_press(self) -> np.ndarray:
+        return np.where(self.late > 0, self.late, self.t_rel[self.index])
+
+    def step(self, actions: np.ndarray) -> dict[str, Any]:
+        """Step all environments; returns a dict of arrays (see `VecLaneChangeEnv.step`)."""
+        recorded_next = (self.late == 0) & (self.index < self.last[self.index])
+        reward, terms, terminated, reached = transition(self.scene, actions, self.config, self.t_from_press())
+        reached = reached & ~recorded_next
+        terminated = (np.asarray(actions) == CHANGE) | reached
+        self.steps += 1
+        go_on = ~terminated
+        nxt = np.flatnonzero(go_on & recorded_next)
+        self.index[nxt] += 1
+        self.scene.put(nxt, self.states.take(self.index[nxt]))
+        runs_on = go_on & ~recorded_next
+        self.late[runs_on] += self.config.dt_s
+        truncated = go_on & ((self.steps >= self.config.max_steps) | (self.late > self.config.replay_late_s))
+        done = terminated | truncated
+        final_obs = obs = self.observe()
+        if done.any():
+            idx = np.flatnonzero(done)
+            self.index[idx] = self.rng.integers(len(self.t_rel), size=len(idx))
+            self.late[idx] = 0.0
+            self.steps[idx] = 0
+            self.scene.put(idx, self.states.take(self.index[idx]))
+            obs = self.observe()
+        return {"obs": obs, "final_obs": final_obs, "reward": reward, "terms": terms,
+                "terminated": terminated, "truncated": truncated, "reached_leader": reached}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"scene": {k: v.copy() for k, v in self.scene.as_arrays().items()}, "steps": self.steps.copy(),
+                "index": self.index.copy(), "late": self.late.copy()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.scene = Scene(**{k: np.asarray(v).copy() for k, v in state["scene"].items()})
+        self.steps = np.asarray(state["steps"]).copy()
+        if "index" in state:
+            self.index = np.asarray(state["index"]).copy()
+            self.late = np.asarray(state["late"]).copy()
+
+
+def make_vec_env(config: EnvConfig, num_envs: int, rng: np.random.Generator,
+                 approaches: list[Approach] | None = None) -> "VecLaneChangeEnv | VecReplayEnv":
+    """The trainer's vectorised environment for `config.scenes`."""
+    if config.scenes == "recorded":
+        if approaches is None:
+            raise UserError("recorded scenes need the target's approaches")
+        return VecReplayEnv(config, approaches, num_envs, rng)
+    return VecLaneChangeEnv(config, num_envs, rng)
+
 
 
 def register() -> None:

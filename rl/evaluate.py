@@ -32,17 +32,17 @@ import torch
 
 from laneprint.reference import INDICATORS
 from rl.dqn import greedy_actions as q_greedy_actions
-from rl.env import Approach, EnvConfig
+from rl.env import Approach, EnvConfig, observation
 from rl.greedy import greedy_actions
 from rl.rewards import CHANGE, ReferenceLines
-from rl.scene import Scene, indicators, observe
+from rl.scene import Scene, indicators
 
 Policy = Callable[[Scene], np.ndarray]
 
 
 def agent_policy(net: torch.nn.Module, cfg: EnvConfig) -> Policy:
     """The trained agent: argmax Q over the study's normalised observation."""
-    return lambda scene: q_greedy_actions(net, observe(scene, cfg.range_m, cfg.v_max_mps))
+    return lambda scene: q_greedy_actions(net, observation(scene, cfg))
 
 
 def greedy_policy(cfg: EnvConfig) -> Policy:

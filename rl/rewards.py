@@ -25,6 +25,18 @@ Two formulations, both built from the study's per-indicator closeness score
   constant-sum keep reward instead pays for waiting: with gamma 0.98 keeping
   earns up to 1.5 / (1 - gamma) = 75, more than any change (at most 3).
   Named terms ``r_f, r_nf, r_nb, base`` (on a change), ``pass, late`` (on a keep).
+- ``decisions`` (fitted to the drivers): no reference lines at all. It needs
+  recorded scenes (``EnvConfig.scenes = 'recorded'``): each episode replays an
+  approach the target drove, and TO CHANGE earns ``1 - |t - t_press| /
+  press_scale_s`` (floored at -1) once, where ``t_press`` is the driver's own
+  press; NOT TO CHANGE earns 0 before the press and ``-pass_penalty`` at and
+  after it (the driver's moment, passed up). Its optimal policy on a recorded
+  approach is the driver's (keeping 0.5 s before the press is worth ``gamma`` >
+  ``1 - 0.5 / press_scale_s``), and on a new approach the agent changes where, in
+  the training approaches, similar scenes were the driver's moment; the pass
+  penalty tilts scenes that may be either towards changing, as the balanced
+  accuracy (one press against 10-30 not-yet states) asks. Named terms ``press``
+  (on a change) and ``pass`` (on a keep).
 
 Undefined indicators: without a target-lane leader closing in, or a follower
 within `FAR_FOLLOWER_M`, nothing in that lane constrains the change, so t_nf's
@@ -46,8 +58,8 @@ from laneprint.errors import UserError
 from laneprint.reference import INDICATORS, PAPER_TABLE1
 from rl.scene import Indicators
 
-REWARDS: tuple[str, ...] = ("paper", "timing")
-TERMS: tuple[str, ...] = ("r_f", "r_nf", "r_nb", "base", "pass", "late")
+REWARDS: tuple[str, ...] = ("paper", "timing", "decisions")
+TERMS: tuple[str, ...] = ("r_f", "r_nf", "r_nb", "base", "pass", "late", "press")
 
 CHANGE, KEEP = 0, 1  # action indices: 0 = TO CHANGE, 1 = NOT TO CHANGE
 
@@ -117,12 +129,15 @@ class RewardSettings:
     undefined_score: float = 1.0  # change score of an undefined t_nf or dv_nb: no objection [0-1]
     undefined_t_f_score: float = 0.0  # change score of an undefined t_f: no leader to pass, no reason [0-1]
     change_baseline: float = 2.6  # timing: subtracted from the closeness sum on a change [0-3]
-    pass_penalty: float = 0.5  # timing: cost of keeping when a change would earn a positive reward [1]
+    pass_penalty: float = 0.5  # timing: cost of keeping when a change would earn a positive reward; decisions: at/after the press [1]
     late_penalty_per_s: float = 0.0  # timing: keep reward once past the reference t_f, negated [1/s]
+    press_scale_s: float = 2.0  # decisions: a change's reward falls by 1 per this many s off the press [s]
 
     def __post_init__(self) -> None:
         if self.name not in REWARDS:
             raise UserError(f"unknown reward {self.name!r}: choose one of {', '.join(REWARDS)}")
+        if self.press_scale_s <= 0:
+            raise UserError(f"press_scale_s must be positive, got {self.press_scale_s}")
         if self.m_ttc_s is None:
             object.__setattr__(self, "m_ttc_s", 0.2 if self.name == "paper" else 1.0)
         if self.m_dv_mps is None:
@@ -154,20 +169,40 @@ def past_reference(ind: Indicators, lines: ReferenceLines) -> np.ndarray:
     return ind.t_f_ok & (np.where(ind.t_f_ok, ind.t_f, np.inf) < ref)
 
 
+def press_reward(t_from_press_s: np.ndarray, settings: RewardSettings) -> np.ndarray:
+    """`decisions` reward of TO CHANGE at `t_from_press_s` = t - t_press [s]: 1 at the press, -1 floor."""
+    return np.maximum(1.0 - np.abs(t_from_press_s) / settings.press_scale_s, -1.0)
+
+
+def decisions_step_reward(t_from_press_s: np.ndarray, actions: np.ndarray,
+                          settings: RewardSettings) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Reward of the actions taken under `decisions` (0 on a keep) and its named terms."""
+    is_change = np.asarray(actions) == CHANGE
+    t = np.asarray(t_from_press_s, float)
+    zero = np.zeros(len(is_change))
+    terms = {k: zero for k in TERMS}
+    terms["press"] = np.where(is_change, press_reward(t, settings), 0.0)
+    terms["pass"] = np.where(~is_change & (t >= 0), -settings.pass_penalty, 0.0)
+    return terms["press"] + terms["pass"], terms
+
+
 def action_terms(ind: Indicators, lines: ReferenceLines, settings: RewardSettings,
                  dt: float) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Named reward terms of TO CHANGE and of NOT TO CHANGE for every scene."""
     c = change_scores(ind, lines, settings)
     zero = np.zeros_like(ind.v_e, dtype=float)
-    change = {**c, "base": zero, "pass": zero, "late": zero}
+    change = {**c, "base": zero, "pass": zero, "late": zero, "press": zero}
+    if settings.name == "decisions":
+        raise ValueError("the 'decisions' reward is paid by recorded presses: use decisions_step_reward")
     if settings.name == "paper":
-        keep = {k: 1.0 - v for k, v in c.items()} | {"base": zero, "pass": zero, "late": zero}
+        keep = {k: 1.0 - v for k, v in c.items()} | {"base": zero, "pass": zero, "late": zero, "press": zero}
     else:
         change["base"] = np.full_like(zero, -settings.change_baseline)
         acceptable = sum(c.values()) > settings.change_baseline
         keep = {"r_f": zero, "r_nf": zero, "r_nb": zero, "base": zero,
                 "pass": np.where(acceptable, -settings.pass_penalty, 0.0),
-                "late": np.where(past_reference(ind, lines), -settings.late_penalty_per_s * dt, 0.0)}
+                "late": np.where(past_reference(ind, lines), -settings.late_penalty_per_s * dt, 0.0),
+                "press": zero}
     return change, keep
 
 

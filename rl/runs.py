@@ -34,7 +34,7 @@ from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.dqn import DQNSettings, DQNTrainer, q_network
-from rl.env import EnvConfig, approaches_from_decisions
+from rl.env import Approach, EnvConfig, approaches_from_decisions, observation_names
 from rl.evaluate import agent_policy, evaluate_policies, greedy_policy
 from rl.rewards import ReferenceLines
 
@@ -229,7 +229,11 @@ def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig
         atomic_write_json(folder / "config.json", config)
         state, started_at = None, None
 
-    trainer = DQNTrainer(env_config, settings)
+    approaches = None
+    if env_config.scenes == "recorded":
+        approaches = recorded_approaches(workspace, target)
+        config.setdefault("scene_decisions", len(approaches))
+    trainer = DQNTrainer(env_config, settings, approaches=approaches)
     if state is not None:
         trainer.load_state_dict(state)
         _truncate_metrics(folder / "metrics.jsonl", trainer.episodes_done)
@@ -286,8 +290,8 @@ def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig
 # --- evaluation of a run ----------------------------------------------------------------
 
 
-def _load_q(folder: Path, settings: DQNSettings) -> torch.nn.Module:
-    net = q_network(settings.hidden)
+def _load_q(folder: Path, settings: DQNSettings, env: EnvConfig) -> torch.nn.Module:
+    net = q_network(settings.hidden, len(observation_names(env)))
     path = folder / "weights.pt"
     if not path.exists():
         raise UserError(f"run {folder.name!r} has no weights yet (still training or failed)")
@@ -320,7 +324,7 @@ def evaluate_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
     target = Target(**config["target"])
     cfg = EnvConfig.from_dict(config["env"])
     settings = DQNSettings.from_dict(config["dqn"])
-    net = _load_q(folder, settings)
+    net = _load_q(folder, settings, cfg)
     if not workspace.has_table("analysis", "decisions"):
         raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first to evaluate against the drivers")
     decisions = workspace.read_table("analysis", "decisions")
@@ -354,15 +358,23 @@ def evaluate_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
     return out
 
 
-def replay_env(workspace: Workspace, target: Target, config: EnvConfig | None = None) -> "LaneChangeDecisionEnv":
-    """The environment in replay mode over the recorded approaches of a driver or a style's members."""
-    from rl.env import LaneChangeDecisionEnv
-
+def recorded_approaches(workspace: Workspace, target: Target) -> list["Approach"]:
+    """Every recorded approach of the target: the driver's, or all members' of a style."""
+    if not workspace.has_table("analysis", "decisions"):
+        raise UserError(f"no analysis in {workspace.root}: recorded scenes need `laneprint analyze` first")
     decisions = workspace.read_table("analysis", "decisions")
     drivers, _ = _eval_drivers(workspace, target)
     approaches, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(drivers)])
     if not approaches:
-        raise UserError(f"no recorded approaches for {target.label}")
+        raise UserError(f"no recorded approaches for {target.label}: nothing to replay (try --scenes synthetic)")
+    return approaches
+
+
+def replay_env(workspace: Workspace, target: Target, config: EnvConfig | None = None) -> "LaneChangeDecisionEnv":
+    """The environment in replay mode over the recorded approaches of a driver or a style's members."""
+    from rl.env import LaneChangeDecisionEnv
+
+    approaches = recorded_approaches(workspace, target)
     return LaneChangeDecisionEnv(config or EnvConfig(lines=resolve_lines(workspace, target, "analysis")),
                                  approaches=approaches)
 
@@ -436,4 +448,4 @@ def load_weights(workspace: Workspace, run_id: str) -> torch.nn.Module:
     config = _read_json(folder / "config.json")
     if config is None:
         raise UserError(f"no run {run_id!r} in {workspace.root}")
-    return _load_q(folder, DQNSettings.from_dict(config["dqn"]))
+    return _load_q(folder, DQNSettings.from_dict(config["dqn"]), EnvConfig.from_dict(config["env"]))

@@ -153,3 +153,30 @@ def observe(scene: Scene, range_m: float, v_max_mps: float) -> np.ndarray:
     ]
     obs = np.stack(cols, axis=1)
     return np.clip(obs, OBS_FLOOR, 1.0).astype(np.float32)
+
+
+#: Names of the indicator features `observe_indicators` appends to the study's state.
+INDICATOR_FEATURES: tuple[str, ...] = ("t_f", "t_nf", "dv_nb", "t_f_ok", "t_nf_ok", "dv_nb_ok")
+
+TTC_CAP_S: float = 60.0  # TTCs are read on a log scale up to this [s]
+DV_RANGE_MPS: float = 20.0  # dv_nb is read over +-this [m/s]
+
+
+def indicator_features(scene: Scene, far_follower_m: float, range_m: float) -> np.ndarray:
+    """t_f, t_nf, dv_nb and their definedness, scaled to [OBS_FLOOR, 1], shape (n, 6) float32.
+
+    A TTC is read as ``log1p(t) / log1p(TTC_CAP_S)``: the drivers' decisions differ by
+    seconds at short TTCs, not at fifty, and a log keeps the heavy tail from
+    dominating. An undefined TTC (no leader, or not closing) reads as the cap, an
+    undefined dv_nb (no follower within reach) as 0.5 (no relative speed); the
+    three flags say which were defined, so "far" and "undefined" stay apart.
+    """
+    ind = indicators(scene, far_follower_m, range_m)
+
+    def ttc(t: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        return np.log1p(np.where(ok, np.minimum(t, TTC_CAP_S), TTC_CAP_S)) / np.log1p(TTC_CAP_S)
+
+    dv = np.where(ind.dv_nb_ok, (ind.dv_nb + DV_RANGE_MPS) / (2 * DV_RANGE_MPS), 0.5)
+    cols = [ttc(ind.t_f, ind.t_f_ok), ttc(ind.t_nf, ind.t_nf_ok), dv,
+            ind.t_f_ok.astype(float), ind.t_nf_ok.astype(float), ind.dv_nb_ok.astype(float)]
+    return np.clip(np.stack(cols, axis=1), OBS_FLOOR, 1.0).astype(np.float32)

@@ -6,6 +6,33 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any
 
+#: Where episodes' scenes come from, and what the agent sees.
+SCENES: tuple[str, ...] = ("synthetic", "recorded")
+OBSERVATIONS: tuple[str, ...] = ("paper", "indicators")
+
+#: The command line's default reward, chosen by held-out agreement (rl/README.md).
+DEFAULT_REWARD = "decisions"
+#: Each reward's own scenes and observation, used where the user names none:
+#: `decisions` is paid by recorded presses; `timing` and `paper` are the study's
+#: formulation (synthetic scenes, the 8-value state) as the first sessions measured it.
+FORMULATIONS: dict[str, tuple[str, str]] = {
+    "decisions": ("recorded", "indicators"),
+    "timing": ("synthetic", "paper"),
+    "paper": ("synthetic", "paper"),
+}
+
+
+def resolve_formulation(reward: str | None, scenes: str | None, observation: str | None,
+                        lines: str = "analysis") -> tuple[str, str, str]:
+    """(reward, scenes, observation) with the defaults filled in.
+
+    Table 1's lines (`lines='paper'`) need no data, so the default reward there is
+    `timing` on synthetic scenes; otherwise `DEFAULT_REWARD`.
+    """
+    reward = reward or (DEFAULT_REWARD if lines == "analysis" else "timing")
+    own = FORMULATIONS.get(reward, ("synthetic", "paper"))
+    return reward, scenes or own[0], observation or own[1]
+
 
 @dataclass(frozen=True)
 class DQNSettings:

@@ -87,12 +87,22 @@ def test_replay_mode_follows_the_recorded_states_then_extrapolates():
     assert info["t_f"] == pytest.approx(recorded_tf[2] - 0.5)
 
 
-def test_skip_rule_counts_undefined_leaders():
+def test_presses_without_a_closing_leader_are_replayed_unless_the_study_rule_is_asked():
     dec = rule_driver_decisions(ReferenceLines.paper("Normal"), 4, seed=0, window_s=1.0)
     press = dec.index[(dec.decision_id == dec.decision_id.iloc[0]) & (dec.label == "change")]
     dec.loc[press, ["t_f_status", "t_f_s"]] = ["not_closing", np.nan]
     approaches, skipped = approaches_from_decisions(dec)
+    assert len(approaches) == 4 and not any(skipped.values())  # the driver decided there too: scored
+    approaches, skipped = approaches_from_decisions(dec, include_following=False)
     assert len(approaches) == 3 and skipped["no_closing_leader"] == 1
+
+
+def test_a_decision_without_its_press_row_is_counted_not_replayed():
+    dec = rule_driver_decisions(ReferenceLines.paper("Normal"), 4, seed=0, window_s=1.0)
+    first = dec.decision_id.iloc[0]
+    dec = dec[~((dec.decision_id == first) & (dec.label == "change"))]
+    approaches, skipped = approaches_from_decisions(dec)
+    assert len(approaches) == 3 and skipped["no_press"] == 1
 
 
 def test_sample_scenes_put_leaders_ahead():

@@ -1,0 +1,233 @@
+"""Held-out evaluation: agent vs greedy vs imitation on sessions none of them saw.
+
+The target's sessions (recordings) are split into K folds. For each fold, the
+reference lines are refitted on the other folds' presses, the agent is trained
+on the other folds' approaches (or synthetic scenes with those lines), the
+imitation classifier is fitted on the other folds' states, and all three
+policies are scored on the held-out fold. Every decision is scored once, by
+policies that never saw it.
+
+Splits (`CrossvalSettings.split`):
+
+- ``session``: each driver's sessions are shuffled (seeded) and dealt to the
+  folds in turn, so every fold holds about the same share of every driver;
+- ``section``: a fold is a speed section (``speed_limit_kph``); the lines are then
+  extrapolated over speed to the held-out section (K = the number of sections).
+
+Figures pool the held-out states of all folds; the 95 % interval of the
+balanced accuracy (and the timing error) comes from a bootstrap over decisions
+(an approach and its not-yet states are resampled together, as they are not
+independent). Style membership comes from the full analysis (it is a property
+of drivers, not of sessions); everything fitted to decisions is refitted per fold.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from indicators.settings import AnalysisSettings
+from indicators.stats import fit_lines
+from laneprint.errors import UserError
+from laneprint.progress import ProgressFn, report
+from laneprint.reference import INDICATORS
+from rl.env import Approach, EnvConfig, approaches_from_decisions
+from rl.evaluate import evaluate_policies, greedy_policy
+from rl.imitation import ImitationClassifier
+from rl.rewards import ReferenceLines
+from rl.settings import DQNSettings
+
+SPLITS: tuple[str, ...] = ("session", "section")
+POLICIES: tuple[str, ...] = ("agent", "greedy", "imitation")
+
+
+@dataclass(frozen=True)
+class CrossvalSettings:
+    """How the sessions are split and scored."""
+
+    folds: int = 4  # K (with split='section': at most the number of sections)
+    split: str = "session"  # 'session' or 'section' (see the module doc)
+    seed: int = 0  # fold assignment, bootstrap, imitation classifier; agents use DQNSettings.seed + fold
+    n_bootstrap: int = 1000  # resamples of the decisions for the intervals
+    lines_from: str = "typical"  # style targets: refit the 'typical' driver's lines, or 'pooled' over members
+
+    def __post_init__(self) -> None:
+        if self.split not in SPLITS:
+            raise UserError(f"unknown split {self.split!r}: choose one of {', '.join(SPLITS)}")
+        if self.folds < 2:
+            raise UserError(f"--folds must be at least 2, got {self.folds}")
+        if self.lines_from not in ("typical", "pooled"):
+            raise UserError(f"lines_from must be 'typical' or 'pooled', got {self.lines_from!r}")
+
+
+def assign_folds(sessions: pd.DataFrame, settings: CrossvalSettings) -> dict[str, int]:
+    """recording_id -> fold, from a frame of recording_id, driver_id, speed_limit_kph."""
+    rng = np.random.default_rng(settings.seed)
+    out: dict[str, int] = {}
+    if settings.split == "section":
+        limits = sorted(sessions["speed_limit_kph"].dropna().unique())
+        if sessions["speed_limit_kph"].isna().any() or len(limits) < 2:
+            raise UserError("split 'section' needs speed_limit_kph on every session and at least two sections")
+        k = min(settings.folds, len(limits))
+        # consecutive sections share a fold when K is below the number of sections
+        fold_of = {lim: int(i * k // len(limits)) for i, lim in enumerate(limits)}
+        for rid, lim in zip(sessions["recording_id"], sessions["speed_limit_kph"]):
+            out[str(rid)] = fold_of[lim]
+        return out
+    offset = 0
+    for _, g in sessions.sort_values(["driver_id", "recording_id"]).groupby("driver_id", sort=True):
+        ids = g["recording_id"].astype(str).to_numpy()
+        ids = ids[rng.permutation(len(ids))]
+        for i, rid in enumerate(ids):
+            out[rid] = (offset + i) % settings.folds
+        offset += len(ids)  # the next driver starts where this one stopped: folds stay balanced
+    return out
+
+
+def fold_lines(train: pd.DataFrame, line_drivers: list[str], fallback: ReferenceLines,
+               analysis: AnalysisSettings) -> tuple[ReferenceLines, list[str]]:
+    """Reference lines refitted on the training folds' presses of `line_drivers` (pooled when several).
+
+    An indicator that cannot be fitted (too few defined presses) keeps the full
+    analysis's line, with a note.
+    """
+    dec = train[train["driver_id"].astype(str).isin(line_drivers)].copy()
+    dec["driver_id"] = "+".join(line_drivers)  # several drivers: one pooled fit
+    fits = fit_lines(dec, analysis).set_index("indicator")
+    got, notes = {}, []
+    for ind in INDICATORS:
+        row = fits.loc[ind] if ind in fits.index else None
+        if row is not None and row["status"] == "ok":
+            got[ind] = (float(row["A"]), float(row["b"]))
+        else:
+            got[ind] = getattr(fallback, ind)
+            notes.append(f"{ind}: {row['reason'] if row is not None else 'no presses'}; the full analysis's line used")
+    source = f"refitted on the training folds ({', '.join(line_drivers)})"
+    return ReferenceLines(got["t_f"], got["t_nf"], got["dv_nb"], source), notes
+
+
+def _decision_counts(states: pd.DataFrame, action_col: str) -> pd.DataFrame:
+    """Per decision: press said change (0/1), not-yet states, not-yet states said keep."""
+    said_change = states[action_col].to_numpy() == 0
+    is_press = (states["label"] == "change").to_numpy()
+    df = pd.DataFrame({"decision_id": states["decision_id"].to_numpy(),
+                       "press_ok": (said_change & is_press).astype(float),
+                       "n_keep": (~is_press).astype(float),
+                       "keep_ok": (~said_change & ~is_press).astype(float)})
+    return df.groupby("decision_id", sort=True).sum()
+
+
+def bootstrap_scores(states: pd.DataFrame, changes: pd.DataFrame, who: str, n_boot: int,
+                     rng: np.random.Generator) -> dict[str, Any]:
+    """Balanced accuracy, recall, specificity and timing of one policy with bootstrap 95 % intervals."""
+    counts = _decision_counts(states, f"action_{who}")
+    ch = changes[changes["who"] == who].set_index("decision_id").reindex(counts.index)
+    err = ch["timing_error_s"].abs().to_numpy(dtype=float)
+    n = len(counts)
+    press_ok, n_keep, keep_ok = (counts[c].to_numpy() for c in ("press_ok", "n_keep", "keep_ok"))
+
+    def figures(w: np.ndarray) -> tuple[float, float, float, float]:
+        rec = (w @ press_ok) / w.sum()
+        spec = (w @ keep_ok) / max(w @ n_keep, 1e-12)
+        has = np.isfinite(err)
+        mae = (w[has] @ err[has]) / w[has].sum() if w[has].sum() > 0 else np.nan
+        return (rec + spec) / 2, rec, spec, mae
+
+    ba, rec, spec, mae = figures(np.ones(n))
+    w = rng.multinomial(n, np.full(n, 1.0 / n), size=n_boot).astype(float) if n else np.zeros((0, 0))
+    boots = np.array([figures(wi) for wi in w]) if n else np.full((1, 4), np.nan)
+    lo, hi = np.nanpercentile(boots, [2.5, 97.5], axis=0)
+    return {"who": who, "balanced_accuracy": float(ba), "balanced_accuracy_ci": [float(lo[0]), float(hi[0])],
+            "recall": float(rec), "specificity": float(spec),
+            "timing_mae_s": None if np.isnan(mae) else float(mae),
+            "timing_mae_ci": None if np.isnan(mae) else [float(lo[3]), float(hi[3])],
+            "never_rate": float(np.mean(~np.isfinite(ch["change_t_s"].to_numpy(dtype=float)))) if n else None,
+            "n_decisions": int(n), "n_states": int(len(states))}
+
+
+def _train_agent(approaches: list[Approach], cfg: EnvConfig, dqn: DQNSettings, progress: ProgressFn | None,
+                 label: str):
+    from rl.dqn import DQNTrainer
+    from rl.evaluate import agent_policy
+
+    trainer = DQNTrainer(cfg, dqn, approaches=approaches if cfg.scenes == "recorded" else None)
+
+    def tick(t) -> bool:
+        report(progress, t.episodes_done, dqn.episodes, label)
+        return False
+
+    trainer.train(on_vector_step=tick)
+    return agent_policy(trainer.policy_net, cfg)
+
+
+def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: list[str], env: EnvConfig,
+                  dqn: DQNSettings, settings: CrossvalSettings, analysis: AnalysisSettings | None = None,
+                  refit_lines: bool = True, progress: ProgressFn | None = None) -> dict[str, Any]:
+    """Held-out figures of agent, greedy and imitation on `drivers`' decisions (see the module doc).
+
+    `line_drivers`: whose presses the reference lines are refitted on (the typical
+    driver of a style, or the driver). `env.lines` is the fallback for an indicator
+    that cannot be refitted, and the lines used when `refit_lines` is False (Table 1).
+    Returns a JSON-ready dict plus two frames, ``states`` and ``changes`` (out-of-fold).
+    """
+    analysis = analysis or AnalysisSettings()
+    dec = decisions[decisions["driver_id"].astype(str).isin(drivers)]
+    if dec.empty:
+        raise UserError(f"no decisions of {', '.join(drivers)} in the analysis")
+    sessions = dec.groupby("recording_id", sort=True).agg(driver_id=("driver_id", "first"),
+                                                         speed_limit_kph=("speed_limit_kph", "first")).reset_index()
+    if len(sessions) < settings.folds and settings.split == "session":
+        raise UserError(f"{len(sessions)} session(s) cannot make {settings.folds} folds: pass a smaller --folds")
+    fold_of = assign_folds(sessions, settings)
+    fold = dec["recording_id"].astype(str).map(fold_of).to_numpy()
+    n_folds = int(fold.max()) + 1
+    rng = np.random.default_rng([settings.seed, 7])
+    all_states, all_changes, per_fold, notes = [], [], [], []
+    unscored: dict[str, int] = {}
+    for k in range(n_folds):
+        train, test = dec[fold != k], dec[fold == k]
+        test_app, skipped = approaches_from_decisions(test)
+        train_app, _ = approaches_from_decisions(train)
+        for r, c in skipped.items():
+            unscored[r] = unscored.get(r, 0) + c
+        if not test_app or not train_app:
+            notes.append(f"fold {k}: {'no held-out' if not test_app else 'no training'} decisions, not scored")
+            continue
+        cfg = env
+        if refit_lines:
+            lines, line_notes = fold_lines(train, line_drivers, env.lines, analysis)
+            cfg = replace(env, lines=lines)
+            notes += [f"fold {k}: {n}" for n in line_notes]
+        label = f"fold {k + 1}/{n_folds}"
+        policies = {
+            "agent": _train_agent(train_app, cfg, replace(dqn, seed=dqn.seed + k), progress, f"{label}: agent"),
+            "greedy": greedy_policy(cfg),
+            "imitation": ImitationClassifier(random_state=settings.seed + k).fit(train_app, cfg).policy(cfg),
+        }
+        ev = evaluate_policies(policies, test_app, cfg, skipped)
+        ev["states"].insert(0, "fold", k)
+        ev["changes"].insert(0, "fold", k)
+        all_states.append(ev["states"])
+        all_changes.append(ev["changes"])
+        per_fold.append({"fold": k, "sessions": sorted(test["recording_id"].astype(str).unique()),
+                         "n_train_decisions": len(train_app), "n_decisions": ev["n_decisions"],
+                         "lines": cfg.lines.to_dict(),
+                         **{f"{r['who']}_balanced_accuracy": r["balanced_accuracy"] for r in ev["summary"]}})
+    if not all_states:
+        raise UserError("no fold could be scored: " + "; ".join(notes))
+    states = pd.concat(all_states, ignore_index=True)
+    changes = pd.concat(all_changes, ignore_index=True)
+    summary = [bootstrap_scores(states, changes, who, settings.n_bootstrap, rng) for who in POLICIES]
+    n_total = int(dec["decision_id"].nunique())
+    n_scored = int(states["decision_id"].nunique())
+    return {
+        "drivers": drivers, "line_drivers": line_drivers, "folds": n_folds, "settings": asdict(settings),
+        "env": env.to_dict(), "dqn": dqn.to_dict(), "summary": summary, "per_fold": per_fold,
+        "n_decisions_total": n_total, "n_decisions_scored": n_scored,
+        "scored_share": n_scored / n_total if n_total else None,
+        "unscored": {k: v for k, v in unscored.items() if v}, "notes": notes,
+        "states": states, "changes": changes,
+    }

@@ -1,0 +1,142 @@
+"""Held-out evaluations in the workspace: `crossval/<crossval_id>/`.
+
+Files: ``result.json`` (settings, per-policy summary with intervals, per fold,
+unscored decisions and why), ``states.parquet`` and ``changes.parquet`` (the
+out-of-fold actions of every policy at every scored state, and each policy's
+first change per decision). A cross-validation of a run also leaves
+``runs/<run_id>/crossval.json``, so the dashboard shows it beside the run's
+in-sample figures. Everything is written aside and renamed into place.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+from dataclasses import asdict, replace
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from indicators.settings import AnalysisSettings
+from laneprint.errors import UserError
+from laneprint.progress import ProgressFn
+from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
+from rl.crossval import CrossvalSettings, crossvalidate
+from rl.env import EnvConfig
+from rl.rewards import ReferenceLines
+from rl.runs import Target, _eval_drivers, now_iso, resolve_lines, run_dir
+from rl.settings import DQNSettings
+
+
+def crossval_dir(workspace: Workspace) -> Path:
+    return workspace.root / "crossval"
+
+
+def _analysis_settings(workspace: Workspace) -> AnalysisSettings:
+    path = workspace.root / "analysis" / "meta.json"
+    try:
+        d = json.loads(path.read_text())["settings"]
+        fields = AnalysisSettings.__dataclass_fields__
+        return AnalysisSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in fields})
+    except (OSError, ValueError, KeyError, TypeError):
+        return AnalysisSettings()
+
+
+def style_names(workspace: Workspace) -> list[str]:
+    """Styles of the analysis, in cluster order."""
+    if not workspace.has_table("analysis", "styles"):
+        raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first")
+    st = workspace.read_table("analysis", "styles")
+    st = st[st["cluster"] >= 0].sort_values("cluster")
+    return list(dict.fromkeys(st["style"].astype(str)))
+
+
+def run_crossval(workspace: Workspace, target: Target, env: EnvConfig, dqn: DQNSettings,
+                 settings: CrossvalSettings, lines_source: str = "analysis", run_id: str | None = None,
+                 progress: ProgressFn | None = None) -> dict[str, Any]:
+    """Cross-validate one target and store the result; returns its JSON-ready summary."""
+    if not workspace.has_table("analysis", "decisions"):
+        raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first")
+    decisions = workspace.read_table("analysis", "decisions")
+    drivers, typical = _eval_drivers(workspace, target)
+    if target.kind == "driver" or settings.lines_from == "typical":
+        line_drivers = [typical] if typical else drivers
+    else:
+        line_drivers = drivers
+    res = crossvalidate(decisions, drivers, line_drivers, env, dqn, settings, _analysis_settings(workspace),
+                        refit_lines=lines_source == "analysis", progress=progress)
+    states, changes = res.pop("states"), res.pop("changes")
+    cv_id = _new_id(target, env.reward.name, settings.seed)
+    res = {"crossval_id": cv_id, "target": asdict(target), "run_id": run_id, "lines_source": lines_source,
+           "created_at": now_iso(), "data_fingerprint": workspace.fingerprint(), **res}
+    folder = crossval_dir(workspace) / cv_id
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, df in (("states", states), ("changes", changes)):
+        buf = io.BytesIO()
+        df.to_parquet(buf, index=False)
+        atomic_write_bytes(folder / f"{name}.parquet", buf.getvalue())
+    atomic_write_json(folder / "result.json", res)  # last: a folder without it is unfinished
+    if run_id:
+        atomic_write_json(run_dir(workspace, run_id) / "crossval.json", res)
+    return res
+
+
+def crossval_run(workspace: Workspace, run_id: str, settings: CrossvalSettings, episodes: int | None = None,
+                 progress: ProgressFn | None = None) -> dict[str, Any]:
+    """Cross-validate with a trained run's target and settings (its reward, scenes, trainer)."""
+    folder = run_dir(workspace, run_id)
+    try:
+        config = json.loads((folder / "config.json").read_text())
+    except (OSError, ValueError):
+        raise UserError(f"no run {run_id!r} in {workspace.root}") from None
+    env = EnvConfig.from_dict(config["env"])
+    dqn = DQNSettings.from_dict(config["dqn"])
+    if episodes is not None:
+        dqn = replace(dqn, episodes=episodes)
+    return run_crossval(workspace, Target(**config["target"]), env, dqn, settings,
+                        config.get("lines_source", "analysis"), run_id=run_id, progress=progress)
+
+
+def target_env(workspace: Workspace, target: Target, env: EnvConfig, lines_source: str) -> EnvConfig:
+    """`env` with the target's full-analysis lines (the fallback of every fold)."""
+    lines: ReferenceLines = resolve_lines(workspace, target, lines_source)
+    return replace(env, lines=lines)
+
+
+def _new_id(target: Target, reward: str, seed: int) -> str:
+    slug = re.sub(r"[^a-z0-9]+", "-", target.name.lower()).strip("-") or "cv"
+    return f"{datetime.now(timezone.utc):%Y%m%d-%H%M%S-%f}-{slug}-{reward}-s{seed}"
+
+
+def list_crossvals(workspace: Workspace) -> pd.DataFrame:
+    """One row per finished cross-validation: id, target, run, reward, and each policy's balanced accuracy."""
+    rows = []
+    root = crossval_dir(workspace)
+    for folder in sorted(root.glob("*")) if root.exists() else []:
+        try:
+            res = json.loads((folder / "result.json").read_text())
+        except (OSError, ValueError):
+            continue
+        row = {"crossval_id": folder.name, "target_kind": res["target"]["kind"], "target": res["target"]["name"],
+               "run_id": res.get("run_id"), "reward": res["env"]["reward"]["name"], "scenes": res["env"].get("scenes"),
+               "folds": res.get("folds"), "created_at": res.get("created_at")}
+        for r in res.get("summary", []):
+            row[f"{r['who']}_balanced_accuracy"] = r["balanced_accuracy"]
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def load_crossval(workspace: Workspace, crossval_id: str) -> dict[str, Any]:
+    """A stored cross-validation: its result dict plus the ``states`` and ``changes`` frames."""
+    folder = crossval_dir(workspace) / crossval_id
+    try:
+        res = json.loads((folder / "result.json").read_text())
+    except (OSError, ValueError):
+        raise UserError(f"no cross-validation {crossval_id!r} in {workspace.root}") from None
+    for name in ("states", "changes"):
+        path = folder / f"{name}.parquet"
+        res[name] = pd.read_parquet(path) if path.exists() else None
+    return res
