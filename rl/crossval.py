@@ -23,6 +23,7 @@ of drivers, not of sessions); everything fitted to decisions is refitted per fol
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
@@ -139,7 +140,9 @@ def bootstrap_scores(states: pd.DataFrame, changes: pd.DataFrame, who: str, n_bo
     ba, rec, spec, mae = figures(np.ones(n))
     w = rng.multinomial(n, np.full(n, 1.0 / n), size=n_boot).astype(float) if n else np.zeros((0, 0))
     boots = np.array([figures(wi) for wi in w]) if n else np.full((1, 4), np.nan)
-    lo, hi = np.nanpercentile(boots, [2.5, 97.5], axis=0)
+    with warnings.catch_warnings():  # a policy that never changes has no timing in some resamples
+        warnings.simplefilter("ignore", RuntimeWarning)
+        lo, hi = np.nanpercentile(boots, [2.5, 97.5], axis=0)
     return {"who": who, "balanced_accuracy": float(ba), "balanced_accuracy_ci": [float(lo[0]), float(hi[0])],
             "recall": float(rec), "specificity": float(spec),
             "timing_mae_s": None if np.isnan(mae) else float(mae),

@@ -36,6 +36,7 @@ from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.dqn import DQNSettings, DQNTrainer, q_network
 from rl.env import Approach, EnvConfig, approaches_from_decisions, observation_names
 from rl.evaluate import agent_policy, evaluate_policies, greedy_policy
+from rl.imitation import ImitationClassifier
 from rl.rewards import ReferenceLines
 
 RUN_STATES = ("running", "done", "failed", "cancelled")
@@ -329,7 +330,11 @@ def evaluate_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
         raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first to evaluate against the drivers")
     decisions = workspace.read_table("analysis", "decisions")
     drivers, typical = _eval_drivers(workspace, target)
+    # the imitation benchmark, fitted on the same states it is scored on (in-sample, like the agent)
+    member_approaches, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(drivers)])
     policies = {"agent": agent_policy(net, cfg), "greedy": greedy_policy(cfg)}
+    if member_approaches:
+        policies["imitation"] = ImitationClassifier(random_state=settings.seed).fit(member_approaches, cfg).policy(cfg)
     out: dict[str, Any] = {"run_id": run_id, "target": asdict(target), "reward": cfg.reward.name,
                            "drivers": drivers, "typical_driver": typical, "evaluated_at": now_iso(),
                            "data_fingerprint": workspace.fingerprint()}
@@ -348,8 +353,10 @@ def evaluate_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
         if group == "members":
             tables = {"eval_states": ev["states"], "eval_changes": ev["changes"]}
     out["summary"] = out.get("summary_typical") or out["summary_members"]
-    out["note"] = ("figures on the typical driver's decisions first ('summary_typical'), then on all members"
-                   if "summary_typical" in out else "figures on the driver's decisions")
+    out["note"] = ("in-sample figures (the agent and the imitation classifier were fitted on these decisions; "
+                   "`laneprint crossval --run` holds sessions out): the typical driver's decisions first "
+                   "('summary_typical'), then all members'" if "summary_typical" in out else
+                   "in-sample figures on the driver's decisions (`laneprint crossval --run` holds sessions out)")
     for name, df in tables.items():
         buf = io.BytesIO()
         df.to_parquet(buf, index=False)

@@ -1,0 +1,165 @@
+"""Recorded scenes, the `decisions` reward, the imitation benchmark and held-out cross-validation."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from laneprint.cli import app
+from laneprint.errors import UserError
+from laneprint.workspace import Workspace
+from rl.crossval import CrossvalSettings, assign_folds, crossvalidate
+from rl.dqn import DQNSettings, DQNTrainer
+from rl.env import EnvConfig, LaneChangeDecisionEnv, VecReplayEnv, approaches_from_decisions
+from rl.evaluate import agent_policy, evaluate_policies, greedy_policy
+from rl.imitation import ImitationClassifier
+from rl.rewards import CHANGE, KEEP, ReferenceLines, RewardSettings, decisions_step_reward
+from rl.settings import resolve_formulation
+from rl.testing import rule_driver_decisions
+
+LINES = ReferenceLines.paper("Normal")
+DECISIONS_ENV = EnvConfig(lines=LINES, reward=RewardSettings(name="decisions"), scenes="recorded",
+                          observation="indicators")
+FAST = dict(num_envs=8, batch_size=128, learning_starts=300)
+
+
+def sessions(n_sessions: int, per_session: int, driver: str = "D01", seed: int = 0) -> pd.DataFrame:
+    """Decisions of a rule driver over several sessions (recordings)."""
+    parts = []
+    for k in range(n_sessions):
+        d = rule_driver_decisions(LINES, per_session, seed=seed + k, cfg=EnvConfig(lines=LINES), driver_id=driver,
+                                  window_s=4.0)
+        rid = f"{driver}-rec{k}"
+        d["recording_id"] = rid
+        d["session_id"] = rid
+        d["decision_id"] = rid + ":" + d["decision_id"].str.split(":").str[1]
+        d["speed_limit_kph"] = float(60 + 10 * k)
+        parts.append(d)
+    return pd.concat(parts, ignore_index=True)
+
+
+def test_decisions_reward_pays_the_press_and_charges_a_passed_up_moment():
+    s = RewardSettings(name="decisions", press_scale_s=2.0, pass_penalty=0.5)
+    t = np.array([-4.0, -1.0, 0.0, 0.5, 0.0, -1.0])
+    act = np.array([CHANGE, CHANGE, CHANGE, CHANGE, KEEP, KEEP])
+    r, terms = decisions_step_reward(t, act, s)
+    assert r.tolist() == pytest.approx([-1.0, 0.5, 1.0, 0.75, -0.5, 0.0])
+    assert terms["press"][:4].tolist() == pytest.approx([-1.0, 0.5, 1.0, 0.75])
+    assert terms["pass"].tolist() == pytest.approx([0, 0, 0, 0, -0.5, 0])
+
+
+def test_decisions_reward_needs_recorded_scenes():
+    with pytest.raises(UserError, match="recorded scenes"):
+        EnvConfig(reward=RewardSettings(name="decisions"))
+    assert resolve_formulation(None, None, None) == ("decisions", "recorded", "indicators")
+    assert resolve_formulation(None, None, None, lines="paper") == ("timing", "synthetic", "paper")
+    assert resolve_formulation("timing", "recorded", None) == ("timing", "recorded", "paper")
+
+
+def test_replay_env_walks_the_recorded_approach_then_runs_on_past_the_press():
+    approaches, _ = approaches_from_decisions(rule_driver_decisions(LINES, 1, seed=0, window_s=1.0))
+    env = VecReplayEnv(DECISIONS_ENV, approaches, 1, np.random.default_rng(0))
+    env.index[:] = 0
+    env.scene.put(np.array([0]), env.states.take(np.array([0])))
+    seen = [float(env.t_from_press()[0])]
+    for _ in range(3):
+        out = env.step(np.array([KEEP]))
+        seen.append(float(env.t_from_press()[0]))
+        assert not out["terminated"][0]
+    assert seen == pytest.approx([-1.0, -0.5, 0.0, 0.5])  # two not-yet states, the press, then run on
+    assert out["reward"][0] == pytest.approx(-DECISIONS_ENV.reward.pass_penalty)  # kept at the press
+    out = env.step(np.array([CHANGE]))  # half a second late
+    assert out["terminated"][0] and out["reward"][0] == pytest.approx(1 - 0.5 / 2.0)
+
+
+def test_replay_env_truncates_after_the_late_window():
+    approaches, _ = approaches_from_decisions(rule_driver_decisions(LINES, 1, seed=0, window_s=0.5))
+    cfg = EnvConfig(lines=LINES, reward=RewardSettings(name="decisions"), scenes="recorded", replay_late_s=1.0,
+                    end_at_leader=False)
+    env = VecReplayEnv(cfg, approaches, 1, np.random.default_rng(0))
+    env.index[:] = 1  # the press
+    env.scene.put(np.array([0]), env.states.take(np.array([1])))
+    truncated = [bool(env.step(np.array([KEEP]))["truncated"][0]) for _ in range(3)]
+    assert truncated == [False, False, True]
+
+
+def test_gym_env_replays_with_the_decisions_reward():
+    approaches, _ = approaches_from_decisions(rule_driver_decisions(LINES, 2, seed=0, window_s=1.0))
+    env = LaneChangeDecisionEnv(DECISIONS_ENV, approaches=approaches)
+    obs, _ = env.reset(seed=0, options={"approach": 0})
+    assert obs.shape == env.observation_space.shape == (14,)
+    env.step(KEEP)
+    env.step(KEEP)
+    _, reward, terminated, _, info = env.step(CHANGE)  # at the press
+    assert terminated and reward == pytest.approx(1.0) and info["terms"]["press"] == pytest.approx(1.0)
+
+
+def test_agent_on_recorded_scenes_learns_the_drivers_moment():
+    dec = rule_driver_decisions(LINES, 40, seed=0, window_s=4.0)
+    approaches, _ = approaches_from_decisions(dec)
+    trainer = DQNTrainer(DECISIONS_ENV, DQNSettings(episodes=2500, seed=0, **FAST), approaches=approaches).train()
+    ev = evaluate_policies({"agent": agent_policy(trainer.policy_net, DECISIONS_ENV),
+                            "greedy": greedy_policy(DECISIONS_ENV)}, approaches, DECISIONS_ENV)
+    rows = {r["who"]: r for r in ev["summary"]}
+    assert rows["agent"]["balanced_accuracy"] >= 0.85
+    assert rows["agent"]["timing_mae_s"] < rows["greedy"]["timing_mae_s"]
+
+
+def test_imitation_classifier_separates_presses_from_not_yet_states():
+    approaches, _ = approaches_from_decisions(rule_driver_decisions(LINES, 60, seed=0, window_s=4.0))
+    clf = ImitationClassifier(random_state=0).fit(approaches, DECISIONS_ENV)
+    ev = evaluate_policies({"imitation": clf.policy(DECISIONS_ENV)}, approaches, DECISIONS_ENV)
+    assert ev["summary"][0]["balanced_accuracy"] >= 0.85
+
+
+def test_folds_deal_every_drivers_sessions_and_are_seeded():
+    s = pd.DataFrame({"recording_id": [f"{d}-{k}" for d in ("A", "B") for k in range(4)],
+                      "driver_id": [d for d in ("A", "B") for _ in range(4)],
+                      "speed_limit_kph": [60.0, 70.0, 80.0, 90.0] * 2})
+    folds = assign_folds(s, CrossvalSettings(folds=4, seed=1))
+    assert folds == assign_folds(s, CrossvalSettings(folds=4, seed=1))
+    for d in ("A", "B"):
+        assert sorted(folds[f"{d}-{k}"] for k in range(4)) == [0, 1, 2, 3]
+    by_section = assign_folds(s, CrossvalSettings(folds=2, split="section"))
+    assert by_section["A-0"] == by_section["B-1"] == 0 and by_section["A-3"] == 1
+
+
+def test_crossval_scores_every_decision_once_on_sessions_not_trained_on():
+    dec = sessions(4, 8)
+    res = crossvalidate(dec, ["D01"], ["D01"], DECISIONS_ENV, DQNSettings(episodes=300, **FAST),
+                        CrossvalSettings(folds=4, n_bootstrap=50))
+    assert [r["who"] for r in res["summary"]] == ["agent", "greedy", "imitation"]
+    for r in res["summary"]:
+        lo, hi = r["balanced_accuracy_ci"]
+        assert lo <= r["balanced_accuracy"] <= hi and r["n_decisions"] == 32
+    assert res["n_decisions_scored"] == res["n_decisions_total"] == 32 and res["scored_share"] == 1.0
+    held = [set(f["sessions"]) for f in res["per_fold"]]
+    assert len(held) == 4 and all(len(h) == 1 for h in held) and len(set.union(*held)) == 4
+    assert all(f["n_train_decisions"] == 24 for f in res["per_fold"])
+    states = res["states"]
+    assert states.groupby("decision_id")["fold"].nunique().max() == 1
+
+
+def test_crossval_command_prints_one_row_per_policy(tmp_path):
+    ws = Workspace(tmp_path).ensure()
+    dec = sessions(4, 6)
+    refs = pd.DataFrame([{"scope": "style", "name": "Normal", "kind": "typical", "indicator": k, "A": a, "b": b,
+                          "A_lo": None, "A_hi": None, "b_lo": None, "b_hi": None, "r2": None, "n": 24,
+                          "source": "typical driver D01"} for k, (a, b) in
+                         (("t_f", LINES.t_f), ("t_nf", LINES.t_nf), ("dv_nb", LINES.dv_nb))])
+    styles = pd.DataFrame({"driver_id": ["D01"], "style": ["Normal"], "is_typical": [True], "cluster": [0]})
+    ws.write_tables("analysis", {"decisions": dec, "reference_lines": refs, "styles": styles}, meta={})
+    res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--episodes", "200",
+                                   "--bootstrap", "50", "-w", str(tmp_path), "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    rows = {r["who"]: r for r in out["summary"]}
+    assert set(rows) == {"agent", "greedy", "imitation"}
+    for r in rows.values():
+        assert {"balanced_accuracy", "balanced_accuracy_ci", "recall", "specificity", "timing_mae_s",
+                "never_rate", "n_decisions", "n_states"} <= set(r)
+    assert (tmp_path / "crossval" / out["crossval_id"] / "result.json").exists()
+    bad = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "9", "-w", str(tmp_path)])
+    assert bad.exit_code == 1 and "--folds" in bad.output
