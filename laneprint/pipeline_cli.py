@@ -35,13 +35,13 @@ def run_pipeline(paths: list[Path], workspace: Path, driver: str | None, mapping
     runs = []
     if train:
         from rl.dqn import DQNSettings
-        from rl.env import EnvConfig
+        from rl.env import formulation_config
         from rl.runs import Target, resolve_lines, train_run
 
         overrides = {"seed": seed} | ({"episodes": episodes} if episodes else {})
         for style in analysis["styles"]:
             target = Target("style", style)
-            env = EnvConfig(lines=resolve_lines(ws, target, "analysis"))
+            env = formulation_config(resolve_lines(ws, target, "analysis"))
             with progress_bar(show_progress) as progress:
                 runs.append(train_run(ws, target, env, DQNSettings(**overrides), progress=progress))
     return {"workspace": str(ws.root), "ingest": ingest, "analysis": analysis, "runs": runs,

@@ -12,8 +12,8 @@ from rich.table import Table
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
-from rl.rewards import REWARDS, RewardSettings
-from rl.settings import DEFAULT_REWARD, OBSERVATIONS, SCENES, DQNSettings, resolve_formulation
+from rl.rewards import REWARDS
+from rl.settings import DEFAULT_REWARD, OBSERVATIONS, SCENES, DQNSettings
 
 RewardOpt = Annotated[Optional[str], typer.Option(
     "--reward", help=f"Reward: {', '.join(REWARDS)} (default {DEFAULT_REWARD}; timing with --lines paper).")]
@@ -84,7 +84,7 @@ def train_command(
     """Train a DQN agent for a style or a driver; prints the run id."""
 
     def work() -> dict[str, Any]:
-        from rl.env import EnvConfig  # heavy imports (torch) only when the command runs
+        from rl.env import formulation_config  # heavy imports (torch) only when the command runs
         from rl.runs import Target, resolve_lines, train_run
 
         ws = Workspace(workspace)
@@ -98,8 +98,7 @@ def train_command(
             raise UserError("give exactly one of --style NAME or --driver ID")
         target = Target("style", style) if style else Target("driver", str(driver))
         ref = resolve_lines(ws, target, lines)
-        name, scn, obs = resolve_formulation(reward, scenes, observation, lines)
-        env = EnvConfig(lines=ref, reward=RewardSettings(name=name), scenes=scn, observation=obs)
+        env = formulation_config(ref, reward, scenes, observation, lines)
         if dt is not None:
             env = replace(env, dt_s=dt)
         overrides = {k: v for k, v in {
@@ -187,7 +186,7 @@ def crossval_command(
     def work() -> dict[str, Any]:
         from rl.crossval import CrossvalSettings
         from rl.crossval_io import crossval_run, run_crossval, style_names, target_env
-        from rl.env import EnvConfig
+        from rl.env import EnvConfig, formulation_config
         from rl.runs import Target
 
         ws = Workspace(workspace)
@@ -202,8 +201,7 @@ def crossval_command(
             targets = ([Target("style", s) for s in style_names(ws)] if all_styles
                        else [Target("style", style)] if style else [Target("driver", str(driver))])
             dqn = DQNSettings(seed=seed, **({"episodes": episodes} if episodes else {}))
-            name, scn, obs = resolve_formulation(reward, scenes, observation, lines)
-            base = EnvConfig(reward=RewardSettings(name=name), scenes=scn, observation=obs)
+            base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines)
             results = [run_crossval(ws, t, target_env(ws, t, base, lines), dqn, cv, lines, progress=progress)
                        for t in targets]
         return {"results": results} if all_styles else results[0]

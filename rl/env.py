@@ -54,7 +54,7 @@ import pandas as pd
 from laneprint.errors import UserError
 from laneprint.reference import FAR_FOLLOWER_M
 from rl.rewards import CHANGE, TERMS, ReferenceLines, RewardSettings, decisions_step_reward, step_reward
-from rl.settings import OBSERVATIONS, SCENES
+from rl.settings import OBSERVATIONS, SCENES, resolve_formulation
 from rl.scene import INDICATOR_FEATURES, OBS_NAMES, Scene, indicator_features, indicators, observe
 
 ENV_ID = "laneprint/LaneChangeDecision-v0"
@@ -126,6 +126,13 @@ def observation(scene: Scene, cfg: EnvConfig) -> np.ndarray:
     if cfg.observation == "indicators":
         obs = np.concatenate([obs, indicator_features(scene, cfg.far_follower_m, cfg.range_m)], axis=1)
     return obs
+
+
+def formulation_config(lines: ReferenceLines, reward: str | None = None, scenes: str | None = None,
+                       observation: str | None = None, lines_source: str = "analysis") -> EnvConfig:
+    """An `EnvConfig` for `lines`, the unnamed settings filled by `rl.settings.resolve_formulation`."""
+    name, scn, obs = resolve_formulation(reward, scenes, observation, lines_source)
+    return EnvConfig(lines=lines, reward=RewardSettings(name=name), scenes=scn, observation=obs)
 
 
 def default_config() -> EnvConfig:

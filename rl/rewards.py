@@ -129,7 +129,7 @@ class RewardSettings:
     undefined_score: float = 1.0  # change score of an undefined t_nf or dv_nb: no objection [0-1]
     undefined_t_f_score: float = 0.0  # change score of an undefined t_f: no leader to pass, no reason [0-1]
     change_baseline: float = 2.6  # timing: subtracted from the closeness sum on a change [0-3]
-    pass_penalty: float = 0.5  # timing: cost of keeping when a change would earn a positive reward; decisions: at/after the press [1]
+    pass_penalty: float | None = None  # cost of keeping: timing, when a change would pay (0.5); decisions, at/after the press (1.0) [1]
     late_penalty_per_s: float = 0.0  # timing: keep reward once past the reference t_f, negated [1/s]
     press_scale_s: float = 2.0  # decisions: a change's reward falls by 1 per this many s off the press [s]
 
@@ -138,6 +138,8 @@ class RewardSettings:
             raise UserError(f"unknown reward {self.name!r}: choose one of {', '.join(REWARDS)}")
         if self.press_scale_s <= 0:
             raise UserError(f"press_scale_s must be positive, got {self.press_scale_s}")
+        if self.pass_penalty is None:
+            object.__setattr__(self, "pass_penalty", 1.0 if self.name == "decisions" else 0.5)
         if self.m_ttc_s is None:
             object.__setattr__(self, "m_ttc_s", 0.2 if self.name == "paper" else 1.0)
         if self.m_dv_mps is None:

@@ -83,7 +83,7 @@ def test_evaluate_against_the_drivers(tmp_path):
     ev = json.loads(res.stdout)
     assert ev["typical_driver"] == "D01" and ev["n_decisions_typical"] == 12
     rows = {r["who"]: r for r in ev["summary_typical"]}
-    assert set(rows) == {"agent", "greedy", "driver"}
+    assert set(rows) == {"agent", "greedy", "imitation", "driver"}
     assert rows["driver"]["recall"] == 1.0 and rows["driver"]["timing_mae_s"] == 0.0
     assert 0.0 <= rows["agent"]["balanced_accuracy"] <= 1.0
     run = load_run(ws, "r2")

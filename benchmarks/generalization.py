@@ -1,0 +1,148 @@
+"""Do the agents decide like drivers on data laneprint did not write? Held out by session.
+
+For each study (a SUMO study generated with a seed nobody tuned on, and the shipped
+synthetic study), through the real command line:
+
+1. `laneprint ingest` + `laneprint analyze`; on a study with ground truth, the
+   adjusted Rand index of the styles;
+2. `laneprint crossval --all` (sessions in K folds; lines, scenes, agent and
+   imitation classifier from the other folds): per style, balanced accuracy of
+   agent / greedy / imitation with bootstrap 95 % intervals, timing error, share
+   of decisions scored;
+3. on the shipped study, the in-sample figures of `laneprint train --style S`
+   (recall at the typical driver's presses vs the study's, balanced accuracy vs greedy).
+
+Prints a table per study and whether each acceptance line of issue 9 holds.
+
+Run: python benchmarks/generalization.py [--sumo-seed 7] [--drivers 9] [--episodes 10000]
+     [--folds 4] [--seed 0] [--workdir /tmp/lp-generalization] [--skip-shipped] [--skip-sumo]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from sklearn.metrics import adjusted_rand_score
+
+ROOT = Path(__file__).resolve().parents[1]
+LAPRINT = [sys.executable, "-m", "laneprint.cli"]
+STUDY_RECALL = {"Defensive": 0.959, "Normal": 1.0, "Aggressive": 0.986}  # the paper's agents (section 5)
+
+
+def cli(*args: str) -> dict:
+    """Run a laneprint command with --json and return its document (exit on failure)."""
+    proc = subprocess.run([*LAPRINT, *args, "--json"], capture_output=True, text=True, cwd=ROOT)
+    if proc.returncode != 0:
+        sys.exit(f"laneprint {' '.join(args)} failed: {proc.stderr.strip()[-2000:]}")
+    return json.loads(proc.stdout)
+
+
+def ari(ws: Path, logs: Path) -> float | None:
+    truth_path = logs / "ground_truth.json"
+    if not truth_path.exists():
+        return None
+    truth = {d["driver_id"]: d["style"] for d in json.loads(truth_path.read_text())["drivers"]}
+    sys.path.insert(0, str(ROOT))
+    from laneprint.workspace import Workspace
+
+    st = Workspace(ws).read_table("analysis", "styles")
+    st = st[st["driver_id"].isin(truth)]
+    return float(adjusted_rand_score([truth[d] for d in st["driver_id"]], st["style"]))
+
+
+def pct(x: float | None) -> str:
+    return "-" if x is None else f"{100 * x:.1f}"
+
+
+def held_out_table(name: str, results: list[dict]) -> list[bool]:
+    """Print one study's held-out table; returns the acceptance checks."""
+    print(f"\n## {name}: held out by session")
+    print("| style | agent bal. acc. [95 % CI] | greedy | imitation | agent - greedy | agent - imitation "
+          "| timing MAE agent / greedy [s] | recall agent | scored |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    checks = []
+    for res in results:
+        rows = {r["who"]: r for r in res["summary"]}
+        a, g, m = rows["agent"], rows["greedy"], rows["imitation"]
+        lo, hi = a["balanced_accuracy_ci"]
+        d_g = a["balanced_accuracy"] - g["balanced_accuracy"]
+        d_m = a["balanced_accuracy"] - m["balanced_accuracy"]
+        ta, tg = a["timing_mae_s"], g["timing_mae_s"]
+        print(f"| {res['target']['name']} | {pct(a['balanced_accuracy'])} [{pct(lo)}, {pct(hi)}] "
+              f"| {pct(g['balanced_accuracy'])} | {pct(m['balanced_accuracy'])} | {100 * d_g:+.1f} | {100 * d_m:+.1f} "
+              f"| {ta if ta is None else round(ta, 2)} / {tg if tg is None else round(tg, 2)} | {pct(a['recall'])} "
+              f"| {res['n_decisions_scored']}/{res['n_decisions_total']} |")
+        checks += [d_g >= 0.10, d_m >= -0.05, ta is not None and tg is not None and ta < tg,
+                   res["scored_share"] >= 0.95]
+    return checks
+
+
+def study(name: str, logs: Path, ws: Path, args: argparse.Namespace) -> tuple[list[bool], list[dict]]:
+    t0 = time.perf_counter()
+    if not (ws / "analysis" / "styles.parquet").exists():
+        cli("ingest", str(logs), "-w", str(ws))
+        cli("analyze", "-w", str(ws))
+    score = ari(ws, logs)
+    print(f"\n# {name} ({logs}); styles ARI vs ground truth: {score if score is None else round(score, 3)}")
+    extra = ["--episodes", str(args.episodes)] if args.episodes else []
+    res = cli("crossval", "--all", "--folds", str(args.folds), "--seed", str(args.seed), "-w", str(ws), *extra)
+    checks = held_out_table(name, res["results"])
+    if score is not None:
+        checks.append(score >= 0.9)
+    print(f"({time.perf_counter() - t0:.0f} s)")
+    return checks, res["results"]
+
+
+def in_sample_shipped(ws: Path, args: argparse.Namespace) -> list[bool]:
+    print("\n## shipped study: in-sample (`laneprint train --style S`, typical driver)")
+    print("| style | recall (study) | balanced acc. agent / greedy / imitation | timing MAE agent / greedy [s] |")
+    print("|---|---|---|---|")
+    checks = []
+    for style in ("Defensive", "Normal", "Aggressive"):
+        extra = ["--episodes", str(args.episodes)] if args.episodes else []
+        run = cli("train", "--style", style, "--seed", str(args.seed), "-w", str(ws), *extra)
+        rows = {r["who"]: r for r in run["evaluation"]}
+        a, g = rows["agent"], rows["greedy"]
+        m = rows.get("imitation", {}).get("balanced_accuracy")
+        print(f"| {style} | {pct(a['recall'])} ({pct(STUDY_RECALL[style])}) | {pct(a['balanced_accuracy'])} / "
+              f"{pct(g['balanced_accuracy'])} / {pct(m)} | {a['timing_mae_s']:.2f} / {g['timing_mae_s']:.2f} |")
+        checks += [a["recall"] >= STUDY_RECALL[style] - 1e-9, a["balanced_accuracy"] >= g["balanced_accuracy"] + 0.05]
+    return checks
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sumo-seed", type=int, default=7, help="seed of the SUMO study (one nobody tuned on)")
+    ap.add_argument("--drivers", type=int, default=9)
+    ap.add_argument("--episodes", type=int, default=None, help="episodes per agent (default: train's)")
+    ap.add_argument("--folds", type=int, default=4)
+    ap.add_argument("--seed", type=int, default=0, help="seed of folds, agents, classifier, bootstrap")
+    ap.add_argument("--workdir", type=Path, default=Path("/tmp/lp-generalization"))
+    ap.add_argument("--skip-sumo", action="store_true")
+    ap.add_argument("--skip-shipped", action="store_true")
+    args = ap.parse_args()
+    args.workdir.mkdir(parents=True, exist_ok=True)
+    checks: dict[str, list[bool]] = {}
+    if not args.skip_sumo:
+        logs = args.workdir / f"sumo{args.drivers}_s{args.sumo_seed}"
+        if not (logs / "ground_truth.json").exists():
+            cli("simulate", "--engine", "sumo", "--out", str(logs), "--drivers", str(args.drivers),
+                "--seed", str(args.sumo_seed))
+        checks["SUMO study"], _ = study(f"SUMO study, seed {args.sumo_seed}", logs,
+                                        args.workdir / f"ws_sumo{args.drivers}_s{args.sumo_seed}", args)
+    if not args.skip_shipped:
+        ws = args.workdir / "ws_shipped"
+        checks["shipped study"], _ = study("shipped study", ROOT / "sample_logs", ws, args)
+        checks["shipped in-sample"] = in_sample_shipped(ws, args)
+    print("\n## acceptance")
+    for name, c in checks.items():
+        print(f"- {name}: {sum(c)} of {len(c)} checks hold")
+
+
+if __name__ == "__main__":
+    main()
