@@ -13,8 +13,15 @@ by default, headless, no usage statistics, uploads up to 1024 MB), or
   training view, default 1 s), $LANEPRINT_DASHBOARD_MAX_UPLOAD_MB (default 1024).
 - `loaders.py`: cached readers keyed on the modification times of the folders they read.
 - `uploads.py`: browser uploads saved under `workspace/uploads/<hash>/<safe name>`.
-- `jobs.py`: `laneprint train` subprocesses (own session, so they outlive the page and
-  the server), their status, cancel (SIGTERM).
+- `jobs.py`: `laneprint train` and `laneprint crossval --run RUN_ID` subprocesses (own
+  session, so they outlive the page and the server), their status and progress, cancel
+  (SIGTERM).
 - `training.py`, `views.py`, `figures.py`, `widgets.py`: form defaults, table shaping,
-  the recording viewer and layout helpers.
+  the recording viewer, the held-out vs in-sample figures, layout helpers and the
+  cross-validation launcher shared by the Training and Results pages.
+
+Held-out figures: a finished run is cross-validated from the Training page (or the
+Results page, when it has none yet); the Results page shows the run's
+`runs/<id>/crossval.json` (else the newest cross-validation of its target, said so)
+beside its in-sample evaluation, and lists every stored cross-validation.
 """

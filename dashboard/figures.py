@@ -2,8 +2,9 @@
 
 The analysis and training figures come from the stages (`indicators.plots`,
 `clustering.plots`, `rl.plots`); here are the Data page's recording viewer, the run
-comparison, the k-score curve, and `compact`/`bare_table` to fit a stage figure in a
-column.
+comparison, the k-score curve, the held-out vs in-sample figures of a
+cross-validation (`laneprint crossval`), and `compact`/`bare_table` to fit a stage
+figure in a column.
 """
 
 from __future__ import annotations
@@ -13,7 +14,14 @@ import pandas as pd
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
+from dashboard.views import CROSSVAL_POLICIES
+
 MAX_POINTS = 20_000
+
+POLICIES = CROSSVAL_POLICIES
+IN_SAMPLE_COLOUR = "#9ecae1"
+HELD_OUT_COLOUR = "#08519c"
+POLICY_COLOURS = {"agent": "#1f77b4", "greedy": "#ff7f0e", "imitation": "#9467bd", "driver": "#2ca02c"}
 
 
 def press_times(ego: pd.DataFrame) -> pd.DataFrame:
@@ -119,4 +127,80 @@ def k_scores(scores: pd.DataFrame, method: str) -> go.Figure:
     fig = go.Figure(go.Scatter(x=scores["k"], y=scores["score"], mode="lines+markers", name=method))
     fig.update_layout(xaxis_title="number of styles k [-]", yaxis_title=f"{method} score [-]", height=300,
                       xaxis=dict(dtick=1), margin=dict(t=20))
+    return fig
+
+
+def _by_policy(summary: list[dict] | None) -> dict[str, dict]:
+    return {str(r.get("who")): r for r in summary or []}
+
+
+def _scaled(row: dict | None, key: str, scale: float) -> float | None:
+    v = (row or {}).get(key)
+    return None if v is None or not np.isfinite(float(v)) else float(v) * scale
+
+
+def _error_bars(rows: list[dict | None], key: str, ci_key: str, scale: float) -> dict:
+    """`error_y` of a bar trace from [lo, hi] intervals (no bar where an interval is missing)."""
+    plus, minus = [], []
+    for row in rows:
+        v, ci = _scaled(row, key, scale), (row or {}).get(ci_key)
+        ok = v is not None and ci is not None and len(ci) == 2 and None not in ci
+        plus.append(max(0.0, float(ci[1]) * scale - v) if ok else None)
+        minus.append(max(0.0, v - float(ci[0]) * scale) if ok else None)
+    return dict(type="data", symmetric=False, array=plus, arrayminus=minus, thickness=1.5, width=6)
+
+
+def heldout_vs_insample(held_out: list[dict] | None, in_sample: list[dict] | None = None,
+                        policies: tuple[str, ...] = POLICIES) -> go.Figure:
+    """Balanced accuracy and timing error per policy: in-sample bars next to held-out bars with 95 % intervals.
+
+    `held_out`: a cross-validation's `summary` (one dict per policy with
+    `balanced_accuracy`, `balanced_accuracy_ci`, `timing_mae_s`, `timing_mae_ci`);
+    `in_sample`: a run evaluation's summary rows (no intervals), or None. A policy
+    missing from one of them has no bar there.
+    """
+    held, ins = _by_policy(held_out), _by_policy(in_sample)
+    names = [p for p in policies if p in held or p in ins]
+    fig = make_subplots(rows=1, cols=2, horizontal_spacing=0.12,
+                        subplot_titles=("balanced accuracy (higher is better)", "timing error (lower is better)"))
+    panels = ((1, "balanced_accuracy", "balanced_accuracy_ci", 100.0, "%{y:.1f} %"),
+              (2, "timing_mae_s", "timing_mae_ci", 1.0, "%{y:.2f} s"))
+    for col, key, ci_key, scale, fmt in panels:
+        if in_sample is not None:
+            fig.add_trace(go.Bar(
+                x=names, y=[_scaled(ins.get(p), key, scale) for p in names], name="in-sample",
+                marker_color=IN_SAMPLE_COLOUR, legendgroup="in", showlegend=col == 1,
+                hovertemplate=f"%{{x}} in-sample: {fmt}<extra></extra>"), row=1, col=col)
+        rows = [held.get(p) for p in names]
+        fig.add_trace(go.Bar(
+            x=names, y=[_scaled(r, key, scale) for r in rows], name="held out (95 % interval)",
+            marker_color=HELD_OUT_COLOUR, legendgroup="out", showlegend=col == 1,
+            error_y=_error_bars(rows, key, ci_key, scale),
+            hovertemplate=f"%{{x}} held out: {fmt}<extra></extra>"), row=1, col=col)
+    fig.update_yaxes(title_text="balanced accuracy [%]", range=[0, 105], row=1, col=1)
+    fig.update_yaxes(title_text="timing MAE [s]", rangemode="tozero", row=1, col=2)
+    fig.update_xaxes(title_text="policy", row=1, col=1)
+    fig.update_xaxes(title_text="policy", row=1, col=2)
+    fig.update_layout(barmode="group", height=380, margin=dict(t=40),
+                      legend=dict(orientation="h", yanchor="top", y=-0.22, x=0))
+    return fig
+
+
+def crossval_folds(per_fold: list[dict] | None, policies: tuple[str, ...] = POLICIES) -> go.Figure:
+    """Each fold's held-out balanced accuracy per policy (how much the figure moves between folds)."""
+    df = pd.DataFrame(per_fold or [])
+    fig = go.Figure()
+    if not df.empty and "fold" in df:
+        df = df.sort_values("fold")
+        for p in policies:
+            col = f"{p}_balanced_accuracy"
+            if col in df:
+                fig.add_trace(go.Scatter(
+                    x=df["fold"] + 1, y=pd.to_numeric(df[col], errors="coerce") * 100.0, mode="lines+markers",
+                    name=p, marker=dict(color=POLICY_COLOURS.get(p), size=9), line=dict(width=1),
+                    customdata=df.get("n_decisions"),
+                    hovertemplate=f"{p}, fold %{{x}}: %{{y:.1f}} % (%{{customdata}} decisions)<extra></extra>"))
+    fig.update_layout(xaxis=dict(title="held-out fold [-]", dtick=1), height=320, margin=dict(t=20),
+                      yaxis=dict(title="balanced accuracy [%]", range=[0, 105]),
+                      legend=dict(orientation="h", yanchor="top", y=-0.25, x=0))
     return fig

@@ -1,17 +1,25 @@
-"""Training runs launched from the dashboard: a `laneprint train` subprocess per run.
+"""Background jobs launched from the dashboard: a `laneprint train` subprocess per run,
+a `laneprint crossval --run RUN_ID` subprocess per cross-validation.
 
 The process gets its own session (`start_new_session=True`), so it outlives page
 reloads, closed browsers and even the dashboard server; everything the pages show
-about it is read back from the run folder (`runs/<run_id>/status.json`,
+about a training run is read back from the run folder (`runs/<run_id>/status.json`,
 `metrics.jsonl`, ...) that the trainer writes. The dashboard itself only keeps,
 under `dashboard/jobs/`, the command it ran, the pid and the process's output, so a
 run that dies before writing its status still shows why.
+
+Cross-validations keep the same three things under `dashboard/crossval_jobs/`
+(`<job_id>.json`, `<job_id>.log`). `laneprint crossval` writes no status file while
+it works, so its progress is read from its own progress bar in the log (the process
+is told its output is a terminal, so the bar is redrawn there), and its end from the
+`stored as crossval/<id>` line and that folder's `result.json`.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -82,17 +90,23 @@ def launch(ws: Workspace, req: TrainRequest, run_id: str | None = None) -> str:
     """Start a training process for `req`; returns its run id at once."""
     run_id = run_id or new_run_id(req)
     cmd = train_command(req, ws.root, run_id)
-    jd = jobs_dir(ws)
-    jd.mkdir(parents=True, exist_ok=True)
-    with open(jd / f"{run_id}.log", "wb") as log:
+    _spawn(jobs_dir(ws), run_id, cmd, ws.root, {"run_id": run_id, "request": asdict(req)})
+    return run_id
+
+
+def _spawn(folder: Path, job_id: str, cmd: list[str], cwd: Path, record: dict[str, Any],
+           env: dict[str, str] | None = None) -> int:
+    """Start `cmd` in its own session, output to `folder/<job_id>.log`; record it in `<job_id>.json`."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / f"{job_id}.log", "wb") as log:
         proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                start_new_session=True, cwd=ws.root)
+                                start_new_session=True, cwd=cwd, env=env)
     _CHILDREN[proc.pid] = proc
-    atomic_write_json(jd / f"{run_id}.json", {
-        "run_id": run_id, "pid": proc.pid, "command": cmd, "request": asdict(req),
+    atomic_write_json(folder / f"{job_id}.json", {
+        **record, "pid": proc.pid, "command": cmd,
         "launched_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
     })
-    return run_id
+    return proc.pid
 
 
 def reap() -> None:
@@ -136,13 +150,20 @@ def read_json(path: Path) -> dict[str, Any] | None:
         return None
 
 
-def log_tail(ws: Workspace, run_id: str, n_chars: int = 2000) -> str:
-    """The end of a launched run's process output ('' when none)."""
+def _file_tail(path: Path, n_chars: int) -> str:
     try:
-        data = (jobs_dir(ws) / f"{run_id}.log").read_bytes()
+        with open(path, "rb") as fh:
+            fh.seek(0, os.SEEK_END)
+            fh.seek(max(0, fh.tell() - n_chars))
+            data = fh.read()
     except OSError:
         return ""
-    return data[-n_chars:].decode(errors="replace")
+    return data.decode(errors="replace")
+
+
+def log_tail(ws: Workspace, run_id: str, n_chars: int = 2000) -> str:
+    """The end of a launched run's process output ('' when none)."""
+    return _file_tail(jobs_dir(ws) / f"{run_id}.log", n_chars)
 
 
 def run_status(ws: Workspace, run_id: str) -> dict[str, Any]:
@@ -227,3 +248,163 @@ def runs_table(ws: Workspace) -> pd.DataFrame:
         table["message"] = [status[r].get("message") for r in table["run_id"]]
     order = {rid: i for i, rid in enumerate(run_ids(ws))}
     return table.sort_values("run_id", key=lambda s: s.map(order)).reset_index(drop=True)
+
+
+# --- cross-validations: `laneprint crossval --run RUN_ID` ---------------------------------
+
+
+@dataclass(frozen=True)
+class CrossvalRequest:
+    """What the Cross-validate button asks for; turned into a `laneprint crossval --run` command line."""
+
+    run_id: str
+    """The trained run whose target, reward, scenes and trainer settings are cross-validated."""
+    folds: int = 4
+    """K: the target's sessions are split into K folds."""
+    split: str = "session"
+    """'session' (each driver's sessions dealt to the folds) or 'section' (speed sections held out)."""
+    seed: int = 0
+    """Seed of the folds, the bootstrap and the imitation classifier."""
+    episodes: int | None = None
+    """Training episodes of each fold's agent (None: the run's own)."""
+    bootstrap: int = 1000
+    """Bootstrap resamples for the 95 % intervals."""
+
+
+def crossval_command(req: CrossvalRequest, workspace: Path) -> list[str]:
+    """The `laneprint crossval --run` command line for `req` (run with this interpreter)."""
+    cmd = [sys.executable, "-m", "laneprint.cli", "crossval", "--run", req.run_id,
+           "--folds", str(int(req.folds)), "--split", req.split, "--seed", str(int(req.seed)),
+           "--bootstrap", str(int(req.bootstrap))]
+    if req.episodes is not None:
+        cmd += ["--episodes", str(int(req.episodes))]
+    return cmd + ["--workspace", str(workspace)]
+
+
+#: Rich draws its progress bar into a file only when told it is a terminal; no colours, a fixed width.
+CROSSVAL_ENV = {"TTY_COMPATIBLE": "1", "TTY_INTERACTIVE": "1", "NO_COLOR": "1", "COLUMNS": "120",
+                "TERM": "xterm"}
+
+
+def crossval_jobs_dir(ws: Workspace) -> Path:
+    return ws.root / "dashboard" / "crossval_jobs"
+
+
+def new_crossval_job_id(run_id: str) -> str:
+    """`<run_id>-cv-<UTC time>-<4 hex>` (file-name safe)."""
+    stem = "".join(c if c.isalnum() or c in "-_" else "_" for c in run_id)[:48] or "run"
+    return f"{stem}-cv-{datetime.now(timezone.utc):%Y%m%d-%H%M%S}-{uuid.uuid4().hex[:4]}"
+
+
+def launch_crossval(ws: Workspace, req: CrossvalRequest) -> str:
+    """Start `laneprint crossval --run` for `req` in the background; returns its job id at once."""
+    job_id = new_crossval_job_id(req.run_id)
+    _spawn(crossval_jobs_dir(ws), job_id, crossval_command(req, ws.root), ws.root,
+           {"job_id": job_id, "run_id": req.run_id, "request": asdict(req)}, env={**os.environ, **CROSSVAL_ENV})
+    return job_id
+
+
+_ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]|\x1b\][^\x07]*\x07")
+#: 'fold 2/4: agent ━━━━━━━╸      383/1000 0:00:07' (the elapsed time: a whole redraw, not a half-written one)
+_FOLD = re.compile(r"fold (\d+)/(\d+): ([a-z_ ]+?)\s*[━╸╺╾╼\s]*(\d+)/(\d+|\?)(?=\s+\d+:\d\d)")
+_STORED = re.compile(r"stored as crossval/(\S+)")
+
+
+def crossval_progress(log: str) -> dict[str, Any]:
+    """What the end of a `laneprint crossval` output says: the fold and step reached, the stored id, an error.
+
+    Keys (each only when found): `fold` (1-based), `folds`, `step` (what the fold is
+    doing: 'agent'), `done`, `total` (its episodes), `fraction` (of the whole job,
+    counting each fold's agent training), `crossval_id`, `error`.
+    """
+    text = _ANSI.sub("", log)
+    out: dict[str, Any] = {}
+    found = list(_FOLD.finditer(text))
+    if found:
+        m = found[-1]
+        fold, folds, done = int(m.group(1)), int(m.group(2)), int(m.group(4))
+        total = int(m.group(5)) if m.group(5) != "?" else 0
+        within = min(1.0, done / total) if total else 0.0
+        out.update(fold=fold, folds=folds, step=m.group(3).strip(), done=done, total=total,
+                   fraction=min(1.0, (fold - 1 + within) / folds) if folds else 0.0)
+    stored = _STORED.findall(text)
+    if stored:
+        out["crossval_id"] = stored[-1]
+    errors = [ln.strip() for ln in re.split(r"[\r\n]", text) if ln.strip().startswith("error:")]
+    if errors:
+        out["error"] = errors[-1]
+    return out
+
+
+def crossval_log_tail(ws: Workspace, job_id: str, n_chars: int = 2000) -> str:
+    """The readable end of a cross-validation's output: terminal codes removed, the last redraw of each line."""
+    text = _ANSI.sub("", _file_tail(crossval_jobs_dir(ws) / f"{job_id}.log", 20 * n_chars))
+    lines = [ln.rstrip() for ln in re.split(r"\r?\n", text)]
+    lines = [ln.split("\r")[-1] for ln in lines if ln.strip()]
+    return "\n".join(lines)[-n_chars:]
+
+
+def crossval_status(ws: Workspace, job_id: str) -> dict[str, Any]:
+    """State and progress of a launched cross-validation.
+
+    States: 'starting' (no progress drawn yet), 'running', 'done' (its result is
+    stored: `crossval_id`), 'failed' (ended without storing one: `message`, `log`),
+    'cancelled', 'unknown' (no such job).
+    """
+    folder = crossval_jobs_dir(ws)
+    job = read_json(folder / f"{job_id}.json")
+    if job is None:
+        return {"job_id": job_id, "state": "unknown", "message": "no such cross-validation job"}
+    prog = crossval_progress(_file_tail(folder / f"{job_id}.log", 16_000))
+    out = {"job_id": job_id, "run_id": job.get("run_id"), "pid": job.get("pid"),
+           "launched_at": job.get("launched_at"), "request": job.get("request", {}), **prog}
+    out.setdefault("fraction", 0.0)
+    if pid_alive(job.get("pid")):
+        if "fold" not in prog:
+            out.update(state="starting", message="reading the run and the analysis")
+        elif prog["total"] and prog["done"] >= prog["total"]:
+            out.update(state="running", fraction=min(out["fraction"], 0.99),
+                       message=f"fold {prog['fold']}/{prog['folds']}: agent trained; fitting the imitation "
+                               "classifier and scoring the held-out sessions")
+        else:
+            out.update(state="running", message=f"fold {prog['fold']}/{prog['folds']}: training the "
+                                                f"{prog['step']}, episode {prog['done']}/{prog['total'] or '?'}")
+        return out
+    cv_id = prog.get("crossval_id")
+    if cv_id and (ws.root / "crossval" / cv_id / "result.json").exists():
+        out.update(state="done", fraction=1.0, message=f"stored as crossval/{cv_id}")
+    elif job.get("cancelled_at"):
+        out.update(state="cancelled", message=f"cancelled at {job['cancelled_at']}")
+    else:
+        out.update(state="failed", message=prog.get("error") or "the process ended without storing a result",
+                   log=crossval_log_tail(ws, job_id))
+    return out
+
+
+def crossval_job_ids(ws: Workspace, run_id: str | None = None) -> list[str]:
+    """Launched cross-validations (of one run, when given), newest first."""
+    jobs = []
+    for path in crossval_jobs_dir(ws).glob("*.json"):
+        job = read_json(path) or {}
+        if run_id is None or job.get("run_id") == run_id:
+            jobs.append((str(job.get("launched_at") or ""), path.stem))
+    return [jid for _, jid in sorted(jobs, reverse=True)]
+
+
+def active_crossvals(ws: Workspace, run_id: str | None = None) -> list[str]:
+    """Cross-validations still working (of one run, when given), newest first."""
+    return [j for j in crossval_job_ids(ws, run_id) if crossval_status(ws, j)["state"] in ACTIVE_STATES]
+
+
+def cancel_crossval(ws: Workspace, job_id: str) -> bool:
+    """Stop a working cross-validation (SIGTERM; nothing is stored, the job is marked cancelled)."""
+    path = crossval_jobs_dir(ws) / f"{job_id}.json"
+    job = read_json(path)
+    if not job or crossval_status(ws, job_id)["state"] not in ACTIVE_STATES or not pid_alive(job.get("pid")):
+        return False
+    atomic_write_json(path, {**job, "cancelled_at": datetime.now(timezone.utc).isoformat(timespec="seconds")})
+    try:
+        os.kill(int(job["pid"]), signal.SIGTERM)
+    except ProcessLookupError:
+        return False
+    return True

@@ -8,6 +8,7 @@ every run, so a cached result is reused only while the workspace is unchanged.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -92,3 +93,37 @@ def run(root: str, run_id: str, key: tuple[int, ...]) -> dict[str, Any]:
     from rl.runs import load_run
 
     return load_run(Workspace(root), run_id)
+
+
+def crossvals_stamp(root: Path) -> tuple[int, ...]:
+    """Modification times of every stored `crossval/*/result.json` (written last, so a finished one counts)."""
+    return tuple(sorted(p.stat().st_mtime_ns for p in (Path(root) / "crossval").glob("*/result.json")))
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def crossvals(root: str, key: tuple[int, ...]) -> pd.DataFrame:
+    """`rl.crossval_io.list_crossvals`: one row per finished cross-validation."""
+    from rl.crossval_io import list_crossvals
+
+    return list_crossvals(Workspace(root))
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def crossval(root: str, crossval_id: str, key: tuple[int, ...]) -> dict[str, Any]:
+    """`rl.crossval_io.load_crossval`: one stored cross-validation (result dict, states, changes)."""
+    from rl.crossval_io import load_crossval
+
+    return load_crossval(Workspace(root), crossval_id)
+
+
+def run_crossval_stamp(root: Path, run_id: str) -> tuple[int, ...]:
+    return stamp(Path(root) / "runs" / run_id, "crossval.json")
+
+
+@st.cache_data(show_spinner=False, max_entries=32)
+def run_crossval(root: str, run_id: str, key: tuple[int, ...]) -> dict[str, Any] | None:
+    """`runs/<run_id>/crossval.json` (the run's latest cross-validation), None when there is none."""
+    try:
+        return json.loads((Path(root) / "runs" / run_id / "crossval.json").read_text())
+    except (OSError, ValueError):
+        return None

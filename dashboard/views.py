@@ -166,3 +166,159 @@ def analysis_settings(saved: dict[str, Any], **changes: Any):
     fields = AnalysisSettings.__dataclass_fields__
     base = {k: tuple(v) if isinstance(v, list) else v for k, v in saved.items() if k in fields}
     return AnalysisSettings(**base).with_(**changes)
+
+
+# --- cross-validation (held-out figures) -------------------------------------------------
+
+#: The policies a cross-validation scores, in the order they are shown.
+CROSSVAL_POLICIES = ("agent", "greedy", "imitation")
+
+#: summary column -> (shown name, scale, interval column or None).
+CROSSVAL_COLUMNS = {
+    "balanced_accuracy": ("balanced accuracy", "%", 100.0, "balanced_accuracy_ci"),
+    "timing_mae_s": ("timing MAE", "s", 1.0, "timing_mae_ci"),
+    "recall": ("recall at the presses", "%", 100.0, None),
+    "specificity": ("keeps before the press", "%", 100.0, None),
+    "never_rate": ("never changes", "%", 100.0, None),
+}
+
+
+def _number(row: dict | None, key: str, scale: float) -> float | None:
+    v = (row or {}).get(key)
+    try:
+        v = float(v) * scale
+    except (TypeError, ValueError):
+        return None
+    return None if v != v else round(v, 2)  # NaN -> None
+
+
+def _interval(row: dict | None, key: str, scale: float, digits: int) -> str:
+    ci = (row or {}).get(key)
+    if not ci or len(ci) != 2 or None in ci:
+        return ""
+    return f"{float(ci[0]) * scale:.{digits}f} – {float(ci[1]) * scale:.{digits}f}"
+
+
+def crossval_table(held_out: list[dict[str, Any]] | None,
+                   in_sample: list[dict[str, Any]] | None = None) -> pd.DataFrame:
+    """Agent, greedy and imitation side by side: each figure in-sample (a run's evaluation, when
+    given), then held out with its 95 % interval, then the held-out decisions scored.
+
+    `held_out`: a cross-validation's `summary`; `in_sample`: a run evaluation's
+    `summary_members` (the same drivers' decisions, scored by policies fitted on
+    them). A policy the in-sample evaluation lacks (older runs have no
+    imitation) shows empty in-sample cells.
+    """
+    held = {str(r.get("who")): r for r in held_out or []}
+    ins = {str(r.get("who")): r for r in in_sample or []}
+    rows = []
+    for who in [p for p in CROSSVAL_POLICIES if p in held or p in ins]:
+        row: dict[str, Any] = {"policy": who}
+        for key, (name, unit, scale, ci_key) in CROSSVAL_COLUMNS.items():
+            if in_sample is not None:
+                row[f"{name} in-sample [{unit}]"] = _number(ins.get(who), key, scale)
+            row[f"{name} held out [{unit}]"] = _number(held.get(who), key, scale)
+            if ci_key:
+                row[f"{name} held out 95 % interval [{unit}]"] = _interval(held.get(who), ci_key, scale,
+                                                                           1 if unit == "%" else 2)
+        row["decisions held out"] = (held.get(who) or {}).get("n_decisions")
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def unscored_table(result: dict[str, Any]) -> pd.DataFrame:
+    """The decisions a cross-validation could not score: reason, what it means, how many."""
+    try:
+        from rl.env import SKIP_REASONS
+    except ImportError:  # pragma: no cover - the RL stage is part of the package
+        SKIP_REASONS = {}
+    items = sorted(((str(k), int(v)) for k, v in (result.get("unscored") or {}).items() if v),
+                   key=lambda kv: -kv[1])
+    return pd.DataFrame([{"reason": k, "meaning": SKIP_REASONS.get(k, ""), "decisions": v} for k, v in items],
+                        columns=["reason", "meaning", "decisions"])
+
+
+def scored_line(result: dict[str, Any]) -> str:
+    """'200 of 200 decisions scored (100 %), 4 folds by session, ...' for a caption."""
+    total, scored = result.get("n_decisions_total"), result.get("n_decisions_scored")
+    settings = result.get("settings") or {}
+    share = f" ({scored / total:.0%})" if total and scored is not None else ""
+    return (f"{scored if scored is not None else '?'} of {total if total is not None else '?'} decisions scored"
+            f"{share}, {result.get('folds', '?')} folds by {settings.get('split', '?')}, "
+            f"seed {settings.get('seed', '?')}, {settings.get('n_bootstrap', '?')} bootstrap resamples")
+
+
+def crossvals_view(table: pd.DataFrame) -> pd.DataFrame:
+    """`rl.crossval_io.list_crossvals` newest first, balanced accuracies in percent."""
+    if table is None or table.empty:
+        return pd.DataFrame(columns=["crossval_id", "target_kind", "target", "run_id", "reward", "folds"])
+    out = table.copy()
+    order = out["created_at"] if "created_at" in out else out["crossval_id"]
+    out = out.assign(_order=order.astype(str)).sort_values(["_order", "crossval_id"], ascending=False)
+    out = out.drop(columns="_order").reset_index(drop=True)
+    for who in CROSSVAL_POLICIES:
+        col = f"{who}_balanced_accuracy"
+        if col in out:
+            out = out.rename(columns={col: f"{who} balanced accuracy [%]"})
+            out[f"{who} balanced accuracy [%]"] = (pd.to_numeric(out[f"{who} balanced accuracy [%]"],
+                                                                 errors="coerce") * 100).round(1)
+    return out
+
+
+def crossval_label(row: pd.Series | dict) -> str:
+    """'2026-11-30 14:10 · style Normal · run n1 · reward decisions · 4 folds' for a picker."""
+    when = str(row.get("created_at") or "")[:16].replace("T", " ")
+    parts = [when, f"{row.get('target_kind')} {row.get('target')}",
+             f"run {row['run_id']}" if row.get("run_id") else "no run", f"reward {row.get('reward')}",
+             f"{row.get('folds')} folds"]
+    return " · ".join(p for p in parts if p)
+
+
+def default_crossval(table: pd.DataFrame, run_id: str, target: dict[str, Any], own_id: str | None = None) -> str | None:
+    """The cross-validation to show beside a run: its own (`runs/<id>/crossval.json`), else the
+    newest of this run, else the newest of the same target; None when there is none."""
+    view = crossvals_view(table)
+    if own_id and own_id in set(view["crossval_id"]):
+        return own_id
+    if view.empty:
+        return None
+    mine = view[view["run_id"].astype(str) == str(run_id)]
+    if len(mine):
+        return str(mine["crossval_id"].iloc[0])
+    same = view[(view["target_kind"].astype(str) == str(target.get("kind")))
+                & (view["target"].astype(str) == str(target.get("name")))]
+    return str(same["crossval_id"].iloc[0]) if len(same) else None
+
+
+def crossval_differences(result: dict[str, Any], run_id: str, config: dict[str, Any]) -> list[str]:
+    """How a cross-validation differs from the run it is shown beside: another run or target,
+    other scenes, observation or reward, fewer or more training episodes per fold."""
+    out = []
+    if result.get("run_id") != run_id:
+        out.append(f"it is of {'run ' + str(result['run_id']) if result.get('run_id') else 'no run'}, "
+                   f"not of {run_id}")
+    tgt, run_tgt = result.get("target") or {}, config.get("target") or {}
+    if (tgt.get("kind"), tgt.get("name")) != (run_tgt.get("kind"), run_tgt.get("name")):
+        out.append(f"its target is {tgt.get('kind')} {tgt.get('name')}")
+    env, run_env = result.get("env") or {}, config.get("env") or {}
+    for key, label in (("scenes", "scenes"), ("observation", "observation")):
+        if run_env and env.get(key) != run_env.get(key):
+            out.append(f"{label} `{env.get(key)}` (the run: `{run_env.get(key)}`)")
+    reward = (env.get("reward") or {}).get("name")
+    run_reward = (run_env.get("reward") or {}).get("name") or config.get("reward")
+    if run_reward and reward != run_reward:
+        out.append(f"reward `{reward}` (the run: `{run_reward}`)")
+    episodes = (result.get("dqn") or {}).get("episodes")
+    run_episodes = (config.get("dqn") or {}).get("episodes")
+    if episodes and run_episodes and episodes != run_episodes:
+        out.append(f"its agents trained {episodes} episodes per fold (the run: {run_episodes})")
+    return out
+
+
+def command_text(cmd: list[str]) -> str:
+    """A launched command as a reader would type it: `laneprint ...` instead of `python -m laneprint.cli ...`."""
+    import shlex
+
+    if len(cmd) > 2 and cmd[1:3] == ["-m", "laneprint.cli"]:
+        cmd = ["laneprint", *cmd[3:]]
+    return shlex.join(cmd)

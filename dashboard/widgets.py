@@ -1,7 +1,12 @@
-"""Small Streamlit helpers shared by the pages."""
+"""Small Streamlit helpers shared by the pages: a stage progress callback, and the
+cross-validation launcher and its live progress (Training and Results pages)."""
 
 from __future__ import annotations
 
+import streamlit as st
+
+from dashboard import jobs, views
+from dashboard.context import poll_seconds
 from laneprint.progress import ProgressFn
 
 
@@ -12,3 +17,67 @@ def progress_to(bar, default_text: str) -> ProgressFn:
         bar.progress(min(1.0, done / max(total, 1)), text=message or default_text)
 
     return update
+
+
+def crossval_launcher(ws, run_id: str, run_episodes: int | None) -> str | None:
+    """Folds, episodes and resamples, and a button that starts `laneprint crossval --run RUN_ID`
+    in the background; returns the new job id (the page reruns to show its progress)."""
+    busy = jobs.active_crossvals(ws, run_id)
+    c1, c2, c3, c4 = st.columns(4)
+    folds = c1.number_input("Folds K", min_value=2, max_value=20, value=4, step=1, key=f"cv_folds_{run_id}")
+    split = c2.selectbox("Split", ["session", "section"], key=f"cv_split_{run_id}",
+                         help="'session': each driver's sessions dealt to the folds; 'section': whole speed "
+                              "sections held out")
+    episodes = c3.number_input("Episodes per fold's agent", min_value=1, max_value=100_000, step=100,
+                               value=int(run_episodes or 10_000), key=f"cv_episodes_{run_id}")
+    boot = c4.number_input("Bootstrap resamples", min_value=10, max_value=100_000, value=1000, step=100,
+                           key=f"cv_bootstrap_{run_id}")
+    req = jobs.CrossvalRequest(run_id, int(folds), str(split), 0,
+                               None if run_episodes and int(episodes) == int(run_episodes) else int(episodes),
+                               int(boot))
+    st.caption(f"Trains one agent per fold (about {int(folds)} times this run's training), fits the imitation "
+               f"classifier per fold and scores all three on the sessions each never saw: "
+               f"`{views.command_text(jobs.crossval_command(req, ws.root))}`")
+    clicked = st.button("Cross-validate", key=f"cv_start_{run_id}", disabled=bool(busy),
+                        help="one at a time per run" if busy else None)
+    if not clicked:
+        return None
+    job_id = jobs.launch_crossval(ws, req)
+    st.session_state.setdefault("crossval_launched", []).append(job_id)
+    st.rerun()  # redraw with the new job under way (and polling on)
+    return job_id
+
+
+def crossval_panel(ws, job_id: str, status: dict) -> None:
+    """Progress of one cross-validation job, with Cancel while it works and the log when it failed."""
+    state = status.get("state")
+    st.progress(float(status.get("fraction") or 0.0),
+                text=f"cross-validation of {status.get('run_id')}: {state} — {status.get('message', '')}")
+    if state in jobs.ACTIVE_STATES:
+        if st.button("Cancel", key=f"cv_cancel_{job_id}"):
+            jobs.cancel_crossval(ws, job_id)
+    elif state == "done":
+        st.caption(f"Stored as `crossval/{status.get('crossval_id')}`: the held-out figures are on the "
+                   "Results page.")
+    elif status.get("log"):
+        st.code(status["log"], language=None)
+
+
+def live_crossvals(ws, run_id: str | None = None) -> list[str]:
+    """Every working cross-validation (of `run_id`, when given), refreshed until it ends; then the
+    whole page reruns, so a finished result shows at once. Call once per page. Returns the jobs shown."""
+    active = jobs.active_crossvals(ws, run_id)
+
+    @st.fragment(run_every=poll_seconds() if active else None)
+    def panels() -> None:
+        still = []
+        for job_id in active:
+            status = jobs.crossval_status(ws, job_id)
+            crossval_panel(ws, job_id, status)
+            if status.get("state") in jobs.ACTIVE_STATES:
+                still.append(job_id)
+        if len(still) < len(active):
+            st.rerun()
+
+    panels()
+    return active

@@ -1,8 +1,9 @@
-"""Results: the trained agent against the greedy benchmark and the driver; two runs compared."""
+"""Results: the trained agent against the greedy benchmark, the imitation classifier and the driver,
+in-sample and held out (cross-validation); two runs compared; every stored cross-validation."""
 
 import streamlit as st
 
-from dashboard import figures, jobs, loaders, views
+from dashboard import figures, jobs, loaders, views, widgets
 from dashboard.context import workspace
 from rl.plots import decision_agreement, indicators_at_decisions, training_curves
 
@@ -12,6 +13,86 @@ def evaluated_runs(ws) -> list[str]:
             and (ws.runs_dir / rid / "config.json").exists()]
 
 
+def in_sample_tables(ev: dict) -> None:
+    st.subheader("In-sample: agent vs benchmarks vs driver")
+    st.caption("In-sample: scored on the decisions the agent was trained on (and the imitation classifier, "
+               "when present, fitted on); the held-out figures below hold sessions out.")
+    if ev.get("summary_typical"):
+        st.caption(f"On the typical driver's decisions ({ev.get('typical_driver')}, "
+                   f"{ev.get('n_decisions_typical')} decisions), in-sample:")
+        st.dataframe(views.evaluation_table(ev["summary_typical"]), hide_index=True, width="stretch")
+    st.caption(f"On all {len(ev.get('drivers', []))} drivers' decisions ({ev.get('n_decisions_members')} decisions, "
+               f"{ev.get('n_states_members')} states), in-sample:")
+    st.dataframe(views.evaluation_table(ev.get("summary_members") or ev.get("summary")), hide_index=True,
+                 width="stretch")
+
+
+def held_out_figures(result: dict, in_sample: list | None, key: str) -> None:
+    """The cross-validation's three policies, next to the in-sample ones when given."""
+    st.caption(views.scored_line(result))
+    st.dataframe(views.crossval_table(result.get("summary"), in_sample), hide_index=True, width="stretch")
+    if in_sample is not None and not any(r.get("who") == "imitation" for r in in_sample):
+        st.caption("This run's in-sample evaluation has no imitation row (evaluated before the imitation "
+                   "benchmark existed): `laneprint evaluate RUN_ID` adds it.")
+    st.plotly_chart(figures.heldout_vs_insample(result.get("summary"), in_sample), key=f"cv_bars_{key}")
+    unscored = views.unscored_table(result)
+    if len(unscored):
+        st.markdown(f"**Not scored** ({int(unscored['decisions'].sum())} decisions), by reason:")
+        st.dataframe(unscored, hide_index=True, width="stretch")
+    else:
+        st.caption("Every decision of the target's drivers was scored.")
+    with st.expander("Per fold"):
+        st.plotly_chart(figures.crossval_folds(result.get("per_fold")), key=f"cv_per_fold_{key}")
+        for note in result.get("notes") or []:
+            st.caption(note)
+
+
+def held_out(ws, run_id: str, run: dict) -> None:
+    """Held-out figures (the run's cross-validation, else the newest of its target) beside the in-sample ones."""
+    st.subheader("In-sample vs held out (cross-validation)")
+    cfg, ev = run["config"], run["evaluation"] or {}
+    root = str(ws.root)
+    running = widgets.live_crossvals(ws, run_id)
+    table = loaders.crossvals(root, loaders.crossvals_stamp(ws.root))
+    own = loaders.run_crossval(root, run_id, loaders.run_crossval_stamp(ws.root, run_id))
+    view = views.crossvals_view(table)
+    labels = {r["crossval_id"]: views.crossval_label(r) for r in view.to_dict("records")}
+    if own and own.get("crossval_id") not in labels:  # its folder is gone; runs/<id>/crossval.json remains
+        labels = {own["crossval_id"]: views.crossval_label(
+            {**own, "target_kind": own["target"]["kind"], "target": own["target"]["name"],
+             "reward": own["env"]["reward"]["name"]}), **labels}
+    ids = list(labels)
+    default = views.default_crossval(table, run_id, cfg.get("target", {}), (own or {}).get("crossval_id"))
+    if own and default is None:
+        default = own.get("crossval_id")
+    if default is None:
+        how = ("one is under way (above); or run" if running else "start one below, or run")
+        st.info(f"No cross-validation of this run (or of {cfg['target']['kind']} {cfg['target']['name']}) yet: "
+                f"{how} `laneprint crossval --run {run_id} -w {ws.root}`.")
+        if not running:
+            widgets.crossval_launcher(ws, run_id, (cfg.get("dqn") or {}).get("episodes"))
+        if not ids:
+            return
+        pick = st.selectbox("Or show a stored cross-validation", ids, index=None, format_func=labels.get,
+                            key=f"cv_pick_{run_id}")
+        if pick is None:
+            return
+    else:
+        pick = st.selectbox("Held-out figures from", ids, index=ids.index(default), format_func=labels.get,
+                            key=f"cv_pick_{run_id}")
+    if own and pick == own.get("crossval_id"):
+        result = own
+    else:
+        result = loaders.crossval(root, pick, loaders.crossvals_stamp(ws.root))
+    differences = views.crossval_differences(result, run_id, cfg)
+    if differences:
+        st.caption("Not exactly this run's settings: " + "; ".join(differences) + ".")
+    held_out_figures(result, ev.get("summary_members") or ev.get("summary"), key=run_id)
+    if default is not None and not running:
+        with st.expander("Cross-validate this run again"):
+            widgets.crossval_launcher(ws, run_id, (cfg.get("dqn") or {}).get("episodes"))
+
+
 def one_run(ws, run_id: str) -> None:
     run = loaders.run(str(ws.root), run_id, loaders.run_stamp(ws.root, run_id))
     ev = run["evaluation"]
@@ -19,18 +100,11 @@ def one_run(ws, run_id: str) -> None:
     st.markdown(f"**{run_id}**: {cfg['target']['kind']} **{cfg['target']['name']}**, reward `{cfg.get('reward')}`, "
                 f"lines `{cfg.get('lines_source')}`, seed {cfg.get('seed')}, "
                 f"{(run['status'] or {}).get('episode', '?')} episodes")
-    st.subheader("Agent vs greedy benchmark vs driver")
-    if ev.get("summary_typical"):
-        st.caption(f"On the typical driver's decisions ({ev.get('typical_driver')}, "
-                   f"{ev.get('n_decisions_typical')} decisions):")
-        st.dataframe(views.evaluation_table(ev["summary_typical"]), hide_index=True, width="stretch")
-    st.caption(f"On all {len(ev.get('drivers', []))} drivers' decisions ({ev.get('n_decisions_members')} decisions, "
-               f"{ev.get('n_states_members')} states):")
-    st.dataframe(views.evaluation_table(ev.get("summary_members") or ev.get("summary")), hide_index=True,
-                 width="stretch")
-    st.subheader("Indicators at the decisions against the reference lines (Fig. 10)")
+    in_sample_tables(ev)
+    held_out(ws, run_id, run)
+    st.subheader("Indicators at the decisions against the reference lines (Fig. 10, in-sample)")
     st.plotly_chart(indicators_at_decisions(run["eval_changes"], cfg["lines"]), key=f"fig10_{run_id}")
-    st.subheader("Same and opposite decisions as the drivers (Fig. 11)")
+    st.subheader("Same and opposite decisions as the drivers (Fig. 11, in-sample)")
     left, right = st.columns(2)
     left.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="agent")), key=f"fig11a_{run_id}")
     right.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="greedy")),
@@ -40,7 +114,7 @@ def one_run(ws, run_id: str) -> None:
 
 
 def compare(ws, runs: list[str]) -> None:
-    st.subheader("Compare two runs")
+    st.subheader("Compare two runs (in-sample)")
     if len(runs) < 2:
         st.caption("Train a second run to compare.")
         return
@@ -57,6 +131,19 @@ def compare(ws, runs: list[str]) -> None:
     c2.plotly_chart(figures.runs_curves(metrics, "mean_step_reward", "mean step reward [-]"), key="cmp_reward")
 
 
+def stored_crossvals(ws, show_one: bool) -> None:
+    """Every stored cross-validation; with `show_one` (no run to show them beside), a picker for one."""
+    table = views.crossvals_view(loaders.crossvals(str(ws.root), loaders.crossvals_stamp(ws.root)))
+    if table.empty:
+        return
+    st.subheader(f"Stored cross-validations ({len(table)})")
+    st.dataframe(table, hide_index=True, width="stretch")
+    if show_one:
+        labels = {r["crossval_id"]: views.crossval_label(r) for r in table.to_dict("records")}
+        pick = st.selectbox("Show", list(labels), format_func=labels.get, key="cv_pick_any")
+        held_out_figures(loaders.crossval(str(ws.root), pick, loaders.crossvals_stamp(ws.root)), None, key="any")
+
+
 def main() -> None:
     st.title("Results")
     ws = workspace()
@@ -64,9 +151,11 @@ def main() -> None:
     if not runs:
         st.info("No evaluated runs yet: start one on the Training page (runs are evaluated when they "
                 "finish), or run `laneprint evaluate RUN_ID`.")
+        stored_crossvals(ws, show_one=True)
         return
     one_run(ws, st.selectbox("Run", runs, key="result_run"))
     compare(ws, runs)
+    stored_crossvals(ws, show_one=False)
 
 
 main()

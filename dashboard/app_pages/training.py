@@ -1,8 +1,9 @@
-"""Training: launch DQN runs in the background, watch them live, cancel, list past runs."""
+"""Training: launch DQN runs in the background, watch them live, cancel, list past runs;
+cross-validate a finished run (held-out figures, shown on the Results page)."""
 
 import streamlit as st
 
-from dashboard import jobs, loaders, training
+from dashboard import jobs, loaders, training, widgets
 from dashboard.context import poll_seconds, workspace
 from rl.plots import training_curves
 from rl.runs import read_metrics
@@ -67,6 +68,23 @@ def run_panel(ws, run_id: str, status: dict) -> None:
         st.code(status["log"], language=None)
 
 
+def crossval_section(ws, run_id: str, status: dict, running: list[str]) -> None:
+    """Held-out figures for a finished run: its last cross-validation job, and a button for a new one."""
+    st.markdown(f"**Cross-validate {run_id}** (held-out figures of agent, greedy and imitation)")
+    config = jobs.read_json(ws.runs_dir / run_id / "config.json")
+    if status.get("state") in jobs.ACTIVE_STATES or not config:
+        st.caption("A run can be cross-validated once its training has ended (it takes the run's target and "
+                   "settings from its config.json).")
+        return
+    launched = jobs.crossval_job_ids(ws, run_id)
+    if launched and launched[0] in running:
+        st.caption("Under way: its progress is shown under Cross-validations above.")
+        return
+    if launched:
+        widgets.crossval_panel(ws, launched[0], jobs.crossval_status(ws, launched[0]))
+    widgets.crossval_launcher(ws, run_id, (config.get("dqn") or {}).get("episodes"))
+
+
 def main() -> None:
     st.title("Training")
     ws = workspace()
@@ -91,6 +109,11 @@ def main() -> None:
 
     live_runs()
 
+    st.subheader("Cross-validations")
+    cv_running = widgets.live_crossvals(ws)
+    if not cv_running:
+        st.caption("No cross-validation running: pick a finished run below to cross-validate it.")
+
     st.subheader("Runs")
     table = jobs.runs_table(ws)
     if table.empty:
@@ -100,7 +123,9 @@ def main() -> None:
     finished = [r for r in table["run_id"] if r not in active]
     if finished:
         rid = st.selectbox("Show run", finished, key="show_run")
-        run_panel(ws, rid, jobs.run_status(ws, rid))
+        status = jobs.run_status(ws, rid)
+        run_panel(ws, rid, status)
+        crossval_section(ws, rid, status, cv_running)
 
 
 main()

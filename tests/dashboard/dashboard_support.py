@@ -118,3 +118,49 @@ def wait_healthy(url: str, proc, timeout: float = 60) -> None:
     raise TimeoutError(f"{url}/_stcore/health not ok after {timeout}s")
 
 
+
+
+# --- cross-validation results as `laneprint crossval` stores them -------------------------
+
+CROSSVAL_ID = "20261130-120000-000000-normal-timing-s0"
+
+
+def crossval_result(run_id: str | None = "Normal-seed0", crossval_id: str = CROSSVAL_ID,
+                    target: tuple[str, str] = ("style", "Normal"), episodes: int = 30) -> dict:
+    """A hand-made `result.json` of `laneprint crossval` (the fields the dashboard reads)."""
+    return {
+        "crossval_id": crossval_id, "target": {"kind": target[0], "name": target[1]}, "run_id": run_id,
+        "lines_source": "analysis", "created_at": "2026-11-30T12:00:00+00:00", "drivers": ["D01", "D02"],
+        "line_drivers": ["D01"], "folds": 2,
+        "settings": {"folds": 2, "split": "session", "seed": 0, "n_bootstrap": 200, "lines_from": "typical"},
+        "env": {"scenes": "random", "observation": "positions", "reward": {"name": "timing"}},
+        "dqn": {"episodes": episodes, "seed": 0},
+        "summary": [
+            {"who": "agent", "balanced_accuracy": 0.8, "balanced_accuracy_ci": [0.75, 0.9], "recall": 0.7,
+             "specificity": 0.9, "timing_mae_s": 1.5, "timing_mae_ci": [1.0, 2.25], "never_rate": 0.1,
+             "n_decisions": 40, "n_states": 600},
+            {"who": "greedy", "balanced_accuracy": 0.6, "balanced_accuracy_ci": [0.55, 0.62], "recall": 1.0,
+             "specificity": 0.2, "timing_mae_s": 4.0, "timing_mae_ci": [3.5, 4.5], "never_rate": 0.0,
+             "n_decisions": 40, "n_states": 600},
+            {"who": "imitation", "balanced_accuracy": 0.85, "balanced_accuracy_ci": [0.8, 0.88], "recall": 0.8,
+             "specificity": 0.9, "timing_mae_s": None, "timing_mae_ci": None, "never_rate": 0.05,
+             "n_decisions": 40, "n_states": 600}],
+        "per_fold": [
+            {"fold": 0, "sessions": ["a"], "n_train_decisions": 20, "n_decisions": 21, "agent_balanced_accuracy": 0.78,
+             "greedy_balanced_accuracy": 0.61, "imitation_balanced_accuracy": 0.84},
+            {"fold": 1, "sessions": ["b"], "n_train_decisions": 21, "n_decisions": 19, "agent_balanced_accuracy": 0.82,
+             "greedy_balanced_accuracy": 0.59, "imitation_balanced_accuracy": 0.86}],
+        "n_decisions_total": 50, "n_decisions_scored": 40, "scored_share": 0.8,
+        "unscored": {"no_press": 7, "following": 3}, "notes": ["fold 0: t_nf: too few presses; the full "
+                                                               "analysis's line used"],
+    }
+
+
+def write_fake_crossval(ws: Workspace, result: dict, of_run: bool = True) -> Path:
+    """`crossval/<id>/result.json`, and `runs/<run_id>/crossval.json` when `of_run` (as `--run` leaves it)."""
+    folder = ws.root / "crossval" / result["crossval_id"]
+    folder.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(folder / "result.json", result)
+    if of_run and result.get("run_id"):
+        atomic_write_json(ws.runs_dir / result["run_id"] / "crossval.json", result)
+    return folder
