@@ -44,9 +44,10 @@ def defaults_note() -> str:
 
 def rewards() -> list[str]:
     """Reward formulations the trainer knows, its default first."""
-    from rl.rewards import REWARDS, RewardSettings
+    from rl.rewards import REWARDS
+    from rl.settings import DEFAULT_REWARD
 
-    default = RewardSettings().name
+    default = DEFAULT_REWARD
     return [default, *[r for r in REWARDS if r != default]]
 
 
