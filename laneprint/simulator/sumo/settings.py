@@ -1,0 +1,72 @@
+"""Settings of the SUMO study generator (one frozen dataclass, units in comments).
+
+`simulate_sumo_study(settings, seed)` is a pure function of these fields and the
+seed: every random choice (driver perturbations, background traffic, SUMO's own
+`--seed`) is derived from them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from laneprint.reference import SPEED_LIMITS_KPH
+
+
+@dataclass(frozen=True)
+class SumoSettings:
+    """Everything that shapes a SUMO study besides the seed."""
+
+    # --- the study -------------------------------------------------------------
+    n_drivers: int = 9  # drivers D01..Dnn, styles round-robin Defensive, Normal, Aggressive
+    speed_limits_kph: tuple[int, ...] = SPEED_LIMITS_KPH  # one SUMO run (= one recording) per limit [km/h]
+    minutes: float = 4.0  # [min] logged driving per section (a lane change in progress is finished)
+    step_s: float = 0.1  # [s] SUMO step length = log period (10 Hz)
+    lane_change_s: float = 3.0  # [s] --lanechange.duration: a lane change is a continuous lateral move
+    button_hold_s: float = 0.4  # [s] how long the button is held from the start of a lane change
+    perturbation_sd: float = 0.1  # relative sd (log-normal, clipped to +-2 sd) of a non-typical
+    # driver's parameters around its style's nominal values
+
+    # --- road and vehicles ---------------------------------------------------------
+    lane_width_m: float = 3.5  # [m] two lanes: 0 right (y = 0), 1 left (y = lane_width_m)
+    ego_length_m: float = 4.5  # [m]
+    ego_start_m: float = 400.0  # [m] where the ego departs (front bumper) on the edge
+    road_margin_m: float = 1500.0  # [m] road length beyond the farthest the ego can get
+    car_length_m: tuple[float, float] = (4.0, 5.0)  # [m] background car length ~ Uniform
+    truck_length_m: tuple[float, float] = (10.0, 16.0)  # [m] truck length ~ Uniform
+    scene_range_m: float = 150.0  # [m] a vehicle is in the log while |x - ego_x| <= this (centres)
+
+    # --- background traffic: a bubble around the ego ---------------------------------
+    slow_speed_frac: tuple[float, float] = (0.45, 0.75)  # right-lane vehicles' desired speed / limit ~ Uniform
+    truck_share: float = 0.4  # share of right-lane vehicles that are trucks
+    slow_spacing_s: tuple[float, float] = (2.0, 16.0)  # [s] spacing of consecutive right-lane vehicles,
+    # in seconds of driving at the limit, ~ Uniform (the ego meets one every ~40 s)
+    left_speed_frac: tuple[float, float] = (0.8, 0.95)  # slower left-lane cars' desired speed / limit ~ Uniform
+    left_spacing_s: tuple[float, float] = (20.0, 60.0)  # [s] their spacing, as slow_spacing_s
+    left_keep_lane: bool = False  # slower left-lane cars never change lane (others keep right when they can)
+    fast_speed_frac: tuple[float, float] = (1.1, 1.3)  # faster left-lane cars from behind, speed / limit ~ Uniform
+    fast_interval_s: tuple[float, float] = (30.0, 90.0)  # [s] between two faster cars appearing behind ~ Uniform
+    spawn_ahead_m: float = 250.0  # [m] vehicles ahead appear this far ahead of the ego (beyond scene_range_m)
+    spawn_behind_m: float = 200.0  # [m] faster cars appear this far behind the ego
+    remove_behind_m: float = 220.0  # [m] vehicles farther behind the ego than this leave the simulation
+    remove_ahead_m: float = 450.0  # [m] vehicles farther ahead than this leave the simulation
+    spawn_clearance_s: float = 1.5  # [s] a new vehicle needs this headway (at its speed) to its neighbours, + 10 m
+
+    def __post_init__(self) -> None:
+        if self.n_drivers < 1:
+            raise ValueError("n_drivers must be at least 1")
+        if not self.speed_limits_kph:
+            raise ValueError("speed_limits_kph must name at least one section")
+        if self.minutes <= 0:
+            raise ValueError("minutes must be positive")
+        if self.spawn_ahead_m <= self.scene_range_m or self.remove_ahead_m <= self.spawn_ahead_m:
+            raise ValueError("need scene_range_m < spawn_ahead_m < remove_ahead_m")
+
+    @property
+    def duration_s(self) -> float:
+        """Logged driving per section [s]."""
+        return self.minutes * 60.0
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready copy (tuples become lists)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}

@@ -1,0 +1,86 @@
+"""Driver styles as SUMO vehicle-type parameters, and the study's drivers.
+
+A style is a set of Krauss car-following and LC2013 lane-change parameters (see
+`laneprint/simulator/SUMO.md` for why these values). Drivers get styles
+round-robin (D01 Defensive, D02 Normal, D03 Aggressive, D04 Defensive, ...); the
+first driver of each style drives the nominal values (`typical`), every other one
+has each value multiplied by `exp(N(0, perturbation_sd))`, clipped to +-2 sd.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from laneprint.reference import STYLES
+from laneprint.simulator.drivers import driver_ids
+
+#: style -> SUMO vType attribute -> nominal value. Car following (Krauss): tau [s],
+#: minGap [m], accel/decel [m/s^2], speedFactor (desired speed / limit), sigma
+#: (dawdling 0-1). Lane change (LC2013): lcSpeedGain, lcSpeedGainLookahead [s],
+#: lcAssertive, lcKeepRight, lcKeepRightAcceptanceTime [s], lcCooperative.
+STYLE_PARAMS: dict[str, dict[str, float]] = {
+    "Defensive": {
+        "tau": 1.3, "minGap": 3.0, "accel": 1.8, "decel": 3.5, "speedFactor": 1.0, "sigma": 0.2,
+        "lcSpeedGain": 1.5, "lcSpeedGainLookahead": 6.0, "lcAssertive": 0.7, "lcKeepRight": 1.0,
+        "lcKeepRightAcceptanceTime": 10.0, "lcCooperative": 1.0,
+    },
+    "Normal": {
+        "tau": 0.9, "minGap": 2.5, "accel": 2.6, "decel": 4.5, "speedFactor": 1.05, "sigma": 0.15,
+        "lcSpeedGain": 2.0, "lcSpeedGainLookahead": 1.5, "lcAssertive": 1.2, "lcKeepRight": 2.0,
+        "lcKeepRightAcceptanceTime": 5.0, "lcCooperative": 0.7,
+    },
+    "Aggressive": {
+        "tau": 0.4, "minGap": 1.5, "accel": 3.5, "decel": 8.0, "speedFactor": 1.10, "sigma": 0.1,
+        "lcSpeedGain": 4.0, "lcSpeedGainLookahead": 0.0, "lcAssertive": 2.5, "lcKeepRight": 3.0,
+        "lcKeepRightAcceptanceTime": 2.0, "lcCooperative": 0.3,
+    },
+}
+
+#: Parameters kept within these bounds after a perturbation (SUMO rejects some values outside).
+_BOUNDS: dict[str, tuple[float, float]] = {"sigma": (0.0, 1.0), "lcCooperative": (0.0, 1.0)}
+#: Relative perturbation of a parameter, as a multiple of `perturbation_sd` (1 when not listed):
+#: the desired speed varies less between drivers of a style than their gaps and eagerness.
+_SD_SCALE: dict[str, float] = {"speedFactor": 0.3}
+
+
+@dataclass(frozen=True)
+class SumoDriver:
+    """One simulated driver: a style and the SUMO vType parameters it drives with."""
+
+    driver_id: str
+    style: str  # Defensive / Normal / Aggressive
+    typical: bool  # drives its style's nominal parameters
+    params: dict[str, float]  # SUMO vType attribute -> value
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"driver_id": self.driver_id, "style": self.style, "typical": self.typical,
+                "sumo_params": dict(self.params)}
+
+
+def style_of(index: int) -> str:
+    """Round-robin style of the driver at 0-based `index`."""
+    return STYLES[index % len(STYLES)]
+
+
+def perturb(nominal: dict[str, float], rng: np.random.Generator, sd: float) -> dict[str, float]:
+    """Each value times exp(N(0, sd)) clipped to +-2 sd (in a fixed key order), rounded."""
+    out = {}
+    for key in sorted(nominal):
+        z = float(np.clip(rng.normal(0.0, 1.0), -2.0, 2.0))
+        lo, hi = _BOUNDS.get(key, (0.0, np.inf))
+        out[key] = round(float(np.clip(nominal[key] * np.exp(sd * _SD_SCALE.get(key, 1.0) * z), lo, hi)), 4)
+    return {k: out[k] for k in nominal}
+
+
+def make_sumo_drivers(n_drivers: int, sd: float, rng: np.random.Generator) -> list[SumoDriver]:
+    """The study's drivers: styles round-robin, the first of each style typical (nominal values)."""
+    drivers = []
+    for i, did in enumerate(driver_ids(n_drivers)):
+        style = style_of(i)
+        typical = i < len(STYLES)
+        params = dict(STYLE_PARAMS[style]) if typical else perturb(STYLE_PARAMS[style], rng, sd)
+        drivers.append(SumoDriver(did, style, typical, params))
+    return drivers

@@ -1,0 +1,153 @@
+"""Background traffic as a moving bubble around the ego.
+
+Three streams, each vehicle with its own desired speed (a fraction of the limit):
+
+- `slow`: cars and trucks in the right lane, slower than the ego; spaced
+  `slow_spacing_s` seconds (at the limit) apart along the road, so the ego meets
+  one every spacing / closing speed seconds;
+- `left`: slower cars in the left lane (fewer, faster than the right lane's);
+- `fast`: cars faster than the limit that appear behind the ego in the left lane
+  now and then; they close the gap the ego wants and make it wait.
+
+Vehicles ahead appear `spawn_ahead_m` in front of the ego (outside the logged
+range), the next one of a stream when its spacing behind the stream's frontmost
+vehicle has come within reach; every vehicle leaves the simulation when it is
+farther than `remove_behind_m` / `remove_ahead_m` from the ego, or when it is
+beyond the logged range ahead and pulling away (faster than the ego). Background
+vehicles keep their lane (lane-change mode 0) and follow with Krauss, no dawdling.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from laneprint.simulator.sumo.scenario import CAR_TYPE, ROUTE, TRUCK_TYPE
+from laneprint.simulator.sumo.settings import SumoSettings
+
+STREAM_LANE: dict[str, int] = {"slow": 0, "left": 1, "fast": 1}
+
+
+@dataclass(frozen=True)
+class VehicleState:
+    """A vehicle at one step: centre position [m], speed [m/s], lane, length [m]."""
+
+    x: float
+    v: float
+    lane: int
+    length: float
+
+
+class TrafficBubble:
+    """Adds and removes background vehicles around the ego; all choices from `rng`."""
+
+    def __init__(self, api: Any, settings: SumoSettings, limit_mps: float, rng: np.random.Generator,
+                 subscribe_vars: list[int]) -> None:
+        self.api = api
+        self.s = settings
+        self.limit = limit_mps
+        self.rng = rng
+        self.vars = subscribe_vars
+        self.keep_lane = {"left"} if settings.left_keep_lane else set()
+        self.stream: dict[str, str] = {}  # vehicle id -> stream
+        self.pending: set[str] = set()  # added, not yet seen on the road
+        self.n_added = 0
+        self.spacing = {stream: self._spacing(stream) for stream in ("slow", "left")}
+        self.next_fast_s = self._u(settings.fast_interval_s)
+
+    def _u(self, lo_hi: tuple[float, float]) -> float:
+        return float(self.rng.uniform(lo_hi[0], lo_hi[1]))
+
+    # --- one step ------------------------------------------------------------------
+
+    def update(self, t: float, ego_x: float, ego_v: float, vehicles: dict[str, VehicleState]) -> None:
+        """Remove far and never-inserted vehicles, then add the ones due, given the states at `t`."""
+        s = self.s
+        for vid in sorted(self.pending):
+            if vid not in vehicles:
+                self._remove(vid)  # could not be inserted where asked: give up on it
+        self.pending.clear()
+        for vid, st in vehicles.items():
+            gone_ahead = st.x > ego_x + s.remove_ahead_m or (st.x > ego_x + s.scene_range_m + 30.0 and st.v > ego_v)
+            if st.x < ego_x - s.remove_behind_m or gone_ahead:
+                self._remove(vid)
+        live = {vid: st for vid, st in vehicles.items() if vid in self.stream}
+        for stream in ("slow", "left"):
+            self._spawn_ahead(stream, ego_x, live)
+        if t >= self.next_fast_s:
+            v = self._u(s.fast_speed_frac) * self.limit
+            if self._add("fast", ego_x - s.spawn_behind_m, v, live):
+                self.next_fast_s = t + self._u(s.fast_interval_s)
+
+    def fill(self, ego_x: float) -> None:
+        """The first scene: each ahead stream from just beyond the ego up to `spawn_ahead_m`."""
+        s = self.s
+        live: dict[str, VehicleState] = {}
+        for stream in ("slow", "left"):
+            x = ego_x + s.scene_range_m / 2 + self._u((0.0, self.spacing[stream]))
+            while x <= ego_x + s.spawn_ahead_m:
+                self._add(stream, x, self._speed(stream), live)
+                x += self._spacing(stream)
+            self.spacing[stream] = x - (ego_x + s.spawn_ahead_m)  # the rest of the last spacing
+
+    # --- helpers -----------------------------------------------------------------------
+
+    def _spacing(self, stream: str) -> float:
+        """Distance to the stream's next vehicle [m]."""
+        return self._u(self.s.slow_spacing_s if stream == "slow" else self.s.left_spacing_s) * self.limit
+
+    def _speed(self, stream: str) -> float:
+        frac = self.s.slow_speed_frac if stream == "slow" else self.s.left_speed_frac
+        return self._u(frac) * self.limit
+
+    def _spawn_ahead(self, stream: str, ego_x: float, live: dict[str, VehicleState]) -> None:
+        s = self.s
+        ahead = [st.x for vid, st in live.items() if self.stream[vid] == stream and st.x > ego_x]
+        frontier = max(ahead) if ahead else ego_x + s.spawn_ahead_m - self.spacing[stream]
+        x = frontier + self.spacing[stream]
+        if x > ego_x + s.spawn_ahead_m:
+            return
+        if x < ego_x + s.scene_range_m + 20.0:  # fell behind (a blocked spot): skip this one
+            x = ego_x + s.spawn_ahead_m
+        self._add(stream, x, self._speed(stream), live)
+        self.spacing[stream] = self._spacing(stream)
+
+    def _length(self, stream: str) -> tuple[str, float]:
+        s = self.s
+        if stream == "slow" and self.rng.random() < s.truck_share:
+            return TRUCK_TYPE, self._u(s.truck_length_m)
+        return CAR_TYPE, self._u(s.car_length_m)
+
+    def _free(self, lane: int, x: float, v: float, length: float, live: dict[str, VehicleState]) -> bool:
+        clearance = self.s.spawn_clearance_s * v + 10.0
+        return all(abs(st.x - x) - (st.length + length) / 2 >= clearance
+                   for st in live.values() if st.lane == lane)
+
+    def _add(self, stream: str, x: float, v: float, live: dict[str, VehicleState]) -> bool:
+        """Insert a vehicle with centre `x` and desired speed `v` unless the spot is taken."""
+        vtype, length = self._length(stream)
+        lane = STREAM_LANE[stream]
+        if x - length / 2 < 1.0 or not self._free(lane, x, v, length, live):
+            return False
+        self.n_added += 1
+        vid = f"V{self.n_added:03d}"
+        veh = self.api.vehicle
+        veh.add(vid, ROUTE, vtype, depart="now", departLane=str(lane), departPos=f"{x + length / 2:.3f}",
+                departSpeed=f"{v:.3f}")
+        veh.setLength(vid, round(length, 3))
+        veh.setMaxSpeed(vid, v)
+        if stream in self.keep_lane:
+            veh.setLaneChangeMode(vid, 0)
+        veh.subscribe(vid, self.vars)
+        self.stream[vid] = stream
+        self.pending.add(vid)
+        live[vid] = VehicleState(x, v, lane, length)
+        return True
+
+    def _remove(self, vid: str) -> None:
+        veh = self.api.vehicle
+        veh.unsubscribe(vid)  # libsumo keeps a removed vehicle's subscription and then fails
+        veh.remove(vid)
+        self.stream.pop(vid, None)
