@@ -1,10 +1,15 @@
-"""`laneprint simulate`: generate the synthetic driver-in-the-loop study and write its logs."""
+"""`laneprint simulate`: generate a driver-in-the-loop study and write its logs.
+
+`--engine synthetic` (default) is laneprint's own generator (`laneprint/simulator/`);
+`--engine sumo` runs every driver and section in Eclipse SUMO, whose models make
+the decisions (`laneprint/simulator/sumo/`, needs `pip install -e '.[sumo]'`).
+"""
 
 from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Optional
 
 import typer
 from rich.console import Console
@@ -13,38 +18,88 @@ from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, r
 from laneprint.errors import UserError
 
 OutOpt = Annotated[Path, typer.Option("--out", "-o", help="Folder to write the study into.")]
-DriversOpt = Annotated[int, typer.Option("--drivers", help="Number of drivers.")]
-DecisionsOpt = Annotated[int, typer.Option("--decisions", help="Button presses per driver, over all sections.")]
+DriversOpt = Annotated[Optional[int], typer.Option(
+    "--drivers", help="Number of drivers (default 10 synthetic, 9 sumo: 3 per style).")]
+DecisionsOpt = Annotated[Optional[int], typer.Option(
+    "--decisions", help="Button presses per driver, over all sections (synthetic; default 50).")]
+EngineOpt = Annotated[str, typer.Option(
+    "--engine", help="synthetic (laneprint's generator) or sumo (Eclipse SUMO's models decide).")]
+MinutesOpt = Annotated[Optional[float], typer.Option(
+    "--minutes", help="Minutes of driving per section (sumo; default 5).")]
+JobsOpt = Annotated[int, typer.Option("--jobs", help="SUMO runs in parallel (sumo).")]
 SeedOpt = Annotated[int, typer.Option("--seed", help="Random seed (same seed, same study).")]
 FormatOpt = Annotated[str, typer.Option(
     "--format", help="mixed (odd drivers MCAP, even drivers .csv.gz), csv (all .csv.gz), mcap, or both (csv/ and mcap/).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Write into a folder that holds other files.")]
 
 
-def simulate_command(out: OutOpt, drivers: DriversOpt = 10, decisions: DecisionsOpt = 50, seed: SeedOpt = 0,
-                     fmt: FormatOpt = "mixed", force: ForceOpt = False, workspace: WorkspaceOpt = DEFAULT_WS,
+ENGINES: tuple[str, ...] = ("synthetic", "sumo")
+
+
+def simulate_command(out: OutOpt, drivers: DriversOpt = None, decisions: DecisionsOpt = None, seed: SeedOpt = 0,
+                     fmt: FormatOpt = "mixed", force: ForceOpt = False, engine: EngineOpt = "synthetic",
+                     minutes: MinutesOpt = None, jobs: JobsOpt = 1, workspace: WorkspaceOpt = DEFAULT_WS,
                      as_json: JsonOpt = False) -> None:
-    """Generate a synthetic DIL study (CSV and MCAP logs, ground_truth.json) into --out."""
+    """Generate a DIL study (CSV and MCAP logs, ground_truth.json, README.md) into --out."""
 
     def work() -> dict[str, Any]:
-        from laneprint.simulator.config import StudySettings
-        from laneprint.simulator.output import FORMATS, check_destination, write_study
-        from laneprint.simulator.study import simulate_study
+        from laneprint.simulator.output import FORMATS
 
+        if engine not in ENGINES:
+            raise UserError(f"unknown --engine {engine!r}; choose one of {', '.join(ENGINES)}")
         if fmt not in FORMATS:
             raise UserError(f"unknown --format {fmt!r}; choose one of {', '.join(FORMATS)}")
-        if drivers < 1:
+        if drivers is not None and drivers < 1:
             raise UserError("--drivers must be at least 1")
-        base = StudySettings()
-        if decisions < len(base.speed_limits_kph):
-            raise UserError(f"--decisions must be at least {len(base.speed_limits_kph)} (one per section)")
-        settings = replace(base, n_drivers=drivers, decisions_per_driver=decisions)
-        check_destination(out, force)  # before minutes of work, not after
-        with progress_bar(not as_json) as bar:
-            study = simulate_study(settings, seed, progress=bar)
-            return write_study(study, out, fmt, force=force, progress=bar)
+        if engine == "sumo":
+            if decisions is not None:
+                raise UserError("--decisions is for --engine synthetic; with sumo the drivers decide (use --minutes)")
+            return _simulate_sumo(out, drivers, seed, fmt, force, minutes, jobs, as_json)
+        if minutes is not None or jobs != 1:
+            raise UserError("--minutes and --jobs are for --engine sumo")
+        return _simulate_synthetic(out, drivers, decisions, seed, fmt, force, as_json)
 
-    run_command(work, as_json, _render)
+    run_command(work, as_json, _render_sumo if engine == "sumo" else _render)
+
+
+def _simulate_synthetic(out: Path, drivers: Optional[int], decisions: Optional[int], seed: int, fmt: str,
+                        force: bool, as_json: bool) -> dict[str, Any]:
+    from laneprint.simulator.config import StudySettings
+    from laneprint.simulator.output import check_destination, write_study
+    from laneprint.simulator.study import simulate_study
+
+    base = StudySettings()
+    decisions = base.decisions_per_driver if decisions is None else decisions
+    if decisions < len(base.speed_limits_kph):
+        raise UserError(f"--decisions must be at least {len(base.speed_limits_kph)} (one per section)")
+    settings = replace(base, n_drivers=base.n_drivers if drivers is None else drivers,
+                       decisions_per_driver=decisions)
+    check_destination(out, force)  # before minutes of work, not after
+    with progress_bar(not as_json) as bar:
+        study = simulate_study(settings, seed, progress=bar)
+        return write_study(study, out, fmt, force=force, progress=bar)
+
+
+def _simulate_sumo(out: Path, drivers: Optional[int], seed: int, fmt: str, force: bool, minutes: Optional[float],
+                   jobs: int, as_json: bool) -> dict[str, Any]:
+    from laneprint.simulator.output import check_destination
+    from laneprint.simulator.sumo.backend import check_available
+    from laneprint.simulator.sumo.output import write_sumo_study
+    from laneprint.simulator.sumo.settings import SumoSettings
+    from laneprint.simulator.sumo.study import simulate_sumo_study
+
+    if minutes is not None and not 0 < minutes <= 120:
+        raise UserError("--minutes must be more than 0 and at most 120")
+    if jobs < 1:
+        raise UserError("--jobs must be at least 1")
+    base = SumoSettings()
+    settings = replace(base, n_drivers=base.n_drivers if drivers is None else drivers,
+                       minutes=base.minutes if minutes is None else minutes)
+    check_available()  # one line telling how to install SUMO, before anything else
+    check_destination(out, force)
+    with progress_bar(not as_json) as bar:
+        study = simulate_sumo_study(settings, seed, progress=bar, jobs=jobs)
+        return write_sumo_study(study, out, fmt, force=force, progress=bar)
 
 
 def _render(result: dict[str, Any], console: Console) -> None:
@@ -55,3 +110,21 @@ def _render(result: dict[str, Any], console: Console) -> None:
     console.print(f"  recordings  {result['recordings']}", highlight=False, soft_wrap=True)
     console.print(f"  decisions   {result['decisions']} ({cases})", highlight=False, soft_wrap=True)
     console.print(f"  files       {result['files']}, {result['bytes'] / 1e6:.1f} MB", highlight=False, soft_wrap=True)
+
+
+def _render_sumo(result: dict[str, Any], console: Console) -> None:
+    per = result["decisions_per_driver"]
+    styles = result["styles"]
+    counts = ", ".join(f"{d} {styles[d][0]} {n}" for d, n in per.items())
+    lines = [
+        f"Wrote a SUMO study to {result['out']} (Eclipse SUMO {result['sumo_version']}, seed {result['seed']}, "
+        f"format {result['format']}, {result['minutes']:g} min per section)",
+        f"  drivers     {result['drivers']}",
+        f"  recordings  {result['recordings']}",
+        f"  decisions   {result['decisions']} ({result['directions']['left']} left, "
+        f"{result['directions']['right']} right; {counts})",
+        f"  collisions  {result['collisions']}",
+        f"  files       {result['files']}, {result['bytes'] / 1e6:.1f} MB",
+    ]
+    for line in lines:
+        console.print(line, highlight=False, soft_wrap=True)

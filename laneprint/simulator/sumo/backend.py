@@ -12,11 +12,11 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import socket
 import subprocess
-import uuid
 from pathlib import Path
 from types import ModuleType
-from typing import Any, Optional
+from typing import Any
 
 from laneprint.errors import UserError
 
@@ -83,23 +83,31 @@ def run_netconvert(nodes: Path, edges: Path, out: Path) -> Path:
     return out
 
 
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("localhost", 0))
+        return int(sock.getsockname()[1])
+
+
 class SumoSession:
     """One running simulation: `api.vehicle`, `api.simulation`, `step()`, `close()`.
 
     With libsumo there is one simulation per process (module-level state); with traci
-    each session has its own connection label.
+    each session is its own connection to its own `sumo` process (not in traci's
+    global pool), quiet on stdout so `--json` output stays clean.
     """
 
     def __init__(self, args: list[str]) -> None:
         self._module, self.api_name = load_api()
-        self._label: Optional[str] = None
         if self.api_name == "libsumo":
             self._module.start(["sumo", *args])
             self.api: Any = self._module
         else:
-            self._label = f"laneprint-{uuid.uuid4().hex[:8]}"
-            self._module.start([str(binary("sumo")), *args], label=self._label)
-            self.api = self._module.getConnection(self._label)
+            port = _free_port()
+            proc = subprocess.Popen([str(binary("sumo")), *args, "--remote-port", str(port)],
+                                    stdout=subprocess.DEVNULL, env=sumo_env())
+            with contextlib.redirect_stdout(io.StringIO()):  # traci prints its connection retries
+                self.api = self._module.connect(port, numRetries=200, proc=proc, waitBetweenRetries=0.05)
         self.version = str(self.api.getVersion()[1]).replace("SUMO ", "")
 
     def step(self) -> None:

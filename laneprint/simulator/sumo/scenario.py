@@ -22,6 +22,7 @@ TRUCK_TYPE = "truck"
 #: background vehicles return to the right lane within seconds (SUMO's legacy default waits ~7 s per m/s)
 _BG_LC = {"lcKeepRightAcceptanceTime": 6.0}
 _MAX_SPEED_MPS = 60.0  # [m/s] vType maxSpeed: above every desired speed (departSpeed must stay below it)
+_EMERGENCY_DECEL_MPS2 = 9.0  # [m/s^2] SUMO's default for passenger cars; never below the driver's decel
 
 
 def road_length_m(settings: SumoSettings, limit_kph: float) -> float:
@@ -37,7 +38,8 @@ def _attrs(values: dict[str, object]) -> str:
 def routes_xml(ego_params: dict[str, float], settings: SumoSettings) -> str:
     """The route file: vehicle types and the single route (vehicles are added at run time)."""
     ego = {"id": EGO_TYPE, "vClass": "passenger", "length": settings.ego_length_m, "maxSpeed": _MAX_SPEED_MPS,
-           "speedDev": 0, "carFollowModel": "Krauss", "laneChangeModel": "LC2013", **ego_params}
+           "speedDev": 0, "carFollowModel": "Krauss", "laneChangeModel": "LC2013",
+           "emergencyDecel": max(_EMERGENCY_DECEL_MPS2, ego_params.get("decel", 0.0)), **ego_params}
     car = {"id": CAR_TYPE, "vClass": "passenger", "length": 4.5, "maxSpeed": _MAX_SPEED_MPS, "speedFactor": 2.0,
            "speedDev": 0, "sigma": 0, "tau": 1.0, "accel": 2.6, "decel": 4.5, **_BG_LC}
     truck = {"id": TRUCK_TYPE, "vClass": "passenger", "length": 12.0, "maxSpeed": _MAX_SPEED_MPS,

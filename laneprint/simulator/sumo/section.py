@@ -86,50 +86,51 @@ def run_section(settings: SumoSettings, net: Path, routes: Path, limit_kph: floa
     s = settings
     lc_out = workdir / f"lanechanges-{seed}.xml"
     n_steps = int(round(s.duration_s / s.step_s))
-    limit = limit_kph / 3.6
     ego_rows: list[tuple[float, float, float, float, int, float]] = []
+    traffic_rows: list[tuple[float, str, float, float, float, int, float]] = []
     sim_t: list[float] = []
-    traffic: list[tuple[float, str, float, float, float, int, float]] = []
     collisions = 0
     with SumoSession(sumo_args(net, routes, lc_out, s, seed)) as sim:
         veh = sim.api.vehicle
         veh.add(EGO_ID, ROUTE, EGO_TYPE, depart="now", departLane="0", departPos=f"{s.ego_start_m:g}",
                 departSpeed="desired")
         veh.subscribe(EGO_ID, _VARS + [_ACC])
-        bubble = TrafficBubble(sim.api, s, limit, rng, _VARS)
+        bubble = TrafficBubble(sim.api, s, limit_kph / 3.6, rng, _VARS)
         sim.step()
-        res = veh.getAllSubscriptionResults()
-        bubble.fill(res[EGO_ID][_POS] - s.ego_length_m / 2)
-        i = 0
-        while True:
+        bubble.fill(veh.getAllSubscriptionResults()[EGO_ID][_POS] - s.ego_length_m / 2)
+        for i in range(n_steps + int(_FINISH_S / s.step_s)):
             sim.step()
-            res = veh.getAllSubscriptionResults()
-            e = res.get(EGO_ID)
-            if e is None:
-                raise RuntimeError("the ego left the simulation (road too short?)")
-            t = i * s.step_s
-            ex = e[_POS] - e[_LEN] / 2
-            ey = e[_LANE] * s.lane_width_m + e[_LAT]
-            ego_rows.append((t, ex, ey, e[_SPEED], int(e[_LANE]), e[_ACC]))
+            t = round(i * s.step_s, 6)
+            states = _log_step(veh.getAllSubscriptionResults(), t, s, ego_rows, traffic_rows)
             sim_t.append(sim.api.simulation.getTime())
-            states = {}
-            for vid, r in res.items():
-                if vid == EGO_ID:
-                    continue
-                st = VehicleState(r[_POS] - r[_LEN] / 2, r[_SPEED], int(r[_LANE]), r[_LEN])
-                states[vid] = st
-                if abs(st.x - ex) <= s.scene_range_m:
-                    traffic.append((t, vid, st.x, st.lane * s.lane_width_m + r[_LAT], st.v, st.lane, st.length))
             collisions += sim.api.simulation.getCollidingVehiclesNumber()
-            i += 1
-            mid_change = abs(ey - e[_LANE] * s.lane_width_m) > _AT_CENTRE_M
-            if i >= n_steps and (not mid_change or i >= n_steps + _FINISH_S / s.step_s):
-                break
-            bubble.update(t, ex, e[_SPEED], states)
+            _, ex, ey, ev, lane, _ = ego_rows[-1]
+            if i + 1 >= n_steps and abs(ey - lane * s.lane_width_m) <= _AT_CENTRE_M:
+                break  # the section is over and no lane change is under way
+            bubble.update(t, ex, ev, states)
         version, api = sim.version, sim.api_name
-    log = _assemble(s, ego_rows, np.asarray(sim_t), traffic, _reasons(lc_out), collisions, version, api)
+    log = _assemble(s, ego_rows, np.asarray(sim_t), traffic_rows, _reasons(lc_out), collisions, version, api)
     log.sumo_seed = seed
     return log
+
+
+def _log_step(res: dict[str, dict[int, Any]], t: float, s: SumoSettings, ego_rows: list,
+              traffic_rows: list) -> dict[str, VehicleState]:
+    """Append the ego's state and the traffic within range at `t`; every background vehicle's state."""
+    e = res.get(EGO_ID)
+    if e is None:
+        raise RuntimeError("the ego left the simulation (road too short?)")
+    ex = e[_POS] - e[_LEN] / 2  # SUMO's position is the front bumper
+    ego_rows.append((t, ex, e[_LANE] * s.lane_width_m + e[_LAT], e[_SPEED], int(e[_LANE]), e[_ACC]))
+    states = {}
+    for vid, r in res.items():
+        if vid == EGO_ID:
+            continue
+        st = VehicleState(r[_POS] - r[_LEN] / 2, r[_SPEED], int(r[_LANE]), r[_LEN])
+        states[vid] = st
+        if abs(st.x - ex) <= s.scene_range_m:
+            traffic_rows.append((t, vid, st.x, st.lane * s.lane_width_m + r[_LAT], st.v, st.lane, st.length))
+    return states
 
 
 def _assemble(s: SumoSettings, ego_rows: list, sim_t: np.ndarray, traffic_rows: list,
@@ -149,7 +150,8 @@ def _assemble(s: SumoSettings, ego_rows: list, sim_t: np.ndarray, traffic_rows: 
         flips = np.flatnonzero(lane[k:end] != from_lane)
         flip = k + int(flips[0]) if len(flips) else None
         # SUMO stamps a change with the time the step that made it began: one step before the flip sample
-        reason = next((r for tt, r in reasons if flip is not None and abs(tt + s.step_s - sim_t[flip]) < s.step_s / 2), "")
+        reason = next((r for tt, r in reasons
+                       if flip is not None and abs(tt + s.step_s - sim_t[flip]) < s.step_s / 2), "")
         changes.append({"sample": k, "press_t_s": float(t[k]), "direction": d, "from_lane": from_lane,
                         "target_lane": from_lane + (1 if d == "left" else -1), "changed": flip is not None,
                         "lane_flip_t_s": float(t[flip]) if flip is not None else None,

@@ -20,7 +20,7 @@ class SumoSettings:
     # --- the study -------------------------------------------------------------
     n_drivers: int = 9  # drivers D01..Dnn, styles round-robin Defensive, Normal, Aggressive
     speed_limits_kph: tuple[int, ...] = SPEED_LIMITS_KPH  # one SUMO run (= one recording) per limit [km/h]
-    minutes: float = 4.0  # [min] logged driving per section (a lane change in progress is finished)
+    minutes: float = 5.0  # [min] logged driving per section (a lane change in progress is finished)
     step_s: float = 0.1  # [s] SUMO step length = log period (10 Hz)
     lane_change_s: float = 3.0  # [s] --lanechange.duration: a lane change is a continuous lateral move
     button_hold_s: float = 0.4  # [s] how long the button is held from the start of a lane change
@@ -37,20 +37,22 @@ class SumoSettings:
     scene_range_m: float = 150.0  # [m] a vehicle is in the log while |x - ego_x| <= this (centres)
 
     # --- background traffic: a bubble around the ego ---------------------------------
-    slow_speed_frac: tuple[float, float] = (0.45, 0.75)  # right-lane vehicles' desired speed / limit ~ Uniform
+    slow_speed_frac: tuple[float, float] = (0.4, 0.8)  # right-lane vehicles' desired speed / limit ~ Uniform
     truck_share: float = 0.4  # share of right-lane vehicles that are trucks
     slow_spacing_s: tuple[float, float] = (2.0, 16.0)  # [s] spacing of consecutive right-lane vehicles,
-    # in seconds of driving at the limit, ~ Uniform (the ego meets one every ~40 s)
-    left_speed_frac: tuple[float, float] = (0.8, 0.95)  # slower left-lane cars' desired speed / limit ~ Uniform
-    left_spacing_s: tuple[float, float] = (20.0, 60.0)  # [s] their spacing, as slow_spacing_s
-    left_keep_lane: bool = False  # slower left-lane cars never change lane (others keep right when they can)
+    # in seconds of driving at the limit, ~ Uniform (the ego closes on one every ~20 s)
+    left_speed_frac: tuple[float, float] = (0.75, 0.92)  # cars appearing in the left lane, desired speed / limit
+    left_spacing_s: tuple[float, float] = (4.0, 15.0)  # [s] their spacing, as slow_spacing_s
     fast_speed_frac: tuple[float, float] = (1.1, 1.3)  # faster left-lane cars from behind, speed / limit ~ Uniform
-    fast_interval_s: tuple[float, float] = (30.0, 90.0)  # [s] between two faster cars appearing behind ~ Uniform
+    fast_interval_s: tuple[float, float] = (60.0, 180.0)  # [s] between two faster cars appearing behind ~ Uniform
+    # (they block the ego's change to the left until they have passed)
     spawn_ahead_m: float = 250.0  # [m] vehicles ahead appear this far ahead of the ego (beyond scene_range_m)
     spawn_behind_m: float = 200.0  # [m] faster cars appear this far behind the ego
     remove_behind_m: float = 220.0  # [m] vehicles farther behind the ego than this leave the simulation
-    remove_ahead_m: float = 450.0  # [m] vehicles farther ahead than this leave the simulation
-    spawn_clearance_s: float = 1.5  # [s] a new vehicle needs this headway (at its speed) to its neighbours, + 10 m
+    remove_ahead_m: float = 450.0  # [m] vehicles farther ahead than this leave the simulation (and those
+    # faster than the ego once beyond scene_range_m + 30 m)
+    spawn_clearance_s: float = 1.5  # [s] gap a new vehicle needs to its lane neighbours, as time at its own
+    # speed, plus 10 m; otherwise it is not added
 
     def __post_init__(self) -> None:
         if self.n_drivers < 1:

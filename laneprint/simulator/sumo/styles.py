@@ -4,7 +4,9 @@ A style is a set of Krauss car-following and LC2013 lane-change parameters (see
 `laneprint/simulator/SUMO.md` for why these values). Drivers get styles
 round-robin (D01 Defensive, D02 Normal, D03 Aggressive, D04 Defensive, ...); the
 first driver of each style drives the nominal values (`typical`), every other one
-has each value multiplied by `exp(N(0, perturbation_sd))`, clipped to +-2 sd.
+has each value multiplied by `exp(N(0, perturbation_sd))`, clipped to +-2 sd (a
+fifth of that for speedFactor: the desired speed alone moves every time to
+collision, so it may not blur the styles).
 """
 
 from __future__ import annotations
@@ -23,17 +25,17 @@ from laneprint.simulator.drivers import driver_ids
 #: lcAssertive, lcKeepRight, lcKeepRightAcceptanceTime [s], lcCooperative.
 STYLE_PARAMS: dict[str, dict[str, float]] = {
     "Defensive": {
-        "tau": 1.3, "minGap": 3.0, "accel": 1.8, "decel": 3.5, "speedFactor": 1.0, "sigma": 0.2,
+        "tau": 1.3, "minGap": 3.0, "accel": 1.8, "decel": 3.5, "speedFactor": 0.97, "sigma": 0.2,
         "lcSpeedGain": 1.5, "lcSpeedGainLookahead": 6.0, "lcAssertive": 0.7, "lcKeepRight": 1.0,
-        "lcKeepRightAcceptanceTime": 10.0, "lcCooperative": 1.0,
+        "lcKeepRightAcceptanceTime": 6.0, "lcCooperative": 1.0,
     },
     "Normal": {
         "tau": 0.9, "minGap": 2.5, "accel": 2.6, "decel": 4.5, "speedFactor": 1.05, "sigma": 0.15,
         "lcSpeedGain": 2.0, "lcSpeedGainLookahead": 1.5, "lcAssertive": 1.2, "lcKeepRight": 2.0,
-        "lcKeepRightAcceptanceTime": 5.0, "lcCooperative": 0.7,
+        "lcKeepRightAcceptanceTime": 3.0, "lcCooperative": 0.7,
     },
     "Aggressive": {
-        "tau": 0.4, "minGap": 1.5, "accel": 3.5, "decel": 8.0, "speedFactor": 1.10, "sigma": 0.1,
+        "tau": 0.4, "minGap": 1.5, "accel": 3.5, "decel": 8.0, "speedFactor": 1.13, "sigma": 0.1,
         "lcSpeedGain": 4.0, "lcSpeedGainLookahead": 0.0, "lcAssertive": 2.5, "lcKeepRight": 3.0,
         "lcKeepRightAcceptanceTime": 2.0, "lcCooperative": 0.3,
     },
@@ -41,9 +43,8 @@ STYLE_PARAMS: dict[str, dict[str, float]] = {
 
 #: Parameters kept within these bounds after a perturbation (SUMO rejects some values outside).
 _BOUNDS: dict[str, tuple[float, float]] = {"sigma": (0.0, 1.0), "lcCooperative": (0.0, 1.0)}
-#: Relative perturbation of a parameter, as a multiple of `perturbation_sd` (1 when not listed):
-#: the desired speed varies less between drivers of a style than their gaps and eagerness.
-_SD_SCALE: dict[str, float] = {"speedFactor": 0.3}
+#: Relative perturbation of a parameter, as a multiple of `perturbation_sd` (1 when not listed).
+_SD_SCALE: dict[str, float] = {"speedFactor": 0.2}
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,9 @@ Three streams, each vehicle with its own desired speed (a fraction of the limit)
 
 - `slow`: cars and trucks in the right lane, slower than the ego; spaced
   `slow_spacing_s` seconds (at the limit) apart along the road, so the ego meets
-  one every spacing / closing speed seconds;
-- `left`: slower cars in the left lane (fewer, faster than the right lane's);
+  one every spacing / closing speed seconds, alone or in short platoons;
+- `left`: cars that appear in the left lane, slower than the ego but faster than
+  the right lane (they overtake there and then keep right);
 - `fast`: cars faster than the limit that appear behind the ego in the left lane
   now and then; they close the gap the ego wants and make it wait.
 
@@ -14,7 +15,8 @@ range), the next one of a stream when its spacing behind the stream's frontmost
 vehicle has come within reach; every vehicle leaves the simulation when it is
 farther than `remove_behind_m` / `remove_ahead_m` from the ego, or when it is
 beyond the logged range ahead and pulling away (faster than the ego). Background
-vehicles keep their lane (lane-change mode 0) and follow with Krauss, no dawdling.
+vehicles follow with Krauss (no dawdling) and change lanes with LC2013 (see
+`scenario.py`: they return right within seconds).
 """
 
 from __future__ import annotations
@@ -50,7 +52,6 @@ class TrafficBubble:
         self.limit = limit_mps
         self.rng = rng
         self.vars = subscribe_vars
-        self.keep_lane = {"left"} if settings.left_keep_lane else set()
         self.stream: dict[str, str] = {}  # vehicle id -> stream
         self.pending: set[str] = set()  # added, not yet seen on the road
         self.n_added = 0
@@ -82,7 +83,7 @@ class TrafficBubble:
                 self.next_fast_s = t + self._u(s.fast_interval_s)
 
     def fill(self, ego_x: float) -> None:
-        """The first scene: each ahead stream from just beyond the ego up to `spawn_ahead_m`."""
+        """The first scene: each ahead stream from half the logged range ahead up to `spawn_ahead_m`."""
         s = self.s
         live: dict[str, VehicleState] = {}
         for stream in ("slow", "left"):
@@ -138,8 +139,6 @@ class TrafficBubble:
                 departSpeed=f"{v:.3f}")
         veh.setLength(vid, round(length, 3))
         veh.setMaxSpeed(vid, v)
-        if stream in self.keep_lane:
-            veh.setLaneChangeMode(vid, 0)
         veh.subscribe(vid, self.vars)
         self.stream[vid] = stream
         self.pending.add(vid)
