@@ -38,7 +38,7 @@ def run_pipeline(paths: list[Path], workspace: Path, driver: str | None, mapping
         from rl.env import formulation_config
         from rl.runs import Target, resolve_lines, train_run
 
-        overrides = {"seed": seed} | ({"episodes": episodes} if episodes else {})
+        overrides = {"seed": seed} | ({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {})
         for style in analysis["styles"]:
             target = Target("style", style)
             env = formulation_config(resolve_lines(ws, target, "analysis"))

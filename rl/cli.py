@@ -102,7 +102,7 @@ def train_command(
         if dt is not None:
             env = replace(env, dt_s=dt)
         overrides = {k: v for k, v in {
-            "episodes": episodes, "seed": seed, "learning_rate": lr, "gamma": gamma, "eps_start": eps_start,
+            "episodes": episodes, "episodes_per_approach": 0.0 if episodes else None, "seed": seed, "learning_rate": lr, "gamma": gamma, "eps_start": eps_start,
             "eps_end": eps_end, "batch_size": batch_size, "buffer_size": buffer_size,
             "learning_starts": learning_starts, "target_update_episodes": target_update, "num_envs": num_envs,
             "gradient_steps": gradient_steps, "threads": threads, "checkpoint_every": checkpoint_every,
@@ -200,7 +200,7 @@ def crossval_command(
                 raise UserError("give exactly one of --style NAME, --driver ID, --all or --run RUN_ID")
             targets = ([Target("style", s) for s in style_names(ws)] if all_styles
                        else [Target("style", style)] if style else [Target("driver", str(driver))])
-            dqn = DQNSettings(seed=seed, **({"episodes": episodes} if episodes else {}))
+            dqn = DQNSettings(seed=seed, **({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {}))
             base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines)
             results = [run_crossval(ws, t, target_env(ws, t, base, lines), dqn, cv, lines, progress=progress)
                        for t in targets]

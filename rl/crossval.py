@@ -159,7 +159,7 @@ def _train_agent(approaches: list[Approach], cfg: EnvConfig, dqn: DQNSettings, p
     trainer = DQNTrainer(cfg, dqn, approaches=approaches if cfg.scenes == "recorded" else None)
 
     def tick(t) -> bool:
-        report(progress, t.episodes_done, dqn.episodes, label)
+        report(progress, t.episodes_done, t.settings.episodes, label)
         return False
 
     trainer.train(on_vector_step=tick)

@@ -154,7 +154,10 @@ class DQNTrainer:
     def __init__(self, env_config: EnvConfig, settings: DQNSettings | None = None,
                  approaches: list[Approach] | None = None) -> None:
         self.env_config = env_config
-        self.settings = s = settings or DQNSettings()
+        s = settings or DQNSettings()
+        if env_config.scenes == "recorded":
+            s = s.resolved_episodes(len(approaches) if approaches else 0)
+        self.settings = s
         torch.set_num_threads(s.threads)
         # --- seeding, in one block ---
         torch.manual_seed(s.seed)

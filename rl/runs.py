@@ -235,6 +235,10 @@ def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig
         approaches = recorded_approaches(workspace, target)
         config.setdefault("scene_decisions", len(approaches))
     trainer = DQNTrainer(env_config, settings, approaches=approaches)
+    if trainer.settings != settings:  # episodes fixed by the number of recorded approaches
+        settings = trainer.settings
+        config["dqn"] = settings.to_dict()
+        atomic_write_json(folder / "config.json", config)
     if state is not None:
         trainer.load_state_dict(state)
         _truncate_metrics(folder / "metrics.jsonl", trainer.episodes_done)

@@ -3,8 +3,11 @@ them without importing the trainer (`rl.dqn` re-exports `DQNSettings`)."""
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
+
+#: Fewest episodes `DQNSettings.resolved_episodes` gives a recorded-scenes agent.
+MIN_RECORDED_EPISODES = 2000
 
 #: Where episodes' scenes come from, and what the agent sees.
 SCENES: tuple[str, ...] = ("synthetic", "recorded")
@@ -45,6 +48,8 @@ class DQNSettings:
     """
 
     episodes: int = 10000  # N_e: stop after this many finished episodes
+    episodes_per_approach: float = 30.0  # recorded scenes: episodes = this x recorded approaches, within
+    # [MIN_RECORDED_EPISODES, episodes] (0 = exactly `episodes`); see `resolved_episodes`
     learning_rate: float = 0.005  # eta, Adam step size at the start
     learning_rate_end: float | None = 0.0005  # the step size falls linearly to this over `episodes` (None: constant)
     eps_start: float = 0.8  # epsilon_s, initial exploration
@@ -66,6 +71,17 @@ class DQNSettings:
     threads: int = 1  # torch intra-op threads (small nets oversubscribe with more)
     seed: int = 0  # seeds numpy (environments, exploration, sampling) and torch (init)
     checkpoint_every: int = 500  # save a checkpoint every this many episodes (0 = never)
+
+    def resolved_episodes(self, n_approaches: int | None) -> "DQNSettings":
+        """These settings with `episodes` fixed for `n_approaches` recorded approaches (None: synthetic scenes).
+
+        Held out, a recorded-scenes agent overfits the approaches it replays: the
+        same number of replays per approach generalised best (rl/README.md).
+        """
+        if n_approaches is None or self.episodes_per_approach <= 0:
+            return self
+        n = int(min(self.episodes, max(MIN_RECORDED_EPISODES, round(self.episodes_per_approach * n_approaches))))
+        return replace(self, episodes=n, episodes_per_approach=0.0)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -22,7 +22,7 @@ from rl.testing import rule_driver_decisions
 LINES = ReferenceLines.paper("Normal")
 DECISIONS_ENV = EnvConfig(lines=LINES, reward=RewardSettings(name="decisions"), scenes="recorded",
                           observation="indicators")
-FAST = dict(num_envs=8, batch_size=128, learning_starts=300)
+FAST = dict(num_envs=8, batch_size=128, learning_starts=300, episodes_per_approach=0.0)
 
 
 def sessions(n_sessions: int, per_session: int, driver: str = "D01", seed: int = 0) -> pd.DataFrame:
@@ -105,6 +105,16 @@ def test_agent_on_recorded_scenes_learns_the_drivers_moment():
     rows = {r["who"]: r for r in ev["summary"]}
     assert rows["agent"]["balanced_accuracy"] >= 0.85
     assert rows["agent"]["timing_mae_s"] < rows["greedy"]["timing_mae_s"]
+
+
+def test_recorded_scenes_get_episodes_in_proportion_to_the_approaches():
+    s = DQNSettings(episodes=10000, episodes_per_approach=30.0)
+    assert s.resolved_episodes(None).episodes == 10000  # synthetic scenes: as given
+    assert s.resolved_episodes(150).episodes == 4500
+    assert s.resolved_episodes(10).episodes == 2000 and s.resolved_episodes(1000).episodes == 10000
+    approaches, _ = approaches_from_decisions(rule_driver_decisions(LINES, 100, seed=0, window_s=1.0))
+    trainer = DQNTrainer(DECISIONS_ENV, DQNSettings(num_envs=8), approaches=approaches)
+    assert trainer.settings.episodes == 3000 and trainer.settings.episodes_per_approach == 0.0
 
 
 def test_imitation_classifier_separates_presses_from_not_yet_states():
