@@ -91,6 +91,23 @@ def check_destination(out: Path, force: bool = False) -> Optional[list[str]]:
     return old_files
 
 
+def write_recordings(recordings: list, plan: list[tuple[str, int, str]], folder: Path,
+                     progress: Optional[ProgressFn] = None) -> list[dict[str, Any]]:
+    """Write each planned (relative path, recording index, kind) into `folder`; one dict per file written."""
+    files = []
+    for k, (rel, i, kind) in enumerate(plan):
+        meta, ego, traffic = recordings[i]
+        report(progress, k, len(plan), f"writing {rel}")
+        path = folder / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        (write_mcap if kind == "mcap" else write_csv)(path, meta, ego, traffic)
+        files.append({"path": rel, "session_id": meta["session_id"], "driver_id": meta["driver_id"],
+                      "format": kind if kind == "mcap" else ("csv.gz" if rel.endswith(".gz") else "csv"),
+                      "bytes": path.stat().st_size})
+    report(progress, len(plan), len(plan), "written")
+    return files
+
+
 def write_study(study: Study, out: Path, fmt: str = "mixed", force: bool = False, gzip_csv: bool = True,
                 progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Write `study` into `out`; returns a JSON-ready summary (files, bytes)."""
@@ -102,17 +119,7 @@ def write_study(study: Study, out: Path, fmt: str = "mixed", force: bool = False
     tmp = out.parent / f".{out.name}.tmp-{uuid.uuid4().hex[:8]}"
     tmp.mkdir()
     try:
-        files = []
-        for k, (rel, i, kind) in enumerate(plan):
-            meta, ego, traffic = study.recordings[i]
-            report(progress, k, len(plan), f"writing {rel}")
-            path = tmp / rel
-            path.parent.mkdir(parents=True, exist_ok=True)
-            (write_mcap if kind == "mcap" else write_csv)(path, meta, ego, traffic)
-            files.append({"path": rel, "session_id": meta["session_id"], "driver_id": meta["driver_id"],
-                          "format": kind if kind == "mcap" else ("csv.gz" if rel.endswith(".gz") else "csv"),
-                          "bytes": path.stat().st_size})
-        report(progress, len(plan), len(plan), "written")
+        files = write_recordings(study.recordings, plan, tmp, progress)
         data_bytes = sum(f["bytes"] for f in files)
         gt = dict(study.ground_truth)
         gt["format"] = fmt

@@ -15,8 +15,7 @@ import uuid
 from pathlib import Path
 from typing import Any, Optional
 
-from ingest.writers import write_csv, write_mcap
-from laneprint.progress import ProgressFn, report
+from laneprint.progress import ProgressFn
 from laneprint.simulator.output import (  # the synthetic study's helpers: one set of file conventions
     GROUND_TRUTH,
     README,
@@ -24,6 +23,7 @@ from laneprint.simulator.output import (  # the synthetic study's helpers: one s
     _move_into_place,
     check_destination,
     planned_files,
+    write_recordings,
 )
 from laneprint.simulator.sumo.readme import render_readme
 from laneprint.simulator.sumo.study import SumoStudy
@@ -39,16 +39,7 @@ def write_sumo_study(study: SumoStudy, out: Path, fmt: str = "mixed", force: boo
     tmp = out.parent / f".{out.name}.tmp-{uuid.uuid4().hex[:8]}"
     tmp.mkdir()
     try:
-        files = []
-        for k, (rel, i, kind) in enumerate(plan):
-            meta, ego, traffic = study.recordings[i]
-            report(progress, k, len(plan), f"writing {rel}")
-            path = tmp / rel
-            path.parent.mkdir(parents=True, exist_ok=True)
-            (write_mcap if kind == "mcap" else write_csv)(path, meta, ego, traffic)
-            files.append({"path": rel, "session_id": meta["session_id"], "driver_id": meta["driver_id"],
-                          "format": "mcap" if kind == "mcap" else "csv.gz", "bytes": path.stat().st_size})
-        report(progress, len(plan), len(plan), "written")
+        files = write_recordings(study.recordings, plan, tmp, progress)
         gt = dict(study.ground_truth, format=fmt, files=files)
         (tmp / GROUND_TRUTH).write_text(json.dumps(gt, indent=1, default=_json_default) + "\n")
         (tmp / README).write_text(render_readme(study, fmt, files))
