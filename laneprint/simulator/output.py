@@ -15,7 +15,7 @@ import os
 import shutil
 import uuid
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Callable, Optional
 
 from ingest.writers import write_csv, write_mcap
 from laneprint.errors import UserError
@@ -108,29 +108,39 @@ def write_recordings(recordings: list, plan: list[tuple[str, int, str]], folder:
     return files
 
 
-def write_study(study: Study, out: Path, fmt: str = "mixed", force: bool = False, gzip_csv: bool = True,
-                progress: Optional[ProgressFn] = None) -> dict[str, Any]:
-    """Write `study` into `out`; returns a JSON-ready summary (files, bytes)."""
+def write_study_files(study: Any, out: Path, fmt: str, readme: Callable[[Any, str, list], str],
+                      force: bool = False, gzip_csv: bool = True,
+                      progress: Optional[ProgressFn] = None) -> tuple[list[dict[str, Any]], int, int]:
+    """Write a study's logs, ground truth and README into `out`, all or nothing.
+
+    `study` needs ``recordings`` and ``ground_truth``; `readme(study, fmt, files)`
+    renders its README. Returns (files, total bytes, log bytes).
+    """
     out = Path(out)
     plan = planned_files(study, fmt, gzip_csv)
     old_files = check_destination(out, force)
     out.parent.mkdir(parents=True, exist_ok=True)
-
     tmp = out.parent / f".{out.name}.tmp-{uuid.uuid4().hex[:8]}"
     tmp.mkdir()
     try:
         files = write_recordings(study.recordings, plan, tmp, progress)
-        data_bytes = sum(f["bytes"] for f in files)
-        gt = dict(study.ground_truth)
-        gt["format"] = fmt
-        gt["files"] = files
+        log_bytes = sum(f["bytes"] for f in files)
+        gt = dict(study.ground_truth, format=fmt, files=files)
         (tmp / GROUND_TRUTH).write_text(json.dumps(gt, indent=1, default=_json_default) + "\n")
-        (tmp / README).write_text(render_readme(study, fmt, files))
-        total_bytes = data_bytes + (tmp / GROUND_TRUTH).stat().st_size + (tmp / README).stat().st_size
+        (tmp / README).write_text(readme(study, fmt, files))
+        total_bytes = log_bytes + (tmp / GROUND_TRUTH).stat().st_size + (tmp / README).stat().st_size
         _move_into_place(tmp, out, [f["path"] for f in files] + [GROUND_TRUTH, README], old_files or [])
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    return files, total_bytes, log_bytes
+
+
+def write_study(study: Study, out: Path, fmt: str = "mixed", force: bool = False, gzip_csv: bool = True,
+                progress: Optional[ProgressFn] = None) -> dict[str, Any]:
+    """Write `study` into `out`; returns a JSON-ready summary (files, bytes)."""
+    out = Path(out)
+    files, total_bytes, data_bytes = write_study_files(study, out, fmt, render_readme, force, gzip_csv, progress)
     cases: dict[str, int] = {}
     for d in study.decisions:
         cases[d["case"]] = cases.get(d["case"], 0) + 1

@@ -9,22 +9,11 @@ or `force` is given.
 
 from __future__ import annotations
 
-import json
-import shutil
-import uuid
 from pathlib import Path
 from typing import Any, Optional
 
 from laneprint.progress import ProgressFn
-from laneprint.simulator.output import (  # the synthetic study's helpers: one set of file conventions
-    GROUND_TRUTH,
-    README,
-    _json_default,
-    _move_into_place,
-    check_destination,
-    planned_files,
-    write_recordings,
-)
+from laneprint.simulator.output import write_study_files  # one set of file conventions for both engines
 from laneprint.simulator.sumo.readme import render_readme
 from laneprint.simulator.sumo.study import SumoStudy
 
@@ -32,23 +21,7 @@ from laneprint.simulator.sumo.study import SumoStudy
 def write_sumo_study(study: SumoStudy, out: Path, fmt: str = "mixed", force: bool = False,
                      progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Write `study` into `out`; returns a JSON-ready summary."""
-    out = Path(out)
-    plan = planned_files(study, fmt)  # type: ignore[arg-type]  # needs .recordings and .ground_truth only
-    old_files = check_destination(out, force)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.tmp-{uuid.uuid4().hex[:8]}"
-    tmp.mkdir()
-    try:
-        files = write_recordings(study.recordings, plan, tmp, progress)
-        gt = dict(study.ground_truth, format=fmt, files=files)
-        (tmp / GROUND_TRUTH).write_text(json.dumps(gt, indent=1, default=_json_default) + "\n")
-        (tmp / README).write_text(render_readme(study, fmt, files))
-        log_bytes = sum(f["bytes"] for f in files)
-        total = log_bytes + (tmp / GROUND_TRUTH).stat().st_size + (tmp / README).stat().st_size
-        _move_into_place(tmp, out, [f["path"] for f in files] + [GROUND_TRUTH, README], old_files or [])
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    files, total, log_bytes = write_study_files(study, out, fmt, render_readme, force, progress=progress)
     return summary(study, out, fmt, len(files) + 2, total, log_bytes)
 
 
