@@ -335,7 +335,11 @@ class LaneChangeDecisionEnv(gym.Env):
         if self._scene is None:
             raise RuntimeError("call reset() before step()")
         act = np.array([int(action)])
+        recorded_next = self._approach is not None and self._replay_i + 1 < len(self._approach)
         reward, terms, terminated, reached = transition(self._scene, act, self.config, self._t_from_press())
+        if recorded_next:  # the data, not the constant-speed model, says whether the leader was reached
+            reached[:] = False
+            terminated = act == CHANGE
         self._steps += 1
         late = False
         if self._approach is not None and not terminated[0]:
