@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from rl.env import Approach, EnvConfig, observation
 from rl.rewards import CHANGE, KEEP
@@ -41,19 +42,25 @@ class ImitationClassifier:
     random_state: int = 0
 
     def fit(self, approaches: list[Approach], cfg: EnvConfig) -> "ImitationClassifier":
-        from sklearn.ensemble import HistGradientBoostingClassifier
-
         X, y = labelled_states(approaches, cfg)
         self.constant_ = None
         if len(np.unique(y)) < 2:  # one class only: predict it
             self.constant_ = CHANGE if y.all() else KEEP
             return self
-        self.model_ = HistGradientBoostingClassifier(
+        # one OpenMP thread: on a busy machine the trees' thread team spins waiting for
+        # cores and a 4 s fit took 50 s (and a fleet evaluates one agent per core anyway)
+        with threadpool_limits(limits=1, user_api="openmp"):
+            self.model_ = self._fit_model(X, y)
+        return self
+
+    def _fit_model(self, X: np.ndarray, y: np.ndarray):
+        from sklearn.ensemble import HistGradientBoostingClassifier
+
+        return HistGradientBoostingClassifier(
             max_iter=self.max_iter, learning_rate=self.learning_rate, max_leaf_nodes=self.max_leaf_nodes,
             min_samples_leaf=self.min_samples_leaf, class_weight="balanced", early_stopping=False,
             random_state=self.random_state,
         ).fit(X, y)
-        return self
 
     def press_probability(self, obs: np.ndarray) -> np.ndarray:
         """Balanced probability that each observation is a press."""
