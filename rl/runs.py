@@ -182,6 +182,29 @@ class _StopFlag:
         return self.signal is not None
 
 
+def create_run(workspace: Workspace, target: Target, env_config: EnvConfig, settings: DQNSettings, *,
+               run_id: str | None = None, lines_source: str = "analysis",
+               extra: dict[str, Any] | None = None) -> tuple[Path, dict[str, Any]]:
+    """Make a new run folder with its config.json; returns (folder, config)."""
+    run_id = run_id or new_run_id(target, env_config.reward.name, settings.seed)
+    if not re.fullmatch(r"[A-Za-z0-9._-]+", run_id):
+        raise UserError(f"run id {run_id!r}: use letters, digits, '.', '_' or '-'")
+    folder = run_dir(workspace, run_id)
+    if (folder / "config.json").exists():
+        raise UserError(f"run {run_id!r} exists already (pass --resume {run_id} to continue it)")
+    folder.mkdir(parents=True, exist_ok=True)
+    config = {
+        "run_id": run_id, "target": asdict(target), "reward": env_config.reward.name,
+        "lines_source": lines_source, "lines": env_config.lines.to_dict(), "seed": settings.seed,
+        "env": env_config.to_dict(), "dqn": settings.to_dict(), "created_at": now_iso(), **(extra or {}),
+    }
+    # a fleet passes these once for all its runs (each costs a git call or a folder scan)
+    config.setdefault("code_version", code_version())
+    config.setdefault("data_fingerprint", workspace.fingerprint())
+    atomic_write_json(folder / "config.json", config)
+    return folder, config
+
+
 def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig | None,
               settings: DQNSettings | None, *, run_id: str | None = None, lines_source: str = "analysis",
               resume: str | None = None, episodes: int | None = None, evaluate: bool = True,
@@ -214,20 +237,9 @@ def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig
         started_at = old_status.get("started_at")
     else:
         assert target is not None and env_config is not None and settings is not None
-        run_id = run_id or new_run_id(target, env_config.reward.name, settings.seed)
-        if not re.fullmatch(r"[A-Za-z0-9._-]+", run_id):
-            raise UserError(f"run id {run_id!r}: use letters, digits, '.', '_' or '-'")
-        folder = run_dir(workspace, run_id)
-        if (folder / "config.json").exists():
-            raise UserError(f"run {run_id!r} exists already (pass --resume {run_id} to continue it)")
-        folder.mkdir(parents=True, exist_ok=True)
-        config = {
-            "run_id": run_id, "target": asdict(target), "reward": env_config.reward.name,
-            "lines_source": lines_source, "lines": env_config.lines.to_dict(), "seed": settings.seed,
-            "env": env_config.to_dict(), "dqn": settings.to_dict(), "code_version": code_version(),
-            "data_fingerprint": workspace.fingerprint(), "created_at": now_iso(),
-        }
-        atomic_write_json(folder / "config.json", config)
+        folder, config = create_run(workspace, target, env_config, settings, run_id=run_id,
+                                    lines_source=lines_source)
+        run_id = config["run_id"]
         state, started_at = None, None
 
     approaches = None
