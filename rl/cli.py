@@ -50,6 +50,23 @@ def _render_eval(ev: dict[str, Any], console: Console) -> None:
                                                f"{ev[f'n_states_{group}']} states, skipped {skipped or 'none'}"))
 
 
+def _render_fleet(res: dict[str, Any], console: Console) -> None:
+    from rl.fleet_runs import fleet_agent_table
+
+    console.print(res["fleet_id"])
+    table = fleet_agent_table(res)
+    t = Table(title=f"fleet {res['fleet_id']}: {res['message']}")
+    for col in ("run", "state", "recall", "agent bal. acc.", "greedy", "imitation", "target met"):
+        t.add_column(col)
+    for r in table.itertuples():
+        t.add_row(r.run_id, r.state, _fmt(r.recall, True), _fmt(r.agent_ba, True), _fmt(r.greedy_ba, True),
+                  _fmt(r.imitation_ba, True), "yes" if r.meets_target else "no")
+    console.print(t)
+    if len(table):
+        console.print(f"{int(table['meets_target'].sum())} of {len(table)} agents meet the target "
+                      "(recall >= 95 %, balanced accuracy >= greedy + 5 points)", highlight=False)
+
+
 def train_command(
     style: Annotated[Optional[str], typer.Option("--style", help="Imitate a style (its typical driver's lines).")] = None,
     driver: Annotated[Optional[str], typer.Option("--driver", help="Imitate one driver (its own lines).")] = None,
@@ -78,29 +95,34 @@ def train_command(
     dt: Annotated[Optional[float], typer.Option("--dt", help="Seconds between decisions (0.5).")] = None,
     checkpoint_every: Annotated[Optional[int], typer.Option("--checkpoint-every", help="Episodes between checkpoints.")] = None,
     evaluate: Annotated[bool, typer.Option("--evaluate/--no-evaluate", help="Evaluate against the drivers at the end.")] = True,
+    drivers: Annotated[Optional[str], typer.Option("--drivers", help="A fleet: one agent per driver, 'all' or ID,ID,...")] = None,
+    styles: Annotated[Optional[str], typer.Option("--styles", help="A fleet: one agent per style, 'all' or NAME,NAME,...")] = None,
+    seeds: Annotated[int, typer.Option("--seeds", min=1, help="A fleet: agents per target, seeds --seed, --seed+1, ...")] = 1,
+    backend: Annotated[str, typer.Option("--backend", help="A fleet: 'local' (one batched process) or 'ray' (shards per worker).")] = "local",
+    ray_address: Annotated[Optional[str], typer.Option("--ray-address", help="Join this Ray cluster (default: start a local one).")] = None,
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,
 ) -> None:
-    """Train a DQN agent for a style or a driver; prints the run id."""
+    """Train a DQN agent for a style or a driver, or a fleet of them; prints the run (or fleet) id."""
 
     def work() -> dict[str, Any]:
         from rl.env import formulation_config  # heavy imports (torch) only when the command runs
+        from rl.fleet_runs import create_fleet, fleet_targets, is_fleet, train_fleet
         from rl.runs import Target, resolve_lines, train_run
 
         ws = Workspace(workspace)
+        fleet_opts = {"backend": backend, "ray_address": ray_address, "threads": threads, "evaluate": evaluate}
         if resume:
-            if style or driver:
-                raise UserError("--resume takes the run's own target: leave out --style/--driver")
+            if style or driver or drivers or styles:
+                raise UserError("--resume takes the run's own target: leave out --style/--driver/--drivers/--styles")
             with progress_bar(not as_json) as progress:
+                if is_fleet(ws, resume):
+                    return train_fleet(ws, resume, progress=progress, **fleet_opts)
                 return train_run(ws, None, None, None, resume=resume, episodes=episodes, evaluate=evaluate,
                                  progress=progress)
-        if (style is None) == (driver is None):
-            raise UserError("give exactly one of --style NAME or --driver ID")
-        target = Target("style", style) if style else Target("driver", str(driver))
-        ref = resolve_lines(ws, target, lines)
-        env = formulation_config(ref, reward, scenes, observation, lines)
-        if dt is not None:
-            env = replace(env, dt_s=dt)
+        fleet = drivers is not None or styles is not None
+        if sum(x is not None for x in (style, driver, drivers, styles)) != 1:
+            raise UserError("give exactly one of --style NAME, --driver ID, --drivers all|ID,... or --styles all|NAME,...")
         overrides = {k: v for k, v in {
             "episodes": episodes, "episodes_per_approach": 0.0 if episodes else None, "seed": seed, "learning_rate": lr, "gamma": gamma, "eps_start": eps_start,
             "eps_end": eps_end, "batch_size": batch_size, "buffer_size": buffer_size,
@@ -112,11 +134,25 @@ def train_command(
             settings = DQNSettings(**overrides)
         except (TypeError, ValueError) as exc:
             raise UserError(f"bad training setting: {exc}") from None
+        if fleet:
+            targets = fleet_targets(ws, drivers, styles)
+            record = create_fleet(ws, targets, list(range(seed, seed + seeds)), settings, reward=reward,
+                                  scenes=scenes, observation=observation, lines_source=lines, dt_s=dt,
+                                  backend=backend, fleet_id=run_id)
+            with progress_bar(not as_json) as progress:
+                return train_fleet(ws, record["fleet_id"], progress=progress, **fleet_opts)
+        target = Target("style", style) if style else Target("driver", str(driver))
+        env = formulation_config(resolve_lines(ws, target, lines), reward, scenes, observation, lines)
+        if dt is not None:
+            env = replace(env, dt_s=dt)
         with progress_bar(not as_json) as progress:
             return train_run(ws, target, env, settings, run_id=run_id, lines_source=lines,
                              evaluate=evaluate, progress=progress)
 
     def render(res: dict[str, Any], console: Console) -> None:
+        if "fleet_id" in res:
+            _render_fleet(res, console)
+            return
         console.print(res["run_id"])
         console.print(f"{res['state']}: {res['target']}, reward {res['reward']}, {res['episodes']} episodes, "
                       f"{res['env_steps']} steps in {res['wall_s']} s — {res['folder']}", highlight=False)

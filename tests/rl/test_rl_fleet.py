@@ -1,0 +1,136 @@
+"""Fleet training: batched agents learn what they would alone, in ordinary run folders, and resume."""
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import pandas as pd
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from laneprint.cli import app
+from laneprint.workspace import Workspace
+from rl.dqn import DQNTrainer
+from rl.env import EnvConfig, approaches_from_decisions, formulation_config
+from rl.fleet import FleetMember, FleetTrainer
+from rl.fleet_runs import read_fleet
+from rl.rewards import ReferenceLines
+from rl.runs import load_run
+from rl.settings import DQNSettings
+from rl.testing import rule_driver_decisions
+
+STYLES = {"D01": "Defensive", "D02": "Aggressive"}
+FAST = ["--num-envs", "8", "--batch-size", "64", "--learning-starts", "200"]
+
+
+def _members(n_agents: int = 3, episodes: int = 200) -> list[FleetMember]:
+    members = []
+    for i, style in enumerate(["Defensive", "Normal", "Aggressive"][:n_agents]):
+        lines = ReferenceLines.paper(style)
+        approaches, _ = approaches_from_decisions(rule_driver_decisions(lines, 20, seed=i))
+        settings = DQNSettings(episodes=episodes + 50 * i, episodes_per_approach=0, learning_starts=200, seed=i,
+                               checkpoint_every=0, num_envs=8, batch_size=64)
+        members.append(FleetMember(formulation_config(lines, "decisions"), settings, approaches))
+    return members
+
+
+def test_fleet_agents_compute_what_they_would_alone():
+    members = _members()
+    alone = [DQNTrainer(m.env_config, m.settings, m.approaches).train() for m in members]
+    finished = {}
+    FleetTrainer(members).train(on_finish=lambda i, policy, state: finished.__setitem__(i, (policy, state)))
+    for i, trainer in enumerate(alone):
+        policy, state = finished[i]
+        assert state["counters"]["episodes_done"] == trainer.episodes_done  # agents of different lengths
+        assert state["counters"]["updates"] == trainer.updates and state["counters"]["averaging"]
+        for key, value in trainer.policy_net.state_dict().items():
+            torch.testing.assert_close(policy[key], value, rtol=0, atol=1e-4)
+
+
+def test_a_fleet_agents_checkpoint_resumes_alone():
+    members = _members(2, episodes=120)
+    states = {}
+    FleetTrainer(members).train(on_finish=lambda i, policy, state: states.__setitem__(i, state))
+    m = members[1]
+    trainer = DQNTrainer(m.env_config, m.settings, m.approaches)
+    trainer.load_state_dict(states[1])
+    assert trainer.episodes_done == m.settings.episodes and trainer.optimizer.state_dict()["state"]
+    trainer.settings = DQNSettings(**{**m.settings.to_dict(), "hidden": m.settings.hidden,
+                                      "episodes": m.settings.episodes + 20})
+    trainer.train()
+    assert trainer.episodes_done == m.settings.episodes + 20
+
+
+def analysed_two_drivers(root) -> Workspace:
+    """Two rule-following drivers of different styles, each its own lines (a hand-made analysis)."""
+    ws = Workspace(root).ensure()
+    decisions, refs, styles = [], [], []
+    for i, (driver, style) in enumerate(STYLES.items()):
+        lines = ReferenceLines.paper(style)
+        decisions.append(rule_driver_decisions(lines, 24, seed=i, cfg=EnvConfig(lines=lines), driver_id=driver)
+                         .assign(decision_id=lambda d, p=driver: p + ":" + d["decision_id"]))
+        for scope, name in (("driver", driver), ("style", style)):
+            refs += [{"scope": scope, "name": name, "kind": "typical" if scope == "style" else "driver",
+                      "indicator": k, "A": a, "b": b, "A_lo": None, "A_hi": None, "b_lo": None, "b_hi": None,
+                      "r2": None, "n": 24, "source": f"{driver}"}
+                     for k, (a, b) in (("t_f", lines.t_f), ("t_nf", lines.t_nf), ("dv_nb", lines.dv_nb))]
+        styles.append({"driver_id": driver, "style": style, "is_typical": True})
+    ws.write_tables("analysis", {"decisions": pd.concat(decisions, ignore_index=True),
+                                 "reference_lines": pd.DataFrame(refs), "styles": pd.DataFrame(styles)}, meta={})
+    return ws
+
+
+@pytest.mark.slow
+def test_fleet_of_every_driver_learns_in_ordinary_run_folders(tmp_path):
+    ws = analysed_two_drivers(tmp_path)
+    res = CliRunner().invoke(app, ["train", "--drivers", "all", "--episodes", "700", "-w", str(tmp_path),
+                                   "--json", *FAST])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    fleet = read_fleet(ws, out["fleet_id"])
+    assert fleet["state"] == "done" and len(fleet["runs"]) == 2
+    for run_id, summary in zip(fleet["runs"], out["summaries"]):
+        run = load_run(ws, run_id)
+        assert run["config"]["fleet_id"] == out["fleet_id"] and run["status"]["state"] == "done"
+        assert list(run["metrics"]["episode"]) == list(range(1, 701)) and run["has_weights"]
+        rows = {r["who"]: r for r in run["evaluation"]["summary"]}
+        assert rows["agent"]["recall"] >= 0.95, (run_id, rows)
+        assert rows["agent"]["balanced_accuracy"] > rows["greedy"]["balanced_accuracy"], (run_id, rows)
+        assert summary["state"] == "done"
+    # each agent is an ordinary run: `evaluate` works on it
+    res = CliRunner().invoke(app, ["evaluate", fleet["runs"][0], "-w", str(tmp_path), "--json"])
+    assert res.exit_code == 0, res.output
+
+
+def test_fleet_needs_known_targets(tmp_path):
+    analysed_two_drivers(tmp_path)
+    res = CliRunner().invoke(app, ["train", "--drivers", "D01,D09", "-w", str(tmp_path)])
+    assert res.exit_code == 1 and "unknown driver(s) D09" in res.output
+    res = CliRunner().invoke(app, ["train", "--drivers", "all", "--style", "Normal", "-w", str(tmp_path)])
+    assert res.exit_code == 1 and "exactly one of" in res.output
+
+
+@pytest.mark.slow
+def test_a_killed_fleet_resumes(tmp_path):
+    ws = analysed_two_drivers(tmp_path)
+    cmd = [sys.executable, "-m", "laneprint.cli", "train", "--drivers", "all", "--episodes", "400",
+           "--checkpoint-every", "50", "--run-id", "f1", "-w", str(tmp_path), "--json", *FAST]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    checkpoints = [tmp_path / "runs" / f"f1-{d.lower()}-s0" / "checkpoint.pt" for d in STYLES]
+    deadline = time.time() + 120
+    while time.time() < deadline and not all(p.exists() for p in checkpoints):
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    assert all(p.exists() for p in checkpoints), proc.stderr.read()
+    assert read_fleet(ws, "f1")["state"] == "running"  # as the killed process left it
+    res = CliRunner().invoke(app, ["train", "--resume", "f1", "-w", str(tmp_path), "--json", "--no-evaluate"])
+    assert res.exit_code == 0, res.output
+    assert read_fleet(ws, "f1")["state"] == "done"
+    for run_id in read_fleet(ws, "f1")["runs"]:
+        run = load_run(ws, run_id)
+        assert run["status"]["state"] == "done" and run["has_weights"]
+        assert list(run["metrics"]["episode"]) == list(range(1, 401))
