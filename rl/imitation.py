@@ -66,7 +66,8 @@ class ImitationClassifier:
         """Balanced probability that each observation is a press."""
         if self.constant_ is not None:
             return np.full(len(obs), 1.0 if self.constant_ == CHANGE else 0.0)
-        return self.model_.predict_proba(obs)[:, 1]
+        with threadpool_limits(limits=1, user_api="openmp"):  # see `fit`
+            return self.model_.predict_proba(obs)[:, 1]
 
     def policy(self, cfg: EnvConfig):
         """The classifier as an evaluation policy: Scene -> 0 (change) / 1 (keep)."""
