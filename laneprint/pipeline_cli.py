@@ -1,7 +1,7 @@
 """`laneprint run PATH...`: the whole pipeline end to end.
 
 Ingest the logs, analyse the workspace (indicators, fits, styles), then train and
-evaluate one agent per style found, and say how to open the dashboard. Each stage
+evaluate one agent per style found (as one fleet, `rl/fleet.py`), and say how to open the dashboard. Each stage
 is the same function its own command calls, so `run` adds no behaviour of its own.
 """
 
@@ -35,15 +35,14 @@ def run_pipeline(paths: list[Path], workspace: Path, driver: str | None, mapping
     runs = []
     if train:
         from rl.dqn import DQNSettings
-        from rl.env import formulation_config
-        from rl.runs import Target, resolve_lines, train_run
+        from rl.fleet_runs import create_fleet, train_fleet
+        from rl.runs import Target
 
         overrides = {"seed": seed} | ({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {})
-        for style in analysis["styles"]:
-            target = Target("style", style)
-            env = formulation_config(resolve_lines(ws, target, "analysis"))
-            with progress_bar(show_progress) as progress:
-                runs.append(train_run(ws, target, env, DQNSettings(**overrides), progress=progress))
+        targets = [Target("style", style) for style in analysis["styles"]]
+        fleet = create_fleet(ws, targets, [seed], DQNSettings(**overrides))  # the styles' agents, batched
+        with progress_bar(show_progress) as progress:
+            runs = train_fleet(ws, fleet["fleet_id"], progress=progress)["summaries"]
     return {"workspace": str(ws.root), "ingest": ingest, "analysis": analysis, "runs": runs,
             "dashboard": f"laneprint dashboard --workspace {ws.root}"}
 
@@ -59,8 +58,8 @@ def render_run(result: dict[str, Any], console: Console) -> None:
         from rl.cli import _summary_table
 
         for run in result["runs"]:
-            console.print(f"run {run['run_id']}: {run['state']}, {run['target']}, reward {run['reward']}, "
-                          f"{run['episodes']} episodes in {run['wall_s']} s", highlight=False)
+            console.print(f"run {run['run_id']}: {run['state']}, {run.get('target', '')}, reward "
+                          f"{run.get('reward', '')}, {run.get('episodes', '?')} episodes", highlight=False)
             if run.get("evaluation"):
                 console.print(_summary_table(run["evaluation"], f"{run['target']} against its typical driver"))
     console.print(f"open the dashboard: {result['dashboard']}", markup=False, highlight=False)

@@ -252,7 +252,9 @@ def train_shard(workspace_root: str, run_ids: list[str], threads: int = 1, evalu
     def finish(i: int, policy: dict, state: dict) -> None:
         checkpoint(i, state)
         _save_torch(writer.folders[i] / "weights.pt", policy)
-        summary: dict[str, Any] = {"run_id": todo[i], "state": "done", "episodes": int(state["counters"]["episodes_done"]),
+        config = json.loads((writer.folders[i] / "config.json").read_text())
+        summary: dict[str, Any] = {"run_id": todo[i], "state": "done", "target": Target(**config["target"]).label,
+                                   "reward": config["reward"], "episodes": int(state["counters"]["episodes_done"]),
                                    "env_steps": int(state["counters"]["env_steps"]), "wall_s": round(fleet.wall_s, 2)}
         if evaluate:
             writer.status(i, "running", "evaluating")
