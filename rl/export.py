@@ -152,6 +152,9 @@ Every `{doc['constants']['dt_s']}` s, build the observation below from the ego a
 vehicles around it, run `policy.onnx`, and act on `action`:
 {chr(10).join(f'- `{k}`: {v}' for k, v in doc['actions'].items())}
 
+The agent decides when to leave a slower leader: ask it while the ego has a leader in its lane
+within {doc['constants']['range_m']:g} m and an adjacent lane (`laneprint annotate` asks it only then).
+
 ```python
 import json, numpy as np, onnxruntime as ort
 spec = json.load(open("policy.json"))
@@ -240,6 +243,9 @@ def export_run(workspace: Workspace, run_id: str, fmt: str = "onnx", out: Path |
         atomic_write_bytes(tmp / "policy.onnx", model)
         atomic_write_json(tmp / "policy.json", doc)
         atomic_write_bytes(tmp / "README.md", _readme(doc).encode())
+        for f in tmp.iterdir():
+            f.chmod(0o644)  # a folder to hand over: readable by others, unlike the temporary files
+        tmp.chmod(0o755)
         _swap_in(tmp, final)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
