@@ -5,7 +5,6 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
 import torch
 from typer.testing import CliRunner
 
@@ -14,8 +13,6 @@ from rl.env import EnvConfig, observation, observation_names, sample_scenes
 from rl.export import TOLERANCE
 from rl.runs import Target, load_weights, recorded_approaches, run_dir
 from rl.scene import Scene, indicators, seen
-
-pytest.importorskip("onnxruntime")
 
 # Runs in a fresh interpreter where laneprint, rl and torch cannot be imported: it builds the
 # observation from raw measurements with policy.json's description alone and runs policy.onnx.
