@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -90,9 +91,13 @@ def test_export_matches_torch_and_needs_nothing_of_laneprint(trained_run, tmp_pa
     assert doc["run"]["run_id"] == run_id and doc["run"]["target"] == {"kind": "style", "name": "Normal"}
     assert "t_nf" in (out / "README.md").read_text()
 
-    # the recorded evaluation states plus synthetic ones, where target-lane cars are absent or far
-    scene = Scene.concat([a.scene for a in approaches] + [sample_scenes(np.random.default_rng(1), cfg, 200)])
-    assert not seen(scene, cfg.range_m)[1].all()  # some scenes have no C_nf: the undefined rules are exercised
+    # the recorded evaluation states plus synthetic ones where each vehicle is sometimes absent or out of range
+    odd = sample_scenes(np.random.default_rng(1), replace(cfg, nb_present_prob=0.5, nb_gap0_m=(5.0, 200.0)), 300)
+    odd.f_present[::5] = False
+    scene = Scene.concat([a.scene for a in approaches] + [odd])
+    ind = indicators(scene, cfg.far_follower_m, cfg.range_m)
+    for defined in (*seen(scene, cfg.range_m), ind.t_f_ok, ind.t_nf_ok, ind.dv_nb_ok):
+        assert 0 < defined.sum() < len(defined)  # every undefined rule of policy.json is exercised
     raw_path = tmp_path / "raw.json"
     raw_path.write_text(json.dumps(raw_measurements(scene, cfg)))
     proc = subprocess.run([sys.executable, "-c", STANDALONE, str(out), str(raw_path)], capture_output=True,
