@@ -157,39 +157,20 @@ def _nearest(cands: pd.DataFrame, key: str, ascending: bool) -> pd.DataFrame:
     return c.drop_duplicates("state", keep="first").set_index("state")
 
 
-def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame,
-                      settings: AnalysisSettings | None = None) -> tuple[pd.DataFrame, list[dict[str, str]]]:
-    """Decision points of one recording (DECISIONS columns + extras) and what was skipped.
-
-    `meta` is the recording's RECORDINGS row (driver_id, recording_id, session_id,
-    speed_limit_kph); `ego`/`traffic` are its EGO/TRAFFIC tables.
-    """
-    settings = settings or AnalysisSettings()
-    rid = str(meta.get("recording_id", ""))
-    if len(ego) == 0:
-        return empty_decisions(), [_skip("recording", rid, "no ego samples")]
-    ego = ego.sort_values("t_s", kind="mergesort").reset_index(drop=True)
-    presses, skipped = find_presses(ego, settings)
-    for s in skipped:
-        s["id"] = f"{rid}:{s['id']}"
-    if len(presses) == 0:
-        if not skipped:
-            skipped.append(_skip("recording", rid, "no lane-change button presses"))
-        return empty_decisions(), skipped
-
-    states = _state_times(presses, float(ego["t_s"].iloc[0]), settings)
-    states["state"] = np.arange(len(states))
-    # ego at each state: latest sample at or before, carried forward with its speed
+def ego_at(states: pd.DataFrame, ego: pd.DataFrame) -> pd.DataFrame:
+    """`states` (columns `state`, `t_s`, ...) joined with the ego's latest sample at or before
+    each state's time, its position carried forward to that time with its speed; in `state` order."""
     e = pd.merge_asof(states.sort_values("t_s"), ego.rename(columns={"t_s": "ego_t_s"}),
                       left_on="t_s", right_on="ego_t_s", direction="backward")
     e = e.sort_values("state").reset_index(drop=True)
     e["ego_x_m"] = e["ego_x_m"] + e["ego_v_mps"] * (e["t_s"] - e["ego_t_s"])
-    p = presses.iloc[e["p"].to_numpy()].reset_index(drop=True)
-    in_lane = (e["ego_lane"].to_numpy() == p["ego_lane"].to_numpy()) | (e["k"].to_numpy() == 0)
-    e, p = e[in_lane].reset_index(drop=True), p[in_lane].reset_index(drop=True)
-    e["state"] = np.arange(len(e))
-    e["target_lane"] = p["target_lane"].to_numpy()
+    return e
 
+
+def neighbours(e: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSettings) -> dict[str, np.ndarray]:
+    """`C_f`, `C_nf`, `C_nb` at each state of `e` (an `ego_at` frame with `state` = 0..n-1 and a
+    `target_lane` column): ``<role>_x_m``, ``<role>_v_mps``, ``<role>_gap_m`` (NaN when absent)
+    and ``<role>_id`` (None), read as the module doc says."""
     n = len(e)
     cols: dict[str, Any] = {}
     for role in ("f", "nf", "nb"):
@@ -239,6 +220,39 @@ def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataF
             cols[f"{role}_v_mps"][idx] = pk["v_mps"].to_numpy()
             cols[f"{role}_gap_m"][idx] = pk["gap"].to_numpy()
             cols[f"{role}_id"][idx] = vid_names[pk["vehicle_id"].to_numpy(dtype=np.int64)]
+    return cols
+
+
+def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame,
+                      settings: AnalysisSettings | None = None) -> tuple[pd.DataFrame, list[dict[str, str]]]:
+    """Decision points of one recording (DECISIONS columns + extras) and what was skipped.
+
+    `meta` is the recording's RECORDINGS row (driver_id, recording_id, session_id,
+    speed_limit_kph); `ego`/`traffic` are its EGO/TRAFFIC tables.
+    """
+    settings = settings or AnalysisSettings()
+    rid = str(meta.get("recording_id", ""))
+    if len(ego) == 0:
+        return empty_decisions(), [_skip("recording", rid, "no ego samples")]
+    ego = ego.sort_values("t_s", kind="mergesort").reset_index(drop=True)
+    presses, skipped = find_presses(ego, settings)
+    for s in skipped:
+        s["id"] = f"{rid}:{s['id']}"
+    if len(presses) == 0:
+        if not skipped:
+            skipped.append(_skip("recording", rid, "no lane-change button presses"))
+        return empty_decisions(), skipped
+
+    states = _state_times(presses, float(ego["t_s"].iloc[0]), settings)
+    states["state"] = np.arange(len(states))
+    e = ego_at(states, ego)
+    p = presses.iloc[e["p"].to_numpy()].reset_index(drop=True)
+    in_lane = (e["ego_lane"].to_numpy() == p["ego_lane"].to_numpy()) | (e["k"].to_numpy() == 0)
+    e, p = e[in_lane].reset_index(drop=True), p[in_lane].reset_index(drop=True)
+    e["state"] = np.arange(len(e))
+    e["target_lane"] = p["target_lane"].to_numpy()
+
+    cols = neighbours(e, traffic, settings)
 
     v_e = e["ego_v_mps"].to_numpy(dtype=float)
     out = pd.DataFrame({

@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -326,9 +327,53 @@ def _button_messages(ego: pd.DataFrame) -> dict[int, bytes]:
     return out
 
 
-def write_mcap(path: Path, meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame) -> None:
-    """Write one recording as an MCAP log (chunked, zstd, indexed, with summary)."""
+@dataclass(frozen=True)
+class ExtraChannel:
+    """A channel written beside the v1 topics (readers of the format ignore it): JSON messages
+    with a jsonschema schema, each stamped with its log time [ns]."""
+
+    topic: str
+    schema_name: str
+    schema: dict[str, Any]
+    log_times_ns: list[int] = field(default_factory=list)
+    messages: list[bytes] = field(default_factory=list)
+
+
+class _ExtraQueue:
+    """The extra channels' messages in log-time order, written as the samples' clock passes them."""
+
+    def __init__(self, writer: Writer, items: list[tuple[int, int, int, bytes]]) -> None:
+        self.writer, self.items, self.next = writer, items, 0
+
+    def write_until(self, ts: int | None) -> None:
+        """Write every message stamped before `ts` (all that remain when `ts` is None)."""
+        while self.next < len(self.items) and (ts is None or self.items[self.next][0] < ts):
+            t, cid, seq, data = self.items[self.next]
+            self.writer.add_message(cid, log_time=t, data=data, publish_time=t, sequence=seq)
+            self.next += 1
+
+
+def _extra_queue(w: Writer, extra: Sequence[ExtraChannel]) -> _ExtraQueue:
+    items = []
+    for ch in extra:
+        sid = w.register_schema(name=ch.schema_name, encoding="jsonschema", data=json.dumps(ch.schema).encode())
+        cid = w.register_channel(topic=ch.topic, message_encoding="json", schema_id=sid)
+        items += [(int(t), cid, seq, data) for seq, (t, data) in enumerate(zip(ch.log_times_ns, ch.messages))]
+    items.sort(key=lambda it: it[0])
+    return _ExtraQueue(w, items)
+
+
+def write_mcap(path: Path, meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame,
+               extra: Sequence[ExtraChannel] = (), extra_metadata: dict[str, dict[str, str]] | None = None) -> None:
+    """Write one recording as an MCAP log (chunked, zstd, indexed, with summary).
+
+    `extra` channels are interleaved with the samples in log-time order;
+    `extra_metadata` adds Metadata records (name -> string map) beside `session`.
+    """
     path = Path(path)
+    for ch in extra:
+        if ch.topic in _SCHEMAS or len(ch.log_times_ns) != len(ch.messages):
+            raise ValueError(f"extra channel {ch.topic}: a v1 topic, or times and messages differ in number")
     t = ego["t_s"].to_numpy(dtype=float)
     stamps = np.round(t * NS_PER_S).astype(np.int64).tolist()
     ego_msgs = _ego_messages(ego)
@@ -349,15 +394,20 @@ def write_mcap(path: Path, meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.
                 channels[topic] = w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
             w.add_metadata(METADATA_NAME, {k: (str(int(v)) if k == "speed_limit_kph" and float(v).is_integer()
                                                else str(v)) for k, v in _meta_items(meta)})
+            for name, values in (extra_metadata or {}).items():
+                w.add_metadata(name, values)
+            pending = _extra_queue(w, extra)
             ce, ct, cb = channels[TOPIC_EGO], channels[TOPIC_TRAFFIC], channels[TOPIC_BUTTON]
             cc = channels.get(TOPIC_CONTROLS)
             for i, ts in enumerate(stamps):
+                pending.write_until(ts)
                 w.add_message(ce, log_time=ts, data=ego_msgs[i], publish_time=ts, sequence=i)
                 w.add_message(ct, log_time=ts, data=traffic_msgs[i], publish_time=ts, sequence=i)
                 if control_msgs is not None:
                     w.add_message(cc, log_time=ts, data=control_msgs[i], publish_time=ts, sequence=i)
                 if i in button_msgs:
                     w.add_message(cb, log_time=ts, data=button_msgs[i], publish_time=ts)
+            pending.write_until(None)
             w.finish()
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -365,4 +415,4 @@ def write_mcap(path: Path, meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.
     _replace_into(tmp, path)
 
 
-__all__ = ["write_csv", "write_mcap", "csv_table", "DEFAULT_LENGTH_M"]
+__all__ = ["write_csv", "write_mcap", "csv_table", "ExtraChannel", "DEFAULT_LENGTH_M"]

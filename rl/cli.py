@@ -1,8 +1,9 @@
-"""`laneprint train` and `laneprint evaluate`."""
+"""`laneprint train`, `evaluate`, `crossval`, `export` and `annotate`."""
 
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 from typing import Annotated, Any, Optional
 
 import typer
@@ -243,3 +244,56 @@ def crossval_command(
         return {"results": results} if all_styles else results[0]
 
     run_command(work, as_json, _render_cv)
+
+
+def _render_export(res: dict[str, Any], console: Console) -> None:
+    c = res["check"]
+    console.print(f"exported {res['run_id']} as {res['format']} to {res['folder']} ({', '.join(res['files'])})",
+                  highlight=False)
+    console.print(f"inputs: {', '.join(res['inputs'])}", highlight=False)
+    for name, s in c["sets"].items():
+        console.print(f"check {name}: {s['n_states']} states, max |Q_onnxruntime - Q_torch| = "
+                      f"{s['max_abs_diff']:.2e} (tolerance {c['tolerance']:g}), actions agree on "
+                      f"{s['actions_agree']}", highlight=False)
+
+
+def export_command(
+    run_id: Annotated[str, typer.Argument(help="Run whose policy to export (see the workspace's runs/).")],
+    fmt: Annotated[str, typer.Option("--format", help="Model format: onnx.")] = "onnx",
+    out: Annotated[Optional[Path], typer.Option("--out", help="Output folder (default WORKSPACE/exports/RUN_ID).")] = None,
+    workspace: WorkspaceOpt = DEFAULT_WS,
+    as_json: JsonOpt = False,
+) -> None:
+    """Export a run's policy as ONNX with its observation documented, checked with onnxruntime."""
+    def work() -> dict[str, Any]:
+        from rl.export import export_run  # torch and onnx only when the command runs
+
+        with progress_bar(not as_json) as progress:
+            return export_run(Workspace(workspace), run_id, fmt, out, progress)
+
+    run_command(work, as_json, _render_export)
+
+
+def _render_annotate(res: dict[str, Any], console: Console) -> None:
+    console.print(f"wrote {res['out']}: recording {res['recording_id']} ({res['session_id']}) with "
+                  f"{', '.join(res['topics'])}", highlight=False)
+    console.print(f"{res['steps']} steps of {res['dt_s']:g} s {res['steps_by_status']}; agent says change at "
+                  f"{res['agent_change_at_presses']} / greedy at {res['greedy_change_at_presses']} of the driver's "
+                  f"{res['presses']} presses", highlight=False)
+
+
+def annotate_command(
+    run_id: Annotated[str, typer.Argument(help="Run whose decisions to write (see the workspace's runs/).")],
+    recording: Annotated[str, typer.Argument(help="Recording id (or a unique prefix, or its session id).")],
+    out: Annotated[Path, typer.Option("--out", help="The annotated MCAP file to write.")],
+    workspace: WorkspaceOpt = DEFAULT_WS,
+    as_json: JsonOpt = False,
+) -> None:
+    """Write a recording again as MCAP with the agent's, greedy's and driver's decisions at every step."""
+    def work() -> dict[str, Any]:
+        from rl.annotate import annotate_recording  # torch only when the command runs
+
+        with progress_bar(not as_json) as progress:
+            return annotate_recording(Workspace(workspace), run_id, recording, out, progress)
+
+    run_command(work, as_json, _render_annotate)

@@ -6,13 +6,20 @@ plus noise; the not-yet states are the same scene earlier. Rows follow `laneprin
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 
 from laneprint.schemas import DECISIONS, validate
+from laneprint.workspace import Workspace
 from rl.env import EnvConfig, sample_scenes
 from rl.rewards import ReferenceLines
 from rl.scene import Scene, indicators
+
+
+#: `laneprint train` options that make a test's run train in a second or two.
+FAST_CLI: list[str] = ["--num-envs", "8", "--batch-size", "64", "--learning-starts", "100"]
 
 
 def _rows(scene: Scene, cfg: EnvConfig) -> dict[str, np.ndarray]:
@@ -77,3 +84,17 @@ def rule_driver_decisions(lines: ReferenceLines, n: int, seed: int = 0, cfg: Env
         }))
     df = pd.concat(frames, ignore_index=True).sort_values(["decision_id", "t_s"], ignore_index=True)
     return validate(df, DECISIONS)
+
+
+def analysed_workspace(root: Path | str) -> Workspace:
+    """A workspace with a hand-made analysis: one Normal driver following Table 1's Normal lines."""
+    ws = Workspace(root).ensure()
+    lines = ReferenceLines.paper("Normal")
+    dec = rule_driver_decisions(lines, 12, seed=0, cfg=EnvConfig(lines=lines), driver_id="D01")
+    refs = pd.DataFrame([{"scope": "style", "name": "Normal", "kind": "typical", "indicator": k, "A": a, "b": b,
+                          "A_lo": None, "A_hi": None, "b_lo": None, "b_hi": None, "r2": None, "n": 12,
+                          "source": "typical driver D01"} for k, (a, b) in
+                         (("t_f", lines.t_f), ("t_nf", lines.t_nf), ("dv_nb", lines.dv_nb))])
+    styles = pd.DataFrame({"driver_id": ["D01"], "style": ["Normal"], "is_typical": [True]})
+    ws.write_tables("analysis", {"decisions": dec, "reference_lines": refs, "styles": styles}, meta={})
+    return ws

@@ -5,10 +5,11 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 import pyarrow.csv as pacsv
 from mcap.reader import make_reader
 
-from ingest.writers import write_csv, write_mcap
+from ingest.writers import ExtraChannel, write_csv, write_mcap
 
 
 def test_csv_is_wide_with_empty_cells_for_absent_vehicles(tmp_path, recording):
@@ -50,3 +51,20 @@ def test_mcap_has_the_four_topics_metadata_and_button_changes(tmp_path, recordin
         (3_000_000_000, {"pressed": True, "direction": "right"}),
         (3_100_000_000, {"pressed": False}),
     ]
+
+
+def test_mcap_extra_channels_are_interleaved_in_log_time_order(tmp_path, recording):
+    meta, ego, traffic = recording
+    stamps = [0, 1_500_000_000, 3_990_000_000, 9_000_000_000]  # the last after the final sample
+    extra = ExtraChannel("/x/steps", "x.Step", {"type": "object", "properties": {"k": {"type": "integer"}}},
+                         stamps, [json.dumps({"k": k}).encode() for k in range(len(stamps))])
+    write_mcap(tmp_path / "r.mcap", meta, ego, traffic, extra=[extra], extra_metadata={"x": {"a": "1"}})
+    with open(tmp_path / "r.mcap", "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        got = [(c.topic, m.log_time) for _, c, m in reader.iter_messages(log_time_order=False)]
+        assert {m.name: m.metadata for m in reader.iter_metadata()}["x"] == {"a": "1"}
+    times = [t for _, t in got]
+    assert times == sorted(times)  # written in order, not appended at the end
+    assert [t for topic, t in got if topic == "/x/steps"] == stamps
+    with pytest.raises(ValueError, match="/ego/state"):
+        write_mcap(tmp_path / "bad.mcap", meta, ego, traffic, extra=[ExtraChannel("/ego/state", "x", {}, [0], [b"{}"])])

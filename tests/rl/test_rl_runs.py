@@ -7,7 +7,6 @@ import subprocess
 import sys
 import time
 
-import pandas as pd
 import pytest
 import torch
 from typer.testing import CliRunner
@@ -15,27 +14,10 @@ from typer.testing import CliRunner
 from laneprint.cli import app
 from laneprint.workspace import Workspace
 from rl.dqn import q_network
-from rl.env import EnvConfig
 from rl.plots import decision_agreement, indicators_at_decisions, training_curves
-from rl.rewards import ReferenceLines
 from rl.runs import Target, list_runs, load_run, replay_env
-from rl.testing import rule_driver_decisions
+from rl.testing import FAST_CLI as FAST, analysed_workspace
 
-FAST = ["--num-envs", "8", "--batch-size", "64", "--learning-starts", "100"]
-
-
-def analysed_workspace(root) -> Workspace:
-    """A workspace with a hand-made analysis: one Normal driver following Table 1's Normal lines."""
-    ws = Workspace(root).ensure()
-    lines = ReferenceLines.paper("Normal")
-    dec = rule_driver_decisions(lines, 12, seed=0, cfg=EnvConfig(lines=lines), driver_id="D01")
-    refs = pd.DataFrame([{"scope": "style", "name": "Normal", "kind": "typical", "indicator": k, "A": a, "b": b,
-                          "A_lo": None, "A_hi": None, "b_lo": None, "b_hi": None, "r2": None, "n": 12,
-                          "source": "typical driver D01"} for k, (a, b) in
-                         (("t_f", lines.t_f), ("t_nf", lines.t_nf), ("dv_nb", lines.dv_nb))])
-    styles = pd.DataFrame({"driver_id": ["D01"], "style": ["Normal"], "is_typical": [True]})
-    ws.write_tables("analysis", {"decisions": dec, "reference_lines": refs, "styles": styles}, meta={})
-    return ws
 
 
 def test_train_needs_an_analysis_or_paper_lines(tmp_path):

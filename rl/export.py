@@ -1,0 +1,255 @@
+"""`laneprint export RUN_ID --format onnx`: a run's policy as ONNX, documented, checked.
+
+The output folder holds
+
+- ``policy.onnx``: input ``observation`` float32 (batch, n_inputs); outputs
+  ``q_values`` float32 (batch, 2) and ``action`` int64 (batch,), the argmax
+  (ties go to 0, TO CHANGE, as in laneprint);
+- ``policy.json``: the inputs in order with units and scaling
+  (`rl.observation_spec`), the actions, which run / target / lines it came from,
+  and the check below;
+- ``README.md``: the same for a reader, with a loader that needs only
+  onnxruntime and numpy.
+
+The check: onnxruntime's Q-values against torch's on the run's evaluation states
+(the target's recorded not-yet and press states, `rl.runs.recorded_approaches`)
+and on seeded synthetic scenes; the export fails (and writes nothing) when the
+largest absolute difference exceeds `TOLERANCE`.
+
+Exporter: torch's TorchScript-based exporter (``dynamo=False``) needs only the
+``onnx`` package, where the dynamo exporter also needs ``onnxscript`` and its
+dependencies; for a 3-layer MLP both give the same graph of Gemm and Relu.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import uuid
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from laneprint.errors import UserError
+from laneprint.progress import ProgressFn, report
+from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
+from rl.env import EnvConfig, observation, sample_scenes
+from rl.observation_spec import ACTIONS, ROLES, constants, observation_spec
+from rl.runs import Target, load_weights, recorded_approaches, run_dir
+from rl.scene import Scene
+
+FORMATS = ("onnx",)
+OPSET = 17
+TOLERANCE = 1e-4  # largest |Q_onnxruntime - Q_torch| accepted [units of Q]
+SYNTHETIC_STATES = 2000  # seeded scenes checked besides the recorded ones
+INPUT, OUTPUTS = "observation", ("q_values", "action")
+
+
+class _Policy(torch.nn.Module):
+    """Q-network plus its greedy action, the two outputs of the exported graph."""
+
+    def __init__(self, net: torch.nn.Module) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        q = self.net(obs)
+        return q, torch.argmax(q, dim=1)
+
+
+def _require_onnx() -> None:
+    try:
+        import onnx  # noqa: F401
+        import onnxruntime  # noqa: F401
+    except ImportError:
+        raise UserError("ONNX export needs the onnx extra: pip install -e '.[onnx]'") from None
+
+
+def onnx_bytes(net: torch.nn.Module, n_inputs: int, metadata: dict[str, str]) -> bytes:
+    """The policy as an ONNX model (dynamic batch), with `metadata` as the model's metadata_props."""
+    import onnx
+
+    buf = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation notice
+        torch.onnx.export(_Policy(net).eval(), (torch.zeros(1, n_inputs),), buf, input_names=[INPUT],
+                          output_names=list(OUTPUTS), opset_version=OPSET, dynamo=False,
+                          dynamic_axes={INPUT: {0: "batch"}, OUTPUTS[0]: {0: "batch"}, OUTPUTS[1]: {0: "batch"}})
+    model = onnx.load_from_string(buf.getvalue())
+    for k, v in metadata.items():
+        model.metadata_props.add(key=k, value=v)
+    onnx.checker.check_model(model)
+    return model.SerializeToString()
+
+
+def compare(model: bytes, net: torch.nn.Module, obs: np.ndarray) -> dict[str, Any]:
+    """onnxruntime vs torch on `obs`: largest |dQ|, and how many greedy actions agree."""
+    import onnxruntime as ort
+
+    sess = ort.InferenceSession(model, providers=["CPUExecutionProvider"])
+    q_ort, a_ort = sess.run(list(OUTPUTS), {INPUT: obs.astype(np.float32)})
+    with torch.no_grad():
+        q_torch = net(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+    diff = float(np.abs(q_ort - q_torch).max()) if len(obs) else 0.0
+    return {"n_states": int(len(obs)), "max_abs_diff": diff,
+            "actions_agree": int((a_ort == q_torch.argmax(axis=1)).sum()),
+            "q_range": [float(q_torch.min()), float(q_torch.max())] if len(obs) else None}
+
+
+def check_states(workspace: Workspace, target: Target, cfg: EnvConfig, seed: int) -> dict[str, np.ndarray]:
+    """Observations to check on: the run's evaluation states (when the analysis has them) and seeded
+    synthetic scenes."""
+    out: dict[str, np.ndarray] = {}
+    try:
+        approaches = recorded_approaches(workspace, target)
+        out["evaluation_states"] = observation(Scene.concat([a.scene for a in approaches]), cfg)
+    except UserError:
+        pass  # e.g. a `--lines paper` run in a workspace without analysis: synthetic scenes only
+    out["synthetic_scenes"] = observation(sample_scenes(np.random.default_rng(seed), cfg, SYNTHETIC_STATES), cfg)
+    return out
+
+
+def _describe(config: dict[str, Any], cfg: EnvConfig, checks: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "format": "onnx", "opset": OPSET, "file": "policy.onnx",
+        "input": {"name": INPUT, "dtype": "float32", "shape": ["batch", len(observation_spec(cfg))]},
+        "outputs": {"q_values": "float32 (batch, 2): Q of each action", "action": "int64 (batch,): argmax of "
+                    "q_values, ties to 0"},
+        "inputs": observation_spec(cfg), "constants": constants(cfg), "roles": ROLES,
+        "target_lane": "the lane the ego would change to (the adjacent lane the decision is about)",
+        "actions": {str(k): v for k, v in ACTIONS.items()},
+        "run": {k: config.get(k) for k in ("run_id", "target", "reward", "lines_source", "lines", "seed",
+                                           "data_fingerprint", "code_version", "created_at")}
+               | {"observation": cfg.observation, "scenes": cfg.scenes, "episodes": config["dqn"]["episodes"]},
+        "check": checks,
+    }
+
+
+def _readme(doc: dict[str, Any]) -> str:
+    run = doc["run"]
+    rows = "\n".join(
+        f"| {s['index']} | `{s['name']}` | {s['quantity']} | {s['unit']} | {_formula(s)} | "
+        f"{_undefined(s)} |" for s in doc["inputs"])
+    checks = "\n".join(f"- {name}: {c['n_states']} states, max |Q_onnxruntime - Q_torch| = {c['max_abs_diff']:.2e}"
+                       f", greedy actions agree on {c['actions_agree']}" for name, c in doc["check"]["sets"].items())
+    lines = run["lines"] or {}
+    return f"""# Lane-change policy `{run['run_id']}` (ONNX)
+
+Trained by laneprint for {run['target']['kind']} **{run['target']['name']}**, reward `{run['reward']}`,
+observation `{run['observation']}`, scenes `{run['scenes']}`, {run['episodes']} episodes, seed {run['seed']};
+reference lines ({run['lines_source']}: {lines.get('source', '')}): t_f = {lines.get('t_f')},
+t_nf = {lines.get('t_nf')}, dv_nb = {lines.get('dv_nb')} (A, b of `I = A v_e + b`). Data fingerprint
+`{run['data_fingerprint']}`, code {(run.get('code_version') or {}).get('git_commit')}.
+
+## Use
+
+Every `{doc['constants']['dt_s']}` s, build the observation below from the ego and the three
+vehicles around it, run `policy.onnx`, and act on `action`:
+{chr(10).join(f'- `{k}`: {v}' for k, v in doc['actions'].items())}
+
+The agent decides when to leave a slower leader: ask it while the ego has a leader in its lane
+within {doc['constants']['range_m']:g} m and an adjacent lane (`laneprint annotate` asks it only then).
+
+```python
+import json, numpy as np, onnxruntime as ort
+spec = json.load(open("policy.json"))
+sess = ort.InferenceSession("policy.onnx", providers=["CPUExecutionProvider"])
+obs = np.zeros((1, spec["input"]["shape"][1]), np.float32)  # fill as the table says
+q_values, action = sess.run(["q_values", "action"], {{"observation": obs}})
+```
+
+## Inputs (`observation`, float32, in this order)
+
+The vehicles: {'; '.join(f'{k}: {v}' for k, v in doc['roles'].items())}. The target lane is
+{doc['target_lane']}. Every value is clipped to [{doc['constants']['obs_floor']}, 1] after scaling.
+
+| # | name | raw quantity | unit | value | when undefined |
+|---|---|---|---|---|---|
+{rows}
+
+`policy.json` holds the same table as data (`inputs`: transform, scale, offset, cap, clip).
+
+## Check (tolerance {doc['check']['tolerance']} on Q)
+
+{checks}
+"""
+
+
+def _formula(s: dict[str, Any]) -> str:
+    if s["transform"] == "linear":
+        return f"raw x {s['scale']:.6g} + {s['offset']:g}"
+    if s["transform"] == "log1p_capped":
+        return f"log1p(min(raw, {s['cap']:g})) / log1p({s['cap']:g})"
+    if s["transform"] == "constant":
+        return f"{s['value']:g}"
+    return f"1 if `{s['of']}` defined else 0"
+
+
+def _undefined(s: dict[str, Any]) -> str:
+    u = s.get("when_undefined")
+    if not u:
+        return "-"
+    return (f"as `{u['same_as']}`" if "same_as" in u else f"{u['value']:g}") + f" ({u['why']})"
+
+
+def _swap_in(tmp: Path, final: Path) -> None:
+    """Put the finished folder `tmp` at `final`, replacing an earlier export in one rename each."""
+    old = None
+    if final.exists():
+        old = final.with_name(f".{final.name}.old-{uuid.uuid4().hex[:8]}")
+        os.rename(final, old)
+    os.rename(tmp, final)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def export_run(workspace: Workspace, run_id: str, fmt: str = "onnx", out: Path | None = None,
+               progress: ProgressFn | None = None) -> dict[str, Any]:
+    """Export a run's policy (see the module doc); returns a JSON-ready summary with the check."""
+    if fmt not in FORMATS:
+        raise UserError(f"unknown --format {fmt!r}: choose one of {', '.join(FORMATS)}")
+    _require_onnx()
+    net = load_weights(workspace, run_id)
+    config = json.loads((run_dir(workspace, run_id) / "config.json").read_text())
+    cfg = EnvConfig.from_dict(config["env"])
+    target = Target(**config["target"])
+    final = Path(out) if out is not None else workspace.root / "exports" / run_id
+    if final.exists() and not final.is_dir():
+        raise UserError(f"--out {final} is a file: give a folder")
+    report(progress, 0, 3, "exporting")
+    n_inputs = len(observation_spec(cfg))
+    model = onnx_bytes(net, n_inputs, {"laneprint_run_id": run_id, "observation": ",".join(
+        s["name"] for s in observation_spec(cfg)), "documentation": "policy.json"})
+    report(progress, 1, 3, "checking with onnxruntime")
+    sets = {name: compare(model, net, obs) for name, obs in
+            check_states(workspace, target, cfg, int(config.get("seed", 0))).items()}
+    worst = max(c["max_abs_diff"] for c in sets.values())
+    checks = {"tolerance": TOLERANCE, "max_abs_diff": worst, "passed": worst <= TOLERANCE, "sets": sets,
+              "how": "onnxruntime (CPUExecutionProvider) vs torch on the same float32 observations"}
+    if not checks["passed"]:
+        raise UserError(f"ONNX check failed: max |Q_onnxruntime - Q_torch| = {worst:.3g} > {TOLERANCE:g}; "
+                        "nothing written")
+    doc = _describe(config, cfg, checks)
+    report(progress, 2, 3, "writing")
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = final.with_name(f".{final.name}.tmp-{uuid.uuid4().hex[:8]}")
+    tmp.mkdir()
+    try:
+        atomic_write_bytes(tmp / "policy.onnx", model)
+        atomic_write_json(tmp / "policy.json", doc)
+        atomic_write_bytes(tmp / "README.md", _readme(doc).encode())
+        for f in tmp.iterdir():
+            f.chmod(0o644)  # a folder to hand over: readable by others, unlike the temporary files
+        tmp.chmod(0o755)
+        _swap_in(tmp, final)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    report(progress, 3, 3, "done")
+    return {"run_id": run_id, "format": fmt, "folder": str(final.resolve()),
+            "files": ["policy.onnx", "policy.json", "README.md"], "inputs": [s["name"] for s in doc["inputs"]],
+            "check": checks}

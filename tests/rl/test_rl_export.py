@@ -1,0 +1,125 @@
+"""`laneprint export`: ONNX that gives torch's Q-values, loadable and fed without laneprint."""
+
+import json
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+import torch
+from typer.testing import CliRunner
+
+from laneprint.cli import app
+from rl.env import EnvConfig, observation, observation_names, sample_scenes
+from rl.export import TOLERANCE
+from rl.runs import Target, load_weights, recorded_approaches, run_dir
+from rl.scene import Scene, indicators, seen
+
+# Runs in a fresh interpreter where laneprint, rl and torch cannot be imported: it builds the
+# observation from raw measurements with policy.json's description alone and runs policy.onnx.
+STANDALONE = r"""
+import json, math, sys
+for name in ("torch", "laneprint", "rl", "ingest", "indicators"):
+    sys.modules[name] = None  # any import of these now fails
+import numpy as np, onnxruntime as ort
+
+folder, raw_path = sys.argv[1], sys.argv[2]
+spec = json.load(open(f"{folder}/policy.json"))
+raws = json.load(open(raw_path))
+
+def value(s, raw):
+    r = raw.get(s["name"])
+    if s["transform"] == "constant":
+        v = s["value"]
+    elif s["transform"] == "flag":
+        v = 1.0 if raw.get(s["of"]) is not None else 0.0
+    elif r is None:
+        u = s["when_undefined"]
+        if "value" in u:
+            v = u["value"]
+        else:
+            v = raw[u["same_as"]] * s["scale"] + s["offset"]
+    elif s["transform"] == "linear":
+        v = r * s["scale"] + s["offset"]
+    else:
+        v = math.log1p(min(r, s["cap"])) / math.log1p(s["cap"])
+    lo, hi = s["clip"]
+    return min(max(v, lo), hi)
+
+obs = np.array([[value(s, raw) for s in spec["inputs"]] for raw in raws], dtype=np.float32)
+sess = ort.InferenceSession(f"{folder}/policy.onnx", providers=["CPUExecutionProvider"])
+q, action = sess.run(["q_values", "action"], {spec["input"]["name"]: obs})
+json.dump({"q": q.tolist(), "action": action.tolist(), "obs": obs.tolist()}, sys.stdout)
+"""
+
+
+def raw_measurements(scene: Scene, cfg: EnvConfig) -> list[dict]:
+    """What a vehicle stack measures, per scene: speeds, relative positions, TTCs (None = undefined)."""
+    f, nf, nb = seen(scene, cfg.range_m)
+    ind = indicators(scene, cfg.far_follower_m, cfg.range_m)
+    out = []
+    for i in range(len(scene.v_e)):
+        raw = {"v_e": float(scene.v_e[i])}
+        for role, present in (("f", f), ("nf", nf), ("nb", nb)):
+            here = bool(present[i])
+            raw[f"v_{role}"] = float(getattr(scene, f"v_{role}")[i]) if here else None
+            raw[f"x_{role}"] = float(getattr(scene, f"x_{role}")[i] - scene.x_e[i]) if here else None
+        for k in ("t_f", "t_nf", "dv_nb"):
+            raw[k] = float(getattr(ind, k)[i]) if getattr(ind, f"{k}_ok")[i] else None
+        out.append(raw)
+    return out
+
+
+def test_export_matches_torch_and_needs_nothing_of_laneprint(trained_run, tmp_path):
+    ws, run_id = trained_run
+    out = tmp_path / "policy"
+    res = CliRunner().invoke(app, ["export", run_id, "--format", "onnx", "--out", str(out), "-w", str(ws.root),
+                                   "--json"])
+    assert res.exit_code == 0, res.output
+    got = json.loads(res.stdout)
+    check = got["check"]
+    cfg = EnvConfig.from_dict(json.loads((run_dir(ws, run_id) / "config.json").read_text())["env"])
+    approaches = recorded_approaches(ws, Target("style", "Normal"))
+    assert check["passed"] and check["tolerance"] == TOLERANCE
+    evals = check["sets"]["evaluation_states"]
+    assert evals["n_states"] == sum(len(a) for a in approaches) == 84  # 12 decisions x 7 states
+    assert evals["max_abs_diff"] <= TOLERANCE and evals["actions_agree"] == evals["n_states"]
+    assert check["sets"]["synthetic_scenes"]["n_states"] == 2000
+    assert sorted(p.name for p in out.iterdir()) == ["README.md", "policy.json", "policy.onnx"]
+    doc = json.loads((out / "policy.json").read_text())
+    assert [s["name"] for s in doc["inputs"]] == list(observation_names(cfg)) == got["inputs"]
+    assert doc["run"]["run_id"] == run_id and doc["run"]["target"] == {"kind": "style", "name": "Normal"}
+    assert "t_nf" in (out / "README.md").read_text()
+
+    # the recorded evaluation states plus synthetic ones where each vehicle is sometimes absent or out of range
+    odd = sample_scenes(np.random.default_rng(1), replace(cfg, nb_present_prob=0.5, nb_gap0_m=(5.0, 200.0)), 300)
+    odd.f_present[::5] = False
+    scene = Scene.concat([a.scene for a in approaches] + [odd])
+    ind = indicators(scene, cfg.far_follower_m, cfg.range_m)
+    for defined in (*seen(scene, cfg.range_m), ind.t_f_ok, ind.t_nf_ok, ind.dv_nb_ok):
+        assert 0 < defined.sum() < len(defined)  # every undefined rule of policy.json is exercised
+    raw_path = tmp_path / "raw.json"
+    raw_path.write_text(json.dumps(raw_measurements(scene, cfg)))
+    proc = subprocess.run([sys.executable, "-c", STANDALONE, str(out), str(raw_path)], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    standalone = json.loads(proc.stdout)
+    obs = observation(scene, cfg)
+    np.testing.assert_allclose(np.array(standalone["obs"]), obs, atol=1e-6)  # the documentation is exact
+    net = load_weights(ws, run_id)
+    with torch.no_grad():
+        q_torch = net(torch.as_tensor(obs)).numpy()
+    assert np.abs(np.array(standalone["q"]) - q_torch).max() <= TOLERANCE
+    assert standalone["action"] == q_torch.argmax(axis=1).tolist()
+
+
+def test_export_refuses_bad_input(trained_run, tmp_path):
+    ws, run_id = trained_run
+    runner = CliRunner()
+    res = runner.invoke(app, ["export", run_id, "--format", "tflite", "-w", str(ws.root)])
+    assert res.exit_code == 1 and "unknown --format 'tflite'" in res.output
+    res = runner.invoke(app, ["export", "nope", "-w", str(ws.root)])
+    assert res.exit_code == 1 and "no run 'nope'" in res.output
+    (tmp_path / "file").write_text("x")
+    res = runner.invoke(app, ["export", run_id, "--out", str(tmp_path / "file"), "-w", str(ws.root)])
+    assert res.exit_code == 1 and "is a file" in res.output
