@@ -131,7 +131,7 @@ def create_fleet(workspace: Workspace, targets: list[Target], seeds: list[int], 
             create_run(workspace, target, env, settings, run_id=run_id, lines_source=lines_source, extra=common)
             runs.append(run_id)
     fleet = {"fleet_id": fleet_id, "created_at": now_iso(), "targets": [{"kind": t.kind, "name": t.name} for t in targets],
-             "seeds": list(seeds), "runs": runs, "backend": backend, "state": "created", "pid": os.getpid(),
+             "seeds": list(seeds), "runs": runs, "backend": backend, "state": "running", "pid": os.getpid(),
              "message": ""}
     _write_fleet(workspace, fleet)
     return fleet
