@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import tempfile
-from dataclasses import fields, replace
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Any, Optional
 
@@ -193,6 +193,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
                                                         "left", "right", "not_started", "collisions",
                                                         "emergency_brakes")},
         "indicators": indicators_vs_lines(drives, cfg.lines),
+        "decisions": [{"speed_limit_kph": d.speed_limit_kph, **asdict(x)} for d in drives for x in d.decisions],
     }
     if analyze:
         result["analysis"] = assigned_style(workspace, paths, driver_id)
