@@ -22,11 +22,11 @@ def _f(x: Any, spec: str = ".2f") -> str:
 
 def drive_command(
     run_id: Annotated[str, typer.Argument(help="A trained run of the workspace (see `laneprint train`).")],
-    engine: Annotated[str, typer.Option("--engine", help="Simulator: sumo (Eclipse SUMO, pip install -e '.[sumo]').")] = "sumo",
+    engine: Annotated[str, typer.Option("--engine", help="Simulator: sumo (Eclipse SUMO, from the sumo extra of the install).")] = "sumo",
     minutes: Annotated[float, typer.Option("--minutes", help="Minutes of driving per section.")] = 10.0,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the traffic and of SUMO.")] = 0,
     section: Annotated[Optional[list[float]], typer.Option(
-        "--section", help="Speed limit of a section to drive [km/h], repeatable (default 60, 70, 80, 90).")] = None,
+        "--section", help="Speed limit in km/h of a section to drive, repeatable (default 60, 70, 80, 90).")] = None,
     out: Annotated[Optional[Path], typer.Option(
         "--out", "-o", help="FILE.mcap (one section; <stem>_S<limit>.mcap for several) or a folder "
                             "(default WORKSPACE/drives/RUN_ID-sSEED/).")] = None,
