@@ -15,6 +15,7 @@ from ingest.cli import ingest_command
 from laneprint.simulator.cli import simulate_command
 from laneprint.pipeline_cli import run_command_cli
 from rl.cli import annotate_command, crossval_command, evaluate_command, export_command, train_command
+from rl.drive_cli import drive_command
 
 app = typer.Typer(
     name="laneprint",
@@ -32,6 +33,7 @@ app.command("evaluate", help="Evaluate a trained run against the drivers' decisi
 app.command("crossval", help="Held-out figures: agent vs greedy vs imitation, by session folds.")(crossval_command)
 app.command("export", help="Export a trained run's policy as ONNX, documented and checked with onnxruntime.")(export_command)
 app.command("annotate", help="Write a recording again as MCAP with the agent's, greedy's and driver's decisions.")(annotate_command)
+app.command("drive", help="Let a trained agent make the ego's lane changes in SUMO traffic; MCAP logs of the drive.")(drive_command)
 app.command("dashboard", help="Serve the Streamlit dashboard.")(dashboard_command)
 app.command("run", help="Everything end to end: ingest PATHs, analyze, and train/evaluate the styles.")(run_command_cli)
 

@@ -1,7 +1,8 @@
 """One SUMO run: a driver in one section, logged at every step.
 
 The ego is a SUMO vehicle of the driver's type: Krauss follows, LC2013 decides
-every lane change (nothing is scripted). At every step the ego's state, the
+every lane change (nothing is scripted), unless an `EgoControl` makes them (the
+closed loop of `laneprint drive`, `rl/drive.py`). At every step the ego's state, the
 background vehicles within `scene_range_m` and the driver inputs are logged;
 afterwards each lane change is found in the lateral trace and the lane-change
 button is pressed at its start: the first sample at which the ego has left its
@@ -14,7 +15,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional, Protocol
 
 import numpy as np
 import pandas as pd
@@ -43,6 +44,18 @@ class SectionLog:
     sumo_version: str = ""
     api: str = ""  # "libsumo" or "traci"
     sumo_seed: int = 0  # SUMO's --seed of the run
+    n_emergency_brakes: int = 0  # steps x vehicles braking harder than their decel, reported by SUMO
+
+
+class EgoControl(Protocol):
+    """Something that drives the ego's lane changes in place of LC2013 (see `rl.drive`)."""
+
+    def start(self, api: Any) -> None:
+        """Called once the ego is in the simulation."""
+
+    def step(self, api: Any, t: float, ego: VehicleState, lateral_m: float,
+             others: dict[str, VehicleState]) -> None:
+        """Called after every step with the ego, its offset from its lane centre and the other vehicles."""
 
 
 def sumo_args(net: Path, routes: Path, lc_out: Path, settings: SumoSettings, seed: int) -> list[str]:
@@ -81,21 +94,26 @@ def _inputs(v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def run_section(settings: SumoSettings, net: Path, routes: Path, limit_kph: float, seed: int,
-                rng: np.random.Generator, workdir: Path) -> SectionLog:
-    """Run one section (SUMO seed `seed`, traffic choices from `rng`) and log it; scratch files in `workdir`."""
+                rng: np.random.Generator, workdir: Path, control: Optional[EgoControl] = None) -> SectionLog:
+    """Run one section (SUMO seed `seed`, traffic choices from `rng`) and log it; scratch files in `workdir`.
+
+    With `control`, it makes the ego's lane changes (called after every step, before the traffic moves on).
+    """
     s = settings
     lc_out = workdir / f"lanechanges-{seed}.xml"
     n_steps = int(round(s.duration_s / s.step_s))
     ego_rows: list[tuple[float, float, float, float, int, float]] = []
     traffic_rows: list[tuple[float, str, float, float, float, int, float]] = []
     sim_t: list[float] = []
-    collisions = 0
+    collisions = emergency = 0
     with SumoSession(sumo_args(net, routes, lc_out, s, seed)) as sim:
         veh = sim.api.vehicle
         veh.add(EGO_ID, ROUTE, EGO_TYPE, depart="now", departLane="0", departPos=f"{s.ego_start_m:g}",
                 departSpeed="desired")
         veh.subscribe(EGO_ID, _VARS + [_ACC])
         bubble = TrafficBubble(sim.api, s, limit_kph / 3.6, rng, _VARS)
+        if control is not None:
+            control.start(sim.api)
         sim.step()
         bubble.fill(veh.getAllSubscriptionResults()[EGO_ID][_POS] - s.ego_length_m / 2)
         for i in range(n_steps + int(_FINISH_S / s.step_s)):
@@ -104,13 +122,17 @@ def run_section(settings: SumoSettings, net: Path, routes: Path, limit_kph: floa
             states = _log_step(veh.getAllSubscriptionResults(), t, s, ego_rows, traffic_rows)
             sim_t.append(sim.api.simulation.getTime())
             collisions += sim.api.simulation.getCollidingVehiclesNumber()
+            emergency += sim.api.simulation.getEmergencyStoppingVehiclesNumber()
             _, ex, ey, ev, lane, _ = ego_rows[-1]
             if i + 1 >= n_steps and abs(ey - lane * s.lane_width_m) <= _AT_CENTRE_M:
                 break  # the section is over and no lane change is under way
+            if control is not None and i + 1 < n_steps:
+                control.step(sim.api, t, VehicleState(ex, ev, lane, s.ego_length_m), ey - lane * s.lane_width_m,
+                             states)
             bubble.update(t, ex, ev, states)
         version, api = sim.version, sim.api_name
     log = _assemble(s, ego_rows, np.asarray(sim_t), traffic_rows, _reasons(lc_out), collisions, version, api)
-    log.sumo_seed = seed
+    log.sumo_seed, log.n_emergency_brakes = seed, emergency
     return log
 
 

@@ -1,0 +1,81 @@
+"""`laneprint drive RUN_ID --engine sumo`: a trained agent drives in SUMO (see `rl/drive.py`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
+from laneprint.errors import UserError
+from laneprint.workspace import Workspace
+
+ENGINES = ("sumo",)
+
+
+def _f(x: Any, spec: str = ".2f") -> str:
+    return "-" if x is None else format(x, spec)
+
+
+def drive_command(
+    run_id: Annotated[str, typer.Argument(help="A trained run of the workspace (see `laneprint train`).")],
+    engine: Annotated[str, typer.Option("--engine", help="Simulator: sumo (Eclipse SUMO, from the sumo extra of the install).")] = "sumo",
+    minutes: Annotated[float, typer.Option("--minutes", help="Minutes of driving per section.")] = 10.0,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the traffic and of SUMO.")] = 0,
+    section: Annotated[Optional[list[float]], typer.Option(
+        "--section", help="Speed limit in km/h of a section to drive, repeatable (default 60, 70, 80, 90).")] = None,
+    out: Annotated[Optional[Path], typer.Option(
+        "--out", "-o", help="FILE.mcap (one section; <stem>_S<limit>.mcap for several) or a folder "
+                            "(default WORKSPACE/drives/RUN_ID-sSEED/).")] = None,
+    driver_id: Annotated[Optional[str], typer.Option("--driver-id", help="driver_id of the logs (default agent-RUN_ID).")] = None,
+    analyze: Annotated[bool, typer.Option("--analyze", help="Analyse the workspace's study plus the drive (in a scratch workspace) and report the agent's style.")] = False,
+    workspace: WorkspaceOpt = DEFAULT_WS,
+    as_json: JsonOpt = False,
+) -> None:
+    """Let a trained agent make the ego's lane changes in SUMO traffic; write the drive as MCAP logs."""
+
+    def work() -> dict[str, Any]:
+        from rl.drive_io import drive_run
+
+        if engine not in ENGINES:
+            raise UserError(f"unknown --engine {engine!r}; choose one of {', '.join(ENGINES)}")
+        with progress_bar(not as_json) as bar:
+            return drive_run(Workspace(workspace), run_id, minutes=minutes, seed=seed, sections=section, out=out,
+                             driver_id=driver_id, analyze=analyze, progress=bar)
+
+    run_command(work, as_json, render)
+
+
+def render(result: dict[str, Any], console: Console) -> None:
+    """The drive's tables: per section, then the indicators at the agent's decisions against its lines."""
+    t = Table(title=f"{result['run_id']} ({result['target']['kind']} {result['target']['name']}) in SUMO "
+                    f"{result['sumo_version']}: {result['minutes']:g} min per section, seed {result['seed']}, "
+                    f"ego vType {result['ego_style']}, asked every {result['decision_every_s']:g} s")
+    cols = ("section", "asked", "decided", "lane changes (L/R)", "not started", "collisions", "emergency brakes")
+    for c in cols:
+        t.add_column(c, justify="right")
+    for r in result["sections"] + [dict(result["totals"], speed_limit_kph=None)]:
+        t.add_row("total" if r["speed_limit_kph"] is None else f"{r['speed_limit_kph']:g} km/h",
+                  str(r["decisions_asked"]), str(r["change_decisions"]),
+                  f"{r['lane_changes']} ({r['left']}/{r['right']})", str(r["not_started"]),
+                  str(r["collisions"]), str(r["emergency_brakes"]))
+    console.print(t)
+    ind = result["indicators"]
+    it = Table(title=f"indicators at the agent's {ind['n_decisions']} changes vs its target's lines "
+                     f"({ind['lines'].get('source') or 'run lines'})")
+    for c in ("indicator", "defined", "median", "line (median)", "MAE", "bias"):
+        it.add_column(c, justify="right")
+    for name in ("t_f", "t_nf", "dv_nb"):
+        r = ind[name]
+        it.add_row(name, str(r["n"]), _f(r["median"]), _f(r["line_median"]), _f(r["mae"]), _f(r["bias"]))
+    console.print(it)
+    if "analysis" in result:
+        a = result["analysis"]
+        verdict = "" if a["target_style"] is None else (
+            " (its target)" if str(a["style"]).lower() == a["target_style"].lower() else f" (target {a['target_style']})")
+        console.print(f"analysis of the study plus the drive: {a['driver_id']} is {a['style']}{verdict}, "
+                      f"confidence {_f(a['confidence'])}", highlight=False, soft_wrap=True)
+    console.print("wrote " + ", ".join(result["files"]), highlight=False, soft_wrap=True, markup=False)

@@ -1,0 +1,143 @@
+"""`laneprint drive RUN_ID --engine sumo`: a trained agent makes the ego's lane changes in SUMO.
+
+The pure parts (the live scene, matching decisions to lane changes, output paths)
+need nothing; the closed loop runs the real command line on a small SUMO study
+(skipped with a hint where SUMO is not installed).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from laneprint.cli import app
+from laneprint.errors import UserError
+from laneprint.simulator.sumo.traffic import VehicleState
+from laneprint.workspace import Workspace
+from rl.drive import Decision, live_scene, match_presses, target_lane
+from rl.drive_io import output_paths
+from rl.env import EnvConfig, observation
+from rl.scene import indicators
+
+runner = CliRunner()
+
+
+# --- pure parts ------------------------------------------------------------------------
+
+
+def test_live_scene_reads_the_nearest_vehicles_as_the_analysis_does():
+    ego = VehicleState(x=100.0, v=25.0, lane=0, length=4.5)
+    others = {
+        "far_f": VehicleState(180.0, 20.0, 0, 4.5),
+        "f": VehicleState(140.0, 20.0, 0, 12.0),  # nearest ahead in the ego lane: a truck
+        "behind_own": VehicleState(90.0, 30.0, 0, 4.5),  # behind in the ego lane: nobody's role
+        "nf": VehicleState(130.0, 22.0, 1, 4.0),
+        "nb": VehicleState(100.0, 27.0, 1, 5.0),  # alongside counts as behind (dx <= 0)
+        "nb_far": VehicleState(40.0, 27.0, 1, 5.0),
+    }
+    scene, ids = live_scene(ego, others, target_lane(ego.lane))
+    assert ids == {"f": "f", "nf": "nf", "nb": "nb"}
+    ind = indicators(scene, far_follower_m=100.0, range_m=150.0)
+    assert ind.t_f[0] == pytest.approx((40.0 - (4.5 + 12.0) / 2) / 5.0)
+    assert ind.t_nf[0] == pytest.approx((30.0 - (4.5 + 4.0) / 2) / 3.0)
+    assert ind.dv_nb[0] == pytest.approx(-2.0)
+
+
+def test_missing_vehicles_are_shown_as_in_training():
+    ego = VehicleState(x=0.0, v=20.0, lane=1, length=4.5)
+    scene, ids = live_scene(ego, {"ahead_right": VehicleState(60.0, 15.0, 0, 4.5)}, target_lane(1))
+    assert ids == {"f": None, "nf": "ahead_right", "nb": None}
+    ind = indicators(scene, 100.0, 150.0)
+    assert not ind.t_f_ok[0] and ind.t_nf_ok[0] and not ind.dv_nb_ok[0]
+    obs = observation(scene, EnvConfig(observation="indicators"))[0]
+    # absent leader: at the front edge at the ego's speed; absent follower at the rear edge; flags 0
+    assert obs[3] == 1.0 and obs[2] == obs[0] and obs[7] == pytest.approx(1e-3)
+    assert obs[-3] == pytest.approx(1e-3) and obs[-2] == 1.0 and obs[-1] == pytest.approx(1e-3)
+
+
+def test_target_lane_is_the_other_lane():
+    assert (target_lane(0), target_lane(1), target_lane(0, n_lanes=1)) == (1, 0, None)
+
+
+def test_decisions_are_matched_to_the_lane_change_they_started():
+    ds = [Decision(10.0, 0, 1, 20.0, None, None, None, {}), Decision(20.0, 1, 0, 20.0, None, None, None, {})]
+    match_presses(ds, [{"press_t_s": 10.1, "target_lane": 1}, {"press_t_s": 21.0, "target_lane": 0}], 0.5)
+    assert (ds[0].started, ds[0].press_t_s) == (True, 10.1)
+    assert (ds[1].started, ds[1].press_t_s) == (False, None)  # started too late to be this decision's
+
+
+def test_output_paths():
+    assert output_paths(Path("d.mcap"), ["a_S80"]) == [Path("d.mcap")]
+    assert output_paths(Path("x/d.mcap"), ["a_S60", "a_S90"]) == [Path("x/d_S60.mcap"), Path("x/d_S90.mcap")]
+    assert output_paths(Path("out"), ["a_S60"]) == [Path("out/a_S60.mcap")]
+
+
+# --- the closed loop through the command line ---------------------------------------------
+
+
+def _invoke(*args: str) -> dict:
+    res = runner.invoke(app, [*args, "--json"])
+    assert res.exit_code == 0, res.output
+    return json.loads(res.stdout)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> tuple[Path, str]:
+    """A small SUMO study (3 drivers, 1 minute a section), analysed, and a quickly trained Aggressive run."""
+    from laneprint.simulator.sumo.backend import check_available
+
+    try:
+        check_available()
+    except UserError as exc:
+        pytest.skip(f"libsumo/traci not importable here ({exc})")
+    root = tmp_path_factory.mktemp("drive")
+    ws = root / "ws"
+    _invoke("simulate", "--engine", "sumo", "--out", str(root / "study"), "--drivers", "3", "--minutes", "1",
+            "--seed", "3")
+    _invoke("ingest", str(root / "study"), "-w", str(ws))
+    _invoke("analyze", "-w", str(ws))
+    _invoke("train", "--style", "Aggressive", "--episodes", "800", "--run-id", "tiny", "--no-evaluate",
+            "-w", str(ws))
+    return ws, "tiny"
+
+
+@pytest.mark.slow
+def test_drive_writes_a_log_whose_presses_are_the_agents_lane_changes(trained, tmp_path):
+    ws, run_id = trained
+    out = tmp_path / "drive.mcap"
+    res = _invoke("drive", run_id, "--engine", "sumo", "--minutes", "1", "--section", "90", "--seed", "1",
+                  "--out", str(out), "-w", str(ws))
+    assert res["files"] == [str(out)] and out.is_file()
+    assert res["ego_style"] == "Aggressive"
+    tot = res["totals"]
+    assert tot["collisions"] == 0
+    assert tot["decisions_asked"] >= tot["change_decisions"] >= tot["lane_changes"]
+    assert tot["lane_changes"] > 0, "the agent made no lane change: the test would prove nothing"
+    started = sorted(d["press_t_s"] for d in res["decisions"] if d["started"])
+    assert len(started) == tot["lane_changes"]
+
+    ingested = _invoke("ingest", str(out), "--driver", "agent", "-w", str(tmp_path / "ws2"))
+    assert ingested["counts"]["ingested"] + ingested["counts"]["warning"] == 1
+    (meta, ego, _), = Workspace(tmp_path / "ws2").iter_recordings()
+    btn = ego["lc_button"].to_numpy(dtype=bool)
+    t, lane = ego["t_s"].to_numpy(), ego["ego_lane"].to_numpy()
+    presses = np.flatnonzero(btn & ~np.r_[False, btn[:-1]])
+    assert np.allclose(t[presses], started, atol=1e-6)  # one press per lane change the agent started
+    for p, d in zip(presses, [d for d in res["decisions"] if d["started"]]):
+        assert 0 < t[p] - d["t_s"] <= 0.5 + 1e-6  # within one decision step of the agent's choice
+        assert lane[p - 1] == d["from_lane"] and (lane[p:] == d["target_lane"]).any()
+
+
+@pytest.mark.slow
+def test_drive_refuses_an_unknown_run_and_section(trained):
+    ws, run_id = trained
+    res = runner.invoke(app, ["drive", "nope", "-w", str(ws)])
+    assert res.exit_code == 1 and "no run 'nope'" in res.output
+    res = runner.invoke(app, ["drive", run_id, "--section", "100", "-w", str(ws)])
+    assert res.exit_code == 1 and "--section 100" in res.output
+    res = runner.invoke(app, ["drive", run_id, "--engine", "carla", "-w", str(ws)])
+    assert res.exit_code == 1 and "unknown --engine" in res.output
