@@ -112,6 +112,9 @@ def run_tasks(fn: Callable[[T], R], items: Iterable[T], *, backend: str = "local
     :raises UserError: as raised by `fn`, one line; or for a bad backend / Ray missing
     """
     items = list(items)
+    if not items:
+        check_backend(backend, ray_address)
+        return []  # no Ray instance started for nothing
     return list(iter_tasks(fn, items, backend=backend, ray_address=ray_address, num_cpus=num_cpus,
                            progress=progress, label=label, total=len(items)))
 
