@@ -31,7 +31,6 @@ import numpy as np
 import pandas as pd
 
 from indicators.settings import AnalysisSettings
-from indicators.stats import fit_lines
 from laneprint.errors import UserError
 from laneprint.parallel import run_tasks
 from laneprint.progress import ProgressFn, report
@@ -96,6 +95,8 @@ def fold_lines(train: pd.DataFrame, line_drivers: list[str], fallback: Reference
     An indicator that cannot be fitted (too few defined presses) keeps the full
     analysis's line, with a note.
     """
+    from indicators.stats import fit_lines  # statsmodels: imported here, not by every fold's worker
+
     dec = train[train["driver_id"].astype(str).isin(line_drivers)].copy()
     dec["driver_id"] = "+".join(line_drivers)  # several drivers: one pooled fit
     fits = fit_lines(dec, analysis).set_index("indicator")
