@@ -13,7 +13,7 @@ from rich.table import Table
 from laneprint.cliutil import (DEFAULT_WS, BackendOpt, JsonOpt, RayAddressOpt, WorkspaceOpt, progress_bar,
                                run_command)
 from ingest.mapping import load_mapping
-from laneprint.parallel import check_backend
+from laneprint.parallel import backend_session
 from laneprint.workspace import Workspace
 
 _STYLE = {"ingested": "green", "warning": "yellow", "duplicate": "cyan", "rejected": "red", "skipped": "dim"}
@@ -26,8 +26,7 @@ def ingest_result(paths: list[Path], driver: str | None, mapping: Path | None, w
 
     load_mapping(mapping)  # a bad mapping file is one error line, before any bar is drawn
     check_paths(paths)
-    check_backend(backend, ray_address)
-    with progress_bar(show_progress) as progress:
+    with backend_session(backend, ray_address), progress_bar(show_progress) as progress:
         report = ingest_paths(paths, Workspace(workspace), driver_id=driver, mapping=mapping, progress=progress,
                               backend=backend, ray_address=ray_address)
     out = report.to_dict()

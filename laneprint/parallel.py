@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
@@ -42,6 +43,7 @@ R = TypeVar("R")
 
 BACKENDS: tuple[str, ...] = ("local", "ray")
 RAY_MISSING = "--backend ray needs Ray, which is not installed: pip install -e '.[ray]'"
+CONNECT_TIMEOUT_S = 5.0  # [s] to reach --ray-address before giving up
 
 
 def check_backend(backend: str, ray_address: str | None = None) -> None:
@@ -56,6 +58,7 @@ def check_backend(backend: str, ray_address: str | None = None) -> None:
 
 def _import_ray() -> Any:
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage-stats notice, no network call
+    os.environ.setdefault("RAY_BACKEND_LOG_LEVEL", "error")  # Ray's C++ warnings on stderr
     try:
         import ray
     except ImportError:
@@ -63,16 +66,29 @@ def _import_ray() -> Any:
     return ray
 
 
+def _check_reachable(address: str) -> None:
+    """`UserError` when nothing answers at HOST:PORT (Ray itself would retry for minutes)."""
+    host, _, port = address.rpartition(":")
+    if address == "auto" or "://" in address or not port.isdigit():
+        return  # 'auto' and Ray Client addresses: Ray's own checks
+    try:
+        socket.create_connection((host.strip("[]") or "127.0.0.1", int(port)), timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as exc:
+        raise UserError(f"cannot join the Ray cluster at {address}: {exc.strerror or exc} "
+                        "(is `ray start --head` running there?)") from None
+
+
 def _start_ray(ray: Any, ray_address: str | None, num_cpus: int | None) -> None:
     quiet = {"logging_level": logging.ERROR, "log_to_driver": False}  # a worker's failure still comes back as its exception
     try:
         if ray_address:
+            _check_reachable(ray_address)
             ray.init(address=ray_address, **quiet)
         else:
             ray.init(num_cpus=num_cpus or os.cpu_count() or 1, include_dashboard=False, **quiet)
     except (ConnectionError, RuntimeError, ValueError, TimeoutError) as exc:
         where = f"join the Ray cluster at {ray_address}" if ray_address else "start a local Ray instance"
-        raise UserError(f"cannot {where}: {str(exc).strip().splitlines()[0] if str(exc).strip() else exc!r}") from None
+        raise UserError(f"cannot {where}: {_line(exc)}") from None
 
 
 @contextmanager
@@ -178,11 +194,25 @@ def _ray_stream(fn: Callable[[T], R], items: Iterable[T], progress: ProgressFn |
 
 
 def _get(ray: Any, ref: Any) -> Any:
-    """`ray.get` with a worker's `UserError` turned back into one line."""
+    """`ray.get` with a worker's `UserError`, and failures of the cluster itself, turned into one line.
+
+    Any other exception raised by the task (a bug) keeps Ray's traceback of the worker.
+    """
     try:
         return ray.get(ref)
     except ray.exceptions.RayTaskError as exc:
         cause = getattr(exc, "cause", None)
         if isinstance(cause, UserError):
             raise UserError(str(cause)) from None
+        if isinstance(cause, ModuleNotFoundError):
+            raise UserError(f"a Ray worker cannot import {cause.name!r}: install laneprint (the same version) "
+                            "on every machine of the cluster") from None
         raise
+    except ray.exceptions.RayError as exc:  # a worker or node died, out of memory, ...
+        raise UserError(f"a Ray task failed: {_line(exc)}") from None
+
+
+def _line(exc: BaseException) -> str:
+    """The first line of an exception's message (its type when it has none)."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__

@@ -3,6 +3,7 @@ on Ray (a local instance with 2 CPUs, shared by this module's tests) equal their
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import shutil
 import sys
@@ -42,6 +43,9 @@ def test_bad_backend_options_are_one_line_errors(monkeypatch):
         run_tasks(_square, [1], backend="dask")
     with pytest.raises(UserError, match="add --backend ray"):
         run_tasks(_square, [1], ray_address="127.0.0.1:6379")
+    if importlib.util.find_spec("ray"):
+        with pytest.raises(UserError, match="cannot join the Ray cluster at 127.0.0.1:1: Connection refused"):
+            run_tasks(_square, [1], backend="ray", ray_address="127.0.0.1:1")
     monkeypatch.setitem(sys.modules, "ray", None)  # as if Ray were not installed
     with pytest.raises(UserError, match=r"pip install -e '\.\[ray\]'"):
         run_tasks(_square, [1], backend="ray")
