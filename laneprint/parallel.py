@@ -58,7 +58,6 @@ def check_backend(backend: str, ray_address: str | None = None) -> None:
 
 def _import_ray() -> Any:
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage-stats notice, no network call
-    os.environ.setdefault("RAY_BACKEND_LOG_LEVEL", "error")  # Ray's C++ warnings on stderr
     try:
         import ray
     except ImportError:
@@ -87,8 +86,11 @@ def _start_ray(ray: Any, ray_address: str | None, num_cpus: int | None) -> None:
         else:
             ray.init(num_cpus=num_cpus or os.cpu_count() or 1, include_dashboard=False, **quiet)
     except (ConnectionError, RuntimeError, ValueError, TimeoutError) as exc:
-        where = f"join the Ray cluster at {ray_address}" if ray_address else "start a local Ray instance"
-        raise UserError(f"cannot {where}: {_line(exc)}") from None
+        if not ray_address:
+            raise UserError(f"cannot start a local Ray instance: {_line(exc)}") from None
+        auth = "" if os.environ.get("RAY_AUTH_MODE") else (
+            " (a cluster started with `ray start` asks for its token: set RAY_AUTH_MODE=token)")
+        raise UserError(f"cannot join the Ray cluster at {ray_address}: {_line(exc)}{auth}") from None
 
 
 @contextmanager
