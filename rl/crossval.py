@@ -226,6 +226,7 @@ def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: lis
     n_folds = int(fold.max()) + 1
     rng = np.random.default_rng([settings.seed, 7])
     jobs, per_fold, notes = [], [], []
+    in_process = backend == "local"  # folds here report their agent's episodes; Ray's report finished folds
     unscored: dict[str, int] = {}
     for k in range(n_folds):
         train, test = dec[fold != k], dec[fold == k]
@@ -242,11 +243,11 @@ def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: lis
             cfg = replace(env, lines=lines)
             notes += [f"fold {k}: {n}" for n in line_notes]
         jobs.append(FoldJob(k, n_folds, train_app, test_app, skipped, cfg, replace(dqn, seed=dqn.seed + k),
-                            settings.seed + k, progress if backend == "local" else None))
+                            settings.seed + k, progress if in_process else None))
     if not jobs:
         raise UserError("no fold could be scored: " + "; ".join(notes))
-    evs = run_tasks(score_fold, jobs, backend=backend, ray_address=ray_address, progress=progress,
-                    label="held-out folds")
+    evs = run_tasks(score_fold, jobs, backend=backend, ray_address=ray_address,
+                    progress=None if in_process else progress, label="held-out folds")
     for job, ev in zip(jobs, evs):
         held_out = dec.loc[fold == job.fold, "recording_id"].astype(str)
         per_fold.append({"fold": job.fold, "sessions": sorted(held_out.unique()), "n_train_decisions": len(job.train), "n_decisions": ev["n_decisions"],
