@@ -21,7 +21,9 @@ reference, so the workers import its module: laneprint must be installed on them
 items and results are picklable and self-contained (a worker on another machine
 sees neither this process's memory nor, unless shared, its files). Results come
 back in item order whatever order the tasks finish in, so a seeded computation
-gives the same list on either backend. Progress is reported per finished task.
+gives the same list on either backend. Progress is reported per finished task
+(nothing from inside a Ray task: more items than CPUs make a smoother bar). Ray gives
+each task one CPU and sets OMP_NUM_THREADS=1 in it.
 A `UserError` raised by `fn` on a worker reaches the caller as the same one-line
 `UserError`, not a Ray traceback; the other tasks are then cancelled.
 """
