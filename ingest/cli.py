@@ -1,4 +1,4 @@
-"""`laneprint ingest PATH... [--driver ID] [--mapping FILE]`: store logs in the workspace."""
+"""`laneprint ingest PATH... [--driver ID] [--mapping FILE] [--backend local|ray]`: store logs in the workspace."""
 
 from __future__ import annotations
 
@@ -10,22 +10,25 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
+from laneprint.cliutil import (DEFAULT_WS, BackendOpt, JsonOpt, RayAddressOpt, WorkspaceOpt, progress_bar,
+                               run_command)
 from ingest.mapping import load_mapping
+from laneprint.parallel import backend_session
 from laneprint.workspace import Workspace
 
 _STYLE = {"ingested": "green", "warning": "yellow", "duplicate": "cyan", "rejected": "red", "skipped": "dim"}
 
 
 def ingest_result(paths: list[Path], driver: str | None, mapping: Path | None, workspace: Path,
-                  show_progress: bool) -> dict[str, Any]:
+                  show_progress: bool, backend: str = "local", ray_address: str | None = None) -> dict[str, Any]:
     """Run the ingest and return the JSON-ready report (exit_code 1 when nothing could be processed)."""
     from ingest.pipeline import check_paths, ingest_paths
 
     load_mapping(mapping)  # a bad mapping file is one error line, before any bar is drawn
     check_paths(paths)
-    with progress_bar(show_progress) as progress:
-        report = ingest_paths(paths, Workspace(workspace), driver_id=driver, mapping=mapping, progress=progress)
+    with backend_session(backend, ray_address), progress_bar(show_progress) as progress:
+        report = ingest_paths(paths, Workspace(workspace), driver_id=driver, mapping=mapping, progress=progress,
+                              backend=backend, ray_address=ray_address)
     out = report.to_dict()
     counts = out["counts"]
     processed = counts["ingested"] + counts["warning"] + counts["duplicate"] + counts["rejected"]
@@ -64,9 +67,12 @@ def ingest_command(
         "--driver", metavar="ID", help="Driver id for files that carry none (a file's own id wins; a conflict warns).")] = None,
     mapping: Annotated[Optional[Path], typer.Option(
         "--mapping", metavar="FILE", help="TOML/YAML file mapping your column/topic/field names and units onto the log format.")] = None,
+    backend: BackendOpt = "local",
+    ray_address: RayAddressOpt = None,
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,
 ) -> None:
     """Read, validate and store simulator logs in the workspace."""
-    run_command(lambda: ingest_result(paths, driver, mapping, workspace, show_progress=not as_json),
+    run_command(lambda: ingest_result(paths, driver, mapping, workspace, show_progress=not as_json,
+                                      backend=backend, ray_address=ray_address),
                 as_json, render_ingest)

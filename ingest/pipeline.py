@@ -7,6 +7,11 @@ the same bytes are stored once. A session (driver_id, session_id) is stored once
 too: the CSV and the MCAP of the same session are one recording, the second is a
 'duplicate'. Concurrent ingests are safe: a session is claimed with an exclusive
 file create before its recording is written (see `_claim_session`).
+
+Reading and validating a file (`parse_log`: bytes in, canonical tables out) is
+pure and runs on the chosen backend (`--backend ray`: on Ray's workers, which are
+sent the file's bytes); everything that touches the workspace (dedup, session
+claims, atomic writes, rejections) stays in this process (`_Batch.store`).
 """
 
 from __future__ import annotations
@@ -14,6 +19,8 @@ from __future__ import annotations
 import hashlib
 import os
 import time
+from collections import deque
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -25,8 +32,9 @@ from ingest.csv_reader import read_csv_log
 from ingest.mapping import Mapping, load_mapping
 from ingest.mcap_reader import read_mcap_log
 from ingest.rawlog import RawLog, Rejected, first_line
-from ingest.validate import canonicalise
+from ingest.validate import Canonical, canonicalise
 from laneprint.errors import UserError
+from laneprint.parallel import check_backend, iter_tasks
 from laneprint.progress import ProgressFn, report
 from laneprint.schemas import SchemaError
 from laneprint.workspace import Workspace
@@ -126,6 +134,37 @@ def read_log(data: bytes, fmt: str, mapping: Mapping) -> RawLog:
     return read_csv_log(data, fmt, mapping)
 
 
+@dataclass(frozen=True)
+class ParseJob:
+    """One file's bytes and what reading them takes: the input of `parse_log`, a worker's task."""
+
+    data: bytes
+    fmt: str  # 'csv' | 'csv.gz' | 'mcap'
+    session_default: str  # the session id when the file carries none (its name)
+    mapping: Mapping
+    driver: str | None  # --driver
+
+
+@dataclass
+class Parsed:
+    """A file read and validated (`rec`), or why it was refused (`reason`)."""
+
+    rec: Canonical | None = None
+    reason: str = ""
+
+
+def parse_log(job: ParseJob) -> Parsed:
+    """Read and validate one file's bytes into canonical tables; pure (no workspace, no file system)."""
+    try:
+        raw = read_log(job.data, job.fmt, job.mapping)
+        return Parsed(canonicalise(raw, job.mapping, job.session_default, job.driver))
+    except Rejected as exc:
+        return Parsed(reason=str(exc))
+    except (ValueError, TypeError, KeyError, IndexError, OverflowError, MemoryError) as exc:
+        # a file shape no check anticipated: refuse it, keep the batch going
+        return Parsed(reason=f"unexpected content ({type(exc).__name__}: {first_line(exc)}); please report this file")
+
+
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
@@ -197,7 +236,8 @@ class _Batch:
         })
         return FileResult(str(path), "rejected", fmt, recording_id=rid, reason=reason)
 
-    def ingest_file(self, path: Path) -> FileResult:
+    def prepare(self, path: Path) -> FileResult | tuple[ParseJob, str]:
+        """Read a file's bytes: its `ParseJob` and content hash, or its result when it needs no parsing."""
         fmt = log_format(path) or ""
         try:
             data = path.read_bytes()
@@ -205,17 +245,22 @@ class _Batch:
             return self.reject(path, fmt, "", f"cannot read the file: {exc.strerror or exc}")
         rid = hashlib.sha256(data).hexdigest()[:16]
         if self.ws.has_recording(rid):
-            return FileResult(str(path), "duplicate", fmt, recording_id=rid,
-                              reason=f"same bytes already ingested as recording {rid}")
-        try:
-            raw = read_log(data, fmt, self.mapping)
-            rec = canonicalise(raw, self.mapping, session_stem(path), self.driver)
-        except Rejected as exc:
-            return self.reject(path, fmt, rid, str(exc))
-        except (ValueError, TypeError, KeyError, IndexError, OverflowError, MemoryError) as exc:
-            # a file shape no check anticipated: refuse it, keep the batch going
-            return self.reject(path, fmt, rid, f"unexpected content ({type(exc).__name__}: {first_line(exc)}); "
-                                               f"please report this file")
+            return self.same_bytes(path, fmt, rid)
+        return ParseJob(data, fmt, session_stem(path), self.mapping, self.driver), rid
+
+    @staticmethod
+    def same_bytes(path: Path, fmt: str, rid: str) -> FileResult:
+        return FileResult(str(path), "duplicate", fmt, recording_id=rid,
+                          reason=f"same bytes already ingested as recording {rid}")
+
+    def store(self, path: Path, rid: str, parsed: Parsed) -> FileResult:
+        """Keep a parsed file: reject it, call it a duplicate (bytes or session), or write its recording."""
+        fmt = log_format(path) or ""
+        if self.ws.has_recording(rid):  # an identical file earlier in this batch
+            return self.same_bytes(path, fmt, rid)
+        if parsed.rec is None:
+            return self.reject(path, fmt, rid, parsed.reason)
+        rec = parsed.rec
         driver_id, session_id = rec.meta["driver_id"], rec.meta["session_id"]
         result = FileResult(str(path), "warning" if rec.warnings else "ingested", fmt, rid, driver_id,
                             session_id, len(rec.ego), rec.n_presses, warnings=rec.warnings)
@@ -268,37 +313,61 @@ def check_paths(paths: list[Path]) -> list[Path]:
 
 
 def ingest_paths(paths: list[Path], workspace: Workspace, driver_id: str | None = None,
-                 mapping: Path | None = None, progress: ProgressFn | None = None) -> IngestReport:
+                 mapping: Path | None = None, progress: ProgressFn | None = None, backend: str = "local",
+                 ray_address: str | None = None) -> IngestReport:
     """Ingest every log under `paths` into `workspace`; a report with one result per file.
 
-    Raises `UserError` only when nothing can be done at all (no path exists, a bad
-    mapping file, a workspace that is a file).
+    Files are read and validated by `parse_log` on `backend` (`laneprint.parallel`:
+    this process, or Ray workers that get each file's bytes) and stored here, in file
+    order, so the result does not depend on the backend. Raises `UserError` only when
+    nothing can be done at all (no path exists, a bad mapping file, a workspace that
+    is a file, a backend that cannot start).
     """
     paths = check_paths(paths)
     the_mapping = load_mapping(mapping)
+    check_backend(backend, ray_address)
     try:
         ws = workspace.ensure()
     except OSError as exc:
         raise UserError(f"cannot use workspace {workspace.root}: {exc.strerror or exc}") from None
     batch = _Batch(ws, the_mapping, driver_id.strip() if driver_id and driver_id.strip() else None)
     found = discover(paths)
-    total = sum(1 for _, why in found if why is None)
-    results: list[FileResult] = []
+    results: list[FileResult | None] = [None] * len(found)
+    to_read = []
+    for i, (path, why) in enumerate(found):
+        if why is None:
+            to_read.append((i, path))
+        elif why.startswith("skip:"):
+            results[i] = FileResult(str(path), "skipped", reason=why[5:].strip())
+        elif path.exists():
+            results[i] = batch.reject(path, log_format(path) or path.suffix.lstrip("."), "", why)
+        else:
+            results[i] = FileResult(str(path), "rejected", reason=why)
     done = 0
-    report(progress, 0, total, "ingest")
-    for path, why in found:
-        if why is not None:
-            if why.startswith("skip:"):
-                results.append(FileResult(str(path), "skipped", reason=why[5:].strip()))
-            elif path.exists():
-                results.append(batch.reject(path, log_format(path) or path.suffix.lstrip("."), "", why))
-            else:
-                results.append(FileResult(str(path), "rejected", reason=why))
-            continue
-        results.append(batch.ingest_file(path))
+
+    def finish(i: int, result: FileResult) -> None:
+        nonlocal done
+        results[i] = result
         done += 1
-        report(progress, done, total, path.name)
-    return IngestReport(results, str(ws.root))
+        report(progress, done, len(to_read), Path(result.source).name)
+
+    queued: deque[tuple[int, Path, str]] = deque()  # files handed to the tasks, in order
+
+    def jobs() -> Iterator[ParseJob]:
+        """Read each file as the tasks ask for it; a file that needs no parsing is finished here."""
+        for i, path in to_read:
+            got = batch.prepare(path)
+            if isinstance(got, FileResult):
+                finish(i, got)
+            else:
+                queued.append((i, path, got[1]))
+                yield got[0]
+
+    report(progress, 0, len(to_read), "ingest")
+    for parsed in iter_tasks(parse_log, jobs(), backend=backend, ray_address=ray_address):
+        i, path, rid = queued.popleft()
+        finish(i, batch.store(path, rid, parsed))
+    return IngestReport([r for r in results if r is not None], str(ws.root))
 
 
 def catalogue_row(ws: Workspace, recording_id: str) -> pd.Series:

@@ -12,7 +12,7 @@ import json
 import sys
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any, Callable, Iterator
+from typing import Annotated, Any, Callable, Iterator, Optional
 
 import typer
 from rich.console import Console
@@ -26,6 +26,12 @@ WorkspaceOpt = Annotated[
     Path, typer.Option("--workspace", "-w", help="Workspace folder.", envvar="LANEPRINT_WORKSPACE")
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON document instead of the summary.")]
+BackendOpt = Annotated[str, typer.Option(
+    "--backend", help="Where the work runs: 'local' (this process) or 'ray' (Ray workers; pip install -e '.[ray]').")]
+RayAddressOpt = Annotated[Optional[str], typer.Option(
+    "--ray-address", metavar="ADDR",
+    help="With --backend ray: join this Ray cluster (host:port or 'auto'); default: start a local Ray instance "
+         "with this machine's cores.")]
 
 console = Console(stderr=False)
 err_console = Console(stderr=True)

@@ -216,6 +216,18 @@ class Workspace:
             shutil.rmtree(old, ignore_errors=True)
         return final
 
+    def write_folder(self, final: Path, files: dict[str, bytes]) -> Path:
+        """Create the new folder `final` holding `files` (name -> bytes) in one rename."""
+        tmp = self._tmp_dir()
+        try:
+            for name, data in files.items():
+                (tmp / name).write_bytes(data)
+            final.parent.mkdir(parents=True, exist_ok=True)
+            os.rename(tmp, final)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        return final
+
     def has_table(self, stage: str, name: str) -> bool:
         return (self.stage_dir(stage) / f"{name}.parquet").exists()
 

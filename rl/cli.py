@@ -10,7 +10,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
+from laneprint.cliutil import (DEFAULT_WS, BackendOpt, JsonOpt, RayAddressOpt, WorkspaceOpt, progress_bar,
+                               run_command)
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from rl.rewards import REWARDS
@@ -215,6 +216,8 @@ def crossval_command(
     observation: ObservationOpt = None,
     lines: Annotated[str, typer.Option("--lines", help="'analysis' (refitted per fold) or 'paper' (Table 1).")] = "analysis",
     bootstrap: Annotated[int, typer.Option("--bootstrap", min=10, help="Bootstrap resamples for the intervals.")] = 1000,
+    backend: BackendOpt = "local",
+    ray_address: RayAddressOpt = None,
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,
 ) -> None:
@@ -225,21 +228,23 @@ def crossval_command(
         from rl.crossval_io import crossval_run, run_crossval, style_names, target_env
         from rl.env import EnvConfig, formulation_config
         from rl.runs import Target
+        from laneprint.parallel import backend_session
 
         ws = Workspace(workspace)
         cv = CrossvalSettings(folds=folds, split=split, seed=seed, n_bootstrap=bootstrap)
-        with progress_bar(not as_json) as progress:
+        where = {"backend": backend, "ray_address": ray_address}
+        with backend_session(**where), progress_bar(not as_json) as progress:  # one Ray instance for every target
             if run:
                 if style or driver or all_styles:
                     raise UserError("--run takes the run's own target: leave out --style/--driver/--all")
-                return crossval_run(ws, run, cv, episodes, progress)
+                return crossval_run(ws, run, cv, episodes, progress, **where)
             if sum(x is not None and x is not False for x in (style, driver, all_styles or None)) != 1:
                 raise UserError("give exactly one of --style NAME, --driver ID, --all or --run RUN_ID")
             targets = ([Target("style", s) for s in style_names(ws)] if all_styles
                        else [Target("style", style)] if style else [Target("driver", str(driver))])
             dqn = DQNSettings(seed=seed, **({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {}))
             base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines)
-            results = [run_crossval(ws, t, target_env(ws, t, base, lines), dqn, cv, lines, progress=progress)
+            results = [run_crossval(ws, t, target_env(ws, t, base, lines), dqn, cv, lines, progress=progress, **where)
                        for t in targets]
         return {"results": results} if all_styles else results[0]
 

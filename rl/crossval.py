@@ -31,8 +31,8 @@ import numpy as np
 import pandas as pd
 
 from indicators.settings import AnalysisSettings
-from indicators.stats import fit_lines
 from laneprint.errors import UserError
+from laneprint.parallel import run_tasks
 from laneprint.progress import ProgressFn, report
 from laneprint.reference import INDICATORS
 from rl.env import Approach, EnvConfig, approaches_from_decisions
@@ -95,6 +95,8 @@ def fold_lines(train: pd.DataFrame, line_drivers: list[str], fallback: Reference
     An indicator that cannot be fitted (too few defined presses) keeps the full
     analysis's line, with a note.
     """
+    from indicators.stats import fit_lines  # statsmodels: imported here, not by every fold's worker
+
     dec = train[train["driver_id"].astype(str).isin(line_drivers)].copy()
     dec["driver_id"] = "+".join(line_drivers)  # several drivers: one pooled fit
     fits = fit_lines(dec, analysis).set_index("indicator")
@@ -166,14 +168,49 @@ def _train_agent(approaches: list[Approach], cfg: EnvConfig, dqn: DQNSettings, p
     return agent_policy(trainer.policy_net, cfg)
 
 
+@dataclass
+class FoldJob:
+    """One fold, self-contained: the input of `score_fold` (a task on the chosen backend)."""
+
+    fold: int
+    n_folds: int
+    train: list[Approach]  # the other folds' decisions: what agent and classifier are fitted on
+    test: list[Approach]  # the held-out fold's
+    skipped: dict[str, int]  # held-out decisions that could not be scored, by reason
+    env: EnvConfig  # with the fold's refitted lines
+    dqn: DQNSettings  # with the fold's seed
+    imitation_seed: int
+    progress: ProgressFn | None = None  # the agent's episodes; in-process only (local backend)
+
+
+def score_fold(job: FoldJob) -> dict[str, Any]:
+    """Fit agent, greedy and imitation on the training folds and score them on the held-out one.
+
+    Returns `evaluate_policies`'s dict (``states`` and ``changes`` tagged with the fold).
+    """
+    label = f"fold {job.fold + 1}/{job.n_folds}: agent"
+    policies = {
+        "agent": _train_agent(job.train, job.env, job.dqn, job.progress, label),
+        "greedy": greedy_policy(job.env),
+        "imitation": ImitationClassifier(random_state=job.imitation_seed).fit(job.train, job.env).policy(job.env),
+    }
+    ev = evaluate_policies(policies, job.test, job.env, job.skipped)
+    ev["states"].insert(0, "fold", job.fold)
+    ev["changes"].insert(0, "fold", job.fold)
+    return ev
+
+
 def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: list[str], env: EnvConfig,
                   dqn: DQNSettings, settings: CrossvalSettings, analysis: AnalysisSettings | None = None,
-                  refit_lines: bool = True, progress: ProgressFn | None = None) -> dict[str, Any]:
+                  refit_lines: bool = True, progress: ProgressFn | None = None, backend: str = "local",
+                  ray_address: str | None = None) -> dict[str, Any]:
     """Held-out figures of agent, greedy and imitation on `drivers`' decisions (see the module doc).
 
     `line_drivers`: whose presses the reference lines are refitted on (the typical
     driver of a style, or the driver). `env.lines` is the fallback for an indicator
     that cannot be refitted, and the lines used when `refit_lines` is False (Table 1).
+    Each fold is one `score_fold` task on `backend` (`laneprint.parallel.run_tasks`);
+    the folds' seeds do not depend on where they run, so both backends give the same figures.
     Returns a JSON-ready dict plus two frames, ``states`` and ``changes`` (out-of-fold).
     """
     analysis = analysis or AnalysisSettings()
@@ -188,7 +225,8 @@ def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: lis
     fold = dec["recording_id"].astype(str).map(fold_of).to_numpy()
     n_folds = int(fold.max()) + 1
     rng = np.random.default_rng([settings.seed, 7])
-    all_states, all_changes, per_fold, notes = [], [], [], []
+    jobs, per_fold, notes = [], [], []
+    in_process = backend == "local"  # folds here report their agent's episodes; Ray's report finished folds
     unscored: dict[str, int] = {}
     for k in range(n_folds):
         train, test = dec[fold != k], dec[fold == k]
@@ -204,25 +242,19 @@ def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: lis
             lines, line_notes = fold_lines(train, line_drivers, env.lines, analysis)
             cfg = replace(env, lines=lines)
             notes += [f"fold {k}: {n}" for n in line_notes]
-        label = f"fold {k + 1}/{n_folds}"
-        policies = {
-            "agent": _train_agent(train_app, cfg, replace(dqn, seed=dqn.seed + k), progress, f"{label}: agent"),
-            "greedy": greedy_policy(cfg),
-            "imitation": ImitationClassifier(random_state=settings.seed + k).fit(train_app, cfg).policy(cfg),
-        }
-        ev = evaluate_policies(policies, test_app, cfg, skipped)
-        ev["states"].insert(0, "fold", k)
-        ev["changes"].insert(0, "fold", k)
-        all_states.append(ev["states"])
-        all_changes.append(ev["changes"])
-        per_fold.append({"fold": k, "sessions": sorted(test["recording_id"].astype(str).unique()),
-                         "n_train_decisions": len(train_app), "n_decisions": ev["n_decisions"],
-                         "lines": cfg.lines.to_dict(),
-                         **{f"{r['who']}_balanced_accuracy": r["balanced_accuracy"] for r in ev["summary"]}})
-    if not all_states:
+        jobs.append(FoldJob(k, n_folds, train_app, test_app, skipped, cfg, replace(dqn, seed=dqn.seed + k),
+                            settings.seed + k, progress if in_process else None))
+    if not jobs:
         raise UserError("no fold could be scored: " + "; ".join(notes))
-    states = pd.concat(all_states, ignore_index=True)
-    changes = pd.concat(all_changes, ignore_index=True)
+    evs = run_tasks(score_fold, jobs, backend=backend, ray_address=ray_address,
+                    progress=None if in_process else progress, label="held-out folds")
+    for job, ev in zip(jobs, evs):
+        held_out = dec.loc[fold == job.fold, "recording_id"].astype(str)
+        per_fold.append({"fold": job.fold, "sessions": sorted(held_out.unique()), "n_train_decisions": len(job.train), "n_decisions": ev["n_decisions"],
+                         "lines": job.env.lines.to_dict(),
+                         **{f"{r['who']}_balanced_accuracy": r["balanced_accuracy"] for r in ev["summary"]}})
+    states = pd.concat([ev["states"] for ev in evs], ignore_index=True)
+    changes = pd.concat([ev["changes"] for ev in evs], ignore_index=True)
     summary = [bootstrap_scores(states, changes, who, settings.n_bootstrap, rng) for who in POLICIES]
     n_total = int(dec["decision_id"].nunique())
     n_scored = int(states["decision_id"].nunique())

@@ -5,7 +5,9 @@ unscored decisions and why), ``states.parquet`` and ``changes.parquet`` (the
 out-of-fold actions of every policy at every scored state, and each policy's
 first change per decision). A cross-validation of a run also leaves
 ``runs/<run_id>/crossval.json``, so the dashboard shows it beside the run's
-in-sample figures. Everything is written aside and renamed into place.
+in-sample figures. The folds may run on Ray's workers (`--backend ray`); they
+return their tables and this process writes the folder aside and renames it
+into place, so a reader sees all of it or none.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import pandas as pd
 from indicators.settings import AnalysisSettings
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn
-from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
+from laneprint.workspace import Workspace, atomic_write_json
 from rl.crossval import CrossvalSettings, crossvalidate
 from rl.env import EnvConfig
 from rl.rewards import ReferenceLines
@@ -56,8 +58,9 @@ def style_names(workspace: Workspace) -> list[str]:
 
 def run_crossval(workspace: Workspace, target: Target, env: EnvConfig, dqn: DQNSettings,
                  settings: CrossvalSettings, lines_source: str = "analysis", run_id: str | None = None,
-                 progress: ProgressFn | None = None) -> dict[str, Any]:
-    """Cross-validate one target and store the result; returns its JSON-ready summary."""
+                 progress: ProgressFn | None = None, backend: str = "local",
+                 ray_address: str | None = None) -> dict[str, Any]:
+    """Cross-validate one target (its folds on `backend`) and store the result; returns its JSON-ready summary."""
     if not workspace.has_table("analysis", "decisions"):
         raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first")
     decisions = workspace.read_table("analysis", "decisions")
@@ -67,25 +70,26 @@ def run_crossval(workspace: Workspace, target: Target, env: EnvConfig, dqn: DQNS
     else:
         line_drivers = drivers
     res = crossvalidate(decisions, drivers, line_drivers, env, dqn, settings, _analysis_settings(workspace),
-                        refit_lines=lines_source == "analysis", progress=progress)
+                        refit_lines=lines_source == "analysis", progress=progress, backend=backend,
+                        ray_address=ray_address)
     states, changes = res.pop("states"), res.pop("changes")
     cv_id = _new_id(target, env.reward.name, settings.seed)
     res = {"crossval_id": cv_id, "target": asdict(target), "run_id": run_id, "lines_source": lines_source,
            "created_at": now_iso(), "data_fingerprint": workspace.fingerprint(), **res}
-    folder = crossval_dir(workspace) / cv_id
-    folder.mkdir(parents=True, exist_ok=True)
+    files = {"result.json": (json.dumps(res, indent=2, default=str) + "\n").encode()}
     for name, df in (("states", states), ("changes", changes)):
         buf = io.BytesIO()
         df.to_parquet(buf, index=False)
-        atomic_write_bytes(folder / f"{name}.parquet", buf.getvalue())
-    atomic_write_json(folder / "result.json", res)  # last: a folder without it is unfinished
+        files[f"{name}.parquet"] = buf.getvalue()
+    workspace.write_folder(crossval_dir(workspace) / cv_id, files)
     if run_id:
         atomic_write_json(run_dir(workspace, run_id) / "crossval.json", res)
     return res
 
 
 def crossval_run(workspace: Workspace, run_id: str, settings: CrossvalSettings, episodes: int | None = None,
-                 progress: ProgressFn | None = None) -> dict[str, Any]:
+                 progress: ProgressFn | None = None, backend: str = "local",
+                 ray_address: str | None = None) -> dict[str, Any]:
     """Cross-validate with a trained run's target and settings (its reward, scenes, trainer)."""
     folder = run_dir(workspace, run_id)
     try:
@@ -97,7 +101,8 @@ def crossval_run(workspace: Workspace, run_id: str, settings: CrossvalSettings, 
     if episodes is not None:
         dqn = replace(dqn, episodes=episodes)
     return run_crossval(workspace, Target(**config["target"]), env, dqn, settings,
-                        config.get("lines_source", "analysis"), run_id=run_id, progress=progress)
+                        config.get("lines_source", "analysis"), run_id=run_id, progress=progress, backend=backend,
+                        ray_address=ray_address)
 
 
 def target_env(workspace: Workspace, target: Target, env: EnvConfig, lines_source: str) -> EnvConfig:

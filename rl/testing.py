@@ -88,13 +88,36 @@ def rule_driver_decisions(lines: ReferenceLines, n: int, seed: int = 0, cfg: Env
 
 def analysed_workspace(root: Path | str) -> Workspace:
     """A workspace with a hand-made analysis: one Normal driver following Table 1's Normal lines."""
-    ws = Workspace(root).ensure()
+    ws = Workspace(root)
     lines = ReferenceLines.paper("Normal")
     dec = rule_driver_decisions(lines, 12, seed=0, cfg=EnvConfig(lines=lines), driver_id="D01")
-    refs = pd.DataFrame([{"scope": "style", "name": "Normal", "kind": "typical", "indicator": k, "A": a, "b": b,
-                          "A_lo": None, "A_hi": None, "b_lo": None, "b_hi": None, "r2": None, "n": 12,
-                          "source": "typical driver D01"} for k, (a, b) in
-                         (("t_f", lines.t_f), ("t_nf", lines.t_nf), ("dv_nb", lines.dv_nb))])
-    styles = pd.DataFrame({"driver_id": ["D01"], "style": ["Normal"], "is_typical": [True]})
-    ws.write_tables("analysis", {"decisions": dec, "reference_lines": refs, "styles": styles}, meta={})
+    write_style_analysis(ws, dec, lines)
     return ws
+
+
+def session_decisions(lines: ReferenceLines, n_sessions: int, per_session: int, driver: str = "D01",
+                      seed: int = 0) -> pd.DataFrame:
+    """Decisions of a rule driver over several sessions (recordings ``<driver>-rec<k>``, one speed section each)."""
+    parts = []
+    for k in range(n_sessions):
+        d = rule_driver_decisions(lines, per_session, seed=seed + k, cfg=EnvConfig(lines=lines), driver_id=driver,
+                                  window_s=4.0)
+        rid = f"{driver}-rec{k}"
+        d["recording_id"] = rid
+        d["session_id"] = rid
+        d["decision_id"] = rid + ":" + d["decision_id"].str.split(":").str[1]
+        d["speed_limit_kph"] = float(60 + 10 * k)
+        parts.append(d)
+    return pd.concat(parts, ignore_index=True)
+
+
+def write_style_analysis(ws: Workspace, decisions: pd.DataFrame, lines: ReferenceLines, style: str = "Normal",
+                         driver: str = "D01") -> None:
+    """An analysis in `ws` with one style whose typical driver is `driver` and whose lines are `lines`."""
+    refs = pd.DataFrame([{"scope": "style", "name": style, "kind": "typical", "indicator": k, "A": a, "b": b,
+                          "A_lo": None, "A_hi": None, "b_lo": None, "b_hi": None, "r2": None,
+                          "n": int((decisions["label"] == "change").sum()),
+                          "source": f"typical driver {driver}"} for k, (a, b) in
+                         (("t_f", lines.t_f), ("t_nf", lines.t_nf), ("dv_nb", lines.dv_nb))])
+    styles = pd.DataFrame({"driver_id": [driver], "style": [style], "is_typical": [True], "cluster": [0]})
+    ws.ensure().write_tables("analysis", {"decisions": decisions, "reference_lines": refs, "styles": styles}, meta={})

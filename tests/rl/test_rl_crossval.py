@@ -17,7 +17,7 @@ from rl.evaluate import agent_policy, evaluate_policies, greedy_policy
 from rl.imitation import ImitationClassifier
 from rl.rewards import CHANGE, KEEP, ReferenceLines, RewardSettings, decisions_step_reward
 from rl.settings import resolve_formulation
-from rl.testing import rule_driver_decisions
+from rl.testing import rule_driver_decisions, session_decisions, write_style_analysis
 
 LINES = ReferenceLines.paper("Normal")
 DECISIONS_ENV = EnvConfig(lines=LINES, reward=RewardSettings(name="decisions"), scenes="recorded",
@@ -27,17 +27,7 @@ FAST = dict(num_envs=8, batch_size=128, learning_starts=300, episodes_per_approa
 
 def sessions(n_sessions: int, per_session: int, driver: str = "D01", seed: int = 0) -> pd.DataFrame:
     """Decisions of a rule driver over several sessions (recordings)."""
-    parts = []
-    for k in range(n_sessions):
-        d = rule_driver_decisions(LINES, per_session, seed=seed + k, cfg=EnvConfig(lines=LINES), driver_id=driver,
-                                  window_s=4.0)
-        rid = f"{driver}-rec{k}"
-        d["recording_id"] = rid
-        d["session_id"] = rid
-        d["decision_id"] = rid + ":" + d["decision_id"].str.split(":").str[1]
-        d["speed_limit_kph"] = float(60 + 10 * k)
-        parts.append(d)
-    return pd.concat(parts, ignore_index=True)
+    return session_decisions(LINES, n_sessions, per_session, driver, seed)
 
 
 def test_decisions_reward_pays_the_press_and_charges_a_passed_up_moment():
@@ -153,14 +143,7 @@ def test_crossval_scores_every_decision_once_on_sessions_not_trained_on():
 
 
 def test_crossval_command_prints_one_row_per_policy(tmp_path):
-    ws = Workspace(tmp_path).ensure()
-    dec = sessions(4, 6)
-    refs = pd.DataFrame([{"scope": "style", "name": "Normal", "kind": "typical", "indicator": k, "A": a, "b": b,
-                          "A_lo": None, "A_hi": None, "b_lo": None, "b_hi": None, "r2": None, "n": 24,
-                          "source": "typical driver D01"} for k, (a, b) in
-                         (("t_f", LINES.t_f), ("t_nf", LINES.t_nf), ("dv_nb", LINES.dv_nb))])
-    styles = pd.DataFrame({"driver_id": ["D01"], "style": ["Normal"], "is_typical": [True], "cluster": [0]})
-    ws.write_tables("analysis", {"decisions": dec, "reference_lines": refs, "styles": styles}, meta={})
+    write_style_analysis(Workspace(tmp_path), sessions(4, 6), LINES)
     res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--episodes", "200",
                                    "--bootstrap", "50", "-w", str(tmp_path), "--json"])
     assert res.exit_code == 0, res.output
