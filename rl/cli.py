@@ -100,8 +100,8 @@ def train_command(
     drivers: Annotated[Optional[str], typer.Option("--drivers", help="A fleet: one agent per driver, 'all' or ID,ID,...")] = None,
     styles: Annotated[Optional[str], typer.Option("--styles", help="A fleet: one agent per style, 'all' or NAME,NAME,...")] = None,
     seeds: Annotated[int, typer.Option("--seeds", min=1, help="A fleet: agents per target, seeds --seed, --seed+1, ...")] = 1,
-    backend: Annotated[str, typer.Option("--backend", help="A fleet: 'local' (one batched process) or 'ray' (shards per worker).")] = "local",
-    ray_address: Annotated[Optional[str], typer.Option("--ray-address", help="Join this Ray cluster (default: start a local one).")] = None,
+    backend: BackendOpt = "local",
+    ray_address: RayAddressOpt = None,
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,
 ) -> None:

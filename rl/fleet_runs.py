@@ -322,6 +322,9 @@ def train_fleet(workspace: Workspace, fleet_id: str, *, backend: str = "local", 
                 threads: int | None = None, evaluate: bool = True,
                 progress: ProgressFn | None = None) -> dict[str, Any]:
     """Train (or resume) every run of a fleet; returns the fleet record with per-run summaries."""
+    from laneprint.parallel import check_backend
+
+    check_backend(backend, ray_address)
     fleet = read_fleet(workspace, fleet_id)
     fleet.update(state="running", pid=os.getpid(), backend=backend, message="training")
     fleet.setdefault("started_at", now_iso())
@@ -332,18 +335,18 @@ def train_fleet(workspace: Workspace, fleet_id: str, *, backend: str = "local", 
         if backend == "local":
             summaries = train_shard(str(workspace.root), runs, threads or cores, evaluate, progress)
         elif backend == "ray":
-            from laneprint.parallel import run_tasks
+            from laneprint.parallel import backend_session, run_tasks
 
-            n_workers = _ray_workers(ray_address)
-            shards = shard_runs(runs, n_workers)
-            stop = threading.Event()
-            watcher = threading.Thread(target=_fleet_progress, args=(workspace, runs, progress, stop), daemon=True)
-            watcher.start()
-            try:
-                parts = run_tasks(_train_shard_task, [(str(workspace.root), s, threads or 1, evaluate) for s in shards],
-                                  backend="ray", ray_address=ray_address)
-            finally:
-                stop.set()
+            with backend_session("ray", ray_address):
+                shards = shard_runs(runs, _ray_cpus())
+                stop = threading.Event()
+                watcher = threading.Thread(target=_fleet_progress, args=(workspace, runs, progress, stop), daemon=True)
+                watcher.start()
+                try:
+                    parts = run_tasks(_train_shard_task, [(str(workspace.root), s, 1, evaluate) for s in shards],
+                                      backend="ray", ray_address=ray_address)
+                finally:
+                    stop.set()
             summaries = [x for part in parts for x in part]
         else:
             raise UserError(f"unknown --backend {backend!r}: choose 'local' or 'ray'")
@@ -366,14 +369,10 @@ def _train_shard_task(args: tuple[str, list[str], int, bool]) -> list[dict[str, 
     return train_shard(root, run_ids, threads, evaluate)
 
 
-def _ray_workers(ray_address: str | None) -> int:
-    """How many shards to cut for Ray: the cluster's CPUs (this machine's for a local instance)."""
-    if ray_address is None:
-        return os.cpu_count() or 1
+def _ray_cpus() -> int:
+    """The Ray cluster's CPUs: one shard (a `FleetTrainer` with one thread) per CPU."""
     import ray
 
-    if not ray.is_initialized():
-        ray.init(address=ray_address, logging_level="ERROR", log_to_driver=False)
     return max(1, int(ray.cluster_resources().get("CPU", 1)))
 
 

@@ -134,3 +134,22 @@ def test_a_killed_fleet_resumes(tmp_path):
         run = load_run(ws, run_id)
         assert run["status"]["state"] == "done" and run["has_weights"]
         assert list(run["metrics"]["episode"]) == list(range(1, 401))
+
+
+@pytest.mark.slow
+def test_the_ray_backend_trains_the_same_agents_as_the_local_one(tmp_path):
+    pytest.importorskip("ray")
+    from laneprint.parallel import backend_session
+
+    ws = analysed_two_drivers(tmp_path)
+    args = ["train", "--drivers", "all", "--episodes", "150", "-w", str(tmp_path), "--json", "--no-evaluate", *FAST]
+    assert CliRunner().invoke(app, [*args, "--run-id", "local"]).exit_code == 0
+    with backend_session("ray", num_cpus=2):  # a local Ray instance with 2 CPUs: one shard per driver
+        res = CliRunner().invoke(app, [*args, "--run-id", "onray", "--backend", "ray"])
+    assert res.exit_code == 0, res.output
+    assert read_fleet(ws, "onray")["backend"] == "ray" and read_fleet(ws, "onray")["state"] == "done"
+    for driver in STYLES:
+        local = torch.load(tmp_path / "runs" / f"local-{driver.lower()}-s0" / "weights.pt", weights_only=True)
+        on_ray = torch.load(tmp_path / "runs" / f"onray-{driver.lower()}-s0" / "weights.pt", weights_only=True)
+        for key, value in local.items():
+            torch.testing.assert_close(on_ray[key], value, rtol=0, atol=1e-4)
