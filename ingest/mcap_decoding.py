@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import array
 import json
+import operator
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -85,8 +86,6 @@ def _get(obj: Any, name: str) -> Any:
     """Field `name` of a decoded message (dict, ROS 2 message, protobuf message) or `_MISSING`."""
     if isinstance(obj, dict):
         return obj.get(name, _MISSING)
-    if obj is None or isinstance(obj, (str, bytes, int, float, Sequence, array.array)):
-        return _MISSING
     return getattr(obj, name, _MISSING)
 
 
@@ -96,6 +95,17 @@ def _resolve(obj: Any, parts: list[str]) -> Any:
         if obj is _MISSING:
             return _MISSING
     return obj
+
+
+def _values(objs: list[Any], path: str) -> list[Any]:
+    """The value at `path` in each object (`_MISSING` where there is none)."""
+    if objs and not isinstance(objs[0], dict):  # typed messages: one C-level attribute walk per object
+        try:
+            return list(map(operator.attrgetter(path), objs))
+        except AttributeError:
+            pass
+    parts = path.split(".")
+    return [_resolve(o, parts) for o in objs]
 
 
 def _field_names(obj: Any) -> list[str]:
@@ -192,7 +202,7 @@ def decode_topic(got: Any, topic: str, time_path: str, factories: list[DecoderFa
     dec = Decoded(topic, np.asarray(times, dtype=np.int64), msgs, type_name, hint)
     if time_path != LOG_TIME and msgs:
         parts = time_path.split(".")
-        stamps = [_stamp_ns(_resolve(m, parts)) for m in msgs]
+        stamps = [_stamp_ns(v) for v in _values(msgs, time_path)]
         if None in stamps:
             i = stamps.index(None)
             if _resolve(msgs[i], parts) is _MISSING:
@@ -225,7 +235,7 @@ class _SignalReader:
         dec = self.decoded[sig.topic]
         if dec is None:
             return None
-        values = [_resolve(m, sig.path.split(".")) for m in dec.msgs]
+        values = _values(dec.msgs, sig.path)
         if sig.explicit and values and all(v is _MISSING for v in values):
             raise _no_field(dec, sig.path, dec.msgs[0])
         return dec, values
@@ -286,6 +296,13 @@ def _button(reader: _SignalReader, signals: McapSignals) -> tuple[np.ndarray, np
 
 
 def _ids(values: list[Any]) -> pa.Array:
+    """Vehicle ids as strings (numbers written as integers where they are whole)."""
+    kinds = set(map(type, values))
+    if kinds <= {str}:
+        return pa.array(values, pa.string())
+    if kinds <= {int}:
+        return pa.array(list(map(str, values)), pa.string())
+
     def one(v: Any) -> str | None:
         if v is _MISSING or v is None:
             return None
@@ -302,7 +319,7 @@ def _traffic(decoded: dict[str, Decoded | None], signals: McapSignals, t0: int, 
     if dec is None:
         raise Rejected(f"missing required topic {ts.topic} (traffic); topics in the file: {known}; "
                        f"name it with topic = \"<your topic>\" under [mcap.signals.traffic] {mapping.hint()}")
-    lists = [_resolve(m, ts.list.split(".")) for m in dec.msgs]
+    lists = _values(dec.msgs, ts.list)
     if ts.explicit and lists and all(v is _MISSING for v in lists):
         raise _no_field(dec, ts.list, dec.msgs[0], fix="fix list under [mcap.signals.traffic]")
     rows: list[int] = []
@@ -318,7 +335,7 @@ def _traffic(decoded: dict[str, Decoded | None], signals: McapSignals, t0: int, 
     values: dict[str, list[Any]] = {}
     for key in ("id", "x", "y", "v", "lane", "length"):
         path = ts.fields.get(key)
-        values[key] = [_MISSING] * len(objs) if path is None else [_resolve(o, path.split(".")) for o in objs]
+        values[key] = [_MISSING] * len(objs) if path is None else _values(objs, path)
         if path is not None and objs and ts.explicit and all(v is _MISSING for v in values[key]):
             raise _no_field(dec, path, objs[0], prefix=f"{ts.list}[].", fix="fix the path under [mcap.signals.traffic]")
     row_idx = np.asarray(rows, dtype=np.int64)

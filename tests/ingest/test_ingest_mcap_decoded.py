@@ -3,7 +3,7 @@
 The files are written by the libraries' own writers (`mcap_ros2.writer.Writer`,
 `mcap_protobuf.writer.Writer`) from the conftest recording, ingested through the
 `laneprint ingest PATH --mapping FILE` command, and compared with what was written.
-The mapping files are the worked examples of ingest/README.md.
+The files and mappings are the worked examples of ingest/README.md (`ingest/stack_examples.py`).
 """
 
 from __future__ import annotations
@@ -12,271 +12,25 @@ import json
 
 import numpy as np
 import pytest
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2
 from mcap.writer import Writer as McapWriter
 from mcap_protobuf.schema import build_file_descriptor_set
-from mcap_protobuf.writer import Writer as ProtobufWriter
 from mcap_ros2.writer import Writer as Ros2Writer
 from typer.testing import CliRunner
 
 from ingest.mapping import load_mapping
+from ingest.stack_examples import (
+    ODOMETRY_MSGDEF,
+    PROTOBUF_MAPPING,
+    ROS2_MAPPING,
+    T0_NS,
+    protobuf_classes,
+    write_protobuf,
+    write_ros2,
+)
 from ingest.writers import write_mcap
 from laneprint.cli import app
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
-
-T0_NS = 1_700_000_000_000_000_000  # log_time of the first sample
-
-# ---- ROS 2 -------------------------------------------------------------------------------------------
-
-# as rosbag2 stores them: the type's own definition, then each dependency after a ==== line
-ODOMETRY_MSGDEF = """\
-std_msgs/Header header
-string child_frame_id
-geometry_msgs/PoseWithCovariance pose
-geometry_msgs/TwistWithCovariance twist
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-================================================================================
-MSG: geometry_msgs/PoseWithCovariance
-geometry_msgs/Pose pose
-float64[36] covariance
-================================================================================
-MSG: geometry_msgs/Pose
-geometry_msgs/Point position
-geometry_msgs/Quaternion orientation
-================================================================================
-MSG: geometry_msgs/Point
-float64 x
-float64 y
-float64 z
-================================================================================
-MSG: geometry_msgs/Quaternion
-float64 x 0
-float64 y 0
-float64 z 0
-float64 w 1
-================================================================================
-MSG: geometry_msgs/TwistWithCovariance
-geometry_msgs/Twist twist
-float64[36] covariance
-================================================================================
-MSG: geometry_msgs/Twist
-geometry_msgs/Vector3 linear
-geometry_msgs/Vector3 angular
-================================================================================
-MSG: geometry_msgs/Vector3
-float64 x
-float64 y
-float64 z
-"""
-
-OBJECT_ARRAY_MSGDEF = """\
-std_msgs/Header header
-sim_msgs/Object[] objects
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-================================================================================
-MSG: sim_msgs/Object
-string id
-geometry_msgs/Point position
-float64 speed
-uint8 lane
-float64 length
-================================================================================
-MSG: geometry_msgs/Point
-float64 x
-float64 y
-float64 z
-"""
-
-ROS2_MAPPING = """\
-[mcap.signals]
-time = "log_time"
-ego_x = { topic = "/odom", path = "pose.pose.position.x" }
-ego_y = { topic = "/odom", path = "pose.pose.position.y" }
-ego_v = { topic = "/odom", path = "twist.twist.linear.x" }
-ego_lane = { topic = "/localization/lane", path = "data" }
-steer = { topic = "/vehicle/steering_angle", path = "data" }
-lc_button = { topic = "/hmi/lane_change_button", path = "data" }
-lc_direction = { topic = "/hmi/lane_change_direction", path = "data", left = 1, right = -1 }
-
-[mcap.signals.traffic]
-topic = "/perception/objects"
-list = "objects"
-id = "id"
-x = "position.x"
-y = "position.y"
-v = "speed"
-lane = "lane"
-length = "length"
-"""
-
-
-def _stamp(ns: int) -> dict:
-    return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
-
-
-def write_ros2(path, recording) -> None:
-    """The conftest recording as a ROS 2 stack would log it (odometry, lane, objects, HMI)."""
-    meta, ego, traffic = recording
-    by_t = {t: g for t, g in traffic.groupby("t_s")}
-    with open(path, "wb") as fh:
-        w = Ros2Writer(fh)
-        odom = w.register_msgdef("nav_msgs/msg/Odometry", ODOMETRY_MSGDEF)
-        objects = w.register_msgdef("sim_msgs/msg/ObjectArray", OBJECT_ARRAY_MSGDEF)
-        int32 = w.register_msgdef("std_msgs/msg/Int32", "int32 data\n")
-        float64 = w.register_msgdef("std_msgs/msg/Float64", "float64 data\n")
-        boolean = w.register_msgdef("std_msgs/msg/Bool", "bool data\n")
-        int8 = w.register_msgdef("std_msgs/msg/Int8", "int8 data\n")
-        w.add_metadata("session", {k: str(v) for k, v in meta.items()})
-        pressed = False
-        for i, row in enumerate(ego.itertuples()):
-            t = T0_NS + round(row.t_s * 1e9)
-            header = {"stamp": _stamp(t), "frame_id": "map"}
-            w.write_message("/odom", odom, {
-                "header": header, "child_frame_id": "base_link",
-                "pose": {"pose": {"position": {"x": row.ego_x_m, "y": row.ego_y_m, "z": 0.0},
-                                  "orientation": {"w": 1.0}}, "covariance": [0.0] * 36},
-                "twist": {"twist": {"linear": {"x": row.ego_v_mps, "y": 0.0, "z": 0.0},
-                                    "angular": {"x": 0.0, "y": 0.0, "z": 0.0}}, "covariance": [0.0] * 36},
-            }, log_time=t)
-            if i % 5 == 0:  # the lane at 10 Hz
-                w.write_message("/localization/lane", int32, {"data": int(row.ego_lane)}, log_time=t)
-            w.write_message("/vehicle/steering_angle", float64, {"data": row.steer_rad}, log_time=t)
-            cars = by_t.get(row.t_s)
-            w.write_message("/perception/objects", objects, {"header": header, "objects": [] if cars is None else [
-                {"id": c.vehicle_id, "position": {"x": c.x_m, "y": np.nan if c.y_m is None else c.y_m, "z": 0.0},
-                 "speed": c.v_mps, "lane": int(c.lane), "length": c.length_m} for c in cars.itertuples()]},
-                log_time=t)
-            if bool(row.lc_button) != pressed:  # the HMI publishes the button on every change
-                pressed = bool(row.lc_button)
-                if pressed:
-                    w.write_message("/hmi/lane_change_direction", int8,
-                                    {"data": 1 if row.lc_direction == "left" else -1}, log_time=t)
-                w.write_message("/hmi/lane_change_button", boolean, {"data": pressed}, log_time=t)
-        w.finish()
-
-
-# ---- protobuf ----------------------------------------------------------------------------------------
-
-_F = descriptor_pb2.FieldDescriptorProto
-
-
-def _message(name: str, fields: list[tuple[str, int, str]]) -> descriptor_pb2.DescriptorProto:
-    """A message type; a field is (name, type, message type name for TYPE_MESSAGE/TYPE_ENUM or '')."""
-    msg = descriptor_pb2.DescriptorProto(name=name)
-    for number, (fname, ftype, type_name) in enumerate(fields, start=1):
-        label = _F.LABEL_REPEATED if fname == "objects" else _F.LABEL_OPTIONAL
-        field = msg.field.add(name=fname, number=number, type=ftype, label=label)
-        if type_name:
-            field.type_name = type_name
-    return msg
-
-
-def protobuf_classes() -> dict[str, type]:
-    """sim.EgoState, sim.ObjectList, sim.LaneChangeButton (the .proto of ingest/README.md), built at run time."""
-    fd = descriptor_pb2.FileDescriptorProto(name="sim/driving.proto", package="sim", syntax="proto3",
-                                            dependency=["google/protobuf/timestamp.proto"])
-    ts = ("stamp", _F.TYPE_MESSAGE, ".google.protobuf.Timestamp")
-    d = _F.TYPE_DOUBLE
-    fd.message_type.append(_message("EgoState", [ts, ("x", d, ""), ("y", d, ""), ("speed_kph", d, ""),
-                                                 ("lane", _F.TYPE_INT32, ""), ("steer", d, "")]))
-    objects = _message("ObjectList", [ts, ("objects", _F.TYPE_MESSAGE, ".sim.ObjectList.Object")])
-    objects.nested_type.append(_message("Object", [("track_id", _F.TYPE_UINT32, ""), ("x", d, ""), ("y", d, ""),
-                                                   ("speed_kph", d, ""), ("lane", _F.TYPE_INT32, ""),
-                                                   ("length", d, "")]))
-    fd.message_type.append(objects)
-    button = _message("LaneChangeButton", [ts, ("pressed", _F.TYPE_BOOL, ""),
-                                           ("direction", _F.TYPE_ENUM, ".sim.LaneChangeButton.Direction")])
-    button.enum_type.add(name="Direction").value.extend(
-        descriptor_pb2.EnumValueDescriptorProto(name=n, number=i) for i, n in enumerate(("NONE", "LEFT", "RIGHT")))
-    fd.message_type.append(button)
-    pool = descriptor_pool.DescriptorPool()
-    pool.AddSerializedFile(timestamp_pb2.DESCRIPTOR.serialized_pb)
-    pool.Add(fd)
-    return message_factory.GetMessageClassesForFiles([fd.name], pool)
-
-
-PROTOBUF_MAPPING = """\
-[mcap]
-metadata_name = "trial"
-[mcap.metadata_keys]
-driver_id = "participant"
-
-[mcap.signals]
-time = "stamp"
-ego_x = { topic = "/ego", path = "x" }
-ego_y = { topic = "/ego", path = "y" }
-ego_v = { topic = "/ego", path = "speed_kph" }
-ego_lane = { topic = "/ego", path = "lane" }
-steer = { topic = "/ego", path = "steer" }
-lc_button = { topic = "/hmi/lane_change", path = "pressed" }
-lc_direction = { topic = "/hmi/lane_change", path = "direction", left = 1, right = 2 }
-
-[mcap.signals.traffic]
-topic = "/objects"
-list = "objects"
-id = "track_id"
-x = "x"
-y = "y"
-v = "speed_kph"
-lane = "lane"
-length = "length"
-
-[units]
-speed = "km/h"
-"""
-
-TRACK_IDS = {"a": 1, "b": 2, "c12": 12}
-STAMP0_NS = 100_000_000_000  # simulation time of the first sample: 100 s
-
-
-def write_protobuf(path, recording, seed: int = 0) -> None:
-    """The recording as protobuf messages stamped with simulation time; log_time is a jittered wall clock."""
-    meta, ego, traffic = recording
-    classes = protobuf_classes()
-    ego_cls, list_cls, button_cls = (classes[f"sim.{n}"] for n in ("EgoState", "ObjectList", "LaneChangeButton"))
-    rng = np.random.default_rng(seed)
-    by_t = {t: g for t, g in traffic.groupby("t_s")}
-
-    def stamp(ns: int) -> dict:  # a google.protobuf.Timestamp of the classes' own pool
-        return {"seconds": ns // 1_000_000_000, "nanos": ns % 1_000_000_000}
-
-    with open(path, "wb") as fh:
-        w = ProtobufWriter(fh)
-        w.add_metadata("trial", {"participant": meta["driver_id"], "session_id": meta["session_id"]})
-        pressed = False
-        for row in ego.itertuples():
-            sim_ns = STAMP0_NS + round(row.t_s * 1e9)
-            log_ns = T0_NS + round(row.t_s * 1e9) + int(rng.integers(0, 4_000_000))  # recorder delay up to 4 ms
-            w.write_message("/ego", ego_cls(stamp=stamp(sim_ns), x=row.ego_x_m, y=row.ego_y_m,
-                                            speed_kph=row.ego_v_mps * 3.6, lane=int(row.ego_lane),
-                                            steer=row.steer_rad), log_time=log_ns, publish_time=log_ns)
-            msg = list_cls(stamp=stamp(sim_ns))
-            for c in (by_t[row.t_s].itertuples() if row.t_s in by_t else ()):
-                msg.objects.add(track_id=TRACK_IDS[c.vehicle_id], x=c.x_m, y=np.nan if c.y_m is None else c.y_m,
-                                speed_kph=c.v_mps * 3.6, lane=int(c.lane), length=c.length_m)
-            w.write_message("/objects", msg, log_time=log_ns, publish_time=log_ns)
-            if bool(row.lc_button) != pressed:
-                pressed = bool(row.lc_button)
-                direction = {"left": 1, "right": 2}.get(row.lc_direction, 0) if pressed else 0
-                w.write_message("/hmi/lane_change", button_cls(stamp=stamp(sim_ns), pressed=pressed,
-                                                               direction=direction),
-                                log_time=log_ns, publish_time=log_ns)
-        w.finish()
 
 
 # ---- helpers -----------------------------------------------------------------------------------------
@@ -297,7 +51,7 @@ def ingest_cli(tmp_path, log, mapping_text: str | None) -> dict:
 def assert_same_recording(tmp_path, report, recording, ids=None) -> None:
     """What was stored equals what was written (floats to 1e-9, ids through `ids`)."""
     assert report["status"] == "ingested", report["reason"]
-    meta, ego, traffic = recording
+    _, ego, traffic = recording
     assert (report["driver_id"], report["session_id"], report["n_samples"], report["n_presses"]) == (
         "D07", "D07_s80_01", 200, 2)
     _, got_ego, got_traffic = Workspace(tmp_path / "ws").load_recording(report["recording_id"])
@@ -326,7 +80,7 @@ def assert_same_recording(tmp_path, report, recording, ids=None) -> None:
 
 def test_ros2_file_ingests_through_the_mapping(tmp_path, recording):
     log = tmp_path / "ros2_drive.mcap"
-    write_ros2(log, recording)
+    write_ros2(log, *recording)
     plain = ingest_cli(tmp_path, log, None)
     assert plain["status"] == "rejected"
     assert plain["reason"].startswith("missing required topic /ego/state (ego_x); topics in the file: "
@@ -338,9 +92,10 @@ def test_ros2_file_ingests_through_the_mapping(tmp_path, recording):
 
 def test_protobuf_file_ingests_on_its_header_stamps(tmp_path, recording):
     log = tmp_path / "proto_drive.mcap"
-    write_protobuf(log, recording)
+    track_ids = write_protobuf(log, *recording)
+    assert track_ids == {"a": 1, "b": 2, "c12": 3}
     report = ingest_cli(tmp_path, log, PROTOBUF_MAPPING)
-    assert_same_recording(tmp_path, report, recording, ids=TRACK_IDS)
+    assert_same_recording(tmp_path, report, recording, ids=track_ids)
     # on log_time the recorder's jitter shows: same samples, other times
     (tmp_path / "b").mkdir()
     on_log_time = ingest_cli(tmp_path / "b", log, PROTOBUF_MAPPING.replace('time = "stamp"', 'time = "log_time"'))
@@ -474,7 +229,7 @@ def ros2_log(tmp_path_factory):
     from conftest import make_recording
 
     log = tmp_path_factory.mktemp("ros2") / "ros2_drive.mcap"
-    write_ros2(log, make_recording())
+    write_ros2(log, *make_recording())
     return log
 
 
