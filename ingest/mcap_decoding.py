@@ -245,7 +245,7 @@ class _SignalReader:
         if dec is self.base:
             return values
         idx = _asof(self.base.times, dec.times)
-        out = np.full(len(idx), np.nan if values.dtype.kind == "f" else None, dtype=values.dtype)
+        out = np.full(len(idx), np.nan)
         out[idx >= 0] = values[idx[idx >= 0]]
         return out
 
