@@ -94,6 +94,9 @@ def _signal(name: str, value: Any) -> Signal:
     if not isinstance(value.get("topic"), str) or not value["topic"]:
         raise UserError(f"mapping: [{section}] {name} needs topic = \"<topic in your file>\"")
     values = {k: value[k] for k in ("left", "right") if k in value}
+    if any(not isinstance(v, (str, int, float)) for v in values.values()):
+        raise UserError(f"mapping: [{section}] {name}: left / right must be the value the field holds "
+                        f"for that direction (a number or a string)")
     return Signal(topic=value["topic"], path=_path(f"{section}.{name}", "path", value.get("path")), values=values)
 
 

@@ -21,78 +21,34 @@ T0_NS = 1_700_000_000_000_000_000  # log_time of the first sample
 
 # ---- ROS 2 -------------------------------------------------------------------------------------------
 
-# as rosbag2 stores them: the type's own definition, then each dependency after a ==== line
-ODOMETRY_MSGDEF = """\
-std_msgs/Header header
-string child_frame_id
-geometry_msgs/PoseWithCovariance pose
-geometry_msgs/TwistWithCovariance twist
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-================================================================================
-MSG: geometry_msgs/PoseWithCovariance
-geometry_msgs/Pose pose
-float64[36] covariance
-================================================================================
-MSG: geometry_msgs/Pose
-geometry_msgs/Point position
-geometry_msgs/Quaternion orientation
-================================================================================
-MSG: geometry_msgs/Point
-float64 x
-float64 y
-float64 z
-================================================================================
-MSG: geometry_msgs/Quaternion
-float64 x 0
-float64 y 0
-float64 z 0
-float64 w 1
-================================================================================
-MSG: geometry_msgs/TwistWithCovariance
-geometry_msgs/Twist twist
-float64[36] covariance
-================================================================================
-MSG: geometry_msgs/Twist
-geometry_msgs/Vector3 linear
-geometry_msgs/Vector3 angular
-================================================================================
-MSG: geometry_msgs/Vector3
-float64 x
-float64 y
-float64 z
-"""
+# ROS 2 message definitions: each type's own text, by name
+ROS2_DEFS = {
+    "std_msgs/Header": "builtin_interfaces/Time stamp\nstring frame_id\n",
+    "builtin_interfaces/Time": "int32 sec\nuint32 nanosec\n",
+    "geometry_msgs/PoseWithCovariance": "geometry_msgs/Pose pose\nfloat64[36] covariance\n",
+    "geometry_msgs/Pose": "geometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n",
+    "geometry_msgs/Point": "float64 x\nfloat64 y\nfloat64 z\n",
+    "geometry_msgs/Quaternion": "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n",
+    "geometry_msgs/TwistWithCovariance": "geometry_msgs/Twist twist\nfloat64[36] covariance\n",
+    "geometry_msgs/Twist": "geometry_msgs/Vector3 linear\ngeometry_msgs/Vector3 angular\n",
+    "geometry_msgs/Vector3": "float64 x\nfloat64 y\nfloat64 z\n",
+    "sim_msgs/Object": "string id\ngeometry_msgs/Point position\nfloat64 speed\nuint8 lane\nfloat64 length\n",
+}
 
-OBJECT_ARRAY_MSGDEF = """\
-std_msgs/Header header
-sim_msgs/Object[] objects
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-================================================================================
-MSG: sim_msgs/Object
-string id
-geometry_msgs/Point position
-float64 speed
-uint8 lane
-float64 length
-================================================================================
-MSG: geometry_msgs/Point
-float64 x
-float64 y
-float64 z
-"""
+
+def msgdef(own: str, deps: list[str], defs: dict[str, str] = ROS2_DEFS) -> str:
+    """A schema as rosbag2 stores it: the type's own definition, then each dependency after a ==== line."""
+    return own + "".join(f"{'=' * 80}\nMSG: {name}\n{defs[name]}" for name in deps)
+
+
+ODOMETRY_MSGDEF = msgdef(
+    "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/PoseWithCovariance pose\n"
+    "geometry_msgs/TwistWithCovariance twist\n",
+    ["std_msgs/Header", "builtin_interfaces/Time", "geometry_msgs/PoseWithCovariance", "geometry_msgs/Pose",
+     "geometry_msgs/Point", "geometry_msgs/Quaternion", "geometry_msgs/TwistWithCovariance", "geometry_msgs/Twist",
+     "geometry_msgs/Vector3"])
+OBJECT_ARRAY_MSGDEF = msgdef("std_msgs/Header header\nsim_msgs/Object[] objects\n",
+                             ["std_msgs/Header", "builtin_interfaces/Time", "sim_msgs/Object", "geometry_msgs/Point"])
 
 ROS2_MAPPING = """\
 [mcap.signals]

@@ -23,6 +23,7 @@ from ingest.stack_examples import (
     PROTOBUF_MAPPING,
     ROS2_MAPPING,
     T0_NS,
+    msgdef,
     protobuf_classes,
     write_protobuf,
     write_ros2,
@@ -127,9 +128,9 @@ lane = "lane"
 
 V1_MSGDEFS = {  # the v1 topics and fields of LOG_FORMAT.md as ROS 2 messages
     "/ego/state": ("laneprint_msgs/msg/EgoState", "float64 x\nfloat64 y\nfloat64 v\nint32 lane\nfloat64 length\n"),
-    "/traffic/vehicles": ("laneprint_msgs/msg/Vehicles", "laneprint_msgs/Vehicle[] vehicles\n" + "=" * 80 +
-                          "\nMSG: laneprint_msgs/Vehicle\nstring id\nfloat64 x\nfloat64 y\nfloat64 v\nint32 lane\n"
-                          "float64 length\n"),
+    "/traffic/vehicles": ("laneprint_msgs/msg/Vehicles", msgdef(
+        "laneprint_msgs/Vehicle[] vehicles\n", ["laneprint_msgs/Vehicle"],
+        {"laneprint_msgs/Vehicle": "string id\nfloat64 x\nfloat64 y\nfloat64 v\nint32 lane\nfloat64 length\n"})),
     "/driver/controls": ("laneprint_msgs/msg/Controls", "float64 steer\n"),
     "/driver/lane_change_button": ("laneprint_msgs/msg/LaneChangeButton", "bool pressed\nstring direction\n"),
 }
