@@ -273,3 +273,23 @@ def test_bad_signals_table_is_one_user_error(tmp_path, text, message):
     with pytest.raises(UserError) as err:
         load_mapping(tmp_path / "bad.toml")
     assert message in str(err.value)
+
+
+def test_yaml_signals_read_like_toml(tmp_path):
+    (tmp_path / "ros2.toml").write_text(ROS2_MAPPING)
+    (tmp_path / "ros2.yaml").write_text("""\
+mcap:
+  signals:
+    time: log_time
+    ego_x: {topic: /odom, path: pose.pose.position.x}
+    ego_y: {topic: /odom, path: pose.pose.position.y}
+    ego_v: {topic: /odom, path: twist.twist.linear.x}
+    ego_lane: {topic: /localization/lane, path: data}
+    steer: {topic: /vehicle/steering_angle, path: data}
+    lc_button: {topic: /hmi/lane_change_button, path: data}
+    lc_direction: {topic: /hmi/lane_change_direction, path: data, left: 1, right: -1}
+    traffic: {topic: /perception/objects, list: objects, id: id, x: position.x, y: position.y, v: speed,
+              lane: lane, length: length}
+""")
+    toml, yaml = (load_mapping(tmp_path / name).mcap_signals for name in ("ros2.toml", "ros2.yaml"))
+    assert toml == yaml and toml.topics()[:2] == ["/odom", "/localization/lane"]
