@@ -141,8 +141,11 @@ def _no_field(dec: Decoded, path: str, sample: Any, prefix: str = "", fix: str =
         at = nxt
     where = ".".join(done)
     names = _field_names(at)
-    there = f"fields {'at ' + prefix + where if where else 'of ' + (prefix.rstrip('.') or 'the message')}: " \
-            f"{', '.join(names)}" if names else f"{prefix + where or 'the message'} is {_type_name(at)}"
+    if names:
+        place = f"at {prefix}{where}" if where else f"of {prefix.rstrip('.') or 'the message'}"
+        there = f"fields {place}: {', '.join(names)}"
+    else:
+        there = f"{prefix + where or 'the message'} is {_type_name(at)}"
     return Rejected(f"topic {dec.topic}: no field {prefix + path!r} in its {dec.type_name} messages ({there}); "
                     f"{fix} {dec.hint}")
 
@@ -151,6 +154,8 @@ def _numbers(dec: Decoded, path: str, values: list[Any], scale: float = 1.0) -> 
     """Floats (NaN where absent); `Rejected` when the path holds something that is not a number."""
     try:
         out = np.array(values, dtype=float)
+        if out.ndim != 1:  # a path to equal-length lists
+            raise TypeError
     except (TypeError, ValueError):
         out = np.full(len(values), np.nan)
         for i, v in enumerate(values):

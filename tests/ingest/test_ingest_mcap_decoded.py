@@ -240,6 +240,8 @@ def ros2_log(tmp_path_factory):
      "(fields at twist.twist: linear, angular); fix the path under [mcap.signals] in the --mapping file"),
     ('"twist.twist.linear.x"', '"twist.twist.linear"',
      "topic /odom: field 'twist.twist.linear' holds a geometry_msgs/Vector3 message, not a number (message 0)"),
+    ('"twist.twist.linear.x"', '"twist.covariance"',
+     "topic /odom: field 'twist.covariance' holds a list, not a number (message 0)"),
     ('x = "position.x"', 'x = "pos.x"',
      "topic /perception/objects: no field 'objects[].pos.x' in its sim_msgs/msg/ObjectArray messages "
      "(fields of objects[]: id, position, speed, lane, length)"),
