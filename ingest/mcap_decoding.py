@@ -353,11 +353,14 @@ def _traffic(decoded: dict[str, Decoded | None], signals: McapSignals, t0: int, 
         "length_m": num("length", mapping.position_scale),
     }
     out["length_m"] = np.where(np.isnan(out["length_m"]), DEFAULT_LENGTH_M, out["length_m"])
+    if "lane" not in ts.fields:
+        out["lane"] = signals.lane_from_y.lanes(out["y_m"])
     for key, name in (("vehicle_id", "id"), ("x_m", "x"), ("v_mps", "v"), ("lane", "lane")):
         bad = out[key].is_null().to_numpy(zero_copy_only=False) if key == "vehicle_id" else np.isnan(out[key])
         if np.any(bad):
             k = int(np.argmax(bad))
-            raise Rejected(f"topic {ts.topic}: an object without {ts.fields.get(name, name)!r} in message {row_idx[k]} "
+            field = ts.fields.get(name) or ts.fields.get("y", name)  # lanes from y: y is missing
+            raise Rejected(f"topic {ts.topic}: an object without {field!r} in message {row_idx[k]} "
                            f"(time {dec.times[row_idx[k]]} ns); fix {name} under [mcap.signals.traffic] "
                            f"{mapping.hint()}")
     return out
@@ -374,7 +377,7 @@ def read_decoded_mcap(got: Any, mapping: Mapping, meta: dict[str, Any], warnings
     decoded = {t: decode_topic(got, t, signals.time, factories, mapping.hint()) for t in signals.topics()}
     known = ", ".join(sorted({ch.topic for ch in got.channels.values()})) or "none"
     for name in ("ego_x", "ego_v", "ego_lane"):
-        sig = signals.ego[name]
+        sig = signals.ego.get(name, signals.ego.get("ego_y"))  # ego_lane may come from ego_y (lane_from_y)
         if decoded[sig.topic] is None:
             raise Rejected(f"missing required topic {sig.topic} ({name}); topics in the file: {known}; name it with "
                            f'{name} = {{ topic = "<your topic>", path = "..." }} under [mcap.signals] {mapping.hint()}')
@@ -392,11 +395,15 @@ def read_decoded_mcap(got: Any, mapping: Mapping, meta: dict[str, Any], warnings
         ("ego_length_m", "ego_length", p), ("steer_rad", "steer", 1.0), ("throttle", "throttle", 1.0),
         ("brake", "brake", 1.0))}
     ego["ego_length_m"] = np.where(np.isnan(ego["ego_length_m"]), DEFAULT_LENGTH_M, ego["ego_length_m"])
+    if "ego_lane" not in signals.ego:
+        ego["ego_lane"] = signals.lane_from_y.lanes(ego["ego_y_m"])
     ego["lc_button"], ego["lc_direction"], has_button = _button(reader, signals)
     t0 = int(base.times[0])
     clock = "log_time" if signals.time == LOG_TIME else signals.time
     where = {k: f"{signals.ego[n].topic}.{signals.ego[n].path}"
-             for k, n in (("ego_x_m", "ego_x"), ("ego_v_mps", "ego_v"), ("ego_lane", "ego_lane"))}
+             for k, n in (("ego_x_m", "ego_x"), ("ego_v_mps", "ego_v"), ("ego_lane", "ego_lane")) if n in signals.ego}
+    if "ego_lane" not in signals.ego:
+        where["ego_lane"] = f"lane_from_y of {signals.ego['ego_y'].topic}.{signals.ego['ego_y'].path}"
     return RawLog(
         format="mcap", meta=meta, t_abs_s=base.times / NS_PER_S, t_s=(base.times - t0) / NS_PER_S, ego=ego,
         traffic=_traffic(decoded, signals, t0, mapping, known),

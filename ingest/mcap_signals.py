@@ -21,12 +21,16 @@ JSON of another layout), each signal is named where it lives:
 
 Paths are field names joined by dots. The ego samples are the messages of the
 `ego_x` topic; signals on other topics take their last value at or before each sample.
+A stack that logs no lanes can give `lane_from_y = { width_m = 3.5, lane0_y_m = 0.0 }`
+instead of `ego_lane` / the traffic `lane` (then `ego_y` / the traffic `y` are needed).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import Any
+
+import numpy as np
 
 from ingest.logformat import TOPIC_BUTTON, TOPIC_CONTROLS, TOPIC_EGO, TOPIC_TRAFFIC
 from laneprint.errors import UserError
@@ -59,12 +63,24 @@ class TrafficSignals:
 
 
 @dataclass(frozen=True)
+class LaneFromY:
+    """Lane indices from the lateral position, for stacks that log no lane: round((y - lane0_y_m) / width_m)."""
+
+    width_m: float  # [m] lane width
+    lane0_y_m: float = 0.0  # [m] y of the centre of lane 0 (the rightmost)
+
+    def lanes(self, y_m: np.ndarray) -> np.ndarray:
+        return np.round((y_m - self.lane0_y_m) / self.width_m)
+
+
+@dataclass(frozen=True)
 class McapSignals:
     """Where every canonical signal is in a schema-decoded MCAP file."""
 
     ego: dict[str, Signal]  # canonical ego signal (ego_x, ego_v, ...) -> where it is
     traffic: TrafficSignals
     time: str = LOG_TIME  # "log_time" or the path of a stamp in every message read
+    lane_from_y: LaneFromY | None = None  # derive ego / traffic lanes that are not mapped from y
 
     def topics(self) -> list[str]:
         """Every topic read, each once, ego sample topic first."""
@@ -102,27 +118,41 @@ def _signal(name: str, value: Any) -> Signal:
 
 def signals_from_dict(doc: dict[str, Any]) -> McapSignals:
     """Parse the `[mcap.signals]` table; `UserError` naming the key on any mistake."""
-    allowed = ("time", *EGO_REQUIRED, *EGO_OPTIONAL, "traffic")
+    allowed = ("time", "lane_from_y", *EGO_REQUIRED, *EGO_OPTIONAL, "traffic")
     _check_keys("mcap.signals", doc, allowed)
     time = doc.get("time", LOG_TIME)
     if time != LOG_TIME:
         time = _path("mcap.signals", "time", time)
     ego = {name: _signal(name, doc[name]) for name in (*EGO_REQUIRED, *EGO_OPTIONAL) if name in doc}
-    missing = [k for k in (*EGO_REQUIRED, "traffic") if k not in doc]
+    lane_from_y = _lane_from_y(doc["lane_from_y"]) if "lane_from_y" in doc else None
+    derivable = {"ego_lane"} if lane_from_y is not None and "ego_y" in doc else set()
+    missing = [k for k in (*EGO_REQUIRED, "traffic") if k not in doc and k not in derivable]
     if missing:
-        raise UserError(f"mapping: [mcap.signals] needs {', '.join(missing)} (the required signals)")
+        hint = " (ego_lane: or ego_y with lane_from_y)" if "ego_lane" in missing else ""
+        raise UserError(f"mapping: [mcap.signals] needs {', '.join(missing)} (the required signals){hint}")
     tr = doc["traffic"]
     if not isinstance(tr, dict):
         raise UserError("mapping: [mcap.signals.traffic] must be a table with topic, list, id, x, v, lane")
     _check_keys("mcap.signals.traffic", tr, (*TRAFFIC_REQUIRED, *TRAFFIC_OPTIONAL))
-    missing = [k for k in TRAFFIC_REQUIRED if k not in tr]
+    derivable = {"lane"} if lane_from_y is not None and "y" in tr else set()
+    missing = [k for k in TRAFFIC_REQUIRED if k not in tr and k not in derivable]
     if missing:
-        raise UserError(f"mapping: [mcap.signals.traffic] needs {', '.join(missing)}")
+        hint = " (lane: or y with lane_from_y under [mcap.signals])" if "lane" in missing else ""
+        raise UserError(f"mapping: [mcap.signals.traffic] needs {', '.join(missing)}{hint}")
     if not isinstance(tr["topic"], str) or not tr["topic"]:
         raise UserError("mapping: [mcap.signals.traffic] topic must be a topic name")
     fields = {k: _path("mcap.signals.traffic", k, tr[k]) for k in (*TRAFFIC_REQUIRED[2:], *TRAFFIC_OPTIONAL) if k in tr}
     traffic = TrafficSignals(topic=tr["topic"], list=_path("mcap.signals.traffic", "list", tr["list"]), fields=fields)
-    return McapSignals(ego=ego, traffic=traffic, time=time)
+    return McapSignals(ego=ego, traffic=traffic, time=time, lane_from_y=lane_from_y)
+
+
+def _lane_from_y(value: Any) -> LaneFromY:
+    ok = isinstance(value, dict) and set(value) <= {"width_m", "lane0_y_m"} and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in value.values())
+    if not ok or not value.get("width_m", 0) > 0:
+        raise UserError("mapping: [mcap.signals] lane_from_y must be { width_m = <lane width, m, > 0>, "
+                        "lane0_y_m = <y of the centre of lane 0, m; default 0> }")
+    return LaneFromY(width_m=float(value["width_m"]), lane0_y_m=float(value.get("lane0_y_m", 0.0)))
 
 
 def signals_from_v1(topic: Any, msg_field: Any) -> McapSignals:

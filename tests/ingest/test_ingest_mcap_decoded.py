@@ -105,6 +105,22 @@ def test_protobuf_file_ingests_on_its_header_stamps(tmp_path, recording):
     assert len(ego) == 200 and np.abs(ego["t_s"] - recording[1]["t_s"]).max() > 1e-4
 
 
+def test_lanes_from_y_for_a_stack_that_logs_none(tmp_path, recording):
+    meta, ego, traffic = recording
+    traffic = traffic.assign(y_m=traffic["y_m"].fillna(3.5))  # c12 in lane 1 (no y in the fixture)
+    log = tmp_path / "ros2_no_lanes.mcap"
+    write_ros2(log, meta, ego, traffic)
+    mapping = (ROS2_MAPPING.replace('ego_lane = { topic = "/localization/lane", path = "data" }\n', "")
+               .replace('lane = "lane"\n', "")
+               .replace("[mcap.signals]\n", "[mcap.signals]\nlane_from_y = { width_m = 3.5, lane0_y_m = 0.0 }\n"))
+    assert "ego_lane" not in mapping and 'lane = "lane"' not in mapping
+    assert_same_recording(tmp_path, ingest_cli(tmp_path, log, mapping), (meta, ego, traffic))
+    shifted = mapping.replace("lane0_y_m = 0.0", "lane0_y_m = 3.5")  # lane 0 one lane further left: ego in lane -1
+    (tmp_path / "b").mkdir()
+    report = ingest_cli(tmp_path / "b", log, shifted)
+    assert report["reason"].startswith("lane_from_y of /odom.pose.pose.position.y must be a lane index 0..")
+
+
 def test_json_file_reads_through_signals_too(tmp_path, recording):
     log = tmp_path / "v1.mcap"
     write_mcap(log, *recording)
@@ -269,6 +285,8 @@ def test_bad_field_path_names_topic_and_path(tmp_path, ros2_log, old, new, expec
      "[mcap.signals] names every topic and field itself; drop [mcap.topics] / [mcap.fields]"),
     (ROS2_MAPPING.replace('path = "data" }', 'path = "data..x" }', 1), "must be a field path like"),
     (ROS2_MAPPING.replace('list = "objects"\n', ""), "[mcap.signals.traffic] needs list"),
+    (ROS2_MAPPING.replace('lane = "lane"\n', ""), "[mcap.signals.traffic] needs lane (lane: or y with lane_from_y"),
+    ("[mcap.signals]\nlane_from_y = { width_m = 0 }\n", "lane_from_y must be { width_m = <lane width, m, > 0>"),
 ])
 def test_bad_signals_table_is_one_user_error(tmp_path, text, message):
     (tmp_path / "bad.toml").write_text(text)
