@@ -241,12 +241,10 @@ def test_undecodable_message_names_topic_index_and_encoding(tmp_path, recording)
 
 
 @pytest.fixture(scope="module")
-def ros2_log(tmp_path_factory):
+def ros2_log(tmp_path_factory, module_recording):
     """One ROS 2 file shared by the bad-path cases (writing it takes ~1 s)."""
-    from conftest import make_recording
-
     log = tmp_path_factory.mktemp("ros2") / "ros2_drive.mcap"
-    write_ros2(log, *make_recording())
+    write_ros2(log, *module_recording)
     return log
 
 
