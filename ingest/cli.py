@@ -66,7 +66,8 @@ def ingest_command(
     driver: Annotated[Optional[str], typer.Option(
         "--driver", metavar="ID", help="Driver id for files that carry none (a file's own id wins; a conflict warns).")] = None,
     mapping: Annotated[Optional[Path], typer.Option(
-        "--mapping", metavar="FILE", help="TOML/YAML file mapping your column/topic/field names and units onto the log format.")] = None,
+        "--mapping", metavar="FILE", help="TOML/YAML file mapping your column/topic/field names and units onto the log format "
+                               "(for ROS 2 / protobuf MCAP: a topic and field path per signal, under mcap.signals).")] = None,
     backend: BackendOpt = "local",
     ray_address: RayAddressOpt = None,
     workspace: WorkspaceOpt = DEFAULT_WS,

@@ -12,6 +12,8 @@ See `ingest/README.md` for a full example.
     [mcap.fields."<canonical topic>"] canonical field = field in your messages (dotted paths allowed)
     [mcap] metadata_name = "session"
     [mcap.metadata_keys] canonical key = key in your Metadata record
+    [mcap.signals]      per canonical signal: { topic, path } inside schema-decoded messages
+                        (ROS 2 CDR, protobuf, any JSON); see `ingest/mcap_signals.py`
     [units]             speed = "m/s" | "km/h" | "mph"; position = "m" | "cm" | "mm" | "ft";
                         time = "s" | "ms" | "us" | "ns" (CSV time column); or *_scale = factor
     [metadata]          defaults when a file has none: driver_id, session_id, speed_limit_kph, simulator
@@ -37,6 +39,7 @@ from ingest.logformat import (
     TOPIC_EGO,
     TOPIC_TRAFFIC,
 )
+from ingest.mcap_signals import McapSignals, signals_from_dict
 from laneprint.errors import UserError
 
 DEFAULT_TRAFFIC_PATTERN = r"^(?P<id>.+)_(?P<field>x|v|lane|y|length)$"
@@ -67,6 +70,7 @@ class Mapping:
     mcap_fields: dict[str, dict[str, str]] = field(default_factory=dict)  # topic -> canonical -> field
     metadata_name: str = METADATA_NAME  # name of the MCAP Metadata record
     metadata_keys: dict[str, str] = field(default_factory=dict)  # canonical -> key in the record
+    mcap_signals: McapSignals | None = None  # per-signal topic + field path ([mcap.signals])
     speed_scale: float = 1.0  # multiply speeds by this to get m/s
     position_scale: float = 1.0  # multiply positions/lengths by this to get m
     time_scale: float = 1.0  # multiply the CSV time column by this to get s
@@ -152,7 +156,11 @@ def mapping_from_dict(doc: dict[str, Any], source: str = "") -> Mapping:
     _check_keys("csv.traffic.fields", tfields, CSV_VEHICLE_FIELDS)
 
     mcap = doc.get("mcap", {}) or {}
-    _check_keys("mcap", mcap, {"topics", "fields", "metadata_name", "metadata_keys"})
+    _check_keys("mcap", mcap, {"topics", "fields", "metadata_name", "metadata_keys", "signals"})
+    signals = signals_from_dict(mcap["signals"]) if "signals" in mcap else None
+    if signals is not None and ("topics" in mcap or "fields" in mcap):
+        raise UserError("mapping: [mcap.signals] names every topic and field itself; "
+                        "drop [mcap.topics] / [mcap.fields] (they are for v1-shaped JSON messages)")
     topics = _str_dict("mcap.topics", mcap.get("topics", {}) or {})
     _check_keys("mcap.topics", topics, tuple(MCAP_FIELDS))
     fields: dict[str, dict[str, str]] = {}
@@ -169,7 +177,7 @@ def mapping_from_dict(doc: dict[str, Any], source: str = "") -> Mapping:
     _check_keys("metadata", defaults, META_KEYS)
     return Mapping(
         csv_columns=columns, csv_delimiter=delimiter, traffic_pattern=pattern, traffic_fields=tfields,
-        mcap_topics=topics, mcap_fields=fields,
+        mcap_topics=topics, mcap_fields=fields, mcap_signals=signals,
         metadata_name=str(mcap.get("metadata_name", METADATA_NAME)), metadata_keys=meta_keys,
         speed_scale=_scale(units, "speed", _SPEED_UNITS),
         position_scale=_scale(units, "position", _POSITION_UNITS),

@@ -1,5 +1,8 @@
 """Read an MCAP log (JSON messages) into a `RawLog`.
 
+Files with ROS 2 (CDR) or protobuf messages, and any file read by a `[mcap.signals]`
+mapping, are decoded through their schemas by `mcap_decoding`.
+
 Indexed files (chunk indexes + summary) are read through `mcap.reader.SeekingReader`
 and the summary; files without a usable summary (written unchunked, or by a recorder
 that never finished) are read record by record from the start (`StreamReader`). A
@@ -40,6 +43,7 @@ class _Collected:
 
     def __init__(self) -> None:
         self.channels: dict[int, Channel] = {}
+        self.schemas: dict[int, Schema] = {}
         self.times: dict[int, list[int]] = {}
         self.datas: dict[int, list[bytes]] = {}
         self.metadata: dict[str, dict[str, str]] = {}
@@ -64,6 +68,7 @@ def _collect_indexed(data: bytes) -> _Collected | None:
         return None
     got = _Collected()
     got.channels = dict(summary.channels)
+    got.schemas = dict(summary.schemas)
     try:
         for _, channel, msg in reader.iter_messages(log_time_order=False):
             got.add(channel.id, msg.log_time, msg.data)
@@ -93,13 +98,15 @@ def _collect_stream(data: bytes) -> _Collected:
             got.channels[rec.id] = rec
         elif isinstance(rec, Metadata):
             got.metadata[rec.name] = dict(rec.metadata)
+        elif isinstance(rec, Schema):
+            got.schemas[rec.id] = rec
 
     try:
         for rec in StreamReader(bio, emit_chunks=True).records:
             if isinstance(rec, Chunk):
                 for inner in breakup_chunk(rec):
                     take(inner)
-            elif not isinstance(rec, Schema):
+            else:
                 take(rec)
             last_end = bio.tell()
         finished = True
@@ -193,6 +200,14 @@ def read_mcap_log(data: bytes, mapping: Mapping) -> RawLog:
     by_topic: dict[str, list[int]] = {}
     for cid, ch in got.channels.items():
         by_topic.setdefault(ch.topic, []).append(cid)
+    meta, warnings = _session_meta(got.metadata, mapping)
+    read_topics = {mapping.topic(t) for t in (TOPIC_EGO, TOPIC_TRAFFIC, TOPIC_CONTROLS, TOPIC_BUTTON)}
+    if mapping.topic(TOPIC_EGO) not in by_topic:  # a stack's own layout: its reason should point at [mcap.signals]
+        read_topics = set(by_topic)
+    if mapping.mcap_signals is not None or any(got.channels[cid].message_encoding != "json"
+                                               for t in read_topics for cid in by_topic.get(t, [])):
+        from ingest.mcap_decoding import read_decoded_mcap  # loads the ROS 2 / protobuf decoders only when needed
+        return read_decoded_mcap(got, mapping, meta, warnings)
 
     def messages(canonical: str, required: bool) -> tuple[list[int], list[bytes]] | None:
         topic = mapping.topic(canonical)
@@ -204,11 +219,6 @@ def read_mcap_log(data: bytes, mapping: Mapping) -> RawLog:
             hint = f'"{canonical}" = "<your topic>" under [mcap.topics] {mapping.hint()}'
             looked = f" (looked for {topic})" if topic != canonical else ""
             raise Rejected(f"missing required topic {canonical}{looked}; topics in the file: {known}; map it with {hint}")
-        for cid in cids:
-            enc = got.channels[cid].message_encoding
-            if enc != "json":
-                raise Rejected(f"unknown message encoding {enc!r} on topic {topic}: laneprint decodes JSON "
-                               f"messages only (message_encoding \"json\"); convert the topic to JSON")
         times: list[int] = []
         datas: list[bytes] = []
         for cid in cids:
@@ -258,16 +268,6 @@ def read_mcap_log(data: bytes, mapping: Mapping) -> RawLog:
     _button(ego, button, ego_times, mapping)
     traffic = _traffic(traffic_raw, t0, mapping)
 
-    meta_rec = got.metadata.get(mapping.metadata_name, {})
-    meta: dict[str, Any] = {k: meta_rec.get(mapping.meta_key(k)) or None
-                            for k in ("driver_id", "session_id", "simulator", "speed_limit_kph")}
-    warnings: list[str] = []
-    if meta["speed_limit_kph"] is not None:
-        try:
-            meta["speed_limit_kph"] = float(meta["speed_limit_kph"])
-        except ValueError:
-            warnings.append(f"speed_limit_kph {meta['speed_limit_kph']!r} in the metadata is not a number; ignored")
-            meta["speed_limit_kph"] = None
     topic_ego = mapping.topic(TOPIC_EGO)
     return RawLog(
         format="mcap", meta=meta, t_abs_s=t_abs, t_s=t_s, ego=ego, traffic=traffic,
@@ -277,6 +277,21 @@ def read_mcap_log(data: bytes, mapping: Mapping) -> RawLog:
                "ego_lane": f"{topic_ego}.{f('lane')}"},
         has_button=button is not None, warnings=warnings,
     )
+
+
+def _session_meta(metadata: dict[str, dict[str, str]], mapping: Mapping) -> tuple[dict[str, Any], list[str]]:
+    """The session keys of the file's Metadata record, and warnings about them."""
+    meta_rec = metadata.get(mapping.metadata_name, {})
+    meta: dict[str, Any] = {k: meta_rec.get(mapping.meta_key(k)) or None
+                            for k in ("driver_id", "session_id", "simulator", "speed_limit_kph")}
+    warnings: list[str] = []
+    if meta["speed_limit_kph"] is not None:
+        try:
+            meta["speed_limit_kph"] = float(meta["speed_limit_kph"])
+        except ValueError:
+            warnings.append(f"speed_limit_kph {meta['speed_limit_kph']!r} in the metadata is not a number; ignored")
+            meta["speed_limit_kph"] = None
+    return meta, warnings
 
 
 def _asof(ego_times: np.ndarray, times: np.ndarray) -> np.ndarray:
@@ -309,18 +324,29 @@ def _controls(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | N
 def _button(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | None,
             ego_times: np.ndarray, mapping: Mapping) -> None:
     """Button state on the ego samples (state of the last message), each press on >= 1 sample."""
-    n = len(ego_times)
-    pressed = np.zeros(n, dtype=bool)
-    direction = np.full(n, None, dtype=object)
-    ego["lc_button"], ego["lc_direction"] = pressed, direction
     if raw is None or not raw[0]:
+        n = len(ego_times)
+        ego["lc_button"], ego["lc_direction"] = np.zeros(n, dtype=bool), np.full(n, None, dtype=object)
         return
     times, order, msgs = _decoded_in_time_order(raw, mapping.topic(TOPIC_BUTTON))
     get_p = _getter(mapping.msg_field(TOPIC_BUTTON, "pressed"))
     get_d = _getter(mapping.msg_field(TOPIC_BUTTON, "direction"))
-    states = np.array([bool(get_p(msgs[i])) if isinstance(msgs[i], dict) else False for i in order])
+    states = np.array([bool(get_p(msgs[i])) if isinstance(msgs[i], dict) else False for i in order], dtype=bool)
     dirs = [get_d(msgs[i]) if isinstance(msgs[i], dict) else None for i in order]
-    stimes = times[order]
+    ego["lc_button"], ego["lc_direction"] = place_presses(ego_times, times[order], states, dirs)
+
+
+def place_presses(ego_times: np.ndarray, stimes: np.ndarray, states: np.ndarray,
+                  dirs: list[Any]) -> tuple[np.ndarray, np.ndarray]:
+    """Button state on the ego samples (state of the last message), each press on >= 1 sample.
+
+    `stimes`, `states`, `dirs`: the button messages in time order; returns (lc_button, lc_direction).
+    """
+    n = len(ego_times)
+    pressed = np.zeros(n, dtype=bool)
+    direction = np.full(n, None, dtype=object)
+    if not len(stimes):
+        return pressed, direction
     idx = _asof(ego_times, stimes)
     pressed[idx >= 0] = states[idx[idx >= 0]]
     prev = np.concatenate([[False], states[:-1]])
@@ -330,6 +356,7 @@ def _button(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | Non
             pressed[i] = True
             if dirs[k] is not None:
                 direction[i] = dirs[k]
+    return pressed, direction
 
 
 def _traffic_arrow(datas: list[bytes], names: dict[str, str], mapping: Mapping) -> dict[str, Any] | None:

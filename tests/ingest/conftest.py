@@ -47,3 +47,9 @@ def make_recording(seconds: float = 4.0, hz: int = 50) -> tuple[dict, pd.DataFra
 @pytest.fixture
 def recording():
     return make_recording()
+
+
+@pytest.fixture(scope="module")
+def module_recording():
+    """The same recording, shared by the tests of one module (for fixtures that write files from it)."""
+    return make_recording()

@@ -74,14 +74,15 @@ def test_unknown_message_encoding(tmp_path, recording):
         with open(p, "wb") as fh:
             w = Writer(fh)
             w.start()
-            sid = w.register_schema("Ego", "protobuf", b"\x00")
-            ego = w.register_channel("/ego/state", "protobuf", sid)
+            sid = w.register_schema("Ego", "flatbuffer", b"\x00")
+            ego = w.register_channel("/ego/state", "flatbuffer", sid)
             w.register_channel("/traffic/vehicles", "json", 0)
             w.add_message(ego, 0, b"\x08\x01", 0)
             w.finish()
-    _, res = _batch(tmp_path, recording, "proto.mcap", bad)
+    _, res = _batch(tmp_path, recording, "flat.mcap", bad)
     assert res.status == "rejected"
-    assert res.reason.startswith("unknown message encoding 'protobuf' on topic /ego/state")
+    assert res.reason.startswith("unsupported message encoding 'flatbuffer' on topic /ego/state: laneprint decodes "
+                                 "json, cdr (ROS 2, ros2msg schemas) and protobuf messages")
 
 
 def test_missing_required_column_names_the_mapping_key(tmp_path, recording):
