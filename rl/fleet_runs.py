@@ -22,6 +22,7 @@ import re
 import signal
 import threading
 import time
+from contextlib import nullcontext
 from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -222,11 +223,12 @@ def _is_done(workspace: Workspace, run_id: str) -> bool:
 
 
 def train_shard(workspace_root: str, run_ids: list[str], threads: int = 1, evaluate: bool = True,
-                progress: ProgressFn | None = None) -> list[dict[str, Any]]:
+                progress: ProgressFn | None = None, stop: _StopFlag | None = None) -> list[dict[str, Any]]:
     """Train the fleet runs `run_ids` (those not done) together; returns one summary per run.
 
-    Runs that have a checkpoint continue from it. On SIGTERM/SIGINT every active
-    agent is checkpointed and its run marked 'cancelled'.
+    Runs that have a checkpoint continue from it. On SIGTERM/SIGINT (caught here,
+    or by the caller's `stop` when the shard runs in a thread) every active agent
+    is checkpointed and its run marked 'cancelled'.
     """
     workspace = Workspace(Path(workspace_root))
     todo = [r for r in run_ids if not _is_done(workspace, r)]
@@ -273,7 +275,7 @@ def train_shard(workspace_root: str, run_ids: list[str], threads: int = 1, evalu
         return False
 
     try:
-        with _StopFlag() as stop:
+        with (nullcontext(stop) if stop is not None else _StopFlag()) as stop:
             fleet.train(on_episode=writer.metric, on_checkpoint=checkpoint, on_finish=finish,
                         should_stop=stop, on_vector_step=tick)
     except Exception as exc:
@@ -333,7 +335,7 @@ def train_fleet(workspace: Workspace, fleet_id: str, *, backend: str = "local", 
     cores = os.cpu_count() or 1
     try:
         if backend == "local":
-            summaries = train_shard(str(workspace.root), runs, threads or cores, evaluate, progress)
+            summaries = _train_local(workspace, runs, threads or cores, evaluate, progress)
         elif backend == "ray":
             from laneprint.parallel import backend_session, run_tasks
 
@@ -361,6 +363,49 @@ def train_fleet(workspace: Workspace, fleet_id: str, *, backend: str = "local", 
     _write_fleet(workspace, fleet)
     by_id = {s["run_id"]: s for s in summaries}
     return {**fleet, "summaries": [by_id.get(r, {"run_id": r, "state": "missing"}) for r in runs]}
+
+
+def _train_local(workspace: Workspace, runs: list[str], threads: int, evaluate: bool,
+                 progress: ProgressFn | None) -> list[dict[str, Any]]:
+    """The fleet in this process: one shard per thread, each a `FleetTrainer` with one torch thread.
+
+    Shards in Python threads rather than one stack on several torch threads: torch
+    releases the GIL in its kernels, so the shards run in parallel, and on a busy
+    machine torch's OpenMP team of 2 spun at its barriers (a 6-agent fleet took
+    13x longer on 2 torch threads than on 1, `benchmarks/fleet.py`).
+    """
+    root = str(workspace.root)
+    shards = shard_runs(runs, threads)
+    if len(shards) == 1:
+        return train_shard(root, runs, 1, evaluate, progress)
+    done, totals = [0] * len(shards), [0] * len(shards)
+    results: list[list[dict[str, Any]] | None] = [None] * len(shards)
+    errors: list[BaseException] = []
+    lock = threading.Lock()
+
+    def shard_progress(i: int) -> ProgressFn:
+        def update(d: int, t: int, message: str = "") -> None:
+            with lock:
+                done[i], totals[i] = d, t
+                report(progress, sum(done), sum(totals), f"fleet: {len(runs)} agents in {len(shards)} shards")
+        return update
+
+    def work(i: int, stop: _StopFlag) -> None:
+        try:
+            results[i] = train_shard(root, shards[i], 1, evaluate, shard_progress(i), stop=stop)
+        except BaseException as exc:  # re-raised in the main thread
+            errors.append(exc)
+
+    with _StopFlag() as stop:
+        workers = [threading.Thread(target=work, args=(i, stop), name=f"fleet-shard-{i}") for i in range(len(shards))]
+        for w in workers:
+            w.start()
+        for w in workers:
+            while w.is_alive():  # join with a timeout so SIGINT/SIGTERM reach the main thread's handler
+                w.join(0.5)
+    if errors:
+        raise errors[0]
+    return [x for part in results for x in part or []]
 
 
 def _train_shard_task(args: tuple[str, list[str], int, bool]) -> list[dict[str, Any]]:
