@@ -141,6 +141,72 @@ class EpisodeStats:
         self.terms = {k: np.zeros(self.n) for k in TERMS}
 
 
+def epsilon_at(s: DQNSettings, episodes_done: int) -> float:
+    """Exploration after `episodes_done` finished episodes: linear from eps_start to eps_end."""
+    frac = min(1.0, episodes_done / max(1.0, s.exploration_fraction * s.episodes))
+    return s.eps_start + frac * (s.eps_end - s.eps_start)
+
+
+def learning_rate_at(s: DQNSettings, episodes_done: int) -> float:
+    """Adam's step size after `episodes_done` episodes: linear to `learning_rate_end` (None: constant)."""
+    if s.learning_rate_end is None:
+        return s.learning_rate
+    frac = min(1.0, episodes_done / max(1, s.episodes))
+    return s.learning_rate + frac * (s.learning_rate_end - s.learning_rate)
+
+
+def average_due(s: DQNSettings, episodes_done: int) -> bool:
+    """Whether a run has reached `average_from` of its episodes (and averages at all)."""
+    return s.average_tau > 0 and episodes_done >= int(s.average_from * s.episodes)
+
+
+def episode_row(episode: int, losses: list[float], stats: EpisodeStats, i: int, eps: float,
+                actions: np.ndarray, out: dict[str, Any], env_steps: int, wall_s: float) -> dict[str, Any]:
+    """The metrics line of environment i's finished episode."""
+    length = int(stats.length[i])
+    return {
+        "episode": episode,
+        "loss": float(np.mean(losses)) if losses else None,
+        "mean_step_reward": float(stats.ret[i] / length),
+        "epsilon": eps,
+        "length": length,
+        "changed": bool(actions[i] == CHANGE and out["terminated"][i] and not out["reached_leader"][i]),
+        "reached_leader": bool(out["reached_leader"][i]),
+        "return": float(stats.ret[i]),
+        **{f"term_{k}": float(stats.terms[k][i]) for k in TERMS},
+        "env_steps": env_steps,
+        "wall_s": round(wall_s, 4),
+    }
+
+
+def episode_state(envs: Any, obs: np.ndarray, stats: EpisodeStats, rng: np.random.Generator) -> dict[str, Any]:
+    """The environments' half of a checkpoint: scenes, observations, running sums, generators."""
+    env_state = envs.state_dict()
+    return {
+        "env_scene": {k: torch.from_numpy(np.asarray(v).copy()) for k, v in env_state["scene"].items()},
+        "env_steps_in_episode": torch.from_numpy(env_state["steps"]),
+        "env_replay": {k: torch.from_numpy(env_state[k]) for k in ("index", "late") if k in env_state},
+        "obs": torch.from_numpy(obs.copy()),
+        "stats": {"ret": torch.from_numpy(stats.ret.copy()), "length": torch.from_numpy(stats.length.copy()),
+                  **{f"term_{k}": torch.from_numpy(v.copy()) for k, v in stats.terms.items()}},
+        "rng": json.dumps(rng.bit_generator.state),
+        "env_rng": json.dumps(envs.rng.bit_generator.state),
+    }
+
+
+def load_episode_state(state: dict[str, Any], envs: Any, stats: EpisodeStats, rng: np.random.Generator) -> np.ndarray:
+    """Restore `episode_state` into `envs`, `stats` and `rng`; returns the observations."""
+    envs.load_state_dict({"scene": {k: v.numpy() for k, v in state["env_scene"].items()},
+                          "steps": state["env_steps_in_episode"].numpy(),
+                          **{k: v.numpy() for k, v in state.get("env_replay", {}).items()}})
+    st = state["stats"]
+    stats.ret, stats.length = st["ret"].numpy().copy(), st["length"].numpy().copy()
+    stats.terms = {k: st[f"term_{k}"].numpy().copy() if f"term_{k}" in st else np.zeros(stats.n) for k in TERMS}
+    rng.bit_generator.state = json.loads(state["rng"])
+    envs.rng.bit_generator.state = json.loads(state["env_rng"])
+    return state["obs"].numpy().copy()
+
+
 class DQNTrainer:
     """Trains a Q network on the lane-change environment; resumable.
 
@@ -191,9 +257,7 @@ class DQNTrainer:
         return self.q_avg if self.averaging else self.q
 
     def _average_due(self) -> bool:
-        """Whether the run has reached `average_from` of its episodes (and averages at all)."""
-        s = self.settings
-        return s.average_tau > 0 and self.episodes_done >= int(s.average_from * s.episodes)
+        return average_due(self.settings, self.episodes_done)
 
     def _start_average(self) -> None:
         """Start the average afresh from the online weights; from now on it is the policy.
@@ -205,16 +269,10 @@ class DQNTrainer:
         self.averaging = True
 
     def epsilon(self) -> float:
-        s = self.settings
-        frac = min(1.0, self.episodes_done / max(1.0, s.exploration_fraction * s.episodes))
-        return s.eps_start + frac * (s.eps_end - s.eps_start)
+        return epsilon_at(self.settings, self.episodes_done)
 
     def learning_rate(self) -> float:
-        s = self.settings
-        if s.learning_rate_end is None:
-            return s.learning_rate
-        frac = min(1.0, self.episodes_done / max(1, s.episodes))
-        return s.learning_rate + frac * (s.learning_rate_end - s.learning_rate)
+        return learning_rate_at(self.settings, self.episodes_done)
 
     def _update(self) -> float:
         s = self.settings
@@ -293,20 +351,8 @@ class DQNTrainer:
                 self.episodes_done += 1
                 self.wall_s = time.perf_counter() - start
                 if on_episode is not None:
-                    length = int(st.length[i])
-                    on_episode({
-                        "episode": self.episodes_done,
-                        "loss": float(np.mean(self._losses)) if self._losses else None,
-                        "mean_step_reward": float(st.ret[i] / length),
-                        "epsilon": eps,
-                        "length": length,
-                        "changed": bool(actions[i] == CHANGE and out["terminated"][i] and not out["reached_leader"][i]),
-                        "reached_leader": bool(out["reached_leader"][i]),
-                        "return": float(st.ret[i]),
-                        **{f"term_{k}": float(st.terms[k][i]) for k in TERMS},
-                        "env_steps": self.env_steps,
-                        "wall_s": round(self.wall_s, 4),
-                    })
+                    on_episode(episode_row(self.episodes_done, self._losses, st, i, eps, actions, out,
+                                           self.env_steps, self.wall_s))
                     self._losses = []
                 st.ret[i] = 0.0
                 st.length[i] = 0
@@ -326,21 +372,13 @@ class DQNTrainer:
     # --- checkpoints (everything as tensors / plain values: loadable with weights_only=True) ---
 
     def state_dict(self) -> dict[str, Any]:
-        env_state = self.envs.state_dict()
         return {
             "q": self.q.state_dict(),
             "target": self.target.state_dict(),
             "q_avg": self.q_avg.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "buffer": self.buffer.state_dict(),
-            "env_scene": {k: torch.from_numpy(np.asarray(v).copy()) for k, v in env_state["scene"].items()},
-            "env_steps_in_episode": torch.from_numpy(env_state["steps"]),
-            "env_replay": {k: torch.from_numpy(env_state[k]) for k in ("index", "late") if k in env_state},
-            "obs": torch.from_numpy(self.obs.copy()),
-            "stats": {"ret": torch.from_numpy(self.stats.ret.copy()), "length": torch.from_numpy(self.stats.length.copy()),
-                      **{f"term_{k}": torch.from_numpy(v.copy()) for k, v in self.stats.terms.items()}},
-            "rng": json.dumps(self.rng.bit_generator.state),
-            "env_rng": json.dumps(self.envs.rng.bit_generator.state),
+            **episode_state(self.envs, self.obs, self.stats, self.rng),
             "torch_rng": torch.get_rng_state(),
             "counters": {"episodes_done": self.episodes_done, "env_steps": self.env_steps,
                          "updates": self.updates, "wall_s": self.wall_s, "averaging": self.averaging},
@@ -354,16 +392,7 @@ class DQNTrainer:
         self.q_avg.load_state_dict(state["q_avg"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.buffer.load_state_dict(state["buffer"])
-        self.envs.load_state_dict({"scene": {k: v.numpy() for k, v in state["env_scene"].items()},
-                                   "steps": state["env_steps_in_episode"].numpy(),
-                                   **{k: v.numpy() for k, v in state.get("env_replay", {}).items()}})
-        self.obs = state["obs"].numpy().copy()
-        st = state["stats"]
-        self.stats.ret, self.stats.length = st["ret"].numpy().copy(), st["length"].numpy().copy()
-        self.stats.terms = {k: st[f"term_{k}"].numpy().copy() if f"term_{k}" in st else np.zeros(self.stats.n)
-                            for k in TERMS}
-        self.rng.bit_generator.state = json.loads(state["rng"])
-        self.envs.rng.bit_generator.state = json.loads(state["env_rng"])
+        self.obs = load_episode_state(state, self.envs, self.stats, self.rng)
         torch.set_rng_state(state["torch_rng"])
         c = state["counters"]
         self.episodes_done, self.env_steps = int(c["episodes_done"]), int(c["env_steps"])

@@ -26,9 +26,10 @@ import numpy as np
 import torch
 
 from rl import batched
-from rl.dqn import EpisodeStats
+from rl.dqn import (EpisodeStats, average_due, episode_row, episode_state, epsilon_at, learning_rate_at,
+                    load_episode_state)
 from rl.env import Approach, EnvConfig, make_vec_env, observation_names
-from rl.rewards import CHANGE, TERMS
+from rl.rewards import TERMS
 from rl.settings import DQNSettings
 
 #: Settings that must be equal across a fleet (they fix tensor shapes or the shared update).
@@ -67,20 +68,13 @@ class AgentState:
         return self.episodes_done >= self.settings.episodes
 
     def epsilon(self) -> float:
-        s = self.settings
-        frac = min(1.0, self.episodes_done / max(1.0, s.exploration_fraction * s.episodes))
-        return s.eps_start + frac * (s.eps_end - s.eps_start)
+        return epsilon_at(self.settings, self.episodes_done)
 
     def learning_rate(self) -> float:
-        s = self.settings
-        if s.learning_rate_end is None:
-            return s.learning_rate
-        frac = min(1.0, self.episodes_done / max(1, s.episodes))
-        return s.learning_rate + frac * (s.learning_rate_end - s.learning_rate)
+        return learning_rate_at(self.settings, self.episodes_done)
 
     def average_due(self) -> bool:
-        s = self.settings
-        return s.average_tau > 0 and self.episodes_done >= int(s.average_from * s.episodes)
+        return average_due(self.settings, self.episodes_done)
 
 
 class StackedReplay:
@@ -296,20 +290,8 @@ class FleetTrainer:
             a.episodes_done += 1
             a.wall_s = wall
             if on_episode is not None:
-                length = int(st.length[i])
-                on_episode(a.member, {
-                    "episode": a.episodes_done,
-                    "loss": float(np.mean(a.losses)) if a.losses else None,
-                    "mean_step_reward": float(st.ret[i] / length),
-                    "epsilon": eps,
-                    "length": length,
-                    "changed": bool(actions[i] == CHANGE and out["terminated"][i] and not out["reached_leader"][i]),
-                    "reached_leader": bool(out["reached_leader"][i]),
-                    "return": float(st.ret[i]),
-                    **{f"term_{k}": float(st.terms[k][i]) for k in TERMS},
-                    "env_steps": a.env_steps,
-                    "wall_s": round(wall, 4),
-                })
+                on_episode(a.member, episode_row(a.episodes_done, a.losses, st, i, eps, actions, out,
+                                                 a.env_steps, wall))
                 a.losses = []
             st.ret[i] = 0.0
             st.length[i] = 0
@@ -362,21 +344,13 @@ class FleetTrainer:
     def agent_state_dict(self, j: int) -> dict[str, Any]:
         """Agent j's complete state as `DQNTrainer.state_dict()` (resumable alone or in a fleet)."""
         a = self.agents[j]
-        env_state = a.envs.state_dict()
         return {
             "q": batched.agent_state_dict(self.q, j),
             "target": batched.agent_state_dict(self.target, j),
             "q_avg": batched.agent_state_dict(self.q_avg, j),
             "optimizer": self.adam.agent_state_dict(j, a.learning_rate(), self.hidden, self.n_obs),
             "buffer": self.buffer.agent_state_dict(j),
-            "env_scene": {k: torch.from_numpy(np.asarray(v).copy()) for k, v in env_state["scene"].items()},
-            "env_steps_in_episode": torch.from_numpy(env_state["steps"]),
-            "env_replay": {k: torch.from_numpy(env_state[k]) for k in ("index", "late") if k in env_state},
-            "obs": torch.from_numpy(a.obs.copy()),
-            "stats": {"ret": torch.from_numpy(a.stats.ret.copy()), "length": torch.from_numpy(a.stats.length.copy()),
-                      **{f"term_{k}": torch.from_numpy(v.copy()) for k, v in a.stats.terms.items()}},
-            "rng": json.dumps(a.rng.bit_generator.state),
-            "env_rng": json.dumps(a.envs.rng.bit_generator.state),
+            **episode_state(a.envs, a.obs, a.stats, a.rng),
             "torch_rng": torch.get_rng_state(),
             "counters": {"episodes_done": a.episodes_done, "env_steps": a.env_steps, "updates": a.updates,
                          "wall_s": a.wall_s, "averaging": a.averaging},
@@ -392,16 +366,7 @@ class FleetTrainer:
         batched.load_agent(self.q_avg, j, state["q_avg"])
         self.adam.load_agent(j, state["optimizer"])
         self.buffer.load_agent(j, state["buffer"])
-        a.envs.load_state_dict({"scene": {k: v.numpy() for k, v in state["env_scene"].items()},
-                                "steps": state["env_steps_in_episode"].numpy(),
-                                **{k: v.numpy() for k, v in state.get("env_replay", {}).items()}})
-        a.obs = state["obs"].numpy().copy()
-        st = state["stats"]
-        a.stats.ret, a.stats.length = st["ret"].numpy().copy(), st["length"].numpy().copy()
-        a.stats.terms = {k: st[f"term_{k}"].numpy().copy() if f"term_{k}" in st else np.zeros(a.stats.n)
-                         for k in TERMS}
-        a.rng.bit_generator.state = json.loads(state["rng"])
-        a.envs.rng.bit_generator.state = json.loads(state["env_rng"])
+        a.obs = load_episode_state(state, a.envs, a.stats, a.rng)
         c = state["counters"]
         a.episodes_done, a.env_steps = int(c["episodes_done"]), int(c["env_steps"])
         a.updates, a.wall_s = int(c["updates"]), float(c["wall_s"])
