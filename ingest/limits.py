@@ -31,7 +31,7 @@ class IngestLimits:
 
     max_file_mb: float = 2048.0
     """[MB] largest log file read at all (LANEPRINT_MAX_FILE_MB)."""
-    max_inflated_mb: float = 4096.0
+    max_inflated_mb: float = 2048.0
     """[MB] largest CSV after gunzip, and largest sum of an MCAP's uncompressed chunks (LANEPRINT_MAX_INFLATED_MB)."""
     max_inflate_ratio: float = 200.0
     """decompressed / compressed bytes beyond which a gzip stream or an MCAP chunk is taken for a
@@ -100,7 +100,7 @@ def gunzip(data: bytes, limits: IngestLimits) -> bytes:
             while True:
                 out += d.decompress(buf, _INFLATE_STEP)
                 buf = d.unconsumed_tail
-                used = pos + (len(data) - pos - len(buf) - len(d.unused_data))
+                used = len(data) - len(d.unused_data if d.eof else buf)  # input bytes consumed so far
                 if len(out) > cap:
                     raise Rejected(f"gzip inflates beyond the {limits.max_inflated_mb:g} MB limit (more than "
                                    f"{_mb(len(out))} from the first {_mb(used)}); raise {env_var('max_inflated_mb')} "
