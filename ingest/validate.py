@@ -66,7 +66,8 @@ def _check_gaps(raw: RawLog) -> None:
         more = f" (and {len(starts) - 1} more gap(s), {int(nan.sum())} empty values in all)" if len(starts) > 1 else ""
         span = (f"at {raw.locate(s)} (t={raw.t_s[s]:.3f} s)" if s == e else
                 f"from {raw.locate(s)} to {raw.locate(e)} (t={raw.t_s[s]:.3f}-{raw.t_s[e]:.3f} s)")
-        raise Rejected(f"gap in required signal {name}: {e - s + 1} empty value(s) {span}{more}; "
+        empty = "empty value(s)" if raw.format != "mcap" else "empty or non-numeric value(s)"
+        raise Rejected(f"gap in required signal {name}: {e - s + 1} {empty} {span}{more}; "
                        f"fill or cut the gap before ingesting")
 
 
