@@ -144,3 +144,18 @@ def test_gzip_of_several_members_is_read_whole_and_garbage_after_it_refused(tmp_
     tail = tmp_path / "tail.csv.gz"
     tail.write_bytes(gzip.compress(text) + b"junk")
     assert _ingest_one(tail, tmp_path / "ws").reason.startswith("corrupt gzip data: 4 bytes of garbage after")
+
+
+def test_cli_with_a_bad_limit_is_one_error_line(tmp_path, recording):
+    from typer.testing import CliRunner
+
+    from laneprint.cli import app
+
+    write_csv(tmp_path / "r.csv", *recording)
+    out = CliRunner().invoke(app, ["ingest", str(tmp_path / "r.csv"), "-w", str(tmp_path / "ws")],
+                             env={"LANEPRINT_MAX_COLUMNS": "many"})
+    assert out.exit_code == 1
+    assert out.output.strip() == "error: LANEPRINT_MAX_COLUMNS='many' is not a positive number"
+    ok = CliRunner().invoke(app, ["ingest", str(tmp_path / "r.csv"), "-w", str(tmp_path / "ws"), "--json"],
+                            env={"LANEPRINT_MAX_COLUMNS": "5"})
+    assert json.loads(ok.output)["files"][0]["reason"].startswith("malformed CSV: the header has ")
