@@ -37,6 +37,7 @@ MAX_LANE = 20  # lane indices above this are taken for a wrong column
 MAX_SPEED_MPS = 100.0  # [m/s] 360 km/h: faster is not a car
 MIN_SPEED_MPS = -10.0  # [m/s] reversing faster than this on a highway is not plausible
 MIN_RATE_HZ, MAX_RATE_HZ = 1.0, 1000.0  # plausible sample rates of a driving simulator log
+MAX_STEP_S = 3600.0  # [s] a longer pause between two samples of one recording is a broken time stamp
 JUMP_FACTOR = 1.5  # a step may be this much longer than the faster of its two speeds allows ...
 JUMP_SLACK_MPS = 5.0  # ... plus this speed [m/s] ...
 JUMP_SLACK_M = 1.0  # ... plus this distance [m] (rounding, a logged speed lagging the position)
@@ -168,10 +169,18 @@ def check_ego_values(raw: RawLog, mapping: Mapping) -> list[str]:
 
 
 def check_sample_rate(raw: RawLog, mapping: Mapping) -> None:
-    """Refuse a log whose median sample rate is outside 1-1000 Hz (most often a time unit mix-up)."""
+    """Refuse a log whose median sample rate is outside 1-1000 Hz (most often a time unit mix-up)
+    or whose time jumps by more than an hour between two samples (a broken time stamp)."""
+    steps = np.diff(raw.t_abs_s)
+    big = np.flatnonzero(steps > MAX_STEP_S)
+    if len(big):
+        i = int(big[0])
+        raise Rejected(f"time {raw.time_name!r} jumps {steps[i]:.4g} s at {raw.locate(i + 1)} (from "
+                       f"{raw.t_abs_s[i]:.6g} to {raw.t_abs_s[i + 1]:.6g} s), more than {MAX_STEP_S:g} s between two "
+                       f"samples; fix or cut the sample with the broken time before ingesting")
     if len(raw.t_abs_s) < 3:
         return
-    step = float(np.median(np.diff(raw.t_abs_s)))
+    step = float(np.median(steps))
     rate = 1.0 / step if step > 0 else math.inf
     if MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
         return

@@ -116,3 +116,10 @@ def test_failures_reports_every_failing_row_of_every_column():
     assert {k: v.tolist() for k, v in bad.items()} == {"ego_x_m": [1, 3], "ego_v_mps": [2], "ego_lane": [1, 2]}
     assert failures(df.iloc[[0]], EGO_REQUIRED_SCHEMA) == {}
     assert IDENTITY.column("ego_v") == "ego_v"
+
+
+def test_a_broken_time_stamp_far_from_the_others_is_refused(tmp_path, recording):
+    # found by benchmarks/fuzz.py (seed 0, case 4636): t=-1e308 on the first line made every relative time equal
+    res, _ = _ingest(tmp_path, "t.csv", lambda p: _csv_cell(p, recording, "t", 2, "-1e308"))
+    assert res.reason == ("time 't' jumps 1e+308 s at line 3 (from -1e+308 to 0.02 s), more than 3600 s between two "
+                          "samples; fix or cut the sample with the broken time before ingesting")
