@@ -122,8 +122,6 @@ def describe(value: float, b: Bounds) -> str:
     """Why `value` is impossible for a signal with bounds `b` ('inf is not a finite number', ...)."""
     if not np.isfinite(value):
         return f"{value} is not a finite number"
-    if b.integer and value == np.round(value) and b.lo <= value <= b.hi:
-        return f"{value:g} is not a whole number"
     if b.integer and value != np.round(value):
         return f"{value:g} is not a lane index"
     unit = f" {b.unit}" if b.unit else ""
