@@ -5,8 +5,8 @@
 Seed files are short excerpts of the shipped sample logs written as .csv, .csv.gz and
 .mcap (`ingest.mutations.excerpts`). Each case picks a seed file and a mutation kind
 and mutates it with `random.Random(f"{seed}:{case}")` (so `--case N` replays one
-file), then runs it in-process through the ingest pipeline (`_Batch.ingest_file`,
-what `laneprint ingest` runs per file) and judges the end (`ingest.mutations.try_ingest`):
+file), then runs it in-process through the ingest pipeline (`_Batch.prepare`, `parse_log`,
+`_Batch.store`: what `laneprint ingest` runs per file) and judges the end (`ingest.mutations.try_ingest`):
 
 - ingested: stored, and the stored tables pass the canonical schemas and value bounds;
 - refused: rejected with a reason naming a signal or a byte offset / line / message;

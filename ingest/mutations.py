@@ -333,11 +333,13 @@ def check_workspace(ws: Workspace, stored: str | None) -> str:
 def try_ingest(path: Path, ws_root: Path) -> Outcome:
     """Ingest one file into a fresh workspace at `ws_root` and judge how it ended (never raises)."""
     from ingest.mapping import IDENTITY
-    from ingest.pipeline import _Batch
+    from ingest.pipeline import FileResult, _Batch, parse_log
 
     ws = Workspace(ws_root).ensure()
-    try:
-        res = _Batch(ws, IDENTITY, None).ingest_file(path)
+    try:  # what `ingest_paths` does with one file on the local backend
+        batch = _Batch(ws, IDENTITY, None)
+        got = batch.prepare(path)
+        res = got if isinstance(got, FileResult) else batch.store(path, got[1], parse_log(got[0]))
     except BaseException:  # noqa: BLE001 - a traceback is what the fuzzing looks for
         return Outcome("traceback", traceback.format_exc())
     stored = res.recording_id if res.status in ("ingested", "warning") else None

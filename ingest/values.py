@@ -111,8 +111,11 @@ def failures(df: pd.DataFrame, schema: pdr.DataFrameSchema) -> dict[str, np.ndar
 
 
 def signal_label(raw: RawLog, key: str, mapping: Mapping) -> str:
-    """How an EGO signal is named in the file: "column 'ego_v'" or "/ego/state field 'v'"."""
+    """How an EGO signal is named in the file: "column 'ego_v'", "/ego/state.v" (as the reader names it)
+    or "/driver/controls field 'steer'"."""
     column, topic, fld = _SOURCES[key]
+    if key in raw.names:
+        return raw.names[key] if raw.format == "mcap" else f"column {raw.names[key]!r}"
     if raw.format == "mcap":
         return f"{mapping.topic(topic)} field {mapping.msg_field(topic, fld)!r}"
     return f"column {mapping.column(column)!r}"

@@ -46,7 +46,7 @@ def test_infinite_ego_speed_in_an_mcap_names_topic_field_and_message(tmp_path, r
     meta, ego, traffic = recording
     bad = ego.assign(ego_v_mps=ego["ego_v_mps"].where(ego.index != 100, np.inf))
     res, _ = _ingest(tmp_path, "inf.mcap", lambda p: write_mcap(p, meta, bad, traffic))
-    assert res.reason.startswith("/ego/state field 'v' at message 100 of /ego/state (log_time 2000000000 ns) "
+    assert res.reason.startswith("/ego/state.v at message 100 of /ego/state (log_time 2000000000 ns) "
                                  "(t=2.000 s): inf is not a finite number")
 
 
@@ -102,7 +102,7 @@ def test_ego_jump_lane_outside_the_road_and_sample_rate_are_refused(tmp_path, re
                                  "its speed (25.1 m/s) allows; 2 such jumps; fix or cut those samples")
     lane = ego.assign(ego_lane=ego["ego_lane"].where(ego.index != 30, 25))
     res, _ = _ingest(tmp_path, "lane.mcap", lambda p: write_mcap(p, meta, lane, traffic))
-    assert res.reason.startswith("/ego/state field 'lane' at message 30 of /ego/state")
+    assert res.reason.startswith("/ego/state.lane at message 30 of /ego/state")
     assert res.reason.endswith("25 is outside the road (lanes 0..20); fix or cut those samples before ingesting")
     fast = ego.assign(t_s=ego["t_s"] / 100)  # 5 kHz
     res, _ = _ingest(tmp_path, "khz.csv", lambda p: write_csv(p, meta, fast, traffic.assign(t_s=traffic["t_s"] / 100)))
