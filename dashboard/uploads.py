@@ -2,7 +2,9 @@
 
 An upload's name comes from the user's browser and is not trusted: only its last
 path component is kept, reduced to `[A-Za-z0-9._-]`, and the resolved target is
-checked to lie inside `workspace/uploads/`. Bytes are copied to disk in chunks.
+checked to lie inside `workspace/uploads/`. Bytes are copied to disk in chunks
+(`shutil.copyfileobj`), counted as they come: more than the limit is refused whatever
+size the browser declared.
 Each file goes to `uploads/<content hash>/<safe name>`, so the original file name
 (the session id when the log has none) is kept and the same bytes land in the
 same place however often they are uploaded.
@@ -13,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import shutil
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,6 +49,32 @@ class SavedUpload:
     reason: str = ""
 
 
+class _TooLarge(Exception):
+    pass
+
+
+class _HashingSink:
+    """A file being written that hashes what it gets and refuses more than `limit` bytes."""
+
+    def __init__(self, path: Path, limit: int) -> None:
+        self.path, self.limit, self.written = path, limit, 0
+        self.digest = hashlib.sha256()
+
+    def __enter__(self) -> "_HashingSink":
+        self._fh = open(self.path, "wb")
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._fh.close()
+
+    def write(self, chunk: bytes) -> int:
+        self.written += len(chunk)
+        if self.written > self.limit:  # the browser's declared size is not trusted
+            raise _TooLarge
+        self.digest.update(chunk)
+        return self._fh.write(chunk)
+
+
 def save_upload(name: str, size: int, stream: BinaryIO, uploads_dir: Path, max_bytes: int) -> SavedUpload:
     """Copy one upload to `uploads_dir/<hash>/<safe name>`, or refuse it with a reason.
 
@@ -65,12 +94,20 @@ def save_upload(name: str, size: int, stream: BinaryIO, uploads_dir: Path, max_b
     staging = uploads_dir / ".partial"
     staging.mkdir(parents=True, exist_ok=True)
     tmp = staging / uuid.uuid4().hex
-    digest = hashlib.sha256()
+    sink = _HashingSink(tmp, max_bytes)
     stream.seek(0)
-    with open(tmp, "wb") as out:
-        while chunk := stream.read(_CHUNK):
-            digest.update(chunk)
-            out.write(chunk)
+    try:
+        with sink:
+            shutil.copyfileobj(stream, sink, _CHUNK)  # never the whole upload in memory at once
+    except _TooLarge:
+        tmp.unlink(missing_ok=True)
+        return SavedUpload(name, sink.written, reason=(
+            f"too large for the browser upload (more than {max_bytes / 2**20:.0f} MB): "
+            f"ingest it from the command line with `laneprint ingest PATH`"))
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    digest = sink.digest
     folder = uploads_dir / digest.hexdigest()[:16]
     target = (folder / safe_filename(name)).resolve()
     if not target.is_relative_to(uploads_dir):  # cannot happen after safe_filename; kept as a guard

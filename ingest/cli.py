@@ -12,6 +12,7 @@ from rich.table import Table
 
 from laneprint.cliutil import (DEFAULT_WS, BackendOpt, JsonOpt, RayAddressOpt, WorkspaceOpt, progress_bar,
                                run_command)
+from ingest.limits import IngestLimits
 from ingest.mapping import load_mapping
 from laneprint.parallel import backend_session
 from laneprint.workspace import Workspace
@@ -25,10 +26,11 @@ def ingest_result(paths: list[Path], driver: str | None, mapping: Path | None, w
     from ingest.pipeline import check_paths, ingest_paths
 
     load_mapping(mapping)  # a bad mapping file is one error line, before any bar is drawn
+    limits = IngestLimits.from_env()  # so is a bad LANEPRINT_MAX_* value
     check_paths(paths)
     with backend_session(backend, ray_address), progress_bar(show_progress) as progress:
         report = ingest_paths(paths, Workspace(workspace), driver_id=driver, mapping=mapping, progress=progress,
-                              backend=backend, ray_address=ray_address)
+                              backend=backend, ray_address=ray_address, limits=limits)
     out = report.to_dict()
     counts = out["counts"]
     processed = counts["ingested"] + counts["warning"] + counts["duplicate"] + counts["rejected"]

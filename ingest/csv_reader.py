@@ -5,13 +5,15 @@ from __future__ import annotations
 import csv
 import io
 import re
-import zlib
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
+from ingest.limits import IngestLimits, check_csv_shape, gunzip, long_line
 from ingest.logformat import CSV_EGO_REQUIRED, CSV_TIME, DEFAULT_LENGTH_M
 from ingest.mapping import Mapping
 from ingest.rawlog import RawLog, Rejected, first_line
@@ -23,22 +25,10 @@ _EGO_FLOATS = {  # CSV canonical column -> EGO column (positions scaled with pos
     "steer": "steer_rad", "throttle": "throttle", "brake": "brake",
 }
 _POSITIONS = ("ego_x", "ego_y", "ego_length")
+_OPTIONAL_FLOATS = ("ego_y", "ego_length", "steer", "throttle", "brake", "speed_limit_kph")
+_CONVERSION = re.compile(r"In CSV column #(\d+): Row #(\d+): CSV conversion error to (\w+)(?:: invalid value '(.*)')?",
+                         re.DOTALL)
 PART_MIN_BYTES = 4 << 20  # [bytes] a CSV is parsed in parts side by side from 2 x this size
-
-
-def gunzip(data: bytes) -> bytes:
-    """Decompress gzip bytes; `Rejected` with the reason when they are not valid gzip."""
-    if data[:2] != b"\x1f\x8b":
-        raise Rejected("not gzip-compressed although the name ends in .gz (no gzip magic bytes at byte 0)")
-    try:
-        d = zlib.decompressobj(wbits=31)
-        out = d.decompress(data)
-        if not d.eof:
-            raise Rejected(f"truncated gzip: the compressed stream ends early ({len(data)} bytes read, "
-                           f"{len(out)} bytes decompressed)")
-        return out
-    except zlib.error as exc:
-        raise Rejected(f"corrupt gzip data: {first_line(exc)}") from None
 
 
 def _header(text: bytes, delimiter: str = ",") -> list[str]:
@@ -115,7 +105,7 @@ def _const(table: pa.Table, column: str, label: str) -> str | float | None:
 
 
 def _parse(data: bytes, names: list[str], parse_options: pacsv.ParseOptions,
-           convert_options: pacsv.ConvertOptions) -> pa.Table:
+           convert_options: pacsv.ConvertOptions, block_size: int = 1 << 20) -> pa.Table:
     """pyarrow's CSV reader over `data`; a large file is cut into parts parsed side by side.
 
     On these wide logs pyarrow's own multi-threaded reader costs ~15 % more CPU than its
@@ -134,8 +124,8 @@ def _parse(data: bytes, names: list[str], parse_options: pacsv.ParseOptions,
         if 0 < cut < len(data):
             cuts.append(cut)
     cuts.append(len(data))
-    with_header = pacsv.ReadOptions(use_threads=False)
-    headless = pacsv.ReadOptions(use_threads=False, column_names=names)
+    with_header = pacsv.ReadOptions(use_threads=False, block_size=block_size)  # a line longer than a block fails
+    headless = pacsv.ReadOptions(use_threads=False, column_names=names, block_size=block_size)
 
     def read(i: int | None) -> pa.Table:
         piece = data if i is None else memoryview(data)[0 if i == 0 else cuts[i]:cuts[i + 1]]
@@ -154,12 +144,81 @@ def _parse(data: bytes, names: list[str], parse_options: pacsv.ParseOptions,
         return read(None)
 
 
-def read_csv_log(data: bytes, fmt: str, mapping: Mapping) -> RawLog:
+def _parse_typed(data: bytes, names: list[str], types: dict[str, pa.DataType], optional: set[str],
+                 vehicle_columns: set[str], mapping: Mapping,
+                 limits: IngestLimits) -> tuple[pa.Table, dict[str, pa.ChunkedArray], list[str]]:
+    """Parse with the given column types; a text cell in an optional column empties that cell
+    (with a warning), in a required one refuses the file naming the column and the line.
+    Returns the table, the mask of emptied cells per column, and the warnings."""
+    as_text: list[str] = []
+    while True:
+        convert = pacsv.ConvertOptions(column_types={k: (pa.string() if k in as_text else v) for k, v in types.items()},
+                                       include_columns=list(types), strings_can_be_null=True)
+        try:
+            table = _parse(data, names, pacsv.ParseOptions(delimiter=mapping.csv_delimiter), convert,
+                           block_size=limits.max_line_bytes)
+            break
+        except (pa.ArrowInvalid, pa.ArrowTypeError, UnicodeDecodeError) as exc:
+            m = _CONVERSION.match(str(exc))
+            column = names[int(m.group(1))] if m and int(m.group(1)) < len(names) else None
+            if column is None:
+                raise Rejected(f"malformed CSV: {_parse_failure(data, names, exc, mapping, limits)}") from None
+            if column in optional and column not in as_text:
+                as_text.append(column)
+                continue
+            if m.group(4) is None:
+                raise Rejected(f"column {column!r} line {m.group(2)}: the value is not UTF-8 text; "
+                               f"save the file as UTF-8") from None
+            what = "0/1 or true/false" if types[column] == pa.bool_() else "a number"
+            raise Rejected(f"column {column!r} line {m.group(2)}: {first_line(m.group(4), 40)!r} is not {what}; "
+                           f"correct that value or remove the line") from None
+    warnings: list[str] = []
+    coerced: dict[str, pa.ChunkedArray] = {}
+    for column in as_text:
+        text = table.column(column)
+        numbers = _to_floats(text)
+        bad = pc.and_(pc.is_valid(text), pc.is_null(numbers))
+        coerced[column] = bad
+        first = int(pc.index(bad, True).as_py())
+        warnings.append(f"column {column!r}: {pc.sum(bad).as_py()} value(s) are not numbers (first "
+                        f"{first_line(text[first].as_py(), 40)!r} at line {first + 2}); "
+                        + ("the vehicle is left out of those samples" if column in vehicle_columns else "left empty"))
+        table = table.set_column(table.schema.get_field_index(column), column, numbers)
+    return table, coerced, warnings
+
+
+def _to_floats(text: pa.ChunkedArray) -> pa.ChunkedArray:
+    """Text -> float64, null where a cell is not a number."""
+    return pa.chunked_array([pa.array(pd.to_numeric(text.to_pandas(), errors="coerce"), pa.float64())])
+
+
+def _parse_failure(data: bytes, names: list[str], exc: Exception, mapping: Mapping, limits: IngestLimits) -> str:
+    """The reason a CSV could not be parsed: a line too long, a ragged line, or pyarrow's first line."""
+    if "straddling" in str(exc):
+        return long_line(data, limits) or first_line(exc)
+    return _ragged_line(data, len(names), mapping.csv_delimiter) or first_line(exc)
+
+
+def _blank_absent_vehicles(table: pa.Table, vehicles: dict[str, dict[str, str]],
+                           coerced: dict[str, pa.ChunkedArray]) -> pa.Table:
+    """A traffic vehicle whose v or lane cell was not a number is absent at that sample: its x is emptied too."""
+    for cols in vehicles.values():
+        gone = [coerced[cols[f]] for f in ("v", "lane") if cols[f] in coerced]
+        if gone:
+            mask = gone[0] if len(gone) == 1 else pc.or_(*gone)
+            x = table.column(cols["x"])
+            table = table.set_column(table.schema.get_field_index(cols["x"]), cols["x"], pc.if_else(mask, None, x))
+    return table
+
+
+def read_csv_log(data: bytes, fmt: str, mapping: Mapping, limits: IngestLimits | None = None) -> RawLog:
     """Parse CSV bytes (gzip when `fmt` is 'csv.gz') into a `RawLog`; `Rejected` on bad input."""
+    limits = limits or IngestLimits()
     if fmt == "csv.gz":
-        data = gunzip(data)
+        data = gunzip(data, limits)
         if not data.strip():
             raise Rejected("empty CSV inside the gzip file")
+    check_csv_shape(data, mapping.csv_delimiter, limits)
     names = _header(data, mapping.csv_delimiter)
     col = mapping.column
     required = [CSV_TIME, *CSV_EGO_REQUIRED]
@@ -178,18 +237,15 @@ def read_csv_log(data: bytes, fmt: str, mapping: Mapping) -> RawLog:
     for cols in vehicles.values():
         for name in cols.values():
             types[name] = pa.float64()
-    try:
-        table = _parse(data, names, pacsv.ParseOptions(delimiter=mapping.csv_delimiter),
-                       pacsv.ConvertOptions(column_types=types, include_columns=list(types),
-                                            strings_can_be_null=True))
-    except (pa.ArrowInvalid, pa.ArrowTypeError, UnicodeDecodeError) as exc:
-        raise Rejected(f"malformed CSV: {_ragged_line(data, len(names), mapping.csv_delimiter) or first_line(exc)}") from None
-
+    vehicle_columns = {name for cols in vehicles.values() for name in cols.values()}
+    optional = vehicle_columns | {name for c, name in canonical_present.items() if c in _OPTIONAL_FLOATS}
+    table, coerced, warnings = _parse_typed(data, names, types, optional, vehicle_columns, mapping, limits)
+    if coerced:
+        table = _blank_absent_vehicles(table, vehicles, coerced)
     n = table.num_rows
     meta = {}
     for c in ("driver_id", "session_id", "simulator"):
         meta[c] = _const(table, canonical_present[c], canonical_present[c]) if c in canonical_present else None
-    warnings: list[str] = []
     if "speed_limit_kph" in canonical_present:
         try:
             meta["speed_limit_kph"] = _const(table, canonical_present["speed_limit_kph"], "speed_limit_kph")

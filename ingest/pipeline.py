@@ -30,7 +30,8 @@ import pandas as pd
 
 from ingest.csv_reader import read_csv_log
 from ingest.mapping import Mapping, load_mapping
-from ingest.mcap_reader import read_mcap_log
+from ingest.limits import IngestLimits, check_file_size, check_mcap_records
+from ingest.mcap_reader import MAGIC as MCAP_MAGIC, read_mcap_log
 from ingest.rawlog import RawLog, Rejected, first_line
 from ingest.validate import Canonical, canonicalise
 from laneprint.errors import UserError
@@ -125,13 +126,16 @@ def discover(paths: list[Path]) -> list[tuple[Path, str | None]]:
     return out
 
 
-def read_log(data: bytes, fmt: str, mapping: Mapping) -> RawLog:
-    """Parse the bytes of one log; `Rejected` with a reason when they cannot be read."""
+def read_log(data: bytes, fmt: str, mapping: Mapping, limits: IngestLimits | None = None) -> RawLog:
+    """Parse the bytes of one log within `limits`; `Rejected` with a reason when they cannot be read."""
+    limits = limits or IngestLimits()
     if not data:
         raise Rejected("empty file (0 bytes)")
     if fmt == "mcap":
+        if data.startswith(MCAP_MAGIC):
+            check_mcap_records(data, limits)
         return read_mcap_log(data, mapping)
-    return read_csv_log(data, fmt, mapping)
+    return read_csv_log(data, fmt, mapping, limits)
 
 
 @dataclass(frozen=True)
@@ -143,6 +147,7 @@ class ParseJob:
     session_default: str  # the session id when the file carries none (its name)
     mapping: Mapping
     driver: str | None  # --driver
+    limits: IngestLimits = IngestLimits()  # what reading the file may cost
 
 
 @dataclass
@@ -156,7 +161,7 @@ class Parsed:
 def parse_log(job: ParseJob) -> Parsed:
     """Read and validate one file's bytes into canonical tables; pure (no workspace, no file system)."""
     try:
-        raw = read_log(job.data, job.fmt, job.mapping)
+        raw = read_log(job.data, job.fmt, job.mapping, job.limits)
         return Parsed(canonicalise(raw, job.mapping, job.session_default, job.driver))
     except Rejected as exc:
         return Parsed(reason=str(exc))
@@ -219,8 +224,9 @@ def _release_claim(ws: Workspace, driver_id: str, session_id: str, rid: str) -> 
 class _Batch:
     """State shared by the files of one batch: workspace, mapping, known sessions."""
 
-    def __init__(self, ws: Workspace, mapping: Mapping, driver: str | None) -> None:
+    def __init__(self, ws: Workspace, mapping: Mapping, driver: str | None, limits: IngestLimits | None = None) -> None:
         self.ws = ws
+        self.limits = limits or IngestLimits()
         self.mapping = mapping
         self.driver = driver
         cat = ws.recordings()
@@ -240,13 +246,16 @@ class _Batch:
         """Read a file's bytes: its `ParseJob` and content hash, or its result when it needs no parsing."""
         fmt = log_format(path) or ""
         try:
+            check_file_size(path.stat().st_size, self.limits)
             data = path.read_bytes()
+        except Rejected as exc:
+            return self.reject(path, fmt, "", str(exc))
         except OSError as exc:
             return self.reject(path, fmt, "", f"cannot read the file: {exc.strerror or exc}")
         rid = hashlib.sha256(data).hexdigest()[:16]
         if self.ws.has_recording(rid):
             return self.same_bytes(path, fmt, rid)
-        return ParseJob(data, fmt, session_stem(path), self.mapping, self.driver), rid
+        return ParseJob(data, fmt, session_stem(path), self.mapping, self.driver, self.limits), rid
 
     @staticmethod
     def same_bytes(path: Path, fmt: str, rid: str) -> FileResult:
@@ -314,14 +323,15 @@ def check_paths(paths: list[Path]) -> list[Path]:
 
 def ingest_paths(paths: list[Path], workspace: Workspace, driver_id: str | None = None,
                  mapping: Path | None = None, progress: ProgressFn | None = None, backend: str = "local",
-                 ray_address: str | None = None) -> IngestReport:
+                 ray_address: str | None = None, limits: IngestLimits | None = None) -> IngestReport:
     """Ingest every log under `paths` into `workspace`; a report with one result per file.
 
     Files are read and validated by `parse_log` on `backend` (`laneprint.parallel`:
     this process, or Ray workers that get each file's bytes) and stored here, in file
     order, so the result does not depend on the backend. Raises `UserError` only when
     nothing can be done at all (no path exists, a bad mapping file, a workspace that
-    is a file, a backend that cannot start).
+    is a file, a backend that cannot start, a bad LANEPRINT_MAX_* value).
+    `limits` bound what one file may cost (default: `IngestLimits.from_env()`).
     """
     paths = check_paths(paths)
     the_mapping = load_mapping(mapping)
@@ -330,7 +340,8 @@ def ingest_paths(paths: list[Path], workspace: Workspace, driver_id: str | None 
         ws = workspace.ensure()
     except OSError as exc:
         raise UserError(f"cannot use workspace {workspace.root}: {exc.strerror or exc}") from None
-    batch = _Batch(ws, the_mapping, driver_id.strip() if driver_id and driver_id.strip() else None)
+    limits = limits or IngestLimits.from_env()
+    batch = _Batch(ws, the_mapping, driver_id.strip() if driver_id and driver_id.strip() else None, limits)
     found = discover(paths)
     results: list[FileResult | None] = [None] * len(found)
     to_read = []

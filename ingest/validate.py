@@ -15,10 +15,10 @@ import pyarrow as pa
 
 from ingest.mapping import Mapping
 from ingest.rawlog import RawLog, Rejected
+from ingest.values import check_ego_jumps, check_ego_values, check_sample_rate, check_traffic_values
 from laneprint.schemas import EGO, TRAFFIC
 
 KMH_MEDIAN_MPS = 45.0  # [m/s] a median ego speed above this (162 km/h) is taken for km/h
-MAX_LANE = 20  # lane indices above this are taken for a wrong column
 
 
 @dataclass
@@ -38,6 +38,10 @@ def _check_time(raw: RawLog) -> None:
     if np.isnan(t).any():
         i = int(np.argmax(np.isnan(t)))
         raise Rejected(f"time {raw.time_name!r} is empty at {raw.locate(i)}")
+    if np.isinf(t).any() or np.isinf(raw.t_s).any():
+        i = int(np.argmax(np.isinf(t) | np.isinf(raw.t_s)))
+        raise Rejected(f"time {raw.time_name!r} at {raw.locate(i)}: {t[i]} is not a finite number; "
+                       f"fix or cut that sample before ingesting")
     dt = np.diff(t)
     bad = np.flatnonzero(dt <= 0)
     if len(bad):
@@ -62,22 +66,17 @@ def _check_gaps(raw: RawLog) -> None:
         more = f" (and {len(starts) - 1} more gap(s), {int(nan.sum())} empty values in all)" if len(starts) > 1 else ""
         span = (f"at {raw.locate(s)} (t={raw.t_s[s]:.3f} s)" if s == e else
                 f"from {raw.locate(s)} to {raw.locate(e)} (t={raw.t_s[s]:.3f}-{raw.t_s[e]:.3f} s)")
-        raise Rejected(f"gap in required signal {name}: {e - s + 1} empty value(s) {span}{more}; "
+        empty = "empty value(s)" if raw.format != "mcap" else "empty or non-numeric value(s)"
+        raise Rejected(f"gap in required signal {name}: {e - s + 1} {empty} {span}{more}; "
                        f"fill or cut the gap before ingesting")
 
 
-def _check_values(raw: RawLog, mapping: Mapping) -> None:
+def _check_kmh(raw: RawLog, mapping: Mapping) -> None:
     v = raw.ego["ego_v_mps"]
     med = float(np.median(v))
     if med > KMH_MEDIAN_MPS:
         raise Rejected(f"ego speed looks like km/h, not m/s (median {med:.1f}, i.e. {med * 3.6:.0f} km/h if it "
                        f"were m/s): set speed = \"km/h\" under [units] {mapping.hint()}")
-    lane = raw.ego["ego_lane"]
-    frac = lane != np.round(lane)
-    if frac.any() or (lane < 0).any() or (lane > MAX_LANE).any():
-        i = int(np.argmax(frac | (lane < 0) | (lane > MAX_LANE)))
-        raise Rejected(f"{raw.names.get('ego_lane', 'ego_lane')} must be a lane index 0..{MAX_LANE}, "
-                       f"got {lane[i]:g} at {raw.locate(i)}")
 
 
 def _unit_warnings(raw: RawLog) -> list[str]:
@@ -148,9 +147,12 @@ def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: st
     if len(raw.t_s) == 0:
         raise Rejected("no samples: the log has a header but no data rows")
     _check_time(raw)
+    check_sample_rate(raw, mapping)
     _check_gaps(raw)
-    _check_values(raw, mapping)
-    warnings = list(raw.warnings) + _unit_warnings(raw)
+    _check_kmh(raw, mapping)
+    warnings = list(raw.warnings) + check_ego_values(raw, mapping)
+    check_ego_jumps(raw, mapping)
+    warnings += check_traffic_values(raw, mapping) + _unit_warnings(raw)
     meta = dict(raw.meta)
     meta["driver_id"] = resolve_driver(meta.get("driver_id"), mapping.defaults.get("driver_id"), driver, warnings)
     meta["session_id"] = str(meta.get("session_id") or mapping.defaults.get("session_id") or session_default)
@@ -176,13 +178,7 @@ def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: st
     }, copy=False)
     tr = raw.traffic
     lane = tr["lane"]
-    with np.errstate(invalid="ignore"):  # NaN or huge lanes do not survive the cast: caught just below
-        lane_i = lane.astype(np.int64)
-    if len(lane) and (lane_i.min() < 0 or lane_i.max() > MAX_LANE or not np.array_equal(lane_i, lane)):
-        k = int(np.argmax((lane != np.round(lane)) | (lane < 0) | (lane > MAX_LANE)))
-        vid = _strings(tr["vehicle_id"]).iloc[k]
-        raise Rejected(f"traffic vehicle {vid!r} has lane {lane[k]:g} at t={tr['t_s'][k]:.3f} s; "
-                       f"lanes are indices 0..{MAX_LANE}")
+    lane_i = lane.astype(np.int64)  # whole numbers 0..MAX_LANE: samples with other lanes were dropped
     vehicle_id = _strings(tr["vehicle_id"])
     n_vehicles = raw.n_vehicles if raw.n_vehicles is not None else int(vehicle_id.nunique())
     traffic = pd.DataFrame({

@@ -57,3 +57,17 @@ def test_discard_only_inside_uploads(tmp_path):
     assert outside.exists()
     discard(s.path, tmp_path / "uploads")
     assert not s.path.exists() and not s.path.parent.exists()
+
+
+def test_upload_larger_than_declared_is_cut_off_and_refused(tmp_path):
+    class Counting(io.BytesIO):
+        biggest_read = 0
+
+        def read(self, n=-1):
+            Counting.biggest_read = max(Counting.biggest_read, n)
+            return super().read(n)
+
+    lying = save_upload("lie.csv", 10, Counting(b"x" * (5 << 20)), tmp_path, 3 << 20)
+    assert lying.path is None and lying.reason.startswith("too large for the browser upload (more than 3 MB)")
+    assert not list((tmp_path / ".partial").iterdir())
+    assert 0 < Counting.biggest_read <= 1 << 20  # copied in chunks, never read whole

@@ -275,7 +275,13 @@ def test_mcap_traffic_lane_out_of_range_and_vehicle_without_id(tmp_path, recordi
     meta, ego, traffic = recording
     odd = traffic.assign(lane=traffic["lane"].where(traffic["vehicle_id"] != "b", 42))
     _, res = _batch(tmp_path, recording, "lane.mcap", lambda p: write_mcap(p, dict(meta, session_id="l"), ego, odd))
-    assert res.reason == "traffic vehicle 'b' has lane 42 at t=1.000 s; lanes are indices 0..20"
+    n_b = int((traffic["vehicle_id"] == "b").sum())
+    assert res.status == "warning"  # a traffic vehicle is optional: its impossible samples are dropped
+    assert res.warnings[0] == (f"traffic: dropped {n_b} of {len(traffic)} vehicle sample(s) of 1 vehicle(s) with "
+                               f"impossible values (first: vehicle 'b' field 'lane' 42 is outside the road "
+                               f"(lanes 0..20) at t=1.000 s)")
+    stored = Workspace(tmp_path / "ws").load_recording(res.recording_id)[2]
+    assert set(stored["vehicle_id"]) == {"a", "c12"}
 
     def no_id(p):
         with open(p, "wb") as fh:
@@ -341,10 +347,19 @@ def test_mcap_metadata_without_metadata_index_is_still_found(tmp_path, recording
     assert (res.status, res.driver_id, res.session_id) == ("ingested", "D33", "noidx")
 
 
-def test_time_in_milliseconds_warns_about_units(tmp_path, recording):
+def test_time_in_milliseconds_is_refused_by_its_sample_rate(tmp_path, recording):
     meta, ego, traffic = recording
     ms = ego.assign(t_s=ego["t_s"] * 1000)
     _, res = _batch(tmp_path, recording, "ms.csv",
                     lambda p: write_csv(p, dict(meta, session_id="ms"), ms, traffic.assign(t_s=traffic["t_s"] * 1000)))
+    assert res.status == "rejected"
+    assert res.reason.startswith("sample rate 0.05 Hz (median step 20 s of t) is outside 1-1000 Hz; "
+                                 "if t is not in seconds, set time = \"ms\"")
+
+
+def test_positions_in_feet_warn_about_units(tmp_path, recording):
+    meta, ego, traffic = recording
+    ft = ego.assign(ego_x_m=ego["ego_x_m"] / 0.3048)
+    _, res = _batch(tmp_path, recording, "ft.csv", lambda p: write_csv(p, dict(meta, session_id="ft"), ft, traffic))
     assert res.status == "warning"
-    assert res.warnings[0].startswith("ego speed (median 25.1) is 1e+03x the rate at which ego_x changes (0.025 per t unit)")
+    assert res.warnings[0].startswith("ego speed (median 25.1) is 0.305x the rate at which ego_x changes")

@@ -53,7 +53,7 @@ def test_errors_in_a_later_part_name_the_files_line(csv_bytes, monkeypatch):
     bad_value = "\n".join(lines[:180] + [",".join(row)] + lines[181:]) + "\n"
     reason = str(_read(bad_value.encode(), 2, monkeypatch))
     assert reason == str(_read(bad_value.encode(), 1, monkeypatch))
-    assert reason.startswith("malformed CSV: ") and "Row #181" in reason and "'fast'" in reason
+    assert reason.startswith("column 'ego_v' line 181: 'fast' is not a number")
 
     ragged = "\n".join(lines[:150] + [lines[150] + ",1"] + lines[151:]) + "\n"
     assert str(_read(ragged.encode(), 3, monkeypatch)) == "malformed CSV: line 151 has 30 fields, the header has 29"

@@ -118,7 +118,8 @@ def test_lanes_from_y_for_a_stack_that_logs_none(tmp_path, recording):
     shifted = mapping.replace("lane0_y_m = 0.0", "lane0_y_m = 3.5")  # lane 0 one lane further left: ego in lane -1
     (tmp_path / "b").mkdir()
     report = ingest_cli(tmp_path / "b", log, shifted)
-    assert report["reason"].startswith("lane_from_y of /odom.pose.pose.position.y must be a lane index 0..")
+    assert report["reason"].startswith("lane_from_y of /odom.pose.pose.position.y at message 0 of /odom ")
+    assert "-1 is outside the road (lanes 0..20)" in report["reason"]
 
 
 def test_json_file_reads_through_signals_too(tmp_path, recording):
