@@ -32,6 +32,7 @@ from typing import Any
 
 import pandas as pd
 
+from laneprint.processes import laneprint_process_alive
 from laneprint.workspace import Workspace, atomic_write_json
 
 #: Popen handles of the runs this server started, so finished children are reaped.
@@ -124,22 +125,7 @@ def pid_alive(pid: int | None) -> bool:
     proc = _CHILDREN.get(int(pid))
     if proc is not None:
         return proc.poll() is None
-    try:
-        os.kill(int(pid), 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return False  # another user's process: not a run of ours
-    proc_dir = Path(f"/proc/{int(pid)}")
-    if not proc_dir.is_dir():  # no /proc (not Linux): trust kill(0)
-        return True
-    try:
-        state = (proc_dir / "stat").read_text().split(") ", 1)[1][0]
-        cmdline = (proc_dir / "cmdline").read_bytes()
-    except (OSError, IndexError):
-        return False
-    # a zombie still answers kill(0); a pid reused by another program must not be signalled
-    return state != "Z" and b"laneprint" in cmdline
+    return laneprint_process_alive(pid)
 
 
 def read_json(path: Path) -> dict[str, Any] | None:
