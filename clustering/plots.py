@@ -8,10 +8,19 @@ import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
 from indicators.plots import LABELS, SPEED_LABEL
+from laneprint.plotting import spread_labels
 from laneprint.reference import INDICATORS
 
 STYLE_COLORS = {"Defensive": "#2ca02c", "Normal": "#1f77b4", "Aggressive": "#d62728", "unassigned": "#999999"}
 _EXTRA_COLORS = ["#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22"]
+
+
+#: Annotation offsets [px] of a label written on each side of its point.
+_LABEL_OFFSETS = {"top": {"yshift": 12}, "bottom": {"yshift": -12}, "right": {"xshift": 8, "xanchor": "left"},
+                  "left": {"xshift": -8, "xanchor": "right"}}
+
+#: Arrow tail offsets [px] of a typical driver's label on each side of its star.
+_ARROW = {"top": (0, -40), "bottom": (0, 40), "right": (50, 0), "left": (-50, 0)}
 
 
 def style_color(style: str, i: int = 0) -> str:
@@ -25,10 +34,13 @@ def _feature_label(col: str) -> str:
     return f"{ind} at {kph} km/h [{'s' if unit == 's' else 'm/s'}]"
 
 
-def cluster_scatter(styles: pd.DataFrame, x: str | None = None, y: str | None = None) -> go.Figure:
+def cluster_scatter(styles: pd.DataFrame, x: str | None = None, y: str | None = None,
+                    max_labels: int = 12) -> go.Figure:
     """Drivers in feature space (default: t_f and t_nf of each driver's line at 80 km/h),
     one trace per style, typical drivers as stars (trace 'typical drivers'); marker
-    opacity follows the assignment confidence."""
+    opacity follows the assignment confidence. Every driver's id is in its hover; at
+    most `max_labels` ids are written on the plot (annotations), typical drivers first,
+    only where a label overlaps no other label or point."""
     feats = [c for c in styles.columns if "_at_" in c and "kph_" in c]
     if not feats:
         raise ValueError("styles table has no feature columns")
@@ -45,7 +57,7 @@ def cluster_scatter(styles: pd.DataFrame, x: str | None = None, y: str | None = 
         g = styles[styles["style"] == style]
         conf = g["confidence"].fillna(0).clip(0, 1).to_numpy()
         fig.add_trace(go.Scatter(
-            x=g[x], y=g[y], mode="markers+text", name=style, text=g["driver_id"], textposition="top center",
+            x=g[x], y=g[y], mode="markers", name=style, text=g["driver_id"],
             marker={"color": style_color(style, i), "size": 11, "opacity": list(0.35 + 0.65 * conf)},
             customdata=np.c_[conf, g["n_decisions"]],
             hovertemplate="%{text}<br>confidence %{customdata[0]:.2f}<br>presses %{customdata[1]}<extra>" + style + "</extra>"))
@@ -54,6 +66,17 @@ def cluster_scatter(styles: pd.DataFrame, x: str | None = None, y: str | None = 
                              marker={"symbol": "star", "size": 20, "color": "rgba(0,0,0,0)",
                                      "line": {"width": 2, "color": "black"}},
                              hovertemplate="typical: %{text}<extra></extra>"))
+    # every driver is named in the hover; on the plot only labels that overlap nothing, typical drivers first
+    sides = spread_labels(styles[x], styles[y], styles["driver_id"].astype(str),
+                          priority=styles["is_typical"].astype(bool).astype(float), max_labels=max_labels)
+    for (_, r), side in zip(styles.iterrows(), sides):
+        if not side:
+            continue
+        # a typical driver's label stands off its star on an arrow: the star is large, its cluster dense
+        place = ({"showarrow": True, "arrowwidth": 1, "arrowcolor": "#444", "ax": _ARROW[side][0],
+                  "ay": _ARROW[side][1]} if bool(r["is_typical"]) else {"showarrow": False, **_LABEL_OFFSETS[side]})
+        fig.add_annotation(x=r[x], y=r[y], text=str(r["driver_id"]), font={"size": 11},
+                           bgcolor="rgba(255,255,255,0.8)", borderpad=1, **place)
     fig.update_layout(title="Drivers in feature space (each driver's robust line evaluated at one speed)",
                       xaxis_title=_feature_label(x), yaxis_title=_feature_label(y), template="plotly_white")
     return fig

@@ -15,6 +15,7 @@ import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
 from dashboard.views import CROSSVAL_POLICIES
+from laneprint.plotting import ema_smooth
 
 MAX_POINTS = 20_000
 
@@ -94,14 +95,13 @@ def recording_timeline(ego: pd.DataFrame, traffic: pd.DataFrame, title: str = ""
     return fig
 
 
-def runs_curves(metrics: dict[str, pd.DataFrame], column: str, label: str) -> go.Figure:
-    """One metric per episode for several runs on one plot, as rolling means (run comparison)."""
+def runs_curves(metrics: dict[str, pd.DataFrame], column: str, label: str, smoothing: float = 0.95) -> go.Figure:
+    """One metric per episode for several runs on one plot, smoothed as TensorBoard does (run comparison)."""
     fig = go.Figure()
     for run_id, df in metrics.items():
         if column in df:
-            window = max(1, min(50, len(df) // 10))  # a rolling mean: per-episode values are noisy
-            y = pd.to_numeric(df[column], errors="coerce").rolling(window, min_periods=1).mean()
-            fig.add_trace(go.Scatter(x=df["episode"], y=y, mode="lines", name=run_id))
+            fig.add_trace(go.Scattergl(x=df["episode"], y=ema_smooth(df[column], smoothing), mode="lines",
+                                       name=run_id))
     fig.update_layout(xaxis_title="episode [-]", yaxis_title=label, height=360,
                       legend=dict(orientation="h", y=-0.25))
     return fig

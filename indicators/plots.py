@@ -7,6 +7,7 @@ import pandas as pd
 import plotly.graph_objects as go
 
 from indicators.stats import INDICATOR_COLUMNS, LineFit, indicator_points
+from laneprint.plotting import axis_range, clip_to_axis
 
 LABELS = {"t_f": "t_f: TTC to the ego-lane leader [s]", "t_nf": "t_nf: TTC to the target-lane leader [s]",
           "dv_nb": "dv_nb: v_ego - v_nb, target-lane follower [m/s]"}
@@ -18,8 +19,11 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
     """One driver's presses: the indicator against ego speed, the OLS line, its (1 - alpha)
     confidence band and prediction band. Points left out of the fit are grey, with their reason.
 
-    Traces (by name): 'used', 'excluded' (if any), and when the fit is 'ok':
-    'prediction band', 'confidence band', 'OLS line'.
+    The y axis is scaled to the used points; excluded points beyond it are drawn at its
+    edge as triangles (pointing where they are) with their true value in the hover.
+
+    Traces (by name): 'used', 'excluded' and 'excluded, off the axis (n)' (if any), and
+    when the fit is 'ok': 'prediction band', 'confidence band', 'OLS line'.
     """
     if indicator not in INDICATOR_COLUMNS:
         raise ValueError(f"unknown indicator {indicator!r}")
@@ -31,11 +35,25 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
                              marker={"color": "#1f77b4", "size": 7},
                              text=used["decision_id"], hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{y:.2f}"))
     excl = pts[~pts["used"] & np.isfinite(pts["y"])]
+    # the axis follows the points the fit used: a few excluded TTCs of minutes would flatten them
+    yrange = axis_range(used["y"]) if len(used) else None
     if len(excl):
-        fig.add_trace(go.Scatter(x=excl["v"], y=excl["y"], mode="markers", name="excluded",
-                                 marker={"color": "#bbbbbb", "size": 7, "symbol": "x"},
-                                 text=excl["decision_id"] + ": " + excl["status"],
-                                 hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{y:.2f}"))
+        drawn = clip_to_axis(excl["y"], *yrange) if yrange else clip_to_axis(excl["y"], -np.inf, np.inf)
+        inside = (drawn["side"] == "").to_numpy()
+        part = excl[inside]
+        if len(part):
+            fig.add_trace(go.Scatter(x=part["v"], y=part["y"], mode="markers", name="excluded",
+                                     marker={"color": "#bbbbbb", "size": 7, "symbol": "x"},
+                                     text=part["decision_id"] + ": " + part["status"],
+                                     hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{y:.2f}"))
+        off, where = excl[~inside], drawn[~inside]
+        if len(off):
+            fig.add_trace(go.Scatter(
+                x=off["v"], y=where["y"], mode="markers", name=f"excluded, off the axis ({len(off)})",
+                marker={"color": "#999999", "size": 9, "symbol": np.where(where["side"] == "above", "triangle-up",
+                                                                           "triangle-down").tolist()},
+                cliponaxis=False, customdata=where["value"], text=off["decision_id"] + ": " + off["status"],
+                hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{customdata:.2f} (off the axis)<extra></extra>"))
     row = fits[(fits["driver_id"].astype(str) == str(driver_id)) & (fits["indicator"] == indicator)]
     title = f"driver {driver_id}: {indicator} against ego speed"
     if len(row) and row.iloc[0]["status"] == "ok":
@@ -54,6 +72,8 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
     elif len(row):
         title += f" — no fit: {row.iloc[0]['reason']}"
     fig.update_layout(title=title, xaxis_title=SPEED_LABEL, yaxis_title=LABELS[indicator], template="plotly_white")
+    if yrange:
+        fig.update_yaxes(range=list(yrange))
     return fig
 
 

@@ -10,6 +10,7 @@ import pandas as pd
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
+from laneprint.plotting import ema_smooth
 from laneprint.reference import INDICATORS
 
 _UNITS = {"t_f": "t_f [s]", "t_nf": "t_nf [s]", "dv_nb": "dv_nb [m/s]"}
@@ -17,24 +18,25 @@ _COLS = {"t_f": "t_f_s", "t_nf": "t_nf_s", "dv_nb": "dv_nb_mps"}
 _COLOURS = {"agent": "#1f77b4", "greedy": "#ff7f0e", "driver": "#2ca02c"}
 
 
-def training_curves(metrics: pd.DataFrame, smooth: int = 50) -> go.Figure:
-    """Fig. 9: loss and mean step reward per episode (raw, light; rolling mean, dark)."""
+def training_curves(metrics: pd.DataFrame, smoothing: float = 0.95) -> go.Figure:
+    """Fig. 9: loss and mean step reward per episode: raw values faint, TensorBoard-style smoothed line
+    (exponential moving average with debiasing, weight `smoothing` in [0, 1); 0 = raw) over them."""
     fig = make_subplots(rows=1, cols=2, subplot_titles=("training loss", "mean step reward"))
     if metrics is None or metrics.empty:
         fig.update_layout(title="no metrics yet")
         return fig
     m = metrics.sort_values("episode")
     for col, key in ((1, "loss"), (2, "mean_step_reward")):
-        y = pd.to_numeric(m[key], errors="coerce")
+        y = pd.to_numeric(m[key], errors="coerce") if key in m else pd.Series(np.nan, index=m.index)
         fig.add_trace(go.Scattergl(x=m["episode"], y=y, mode="lines", line={"color": "#9ecae1", "width": 1},
-                                   name=f"{key} (per episode)", showlegend=False), row=1, col=col)
-        fig.add_trace(go.Scatter(x=m["episode"], y=y.rolling(smooth, min_periods=1).mean(), mode="lines",
-                                 line={"color": "#08519c"}, name=f"{key} (mean of {smooth})", showlegend=False),
-                      row=1, col=col)
+                                   opacity=0.45, name=f"{key} (per episode)", showlegend=False), row=1, col=col)
+        fig.add_trace(go.Scattergl(x=m["episode"], y=ema_smooth(y, smoothing), mode="lines",
+                                   line={"color": "#08519c", "width": 2}, name=f"{key} (smoothed {smoothing:g})",
+                                   showlegend=False), row=1, col=col)
         fig.update_xaxes(title_text="episode", row=1, col=col)
     fig.update_yaxes(title_text="loss [reward²]", row=1, col=1)
     fig.update_yaxes(title_text="reward per step [1]", row=1, col=2)
-    fig.update_layout(title="Training (Fig. 9)", height=380)
+    fig.update_layout(title=f"Training (Fig. 9): per episode (faint), smoothed {smoothing:g} (dark)", height=380)
     return fig
 
 

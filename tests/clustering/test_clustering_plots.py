@@ -56,3 +56,28 @@ def test_reference_lines_one_panel_per_indicator(tables):
     assert len(fig.data) == 3 * 3 * 2
     assert fig.layout.xaxis3.title.text == "ego speed v_e [m/s]"
     assert "[m/s]" in fig.layout.yaxis3.title.text and "[s]" in fig.layout.yaxis.title.text
+
+
+def test_excluded_ttcs_far_off_do_not_stretch_the_axis(tables):
+    dec = tables["decisions"].copy()
+    rows = dec.index[(dec["driver_id"] == "D0000") & (dec["label"] == "change")][:2]
+    dec.loc[rows, "t_f_s"] = [350.0, 120.0]  # a leader hardly slower than the ego: 'following', excluded
+    dec.loc[rows, "f_v_mps"] = dec.loc[rows, "ego_v_mps"] - 0.1
+    fig = indicator_vs_speed(dec, tables["fits"], "D0000", "t_f")
+    lo, hi = fig.layout.yaxis.range
+    used = fig.data[0]
+    assert lo <= min(used.y) and max(used.y) <= hi < 100
+    off = next(t for t in fig.data if t.name.startswith("excluded, off the axis"))
+    assert off.name == "excluded, off the axis (2)"
+    assert list(off.y) == [hi, hi] and sorted(off.customdata) == [120.0, 350.0]
+    assert list(off.marker.symbol) == ["triangle-up"] * 2
+
+
+def test_cluster_scatter_labels_do_not_overlap():
+    df, _ = make_decision_table(60, 12, seed=3, keep_per_press=1)
+    styles = analyze_tables(df)["styles"]
+    fig = cluster_scatter(styles, max_labels=10)
+    assert all(t.mode == "markers" for t in fig.data)  # ids in the hover, not written on every point
+    labels = [a.text for a in fig.layout.annotations]
+    assert 3 <= len(labels) <= 10
+    assert set(styles.loc[styles["is_typical"].astype(bool), "driver_id"]) <= set(labels)

@@ -33,10 +33,10 @@ def test_timeline_marks_presses_and_has_units():
     assert list(press.x) == [0.5]
 
 
-def test_runs_curves_rolling_mean_per_run():
+def test_runs_curves_smoothed_per_run():
     m = pd.DataFrame({"episode": range(1, 21), "loss": [0.0, 2.0] * 10})
-    fig = figures.runs_curves({"a": m, "b": m.head(4)}, "loss", "loss [-]")
+    fig = figures.runs_curves({"a": m, "b": m.head(4)}, "loss", "loss [-]", smoothing=0.5)
     assert [t.name for t in fig.data] == ["a", "b"]
-    assert list(fig.data[0].y[:3]) == pytest.approx([0.0, 1.0, 1.0])  # window 2 for 20 episodes
-    assert list(fig.data[1].y) == [0.0, 2.0, 0.0, 2.0]  # window 1 for 4 episodes
+    assert list(fig.data[0].y[:2]) == pytest.approx([0.0, 1.0 / 0.75])  # debiased: no pull towards 0
+    assert list(figures.runs_curves({"b": m.head(4)}, "loss", "-", smoothing=0.0).data[0].y) == [0.0, 2.0, 0.0, 2.0]
     assert fig.layout.xaxis.title.text == "episode [-]" and fig.layout.yaxis.title.text == "loss [-]"

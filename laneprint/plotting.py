@@ -1,0 +1,115 @@
+"""Small pure helpers the stages' Plotly figures share: a smoothed curve, an axis scaled to the
+points that matter (the rest marked at its edge), and labels that do not overlap."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+
+def ema_smooth(values: Sequence[float] | np.ndarray | pd.Series, weight: float) -> np.ndarray:
+    """TensorBoard's smoothing: an exponential moving average with debiasing.
+
+    s_t = (w s_{t-1} + (1 - w) x_t) / (1 - w^n_t), s_0 = 0, n_t the number of finite
+    values so far: the first points are not pulled towards zero. Non-finite values
+    stay NaN and do not enter the average; `weight` 0 returns the values unchanged.
+    """
+    if not 0.0 <= weight < 1.0:
+        raise ValueError(f"smoothing weight must be in [0, 1), not {weight}")
+    y = pd.to_numeric(pd.Series(np.asarray(values, dtype=object)), errors="coerce").astype(float)
+    out = np.full(len(y), np.nan)
+    ok = np.isfinite(y.to_numpy())
+    if ok.any():
+        # pandas' adjusted EWM is sum(w^i x_{t-i}) / sum(w^i): exactly the debiased average
+        out[ok] = y[ok].ewm(alpha=1.0 - weight, adjust=True).mean().to_numpy()
+    return out
+
+
+def axis_range(values: Sequence[float] | np.ndarray, pad: float = 0.08, min_span: float = 1e-6) -> tuple[float, float] | None:
+    """[lo, hi] around the finite `values`, padded by `pad` of their span (None when there are none)."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if not len(v):
+        return None
+    lo, hi = float(v.min()), float(v.max())
+    span = max(hi - lo, abs(hi) * 0.1, min_span)
+    return lo - pad * span, hi + pad * span
+
+
+def clip_to_axis(values: Sequence[float] | np.ndarray, lo: float, hi: float) -> pd.DataFrame:
+    """Where each value is drawn on an axis [lo, hi]: `y` (clipped to the edge) and `side`
+    ('above', 'below' or '' when inside); `value` keeps the true value for the hover."""
+    v = np.asarray(values, dtype=float)
+    side = np.where(v > hi, "above", np.where(v < lo, "below", ""))
+    return pd.DataFrame({"value": v, "y": np.clip(v, lo, hi), "side": side})
+
+
+LABEL_SIDES = ("top", "bottom", "right", "left")
+
+
+def _label_box(ux: float, uy: float, side: str, width: float, height: float, gap: float) -> tuple[float, ...]:
+    if side == "top":
+        return ux - width / 2, ux + width / 2, uy + gap, uy + gap + height
+    if side == "bottom":
+        return ux - width / 2, ux + width / 2, uy - gap - height, uy - gap
+    if side == "right":
+        return ux + gap, ux + gap + width, uy - height / 2, uy + height / 2
+    return ux - gap - width, ux - gap, uy - height / 2, uy + height / 2
+
+
+def _apart(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+    return a[1] <= b[0] or a[0] >= b[1] or a[3] <= b[2] or a[2] >= b[3]
+
+
+def spread_labels(x: Sequence[float], y: Sequence[float], texts: Sequence[str], priority: Sequence[float] | None = None,
+                  max_labels: int = 12, char_width: float = 0.014, height: float = 0.05,
+                  marker: float = 0.015, priority_gap: float = 0.08) -> np.ndarray:
+    """Where to write each point's text so that no two labels overlap: 'top', 'bottom',
+    'right', 'left' or '' (no label).
+
+    Positions are scaled to [0, 1] per axis; a label is a box `char_width` per
+    character wide and `height` tall beside its point. Points are taken by descending
+    `priority` (then in order); each gets the first side whose box is clear of the
+    labels already placed and of every other point (a marker `marker` wide), up to
+    `max_labels`. A point with priority > 0 has its label `priority_gap` away (drawn on
+    an arrow) and is labelled even among points, as long as its label overlaps no other.
+    """
+    xs, ys = (np.asarray(a, dtype=float) for a in (x, y))
+    n = len(xs)
+    where = np.full(n, "", dtype=object)
+    if n == 0:
+        return where
+
+    def unit(a: np.ndarray) -> np.ndarray:
+        finite = a[np.isfinite(a)]
+        if not len(finite):
+            return np.full_like(a, np.nan)
+        span = float(finite.max() - finite.min()) or 1.0
+        return (a - finite.min()) / span
+
+    ux, uy = unit(xs), unit(ys)
+    prio = np.zeros(n) if priority is None else np.nan_to_num(np.asarray(priority, dtype=float))
+    boxes: list[tuple[float, ...]] = []
+    for i in np.argsort(-prio, kind="stable"):
+        if len(boxes) >= max_labels or not (np.isfinite(ux[i]) and np.isfinite(uy[i])):
+            continue
+        width = char_width * max(len(str(texts[i])), 1)
+        near = (np.abs(ux - ux[i]) < marker) & (np.abs(uy - uy[i]) < marker)  # this point's own marker
+        fallback = None
+        for side in LABEL_SIDES:
+            box = _label_box(ux[i], uy[i], side, width, height, priority_gap if prio[i] > 0 else marker)
+            if not all(_apart(box, b) for b in boxes):
+                continue
+            fallback = fallback or (side, box)
+            hit = (~near & (ux > box[0] - marker) & (ux < box[1] + marker)
+                   & (uy > box[2] - marker) & (uy < box[3] + marker))
+            if not hit.any():
+                where[i] = side
+                boxes.append(box)
+                break
+        if not where[i] and prio[i] > 0 and fallback:
+            where[i], box = fallback
+            boxes.append(box)
+    return where
