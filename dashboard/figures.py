@@ -204,3 +204,40 @@ def crossval_folds(per_fold: list[dict] | None, policies: tuple[str, ...] = POLI
                       yaxis=dict(title="balanced accuracy [%]", range=[0, 105]),
                       legend=dict(orientation="h", yanchor="top", y=-0.25, x=0))
     return fig
+
+
+FLEET_SYMBOLS = {"agent": "circle", "greedy": "diamond", "imitation": "square"}
+
+
+def fleet_agreement(table: pd.DataFrame, policies: tuple[str, ...] = POLICIES) -> go.Figure:
+    """Per-target agreement with the drivers: one row per driver (or style), sorted by the agent's
+    balanced accuracy, a marker per policy (mean over the target's seeds; an open agent marker:
+    not every seed meets the target)."""
+    fig = go.Figure()
+    done = table[table["agent_balanced_accuracy"].notna()]
+    if done.empty:
+        fig.update_layout(title="no agent evaluated yet", height=200)
+        return fig
+    cols = [f"{p}_balanced_accuracy" for p in policies]
+    per = done.groupby("target", sort=False).agg(
+        **{c: (c, "mean") for c in cols}, seeds=("seed", "count"),
+        meets=("meets_target", lambda s: bool((s == True).all())))  # noqa: E712
+    per = per.sort_values("agent_balanced_accuracy")
+    names = per.index.astype(str)
+    for p, c in zip(policies, cols):
+        if per[c].notna().any():
+            open_ = p == "agent"
+            fig.add_trace(go.Scatter(
+                x=per[c] * 100.0, y=names, mode="markers", name=p,
+                marker=dict(color=POLICY_COLOURS.get(p), symbol=[
+                    FLEET_SYMBOLS[p] + ("" if not open_ or m else "-open") for m in per["meets"]], size=9,
+                    line=dict(width=1.5, color=POLICY_COLOURS.get(p))),
+                customdata=np.c_[per["seeds"]],
+                hovertemplate=f"%{{y}}: {p} %{{x:.1f}} % (mean of %{{customdata[0]}} seeds)<extra></extra>"))
+    fig.update_layout(xaxis=dict(title="balanced accuracy on the target's decisions [%] (in-sample)",
+                                 side="top"),
+                      yaxis=dict(title="target (sorted by the agent's balanced accuracy)", type="category",
+                                 tickfont=dict(size=10)),
+                      height=int(min(3000, max(320, 16 * len(per) + 140))), margin=dict(t=60, b=20),
+                      legend=dict(orientation="h", yanchor="bottom", y=1.06, x=0))
+    return fig

@@ -136,6 +136,14 @@ def read_json(path: Path) -> dict[str, Any] | None:
         return None
 
 
+def terminal_log_tail(path: Path, n_chars: int = 2000) -> str:
+    """The readable end of a process's output drawn for a terminal: codes removed, the last redraw of each line."""
+    text = _ANSI.sub("", _file_tail(path, 20 * n_chars))
+    lines = [ln.rstrip() for ln in re.split(r"\r?\n", text)]
+    lines = [ln.split("\r")[-1] for ln in lines if ln.strip()]
+    return "\n".join(lines)[-n_chars:]
+
+
 def _file_tail(path: Path, n_chars: int) -> str:
     try:
         with open(path, "rb") as fh:
@@ -193,6 +201,11 @@ def cancel(ws: Workspace, run_id: str) -> bool:
     except ProcessLookupError:
         return False
     return True
+
+
+def in_fleet(ws: Workspace, run_id: str) -> bool:
+    """True if the run was trained as part of a fleet (its config.json names a `fleet_id`)."""
+    return bool((read_json(ws.runs_dir / run_id / "config.json") or {}).get("fleet_id"))
 
 
 def run_ids(ws: Workspace) -> list[str]:
@@ -324,10 +337,7 @@ def crossval_progress(log: str) -> dict[str, Any]:
 
 def crossval_log_tail(ws: Workspace, job_id: str, n_chars: int = 2000) -> str:
     """The readable end of a cross-validation's output: terminal codes removed, the last redraw of each line."""
-    text = _ANSI.sub("", _file_tail(crossval_jobs_dir(ws) / f"{job_id}.log", 20 * n_chars))
-    lines = [ln.rstrip() for ln in re.split(r"\r?\n", text)]
-    lines = [ln.split("\r")[-1] for ln in lines if ln.strip()]
-    return "\n".join(lines)[-n_chars:]
+    return terminal_log_tail(crossval_jobs_dir(ws) / f"{job_id}.log", n_chars)
 
 
 def crossval_status(ws: Workspace, job_id: str) -> dict[str, Any]:
@@ -391,6 +401,104 @@ def cancel_crossval(ws: Workspace, job_id: str) -> bool:
     atomic_write_json(path, {**job, "cancelled_at": datetime.now(timezone.utc).isoformat(timespec="seconds")})
     try:
         os.kill(int(job["pid"]), signal.SIGTERM)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+# --- fleets: `laneprint train --drivers all | --styles all --seeds N` ----------------------
+
+
+@dataclass(frozen=True)
+class FleetRequest:
+    """What the fleet form asks for; turned into a `laneprint train --drivers/--styles` command line."""
+
+    kind: str
+    """'drivers' or 'styles'."""
+    episodes: int
+    """Training episodes of each agent."""
+    seeds: int = 1
+    """Agents per target (seeds 0..N-1)."""
+    names: tuple[str, ...] = ()
+    """Targets by name; empty: all of them."""
+    backend: str = "local"
+    """'local' (batched in one process) or 'ray'."""
+
+
+def fleet_command(req: FleetRequest, workspace: Path) -> list[str]:
+    """The `laneprint train --drivers all|IDS | --styles all` command line for `req` (run with this interpreter)."""
+    if req.kind not in ("drivers", "styles"):
+        raise ValueError(f"kind must be 'drivers' or 'styles', not {req.kind!r}")
+    if req.backend not in ("local", "ray"):
+        raise ValueError(f"backend must be 'local' or 'ray', not {req.backend!r}")
+    cmd = [sys.executable, "-m", "laneprint.cli", "train", f"--{req.kind}", ",".join(req.names) or "all",
+           "--seeds", str(int(req.seeds)), "--episodes", str(int(req.episodes))]
+    if req.backend != "local":  # the trainer's default; older trainers know no --backend
+        cmd += ["--backend", req.backend]
+    return cmd + ["--workspace", str(workspace)]
+
+
+def fleet_jobs_dir(ws: Workspace) -> Path:
+    return ws.root / "dashboard" / "fleet_jobs"
+
+
+def launch_fleet(ws: Workspace, req: FleetRequest) -> str:
+    """Start a fleet's training in the background; returns its job id at once (the fleet's own id
+    is known once the trainer writes `fleets/<id>/fleet.json` with this process's pid)."""
+    job_id = f"fleet-{req.kind}-{datetime.now(timezone.utc):%Y%m%d-%H%M%S}-{uuid.uuid4().hex[:4]}"
+    _spawn(fleet_jobs_dir(ws), job_id, fleet_command(req, ws.root), ws.root,
+           {"job_id": job_id, "request": asdict(req)}, env={**os.environ, **CROSSVAL_ENV})
+    return job_id
+
+
+def fleet_job_ids(ws: Workspace) -> list[str]:
+    """Launched fleets, newest first."""
+    jobs = [(str((read_json(p) or {}).get("launched_at") or ""), p.stem) for p in fleet_jobs_dir(ws).glob("*.json")]
+    return [jid for _, jid in sorted(jobs, reverse=True)]
+
+
+def fleet_job_status(ws: Workspace, job_id: str) -> dict[str, Any]:
+    """State of a launched fleet: the fleet's own (`rl.fleet_io`), or 'starting' / 'failed' before it has one.
+
+    Keys: job_id, pid, request, state, message, fleet_id (once known), log (when failed).
+    """
+    from rl.fleet_io import fleet_of_pid, load_fleet
+
+    path = fleet_jobs_dir(ws) / f"{job_id}.json"
+    job = read_json(path)
+    if job is None:
+        return {"job_id": job_id, "state": "unknown", "message": "no such fleet job"}
+    out = {"job_id": job_id, "pid": job.get("pid"), "request": job.get("request", {}),
+           "launched_at": job.get("launched_at"), "fleet_id": job.get("fleet_id")}
+    if out["fleet_id"] is None:
+        out["fleet_id"] = fleet_of_pid(ws, job.get("pid"))
+        if out["fleet_id"]:
+            atomic_write_json(path, {**job, "fleet_id": out["fleet_id"]})  # found once, kept
+    alive = pid_alive(job.get("pid"))  # also reaps the finished child, so it reads as gone
+    if out["fleet_id"]:
+        fleet = load_fleet(ws, out["fleet_id"])
+        out.update(state=fleet["state_read"], message=fleet.get("message") or "")
+        if out["state"] == "interrupted":
+            out["log"] = terminal_log_tail(fleet_jobs_dir(ws) / f"{job_id}.log")
+        return out
+    if alive:
+        return {**out, "state": "starting", "message": "reading the analysis and setting up the agents"}
+    return {**out, "state": "failed", "message": "the trainer ended before writing its fleet.json",
+            "log": terminal_log_tail(fleet_jobs_dir(ws) / f"{job_id}.log")}
+
+
+def active_fleet_jobs(ws: Workspace) -> list[str]:
+    """Fleets still starting or training, newest first."""
+    return [j for j in fleet_job_ids(ws) if fleet_job_status(ws, j)["state"] in ACTIVE_STATES]
+
+
+def cancel_fleet(ws: Workspace, job_id: str) -> bool:
+    """Stop a training fleet (SIGTERM: the trainer checkpoints its agents and marks the fleet cancelled)."""
+    st = fleet_job_status(ws, job_id)
+    if st["state"] not in ACTIVE_STATES or not pid_alive(st.get("pid")):
+        return False
+    try:
+        os.kill(int(st["pid"]), signal.SIGTERM)
     except ProcessLookupError:
         return False
     return True

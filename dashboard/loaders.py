@@ -127,3 +127,51 @@ def run_crossval(root: str, run_id: str, key: tuple[int, ...]) -> dict[str, Any]
         return json.loads((Path(root) / "runs" / run_id / "crossval.json").read_text())
     except (OSError, ValueError):
         return None
+
+
+def _mtimes(paths) -> list[int]:
+    out = []
+    for p in paths:
+        try:
+            out.append(p.stat().st_mtime_ns)
+        except OSError:
+            out.append(0)
+    return out
+
+
+def _fleets_alive(root: Path) -> tuple[bool, ...]:
+    """Whether each fleet's trainer lives: a fleet left 'running' by a dead process reads as interrupted."""
+    from laneprint.processes import laneprint_process_alive
+
+    out = []
+    for path in sorted(Path(root).glob("fleets/*/fleet.json")):
+        try:
+            fleet = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        out.append(fleet.get("state") == "running" and laneprint_process_alive(fleet.get("pid")))
+    return tuple(out)
+
+
+def fleets_stamp(root: Path) -> tuple:
+    """Modification times of every fleet.json and every run's status.json and evaluation.json, and
+    which fleets' trainers live."""
+    root = Path(root)
+    files = [*root.glob("fleets/*/fleet.json"), *root.glob("runs/*/status.json"), *root.glob("runs/*/evaluation.json")]
+    return tuple(sorted(_mtimes(files))) + _fleets_alive(root)
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def fleets(root: str, key: tuple[int, ...]) -> pd.DataFrame:
+    """`rl.fleet_io.list_fleets`: one row per fleet, newest first."""
+    from rl.fleet_io import list_fleets
+
+    return list_fleets(Workspace(root))
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def fleet_table(root: str, fleet_id: str, key: tuple[int, ...]) -> pd.DataFrame:
+    """`rl.fleet_io.fleet_table`: one row per agent of the fleet."""
+    from rl.fleet_io import fleet_table as table
+
+    return table(Workspace(root), fleet_id)

@@ -322,3 +322,44 @@ def command_text(cmd: list[str]) -> str:
     if len(cmd) > 2 and cmd[1:3] == ["-m", "laneprint.cli"]:
         cmd = ["laneprint", *cmd[3:]]
     return shlex.join(cmd)
+
+
+#: A fleet table's columns as the pages show them -> (label, scale).
+FLEET_COLUMNS = {
+    "target": ("target", None), "seed": ("seed", None), "state": ("state", None),
+    "agent_balanced_accuracy": ("agent BA [%]", 100.0), "greedy_balanced_accuracy": ("greedy BA [%]", 100.0),
+    "imitation_balanced_accuracy": ("imitation BA [%]", 100.0),
+    "agent_minus_greedy": ("agent - greedy BA [points]", 100.0),
+    "agent_recall": ("agent recall [%]", 100.0), "greedy_recall": ("greedy recall [%]", 100.0),
+    "imitation_recall": ("imitation recall [%]", 100.0), "meets_target": ("meets target", None),
+    "timing_mae_s": ("agent timing MAE [s]", 1.0), "run_id": ("run_id", None),
+}
+
+
+def fleet_view(table: pd.DataFrame) -> pd.DataFrame:
+    """`rl.fleet_io.fleet_table` for display: percentages, episodes as 'done/total', labelled columns."""
+    out = pd.DataFrame(index=table.index)
+    for col, (label, scale) in FLEET_COLUMNS.items():
+        if col == "state":
+            out["episodes"] = [f"{int(e)}/{int(n) or '?'}" for e, n in zip(table["episode"], table["episodes"])]
+        out[label] = (pd.to_numeric(table[col], errors="coerce") * scale).round(1) if scale else table[col]
+    return out.reset_index(drop=True)
+
+
+def fleet_label(row: pd.Series | dict) -> str:
+    """'<fleet_id>: 100 drivers x 1 seed, 40/100 done (running)'."""
+    seeds = int(row.get("n_seeds") or 0)
+    return (f"{row['fleet_id']}: {row.get('targets')} x {seeds} seed{'s' if seeds != 1 else ''}, "
+            f"{int(row.get('n_done') or 0)}/{int(row.get('n_runs') or 0)} done ({row.get('state')})")
+
+
+def fleet_headline(table: pd.DataFrame) -> str:
+    """How many agents meet their target, and the median balanced accuracy of each policy."""
+    evaluated = table[table["agent_balanced_accuracy"].notna()]
+    if evaluated.empty:
+        return "No agent evaluated yet."
+    meets = int((evaluated["meets_target"] == True).sum())  # noqa: E712 (None: not evaluated)
+    medians = ", ".join(f"{who} {100 * evaluated[f'{who}_balanced_accuracy'].median():.1f} %"
+                        for who in ("agent", "greedy", "imitation") if evaluated[f"{who}_balanced_accuracy"].notna().any())
+    return (f"{meets} of {len(evaluated)} evaluated agents meet their target (recall >= 95 %, balanced accuracy "
+            f">= greedy + 5 points); median balanced accuracy (in-sample): {medians}.")

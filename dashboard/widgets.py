@@ -81,3 +81,10 @@ def live_crossvals(ws, run_id: str | None = None) -> list[str]:
 
     panels()
     return active
+
+
+def smoothing_slider(key: str = "smoothing") -> float:
+    """The training curves' smoothing weight (TensorBoard's slider: 0 = raw, 0.99 = very smooth)."""
+    return float(st.slider("Curve smoothing", min_value=0.0, max_value=0.99, value=0.95, step=0.01, key=key,
+                           help="Exponential moving average with debiasing, as TensorBoard draws it; the raw "
+                                "per-episode values stay faint behind the smoothed line."))

@@ -1,5 +1,6 @@
 """Results: the trained agent against the greedy benchmark, the imitation classifier and the driver,
-in-sample and held out (cross-validation); two runs compared; every stored cross-validation."""
+in-sample and held out (cross-validation); two runs compared; a fleet's agents side by side;
+every stored cross-validation."""
 
 import streamlit as st
 
@@ -110,7 +111,8 @@ def one_run(ws, run_id: str) -> None:
     right.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="greedy")),
                        key=f"fig11g_{run_id}")
     with st.expander("Training curves (Fig. 9)"):
-        st.plotly_chart(training_curves(run["metrics"]), key=f"fig9_{run_id}")
+        smoothing = widgets.smoothing_slider(key=f"smoothing_{run_id}")
+        st.plotly_chart(training_curves(run["metrics"], smoothing), key=f"fig9_{run_id}")
 
 
 def compare(ws, runs: list[str]) -> None:
@@ -126,9 +128,27 @@ def compare(ws, runs: list[str]) -> None:
     st.dataframe(views.compare_runs({rid: views.evaluation_table((r["evaluation"] or {}).get("summary"))
                                      for rid, r in loaded.items()}), hide_index=True, width="stretch")
     metrics = {rid: r["metrics"] for rid, r in loaded.items()}
+    smoothing = widgets.smoothing_slider(key="cmp_smoothing")
     c1, c2 = st.columns(2)
-    c1.plotly_chart(figures.runs_curves(metrics, "loss", "training loss [-]"), key="cmp_loss")
-    c2.plotly_chart(figures.runs_curves(metrics, "mean_step_reward", "mean step reward [-]"), key="cmp_reward")
+    c1.plotly_chart(figures.runs_curves(metrics, "loss", "training loss [-]", smoothing), key="cmp_loss")
+    c2.plotly_chart(figures.runs_curves(metrics, "mean_step_reward", "mean step reward [-]", smoothing),
+                    key="cmp_reward")
+
+
+def fleets(ws) -> None:
+    """A fleet's agents side by side: one row per agent (sortable), and each target's agreement with its drivers."""
+    root = str(ws.root)
+    key = loaders.fleets_stamp(ws.root)
+    listed = loaders.fleets(root, key)
+    if listed.empty:
+        return
+    st.subheader(f"Fleets ({len(listed)})")
+    labels = {r["fleet_id"]: views.fleet_label(r) for r in listed.to_dict("records")}
+    fleet_id = st.selectbox("Fleet", list(labels), format_func=labels.get, key="fleet_pick")
+    table = loaders.fleet_table(root, fleet_id, key)
+    st.caption(views.fleet_headline(table) + " Click a column header to sort.")
+    st.dataframe(views.fleet_view(table), hide_index=True, width="stretch", key="fleet_agents")
+    st.plotly_chart(figures.fleet_agreement(table), key="fleet_agreement")
 
 
 def stored_crossvals(ws, show_one: bool) -> None:
@@ -151,10 +171,12 @@ def main() -> None:
     if not runs:
         st.info("No evaluated runs yet: start one on the Training page (runs are evaluated when they "
                 "finish), or run `laneprint evaluate RUN_ID`.")
+        fleets(ws)
         stored_crossvals(ws, show_one=True)
         return
     one_run(ws, st.selectbox("Run", runs, key="result_run"))
     compare(ws, runs)
+    fleets(ws)
     stored_crossvals(ws, show_one=False)
 
 

@@ -1,10 +1,12 @@
 """Training: launch DQN runs in the background, watch them live, cancel, list past runs;
+train a fleet (an agent for every driver or every style) and follow it agent by agent;
 cross-validate a finished run (held-out figures, shown on the Results page)."""
 
 import streamlit as st
 
-from dashboard import jobs, loaders, training, widgets
+from dashboard import jobs, loaders, training, views, widgets
 from dashboard.context import poll_seconds, workspace
+from rl import fleet_io
 from rl.plots import training_curves
 from rl.runs import read_metrics
 
@@ -53,14 +55,14 @@ def launch_form(ws) -> None:
         st.toast(f"Started run {run_id}")
 
 
-def run_panel(ws, run_id: str, status: dict) -> None:
+def run_panel(ws, run_id: str, status: dict, smoothing: float = 0.95) -> None:
     """Progress, curves and a Cancel button for one run."""
     done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
     frac = min(1.0, done / total) if total else 0.0
     st.progress(frac, text=f"{run_id}: {status.get('state')} — episode {done}/{total or '?'}")
     metrics = read_metrics(ws.runs_dir / run_id / "metrics.jsonl")
     if len(metrics):
-        st.plotly_chart(training_curves(metrics), key=f"curves_{run_id}")
+        st.plotly_chart(training_curves(metrics, smoothing), key=f"curves_{run_id}")
     if status.get("state") in jobs.ACTIVE_STATES:
         if st.button("Cancel", key=f"cancel_{run_id}"):
             jobs.cancel(ws, run_id)
@@ -85,12 +87,94 @@ def crossval_section(ws, run_id: str, status: dict, running: list[str]) -> None:
     widgets.crossval_launcher(ws, run_id, (config.get("dqn") or {}).get("episodes"))
 
 
+def fleet_form(ws) -> None:
+    """Train every driver (or every style) as one fleet: `laneprint train --drivers all | --styles all`."""
+    tables = loaders.analysis(str(ws.root), loaders.analysis_stamp(ws.root))
+    lines_table = tables.get("reference_lines")
+    recs = loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root))
+    with st.form("fleet_form"):
+        c1, c2, c3, c4 = st.columns(4)
+        kind = c1.radio("An agent for every", ["drivers", "styles"], horizontal=True, key="fleet_kind")
+        seeds = c2.number_input("Seeds per target", min_value=1, max_value=20, value=1, step=1, key="fleet_seeds")
+        episodes = c3.number_input("Episodes per agent", min_value=1, max_value=100_000, step=100,
+                                   value=training.default_episodes(), key="fleet_episodes")
+        backend = c4.selectbox("Backend", ["local", "ray"], key="fleet_backend",
+                               help="'local': all agents batched in one process; 'ray': shards of agents on "
+                                    "Ray workers (a local Ray instance with this machine's cores)")
+        submitted = st.form_submit_button("Train fleet", type="primary")
+    req = jobs.FleetRequest(kind, int(episodes), int(seeds), backend=backend)
+    targets = (training.driver_targets(lines_table, recs) if kind == "drivers"
+               else training.style_targets(lines_table))
+    st.caption(f"{len(targets)} {kind} x {int(seeds)} seed(s) = {len(targets) * int(seeds)} agents, trained together "
+               f"and each evaluated as it finishes: `{views.command_text(jobs.fleet_command(req, ws.root))}`")
+    if not submitted:
+        return
+    if kind == "drivers" and (lines_table is None or not (lines_table.get("scope") == "driver").any()):
+        st.warning("Not started: a fleet of drivers needs each driver's reference lines: run the analysis "
+                   "(Styles page) first.")
+        return
+    job_id = jobs.launch_fleet(ws, req)
+    st.session_state.setdefault("fleets_launched", []).append(job_id)
+    st.toast(f"Started fleet job {job_id}")
+    st.rerun()  # redraw with the fleet under way (and polling on)
+
+
+def fleet_panel(ws, job_id: str, status: dict) -> None:
+    """A fleet's progress (agents done, episodes summed over its runs), Cancel, and its agents as they finish."""
+    state, fleet_id = status.get("state"), status.get("fleet_id")
+    if not fleet_id:
+        st.progress(0.0, text=f"fleet job {job_id}: {state} — {status.get('message', '')}")
+    else:
+        table = fleet_io.fleet_table(ws, fleet_id)
+        p = fleet_io.fleet_progress(table)
+        frac = min(1.0, p["episode"] / p["episodes"]) if p["episodes"] else 0.0
+        st.progress(frac, text=f"fleet {fleet_id}: {state} — {p['n_done']}/{p['n_runs']} agents done, "
+                               f"{p['episode']}/{p['episodes'] or '?'} episodes; {p['n_meeting_target']} of "
+                               f"{p['n_evaluated']} evaluated meet their target")
+        st.dataframe(views.fleet_view(table), hide_index=True, width="stretch", height=min(420, 38 + 35 * len(table)),
+                     key=f"fleet_table_{job_id}")
+    if state in jobs.ACTIVE_STATES:
+        if st.button("Cancel fleet", key=f"fleet_cancel_{job_id}"):
+            jobs.cancel_fleet(ws, job_id)
+    elif status.get("log"):
+        st.code(status["log"], language=None)
+
+
+def fleets_section(ws) -> None:
+    """Fleets under way, refreshed until they end; else the newest launched one as it ended."""
+    st.subheader("Fleets")
+    launched = jobs.fleet_job_ids(ws)
+    active = [j for j in launched if jobs.fleet_job_status(ws, j)["state"] in jobs.ACTIVE_STATES]
+
+    @st.fragment(run_every=poll_seconds() if active else None)
+    def live() -> None:
+        still = []
+        for job_id in active:
+            status = jobs.fleet_job_status(ws, job_id)
+            fleet_panel(ws, job_id, status)
+            if status.get("state") in jobs.ACTIVE_STATES:
+                still.append(job_id)
+        if len(still) < len(active):
+            st.rerun()
+
+    live()
+    if not active and launched:
+        fleet_panel(ws, launched[0], jobs.fleet_job_status(ws, launched[0]))
+        st.caption("Every fleet, agent by agent, against greedy and imitation: Results page, Fleets.")
+    elif not launched:
+        st.caption("No fleet launched from here yet.")
+    fleet_form(ws)
+
+
 def main() -> None:
     st.title("Training")
     ws = workspace()
     launch_form(ws)
+    smoothing = widgets.smoothing_slider()
 
-    active = [rid for rid in jobs.run_ids(ws) if jobs.run_status(ws, rid).get("state") in jobs.ACTIVE_STATES]
+    # a fleet's agents are followed in its own panel (below), not one by one
+    active = [rid for rid in jobs.run_ids(ws) if jobs.run_status(ws, rid).get("state") in jobs.ACTIVE_STATES
+              and not jobs.in_fleet(ws, rid)]
 
     @st.fragment(run_every=poll_seconds() if active else None)
     def live_runs() -> None:
@@ -98,7 +182,7 @@ def main() -> None:
         still = []
         for rid in active:
             status = jobs.run_status(ws, rid)
-            run_panel(ws, rid, status)
+            run_panel(ws, rid, status, smoothing)
             if status.get("state") in jobs.ACTIVE_STATES:
                 still.append(rid)
         if not active:
@@ -108,6 +192,7 @@ def main() -> None:
             st.rerun()  # redraw the whole page: past runs, polling off when none is left
 
     live_runs()
+    fleets_section(ws)
 
     st.subheader("Cross-validations")
     cv_running = widgets.live_crossvals(ws)
@@ -120,11 +205,11 @@ def main() -> None:
         st.caption("No runs yet.")
         return
     st.dataframe(table, hide_index=True, width="stretch")
-    finished = [r for r in table["run_id"] if r not in active]
+    finished = table.loc[~table["state"].isin(jobs.ACTIVE_STATES), "run_id"].tolist()
     if finished:
         rid = st.selectbox("Show run", finished, key="show_run")
         status = jobs.run_status(ws, rid)
-        run_panel(ws, rid, status)
+        run_panel(ws, rid, status, smoothing)
         crossval_section(ws, rid, status, cv_running)
 
 

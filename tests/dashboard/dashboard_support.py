@@ -164,3 +164,43 @@ def write_fake_crossval(ws: Workspace, result: dict, of_run: bool = True) -> Pat
     if of_run and result.get("run_id"):
         atomic_write_json(ws.runs_dir / result["run_id"] / "crossval.json", result)
     return folder
+
+
+# --- fleets as `laneprint train --drivers all` leaves them (see rl/fleet_io.py) ----------------
+
+
+def write_fake_fleet(ws: Workspace, fleet_id: str, drivers: list[str], seeds: tuple[int, ...] = (0,),
+                     state: str = "done", pid: int | None = None, evaluated: int | None = None) -> list[str]:
+    """`fleets/<id>/fleet.json` and one run folder per (driver, seed); the first `evaluated` runs
+    (all by default) are done and evaluated, the rest running at episode 10 of 50. Agent BA rises
+    with the driver's index, greedy's stays at 0.6, imitation's at 0.7."""
+    runs = []
+    for i, driver in enumerate(drivers):
+        for seed in seeds:
+            run_id = f"{fleet_id}-{driver}-s{seed}"
+            done = evaluated is None or len(runs) < evaluated
+            d = ws.runs_dir / run_id
+            d.mkdir(parents=True, exist_ok=True)
+            atomic_write_json(d / "config.json", {
+                "run_id": run_id, "target": {"kind": "driver", "name": driver}, "reward": "timing",
+                "lines_source": "analysis", "seed": seed, "fleet_id": fleet_id, "dqn": {"episodes": 50},
+                "lines": {"t_f": [0.3, -1.0], "t_nf": [0.3, -1.5], "dv_nb": [0.1, -1.0]}})
+            atomic_write_json(d / "status.json", {
+                "state": "done" if done else "running", "pid": pid, "episode": 50 if done else 10, "episodes": 50,
+                "started_at": "2026-11-30T10:00:00+00:00", "updated_at": "2026-11-30T10:01:00+00:00",
+                "message": ""})
+            if done:
+                ba = 0.62 + 0.3 * i / max(1, len(drivers) - 1)
+                atomic_write_json(d / "evaluation.json", {"summary": [
+                    {"who": "agent", "recall": 0.97, "balanced_accuracy": ba, "timing_mae_s": 0.5},
+                    {"who": "greedy", "recall": 1.0, "balanced_accuracy": 0.6, "timing_mae_s": 3.0},
+                    {"who": "imitation", "recall": 0.8, "balanced_accuracy": 0.7, "timing_mae_s": None},
+                    {"who": "driver", "recall": 1.0, "balanced_accuracy": 1.0, "timing_mae_s": 0.0}]})
+            runs.append(run_id)
+    folder = ws.root / "fleets" / fleet_id
+    folder.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(folder / "fleet.json", {
+        "fleet_id": fleet_id, "created_at": "2026-11-30T10:00:00+00:00",
+        "targets": [{"kind": "driver", "name": d} for d in drivers], "seeds": list(seeds), "runs": runs,
+        "backend": "local", "state": state, "pid": pid, "updated_at": "2026-11-30T10:01:00+00:00", "message": ""})
+    return runs
