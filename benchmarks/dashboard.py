@@ -1,11 +1,16 @@
-"""Time to first render of each dashboard page on a workspace of 100 drivers x 50 decisions.
+"""Time to first render of each dashboard page on a workspace of 100 drivers x 50 decisions and their fleet.
 
-    python benchmarks/dashboard.py [--drivers 100] [--decisions 50] [--repeat 5] [--browser]
+    python benchmarks/dashboard.py [--drivers 100] [--decisions 50] [--fleet 100] [--repeat 5] [--browser]
 
 The workspace is generated in a temporary folder: one short recording per driver
 (`indicators.synthetic.make_recording`), the analysis of a synthetic decisions
-table (`make_decision_table` + the real `analyze_tables`), and two short real
-training runs (`rl.runs.train_run`, 300 episodes, evaluated). Each page is rendered with Streamlit's AppTest (the
+table (`make_decision_table` + the real `analyze_tables`), two short real
+training runs (`rl.runs.train_run`, 300 episodes, evaluated), and a fleet of
+`--fleet` agents, one per driver (`fleets/<id>/fleet.json` and a run folder each,
+as `laneprint train --drivers all` leaves them; synthesized for speed: each run is
+a copy of the first real run's weights, metrics and evaluation tables with its
+own target, fleet id and made-up agent/greedy/imitation figures). The Training
+page shows that fleet as a finished fleet job (its 100-row table). Each page is rendered with Streamlit's AppTest (the
 script run, not the browser's drawing): 'cold' clears Streamlit's caches first (the
 first visit after the workspace changed), 'warm' is a second visit. Medians [s].
 
@@ -62,6 +67,46 @@ def build(root: Path, n_drivers: int, n_decisions: int) -> Workspace:
         env = EnvConfig(lines=resolve_lines(ws, target, "analysis"), reward=RewardSettings())
         train_run(ws, target, env, DQNSettings(episodes=300, seed=seed), run_id=f"bench-{seed}")
     return ws
+
+
+def build_fleet(ws: Workspace, n_agents: int, template: str = "bench-0", fleet_id: str = "bench-fleet") -> None:
+    """A finished fleet of one agent per driver, synthesized from the template run (see the module doc)."""
+    import json
+    import shutil
+
+    import numpy as np
+
+    from laneprint.workspace import atomic_write_json
+
+    rng = np.random.default_rng(0)
+    src = ws.runs_dir / template
+    config = json.loads((src / "config.json").read_text())
+    status = json.loads((src / "status.json").read_text())
+    evaluation = json.loads((src / "evaluation.json").read_text())
+    drivers = sorted(ws.read_table("analysis", "decisions")["driver_id"].astype(str).unique())[:n_agents]
+    runs = []
+    for driver in drivers:
+        run_id = f"{fleet_id}-{driver.lower()}-s0"
+        dst = ws.runs_dir / run_id
+        shutil.copytree(src, dst)
+        atomic_write_json(dst / "config.json", {**config, "run_id": run_id, "fleet_id": fleet_id,
+                                                "target": {"kind": "driver", "name": driver}})
+        greedy = float(rng.uniform(0.55, 0.7))
+        figures = {"agent": (float(rng.uniform(0.9, 1.0)), greedy + float(rng.uniform(0.0, 0.3))),
+                   "greedy": (1.0, greedy), "imitation": (float(rng.uniform(0.6, 0.9)), float(rng.uniform(0.6, 0.9)))}
+        summary = [{**row, "recall": figures[row["who"]][0], "balanced_accuracy": figures[row["who"]][1]}
+                   if row.get("who") in figures else row for row in evaluation["summary"]]
+        atomic_write_json(dst / "evaluation.json", {**evaluation, "run_id": run_id, "summary": summary,
+                                                    "summary_members": summary, "drivers": [driver]})
+        atomic_write_json(dst / "status.json", {**status, "pid": None})
+        runs.append(run_id)
+    now = "2026-11-30T12:00:00+00:00"
+    atomic_write_json(ws.root / "fleets" / fleet_id / "fleet.json", {
+        "fleet_id": fleet_id, "created_at": now, "targets": [{"kind": "driver", "name": d} for d in drivers],
+        "seeds": [0], "runs": runs, "backend": "local", "state": "done", "pid": None, "updated_at": now,
+        "message": "done"})
+    atomic_write_json(ws.root / "dashboard" / "fleet_jobs" / f"{fleet_id}.json", {
+        "job_id": fleet_id, "pid": None, "fleet_id": fleet_id, "launched_at": now, "request": {}})
 
 
 def render(page: str, cold: bool) -> float:
@@ -128,7 +173,8 @@ def browser_times(ws: Workspace, repeat: int) -> dict[str, tuple[float, float]]:
             for path, title, chart in pages:
                 cold, warm = [], []
                 for _ in range(repeat):
-                    for sub in ("recordings", "analysis"):
+                    for sub in ("recordings", "analysis", *(str(p.relative_to(ws.root))
+                                                            for p in ws.root.glob("fleets/*/fleet.json"))):
                         os.utime(ws.root / sub)  # new cache keys: the loaders read again
                     cold.append(visit(path, title, chart))
                     warm.append(visit(path, title, chart))
@@ -147,14 +193,18 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--drivers", type=int, default=100)
     ap.add_argument("--decisions", type=int, default=50)
+    ap.add_argument("--fleet", type=int, default=100, help="agents in the synthesized fleet (0: none)")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--browser", action="store_true", help="also time the pages in headless Chromium")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         ws = build(Path(tmp) / "ws", args.drivers, args.decisions)
+        if args.fleet:
+            build_fleet(ws, args.fleet)
         print(f"workspace: {args.drivers} drivers x {args.decisions} decisions, "
-              f"{len(ws.read_table('analysis', 'decisions'))} decision rows, built in {time.perf_counter() - t0:.1f} s")
+              f"{len(ws.read_table('analysis', 'decisions'))} decision rows, a fleet of {args.fleet} agents "
+              f"({len(list(ws.runs_dir.iterdir()))} runs in all), built in {time.perf_counter() - t0:.1f} s")
         os.environ["LANEPRINT_WORKSPACE"] = str(ws.root)
         for page in ("data", "drivers", "styles", "training", "results"):
             render(page, cold=True)  # imports and first compile out of the way

@@ -13,9 +13,10 @@ by default, headless, no usage statistics, uploads up to 1024 MB), or
   training view, default 1 s), $LANEPRINT_DASHBOARD_MAX_UPLOAD_MB (default 1024).
 - `loaders.py`: cached readers keyed on the modification times of the folders they read.
 - `uploads.py`: browser uploads saved under `workspace/uploads/<hash>/<safe name>`.
-- `jobs.py`: `laneprint train` and `laneprint crossval --run RUN_ID` subprocesses (own
-  session, so they outlive the page and the server), their status and progress, cancel
-  (SIGTERM).
+- `jobs.py`: `laneprint train`, `laneprint train --drivers all | --styles all` (a fleet)
+  and `laneprint crossval --run RUN_ID` subprocesses (own session, so they outlive the
+  page and the server), their status and progress, cancel (SIGTERM). A launched fleet
+  is tied to its `fleets/<id>/fleet.json` by the trainer's pid.
 - `training.py`, `views.py`, `figures.py`, `widgets.py`: form defaults, table shaping,
   the recording viewer, the held-out vs in-sample figures, layout helpers and the
   cross-validation launcher shared by the Training and Results pages.
@@ -24,4 +25,10 @@ Held-out figures: a finished run is cross-validated from the Training page (or t
 Results page, when it has none yet); the Results page shows the run's
 `runs/<id>/crossval.json` (else the newest cross-validation of its target, said so)
 beside its in-sample evaluation, and lists every stored cross-validation.
+
+Fleets: the Training page launches one (every driver or every style, N seeds) and
+follows it live (agents done, episodes summed over its runs' status.json, a table of
+each agent's figures as it is evaluated); the Results page's Fleets section shows any
+fleet (`rl.fleet_io`) as one sortable row per agent and a dot plot of each target's
+agent, greedy and imitation balanced accuracy.
 """
