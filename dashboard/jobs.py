@@ -477,7 +477,8 @@ def fleet_job_status(ws: Workspace, job_id: str) -> dict[str, Any]:
     alive = pid_alive(job.get("pid"))  # also reaps the finished child, so it reads as gone
     if out["fleet_id"]:
         fleet = load_fleet(ws, out["fleet_id"])
-        out.update(state=fleet["state_read"], message=fleet.get("message") or "")
+        state = fleet["state_read"]
+        out.update(state="starting" if state == "created" else state, message=fleet.get("message") or "")
         if out["state"] == "interrupted":
             out["log"] = terminal_log_tail(fleet_jobs_dir(ws) / f"{job_id}.log")
         return out

@@ -3,6 +3,8 @@ cross-validation launcher and its live progress (Training and Results pages)."""
 
 from __future__ import annotations
 
+from typing import Callable
+
 import streamlit as st
 
 from dashboard import jobs, views
@@ -63,23 +65,29 @@ def crossval_panel(ws, job_id: str, status: dict) -> None:
         st.code(status["log"], language=None)
 
 
-def live_crossvals(ws, run_id: str | None = None) -> list[str]:
-    """Every working cross-validation (of `run_id`, when given), refreshed until it ends; then the
-    whole page reruns, so a finished result shows at once. Call once per page. Returns the jobs shown."""
-    active = jobs.active_crossvals(ws, run_id)
+def live_panels(active: list[str], status_of: Callable[[str], dict], panel: Callable[[str, dict], None]) -> None:
+    """A panel per working job, refreshed every poll until one ends; then the whole page reruns,
+    so a finished result shows at once."""
 
     @st.fragment(run_every=poll_seconds() if active else None)
     def panels() -> None:
         still = []
         for job_id in active:
-            status = jobs.crossval_status(ws, job_id)
-            crossval_panel(ws, job_id, status)
+            status = status_of(job_id)
+            panel(job_id, status)
             if status.get("state") in jobs.ACTIVE_STATES:
                 still.append(job_id)
         if len(still) < len(active):
             st.rerun()
 
     panels()
+
+
+def live_crossvals(ws, run_id: str | None = None) -> list[str]:
+    """Every working cross-validation (of `run_id`, when given), refreshed until it ends. Call once
+    per page. Returns the jobs shown."""
+    active = jobs.active_crossvals(ws, run_id)
+    live_panels(active, lambda j: jobs.crossval_status(ws, j), lambda j, status: crossval_panel(ws, j, status))
     return active
 
 

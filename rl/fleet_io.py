@@ -5,7 +5,7 @@ agent per (target, seed) in one process. The trainer writes, atomically:
 
 - ``fleets/<fleet_id>/fleet.json``: ``fleet_id``, ``created_at``, ``targets`` (list of
   ``{"kind": "driver"|"style", "name": ...}``), ``seeds``, ``runs`` (run ids),
-  ``backend`` ('local'|'ray'), ``state`` ('running'|'done'|'failed'|'cancelled'),
+  ``backend`` ('local'|'ray'), ``state`` ('created'|'running'|'done'|'failed'|'cancelled'),
   ``pid``, ``updated_at``, ``message``;
 - for each run, an ordinary run folder ``runs/<run_id>/`` (see `rl.runs`), whose
   config.json also names the ``fleet_id``.
@@ -29,7 +29,8 @@ from laneprint.errors import UserError
 from laneprint.processes import laneprint_process_alive
 from laneprint.workspace import Workspace
 
-FLEET_STATES = ("running", "done", "failed", "cancelled", "interrupted")
+FLEET_STATES = ("created", "running", "done", "failed", "cancelled", "interrupted")
+ACTIVE_FLEET_STATES = ("created", "running")
 POLICIES = ("agent", "greedy", "imitation")
 #: An agent meets its target when its recall is at least this (fraction) ...
 TARGET_RECALL = 0.95
@@ -57,9 +58,10 @@ def _read_json(path: Path) -> dict[str, Any] | None:
 
 
 def fleet_state(fleet: dict[str, Any]) -> str:
-    """The fleet's state as a reader should see it: 'running' only while its process lives."""
+    """The fleet's state as a reader should see it: 'created' (runs set up, training not begun) or
+    'running' only while its process lives, else 'interrupted'."""
     state = str(fleet.get("state") or "running")
-    if state == "running" and not laneprint_process_alive(fleet.get("pid")):
+    if state in ACTIVE_FLEET_STATES and not laneprint_process_alive(fleet.get("pid")):
         return "interrupted"
     return state
 
@@ -127,7 +129,7 @@ def fleet_table(workspace: Workspace, fleet_id: str) -> pd.DataFrame:
     fraction), `meets_target` (None until evaluated) and the agent's `timing_mae_s` [s].
     """
     fleet = load_fleet(workspace, fleet_id)
-    alive = fleet["state_read"] == "running"
+    alive = fleet["state_read"] in ACTIVE_FLEET_STATES
     rows = []
     for run_id in fleet.get("runs") or []:
         config, status, evaluation = _run_files(workspace, str(run_id))

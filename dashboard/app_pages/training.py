@@ -145,19 +145,7 @@ def fleets_section(ws) -> None:
     st.subheader("Fleets")
     launched = jobs.fleet_job_ids(ws)
     active = [j for j in launched if jobs.fleet_job_status(ws, j)["state"] in jobs.ACTIVE_STATES]
-
-    @st.fragment(run_every=poll_seconds() if active else None)
-    def live() -> None:
-        still = []
-        for job_id in active:
-            status = jobs.fleet_job_status(ws, job_id)
-            fleet_panel(ws, job_id, status)
-            if status.get("state") in jobs.ACTIVE_STATES:
-                still.append(job_id)
-        if len(still) < len(active):
-            st.rerun()
-
-    live()
+    widgets.live_panels(active, lambda j: jobs.fleet_job_status(ws, j), lambda j, status: fleet_panel(ws, j, status))
     if not active and launched:
         fleet_panel(ws, launched[0], jobs.fleet_job_status(ws, launched[0]))
         st.caption("Every fleet, agent by agent, against greedy and imitation: Results page, Fleets.")

@@ -100,3 +100,33 @@ def test_training_progress_moves(server, page):
     new = [r for r in runs.index if r.startswith("Defensive-")]
     assert len(new) == 1 and runs.loc[new[0], "state"] == "done" and runs.loc[new[0], "episode"] == 3000
     expect(page.get_by_text(f"{new[0]}: done — episode 3000/3000")).to_be_visible()  # the finished run shown
+
+
+def test_fleet_views(server, page):
+    """A finished fleet of the six drivers x 2 seeds: its panel on the Training page, its view on Results."""
+    import json
+
+    from dashboard import jobs
+    from dashboard_support import SAMPLE_DRIVERS, write_fake_fleet
+
+    url, ws = server
+    write_fake_fleet(ws, "browser-fleet", list(SAMPLE_DRIVERS), seeds=(0, 1))
+    jobs.fleet_jobs_dir(ws).mkdir(parents=True, exist_ok=True)
+    (jobs.fleet_jobs_dir(ws) / "browser-fleet.json").write_text(json.dumps(
+        {"job_id": "browser-fleet", "pid": None, "fleet_id": "browser-fleet", "request": {},
+         "launched_at": "2026-11-30T10:00:00+00:00"}))
+    open_page(page, url, "training", "Training")
+    expect(page.get_by_text(re.compile(r"fleet browser-fleet: done — 12/12 agents done"))).to_be_visible(
+        timeout=30_000)
+    no_errors(page)
+    open_page(page, url, "results", "Results")
+    heading = page.get_by_role("heading", name="Fleets (1)")
+    expect(heading).to_be_visible(timeout=30_000)
+    heading.scroll_into_view_if_needed()
+    chart = page.locator('[data-testid="stPlotlyChart"]').last
+    expect(chart.locator(".js-plotly-plot")).to_be_visible(timeout=30_000)
+    settle(page)
+    no_errors(page)
+    expect(page.get_by_text("10 of 12 evaluated agents meet their target", exact=False)).to_be_visible()
+    chart.screenshot(path=str(SHOT_DIR / "results_fleet_agreement.png"), animations="disabled")
+    shot(page, "results_fleet")

@@ -131,3 +131,11 @@ def test_missing_fleet_and_fleet_of_pid(tmp_path):
     assert fleet_io.fleet_of_pid(ws, 4242) == "f" and fleet_io.fleet_of_pid(ws, 1) is None
     (fleet_io.fleet_dir(ws) / "f" / "fleet.json").write_text("{half")  # half-written: skipped
     assert fleet_io.list_fleets(ws).empty
+
+
+def test_a_created_fleet_reads_as_its_process(tmp_path, dead_pid, live_pid):
+    ws = Workspace(tmp_path).ensure()
+    write_fleet(ws, "c", [], state="created", pid=live_pid)
+    assert fleet_io.load_fleet(ws, "c")["state_read"] == "created"
+    write_fleet(ws, "d", [], state="created", pid=dead_pid)
+    assert fleet_io.load_fleet(ws, "d")["state_read"] == "interrupted"
