@@ -228,16 +228,18 @@ def fleet_agreement(table: pd.DataFrame, policies: tuple[str, ...] = POLICIES) -
         if per[c].notna().any():
             open_ = p == "agent"
             fig.add_trace(go.Scatter(
-                x=per[c] * 100.0, y=names, mode="markers", name=p,
+                x=per[c] * 100.0, y=names, mode="markers", name="agent (open: misses its target)" if open_ else p,
                 marker=dict(color=POLICY_COLOURS.get(p), symbol=[
                     FLEET_SYMBOLS[p] + ("" if not open_ or m else "-open") for m in per["meets"]], size=9,
                     line=dict(width=1.5, color=POLICY_COLOURS.get(p))),
                 customdata=np.c_[per["seeds"]],
                 hovertemplate=f"%{{y}}: {p} %{{x:.1f}} % (mean of %{{customdata[0]}} seeds)<extra></extra>"))
+    height = int(min(3000, max(320, 16 * len(per) + 140)))
     fig.update_layout(xaxis=dict(title="balanced accuracy on the target's decisions [%] (in-sample)",
                                  side="top"),
-                      yaxis=dict(title="target (sorted by the agent's balanced accuracy)", type="category",
-                                 tickfont=dict(size=10)),
-                      height=int(min(3000, max(320, 16 * len(per) + 140))), margin=dict(t=60, b=20),
-                      legend=dict(orientation="h", yanchor="bottom", y=1.06, x=0))
+                      yaxis=dict(title="target, by agent BA", type="category", tickfont=dict(size=10),
+                                 range=[-0.6, len(per) - 0.4]),
+                      height=height, margin=dict(t=100, b=20),
+                      # above the x axis drawn on top (its ticks and title take ~55 px)
+                      legend=dict(orientation="h", yanchor="bottom", y=1.0 + 58 / (height - 120), x=0))
     return fig

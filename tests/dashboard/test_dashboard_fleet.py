@@ -152,7 +152,7 @@ def test_results_page_fleet_view(copy_ws):
     specs = [json.loads(c.proto.spec) for c in at.get("plotly_chart")]
     fig = next(f for f in specs if "balanced accuracy on the target" in
                f["layout"].get("xaxis", {}).get("title", {}).get("text", ""))
-    assert [t["name"] for t in fig["data"]] == ["agent", "greedy", "imitation"]
+    assert [t["name"] for t in fig["data"]] == ["agent (open: misses its target)", "greedy", "imitation"]
     assert list(fig["data"][0]["y"]) == drivers  # sorted by the agent's balanced accuracy
     assert fig["data"][0]["marker"]["symbol"][:2] == ["circle-open", "circle"]  # D01's agent misses the target
 
