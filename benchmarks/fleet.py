@@ -39,7 +39,8 @@ import pandas as pd
 from laneprint.workspace import Workspace
 from rl.env import formulation_config
 from rl.fleet import FleetMember, FleetTrainer
-from rl.fleet_runs import _load_members, create_fleet, fleet_agent_table, fleet_targets, train_fleet
+from rl.fleet_io import fleet_table
+from rl.fleet_runs import _load_members, create_fleet, fleet_targets, train_fleet
 from rl.runs import Target, resolve_lines, train_run
 from rl.settings import DQNSettings
 
@@ -94,7 +95,9 @@ def fleet(ws: Workspace, backend: str, threads: int | None) -> dict:
     record = create_fleet(ws, targets, [0], DQNSettings(), backend=backend)
     res = train_fleet(ws, record["fleet_id"], backend=backend, threads=threads)
     wall = time.perf_counter() - t
-    table = fleet_agent_table(res)
+    table = fleet_table(ws, record["fleet_id"]).rename(columns={
+        "agent_balanced_accuracy": "agent_ba", "greedy_balanced_accuracy": "greedy_ba",
+        "imitation_balanced_accuracy": "imitation_ba", "agent_recall": "recall"})
     steps = sum(s.get("env_steps", 0) for s in res["summaries"])
     return {"wall_s": wall, "env_steps": steps, "table": table, "runs": res["runs"]}
 

@@ -53,20 +53,21 @@ def _render_eval(ev: dict[str, Any], console: Console) -> None:
 
 
 def _render_fleet(res: dict[str, Any], console: Console) -> None:
-    from rl.fleet_runs import fleet_agent_table
-
     console.print(res["fleet_id"])
-    table = fleet_agent_table(res)
+    agents = res.get("agents", [])
     t = Table(title=f"fleet {res['fleet_id']}: {res['message']}")
     for col in ("run", "state", "recall", "agent bal. acc.", "greedy", "imitation", "target met"):
         t.add_column(col)
-    for r in table.itertuples():
-        t.add_row(r.run_id, r.state, _fmt(r.recall, True), _fmt(r.agent_ba, True), _fmt(r.greedy_ba, True),
-                  _fmt(r.imitation_ba, True), "yes" if r.meets_target else "no")
+    num = lambda x: None if x is None or x != x else x  # noqa: E731 - NaN (not evaluated) prints as '-'
+    for r in agents:
+        t.add_row(r["run_id"], r["state"], _fmt(num(r["agent_recall"]), True),
+                  _fmt(num(r["agent_balanced_accuracy"]), True), _fmt(num(r["greedy_balanced_accuracy"]), True),
+                  _fmt(num(r["imitation_balanced_accuracy"]), True),
+                  {True: "yes", False: "no"}.get(r["meets_target"], "-"))
     console.print(t)
-    if len(table):
-        console.print(f"{int(table['meets_target'].sum())} of {len(table)} agents meet the target "
-                      "(recall >= 95 %, balanced accuracy >= greedy + 5 points)", highlight=False)
+    met = sum(bool(r["meets_target"]) for r in agents)
+    console.print(f"{met} of {len(agents)} agents meet the target (recall >= 95 %, balanced accuracy >= greedy "
+                  "+ 5 points)", highlight=False)
 
 
 def train_command(

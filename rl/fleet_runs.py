@@ -36,16 +36,13 @@ from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.env import EnvConfig, approaches_from_decisions, formulation_config
 from rl.fleet import FleetMember, FleetTrainer
+from rl.fleet_io import fleet_dir, fleet_table
 from rl.runs import (Target, _eval_drivers, _StopFlag, _truncate_metrics, code_version, create_run, evaluate_run,
                      now_iso, resolve_lines, run_dir)
 from rl.settings import DQNSettings
 
 FLEET_STATES = ("running", "done", "failed", "cancelled")
 STATUS_EVERY_S = 2.0  # [s] between status.json writes of a run (more often for small fleets is pointless)
-
-
-def fleet_dir(workspace: Workspace) -> Path:
-    return workspace.root / "fleets"
 
 
 def is_fleet(workspace: Workspace, fleet_id: str) -> bool:
@@ -362,7 +359,8 @@ def train_fleet(workspace: Workspace, fleet_id: str, *, backend: str = "local", 
                  message=f"{sum(s['state'] == 'done' for s in summaries)} of {len(runs)} agents done")
     _write_fleet(workspace, fleet)
     by_id = {s["run_id"]: s for s in summaries}
-    return {**fleet, "summaries": [by_id.get(r, {"run_id": r, "state": "missing"}) for r in runs]}
+    return {**fleet, "summaries": [by_id.get(r, {"run_id": r, "state": "missing"}) for r in runs],
+            "agents": fleet_table(workspace, fleet_id).to_dict("records")}
 
 
 def _train_local(workspace: Workspace, runs: list[str], threads: int, evaluate: bool,
@@ -419,17 +417,3 @@ def _ray_cpus() -> int:
     import ray
 
     return max(1, int(ray.cluster_resources().get("CPU", 1)))
-
-
-def fleet_agent_table(result: dict[str, Any]) -> pd.DataFrame:
-    """One row per agent of a `train_fleet` result: agent vs greedy vs imitation, and the target met."""
-    rows = []
-    for s in result.get("summaries", []):
-        ev = {r["who"]: r for r in s.get("evaluation") or []}
-        a, g, m = ev.get("agent", {}), ev.get("greedy", {}), ev.get("imitation", {})
-        ba, gba = a.get("balanced_accuracy"), g.get("balanced_accuracy")
-        rows.append({"run_id": s["run_id"], "state": s["state"], "recall": a.get("recall"), "agent_ba": ba,
-                     "greedy_ba": gba, "imitation_ba": m.get("balanced_accuracy"),
-                     "meets_target": bool(ba is not None and gba is not None and a.get("recall", 0) >= 0.95
-                                          and ba >= gba + 0.05)})
-    return pd.DataFrame(rows)
