@@ -10,11 +10,12 @@ from __future__ import annotations
 import typer
 
 from clustering.cli import analyze_command
+from laneprint.check_cli import check_command
 from dashboard.cli import dashboard_command
 from ingest.cli import ingest_command
 from laneprint.simulator.cli import simulate_command
 from laneprint.pipeline_cli import run_command_cli
-from rl.cli import crossval_command, evaluate_command, train_command
+from rl.cli import crossval_command, evaluate_command, runs_command, train_command
 
 app = typer.Typer(
     name="laneprint",
@@ -30,6 +31,8 @@ app.command("analyze", help="Indicators at decisions, per-driver fits and drivin
 app.command("train", help="Train a DQN agent for a style or a driver.")(train_command)
 app.command("evaluate", help="Evaluate a trained run against the drivers' decisions.")(evaluate_command)
 app.command("crossval", help="Held-out figures: agent vs greedy vs imitation, by session folds.")(crossval_command)
+app.command("runs", help="List the training runs and their state (interrupted: killed, resumable).")(runs_command)
+app.command("check", help="Verify the workspace; --repair removes leftovers of interrupted writes.")(check_command)
 app.command("dashboard", help="Serve the Streamlit dashboard.")(dashboard_command)
 app.command("run", help="Everything end to end: ingest PATHs, analyze, and train/evaluate the styles.")(run_command_cli)
 

@@ -10,8 +10,8 @@ in-sample figures. Everything is written aside and renamed into place.
 
 from __future__ import annotations
 
-import io
 import json
+import os
 import re
 from dataclasses import asdict, replace
 from datetime import datetime, timezone
@@ -23,7 +23,7 @@ import pandas as pd
 from indicators.settings import AnalysisSettings
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn
-from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
+from laneprint.workspace import Workspace, atomic_write_json
 from rl.crossval import CrossvalSettings, crossvalidate
 from rl.env import EnvConfig
 from rl.rewards import ReferenceLines
@@ -73,12 +73,12 @@ def run_crossval(workspace: Workspace, target: Target, env: EnvConfig, dqn: DQNS
     res = {"crossval_id": cv_id, "target": asdict(target), "run_id": run_id, "lines_source": lines_source,
            "created_at": now_iso(), "data_fingerprint": workspace.fingerprint(), **res}
     folder = crossval_dir(workspace) / cv_id
-    folder.mkdir(parents=True, exist_ok=True)
-    for name, df in (("states", states), ("changes", changes)):
-        buf = io.BytesIO()
-        df.to_parquet(buf, index=False)
-        atomic_write_bytes(folder / f"{name}.parquet", buf.getvalue())
-    atomic_write_json(folder / "result.json", res)  # last: a folder without it is unfinished
+    with workspace.staging() as box:  # the whole folder appears at once, or not at all
+        for name, df in (("states", states), ("changes", changes)):
+            df.to_parquet(box / f"{name}.parquet", index=False)
+        atomic_write_json(box / "result.json", res)
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        os.rename(box, folder)
     if run_id:
         atomic_write_json(run_dir(workspace, run_id) / "crossval.json", res)
     return res
