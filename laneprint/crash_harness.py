@@ -1,0 +1,264 @@
+"""Crash safety you can show: run real `laneprint` commands on a workspace, SIGKILL them at a
+random (seeded) moment, then prove the workspace is whole and the work can go on.
+
+One kill (`kill_once`), on a fresh copy of a prepared workspace:
+
+1. start the command as a subprocess and SIGKILL it after a delay drawn uniformly over
+   the command's own clean duration (measured once, `calibrate`);
+2. `laneprint check --repair --json`: a ``problem`` finding means the kill left the
+   workspace inconsistent; leftovers of the interrupted writes are removed and counted;
+3. every run that was training must be listed as 'interrupted' (never 'running') by
+   `laneprint runs --json` and by the dashboard's run table;
+4. recovery, with a timeout (a stale lock would make it wait): each interrupted run is
+   resumed with `laneprint train --resume RUN_ID` (from its last checkpoint), and the
+   command is run again when nothing was resumed;
+5. `laneprint check --json` must be clean, and the command's own postcondition must hold
+   (`Command.verify`: e.g. every held-back log stored once, a resumed run's metrics
+   numbered 1..N with no gap or repeat).
+
+A new command is one entry of `COMMANDS`: its arguments, and optionally a postcondition.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Context:
+    """What a command's arguments may refer to."""
+
+    logs: Path  # held-back logs (not in the base workspace) for `ingest`
+    driver: str  # a driver of the base workspace
+    tag: str  # unique per kill (run ids)
+
+
+@dataclass(frozen=True)
+class Command:
+    """A laneprint command to kill: its arguments (after `laneprint`, before `-w WS --json`)."""
+
+    args: Callable[[Context], list[str]]
+    verify: Callable[[Path, Context], list[str]] = lambda ws, ctx: []  # postcondition failures after recovery
+    trains: bool = False  # writes run folders (checked for 'interrupted' and resumed)
+
+
+def _held_back_stored(ws: Path, ctx: Context) -> list[str]:
+    """Every held-back log is a recording, stored once (by content hash)."""
+    import hashlib
+
+    missing = [p.name for p in sorted(ctx.logs.iterdir())
+               if not (ws / "recordings" / hashlib.sha256(p.read_bytes()).hexdigest()[:16] / "meta.parquet").exists()]
+    return [f"held-back log {m} not stored" for m in missing]
+
+
+def _analysis_current(ws: Path, ctx: Context) -> list[str]:
+    from laneprint.workspace import Workspace
+
+    meta = Workspace(ws).read_meta("analysis")
+    return [] if meta.get("data_fingerprint") == Workspace(ws).fingerprint() else ["analysis missing or stale"]
+
+
+def _runs_complete(ws: Path, ctx: Context) -> list[str]:
+    """Every run done, its metrics numbered 1..N exactly once."""
+    from rl.runs import read_metrics
+
+    out = []
+    for cfg in sorted((ws / "runs").glob("*/config.json")):
+        status = json.loads((cfg.parent / "status.json").read_text())
+        n = int(json.loads(cfg.read_text())["dqn"]["episodes"])
+        eps = read_metrics(cfg.parent / "metrics.jsonl").get("episode")
+        if status["state"] != "done" or eps is None or list(eps) != list(range(1, n + 1)):
+            out.append(f"run {cfg.parent.name}: state {status['state']}, metrics not 1..{n}")
+    return out
+
+
+def _crossval_stored(ws: Path, ctx: Context) -> list[str]:
+    return [] if list((ws / "crossval").glob("*/result.json")) else ["no cross-validation stored"]
+
+
+# one line per command; `train --drivers all` (fleet) goes here when it exists, with trains=True
+COMMANDS: dict[str, Command] = {
+    "ingest": Command(lambda c: ["ingest", str(c.logs)], _held_back_stored),
+    "analyze": Command(lambda c: ["analyze"], _analysis_current),
+    "train": Command(lambda c: ["train", "--driver", c.driver, "--episodes", "80", "--checkpoint-every", "10",
+                                "--run-id", f"crash-{c.tag}"], _runs_complete, trains=True),
+    "crossval": Command(lambda c: ["crossval", "--driver", c.driver, "--episodes", "30", "--folds", "2",
+                                   "--bootstrap", "10"], _crossval_stored),
+}
+
+
+def laneprint(args: list[str], ws: Path, timeout: float | None = None) -> subprocess.CompletedProcess:
+    """Run `laneprint ARGS -w WS --json` to the end (as the user would, in a subprocess)."""
+    return subprocess.run([sys.executable, "-m", "laneprint.cli", *args, "-w", str(ws), "--json"],
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def _json(proc: subprocess.CompletedProcess) -> dict[str, Any]:
+    try:
+        return json.loads(proc.stdout)
+    except ValueError:
+        return {}
+
+
+@dataclass
+class KillResult:
+    """What one kill did and what was found after it."""
+
+    command: str
+    delay_s: float
+    finished_before_kill: bool
+    problems: list[str] = field(default_factory=list)  # inconsistencies (check problems, failed recovery)
+    repaired: int = 0
+    interrupted_runs: list[str] = field(default_factory=list)
+    resumed: dict[str, int] = field(default_factory=dict)  # run id -> episode it resumed from
+    recovery_s: float = 0.0
+
+    @property
+    def consistent(self) -> bool:
+        return not self.problems
+
+
+def calibrate(base: Path, ctx: Context, names: list[str], scratch: Path) -> dict[str, float]:
+    """Seconds each command takes, untouched, on a copy of the base workspace."""
+    out = {}
+    for name in names:
+        ws = scratch / f"calibrate-{name}"
+        shutil.copytree(base, ws)
+        t0 = time.monotonic()
+        proc = laneprint(COMMANDS[name].args(Context(ctx.logs, ctx.driver, f"cal-{name}")), ws)
+        out[name] = time.monotonic() - t0
+        if proc.returncode != 0:
+            raise RuntimeError(f"`laneprint {name}` fails without a kill: {proc.stderr.strip()[-300:]}")
+        shutil.rmtree(ws)
+    return out
+
+
+def _interrupted_states(ws: Path) -> tuple[dict[str, str], dict[str, str]]:
+    """Run states as `laneprint runs --json` and as the dashboard's run table show them."""
+    from dashboard.jobs import runs_table
+    from laneprint.workspace import Workspace
+
+    cli = {r["run_id"]: r["state"] for r in _json(laneprint(["runs"], ws, timeout=120)).get("runs", [])}
+    table = runs_table(Workspace(ws))
+    return cli, dict(zip(table["run_id"], table["state"]))
+
+
+def _checkpoint_episode(path: Path) -> int:
+    """Episodes done at a run's last checkpoint (0 without one)."""
+    import torch
+
+    return int(torch.load(path, weights_only=True)["counters"]["episodes_done"]) if path.exists() else 0
+
+
+def kill_once(name: str, base: Path, ctx: Context, delay_s: float, ws: Path, timeout_s: float) -> KillResult:
+    """Copy `base` to `ws`, kill command `name` after `delay_s`, check, repair, recover, check again."""
+    cmd = COMMANDS[name]
+    shutil.copytree(base, ws)
+    proc = subprocess.Popen([sys.executable, "-m", "laneprint.cli", *cmd.args(ctx), "-w", str(ws), "--json"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        proc.wait(timeout=delay_s)
+        finished = True
+    except subprocess.TimeoutExpired:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        finished = False
+    res = KillResult(name, round(delay_s, 2), finished)
+
+    first = laneprint(["check", "--repair"], ws, timeout=timeout_s)
+    report = _json(first)
+    res.repaired = len(report.get("repaired", []))
+    res.problems += [f"after the kill: {f['path']}: {f['message']}" for f in report.get("findings", [])
+                     if f["kind"] == "problem"]
+    if first.returncode != 0 and not res.problems:
+        res.problems.append(f"check --repair exit {first.returncode}: {first.stderr.strip()[-200:]}")
+
+    if cmd.trains:
+        cli, dash = _interrupted_states(ws)
+        res.interrupted_runs = sorted(r for r, s in cli.items() if s == "interrupted")
+        for rid, state in cli.items():
+            if state == "running":
+                res.problems.append(f"run {rid} listed as running after its process was killed")
+            if dash.get(rid) != state:
+                res.problems.append(f"run {rid}: `laneprint runs` says {state}, the dashboard {dash.get(rid)}")
+
+    t0 = time.monotonic()
+    try:
+        for rid in res.interrupted_runs:
+            expected = _checkpoint_episode(ws / "runs" / rid / "checkpoint.pt")
+            out = laneprint(["train", "--resume", rid], ws, timeout=timeout_s)
+            if out.returncode != 0:
+                res.problems.append(f"resume of {rid} failed: {out.stderr.strip()[-200:]}")
+                continue
+            res.resumed[rid] = int(_json(out).get("resumed_from_episode", -1))
+            if res.resumed[rid] != expected:
+                res.problems.append(f"run {rid} resumed from episode {res.resumed[rid]}, its checkpoint is at {expected}")
+        if not res.resumed:
+            out = laneprint(cmd.args(ctx), ws, timeout=timeout_s)
+            if out.returncode != 0:
+                res.problems.append(f"re-run failed (exit {out.returncode}): {out.stderr.strip()[-200:]}")
+    except subprocess.TimeoutExpired:
+        res.problems.append(f"recovery did not finish within {timeout_s:.0f} s (waiting on a lock?)")
+    res.recovery_s = round(time.monotonic() - t0, 1)
+
+    final = _json(laneprint(["check"], ws, timeout=timeout_s))
+    res.problems += [f"after recovery: {f['kind']} {f['path']}: {f['message']}" for f in final.get("findings", [])
+                     if f["kind"] != "note"]
+    if not final:
+        res.problems.append("final check printed no report")
+    res.problems += cmd.verify(ws, ctx)
+    return res
+
+
+def prepare(scratch: Path, seed: int, drivers: int = 3, held_back: int = 2) -> tuple[Path, Context]:
+    """A base workspace (a simulated study, all but `held_back` logs ingested, analysed) and the
+    held-back logs, under `scratch`."""
+    study, logs, base = scratch / "study", scratch / "held_back", scratch / "base"
+    for args in (["simulate", "--out", str(study), "--drivers", str(drivers), "--seed", str(seed)],):
+        out = subprocess.run([sys.executable, "-m", "laneprint.cli", *args, "--json"], capture_output=True, text=True)
+        if out.returncode != 0:
+            raise RuntimeError(out.stderr[-300:])
+    files = sorted(p for p in study.iterdir() if p.name.endswith((".mcap", ".csv.gz", ".csv")))
+    logs.mkdir()
+    for p in files[-held_back:]:
+        shutil.move(str(p), logs / p.name)
+    for args in (["ingest", str(study)], ["analyze"]):
+        out = laneprint(args, base)
+        if out.returncode != 0:
+            raise RuntimeError(out.stderr[-300:])
+    return base, Context(logs, "D01", "")
+
+
+def run_kills(names: list[str], kills: int, seed: int, scratch: Path,
+              log: Callable[[str], None] = print) -> list[KillResult]:
+    """`kills` kills spread evenly over `names` (order shuffled by `seed`), each at a seeded moment."""
+    rng = np.random.default_rng(seed)
+    base, ctx = prepare(scratch, seed)
+    durations = calibrate(base, ctx, names, scratch)
+    log("clean durations: " + ", ".join(f"{k} {v:.1f} s" for k, v in durations.items()))
+    plan = [names[i % len(names)] for i in range(kills)]
+    rng.shuffle(plan)
+    results = []
+    for i, name in enumerate(plan):
+        delay = float(rng.uniform(0.15, 1.0) * durations[name])
+        ws = scratch / f"kill-{i:03d}"
+        res = kill_once(name, base, Context(ctx.logs, ctx.driver, f"{i:03d}"), delay, ws,
+                        timeout_s=max(120.0, 4 * max(durations.values())))
+        shutil.rmtree(ws, ignore_errors=True)
+        results.append(res)
+        log(f"[{i + 1}/{kills}] {name} killed at {res.delay_s} s"
+            f"{' (had finished)' if res.finished_before_kill else ''}: repaired {res.repaired}, "
+            f"resumed {res.resumed or '-'}, recovery {res.recovery_s} s, "
+            f"{'consistent' if res.consistent else 'INCONSISTENT: ' + '; '.join(res.problems)}")
+    return results
