@@ -26,7 +26,10 @@ from collections import Counter
 from dataclasses import asdict
 from pathlib import Path
 
-from laneprint.crash_harness import COMMANDS, run_kills
+# benchmarks/ holds scripts named like packages (dashboard.py, ingest.py): keep it off the import path
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+
+from laneprint.crash_harness import COMMANDS, run_kills  # noqa: E402
 
 
 def main() -> int:

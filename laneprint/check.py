@@ -39,9 +39,9 @@ STAGE_SCHEMAS: dict[tuple[str, str], Schema] = {
     ("analysis", "decisions"): DECISIONS, ("analysis", "reference_lines"): REFERENCE_LINES,
 }
 RECORDING_FILES: dict[str, Schema] = {"meta.parquet": RECORDINGS, "ego.parquet": EGO, "traffic.parquet": TRAFFIC}
-# mkstemp creates a temporary file a moment before its writer locks it: one younger than this
-# and unlocked may be in that moment, so it is left for the next check
-_CREATION_GRACE_S = 2.0
+# a temporary file or folder exists a moment before its writer locks it: one younger than this
+# and unlocked is looked at again once it is this old
+_CREATION_GRACE_S = 0.5
 
 
 @dataclass
@@ -70,13 +70,17 @@ def _rel(ws: Workspace, path: Path) -> str:
 
 
 def _unheld(path: Path) -> bool:
-    """True when no live process holds `path` and it is not being created right now."""
+    """True when no live process holds `path` (one just created is given its moment to lock it)."""
     if is_locked(path):
         return False
     try:
-        return time.time() - path.lstat().st_mtime > _CREATION_GRACE_S
+        age = time.time() - path.lstat().st_mtime
     except OSError:
         return False
+    if age < _CREATION_GRACE_S:
+        time.sleep(_CREATION_GRACE_S - age)
+        return path.exists() and not is_locked(path)
+    return True
 
 
 def _remover(path: Path) -> Callable[[], None]:

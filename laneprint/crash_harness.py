@@ -12,7 +12,7 @@ One kill (`kill_once`), on a fresh copy of a prepared workspace:
 4. recovery, with a timeout (a stale lock would make it wait): each interrupted run is
    resumed with `laneprint train --resume RUN_ID` (from its last checkpoint), and the
    command is run again when nothing was resumed;
-5. `laneprint check --json` must be clean, and the command's own postcondition must hold
+5. the check (`laneprint.check.check_workspace`, in this process) must be clean, and the command's own postcondition must hold
    (`Command.verify`: e.g. every held-back log stored once, a resumed run's metrics
    numbered 1..N with no gap or repeat).
 
@@ -91,9 +91,9 @@ def _crossval_stored(ws: Path, ctx: Context) -> list[str]:
 COMMANDS: dict[str, Command] = {
     "ingest": Command(lambda c: ["ingest", str(c.logs)], _held_back_stored),
     "analyze": Command(lambda c: ["analyze"], _analysis_current),
-    "train": Command(lambda c: ["train", "--driver", c.driver, "--episodes", "80", "--checkpoint-every", "10",
+    "train": Command(lambda c: ["train", "--driver", c.driver, "--episodes", "3000", "--checkpoint-every", "200",
                                 "--run-id", f"crash-{c.tag}"], _runs_complete, trains=True),
-    "crossval": Command(lambda c: ["crossval", "--driver", c.driver, "--episodes", "30", "--folds", "2",
+    "crossval": Command(lambda c: ["crossval", "--driver", c.driver, "--episodes", "10", "--folds", "2",
                                    "--bootstrap", "10"], _crossval_stored),
 }
 
@@ -161,20 +161,30 @@ def _checkpoint_episode(path: Path) -> int:
     return int(torch.load(path, weights_only=True)["counters"]["episodes_done"]) if path.exists() else 0
 
 
-def kill_once(name: str, base: Path, ctx: Context, delay_s: float, ws: Path, timeout_s: float) -> KillResult:
-    """Copy `base` to `ws`, kill command `name` after `delay_s`, check, repair, recover, check again."""
-    cmd = COMMANDS[name]
-    shutil.copytree(base, ws)
+def _start_and_kill(cmd: Command, ctx: Context, ws: Path, delay_s: float,
+                    after: Callable[[Path], bool] | None) -> bool:
+    """Run `cmd` on `ws` and SIGKILL it `delay_s` after `after(ws)` holds (after its start when None);
+    True if it had finished by then."""
     proc = subprocess.Popen([sys.executable, "-m", "laneprint.cli", *cmd.args(ctx), "-w", str(ws), "--json"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    while after is not None and not after(ws) and proc.poll() is None:
+        time.sleep(0.05)
     try:
         proc.wait(timeout=delay_s)
-        finished = True
+        return True
     except subprocess.TimeoutExpired:
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
-        finished = False
-    res = KillResult(name, round(delay_s, 2), finished)
+        return False
+
+
+def kill_once(name: str, base: Path, ctx: Context, delay_s: float, ws: Path, timeout_s: float,
+              cmd: Command | None = None, after: Callable[[Path], bool] | None = None) -> KillResult:
+    """Copy `base` to `ws`, kill command `name` (or `cmd`) `delay_s` after its start (or after `after(ws)`
+    holds), then check, repair, recover, check again."""
+    cmd = cmd or COMMANDS[name]
+    shutil.copytree(base, ws)
+    res = KillResult(name, round(delay_s, 2), _start_and_kill(cmd, ctx, ws, delay_s, after))
 
     first = laneprint(["check", "--repair"], ws, timeout=timeout_s)
     report = _json(first)
@@ -212,11 +222,12 @@ def kill_once(name: str, base: Path, ctx: Context, delay_s: float, ws: Path, tim
         res.problems.append(f"recovery did not finish within {timeout_s:.0f} s (waiting on a lock?)")
     res.recovery_s = round(time.monotonic() - t0, 1)
 
-    final = _json(laneprint(["check"], ws, timeout=timeout_s))
-    res.problems += [f"after recovery: {f['kind']} {f['path']}: {f['message']}" for f in final.get("findings", [])
+    from laneprint.check import check_workspace
+    from laneprint.workspace import Workspace
+
+    final = check_workspace(Workspace(ws))  # what `laneprint check` runs, in this process (saves a start-up)
+    res.problems += [f"after recovery: {f['kind']} {f['path']}: {f['message']}" for f in final["findings"]
                      if f["kind"] != "note"]
-    if not final:
-        res.problems.append("final check printed no report")
     res.problems += cmd.verify(ws, ctx)
     return res
 
