@@ -8,7 +8,7 @@ resumed from their checkpoint, the command re-run, `laneprint check` again. See
 `laneprint/crash_harness.py` (a new command is one line of its COMMANDS).
 
     .venv/bin/python benchmarks/crash.py [--kills 50] [--seed 0] [--commands ingest,analyze,train,crossval]
-        [--out crash.json]
+        [--jobs 1] [--out crash.json]
 
 Prints one line per kill and a summary: kills per command, consistent workspaces
 (no `check` problem after the kill, a clean `check` after recovery, the command's own
@@ -37,6 +37,7 @@ def main() -> int:
     ap.add_argument("--kills", type=int, default=50)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--commands", default=",".join(COMMANDS), help=f"comma-separated, of: {', '.join(COMMANDS)}")
+    ap.add_argument("--jobs", type=int, default=1, help="kills under way at once (each on its own workspace)")
     ap.add_argument("--out", type=Path, help="write every kill's result here as JSON")
     args = ap.parse_args()
     names = [n.strip() for n in args.commands.split(",") if n.strip()]
@@ -45,7 +46,7 @@ def main() -> int:
         ap.error(f"unknown command(s) {', '.join(unknown)}: choose from {', '.join(COMMANDS)}")
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="laneprint-crash-") as tmp:
-        results = run_kills(names, args.kills, args.seed, Path(tmp), log=lambda m: print(m, flush=True))
+        results = run_kills(names, args.kills, args.seed, Path(tmp), args.jobs, log=lambda m: print(m, flush=True))
     by_cmd = Counter(r.command for r in results)
     bad = [r for r in results if not r.consistent]
     interrupted = sum(len(r.interrupted_runs) for r in results)

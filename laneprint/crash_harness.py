@@ -91,7 +91,7 @@ def _crossval_stored(ws: Path, ctx: Context) -> list[str]:
 COMMANDS: dict[str, Command] = {
     "ingest": Command(lambda c: ["ingest", str(c.logs)], _held_back_stored),
     "analyze": Command(lambda c: ["analyze"], _analysis_current),
-    "train": Command(lambda c: ["train", "--driver", c.driver, "--episodes", "3000", "--checkpoint-every", "200",
+    "train": Command(lambda c: ["train", "--driver", c.driver, "--episodes", "1000", "--checkpoint-every", "100",
                                 "--run-id", f"crash-{c.tag}"], _runs_complete, trains=True),
     "crossval": Command(lambda c: ["crossval", "--driver", c.driver, "--episodes", "10", "--folds", "2",
                                    "--bootstrap", "10"], _crossval_stored),
@@ -251,25 +251,30 @@ def prepare(scratch: Path, seed: int, drivers: int = 3, held_back: int = 2) -> t
     return base, Context(logs, "D01", "")
 
 
-def run_kills(names: list[str], kills: int, seed: int, scratch: Path,
+def run_kills(names: list[str], kills: int, seed: int, scratch: Path, jobs: int = 1,
               log: Callable[[str], None] = print) -> list[KillResult]:
-    """`kills` kills spread evenly over `names` (order shuffled by `seed`), each at a seeded moment."""
+    """`kills` kills spread evenly over `names` (order and moments drawn from `seed`), `jobs` at a time
+    (each on its own copy of the workspace)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     rng = np.random.default_rng(seed)
     base, ctx = prepare(scratch, seed)
     durations = calibrate(base, ctx, names, scratch)
     log("clean durations: " + ", ".join(f"{k} {v:.1f} s" for k, v in durations.items()))
     plan = [names[i % len(names)] for i in range(kills)]
     rng.shuffle(plan)
-    results = []
-    for i, name in enumerate(plan):
-        delay = float(rng.uniform(0.15, 1.0) * durations[name])
+    delays = [float(rng.uniform(0.15, 1.0) * durations[name]) for name in plan]
+    timeout = max(120.0, 4 * max(durations.values()))
+
+    def one(i: int) -> KillResult:
         ws = scratch / f"kill-{i:03d}"
-        res = kill_once(name, base, Context(ctx.logs, ctx.driver, f"{i:03d}"), delay, ws,
-                        timeout_s=max(120.0, 4 * max(durations.values())))
+        res = kill_once(plan[i], base, Context(ctx.logs, ctx.driver, f"{i:03d}"), delays[i], ws, timeout)
         shutil.rmtree(ws, ignore_errors=True)
-        results.append(res)
-        log(f"[{i + 1}/{kills}] {name} killed at {res.delay_s} s"
+        log(f"[{i + 1}/{kills}] {res.command} killed at {res.delay_s} s"
             f"{' (had finished)' if res.finished_before_kill else ''}: repaired {res.repaired}, "
             f"resumed {res.resumed or '-'}, recovery {res.recovery_s} s, "
             f"{'consistent' if res.consistent else 'INCONSISTENT: ' + '; '.join(res.problems)}")
-    return results
+        return res
+
+    with ThreadPoolExecutor(max(1, jobs)) as pool:
+        return list(pool.map(one, range(kills)))
