@@ -16,7 +16,8 @@ One kill (`kill_once`), on a fresh copy of a prepared workspace:
    (`Command.verify`: e.g. every held-back log stored once, a resumed run's metrics
    numbered 1..N with no gap or repeat).
 
-A new command is one entry of `COMMANDS`: its arguments, and optionally a postcondition.
+A new command is one entry of `COMMANDS`: its arguments, and optionally a postcondition and its
+own recovery (a fleet resumes as a whole: `train --resume FLEET_ID`).
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ class Command:
     args: Callable[[Context], list[str]]
     verify: Callable[[Path, Context], list[str]] = lambda ws, ctx: []  # postcondition failures after recovery
     trains: bool = False  # writes run folders (checked for 'interrupted' and resumed)
+    resume: Callable[[Path], list[list[str]]] | None = None  # its own recovery commands, when it has any to give
 
 
 def _held_back_stored(ws: Path, ctx: Context) -> list[str]:
@@ -87,7 +89,12 @@ def _crossval_stored(ws: Path, ctx: Context) -> list[str]:
     return [] if list((ws / "crossval").glob("*/result.json")) else ["no cross-validation stored"]
 
 
-# one line per command; `train --drivers all` (fleet) goes here when it exists, with trains=True
+def _resume_fleets(ws: Path) -> list[list[str]]:
+    """`train --resume FLEET_ID` for each fleet of the workspace (none when killed before its fleet.json)."""
+    return [["train", "--resume", p.parent.name] for p in sorted((ws / "fleets").glob("*/fleet.json"))]
+
+
+# one line per command
 COMMANDS: dict[str, Command] = {
     "ingest": Command(lambda c: ["ingest", str(c.logs)], _held_back_stored),
     "analyze": Command(lambda c: ["analyze"], _analysis_current),
@@ -95,6 +102,8 @@ COMMANDS: dict[str, Command] = {
                                 "--run-id", f"crash-{c.tag}"], _runs_complete, trains=True),
     "crossval": Command(lambda c: ["crossval", "--driver", c.driver, "--episodes", "10", "--folds", "2",
                                    "--bootstrap", "10"], _crossval_stored),
+    "fleet": Command(lambda c: ["train", "--drivers", "all", "--episodes", "1000", "--checkpoint-every", "100"],
+                     _runs_complete, trains=True, resume=_resume_fleets),
 }
 
 
@@ -204,8 +213,16 @@ def kill_once(name: str, base: Path, ctx: Context, delay_s: float, ws: Path, tim
                 res.problems.append(f"run {rid}: `laneprint runs` says {state}, the dashboard {dash.get(rid)}")
 
     t0 = time.monotonic()
+    own = cmd.resume(ws) if cmd.resume else []
     try:
-        for rid in res.interrupted_runs:
+        for args in own:  # the command's own resume (a fleet's runs continue from their checkpoints)
+            before = {rid: _checkpoint_episode(ws / "runs" / rid / "checkpoint.pt") for rid in res.interrupted_runs}
+            out = laneprint(args, ws, timeout=timeout_s)
+            if out.returncode != 0:
+                res.problems.append(f"`laneprint {' '.join(args)}` failed: {out.stderr.strip()[-200:]}")
+            else:
+                res.resumed.update(before)
+        for rid in [] if own else res.interrupted_runs:
             expected = _checkpoint_episode(ws / "runs" / rid / "checkpoint.pt")
             out = laneprint(["train", "--resume", rid], ws, timeout=timeout_s)
             if out.returncode != 0:
@@ -214,7 +231,7 @@ def kill_once(name: str, base: Path, ctx: Context, delay_s: float, ws: Path, tim
             res.resumed[rid] = int(_json(out).get("resumed_from_episode", -1))
             if res.resumed[rid] != expected:
                 res.problems.append(f"run {rid} resumed from episode {res.resumed[rid]}, its checkpoint is at {expected}")
-        if not res.resumed:
+        if not res.resumed and not own:
             out = laneprint(cmd.args(ctx), ws, timeout=timeout_s)
             if out.returncode != 0:
                 res.problems.append(f"re-run failed (exit {out.returncode}): {out.stderr.strip()[-200:]}")
