@@ -172,20 +172,25 @@ def run_status(ws: Workspace, run_id: str) -> dict[str, Any]:
     'cancelled', plus 'interrupted' for a run marked running whose process no longer
     holds the run's lock (killed: `rl.runs.run_state`).
     """
+    from rl.runs import run_state
+
     job = read_json(jobs_dir(ws) / f"{run_id}.json") or {}
     status = read_json(ws.runs_dir / run_id / "status.json")
     if status is None:
         if job and pid_alive(job.get("pid")):
             return {"state": "starting", "pid": job.get("pid"), "episode": 0,
                     "episodes": job.get("request", {}).get("episodes"), "message": "starting"}
+        state = run_state(ws.runs_dir / run_id, None)  # a run folder: 'starting', or 'interrupted' (killed)
+        if state == "interrupted":
+            return {"state": state, "episode": 0, "episodes": job.get("request", {}).get("episodes"),
+                    "message": f"interrupted before its first status; resume with `laneprint train --resume {run_id}`",
+                    "log": log_tail(ws, run_id)}
         if job:
             return {"state": "failed", "pid": job.get("pid"), "episode": 0,
                     "episodes": job.get("request", {}).get("episodes"),
                     "message": "the training process ended before writing its status",
                     "log": log_tail(ws, run_id)}
-        return {"state": "unknown", "message": "no status.json"}
-    from rl.runs import run_state
-
+        return {"state": state or "unknown", "message": "no status.json"}
     status = dict(status)
     state = run_state(ws.runs_dir / run_id, status)
     if state == "interrupted" and status.get("state") == "running":

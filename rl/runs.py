@@ -115,12 +115,13 @@ def run_dir(workspace: Workspace, run_id: str) -> Path:
 
 def run_state(folder: Path, status: dict[str, Any] | None) -> str | None:
     """The run's state as shown to users: status.json's, except that 'running' with no live
-    process holding the run's lock is 'interrupted' (killed; resumable from its checkpoint)."""
+    process holding the run's lock is 'interrupted' (killed; resumable from its checkpoint), and a
+    run with no status yet is 'starting' (its lock held) or 'interrupted'."""
     state = (status or {}).get("state")
     if state == "running" and not is_locked(folder / RUN_LOCK):
         return "interrupted"
-    if state is None and (folder / "config.json").exists() and not is_locked(folder / RUN_LOCK):
-        return "interrupted"  # killed before its first status
+    if state is None and (folder / "config.json").exists():  # before its first status
+        return "starting" if is_locked(folder / RUN_LOCK) else "interrupted"
     return state
 
 
