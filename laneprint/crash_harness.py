@@ -231,8 +231,8 @@ def kill_once(name: str, base: Path, ctx: Context, delay_s: float, ws: Path, tim
             res.resumed[rid] = int(_json(out).get("resumed_from_episode", -1))
             if res.resumed[rid] != expected:
                 res.problems.append(f"run {rid} resumed from episode {res.resumed[rid]}, its checkpoint is at {expected}")
-        if not res.resumed and not own:
-            out = laneprint(cmd.args(ctx), ws, timeout=timeout_s)
+        if not res.resumed and not own:  # a new tag: a command that had finished keeps its run
+            out = laneprint(cmd.args(Context(ctx.logs, ctx.driver, ctx.tag + "-again")), ws, timeout=timeout_s)
             if out.returncode != 0:
                 res.problems.append(f"re-run failed (exit {out.returncode}): {out.stderr.strip()[-200:]}")
     except subprocess.TimeoutExpired:
