@@ -23,7 +23,6 @@ import re
 import signal
 import subprocess
 import sys
-import time
 import uuid
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
@@ -164,29 +163,39 @@ def run_status(ws: Workspace, run_id: str) -> dict[str, Any]:
     """The run's status.json, completed with what the launcher knows.
 
     States: 'starting' (launched, no status yet), 'running', 'done', 'failed',
-    'cancelled', plus 'lost' for a run marked running whose process is gone.
+    'cancelled', plus 'interrupted' for a run marked running whose process no longer
+    holds the run's lock (killed: `rl.runs.run_state`).
     """
+    from rl.runs import run_state
+
     job = read_json(jobs_dir(ws) / f"{run_id}.json") or {}
     status = read_json(ws.runs_dir / run_id / "status.json")
     if status is None:
         if job and pid_alive(job.get("pid")):
             return {"state": "starting", "pid": job.get("pid"), "episode": 0,
                     "episodes": job.get("request", {}).get("episodes"), "message": "starting"}
+        state = run_state(ws.runs_dir / run_id, None)  # a run folder: 'starting', or 'interrupted' (killed)
+        if state == "interrupted":
+            return {"state": state, "episode": 0, "episodes": job.get("request", {}).get("episodes"),
+                    "message": f"interrupted before its first status; resume with `laneprint train --resume {run_id}`",
+                    "log": log_tail(ws, run_id)}
         if job:
             return {"state": "failed", "pid": job.get("pid"), "episode": 0,
                     "episodes": job.get("request", {}).get("episodes"),
                     "message": "the training process ended before writing its status",
                     "log": log_tail(ws, run_id)}
-        return {"state": "unknown", "message": "no status.json"}
+        return {"state": state or "unknown", "message": "no status.json"}
     status = dict(status)
-    if status.get("state") == "running" and not pid_alive(status.get("pid")):
-        # the trainer may have just finished: re-read once before calling it lost
-        time.sleep(0.05)
+    state = run_state(ws.runs_dir / run_id, status)
+    if state == "interrupted" and status.get("state") == "running":
+        # the trainer may have just finished (it drops its lock after its last status): re-read once
         status = dict(read_json(ws.runs_dir / run_id / "status.json") or status)
-        if status.get("state") == "running":
-            status["state"] = "lost"
-            status["message"] = "process ended without a final status (killed?)"
-            status["log"] = log_tail(ws, run_id)
+        state = run_state(ws.runs_dir / run_id, status)
+    if state == "interrupted":
+        status["message"] = (f"interrupted at episode {status.get('episode', 0)} (the process died); "
+                             f"resume with `laneprint train --resume {run_id}`")
+        status["log"] = log_tail(ws, run_id)
+    status["state"] = state
     return status
 
 
@@ -225,7 +234,7 @@ def run_ids(ws: Workspace) -> list[str]:
 
 
 def runs_table(ws: Workspace) -> pd.DataFrame:
-    """`rl.runs.list_runs` with the launcher's view of each state ('starting', 'lost'), newest first,
+    """`rl.runs.list_runs` with the launcher's view of each state ('starting', 'interrupted'), newest first,
     plus launched runs that have no run folder yet."""
     from rl.runs import list_runs
 

@@ -5,8 +5,8 @@ status and, when refused, a one-line reason; refused files are remembered in the
 workspace (`Workspace.record_rejected`). Recordings are keyed by content hash, so
 the same bytes are stored once. A session (driver_id, session_id) is stored once
 too: the CSV and the MCAP of the same session are one recording, the second is a
-'duplicate'. Concurrent ingests are safe: a session is claimed with an exclusive
-file create before its recording is written (see `_claim_session`).
+'duplicate'. Concurrent ingests are safe: a session is claimed under a flock that
+dies with its process before its recording is written (see `_claim_session`).
 
 Reading and validating a file (`parse_log`: bytes in, canonical tables out) is
 pure and runs on the chosen backend (`--backend ray`: on Ray's workers, which are
@@ -17,14 +17,12 @@ claims, atomic writes, rejections) stays in this process (`_Batch.store`).
 from __future__ import annotations
 
 import hashlib
-import os
-import time
 from collections import deque
-from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import pandas as pd
 
@@ -38,10 +36,9 @@ from laneprint.errors import UserError
 from laneprint.parallel import check_backend, iter_tasks
 from laneprint.progress import ProgressFn, report
 from laneprint.schemas import SchemaError
-from laneprint.workspace import Workspace
+from laneprint.workspace import Workspace, atomic_write_bytes
 
 LOG_SUFFIXES = (".csv.gz", ".csv", ".mcap")
-STALE_CLAIM_S = 120.0  # [s] a session claim without its recording after this long is from a crashed ingest
 STATUSES = ("ingested", "warning", "duplicate", "rejected", "skipped")
 
 
@@ -178,47 +175,37 @@ def _session_key(driver_id: str, session_id: str) -> str:
     return hashlib.sha256(f"{driver_id}\0{session_id}".encode()).hexdigest()[:16]
 
 
-def _claim_session(ws: Workspace, driver_id: str, session_id: str, rid: str) -> str | None:
-    """Claim (driver, session) for recording `rid`; returns the other recording id holding it, if any.
+def _claim_path(ws: Workspace, driver_id: str, session_id: str) -> Path:
+    return ws.root / ".sessions" / _session_key(driver_id, session_id)
 
-    The claim is a file created with O_EXCL, so of two processes ingesting the CSV and
-    the MCAP of one session at the same time exactly one wins. A claim whose recording
-    never appeared within STALE_CLAIM_S (a crashed ingest) is taken over.
+
+@contextmanager
+def _claim_session(ws: Workspace, driver_id: str, session_id: str, rid: str) -> Iterator[str | None]:
+    """Claim (driver, session) for recording `rid` while the block runs; yields the other
+    recording id holding it, if any (then nothing is claimed).
+
+    Under the session's flock (held for the block, released by the kernel if this
+    process dies) a claim file `.sessions/<key>` names the recording being stored. A
+    claim whose recording is not in the workspace is the leftover of an ingest that
+    died or failed (no live process can be writing it: we hold the lock) and is taken over.
     """
-    d = ws.root / ".sessions"
-    d.mkdir(parents=True, exist_ok=True)
-    claim = d / _session_key(driver_id, session_id)
-    for _ in range(3):
+    claim = _claim_path(ws, driver_id, session_id)
+    with ws.lock(f"session-{claim.name}"):
         try:
-            fd = os.open(claim, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            try:
-                holder = claim.read_text().strip()
-                age = time.time() - claim.stat().st_mtime
-            except FileNotFoundError:
-                continue
-            if holder == rid:
-                return None
-            if not holder and age < 5.0:  # being written right now
-                time.sleep(0.05)
-                continue
-            if ws.has_recording(holder) or age < STALE_CLAIM_S:
-                return holder or "(another ingest)"
-            claim.unlink(missing_ok=True)  # stale: its recording never landed
-            continue
-        with os.fdopen(fd, "w") as fh:
-            fh.write(rid)
-        return None
-    return "(another ingest)"
-
-
-def _release_claim(ws: Workspace, driver_id: str, session_id: str, rid: str) -> None:
-    claim = ws.root / ".sessions" / _session_key(driver_id, session_id)
-    try:
-        if claim.read_text().strip() == rid:
-            claim.unlink()
-    except FileNotFoundError:
-        pass
+            holder = claim.read_text().strip()
+        except FileNotFoundError:
+            holder = ""
+        if holder and holder != rid and ws.has_recording(holder):
+            yield holder
+            return
+        atomic_write_bytes(claim, rid.encode())
+        try:
+            yield None
+        except BaseException:
+            claim.unlink(missing_ok=True)
+            raise
+        if not ws.has_recording(rid):
+            claim.unlink(missing_ok=True)
 
 
 class _Batch:
@@ -279,11 +266,17 @@ class _Batch:
             result.reason = (f"driver {driver_id} session {session_id} is already in the workspace as recording "
                              f"{earlier[0]} ({earlier[1]})")
             return result
-        holder = _claim_session(self.ws, driver_id, session_id, rid)
-        if holder:
-            result.status = "duplicate"
-            result.reason = f"driver {driver_id} session {session_id} is already in the workspace as recording {holder}"
-            return result
+        with _claim_session(self.ws, driver_id, session_id, rid) as holder:
+            if holder:
+                result.status = "duplicate"
+                result.reason = (f"driver {driver_id} session {session_id} is already in the workspace as "
+                                 f"recording {holder}")
+                return result
+            return self._store(path, fmt, rid, rec, result)
+
+    def _store(self, path: Path, fmt: str, rid: str, rec: Any, result: FileResult) -> FileResult:
+        """Write the claimed recording; `result` updated (or a rejection when it does not fit)."""
+        driver_id, session_id = result.driver_id, result.session_id
         meta = {
             "recording_id": rid, "driver_id": driver_id, "session_id": session_id,
             "speed_limit_kph": rec.meta["speed_limit_kph"], "simulator": rec.meta["simulator"],
@@ -296,11 +289,7 @@ class _Batch:
         try:
             stored = self.ws.write_recording(meta, rec.ego, rec.traffic)
         except SchemaError as exc:
-            _release_claim(self.ws, driver_id, session_id, rid)
             return self.reject(path, fmt, rid, f"does not fit the recording tables: {exc}")
-        except BaseException:
-            _release_claim(self.ws, driver_id, session_id, rid)
-            raise
         if not stored:
             result.status = "duplicate"
             result.reason = f"same bytes already ingested as recording {rid} (by a concurrent ingest)"

@@ -10,11 +10,12 @@ from __future__ import annotations
 import typer
 
 from clustering.cli import analyze_command
+from laneprint.check_cli import check_command
 from dashboard.cli import dashboard_command
 from ingest.cli import ingest_command
 from laneprint.simulator.cli import simulate_command
 from laneprint.pipeline_cli import run_command_cli
-from rl.cli import annotate_command, crossval_command, evaluate_command, export_command, train_command
+from rl.cli import annotate_command, crossval_command, evaluate_command, export_command, runs_command, train_command
 from rl.drive_cli import drive_command
 
 app = typer.Typer(
@@ -34,6 +35,8 @@ app.command("crossval", help="Held-out figures: agent vs greedy vs imitation, by
 app.command("export", help="Export a trained run's policy as ONNX, documented and checked with onnxruntime.")(export_command)
 app.command("annotate", help="Write a recording again as MCAP with the agent's, greedy's and driver's decisions.")(annotate_command)
 app.command("drive", help="Let a trained agent make the ego's lane changes in SUMO traffic; MCAP logs of the drive.")(drive_command)
+app.command("runs", help="List the training runs and their state (interrupted: killed, resumable).")(runs_command)
+app.command("check", help="Verify the workspace; --repair removes leftovers of interrupted writes.")(check_command)
 app.command("dashboard", help="Serve the Streamlit dashboard.")(dashboard_command)
 app.command("run", help="Everything end to end: ingest PATHs, analyze, and train/evaluate the styles.")(run_command_cli)
 

@@ -13,18 +13,26 @@ Layout under the workspace root (default `./workspace`)::
 Every write is atomic: files are written under `.tmp/` and renamed into place,
 so a reader (the dashboard, a second process) never sees half a recording or half
 an analysis. A recording folder is created by one `rename`; when two ingests of the
-same bytes race, one rename wins and the other reports a duplicate. The catalogue
+same bytes race, one rename wins and the other reports a duplicate. A stage folder is
+swapped with its new version in one `renameat2(RENAME_EXCHANGE)`. The catalogue
 is a DuckDB view over the folders, so there is no shared database file to lock.
+
+A temporary file or folder is flock-ed by its writer until it is renamed into place
+(`laneprint.locks`), so one left unlocked is the leftover of a killed process and
+`laneprint check --repair` may remove it, while a live writer's is left alone.
 """
 
 from __future__ import annotations
 
+import ctypes
+import errno
 import json
 import os
 import shutil
 import tempfile
 import uuid
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -34,20 +42,24 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from laneprint.errors import UserError
+from laneprint.locks import FileLock, lock_fd
 from laneprint.schemas import EGO, RECORDINGS, REJECTED, TRAFFIC, Schema, validate
 
 DEFAULT_WORKSPACE = Path("workspace")
+TMP_SUFFIX = ".tmp"  # temporary files of atomic_write_bytes: `.<name>.<random>.tmp` beside the target
 _TRAFFIC_DICT_COLUMNS = ("vehicle_id", "lane")
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write `data` to `path` so readers see the old file or the new one, never a mix."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TMP_SUFFIX)
     try:
         with os.fdopen(fd, "wb") as fh:
+            lock_fd(fh.fileno())
             fh.write(data)
-        os.replace(tmp, path)
+            fh.flush()
+            os.replace(tmp, path)  # while still locked: an unlocked temp file is always a leftover
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -81,6 +93,23 @@ def _write_parquet(df: pd.DataFrame, path: Path, dictionary: tuple[str, ...] = (
                    write_statistics=stats)
 
 
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+
+
+def exchange_paths(a: Path, b: Path) -> bool:
+    """Swap two existing paths in one atomic step (Linux renameat2); False where unsupported."""
+    fn = getattr(ctypes.CDLL(None, use_errno=True), "renameat2", None)
+    if fn is None:
+        return False
+    if fn(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.ENOSYS, errno.EINVAL, errno.EOPNOTSUPP):
+        return False
+    raise OSError(err, os.strerror(err), str(a))
+
+
 class Workspace:
     """A folder holding everything laneprint has ingested, analysed and trained."""
 
@@ -112,11 +141,28 @@ class Workspace:
             d.mkdir(parents=True, exist_ok=True)
         return self
 
-    def _tmp_dir(self) -> Path:
+    @property
+    def locks_dir(self) -> Path:
+        return self.root / ".locks"
+
+    @contextmanager
+    def staging(self) -> Iterator[Path]:
+        """A fresh folder under `.tmp/`, locked by this process until the block ends (then removed
+        if still there): write into it, then rename it (or what is in it) into place."""
         self.ensure()
         d = self.root / ".tmp" / uuid.uuid4().hex
         d.mkdir()
-        return d
+        lock = FileLock(d)
+        try:
+            lock.acquire(blocking=False)
+            yield d
+        finally:
+            shutil.rmtree(d, ignore_errors=True)
+            lock.release()
+
+    def lock(self, name: str) -> FileLock:
+        """A named workspace-wide lock (`.locks/<name>.lock`), released when its holder dies."""
+        return FileLock(self.locks_dir / f"{name}.lock")
 
     # --- recordings ----------------------------------------------------------
 
@@ -132,8 +178,7 @@ class Workspace:
         final = self.recordings_dir / rid
         if final.exists():
             return False
-        tmp = self._tmp_dir()
-        try:
+        with self.staging() as tmp:
             # the two tables are encoded side by side: pyarrow releases the GIL while it writes
             with ThreadPoolExecutor(1) as pool:
                 egos = pool.submit(_write_parquet, ego, tmp / "ego.parquet", ("ego_lane",))
@@ -145,8 +190,6 @@ class Workspace:
             except OSError:  # another process stored the same bytes first
                 return False
             return True
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
 
     def recordings(self) -> pd.DataFrame:
         """The catalogue: one RECORDINGS row per stored recording, sorted by driver and session."""
@@ -202,31 +245,27 @@ class Workspace:
         """
         for name, schema in (schemas or {}).items():
             validate(tables[name], schema)
-        tmp = self._tmp_dir()
-        for name, df in tables.items():
-            df.to_parquet(tmp / f"{name}.parquet", index=False)
-        atomic_write_json(tmp / "meta.json", meta)
         final = self.stage_dir(stage)
-        old = None
-        if final.exists():
-            old = self.root / ".tmp" / f"old-{uuid.uuid4().hex}"
-            os.rename(final, old)
-        os.rename(tmp, final)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        with self.staging() as box:
+            tmp = box / stage
+            tmp.mkdir()
+            for name, df in tables.items():
+                df.to_parquet(tmp / f"{name}.parquet", index=False)
+            atomic_write_json(tmp / "meta.json", meta)
+            with self.lock(f"stage-{stage}"):  # one writer swaps at a time
+                self._swap_in(tmp, final)
         return final
 
-    def write_folder(self, final: Path, files: dict[str, bytes]) -> Path:
-        """Create the new folder `final` holding `files` (name -> bytes) in one rename."""
-        tmp = self._tmp_dir()
-        try:
-            for name, data in files.items():
-                (tmp / name).write_bytes(data)
-            final.parent.mkdir(parents=True, exist_ok=True)
-            os.rename(tmp, final)
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
-        return final
+    @staticmethod
+    def _swap_in(new: Path, final: Path) -> None:
+        """Put folder `new` at `final`; the old `final` (if any) ends up at `new`, to be removed."""
+        if not final.exists():
+            os.rename(new, final)
+        elif not exchange_paths(new, final):  # no renameat2: a short moment without the folder
+            aside = new.with_name(new.name + "-old")
+            os.rename(final, aside)
+            os.rename(new, final)
+            os.rename(aside, new)
 
     def has_table(self, stage: str, name: str) -> bool:
         return (self.stage_dir(stage) / f"{name}.parquet").exists()

@@ -303,3 +303,28 @@ def annotate_command(
             return annotate_recording(Workspace(workspace), run_id, recording, out, progress)
 
     run_command(work, as_json, _render_annotate)
+def runs_command(
+    workspace: WorkspaceOpt = DEFAULT_WS,
+    as_json: JsonOpt = False,
+) -> None:
+    """List the runs: target, state ('interrupted' when its process died), progress, headline figures."""
+
+    def work() -> dict[str, Any]:
+        from rl.runs import list_runs
+
+        table = list_runs(Workspace(workspace))
+        return {"runs": table.astype(object).where(table.notna(), None).to_dict("records")}
+
+    def render(res: dict[str, Any], console: Console) -> None:
+        t = Table(title=f"{len(res['runs'])} runs")
+        for col in ("run", "target", "reward", "state", "episode", "balanced acc.", "message"):
+            t.add_column(col)
+        for r in res["runs"]:
+            t.add_row(r["run_id"], f"{r['target_kind']} {r['target']}", str(r["reward"]), str(r["state"]),
+                      f"{r['episode'] or 0}/{r['episodes'] or '?'}", _fmt(r["balanced_accuracy"], True),
+                      str(r["message"] or ""))
+        console.print(t)
+        if any(r["state"] == "interrupted" for r in res["runs"]):
+            console.print("interrupted runs: continue one with `laneprint train --resume RUN_ID`", highlight=False)
+
+    run_command(work, as_json, render)

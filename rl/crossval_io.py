@@ -12,8 +12,8 @@ into place, so a reader sees all of it or none.
 
 from __future__ import annotations
 
-import io
 import json
+import os
 import re
 from dataclasses import asdict, replace
 from datetime import datetime, timezone
@@ -76,12 +76,13 @@ def run_crossval(workspace: Workspace, target: Target, env: EnvConfig, dqn: DQNS
     cv_id = _new_id(target, env.reward.name, settings.seed)
     res = {"crossval_id": cv_id, "target": asdict(target), "run_id": run_id, "lines_source": lines_source,
            "created_at": now_iso(), "data_fingerprint": workspace.fingerprint(), **res}
-    files = {"result.json": (json.dumps(res, indent=2, default=str) + "\n").encode()}
-    for name, df in (("states", states), ("changes", changes)):
-        buf = io.BytesIO()
-        df.to_parquet(buf, index=False)
-        files[f"{name}.parquet"] = buf.getvalue()
-    workspace.write_folder(crossval_dir(workspace) / cv_id, files)
+    folder = crossval_dir(workspace) / cv_id
+    with workspace.staging() as box:  # the whole folder appears at once, or not at all
+        for name, df in (("states", states), ("changes", changes)):
+            df.to_parquet(box / f"{name}.parquet", index=False)
+        atomic_write_json(box / "result.json", res)
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        os.rename(box, folder)
     if run_id:
         atomic_write_json(run_dir(workspace, run_id) / "crossval.json", res)
     return res

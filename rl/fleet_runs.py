@@ -22,7 +22,7 @@ import re
 import signal
 import threading
 import time
-from contextlib import nullcontext
+from contextlib import ExitStack, nullcontext
 from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -32,13 +32,14 @@ import pandas as pd
 import torch
 
 from laneprint.errors import UserError
+from laneprint.locks import FileLock
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.env import EnvConfig, approaches_from_decisions, formulation_config
 from rl.fleet import FleetMember, FleetTrainer
 from rl.fleet_io import fleet_dir, fleet_table
 from rl.runs import (Target, _eval_drivers, _StopFlag, _truncate_metrics, code_version, create_run, evaluate_run,
-                     now_iso, resolve_lines, run_dir)
+                     lock_run, now_iso, resolve_lines, run_dir)
 from rl.settings import DQNSettings
 
 FLEET_STATES = ("running", "done", "failed", "cancelled")
@@ -232,6 +233,15 @@ def train_shard(workspace_root: str, run_ids: list[str], threads: int = 1, evalu
     summaries = [{"run_id": r, "state": "done", "skipped": "done already"} for r in run_ids if r not in todo]
     if not todo:
         return summaries
+    with ExitStack() as held:  # each run's lock, for as long as this process trains it (rl.runs.run_state)
+        for rid in todo:
+            held.callback(lock_run(run_dir(workspace, rid), rid).release)
+        return summaries + _train_locked(workspace, todo, threads, evaluate, progress, stop)
+
+
+def _train_locked(workspace: Workspace, todo: list[str], threads: int, evaluate: bool,
+                  progress: ProgressFn | None, stop: _StopFlag | None) -> list[dict[str, Any]]:
+    """`train_shard`'s work on the runs `todo`, whose locks are held."""
     members, states = _load_members(workspace, todo)
     for rid, state in zip(todo, states):
         if state is not None:
@@ -288,7 +298,7 @@ def train_shard(workspace_root: str, run_ids: list[str], threads: int = 1, evalu
             results[a.member] = {"run_id": todo[a.member], "state": "cancelled", "episodes": a.episodes_done,
                                  "message": message}
     report(progress, sum(writer.done_episodes), sum(episodes), f"fleet: {len(todo)} agents")
-    return summaries + [results[i] for i in sorted(results)]
+    return [results[i] for i in sorted(results)]
 
 
 # --- the whole fleet ---------------------------------------------------------------------
@@ -325,6 +335,17 @@ def train_fleet(workspace: Workspace, fleet_id: str, *, backend: str = "local", 
 
     check_backend(backend, ray_address)
     fleet = read_fleet(workspace, fleet_id)
+    lock = FileLock(fleet_dir(workspace) / fleet_id / "fleet.lock")  # dies with this process
+    if not lock.acquire(blocking=False):
+        raise UserError(f"fleet {fleet_id!r} is being trained by another process right now")
+    try:
+        return _train_fleet(workspace, fleet, backend, ray_address, threads, evaluate, progress)
+    finally:
+        lock.release()
+
+
+def _train_fleet(workspace: Workspace, fleet: dict[str, Any], backend: str, ray_address: str | None,
+                 threads: int | None, evaluate: bool, progress: ProgressFn | None) -> dict[str, Any]:
     fleet.update(state="running", pid=os.getpid(), backend=backend, message="training")
     fleet.setdefault("started_at", now_iso())
     _write_fleet(workspace, fleet)
@@ -360,7 +381,7 @@ def train_fleet(workspace: Workspace, fleet_id: str, *, backend: str = "local", 
     _write_fleet(workspace, fleet)
     by_id = {s["run_id"]: s for s in summaries}
     return {**fleet, "summaries": [by_id.get(r, {"run_id": r, "state": "missing"}) for r in runs],
-            "agents": fleet_table(workspace, fleet_id).to_dict("records")}
+            "agents": fleet_table(workspace, fleet["fleet_id"]).to_dict("records")}
 
 
 def _train_local(workspace: Workspace, runs: list[str], threads: int, evaluate: bool,

@@ -7,6 +7,9 @@ Files of a run folder:
   settings, seed, code version (git commit), data fingerprint, created_at;
 - ``status.json`` (atomic): state running/done/failed/cancelled, pid, episode,
   episodes, started_at, updated_at, message;
+- ``run.lock``: flock-ed by the training process for as long as it lives; a status
+  'running' whose lock nobody holds is a run that was killed: `run_state` calls it
+  'interrupted' (resume it with `laneprint train --resume RUN_ID`);
 - ``metrics.jsonl``: one JSON line per finished episode, flushed as written;
 - ``checkpoint.pt``: everything to resume (`laneprint train --resume RUN_ID`);
 - ``weights.pt``: the Q network's state dict (load with ``weights_only=True``);
@@ -22,6 +25,7 @@ import re
 import signal
 import subprocess
 import time
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -31,6 +35,7 @@ import pandas as pd
 import torch
 
 from laneprint.errors import UserError
+from laneprint.locks import FileLock, is_locked
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.dqn import DQNSettings, DQNTrainer, q_network
@@ -40,6 +45,7 @@ from rl.imitation import ImitationClassifier
 from rl.rewards import ReferenceLines
 
 RUN_STATES = ("running", "done", "failed", "cancelled")
+RUN_LOCK = "run.lock"
 
 
 @dataclass(frozen=True)
@@ -105,6 +111,26 @@ def resolve_lines(workspace: Workspace, target: Target, lines: str) -> Reference
 
 def run_dir(workspace: Workspace, run_id: str) -> Path:
     return workspace.runs_dir / run_id
+
+
+def run_state(folder: Path, status: dict[str, Any] | None) -> str | None:
+    """The run's state as shown to users: status.json's, except that 'running' with no live
+    process holding the run's lock is 'interrupted' (killed; resumable from its checkpoint), and a
+    run with no status yet is 'starting' (its lock held) or 'interrupted'."""
+    state = (status or {}).get("state")
+    if state == "running" and not is_locked(folder / RUN_LOCK):
+        return "interrupted"
+    if state is None and (folder / "config.json").exists():  # before its first status
+        return "starting" if is_locked(folder / RUN_LOCK) else "interrupted"
+    return state
+
+
+def lock_run(folder: Path, run_id: str) -> FileLock:
+    """Hold the run's lock for this process's lifetime of the run; refuse a run trained elsewhere."""
+    lock = FileLock(folder / RUN_LOCK)
+    if not lock.acquire(blocking=False):
+        raise UserError(f"run {run_id!r} is being trained by another process right now")
+    return lock
 
 
 def _save_torch(path: Path, obj: Any) -> None:
@@ -184,8 +210,9 @@ class _StopFlag:
 
 def create_run(workspace: Workspace, target: Target, env_config: EnvConfig, settings: DQNSettings, *,
                run_id: str | None = None, lines_source: str = "analysis",
-               extra: dict[str, Any] | None = None) -> tuple[Path, dict[str, Any]]:
-    """Make a new run folder with its config.json; returns (folder, config)."""
+               extra: dict[str, Any] | None = None, held: ExitStack | None = None) -> tuple[Path, dict[str, Any]]:
+    """Make a new run folder with its config.json; returns (folder, config). With `held`, the
+    run's lock is taken (before config.json appears) and released when `held` closes."""
     run_id = run_id or new_run_id(target, env_config.reward.name, settings.seed)
     if not re.fullmatch(r"[A-Za-z0-9._-]+", run_id):
         raise UserError(f"run id {run_id!r}: use letters, digits, '.', '_' or '-'")
@@ -193,6 +220,10 @@ def create_run(workspace: Workspace, target: Target, env_config: EnvConfig, sett
     if (folder / "config.json").exists():
         raise UserError(f"run {run_id!r} exists already (pass --resume {run_id} to continue it)")
     folder.mkdir(parents=True, exist_ok=True)
+    if held is not None:
+        held.callback(lock_run(folder, run_id).release)
+        if (folder / "config.json").exists():  # created by a concurrent `train --run-id` meanwhile
+            raise UserError(f"run {run_id!r} exists already (pass --resume {run_id} to continue it)")
     config = {
         "run_id": run_id, "target": asdict(target), "reward": env_config.reward.name,
         "lines_source": lines_source, "lines": env_config.lines.to_dict(), "seed": settings.seed,
@@ -211,17 +242,29 @@ def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig
               progress: ProgressFn | None = None) -> dict[str, Any]:
     """Train (or resume) one run in the workspace; returns a JSON-ready summary.
 
-    `episodes` on a resume changes the run's total (its epsilon schedule follows).
+    `episodes` on a resume changes the run's total (its epsilon schedule follows); a
+    run killed before its first checkpoint resumes from the start with its own config.
+    The run's lock (`run.lock`) is held until this returns, so a killed run shows as
+    'interrupted' (`run_state`) and two processes never train one run.
 
     On SIGTERM/SIGINT the run saves a checkpoint and ends with state 'cancelled'.
     """
+    with ExitStack() as held:
+        return _train_run(workspace, target, env_config, settings, held, run_id=run_id,
+                          lines_source=lines_source, resume=resume, episodes=episodes, evaluate=evaluate,
+                          progress=progress)
+
+
+def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig | None,
+               settings: DQNSettings | None, held: ExitStack, *, run_id: str | None, lines_source: str,
+               resume: str | None, episodes: int | None, evaluate: bool,
+               progress: ProgressFn | None) -> dict[str, Any]:
     workspace.ensure()
     if resume:
         folder = run_dir(workspace, resume)
         if not (folder / "config.json").exists():
             raise UserError(f"no run {resume!r} in {workspace.root}")
-        if not (folder / "checkpoint.pt").exists():
-            raise UserError(f"run {resume!r} has no checkpoint to resume from")
+        held.callback(lock_run(folder, resume).release)
         config = json.loads((folder / "config.json").read_text())
         run_id = resume
         target = Target(**config["target"])
@@ -232,13 +275,14 @@ def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig
             config["dqn"]["episodes"] = episodes
         config.setdefault("resumed_at", []).append(now_iso())
         atomic_write_json(folder / "config.json", config)
-        state = torch.load(folder / "checkpoint.pt", weights_only=True)
+        # killed before its first checkpoint: start over with the run's own settings
+        state = torch.load(folder / "checkpoint.pt", weights_only=True) if (folder / "checkpoint.pt").exists() else None
         old_status = json.loads((folder / "status.json").read_text()) if (folder / "status.json").exists() else {}
         started_at = old_status.get("started_at")
     else:
         assert target is not None and env_config is not None and settings is not None
         folder, config = create_run(workspace, target, env_config, settings, run_id=run_id,
-                                    lines_source=lines_source)
+                                    lines_source=lines_source, held=held)
         run_id = config["run_id"]
         state, started_at = None, None
 
@@ -253,7 +297,9 @@ def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig
         atomic_write_json(folder / "config.json", config)
     if state is not None:
         trainer.load_state_dict(state)
-        _truncate_metrics(folder / "metrics.jsonl", trainer.episodes_done)
+    resumed_from = trainer.episodes_done
+    if resume:
+        _truncate_metrics(folder / "metrics.jsonl", resumed_from)
     writer = RunWriter(folder, settings.episodes, started_at)
     writer.status("running", trainer.episodes_done, "resumed" if resume else "training")
 
@@ -292,6 +338,8 @@ def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig
                               "episodes": trainer.episodes_done, "env_steps": trainer.env_steps,
                               "wall_s": round(trainer.wall_s, 2), "target": target.label,
                               "reward": env_config.reward.name, "message": message}
+    if resume:
+        result["resumed_from_episode"] = resumed_from
     if final == "done" and evaluate:
         try:
             ev = evaluate_run(workspace, run_id)
@@ -440,7 +488,7 @@ def list_runs(workspace: Workspace) -> pd.DataFrame:
         rows.append({
             "run_id": folder.name, "target_kind": config["target"]["kind"], "target": config["target"]["name"],
             "reward": config.get("reward"), "lines_source": config.get("lines_source"), "seed": config.get("seed"),
-            "state": status.get("state"), "episode": status.get("episode"), "episodes": status.get("episodes"),
+            "state": run_state(folder, status), "episode": status.get("episode"), "episodes": status.get("episodes"),
             "started_at": status.get("started_at"), "updated_at": status.get("updated_at"),
             "message": status.get("message"), "recall": agent.get("recall"),
             "balanced_accuracy": agent.get("balanced_accuracy"), "timing_mae_s": agent.get("timing_mae_s"),

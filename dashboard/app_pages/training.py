@@ -66,7 +66,10 @@ def run_panel(ws, run_id: str, status: dict, smoothing: float = 0.95) -> None:
     if status.get("state") in jobs.ACTIVE_STATES:
         if st.button("Cancel", key=f"cancel_{run_id}"):
             jobs.cancel(ws, run_id)
-    elif status.get("log"):
+        return
+    if status.get("state") == "interrupted":
+        st.warning(status.get("message") or "interrupted")
+    if status.get("log"):
         st.code(status["log"], language=None)
 
 

@@ -1,7 +1,6 @@
 import signal
 import subprocess
 import sys
-import time
 
 from dashboard_support import write_fake_run
 from dashboard import jobs
@@ -23,7 +22,7 @@ def test_status_of_dead_and_unknown_runs(tmp_path):
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
     write_fake_run(ws, "lost", state="running", pid=dead.pid)
-    assert jobs.run_status(ws, "lost")["state"] == "lost"
+    assert jobs.run_status(ws, "lost")["state"] == "interrupted"
     # launched, died before writing status.json
     jobs.jobs_dir(ws).mkdir(parents=True)
     atomic_write_json(jobs.jobs_dir(ws) / "early.json", {"pid": dead.pid, "request": {"episodes": 5}})
@@ -35,16 +34,19 @@ def test_status_of_dead_and_unknown_runs(tmp_path):
     table = jobs.runs_table(ws)
     assert set(table["run_id"]) == {"lost", "early", "fine"}
     table = table.set_index("run_id")
-    assert table.loc["fine", "recall"] == 0.96 and table.loc["lost", "state"] == "lost"
+    assert table.loc["fine", "recall"] == 0.96 and table.loc["lost", "state"] == "interrupted"
     assert table.loc["early", "state"] == "failed"
 
 
 def test_cancel_sends_sigterm_to_a_running_run(tmp_path):
     ws = Workspace(tmp_path).ensure()
-    code = "import signal, sys, time\nsignal.signal(signal.SIGTERM, lambda *a: sys.exit(42))\ntime.sleep(30)"
-    proc = subprocess.Popen([sys.executable, "-c", code, "laneprint-fake-trainer"], start_new_session=True)
+    write_fake_run(ws, "r", state="running")
+    code = ("import signal, sys, time\nfrom laneprint.locks import FileLock\nFileLock(sys.argv[2]).acquire()\n"
+            "signal.signal(signal.SIGTERM, lambda *a: sys.exit(42))\nprint('ready', flush=True)\ntime.sleep(30)")
+    proc = subprocess.Popen([sys.executable, "-c", code, "laneprint-fake-trainer", str(ws.runs_dir / "r" / "run.lock")],
+                            start_new_session=True, stdout=subprocess.PIPE, text=True)
     try:
-        time.sleep(0.3)  # let it install its handler
+        assert proc.stdout.readline().strip() == "ready"  # holds the run's lock, handler installed
         write_fake_run(ws, "r", state="running", pid=proc.pid)
         assert jobs.run_status(ws, "r")["state"] == "running"
         assert jobs.cancel(ws, "r")
@@ -57,12 +59,12 @@ def test_cancel_sends_sigterm_to_a_running_run(tmp_path):
 
 
 def test_a_reused_pid_is_not_a_run(tmp_path):
-    """A status that names the pid of some other program: the run is lost, and Cancel signals nothing."""
+    """A status that names the pid of some other program: the run is interrupted, and Cancel signals nothing."""
     ws = Workspace(tmp_path).ensure()
     other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"], start_new_session=True)
     try:
         write_fake_run(ws, "r", state="running", pid=other.pid)
-        assert jobs.run_status(ws, "r")["state"] == "lost"
+        assert jobs.run_status(ws, "r")["state"] == "interrupted"
         assert not jobs.cancel(ws, "r")
         assert other.poll() is None
     finally:
