@@ -12,6 +12,7 @@ in a fleet resumes alone with `DQNTrainer` and the other way round.
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import torch
@@ -55,13 +56,19 @@ def load_agent(params: list[torch.Tensor], k: int, state_dict: dict[str, torch.T
             params[2 * i + 1][k, 0].copy_(state_dict[bk])
 
 
+#: `nn.Linear` draws its initial weights from torch's global generator: shards built in
+#: threads at once must not interleave their seeding and drawing.
+_INIT_LOCK = threading.Lock()
+
+
 def init_params(seeds: list[int], hidden: tuple[int, ...], n_obs: int) -> list[torch.Tensor]:
     """Stacked initial weights: agent k's are `q_network`'s after `torch.manual_seed(seeds[k])`,
     as `DQNTrainer` draws them."""
     sds = []
-    for seed in seeds:
-        torch.manual_seed(seed)
-        sds.append(q_network(hidden, n_obs).state_dict())
+    with _INIT_LOCK:
+        for seed in seeds:
+            torch.manual_seed(seed)
+            sds.append(q_network(hidden, n_obs).state_dict())
     return stack_state_dicts(sds)
 
 

@@ -31,7 +31,7 @@ def base(tmp_path) -> tuple[Path, Context]:
 @pytest.mark.slow
 def test_a_training_killed_after_a_checkpoint_is_interrupted_then_resumed(base, tmp_path):
     train = Command(lambda c: ["train", "--style", "Normal", "--lines", "paper", "--scenes", "synthetic",
-                               "--episodes", "40", "--checkpoint-every", "5", "--no-evaluate", "--run-id", "r"],
+                               "--episodes", "3000", "--checkpoint-every", "5", "--no-evaluate", "--run-id", "r"],
                     _runs_complete, trains=True)
     res = kill_once("train", *base, delay_s=0.3, ws=tmp_path / "ws", timeout_s=120, cmd=train,
                     after=lambda ws: (ws / "runs" / "r" / "checkpoint.pt").exists())
