@@ -124,7 +124,7 @@ def scaling(ws: Workspace, sizes: list[int], steps: int, threads: int) -> list[d
         members = [FleetMember(m.env_config, DQNSettings(**{**m.settings.to_dict(), "hidden": m.settings.hidden,
                                                              "seed": i // len(base_members)}), m.approaches)
                    for i, m in zip(range(k), (base_members * (k // len(base_members) + 1)))]
-        trainer = FleetTrainer(members, threads=threads)
+        trainer = FleetTrainer(members, threads=1)  # one shard of the local backend: one torch thread
         s = members[0].settings
         warm = int(np.ceil(s.learning_starts / s.num_envs)) + 2
         marks: list[float] = []
@@ -148,7 +148,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=None, help="torch threads of the local fleet (default: cores)")
     ap.add_argument("--skip-ray", action="store_true")
     ap.add_argument("--scaling", default="10,100,1000", help="fleet sizes for the growth figures ('' = skip)")
-    ap.add_argument("--scaling-steps", type=int, default=10)
+    ap.add_argument("--scaling-steps", type=int, default=10, help="vector steps timed per size (one shard, one thread)")
     args = ap.parse_args()
     cores = os.cpu_count() or 1
     ws = prepare(args.workdir, args.drivers)
