@@ -61,7 +61,9 @@ class Scorer:
         styles = ws.read_table("analysis", "styles")
         typical = styles[(styles["style"] == style) & styles["is_typical"]]["driver_id"].iloc[0]
         dec = ws.read_table("analysis", "decisions")
-        approaches, _ = approaches_from_decisions(dec[dec["driver_id"] == typical])
+        # the study's rule (presses made while following are skipped), as this benchmark's
+        # targets were set before issue 9 made the evaluation score them
+        approaches, _ = approaches_from_decisions(dec[dec["driver_id"] == typical], include_following=False)
         scene = Scene.concat([a.scene for a in approaches])
         self.obs = torch.as_tensor(observe(scene, cfg.range_m, cfg.v_max_mps))
         self.press = np.concatenate([[False] * (len(a) - 1) + [True] for a in approaches])
