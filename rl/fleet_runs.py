@@ -243,9 +243,9 @@ def _train_locked(workspace: Workspace, todo: list[str], threads: int, evaluate:
                   progress: ProgressFn | None, stop: _StopFlag | None) -> list[dict[str, Any]]:
     """`train_shard`'s work on the runs `todo`, whose locks are held."""
     members, states = _load_members(workspace, todo)
-    for rid, state in zip(todo, states):
-        if state is not None:
-            _truncate_metrics(run_dir(workspace, rid) / "metrics.jsonl", int(state["counters"]["episodes_done"]))
+    for rid, state in zip(todo, states):  # drop metrics written after the checkpoint (all, without one)
+        _truncate_metrics(run_dir(workspace, rid) / "metrics.jsonl",
+                          int(state["counters"]["episodes_done"]) if state is not None else 0)
     fleet = FleetTrainer(members, threads=threads, states=states)
     episodes = [s.episodes for s in fleet.settings]
     writer = _ShardWriter(workspace, todo, episodes)

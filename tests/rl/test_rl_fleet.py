@@ -153,3 +153,17 @@ def test_the_ray_backend_trains_the_same_agents_as_the_local_one(tmp_path):
         on_ray = torch.load(tmp_path / "runs" / f"onray-{driver.lower()}-s0" / "weights.pt", weights_only=True)
         for key, value in local.items():
             torch.testing.assert_close(on_ray[key], value, rtol=0, atol=1e-4)
+
+
+def test_a_fleet_killed_before_its_first_checkpoint_starts_its_metrics_afresh(tmp_path):
+    from rl.fleet_runs import create_fleet, fleet_targets
+
+    ws = analysed_two_drivers(tmp_path)
+    settings = DQNSettings(episodes=120, episodes_per_approach=0, num_envs=8, batch_size=64, learning_starts=200)
+    fleet = create_fleet(ws, fleet_targets(ws, drivers="all"), [0], settings, fleet_id="f0")
+    stale = tmp_path / "runs" / fleet["runs"][0] / "metrics.jsonl"
+    stale.write_text("".join(json.dumps({"episode": e}) + "\n" for e in (1, 2, 3)))  # killed at episode 3
+    res = CliRunner().invoke(app, ["train", "--resume", "f0", "-w", str(tmp_path), "--json", "--no-evaluate"])
+    assert res.exit_code == 0, res.output
+    for run_id in fleet["runs"]:
+        assert list(load_run(ws, run_id)["metrics"]["episode"]) == list(range(1, 121))
