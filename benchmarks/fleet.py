@@ -31,6 +31,7 @@ import statistics
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -121,8 +122,7 @@ def scaling(ws: Workspace, sizes: list[int], steps: int, threads: int) -> list[d
     base_members, _ = _load_members(ws, record["runs"])
     out = []
     for k in sizes:
-        members = [FleetMember(m.env_config, DQNSettings(**{**m.settings.to_dict(), "hidden": m.settings.hidden,
-                                                             "seed": i // len(base_members)}), m.approaches)
+        members = [FleetMember(m.env_config, replace(m.settings, seed=i // len(base_members)), m.approaches)
                    for i, m in zip(range(k), (base_members * (k // len(base_members) + 1)))]
         trainer = FleetTrainer(members, threads=1)  # one shard of the local backend: one torch thread
         s = members[0].settings

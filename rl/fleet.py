@@ -164,7 +164,8 @@ class FleetTrainer:
         s0 = members[0].settings
         self.n_obs = len(observation_names(members[0].env_config))
         self.hidden = s0.hidden
-        self.agents: list[AgentState] = []
+        self.agents: list[AgentState] = []  # still training, in stack order
+        self._finished: list[AgentState] = []
         for i, m in enumerate(members):
             s = m.settings.resolved_episodes(len(m.approaches) if m.approaches else 0) \
                 if m.env_config.scenes == "recorded" else m.settings
@@ -190,7 +191,7 @@ class FleetTrainer:
 
     @property
     def _all(self) -> list[AgentState]:
-        return sorted(self.agents + getattr(self, "_finished", []), key=lambda a: a.member)
+        return sorted(self.agents + self._finished, key=lambda a: a.member)
 
     # --- the loop ---------------------------------------------------------------------
 
@@ -321,7 +322,7 @@ class FleetTrainer:
             if on_finish is not None:
                 on_finish(a.member, self.policy_state_dict(j), self.agent_state_dict(j))
         keep_list = [j for j in range(len(self.agents)) if j not in done]
-        self._finished = getattr(self, "_finished", []) + [self.agents[j] for j in done]
+        self._finished += [self.agents[j] for j in done]
         keep = torch.tensor(keep_list, dtype=torch.long)
         with torch.no_grad():
             self.q = [p.requires_grad_(True) for p in batched.select([p.detach() for p in self.q], keep)]
@@ -332,10 +333,6 @@ class FleetTrainer:
         self.agents = [self.agents[j] for j in keep_list]
 
     # --- per-agent views in DQNTrainer's formats ------------------------------------------
-
-    def index_of(self, member: int) -> int:
-        """The stack position of a member still training."""
-        return next(j for j, a in enumerate(self.agents) if a.member == member)
 
     def policy_state_dict(self, j: int) -> dict[str, torch.Tensor]:
         """Agent j's policy network (the averaged one once averaging started), as `q_network`'s state dict."""

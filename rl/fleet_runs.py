@@ -15,7 +15,6 @@ system); the driver writes fleet.json only.
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import re
@@ -34,12 +33,12 @@ import torch
 from laneprint.errors import UserError
 from laneprint.locks import FileLock
 from laneprint.progress import ProgressFn, report
-from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
+from laneprint.workspace import Workspace, atomic_write_json
 from rl.env import EnvConfig, approaches_from_decisions, formulation_config
 from rl.fleet import FleetMember, FleetTrainer
 from rl.fleet_io import fleet_dir, fleet_table
-from rl.runs import (Target, _eval_drivers, _StopFlag, _truncate_metrics, code_version, create_run, evaluate_run,
-                     lock_run, now_iso, resolve_lines, run_dir)
+from rl.runs import (Target, _eval_drivers, _save_torch, _StopFlag, _truncate_metrics, code_version, create_run,
+                     evaluate_run, lock_run, now_iso, resolve_lines, run_dir)
 from rl.settings import DQNSettings
 
 FLEET_STATES = ("running", "done", "failed", "cancelled")
@@ -176,12 +175,6 @@ class _ShardWriter:
         for i in active:
             self.flush(i)
             self.status(i, "running", "training in a fleet")
-
-
-def _save_torch(path: Path, obj: Any) -> None:
-    buf = io.BytesIO()
-    torch.save(obj, buf)
-    atomic_write_bytes(path, buf.getvalue())
 
 
 def _load_members(workspace: Workspace, run_ids: list[str]) -> tuple[list[FleetMember], list[dict | None]]:

@@ -1,6 +1,7 @@
 """Fleet training: batched agents learn what they would alone, in ordinary run folders, and resume."""
 
 import json
+from dataclasses import replace
 import signal
 import subprocess
 import sys
@@ -58,8 +59,7 @@ def test_a_fleet_agents_checkpoint_resumes_alone():
     trainer = DQNTrainer(m.env_config, m.settings, m.approaches)
     trainer.load_state_dict(states[1])
     assert trainer.episodes_done == m.settings.episodes and trainer.optimizer.state_dict()["state"]
-    trainer.settings = DQNSettings(**{**m.settings.to_dict(), "hidden": m.settings.hidden,
-                                      "episodes": m.settings.episodes + 20})
+    trainer.settings = replace(m.settings, episodes=m.settings.episodes + 20)
     trainer.train()
     assert trainer.episodes_done == m.settings.episodes + 20
 
