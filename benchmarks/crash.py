@@ -2,17 +2,21 @@
 
 For each kill (spread evenly over the commands, order and moments drawn from --seed):
 a fresh copy of a prepared workspace (a simulated 3-driver study, all but two logs
-ingested, analysed), the command started and SIGKILLed, `laneprint check --repair`,
+ingested, analysed), the command started and SIGKILLed at a random moment of its work
+(a fraction of its CPU time, measured; an attempt that finished first is redrawn, not
+counted), `laneprint check --repair`,
 the killed training runs checked to show as interrupted (CLI and dashboard) and
 resumed from their checkpoint, the command re-run, `laneprint check` again. See
 `laneprint/crash_harness.py` (a new command is one line of its COMMANDS).
 
-    .venv/bin/python benchmarks/crash.py [--kills 50] [--seed 0] [--commands ingest,analyze,train,crossval]
+    .venv/bin/python benchmarks/crash.py [--kills 50] [--seed 0] [--commands ingest,analyze,train,crossval,fleet]
         [--jobs 1] [--out crash.json]
 
-Prints one line per kill and a summary: kills per command, consistent workspaces
+Prints one line per kill and a summary: kills per command, how many hit a live process
+(and how many had finished first), consistent workspaces
 (no `check` problem after the kill, a clean `check` after recovery, the command's own
-postcondition), interrupted trainings resumed, leftovers repaired.
+postcondition), interrupted trainings resumed, leftovers repaired. Exit 1 if a workspace
+was inconsistent or an interrupted training was not resumed.
 """
 
 from __future__ import annotations
@@ -48,12 +52,18 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="laneprint-crash-") as tmp:
         results = run_kills(names, args.kills, args.seed, Path(tmp), args.jobs, log=lambda m: print(m, flush=True))
     by_cmd = Counter(r.command for r in results)
+    live_by_cmd = Counter(r.command for r in results if r.live)
+    live = sum(live_by_cmd.values())
     bad = [r for r in results if not r.consistent]
     interrupted = sum(len(r.interrupted_runs) for r in results)
     resumed = sum(1 for r in results for rid in r.interrupted_runs if rid in r.resumed)
+    fractions = sorted(r.work_fraction for r in results if r.live)
     print(f"\n{len(results)} SIGKILLs in {time.monotonic() - t0:.0f} s: "
-          + ", ".join(f"{k} {v}" for k, v in by_cmd.items())
-          + f" ({sum(r.finished_before_kill for r in results)} had finished before their kill)")
+          + ", ".join(f"{k} {v} ({live_by_cmd[k]} live)" for k, v in by_cmd.items()))
+    print(f"live (into a process at work): {live}; finished before their kill: {len(results) - live}; "
+          f"attempts that finished first and were redrawn (not counted as kills): {sum(r.retries for r in results)}"
+          + (f"; kill moments {fractions[0]:.0%}..{fractions[-1]:.0%} of the work, median "
+             f"{fractions[len(fractions) // 2]:.0%}" if fractions else ""))
     print(f"inconsistent workspaces: {len(bad)}; leftovers repaired: {sum(r.repaired for r in results)} "
           f"(in {sum(r.repaired > 0 for r in results)} kills); interrupted trainings: {interrupted}, "
           f"resumed from their checkpoint: {resumed}; slowest recovery: {max(r.recovery_s for r in results):.1f} s")

@@ -1,10 +1,14 @@
 """Crash safety you can show: run real `laneprint` commands on a workspace, SIGKILL them at a
-random (seeded) moment, then prove the workspace is whole and the work can go on.
+random (seeded) moment of their work, then prove the workspace is whole and the work can go on.
 
 One kill (`kill_once`), on a fresh copy of a prepared workspace:
 
-1. start the command as a subprocess and SIGKILL it after a delay drawn uniformly over
-   the command's own clean duration (measured once, `calibrate`);
+1. start the command as a subprocess and SIGKILL it once it has used a drawn amount of CPU
+   time: start-up plus a uniform fraction of the command's own work, measured in CPU seconds
+   (`calibrate`). CPU time, unlike wall time, hardly depends on how loaded the machine is, so
+   the kill lands in a live process; when the command still finished first, that attempt is
+   not a kill: it is a fresh measurement of the command, and the kill is drawn again from it
+   (`plan_kill`, at most `RETRIES` times);
 2. `laneprint check --repair --json`: a ``problem`` finding means the kill left the
    workspace inconsistent; leftovers of the interrupted writes are removed and counted;
 3. every run that was training must be listed as 'interrupted' (never 'running') by
@@ -120,13 +124,19 @@ def _json(proc: subprocess.CompletedProcess) -> dict[str, Any]:
         return {}
 
 
+RETRIES = 5  # attempts that finish before their kill point, redrawn (not counted as kills)
+
+
 @dataclass
 class KillResult:
     """What one kill did and what was found after it."""
 
     command: str
-    delay_s: float
-    finished_before_kill: bool
+    delay_s: float  # wall seconds from the start to the kill
+    finished_before_kill: bool  # every attempt finished first: no live process was killed
+    cpu_s: float = 0.0  # CPU seconds the process had used when killed
+    work_fraction: float = 0.0  # the drawn moment: fraction of the command's work (after start-up) done
+    retries: int = 0  # attempts that finished before their kill point (each a fresh measurement)
     problems: list[str] = field(default_factory=list)  # inconsistencies (check problems, failed recovery)
     repaired: int = 0
     interrupted_runs: list[str] = field(default_factory=list)
@@ -134,23 +144,100 @@ class KillResult:
     recovery_s: float = 0.0
 
     @property
+    def live(self) -> bool:
+        """The SIGKILL hit a process still at work."""
+        return not self.finished_before_kill
+
+    @property
     def consistent(self) -> bool:
         return not self.problems
 
 
-def calibrate(base: Path, ctx: Context, names: list[str], scratch: Path) -> dict[str, float]:
-    """Seconds each command takes, untouched, on a copy of the base workspace."""
+@dataclass(frozen=True)
+class Attempt:
+    """One start of a command: killed at its kill point, or finished before it."""
+
+    finished: bool
+    cpu_s: float  # CPU seconds used: at the kill, or in all when it finished
+    wall_s: float
+    returncode: int
+
+
+_TICK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU seconds of a live process, all its threads (Linux /proc); None if unreadable."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / _TICK  # utime, stime (fields 14 and 15 of stat)
+
+
+def run_until(argv: list[str], at_cpu_s: float, ws: Path | None = None,
+              after: Callable[[Path], bool] | None = None, poll_s: float = 0.02) -> Attempt:
+    """Start `argv` and SIGKILL it once it has used `at_cpu_s` CPU seconds and `after(ws)` holds
+    (no kill when `at_cpu_s` is infinite); where /proc cannot tell CPU time, wall time stands in."""
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    t0 = time.monotonic()
+    while True:
+        pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+        if pid:  # finished: its own rusage is the exact CPU time it needed
+            proc.returncode = os.waitstatus_to_exitcode(status)
+            return Attempt(True, usage.ru_utime + usage.ru_stime, time.monotonic() - t0, proc.returncode)
+        used = cpu_seconds(proc.pid)
+        used = time.monotonic() - t0 if used is None else used
+        if used >= at_cpu_s and (after is None or after(ws)):
+            os.kill(proc.pid, signal.SIGKILL)
+            _, status, _ = os.wait4(proc.pid, 0)
+            proc.returncode = os.waitstatus_to_exitcode(status)
+            return Attempt(False, used, time.monotonic() - t0, proc.returncode)
+        time.sleep(poll_s)
+
+
+def _argv(cmd: Command, ctx: Context, ws: Path) -> list[str]:
+    return [sys.executable, "-m", "laneprint.cli", *cmd.args(ctx), "-w", str(ws), "--json"]
+
+
+def calibrate(base: Path, ctx: Context, names: list[str], scratch: Path) -> tuple[float, dict[str, float]]:
+    """CPU seconds of the CLI's start-up (`laneprint --help`) and of each command, untouched, on a copy
+    of the base workspace."""
+    startup = run_until([sys.executable, "-m", "laneprint.cli", "--help"], float("inf")).cpu_s
     out = {}
     for name in names:
         ws = scratch / f"calibrate-{name}"
         shutil.copytree(base, ws)
-        t0 = time.monotonic()
-        proc = laneprint(COMMANDS[name].args(Context(ctx.logs, ctx.driver, f"cal-{name}")), ws)
-        out[name] = time.monotonic() - t0
-        if proc.returncode != 0:
-            raise RuntimeError(f"`laneprint {name}` fails without a kill: {proc.stderr.strip()[-300:]}")
+        cal = Context(ctx.logs, ctx.driver, f"cal-{name}")
+        run = run_until(_argv(COMMANDS[name], cal, ws), float("inf"))
+        if run.returncode != 0:
+            err = laneprint(COMMANDS[name].args(cal), ws).stderr.strip()[-300:]
+            raise RuntimeError(f"`laneprint {name}` fails without a kill (exit {run.returncode}): {err}")
+        out[name] = run.cpu_s
         shutil.rmtree(ws)
-    return out
+    return startup, out
+
+
+def plan_kill(rng: np.random.Generator, startup_s: float, work_s: float) -> tuple[float, float]:
+    """A moment drawn uniformly over the middle 90 % of a command's work: (fraction, CPU seconds)."""
+    f = float(rng.uniform(0.05, 0.95))
+    return f, startup_s + f * max(work_s - startup_s, 0.0)
+
+
+def kill_live(start: Callable[[float], Attempt], rng: np.random.Generator, startup_s: float,
+              work_s: float) -> tuple[Attempt, float, float, int]:
+    """Start a command (`start(at_cpu_s)`, each time afresh) until one attempt is killed while live,
+    at most `RETRIES` + 1 times: an attempt that finished first is a fresh measurement of its work,
+    the next moment is drawn from it. Returns the last attempt, its drawn fraction, the work
+    estimate (CPU s) and the number of attempts that finished first (redrawn, not kills)."""
+    for retry in range(RETRIES + 1):
+        fraction, at = plan_kill(rng, startup_s, work_s)
+        attempt = start(at)
+        if not attempt.finished:
+            break
+        if attempt.returncode == 0:
+            work_s = attempt.cpu_s
+    return attempt, fraction, work_s, retry
 
 
 def _interrupted_states(ws: Path) -> tuple[dict[str, str], dict[str, str]]:
@@ -170,30 +257,17 @@ def _checkpoint_episode(path: Path) -> int:
     return int(torch.load(path, weights_only=True)["counters"]["episodes_done"]) if path.exists() else 0
 
 
-def _start_and_kill(cmd: Command, ctx: Context, ws: Path, delay_s: float,
-                    after: Callable[[Path], bool] | None) -> bool:
-    """Run `cmd` on `ws` and SIGKILL it `delay_s` after `after(ws)` holds (after its start when None);
-    True if it had finished by then."""
-    proc = subprocess.Popen([sys.executable, "-m", "laneprint.cli", *cmd.args(ctx), "-w", str(ws), "--json"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    while after is not None and not after(ws) and proc.poll() is None:
-        time.sleep(0.05)
-    try:
-        proc.wait(timeout=delay_s)
-        return True
-    except subprocess.TimeoutExpired:
-        os.kill(proc.pid, signal.SIGKILL)
-        proc.wait()
-        return False
-
-
-def kill_once(name: str, base: Path, ctx: Context, delay_s: float, ws: Path, timeout_s: float,
-              cmd: Command | None = None, after: Callable[[Path], bool] | None = None) -> KillResult:
-    """Copy `base` to `ws`, kill command `name` (or `cmd`) `delay_s` after its start (or after `after(ws)`
-    holds), then check, repair, recover, check again."""
+def kill_once(name: str, base: Path, ctx: Context, at_cpu_s: float, ws: Path, timeout_s: float,
+              cmd: Command | None = None, after: Callable[[Path], bool] | None = None,
+              attempt: Attempt | None = None) -> KillResult:
+    """Copy `base` to `ws`, kill command `name` (or `cmd`) once it has used `at_cpu_s` CPU seconds (and
+    `after(ws)` holds), then check, repair, recover, check again. With `attempt`, the command has
+    already been started and killed on `ws` (see `run_kills`)."""
     cmd = cmd or COMMANDS[name]
-    shutil.copytree(base, ws)
-    res = KillResult(name, round(delay_s, 2), _start_and_kill(cmd, ctx, ws, delay_s, after))
+    if attempt is None:
+        shutil.copytree(base, ws)
+        attempt = run_until(_argv(cmd, ctx, ws), at_cpu_s, ws, after)
+    res = KillResult(name, round(attempt.wall_s, 2), attempt.finished, round(attempt.cpu_s, 2))
 
     first = laneprint(["check", "--repair"], ws, timeout=timeout_s)
     report = _json(first)
@@ -276,19 +350,29 @@ def run_kills(names: list[str], kills: int, seed: int, scratch: Path, jobs: int 
 
     rng = np.random.default_rng(seed)
     base, ctx = prepare(scratch, seed)
-    durations = calibrate(base, ctx, names, scratch)
-    log("clean durations: " + ", ".join(f"{k} {v:.1f} s" for k, v in durations.items()))
+    startup, work = calibrate(base, ctx, names, scratch)
+    log(f"CPU seconds: start-up {startup:.1f}, " + ", ".join(f"{k} {v:.1f}" for k, v in work.items()))
     plan = [names[i % len(names)] for i in range(kills)]
     rng.shuffle(plan)
-    delays = [float(rng.uniform(0.15, 1.0) * durations[name]) for name in plan]
-    timeout = max(120.0, 4 * max(durations.values()))
+    timeout = max(300.0, 20 * max(work.values()))  # wall time, on a machine that may be busy
 
     def one(i: int) -> KillResult:
-        ws = scratch / f"kill-{i:03d}"
-        res = kill_once(plan[i], base, Context(ctx.logs, ctx.driver, f"{i:03d}"), delays[i], ws, timeout)
+        name, ws, kctx = plan[i], scratch / f"kill-{i:03d}", Context(ctx.logs, ctx.driver, f"{i:03d}")
+        draws = np.random.default_rng([seed, i])  # this kill's moments, whatever the order kills run in
+
+        def start(at_cpu_s: float) -> Attempt:
+            shutil.rmtree(ws, ignore_errors=True)
+            shutil.copytree(base, ws)
+            return run_until(_argv(COMMANDS[name], kctx, ws), at_cpu_s)
+
+        attempt, fraction, work[name], retry = kill_live(start, draws, startup, work[name])
+        res = kill_once(name, base, kctx, attempt.cpu_s, ws, timeout, attempt=attempt)
+        res.work_fraction, res.retries = round(fraction, 3), retry
         shutil.rmtree(ws, ignore_errors=True)
-        log(f"[{i + 1}/{kills}] {res.command} killed at {res.delay_s} s"
-            f"{' (had finished)' if res.finished_before_kill else ''}: repaired {res.repaired}, "
+        log(f"[{i + 1}/{kills}] {res.command} killed at {res.work_fraction:.0%} of its work "
+            f"({res.cpu_s} CPU s, {res.delay_s} s)"
+            f"{' (had finished: NOT a live kill)' if res.finished_before_kill else ''}"
+            f"{f' after {retry} early finish(es)' if retry else ''}: repaired {res.repaired}, "
             f"resumed {res.resumed or '-'}, recovery {res.recovery_s} s, "
             f"{'consistent' if res.consistent else 'INCONSISTENT: ' + '; '.join(res.problems)}")
         return res
