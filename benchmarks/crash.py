@@ -68,7 +68,7 @@ def main() -> int:
           f"(in {sum(r.repaired > 0 for r in results)} kills); interrupted trainings: {interrupted}, "
           f"resumed from their checkpoint: {resumed}; slowest recovery: {max(r.recovery_s for r in results):.1f} s")
     if args.out:
-        args.out.write_text(json.dumps([asdict(r) for r in results], indent=2))
+        args.out.write_text(json.dumps([asdict(r) | {"live": r.live} for r in results], indent=2))
     return 1 if bad or resumed < interrupted else 0
 
 
