@@ -441,6 +441,10 @@ class VecReplayEnv:
     def observe(self) -> np.ndarray:
         return observation(self.scene, self.config)
 
+    def _draw_starts(self, idx: np.ndarray) -> np.ndarray:
+        """New starting states (indices into `states`) for the environments `idx`, which start afresh."""
+        return self.rng.integers(len(self.t_rel), size=len(idx))
+
     def t_from_press(self) -> np.ndarray:
         return np.where(self.late > 0, self.late, self.t_rel[self.index])
 
@@ -462,7 +466,7 @@ class VecReplayEnv:
         final_obs = obs = self.observe()
         if done.any():
             idx = np.flatnonzero(done)
-            self.index[idx] = self.rng.integers(len(self.t_rel), size=len(idx))
+            self.index[idx] = self._draw_starts(idx)
             self.late[idx] = 0.0
             self.steps[idx] = 0
             self.scene.put(idx, self.states.take(self.index[idx]))

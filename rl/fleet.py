@@ -29,6 +29,7 @@ from rl import batched
 from rl.dqn import (EpisodeStats, average_due, episode_row, episode_state, epsilon_at, learning_rate_at,
                     load_episode_state)
 from rl.env import Approach, EnvConfig, make_vec_env, observation_names
+from rl.fleet_envs import stack_envs
 from rl.rewards import TERMS
 from rl.settings import DQNSettings
 
@@ -95,6 +96,20 @@ class StackedReplay:
 
     def filled(self, j: int) -> int:
         return self.size if self.full[j] else int(self.pos[j])
+
+    def filled_all(self) -> np.ndarray:
+        """Transitions held by each memory (K,)."""
+        return np.where(self.full, self.size, self.pos)
+
+    def add_all(self, obs, next_obs, actions, rewards, terminated) -> None:
+        """Add n transitions (K, n, ...) to every memory: `add` for each j at once."""
+        n = actions.shape[1]
+        idx = (self.pos[:, None] + np.arange(n)) % self.size
+        rows = np.arange(len(self.pos))[:, None]
+        self.obs[rows, idx], self.next_obs[rows, idx] = obs, next_obs
+        self.actions[rows, idx], self.rewards[rows, idx], self.terminated[rows, idx] = actions, rewards, terminated
+        self.full |= self.pos + n >= self.size
+        self.pos = (self.pos + n) % self.size
 
     def add(self, j: int, obs, next_obs, actions, rewards, terminated) -> None:
         n = len(actions)
@@ -180,6 +195,7 @@ class FleetTrainer:
         self.buffer = StackedReplay(len(members), s0.buffer_size, self.n_obs)
         self.env_steps = 0
         self.wall_s = 0.0
+        self._stack_agents()
         for j, state in enumerate(states or []):
             if state is not None:
                 self.load_agent_state(j, state)
@@ -218,41 +234,63 @@ class FleetTrainer:
             torch.set_flush_denormal(False)
         return self
 
+    def _stack_agents(self) -> None:
+        """The training agents' environments, observations and running sums as (K, n) batches.
+
+        Each agent's `stats` become views of its row, so the per-episode book-keeping and
+        checkpoints read and reset them in place; `_sync_agents` hands back the rest.
+        """
+        self._envs = stack_envs([a.envs for a in self.agents])
+        self._obs = np.stack([a.obs for a in self.agents]) if self.agents else None
+        self._ret = np.stack([a.stats.ret for a in self.agents]) if self.agents else None
+        self._length = np.stack([a.stats.length for a in self.agents]) if self.agents else None
+        self._terms = {k: np.stack([a.stats.terms[k] for a in self.agents]) for k in TERMS} if self.agents else {}
+        for j, a in enumerate(self.agents):
+            a.stats.ret, a.stats.length = self._ret[j], self._length[j]
+            a.stats.terms = {k: v[j] for k, v in self._terms.items()}
+
+    def _sync_agents(self) -> None:
+        """Write the batches' environment state and observations back into each training agent."""
+        self._envs.scatter()
+        for j, a in enumerate(self.agents):
+            a.obs = self._obs[j].copy()
+
     def _vector_step(self, start: float, on_episode, on_checkpoint) -> None:
         s0 = self.agents[0].settings
         n = s0.num_envs
         # 1. act: greedy actions of all agents in one pass, then each agent's epsilon draws
-        obs = torch.from_numpy(np.stack([a.obs for a in self.agents]))
-        with torch.no_grad():
-            greedy = batched.forward(self.q, obs).argmax(dim=2).numpy()
-        outs, acts, epsilons = [], [], []
+        obs = self._obs
+        with torch.inference_mode():
+            greedy = batched.forward(self.q, torch.from_numpy(obs)).argmax(dim=2).numpy()
+        epsilons = [a.epsilon() for a in self.agents]
+        actions = np.empty(greedy.shape, np.int64)
         for j, a in enumerate(self.agents):
-            eps = a.epsilon()
-            explore = a.rng.random(n) < eps
-            actions = np.where(explore, a.rng.integers(0, 2, n), greedy[j])
-            # 2. step and store (the true last observation of finished episodes, as DQNTrainer)
-            out = a.envs.step(actions)
-            self.buffer.add(j, a.obs, out["final_obs"], actions, out["reward"], out["terminated"].astype(np.float32))
-            a.obs = out["obs"]
+            explore = a.rng.random(n) < epsilons[j]
+            actions[j] = np.where(explore, a.rng.integers(0, 2, n), greedy[j])
+        # 2. step every agent's environments together, and store (the true last observation
+        # of finished episodes, as DQNTrainer)
+        out = self._envs.step(actions)
+        self.buffer.add_all(obs, out["final_obs"], actions, out["reward"], out["terminated"].astype(np.float32))
+        self._obs = out["obs"]
+        for a in self.agents:
             a.env_steps += n
-            st = a.stats
-            st.ret += out["reward"]
-            st.length += 1
-            for k in TERMS:
-                st.terms[k] += out["terms"][k]
-            outs.append(out)
-            acts.append(actions)
-            epsilons.append(eps)
+        self._ret += out["reward"]
+        self._length += 1
+        for k in TERMS:
+            self._terms[k] += out["terms"][k]
         self.env_steps += n * len(self.agents)
         # 3. learn: agents whose memory holds `learning_starts` transitions
-        learning = np.array([self.buffer.filled(j) >= a.settings.learning_starts for j, a in enumerate(self.agents)])
+        starts = np.array([a.settings.learning_starts for a in self.agents])
+        learning = self.buffer.filled_all() >= starts
         if learning.any():
             for _ in range(s0.gradient_steps):
                 self._update(learning)
         # 4. book-keeping of finished episodes, per agent
         wall = time.perf_counter() - start
-        for j, a in enumerate(self.agents):
-            self._episodes(j, a, outs[j], acts[j], epsilons[j], wall, on_episode, on_checkpoint)
+        done = out["terminated"] | out["truncated"]
+        for j in np.flatnonzero(done.any(axis=1)):
+            self._episodes(j, self.agents[j], {k: out[k][j] for k in ("terminated", "truncated", "reached_leader")},
+                           actions[j], epsilons[j], wall, on_episode, on_checkpoint)
 
     def _update(self, learning: np.ndarray) -> None:
         s0 = self.agents[0].settings
@@ -269,7 +307,7 @@ class FleetTrainer:
         lr = torch.tensor([a.learning_rate() for a in self.agents], dtype=torch.float64)
         self.adam.step(self.q, list(grads), lr, mask)
         averaging = torch.tensor([a.averaging for a in self.agents]) & mask
-        if averaging.any():
+        if bool(averaging.any()):
             w = (averaging.to(torch.float32) * s0.average_tau)
             with torch.no_grad():
                 for p_avg, p in zip(self.q_avg, self.q):
@@ -317,6 +355,7 @@ class FleetTrainer:
         done = [j for j, a in enumerate(self.agents) if a.finished]
         if not done:
             return
+        self._sync_agents()
         for j in done:
             a = self.agents[j]
             if on_finish is not None:
@@ -331,6 +370,7 @@ class FleetTrainer:
         self.adam.select(keep)
         self.buffer.select(np.array(keep_list, dtype=np.int64))
         self.agents = [self.agents[j] for j in keep_list]
+        self._stack_agents()
 
     # --- per-agent views in DQNTrainer's formats ------------------------------------------
 
@@ -341,6 +381,7 @@ class FleetTrainer:
     def agent_state_dict(self, j: int) -> dict[str, Any]:
         """Agent j's complete state as `DQNTrainer.state_dict()` (resumable alone or in a fleet)."""
         a = self.agents[j]
+        self._sync_agents()
         return {
             "q": batched.agent_state_dict(self.q, j),
             "target": batched.agent_state_dict(self.target, j),
@@ -358,6 +399,7 @@ class FleetTrainer:
     def load_agent_state(self, j: int, state: dict[str, Any]) -> None:
         """Continue agent j from a `DQNTrainer.state_dict()` (its checkpoint)."""
         a = self.agents[j]
+        self._sync_agents()
         batched.load_agent(self.q, j, state["q"])
         batched.load_agent(self.target, j, state["target"])
         batched.load_agent(self.q_avg, j, state["q_avg"])
@@ -369,3 +411,4 @@ class FleetTrainer:
         a.updates, a.wall_s = int(c["updates"]), float(c["wall_s"])
         a.averaging = bool(c.get("averaging", a.average_due()))
         a.losses = [float(x) for x in state["losses"]]
+        self._stack_agents()

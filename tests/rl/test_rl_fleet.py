@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pandas as pd
 import pytest
 import torch
@@ -167,3 +168,36 @@ def test_a_fleet_killed_before_its_first_checkpoint_starts_its_metrics_afresh(tm
     assert res.exit_code == 0, res.output
     for run_id in fleet["runs"]:
         assert list(load_run(ws, run_id)["metrics"]["episode"]) == list(range(1, 121))
+
+
+def test_stacked_environments_step_exactly_as_each_agents_own():
+    from rl.env import make_vec_env
+    from rl.fleet_envs import StackedReplayEnvs, stack_envs
+
+    members = _members()
+
+    def envs():
+        return [make_vec_env(m.env_config, 8, np.random.default_rng([m.settings.seed, 1]), m.approaches)
+                for m in members]
+
+    alone, together = envs(), envs()
+    stack = stack_envs(together)
+    assert isinstance(stack, StackedReplayEnvs)
+    rng = np.random.default_rng(0)
+    for _ in range(60):
+        actions = rng.integers(0, 2, (len(members), 8))
+        out = stack.step(actions)
+        for k, env in enumerate(alone):
+            own = env.step(actions[k])
+            for key in ("obs", "final_obs", "reward", "terminated", "truncated", "reached_leader"):
+                np.testing.assert_array_equal(out[key][k], own[key])
+    stack.scatter()
+    for a, b in zip(alone, together):  # same state and the same draws from each agent's generator
+        assert a.rng.bit_generator.state == b.rng.bit_generator.state
+        for key, value in a.state_dict().items():
+            other = b.state_dict()[key]
+            if isinstance(value, dict):
+                for name in value:
+                    np.testing.assert_array_equal(value[name], other[name])
+            else:
+                np.testing.assert_array_equal(value, other)
