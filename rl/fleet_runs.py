@@ -236,6 +236,9 @@ def _train_locked(workspace: Workspace, todo: list[str], threads: int, evaluate:
                   progress: ProgressFn | None, stop: _StopFlag | None) -> list[dict[str, Any]]:
     """`train_shard`'s work on the runs `todo`, whose locks are held."""
     members, states = _load_members(workspace, todo)
+    decisions = workspace.read_table("analysis", "decisions") \
+        if evaluate and workspace.has_table("analysis", "decisions") else None
+    classifiers: dict = {}  # one imitation classifier per driver set, shared by its seeds
     for rid, state in zip(todo, states):  # drop metrics written after the checkpoint (all, without one)
         _truncate_metrics(run_dir(workspace, rid) / "metrics.jsonl",
                           int(state["counters"]["episodes_done"]) if state is not None else 0)
@@ -261,7 +264,7 @@ def _train_locked(workspace: Workspace, todo: list[str], threads: int, evaluate:
         if evaluate:
             writer.status(i, "running", "evaluating")
             try:
-                ev = evaluate_run(workspace, todo[i])
+                ev = evaluate_run(workspace, todo[i], decisions=decisions, classifiers=classifiers)
                 summary["evaluation"] = ev.get("summary_typical") or ev.get("summary")
             except UserError as exc:
                 summary["evaluation_note"] = str(exc)

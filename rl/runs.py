@@ -41,7 +41,7 @@ from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.dqn import DQNSettings, DQNTrainer, q_network
 from rl.env import Approach, EnvConfig, approaches_from_decisions, observation_names
 from rl.evaluate import agent_policy, evaluate_policies, greedy_policy
-from rl.imitation import ImitationClassifier
+from rl.imitation import fitted_classifier
 from rl.rewards import ReferenceLines
 
 RUN_STATES = ("running", "done", "failed", "cancelled")
@@ -380,8 +380,13 @@ def _eval_drivers(workspace: Workspace, target: Target) -> tuple[list[str], str 
     return typical + rest, (typical[0] if typical else None)
 
 
-def evaluate_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
-    """Evaluate a run against the drivers' recorded decisions; writes evaluation.json + tables."""
+def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | None = None,
+                 classifiers: dict | None = None) -> dict[str, Any]:
+    """Evaluate a run against the drivers' recorded decisions; writes evaluation.json + tables.
+
+    A fleet evaluates all its agents on one copy of the analysis `decisions` table and
+    one `classifiers` cache (a driver's imitation classifier fitted once for all its seeds).
+    """
     folder = run_dir(workspace, run_id)
     if not (folder / "config.json").exists():
         raise UserError(f"no run {run_id!r} in {workspace.root}")
@@ -390,15 +395,17 @@ def evaluate_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
     cfg = EnvConfig.from_dict(config["env"])
     settings = DQNSettings.from_dict(config["dqn"])
     net = _load_q(folder, settings, cfg)
-    if not workspace.has_table("analysis", "decisions"):
-        raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first to evaluate against the drivers")
-    decisions = workspace.read_table("analysis", "decisions")
+    if decisions is None:
+        if not workspace.has_table("analysis", "decisions"):
+            raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first to evaluate against the drivers")
+        decisions = workspace.read_table("analysis", "decisions")
     drivers, typical = _eval_drivers(workspace, target)
     # the imitation benchmark, fitted on the same states it is scored on (in-sample, like the agent)
     member_approaches, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(drivers)])
     policies = {"agent": agent_policy(net, cfg), "greedy": greedy_policy(cfg)}
     if member_approaches:
-        policies["imitation"] = ImitationClassifier(random_state=settings.seed).fit(member_approaches, cfg).policy(cfg)
+        policies["imitation"] = fitted_classifier(member_approaches, cfg, settings.seed, classifiers,
+                                                  key=tuple(drivers)).policy(cfg)
     out: dict[str, Any] = {"run_id": run_id, "target": asdict(target), "reward": cfg.reward.name,
                            "drivers": drivers, "typical_driver": typical, "evaluated_at": now_iso(),
                            "data_fingerprint": workspace.fingerprint()}
