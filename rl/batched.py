@@ -82,7 +82,7 @@ def forward(params: list[torch.Tensor], x: torch.Tensor) -> torch.Tensor:
     for i in range(0, len(params), 2):
         x = torch.baddbmm(params[i + 1], x, params[i].transpose(1, 2))
         if i < last:
-            x = torch.relu(x)
+            x = x.relu_()  # in place: baddbmm's backward does not need its output
     return x
 
 

@@ -301,11 +301,13 @@ class FleetTrainer:
         batch = self.buffer.sample(idx)
         losses = batched.td_losses(self.q, self.target, batch, s0.gamma, s0.loss, s0.double_q)
         mask = torch.from_numpy(learning)
-        grads = torch.autograd.grad((losses * mask).sum(), self.q)
+        # weight gradients come back as transposed views (`batched.forward` multiplies by W^T): made
+        # contiguous once, clipping and Adam's ~10 elementwise passes over them ran twice as fast
+        grads = [g.contiguous() for g in torch.autograd.grad((losses * mask).sum(), self.q)]
         if s0.max_grad_norm:
-            batched.clip_grad_norms(list(grads), s0.max_grad_norm)
+            batched.clip_grad_norms(grads, s0.max_grad_norm)
         lr = torch.tensor([a.learning_rate() for a in self.agents], dtype=torch.float64)
-        self.adam.step(self.q, list(grads), lr, mask)
+        self.adam.step(self.q, grads, lr, mask)
         averaging = torch.tensor([a.averaging for a in self.agents]) & mask
         if bool(averaging.any()):
             w = (averaging.to(torch.float32) * s0.average_tau)
