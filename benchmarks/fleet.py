@@ -30,6 +30,7 @@ import shutil
 import statistics
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -114,8 +115,9 @@ def vector_steps_per_run(ws: Workspace, run_ids: list[str]) -> float:
     return float(np.mean(vals))
 
 
-def scaling(ws: Workspace, sizes: list[int], steps: int, threads: int) -> list[dict]:
-    """Seconds per vector step (after learning starts) of fleets of `sizes` agents."""
+def scaling(ws: Workspace, sizes: list[int], steps: int, shards: int) -> list[dict]:
+    """Seconds per vector step (after learning starts) of fleets of `sizes` agents, trained as the
+    local backend trains them: `shards` `FleetTrainer`s of one torch thread each, in threads at once."""
     targets = fleet_targets(ws, drivers="all")
     fresh_runs(ws)
     record = create_fleet(ws, targets, [0], DQNSettings())
@@ -124,19 +126,30 @@ def scaling(ws: Workspace, sizes: list[int], steps: int, threads: int) -> list[d
     for k in sizes:
         members = [FleetMember(m.env_config, replace(m.settings, seed=i // len(base_members)), m.approaches)
                    for i, m in zip(range(k), (base_members * (k // len(base_members) + 1)))]
-        trainer = FleetTrainer(members, threads=1)  # one shard of the local backend: one torch thread
+        parts = [members[i::shards] for i in range(min(shards, k))]
         s = members[0].settings
         warm = int(np.ceil(s.learning_starts / s.num_envs)) + 2
-        marks: list[float] = []
+        per_shard: list[float] = [0.0] * len(parts)
 
-        def tick(f: FleetTrainer) -> bool:
-            marks.append(time.perf_counter())
-            return len(marks) >= warm + steps
+        def run(i: int) -> None:
+            marks: list[float] = []
 
-        trainer.train(on_vector_step=tick)
-        per_step = (marks[-1] - marks[warm - 1]) / steps
+            def tick(f: FleetTrainer) -> bool:
+                marks.append(time.perf_counter())
+                return len(marks) >= warm + steps
+
+            FleetTrainer(parts[i], threads=1).train(on_vector_step=tick)
+            per_shard[i] = (marks[-1] - marks[warm - 1]) / steps
+
+        workers = [threading.Thread(target=run, args=(i,)) for i in range(len(parts))]
+        for w in workers:
+            w.start()
+        for w in workers:
+            w.join()
+        per_step = max(per_shard)
         out.append({"agents": k, "s_per_vector_step": per_step})
-        print(f"  {k:5d} agents: {per_step * 1000:.1f} ms per vector step", flush=True)
+        print(f"  {k:5d} agents ({len(parts)} shards of <= {len(parts[0])}): {per_step * 1000:.1f} ms per vector step",
+              flush=True)
     return out
 
 
@@ -148,13 +161,14 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=None, help="torch threads of the local fleet (default: cores)")
     ap.add_argument("--skip-ray", action="store_true")
     ap.add_argument("--scaling", default="10,100,1000", help="fleet sizes for the growth figures ('' = skip)")
-    ap.add_argument("--scaling-steps", type=int, default=10, help="vector steps timed per size (one shard, one thread)")
+    ap.add_argument("--scaling-steps", type=int, default=10, help="vector steps timed per size (one shard per core)")
     args = ap.parse_args()
     cores = os.cpu_count() or 1
     ws = prepare(args.workdir, args.drivers)
     drivers = sorted(fleet_targets(ws, drivers="all"), key=lambda t: t.name)
     n = len(drivers)
-    print(f"{n} drivers, one agent each (seed 0, default settings), {cores} cores\n")
+    print(f"{n} drivers, one agent each (seed 0, default settings), {cores} cores; "
+          f"load average {' '.join(f'{x:.1f}' for x in os.getloadavg())} (1/5/15 min)\n")
 
     rows = []
     fresh_runs(ws)
@@ -200,12 +214,13 @@ def main() -> None:
 
     sizes = [int(x) for x in args.scaling.split(",") if x.strip()]
     if sizes:
-        print(f"\nfleet growth ({args.scaling_steps} vector steps after learning starts, {args.threads or cores} threads; "
-              f"a whole run is ~{steps_per_run:.0f} vector steps):")
+        print(f"\nfleet growth ({args.scaling_steps} vector steps after learning starts, {args.threads or cores} shards "
+              f"of one thread; a whole run is ~{steps_per_run:.0f} vector steps):")
         grow = scaling(ws, sizes, args.scaling_steps, args.threads or cores)
         for g in grow:
             print(f"  {g['agents']:5d} agents: projected {g['s_per_vector_step'] * steps_per_run / 60:.1f} min "
                   f"for a whole run (training only, projected)")
+    print(f"\nload average at the end {' '.join(f'{x:.1f}' for x in os.getloadavg())} (1/5/15 min)")
 
 
 if __name__ == "__main__":
