@@ -81,27 +81,27 @@ def meets(ev_rows: list[dict]) -> tuple[bool, float | None, float | None, float 
 
 def one_by_one(ws: Workspace, drivers: list[str]) -> dict:
     results, steps = [], 0
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     for d in drivers:
         target = Target("driver", d)
         env = formulation_config(resolve_lines(ws, target, "analysis"))
         res = train_run(ws, target, env, DQNSettings(seed=0))
         steps += res["env_steps"]
         results.append({"driver": d, **dict(zip(("ok", "recall", "agent_ba", "greedy_ba"), meets(res["evaluation"])))})
-    return {"wall_s": time.perf_counter() - t, "env_steps": steps, "agents": results}
+    return {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - cpu, "env_steps": steps, "agents": results}
 
 
 def fleet(ws: Workspace, backend: str, threads: int | None) -> dict:
     targets = fleet_targets(ws, drivers="all")
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     record = create_fleet(ws, targets, [0], DQNSettings(), backend=backend)
     res = train_fleet(ws, record["fleet_id"], backend=backend, threads=threads)
-    wall = time.perf_counter() - t
+    wall, cpu = time.perf_counter() - t, time.process_time() - cpu
     table = fleet_table(ws, record["fleet_id"]).rename(columns={
         "agent_balanced_accuracy": "agent_ba", "greedy_balanced_accuracy": "greedy_ba",
         "imitation_balanced_accuracy": "imitation_ba", "agent_recall": "recall"})
     steps = sum(s.get("env_steps", 0) for s in res["summaries"])
-    return {"wall_s": wall, "env_steps": steps, "table": table, "runs": res["runs"]}
+    return {"wall_s": wall, "cpu_s": cpu if backend == "local" else None, "env_steps": steps, "table": table, "runs": res["runs"]}
 
 
 def vector_steps_per_run(ws: Workspace, run_ids: list[str]) -> float:
@@ -175,13 +175,13 @@ def main() -> None:
     sample = [t.name for t in drivers[: args.sample]]
     obo = one_by_one(ws, sample)
     scale = n / len(sample)
-    rows.append(("one by one (today's trainer)", obo["wall_s"] * scale, obo["env_steps"] * scale,
+    rows.append(("one by one (today's trainer)", obo["wall_s"] * scale, obo["cpu_s"] * scale, obo["env_steps"] * scale,
                  f"{len(sample)} timed, x{scale:g}"))
     print(f"one by one: {len(sample)} agents in {obo['wall_s']:.0f} s", flush=True)
 
     fresh_runs(ws)
     local = fleet(ws, "local", args.threads)
-    rows.append(("batched fleet (local)", local["wall_s"], local["env_steps"], f"{args.threads or cores} threads"))
+    rows.append(("batched fleet (local)", local["wall_s"], local["cpu_s"], local["env_steps"], f"{args.threads or cores} threads"))
     print(f"fleet local: {n} agents in {local['wall_s']:.0f} s", flush=True)
     steps_per_run = vector_steps_per_run(ws, local["runs"])
     local_table = local["table"]
@@ -189,16 +189,21 @@ def main() -> None:
     if not args.skip_ray:
         fresh_runs(ws)
         ray = fleet(ws, "ray", 1)
-        rows.append(("fleet on local Ray", ray["wall_s"], ray["env_steps"], f"{cores} workers x 1 thread"))
+        rows.append(("fleet on local Ray", ray["wall_s"], None, ray["env_steps"], f"{cores} workers x 1 thread"))
         print(f"fleet ray: {n} agents in {ray['wall_s']:.0f} s", flush=True)
         same = np.allclose(ray["table"]["agent_ba"].to_numpy(float), local_table["agent_ba"].to_numpy(float),
                            atol=1e-9, equal_nan=True)
         print(f"ray agents' balanced accuracy equal to the local fleet's: {same}")
 
     base = rows[0][1]
-    print(f"\n{'method':32s} {'wall [s]':>9s} {'agents/min':>11s} {'env steps/s':>12s} {'speed-up':>9s}  note")
-    for name, wall, steps, note in rows:
-        print(f"{name:32s} {wall:9.0f} {60 * n / wall:11.1f} {steps / wall:12.0f} {base / wall:8.1f}x  {note}")
+    # CPU seconds of this process (all its threads): the work done, whatever else loads the machine
+    # (Ray's workers are other processes: not counted)
+    base_cpu = rows[0][2]
+    print(f"\n{'method':32s} {'wall [s]':>9s} {'agents/min':>11s} {'env steps/s':>12s} {'speed-up':>9s} "
+          f"{'CPU [s]':>8s} {'CPU ratio':>9s}  note")
+    for name, wall, cpu, steps, note in rows:
+        cpu_cols = f"{cpu:8.0f} {base_cpu / cpu:8.1f}x" if cpu else f"{'-':>8s} {'-':>9s}"
+        print(f"{name:32s} {wall:9.0f} {60 * n / wall:11.1f} {steps / wall:12.0f} {base / wall:8.1f}x {cpu_cols}  {note}")
 
     met = int(local_table["meets_target"].sum())
     print(f"\nfleet agents meeting the target (recall >= 95 %, bal. acc. >= greedy + 5 points): {met} of {len(local_table)}")
