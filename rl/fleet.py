@@ -249,11 +249,12 @@ class FleetTrainer:
             a.stats.ret, a.stats.length = self._ret[j], self._length[j]
             a.stats.terms = {k: v[j] for k, v in self._terms.items()}
 
-    def _sync_agents(self) -> None:
-        """Write the batches' environment state and observations back into each training agent."""
-        self._envs.scatter()
-        for j, a in enumerate(self.agents):
-            a.obs = self._obs[j].copy()
+    def _sync_agents(self, only: int | None = None) -> None:
+        """Write the batches' environment state and observations back into each training agent (or `only`)."""
+        agents = range(len(self.agents)) if only is None else [only]
+        self._envs.scatter(list(agents))
+        for j in agents:
+            self.agents[j].obs = self._obs[j].copy()
 
     def _vector_step(self, start: float, on_episode, on_checkpoint) -> None:
         s0 = self.agents[0].settings
@@ -383,7 +384,7 @@ class FleetTrainer:
     def agent_state_dict(self, j: int) -> dict[str, Any]:
         """Agent j's complete state as `DQNTrainer.state_dict()` (resumable alone or in a fleet)."""
         a = self.agents[j]
-        self._sync_agents()
+        self._sync_agents(j)
         return {
             "q": batched.agent_state_dict(self.q, j),
             "target": batched.agent_state_dict(self.target, j),

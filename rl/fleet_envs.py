@@ -49,7 +49,7 @@ class LoopedEnvs:
         res["terms"] = {t: np.stack([np.broadcast_to(o["terms"][t], o["reward"].shape) for o in outs]) for t in TERMS}
         return res
 
-    def scatter(self) -> None:
+    def scatter(self, agents: list[int] | None = None) -> None:
         """Nothing to do: the agents' environments are stepped themselves."""
 
 
@@ -98,9 +98,10 @@ class StackedReplayEnvs(VecReplayEnv):
     def step(self, actions: np.ndarray) -> dict[str, Any]:
         return _split(super().step(np.asarray(actions).reshape(-1)), len(self.envs))
 
-    def scatter(self) -> None:
-        """Write each agent's slice of the batch back into its own environments."""
-        for k, e in enumerate(self.envs):
+    def scatter(self, agents: list[int] | None = None) -> None:
+        """Write each agent's (or `agents`') slice of the batch back into its own environments."""
+        for k in range(len(self.envs)) if agents is None else agents:
+            e = self.envs[k]
             rows = slice(k * self.n, (k + 1) * self.n)
             e.index = self.index[rows] - self.offset[k]
             e.late, e.steps = self.late[rows].copy(), self.steps[rows].copy()
