@@ -6,7 +6,7 @@ import pytest
 from rl.imitation import batched_binning
 
 
-def _data(seed: int = 0, n: int = 1500):
+def _data(seed: int = 0, n: int = 800):
     rng = np.random.default_rng(seed)
     X = np.c_[rng.normal(size=n), rng.integers(0, 40, n), np.round(rng.random(n), 3), rng.exponential(size=n)]
     X[rng.random(n) < 0.05, 3] = np.nan
@@ -14,6 +14,7 @@ def _data(seed: int = 0, n: int = 1500):
     return X, y
 
 
+@pytest.mark.slow
 def test_batched_binning_gives_sklearns_thresholds_and_trees():
     binning = pytest.importorskip("sklearn.ensemble._hist_gradient_boosting.binning")
     from sklearn.ensemble import HistGradientBoostingClassifier
@@ -25,7 +26,7 @@ def test_batched_binning_gives_sklearns_thresholds_and_trees():
     patched = binning._weighted_percentile
 
     def fit():
-        clf = HistGradientBoostingClassifier(max_iter=10, class_weight="balanced", early_stopping=False,
+        clf = HistGradientBoostingClassifier(max_iter=5, class_weight="balanced", early_stopping=False,
                                              random_state=0).fit(X, y)
         return clf.predict_proba(X), [binning._find_binning_thresholds(X[:, f], 255, w) for f in range(X.shape[1])]
 
