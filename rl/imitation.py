@@ -13,7 +13,6 @@ as the balanced accuracy that scores it.
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,53 +28,6 @@ def labelled_states(approaches: list[Approach], cfg: EnvConfig) -> tuple[np.ndar
     scene = Scene.concat([a.scene for a in approaches])
     y = np.concatenate([np.r_[np.zeros(len(a) - 1), 1.0] for a in approaches]).astype(int)
     return observation(scene, cfg), y
-
-
-#: The percentiles scikit-learn's binning asks for with its default 255 bins.
-_BIN_PERCENTILES = np.linspace(0, 100, num=255 + 1)[1:-1]
-_binning_lock = threading.Lock()
-_binning_local = threading.local()
-
-
-def batched_binning() -> bool:
-    """Make scikit-learn's weighted bin thresholds (class weights, sklearn >= 1.8) one
-    percentile call per feature instead of 254; returns whether it is installed.
-
-    `_find_binning_thresholds` asks `_weighted_percentile` for each of its 254
-    percentiles of one column in turn, and each call re-sorts the column: 1.2 s of a
-    2 s fit. The first call for a column computes all 254 in one call (the same
-    arithmetic, percentile by percentile) and the others are read back, so the
-    thresholds, trees and predictions are identical (`tests/rl/test_rl_imitation.py`).
-    """
-    try:
-        from sklearn.ensemble._hist_gradient_boosting import binning
-    except ImportError:  # pragma: no cover
-        return False
-    with _binning_lock:
-        original = getattr(binning, "_weighted_percentile", None)
-        if original is None:
-            return False
-        if getattr(original, "_laneprint_batched", False):
-            return True
-
-        def weighted_percentile(array, sample_weight, percentile_rank=50, average=False, xp=None):
-            if xp is None and np.ndim(percentile_rank) == 0 and isinstance(array, np.ndarray) and array.ndim == 1:
-                cache = getattr(_binning_local, "cache", None)
-                if cache is None or cache[0] is not array or cache[1] is not sample_weight or cache[2] != average:
-                    values = original(array, sample_weight, _BIN_PERCENTILES, average=average)
-                    table = dict(zip(_BIN_PERCENTILES.tolist(), np.asarray(values).reshape(-1))) \
-                        if np.ndim(values) == 1 and len(values) == len(_BIN_PERCENTILES) else {}
-                    # the cache holds the column itself, so its identity cannot be reused meanwhile
-                    cache = _binning_local.cache = (array, sample_weight, average, table)
-                hit = cache[3].get(float(percentile_rank))
-                if hit is not None:
-                    return np.asarray(hit)
-            return original(array, sample_weight, percentile_rank, average=average, xp=xp)
-
-        weighted_percentile._laneprint_batched = True
-        weighted_percentile.original = original
-        binning._weighted_percentile = weighted_percentile
-        return True
 
 
 #: Rows from which `HistGradientBoostingClassifier` bins a subsample (drawn with its random_state).
@@ -128,7 +80,6 @@ class ImitationClassifier:
     def _fit_model(self, X: np.ndarray, y: np.ndarray):
         from sklearn.ensemble import HistGradientBoostingClassifier
 
-        batched_binning()
         return HistGradientBoostingClassifier(
             max_iter=self.max_iter, learning_rate=self.learning_rate, max_leaf_nodes=self.max_leaf_nodes,
             min_samples_leaf=self.min_samples_leaf, class_weight="balanced", early_stopping=False,
