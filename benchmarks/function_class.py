@@ -1,0 +1,113 @@
+"""Where the agent loses to the imitation classifier: the network, or the reinforcement learning?
+
+On the crossval folds of one target (sessions in K folds, `rl.crossval`), three
+supervised classifiers of press vs not-yet state are fitted on the training
+folds' states, in the agent's own observation, and judged on the held-out fold:
+
+- `trees`: the imitation benchmark (`rl.imitation`, gradient-boosted trees);
+- `mlp`: the agent's own network shape (hidden 128-128-128, ReLU), trained
+  directly on the labels (class-balanced cross-entropy, Adam, 60 epochs);
+- `mlp-piecewise`: the same network reading each input piecewise-linearly over 8
+  quantile bins of the training states (Gorishniy et al., NeurIPS 2022).
+
+If the plain MLP ranks the held-out states worse than the trees even when taught
+the labels directly, the agent's gap to the classifier is its function class,
+not its reward or its training. Prints per classifier the pooled held-out ROC AUC
+(ranking) and balanced accuracy (at the balanced 0.5 threshold).
+
+    python benchmarks/function_class.py -w WORKSPACE --style Aggressive [--folds 4] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+# benchmarks/ holds scripts named like packages (dashboard.py, ingest.py): keep it off the import path
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from sklearn.metrics import roc_auc_score  # noqa: E402
+
+from laneprint.workspace import Workspace  # noqa: E402
+from rl.crossval import CrossvalSettings, assign_folds  # noqa: E402
+from rl.env import EnvConfig, approaches_from_decisions, formulation_config  # noqa: E402
+from rl.imitation import ImitationClassifier, labelled_states  # noqa: E402
+from rl.runs import Target, _eval_drivers  # noqa: E402
+
+
+def piecewise(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Each column read over its bins: 0 below a bin, 1 above it, linear inside."""
+    lo, width = edges[:, :-1], np.maximum(np.diff(edges, axis=1), 1e-6)
+    return np.clip((x[:, :, None] - lo) / width, 0.0, 1.0).reshape(len(x), -1).astype(np.float32)
+
+
+def mlp_scores(x_train: np.ndarray, y_train: np.ndarray, x_test: np.ndarray, seed: int,
+               epochs: int = 60) -> np.ndarray:
+    """Logits of the agent-shaped MLP trained on the labels (classes balanced)."""
+    torch.manual_seed(seed)
+    gen = torch.Generator().manual_seed(seed)
+    xt, yt = torch.from_numpy(x_train.astype(np.float32)), torch.from_numpy(y_train.astype(np.float32))
+    layers, width = [], x_train.shape[1]
+    for h in (128, 128, 128):
+        layers += [torch.nn.Linear(width, h), torch.nn.ReLU()]
+        width = h
+    net = torch.nn.Sequential(*layers, torch.nn.Linear(width, 1))
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+    weight = torch.where(yt == 1, float((1 - y_train.mean()) / y_train.mean()), 1.0)
+    for _ in range(epochs):
+        order = torch.randperm(len(yt), generator=gen)
+        for i in range(0, len(yt), 256):
+            b = order[i:i + 256]
+            loss = torch.nn.functional.binary_cross_entropy_with_logits(net(xt[b]).squeeze(1), yt[b], weight=weight[b])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+    with torch.no_grad():
+        return net(torch.from_numpy(x_test.astype(np.float32))).squeeze(1).numpy()
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("-w", "--workspace", type=Path, required=True)
+    ap.add_argument("--style", required=True)
+    ap.add_argument("--folds", type=int, default=4)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    ws = Workspace(args.workspace)
+    drivers, _ = _eval_drivers(ws, Target("style", args.style))
+    dec = ws.read_table("analysis", "decisions")
+    dec = dec[dec["driver_id"].astype(str).isin(drivers)]
+    cfg: EnvConfig = formulation_config(EnvConfig().lines)  # the default observation; lines play no part here
+    sessions = dec.groupby("recording_id", sort=True).agg(driver_id=("driver_id", "first"),
+                                                         speed_limit_kph=("speed_limit_kph", "first")).reset_index()
+    fold_of = assign_folds(sessions, CrossvalSettings(folds=args.folds, seed=args.seed))
+    fold = dec["recording_id"].astype(str).map(fold_of).to_numpy()
+    scores: dict[str, list[np.ndarray]] = {"trees": [], "mlp": [], "mlp-piecewise": []}
+    labels = []
+    for k in range(int(fold.max()) + 1):
+        train, _ = approaches_from_decisions(dec[fold != k])
+        test, _ = approaches_from_decisions(dec[fold == k])
+        x_tr, y_tr = labelled_states(train, cfg)
+        x_te, y_te = labelled_states(test, cfg)
+        clf = ImitationClassifier(random_state=args.seed + k).fit(train, cfg)
+        scores["trees"].append(clf.press_probability(x_te) - 0.5)
+        scores["mlp"].append(mlp_scores(x_tr, y_tr, x_te, args.seed + k))
+        edges = np.quantile(x_tr, np.linspace(0, 1, 9), axis=0).T
+        scores["mlp-piecewise"].append(mlp_scores(piecewise(x_tr, edges), y_tr, piecewise(x_te, edges), args.seed + k))
+        labels.append(y_te)
+        print(f"fold {k + 1}: {len(train)} training decisions, {len(test)} held out", flush=True)
+    y = np.concatenate(labels)
+    print(f"\n{args.style}, {len(y)} held-out states ({int(y.sum())} presses), observation '{cfg.observation}':")
+    for name, parts in scores.items():
+        s = np.concatenate(parts)
+        ba = 0.5 * ((s[y == 1] > 0).mean() + (s[y == 0] <= 0).mean())
+        print(f"  {name:14s} ROC AUC {roc_auc_score(y, s):.3f}   balanced accuracy {100 * ba:.1f} %")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
