@@ -196,12 +196,19 @@ def main() -> None:
     ap.add_argument("--fleet", type=int, default=100, help="agents in the synthesized fleet (0: none)")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--browser", action="store_true", help="also time the pages in headless Chromium")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="build the workspace in this folder and keep it; reuse it when it is there already "
+                         "(the same workspace before and after a change)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        ws = build(Path(tmp) / "ws", args.drivers, args.decisions)
-        if args.fleet:
-            build_fleet(ws, args.fleet)
+        root = args.keep.resolve() if args.keep else Path(tmp) / "ws"
+        if (root / "analysis").is_dir():
+            ws = Workspace(root)
+        else:
+            ws = build(root, args.drivers, args.decisions)
+            if args.fleet:
+                build_fleet(ws, args.fleet)
         print(f"workspace: {args.drivers} drivers x {args.decisions} decisions, "
               f"{len(ws.read_table('analysis', 'decisions'))} decision rows, a fleet of {args.fleet} agents "
               f"({len(list(ws.runs_dir.iterdir()))} runs in all), built in {time.perf_counter() - t0:.1f} s")

@@ -15,7 +15,8 @@ import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
 from dashboard.views import CROSSVAL_POLICIES
-from laneprint.plotting import ema_smooth
+from laneprint.plotting import ema_smooth, even_indices
+from rl.plots import MAX_CURVE_POINTS
 
 MAX_POINTS = 20_000
 
@@ -95,13 +96,16 @@ def recording_timeline(ego: pd.DataFrame, traffic: pd.DataFrame, title: str = ""
     return fig
 
 
-def runs_curves(metrics: dict[str, pd.DataFrame], column: str, label: str, smoothing: float = 0.95) -> go.Figure:
-    """One metric per episode for several runs on one plot, smoothed as TensorBoard does (run comparison)."""
+def runs_curves(metrics: dict[str, pd.DataFrame], column: str, label: str, smoothing: float = 0.95,
+                max_points: int = MAX_CURVE_POINTS) -> go.Figure:
+    """One metric per episode for several runs on one plot, smoothed as TensorBoard does (run comparison);
+    each smoothed curve (computed on every episode) is drawn at `max_points` points at most."""
     fig = go.Figure()
     for run_id, df in metrics.items():
         if column in df:
-            fig.add_trace(go.Scattergl(x=df["episode"], y=ema_smooth(df[column], smoothing), mode="lines",
-                                       name=run_id))
+            thin = even_indices(len(df), max_points)
+            fig.add_trace(go.Scatter(x=df["episode"].to_numpy()[thin], y=ema_smooth(df[column], smoothing)[thin],
+                                     mode="lines", name=run_id))
     fig.update_layout(xaxis_title="episode [-]", yaxis_title=label, height=360,
                       legend=dict(orientation="h", y=-0.25))
     return fig

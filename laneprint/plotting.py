@@ -1,5 +1,6 @@
 """Small pure helpers the stages' Plotly figures share: a smoothed curve, an axis scaled to the
-points that matter (the rest marked at its edge), and labels that do not overlap."""
+points that matter (the rest marked at its edge), labels that do not overlap, and fewer points to
+draw (a long curve's envelope, a random sample of a dense cloud) so that pages stay quick in a browser."""
 
 from __future__ import annotations
 
@@ -25,6 +26,41 @@ def ema_smooth(values: Sequence[float] | np.ndarray | pd.Series, weight: float) 
         # pandas' adjusted EWM is sum(w^i x_{t-i}) / sum(w^i): exactly the debiased average
         out[ok] = y[ok].ewm(alpha=1.0 - weight, adjust=True).mean().to_numpy()
     return out
+
+
+def even_indices(n: int, max_points: int) -> np.ndarray:
+    """At most `max_points` indices of `n` values, evenly spread, first and last included
+    (enough to draw a smooth curve)."""
+    return np.unique(np.linspace(0, n - 1, min(n, max_points)).round().astype(int)) if n else np.arange(0)
+
+
+def envelope_indices(values: Sequence[float] | np.ndarray, max_points: int) -> np.ndarray:
+    """Indices of at most `max_points` values that draw the same curve at screen resolution: the
+    values cut into runs, the lowest and the highest of each run kept with the first and last value
+    (in order), so spikes and the curve's extent survive. All indices when there are no more than `max_points`."""
+    v = np.asarray(values, dtype=float)
+    n = len(v)
+    if n <= max_points:
+        return np.arange(n)
+    edges = np.linspace(0, n, max(1, (max_points - 2) // 2) + 1).astype(int)
+    filled = np.where(np.isfinite(v), v, np.nan)  # inf as a gap, as Plotly draws it
+    keep = {0, n - 1}
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        run = filled[lo:hi]
+        if hi <= lo or np.isnan(run).all():
+            keep.add(lo)
+            continue
+        keep.update((lo + int(np.nanargmin(run)), lo + int(np.nanargmax(run))))
+    return np.array(sorted(keep))
+
+
+def sample_rows(df: pd.DataFrame, max_rows: int, seed: int = 0) -> pd.DataFrame:
+    """At most `max_rows` rows of `df` drawn at random (seeded), in their original order; all of
+    them when there are no more. A uniform sample keeps the cloud's shape and the groups' shares."""
+    if len(df) <= max_rows:
+        return df
+    rng = np.random.default_rng(seed)
+    return df.iloc[np.sort(rng.choice(len(df), size=max_rows, replace=False))]
 
 
 def axis_range(values: Sequence[float] | np.ndarray, pad: float = 0.08, min_span: float = 1e-6) -> tuple[float, float] | None:

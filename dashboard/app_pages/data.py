@@ -68,9 +68,9 @@ def recordings_section(ws) -> None:
         st.dataframe(views.recordings_view(recs), hide_index=True, width="stretch")
     rej = loaders.rejected(root, key)
     if len(rej):
-        with st.expander(f"Refused files ({len(rej)})"):
-            st.dataframe(rej[["source_name", "format", "reason", "rejected_at"]], hide_index=True,
-                         width="stretch")
+        box = st.expander(f"Refused files ({len(rej)})", key="refused_open", on_change="rerun")
+        if box.open:
+            box.dataframe(rej[["source_name", "format", "reason", "rejected_at"]], hide_index=True, width="stretch")
     if recs.empty:
         return
     st.subheader("Recording viewer")

@@ -63,8 +63,9 @@ def main() -> None:
         st.caption("All indicators defined at every press.")
     skipped = views.for_driver(tables.get("skipped"), driver)
     if len(skipped):
-        with st.expander(f"Skipped by the analysis ({len(skipped)})"):
-            st.dataframe(skipped, hide_index=True, width="stretch")
+        box = st.expander(f"Skipped by the analysis ({len(skipped)})", key="skipped_open", on_change="rerun")
+        if box.open:
+            box.dataframe(skipped, hide_index=True, width="stretch")
 
 
 main()

@@ -42,10 +42,12 @@ def held_out_figures(result: dict, in_sample: list | None, key: str) -> None:
         st.dataframe(unscored, hide_index=True, width="stretch")
     else:
         st.caption("Every decision of the target's drivers was scored.")
-    with st.expander("Per fold"):
-        st.plotly_chart(figures.crossval_folds(result.get("per_fold")), key=f"cv_per_fold_{key}")
-        for note in result.get("notes") or []:
-            st.caption(note)
+    per_fold = st.expander("Per fold", key=f"cv_per_fold_open_{key}", on_change="rerun")
+    if per_fold.open:  # drawn only once opened: the page stays quick
+        with per_fold:
+            st.plotly_chart(figures.crossval_folds(result.get("per_fold")), key=f"cv_per_fold_{key}")
+            for note in result.get("notes") or []:
+                st.caption(note)
 
 
 def held_out(ws, run_id: str, run: dict) -> None:
@@ -90,8 +92,10 @@ def held_out(ws, run_id: str, run: dict) -> None:
         st.caption("Not exactly this run's settings: " + "; ".join(differences) + ".")
     held_out_figures(result, ev.get("summary_members") or ev.get("summary"), key=run_id)
     if default is not None and not running:
-        with st.expander("Cross-validate this run again"):
-            widgets.crossval_launcher(ws, run_id, (cfg.get("dqn") or {}).get("episodes"))
+        again = st.expander("Cross-validate this run again", key=f"cv_again_open_{run_id}", on_change="rerun")
+        if again.open:
+            with again:
+                widgets.crossval_launcher(ws, run_id, (cfg.get("dqn") or {}).get("episodes"))
 
 
 def one_run(ws, run_id: str) -> None:
@@ -110,9 +114,11 @@ def one_run(ws, run_id: str) -> None:
     left.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="agent")), key=f"fig11a_{run_id}")
     right.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="greedy")),
                        key=f"fig11g_{run_id}")
-    with st.expander("Training curves (Fig. 9)"):
-        smoothing = widgets.smoothing_slider(key=f"smoothing_{run_id}")
-        st.plotly_chart(training_curves(run["metrics"], smoothing), key=f"fig9_{run_id}")
+    curves = st.expander("Training curves (Fig. 9)", key=f"fig9_open_{run_id}", on_change="rerun")
+    if curves.open:
+        with curves:
+            smoothing = widgets.smoothing_slider(key=f"smoothing_{run_id}")
+            st.plotly_chart(training_curves(run["metrics"], smoothing), key=f"fig9_{run_id}")
 
 
 def compare(ws, runs: list[str]) -> None:

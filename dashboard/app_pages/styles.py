@@ -69,10 +69,12 @@ def main() -> None:
     lines = tables.get("reference_lines")
     if lines is not None:
         st.plotly_chart(reference_lines(lines), key="ref_lines")
-        with st.expander("Reference lines table"):
-            st.dataframe(lines, hide_index=True, width="stretch")
-    with st.expander("Per-driver style assignment"):
-        st.dataframe(styles, hide_index=True, width="stretch")
+        table = st.expander("Reference lines table", key="ref_lines_open", on_change="rerun")
+        if table.open:  # sent only once opened: the page stays quick with many drivers
+            table.dataframe(lines, hide_index=True, width="stretch")
+    assignment = st.expander("Per-driver style assignment", key="assignment_open", on_change="rerun")
+    if assignment.open:
+        assignment.dataframe(styles, hide_index=True, width="stretch")
 
 
 main()
