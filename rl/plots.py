@@ -20,7 +20,8 @@ _COLOURS = {"agent": "#1f77b4", "greedy": "#ff7f0e", "driver": "#2ca02c"}
 #: Points drawn per curve of Fig. 9: a 100 000-episode run draws as fast as a short one.
 MAX_CURVE_POINTS = 2000
 #: Markers drawn per figure of Figs. 10 and 11 (a random sample of the points beyond that; counts use all).
-MAX_MARKERS = 3000
+#: Drawn as SVG, not WebGL: WebGL is several times slower where the browser has no GPU (software GL).
+MAX_MARKERS = 2000
 
 
 def training_curves(metrics: pd.DataFrame, smoothing: float = 0.95, max_points: int = MAX_CURVE_POINTS) -> go.Figure:
@@ -77,9 +78,9 @@ def indicators_at_decisions(changes: pd.DataFrame, lines: dict, who: tuple[str, 
         for name in who:
             part = drawn[drawn["who"] == name]
             n_all = int((shown["who"] == name).sum())
-            fig.add_trace(go.Scattergl(x=part["v_e_mps"], y=part[_COLS[k]], mode="markers", name=f"{name} ({n_all})",
-                                       marker={"color": _COLOURS.get(name), "size": 6, "opacity": 0.7},
-                                       legendgroup=name, showlegend=col == 1), row=1, col=col)
+            fig.add_trace(go.Scatter(x=part["v_e_mps"], y=part[_COLS[k]], mode="markers", name=f"{name} ({n_all})",
+                                     marker={"color": _COLOURS.get(name), "size": 6, "opacity": 0.7},
+                                     legendgroup=name, showlegend=col == 1), row=1, col=col)
         a, b = lines[k]
         fig.add_trace(go.Scatter(x=grid, y=a * grid + b, mode="lines", name="reference line",
                                  line={"color": "red"}, legendgroup="ref", showlegend=col == 1), row=1, col=col)
@@ -109,9 +110,9 @@ def decision_agreement(states: pd.DataFrame, who: str = "agent", x: str = "v_e_m
     for ok, name, symbol, colour in ((True, "same decision", "circle", "#1f77b4"),
                                      (False, "opposite decision", "triangle-up", "#d62728")):
         part = drawn[same.loc[drawn.index] == ok]
-        fig.add_trace(go.Scattergl(x=part[x], y=part[y], mode="markers", name=f"{name} ({int((same == ok).sum())})",
-                                   marker={"symbol": symbol, "color": colour, "size": 6, "opacity": 0.6},
-                                   text=part["label"], hovertemplate="%{text}<br>%{x:.1f}, %{y:.2f}"))
+        fig.add_trace(go.Scatter(x=part[x], y=part[y], mode="markers", name=f"{name} ({int((same == ok).sum())})",
+                                 marker={"symbol": symbol, "color": colour, "size": 6, "opacity": 0.6},
+                                 text=part["label"], hovertemplate="%{text}<br>%{x:.1f}, %{y:.2f}"))
     labels = {"v_e_mps": "ego speed v_e [m/s]", "t_f_s": "t_f [s]", "t_nf_s": "t_nf [s]", "dv_nb_mps": "dv_nb [m/s]"}
     fig.update_layout(title=f"Decisions of the {who} vs the drivers (Fig. 11): {same.mean():.1%} the same"
                       + _drawn_note(len(drawn), len(states), "states"),
