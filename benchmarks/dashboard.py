@@ -1,6 +1,7 @@
 """Time to first render of each dashboard page on a workspace of 100 drivers x 50 decisions and their fleet.
 
     python benchmarks/dashboard.py [--drivers 100] [--decisions 50] [--fleet 100] [--repeat 5] [--browser]
+                                   [--keep DIR] [--baseline DIR]
 
 The workspace is generated in a temporary folder: one short recording per driver
 (`indicators.synthetic.make_recording`), the analysis of a synthetic decisions
@@ -15,9 +16,16 @@ script run, not the browser's drawing): 'cold' clears Streamlit's caches first (
 first visit after the workspace changed), 'warm' is a second visit. Medians [s].
 
 With `--browser` each page is also loaded in headless Chromium from a real server
-(`laneprint dashboard`'s command): time from `goto` until the page's title is shown,
-the script run is over and, where the page has them, the first Plotly chart is drawn;
-'cold' touches the workspace folders first so the cached loaders miss.
+(`laneprint dashboard`'s command): time until the page's title is shown, the script run
+is over and, where the page has them, the first Plotly chart is drawn. 'browser cold'
+and 'browser warm': from `goto` in a new tab of a new browser context (nothing cached:
+this includes loading Streamlit's and Plotly's JavaScript, several MB, as on a first
+visit); 'cold' touches the workspace folders first so the cached loaders miss. 'browser
+nav': in that tab, from the click on the page's sidebar link (coming from another page
+with a chart) -- how the pages switch once the dashboard is open.
+
+`--keep DIR` keeps the workspace for the next run; `--baseline DIR` times the code in
+DIR too (e.g. main in a `git worktree`), its pages visited in turn with this checkout's.
 """
 
 from __future__ import annotations
@@ -109,10 +117,17 @@ def build_fleet(ws: Workspace, n_agents: int, template: str = "bench-0", fleet_i
         "job_id": fleet_id, "pid": None, "fleet_id": fleet_id, "launched_at": now, "request": {}})
 
 
-def render(page: str, cold: bool) -> float:
+PAGE_NAMES = ("data", "drivers", "styles", "training", "results")
+#: (url path, title, has a Plotly chart) of each page
+BROWSER_PAGES = {"data": ("", "Data", True), "drivers": ("drivers", "Drivers", True),
+                 "styles": ("styles", "Styles", True), "training": ("training", "Training", False),
+                 "results": ("results", "Results", True)}
+
+
+def render(page: str, cold: bool, pages: Path = PAGES) -> float:
     if cold:
         st.cache_data.clear()
-    at = AppTest.from_file(str(PAGES / f"{page}.py"), default_timeout=300)
+    at = AppTest.from_file(str(pages / f"{page}.py"), default_timeout=300)
     t0 = time.perf_counter()
     at.run()
     dt = time.perf_counter() - t0
@@ -121,72 +136,115 @@ def render(page: str, cold: bool) -> float:
     return dt
 
 
-def browser_times(ws: Workspace, repeat: int) -> dict[str, tuple[float, float]]:
-    """(cold, warm) median seconds to a drawn page in headless Chromium."""
-    import signal
+def script_times(repeat: int, pages: Path = PAGES) -> dict[str, tuple[float, float]]:
+    """(cold, warm) median seconds of each page's script run (AppTest)."""
+    for page in PAGE_NAMES:
+        render(page, cold=True, pages=pages)  # imports and first compile out of the way
+    return {page: (statistics.median(render(page, cold=True, pages=pages) for _ in range(repeat)),
+                   statistics.median(render(page, cold=False, pages=pages) for _ in range(repeat)))
+            for page in PAGE_NAMES}
+
+
+def baseline_script_times(code: Path, ws: Workspace, repeat: int) -> dict[str, tuple[float, float]]:
+    """`script_times` of the code in `code` (its packages first on the path), in a child process."""
+    import json
+    import subprocess
+
+    out = subprocess.run([sys.executable, __file__, "--keep", str(ws.root), "--repeat", str(repeat),
+                          "--script-json", "--code", str(code)], check=True, capture_output=True, text=True,
+                         cwd=code, env=dict(os.environ, PYTHONPATH=str(code)))
+    return {k: tuple(v) for k, v in json.loads(out.stdout.strip().splitlines()[-1]).items()}
+
+
+def serve(code: Path, ws: Workspace):
+    """`laneprint dashboard`'s streamlit command serving the app of `code` (its packages first on the path)."""
     import socket
     import subprocess
-    import urllib.request
-
-    from playwright.sync_api import expect, sync_playwright
 
     from dashboard.cli import streamlit_command
 
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
-    url = f"http://127.0.0.1:{port}"
-    proc = subprocess.Popen(streamlit_command(port, "127.0.0.1", ws.root), stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL, start_new_session=True,
-                            env=dict(os.environ, LANEPRINT_WORKSPACE=str(ws.root)))
-    out = {}
+    cmd = streamlit_command(port, "127.0.0.1", ws.root)
+    cmd[cmd.index("run") + 1] = str(code / "dashboard" / "app.py")
+    proc = subprocess.Popen(cmd, cwd=code, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+                            env=dict(os.environ, LANEPRINT_WORKSPACE=str(ws.root), PYTHONPATH=str(code)))
+    return proc, f"http://127.0.0.1:{port}"
+
+
+def browser_times(ws: Workspace, repeat: int, codes: list[Path]) -> list[dict[str, tuple[float, float, float]]]:
+    """Per code folder: (cold, warm, nav) median seconds to a drawn page in headless Chromium, the
+    folders' servers visited in turn (the same load on each)."""
+    import signal
+    import urllib.request
+
+    from playwright.sync_api import expect, sync_playwright
+
+    servers = [serve(code, ws) for code in codes]
+    times = [{page: ([], [], []) for page in PAGE_NAMES} for _ in codes]
     try:
-        for _ in range(600):
-            try:
-                urllib.request.urlopen(url + "/_stcore/health", timeout=1)
-                break
-            except OSError:
-                time.sleep(0.1)
+        for _, url in servers:
+            for _ in range(600):
+                try:
+                    urllib.request.urlopen(url + "/_stcore/health", timeout=1)
+                    break
+                except OSError:
+                    time.sleep(0.1)
         args = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=args)
 
-            def visit(path: str, title: str, chart: bool) -> float:
-                ctx = browser.new_context(viewport={"width": 1400, "height": 1200})
-                page = ctx.new_page()
-                t0 = time.perf_counter()
-                page.goto(f"{url}/{path}")
+            def drawn(page, name: str, t0: float) -> float:
+                _, title, chart = BROWSER_PAGES[name]
                 expect(page.get_by_role("heading", name=title, exact=True).first).to_be_visible(timeout=120_000)
                 if chart:
                     expect(page.locator(".js-plotly-plot").first).to_be_visible(timeout=120_000)
                 expect(page.locator('[data-testid="stApp"][data-test-script-state="notRunning"]')).to_be_attached(
                     timeout=120_000)
-                dt = time.perf_counter() - t0
-                ctx.close()
-                return dt
+                return time.perf_counter() - t0
 
-            pages = [("", "Data", True), ("drivers", "Drivers", True), ("styles", "Styles", True),
-                     ("training", "Training", False), ("results", "Results", True)]
-            for path, title, chart in pages:
-                visit(path, title, chart)  # imports out of the way
-            for path, title, chart in pages:
-                cold, warm = [], []
+            def visit(url: str, name: str) -> tuple[float, float]:
+                """A new tab in a new browser context (nothing cached): goto -> drawn; then, in that tab,
+                another page and back to this one by the sidebar (Streamlit's own page switch) -> drawn."""
+                ctx = browser.new_context(viewport={"width": 1400, "height": 1200})
+                page = ctx.new_page()
+                t0 = time.perf_counter()
+                page.goto(f"{url}/{BROWSER_PAGES[name][0]}")
+                opened = drawn(page, name, t0)
+                other = "data" if name == "drivers" else "drivers"
+                page.locator('[data-testid="stSidebarNav"] a', has_text=BROWSER_PAGES[other][1]).first.click()
+                drawn(page, other, time.perf_counter())
+                t0 = time.perf_counter()
+                page.locator('[data-testid="stSidebarNav"] a', has_text=BROWSER_PAGES[name][1]).first.click()
+                nav = drawn(page, name, t0)
+                ctx.close()
+                return opened, nav
+
+            for name in PAGE_NAMES:
+                for _, url in servers:
+                    visit(url, name)  # imports out of the way
+            for name in PAGE_NAMES:
                 for _ in range(repeat):
-                    for sub in ("recordings", "analysis", *(str(p.relative_to(ws.root))
-                                                            for p in ws.root.glob("fleets/*/fleet.json"))):
-                        os.utime(ws.root / sub)  # new cache keys: the loaders read again
-                    cold.append(visit(path, title, chart))
-                    warm.append(visit(path, title, chart))
-                out[title.lower()] = (statistics.median(cold), statistics.median(warm))
+                    for (_, url), t in zip(servers, times):
+                        for sub in ("recordings", "analysis", *(str(p.relative_to(ws.root))
+                                                                for p in ws.root.glob("fleets/*/fleet.json"))):
+                            os.utime(ws.root / sub)  # new cache keys: the loaders read again
+                        cold, _ = visit(url, name)
+                        warm, nav = visit(url, name)
+                        for series, v in zip(t[name], (cold, warm, nav)):
+                            series.append(v)
             browser.close()
     finally:
-        os.killpg(proc.pid, signal.SIGTERM)
-        proc.wait()
-    return out
+        for proc, _ in servers:
+            os.killpg(proc.pid, signal.SIGTERM)
+            proc.wait()
+    return [{name: tuple(statistics.median(v) for v in series) for name, series in t.items()} for t in times]
 
 
 def main() -> None:
+    import json
     import logging
 
     logging.disable(logging.WARNING)  # AppTest's "missing ScriptRunContext" and cache notices
@@ -199,31 +257,46 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None,
                     help="build the workspace in this folder and keep it; reuse it when it is there already "
                          "(the same workspace before and after a change)")
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="also time the dashboard of the code in this folder (e.g. `git worktree add /tmp/main "
+                         "main`), its pages visited in turn with this checkout's: before and after in one run")
+    ap.add_argument("--code", type=Path, default=None, help=argparse.SUPPRESS)  # the pages timed (--baseline)
+    ap.add_argument("--script-json", action="store_true", help=argparse.SUPPRESS)  # script times as JSON only
     args = ap.parse_args()
+    pages = (args.code / "dashboard" / "app_pages") if args.code else PAGES
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         root = args.keep.resolve() if args.keep else Path(tmp) / "ws"
-        if (root / "analysis").is_dir():
+        if (root / "fleets").is_dir() or (root / "analysis").is_dir() and not args.fleet:
             ws = Workspace(root)
         else:
             ws = build(root, args.drivers, args.decisions)
             if args.fleet:
                 build_fleet(ws, args.fleet)
+        os.environ["LANEPRINT_WORKSPACE"] = str(ws.root)
+        if args.script_json:
+            print(json.dumps(script_times(args.repeat, pages)))
+            return
         print(f"workspace: {args.drivers} drivers x {args.decisions} decisions, "
               f"{len(ws.read_table('analysis', 'decisions'))} decision rows, a fleet of {args.fleet} agents "
               f"({len(list(ws.runs_dir.iterdir()))} runs in all), built in {time.perf_counter() - t0:.1f} s")
-        os.environ["LANEPRINT_WORKSPACE"] = str(ws.root)
-        for page in ("data", "drivers", "styles", "training", "results"):
-            render(page, cold=True)  # imports and first compile out of the way
-        print(f"{'page':<10} {'cold [s]':>9} {'warm [s]':>9}   (median of {args.repeat})")
-        for page in ("data", "drivers", "styles", "training", "results"):
-            cold = statistics.median(render(page, cold=True) for _ in range(args.repeat))
-            warm = statistics.median(render(page, cold=False) for _ in range(args.repeat))
-            print(f"{page:<10} {cold:>9.3f} {warm:>9.3f}")
-        if args.browser:
-            print(f"\nheadless Chromium, goto -> page drawn: {'page':<10} {'cold [s]':>9} {'warm [s]':>9}")
-            for page, (cold, warm) in browser_times(ws, args.repeat).items():
-                print(f"{'':38}{page:<10} {cold:>9.3f} {warm:>9.3f}")
+        codes = [PAGES.parents[1]] + ([args.baseline.resolve()] if args.baseline else [])
+        names = ["this checkout"] + ([f"baseline {args.baseline}"] if args.baseline else [])
+        scripts = [script_times(args.repeat)]
+        if args.baseline:
+            scripts.append(baseline_script_times(args.baseline.resolve(), ws, args.repeat))
+        browsers = browser_times(ws, args.repeat, codes) if args.browser else [None] * len(codes)
+        for name, script, browser in zip(names, scripts, browsers):
+            print(f"\n{name}: medians of {args.repeat} [s]")
+            head = f"{'page':<10} {'script cold':>11} {'script warm':>11}"
+            if browser:
+                head += f" {'browser cold':>12} {'browser warm':>12} {'browser nav':>11}"
+            print(head)
+            for page in PAGE_NAMES:
+                line = f"{page:<10} {script[page][0]:>11.3f} {script[page][1]:>11.3f}"
+                if browser:
+                    line += f" {browser[page][0]:>12.3f} {browser[page][1]:>12.3f} {browser[page][2]:>11.3f}"
+                print(line)
 
 
 if __name__ == "__main__":

@@ -207,3 +207,15 @@ def test_training_for_a_driver_needs_an_analysis(empty_ws):
     at.radio(key="target_kind").set_value("driver").run()
     assert next(b for b in at.button if b.label == "Start training").disabled
     assert "Nothing to train for yet" in at.info[0].value
+
+
+def test_results_training_curves_run_only_once_opened(use_sample):
+    at = run_page("results")
+    run_id = at.selectbox(key="result_run").value
+    assert not [c for c in charts(at) if "Fig. 9" in c["layout"].get("title", {}).get("text", "")]
+    assert "Training curves (Fig. 9)" in [e.label for e in at.expander]
+    at.session_state[f"fig9_open_{run_id}"] = True  # what opening the expander does
+    at.run()
+    assert not at.exception
+    fig9 = [c for c in charts(at) if "Fig. 9" in c["layout"].get("title", {}).get("text", "")]
+    assert len(fig9) == 1 and at.slider(key=f"smoothing_{run_id}").value == 0.95

@@ -67,3 +67,29 @@ def test_spread_labels_never_overlap_and_prefer_priority():
     assert spread_labels([0.0, 0.0, 1.0], [0.0, 0.0, 1.0], ["a", "b", "c"]).tolist() == ["top", "bottom", "top"]
     assert spread_labels(range(10), [0.0, 1.0] * 5, ["x"] * 10, max_labels=5).tolist().count("") == 5
     assert spread_labels([], [], []).tolist() == []
+
+
+def test_envelope_keeps_extremes_and_ends_within_the_budget():
+    from laneprint.plotting import envelope_indices
+
+    y = np.sin(np.linspace(0, 60, 100_000))
+    y[31_337] = 50.0  # one spike
+    idx = envelope_indices(y, 2000)
+    assert len(idx) <= 2000 and idx[0] == 0 and idx[-1] == len(y) - 1
+    assert (np.diff(idx) > 0).all() and 31_337 in idx
+    assert y[idx].min() == y.min() and y[idx].max() == 50.0
+    assert envelope_indices(y[:50], 2000).tolist() == list(range(50))  # short curves drawn whole
+    assert len(envelope_indices(np.full(10_000, np.nan), 100)) <= 100
+
+
+def test_even_indices_and_sample_rows():
+    import pandas as pd
+
+    from laneprint.plotting import even_indices, sample_rows
+
+    assert even_indices(10, 4).tolist() == [0, 3, 6, 9] and even_indices(3, 10).tolist() == [0, 1, 2]
+    assert len(even_indices(0, 10)) == 0
+    df = pd.DataFrame({"a": range(10_000)})
+    s = sample_rows(df, 500, seed=1)
+    assert len(s) == 500 and s["a"].is_monotonic_increasing and s.equals(sample_rows(df, 500, seed=1))
+    assert sample_rows(df.head(20), 500) is not None and len(sample_rows(df.head(20), 500)) == 20
