@@ -223,9 +223,11 @@ def run_ids(ws: Workspace) -> list[str]:
     ids |= {p.stem for p in jobs_dir(ws).glob("*.json")}
 
     def started(rid: str) -> float:
-        for p in (ws.runs_dir / rid / "status.json", jobs_dir(ws) / f"{rid}.json", ws.runs_dir / rid):
+        # config.json is written when a run starts (or resumes); a folder's or status's ctime also moves
+        # when a lock file or a cross-validation appears in it, which made an old run "newest"
+        for p in (ws.runs_dir / rid / "config.json", jobs_dir(ws) / f"{rid}.json", ws.runs_dir / rid):
             try:
-                return p.stat().st_ctime
+                return p.stat().st_mtime
             except OSError:
                 continue
         return 0.0
