@@ -22,7 +22,9 @@ and 'browser warm': from `goto` in a new tab of a new browser context (nothing c
 this includes loading Streamlit's and Plotly's JavaScript, several MB, as on a first
 visit); 'cold' touches the workspace folders first so the cached loaders miss. 'browser
 nav': in that tab, from the click on the page's sidebar link (coming from another page
-with a chart) -- how the pages switch once the dashboard is open.
+with a chart) -- how the pages switch once the dashboard is open. 'floor': the
+same fresh-tab measurement of a one-chart Streamlit page, visited in turn with the
+pages: what opening any Streamlit + Plotly page costs on this machine.
 
 `--keep DIR` keeps the workspace for the next run; `--baseline DIR` times the code in
 DIR too (e.g. main in a `git worktree`), its pages visited in turn with this checkout's.
@@ -173,7 +175,34 @@ def serve(code: Path, ws: Workspace):
     return proc, f"http://127.0.0.1:{port}"
 
 
-def browser_times(ws: Workspace, repeat: int, codes: list[Path]) -> list[dict[str, tuple[float, float, float]]]:
+FLOOR_APP = """import plotly.graph_objects as go
+import streamlit as st
+
+st.title("Floor")
+st.plotly_chart(go.Figure(go.Scatter(x=[0, 1, 2], y=[0, 1, 0])))
+"""
+
+
+def serve_floor(folder: Path, ws: Workspace):
+    """The same streamlit command serving a one-chart page: what any Streamlit + Plotly page costs to open."""
+    import socket
+    import subprocess
+
+    from dashboard.cli import streamlit_command
+
+    (folder / "floor.py").write_text(FLOOR_APP)
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    cmd = streamlit_command(port, "127.0.0.1", ws.root)
+    cmd[cmd.index("run") + 1] = str(folder / "floor.py")
+    proc = subprocess.Popen(cmd, cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    return proc, f"http://127.0.0.1:{port}"
+
+
+def browser_times(ws: Workspace, repeat: int, codes: list[Path],
+                  floor: list[float] | None = None) -> list[dict[str, tuple[float, float, float]]]:
     """Per code folder: (cold, warm, nav) median seconds to a drawn page in headless Chromium, the
     folders' servers visited in turn (the same load on each)."""
     import signal
@@ -181,10 +210,12 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path]) -> list[dict[st
 
     from playwright.sync_api import expect, sync_playwright
 
-    servers = [serve(code, ws) for code in codes]
+    floor_dir = Path(tempfile.mkdtemp(prefix="laneprint-floor-"))
+    servers = [serve(code, ws) for code in codes] + ([serve_floor(floor_dir, ws)] if floor is not None else [])
+    floor_server = servers.pop() if floor is not None else None
     times = [{page: ([], [], []) for page in PAGE_NAMES} for _ in codes]
     try:
-        for _, url in servers:
+        for _, url in servers + ([floor_server] if floor_server else []):
             for _ in range(600):
                 try:
                     urllib.request.urlopen(url + "/_stcore/health", timeout=1)
@@ -197,7 +228,7 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path]) -> list[dict[st
             browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=args)
 
             def drawn(page, name: str, t0: float) -> float:
-                _, title, chart = BROWSER_PAGES[name]
+                _, title, chart = BROWSER_PAGES.get(name, ("", "Floor", True))
                 expect(page.get_by_role("heading", name=title, exact=True).first).to_be_visible(timeout=120_000)
                 if chart:
                     expect(page.locator(".js-plotly-plot").first).to_be_visible(timeout=120_000)
@@ -235,9 +266,16 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path]) -> list[dict[st
                         warm, nav = visit(url, name)
                         for series, v in zip(t[name], (cold, warm, nav)):
                             series.append(v)
+                    if floor_server is not None:  # the floor under the same load, in turn with the pages
+                        ctx = browser.new_context(viewport={"width": 1400, "height": 1200})
+                        page = ctx.new_page()
+                        t0 = time.perf_counter()
+                        page.goto(floor_server[1])
+                        floor.append(drawn(page, "floor", t0))
+                        ctx.close()
             browser.close()
     finally:
-        for proc, _ in servers:
+        for proc, _ in servers + ([floor_server] if floor_server else []):
             os.killpg(proc.pid, signal.SIGTERM)
             proc.wait()
     return [{name: tuple(statistics.median(v) for v in series) for name, series in t.items()} for t in times]
@@ -285,7 +323,8 @@ def main() -> None:
         scripts = [script_times(args.repeat)]
         if args.baseline:
             scripts.append(baseline_script_times(args.baseline.resolve(), ws, args.repeat))
-        browsers = browser_times(ws, args.repeat, codes) if args.browser else [None] * len(codes)
+        floor: list[float] = []
+        browsers = browser_times(ws, args.repeat, codes, floor) if args.browser else [None] * len(codes)
         for name, script, browser in zip(names, scripts, browsers):
             print(f"\n{name}: medians of {args.repeat} [s]")
             head = f"{'page':<10} {'script cold':>11} {'script warm':>11}"
@@ -297,6 +336,10 @@ def main() -> None:
                 if browser:
                     line += f" {browser[page][0]:>12.3f} {browser[page][1]:>12.3f} {browser[page][2]:>11.3f}"
                 print(line)
+        if floor:
+            print(f"\nfloor: a one-chart Streamlit page (title + a 3-point Plotly chart) opened in a new tab of a "
+                  f"new browser context, visited in turn with the pages: median {statistics.median(floor):.3f} s "
+                  f"(min {min(floor):.3f}, max {max(floor):.3f}, {len(floor)} visits)")
 
 
 if __name__ == "__main__":
