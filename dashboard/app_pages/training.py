@@ -179,8 +179,7 @@ def main() -> None:
         if not active:
             st.caption("No training running.")
         elif len(still) < len(active):
-            st.session_state["show_run"] = next(r for r in active if r not in still)  # show the one that ended
-            st.rerun()  # redraw the whole page: past runs, polling off when none is left
+            st.rerun()  # redraw the whole page: past runs (the one that ended shown), polling off when none is left
 
     live_runs()
     fleets_section(ws)
@@ -198,6 +197,13 @@ def main() -> None:
     st.dataframe(table, hide_index=True, width="stretch")
     finished = table.loc[~table["state"].isin(jobs.ACTIVE_STATES), "run_id"].tolist()
     if finished:
+        # a run that ended since this session last drew the list is shown, however the page learnt of it
+        # (the live panel's rerun, or a rerun that came first); the list is newest first
+        seen = st.session_state.get("finished_seen")
+        ended = [r for r in finished if seen is not None and r not in seen]
+        if ended:
+            st.session_state["show_run"] = ended[0]
+        st.session_state["finished_seen"] = finished
         rid = st.selectbox("Show run", finished, key="show_run")
         status = jobs.run_status(ws, rid)
         run_panel(ws, rid, status, smoothing)
