@@ -12,6 +12,16 @@ from dashboard.context import poll_seconds
 from laneprint.progress import ProgressFn
 
 
+def lazy_expander(label: str, key: str):
+    """An expander whose content runs only once it is open: returns its container when open, else None.
+
+    A closed `st.expander` still runs and sends its charts and tables; with many drivers
+    that made pages slow to draw. Opening it costs one rerun.
+    """
+    box = st.expander(label, key=key, on_change="rerun")
+    return box if box.open else None
+
+
 def progress_to(bar, default_text: str) -> ProgressFn:
     """A stage `progress(done, total, message)` callback drawing on an `st.progress` bar."""
 

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import streamlit as st
 
-from dashboard import figures, loaders, uploads, views
+from dashboard import figures, loaders, uploads, views, widgets
 from dashboard.context import max_upload_bytes, workspace
 from dashboard.widgets import progress_to
 from laneprint.errors import UserError
@@ -68,8 +68,7 @@ def recordings_section(ws) -> None:
         st.dataframe(views.recordings_view(recs), hide_index=True, width="stretch")
     rej = loaders.rejected(root, key)
     if len(rej):
-        box = st.expander(f"Refused files ({len(rej)})", key="refused_open", on_change="rerun")
-        if box.open:
+        if box := widgets.lazy_expander(f"Refused files ({len(rej)})", key="refused_open"):
             box.dataframe(rej[["source_name", "format", "reason", "rejected_at"]], hide_index=True, width="stretch")
     if recs.empty:
         return

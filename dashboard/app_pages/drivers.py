@@ -2,7 +2,7 @@
 
 import streamlit as st
 
-from dashboard import figures, loaders, views
+from dashboard import figures, loaders, views, widgets
 from dashboard.context import workspace
 from indicators.plots import correlation_table, indicator_vs_speed
 
@@ -63,8 +63,7 @@ def main() -> None:
         st.caption("All indicators defined at every press.")
     skipped = views.for_driver(tables.get("skipped"), driver)
     if len(skipped):
-        box = st.expander(f"Skipped by the analysis ({len(skipped)})", key="skipped_open", on_change="rerun")
-        if box.open:
+        if box := widgets.lazy_expander(f"Skipped by the analysis ({len(skipped)})", key="skipped_open"):
             box.dataframe(skipped, hide_index=True, width="stretch")
 
 

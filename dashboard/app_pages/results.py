@@ -42,8 +42,7 @@ def held_out_figures(result: dict, in_sample: list | None, key: str) -> None:
         st.dataframe(unscored, hide_index=True, width="stretch")
     else:
         st.caption("Every decision of the target's drivers was scored.")
-    per_fold = st.expander("Per fold", key=f"cv_per_fold_open_{key}", on_change="rerun")
-    if per_fold.open:  # drawn only once opened: the page stays quick
+    if per_fold := widgets.lazy_expander("Per fold", key=f"cv_per_fold_open_{key}"):
         with per_fold:
             st.plotly_chart(figures.crossval_folds(result.get("per_fold")), key=f"cv_per_fold_{key}")
             for note in result.get("notes") or []:
@@ -92,8 +91,7 @@ def held_out(ws, run_id: str, run: dict) -> None:
         st.caption("Not exactly this run's settings: " + "; ".join(differences) + ".")
     held_out_figures(result, ev.get("summary_members") or ev.get("summary"), key=run_id)
     if default is not None and not running:
-        again = st.expander("Cross-validate this run again", key=f"cv_again_open_{run_id}", on_change="rerun")
-        if again.open:
+        if again := widgets.lazy_expander("Cross-validate this run again", key=f"cv_again_open_{run_id}"):
             with again:
                 widgets.crossval_launcher(ws, run_id, (cfg.get("dqn") or {}).get("episodes"))
 
@@ -114,8 +112,7 @@ def one_run(ws, run_id: str) -> None:
     left.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="agent")), key=f"fig11a_{run_id}")
     right.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="greedy")),
                        key=f"fig11g_{run_id}")
-    curves = st.expander("Training curves (Fig. 9)", key=f"fig9_open_{run_id}", on_change="rerun")
-    if curves.open:
+    if curves := widgets.lazy_expander("Training curves (Fig. 9)", key=f"fig9_open_{run_id}"):
         with curves:
             smoothing = widgets.smoothing_slider(key=f"smoothing_{run_id}")
             st.plotly_chart(training_curves(run["metrics"], smoothing), key=f"fig9_{run_id}")

@@ -3,7 +3,7 @@
 import streamlit as st
 
 from clustering.plots import cluster_scatter, reference_lines
-from dashboard import figures, loaders, views
+from dashboard import figures, loaders, views, widgets
 from dashboard.context import workspace
 from dashboard.widgets import progress_to
 from laneprint.errors import UserError
@@ -69,11 +69,9 @@ def main() -> None:
     lines = tables.get("reference_lines")
     if lines is not None:
         st.plotly_chart(reference_lines(lines), key="ref_lines")
-        table = st.expander("Reference lines table", key="ref_lines_open", on_change="rerun")
-        if table.open:  # sent only once opened: the page stays quick with many drivers
+        if table := widgets.lazy_expander("Reference lines table", key="ref_lines_open"):
             table.dataframe(lines, hide_index=True, width="stretch")
-    assignment = st.expander("Per-driver style assignment", key="assignment_open", on_change="rerun")
-    if assignment.open:
+    if assignment := widgets.lazy_expander("Per-driver style assignment", key="assignment_open"):
         assignment.dataframe(styles, hide_index=True, width="stretch")
 
 
