@@ -101,8 +101,8 @@ class StackedReplay:
         """Transitions held by each memory (K,)."""
         return np.where(self.full, self.size, self.pos)
 
-    def add_all(self, obs, next_obs, actions, rewards, terminated) -> None:
-        """Add n transitions (K, n, ...) to every memory: `add` for each j at once."""
+    def add(self, obs, next_obs, actions, rewards, terminated) -> None:
+        """Add n transitions (K, n, ...) to every memory, each at its own write position."""
         n = actions.shape[1]
         idx = (self.pos[:, None] + np.arange(n)) % self.size
         rows = np.arange(len(self.pos))[:, None]
@@ -110,14 +110,6 @@ class StackedReplay:
         self.actions[rows, idx], self.rewards[rows, idx], self.terminated[rows, idx] = actions, rewards, terminated
         self.full |= self.pos + n >= self.size
         self.pos = (self.pos + n) % self.size
-
-    def add(self, j: int, obs, next_obs, actions, rewards, terminated) -> None:
-        n = len(actions)
-        idx = (self.pos[j] + np.arange(n)) % self.size
-        self.obs[j, idx], self.next_obs[j, idx] = obs, next_obs
-        self.actions[j, idx], self.rewards[j, idx], self.terminated[j, idx] = actions, rewards, terminated
-        self.full[j] = self.full[j] or self.pos[j] + n >= self.size
-        self.pos[j] = (self.pos[j] + n) % self.size
 
     def sample(self, idx: np.ndarray) -> tuple[torch.Tensor, ...]:
         """The transitions idx (K, B) of each memory, as tensors (K, B, ...)."""
@@ -271,7 +263,7 @@ class FleetTrainer:
         # 2. step every agent's environments together, and store (the true last observation
         # of finished episodes, as DQNTrainer)
         out = self._envs.step(actions)
-        self.buffer.add_all(obs, out["final_obs"], actions, out["reward"], out["terminated"].astype(np.float32))
+        self.buffer.add(obs, out["final_obs"], actions, out["reward"], out["terminated"].astype(np.float32))
         self._obs = out["obs"]
         for a in self.agents:
             a.env_steps += n
