@@ -5,7 +5,7 @@ supervised classifiers of press vs not-yet state are fitted on the training
 folds' states, in the agent's own observation, and judged on the held-out fold:
 
 - `trees`: the imitation benchmark (`rl.imitation`, gradient-boosted trees);
-- `mlp`: the agent's own network shape (hidden 128-128-128, ReLU), trained
+- `mlp`: the agent's own network (`rl.dqn.q_network`, one output), trained
   directly on the labels (class-balanced cross-entropy, Adam, 60 epochs);
 - `mlp-piecewise`: the same network reading each input piecewise-linearly over 8
   quantile bins of the training states (Gorishniy et al., NeurIPS 2022).
@@ -33,6 +33,7 @@ from sklearn.metrics import roc_auc_score  # noqa: E402
 
 from laneprint.workspace import Workspace  # noqa: E402
 from rl.crossval import CrossvalSettings, assign_folds  # noqa: E402
+from rl.dqn import DQNSettings, q_network  # noqa: E402
 from rl.env import EnvConfig, approaches_from_decisions, formulation_config  # noqa: E402
 from rl.imitation import ImitationClassifier, labelled_states  # noqa: E402
 from rl.runs import Target, _eval_drivers  # noqa: E402
@@ -50,11 +51,7 @@ def mlp_scores(x_train: np.ndarray, y_train: np.ndarray, x_test: np.ndarray, see
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
     xt, yt = torch.from_numpy(x_train.astype(np.float32)), torch.from_numpy(y_train.astype(np.float32))
-    layers, width = [], x_train.shape[1]
-    for h in (128, 128, 128):
-        layers += [torch.nn.Linear(width, h), torch.nn.ReLU()]
-        width = h
-    net = torch.nn.Sequential(*layers, torch.nn.Linear(width, 1))
+    net = q_network(DQNSettings().hidden, x_train.shape[1], n_actions=1)  # the agent's network, one output
     opt = torch.optim.Adam(net.parameters(), lr=1e-3)
     weight = torch.where(yt == 1, float((1 - y_train.mean()) / y_train.mean()), 1.0)
     for _ in range(epochs):
