@@ -210,9 +210,11 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path],
 
     from playwright.sync_api import expect, sync_playwright
 
-    floor_dir = Path(tempfile.mkdtemp(prefix="laneprint-floor-"))
-    servers = [serve(code, ws) for code in codes] + ([serve_floor(floor_dir, ws)] if floor is not None else [])
-    floor_server = servers.pop() if floor is not None else None
+    import shutil
+
+    servers = [serve(code, ws) for code in codes]
+    floor_dir = Path(tempfile.mkdtemp(prefix="laneprint-floor-")) if floor is not None else None
+    floor_server = serve_floor(floor_dir, ws) if floor_dir else None
     times = [{page: ([], [], []) for page in PAGE_NAMES} for _ in codes]
     try:
         for _, url in servers + ([floor_server] if floor_server else []):
@@ -278,6 +280,8 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path],
         for proc, _ in servers + ([floor_server] if floor_server else []):
             os.killpg(proc.pid, signal.SIGTERM)
             proc.wait()
+        if floor_dir:
+            shutil.rmtree(floor_dir, ignore_errors=True)
     return [{name: tuple(statistics.median(v) for v in series) for name, series in t.items()} for t in times]
 
 
