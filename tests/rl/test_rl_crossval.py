@@ -122,8 +122,22 @@ def test_folds_deal_every_drivers_sessions_and_are_seeded():
     assert folds == assign_folds(s, CrossvalSettings(folds=4, seed=1))
     for d in ("A", "B"):
         assert sorted(folds[f"{d}-{k}"] for k in range(4)) == [0, 1, 2, 3]
+    assert folds != assign_folds(s, CrossvalSettings(folds=4, seed=2))
     by_section = assign_folds(s, CrossvalSettings(folds=2, split="section"))
     assert by_section["A-0"] == by_section["B-1"] == 0 and by_section["A-3"] == 1
+
+
+def test_session_folds_keep_every_speed_section_in_training():
+    """Three drivers, one session per section: a fold never holds out two sessions of one section
+    (a random deal did, and scored extrapolation over speed as a new session)."""
+    s = pd.DataFrame({"recording_id": [f"{d}-{k}" for d in ("A", "B", "C") for k in range(4)],
+                      "driver_id": [d for d in ("A", "B", "C") for _ in range(4)],
+                      "speed_limit_kph": [60.0, 70.0, 80.0, 90.0] * 3})
+    for seed in range(5):
+        folds = assign_folds(s, CrossvalSettings(folds=4, seed=seed))
+        s["fold"] = s["recording_id"].map(folds)
+        assert (s.groupby(["fold", "speed_limit_kph"]).size() == 1).all()
+        assert sorted(s.groupby("fold").size()) == [3, 3, 3, 3]
 
 
 def test_crossval_scores_every_decision_once_on_sessions_not_trained_on():
