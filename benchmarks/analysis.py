@@ -151,7 +151,9 @@ def messy(n_seeds: int) -> None:
 
     print(f"== messy studies ({MESSY}), {n_seeds} seeds: ARI per clustering-feature variant")
     base = AnalysisSettings(n_bootstrap=0)
-    variants = {"huber on log TTC (default)": base, "theilsen on log TTC": base.with_(feature_fit="theilsen"),
+    variants = {"huber on log TTC (default)": base,
+                "huber, lines extrapolated": base.with_(feature_extrapolate=True),
+                "theilsen on log TTC": base.with_(feature_fit="theilsen"),
                 "ols on log TTC": base.with_(feature_fit="ols"),
                 "ols on raw TTC": base.with_(feature_fit="ols", feature_log=False),
                 "huber, with dv_nb features": base.with_(feature_indicators=("t_f", "t_nf", "dv_nb"))}

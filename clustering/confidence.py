@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from clustering.features import feature_groups, feature_names, group_values, lines_by_row, to_space
+from clustering.features import feature_groups, feature_names, feature_speeds, group_values, lines_by_row, to_space
 from clustering.styles import StyleClusterer
 from indicators.settings import AnalysisSettings
 
@@ -35,7 +35,8 @@ def bootstrap_stability(points: pd.DataFrame, drivers: list[str], labels: np.nda
             values[:, di, ii * n:(ii + 1) * n] = np.median(ys[idx], axis=1)[:, None]
             continue
         A, b = lines_by_row(g.v[idx], ys[idx], settings.feature_fit)
-        values[:, di, ii * n:(ii + 1) * n] = A[:, None] * speeds[None, :] + b[:, None]
+        at = feature_speeds(speeds, g.v, settings)  # the driver's own range, as its features
+        values[:, di, ii * n:(ii + 1) * n] = A[:, None] * at[None, :] + b[:, None]
     flat = pd.DataFrame(values.reshape(B * len(drivers), -1), columns=clf.feature_names_in_)
     pred = clf.predict(flat).reshape(B, len(drivers))
     return (pred == labels[None, :]).mean(axis=0)

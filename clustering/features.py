@@ -1,10 +1,12 @@
 """Per-driver clustering features: each driver's (robustly fitted) indicator line,
-evaluated at the section speeds.
+evaluated at the section speeds (within the speeds of the driver's own presses).
 
 For every driver and indicator in `feature_indicators`, a line of the indicator
 against ego speed is fitted on the driver's presses (Huber by default, on
 log-TTC by default, so a few decisions made behind a slow leader with TTCs of tens
-of seconds do not drag the line) and evaluated at `feature_speeds_kph`. Values are
+of seconds do not drag the line) and evaluated at `feature_speeds_kph`, each
+clipped to the range of speeds the driver's presses of that indicator span: a
+line is not extrapolated (see `AnalysisSettings.feature_extrapolate`). Values are
 reported back in the indicator's unit (seconds for TTCs). When a line cannot be
 fitted (fewer than 3 points or no speed spread) the driver's median is used at
 every speed; when there are no defined values at all the features are NaN and the
@@ -108,6 +110,15 @@ def to_space(y: np.ndarray, indicator: str, settings: AnalysisSettings) -> np.nd
     return np.log(np.maximum(y, LOG_FLOOR_S)) if (is_ttc and settings.feature_log) else y
 
 
+def feature_speeds(speeds_mps: np.ndarray, v: np.ndarray, settings: AnalysisSettings) -> np.ndarray:
+    """Where a driver's line is read for its features: `speeds_mps`, or, unless
+    `feature_extrapolate`, those speeds clipped to the range of the driver's own presses
+    `v` (a line fitted on 7 presses at 68-87 km/h says little about 60 km/h)."""
+    if settings.feature_extrapolate or len(v) == 0:
+        return speeds_mps
+    return np.clip(speeds_mps, np.min(v), np.max(v))
+
+
 def group_values(v: np.ndarray, y: np.ndarray, indicator: str, settings: AnalysisSettings,
                  speeds_mps: np.ndarray) -> tuple[np.ndarray, str]:
     """Feature values of one driver/indicator at `speeds_mps`, in the clustering space
@@ -117,7 +128,7 @@ def group_values(v: np.ndarray, y: np.ndarray, indicator: str, settings: Analysi
         why = "too few points" if len(v) < 3 else "no speed spread"
         return np.full(len(speeds_mps), float(np.median(yt))), f"{indicator}: {why}, median used"
     A, b = robust_line(v, yt, settings.feature_fit)
-    return A * speeds_mps + b, ""
+    return A * feature_speeds(speeds_mps, v, settings) + b, ""
 
 
 def feature_groups(points: pd.DataFrame, drivers: list[str], settings: AnalysisSettings):
@@ -168,8 +179,8 @@ def driver_features(points: pd.DataFrame, drivers: list[str],
         for r, (_, _, v, y) in enumerate(chunk):
             V[r, :len(v)], Y[r, :len(y)] = v, y
         A, b = lines_by_row(V, Y, settings.feature_fit)
-        for r, (di, ii, _, _) in enumerate(chunk):
-            values[di, ii * n:(ii + 1) * n] = A[r] * speeds + b[r]
+        for r, (di, ii, v, _) in enumerate(chunk):
+            values[di, ii * n:(ii + 1) * n] = A[r] * feature_speeds(speeds, v, settings) + b[r]
     feats = pd.DataFrame(to_units(values, settings), index=pd.Index(drivers, name="driver_id"),
                          columns=feature_names(settings))
     return feats, notes

@@ -34,6 +34,19 @@ def test_features_are_line_values_in_seconds():
     assert notes["D1"] == ["t_nf: no defined values, imputed"]
 
 
+def test_lines_are_not_extrapolated_beyond_the_drivers_speeds():
+    """7 presses at 68-86 km/h: the 60 km/h feature is the line at 68 km/h, not a guess below it."""
+    v = np.linspace(19.0, 24.0, 7)
+    pts = pd.DataFrame({"driver_id": "D1", "decision_id": [f"d{i}" for i in range(7)], "indicator": "t_f",
+                        "v": v, "y": np.exp(0.3 * v), "status": "ok", "used": True})
+    feats, _ = driver_features(pts, ["D1"], AnalysisSettings())
+    assert feats.loc["D1", "t_f_at_60kph_s"] == pytest.approx(np.exp(0.3 * 19.0))
+    assert feats.loc["D1", "t_f_at_90kph_s"] == pytest.approx(np.exp(0.3 * 24.0))
+    assert feats.loc["D1", "t_f_at_80kph_s"] == pytest.approx(np.exp(0.3 * 80 / 3.6))
+    wide, _ = driver_features(pts, ["D1"], AnalysisSettings(feature_extrapolate=True))
+    assert wide.loc["D1", "t_f_at_60kph_s"] == pytest.approx(np.exp(0.3 * 60 / 3.6))
+
+
 @pytest.mark.parametrize("method", ["huber", "theilsen", "ols"])
 def test_rows_padded_with_nan_fit_like_unpadded(method):
     rng = np.random.default_rng(8)
