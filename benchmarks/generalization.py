@@ -30,8 +30,9 @@ import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import redirect_stdout
+from functools import partial
 from pathlib import Path
+from typing import TextIO
 
 from sklearn.metrics import adjusted_rand_score
 
@@ -68,12 +69,13 @@ def pct(x: float | None) -> str:
 Checks = list[tuple[str, bool]]
 
 
-def held_out_table(name: str, results: list[dict]) -> Checks:
-    """Print one study's held-out table; returns the acceptance checks, named."""
-    print(f"\n## {name}: held out by session")
-    print("| style | agent bal. acc. [95 % CI] | greedy | imitation | agent - greedy | agent - imitation "
-          "| timing MAE agent / greedy [s] | recall agent | scored |")
-    print("|---|---|---|---|---|---|---|---|---|")
+def held_out_table(name: str, results: list[dict], out: TextIO) -> Checks:
+    """Print one study's held-out table to `out`; returns the acceptance checks, named."""
+    say = partial(print, file=out)
+    say(f"\n## {name}: held out by session")
+    say("| style | agent bal. acc. [95 % CI] | greedy | imitation | agent - greedy | agent - imitation "
+        "| timing MAE agent / greedy [s] | recall agent | scored |")
+    say("|---|---|---|---|---|---|---|---|---|")
     checks = []
     for res in results:
         rows = {r["who"]: r for r in res["summary"]}
@@ -82,10 +84,10 @@ def held_out_table(name: str, results: list[dict]) -> Checks:
         d_g = a["balanced_accuracy"] - g["balanced_accuracy"]
         d_m = a["balanced_accuracy"] - m["balanced_accuracy"]
         ta, tg = a["timing_mae_s"], g["timing_mae_s"]
-        print(f"| {res['target']['name']} | {pct(a['balanced_accuracy'])} [{pct(lo)}, {pct(hi)}] "
-              f"| {pct(g['balanced_accuracy'])} | {pct(m['balanced_accuracy'])} | {100 * d_g:+.1f} | {100 * d_m:+.1f} "
-              f"| {ta if ta is None else round(ta, 2)} / {tg if tg is None else round(tg, 2)} | {pct(a['recall'])} "
-              f"| {res['n_decisions_scored']}/{res['n_decisions_total']} |")
+        say(f"| {res['target']['name']} | {pct(a['balanced_accuracy'])} [{pct(lo)}, {pct(hi)}] "
+            f"| {pct(g['balanced_accuracy'])} | {pct(m['balanced_accuracy'])} | {100 * d_g:+.1f} | {100 * d_m:+.1f} "
+            f"| {ta if ta is None else round(ta, 2)} / {tg if tg is None else round(tg, 2)} | {pct(a['recall'])} "
+            f"| {res['n_decisions_scored']}/{res['n_decisions_total']} |")
         style = res["target"]["name"]
         checks += [(f"{style}: agent >= greedy + 10", d_g >= 0.10), (f"{style}: agent >= imitation - 5", d_m >= -0.05),
                    (f"{style}: timing error below greedy's", ta is not None and tg is not None and ta < tg),
@@ -93,19 +95,21 @@ def held_out_table(name: str, results: list[dict]) -> Checks:
     return checks
 
 
-def study(name: str, logs: Path, ws: Path, args: argparse.Namespace) -> tuple[Checks, list[dict], float | None]:
+def study(name: str, logs: Path, ws: Path, args: argparse.Namespace,
+          out: TextIO = sys.stdout) -> tuple[Checks, list[dict], float | None]:
+    say = partial(print, file=out)
     t0 = time.perf_counter()
     if not (ws / "analysis" / "styles.parquet").exists():
         cli("ingest", str(logs), "-w", str(ws))
         cli("analyze", "-w", str(ws))
     score = ari(ws, logs)
-    print(f"\n# {name} ({logs}); styles ARI vs ground truth: {score if score is None else round(score, 3)}")
+    say(f"\n# {name} ({logs}); styles ARI vs ground truth: {score if score is None else round(score, 3)}")
     extra = ["--episodes", str(args.episodes)] if args.episodes else []
     res = cli("crossval", "--all", "--folds", str(args.folds), "--seed", str(args.seed), "-w", str(ws), *extra)
-    checks = held_out_table(name, res["results"])
+    checks = held_out_table(name, res["results"], out)
     if score is not None:
         checks.append(("styles ARI >= 0.9", score >= 0.9))
-    print(f"({time.perf_counter() - t0:.0f} s)")
+    say(f"({time.perf_counter() - t0:.0f} s)")
     return checks, res["results"], score
 
 
@@ -130,12 +134,11 @@ def in_sample_shipped(ws: Path, args: argparse.Namespace) -> Checks:
 def sumo_study(seed: int, args: argparse.Namespace) -> tuple[str, Checks, list[dict], float | None]:
     """Simulate (once), analyse and cross-validate one SUMO study; its printout is returned, not printed."""
     logs = args.workdir / f"sumo{args.drivers}_s{seed}"
-    out = io.StringIO()
-    with redirect_stdout(out):
-        if not (logs / "ground_truth.json").exists():
-            cli("simulate", "--engine", "sumo", "--out", str(logs), "--drivers", str(args.drivers), "--seed", str(seed))
-        checks, results, score = study(f"SUMO study, seed {seed}", logs,
-                                       args.workdir / f"ws_sumo{args.drivers}_s{seed}", args)
+    out = io.StringIO()  # studies run in threads: each writes its own printout
+    if not (logs / "ground_truth.json").exists():
+        cli("simulate", "--engine", "sumo", "--out", str(logs), "--drivers", str(args.drivers), "--seed", str(seed))
+    checks, results, score = study(f"SUMO study, seed {seed}", logs,
+                                   args.workdir / f"ws_sumo{args.drivers}_s{seed}", args, out)
     return out.getvalue(), checks, results, score
 
 
