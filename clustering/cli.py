@@ -59,6 +59,9 @@ def analyze_command(
     far_follower_m: Annotated[float, typer.Option("--far-follower-m", help="Target-lane follower beyond this gap has no influence [m].")] = 100.0,
     step_s: Annotated[float, typer.Option("--step-s", help="Spacing of the 'not yet' states before a press [s].")] = 0.5,
     feature_fit: Annotated[str, typer.Option("--feature-fit", help="Line fit for the clustering features: huber, theilsen or ols.")] = "huber",
+    extrapolate_features: Annotated[bool, typer.Option(
+        "--extrapolate-features", help="Read each driver's feature line at every section speed, even beyond "
+                                       "the speeds of its presses (default: within them).")] = False,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the clustering.")] = 0,
 ) -> None:
     """Indicators at every decision, per-driver correlations and fits, styles and reference lines."""
@@ -73,7 +76,8 @@ def analyze_command(
         if step_s <= 0:
             raise UserError("--step-s must be positive")
         settings = AnalysisSettings(k=k, choose_k=choose_k, far_follower_m=far_follower_m, step_s=step_s,
-                                    feature_fit=feature_fit, random_state=seed)
+                                    feature_fit=feature_fit, feature_extrapolate=extrapolate_features,
+                                    random_state=seed)
         ws = Workspace(Path(workspace))
         if not ws.root.is_dir() or ws.recordings().empty:  # before the progress bar draws anything
             raise UserError(f"no recordings in workspace {ws.root}: run `laneprint ingest PATH` first")

@@ -61,10 +61,11 @@ def test_analyze_writes_stage_and_report(workspace, report):
 def test_cli_json(workspace):
     ws, _ = workspace
     res = CliRunner().invoke(app, ["analyze", "-w", str(ws.root), "--json", "--far-follower-m", "120",
-                                   "--choose-k", "silhouette"])
+                                   "--choose-k", "silhouette", "--extrapolate-features"])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
     assert doc["settings"]["far_follower_m"] == 120.0 and doc["settings"]["choose_k"] == "silhouette"
+    assert doc["settings"]["feature_extrapolate"] is True
     assert "drivers" in doc and "styles" in doc and "skipped" in doc
 
 
