@@ -154,6 +154,7 @@ def messy(n_seeds: int) -> None:
     variants = {"huber on log TTC (default)": base,
                 "huber, lines extrapolated": base.with_(feature_extrapolate=True),
                 "theilsen on log TTC": base.with_(feature_fit="theilsen"),
+                "median (flat line) of log TTC": base.with_(feature_fit="median"),
                 "ols on log TTC": base.with_(feature_fit="ols"),
                 "ols on raw TTC": base.with_(feature_fit="ols", feature_log=False),
                 "huber, with dv_nb features": base.with_(feature_indicators=("t_f", "t_nf", "dv_nb"))}

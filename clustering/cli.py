@@ -58,7 +58,7 @@ def analyze_command(
     choose_k: Annotated[Optional[str], typer.Option("--choose-k", help="Choose k by 'silhouette' or 'bic'.")] = None,
     far_follower_m: Annotated[float, typer.Option("--far-follower-m", help="Target-lane follower beyond this gap has no influence [m].")] = 100.0,
     step_s: Annotated[float, typer.Option("--step-s", help="Spacing of the 'not yet' states before a press [s].")] = 0.5,
-    feature_fit: Annotated[str, typer.Option("--feature-fit", help="Line fit for the clustering features: huber, theilsen or ols.")] = "huber",
+    feature_fit: Annotated[str, typer.Option("--feature-fit", help="Line fit for the clustering features: huber, theilsen, ols or median (flat).")] = "huber",
     extrapolate_features: Annotated[bool, typer.Option(
         "--extrapolate-features", help="Read each driver's feature line at every section speed, even beyond "
                                        "the speeds of its presses (default: within them).")] = False,
@@ -71,8 +71,8 @@ def analyze_command(
     def work() -> dict[str, Any]:
         if choose_k not in (None, "silhouette", "bic"):
             raise UserError(f"--choose-k must be 'silhouette' or 'bic', not {choose_k!r}")
-        if feature_fit not in ("theilsen", "huber", "ols"):
-            raise UserError(f"--feature-fit must be theilsen, huber or ols, not {feature_fit!r}")
+        if feature_fit not in ("theilsen", "huber", "ols", "median"):
+            raise UserError(f"--feature-fit must be theilsen, huber, ols or median, not {feature_fit!r}")
         if step_s <= 0:
             raise UserError("--step-s must be positive")
         settings = AnalysisSettings(k=k, choose_k=choose_k, far_follower_m=far_follower_m, step_s=step_s,

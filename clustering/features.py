@@ -35,17 +35,19 @@ def feature_names(settings: AnalysisSettings) -> list[str]:
 
 
 def lines_by_row(V: np.ndarray, Y: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray]:
-    """(A, b) of Y[r] = A[r] V[r] + b[r] for every row r, by 'theilsen', 'huber' or 'ols'.
+    """(A, b) of Y[r] = A[r] V[r] + b[r] for every row r, by 'theilsen', 'huber', 'ols' or 'median'.
 
     Vectorised over rows (all drivers at once, or the resamples of a bootstrap); rows
     of different lengths are padded with NaN. 'theilsen': median of pairwise slopes,
     intercept median(y) - A median(v), as scipy's `theilslopes`; 'huber': IRLS with
     Huber's t = 1.345 and MAD scale (about zero) re-estimated every step, as
-    statsmodels' `RLM(M=HuberT())`.
+    statsmodels' `RLM(M=HuberT())`; 'median': a flat line at the median (A = 0).
     """
     V = np.atleast_2d(np.asarray(V, dtype=float))
     Y = np.atleast_2d(np.asarray(Y, dtype=float))
     ok = np.isfinite(V) & np.isfinite(Y)
+    if method == "median":
+        return np.zeros(len(Y)), _row_nanmedian(np.where(ok, Y, np.nan))
     if method == "theilsen":
         i, j = np.triu_indices(V.shape[1], 1)
         dv = V[:, j] - V[:, i]
@@ -71,7 +73,7 @@ def lines_by_row(V: np.ndarray, Y: np.ndarray, method: str) -> tuple[np.ndarray,
             if done:
                 break
         return A, b
-    raise ValueError(f"unknown feature_fit {method!r}: use 'theilsen', 'huber' or 'ols'")
+    raise ValueError(f"unknown feature_fit {method!r}: use 'theilsen', 'huber', 'ols' or 'median'")
 
 
 _HUBER_T = 1.345

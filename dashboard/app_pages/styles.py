@@ -20,7 +20,7 @@ def rerun_form(ws, current: dict) -> None:
         labels = list(CHOOSE_K)
         chosen = next((lab for lab, v in CHOOSE_K.items() if v == now.choose_k), "fixed k")
         how = c2.selectbox("k chosen by", labels, index=labels.index(chosen), key="choose_k")
-        fits = list(dict.fromkeys([now.feature_fit, "huber", "theilsen", "ols"]))
+        fits = list(dict.fromkeys([now.feature_fit, "huber", "theilsen", "ols", "median"]))
         fit = c3.selectbox("Feature line fit", fits, key="feature_fit",
                            help="How each driver's line is fitted to make the clustering features")
         go = st.form_submit_button("Run analysis", type="primary")

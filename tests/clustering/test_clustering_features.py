@@ -16,6 +16,7 @@ def test_huber_and_theilsen_match_statsmodels_and_scipy():
     y = 0.3 * v + rng.standard_t(2, 45)
     rlm = sm.RLM(y, sm.add_constant(v), M=sm.robust.norms.HuberT()).fit()
     assert robust_line(v, y, "huber") == pytest.approx((rlm.params[1], rlm.params[0]), rel=1e-6)
+    assert robust_line(v, y, "median") == pytest.approx((0.0, np.median(y)))
     ts = stats.theilslopes(y, v)
     assert robust_line(v, y, "theilsen") == pytest.approx((ts.slope, ts.intercept))
     assert robust_line(v, y, "ols") == pytest.approx(tuple(np.polyfit(v, y, 1)))
