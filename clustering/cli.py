@@ -66,13 +66,13 @@ def analyze_command(
 ) -> None:
     """Indicators at every decision, per-driver correlations and fits, styles and reference lines."""
     from clustering.pipeline import analyze
-    from indicators.settings import AnalysisSettings
+    from indicators.settings import FEATURE_FITS, AnalysisSettings
 
     def work() -> dict[str, Any]:
         if choose_k not in (None, "silhouette", "bic"):
             raise UserError(f"--choose-k must be 'silhouette' or 'bic', not {choose_k!r}")
-        if feature_fit not in ("theilsen", "huber", "ols", "median"):
-            raise UserError(f"--feature-fit must be theilsen, huber, ols or median, not {feature_fit!r}")
+        if feature_fit not in FEATURE_FITS:
+            raise UserError(f"--feature-fit must be one of {', '.join(FEATURE_FITS)}, not {feature_fit!r}")
         if step_s <= 0:
             raise UserError("--step-s must be positive")
         settings = AnalysisSettings(k=k, choose_k=choose_k, far_follower_m=far_follower_m, step_s=step_s,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from indicators.settings import AnalysisSettings
+from indicators.settings import FEATURE_FITS, AnalysisSettings
 from indicators.stats import INDICATOR_COLUMNS, iter_groups
 
 LOG_FLOOR_S = 0.05  # TTCs are clipped here before the log (a zero gap gives TTC 0)
@@ -73,7 +73,7 @@ def lines_by_row(V: np.ndarray, Y: np.ndarray, method: str) -> tuple[np.ndarray,
             if done:
                 break
         return A, b
-    raise ValueError(f"unknown feature_fit {method!r}: use 'theilsen', 'huber', 'ols' or 'median'")
+    raise ValueError(f"unknown feature_fit {method!r}: use one of {', '.join(FEATURE_FITS)}")
 
 
 _HUBER_T = 1.345

@@ -12,6 +12,9 @@ from typing import Any
 
 from laneprint.reference import FAR_FOLLOWER_M, SPEED_LIMITS_KPH
 
+#: How a driver's clustering-feature line can be fitted (`AnalysisSettings.feature_fit`).
+FEATURE_FITS: tuple[str, ...] = ("huber", "theilsen", "ols", "median")
+
 
 @dataclass(frozen=True)
 class AnalysisSettings:

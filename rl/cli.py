@@ -208,8 +208,9 @@ def crossval_command(
     all_styles: Annotated[bool, typer.Option("--all", help="Every style of the analysis, one result each.")] = False,
     run: Annotated[Optional[str], typer.Option("--run", help="Take target and settings from a trained run.")] = None,
     folds: Annotated[int, typer.Option("--folds", min=2, help="K: sessions are split into K folds.")] = 4,
-    split: Annotated[str, typer.Option("--split", help="'session' (each driver's sessions dealt to folds, every speed section kept in training) or "
-                                                      "'section' (whole speed sections held out).")] = "session",
+    split: Annotated[str, typer.Option("--split", help="'session' (each driver's sessions dealt to folds, every "
+                                                      "speed section kept in training) or 'section' (whole "
+                                                      "speed sections held out).")] = "session",
     seed: Annotated[int, typer.Option("--seed", help="Seed of the folds, bootstrap, classifier and agents.")] = 0,
     episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, help="Episodes per fold's agent (10000).")] = None,
     reward: RewardOpt = None,

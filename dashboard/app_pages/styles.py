@@ -6,6 +6,7 @@ from clustering.plots import cluster_scatter, reference_lines
 from dashboard import figures, loaders, views, widgets
 from dashboard.context import workspace
 from dashboard.widgets import progress_to
+from indicators.settings import FEATURE_FITS
 from laneprint.errors import UserError
 
 CHOOSE_K = {"fixed k": None, "silhouette": "silhouette", "BIC": "bic"}
@@ -20,7 +21,7 @@ def rerun_form(ws, current: dict) -> None:
         labels = list(CHOOSE_K)
         chosen = next((lab for lab, v in CHOOSE_K.items() if v == now.choose_k), "fixed k")
         how = c2.selectbox("k chosen by", labels, index=labels.index(chosen), key="choose_k")
-        fits = list(dict.fromkeys([now.feature_fit, "huber", "theilsen", "ols", "median"]))
+        fits = list(dict.fromkeys([now.feature_fit, *FEATURE_FITS]))
         fit = c3.selectbox("Feature line fit", fits, key="feature_fit",
                            help="How each driver's line is fitted to make the clustering features")
         go = st.form_submit_button("Run analysis", type="primary")
