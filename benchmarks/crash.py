@@ -7,7 +7,7 @@ ingested, analysed), the command started and SIGKILLed at a random moment of its
 counted), `laneprint check --repair`,
 the killed training runs checked to show as interrupted (CLI and dashboard) and
 resumed from their checkpoint, the command re-run, `laneprint check` again. See
-`laneprint/crash_harness.py` (a new command is one line of its COMMANDS).
+`tests/crash/crash_harness.py` (a new command is one line of its COMMANDS).
 
     .venv/bin/python benchmarks/crash.py [--kills 50] [--seed 0] [--commands ingest,analyze,train,crossval,fleet]
         [--jobs 1] [--out crash.json]
@@ -33,7 +33,8 @@ from pathlib import Path
 # benchmarks/ holds scripts named like packages (dashboard.py, ingest.py): keep it off the import path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
-from laneprint.crash_harness import COMMANDS, run_kills  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "crash"))  # the harness lives beside its tests
+from crash_harness import COMMANDS, run_kills  # noqa: E402
 
 
 def main() -> int:

@@ -67,9 +67,9 @@ def build(root: Path, n_drivers: int, n_decisions: int) -> Workspace:
         ws.write_recording(meta, ego, traffic)
     decisions, _ = make_decision_table(n_drivers, n_decisions, seed=0)
     ws.write_tables("analysis", analyze_tables(decisions), {"settings": {}})
-    from rl.dqn import DQNSettings
-    from rl.env import EnvConfig
-    from rl.rewards import RewardSettings
+    from rl.learners.dqn import DQNSettings
+    from rl.problem.env import EnvConfig
+    from rl.problem.rewards import RewardSettings
     from rl.runs import Target, resolve_lines, train_run
 
     for seed in (0, 1):  # two short real runs, evaluated against the style's members

@@ -39,10 +39,10 @@ import numpy as np
 import pandas as pd
 
 from laneprint.workspace import Workspace
-from rl.env import formulation_config
-from rl.fleet import FleetMember, FleetTrainer
-from rl.fleet_io import fleet_table
-from rl.fleet_runs import _load_members, create_fleet, fleet_targets, train_fleet
+from rl.problem.env import formulation_config
+from rl.fleet.batch import FleetMember, FleetTrainer
+from rl.fleet.store import fleet_table
+from rl.fleet.runs import _load_members, create_fleet, fleet_targets, train_fleet
 from rl.runs import Target, resolve_lines, train_run
 from rl.settings import DQNSettings
 

@@ -1,11 +1,11 @@
 """Where the agent loses to the imitation classifier: the network, or the reinforcement learning?
 
-On the crossval folds of one target (sessions in K folds, `rl.crossval`), three
+On the crossval folds of one target (sessions in K folds, `rl.evaluation.crossval`), three
 supervised classifiers of press vs not-yet state are fitted on the training
 folds' states, in the agent's own observation, and judged on the held-out fold:
 
-- `trees`: the imitation benchmark (`rl.imitation`, gradient-boosted trees);
-- `mlp`: the agent's own network (`rl.dqn.q_network`, one output), trained
+- `trees`: the imitation benchmark (`rl.baselines.imitation`, gradient-boosted trees);
+- `mlp`: the agent's own network (`rl.learners.dqn.q_network`, one output), trained
   directly on the labels (class-balanced cross-entropy, Adam, 60 epochs);
 - `mlp-piecewise`: the same network reading each input piecewise-linearly over 8
   quantile bins of the training states (Gorishniy et al., NeurIPS 2022).
@@ -32,10 +32,10 @@ import torch  # noqa: E402
 from sklearn.metrics import roc_auc_score  # noqa: E402
 
 from laneprint.workspace import Workspace  # noqa: E402
-from rl.crossval import CrossvalSettings, assign_folds  # noqa: E402
-from rl.dqn import DQNSettings, q_network  # noqa: E402
-from rl.env import EnvConfig, approaches_from_decisions, formulation_config  # noqa: E402
-from rl.imitation import ImitationClassifier, labelled_states  # noqa: E402
+from rl.evaluation.crossval import CrossvalSettings, assign_folds  # noqa: E402
+from rl.learners.dqn import DQNSettings, q_network  # noqa: E402
+from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config  # noqa: E402
+from rl.baselines.imitation import ImitationClassifier, labelled_states  # noqa: E402
 from rl.runs import Target, _eval_drivers  # noqa: E402
 
 

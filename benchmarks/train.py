@@ -35,11 +35,11 @@ import numpy as np
 import torch
 
 from laneprint.workspace import Workspace
-from rl.dqn import DQNSettings, DQNTrainer
-from rl.env import EnvConfig, LaneChangeDecisionEnv, approaches_from_decisions
-from rl.evaluate import greedy_policy
-from rl.rewards import CHANGE, ReferenceLines, RewardSettings
-from rl.scene import Scene, observe
+from rl.learners.dqn import DQNSettings, DQNTrainer
+from rl.problem.env import EnvConfig, LaneChangeDecisionEnv, approaches_from_decisions
+from rl.evaluation.evaluate import greedy_policy
+from rl.problem.rewards import CHANGE, ReferenceLines, RewardSettings
+from rl.problem.scene import Scene, observe
 
 PAPER_RECALL = {"Defensive": 0.959, "Normal": 1.0, "Aggressive": 0.986}
 REPO = Path(__file__).resolve().parents[1]

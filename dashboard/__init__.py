@@ -29,6 +29,6 @@ beside its in-sample evaluation, and lists every stored cross-validation.
 Fleets: the Training page launches one (every driver or every style, N seeds) and
 follows it live (agents done, episodes summed over its runs' status.json, a table of
 each agent's figures as it is evaluated); the Results page's Fleets section shows any
-fleet (`rl.fleet_io`) as one sortable row per agent and a dot plot of each target's
+fleet (`rl.fleet.store`) as one sortable row per agent and a dot plot of each target's
 agent, greedy and imitation balanced accuracy.
 """

@@ -469,11 +469,11 @@ def fleet_job_ids(ws: Workspace) -> list[str]:
 
 
 def fleet_job_status(ws: Workspace, job_id: str) -> dict[str, Any]:
-    """State of a launched fleet: the fleet's own (`rl.fleet_io`), or 'starting' / 'failed' before it has one.
+    """State of a launched fleet: the fleet's own (`rl.fleet.store`), or 'starting' / 'failed' before it has one.
 
     Keys: job_id, pid, request, state, message, fleet_id (once known), log (when failed).
     """
-    from rl.fleet_io import fleet_of_pid, load_fleet
+    from rl.fleet.store import fleet_of_pid, load_fleet
 
     path = fleet_jobs_dir(ws) / f"{job_id}.json"
     job = read_json(path)

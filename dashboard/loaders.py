@@ -102,16 +102,16 @@ def crossvals_stamp(root: Path) -> tuple[int, ...]:
 
 @st.cache_data(show_spinner=False, max_entries=16)
 def crossvals(root: str, key: tuple[int, ...]) -> pd.DataFrame:
-    """`rl.crossval_io.list_crossvals`: one row per finished cross-validation."""
-    from rl.crossval_io import list_crossvals
+    """`rl.evaluation.crossval_store.list_crossvals`: one row per finished cross-validation."""
+    from rl.evaluation.crossval_store import list_crossvals
 
     return list_crossvals(Workspace(root))
 
 
 @st.cache_data(show_spinner=False, max_entries=16)
 def crossval(root: str, crossval_id: str, key: tuple[int, ...]) -> dict[str, Any]:
-    """`rl.crossval_io.load_crossval`: one stored cross-validation (result dict, states, changes)."""
-    from rl.crossval_io import load_crossval
+    """`rl.evaluation.crossval_store.load_crossval`: one stored cross-validation (result dict, states, changes)."""
+    from rl.evaluation.crossval_store import load_crossval
 
     return load_crossval(Workspace(root), crossval_id)
 
@@ -163,15 +163,15 @@ def fleets_stamp(root: Path) -> tuple:
 
 @st.cache_data(show_spinner=False, max_entries=16)
 def fleets(root: str, key: tuple[int, ...]) -> pd.DataFrame:
-    """`rl.fleet_io.list_fleets`: one row per fleet, newest first."""
-    from rl.fleet_io import list_fleets
+    """`rl.fleet.store.list_fleets`: one row per fleet, newest first."""
+    from rl.fleet.store import list_fleets
 
     return list_fleets(Workspace(root))
 
 
 @st.cache_data(show_spinner=False, max_entries=16)
 def fleet_table(root: str, fleet_id: str, key: tuple[int, ...]) -> pd.DataFrame:
-    """`rl.fleet_io.fleet_table`: one row per agent of the fleet."""
-    from rl.fleet_io import fleet_table as table
+    """`rl.fleet.store.fleet_table`: one row per agent of the fleet."""
+    from rl.fleet.store import fleet_table as table
 
     return table(Workspace(root), fleet_id)

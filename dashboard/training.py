@@ -44,7 +44,7 @@ def defaults_note() -> str:
 
 def rewards() -> list[str]:
     """Reward formulations the trainer knows, its default first."""
-    from rl.rewards import REWARDS
+    from rl.problem.rewards import REWARDS
     from rl.settings import DEFAULT_REWARD
 
     default = DEFAULT_REWARD

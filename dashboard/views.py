@@ -229,7 +229,7 @@ def crossval_table(held_out: list[dict[str, Any]] | None,
 def unscored_table(result: dict[str, Any]) -> pd.DataFrame:
     """The decisions a cross-validation could not score: reason, what it means, how many."""
     try:
-        from rl.env import SKIP_REASONS
+        from rl.problem.env import SKIP_REASONS
     except ImportError:  # pragma: no cover - the RL stage is part of the package
         SKIP_REASONS = {}
     items = sorted(((str(k), int(v)) for k, v in (result.get("unscored") or {}).items() if v),
@@ -249,7 +249,7 @@ def scored_line(result: dict[str, Any]) -> str:
 
 
 def crossvals_view(table: pd.DataFrame) -> pd.DataFrame:
-    """`rl.crossval_io.list_crossvals` newest first, balanced accuracies in percent."""
+    """`rl.evaluation.crossval_store.list_crossvals` newest first, balanced accuracies in percent."""
     if table is None or table.empty:
         return pd.DataFrame(columns=["crossval_id", "target_kind", "target", "run_id", "reward", "folds"])
     out = table.copy()
@@ -337,7 +337,7 @@ FLEET_COLUMNS = {
 
 
 def fleet_view(table: pd.DataFrame) -> pd.DataFrame:
-    """`rl.fleet_io.fleet_table` for display: percentages, episodes as 'done/total', labelled columns."""
+    """`rl.fleet.store.fleet_table` for display: percentages, episodes as 'done/total', labelled columns."""
     out = pd.DataFrame(index=table.index)
     for col, (label, scale) in FLEET_COLUMNS.items():
         if col == "state":

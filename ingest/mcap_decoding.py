@@ -27,9 +27,9 @@ from mcap.records import Channel, Schema
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 from mcap_ros2.decoder import DecoderFactory as Ros2DecoderFactory
 
+from ingest.alignment import asof, place_presses
 from ingest.logformat import DEFAULT_LENGTH_M, NS_PER_S
 from ingest.mapping import Mapping
-from ingest.mcap_reader import place_presses
 from ingest.mcap_signals import LOG_TIME, McapSignals, Signal, signals_from_v1
 from ingest.rawlog import RawLog, Rejected, first_line
 
@@ -223,11 +223,6 @@ def decode_topic(got: Any, topic: str, time_path: str, factories: list[DecoderFa
     return dec
 
 
-def _asof(sample_times: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Index of the last message at or before each sample (-1 when none yet)."""
-    return np.searchsorted(times, sample_times, side="right") - 1
-
-
 class _SignalReader:
     """Values of signals on the ego samples, from the decoded topics."""
 
@@ -249,7 +244,7 @@ class _SignalReader:
         """Per-message values put on the ego samples (last value at or before each sample)."""
         if dec is self.base:
             return values
-        idx = _asof(self.base.times, dec.times)
+        idx = asof(self.base.times, dec.times)
         out = np.full(len(idx), np.nan)
         out[idx >= 0] = values[idx[idx >= 0]]
         return out
@@ -294,7 +289,7 @@ def _button(reader: _SignalReader, signals: McapSignals) -> tuple[np.ndarray, np
         if ddec is dec:
             dirs = raw_dirs
         else:  # the direction at each button message: the last one published at or before it
-            idx = _asof(dec.times, ddec.times)
+            idx = asof(dec.times, ddec.times)
             dirs[idx >= 0] = raw_dirs[idx[idx >= 0]]
     pressed, direction = place_presses(reader.base.times, dec.times, states, list(dirs))
     return pressed, direction, True

@@ -32,6 +32,7 @@ from ingest.logformat import (
     TOPIC_EGO,
     TOPIC_TRAFFIC,
 )
+from ingest.alignment import asof, place_presses
 from ingest.mapping import Mapping
 from ingest.rawlog import RawLog, Rejected, first_line
 
@@ -294,11 +295,6 @@ def _session_meta(metadata: dict[str, dict[str, str]], mapping: Mapping) -> tupl
     return meta, warnings
 
 
-def _asof(ego_times: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Index of the last message at or before each ego sample (-1 when none yet)."""
-    return np.searchsorted(times, ego_times, side="right") - 1
-
-
 def _decoded_in_time_order(raw: tuple[list[int], list[bytes]], topic: str) -> tuple[np.ndarray, np.ndarray, list]:
     """(log times, the stable order that sorts them, decoded messages) of one topic."""
     times = np.asarray(raw[0], dtype=np.int64)
@@ -313,7 +309,7 @@ def _controls(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | N
     if raw is None or not raw[0]:
         return
     times, order, msgs = _decoded_in_time_order(raw, mapping.topic(TOPIC_CONTROLS))
-    idx = _asof(ego_times, times[order])
+    idx = asof(ego_times, times[order])
     valid = idx >= 0
     for fld, key in (("steer", "steer_rad"), ("throttle", "throttle"), ("brake", "brake")):
         get = _getter(mapping.msg_field(TOPIC_CONTROLS, fld))
@@ -334,29 +330,6 @@ def _button(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | Non
     states = np.array([bool(get_p(msgs[i])) if isinstance(msgs[i], dict) else False for i in order], dtype=bool)
     dirs = [get_d(msgs[i]) if isinstance(msgs[i], dict) else None for i in order]
     ego["lc_button"], ego["lc_direction"] = place_presses(ego_times, times[order], states, dirs)
-
-
-def place_presses(ego_times: np.ndarray, stimes: np.ndarray, states: np.ndarray,
-                  dirs: list[Any]) -> tuple[np.ndarray, np.ndarray]:
-    """Button state on the ego samples (state of the last message), each press on >= 1 sample.
-
-    `stimes`, `states`, `dirs`: the button messages in time order; returns (lc_button, lc_direction).
-    """
-    n = len(ego_times)
-    pressed = np.zeros(n, dtype=bool)
-    direction = np.full(n, None, dtype=object)
-    if not len(stimes):
-        return pressed, direction
-    idx = _asof(ego_times, stimes)
-    pressed[idx >= 0] = states[idx[idx >= 0]]
-    prev = np.concatenate([[False], states[:-1]])
-    for k in np.flatnonzero(states & ~prev):
-        i = int(np.searchsorted(ego_times, stimes[k], side="left"))
-        if i < n:
-            pressed[i] = True
-            if dirs[k] is not None:
-                direction[i] = dirs[k]
-    return pressed, direction
 
 
 def _traffic_arrow(datas: list[bytes], names: dict[str, str], mapping: Mapping) -> dict[str, Any] | None:

@@ -16,7 +16,7 @@ from ingest.cli import ingest_command
 from laneprint.simulator.cli import simulate_command
 from laneprint.pipeline_cli import run_command_cli
 from rl.cli import annotate_command, crossval_command, evaluate_command, export_command, runs_command, train_command
-from rl.drive_cli import drive_command
+from rl.drive.cli import drive_command
 
 app = typer.Typer(
     name="laneprint",

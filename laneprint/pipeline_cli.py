@@ -1,7 +1,7 @@
 """`laneprint run PATH...`: the whole pipeline end to end.
 
 Ingest the logs, analyse the workspace (indicators, fits, styles), then train and
-evaluate one agent per style found (as one fleet, `rl/fleet.py`), and say how to open the dashboard. Each stage
+evaluate one agent per style found (as one fleet, `rl/fleet/batch.py`), and say how to open the dashboard. Each stage
 is the same function its own command calls, so `run` adds no behaviour of its own.
 """
 
@@ -34,8 +34,8 @@ def run_pipeline(paths: list[Path], workspace: Path, driver: str | None, mapping
         analysis = analyze(ws, AnalysisSettings(random_state=seed), progress)
     runs = []
     if train:
-        from rl.dqn import DQNSettings
-        from rl.fleet_runs import create_fleet, train_fleet
+        from rl.learners.dqn import DQNSettings
+        from rl.fleet.runs import create_fleet, train_fleet
         from rl.runs import Target
 
         overrides = {"seed": seed} | ({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {})

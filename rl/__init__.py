@@ -3,7 +3,7 @@
 Importing `rl` registers the environment as ``laneprint/LaneChangeDecision-v0``.
 """
 
-from rl.env import ENV_ID, register
+from rl.problem.env import ENV_ID, register
 
 register()
 

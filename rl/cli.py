@@ -14,7 +14,7 @@ from laneprint.cliutil import (DEFAULT_WS, BackendOpt, JsonOpt, RayAddressOpt, W
                                run_command)
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
-from rl.rewards import REWARDS
+from rl.problem.rewards import REWARDS
 from rl.settings import DEFAULT_REWARD, OBSERVATIONS, SCENES, DQNSettings
 
 RewardOpt = Annotated[Optional[str], typer.Option(
@@ -109,8 +109,8 @@ def train_command(
     """Train a DQN agent for a style or a driver, or a fleet of them; prints the run (or fleet) id."""
 
     def work() -> dict[str, Any]:
-        from rl.env import formulation_config  # heavy imports (torch) only when the command runs
-        from rl.fleet_runs import create_fleet, fleet_targets, is_fleet, train_fleet
+        from rl.problem.env import formulation_config  # heavy imports (torch) only when the command runs
+        from rl.fleet.runs import create_fleet, fleet_targets, is_fleet, train_fleet
         from rl.runs import Target, resolve_lines, train_run
 
         ws = Workspace(workspace)
@@ -226,9 +226,9 @@ def crossval_command(
     """Held-out figures: agent, greedy and imitation scored on sessions none of them was fitted on."""
 
     def work() -> dict[str, Any]:
-        from rl.crossval import CrossvalSettings
-        from rl.crossval_io import crossval_run, run_crossval, style_names, target_env
-        from rl.env import EnvConfig, formulation_config
+        from rl.evaluation.crossval import CrossvalSettings
+        from rl.evaluation.crossval_store import crossval_run, run_crossval, style_names, target_env
+        from rl.problem.env import EnvConfig, formulation_config
         from rl.runs import Target
         from laneprint.parallel import backend_session
 
@@ -273,7 +273,7 @@ def export_command(
 ) -> None:
     """Export a run's policy as ONNX with its observation documented, checked with onnxruntime."""
     def work() -> dict[str, Any]:
-        from rl.export import export_run  # torch and onnx only when the command runs
+        from rl.deploy.export import export_run  # torch and onnx only when the command runs
 
         with progress_bar(not as_json) as progress:
             return export_run(Workspace(workspace), run_id, fmt, out, progress)
@@ -298,7 +298,7 @@ def annotate_command(
 ) -> None:
     """Write a recording again as MCAP with the agent's, greedy's and driver's decisions at every step."""
     def work() -> dict[str, Any]:
-        from rl.annotate import annotate_recording  # torch only when the command runs
+        from rl.deploy.annotate import annotate_recording  # torch only when the command runs
 
         with progress_bar(not as_json) as progress:
             return annotate_recording(Workspace(workspace), run_id, recording, out, progress)

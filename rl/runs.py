@@ -38,11 +38,11 @@ from laneprint.errors import UserError
 from laneprint.locks import FileLock, is_locked
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
-from rl.dqn import DQNSettings, DQNTrainer, q_network
-from rl.env import Approach, EnvConfig, approaches_from_decisions, observation_names
-from rl.evaluate import agent_policy, evaluate_policies, greedy_policy
-from rl.imitation import fitted_classifier
-from rl.rewards import ReferenceLines
+from rl.learners.dqn import DQNSettings, DQNTrainer, q_network
+from rl.problem.env import Approach, EnvConfig, approaches_from_decisions, observation_names
+from rl.evaluation.evaluate import agent_policy, evaluate_policies, greedy_policy
+from rl.baselines.imitation import fitted_classifier
+from rl.problem.rewards import ReferenceLines
 
 RUN_STATES = ("running", "done", "failed", "cancelled")
 RUN_LOCK = "run.lock"
@@ -450,7 +450,7 @@ def recorded_approaches(workspace: Workspace, target: Target) -> list["Approach"
 
 def replay_env(workspace: Workspace, target: Target, config: EnvConfig | None = None) -> "LaneChangeDecisionEnv":
     """The environment in replay mode over the recorded approaches of a driver or a style's members."""
-    from rl.env import LaneChangeDecisionEnv
+    from rl.problem.env import LaneChangeDecisionEnv
 
     approaches = recorded_approaches(workspace, target)
     return LaneChangeDecisionEnv(config or EnvConfig(lines=resolve_lines(workspace, target, "analysis")),

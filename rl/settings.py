@@ -1,5 +1,5 @@
 """Trainer settings without torch: `laneprint`'s startup and the dashboard read
-them without importing the trainer (`rl.dqn` re-exports `DQNSettings`)."""
+them without importing the trainer (`rl.learners.dqn` re-exports `DQNSettings`)."""
 
 from __future__ import annotations
 

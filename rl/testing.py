@@ -13,9 +13,9 @@ import pandas as pd
 
 from laneprint.schemas import DECISIONS, validate
 from laneprint.workspace import Workspace
-from rl.env import EnvConfig, sample_scenes
-from rl.rewards import ReferenceLines
-from rl.scene import Scene, indicators
+from rl.problem.env import EnvConfig, sample_scenes
+from rl.problem.rewards import ReferenceLines
+from rl.problem.scene import Scene, indicators
 
 
 #: `laneprint train` options that make a test's run train in a second or two.

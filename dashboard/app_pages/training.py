@@ -6,7 +6,7 @@ import streamlit as st
 
 from dashboard import jobs, loaders, training, views, widgets
 from dashboard.context import poll_seconds, workspace
-from rl import fleet_io
+from rl.fleet import store as fleet_store
 from rl.plots import training_curves
 from rl.runs import read_metrics
 
@@ -128,8 +128,8 @@ def fleet_panel(ws, job_id: str, status: dict) -> None:
     if not fleet_id:
         st.progress(0.0, text=f"fleet job {job_id}: {state} — {status.get('message', '')}")
     else:
-        table = fleet_io.fleet_table(ws, fleet_id)
-        p = fleet_io.fleet_progress(table)
+        table = fleet_store.fleet_table(ws, fleet_id)
+        p = fleet_store.fleet_progress(table)
         frac = min(1.0, p["episode"] / p["episodes"]) if p["episodes"] else 0.0
         st.progress(frac, text=f"fleet {fleet_id}: {state} — {p['n_done']}/{p['n_runs']} agents done, "
                                f"{p['episode']}/{p['episodes'] or '?'} episodes; {p['n_meeting_target']} of "

@@ -64,9 +64,9 @@ def build_sample_workspace(root: Path) -> Workspace:
 
 
 def train_short_run(ws: Workspace, run_id: str, seed: int, episodes: int = 30) -> dict:
-    from rl.dqn import DQNSettings
-    from rl.env import EnvConfig
-    from rl.rewards import RewardSettings
+    from rl.learners.dqn import DQNSettings
+    from rl.problem.env import EnvConfig
+    from rl.problem.rewards import RewardSettings
     from rl.runs import Target, resolve_lines, train_run
 
     target = Target("style", "Normal")
@@ -166,7 +166,7 @@ def write_fake_crossval(ws: Workspace, result: dict, of_run: bool = True) -> Pat
     return folder
 
 
-# --- fleets as `laneprint train --drivers all` leaves them (see rl/fleet_io.py) ----------------
+# --- fleets as `laneprint train --drivers all` leaves them (see rl/fleet/store.py) ----------------
 
 
 def write_fake_fleet(ws: Workspace, fleet_id: str, drivers: list[str], seeds: tuple[int, ...] = (0,),

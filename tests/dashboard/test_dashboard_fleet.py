@@ -160,7 +160,7 @@ def test_results_page_fleet_view(copy_ws):
 @pytest.mark.slow
 def test_a_real_fleet_from_the_dashboard(copy_ws):
     """`laneprint train --drivers all` launched as the Training page does, followed to its evaluated agents."""
-    from rl import fleet_io
+    from rl.fleet import store as fleet_store
 
     job_id = jobs.launch_fleet(copy_ws, jobs.FleetRequest("drivers", 60))
     deadline = time.monotonic() + 600
@@ -168,7 +168,7 @@ def test_a_real_fleet_from_the_dashboard(copy_ws):
         time.sleep(0.5)
     status = jobs.fleet_job_status(copy_ws, job_id)
     assert status["state"] == "done", status
-    table = fleet_io.fleet_table(copy_ws, status["fleet_id"])
+    table = fleet_store.fleet_table(copy_ws, status["fleet_id"])
     assert sorted(table["target"]) == ["D01", "D02", "D03", "D04", "D05", "D06"]
     assert (table["state"] == "done").all() and (table["episode"] == table["episodes"]).all()
     assert table["agent_balanced_accuracy"].notna().all() and table["greedy_balanced_accuracy"].notna().all()

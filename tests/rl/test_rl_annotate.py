@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from laneprint.cli import app
 from laneprint.workspace import Workspace
-from rl.annotate import SCHEMAS, TOPIC_AGENT, TOPIC_DRIVER, TOPIC_GREEDY, TOPIC_SCENE, target_lanes
+from rl.deploy.annotate import SCHEMAS, TOPIC_AGENT, TOPIC_DRIVER, TOPIC_GREEDY, TOPIC_SCENE, target_lanes
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_logs" / "D01_S60.mcap"
 

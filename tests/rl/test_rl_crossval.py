@@ -10,12 +10,12 @@ from typer.testing import CliRunner
 from laneprint.cli import app
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
-from rl.crossval import CrossvalSettings, assign_folds, crossvalidate
-from rl.dqn import DQNSettings, DQNTrainer
-from rl.env import EnvConfig, LaneChangeDecisionEnv, VecReplayEnv, approaches_from_decisions
-from rl.evaluate import agent_policy, evaluate_policies, greedy_policy
-from rl.imitation import ImitationClassifier
-from rl.rewards import CHANGE, KEEP, ReferenceLines, RewardSettings, decisions_step_reward
+from rl.evaluation.crossval import CrossvalSettings, assign_folds, crossvalidate
+from rl.learners.dqn import DQNSettings, DQNTrainer
+from rl.problem.env import EnvConfig, LaneChangeDecisionEnv, VecReplayEnv, approaches_from_decisions
+from rl.evaluation.evaluate import agent_policy, evaluate_policies, greedy_policy
+from rl.baselines.imitation import ImitationClassifier
+from rl.problem.rewards import CHANGE, KEEP, ReferenceLines, RewardSettings, decisions_step_reward
 from rl.settings import resolve_formulation
 from rl.testing import rule_driver_decisions, session_decisions, write_style_analysis
 

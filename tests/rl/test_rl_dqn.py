@@ -7,10 +7,10 @@ import numpy as np
 import pandas as pd
 import torch
 
-from rl.dqn import DQNSettings, DQNTrainer, mlp_forward, q_network
-from rl.env import EnvConfig, approaches_from_decisions
-from rl.evaluate import agent_policy, evaluate_policies, greedy_policy
-from rl.rewards import ReferenceLines, RewardSettings
+from rl.learners.dqn import DQNSettings, DQNTrainer, mlp_forward, q_network
+from rl.problem.env import EnvConfig, approaches_from_decisions
+from rl.evaluation.evaluate import agent_policy, evaluate_policies, greedy_policy
+from rl.problem.rewards import ReferenceLines, RewardSettings
 from rl.testing import rule_driver_decisions
 
 LINES = ReferenceLines((0.2, 0.0), (0.2, 0.0), (1.0, -10.0))

@@ -18,10 +18,10 @@ from laneprint.cli import app
 from laneprint.errors import UserError
 from laneprint.simulator.sumo.traffic import VehicleState
 from laneprint.workspace import Workspace
-from rl.drive import Decision, live_scene, match_presses, target_lane
-from rl.drive_io import output_paths
-from rl.env import EnvConfig, observation
-from rl.scene import indicators
+from rl.drive.loop import Decision, live_scene, match_presses, target_lane
+from rl.drive.store import output_paths
+from rl.problem.env import EnvConfig, observation
+from rl.problem.scene import indicators
 
 runner = CliRunner()
 

@@ -7,9 +7,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import rl
-from rl.env import EnvConfig, LaneChangeDecisionEnv, VecLaneChangeEnv, approaches_from_decisions, sample_scenes
-from rl.rewards import ReferenceLines
-from rl.scene import Scene, indicators, observe
+from rl.problem.env import EnvConfig, LaneChangeDecisionEnv, VecLaneChangeEnv, approaches_from_decisions, sample_scenes
+from rl.problem.rewards import ReferenceLines
+from rl.problem.scene import Scene, indicators, observe
 from rl.testing import rule_driver_decisions
 
 

@@ -15,11 +15,11 @@ from typer.testing import CliRunner
 
 from laneprint.cli import app
 from laneprint.workspace import Workspace
-from rl.dqn import DQNTrainer
-from rl.env import EnvConfig, approaches_from_decisions, formulation_config
-from rl.fleet import FleetMember, FleetTrainer
-from rl.fleet_runs import read_fleet
-from rl.rewards import ReferenceLines
+from rl.learners.dqn import DQNTrainer
+from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config
+from rl.fleet.batch import FleetMember, FleetTrainer
+from rl.fleet.runs import read_fleet
+from rl.problem.rewards import ReferenceLines
 from rl.runs import load_run
 from rl.settings import DQNSettings
 from rl.testing import rule_driver_decisions
@@ -157,7 +157,7 @@ def test_the_ray_backend_trains_the_same_agents_as_the_local_one(tmp_path):
 
 
 def test_a_fleet_killed_before_its_first_checkpoint_starts_its_metrics_afresh(tmp_path):
-    from rl.fleet_runs import create_fleet, fleet_targets
+    from rl.fleet.runs import create_fleet, fleet_targets
 
     ws = analysed_two_drivers(tmp_path)
     settings = DQNSettings(episodes=120, episodes_per_approach=0, num_envs=8, batch_size=64, learning_starts=200)
@@ -171,8 +171,8 @@ def test_a_fleet_killed_before_its_first_checkpoint_starts_its_metrics_afresh(tm
 
 
 def test_stacked_environments_step_exactly_as_each_agents_own():
-    from rl.env import make_vec_env
-    from rl.fleet_envs import StackedReplayEnvs, stack_envs
+    from rl.problem.env import make_vec_env
+    from rl.fleet.envs import StackedReplayEnvs, stack_envs
 
     members = _members()
 

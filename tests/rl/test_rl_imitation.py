@@ -4,9 +4,9 @@ import numpy as np
 
 
 def test_a_drivers_classifier_is_fitted_once_for_all_its_seeds():
-    from rl.env import approaches_from_decisions, formulation_config
-    from rl.imitation import ImitationClassifier, fitted_classifier, labelled_states
-    from rl.rewards import ReferenceLines
+    from rl.problem.env import approaches_from_decisions, formulation_config
+    from rl.baselines.imitation import ImitationClassifier, fitted_classifier, labelled_states
+    from rl.problem.rewards import ReferenceLines
     from rl.testing import rule_driver_decisions
 
     lines = ReferenceLines.paper("Normal")

@@ -5,9 +5,9 @@ import pandas as pd
 import pytest
 
 from laneprint.errors import UserError
-from rl.greedy import greedy_actions
-from rl.rewards import ReferenceLines, RewardSettings, action_rewards, closeness, step_reward
-from rl.scene import Indicators
+from rl.baselines.greedy import greedy_actions
+from rl.problem.rewards import ReferenceLines, RewardSettings, action_rewards, closeness, step_reward
+from rl.problem.scene import Indicators
 
 LINES = ReferenceLines((0.2, 0.0), (0.2, 0.0), (1.0, -10.0))  # at v=20: t_f 4, t_nf 4, dv_nb 10
 

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from laneprint.cli import app
 from laneprint.workspace import Workspace
-from rl.dqn import q_network
+from rl.learners.dqn import q_network
 from rl.plots import decision_agreement, indicators_at_decisions, training_curves
 from rl.runs import Target, list_runs, load_run, replay_env
 from rl.testing import FAST_CLI as FAST, analysed_workspace

@@ -11,7 +11,7 @@ def test_cli_import_does_not_import_torch():
 
 
 def test_dqn_reexports_settings():
-    from rl.dqn import DQNSettings as A
+    from rl.learners.dqn import DQNSettings as A
     from rl.settings import DQNSettings as B
 
     assert A is B

@@ -2,7 +2,7 @@
 
 The ego is a SUMO vehicle of the driver's type: Krauss follows, LC2013 decides
 every lane change (nothing is scripted), unless an `EgoControl` makes them (the
-closed loop of `laneprint drive`, `rl/drive.py`). At every step the ego's state, the
+closed loop of `laneprint drive`, `rl/drive/loop.py`). At every step the ego's state, the
 background vehicles within `scene_range_m` and the driver inputs are logged;
 afterwards each lane change is found in the lateral trace and the lane-change
 button is pressed at its start: the first sample at which the ego has left its
@@ -48,7 +48,7 @@ class SectionLog:
 
 
 class EgoControl(Protocol):
-    """Something that drives the ego's lane changes in place of LC2013 (see `rl.drive`)."""
+    """Something that drives the ego's lane changes in place of LC2013 (see `rl.drive.loop`)."""
 
     def start(self, api: Any) -> None:
         """Called once the ego is in the simulation."""

@@ -18,7 +18,7 @@ For each policy (the trained agent, the greedy benchmark) and for the driver:
    policy's change and the reference line at that speed (the study's Fig. 10),
    over the changes where the indicator is defined.
 
-Decisions are skipped by the rule of `rl.env.approaches_from_decisions`, counted
+Decisions are skipped by the rule of `rl.problem.env.approaches_from_decisions`, counted
 in ``skipped``. Pure functions: tables in, tables and dicts out.
 """
 
@@ -31,11 +31,11 @@ import pandas as pd
 import torch
 
 from laneprint.reference import INDICATORS
-from rl.dqn import greedy_actions as q_greedy_actions
-from rl.env import Approach, EnvConfig, observation
-from rl.greedy import greedy_actions
-from rl.rewards import CHANGE, ReferenceLines
-from rl.scene import Scene, indicators
+from rl.learners.dqn import greedy_actions as q_greedy_actions
+from rl.problem.env import Approach, EnvConfig, observation
+from rl.baselines.greedy import greedy_actions
+from rl.problem.rewards import CHANGE, ReferenceLines
+from rl.problem.scene import Scene, indicators
 
 Policy = Callable[[Scene], np.ndarray]
 

@@ -1,6 +1,6 @@
 """A fleet's environments stepped together: K agents' vectorised environments as one batch.
 
-`stack_envs` takes each agent's own environments (`rl.env.make_vec_env`) and
+`stack_envs` takes each agent's own environments (`rl.problem.env.make_vec_env`) and
 returns one object whose `step` takes actions (K, n) and returns arrays (K, n, ...).
 Recorded scenes (`VecReplayEnv`, the default formulation) are stepped as one numpy
 batch of K x n environments (`StackedReplayEnvs`): one transition, one reward, one
@@ -12,7 +12,7 @@ order, once per step). Other formulations (synthetic scenes, whose reward reads
 each agent's own lines) are stepped agent by agent (`LoopedEnvs`).
 
 The agents' environment objects stay the source of their checkpoints: `scatter()`
-writes the batch's state back into them (`rl.dqn.episode_state` reads them).
+writes the batch's state back into them (`rl.learners.dqn.episode_state` reads them).
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from rl.env import VecLaneChangeEnv, VecReplayEnv
-from rl.rewards import TERMS
-from rl.scene import Scene
+from rl.problem.env import VecLaneChangeEnv, VecReplayEnv
+from rl.problem.rewards import TERMS
+from rl.problem.scene import Scene
 
 #: What `step` returns per environment, besides the named reward terms.
 STEP_KEYS = ("obs", "final_obs", "reward", "terminated", "truncated", "reached_leader")

@@ -12,7 +12,7 @@ parameters). What changes is who decides a lane change:
   at), while the ego is at its lane centre (no lane change under way), the agent is
   asked about the other lane (lane 0 -> 1, lane 1 -> 0; a road with one lane has no
   target and the agent is never asked). Its observation is built exactly as in
-  training (`rl.env.observation` on a `Scene`) from the live SUMO state, read the
+  training (`rl.problem.env.observation` on a `Scene`) from the live SUMO state, read the
   way the analysis reads a log (`indicators/decisions.py`): ``C_f`` = nearest
   vehicle ahead in the ego lane, ``C_nf`` / ``C_nb`` = nearest ahead / behind or
   alongside in the target lane, centres and lengths. A vehicle that is not there
@@ -42,9 +42,9 @@ from laneprint.simulator.sumo.scenario import build_network, write_routes
 from laneprint.simulator.sumo.section import EGO_ID, SectionLog, run_section
 from laneprint.simulator.sumo.settings import SumoSettings
 from laneprint.simulator.sumo.traffic import VehicleState
-from rl.env import EnvConfig
-from rl.rewards import CHANGE
-from rl.scene import Scene, indicators
+from rl.problem.env import EnvConfig
+from rl.problem.rewards import CHANGE
+from rl.problem.scene import Scene, indicators
 
 #: setLaneChangeMode bits: 0-7 = 0 (no change of the ego's own), 8-9 = 01 (a TraCI request
 #: is carried out unless it collides at once; others' braking is the agent's responsibility)

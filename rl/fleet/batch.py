@@ -5,7 +5,7 @@ everything that makes it itself: its settings and seed, its environments (its ow
 recorded approaches or lines), its random generator (drawn from in the same order
 as `DQNTrainer` draws), its replay memory, epsilon and learning-rate schedules,
 target copies and policy averaging, all counted in its own finished episodes.
-Only the arithmetic is shared: the K networks are stacked (`rl.batched`) so a
+Only the arithmetic is shared: the K networks are stacked (`rl.learners.batched`) so a
 forward pass, a TD loss and an Adam step are a few batched tensor operations
 instead of K small ones. An agent that reaches its episodes leaves the stack.
 
@@ -25,12 +25,12 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from rl import batched
-from rl.dqn import (EpisodeStats, average_due, episode_row, episode_state, epsilon_at, learning_rate_at,
+from rl.learners import batched
+from rl.learners.dqn import (EpisodeStats, average_due, episode_row, episode_state, epsilon_at, learning_rate_at,
                     load_episode_state)
-from rl.env import Approach, EnvConfig, make_vec_env, observation_names
-from rl.fleet_envs import stack_envs
-from rl.rewards import TERMS
+from rl.problem.env import Approach, EnvConfig, make_vec_env, observation_names
+from rl.fleet.envs import stack_envs
+from rl.problem.rewards import TERMS
 from rl.settings import DQNSettings
 
 #: Settings that must be equal across a fleet (they fix tensor shapes or the shared update).

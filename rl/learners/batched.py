@@ -18,7 +18,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from rl.dqn import q_network
+from rl.learners.dqn import q_network
 
 #: The agent axis of every stacked tensor.
 AGENT_AXIS = 0

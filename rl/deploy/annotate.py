@@ -7,7 +7,7 @@ run, 0.5 s by default, from the recording's first sample):
 
 - ``/laneprint/agent``: the run's decision (``change`` / ``keep`` / ``none``),
   ``action`` (0 change, 1 keep), ``q_change``, ``q_keep``, ``q_margin`` = q_change - q_keep;
-- ``/laneprint/greedy``: the study's greedy benchmark (`rl.greedy`) with the run's
+- ``/laneprint/greedy``: the study's greedy benchmark (`rl.baselines.greedy`) with the run's
   reference lines: decision, action and its two immediate rewards;
 - ``/laneprint/driver``: ``change`` at the step at or after each press of the
   button (rising edge; ``press_t_s`` its exact time), else ``keep``; ``button`` the
@@ -49,12 +49,12 @@ from ingest.writers import ExtraChannel, write_mcap
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace
-from rl.dqn import q_values
-from rl.env import EnvConfig, observation, scenes_from_decisions
-from rl.greedy import greedy_actions
-from rl.rewards import CHANGE, RewardSettings, action_rewards
+from rl.learners.dqn import q_values
+from rl.problem.env import EnvConfig, observation, scenes_from_decisions
+from rl.baselines.greedy import greedy_actions
+from rl.problem.rewards import CHANGE, RewardSettings, action_rewards
 from rl.runs import load_weights, run_dir
-from rl.scene import Scene, indicators, seen
+from rl.problem.scene import Scene, indicators, seen
 
 TOPIC_AGENT, TOPIC_GREEDY = "/laneprint/agent", "/laneprint/greedy"
 TOPIC_DRIVER, TOPIC_SCENE = "/laneprint/driver", "/laneprint/scene"
@@ -143,7 +143,7 @@ def decide(net: torch.nn.Module, cfg: EnvConfig, steps: pd.DataFrame, scene: Sce
     if ok.any():
         q[ok] = q_values(net, observation(scene.take(np.flatnonzero(ok)), cfg))
     out["q_change"], out["q_keep"] = q[:, 0], q[:, 1]
-    # argmax with ties to TO CHANGE, as rl.dqn.greedy_actions
+    # argmax with ties to TO CHANGE, as rl.learners.dqn.greedy_actions
     out["agent_action"] = np.where(ok, np.where(q[:, 0] >= q[:, 1], CHANGE, 1 - CHANGE), -1)
     ind = indicators(scene, cfg.far_follower_m, cfg.range_m)
     r_change, r_keep = action_rewards(ind, cfg.lines, RewardSettings(name="paper"), cfg.dt_s)

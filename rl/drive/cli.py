@@ -1,4 +1,4 @@
-"""`laneprint drive RUN_ID --engine sumo`: a trained agent drives in SUMO (see `rl/drive.py`)."""
+"""`laneprint drive RUN_ID --engine sumo`: a trained agent drives in SUMO (see `rl/drive/loop.py`)."""
 
 from __future__ import annotations
 
@@ -38,7 +38,7 @@ def drive_command(
     """Let a trained agent make the ego's lane changes in SUMO traffic; write the drive as MCAP logs."""
 
     def work() -> dict[str, Any]:
-        from rl.drive_io import drive_run
+        from rl.drive.store import drive_run
 
         if engine not in ENGINES:
             raise UserError(f"unknown --engine {engine!r}; choose one of {', '.join(ENGINES)}")

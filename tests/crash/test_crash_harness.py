@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ingest.pipeline import ingest_paths
-from laneprint.crash_harness import (Command, Context, _held_back_stored, _runs_complete, kill_live, kill_once,
+from crash_harness import (Command, Context, _held_back_stored, _runs_complete, kill_live, kill_once,
                                      plan_kill, run_until)
 from laneprint.workspace import Workspace
 

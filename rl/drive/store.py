@@ -2,7 +2,7 @@
 
 `drive_run(workspace, run_id, ...)` loads a trained run (its `EnvConfig` and
 weights, as `laneprint evaluate` does), drives the SUMO sections with it
-(`rl.drive`), writes one LOG_FORMAT v1 MCAP per section (`ingest.writers`, as the
+(`rl.drive.loop`), writes one LOG_FORMAT v1 MCAP per section (`ingest.writers`, as the
 SUMO study) and summarises: lane changes, SUMO's collision and emergency-braking
 counts, and the indicators at the agent's decisions against its target's
 reference lines. With `analyze=True` the study of the workspace plus the drive is
@@ -25,10 +25,10 @@ from laneprint.errors import UserError
 from laneprint.progress import ProgressFn
 from laneprint.reference import INDICATORS, SPEED_LIMITS_KPH
 from laneprint.workspace import Workspace, atomic_write_json
-from rl.drive import SectionDrive, drive_sections, recordings
-from rl.env import EnvConfig
-from rl.evaluate import agent_policy
-from rl.rewards import ReferenceLines
+from rl.drive.loop import SectionDrive, drive_sections, recordings
+from rl.problem.env import EnvConfig
+from rl.evaluation.evaluate import agent_policy
+from rl.problem.rewards import ReferenceLines
 from rl.runs import Target, load_weights, run_dir
 
 DEFAULT_STYLE = "Normal"

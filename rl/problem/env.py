@@ -10,13 +10,13 @@ Action Space
 
 Observation Space
     ``Box(0, 1, (8,), float32)``: ``[v_e, x_e, v_f, x_f, v_nf, x_nf, v_nb, x_nb]``
-    normalised to (0, 1] (see `rl.scene.observe`): speeds over ``v_max_mps``;
+    normalised to (0, 1] (see `rl.problem.scene.observe`): speeds over ``v_max_mps``;
     positions ego-centred over ``+-range_m`` (the ego is always 0.5). An absent
     ``C_nf`` / ``C_nb`` shows as nothing within range: at the front / rear edge,
     at the ego's speed.
 
 Rewards
-    From the target's reference lines, `paper` or `timing` (see `rl.rewards`);
+    From the target's reference lines, `paper` or `timing` (see `rl.problem.rewards`);
     ``info["terms"]`` holds the named terms of each step.
 
 Episode End
@@ -53,9 +53,9 @@ import pandas as pd
 
 from laneprint.errors import UserError
 from laneprint.reference import FAR_FOLLOWER_M
-from rl.rewards import CHANGE, TERMS, ReferenceLines, RewardSettings, decisions_step_reward, step_reward
+from rl.problem.rewards import CHANGE, TERMS, ReferenceLines, RewardSettings, decisions_step_reward, step_reward
 from rl.settings import OBSERVATIONS, SCENES, resolve_formulation
-from rl.scene import INDICATOR_FEATURES, OBS_NAMES, Scene, indicator_features, indicators, observe
+from rl.problem.scene import INDICATOR_FEATURES, OBS_NAMES, Scene, indicator_features, indicators, observe
 
 ENV_ID = "laneprint/LaneChangeDecision-v0"
 
@@ -500,6 +500,6 @@ def make_vec_env(config: EnvConfig, num_envs: int, rng: np.random.Generator,
 def register() -> None:
     """Register the environment with gymnasium (idempotent)."""
     if ENV_ID not in gym.registry:
-        gym.register(id=ENV_ID, entry_point="rl.env:LaneChangeDecisionEnv",
+        gym.register(id=ENV_ID, entry_point="rl.problem.env:LaneChangeDecisionEnv",
                      max_episode_steps=None, disable_env_checker=False)
 

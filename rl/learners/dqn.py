@@ -39,8 +39,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from rl.env import Approach, EnvConfig, make_vec_env, observation_names
-from rl.rewards import CHANGE, TERMS
+from rl.problem.env import Approach, EnvConfig, make_vec_env, observation_names
+from rl.problem.rewards import CHANGE, TERMS
 from rl.settings import DQNSettings
 
 __all__ = ["DQNSettings", "DQNTrainer", "ReplayBuffer", "greedy_actions", "q_network", "q_values"]

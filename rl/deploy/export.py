@@ -6,7 +6,7 @@ The output folder holds
   ``q_values`` float32 (batch, 2) and ``action`` int64 (batch,), the argmax
   (ties go to 0, TO CHANGE, as in laneprint);
 - ``policy.json``: the inputs in order with units and scaling
-  (`rl.observation_spec`), the actions, which run / target / lines it came from,
+  (`rl.problem.observation`), the actions, which run / target / lines it came from,
   and the check below;
 - ``README.md``: the same for a reader, with a loader that needs only
   onnxruntime and numpy.
@@ -38,10 +38,10 @@ import torch
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
-from rl.env import EnvConfig, observation, sample_scenes
-from rl.observation_spec import ACTIONS, ROLES, constants, observation_spec
+from rl.problem.env import EnvConfig, observation, sample_scenes
+from rl.problem.observation import ACTIONS, ROLES, constants, observation_spec
 from rl.runs import Target, load_weights, recorded_approaches, run_dir
-from rl.scene import Scene
+from rl.problem.scene import Scene
 
 FORMATS = ("onnx",)
 OPSET = 17

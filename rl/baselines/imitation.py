@@ -2,13 +2,13 @@
 
 Beside the study's greedy benchmark, every report says how far the agent is from
 a classifier trained directly on the drivers' decisions, on the same states and
-the same observation the agent sees (`rl.env.observation`), so the
+the same observation the agent sees (`rl.problem.env.observation`), so the
 comparison is about the method, not the information. Presses are rare (one per
 approach against 10-30 not-yet states), so the classes are weighted to balance,
 as the balanced accuracy that scores it.
 
     clf = ImitationClassifier(random_state=0).fit(approaches, cfg)
-    policy = clf.policy(cfg)          # Scene -> actions, for `rl.evaluate`
+    policy = clf.policy(cfg)          # Scene -> actions, for `rl.evaluation.evaluate`
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from rl.env import Approach, EnvConfig, observation
-from rl.rewards import CHANGE, KEEP
-from rl.scene import Scene
+from rl.problem.env import Approach, EnvConfig, observation
+from rl.problem.rewards import CHANGE, KEEP
+from rl.problem.scene import Scene
 
 
 def labelled_states(approaches: list[Approach], cfg: EnvConfig) -> tuple[np.ndarray, np.ndarray]:

@@ -56,7 +56,7 @@ import pandas as pd
 
 from laneprint.errors import UserError
 from laneprint.reference import INDICATORS, PAPER_TABLE1
-from rl.scene import Indicators
+from rl.problem.scene import Indicators
 
 REWARDS: tuple[str, ...] = ("paper", "timing", "decisions")
 TERMS: tuple[str, ...] = ("r_f", "r_nf", "r_nb", "base", "pass", "late", "press")

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rl.rewards import CHANGE, KEEP, ReferenceLines, RewardSettings, action_rewards
-from rl.scene import Indicators
+from rl.problem.rewards import CHANGE, KEEP, ReferenceLines, RewardSettings, action_rewards
+from rl.problem.scene import Indicators
 
 
 def greedy_actions(ind: Indicators, lines: ReferenceLines, settings: RewardSettings | None = None,

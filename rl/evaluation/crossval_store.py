@@ -26,9 +26,9 @@ from indicators.settings import AnalysisSettings
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn
 from laneprint.workspace import Workspace, atomic_write_json
-from rl.crossval import CrossvalSettings, crossvalidate
-from rl.env import EnvConfig
-from rl.rewards import ReferenceLines
+from rl.evaluation.crossval import CrossvalSettings, crossvalidate
+from rl.problem.env import EnvConfig
+from rl.problem.rewards import ReferenceLines
 from rl.runs import Target, _eval_drivers, now_iso, resolve_lines, run_dir
 from rl.settings import DQNSettings
 

@@ -34,9 +34,9 @@ from laneprint.errors import UserError
 from laneprint.locks import FileLock
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_json
-from rl.env import EnvConfig, approaches_from_decisions, formulation_config
-from rl.fleet import FleetMember, FleetTrainer
-from rl.fleet_io import fleet_dir, fleet_table
+from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config
+from rl.fleet.batch import FleetMember, FleetTrainer
+from rl.fleet.store import fleet_dir, fleet_table
 from rl.runs import (Target, _eval_drivers, _save_torch, _StopFlag, _truncate_metrics, code_version, create_run,
                      evaluate_run, lock_run, now_iso, resolve_lines, run_dir)
 from rl.settings import DQNSettings

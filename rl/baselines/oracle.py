@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from rl.env import EnvConfig
-from rl.rewards import CHANGE, KEEP, action_rewards
-from rl.scene import Scene, indicators
+from rl.problem.env import EnvConfig
+from rl.problem.rewards import CHANGE, KEEP, action_rewards
+from rl.problem.scene import Scene, indicators
 
 
 def optimal_actions(scene: Scene, cfg: EnvConfig, gamma: float = 0.98, horizon: int | None = None) -> np.ndarray:

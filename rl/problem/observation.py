@@ -1,6 +1,6 @@
 """The agent's observation, documented as data: what each input is, in which unit, how it is scaled.
 
-`observation_spec(cfg)` describes `rl.env.observation` input by input, so that a
+`observation_spec(cfg)` describes `rl.problem.env.observation` input by input, so that a
 program outside laneprint (a vehicle stack, a simulator) can build the same
 vector from raw measurements. Each input's ``transform`` is one of
 
@@ -20,10 +20,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from rl.env import EnvConfig, observation_names
-from rl.scene import DV_RANGE_MPS, OBS_FLOOR, TTC_CAP_S
+from rl.problem.env import EnvConfig, observation_names
+from rl.problem.scene import DV_RANGE_MPS, OBS_FLOOR, TTC_CAP_S
 
-#: Action index -> meaning (rl.rewards.CHANGE = 0, KEEP = 1).
+#: Action index -> meaning (rl.problem.rewards.CHANGE = 0, KEEP = 1).
 ACTIONS: dict[int, str] = {
     0: "TO CHANGE: start the lane change to the target lane now",
     1: "NOT TO CHANGE: keep the lane for this step",
@@ -63,7 +63,7 @@ def _ttc(name: str, who: str) -> dict[str, Any]:
 
 
 def observation_spec(cfg: EnvConfig) -> list[dict[str, Any]]:
-    """One dict per input of `rl.env.observation(scene, cfg)`, in order (see the module doc)."""
+    """One dict per input of `rl.problem.env.observation(scene, cfg)`, in order (see the module doc)."""
     specs: list[dict[str, Any]] = [
         _speed("v_e", "the ego", cfg),
         {"name": "x_e", "quantity": "the ego's own position (always the middle of the range)", "unit": "-",

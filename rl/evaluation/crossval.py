@@ -37,10 +37,10 @@ from laneprint.errors import UserError
 from laneprint.parallel import run_tasks
 from laneprint.progress import ProgressFn, report
 from laneprint.reference import INDICATORS
-from rl.env import Approach, EnvConfig, approaches_from_decisions
-from rl.evaluate import evaluate_policies, greedy_policy
-from rl.imitation import ImitationClassifier
-from rl.rewards import ReferenceLines
+from rl.problem.env import Approach, EnvConfig, approaches_from_decisions
+from rl.evaluation.evaluate import evaluate_policies, greedy_policy
+from rl.baselines.imitation import ImitationClassifier
+from rl.problem.rewards import ReferenceLines
 from rl.settings import DQNSettings
 
 SPLITS: tuple[str, ...] = ("session", "section")
@@ -186,8 +186,8 @@ def bootstrap_scores(states: pd.DataFrame, changes: pd.DataFrame, who: str, n_bo
 
 def _train_agent(approaches: list[Approach], cfg: EnvConfig, dqn: DQNSettings, progress: ProgressFn | None,
                  label: str):
-    from rl.dqn import DQNTrainer
-    from rl.evaluate import agent_policy
+    from rl.learners.dqn import DQNTrainer
+    from rl.evaluation.evaluate import agent_policy
 
     trainer = DQNTrainer(cfg, dqn, approaches=approaches if cfg.scenes == "recorded" else None)
 

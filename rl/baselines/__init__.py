@@ -1,0 +1,11 @@
+"""Policies the agents are measured against: the study's greedy benchmark, an imitation classifier, the exact optimum."""
+
+from laneprint.lazy import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "greedy_actions": "rl.baselines.greedy",
+    "ImitationClassifier": "rl.baselines.imitation",
+    "fitted_classifier": "rl.baselines.imitation",
+    "optimal_actions": "rl.baselines.oracle",
+    "oracle_policy": "rl.baselines.oracle",
+})
