@@ -26,6 +26,10 @@ EngineOpt = Annotated[str, typer.Option(
     "--engine", help="synthetic (laneprint's generator) or sumo (Eclipse SUMO's models decide).")]
 MinutesOpt = Annotated[Optional[float], typer.Option(
     "--minutes", help="Minutes of driving per section (sumo; default 5).")]
+FamilyOpt = Annotated[Optional[str], typer.Option(
+    "--family", help="sumo study family: ttc (default; styles differ in the times to collision they accept) or "
+                     "acceptance (IDM drivers whose styles differ in the gaps and headways they accept; most presses "
+                     "have no closing leader). See laneprint/simulator/SUMO.md.")]
 JobsOpt = Annotated[int, typer.Option("--jobs", help="SUMO runs in parallel (sumo).")]
 SeedOpt = Annotated[int, typer.Option("--seed", help="Random seed (same seed, same study).")]
 FormatOpt = Annotated[str, typer.Option(
@@ -38,8 +42,8 @@ ENGINES: tuple[str, ...] = ("synthetic", "sumo")
 
 def simulate_command(out: OutOpt, drivers: DriversOpt = None, decisions: DecisionsOpt = None, seed: SeedOpt = 0,
                      fmt: FormatOpt = "mixed", force: ForceOpt = False, engine: EngineOpt = "synthetic",
-                     minutes: MinutesOpt = None, jobs: JobsOpt = 1, workspace: WorkspaceOpt = DEFAULT_WS,
-                     as_json: JsonOpt = False) -> None:
+                     minutes: MinutesOpt = None, jobs: JobsOpt = 1, family: FamilyOpt = None,
+                     workspace: WorkspaceOpt = DEFAULT_WS, as_json: JsonOpt = False) -> None:
     """Generate a DIL study (CSV and MCAP logs, ground_truth.json, README.md) into --out."""
 
     def work() -> dict[str, Any]:
@@ -54,9 +58,9 @@ def simulate_command(out: OutOpt, drivers: DriversOpt = None, decisions: Decisio
         if engine == "sumo":
             if decisions is not None:
                 raise UserError("--decisions is for --engine synthetic; with sumo the drivers decide (use --minutes)")
-            return _simulate_sumo(out, drivers, seed, fmt, force, minutes, jobs, as_json)
-        if minutes is not None or jobs != 1:
-            raise UserError("--minutes and --jobs are for --engine sumo")
+            return _simulate_sumo(out, drivers, seed, fmt, force, minutes, jobs, family, as_json)
+        if minutes is not None or jobs != 1 or family is not None:
+            raise UserError("--minutes, --jobs and --family are for --engine sumo")
         return _simulate_synthetic(out, drivers, decisions, seed, fmt, force, as_json)
 
     run_command(work, as_json, _render_sumo if engine == "sumo" else _render)
@@ -81,18 +85,21 @@ def _simulate_synthetic(out: Path, drivers: Optional[int], decisions: Optional[i
 
 
 def _simulate_sumo(out: Path, drivers: Optional[int], seed: int, fmt: str, force: bool, minutes: Optional[float],
-                   jobs: int, as_json: bool) -> dict[str, Any]:
+                   jobs: int, family: Optional[str], as_json: bool) -> dict[str, Any]:
     from laneprint.simulator.output import check_destination
     from laneprint.simulator.sumo.backend import check_available
     from laneprint.simulator.sumo.output import write_sumo_study
-    from laneprint.simulator.sumo.settings import SumoSettings
+    from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, FAMILIES, family_settings
     from laneprint.simulator.sumo.study import simulate_sumo_study
 
+    family = DEFAULT_FAMILY if family is None else family
+    if family not in FAMILIES:
+        raise UserError(f"unknown --family {family!r}; choose one of {', '.join(FAMILIES)}")
     if minutes is not None and not 0 < minutes <= 120:
         raise UserError("--minutes must be more than 0 and at most 120")
     if jobs < 1:
         raise UserError("--jobs must be at least 1")
-    base = SumoSettings()
+    base = family_settings(family)
     settings = replace(base, n_drivers=base.n_drivers if drivers is None else drivers,
                        minutes=base.minutes if minutes is None else minutes)
     check_available()  # one line telling how to install SUMO, before anything else
@@ -117,8 +124,8 @@ def _render_sumo(result: dict[str, Any], console: Console) -> None:
     styles = result["styles"]
     counts = ", ".join(f"{d} {styles[d][0]} {n}" for d, n in per.items())
     lines = [
-        f"Wrote a SUMO study to {result['out']} (Eclipse SUMO {result['sumo_version']}, seed {result['seed']}, "
-        f"format {result['format']}, {result['minutes']:g} min per section)",
+        f"Wrote a SUMO study to {result['out']} (Eclipse SUMO {result['sumo_version']}, family {result['family']}, "
+        f"seed {result['seed']}, format {result['format']}, {result['minutes']:g} min per section)",
         f"  drivers     {result['drivers']}",
         f"  recordings  {result['recordings']}",
         f"  decisions   {result['decisions']} ({result['directions']['left']} left, "

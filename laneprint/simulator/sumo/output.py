@@ -36,6 +36,7 @@ def summary(study: SumoStudy, out: Path, fmt: str, n_files: int, total_bytes: in
     return {
         "out": str(Path(out).resolve()),
         "engine": gt["engine"],
+        "family": gt["family"],
         "sumo_version": gt["sumo_version"],
         "seed": study.seed,
         "format": fmt,

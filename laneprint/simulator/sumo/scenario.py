@@ -1,9 +1,10 @@
 """The files of one SUMO run: a straight two-lane road and the vehicle types.
 
 One edge `road` from x = 0, two lanes (index 0 = right), edge speed = the
-section's limit. Vehicle types: `ego` (the driver's style), `car` and `truck`
-(background; their desired speed is set per vehicle, so their `speedFactor` is
-high and their `maxSpeed` above any desired speed; no dawdling).
+section's limit. Vehicle types: `ego` (the driver's style, with the family's
+car-following model), `car` and `truck` (background, Krauss; their desired speed
+is set per vehicle, so their `speedFactor` is high and their `maxSpeed` above any
+desired speed; dawdling `background_sigma`, 0 in the default family).
 """
 
 from __future__ import annotations
@@ -38,12 +39,13 @@ def _attrs(values: dict[str, object]) -> str:
 def routes_xml(ego_params: dict[str, float], settings: SumoSettings) -> str:
     """The route file: vehicle types and the single route (vehicles are added at run time)."""
     ego = {"id": EGO_TYPE, "vClass": "passenger", "length": settings.ego_length_m, "maxSpeed": _MAX_SPEED_MPS,
-           "speedDev": 0, "carFollowModel": "Krauss", "laneChangeModel": "LC2013",
+           "speedDev": 0, "carFollowModel": settings.car_follow_model, "laneChangeModel": "LC2013",
            "emergencyDecel": max(_EMERGENCY_DECEL_MPS2, ego_params.get("decel", 0.0)), **ego_params}
     car = {"id": CAR_TYPE, "vClass": "passenger", "length": 4.5, "maxSpeed": _MAX_SPEED_MPS, "speedFactor": 2.0,
-           "speedDev": 0, "sigma": 0, "tau": 1.0, "accel": 2.6, "decel": 4.5, **_BG_LC}
+           "speedDev": 0, "sigma": settings.background_sigma, "tau": 1.0, "accel": 2.6, "decel": 4.5, **_BG_LC}
     truck = {"id": TRUCK_TYPE, "vClass": "passenger", "length": 12.0, "maxSpeed": _MAX_SPEED_MPS,
-             "speedFactor": 2.0, "speedDev": 0, "sigma": 0, "tau": 1.2, "accel": 1.0, "decel": 4.0, **_BG_LC}
+             "speedFactor": 2.0, "speedDev": 0, "sigma": settings.background_sigma, "tau": 1.2, "accel": 1.0,
+             "decel": 4.0, **_BG_LC}
     lines = ["<routes>"] + [f"    <vType {_attrs(t)}/>" for t in (ego, car, truck)]
     lines += [f'    <route id="{ROUTE}" edges="{EDGE}"/>', "</routes>", ""]
     return "\n".join(lines)

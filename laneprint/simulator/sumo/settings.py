@@ -7,10 +7,17 @@ seed: every random choice (driver perturbations, background traffic, SUMO's own
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from laneprint.reference import SPEED_LIMITS_KPH
+
+#: Study families (`laneprint simulate --engine sumo --family NAME`), the default first: `ttc`, styles
+#: that differ in the times to collision they accept (Krauss + LC2013 in traffic that keeps the ego
+#: closing on slower leaders); `acceptance`, styles that differ in the gaps and headways they accept
+#: (IDM + LC2013 in a busy left lane: most presses have no closing leader). See SUMO.md.
+FAMILIES: tuple[str, ...] = ("ttc", "acceptance")
+DEFAULT_FAMILY = FAMILIES[0]
 
 
 @dataclass(frozen=True)
@@ -18,6 +25,7 @@ class SumoSettings:
     """Everything that shapes a SUMO study besides the seed."""
 
     # --- the study -------------------------------------------------------------
+    family: str = DEFAULT_FAMILY  # one of FAMILIES: which styles (styles.FAMILY_STYLE_PARAMS) and traffic
     n_drivers: int = 9  # drivers D01..Dnn, styles round-robin Defensive, Normal, Aggressive
     speed_limits_kph: tuple[int, ...] = SPEED_LIMITS_KPH  # one SUMO run (= one recording) per limit [km/h]
     minutes: float = 5.0  # [min] logged driving per section (a lane change in progress is finished)
@@ -35,6 +43,8 @@ class SumoSettings:
     car_length_m: tuple[float, float] = (4.0, 5.0)  # [m] background car length ~ Uniform
     truck_length_m: tuple[float, float] = (10.0, 16.0)  # [m] truck length ~ Uniform
     scene_range_m: float = 150.0  # [m] a vehicle is in the log while |x - ego_x| <= this (centres)
+    car_follow_model: str = "Krauss"  # the ego's SUMO carFollowModel (its parameters come with the style)
+    background_sigma: float = 0.0  # Krauss dawdling (0-1) of background vehicles: their speed wavers
 
     # --- background traffic: a bubble around the ego ---------------------------------
     slow_speed_frac: tuple[float, float] = (0.4, 0.8)  # right-lane vehicles' desired speed / limit ~ Uniform
@@ -55,6 +65,8 @@ class SumoSettings:
     # speed, plus 10 m; otherwise it is not added
 
     def __post_init__(self) -> None:
+        if self.family not in FAMILIES:
+            raise ValueError(f"unknown family {self.family!r}; choose one of {', '.join(FAMILIES)}")
         if self.n_drivers < 1:
             raise ValueError("n_drivers must be at least 1")
         if not self.speed_limits_kph:
@@ -72,3 +84,29 @@ class SumoSettings:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready copy (tuples become lists)."""
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+
+
+#: What each family changes in `SumoSettings()` (the default family changes nothing). `acceptance`:
+#: IDM for the ego; slower right-lane vehicles with wavering speeds, and a busy left lane fed from
+#: behind by cars near the limit, so the ego mostly follows a leader at its own speed and waits for a
+#: gap it accepts before changing left, and returns right when the right lane has room.
+FAMILY_OVERRIDES: dict[str, dict[str, Any]] = {
+    "ttc": {},
+    "acceptance": {
+        "car_follow_model": "IDM",
+        "background_sigma": 0.3,
+        "slow_speed_frac": (0.6, 0.85),
+        "slow_spacing_s": (3.0, 20.0),
+        "left_speed_frac": (0.9, 1.0),
+        "left_spacing_s": (6.0, 20.0),
+        "fast_speed_frac": (0.95, 1.15),
+        "fast_interval_s": (2.0, 10.0),
+    },
+}
+
+
+def family_settings(family: str = DEFAULT_FAMILY, **changes: Any) -> SumoSettings:
+    """`SumoSettings` of `family` (its `FAMILY_OVERRIDES`), then `changes` on top."""
+    if family not in FAMILY_OVERRIDES:
+        raise ValueError(f"unknown family {family!r}; choose one of {', '.join(FAMILIES)}")
+    return replace(SumoSettings(), family=family, **{**FAMILY_OVERRIDES[family], **changes})

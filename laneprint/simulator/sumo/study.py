@@ -22,8 +22,8 @@ from laneprint.progress import ProgressFn, report
 from laneprint.simulator.study import GENERATOR, session_id
 from laneprint.simulator.sumo.scenario import build_network, write_routes
 from laneprint.simulator.sumo.section import SectionLog, run_section
-from laneprint.simulator.sumo.settings import SumoSettings
-from laneprint.simulator.sumo.styles import STYLE_PARAMS, SumoDriver, make_sumo_drivers
+from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, SumoSettings
+from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS, SumoDriver, make_sumo_drivers
 
 ENGINE = "sumo"
 ENGINE_VERSION = 1
@@ -68,7 +68,8 @@ def simulate_sumo_study(settings: Optional[SumoSettings] = None, seed: int = 0,
     """Run every (driver, section) in SUMO and collect the recordings and the ground truth."""
     settings = settings or SumoSettings()
     drivers = make_sumo_drivers(settings.n_drivers, settings.perturbation_sd,
-                                np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,))))
+                                np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,))),
+                                settings.family)
     tasks = [(i, j, d, float(lim)) for i, d in enumerate(drivers) for j, lim in enumerate(settings.speed_limits_kph)]
     logs: dict[tuple[int, int], SectionLog] = {}
     report(progress, 0, len(tasks), "starting SUMO")
@@ -91,7 +92,8 @@ def simulate_sumo_study(settings: Optional[SumoSettings] = None, seed: int = 0,
 def _collect(settings: SumoSettings, seed: int, drivers: list[SumoDriver], tasks: list,
              logs: dict[tuple[int, int], SectionLog]) -> SumoStudy:
     version = next(iter(logs.values())).sumo_version if logs else ""
-    simulator = f"Eclipse SUMO {version} (laneprint simulate --engine sumo)"
+    family = "" if settings.family == DEFAULT_FAMILY else f" --family {settings.family}"
+    simulator = f"Eclipse SUMO {version} (laneprint simulate --engine sumo{family})"
     recordings: list[Recording] = []
     sessions: list[dict[str, Any]] = []
     decisions: list[dict[str, Any]] = []
@@ -118,8 +120,10 @@ def _collect(settings: SumoSettings, seed: int, drivers: list[SumoDriver], tasks
         "sumo_version": version,
         "sumo_api": ", ".join(apis),
         "seed": seed,
+        "family": settings.family,
+        "car_follow_model": settings.car_follow_model,
         "settings": settings.to_dict(),
-        "style_params": STYLE_PARAMS,
+        "style_params": FAMILY_STYLE_PARAMS[settings.family],
         "drivers": [d.to_dict() for d in drivers],
         "sessions": sessions,
         "decisions": decisions,

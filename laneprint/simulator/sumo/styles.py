@@ -1,7 +1,8 @@
 """Driver styles as SUMO vehicle-type parameters, and the study's drivers.
 
-A style is a set of Krauss car-following and LC2013 lane-change parameters (see
-`laneprint/simulator/SUMO.md` for why these values). Drivers get styles
+A style is a set of car-following and LC2013 lane-change parameters, one set per
+study family (`FAMILY_STYLE_PARAMS`; see `laneprint/simulator/SUMO.md` for why
+these values): Krauss for `ttc`, IDM for `acceptance`. Drivers get styles
 round-robin (D01 Defensive, D02 Normal, D03 Aggressive, D04 Defensive, ...); the
 first driver of each style drives the nominal values (`typical`), every other one
 has each value multiplied by `exp(N(0, perturbation_sd))`, clipped to +-2 sd (a
@@ -41,6 +42,35 @@ STYLE_PARAMS: dict[str, dict[str, float]] = {
     },
 }
 
+#: The `acceptance` family: style -> SUMO vType attribute -> nominal value. Car following (IDM):
+#: tau [s] = desired time headway T, minGap [m] = standstill gap s0, accel [m/s^2] = a, decel
+#: [m/s^2] = comfortable deceleration b, speedFactor (desired speed / limit). Lane change
+#: (LC2013): lcAssertive (the safe gaps to the target lane's leader and follower are divided by
+#: it: higher accepts shorter gaps), lcSpeedGain (eagerness to change for speed), lcKeepRight
+#: (eagerness to return right), lcCooperative. What the styles differ in is what they accept
+#: (headway, standstill gap, lead and lag gaps); the parameters that set the times to collision
+#: of the `ttc` family (lcSpeedGainLookahead, lcKeepRightAcceptanceTime) are SUMO's defaults for all.
+ACCEPTANCE_STYLE_PARAMS: dict[str, dict[str, float]] = {
+    "Defensive": {
+        "tau": 2.2, "minGap": 4.0, "accel": 1.4, "decel": 2.0, "speedFactor": 0.95,
+        "lcAssertive": 0.6, "lcSpeedGain": 0.7, "lcKeepRight": 2.0, "lcCooperative": 1.0,
+    },
+    "Normal": {
+        "tau": 1.3, "minGap": 2.5, "accel": 2.0, "decel": 2.5, "speedFactor": 1.05,
+        "lcAssertive": 1.2, "lcSpeedGain": 1.5, "lcKeepRight": 1.0, "lcCooperative": 0.7,
+    },
+    "Aggressive": {
+        "tau": 0.6, "minGap": 1.2, "accel": 2.8, "decel": 3.2, "speedFactor": 1.15,
+        "lcAssertive": 3.0, "lcSpeedGain": 4.0, "lcKeepRight": 0.5, "lcCooperative": 0.3,
+    },
+}
+
+#: family (settings.FAMILIES) -> its styles' parameters.
+FAMILY_STYLE_PARAMS: dict[str, dict[str, dict[str, float]]] = {
+    "ttc": STYLE_PARAMS,
+    "acceptance": ACCEPTANCE_STYLE_PARAMS,
+}
+
 #: Parameters kept within these bounds after a perturbation (SUMO rejects some values outside).
 _BOUNDS: dict[str, tuple[float, float]] = {"sigma": (0.0, 1.0), "lcCooperative": (0.0, 1.0)}
 #: Relative perturbation of a parameter, as a multiple of `perturbation_sd` (1 when not listed).
@@ -76,12 +106,14 @@ def perturb(nominal: dict[str, float], rng: np.random.Generator, sd: float) -> d
     return {k: out[k] for k in nominal}
 
 
-def make_sumo_drivers(n_drivers: int, sd: float, rng: np.random.Generator) -> list[SumoDriver]:
-    """The study's drivers: styles round-robin, the first of each style typical (nominal values)."""
+def make_sumo_drivers(n_drivers: int, sd: float, rng: np.random.Generator,
+                      family: str = "ttc") -> list[SumoDriver]:
+    """The study's drivers of `family`: styles round-robin, the first of each style typical (nominal values)."""
+    styles = FAMILY_STYLE_PARAMS[family]
     drivers = []
     for i, did in enumerate(driver_ids(n_drivers)):
         style = style_of(i)
         typical = i < len(STYLES)
-        params = dict(STYLE_PARAMS[style]) if typical else perturb(STYLE_PARAMS[style], rng, sd)
+        params = dict(styles[style]) if typical else perturb(styles[style], rng, sd)
         drivers.append(SumoDriver(did, style, typical, params))
     return drivers
