@@ -365,7 +365,7 @@ def read_decoded_mcap(got: Any, mapping: Mapping, meta: dict[str, Any], warnings
     """A `RawLog` from the collected records of an MCAP file, decoding through its schemas.
 
     `got` holds `channels`, `schemas`, `times` and `datas` by channel id (see
-    `mcap_reader._Collected`); `meta` and `warnings` come from its session metadata.
+    `mcap_records.Collected`); `meta` and `warnings` come from its session metadata.
     """
     signals = mapping.mcap_signals or signals_from_v1(mapping.topic, mapping.msg_field)
     factories: list[DecoderFactory] = [Ros2DecoderFactory(), ProtobufDecoderFactory(), JsonDecoderFactory()]

@@ -3,11 +3,10 @@
 Files with ROS 2 (CDR) or protobuf messages, and any file read by a `[mcap.signals]`
 mapping, are decoded through their schemas by `mcap_decoding`.
 
-Indexed files (chunk indexes + summary) are read through `mcap.reader.SeekingReader`
-and the summary; files without a usable summary (written unchunked, or by a recorder
-that never finished) are read record by record from the start (`StreamReader`). A
-file that ends without the closing footer magic is truncated: it is rejected with
-the byte offset where the last complete record ends (`mcap recover` can salvage it).
+Records are read in file order by `mcap_records.collect` (every valid file the same
+way, with or without summary, index or repeated channels). A file that ends without
+the closing footer magic is truncated: it is rejected with the byte offset where the
+last complete record ends (`mcap recover` can salvage it).
 """
 
 from __future__ import annotations
@@ -20,9 +19,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.json as pajson
-from mcap.records import Channel, Chunk, Message, Metadata, Schema
-from mcap.reader import SeekingReader
-from mcap.stream_reader import StreamReader, breakup_chunk
 
 from ingest.logformat import (
     DEFAULT_LENGTH_M,
@@ -34,94 +30,10 @@ from ingest.logformat import (
 )
 from ingest.alignment import asof, place_presses
 from ingest.mapping import Mapping
+from ingest.mcap_records import MAGIC, Collected, collect
 from ingest.rawlog import RawLog, Rejected, first_line
 
-MAGIC = b"\x89MCAP0\r\n"
-
-
-class _Collected:
-    """Messages grouped by channel, plus the channels and the session metadata."""
-
-    def __init__(self) -> None:
-        self.channels: dict[int, Channel] = {}
-        self.schemas: dict[int, Schema] = {}
-        self.times: dict[int, list[int]] = {}
-        self.datas: dict[int, list[bytes]] = {}
-        self.metadata: dict[str, dict[str, str]] = {}
-
-    def add(self, channel_id: int, log_time: int, data: bytes) -> None:
-        times = self.times.get(channel_id)
-        if times is None:
-            times = self.times[channel_id] = []
-            self.datas[channel_id] = []
-        times.append(log_time)
-        self.datas[channel_id].append(data)
-
-
-def _collect_indexed(data: bytes) -> _Collected | None:
-    """Read through the summary; None when the file has no usable chunk index."""
-    try:
-        reader = SeekingReader(io.BytesIO(data))
-        summary = reader.get_summary()
-    except Exception:  # a damaged summary: fall back to the linear read, which names the problem
-        return None
-    if summary is None or not summary.chunk_indexes:
-        return None
-    got = _Collected()
-    got.channels = dict(summary.channels)
-    got.schemas = dict(summary.schemas)
-    try:
-        for _, channel, msg in reader.iter_messages(log_time_order=False):
-            got.add(channel.id, msg.log_time, msg.data)
-        if summary.metadata_indexes:
-            for md in reader.iter_metadata():
-                got.metadata[md.name] = dict(md.metadata)
-        else:  # metadata written without an index: scan the records (chunks stay compressed)
-            for rec in StreamReader(io.BytesIO(data), emit_chunks=True).records:
-                if isinstance(rec, Metadata):
-                    got.metadata[rec.name] = dict(rec.metadata)
-    except Exception as exc:
-        raise Rejected(f"corrupt MCAP: cannot read a chunk listed in the index ({first_line(exc)})") from None
-    return got
-
-
-def _collect_stream(data: bytes) -> _Collected:
-    """Read record by record from the start: for unindexed files and to locate damage."""
-    got = _Collected()
-    bio = io.BytesIO(data)
-    last_end = len(MAGIC)
-    finished = False
-
-    def take(rec: Any) -> None:
-        if isinstance(rec, Message):
-            got.add(rec.channel_id, rec.log_time, rec.data)
-        elif isinstance(rec, Channel):
-            got.channels[rec.id] = rec
-        elif isinstance(rec, Metadata):
-            got.metadata[rec.name] = dict(rec.metadata)
-        elif isinstance(rec, Schema):
-            got.schemas[rec.id] = rec
-
-    try:
-        for rec in StreamReader(bio, emit_chunks=True).records:
-            if isinstance(rec, Chunk):
-                for inner in breakup_chunk(rec):
-                    take(inner)
-            else:
-                take(rec)
-            last_end = bio.tell()
-        finished = True
-    except Exception as exc:
-        truncated = not data.endswith(MAGIC)
-        if truncated and last_end >= len(data):
-            raise Rejected(f"truncated MCAP: the file ends after the last complete record (byte {last_end}) "
-                           f"without a footer; the recorder did not finish it (try `mcap recover`)") from None
-        if truncated:
-            raise Rejected(f"truncated MCAP: stream ended inside a record at byte {last_end} of {len(data)} "
-                           f"(try `mcap recover`)") from None
-        raise Rejected(f"corrupt MCAP: unreadable record at byte {last_end} ({first_line(exc)})") from None
-    assert finished
-    return got
+__all__ = ["MAGIC", "Collected", "read_mcap_log"]
 
 
 def _getter(path: str) -> Callable[[dict], Any]:
@@ -194,9 +106,7 @@ def read_mcap_log(data: bytes, mapping: Mapping) -> RawLog:
     """Parse MCAP bytes into a `RawLog`; `Rejected` with a precise reason on bad input."""
     if not data.startswith(MAGIC):
         raise Rejected("not an MCAP file: it does not start with the MCAP magic bytes")
-    got = _collect_indexed(data) if data.endswith(MAGIC) else None
-    if got is None:
-        got = _collect_stream(data)
+    got = collect(data)
 
     by_topic: dict[str, list[int]] = {}
     for cid, ch in got.channels.items():
