@@ -7,9 +7,8 @@ import pandas as pd
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
-from indicators.plots import LABELS, SPEED_LABEL
-from laneprint.plotting import spread_labels
-from laneprint.reference import INDICATORS
+from indicators.plots import PAPER_INDICATORS, SPEED_LABEL, label_of
+from laneprint.plotting import clip_to_axis, line_formula, spread_labels, tail_range
 
 STYLE_COLORS = {"Defensive": "#2ca02c", "Normal": "#1f77b4", "Aggressive": "#d62728", "unassigned": "#999999"}
 _EXTRA_COLORS = ["#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22"]
@@ -27,47 +26,77 @@ def style_color(style: str, i: int = 0) -> str:
     return STYLE_COLORS.get(style, _EXTRA_COLORS[i % len(_EXTRA_COLORS)])
 
 
+_FEATURE_UNITS = {"s": "s", "m": "m", "mps": "m/s"}
+
+
 def _feature_label(col: str) -> str:
-    # 't_f_at_80kph_s' -> 't_f at 80 km/h [s]'
-    ind, rest = col.split("_at_")
+    # 't_f_at_80kph_s' -> 't_f at 80 km/h [s]', 'gap_f_at_80kph_m' -> 'gap_f at 80 km/h [m]'
+    ind, rest = col.rsplit("_at_", 1)
     kph, unit = rest.split("kph_")
-    return f"{ind} at {kph} km/h [{'s' if unit == 's' else 'm/s'}]"
+    return f"{ind} at {kph} km/h [{_FEATURE_UNITS.get(unit, unit)}]"
+
+
+def feature_columns(styles: pd.DataFrame) -> list[str]:
+    """The clustering feature columns of a styles table (`<indicator>_at_<kph>kph_<unit>`)."""
+    return [c for c in styles.columns if "_at_" in c and "kph_" in c]
+
+
+def feature_indicator(col: str) -> str:
+    """'gap_f_at_80kph_m' -> 'gap_f'."""
+    return col.rsplit("_at_", 1)[0]
 
 
 def cluster_scatter(styles: pd.DataFrame, x: str | None = None, y: str | None = None,
-                    max_labels: int = 12) -> go.Figure:
-    """Drivers in feature space (default: t_f and t_nf of each driver's line at 80 km/h),
-    one trace per style, typical drivers as stars (trace 'typical drivers'); marker
-    opacity follows the assignment confidence. Every driver's id is in its hover; at
+                    max_labels: int = 12, indicators: list[str] | tuple[str, ...] | None = None) -> go.Figure:
+    """Drivers in feature space (default: the first two of `indicators`, the clustering's
+    chosen ones, else t_f and t_nf, each driver's line at 80 km/h), one trace per style,
+    typical drivers as stars (trace 'typical drivers'); marker opacity follows the
+    assignment confidence. Each axis is set by the bulk of the drivers
+    (`laneprint.plotting.tail_range`); a driver beyond it is drawn at its edge as an open
+    diamond, its true values in the hover, and counted in the title. Every driver's id is in its hover; at
     most `max_labels` ids are written on the plot (annotations), typical drivers first,
     only where a label overlaps no other label or point."""
-    feats = [c for c in styles.columns if "_at_" in c and "kph_" in c]
+    feats = feature_columns(styles)
     if not feats:
         raise ValueError("styles table has no feature columns")
 
     def pick(prefix: str) -> str | None:
-        cands = [c for c in feats if c.startswith(prefix + "_at_")]
+        cands = [c for c in feats if feature_indicator(c) == prefix]
         return next((c for c in cands if "_at_80kph" in c), cands[len(cands) // 2] if cands else None)
 
+    chosen = [i for i in (indicators or []) if pick(i)]
+    if len(chosen) >= 2:
+        x, y = x or pick(chosen[0]), y or pick(chosen[1])
     x = x or pick("t_f") or feats[0]
-    y = y or pick("t_nf") or (feats[1] if len(feats) > 1 else feats[0])
+    y = y or pick("t_nf") or next((c for c in feats if feature_indicator(c) != feature_indicator(x)),
+                                  feats[1] if len(feats) > 1 else feats[0])
+    # heavy tails (a driver whose t_f line reads minutes): the axes follow the bulk, the rest at the edge
+    ranges = {c: tail_range(styles[c]) for c in (x, y)}
+    where = {c: clip_to_axis(styles[c], *(ranges[c] or (-np.inf, np.inf))) for c in (x, y)}
+    styles = styles.assign(_x=where[x]["y"].to_numpy(), _y=where[y]["y"].to_numpy(),
+                           _off=((where[x]["side"] != "") | (where[y]["side"] != "")).to_numpy())
+    n_off = int(styles["_off"].sum())
     fig = go.Figure()
     order = styles.sort_values("cluster")["style"].unique()
     for i, style in enumerate(order):
         g = styles[styles["style"] == style]
         conf = g["confidence"].fillna(0).clip(0, 1).to_numpy()
         fig.add_trace(go.Scatter(
-            x=g[x], y=g[y], mode="markers", name=style, text=g["driver_id"],
-            marker={"color": style_color(style, i), "size": 11, "opacity": list(0.35 + 0.65 * conf)},
-            customdata=np.c_[conf, g["n_decisions"]],
-            hovertemplate="%{text}<br>confidence %{customdata[0]:.2f}<br>presses %{customdata[1]}<extra>" + style + "</extra>"))
+            x=g["_x"], y=g["_y"], mode="markers", name=style, text=g["driver_id"], cliponaxis=False,
+            marker={"color": style_color(style, i), "size": 11, "opacity": list(0.35 + 0.65 * conf),
+                    "symbol": np.where(g["_off"], "diamond-open", "circle").tolist()},
+            customdata=np.c_[conf, g["n_decisions"], g[x], g[y]],
+            hovertemplate="%{text}<br>confidence %{customdata[0]:.2f}<br>presses %{customdata[1]}<br>"
+                          f"{_feature_label(x)}: %{{customdata[2]:.2f}}<br>{_feature_label(y)}: "
+                          "%{customdata[3]:.2f}<extra>" + style + "</extra>"))
     typ = styles[styles["is_typical"].astype(bool)]
-    fig.add_trace(go.Scatter(x=typ[x], y=typ[y], mode="markers", name="typical drivers", text=typ["driver_id"],
+    fig.add_trace(go.Scatter(x=typ["_x"], y=typ["_y"], mode="markers", name="typical drivers", text=typ["driver_id"],
+                             cliponaxis=False,
                              marker={"symbol": "star", "size": 20, "color": "rgba(0,0,0,0)",
                                      "line": {"width": 2, "color": "black"}},
                              hovertemplate="typical: %{text}<extra></extra>"))
     # every driver is named in the hover; on the plot only labels that overlap nothing, typical drivers first
-    sides = spread_labels(styles[x], styles[y], styles["driver_id"].astype(str),
+    sides = spread_labels(styles["_x"], styles["_y"], styles["driver_id"].astype(str),
                           priority=styles["is_typical"].astype(bool).astype(float), max_labels=max_labels)
     for (_, r), side in zip(styles.iterrows(), sides):
         if not side:
@@ -75,36 +104,55 @@ def cluster_scatter(styles: pd.DataFrame, x: str | None = None, y: str | None = 
         # a typical driver's label stands off its star on an arrow: the star is large, its cluster dense
         place = ({"showarrow": True, "arrowwidth": 1, "arrowcolor": "#444", "ax": _ARROW[side][0],
                   "ay": _ARROW[side][1]} if bool(r["is_typical"]) else {"showarrow": False, **_LABEL_OFFSETS[side]})
-        fig.add_annotation(x=r[x], y=r[y], text=str(r["driver_id"]), font={"size": 11},
+        fig.add_annotation(x=r["_x"], y=r["_y"], text=str(r["driver_id"]), font={"size": 11},
                            bgcolor="rgba(255,255,255,0.8)", borderpad=1, **place)
-    fig.update_layout(title="Drivers in feature space (each driver's robust line evaluated at one speed)",
+    for axis, c in (("xaxis", x), ("yaxis", y)):
+        if ranges[c]:
+            fig.update_layout({axis: {"range": list(ranges[c])}})
+    off_note = (f" — {n_off} driver{'s' if n_off != 1 else ''} beyond the axes, drawn at the edge (open diamond)"
+                if n_off else "")
+    fig.update_layout(title="Drivers in feature space (each driver's robust line evaluated at one speed)" + off_note,
                       xaxis_title=_feature_label(x), yaxis_title=_feature_label(y), template="plotly_white")
     return fig
 
 
 def reference_lines(reference_lines: pd.DataFrame, kinds: tuple[str, ...] = ("typical", "paper"),
-                    v_range_mps: tuple[float, float] = (60 / 3.6, 95 / 3.6)) -> go.Figure:
-    """The styles' reference lines overlaid, one panel per indicator: 'typical' solid,
-    'pooled' dashed, 'paper' (Table 1) dotted. Trace names are '<style> <kind>'."""
+                    v_range_mps: tuple[float, float] = (60 / 3.6, 95 / 3.6),
+                    indicators: list[str] | tuple[str, ...] | None = None, columns: int = 3) -> go.Figure:
+    """The styles' reference lines overlaid, one panel per indicator (the paper's three first,
+    then any other the table has, or `indicators`), `columns` panels a row: 'typical'
+    solid, 'pooled' dashed, 'paper' (Table 1) dotted. Trace names are '<style> <kind>';
+    the hover names how the line was fitted (the table's `fit`: 'ols', 'huber' or
+    'level', when present). Axis titles are short ('t_nf [s]') so that they stay inside
+    their panel."""
     refs = reference_lines[(reference_lines["scope"] == "style") & reference_lines["kind"].isin(kinds)]
-    fig = make_subplots(rows=1, cols=len(INDICATORS), subplot_titles=[LABELS[i].split(":")[0] for i in INDICATORS])
+    present = list(dict.fromkeys(refs["indicator"]))
+    inds = [i for i in (indicators or [*PAPER_INDICATORS, *present]) if i in present] or list(PAPER_INDICATORS)
+    inds = list(dict.fromkeys(inds))
+    ncol = min(columns, len(inds))
+    nrow = -(-len(inds) // ncol)
+    fig = make_subplots(rows=nrow, cols=ncol, subplot_titles=inds, horizontal_spacing=0.09,
+                        vertical_spacing=min(0.25, 0.6 / nrow) if nrow > 1 else 0.2)
     grid = np.linspace(*v_range_mps, 30)
     dash = {"typical": "solid", "pooled": "dash", "paper": "dot"}
     names = list(dict.fromkeys(refs["name"]))
-    for col, ind in enumerate(INDICATORS, start=1):
+    for k, ind in enumerate(inds):
+        row, col = k // ncol + 1, k % ncol + 1
         for i, name in enumerate(names):
             for kind in kinds:
                 r = refs[(refs["name"] == name) & (refs["indicator"] == ind) & (refs["kind"] == kind)]
                 if not len(r):
                     continue
                 r = r.iloc[0]
+                how = f" ({r['fit']} fit)" if "fit" in r and isinstance(r["fit"], str) and r["fit"] else ""
                 fig.add_trace(go.Scatter(x=grid, y=r["A"] * grid + r["b"], mode="lines", name=f"{name} {kind}",
-                                         legendgroup=f"{name} {kind}", showlegend=col == 1,
+                                         legendgroup=f"{name} {kind}", showlegend=k == 0,
                                          line={"color": style_color(name, i), "dash": dash.get(kind, "solid")},
-                                         hovertemplate=f"{name} {kind}: {r['A']:.3f} v + {r['b']:.2f}<br>{r['source']}"
-                                                       "<extra></extra>"), row=1, col=col)
-        fig.update_xaxes(title_text=SPEED_LABEL, row=1, col=col)
-        fig.update_yaxes(title_text=LABELS[ind], row=1, col=col)
+                                         hovertemplate=f"{name} {kind}{how}: "
+                                                       f"{line_formula(ind, float(r['A']), float(r['b']))}"
+                                                       f"<br>{r['source']}<extra></extra>"), row=row, col=col)
+        fig.update_xaxes(title_text=SPEED_LABEL, row=row, col=col)
+        fig.update_yaxes(title_text=label_of(ind, short=True), row=row, col=col)
     fig.update_layout(title="Reference lines per style (solid: typical driver, dotted: Table 1)",
-                      template="plotly_white")
+                      template="plotly_white", height=max(420, 330 * nrow))
     return fig

@@ -16,7 +16,10 @@ from plotly.subplots import make_subplots
 
 from dashboard.views import CROSSVAL_POLICIES
 from laneprint.plotting import ema_smooth, even_indices
-from rl.plots import MAX_CURVE_POINTS
+from rl.plots import EPISODE_LABEL, LOSS_LABEL, MAX_CURVE_POINTS, REWARD_LABEL
+
+#: The run comparison's curves: metric -> axis title, as the Training page names them.
+CURVE_LABELS = {"loss": LOSS_LABEL, "mean_step_reward": REWARD_LABEL}
 
 MAX_POINTS = 20_000
 
@@ -96,27 +99,44 @@ def recording_timeline(ego: pd.DataFrame, traffic: pd.DataFrame, title: str = ""
     return fig
 
 
-def runs_curves(metrics: dict[str, pd.DataFrame], column: str, label: str, smoothing: float = 0.95,
+def runs_curves(metrics: dict[str, pd.DataFrame], column: str, label: str | None = None, smoothing: float = 0.95,
                 max_points: int = MAX_CURVE_POINTS) -> go.Figure:
     """One metric per episode for several runs on one plot, smoothed as TensorBoard does (run comparison);
-    each smoothed curve (computed on every episode) is drawn at `max_points` points at most."""
+    each smoothed curve (computed on every episode) is drawn at `max_points` points at most, as a line
+    through the episodes that have a value (a run's loss is empty until learning starts and on episodes
+    without an update: those are joined, not left as specks). Axis titles as on the Training page."""
     fig = go.Figure()
     for run_id, df in metrics.items():
         if column in df:
-            thin = even_indices(len(df), max_points)
-            fig.add_trace(go.Scatter(x=df["episode"].to_numpy()[thin], y=ema_smooth(df[column], smoothing)[thin],
-                                     mode="lines", name=run_id))
-    fig.update_layout(xaxis_title="episode [-]", yaxis_title=label, height=360,
+            y = ema_smooth(df[column], smoothing)
+            ok = np.flatnonzero(np.isfinite(y))
+            thin = ok[even_indices(len(ok), max_points)]
+            fig.add_trace(go.Scatter(x=df["episode"].to_numpy()[thin], y=y[thin], mode="lines", name=run_id,
+                                     connectgaps=True))
+    fig.update_layout(xaxis_title=EPISODE_LABEL, yaxis_title=label or CURVE_LABELS.get(column, column), height=360,
                       legend=dict(orientation="h", y=-0.25))
     return fig
 
 
-def compact(fig: go.Figure, height: int = 440) -> go.Figure:
-    """Fit a stage's figure into a narrow column: title wrapped and smaller, legend below."""
+def compact(fig: go.Figure, height: int = 440, width_chars: int = 58) -> go.Figure:
+    """Fit a stage's figure into a narrow column: the title's first part as a short heading, the
+    rest (parts split at ' — ', wrapped at `width_chars`) in smaller lines under it, the top
+    margin grown to hold them (so the title clears the plot and anything drawn at its top
+    edge), the legend below."""
+    import textwrap
+
     title = fig.layout.title.text or ""
-    fig.update_layout(title=dict(text=title.replace(" — ", "<br>").replace(" (", "<br>("), font=dict(size=13)),
-                      legend=dict(orientation="h", yanchor="top", y=-0.22, x=0), height=height,
-                      margin=dict(l=10, r=10, t=80, b=10))
+    head, *rest = title.split(" — ")
+    heads = textwrap.wrap(head, width_chars) or [""]
+    lines = [ln for part in rest for ln in textwrap.wrap(part, width_chars + 8)]
+    text = "<br>".join(heads)
+    if lines:
+        text += "<br><span style='font-size:11px'>" + "<br>".join(lines) + "</span>"
+    top = 22 + 17 * len(heads) + 14 * len(lines) + 14
+    fig.update_layout(title=dict(text=text, font=dict(size=13), x=0, xanchor="left", xref="container",
+                                 y=1, yanchor="top", yref="container", pad=dict(t=8, l=8)),
+                      legend=dict(orientation="h", yanchor="top", y=-0.22, x=0), height=height + top - 80,
+                      margin=dict(l=10, r=10, t=top, b=10))
     return fig
 
 

@@ -17,7 +17,8 @@ import streamlit as st
 
 from laneprint.workspace import Workspace
 
-ANALYSIS_TABLES = ("decisions", "correlations", "fits", "styles", "reference_lines", "skipped", "k_scores")
+ANALYSIS_TABLES = ("decisions", "correlations", "fits", "styles", "reference_lines", "skipped", "k_scores",
+                   "feature_sets")
 
 
 def stamp(root: Path, *parts: str) -> tuple[int, ...]:

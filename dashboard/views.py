@@ -148,15 +148,83 @@ def compare_runs(tables: dict[str, pd.DataFrame]) -> pd.DataFrame:
     return out[["run_id", *[c for c in out.columns if c != "run_id"]]]
 
 
-FIT_SUMMARY_COLUMNS = ["indicator", "status", "A", "A_lo", "A_hi", "b", "b_lo", "b_hi", "r2", "n", "v_min", "v_max",
-                       "reason"]
+FIT_SUMMARY_COLUMNS = ["indicator", "unit", "flag", "status", "A", "A_lo", "A_hi", "b", "b_lo", "b_hi", "r2", "n",
+                       "v_min", "v_max", "reason"]
 
 
 def fit_summary(fits: pd.DataFrame) -> pd.DataFrame:
-    """The fit columns a reader needs (speeds in m/s), numbers rounded."""
-    out = fits[[c for c in FIT_SUMMARY_COLUMNS if c in fits.columns]].copy()
+    """The fit columns a reader needs (speeds in m/s, each indicator's unit, the analysis' flag), numbers rounded."""
+    from indicators.plots import unit_of
+
+    out = fits.copy()
+    out["unit"] = [unit_of(i) for i in out["indicator"]]
+    if "flag" in out:
+        out["flag"] = out["flag"].fillna("").astype(str)
+    out = out[[c for c in FIT_SUMMARY_COLUMNS if c in out.columns]]
     out = out.rename(columns={"v_min": "v_min [m/s]", "v_max": "v_max [m/s]"})
     return out.round(3)
+
+
+def flagged_fits(fits: pd.DataFrame | None) -> pd.DataFrame:
+    """The fitted lines the analysis flagged (R² too low, slope interval spanning 0, ...): indicator, flag.
+    Empty for an analysis made before flags existed."""
+    if fits is None or fits.empty or "flag" not in fits:
+        return pd.DataFrame(columns=["driver_id", "indicator", "flag"])
+    ok = fits[(fits["status"] == "ok") & (fits["flag"].fillna("").astype(str) != "")]
+    return ok[[c for c in ("driver_id", "indicator", "flag") if c in ok]].reset_index(drop=True)
+
+
+def indicator_groups_of(decisions: pd.DataFrame, fits: pd.DataFrame | None = None) -> dict[str, tuple[str, ...]]:
+    """The indicator groups the Drivers page offers: only indicators this analysis has (their value
+    column in the decisions table; an older analysis has the paper's three only)."""
+    from indicators.plots import PAPER_INDICATORS, indicator_columns, indicator_groups
+
+    cols = indicator_columns()
+    have = [i for i, (value, status, _) in cols.items() if value in decisions and status in decisions]
+    return indicator_groups(have or [i for i in PAPER_INDICATORS if i in cols])
+
+
+def chosen_indicators(meta: dict[str, Any]) -> list[str]:
+    """The indicators the styles were read by (analysis/meta.json's summary.features, else its settings)."""
+    summary = (meta or {}).get("summary") or {}
+    feats = summary.get("features") or {}
+    if feats.get("indicators"):
+        return [str(i) for i in feats["indicators"]]
+    return [str(i) for i in ((meta or {}).get("settings") or {}).get("feature_indicators") or ("t_f", "t_nf")]
+
+
+def feature_candidates(meta: dict[str, Any]) -> pd.DataFrame:
+    """The feature sets the analysis measured, the chosen one first: set, indicators, k, silhouette,
+    stability, score, chosen. Empty for an analysis made before the choice existed."""
+    feats = ((meta or {}).get("summary") or {}).get("features") or {}
+    rows = []
+    for c in feats.get("candidates") or []:
+        inds = c.get("indicators")
+        rows.append({"feature set": c.get("name"), "indicators": ", ".join(inds) if isinstance(inds, list) else inds,
+                     "k": c.get("k"), "silhouette [-]": c.get("silhouette"), "stability [-]": c.get("stability"),
+                     "score [-]": c.get("score"), "chosen": c.get("name") == feats.get("chosen")})
+    out = pd.DataFrame(rows, columns=["feature set", "indicators", "k", "silhouette [-]", "stability [-]",
+                                      "score [-]", "chosen"])
+    for c in ("silhouette [-]", "stability [-]", "score [-]"):
+        out[c] = pd.to_numeric(out[c], errors="coerce").round(3)
+    return out.sort_values("chosen", ascending=False, kind="stable").reset_index(drop=True)
+
+
+def analysis_warnings(meta: dict[str, Any]) -> list[str]:
+    """The analysis' warnings (a style with one driver, k >= drivers, flagged fits, ...): meta summary.warnings."""
+    return [str(w) for w in (((meta or {}).get("summary") or {}).get("warnings") or [])]
+
+
+def plural(n: int, word: str, words: str | None = None) -> str:
+    """'1 driver', '3 drivers' (`words` for an irregular plural)."""
+    return f"{n:,} {word if n == 1 else (words or word + 's')}"
+
+
+def cli_hint(command: str, root, *args: str) -> str:
+    """'laneprint ingest sample_logs/ --workspace /w': a command for the workspace the page shows."""
+    import shlex
+
+    return shlex.join(["laneprint", command, *args, "--workspace", str(root)])
 
 
 def analysis_settings(saved: dict[str, Any], **changes: Any):
@@ -363,3 +431,45 @@ def fleet_headline(table: pd.DataFrame) -> str:
                         for who in ("agent", "greedy", "imitation") if evaluated[f"{who}_balanced_accuracy"].notna().any())
     return (f"{meets} of {len(evaluated)} evaluated agents meet their target (recall >= 95 %, balanced accuracy "
             f">= greedy + 5 points); median balanced accuracy (in-sample): {medians}.")
+
+
+def speeds_text(meta: dict[str, Any]) -> str:
+    """'60, 70, 80 and 90 km/h (16.7-25.0 m/s)': the speeds the feature lines are read at."""
+    kph = [float(v) for v in ((meta or {}).get("settings") or {}).get("feature_speeds_kph") or (60, 70, 80, 90)]
+    names = [f"{v:g}" for v in kph]
+    listed = ", ".join(names[:-1]) + f" and {names[-1]}" if len(names) > 1 else names[0]
+    return f"{listed} km/h ({min(kph) / 3.6:.1f}-{max(kph) / 3.6:.1f} m/s)"
+
+
+def reference_indicators(lines: pd.DataFrame, chosen: list[str]) -> list[str]:
+    """The indicators whose reference lines the Styles page draws: the paper's three (the agents read
+    them), then the chosen features', as far as the table has them."""
+    from indicators.plots import PAPER_INDICATORS
+
+    have = set(lines["indicator"]) if lines is not None and "indicator" in lines else set()
+    return [i for i in dict.fromkeys([*PAPER_INDICATORS, *chosen]) if i in have]
+
+
+def recording_names(recs: pd.DataFrame) -> dict[str, str]:
+    """recording_id -> 'D01 / D01_S80' (driver and session) for progress texts."""
+    if recs is None or recs.empty:
+        return {}
+    return {str(r["recording_id"]): f"{r['driver_id']} / {r['session_id']}" for _, r in recs.iterrows()}
+
+
+def progress_text(names: dict[str, str]):
+    """A translator of a stage's progress messages for people: 'decisions 2a9eff0c82b3454d' becomes
+    'reading decisions: recording 3 of 12 (D01 / D01_S80)'."""
+    import re
+
+    pattern = re.compile(r"^decisions ([0-9a-f]{8,})$")
+
+    def text(done: int, total: int, message: str) -> str:
+        m = pattern.match(message or "")
+        if m:
+            return (f"reading decisions: recording {done + 1} of {total} "
+                    f"({names.get(m.group(1), m.group(1)[:8])})")
+        if message == "fits and styles":
+            return "fitting each driver's lines, choosing the features and clustering the styles"
+        return message
+    return text

@@ -22,11 +22,13 @@ def lazy_expander(label: str, key: str):
     return box if box.open else None
 
 
-def progress_to(bar, default_text: str) -> ProgressFn:
-    """A stage `progress(done, total, message)` callback drawing on an `st.progress` bar."""
+def progress_to(bar, default_text: str, translate: Callable[[int, int, str], str] | None = None) -> ProgressFn:
+    """A stage `progress(done, total, message)` callback drawing on an `st.progress` bar; `translate`
+    turns the stage's message into the text shown (`views.progress_text`)."""
 
     def update(done: int, total: int, message: str = "") -> None:
-        bar.progress(min(1.0, done / max(total, 1)), text=message or default_text)
+        text = translate(done, total, message) if translate else message
+        bar.progress(min(1.0, done / max(total, 1)), text=text or default_text)
 
     return update
 

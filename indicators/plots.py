@@ -6,12 +6,85 @@ import numpy as np
 import pandas as pd
 import plotly.graph_objects as go
 
+from indicators import stats as _stats
 from indicators.stats import INDICATOR_COLUMNS, LineFit, indicator_points
-from laneprint.plotting import axis_range, clip_to_axis
+from laneprint.plotting import clip_to_axis, line_formula, tail_range
+
+#: The paper's three indicators (Li & Liu), always first.
+PAPER_INDICATORS: tuple[str, ...] = ("t_f", "t_nf", "dv_nb")
 
 LABELS = {"t_f": "t_f: TTC to the ego-lane leader [s]", "t_nf": "t_nf: TTC to the target-lane leader [s]",
-          "dv_nb": "dv_nb: v_ego - v_nb, target-lane follower [m/s]"}
+          "dv_nb": "dv_nb: v_ego - v_nb, target-lane follower [m/s]",
+          "gap_f": "gap_f: gap to the ego-lane leader [m]",
+          "thw_f": "thw_f: time headway to the ego-lane leader, gap / v_e [s]",
+          "dv_f": "dv_f: v_ego - v_f, ego-lane leader [m/s]",
+          "gap_nf": "gap_nf: lead gap in the target lane [m]",
+          "dv_nf": "dv_nf: v_ego - v_nf, target-lane leader [m/s]",
+          "gap_nb": "gap_nb: lag gap in the target lane [m]",
+          "thw_nb": "thw_nb: time headway of the target-lane follower, lag gap / v_nb [s]"}
+#: Short axis titles (name and unit) where a panel is narrow.
+SHORT_LABELS = {k: f"{k} [{v.rsplit('[', 1)[1]}" for k, v in LABELS.items()}
 SPEED_LABEL = "ego speed v_e [m/s]"
+
+#: What the Drivers page groups the indicators by; an indicator this analysis lacks is left out.
+INDICATOR_GROUPS: dict[str, tuple[str, ...]] = {
+    "The paper's three: times to collision and the follower's closing speed": PAPER_INDICATORS,
+    "What the driver accepts: gaps and time headways": ("gap_f", "thw_f", "gap_nf", "gap_nb", "thw_nb"),
+    "What the driver accepts: relative speeds": ("dv_f", "dv_nf"),
+}
+
+
+def indicator_columns() -> dict[str, tuple[str, str, str]]:
+    """indicator -> (value column, status column, unit) as the analysis stage defines them (the paper's
+    three in an older install)."""
+    return dict(getattr(_stats, "INDICATOR_COLUMNS", INDICATOR_COLUMNS))
+
+
+def unit_of(indicator: str) -> str:
+    """The indicator's unit ('s', 'm', 'm/s'), '' when unknown."""
+    cols = indicator_columns().get(indicator)
+    if cols:
+        return cols[2]
+    label = LABELS.get(indicator, "")
+    return label.rsplit("[", 1)[1].rstrip("]") if "[" in label else ""
+
+
+def label_of(indicator: str, short: bool = False) -> str:
+    """Axis title with the unit: 't_f: TTC to the ego-lane leader [s]' (short: 't_f [s]')."""
+    if indicator in LABELS:
+        return SHORT_LABELS[indicator] if short else LABELS[indicator]
+    unit = unit_of(indicator)
+    return f"{indicator} [{unit}]" if unit else indicator
+
+
+def indicator_groups(available) -> dict[str, tuple[str, ...]]:
+    """`INDICATOR_GROUPS` restricted to the `available` indicators (empty groups dropped); indicators in
+    no group go to a last group 'Other indicators'."""
+    available = list(dict.fromkeys(available))
+    out = {name: tuple(i for i in inds if i in available) for name, inds in INDICATOR_GROUPS.items()}
+    out = {k: v for k, v in out.items() if v}
+    grouped = {i for v in out.values() for i in v}
+    rest = tuple(i for i in available if i not in grouped)
+    if rest:
+        out["Other indicators"] = rest
+    return out
+
+
+def fit_flag(row: pd.Series | dict | None) -> str:
+    """The analysis' flag of a fit ('' when the line means something, or when the analysis predates flags)."""
+    if row is None:
+        return ""
+    flag = row.get("flag") if hasattr(row, "get") else None
+    return "" if flag is None or (isinstance(flag, float) and np.isnan(flag)) else str(flag)
+
+
+def _off_axis_trace(part: pd.DataFrame, where: pd.DataFrame, name: str, color: str, unit: str) -> go.Scatter:
+    return go.Scatter(
+        x=part["v"], y=where["y"], mode="markers", name=f"{name}, off the axis ({len(part)})",
+        marker={"color": color, "size": 9, "symbol": np.where(where["side"] == "above", "triangle-up",
+                                                               "triangle-down").tolist()},
+        cliponaxis=False, customdata=where["value"], text=part["decision_id"] + ": " + part["status"],
+        hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{customdata:.2f} " + unit + " (off the axis)<extra></extra>")
 
 
 def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: str, indicator: str,
@@ -19,42 +92,50 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
     """One driver's presses: the indicator against ego speed, the OLS line, its (1 - alpha)
     confidence band and prediction band. Points left out of the fit are grey, with their reason.
 
-    The y axis is scaled to the used points; excluded points beyond it are drawn at its
-    edge as triangles (pointing where they are) with their true value in the hover.
+    The y axis is set by the bulk of the used points (`laneprint.plotting.tail_range`: a
+    TTC of minutes among seconds does not flatten the rest); any point beyond it, used
+    or excluded, is drawn at its edge as a triangle (pointing where it is), counted in
+    its trace's name, with its true value in the hover. The title names the fit's flag
+    when the analysis flagged it (a low R², a slope interval spanning 0).
 
-    Traces (by name): 'used', 'excluded' and 'excluded, off the axis (n)' (if any), and
-    when the fit is 'ok': 'prediction band', 'confidence band', 'OLS line'.
+    Traces (by name): 'used', 'used, off the axis (n)', 'excluded' and 'excluded, off the
+    axis (n)' (each only when it has points), and when the fit is 'ok': 'prediction
+    band', 'confidence band', 'OLS line'.
     """
-    if indicator not in INDICATOR_COLUMNS:
+    columns = indicator_columns()
+    if indicator not in columns:
         raise ValueError(f"unknown indicator {indicator!r}")
-    pts = indicator_points(decisions[decisions["driver_id"].astype(str) == str(driver_id)])
+    unit = columns[indicator][2]
+    d = decisions[decisions["driver_id"].astype(str) == str(driver_id)]
+    pts = indicator_points(d) if len(d) else pd.DataFrame(columns=["indicator", "used", "y", "v", "status",
+                                                                      "decision_id"])
     pts = pts[pts["indicator"] == indicator]
     fig = go.Figure()
-    used = pts[pts["used"]]
-    fig.add_trace(go.Scatter(x=used["v"], y=used["y"], mode="markers", name="used",
-                             marker={"color": "#1f77b4", "size": 7},
-                             text=used["decision_id"], hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{y:.2f}"))
-    excl = pts[~pts["used"] & np.isfinite(pts["y"])]
-    # the axis follows the points the fit used: a few excluded TTCs of minutes would flatten them
-    yrange = axis_range(used["y"]) if len(used) else None
+    used = pts[pts["used"].astype(bool)]
+    excl = pts[~pts["used"].astype(bool) & np.isfinite(pts["y"].astype(float))]
+    # the axis follows the bulk of the points the fit used (all finite points when none is used)
+    yrange = tail_range(used["y"]) if len(used) else tail_range(excl["y"])
+    lo, hi = yrange if yrange else (-np.inf, np.inf)
+    drawn = clip_to_axis(used["y"], lo, hi)
+    inside = (drawn["side"] == "").to_numpy()
+    fig.add_trace(go.Scatter(x=used["v"][inside], y=used["y"][inside], mode="markers", name="used",
+                             marker={"color": "#1f77b4", "size": 7}, text=used["decision_id"][inside],
+                             hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{y:.2f} " + unit))
+    if (~inside).any():
+        fig.add_trace(_off_axis_trace(used[~inside], drawn[~inside], "used", "#1f77b4", unit))
     if len(excl):
-        drawn = clip_to_axis(excl["y"], *yrange) if yrange else clip_to_axis(excl["y"], -np.inf, np.inf)
+        drawn = clip_to_axis(excl["y"], lo, hi)
         inside = (drawn["side"] == "").to_numpy()
         part = excl[inside]
         if len(part):
             fig.add_trace(go.Scatter(x=part["v"], y=part["y"], mode="markers", name="excluded",
                                      marker={"color": "#bbbbbb", "size": 7, "symbol": "x"},
                                      text=part["decision_id"] + ": " + part["status"],
-                                     hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{y:.2f}"))
-        off, where = excl[~inside], drawn[~inside]
-        if len(off):
-            fig.add_trace(go.Scatter(
-                x=off["v"], y=where["y"], mode="markers", name=f"excluded, off the axis ({len(off)})",
-                marker={"color": "#999999", "size": 9, "symbol": np.where(where["side"] == "above", "triangle-up",
-                                                                           "triangle-down").tolist()},
-                cliponaxis=False, customdata=where["value"], text=off["decision_id"] + ": " + off["status"],
-                hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{customdata:.2f} (off the axis)<extra></extra>"))
-    row = fits[(fits["driver_id"].astype(str) == str(driver_id)) & (fits["indicator"] == indicator)]
+                                     hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{y:.2f} " + unit))
+        if (~inside).any():
+            fig.add_trace(_off_axis_trace(excl[~inside], drawn[~inside], "excluded", "#999999", unit))
+    row = fits[(fits["driver_id"].astype(str) == str(driver_id)) & (fits["indicator"] == indicator)] \
+        if fits is not None and len(fits) else pd.DataFrame()
     title = f"driver {driver_id}: {indicator} against ego speed"
     if len(row) and row.iloc[0]["status"] == "ok":
         r = row.iloc[0]
@@ -62,16 +143,22 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
         grid = np.linspace(float(r["v_min"]), float(r["v_max"]), 60)
         b = fit.bands(grid)
         pct = int(round(100 * (1 - alpha)))
-        for lo, hi, name, color in (("pi_lo", "pi_hi", "prediction band", "rgba(31,119,180,0.10)"),
-                                    ("ci_lo", "ci_hi", "confidence band", "rgba(31,119,180,0.30)")):
-            fig.add_trace(go.Scatter(x=np.r_[grid, grid[::-1]], y=np.r_[b[hi], b[lo][::-1]], fill="toself",
+        for lo_, hi_, name, color in (("pi_lo", "pi_hi", "prediction band", "rgba(31,119,180,0.10)"),
+                                      ("ci_lo", "ci_hi", "confidence band", "rgba(31,119,180,0.30)")):
+            fig.add_trace(go.Scatter(x=np.r_[grid, grid[::-1]], y=np.r_[b[hi_], b[lo_][::-1]], fill="toself",
                                      fillcolor=color, line={"width": 0}, name=name, hoverinfo="skip",
                                      legendgroup=name))
-        fig.add_trace(go.Scatter(x=grid, y=b["mean"], mode="lines", name="OLS line", line={"color": "#d62728"}))
-        title += f" — {indicator} = {r['A']:.3f} v_e + {r['b']:.2f} (R² {r['r2']:.2f}, n {int(r['n'])}, {pct} % bands)"
+        flag = fit_flag(r)
+        fig.add_trace(go.Scatter(x=grid, y=b["mean"], mode="lines", name="OLS line",
+                                 line={"color": "#d62728", "dash": "dot" if flag else "solid"}))
+        title += (f" — {line_formula(indicator, float(r['A']), float(r['b']))} [{unit}], v_e in m/s "
+                  f"(R² {r['r2']:.2f}, n {int(r['n'])}, {pct} % bands)")
+        if flag:
+            title += f" — flagged: {flag}"
     elif len(row):
         title += f" — no fit: {row.iloc[0]['reason']}"
-    fig.update_layout(title=title, xaxis_title=SPEED_LABEL, yaxis_title=LABELS[indicator], template="plotly_white")
+    fig.update_layout(title=title, xaxis_title=SPEED_LABEL, yaxis_title=label_of(indicator),
+                      template="plotly_white")
     if yrange:
         fig.update_yaxes(range=list(yrange))
     return fig

@@ -1,4 +1,5 @@
-"""Drivers: one driver's indicators against speed with the OLS fits, correlations, fit summary."""
+"""Drivers: one driver's indicators against speed with the OLS fits and their flags, grouped (the
+paper's three; what the driver accepts), correlations, fit summary, undefined indicators."""
 
 import streamlit as st
 
@@ -6,32 +7,50 @@ from dashboard import figures, loaders, views, widgets
 from dashboard.context import workspace
 from indicators.plots import correlation_table, indicator_vs_speed
 
-INDICATORS = ("t_f", "t_nf", "dv_nb")
-
 
 def main() -> None:
     st.title("Drivers")
     ws = workspace()
-    tables = loaders.analysis(str(ws.root), loaders.analysis_stamp(ws.root))
+    key = loaders.analysis_stamp(ws.root)
+    tables = loaders.analysis(str(ws.root), key)
     if "decisions" not in tables:
         st.info("No analysis yet: ingest logs on the Data page, then run the analysis on the Styles page "
-                "(or `laneprint analyze`).")
+                f"(or `{views.cli_hint('analyze', ws.root)}`).")
         return
     if loaders.analysis_is_stale(ws.root):
         st.info("Recordings were added or removed since this analysis ran: run it again on the Styles page.")
+    meta = loaders.analysis_meta(str(ws.root), key)
     decisions, fits = tables["decisions"], tables.get("fits")
     drivers = views.drivers_of(tables)
     driver = st.selectbox("Driver", drivers, key="driver")
     styles = views.for_driver(tables.get("styles"), driver)
-    n_press = int(((decisions["driver_id"] == driver) & (decisions["label"] == "change")).sum())
+    n_press = int(((decisions["driver_id"].astype(str) == driver) & (decisions["label"] == "change")).sum())
     style_txt = f", style **{styles.iloc[0]['style']}**" if len(styles) and "style" in styles else ""
-    st.markdown(f"**{driver}**: {n_press} lane-change decisions{style_txt}")
+    st.markdown(f"**{driver}**: {views.plural(n_press, 'lane-change decision')}{style_txt}")
 
-    cols = st.columns(len(INDICATORS))
-    for col, ind in zip(cols, INDICATORS):
-        with col:
-            fig = figures.compact(indicator_vs_speed(decisions, fits, driver, ind))
-            st.plotly_chart(fig, key=f"ivs_{ind}")
+    fit = views.for_driver(fits, driver)
+    flagged = views.flagged_fits(fit)
+    if len(flagged):
+        st.warning(f"{views.plural(len(flagged), 'line')} of this driver mean little and are drawn dotted: "
+                   + "; ".join(f"**{r.indicator}**: {r.flag}" for r in flagged.itertuples()))
+
+    groups = views.indicator_groups_of(decisions, fits)
+    chosen = views.chosen_indicators(meta)
+    labels = list(groups)
+    default = next((i for i, g in enumerate(labels) if set(groups[g]) & set(chosen) - {"t_f", "t_nf", "dv_nb"}), 0)
+    group = st.radio("Indicators", labels, index=default, key="indicator_group", horizontal=True,
+                     help="The paper's three, or what the driver accepts (the acceptance indicators are "
+                          "in the decisions table of analyses made since they exist)") if len(labels) > 1 else labels[0]
+    inds = groups[group]
+    for start in range(0, len(inds), 3):
+        cols = st.columns(3)
+        for col, ind in zip(cols, inds[start:start + 3]):
+            with col:
+                fig = figures.compact(indicator_vs_speed(decisions, fits, driver, ind))
+                st.plotly_chart(fig, key=f"ivs_{ind}")
+    st.caption("Each y axis is set by the bulk of the driver's points: a value beyond it (a TTC of minutes behind "
+               "a leader that hardly closes) is drawn as a triangle at the axis edge, counted in the legend, its "
+               "value in the hover.")
 
     st.subheader("Correlation with ego speed")
     corr = views.for_driver(tables.get("correlations"), driver)
@@ -39,16 +58,15 @@ def main() -> None:
         st.plotly_chart(figures.bare_table(correlation_table(corr), len(corr)), key="correlations")
     else:
         st.caption("No correlations for this driver.")
-    share = loaders.analysis_meta(str(ws.root), loaders.analysis_stamp(ws.root)).get("summary", {}).get(
-        "share_significant")
+    share = meta.get("summary", {}).get("share_significant")
     if share:
         st.caption("Drivers with a significant linear correlation (all drivers): " + ", ".join(
             f"{k} {v:.0%}" for k, v in share.items() if v is not None) + " (the study reports 80 %).")
     st.subheader("Fits  I = A·v_e + b")
-    fit = views.for_driver(fits, driver)
     if len(fit):
-        st.caption("A in s per m/s for the TTCs (t_f, t_nf) and in m/s per m/s for dv_nb; b in s or m/s; "
-                   "[lo, hi] are 95 % confidence intervals.")
+        st.caption("v_e in m/s; A in the indicator's unit per m/s, b in its unit; [lo, hi] are 95 % confidence "
+                   "intervals; a non-empty flag: the line means little (R² below the threshold, a slope interval "
+                   "spanning 0, or few points) and the style's reference lines do not use it as it is.")
         st.dataframe(views.fit_summary(fit), hide_index=True, width="stretch")
     else:
         st.caption("No fits for this driver.")

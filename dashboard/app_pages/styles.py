@@ -6,17 +6,20 @@ from clustering.plots import cluster_scatter, reference_lines
 from dashboard import figures, loaders, views, widgets
 from dashboard.context import workspace
 from dashboard.widgets import progress_to
+from indicators import settings as analysis_settings
 from indicators.settings import FEATURE_FITS
 from laneprint.errors import UserError
 
 CHOOSE_K = {"fixed k": None, "silhouette": "silhouette", "BIC": "bic"}
+#: Feature sets the form offers ('auto': chosen by the data), when the analysis stage knows them.
+FEATURE_SETS = ("auto", *getattr(analysis_settings, "INDICATOR_SETS", {}))
 
 
 def rerun_form(ws, current: dict) -> None:
     """k and the way it is chosen; 'Run analysis' calls the analysis stage."""
     now = views.analysis_settings(current)  # the last run's settings, defaults where missing
     with st.form("analysis_form"):
-        c1, c2, c3 = st.columns(3)
+        c1, c2, c3, c4 = st.columns(4)
         k = c1.number_input("Number of styles k", min_value=2, max_value=8, step=1, value=int(now.k), key="k")
         labels = list(CHOOSE_K)
         chosen = next((lab for lab, v in CHOOSE_K.items() if v == now.choose_k), "fixed k")
@@ -24,14 +27,25 @@ def rerun_form(ws, current: dict) -> None:
         fits = list(dict.fromkeys([now.feature_fit, *FEATURE_FITS]))
         fit = c3.selectbox("Feature line fit", fits, key="feature_fit",
                            help="How each driver's line is fitted to make the clustering features")
+        has_sets = "features" in views.analysis_settings({}).__dataclass_fields__ and len(FEATURE_SETS) > 1
+        current_set = getattr(now, "features", "auto")
+        sets = list(dict.fromkeys([current_set, *FEATURE_SETS])) if has_sets else []
+        features = c4.selectbox("Features", sets, key="features", disabled=not has_sets,
+                                help="Which indicators make the clustering features; 'auto': each candidate set "
+                                     "is clustered and the best separated, most stable one is used") \
+            if has_sets else None
         go = st.form_submit_button("Run analysis", type="primary")
     if go:
         from clustering.pipeline import analyze
 
-        settings = views.analysis_settings(current, k=int(k), choose_k=CHOOSE_K[how], feature_fit=fit)
+        changes = {"k": int(k), "choose_k": CHOOSE_K[how], "feature_fit": fit}
+        if features:
+            changes["features"] = features
+        settings = views.analysis_settings(current, **changes)
         bar = st.progress(0.0, text="Analysing...")
+        labels = views.recording_names(loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root)))
         try:
-            analyze(ws, settings, progress_to(bar, "Analysing..."))
+            analyze(ws, settings, progress_to(bar, "Analysing...", views.progress_text(labels)))
         except UserError as exc:  # the stage's one-line reason; keep the app alive
             bar.empty()
             st.warning(f"Analysis did not run: {exc}")
@@ -47,7 +61,7 @@ def main() -> None:
     tables = loaders.analysis(str(ws.root), key)
     meta = loaders.analysis_meta(str(ws.root), key)
     if loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root)).empty:
-        st.info("No recordings yet: upload logs on the Data page first.")
+        st.info(f"No recordings yet: upload logs on the Data page first (or `{views.cli_hint('ingest', ws.root, 'LOGS/')}`).")
         return
     if loaders.analysis_is_stale(ws.root):
         st.info("Recordings were added or removed since this analysis ran: press 'Run analysis' to update it.")
@@ -57,19 +71,37 @@ def main() -> None:
     if styles is None:
         st.info("No analysis yet: press 'Run analysis'.")
         return
+    for warning in views.analysis_warnings(meta):
+        st.warning(warning)
+    chosen = views.chosen_indicators(meta)
+    feats = (meta.get("summary") or {}).get("features") or {}
+    st.subheader("Features the styles were read by")
+    if feats:
+        st.markdown(f"Feature set **{feats.get('chosen')}** ({', '.join(chosen)}), requested "
+                    f"`{feats.get('requested')}`; each driver's line of each indicator read at "
+                    f"{views.speeds_text(meta)}.")
+        candidates = views.feature_candidates(meta)
+        if len(candidates):
+            st.caption("Every feature set measured: silhouette (how well the styles are separated, -1 to 1), "
+                       "stability (share of bootstrap resamples of each driver's presses that keep its style), "
+                       "and the score the choice is made on.")
+            st.dataframe(candidates, hide_index=True, width="stretch")
+    else:
+        st.markdown(f"Indicators **{', '.join(chosen)}**, each driver's line read at {views.speeds_text(meta)} "
+                    "(an analysis made before the feature sets were chosen by the data: run it again to compare them).")
     scores = tables.get("k_scores")
     if scores is not None and len(scores):
         how = meta.get("settings", {}).get("choose_k") or "k"
         st.caption(f"k chosen by {how}: {styles['style'].nunique()} styles")
         st.plotly_chart(figures.k_scores(scores, how), key="k_scores")
     st.subheader("Drivers in feature space")
-    st.plotly_chart(cluster_scatter(styles), key="clusters")
+    st.plotly_chart(cluster_scatter(styles, indicators=chosen), key="clusters")
     st.subheader("Members and typical drivers")
     st.dataframe(views.style_summary(styles), hide_index=True, width="stretch")
     st.subheader("Reference lines per style")
     lines = tables.get("reference_lines")
     if lines is not None:
-        st.plotly_chart(reference_lines(lines), key="ref_lines")
+        st.plotly_chart(reference_lines(lines, indicators=views.reference_indicators(lines, chosen)), key="ref_lines")
         if table := widgets.lazy_expander("Reference lines table", key="ref_lines_open"):
             table.dataframe(lines, hide_index=True, width="stretch")
     if assignment := widgets.lazy_expander("Per-driver style assignment", key="assignment_open"):
