@@ -15,6 +15,7 @@ from dashboard.cli import dashboard_command
 from ingest.cli import ingest_command
 from laneprint.simulator.cli import simulate_command
 from laneprint.pipeline_cli import run_command_cli
+from laneprint.report import report_command
 from rl.cli import annotate_command, crossval_command, evaluate_command, export_command, runs_command, train_command
 from rl.drive.cli import drive_command
 
@@ -37,6 +38,7 @@ app.command("annotate", help="Write a recording again as MCAP with the agent's, 
 app.command("drive", help="Let a trained agent make the ego's lane changes in SUMO traffic; MCAP logs of the drive.")(drive_command)
 app.command("runs", help="List the training runs and their state (interrupted: killed, resumable).")(runs_command)
 app.command("check", help="Verify the workspace; --repair removes leftovers of interrupted writes.")(check_command)
+app.command("report", help="The study in one self-contained HTML file (figures, tables as CSV beside it).")(report_command)
 app.command("dashboard", help="Serve the Streamlit dashboard.")(dashboard_command)
 app.command("run", help="Everything end to end: ingest PATHs, analyze, and train/evaluate the styles.")(run_command_cli)
 
