@@ -22,6 +22,7 @@ from typing import Any, Callable
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 from mcap.decoder import DecoderFactory
 from mcap.records import Channel, Schema
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
@@ -31,6 +32,7 @@ from ingest.alignment import asof, place_presses
 from ingest.logformat import DEFAULT_LENGTH_M, NS_PER_S
 from ingest.mapping import Mapping
 from ingest.mcap_signals import LOG_TIME, McapSignals, Signal, signals_from_v1
+from ingest.object_ids import id_array
 from ingest.rawlog import RawLog, Rejected, first_line
 
 # message encoding -> schema encodings it can be decoded with
@@ -296,20 +298,8 @@ def _button(reader: _SignalReader, signals: McapSignals) -> tuple[np.ndarray, np
 
 
 def _ids(values: list[Any]) -> pa.Array:
-    """Vehicle ids as strings (numbers written as integers where they are whole)."""
-    kinds = set(map(type, values))
-    if kinds <= {str}:
-        return pa.array(values, pa.string())
-    if kinds <= {int}:
-        return pa.array(list(map(str, values)), pa.string())
-
-    def one(v: Any) -> str | None:
-        if v is _MISSING or v is None:
-            return None
-        if isinstance(v, float) and v.is_integer():
-            return str(int(v))
-        return v if isinstance(v, str) else str(v)
-    return pa.array([one(v) for v in values], pa.string())
+    """Object ids as canonical text (`ingest.object_ids`: numbers, strings, bytes and UUIDs as hex)."""
+    return id_array([None if v is _MISSING else v for v in values])
 
 
 def _traffic(decoded: dict[str, Decoded | None], signals: McapSignals, t0: int, mapping: Mapping,
@@ -349,7 +339,8 @@ def _traffic(decoded: dict[str, Decoded | None], signals: McapSignals, t0: int, 
     }
     out["length_m"] = np.where(np.isnan(out["length_m"]), DEFAULT_LENGTH_M, out["length_m"])
     if "lane" not in ts.fields:
-        out["lane"] = signals.lane_from_y.lanes(out["y_m"])
+        tracks = pc.dictionary_encode(out["vehicle_id"]).indices.to_numpy(zero_copy_only=False)
+        out["lane"] = signals.lane_from_y.lanes(out["y_m"], tracks)
     for key, name in (("vehicle_id", "id"), ("x_m", "x"), ("v_mps", "v"), ("lane", "lane")):
         bad = out[key].is_null().to_numpy(zero_copy_only=False) if key == "vehicle_id" else np.isnan(out[key])
         if np.any(bad):

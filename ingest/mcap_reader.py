@@ -31,6 +31,7 @@ from ingest.logformat import (
 from ingest.alignment import asof, place_presses
 from ingest.mapping import Mapping
 from ingest.mcap_records import MAGIC, Collected, collect
+from ingest.object_ids import id_array
 from ingest.rawlog import RawLog, Rejected, first_line
 
 __all__ = ["MAGIC", "Collected", "read_mcap_log"]
@@ -292,7 +293,7 @@ def _traffic_python(topic: str, datas: list[bytes], times: list[int], names: dic
             lengths.append(glen(veh))
     return {
         "rows": np.asarray(rows, dtype=np.int64),
-        "vehicle_id": pa.array([i if isinstance(i, str) or i is None else str(i) for i in ids], pa.string()),
+        "vehicle_id": id_array(ids),
         "x_m": _floats(xs, mapping.position_scale),
         "y_m": _floats(ys, mapping.position_scale),
         "v_mps": _floats(vs, mapping.speed_scale),

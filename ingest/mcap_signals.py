@@ -22,7 +22,8 @@ JSON of another layout), each signal is named where it lives:
 Paths are field names joined by dots. The ego samples are the messages of the
 `ego_x` topic; signals on other topics take their last value at or before each sample.
 A stack that logs no lanes can give `lane_from_y = { width_m = 3.5, lane0_y_m = 0.0 }`
-instead of `ego_lane` / the traffic `lane` (then `ego_y` / the traffic `y` are needed).
+instead of `ego_lane` / the traffic `lane` (then `ego_y` / the traffic `y` are needed);
+a sample exactly on a lane border keeps the lane it was in (`LaneFromY`).
 """
 
 from __future__ import annotations
@@ -62,15 +63,51 @@ class TrafficSignals:
     explicit: bool = True
 
 
+BORDER_TOL = 1e-9  # [lane widths] a sample this close to the middle between two lane centres is on the border
+
+
 @dataclass(frozen=True)
 class LaneFromY:
-    """Lane indices from the lateral position, for stacks that log no lane: round((y - lane0_y_m) / width_m)."""
+    """Lane indices from the lateral position, for stacks that log no lane.
+
+    Each sample is in the lane whose centre is nearest, (y - lane0_y_m) / width_m rounded.
+    A sample exactly on the border between two lanes keeps the lane of the track's
+    previous sample (hysteresis: a vehicle changes lane once it has crossed the border),
+    or, at the start of a track, takes the lane of its next sample off the border; a
+    track that never leaves the border is in the lower (right) lane of the two.
+    """
 
     width_m: float  # [m] lane width
     lane0_y_m: float = 0.0  # [m] y of the centre of lane 0 (the rightmost)
 
-    def lanes(self, y_m: np.ndarray) -> np.ndarray:
-        return np.round((y_m - self.lane0_y_m) / self.width_m)
+    def lanes(self, y_m: np.ndarray, tracks: np.ndarray | None = None) -> np.ndarray:
+        """Lane of each sample (NaN where y is); `tracks` (one code per sample, samples in time
+        order within a track) says which samples follow each other: one track when None."""
+        r = (np.asarray(y_m, dtype=float) - self.lane0_y_m) / self.width_m
+        lanes = np.round(r)
+        low = np.floor(r)
+        border = np.abs(r - low - 0.5) <= BORDER_TOL
+        if not border.any():
+            return lanes
+        order = np.arange(len(r)) if tracks is None else np.argsort(tracks, kind="stable")
+        codes = np.zeros(len(r), dtype=np.int64) if tracks is None else np.asarray(tracks)[order]
+        ref = _neighbour_lanes(lanes[order], border[order], codes)
+        lanes[order[border[order]]] = np.clip(ref, low[order], low[order] + 1)[border[order]]
+        return lanes
+
+
+def _neighbour_lanes(lanes: np.ndarray, border: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    """For each sample, the lane of the last sample off the border before it on its track, else
+    of the first one after it, else -inf (clipped to the lower lane by the caller)."""
+    n = len(lanes)
+    known = ~border & ~np.isnan(lanes)
+    idx = np.arange(n)
+    prev = np.maximum.accumulate(np.where(known, idx, -1))
+    nxt = np.minimum.accumulate(np.where(known, idx, n)[::-1])[::-1]
+    ok_prev = (prev >= 0) & (codes[np.clip(prev, 0, n - 1)] == codes)
+    ok_next = (nxt < n) & (codes[np.clip(nxt, 0, n - 1)] == codes)
+    return np.where(ok_prev, lanes[np.clip(prev, 0, n - 1)],
+                    np.where(ok_next, lanes[np.clip(nxt, 0, n - 1)], -np.inf))
 
 
 @dataclass(frozen=True)

@@ -123,11 +123,26 @@ def discover(paths: list[Path]) -> list[tuple[Path, str | None]]:
     return out
 
 
+LFS_POINTER = b"version https://git-lfs.github.com/spec/"
+
+
+def check_lfs_pointer(data: bytes) -> None:
+    """`Rejected` when the bytes are a Git LFS pointer (what a clone without LFS holds instead of the file)."""
+    if not data.startswith(LFS_POINTER) or len(data) > 1024:
+        return
+    fields = dict(line.split(" ", 1) for line in data.decode("utf-8", "replace").splitlines() if " " in line)
+    size = fields.get("size", "").strip()
+    real = f" of {int(size):,} bytes" if size.isdigit() else ""
+    raise Rejected(f"a Git LFS pointer, not the log itself (the real file{real} was not fetched): "
+                   f"fetch it with `git lfs pull` in the repository it came from")
+
+
 def read_log(data: bytes, fmt: str, mapping: Mapping, limits: IngestLimits | None = None) -> RawLog:
     """Parse the bytes of one log within `limits`; `Rejected` with a reason when they cannot be read."""
     limits = limits or IngestLimits()
     if not data:
         raise Rejected("empty file (0 bytes)")
+    check_lfs_pointer(data)
     if fmt == "mcap":
         if data.startswith(MCAP_MAGIC):
             check_mcap_records(data, limits)
