@@ -8,7 +8,8 @@ from dashboard.context import workspace_root
 
 PAGES = Path(__file__).parent / "app_pages"  # not pages/: Streamlit would also serve those files alone
 
-st.set_page_config(page_title="laneprint", page_icon=":material/alt_route:", layout="wide")
+# an emoji favicon is drawn from a data: URL; a ':material/...' one is fetched from a fonts host (offline: none)
+st.set_page_config(page_title="laneprint", page_icon="🛣️", layout="wide")
 nav = st.navigation([
     st.Page(PAGES / "data.py", title="Data", icon=":material/upload_file:", default=True),
     st.Page(PAGES / "drivers.py", title="Drivers", icon=":material/person:"),

@@ -82,6 +82,20 @@ def train_command(req: TrainRequest, workspace: Path, run_id: str) -> list[str]:
     return cmd
 
 
+def identical_active_run(ws: Workspace, req: TrainRequest) -> str:
+    """Why `req` should not start: a run launched with exactly this request is still starting or
+    running ('' when none is)."""
+    want = asdict(req)
+    for path in jobs_dir(ws).glob("*.json"):
+        job = read_json(path) or {}
+        if job.get("request") == json.loads(json.dumps(want)):
+            rid = job.get("run_id") or path.stem
+            if run_status(ws, rid).get("state") in ACTIVE_STATES:
+                return (f"run {rid} with the same target, episodes, seed and settings is already under way "
+                        "(change the seed to train a second agent)")
+    return ""
+
+
 def jobs_dir(ws: Workspace) -> Path:
     return ws.root / "dashboard" / "jobs"
 
@@ -514,3 +528,34 @@ def cancel_fleet(ws: Workspace, job_id: str) -> bool:
     except ProcessLookupError:
         return False
     return True
+
+
+# --- downloads: a run's policy and the study's report -------------------------------------
+
+
+def policy_zip(ws: Workspace, run_id: str) -> bytes:
+    """The run's ONNX policy with policy.json and README.md as a zip: `laneprint export`'s folder
+    (`exports/<run_id>/`), exported first when it is missing or older than the run's weights."""
+    import io
+    import zipfile
+
+    from rl.deploy.export import export_run
+
+    folder = ws.root / "exports" / run_id
+    weights = ws.runs_dir / run_id / "weights.pt"
+    onnx = folder / "policy.onnx"
+    if not onnx.exists() or (weights.exists() and onnx.stat().st_mtime < weights.stat().st_mtime):
+        export_run(ws, run_id)
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name in ("policy.onnx", "policy.json", "README.md"):
+            if (folder / name).exists():
+                zf.write(folder / name, f"{run_id}/{name}")
+    return buf.getvalue()
+
+
+def report_bytes(ws: Workspace) -> bytes:
+    """`laneprint report` of the workspace as one HTML file's bytes."""
+    from laneprint.report import report_html
+
+    return report_html(ws).encode()

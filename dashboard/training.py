@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from dashboard.context import EPISODES_ENV, env_int
@@ -100,3 +101,65 @@ def driver_targets(reference_lines: pd.DataFrame | None, recordings: pd.DataFram
         if names:
             return sorted(names)
     return sorted(recordings["driver_id"].astype(str).unique()) if len(recordings) else []
+
+
+def episode_length(ws, req) -> tuple[float | None, str]:
+    """Transitions per episode to expect for `req`, and where the figure comes from: the mean episode
+    length of this workspace's earlier runs of the same target (early episodes included), else the
+    states per recorded approach of the target's drivers (an upper bound: exploring agents change
+    lane, and end their episode, early)."""
+    import json
+
+    import numpy as np
+
+    from rl.runs import read_metrics
+
+    lengths = []
+    for cfg_path in sorted(ws.runs_dir.glob("*/config.json"))[-20:]:
+        try:
+            cfg = json.loads(cfg_path.read_text())
+        except (OSError, ValueError):
+            continue
+        if cfg.get("target") != {"kind": req.target, "name": req.name}:
+            continue
+        m = read_metrics(cfg_path.parent / "metrics.jsonl")
+        if len(m) and "length" in m:
+            lengths.append(float(m["length"].head(2000).mean()))
+    if lengths:
+        return float(np.median(lengths)), f"the mean episode length of {len(lengths)} earlier run(s) of this target"
+    if not ws.has_table("analysis", "decisions"):
+        return None, ""
+    dec = ws.read_table("analysis", "decisions")
+    drivers = [req.name]
+    if req.target == "style" and ws.has_table("analysis", "styles"):
+        styles = ws.read_table("analysis", "styles")
+        drivers = styles.loc[styles["style"].astype(str) == req.name, "driver_id"].astype(str).tolist()
+    d = dec[dec["driver_id"].astype(str).isin(drivers)]
+    presses = int((d["label"] == "change").sum())
+    if not presses:
+        return None, ""
+    return len(d) / presses, "the recorded states per approach of the target's drivers (an upper bound)"
+
+
+def learning_check(ws, req, values: dict[str, Any] | None = None) -> tuple[str, str]:
+    """('refuse' | 'warn' | '', why) for a training request: refused when its episodes are too few for
+    learning to begin at the current settings (the replay memory must hold `learning_starts`
+    transitions before the first update), warned when learning would begin only in the last fifth."""
+    from rl.settings import DQNSettings
+
+    values = values or {}
+    starts = int(values.get("learning_starts") or DQNSettings().learning_starts)
+    per_episode, source = episode_length(ws, req)
+    if not per_episode:
+        return "", ""
+    expected = per_episode * int(req.episodes)
+    needed = int(np.ceil(starts / per_episode)) if per_episode else 0
+    if expected < starts:
+        return "refuse", (f"{req.episodes:,} episodes make about {expected:,.0f} transitions (about {per_episode:.1f} "
+                          f"per episode, from {source}), but learning starts after {starts:,}: the agent would "
+                          f"learn nothing. Use at least about {needed:,} episodes, or lower 'learning starts'.")
+    if expected < 1.25 * starts:
+        return "warn", (f"Learning would begin only near the end: about {expected:,.0f} transitions in "
+                        f"{req.episodes:,} episodes against {starts:,} before the first update (about "
+                        f"{per_episode:.1f} per episode, from {source}).")
+    return "", ""

@@ -55,9 +55,14 @@ def reasons_markdown(results: pd.DataFrame) -> str:
     return "\n".join(f"- **{md_escape(r.file)}** ({r.status}): {md_escape(r.reason)}" for r in todo.itertuples())
 
 
+#: Catalogue columns renamed for display: units in brackets, as on the plots.
+RECORDING_LABELS = {"speed_limit_kph": "speed limit [km/h]", "duration_s": "duration [s]",
+                    "n_samples": "samples", "n_presses": "presses", "n_vehicles": "traffic vehicles"}
+
+
 def recordings_view(recs: pd.DataFrame) -> pd.DataFrame:
-    """The catalogue columns worth showing, in a stable order."""
-    return recs[[c for c in RECORDING_COLUMNS if c in recs.columns]]
+    """The catalogue columns worth showing, in a stable order, units in the column names."""
+    return recs[[c for c in RECORDING_COLUMNS if c in recs.columns]].rename(columns=RECORDING_LABELS)
 
 
 def recording_label(row: pd.Series) -> str:
@@ -473,3 +478,53 @@ def progress_text(names: dict[str, str]):
             return "fitting each driver's lines, choosing the features and clustering the styles"
         return message
     return text
+
+
+def never_learnt(metrics: pd.DataFrame | None, config: dict[str, Any]) -> str:
+    """A warning when a run never updated its network (no loss in any episode: learning had not begun),
+    '' otherwise."""
+    if metrics is None or metrics.empty or ("loss" in metrics and pd.to_numeric(metrics["loss"],
+                                                                                  errors="coerce").notna().any()):
+        return ""
+    starts = (config.get("dqn") or {}).get("learning_starts")
+    steps = pd.to_numeric(metrics.get("env_steps"), errors="coerce").max() if "env_steps" in metrics else None
+    took = f" it took {int(steps):,} transitions in {len(metrics):,} episodes," if steps == steps and steps else ""
+    return (f"This agent never learnt:{took} and learning starts after "
+            f"{f'{int(starts):,}' if starts else 'more'} transitions, so its network was never updated and its "
+            "figures below are an untrained network's. Train it with more episodes (or fewer learning-start "
+            "transitions).")
+
+
+def run_results(run: dict[str, Any], crossval: dict[str, Any] | None) -> dict[str, Any]:
+    """What a run's results download holds: config, status, in-sample evaluation, its cross-validation."""
+    return {"run_id": run.get("run_id"), "config": run.get("config"), "status": run.get("status"),
+            "evaluation": run.get("evaluation"), "crossval": crossval}
+
+
+def run_results_json(run: dict[str, Any], crossval: dict[str, Any] | None) -> str:
+    import json
+
+    return json.dumps(run_results(run, crossval), indent=2, default=str)
+
+
+def run_results_csv(run: dict[str, Any], crossval: dict[str, Any] | None) -> str:
+    """One row per policy: in-sample figures, and held out with intervals when the run was cross-validated."""
+    ev = run.get("evaluation") or {}
+    in_sample = ev.get("summary_members") or ev.get("summary")
+    table = crossval_table(crossval.get("summary"), in_sample) if crossval else evaluation_table(in_sample)
+    return table.assign(run_id=run.get("run_id")).to_csv(index=False)
+
+
+def run_doing(status: dict[str, Any]) -> str:
+    """What a run is doing beyond its episode count, for its progress text: ': starting the trainer
+    (PyTorch) and building its scenes' before the first episode, ': training done, evaluating the
+    agent against greedy, imitation and the drivers' after the last, '' otherwise."""
+    state = status.get("state")
+    done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
+    if state == "starting" or (state == "running" and done == 0):
+        return " (starting the trainer: loading PyTorch, building the scenes from the analysis)"
+    if state == "running" and total and done >= total:
+        return " (training done; evaluating the agent against greedy, imitation and the drivers' decisions)"
+    if state == "running" and status.get("message") == "evaluating":
+        return " (evaluating against greedy, imitation and the drivers' decisions)"
+    return ""

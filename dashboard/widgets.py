@@ -12,6 +12,12 @@ from dashboard.context import poll_seconds
 from laneprint.progress import ProgressFn
 
 
+#: Streamlit draws the elements of a rerunning script or fragment faded until they are sent again; a live
+#: view that reruns every second then looks greyed out half the time. This style keeps them drawn as they are.
+NO_FADE_CSS = ("<style>[data-stale='true'], .stale-element, [data-testid='stElementContainer'][data-stale] "
+               "{opacity: 1 !important; transition: none !important;}</style>")
+
+
 def lazy_expander(label: str, key: str):
     """An expander whose content runs only once it is open: returns its container when open, else None.
 

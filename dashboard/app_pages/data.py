@@ -63,7 +63,7 @@ def recordings_section(ws) -> None:
     recs = loaders.recordings(root, key)
     st.subheader(f"Recordings ({len(recs)})")
     if recs.empty:
-        st.info("No recordings yet: upload logs above, or run `laneprint ingest sample_logs/`.")
+        st.info(f"No recordings yet: upload logs above, or run `{views.cli_hint('ingest', ws.root, 'sample_logs/')}`.")
     else:
         st.dataframe(views.recordings_view(recs), hide_index=True, width="stretch")
     rej = loaders.rejected(root, key)

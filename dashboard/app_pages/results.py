@@ -22,7 +22,9 @@ def in_sample_tables(ev: dict) -> None:
         st.caption(f"On the typical driver's decisions ({ev.get('typical_driver')}, "
                    f"{ev.get('n_decisions_typical')} decisions), in-sample:")
         st.dataframe(views.evaluation_table(ev["summary_typical"]), hide_index=True, width="stretch")
-    st.caption(f"On all {len(ev.get('drivers', []))} drivers' decisions ({ev.get('n_decisions_members')} decisions, "
+    n = len(ev.get("drivers", []))
+    whose = "the driver's" if n == 1 else f"all {n} drivers'"
+    st.caption(f"On {whose} decisions ({ev.get('n_decisions_members')} decisions, "
                f"{ev.get('n_states_members')} states), in-sample:")
     st.dataframe(views.evaluation_table(ev.get("summary_members") or ev.get("summary")), hide_index=True,
                  width="stretch")
@@ -96,6 +98,33 @@ def held_out(ws, run_id: str, run: dict) -> None:
                 widgets.crossval_launcher(ws, run_id, (cfg.get("dqn") or {}).get("episodes"))
 
 
+def downloads(ws, run_id: str, run: dict) -> None:
+    """The run's results (JSON, CSV) and its trained policy (ONNX with policy.json), built when clicked."""
+    own = loaders.run_crossval(str(ws.root), run_id, loaders.run_crossval_stamp(ws.root, run_id))
+    c1, c2, c3 = st.columns(3)
+    c1.download_button("Results (JSON)", data=lambda: views.run_results_json(run, own), file_name=f"{run_id}.json",
+                       mime="application/json", key=f"dl_json_{run_id}", on_click="ignore", icon=None,
+                       help="config, status, in-sample evaluation and the run's cross-validation")
+    c2.download_button("Results (CSV)", data=lambda: views.run_results_csv(run, own), file_name=f"{run_id}.csv",
+                       mime="text/csv", key=f"dl_csv_{run_id}", on_click="ignore",
+                       help="one row per policy: in-sample figures, held out with 95 % intervals when cross-validated")
+    if run.get("has_weights"):
+        c3.download_button("Policy (ONNX + policy.json, zip)", data=lambda: jobs.policy_zip(ws, run_id),
+                           file_name=f"{run_id}-policy.zip", mime="application/zip", key=f"dl_onnx_{run_id}",
+                           on_click="ignore",
+                           help="`laneprint export RUN_ID --format onnx`: checked against torch with onnxruntime; "
+                                "takes a few seconds the first time")
+    else:
+        c3.caption("No trained weights to export.")
+
+
+def report_download(ws) -> None:
+    """The study as one self-contained HTML file (`laneprint report`), built when clicked."""
+    st.download_button("Report of the study (HTML)", data=lambda: jobs.report_bytes(ws), file_name="report.html",
+                       mime="text/html", key="dl_report", on_click="ignore", type="primary",
+                       help="`laneprint report`: data, fits and flags, styles, every run's figures; opens offline")
+
+
 def one_run(ws, run_id: str) -> None:
     run = loaders.run(str(ws.root), run_id, loaders.run_stamp(ws.root, run_id))
     ev = run["evaluation"]
@@ -103,6 +132,10 @@ def one_run(ws, run_id: str) -> None:
     st.markdown(f"**{run_id}**: {cfg['target']['kind']} **{cfg['target']['name']}**, reward `{cfg.get('reward')}`, "
                 f"lines `{cfg.get('lines_source')}`, seed {cfg.get('seed')}, "
                 f"{(run['status'] or {}).get('episode', '?')} episodes")
+    never = views.never_learnt(run["metrics"], cfg)
+    if never:
+        st.warning(never)
+    downloads(ws, run_id, run)
     in_sample_tables(ev)
     held_out(ws, run_id, run)
     st.subheader("Indicators at the decisions against the reference lines (Fig. 10, in-sample)")
@@ -115,7 +148,8 @@ def one_run(ws, run_id: str) -> None:
     if curves := widgets.lazy_expander("Training curves (Fig. 9)", key=f"fig9_open_{run_id}"):
         with curves:
             smoothing = widgets.smoothing_slider(key=f"smoothing_{run_id}")
-            st.plotly_chart(training_curves(run["metrics"], smoothing), key=f"fig9_{run_id}")
+            st.plotly_chart(training_curves(run["metrics"], smoothing, learning_starts=(cfg.get("dqn") or {}).get(
+                "learning_starts")), key=f"fig9_{run_id}")
 
 
 def compare(ws, runs: list[str]) -> None:
@@ -133,9 +167,8 @@ def compare(ws, runs: list[str]) -> None:
     metrics = {rid: r["metrics"] for rid, r in loaded.items()}
     smoothing = widgets.smoothing_slider(key="cmp_smoothing")
     c1, c2 = st.columns(2)
-    c1.plotly_chart(figures.runs_curves(metrics, "loss", "training loss [-]", smoothing), key="cmp_loss")
-    c2.plotly_chart(figures.runs_curves(metrics, "mean_step_reward", "mean step reward [-]", smoothing),
-                    key="cmp_reward")
+    c1.plotly_chart(figures.runs_curves(metrics, "loss", smoothing=smoothing), key="cmp_loss")
+    c2.plotly_chart(figures.runs_curves(metrics, "mean_step_reward", smoothing=smoothing), key="cmp_reward")
 
 
 def fleets(ws) -> None:
@@ -170,6 +203,7 @@ def stored_crossvals(ws, show_one: bool) -> None:
 def main() -> None:
     st.title("Results")
     ws = workspace()
+    report_download(ws)
     runs = evaluated_runs(ws)
     if not runs:
         st.info("No evaluated runs yet: start one on the Training page (runs are evaluated when they "

@@ -12,41 +12,48 @@ from rl.runs import read_metrics
 
 
 def launch_form(ws) -> None:
+    """Target, reward, lines, episodes, seed and the trainer's settings; 'Start training' launches
+    `laneprint train` in the background. Plain widgets, not an `st.form`: Enter in a field commits
+    its value and starts nothing (in a form it submitted the form: a second, identical run followed
+    the click). A request that cannot learn, or one identical to a run under way, is not started."""
     tables = loaders.analysis(str(ws.root), loaders.analysis_stamp(ws.root))
     recs = loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root))
     lines_table = tables.get("reference_lines")
     kind = st.radio("Imitate", ["style", "driver"], horizontal=True, key="target_kind")
     names = (training.style_targets(lines_table) if kind == "style"
              else training.driver_targets(lines_table, recs))
-    with st.form("train_form"):
-        c1, c2, c3 = st.columns(3)
-        name = c1.selectbox(kind.capitalize(), names, key="target_name")
-        reward = c2.selectbox("Reward", training.rewards(), key="reward")
-        line_opts = [o for o in ("analysis", "paper")
-                     if (o == "analysis" and lines_table is not None) or (o == "paper" and kind == "style")]
-        lines = c3.selectbox("Reference lines", line_opts, key="lines",
-                             help="'analysis': lines fitted on this workspace; 'paper': Table 1 of the study")
-        c4, c5 = st.columns(2)
-        episodes = c4.number_input("Episodes", min_value=1, max_value=100_000, step=100,
-                                   value=training.default_episodes(), key="episodes")
-        seed = c5.number_input("Seed", min_value=0, value=0, step=1, key="seed")
-        values = {}
-        with st.expander("Hyperparameters (the trainer's defaults, from Table 2 of the study)"):
-            st.caption(training.defaults_note())
-            cols = st.columns(3)
-            for i, (field, default) in enumerate(training.hyperparameters().items()):
-                label = training.FORM_SETTINGS[field][0]
-                values[field] = cols[i % 3].number_input(
-                    label, value=default, key=f"hp_{field}",
-                    format="%g" if isinstance(default, float) else "%d",
-                    step=None if isinstance(default, float) else 1)
-        submitted = st.form_submit_button("Start training", type="primary", disabled=not (names and line_opts))
+    c1, c2, c3 = st.columns(3)
+    name = c1.selectbox(kind.capitalize(), names, key="target_name")
+    reward = c2.selectbox("Reward", training.rewards(), key="reward")
+    line_opts = [o for o in ("analysis", "paper")
+                 if (o == "analysis" and lines_table is not None) or (o == "paper" and kind == "style")]
+    lines = c3.selectbox("Reference lines", line_opts, key="lines",
+                         help="'analysis': lines fitted on this workspace; 'paper': Table 1 of the study")
+    c4, c5 = st.columns(2)
+    episodes = c4.number_input("Episodes", min_value=1, max_value=100_000, step=100,
+                               value=training.default_episodes(), key="episodes")
+    seed = c5.number_input("Seed", min_value=0, value=0, step=1, key="seed")
+    values = {}
+    with st.expander("Hyperparameters (the trainer's defaults, from Table 2 of the study)"):
+        st.caption(training.defaults_note())
+        cols = st.columns(3)
+        for i, (field, default) in enumerate(training.hyperparameters().items()):
+            label = training.FORM_SETTINGS[field][0]
+            values[field] = cols[i % 3].number_input(
+                label, value=default, key=f"hp_{field}",
+                format="%g" if isinstance(default, float) else "%d",
+                step=None if isinstance(default, float) else 1)
+    req = jobs.TrainRequest(kind, str(name), int(episodes), int(seed), reward, lines,
+                            training.changed_options(values)) if name else None
+    verdict, why = training.learning_check(ws, req, values) if req else ("", "")
+    if verdict:
+        (st.warning if verdict == "refuse" else st.info)(why)
+    submitted = st.button("Start training", type="primary", key="start_training",
+                          disabled=not (names and line_opts) or verdict == "refuse")
     if not (names and line_opts):
         st.info("Nothing to train for yet: ingest logs (Data page) and run the analysis (Styles page).")
-    if submitted and name:
-        req = jobs.TrainRequest(kind, str(name), int(episodes), int(seed), reward, lines,
-                                training.changed_options(values))
-        problem = training.check_target(ws, req)
+    if submitted and req:
+        problem = training.check_target(ws, req) or jobs.identical_active_run(ws, req)
         if problem:
             st.warning(f"Not started: {problem}")
             return
@@ -59,10 +66,13 @@ def run_panel(ws, run_id: str, status: dict, smoothing: float = 0.95) -> None:
     """Progress, curves and a Cancel button for one run."""
     done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
     frac = min(1.0, done / total) if total else 0.0
-    st.progress(frac, text=f"{run_id}: {status.get('state')} — episode {done}/{total or '?'}")
+    st.progress(frac, text=f"{run_id}: {status.get('state')} — episode {done}/{total or '?'}"
+                           + views.run_doing(status))
     metrics = read_metrics(ws.runs_dir / run_id / "metrics.jsonl")
     if len(metrics):
-        st.plotly_chart(training_curves(metrics, smoothing), key=f"curves_{run_id}")
+        config = jobs.read_json(ws.runs_dir / run_id / "config.json") or {}
+        st.plotly_chart(training_curves(metrics, smoothing, learning_starts=(config.get("dqn") or {}).get(
+            "learning_starts")), key=f"curves_{run_id}")
     if status.get("state") in jobs.ACTIVE_STATES:
         if st.button("Cancel", key=f"cancel_{run_id}"):
             jobs.cancel(ws, run_id)
@@ -170,6 +180,7 @@ def main() -> None:
     @st.fragment(run_every=poll_seconds() if active else None)
     def live_runs() -> None:
         st.subheader("Running")
+        st.markdown(widgets.NO_FADE_CSS, unsafe_allow_html=True)  # a live view is not drawn greyed out
         still = []
         for rid in active:
             status = jobs.run_status(ws, rid)
@@ -180,6 +191,13 @@ def main() -> None:
             st.caption("No training running.")
         elif len(still) < len(active):
             st.rerun()  # redraw the whole page: past runs (the one that ended shown), polling off when none is left
+        # the runs table follows the live panel: a running run is not shown 'starting', episode 0
+        st.subheader("Runs")
+        table = jobs.runs_table(ws)
+        if table.empty:
+            st.caption("No runs yet.")
+        else:
+            st.dataframe(table, hide_index=True, width="stretch", key="runs_table")
 
     live_runs()
     fleets_section(ws)
@@ -189,12 +207,11 @@ def main() -> None:
     if not cv_running:
         st.caption("No cross-validation running: pick a finished run below to cross-validate it.")
 
-    st.subheader("Runs")
+    st.subheader("A finished run")
     table = jobs.runs_table(ws)
     if table.empty:
         st.caption("No runs yet.")
         return
-    st.dataframe(table, hide_index=True, width="stretch")
     finished = table.loc[~table["state"].isin(jobs.ACTIVE_STATES), "run_id"].tolist()
     if finished:
         # a run that ended since this session last drew the list is shown, however the page learnt of it
@@ -208,6 +225,8 @@ def main() -> None:
         status = jobs.run_status(ws, rid)
         run_panel(ws, rid, status, smoothing)
         crossval_section(ws, rid, status, cv_running)
+    else:
+        st.caption("No run has finished yet.")
 
 
 main()
