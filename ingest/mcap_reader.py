@@ -34,7 +34,7 @@ from ingest.mcap_records import MAGIC, Collected, collect
 from ingest.object_ids import id_array
 from ingest.rawlog import RawLog, Rejected, first_line
 
-__all__ = ["MAGIC", "Collected", "read_mcap_log"]
+__all__ = ["MAGIC", "Collected", "read_collected", "read_mcap_log"]
 
 
 def _getter(path: str) -> Callable[[dict], Any]:
@@ -107,12 +107,16 @@ def read_mcap_log(data: bytes, mapping: Mapping) -> RawLog:
     """Parse MCAP bytes into a `RawLog`; `Rejected` with a precise reason on bad input."""
     if not data.startswith(MAGIC):
         raise Rejected("not an MCAP file: it does not start with the MCAP magic bytes")
-    got = collect(data)
+    return read_collected(collect(data), mapping)
 
+
+def read_collected(got: Collected, mapping: Mapping, warnings: list[str] | None = None) -> RawLog:
+    """A `RawLog` from the records of one MCAP file (or of a split bag's parts), with `warnings` about them."""
     by_topic: dict[str, list[int]] = {}
     for cid, ch in got.channels.items():
         by_topic.setdefault(ch.topic, []).append(cid)
-    meta, warnings = _session_meta(got.metadata, mapping)
+    meta, meta_warnings = _session_meta(got.metadata, mapping)
+    warnings = list(warnings or []) + meta_warnings
     read_topics = {mapping.topic(t) for t in (TOPIC_EGO, TOPIC_TRAFFIC, TOPIC_CONTROLS, TOPIC_BUTTON)}
     if mapping.topic(TOPIC_EGO) not in by_topic:  # a stack's own layout: its reason should point at [mcap.signals]
         read_topics = set(by_topic)

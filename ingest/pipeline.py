@@ -19,7 +19,7 @@ from __future__ import annotations
 import hashlib
 from collections import deque
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterator
@@ -30,7 +30,8 @@ from ingest.csv_reader import read_csv_log
 from ingest.mapping import Mapping, load_mapping
 from ingest.limits import IngestLimits, check_file_size, check_mcap_records
 from ingest.mcap_reader import MAGIC as MCAP_MAGIC, read_mcap_log
-from ingest.rawlog import RawLog, Rejected, first_line
+from ingest.rawlog import RawLog, Rejected, check_lfs_pointer, first_line
+from ingest.rosbag2 import BagInfo, bag_parts, is_bag_folder, read_split_bag
 from ingest.validate import Canonical, canonicalise
 from laneprint.errors import UserError
 from laneprint.parallel import check_backend, iter_tasks
@@ -81,7 +82,7 @@ class IngestReport:
 
 
 def log_format(path: Path) -> str | None:
-    """'csv', 'csv.gz' or 'mcap' from the file name; None when it is not a log."""
+    """'csv', 'csv.gz' or 'mcap' from the file name (a split rosbag2 folder is 'mcap'); None when it is not a log."""
     name = path.name.lower()
     if name.endswith(".csv.gz"):
         return "csv.gz"
@@ -89,7 +90,7 @@ def log_format(path: Path) -> str | None:
         return "csv"
     if name.endswith(".mcap"):
         return "mcap"
-    return None
+    return "mcap" if is_bag_folder(path) else None
 
 
 def session_stem(path: Path) -> str:
@@ -105,14 +106,23 @@ def discover(paths: list[Path]) -> list[tuple[Path, str | None]]:
     """Files to look at: (path, None) to ingest, or (path, reason) for ones to skip/reject up front.
 
     Folders are walked recursively for .csv/.csv.gz/.mcap; their other files are
-    skipped. An explicitly named path that is missing or not a log is rejected.
+    skipped. A split rosbag2 folder (metadata.yaml + parts) is one log. An explicitly
+    named path that is missing or not a log is rejected.
     """
     out: list[tuple[Path, str | None]] = []
     for p in paths:
         p = Path(p)
-        if p.is_dir():
+        if p.is_dir() and is_bag_folder(p):
+            out.append((p, None))
+        elif p.is_dir():
+            bags = {m.parent for m in p.rglob("metadata.yaml") if is_bag_folder(m.parent)}
             for f in sorted(x for x in p.rglob("*") if x.is_file()):
                 if any(part.startswith(".") for part in f.relative_to(p).parts):
+                    continue
+                bag = next((b for b in f.parents if b in bags), None)
+                if bag is not None:  # a part of a split bag: the bag is one log, listed once
+                    if (bag, None) not in out:
+                        out.append((bag, None))
                     continue
                 out.append((f, None if log_format(f) else "skip: not a log file"))
         elif p.is_file():
@@ -123,23 +133,15 @@ def discover(paths: list[Path]) -> list[tuple[Path, str | None]]:
     return out
 
 
-LFS_POINTER = b"version https://git-lfs.github.com/spec/"
+def read_log(data: bytes, fmt: str, mapping: Mapping, limits: IngestLimits | None = None,
+             bag: BagInfo | None = None) -> RawLog:
+    """Parse the bytes of one log within `limits`; `Rejected` with a reason when they cannot be read.
 
-
-def check_lfs_pointer(data: bytes) -> None:
-    """`Rejected` when the bytes are a Git LFS pointer (what a clone without LFS holds instead of the file)."""
-    if not data.startswith(LFS_POINTER) or len(data) > 1024:
-        return
-    fields = dict(line.split(" ", 1) for line in data.decode("utf-8", "replace").splitlines() if " " in line)
-    size = fields.get("size", "").strip()
-    real = f" of {int(size):,} bytes" if size.isdigit() else ""
-    raise Rejected(f"a Git LFS pointer, not the log itself (the real file{real} was not fetched): "
-                   f"fetch it with `git lfs pull` in the repository it came from")
-
-
-def read_log(data: bytes, fmt: str, mapping: Mapping, limits: IngestLimits | None = None) -> RawLog:
-    """Parse the bytes of one log within `limits`; `Rejected` with a reason when they cannot be read."""
+    `bag`: the bytes are the parts of a split rosbag2 folder, one after the other (`bag.sizes`).
+    """
     limits = limits or IngestLimits()
+    if bag is not None:
+        return read_split_bag(data, bag, mapping, limits)
     if not data:
         raise Rejected("empty file (0 bytes)")
     check_lfs_pointer(data)
@@ -160,6 +162,7 @@ class ParseJob:
     mapping: Mapping
     driver: str | None  # --driver
     limits: IngestLimits = IngestLimits()  # what reading the file may cost
+    bag: BagInfo | None = None  # a split rosbag2 folder: `data` is its parts in order
 
 
 @dataclass
@@ -173,7 +176,7 @@ class Parsed:
 def parse_log(job: ParseJob) -> Parsed:
     """Read and validate one file's bytes into canonical tables; pure (no workspace, no file system)."""
     try:
-        raw = read_log(job.data, job.fmt, job.mapping, job.limits)
+        raw = read_log(job.data, job.fmt, job.mapping, job.limits, job.bag)
         return Parsed(canonicalise(raw, job.mapping, job.session_default, job.driver))
     except Rejected as exc:
         return Parsed(reason=str(exc))
@@ -247,9 +250,13 @@ class _Batch:
     def prepare(self, path: Path) -> FileResult | tuple[ParseJob, str]:
         """Read a file's bytes: its `ParseJob` and content hash, or its result when it needs no parsing."""
         fmt = log_format(path) or ""
+        bag = None
         try:
-            check_file_size(path.stat().st_size, self.limits)
-            data = path.read_bytes()
+            if path.is_dir():
+                bag, data = self.read_bag(path)
+            else:
+                check_file_size(path.stat().st_size, self.limits)
+                data = path.read_bytes()
         except Rejected as exc:
             return self.reject(path, fmt, "", str(exc))
         except OSError as exc:
@@ -257,7 +264,16 @@ class _Batch:
         rid = hashlib.sha256(data).hexdigest()[:16]
         if self.ws.has_recording(rid):
             return self.same_bytes(path, fmt, rid)
-        return ParseJob(data, fmt, session_stem(path), self.mapping, self.driver, self.limits), rid
+        session = session_stem(path) if bag is None else path.name
+        return ParseJob(data, fmt, session, self.mapping, self.driver, self.limits, bag), rid
+
+    def read_bag(self, folder: Path) -> tuple[BagInfo, bytes]:
+        """A split rosbag2 folder's info (with each part's size) and its parts' bytes in order."""
+        info, paths = bag_parts(folder)
+        for p in paths:
+            check_file_size(p.stat().st_size, self.limits)
+        parts = [p.read_bytes() for p in paths]
+        return replace(info, sizes=tuple(map(len, parts))), b"".join(parts)
 
     @staticmethod
     def same_bytes(path: Path, fmt: str, rid: str) -> FileResult:

@@ -39,3 +39,17 @@ def first_line(text: str, limit: int = 200) -> str:
     """The first line of an error text, shortened for a one-line reason."""
     line = str(text).strip().splitlines()[0] if str(text).strip() else type(text).__name__
     return line if len(line) <= limit else line[: limit - 3] + "..."
+
+
+LFS_POINTER = b"version https://git-lfs.github.com/spec/"
+
+
+def check_lfs_pointer(data: bytes) -> None:
+    """`Rejected` when the bytes are a Git LFS pointer (what a clone without LFS holds instead of the file)."""
+    if not data.startswith(LFS_POINTER) or len(data) > 1024:
+        return
+    fields = dict(line.split(" ", 1) for line in data.decode("utf-8", "replace").splitlines() if " " in line)
+    size = fields.get("size", "").strip()
+    real = f" of {int(size):,} bytes" if size.isdigit() else ""
+    raise Rejected(f"a Git LFS pointer, not the log itself (the real file{real} was not fetched): "
+                   f"fetch it with `git lfs pull` in the repository it came from")
