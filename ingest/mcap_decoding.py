@@ -14,7 +14,6 @@ decode is refused with a reason naming the topic and the encoding.
 from __future__ import annotations
 
 import array
-import json
 import operator
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -30,6 +29,7 @@ from mcap_ros2.decoder import DecoderFactory as Ros2DecoderFactory
 
 from ingest.alignment import asof, place_presses
 from ingest.logformat import DEFAULT_LENGTH_M, NS_PER_S
+from ingest.jsondecode import loads
 from ingest.mapping import Mapping
 from ingest.mcap_signals import LOG_TIME, McapSignals, Signal, signals_from_v1
 from ingest.object_ids import id_array
@@ -45,7 +45,7 @@ class JsonDecoderFactory(DecoderFactory):
     """JSON messages as dicts, so that JSON files can be read by `[mcap.signals]` too."""
 
     def decoder_for(self, message_encoding: str, schema: Schema | None) -> Callable[[bytes], Any] | None:
-        return json.loads if message_encoding == "json" else None
+        return loads if message_encoding == "json" else None
 
 
 @dataclass

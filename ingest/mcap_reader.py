@@ -29,6 +29,7 @@ from ingest.logformat import (
     TOPIC_TRAFFIC,
 )
 from ingest.alignment import asof, place_presses
+from ingest.jsondecode import float_columns, loads_many
 from ingest.mapping import Mapping
 from ingest.mcap_records import MAGIC, Collected, collect
 from ingest.object_ids import id_array
@@ -54,7 +55,7 @@ def _getter(path: str) -> Callable[[dict], Any]:
 def _decode(topic: str, datas: list[bytes], times: list[int]) -> list[Any]:
     """JSON-decode all messages of a topic in one call (falling back to locate a bad one)."""
     try:
-        return json.loads(b"[" + b",".join(datas) + b"]")
+        return loads_many(datas)
     except (ValueError, UnicodeDecodeError):
         for i, d in enumerate(datas):
             try:
@@ -161,12 +162,16 @@ def read_collected(got: Collected, mapping: Mapping, warnings: list[str] | None 
                   ("v", "ego_v_mps", mapping.speed_scale), ("lane", "ego_lane", 1.0),
                   ("length", "ego_length_m", mapping.position_scale))
     table = None
-    if all("." not in f(fld) for fld, _, _ in ego_fields):
+    columns = float_columns(ego_raw[1], [f(fld) for fld, _, _ in ego_fields])
+    if columns is None and all("." not in f(fld) for fld, _, _ in ego_fields):
         table = _arrow_table(ego_raw[1], pa.schema([(f(fld), pa.float64()) for fld, _, _ in ego_fields]))
-    ego_msgs = None if table is not None else _decode(mapping.topic(TOPIC_EGO), ego_raw[1], ego_raw[0])
+    ego_msgs = None if columns is not None or table is not None else _decode(
+        mapping.topic(TOPIC_EGO), ego_raw[1], ego_raw[0])
     ego: dict[str, np.ndarray] = {}
     for fld, key, scale in ego_fields:
-        if table is not None:
+        if columns is not None:
+            vals = columns[f(fld)] * scale if scale != 1.0 else columns[f(fld)]
+        elif table is not None:
             vals = _column_floats(table.column(f(fld)), scale)
         else:
             get = _getter(f(fld))
@@ -223,13 +228,19 @@ def _controls(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | N
         ego[key] = np.full(n, np.nan)
     if raw is None or not raw[0]:
         return
-    times, order, msgs = _decoded_in_time_order(raw, mapping.topic(TOPIC_CONTROLS))
+    fields = (("steer", "steer_rad"), ("throttle", "throttle"), ("brake", "brake"))
+    names = [mapping.msg_field(TOPIC_CONTROLS, fld) for fld, _ in fields]
+    columns = float_columns(raw[1], names)
+    if columns is None:
+        times, order, msgs = _decoded_in_time_order(raw, mapping.topic(TOPIC_CONTROLS))
+        columns = {n: _floats([_getter(n)(m) if isinstance(m, dict) else None for m in msgs]) for n in names}
+    else:
+        times = np.asarray(raw[0], dtype=np.int64)
+        order = np.argsort(times, kind="stable")
     idx = asof(ego_times, times[order])
     valid = idx >= 0
-    for fld, key in (("steer", "steer_rad"), ("throttle", "throttle"), ("brake", "brake")):
-        get = _getter(mapping.msg_field(TOPIC_CONTROLS, fld))
-        vals = _floats([get(m) if isinstance(m, dict) else None for m in msgs])[order]
-        ego[key][valid] = vals[idx[valid]]
+    for name, (_, key) in zip(names, fields):
+        ego[key][valid] = columns[name][order][idx[valid]]
 
 
 def _button(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | None,
@@ -271,7 +282,7 @@ def _traffic_arrow(datas: list[bytes], names: dict[str, str], mapping: Mapping) 
 
 def _traffic_python(topic: str, datas: list[bytes], times: list[int], names: dict[str, str],
                     mapping: Mapping) -> dict[str, Any]:
-    """Traffic columns by `json.loads` and a loop (any message shape the mapping can name)."""
+    """Traffic columns by msgspec (`jsondecode`) and a loop (any message shape the mapping can name)."""
     msgs = _decode(topic, datas, times)
     rows: list[int] = []
     ids: list[Any] = []
