@@ -11,9 +11,14 @@ Prints:
 3. timing of `analyze_tables` for 10 x 50 and 1,000 x 50 drivers x decisions (tables
    generated in memory, 10 keep states per press), median of `--repeats` runs.
 
-4. optionally (`--messy N`), harder studies: ARI per clustering-feature variant.
+4. optionally (`--messy N`), harder studies: ARI per clustering-feature variant;
+5. optionally (`--study DIR WORKSPACE`, repeated), studies written by `laneprint simulate`
+   (their ground_truth.json) and ingested into WORKSPACE: ARI per feature set (`--features`
+   auto, ttc, paper, acceptance, all), the set 'auto' chose, and the flagged per-driver
+   lines of the study's three indicators.
 
-Run: /work/venv/bin/python benchmarks/analysis.py [--seeds 20] [--workspace /tmp/ws] [--messy 12]
+Run: .venv/bin/python benchmarks/analysis.py [--seeds 20] [--workspace /tmp/ws] [--messy 12]
+     [--study /tmp/s200 /tmp/ws200 ...] [--seeds 0 --repeats 0: only what is asked]
 """
 
 from __future__ import annotations
@@ -173,16 +178,61 @@ def messy(n_seeds: int) -> None:
         print(f"  {name:<32} mean ARI {np.mean(v):.3f}, ARI = 1 in {sum(a == 1.0 for a in v)}/{len(v)}")
 
 
+FEATURE_SPECS = ("auto", "ttc", "paper", "acceptance", "all")
+
+
+def study_aris(study: Path, workspace: Path) -> dict[str, object]:
+    """ARI of each feature set on one simulated study, the set 'auto' chose and the flagged fits."""
+    from clustering.pipeline import extract_all
+
+    gt = json.loads((study / "ground_truth.json").read_text())
+    ws = Workspace(workspace)
+    dec, _, _ = extract_all(ws, AnalysisSettings())
+    drivers = list(ws.recordings()["driver_id"].astype(str))
+    row: dict[str, object] = {"study": study.name}
+    for spec in FEATURE_SPECS:
+        out = analyze_tables(dec, AnalysisSettings(features=spec), drivers=drivers)
+        row[spec] = ari(out["styles"], gt["drivers"])
+        if spec == "auto":
+            fs = out["feature_sets"]
+            row["chosen"] = str(fs.loc[fs["chosen"], "name"].iloc[0])
+            fits = out["fits"][(out["fits"]["status"] == "ok") & out["fits"]["indicator"].isin(INDICATORS)]
+            row["flagged"] = f"{int((fits['flag'] != '').sum())}/{len(fits)}"
+    presses = dec[dec["label"] == "change"]
+    row["t_f undefined"] = float((presses["t_f_status"] != "ok").mean())
+    row["t_nf undefined"] = float((presses["t_nf_status"] != "ok").mean())
+    return row
+
+
+def studies(pairs: list[tuple[str, str]]) -> None:
+    print(f"== {len(pairs)} simulated studies: ARI per feature set (--features)")
+    rows = []
+    for study, workspace in pairs:
+        rows.append(study_aris(Path(study), Path(workspace)))
+        r = rows[-1]
+        print(f"  {r['study']:<8} " + "  ".join(f"{s} {r[s]:.3f}" for s in FEATURE_SPECS)
+              + f"  chose {r['chosen']}  flagged {r['flagged']}  undefined at presses: t_f {100 * r['t_f undefined']:.0f} %"
+              f", t_nf {100 * r['t_nf undefined']:.0f} %", flush=True)
+    for s in FEATURE_SPECS:
+        v = [float(r[s]) for r in rows]
+        print(f"  {s:<11} mean ARI {np.mean(v):.3f}, min {np.min(v):.3f}, ARI = 1 in {sum(a == 1.0 for a in v)}/{len(v)}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--messy", type=int, default=0, help="also run this many seeds of harder studies")
     ap.add_argument("--workspace", type=Path, default=None, help="workspace with sample_logs/ ingested")
+    ap.add_argument("--study", nargs=2, action="append", default=[], metavar=("DIR", "WORKSPACE"),
+                    help="a simulated study and the workspace it is ingested in (repeat for more)")
     args = ap.parse_args()
     if args.workspace:
         shipped(args.workspace)
-    timing(args.repeats)
+    if args.study:
+        studies(args.study)
+    if args.repeats:
+        timing(args.repeats)
     if args.seeds:
         seeds(args.seeds)
     if args.messy:

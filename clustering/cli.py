@@ -14,9 +14,18 @@ from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, r
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 
+PAPER_INDICATORS = ("t_f", "t_nf", "dv_nb")
+
 
 def _fmt(x: Any, spec: str = ".3g") -> str:
     return "-" if x is None else format(x, spec)
+
+
+def _line(f: dict[str, Any]) -> str:
+    """A fit as 'A/b', with '!' when flagged."""
+    if not f or f["status"] != "ok":
+        return "-"
+    return f"{f['A']:.2f}/{f['b']:.2f}" + ("!" if f.get("flag") else "")
 
 
 def render(result: dict[str, Any], console: Console) -> None:
@@ -26,29 +35,53 @@ def render(result: dict[str, Any], console: Console) -> None:
                   f"{s['n_keep_states']} keep states, {s['n_skipped']} skipped item(s)")
     share = s["share_significant"]
     console.print("drivers with a significant linear correlation with speed: "
-                  + ", ".join(f"{k} {_fmt(None if v is None else 100 * v, '.0f')} %" for k, v in share.items())
+                  + ", ".join(f"{k} {_fmt(None if share.get(k) is None else 100 * share[k], '.0f')} %"
+                              for k in PAPER_INDICATORS)
                   + f"; all three {_fmt(None if s['share_drivers_all_significant'] is None else 100 * s['share_drivers_all_significant'], '.0f')} %")
-    table = Table(title="drivers: lines I = A v_e + b shown as A/b; * typical", box=box.SIMPLE_HEAD, pad_edge=False)
-    for col in ("driver", "n", "style", "conf", "", "t_f", "t_nf", "dv_nb"):
-        table.add_column(col, no_wrap=True, min_width=11 if col in ("t_f", "t_nf", "dv_nb") else len(col))
+    feats = s.get("features")
+    if feats:
+        render_features(feats, console)
+    shown = list(PAPER_INDICATORS) + [i for i in (feats or {}).get("indicators", []) if i not in PAPER_INDICATORS]
+    table = Table(title="drivers: lines I = A v_e + b shown as A/b; ! flagged (see warnings); * typical",
+                  box=box.SIMPLE_HEAD, pad_edge=False)
+    for col in ("driver", "n", "style", "conf", "", *shown):
+        table.add_column(col, no_wrap=True, min_width=11 if col in shown else len(col))
     for d, info in result["drivers"].items():
         fits = {f["indicator"]: f for f in info["fits"]}
-        cells = []
-        for ind in ("t_f", "t_nf", "dv_nb"):
-            f = fits.get(ind)
-            cells.append(f"{f['A']:.2f}/{f['b']:.2f}" if f and f["status"] == "ok" else "-")
         table.add_row(d, str(info["n_decisions"]), info["style"], f"{info['confidence']:.2f}",
-                      "*" if info["is_typical"] else "", *cells)
+                      "*" if info["is_typical"] else "", *(_line(fits.get(ind)) for ind in shown))
     console.print(table)
     for name, st in result["styles"].items():
-        lines = [ln for ln in st["reference_lines"] if ln["kind"] == "typical"]
-        txt = ", ".join(f"{ln['indicator']} = {ln['A']:.2f} v {ln['b']:+.2f}" for ln in lines)
-        console.print(f"[bold]{name}[/bold] ({len(st['members'])}): typical {', '.join(st['typical'])}: {txt}")
+        lines = [ln for ln in st["reference_lines"] if ln["kind"] == "typical" and ln["indicator"] in PAPER_INDICATORS]
+        txt = ", ".join(format_line(ln["indicator"], ln["A"], ln["b"]) + (" (level)" if ln.get("fit") == "level" else "")
+                        for ln in lines)
+        console.print(f"[bold]{name}[/bold] ({len(st['members'])}): typical {', '.join(st['typical'])}: {txt}",
+                      highlight=False)
+    for w in s.get("warnings", []):
+        console.print(f"[yellow]warning:[/yellow] {w}", highlight=False)
     if result["skipped"]:
         console.print(f"skipped ({len(result['skipped'])}), first ones:")
         for row in result["skipped"][:8]:
             console.print(f"  {row['what']} {row['id']}: {row['reason']}", markup=False, highlight=False)
     console.print(f"stored in {result['workspace']}/analysis", markup=False, highlight=False)
+
+
+def render_features(feats: dict[str, Any], console: Console) -> None:
+    """Which indicators the styles were read by, and the figures of each set measured."""
+    how = "chosen by the data" if feats["requested"] == "auto" else "as requested"
+    console.print(f"styles read by [bold]{feats['chosen']}[/bold] ({', '.join(feats['indicators'])}), {how}:",
+                  highlight=False)
+    for c in feats["candidates"]:
+        mark = "*" if c["chosen"] else " "
+        console.print(f"  {mark} {c['name']:<11} silhouette {_fmt(c['silhouette'], '.2f')}  stability "
+                      f"{_fmt(c['stability'], '.2f')}  score {_fmt(c['score'], '.3f')}  "
+                      f"imputed {_fmt(None if c['imputed'] is None else 100 * c['imputed'], '.0f')} %",
+                      markup=False, highlight=False)
+
+
+def format_line(indicator: str, A: float, b: float) -> str:
+    """'t_f = 0.45 v − 3.26' with the sign of b printed properly."""
+    return f"{indicator} = {A:.2f} v {'−' if b < 0 else '+'} {abs(b):.2f}"
 
 
 def analyze_command(
@@ -62,11 +95,20 @@ def analyze_command(
     extrapolate_features: Annotated[bool, typer.Option(
         "--extrapolate-features", help="Read each driver's feature line at every section speed, even beyond "
                                        "the speeds of its presses (default: within them).")] = False,
+    features: Annotated[str, typer.Option(
+        "--features", help="Indicators the styles are read by: auto (the set whose styles are best separated and "
+                           "most stable), ttc (the study's t_f, t_nf), paper (t_f, t_nf, dv_nb), acceptance (gaps "
+                           "and headways), all, or a comma-separated list of indicators.")] = "auto",
+    flagged_lines: Annotated[str, typer.Option(
+        "--flagged-lines", help="A flagged per-driver line (low R², slope interval spanning 0, few points) in the "
+                                "reference lines: level (the driver's median, A = 0) or ols (as fitted, the "
+                                "study's way).")] = "level",
     seed: Annotated[int, typer.Option("--seed", help="Seed of the clustering.")] = 0,
 ) -> None:
     """Indicators at every decision, per-driver correlations and fits, styles and reference lines."""
     from clustering.pipeline import analyze
-    from indicators.settings import FEATURE_FITS, AnalysisSettings
+    from clustering.selection import resolve_features
+    from indicators.settings import FEATURE_FITS, FLAGGED_LINES, AnalysisSettings
 
     def work() -> dict[str, Any]:
         if choose_k not in (None, "silhouette", "bic"):
@@ -75,9 +117,13 @@ def analyze_command(
             raise UserError(f"--feature-fit must be one of {', '.join(FEATURE_FITS)}, not {feature_fit!r}")
         if step_s <= 0:
             raise UserError("--step-s must be positive")
+        if features != "auto":
+            resolve_features(features)  # a one-line error before any work
+        if flagged_lines not in FLAGGED_LINES:
+            raise UserError(f"--flagged-lines must be one of {', '.join(FLAGGED_LINES)}, not {flagged_lines!r}")
         settings = AnalysisSettings(k=k, choose_k=choose_k, far_follower_m=far_follower_m, step_s=step_s,
                                     feature_fit=feature_fit, feature_extrapolate=extrapolate_features,
-                                    random_state=seed)
+                                    features=features, flagged_lines=flagged_lines, random_state=seed)
         ws = Workspace(Path(workspace))
         if not ws.root.is_dir() or ws.recordings().empty:  # before the progress bar draws anything
             raise UserError(f"no recordings in workspace {ws.root}: run `laneprint ingest PATH` first")

@@ -21,13 +21,20 @@ import pandas as pd
 from indicators.settings import FEATURE_FITS, AnalysisSettings
 from indicators.stats import INDICATOR_COLUMNS, iter_groups
 
-LOG_FLOOR_S = 0.05  # TTCs are clipped here before the log (a zero gap gives TTC 0)
+LOG_FLOOR_S = 0.05  # TTCs and headways are clipped here before the log (a zero gap gives 0)
+LOG_FLOOR_M = 0.5  # gaps are clipped here before the log (a car alongside has a gap <= 0)
+_SUFFIX = {"s": "s", "m": "m", "m/s": "mps"}
+_LOG_FLOOR = {"s": LOG_FLOOR_S, "m": LOG_FLOOR_M}  # units whose features live on a log scale
 
 
 def feature_name(indicator: str, kph: float) -> str:
-    """Column name of a feature, e.g. 't_f_at_80kph_s'."""
-    unit = "s" if INDICATOR_COLUMNS[indicator][2] == "s" else "mps"
-    return f"{indicator}_at_{kph:g}kph_{unit}"
+    """Column name of a feature, e.g. 't_f_at_80kph_s', 'gap_f_at_80kph_m'."""
+    return f"{indicator}_at_{kph:g}kph_{_SUFFIX[INDICATOR_COLUMNS[indicator][2]]}"
+
+
+def column_floor(column: str) -> float | None:
+    """The log floor of a feature column by its unit suffix (None: not on a log scale)."""
+    return LOG_FLOOR_S if column.endswith("_s") else LOG_FLOOR_M if column.endswith("_m") else None
 
 
 def feature_names(settings: AnalysisSettings) -> list[str]:
@@ -107,9 +114,9 @@ def robust_line(v: np.ndarray, y: np.ndarray, method: str) -> tuple[float, float
 
 
 def to_space(y: np.ndarray, indicator: str, settings: AnalysisSettings) -> np.ndarray:
-    """Indicator values in the clustering space (log seconds for TTCs when `feature_log`)."""
-    is_ttc = INDICATOR_COLUMNS[indicator][2] == "s"
-    return np.log(np.maximum(y, LOG_FLOOR_S)) if (is_ttc and settings.feature_log) else y
+    """Indicator values in the clustering space (log of times and gaps when `feature_log`)."""
+    floor = _LOG_FLOOR.get(INDICATOR_COLUMNS[indicator][2])
+    return np.log(np.maximum(y, floor)) if (floor is not None and settings.feature_log) else y
 
 
 def feature_speeds(speeds_mps: np.ndarray, v: np.ndarray, settings: AnalysisSettings) -> np.ndarray:
@@ -147,7 +154,7 @@ def to_units(values: np.ndarray, settings: AnalysisSettings) -> np.ndarray:
     if settings.feature_log:
         n = len(settings.feature_speeds_kph)
         for ii, ind in enumerate(settings.feature_indicators):
-            if INDICATOR_COLUMNS[ind][2] == "s":
+            if INDICATOR_COLUMNS[ind][2] in _LOG_FLOOR:
                 out[:, ii * n:(ii + 1) * n] = np.exp(out[:, ii * n:(ii + 1) * n])
     return out
 
@@ -189,10 +196,11 @@ def driver_features(points: pd.DataFrame, drivers: list[str],
 
 
 def transform_features(feats: pd.DataFrame, settings: AnalysisSettings) -> pd.DataFrame:
-    """The space clustering works in: log of TTC features when `feature_log`, else as is."""
+    """The space clustering works in: log of time and gap features when `feature_log`, else as is."""
     out = feats.copy()
     if settings.feature_log:
         for c in out.columns:
-            if c.endswith("_s"):
-                out[c] = np.log(np.maximum(out[c], LOG_FLOOR_S))
+            floor = column_floor(c)
+            if floor is not None:
+                out[c] = np.log(np.maximum(out[c], floor))
     return out

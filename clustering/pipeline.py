@@ -1,7 +1,10 @@
 """The analysis stage wired together.
 
 `analyze_tables(decisions, settings)` is everything after decision extraction and
-is pure (frames in, frames out). `analyze(workspace, settings, progress)` reads the
+is pure (frames in, frames out): correlations and fits of every indicator, the
+clustering feature set (chosen by the data with `features='auto'`), styles,
+reference lines (a flagged fit becomes its level, see `reference_lines`) and the
+warnings a user must see. `analyze(workspace, settings, progress)` reads the
 workspace's recordings, extracts decisions, calls `analyze_tables`, stores the
 `analysis/` stage folder in one swap and returns a JSON-ready report.
 """
@@ -18,10 +21,11 @@ import pandas as pd
 import laneprint
 from clustering.confidence import bootstrap_stability
 from clustering.features import driver_features, feature_names, transform_features
+from clustering.selection import MAX_IMPUTED, FeatureSetScore, choose_features, clustering_rows, resolve_features, score_feature_set
 from clustering.styles import StyleClusterer
 from indicators.decisions import empty_decisions, extract_decisions
 from indicators.settings import AnalysisSettings
-from indicators.stats import INDICATORS, correlate, fit_lines, fit_pooled, indicator_points
+from indicators.stats import INDICATOR_COLUMNS, INDICATORS, PAPER_INDICATORS, correlate, fit_flag, fit_lines, fit_pooled, indicator_points
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
 from laneprint.reference import PAPER_TABLE1
@@ -49,10 +53,7 @@ def assign_styles(feats: pd.DataFrame, notes: dict[str, list[str]], n_dec: pd.Se
     """
     skipped: list[dict[str, str]] = []
     usable = feats.notna().any(axis=1)
-    enough = n_dec.reindex(feats.index) >= settings.min_cluster_decisions
-    fit_on = feats.index[usable & enough]
-    if len(fit_on) == 0:  # few presses everywhere: cluster whoever has features
-        fit_on = feats.index[usable]
+    fit_on = clustering_rows(feats, n_dec, settings)
     styles = pd.DataFrame({"driver_id": feats.index.astype(str), "style": "unassigned", "cluster": -1,
                            "confidence": 0.0, "posterior": 0.0, "stability": np.nan, "margin": 0.0,
                            "is_typical": False,
@@ -105,14 +106,27 @@ def assign_styles(feats: pd.DataFrame, notes: dict[str, list[str]], n_dec: pd.Se
 
 def reference_lines(styles: pd.DataFrame, fits: pd.DataFrame, points: pd.DataFrame,
                     settings: AnalysisSettings) -> tuple[pd.DataFrame, list[dict[str, str]]]:
-    """Per style the typical driver's and the pooled lines, per driver its own, plus Table 1."""
+    """Per style the typical driver's and the pooled lines, per driver its own, plus Table 1.
+
+    A typical driver's or a driver's OLS line that is flagged (`indicators.stats.fit_flag`:
+    low R², a slope interval spanning 0, few points) is not used as it is: with
+    `flagged_lines='level'` (default) the line is the driver's level, A = 0 and b = the
+    median of its values, and column `fit` says 'level' and `source` why; with 'ols' the
+    flagged fit is kept (the study's way). Column `fit` is 'ols', 'level' or 'paper'.
+    """
     rows, skipped = [], []
     ok = fits[fits["status"] == "ok"].set_index(["driver_id", "indicator"])
 
     def from_fit(scope: str, name: str, kind: str, ind: str, f: Any, source: str) -> dict[str, Any]:
-        return {"scope": scope, "name": name, "kind": kind, "indicator": ind, "A": float(f["A"]),
-                "b": float(f["b"]), "A_lo": float(f["A_lo"]), "A_hi": float(f["A_hi"]), "b_lo": float(f["b_lo"]),
-                "b_hi": float(f["b_hi"]), "r2": float(f["r2"]), "n": int(f["n"]), "source": source}
+        flag = str(f.get("flag", "") or "") if hasattr(f, "get") else ""
+        row = {"scope": scope, "name": name, "kind": kind, "indicator": ind, "A": float(f["A"]),
+               "b": float(f["b"]), "A_lo": float(f["A_lo"]), "A_hi": float(f["A_hi"]), "b_lo": float(f["b_lo"]),
+               "b_hi": float(f["b_hi"]), "r2": float(f["r2"]), "n": int(f["n"]), "source": source, "fit": "ols",
+               "flag": flag}
+        if flag and settings.flagged_lines == "level" and np.isfinite(f.get("level", np.nan)):
+            row.update(A=0.0, b=float(f["level"]), A_lo=np.nan, A_hi=np.nan, b_lo=np.nan, b_hi=np.nan, fit="level",
+                       source=f"{source}: level (median of {int(f['n'])}), its line is flagged: {flag}")
+        return row
 
     assigned = styles[styles["cluster"] >= 0]
     for style, members in assigned.sort_values("cluster").groupby("style", sort=False):
@@ -127,7 +141,9 @@ def reference_lines(styles: pd.DataFrame, fits: pd.DataFrame, points: pd.DataFra
                                 "reason": f"typical driver {typical[0] if typical else '-'} has no {ind} fit"})
             fit, why = fit_pooled(points, drivers, ind, settings)
             if fit is not None:
-                rows.append(from_fit("style", style, "pooled", ind, fit.__dict__,
+                rows.append(from_fit("style", style, "pooled", ind,
+                                     {**fit.__dict__, "flag": fit_flag(fit, settings),
+                                      "level": pooled_level(points, drivers, ind)},
                                      f"pooled over {len(drivers)} driver(s)"))
             else:
                 skipped.append({"what": "reference_line", "id": f"{style}:pooled:{ind}", "reason": why})
@@ -137,18 +153,29 @@ def reference_lines(styles: pd.DataFrame, fits: pd.DataFrame, points: pd.DataFra
         for ind, (A, b) in lines.items():
             rows.append({"scope": "style", "name": style, "kind": "paper", "indicator": ind, "A": A, "b": b,
                          "A_lo": np.nan, "A_hi": np.nan, "b_lo": np.nan, "b_hi": np.nan, "r2": np.nan, "n": 0,
-                         "source": "Table 1 (Li & Liu), SI units"})
-    out = pd.DataFrame(rows, columns=REF_COLUMNS)
+                         "source": "Table 1 (Li & Liu), SI units", "fit": "paper", "flag": ""})
+    out = pd.DataFrame(rows, columns=REF_COLUMNS + ["fit", "flag"])
     out["n"] = out["n"].astype("int64")
     return out, skipped
 
 
-_ROLE = {"t_f": "leader in the ego lane", "t_nf": "leader in the target lane", "dv_nb": "follower in the target lane"}
+def pooled_level(points: pd.DataFrame, drivers: list[str], indicator: str) -> float:
+    """Median of the usable values of `indicator` over `drivers`' presses."""
+    sel = points[(points["indicator"] == indicator) & points["driver_id"].isin(drivers) & points["used"]]
+    return float(sel["y"].median()) if len(sel) else float("nan")
+
+
+_LEADER, _TARGET_LEADER, _FOLLOWER = "leader in the ego lane", "leader in the target lane", "follower in the target lane"
+_ROLE = {"t_f": _LEADER, "gap_f": _LEADER, "thw_f": _LEADER, "dv_f": _LEADER, "t_nf": _TARGET_LEADER,
+         "gap_nf": _TARGET_LEADER, "dv_nf": _TARGET_LEADER, "dv_nb": _FOLLOWER, "gap_nb": _FOLLOWER,
+         "thw_nb": _FOLLOWER}
 
 
 def excluded_values(points: pd.DataFrame, settings: AnalysisSettings) -> list[dict[str, str]]:
-    """One 'value' row per press and indicator left out of the fits, with why."""
-    out = points[~points["used"].to_numpy(dtype=bool)]
+    """One 'value' row per press and indicator left out of the fits, with why: for the study's
+    three and the clustering's indicators (the others' statuses are in the decisions table)."""
+    keep = set(PAPER_INDICATORS) | set(settings.feature_indicators)
+    out = points[~points["used"].to_numpy(dtype=bool) & points["indicator"].isin(keep).to_numpy()]
     if out.empty:
         return []
     why = {
@@ -157,6 +184,7 @@ def excluded_values(points: pd.DataFrame, settings: AnalysisSettings) -> list[di
         "following": lambda ind: f"{ind} left out of fits: closing speed below {settings.min_closing_mps:g} m/s "
                                  "(following a slow leader)",
         "far": lambda ind: f"{ind} left out of fits: {_ROLE[ind]} beyond {settings.far_follower_m:g} m (no influence)",
+        "stopped": lambda ind: f"{ind} undefined: a headway of a car at (nearly) standstill",
     }
     return [{"what": "value", "id": f"{d}:{ind}",
              "reason": why[st](ind) if st in why else f"{ind} left out of fits: {st}"}
@@ -165,7 +193,8 @@ def excluded_values(points: pd.DataFrame, settings: AnalysisSettings) -> list[di
 
 def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
                    drivers: list[str] | None = None) -> dict[str, pd.DataFrame]:
-    """Correlations, fits, styles, reference lines and skipped rows from a decisions table (pure).
+    """Correlations, fits, feature sets, styles, reference lines and skipped rows from a
+    decisions table (pure).
 
     `drivers`: drivers to report even when they have no decisions (e.g. the catalogue's).
     """
@@ -175,6 +204,7 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
     correlations = correlate(decisions, settings, points, drivers)
     fits = fit_lines(decisions, settings, points, drivers)
     n_dec = _n_decisions(decisions, drivers)
+    settings, feature_sets = feature_settings(points, drivers, n_dec, settings)
     feats, notes = driver_features(points, drivers, settings)
     styles, clf, skipped = assign_styles(feats, notes, n_dec, fits, settings, points)
     styles = styles.merge(feats.reset_index(), on="driver_id", how="left")
@@ -192,12 +222,32 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
         "decisions": decisions,
         "correlations": correlations,
         "fits": fits,
+        "feature_sets": feature_sets,
         "styles": styles[STYLE_COLUMNS + [c for c in feature_names(settings)]],
         "reference_lines": refs,
         "skipped": pd.DataFrame(skipped, columns=SKIPPED_COLUMNS),
         "k_scores": pd.DataFrame({"k": list(clf.k_scores_), "score": list(clf.k_scores_.values())})
         if clf is not None else pd.DataFrame({"k": pd.Series(dtype="int64"), "score": pd.Series(dtype=float)}),
     }
+
+
+FEATURE_SET_COLUMNS = ["name", "indicators", "k", "silhouette", "stability", "score", "imputed", "chosen",
+                       "requested"]
+
+
+def feature_settings(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings
+                     ) -> tuple[AnalysisSettings, pd.DataFrame]:
+    """`settings` with `feature_indicators` resolved from `settings.features`, and the table of the
+    feature sets measured (every candidate with 'auto', the requested one otherwise)."""
+    if settings.features == "auto":
+        chosen, scores = choose_features(points, drivers, n_dec, settings)
+    else:
+        chosen, inds = resolve_features(settings.features)
+        scores = [score_feature_set(points, drivers, n_dec, settings, chosen, inds)]
+    best: FeatureSetScore = next(s for s in scores if s.name == chosen)
+    table = pd.DataFrame([{**s.to_dict(), "indicators": ",".join(s.indicators), "chosen": s.name == chosen,
+                           "requested": settings.features} for s in scores], columns=FEATURE_SET_COLUMNS)
+    return settings.with_(feature_indicators=best.indicators), table
 
 
 def extract_all(workspace: Workspace, settings: AnalysisSettings,
@@ -234,7 +284,8 @@ def code_version() -> dict[str, str | None]:
 
 
 def summary(tables: dict[str, pd.DataFrame]) -> dict[str, Any]:
-    """Headline numbers: counts and the share of drivers with a significant correlation."""
+    """Headline numbers: counts, the share of drivers with a significant correlation, the
+    feature set used for the styles, flagged fits and the warnings a user must see."""
     corr = tables["correlations"]
     dec = tables["decisions"]
     drivers = list(tables["styles"]["driver_id"])
@@ -243,20 +294,76 @@ def summary(tables: dict[str, pd.DataFrame]) -> dict[str, Any]:
     for ind in INDICATORS:
         t = tested[tested["indicator"] == ind]
         share[ind] = float(t["significant"].mean()) if len(t) else None
-    by_driver = tested.groupby("driver_id")["significant"]
+    paper = tested[tested["indicator"].isin(PAPER_INDICATORS)]
+    by_driver = paper.groupby("driver_id")["significant"]
+    features = feature_summary(tables.get("feature_sets"))
     return {
         "n_drivers": len(drivers),
         "n_presses": int((dec["label"] == "change").sum()) if len(dec) else 0,
         "n_keep_states": int((dec["label"] == "keep").sum()) if len(dec) else 0,
         "share_significant": share,
-        "share_drivers_all_significant": float(by_driver.all().mean()) if len(tested) else None,
-        "share_drivers_any_significant": float(by_driver.any().mean()) if len(tested) else None,
+        "share_drivers_all_significant": float(by_driver.all().mean()) if len(paper) else None,
+        "share_drivers_any_significant": float(by_driver.any().mean()) if len(paper) else None,
         "n_skipped": int(len(tables["skipped"])),
         "styles": {str(k): int(v) for k, v in tables["styles"]["style"].value_counts().items()},
         "typical_drivers": {str(r.style): str(r.driver_id) for r in tables["styles"].itertuples() if r.is_typical},
         "confidence_is": ("bootstrap stability" if tables["styles"]["stability"].notna().any()
                           else "mixture posterior"),
+        "features": features,
+        "flagged_fits": flagged_counts(tables["fits"]),
+        "warnings": warnings(tables, features),
     }
+
+
+def feature_summary(feature_sets: pd.DataFrame | None) -> dict[str, Any] | None:
+    """The feature set used for the styles and the figures of every set measured."""
+    if feature_sets is None or feature_sets.empty:
+        return None
+    chosen = feature_sets[feature_sets["chosen"]].iloc[0]
+    return {"requested": str(chosen["requested"]), "chosen": str(chosen["name"]),
+            "indicators": str(chosen["indicators"]).split(","),
+            "candidates": [{**r, "indicators": str(r["indicators"]).split(",")}
+                           for r in _records(feature_sets.drop(columns=["requested"]))]}
+
+
+def flagged_counts(fits: pd.DataFrame) -> dict[str, dict[str, int]]:
+    """Per indicator: fitted lines and how many of them are flagged."""
+    ok = fits[fits["status"] == "ok"]
+    flagged = ok["flag"].astype(str) != "" if "flag" in ok else pd.Series(False, index=ok.index)
+    return {ind: {"fitted": int((ok["indicator"] == ind).sum()),
+                  "flagged": int(((ok["indicator"] == ind) & flagged).sum())} for ind in INDICATORS}
+
+
+def warnings(tables: dict[str, pd.DataFrame], features: dict[str, Any] | None) -> list[str]:
+    """One line per result the user should not take at face value."""
+    out = []
+    styles = tables["styles"]
+    clustered = styles[styles["assigned_by"] == "clustered"]
+    assigned = styles[styles["cluster"] >= 0]
+    k = int(assigned["cluster"].max()) + 1 if len(assigned) else 0
+    if k and len(clustered) <= k:
+        out.append(f"k = {k} styles from {len(clustered)} clustered driver(s): each style holds at most one driver, "
+                   "so the styles say nothing about groups of drivers (use --k with fewer styles, or more drivers)")
+    for style, members in assigned.groupby("style"):
+        if len(members) == 1:
+            out.append(f"style {style} holds one driver ({members['driver_id'].iloc[0]}): its reference lines "
+                       "are that driver's alone")
+    chosen = [c for c in (features or {}).get("candidates", []) if c["chosen"]]
+    if chosen and (chosen[0]["imputed"] or 0) > MAX_IMPUTED:
+        out.append(f"features {chosen[0]['name']}: {100 * chosen[0]['imputed']:.0f} % of the drivers' features are "
+                   "undefined and imputed, so the styles rest on little (try --features auto)")
+    counts = flagged_counts(tables["fits"])
+    shown = list(PAPER_INDICATORS) + [i for i in (features or {}).get("indicators", []) if i not in PAPER_INDICATORS]
+    bad = [f"{ind} {counts[ind]['flagged']} of {counts[ind]['fitted']}" for ind in shown if counts[ind]["flagged"]]
+    if bad:
+        out.append("per-driver lines flagged (R² below the threshold, slope interval spanning 0, or few points): "
+                   + ", ".join(bad) + "; a flagged line is replaced by the driver's level in the reference lines")
+    refs = tables["reference_lines"]
+    if "fit" in refs:
+        for r in refs[(refs["kind"] == "typical") & (refs["fit"] == "level") & refs["indicator"].isin(shown)].itertuples():
+            out.append(f"{r.name}: the typical driver's {r.indicator} line is flagged ({r.flag}); its reference "
+                       f"line is the level {r.b:.3g} {INDICATOR_COLUMNS[r.indicator][2]}")
+    return out
 
 
 def _records(df: pd.DataFrame) -> list[dict[str, Any]]:
@@ -276,7 +383,7 @@ def build_report(tables: dict[str, pd.DataFrame], meta: dict[str, Any]) -> dict[
             "is_typical": bool(s["is_typical"]), "note": s["note"],
             "correlations": _records(corr[corr["driver_id"] == d].drop(columns="driver_id")),
             "fits": _records(fits[fits["driver_id"] == d][["indicator", "A", "b", "A_lo", "A_hi", "b_lo", "b_hi",
-                                                           "r2", "n", "status", "reason"]]),
+                                                           "r2", "n", "status", "reason", "flag", "level"]]),
         }
     refs = tables["reference_lines"]
     style_rep = {}
@@ -300,9 +407,13 @@ def analyze(workspace: Workspace, settings: AnalysisSettings | None = None,
     tables = analyze_tables(decisions, settings, drivers=list(workspace.recordings()["driver_id"].astype(str)))
     extra = pd.DataFrame(skipped, columns=SKIPPED_COLUMNS)
     tables["skipped"] = pd.concat([extra, tables["skipped"]], ignore_index=True)
+    headline = summary(tables)
+    used = headline["features"]
+    if used:  # the indicators the styles were read by, as resolved from `features`
+        settings = settings.with_(feature_indicators=tuple(used["indicators"]))
     meta = {"stage": "analysis", "workspace": str(workspace.root), "settings": settings.to_dict(),
             "code": code_version(), "data_fingerprint": workspace.fingerprint(), "n_recordings": n_rec,
-            "summary": summary(tables)}
+            "summary": headline}
     workspace.write_tables("analysis", tables, meta,
                            schemas={"decisions": DECISIONS, "reference_lines": REFERENCE_LINES})
     report(progress, 1, 1, "analysis stored")

@@ -3,8 +3,8 @@
 `StyleClusterer` standardises each feature robustly (median and 1.4826 x MAD, the
 standard deviation as a fallback), imputes missing features with the median (0
 after standardising), runs k-means (k fixed, or chosen by silhouette or BIC), and
-orders the clusters by a defensiveness score: the mean standardised TTC feature of
-the centre (larger TTCs at the decision = more defensive). Cluster 0 is the most
+orders the clusters by a defensiveness score: the mean standardised time and gap
+feature of the centre (larger TTCs, headways and gaps at the decision = more defensive). Cluster 0 is the most
 defensive. Names: k = 3 -> Defensive, Normal, Aggressive; k = 2 -> Defensive,
 Aggressive; k > 3 -> Defensive, Normal 1 .. Normal k-2, Aggressive.
 
@@ -15,6 +15,8 @@ centres, near 1 close to its own centre).
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 import pandas as pd
@@ -99,9 +101,11 @@ class StyleClusterer:
         if len(X) == 0:
             raise ValueError("no drivers to cluster")
         self.feature_names_in_ = list(X.columns)
-        self.center_ = np.nanmedian(X.to_numpy(), axis=0)
-        mad = 1.4826 * np.nanmedian(np.abs(X.to_numpy() - self.center_), axis=0)
-        sd = np.nanstd(X.to_numpy(), axis=0)
+        with warnings.catch_warnings():  # a feature nobody has (all NaN) is centred at 0 with scale 1 below
+            warnings.simplefilter("ignore", RuntimeWarning)
+            self.center_ = np.nanmedian(X.to_numpy(), axis=0)
+            mad = 1.4826 * np.nanmedian(np.abs(X.to_numpy() - self.center_), axis=0)
+            sd = np.nanstd(X.to_numpy(), axis=0)
         scale = np.where(mad > 1e-9, mad, np.where(sd > 1e-9, sd, 1.0))
         self.scale_ = np.where(np.isnan(scale), 1.0, scale)
         self.center_ = np.where(np.isnan(self.center_), 0.0, self.center_)
@@ -144,13 +148,18 @@ class StyleClusterer:
         return labels, conf, margin
 
     def _defensiveness(self, Z: np.ndarray) -> np.ndarray:
-        ttc = np.array([c.endswith("_s") for c in self.feature_names_in_])
-        cols = ttc if ttc.any() else np.ones(len(ttc), dtype=bool)
+        room = np.array([c.endswith(("_s", "_m")) for c in self.feature_names_in_])
+        cols = room if room.any() else np.ones(len(room), dtype=bool)
         return Z[:, cols].mean(axis=1)
 
     def defensiveness(self, features: pd.DataFrame) -> np.ndarray:
-        """Mean standardised TTC feature of each row (larger = more defensive)."""
+        """Mean standardised time and gap feature of each row (TTCs, headways, gaps in
+        seconds or metres: larger = more room kept = more defensive)."""
         return self._defensiveness(self._standardise(features[self.feature_names_in_].astype(float)))
+
+    def transform(self, features: pd.DataFrame) -> np.ndarray:
+        """Rows of `features` in the standardised space the clusters live in (NaN imputed as 0)."""
+        return self._standardise(features[self.feature_names_in_].astype(float))
 
     def predict(self, features: pd.DataFrame) -> np.ndarray:
         """Cluster index (0 = most defensive) of each row."""

@@ -17,7 +17,9 @@ speeds (no change when the clocks are shared, as in CSV logs). Then
 behind (or alongside) in the target lane; gap = |dx| - (len_a + len_b) / 2;
 TTC = max(gap, 0) / (v_ego - v_other) when closing, else NaN with status
 'not_closing'; no vehicle: NaN with status 'absent'. `dv_nb` = v_ego - v_nb, with
-status 'far' (value kept) when the follower's gap exceeds `far_follower_m`.
+status 'far' (value kept) when the follower's gap exceeds `far_follower_m`. The
+indicators of what the driver accepts (gaps, headways, relative speeds, each with a
+status) are added by `indicators.acceptance`.
 
 Everything is computed for all states of a recording at once (vectorised).
 """
@@ -29,6 +31,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from indicators.acceptance import DERIVED_COLUMNS, add_acceptance
 from indicators.settings import AnalysisSettings
 from indicators.stats import fit_reasons
 from laneprint.schemas import DECISIONS
@@ -38,7 +41,7 @@ EXTRA_COLUMNS: tuple[str, ...] = (
     "press_index", "lc_direction", "lane_change_t_s", "f_id", "nf_id", "nb_id",
     "t_f_reason", "t_nf_reason", "dv_nb_reason",
 )
-COLUMNS: list[str] = DECISIONS.names + list(EXTRA_COLUMNS)
+COLUMNS: list[str] = DECISIONS.names + list(EXTRA_COLUMNS) + list(DERIVED_COLUMNS)
 
 
 def empty_decisions() -> pd.DataFrame:
@@ -50,6 +53,7 @@ def empty_decisions() -> pd.DataFrame:
                  "lane_change_t_s": pd.Series(dtype="float64"), "f_id": pd.Series(dtype="object"),
                  "nf_id": pd.Series(dtype="object"), "nb_id": pd.Series(dtype="object")})
     cols.update({f"{ind}_reason": pd.Series(dtype="object") for ind in ("t_f", "t_nf", "dv_nb")})
+    cols.update({c: pd.Series(dtype="object" if c.endswith("_status") else "float64") for c in DERIVED_COLUMNS})
     return pd.DataFrame(cols)[COLUMNS]
 
 
@@ -295,8 +299,10 @@ def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataF
     out["lane_change_t_s"] = p["lane_change_t_s"].to_numpy(dtype=float)
     for role in ("f", "nf", "nb"):
         out[f"{role}_id"] = cols[f"{role}_id"]
-    for ind, why in fit_reasons(out, settings).items():
-        out[f"{ind}_reason"] = why
+    out = add_acceptance(out, settings)
+    reasons = fit_reasons(out, settings)
+    for ind in ("t_f", "t_nf", "dv_nb"):
+        out[f"{ind}_reason"] = reasons[ind]
     if settings.same_leader_approach:
         out = _same_leader_run(out)
     out = out.sort_values(["press_index", "t_s"], kind="mergesort").reset_index(drop=True)

@@ -14,6 +14,17 @@ from laneprint.reference import FAR_FOLLOWER_M, SPEED_LIMITS_KPH
 
 #: How a driver's clustering-feature line can be fitted (`AnalysisSettings.feature_fit`).
 FEATURE_FITS: tuple[str, ...] = ("huber", "theilsen", "ols", "median")
+#: Named sets of clustering indicators (`AnalysisSettings.features`).
+INDICATOR_SETS: dict[str, tuple[str, ...]] = {
+    "ttc": ("t_f", "t_nf"),
+    "paper": ("t_f", "t_nf", "dv_nb"),
+    "acceptance": ("gap_f", "thw_f", "gap_nf", "gap_nb", "thw_nb"),
+    "all": ("t_f", "t_nf", "gap_f", "thw_f", "gap_nf", "gap_nb", "thw_nb"),
+}
+#: The sets 'auto' chooses from.
+AUTO_CANDIDATES: tuple[str, ...] = ("ttc", "acceptance", "all")
+#: What a flagged line becomes in the reference lines (`AnalysisSettings.flagged_lines`).
+FLAGGED_LINES: tuple[str, ...] = ("level", "ols")
 
 
 @dataclass(frozen=True)
@@ -56,6 +67,15 @@ class AnalysisSettings:
     """Fewer defined points than this: no fit / no correlation, with a reason."""
     min_speed_spread_mps: float = 1.0
     """A driver's decision speeds must span at least this (max - min) for a fit [m/s]."""
+    min_fit_r2: float = 0.1
+    """A fitted line with R² below this is flagged: speed explains almost nothing of the
+    indicator, so the line is no reference to steer by."""
+    min_flag_points: int = 10
+    """A fitted line on fewer points than this is flagged."""
+    flagged_lines: str = "level"
+    """What a style's or driver's reference line is when its OLS fit is flagged: 'level'
+    (A = 0, b = the median of the driver's values: the level it keeps, whatever the
+    speed) or 'ols' (the fit as it is, the study's way)."""
     fit_far_followers: bool = False
     """Include dv_nb values whose follower is 'far' in the fits and correlations."""
     min_closing_mps: float = 1.0
@@ -68,6 +88,12 @@ class AnalysisSettings:
     still the driver's judgement of the gap)."""
 
     # --- styles ----------------------------------------------------------------
+    features: str = "auto"
+    """Which indicators make the clustering features: a set of `INDICATOR_SETS`
+    ('ttc': the study's two TTCs, 'paper': its three, 'acceptance': gaps and
+    headways, 'all': TTCs and acceptance), a comma-separated list of indicators, or
+    'auto': each of `AUTO_CANDIDATES` is clustered and the one whose styles are best
+    separated and most stable is used (`clustering.selection`)."""
     k: int = 3
     """Number of styles when `choose_k` is None."""
     choose_k: str | None = None
@@ -75,9 +101,9 @@ class AnalysisSettings:
     k_range: tuple[int, int] = (2, 6)
     """Smallest and largest k tried when choosing k (capped by the number of drivers - 1)."""
     feature_indicators: tuple[str, ...] = ("t_f", "t_nf")
-    """Indicators whose per-driver lines make the clustering features. dv_nb is left
-    out by default: its lines are set by the traffic (slope ~1 for every style in
-    Table 1) and carry no style information, only noise."""
+    """Indicators whose per-driver lines make the clustering features, as resolved from
+    `features` by the pipeline. In the 'ttc' set dv_nb is left out: its lines are set by
+    the traffic (slope ~1 for every style in Table 1) and carry no style information."""
     feature_speeds_kph: tuple[float, ...] = tuple(float(v) for v in SPEED_LIMITS_KPH)
     """Speeds at which each driver's line is evaluated to make the features [km/h]."""
     feature_fit: str = "huber"
@@ -89,8 +115,9 @@ class AnalysisSettings:
     recovered 33 of 34 and median all 34: seed 22's Defensive driver has a steep t_nf
     line on 13 presses that reads like a Normal driver's at 60 km/h."""
     feature_log: bool = True
-    """Fit the feature lines on log(TTC): heavy tails (tens of seconds behind a slow
-    leader) then pull far less. Features are reported back in seconds."""
+    """Fit the feature lines on log(TTC), log(headway) and log(gap): heavy tails (tens of
+    seconds behind a slow leader, gaps of hundreds of metres) then pull far less.
+    Features are reported back in the indicators' units."""
     feature_extrapolate: bool = False
     """Read a driver's feature line at every `feature_speeds_kph` even outside the
     speeds of its presses. Off (default): outside them, the line's value at the

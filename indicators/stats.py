@@ -3,7 +3,13 @@
 Both work on the presses (label 'change') of a decisions table, one indicator at a
 time, using only defined values (status 'ok'; 'far' followers too when
 `fit_far_followers`). A driver/indicator with fewer than `min_fit_points` points, or
-whose speeds span less than `min_speed_spread_mps`, gets no fit and a reason.
+whose speeds span less than `min_speed_spread_mps`, gets no fit and a reason. A fit
+that says little (R² below `min_fit_r2`, a slope interval that spans zero, fewer than
+`min_flag_points` points) is kept and flagged (`flag` says why): it is no line to
+steer by (see `clustering.pipeline.reference_lines`).
+
+The indicators are the study's three (`t_f`, `t_nf`, `dv_nb`) and those of what the
+driver accepts (gaps, headways, relative speeds: `indicators.acceptance`).
 
 statsmodels stays inside this module: callers get tables and `LineFit` dataclasses.
 """
@@ -17,20 +23,24 @@ import pandas as pd
 from scipy import special
 from scipy import stats as sstats
 
-from indicators.settings import AnalysisSettings
+from indicators.acceptance import ACCEPTANCE_COLUMNS, add_acceptance, has_acceptance
+from indicators.settings import INDICATOR_SETS, AnalysisSettings  # noqa: F401  (INDICATOR_SETS: public here too)
 
-#: indicator -> (value column, status column, unit)
-INDICATOR_COLUMNS: dict[str, tuple[str, str, str]] = {
+#: The study's three indicators: indicator -> (value column, status column, unit)
+PAPER_COLUMNS: dict[str, tuple[str, str, str]] = {
     "t_f": ("t_f_s", "t_f_status", "s"),
     "t_nf": ("t_nf_s", "t_nf_status", "s"),
     "dv_nb": ("dv_nb_mps", "dv_nb_status", "m/s"),
 }
+#: Every indicator: the study's three, then what the driver accepts.
+INDICATOR_COLUMNS: dict[str, tuple[str, str, str]] = {**PAPER_COLUMNS, **ACCEPTANCE_COLUMNS}
 INDICATORS: tuple[str, ...] = tuple(INDICATOR_COLUMNS)
+PAPER_INDICATORS: tuple[str, ...] = tuple(PAPER_COLUMNS)
 
 CORRELATION_COLUMNS = ["driver_id", "indicator", "n", "pearson_r", "pearson_p", "spearman_rho",
                        "spearman_p", "significant", "reason"]
 FIT_COLUMNS = ["driver_id", "indicator", "A", "b", "A_se", "b_se", "A_lo", "A_hi", "b_lo", "b_hi", "r2", "n",
-               "status", "reason", "cov_Ab", "resid_sd", "df_resid", "v_min", "v_max"]
+               "status", "reason", "cov_Ab", "resid_sd", "df_resid", "v_min", "v_max", "flag", "level"]
 
 
 @dataclass(frozen=True)
@@ -93,13 +103,15 @@ def fit_reasons(decisions: pd.DataFrame, settings: AnalysisSettings | None = Non
     closing speed is below `min_closing_mps` gets 'following'.
     """
     settings = settings or AnalysisSettings()
+    if not has_acceptance(decisions):
+        decisions = add_acceptance(decisions, settings)
     out = {}
     v_e = decisions["ego_v_mps"].to_numpy(dtype=float)
     for ind, (col, status_col, _) in INDICATOR_COLUMNS.items():
         status = decisions[status_col].astype(str).to_numpy(dtype=object)
         y = decisions[col].to_numpy(dtype=float)
         reason = np.where(status == "ok", "", status).astype(object)
-        if ind == "dv_nb" and settings.fit_far_followers:
+        if ind in ("dv_nb", "gap_nb", "thw_nb") and settings.fit_far_followers:
             reason[status == "far"] = ""
         reason[(reason == "") & ~np.isfinite(y)] = "undefined"
         if ind in ("t_f", "t_nf"):
@@ -122,6 +134,8 @@ def indicator_points(decisions: pd.DataFrame, settings: AnalysisSettings | None 
     d = decisions[decisions["label"] == "change"]
     if not settings.fit_cancelled:
         d = d[~d["cancelled"].astype(bool)]
+    if not has_acceptance(d):
+        d = add_acceptance(d, settings)
     reasons = fit_reasons(d, settings)
     drivers = d["driver_id"].astype(str).to_numpy(dtype=object)
     dec_ids = d["decision_id"].astype(str).to_numpy(dtype=object)
@@ -248,18 +262,30 @@ def fit_lines(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
         reason = _why_not(g, settings)
         row = {c: np.nan for c in FIT_COLUMNS}
         row.update(driver_id=g.driver_id, indicator=g.indicator, n=int(len(g.v)), status="skipped", reason=reason,
-                   df_resid=0)
+                   df_resid=0, flag="", level=float(np.median(g.y)) if len(g.y) else np.nan)
         if not reason:
             row.update(v_min=float(g.v.min()), v_max=float(g.v.max()))
             fit = fit_line(g.v, g.y, settings.alpha)
             row.update({k: getattr(fit, k) for k in ("A", "b", "A_se", "b_se", "A_lo", "A_hi", "b_lo", "b_hi",
                                                       "r2", "n", "cov_Ab", "resid_sd", "df_resid")})
-            row.update(status="ok", reason="")
+            row.update(status="ok", reason="", flag=fit_flag(fit, settings))
         rows.append(row)
     out = pd.DataFrame(rows, columns=FIT_COLUMNS)
     out["n"] = out["n"].astype("int64")
     out["df_resid"] = out["df_resid"].astype("int64")
     return out
+
+
+def fit_flag(fit: LineFit, settings: AnalysisSettings) -> str:
+    """Why a fitted line says little about how the indicator moves with speed ('' when it does)."""
+    why = []
+    if not fit.r2 >= settings.min_fit_r2:
+        why.append(f"R² {fit.r2:.2f} < {settings.min_fit_r2:.2f}")
+    if fit.A_lo <= 0 <= fit.A_hi or not np.isfinite(fit.A_lo):
+        why.append(f"slope interval [{fit.A_lo:.3g}, {fit.A_hi:.3g}] spans 0")
+    if fit.n < settings.min_flag_points:
+        why.append(f"only {fit.n} points")
+    return "; ".join(why)
 
 
 def fit_pooled(points: pd.DataFrame, drivers: list[str], indicator: str,

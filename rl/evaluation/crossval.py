@@ -124,7 +124,8 @@ def fold_lines(train: pd.DataFrame, line_drivers: list[str], fallback: Reference
     """Reference lines refitted on the training folds' presses of `line_drivers` (pooled when several).
 
     An indicator that cannot be fitted (too few defined presses) keeps the full
-    analysis's line, with a note.
+    analysis's line, with a note; a flagged fit becomes its level with
+    `flagged_lines='level'`, as in the analysis (`clustering.pipeline.reference_lines`).
     """
     from indicators.stats import fit_lines  # statsmodels: imported here, not by every fold's worker
 
@@ -134,7 +135,10 @@ def fold_lines(train: pd.DataFrame, line_drivers: list[str], fallback: Reference
     got, notes = {}, []
     for ind in INDICATORS:
         row = fits.loc[ind] if ind in fits.index else None
-        if row is not None and row["status"] == "ok":
+        if row is not None and row["status"] == "ok" and row.get("flag") and analysis.flagged_lines == "level":
+            got[ind] = (0.0, float(row["level"]))
+            notes.append(f"{ind}: line flagged ({row['flag']}); its level used")
+        elif row is not None and row["status"] == "ok":
             got[ind] = (float(row["A"]), float(row["b"]))
         else:
             got[ind] = getattr(fallback, ind)

@@ -12,6 +12,7 @@ from rich.console import Console
 from clustering.cli import render
 from clustering.pipeline import analyze
 from indicators.settings import AnalysisSettings
+from indicators.stats import INDICATORS
 from indicators.synthetic import catalogue_row, make_recording
 from laneprint.cli import app
 from laneprint.simulator import StudySettings, simulate_study
@@ -51,7 +52,7 @@ def test_analyze_writes_stage_and_report(workspace, report):
     assert ((skipped["what"] == "recording") & (skipped["id"] == "nopress0000000000")).any()
     refs = ws.read_table("analysis", "reference_lines")
     for style in report["styles"]:
-        assert len(refs.query("scope == 'style' and kind == 'typical' and name == @style")) == 3
+        assert len(refs.query("scope == 'style' and kind == 'typical' and name == @style")) == len(INDICATORS)
     assert set(report["styles"]) <= {"Defensive", "Normal", "Aggressive"}
     truth = {d["driver_id"]: d["style"] for d in study.ground_truth["drivers"]}
     assert {d: info["style"] for d, info in report["drivers"].items()} == truth

@@ -6,7 +6,7 @@ import pytest
 from scipy import stats as sstats
 
 from indicators.settings import AnalysisSettings
-from indicators.stats import LineFit, correlate, fit_line, fit_lines, fit_reasons, pearson
+from indicators.stats import PAPER_INDICATORS, LineFit, correlate, fit_line, fit_lines, fit_reasons, pearson
 
 
 def table(driver: str, v, t_f, t_nf=None, dv_nb=None, f_v=None) -> pd.DataFrame:
@@ -36,7 +36,9 @@ def test_exact_line_is_recovered():
     assert fits.loc["t_nf", "A"] == pytest.approx(0.2)
     assert fits.loc["dv_nb", "b"] == pytest.approx(-9.0)
     assert fits.loc["t_f", "r2"] == pytest.approx(1.0)
-    assert (fits["status"] == "ok").all() and (fits["n"] == 6).all()
+    paper = fits.loc[list(PAPER_INDICATORS)]
+    assert (paper["status"] == "ok").all() and (paper["n"] == 6).all()
+    assert (fits.drop(index=list(PAPER_INDICATORS))["status"] == "skipped").all()  # the table has no gaps
 
 
 def test_ols_matches_hand_formulas_and_bands_contain_line():
