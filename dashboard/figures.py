@@ -132,9 +132,15 @@ def compact(fig: go.Figure, height: int = 440, width_chars: int = 58) -> go.Figu
     text = "<br>".join(heads)
     if lines:
         text += "<br><span style='font-size:11px'>" + "<br>".join(lines) + "</span>"
-    top = 22 + 17 * len(heads) + 14 * len(lines) + 14
+    top = 32 + 17 * len(heads) + 14 * len(lines) + 14
+    # a long axis title ('dv_nb: v_ego - v_nb, target-lane follower [m/s]'), rotated, is taller than a
+    # narrow plot and runs into the title: keep its name and unit ('dv_nb [m/s]')
+    for name in [k for k in fig.layout.to_plotly_json() if k.startswith(("xaxis", "yaxis"))]:
+        axis_title = fig.layout[name].title.text or ""
+        if len(axis_title) > 30 and ": " in axis_title and "[" in axis_title:
+            fig.layout[name].title.text = f"{axis_title.split(': ', 1)[0]} [{axis_title.rsplit('[', 1)[1]}"
     fig.update_layout(title=dict(text=text, font=dict(size=13), x=0, xanchor="left", xref="container",
-                                 y=1, yanchor="top", yref="container", pad=dict(t=8, l=8)),
+                                 y=1, yanchor="top", yref="container", pad=dict(t=18, l=8)),
                       legend=dict(orientation="h", yanchor="top", y=-0.22, x=0), height=height + top - 80,
                       margin=dict(l=10, r=10, t=top, b=10))
     return fig
