@@ -15,9 +15,11 @@ failure is turned into a one-line reason with the byte offset (`Rejected`).
 from __future__ import annotations
 
 import io
+import operator
 import struct
 from typing import Any, Callable
 
+import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
@@ -66,26 +68,52 @@ class Collected:
             self.metadata[rec.name] = dict(rec.metadata)
 
 
-def _parse(cls: Any, buf: bytes | memoryview, body: int, end: int) -> Any:
+def _parse(cls: Any, buf: bytes, body: int, end: int) -> Any:
     """One record by the mcap library's parser, bounded to its own bytes (padding allowed)."""
-    return cls.read(ReadDataStream(io.BytesIO(bytes(buf[body:end]))))
+    return cls.read(ReadDataStream(io.BytesIO(buf[body:end])))
 
 
-def _inflate(compression: str, raw: bytes | memoryview, size: int) -> bytes | memoryview:
+def _inflate(compression: str, raw: bytes, size: int) -> bytes:
     if compression == "":
         return raw
     if compression == "zstd":
         import zstandard
-        return zstandard.ZstdDecompressor().decompress(bytes(raw), max_output_size=size)
+        return zstandard.ZstdDecompressor().decompress(raw, max_output_size=size)
     if compression == "lz4":
         import lz4.frame
-        return lz4.frame.decompress(bytes(raw))
+        return lz4.frame.decompress(raw)
     raise Unreadable(f"compression {compression!r}")
 
 
-def _walk(buf: bytes | memoryview, pos: int, stop: int, got: Collected, chunk: Callable[[int, int], None] | None) -> int:
+class _Messages:
+    """Message records as three flat lists, grouped by channel once at the end (in C, not per message)."""
+
+    def __init__(self) -> None:
+        self.cids: list[int] = []
+        self.times: list[int] = []
+        self.datas: list[bytes] = []
+
+    def into(self, got: Collected) -> None:
+        if not self.cids:
+            return
+        cids = np.asarray(self.cids, dtype=np.int64)
+        order = np.argsort(cids, kind="stable")
+        bounds = np.flatnonzero(np.diff(cids[order])) + 1
+        for idx in np.split(order, bounds):
+            cid = int(cids[idx[0]])
+            pick = operator.itemgetter(*idx.tolist())
+            times, datas = pick(self.times), pick(self.datas)
+            if len(idx) == 1:
+                times, datas = (times,), (datas,)
+            got.times.setdefault(cid, []).extend(times)
+            got.datas.setdefault(cid, []).extend(datas)
+
+
+def _walk(buf: bytes, pos: int, stop: int, got: Collected, msgs: _Messages,
+          chunk: Callable[[int, int], None] | None) -> int:
     """Read the records in buf[pos:stop]; the end of the last one (the footer's start at top level)."""
-    head, msg, add = _HEAD.unpack_from, _MSG.unpack_from, got.add
+    head, msg = _HEAD.unpack_from, _MSG.unpack_from
+    add_cid, add_time, add_data = msgs.cids.append, msgs.times.append, msgs.datas.append
     while pos < stop:
         if pos + 9 > stop:
             raise Unreadable("record header cut")
@@ -97,7 +125,9 @@ def _walk(buf: bytes | memoryview, pos: int, stop: int, got: Collected, chunk: C
             if length < _MSG_FIXED:
                 raise Unreadable("short message")
             cid, _, log_time = msg(buf, body)
-            add(cid, log_time, bytes(buf[body + _MSG_FIXED:end]))
+            add_cid(cid)
+            add_time(log_time)
+            add_data(buf[body + _MSG_FIXED:end])
         elif op == _OP_CHANNEL:
             got.take(_parse(Channel, buf, body, end))
         elif op == _OP_SCHEMA:
@@ -117,27 +147,28 @@ def read_records(data: bytes) -> Collected:
     if not (data.startswith(MAGIC) and data.endswith(MAGIC)):
         raise Unreadable("no magic")
     got = Collected()
-    view = memoryview(data)
+    msgs = _Messages()
 
     def chunk(body: int, end: int) -> None:
-        _, _, size, _, clen = _CHUNK_HEAD.unpack_from(view, body)
+        _, _, size, _, clen = _CHUNK_HEAD.unpack_from(data, body)
         at = body + _CHUNK_HEAD.size
-        compression = str(view[at:at + clen], "utf-8")
-        (rlen,) = struct.unpack_from("<Q", view, at + clen)
+        compression = str(data[at:at + clen], "utf-8")
+        (rlen,) = struct.unpack_from("<Q", data, at + clen)
         start = at + clen + 8
         if start + rlen > end:
             raise Unreadable("chunk records past the chunk")
-        inner = _inflate(compression, view[start:start + rlen], size)
+        inner = _inflate(compression, data[start:start + rlen], size)
         if len(inner) != size:
             raise Unreadable("chunk size")
-        _walk(inner, 0, len(inner), got, None)
+        _walk(inner, 0, len(inner), got, msgs, None)
 
-    footer = _walk(view, len(MAGIC), len(data), got, chunk)
-    if footer + 9 > len(data) or view[footer] != _OP_FOOTER:
+    footer = _walk(data, len(MAGIC), len(data), got, msgs, chunk)
+    if footer + 9 > len(data) or data[footer] != _OP_FOOTER:
         raise Unreadable("no footer")
-    (length,) = struct.unpack_from("<Q", view, footer + 1)
+    (length,) = struct.unpack_from("<Q", data, footer + 1)
     if footer + 9 + length + len(MAGIC) != len(data):
         raise Unreadable("bytes between the footer and the closing magic")
+    msgs.into(got)
     return got
 
 
