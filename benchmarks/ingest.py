@@ -7,21 +7,27 @@ CSV.gz and MCAP to a temporary folder, then times (median of several repetitions
   validate, hash, store as Parquet), and its read+validate part alone;
 - the floor for the same bytes: `pyarrow.csv.read_csv` (after gunzip for .csv.gz),
   and the `mcap` reader iterating every message and `json.loads`-ing it without
-  building any table.
+  building any table (and, beside it, the same with msgspec's decoder);
+- with `--baseline REV`, the ingest of git revision REV (its `ingest/` package loaded
+  as `ingest_base`, everything else shared), interleaved with ours: before and after
+  in one run.
 
-Goal: our ingest at least half as fast as the floor (ratio >= 0.5).
+Goals: our ingest at least half as fast as the floor (ratio >= 0.5); MCAP at least 3x.
 
-    /work/venv/bin/python benchmarks/ingest.py [--reps 5] [--minutes 10] [--vehicles 20]
+    .venv/bin/python benchmarks/ingest.py [--reps 5] [--minutes 10] [--vehicles 20] [--baseline d4815b0]
 """
 
 from __future__ import annotations
 
 import argparse
 import gzip
+import importlib
 import io
 import json
 import shutil
 import statistics
+import subprocess
+import tarfile
 import tempfile
 import time
 from pathlib import Path
@@ -31,6 +37,7 @@ import sys
 # this script is named like the `ingest` package: keep its own folder off the import path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
+import msgspec  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 import pyarrow.csv as pacsv  # noqa: E402
@@ -104,16 +111,38 @@ def floor_mcap(data: bytes) -> None:
         json.loads(msg.data)
 
 
+def floor_mcap_msgspec(data: bytes) -> None:
+    decode = msgspec.json.Decoder().decode
+    reader = make_reader(io.BytesIO(data))
+    for _, _, msg in reader.iter_messages():
+        decode(msg.data)
+
+
+def load_baseline(rev: str, into: Path):
+    """`ingest_paths` of the `ingest/` package at git revision `rev`, imported as `ingest_base`."""
+    repo = Path(__file__).resolve().parent.parent
+    tar = subprocess.run(["git", "-C", str(repo), "archive", rev, "ingest"], capture_output=True, check=True).stdout
+    with tarfile.open(fileobj=io.BytesIO(tar)) as tf:
+        tf.extractall(into, filter="data")
+    (into / "ingest").rename(into / "ingest_base")
+    for f in (into / "ingest_base").rglob("*.py"):
+        f.write_text(f.read_text().replace("from ingest.", "from ingest_base.").replace("import ingest.", "import ingest_base."))
+    sys.path.insert(0, str(into))
+    return importlib.import_module("ingest_base.pipeline").ingest_paths
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--reps", type=int, default=5)
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--vehicles", type=int, default=20)
+    ap.add_argument("--baseline", metavar="REV", help="also time the ingest of this git revision (before/after)")
     args = ap.parse_args()
 
     meta, ego, traffic = make_recording(args.minutes, args.vehicles)
     n = len(ego)
     tmp = Path(tempfile.mkdtemp(prefix="lp-bench-"))
+    base_ingest = load_baseline(args.baseline, tmp / "base") if args.baseline else None
     try:
         files = {"csv": tmp / "rec.csv", "csv.gz": tmp / "rec.csv.gz", "mcap": tmp / "rec.mcap"}
         for fmt, path in files.items():
@@ -136,27 +165,34 @@ def main() -> None:
             def read(d=data, f=fmt, p=path) -> None:
                 canonicalise(read_log(d, f, IDENTITY), IDENTITY, session_stem(p), None)
 
-            def full(p=path) -> None:
+            def full(p=path, run=ingest_paths) -> None:
                 k[0] += 1
                 ws = Workspace(tmp / f"ws{k[0]}")
-                rep = ingest_paths([p], ws)
+                rep = run([p], ws)
                 assert rep.files[0].status in ("ingested", "warning"), rep.files[0].reason
                 used.append(ws.root)
 
-            # interleaved, so a busy machine slows all three alike
-            times = interleaved([floor, read, full], args.reps)
+            fns, labels = [floor, read, full], ["read + validate", "ingest (stored)"]
+            if fmt == "mcap":
+                fns.insert(1, lambda d=data: floor_mcap_msgspec(d))
+                labels.insert(0, "mcap iter + msgspec (floor, msgspec)")
+            if base_ingest is not None:
+                fns.append(lambda p=path: full(p, base_ingest))
+                labels.append(f"ingest (stored), {args.baseline}")
+            # interleaved, so a busy machine slows all alike
+            times = interleaved(fns, args.reps)
             for root in used:
                 shutil.rmtree(root, ignore_errors=True)
             floor_name = "pyarrow.csv.read_csv" if fmt != "mcap" else "mcap iter + json.loads"
-            for label, (secs, cpu) in zip((floor_name + " (floor)", "read + validate", "ingest (stored)"), times):
+            for label, (secs, cpu) in zip([floor_name + " (floor)"] + labels, times):
                 rows.append((fmt, label, secs, mb / secs, n / secs, times[0][0] / secs, cpu, times[0][1] / cpu))
-        print(f"{'format':7} {'what':34} {'wall s':>8} {'MB/s':>8} {'samples/s':>11} {'vs floor':>9}"
+        print(f"{'format':7} {'what':38} {'wall s':>8} {'MB/s':>8} {'samples/s':>11} {'vs floor':>9}"
               f" {'cpu s':>7} {'vs floor':>9}")
         for fmt, label, secs, mbs, sps, ratio, cpu, cpu_ratio in rows:
-            print(f"{fmt:7} {label:34} {secs:8.3f} {mbs:8.1f} {sps:11,.0f} {ratio:9.2f} {cpu:7.3f} {cpu_ratio:9.2f}")
+            print(f"{fmt:7} {label:38} {secs:8.3f} {mbs:8.1f} {sps:11,.0f} {ratio:9.2f} {cpu:7.3f} {cpu_ratio:9.2f}")
         print("\nvs floor = floor time / this time, from medians of wall-clock time and of CPU time "
               "(all threads; steadier when the machine is busy)")
-        print("goal: 'ingest (stored)' >= 0.5 x floor for each format")
+        print("goals: 'ingest (stored)' >= 0.5 x floor for each format; >= 3 x the json.loads floor for mcap")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
