@@ -194,9 +194,27 @@ def _cv_table(res: dict[str, Any]) -> Table:
     return t
 
 
+def _direction_table(res: dict[str, Any]) -> Table | None:
+    rows = res.get("summary_by_direction") or []
+    if not rows:
+        return None
+    t = Table(title="by direction of the lane change (target lane to the left / right)")
+    for col in ("direction", "who", "decisions", "balanced acc. [95 % CI]", "recall", "timing MAE [s]"):
+        t.add_column(col)
+    for r in rows:
+        lo, hi = r["balanced_accuracy_ci"]
+        t.add_row(r["direction"], r["who"], str(r["n_decisions"]),
+                  f"{100 * r['balanced_accuracy']:.1f} % [{100 * lo:.1f}, {100 * hi:.1f}]",
+                  _fmt(r["recall"], True), _fmt(r["timing_mae_s"]))
+    return t
+
+
 def _render_cv(res: dict[str, Any], console: Console) -> None:
     for r in res.get("results", [res]):
         console.print(_cv_table(r))
+        by_dir = _direction_table(r)
+        if by_dir is not None:
+            console.print(by_dir)
         if r.get("unscored"):
             console.print(f"not scored: {r['unscored']}", highlight=False)
         console.print(f"stored as crossval/{r['crossval_id']}", highlight=False)

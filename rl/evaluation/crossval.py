@@ -235,6 +235,33 @@ def score_fold(job: FoldJob) -> dict[str, Any]:
     return ev
 
 
+def decision_directions(decisions: pd.DataFrame) -> pd.Series:
+    """'left' or 'right' of each decision_id: the side of its target lane (lanes count from the
+    right, so a higher target lane is to the left)."""
+    presses = decisions.drop_duplicates("decision_id")
+    side = np.where(presses["target_lane"].to_numpy() > presses["ego_lane"].to_numpy(), "left", "right")
+    return pd.Series(side, index=presses["decision_id"].to_numpy())
+
+
+def summary_by_direction(decisions: pd.DataFrame, states: pd.DataFrame, changes: pd.DataFrame,
+                         settings: CrossvalSettings) -> list[dict[str, Any]]:
+    """`bootstrap_scores` of every policy on the left and on the right decisions alone (rows carry
+    `direction`); a direction without scored decisions has no rows. Its own seeded generator,
+    so the pooled summary's intervals do not move."""
+    rng = np.random.default_rng([settings.seed, 8])
+    side = decision_directions(decisions)
+    rows = []
+    for direction in ("left", "right"):
+        ids = side.index[side.to_numpy() == direction]
+        st = states[states["decision_id"].isin(ids)]
+        if st.empty:
+            continue
+        ch = changes[changes["decision_id"].isin(ids)]
+        rows += [{"direction": direction, **bootstrap_scores(st, ch, who, settings.n_bootstrap, rng)}
+                 for who in POLICIES]
+    return rows
+
+
 def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: list[str], env: EnvConfig,
                   dqn: DQNSettings, settings: CrossvalSettings, analysis: AnalysisSettings | None = None,
                   refit_lines: bool = True, progress: ProgressFn | None = None, backend: str = "local",
@@ -291,11 +318,13 @@ def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: lis
     states = pd.concat([ev["states"] for ev in evs], ignore_index=True)
     changes = pd.concat([ev["changes"] for ev in evs], ignore_index=True)
     summary = [bootstrap_scores(states, changes, who, settings.n_bootstrap, rng) for who in POLICIES]
+    by_direction = summary_by_direction(dec, states, changes, settings)
     n_total = int(dec["decision_id"].nunique())
     n_scored = int(states["decision_id"].nunique())
     return {
         "drivers": drivers, "line_drivers": line_drivers, "folds": n_folds, "settings": asdict(settings),
-        "env": env.to_dict(), "dqn": dqn.to_dict(), "summary": summary, "per_fold": per_fold,
+        "env": env.to_dict(), "dqn": dqn.to_dict(), "summary": summary, "summary_by_direction": by_direction,
+        "per_fold": per_fold,
         "n_decisions_total": n_total, "n_decisions_scored": n_scored,
         "scored_share": n_scored / n_total if n_total else None,
         "unscored": {k: v for k, v in unscored.items() if v}, "notes": notes,

@@ -170,3 +170,25 @@ def test_crossval_command_prints_one_row_per_policy(tmp_path):
     assert (tmp_path / "crossval" / out["crossval_id"] / "result.json").exists()
     bad = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "9", "-w", str(tmp_path)])
     assert bad.exit_code == 1 and "--folds" in bad.output
+
+
+def test_crossval_scores_each_direction_apart_with_the_pooled_fields(tmp_path):
+    dec = sessions(4, 6)
+    # the second half of every session's presses return to the right: target lane below the ego's
+    right = dec["decision_id"].str.split(":").str[-1].astype(int) % 2 == 1
+    dec.loc[right, ["ego_lane", "target_lane"]] = [1, 0]
+    write_style_analysis(Workspace(tmp_path), dec, LINES)
+    res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--episodes", "200",
+                                   "--bootstrap", "50", "-w", str(tmp_path), "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    by_dir = out["summary_by_direction"]
+    assert {(r["direction"], r["who"]) for r in by_dir} == {(d, w) for d in ("left", "right")
+                                                            for w in ("agent", "greedy", "imitation")}
+    for r in by_dir:
+        assert set(out["summary"][0]) <= set(r)
+    n = {d: {r["n_decisions"] for r in by_dir if r["direction"] == d} for d in ("left", "right")}
+    assert n == {"left": {12}, "right": {12}} and out["summary"][0]["n_decisions"] == 24
+    text = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--episodes", "200",
+                                    "--bootstrap", "50", "-w", str(tmp_path)])
+    assert "by direction" in text.output and "right" in text.output
