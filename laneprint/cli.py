@@ -16,7 +16,7 @@ from ingest.cli import ingest_command
 from laneprint.simulator.cli import simulate_command
 from laneprint.pipeline_cli import run_command_cli
 from laneprint.report import report_command
-from rl.cli import annotate_command, crossval_command, evaluate_command, export_command, runs_command, train_command
+from rl.cli import annotate_command, crossval_command, evaluate_command, export_command, personalize_command, runs_command, train_command
 from rl.drive.cli import drive_command
 
 app = typer.Typer(
@@ -31,6 +31,7 @@ app.command("simulate", help="Generate a driver-in-the-loop study (CSV and MCAP 
 app.command("ingest", help="Read, validate and store simulator logs in the workspace.")(ingest_command)
 app.command("analyze", help="Indicators at decisions, per-driver fits and driving styles.")(analyze_command)
 app.command("train", help="Train a DQN agent for a style or a driver, or a fleet of them (--drivers/--styles).")(train_command)
+app.command("personalize", help="An agent for one driver from its first K decisions, starting from the other drivers' agent.")(personalize_command)
 app.command("evaluate", help="Evaluate a trained run against the drivers' decisions.")(evaluate_command)
 app.command("crossval", help="Held-out figures: agent vs greedy vs imitation, by session folds.")(crossval_command)
 app.command("export", help="Export a trained run's policy as ONNX, documented and checked with onnxruntime.")(export_command)

@@ -347,3 +347,61 @@ def runs_command(
             console.print("interrupted runs: continue one with `laneprint train --resume RUN_ID`", highlight=False)
 
     run_command(work, as_json, render)
+
+
+def _render_personalize(res: dict[str, Any], console: Console) -> None:
+    st = res["style"]
+    console.print(res["run_id"])
+    shares = ", ".join(f"{name} {100 * p:.0f} %" for name, p in st["bootstrap"].items())
+    console.print(f"style from {res['decisions']} of {res['decisions_available']} decisions: {st['style']}, "
+                  f"confidence {100 * st['confidence']:.0f} % (bootstrap over the decisions: {shares}; "
+                  f"posterior {100 * st['posterior'][st['style']]:.0f} %)", highlight=False)
+    base = res["base"]
+    src = f"reused from run {base['reused_from']}" if base.get("reused_from") else f"{base.get('episodes')} episodes"
+    who = "all other drivers" if base["from"] == "population" else f"style {base['style']}"
+    console.print(f"base agent: {who} ({len(base['drivers'])} drivers, {base['n_approaches']} approaches; {src})",
+                  highlight=False)
+    console.print(f"{res['state']}: {res['message']}, {res['episodes']} episodes in {res['wall_s']} s — "
+                  f"{res['folder']}", highlight=False)
+    later = res.get("later_decisions")
+    if later:
+        lo, hi = later["balanced_accuracy_ci"]
+        console.print(f"on the driver's {later['n_decisions']} later decisions (not used): balanced accuracy "
+                      f"{100 * later['balanced_accuracy']:.1f} % [{100 * lo:.1f}, {100 * hi:.1f}], recall "
+                      f"{100 * later['recall']:.1f} %, timing MAE {_fmt(later['timing_mae_s'])} s", highlight=False)
+
+
+def personalize_command(
+    driver: Annotated[str, typer.Option("--driver", help="The driver to personalise for.")],
+    decisions: Annotated[Optional[int], typer.Option("--decisions", min=1, help="K: its first K decisions in time order (default: all).")] = None,
+    base: Annotated[str, typer.Option("--from", help="Start from the 'population' agent (all other drivers) or the 'style' agent (the style assigned from the K decisions).")] = "population",
+    episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, help="Fine-tuning episodes (default: 60 per decision, 600-3000).")] = None,
+    base_episodes: Annotated[Optional[int], typer.Option("--base-episodes", min=1, help="Episodes of the base agent (default: the trainer's rule).")] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of everything random.")] = 0,
+    run_id: Annotated[Optional[str], typer.Option("--run-id", help="Id of the new run.")] = None,
+    num_envs: Annotated[Optional[int], typer.Option("--num-envs", help="Environments stepped together.")] = None,
+    batch_size: Annotated[Optional[int], typer.Option("--batch-size", help="Transitions per update.")] = None,
+    learning_starts: Annotated[Optional[int], typer.Option("--learning-starts", help="Transitions before the base agent learns (2000).")] = None,
+    workspace: WorkspaceOpt = DEFAULT_WS,
+    as_json: JsonOpt = False,
+) -> None:
+    """An agent for one driver from its first K decisions, starting from the other drivers' agent."""
+
+    def work() -> dict[str, Any]:
+        from rl.personalize.agents import PersonalizeSettings  # torch only when the command runs
+        from rl.personalize.store import check_request, personalize
+
+        ws = Workspace(workspace)
+        check_request(ws, driver, decisions)
+        overrides = {k: v for k, v in {"num_envs": num_envs, "batch_size": batch_size,
+                                       "learning_starts": learning_starts}.items() if v is not None}
+        try:
+            dqn = DQNSettings(**overrides)
+        except (TypeError, ValueError) as exc:
+            raise UserError(f"bad training setting: {exc}") from None
+        ps = PersonalizeSettings(base=base, **({"learning_starts": min(learning_starts, 500)} if learning_starts else {}))
+        with progress_bar(not as_json) as progress:
+            return personalize(ws, driver, decisions, ps, dqn, episodes=episodes, base_episodes=base_episodes,
+                               seed=seed, run_id=run_id, progress=progress)
+
+    run_command(work, as_json, _render_personalize)

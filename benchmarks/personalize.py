@@ -1,0 +1,250 @@
+"""A new driver from a few lane changes: the learning curve of personalisation (issue 21).
+
+Leave one driver out: the other drivers are the population; the held-out
+driver's last session(s) are scored; its first K decisions of the earlier
+sessions (K = 5, 10, 20 and all) are what it has shown. Policies side by side
+(`rl.personalize.curve`): the personalised agent (one column per variant), the
+style agent (style assigned from the K decisions), the population agent, a DQN
+from scratch on the K decisions, the imitation classifier on the K decisions and
+on population + K, and the driver's own agent on all its earlier sessions (the
+ceiling). Balanced accuracy, recall and timing error with bootstrap 95 %
+intervals (`rl.evaluation.crossval.bootstrap_scores`, decisions resampled), per K,
+pooled over drivers and per style (the full analysis's); then the issue's
+acceptance lines. Writes curve.json, curve.csv and curve.html (Plotly) to --out.
+
+Run on an analysed workspace (`laneprint ingest sample_logs -w WS && laneprint analyze -w WS`):
+
+    python benchmarks/personalize.py -w WS [--drivers all|N|D01,D02] [--k 5,10,20,all]
+        [--episodes N] [--variants finetune:population,...] [--jobs 2] [--seed 0] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from laneprint.workspace import Workspace  # noqa: E402
+from rl.evaluation.crossval import bootstrap_scores  # noqa: E402
+from rl.personalize.agents import PersonalizeSettings  # noqa: E402
+from rl.personalize.curve import ALL, CurveSettings, driver_curve  # noqa: E402
+from rl.personalize.style import analysis_settings  # noqa: E402
+from rl.problem.env import formulation_config  # noqa: E402
+from rl.problem.rewards import ReferenceLines  # noqa: E402
+from rl.settings import DQNSettings  # noqa: E402
+
+#: The K-decision policies the personalised agent must match (the issue's list).
+RIVALS = ("style", "scratch", "imitation_k", "imitation_pop_k")
+
+
+def parse_variants(spec: str) -> dict[str, PersonalizeSettings]:
+    """'finetune:population,mix:style' -> {'personalised': ..., 'personalised[mix/style]': ...} (first = headline)."""
+    out = {}
+    for i, part in enumerate(p for p in spec.split(",") if p):
+        method, _, base = part.partition(":")
+        name = "personalised" if i == 0 else f"personalised[{method}/{base or 'population'}]"
+        out[name] = PersonalizeSettings(method=method, base=base or "population")
+    return out
+
+
+def one_driver(args: tuple) -> dict[str, Any]:
+    """One held-out driver's curve (a process of its own with --jobs)."""
+    ws_root, driver, others, episodes, seed, ks, variants, test_sessions = args
+    ws = Workspace(ws_root)
+    decisions = ws.read_table("analysis", "decisions")
+    env = formulation_config(ReferenceLines.paper("Normal"), "decisions")  # lines feed no policy scored here
+    dqn = DQNSettings(seed=seed, **({"episodes": episodes} if episodes else {}))
+    t0 = time.perf_counter()
+    res = driver_curve(decisions, driver, others, env, dqn,
+                       CurveSettings(ks=ks, test_sessions=test_sessions, seed=seed, variants=variants),
+                       analysis_settings(ws))
+    res["wall_s"] = time.perf_counter() - t0
+    return res
+
+
+def scores(states: pd.DataFrame, changes: pd.DataFrame, policies: list[str], n_boot: int,
+           seed: int) -> list[dict[str, Any]]:
+    """bootstrap_scores of every policy present in `states`."""
+    rng = np.random.default_rng([seed, 11])
+    out = []
+    for who in policies:
+        col = f"action_{who}"
+        if col not in states or states[col].isna().all():
+            continue
+        s = states[states[col].notna()].copy()
+        s[col] = s[col].astype(int)
+        out.append(bootstrap_scores(s, changes, who, n_boot, rng))
+    return out
+
+
+def table(results: pd.DataFrame, policies: list[str], n_boot: int, seed: int, group: str = "pooled") -> pd.DataFrame:
+    """One row per (K, policy): balanced accuracy, recall, timing error with their intervals."""
+    states, changes = results.attrs["states"], results.attrs["changes"]
+    rows = []
+    for k in dict.fromkeys(states["k"]):
+        s, c = states[states["k"] == k], changes[changes["k"] == k]
+        for r in scores(s, c, policies, n_boot, seed):
+            rows.append({"group": group, "k": k, "policy": r["who"], "n_decisions": r["n_decisions"],
+                         "balanced_accuracy": r["balanced_accuracy"], "ba_lo": r["balanced_accuracy_ci"][0],
+                         "ba_hi": r["balanced_accuracy_ci"][1], "recall": r["recall"],
+                         "timing_mae_s": r["timing_mae_s"],
+                         "timing_lo": (r["timing_mae_ci"] or [None, None])[0],
+                         "timing_hi": (r["timing_mae_ci"] or [None, None])[1]})
+    ceiling = [r for r in rows if r["policy"] == "ceiling"]
+    if ceiling:  # the driver's own full-data agent does not depend on K: shown at every K
+        for k in dict.fromkeys(states["k"]):
+            if k != "all":
+                rows.append({**ceiling[0], "k": k})
+    return pd.DataFrame(rows)
+
+
+def acceptance(tab: pd.DataFrame) -> list[str]:
+    """The issue's acceptance lines on the pooled table."""
+    lines = []
+    pooled = tab[tab["group"] == "pooled"]
+    for k, g in pooled.groupby("k", sort=False):
+        g = g.set_index("policy")
+        if "personalised" not in g.index:
+            continue
+        p = g.loc["personalised"]
+        rivals = g.loc[[r for r in RIVALS if r in g.index]]
+        best = rivals["balanced_accuracy"].idxmax()
+        ok = p["balanced_accuracy"] >= rivals.loc[best, "ba_lo"]
+        lines.append(f"K={k}: personalised {100 * p['balanced_accuracy']:.1f} vs best other {best} "
+                     f"{100 * rivals.loc[best, 'balanced_accuracy']:.1f} [{100 * rivals.loc[best, 'ba_lo']:.1f}, "
+                     f"{100 * rivals.loc[best, 'ba_hi']:.1f}]: {'holds' if ok else 'FAILS'}")
+        if k == "10" and "ceiling" in g.index:
+            gap = 100 * (g.loc["ceiling", "balanced_accuracy"] - p["balanced_accuracy"])
+            lines.append(f"K=10: ceiling - personalised = {gap:+.1f} points (at most 3): "
+                         f"{'holds' if gap <= 3 else 'FAILS'}")
+    return lines
+
+
+def print_table(tab: pd.DataFrame, title: str) -> None:
+    print(f"\n{title}")
+    print(f"{'K':>4}  {'policy':<34} {'n':>4}  {'balanced acc. [95 % CI]':<24} {'recall':>7}  timing MAE [s] [95 % CI]")
+    for r in tab.itertuples():
+        timing = "-" if r.timing_mae_s is None or pd.isna(r.timing_mae_s) else \
+            f"{r.timing_mae_s:.2f} [{r.timing_lo:.2f}, {r.timing_hi:.2f}]"
+        print(f"{r.k:>4}  {r.policy:<34} {r.n_decisions:>4}  {100 * r.balanced_accuracy:5.1f} "
+              f"[{100 * r.ba_lo:5.1f}, {100 * r.ba_hi:5.1f}]    {100 * r.recall:6.1f}  {timing}")
+
+
+def plot(tab: pd.DataFrame, path: Path, title: str) -> None:
+    """Balanced accuracy against K, one line per policy, pooled (Plotly HTML)."""
+    import plotly.graph_objects as go
+
+    pooled = tab[tab["group"] == "pooled"]
+    order = list(dict.fromkeys(pooled["k"]))
+    fig = go.Figure()
+    for who, g in pooled.groupby("policy", sort=False):
+        g = g.set_index("k").reindex(order).dropna(subset=["balanced_accuracy"])
+        fig.add_trace(go.Scatter(
+            x=list(g.index), y=100 * g["balanced_accuracy"], mode="lines+markers", name=who,
+            line={"dash": "dash"} if who == "ceiling" else None,
+            error_y={"type": "data", "symmetric": False, "array": 100 * (g["ba_hi"] - g["balanced_accuracy"]),
+                     "arrayminus": 100 * (g["balanced_accuracy"] - g["ba_lo"])}))
+    fig.update_layout(title=title, xaxis_title="decisions of the new driver (K)",
+                      yaxis_title="held-out balanced accuracy [%] (95 % CI)", template="plotly_white")
+    fig.write_html(path, include_plotlyjs="cdn")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("-w", "--workspace", required=True, type=Path, help="an analysed workspace")
+    ap.add_argument("--drivers", default="all", help="'all', N (the first N) or ID,ID,... held out in turn")
+    ap.add_argument("--k", default="5,10,20,all", help="decisions shown, comma-separated ('all': every earlier one)")
+    ap.add_argument("--episodes", type=int, default=None, help="cap on every agent's episodes (default: the trainer's)")
+    ap.add_argument("--variants", default="finetune:population",
+                    help="personalised agents, METHOD:BASE,... (the first is 'personalised')")
+    ap.add_argument("--test-sessions", type=int, default=1, help="the driver's last sessions, held out")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--bootstrap", type=int, default=1000)
+    ap.add_argument("--jobs", type=int, default=1, help="drivers in parallel processes")
+    ap.add_argument("--out", type=Path, default=None, help="folder for curve.json/.csv/.html (default WS/benchmarks)")
+    a = ap.parse_args()
+
+    ws = Workspace(a.workspace)
+    if not ws.has_table("analysis", "decisions"):
+        sys.exit(f"no analysis in {a.workspace}: run `laneprint ingest ... && laneprint analyze -w {a.workspace}`")
+    decisions = ws.read_table("analysis", "decisions")
+    styles = ws.read_table("analysis", "styles")
+    everyone = sorted(decisions["driver_id"].astype(str).unique())
+    if a.drivers == "all":
+        held = everyone
+    elif a.drivers.isdigit():
+        held = everyone[:int(a.drivers)]
+    else:
+        held = a.drivers.split(",")
+    ks = tuple(ALL if k == "all" else int(k) for k in a.k.split(","))
+    variants = parse_variants(a.variants)
+    jobs = [(str(a.workspace), d, [o for o in everyone if o != d], a.episodes, a.seed, ks, variants,
+             a.test_sessions) for d in held]
+    print(f"personalise: {len(held)} held-out driver(s) of {len(everyone)}, K = {a.k}, episodes cap "
+          f"{a.episodes or 'default'}, variants {a.variants}, seed {a.seed}", flush=True)
+    t0 = time.perf_counter()
+    results = []
+    if a.jobs > 1:
+        with ProcessPoolExecutor(a.jobs) as pool:
+            for job, res in zip(jobs, pool.map(one_driver, jobs)):
+                print(f"  {job[1]}: {res['n_test_decisions']} held-out decisions, {res['wall_s']:.0f} s", flush=True)
+                results.append(res)
+    else:
+        for job in jobs:
+            res = one_driver(job)
+            print(f"  {job[1]}: {res['n_test_decisions']} held-out decisions, {res['wall_s']:.0f} s", flush=True)
+            results.append(res)
+    states = pd.concat([r["states"] for r in results], ignore_index=True)
+    changes = pd.concat([r["changes"] for r in results], ignore_index=True)
+    assigned = pd.concat([r["styles"] for r in results], ignore_index=True)
+    true_style = dict(zip(styles["driver_id"].astype(str), styles["style"].astype(str)))
+    assigned["true_style"] = assigned["driver"].map(true_style)
+    policies = list(variants) + ["style", "population", "scratch", "imitation_k", "imitation_pop_k", "ceiling"]
+
+    def tab_of(sel: pd.Series, group: str) -> pd.DataFrame:
+        frame = pd.DataFrame()
+        frame.attrs["states"] = states[sel(states)]
+        frame.attrs["changes"] = changes[sel(changes)]
+        return table(frame, policies, a.bootstrap, a.seed, group)
+
+    tabs = [tab_of(lambda f: pd.Series(True, index=f.index), "pooled")]
+    for style in sorted(set(true_style[d] for d in held)):
+        members = {d for d in held if true_style[d] == style}
+        tabs.append(tab_of(lambda f, m=members: f["driver"].isin(m), style))
+    tab = pd.concat(tabs, ignore_index=True)
+    order = {p: i for i, p in enumerate(policies)}
+    korder = {k: i for i, k in enumerate(dict.fromkeys(states["k"]))}
+    tab = tab.sort_values(["group", "k", "policy"], key=lambda s: s.map(order) if s.name == "policy" else
+                          s.map(korder) if s.name == "k" else s.map(lambda g: (g != "pooled", g)), kind="stable")
+    for group, g in tab.groupby("group", sort=False):
+        print_table(g, f"{group}: held out the last {a.test_sessions} session(s) of {len(held)} driver(s)"
+                    if group == "pooled" else f"style {group} (the full analysis's)")
+    print("\nstyle assigned from the K decisions (right / all, mean confidence):")
+    for k, g in assigned.groupby("k", sort=False):
+        print(f"  K={k}: {(g['style'] == g['true_style']).sum()} / {len(g)}, confidence {g['confidence'].mean():.2f}")
+    print("\nacceptance (pooled; 'at least as good' = not below the best other policy's 95 % interval):")
+    for line in acceptance(tab):
+        print("  " + line)
+    out = a.out or a.workspace / "benchmarks"
+    out.mkdir(parents=True, exist_ok=True)
+    tab.to_csv(out / "curve.csv", index=False)
+    (out / "curve.json").write_text(json.dumps({
+        "args": {k: str(v) for k, v in vars(a).items()}, "drivers": held,
+        "table": tab.replace({np.nan: None}).to_dict("records"), "styles": assigned.to_dict("records"),
+        "acceptance": acceptance(tab), "wall_s": time.perf_counter() - t0}, indent=2, default=str))
+    plot(tab, out / "curve.html", f"personalisation learning curve: {a.workspace.name}, {len(held)} drivers")
+    print(f"\nwrote {out}/curve.csv, curve.json, curve.html ({time.perf_counter() - t0:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,119 @@
+"""The agents of personalisation: a base agent trained on other drivers, the new
+driver's agent fine-tuned from it, and the K-decision baselines.
+
+Fine-tuning starts from the base agent's weights and replays a mix: the driver's
+K approaches, repeated so that they make `driver_share` of the replayed states,
+beside the base's own approaches (so the prior is kept where the K decisions say
+nothing, e.g. at speeds the driver has not driven yet). Exploration starts low and
+the step size small, since the base already decides well (rl/README.md,
+"A new driver from a few lane changes", has the variants measured).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+import numpy as np
+import torch
+
+from laneprint.errors import UserError
+from laneprint.progress import ProgressFn, report
+from rl.learners.dqn import DQNTrainer
+from rl.problem.env import Approach, EnvConfig
+from rl.settings import DQNSettings
+
+BASES: tuple[str, ...] = ("style", "population")
+METHODS: tuple[str, ...] = ("finetune", "mix", "own")
+
+
+@dataclass(frozen=True)
+class PersonalizeSettings:
+    """How a driver's agent is made from the base agent and its first K decisions."""
+
+    base: str = "population"  # whose agent is the prior: 'style' (the assigned style's members) or 'population'
+    method: str = "finetune"  # 'finetune': base weights, then the mix replayed; 'mix': the mix from scratch;
+    # 'own': base weights, then the driver's approaches alone
+    driver_share: float = 0.5  # share of the replayed states that are the driver's (finetune, mix)
+    episodes_per_decision: float = 60.0  # fine-tuning episodes per decision of the driver ...
+    min_episodes: int = 600  # ... within [min_episodes, max_episodes]
+    max_episodes: int = 3000
+    learning_rate: float = 0.001  # Adam's step at the start of fine-tuning (falls linearly to a tenth)
+    eps_start: float = 0.2  # exploration at the start of fine-tuning (falls to DQNSettings.eps_end)
+    learning_starts: int = 500  # transitions before the first fine-tuning update
+    n_bootstrap: int = 200  # resamples of the K decisions for the style's confidence
+
+    def __post_init__(self) -> None:
+        if self.base not in BASES:
+            raise UserError(f"unknown --from {self.base!r}: choose one of {', '.join(BASES)}")
+        if self.method not in METHODS:
+            raise UserError(f"unknown method {self.method!r}: choose one of {', '.join(METHODS)}")
+        if not 0.0 < self.driver_share <= 1.0:
+            raise UserError(f"driver_share must be in (0, 1], got {self.driver_share}")
+
+    def finetune_episodes(self, k: int) -> int:
+        return int(min(self.max_episodes, max(self.min_episodes, round(self.episodes_per_decision * k))))
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def mixed(base: list[Approach], own: list[Approach], share: float) -> list[Approach]:
+    """`base` plus `own` repeated so that `own`'s states make about `share` of all replayed states."""
+    if not base or share >= 1.0:
+        return list(own)
+    n_base, n_own = sum(len(a) for a in base), sum(len(a) for a in own)
+    reps = max(1, int(round(share / (1 - share) * n_base / max(n_own, 1))))
+    return list(base) + list(own) * reps
+
+
+def train_agent(approaches: list[Approach], env: EnvConfig, dqn: DQNSettings,
+                init: dict[str, torch.Tensor] | None = None, progress: ProgressFn | None = None,
+                label: str = "agent", on_episode: Any = None) -> DQNTrainer:
+    """A DQN trained on `approaches` (recorded scenes), from `init`'s weights when given."""
+    if not approaches:
+        raise UserError(f"{label}: no recorded approaches to train on")
+    trainer = DQNTrainer(env, dqn, approaches=approaches)
+    if init is not None:
+        for net in (trainer.q, trainer.target, trainer.q_avg):
+            net.load_state_dict(init)
+
+    def tick(t: DQNTrainer) -> bool:
+        report(progress, t.episodes_done, t.settings.episodes, f"{label}: episode {t.episodes_done}")
+        return False
+
+    trainer.train(on_episode=on_episode, on_vector_step=tick)
+    return trainer
+
+
+def finetune_settings(dqn: DQNSettings, ps: PersonalizeSettings, k: int, episodes: int | None = None) -> DQNSettings:
+    """The trainer's settings for fine-tuning on `k` decisions (`episodes` overrides the rule)."""
+    return replace(dqn, episodes=episodes or ps.finetune_episodes(k), episodes_per_approach=0.0,
+                   learning_rate=ps.learning_rate, learning_rate_end=ps.learning_rate / 10,
+                   eps_start=ps.eps_start, learning_starts=ps.learning_starts)
+
+
+def personalised_agent(base_weights: dict[str, torch.Tensor] | None, base: list[Approach], own: list[Approach],
+                       env: EnvConfig, dqn: DQNSettings, ps: PersonalizeSettings, episodes: int | None = None,
+                       progress: ProgressFn | None = None, on_episode: Any = None) -> DQNTrainer:
+    """The driver's agent from the base (weights and approaches) and its own approaches, by `ps.method`."""
+    if ps.method == "mix":
+        data = mixed(base, own, ps.driver_share)
+        settings = replace(dqn, episodes=episodes or dqn.episodes,
+                           episodes_per_approach=0.0 if episodes else dqn.episodes_per_approach)
+        return train_agent(data, env, settings, None, progress, "personalised (mix)", on_episode)
+    if base_weights is None:
+        raise UserError("fine-tuning needs the base agent's weights")
+    data = own if ps.method == "own" else mixed(base, own, ps.driver_share)
+    return train_agent(data, env, finetune_settings(dqn, ps, len(own), episodes), base_weights, progress,
+                       "personalised", on_episode)
+
+
+def weights_of(trainer: DQNTrainer) -> dict[str, torch.Tensor]:
+    """A copy of the trained policy's weights."""
+    return {k: v.detach().clone() for k, v in trainer.policy_net.state_dict().items()}
+
+
+def base_seed(seed: int) -> int:
+    """The base agent's seed, apart from the personalised agent's."""
+    return int(np.random.SeedSequence([seed, 3]).generate_state(1)[0] % (2**31))

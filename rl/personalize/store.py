@@ -1,0 +1,188 @@
+"""`laneprint personalize`: a personalised agent as an ordinary run folder.
+
+The run folder is a driver run's (`rl.runs`): config.json (plus ``kind:
+'personalized'``, the K decision ids used, the base agent and the style estimate),
+status.json, metrics.jsonl of the fine-tuning, checkpoint.pt, weights.pt and
+evaluation.json, so `runs`, `evaluate` and `export` work on it. Beside them:
+``base_weights.pt`` (the base agent, reused by a later personalisation with the same
+base, data and settings) and ``personalize.json`` (the style estimate and the agent
+scored on the driver's decisions after the first K, when there are any).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+from contextlib import ExitStack
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import torch
+
+from laneprint.errors import UserError
+from laneprint.progress import ProgressFn, report
+from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
+from rl.evaluation.crossval import bootstrap_scores
+from rl.evaluation.evaluate import agent_policy, evaluate_policies
+from rl.personalize.agents import PersonalizeSettings, base_seed, personalised_agent, train_agent, weights_of
+from rl.personalize.split import decision_order, driver_rows, first_decisions
+from rl.personalize.style import analysis_settings, estimate_style, fit_population
+from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config
+from rl.problem.rewards import ReferenceLines
+from rl.runs import RunWriter, Target, create_run, evaluate_run, new_run_id, now_iso, run_dir
+from rl.settings import DQNSettings
+
+KIND = "personalized"
+
+
+def _save(path: Path, obj: Any) -> None:
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def _base_key(drivers: list[str], env: EnvConfig, dqn: DQNSettings, fingerprint: str) -> str:
+    blob = json.dumps({"drivers": sorted(drivers), "env": env.to_dict(), "dqn": dqn.to_dict(), "data": fingerprint},
+                      sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def _cached_base(workspace: Workspace, key: str) -> tuple[dict[str, torch.Tensor], str] | None:
+    """Base weights of an earlier personalised run with the same base key, and that run's id."""
+    root = workspace.runs_dir
+    for folder in sorted(root.glob("*"), reverse=True) if root.exists() else []:
+        try:
+            config = json.loads((folder / "config.json").read_text())
+        except (OSError, ValueError):
+            continue
+        if config.get("kind") == KIND and config.get("base", {}).get("key") == key \
+                and (folder / "base_weights.pt").exists():
+            return torch.load(folder / "base_weights.pt", weights_only=True), folder.name
+    return None
+
+
+def _lines(workspace: Workspace, style: str) -> ReferenceLines:
+    """The style's typical lines from the stored analysis (they feed only the greedy benchmark)."""
+    try:
+        return ReferenceLines.from_table(workspace.read_table("analysis", "reference_lines"), style=style)
+    except (UserError, KeyError, OSError):
+        return ReferenceLines.paper("Normal")
+
+
+def later_scores(net: torch.nn.Module, rows: pd.DataFrame, used: set[str], env: EnvConfig,
+                 seed: int) -> dict[str, Any] | None:
+    """The agent on the driver's decisions after the first K (None when K took them all)."""
+    later = rows[~rows["decision_id"].astype(str).isin(used)]
+    approaches, _ = approaches_from_decisions(later)
+    if not approaches:
+        return None
+    ev = evaluate_policies({"agent": agent_policy(net, env)}, approaches, env)
+    return bootstrap_scores(ev["states"], ev["changes"], "agent", 1000, np.random.default_rng([seed, 13]))
+
+
+def check_request(workspace: Workspace, driver: str, k: int | None) -> None:
+    """Refuse, in one line, what `personalize` cannot do: no analysis, an unknown driver, K too large."""
+    if not workspace.has_table("analysis", "decisions"):
+        raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first")
+    first_decisions(driver_rows(workspace.read_table("analysis", "decisions"), driver), k)
+
+
+def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: PersonalizeSettings | None = None,
+                dqn: DQNSettings | None = None, episodes: int | None = None, base_episodes: int | None = None,
+                seed: int = 0, run_id: str | None = None, progress: ProgressFn | None = None) -> dict[str, Any]:
+    """Train `driver`'s agent from its first `k` decisions (None: all) and the rest of the workspace.
+
+    Returns a JSON-ready summary: run id, the style estimate, the base, the fine-tuning.
+    """
+    ps = ps or PersonalizeSettings()
+    dqn = replace(dqn or DQNSettings(), seed=seed)
+    if not workspace.has_table("analysis", "decisions"):
+        raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first")
+    decisions = workspace.read_table("analysis", "decisions")
+    rows = driver_rows(decisions, driver)
+    own_rows = first_decisions(rows, k)
+    used = decision_order(own_rows)
+    others = sorted(set(decisions["driver_id"].astype(str)) - {str(driver)})
+    if not others:
+        raise UserError(f"{driver} is the only driver in the workspace: nothing to start from "
+                        f"(`laneprint train --driver {driver}` trains on its decisions alone)")
+    report(progress, 0, 1, "style from the decisions")
+    pop = fit_population(decisions, others, analysis_settings(workspace))
+    est = estimate_style(pop, own_rows, ps.n_bootstrap, seed)
+    base_drivers = others if ps.base == "population" else pop.members[est.style]
+    env = formulation_config(_lines(workspace, est.style), "decisions")
+    base_dqn = replace(dqn, seed=base_seed(seed), **({"episodes": base_episodes, "episodes_per_approach": 0.0}
+                                                      if base_episodes else {}))
+    base_app, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(base_drivers)])
+    own_app, _ = approaches_from_decisions(own_rows)
+    if not own_app:
+        raise UserError(f"none of {driver}'s first {len(used)} decisions can be replayed (no press rows)")
+    key = _base_key(base_drivers, env, base_dqn, workspace.fingerprint())
+    target = Target("driver", str(driver))
+    with ExitStack() as held:
+        run_id = run_id or new_run_id(target, f"personalized-k{len(used)}", seed)
+        ft_settings = personalised_settings(dqn, ps, len(own_app), episodes)
+        base = {"from": ps.base, "style": est.style, "drivers": base_drivers, "key": key,
+                "n_approaches": len(base_app), "seed": base_dqn.seed}
+        folder, config = create_run(workspace, target, env, ft_settings, run_id=run_id, held=held, extra={
+            "kind": KIND, "decisions": len(used), "decisions_available": len(decision_order(rows)),
+            "decision_ids": used, "base": base, "style_estimate": est.to_dict(), "personalize": ps.to_dict()})
+        writer = RunWriter(folder, ft_settings.episodes)
+        try:
+            cached = _cached_base(workspace, key)
+            if cached is not None:
+                base_w, base["reused_from"] = cached
+            else:
+                writer.status("running", 0, f"training the base agent ({ps.base})")
+                trainer = train_agent(base_app, env, base_dqn, progress=progress,
+                                      label=f"base ({ps.base}{'' if ps.base == 'population' else ' ' + est.style})")
+                base_w = weights_of(trainer)
+                base["episodes"] = trainer.episodes_done
+            _save(folder / "base_weights.pt", base_w)
+            atomic_write_json(folder / "config.json", config)
+            writer.status("running", 0, f"personalising on {len(used)} decisions")
+            trainer = personalised_agent(base_w, base_app, own_app, env, dqn, ps, episodes=episodes,
+                                         progress=progress, on_episode=writer.metric)
+        except BaseException as exc:
+            writer.flush()
+            writer.status("failed", 0, f"{type(exc).__name__}: {exc}")
+            writer.close()
+            raise
+        writer.flush()
+        _save(folder / "checkpoint.pt", trainer.state_dict())
+        _save(folder / "weights.pt", trainer.policy_net.state_dict())
+        writer.status("running", trainer.episodes_done, "evaluating")
+        report(progress, 0, 1, "evaluating")
+        later = later_scores(trainer.policy_net, rows, set(used), env, seed)
+        extra = {"run_id": run_id, "driver": str(driver), "decisions": len(used),
+                 "decisions_available": config["decisions_available"], "style": est.to_dict(), "base": base,
+                 "later_decisions": later, "created_at": now_iso()}
+        atomic_write_json(folder / "personalize.json", extra)
+        evaluate_run(workspace, run_id)
+        message = f"personalised on {len(used)} decisions from the {ps.base} agent"
+        writer.status("done", trainer.episodes_done, message)
+        writer.close()
+    return {**extra, "folder": str(folder), "state": "done", "episodes": trainer.episodes_done,
+            "env_steps": trainer.env_steps, "wall_s": round(trainer.wall_s, 2), "message": message}
+
+
+def personalised_settings(dqn: DQNSettings, ps: PersonalizeSettings, k: int, episodes: int | None) -> DQNSettings:
+    """The settings recorded in the run's config.json: the fine-tuning's (or the mix's from scratch)."""
+    from rl.personalize.agents import finetune_settings
+
+    if ps.method == "mix":
+        return replace(dqn, episodes=episodes or dqn.episodes, episodes_per_approach=0.0 if episodes else
+                       dqn.episodes_per_approach)
+    return finetune_settings(dqn, ps, k, episodes)
+
+
+def load_personalized(workspace: Workspace, run_id: str) -> dict[str, Any] | None:
+    """A personalised run's personalize.json (None for other runs)."""
+    try:
+        return json.loads((run_dir(workspace, run_id) / "personalize.json").read_text())
+    except (OSError, ValueError):
+        return None
