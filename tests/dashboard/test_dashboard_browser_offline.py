@@ -190,3 +190,29 @@ def test_report_opens_offline_with_every_figure(sample_ws, browser, tmp_path):
     assert drawn == n
     assert [u for u in seen if not u.startswith(("file:", "data:", "blob:"))] == []
     ctx.close()
+
+
+def test_results_downloads(heavy_server, browser, tmp_path):
+    """The report, a run's results (CSV, JSON) and its ONNX policy come down from the Results page."""
+    import zipfile
+
+    url, ws = heavy_server
+    ctx = browser.new_context(viewport={"width": 1400, "height": 1000}, accept_downloads=True)
+    page = ctx.new_page()
+    page.goto(f"{url}/results")
+    expect(page.get_by_role("heading", name="Results", exact=True).first).to_be_visible(timeout=60_000)
+    settle(page)
+    got = {}
+    for label in ("Report of the study (HTML)", "Results (CSV)", "Results (JSON)", "Policy (ONNX + policy.json, zip)"):
+        with page.expect_download(timeout=120_000) as dl:
+            page.get_by_role("button", name=label).click()
+        path = tmp_path / dl.value.suggested_filename
+        dl.value.save_as(path)
+        got[label] = path
+    assert 'class="plotly-graph-div"' in got["Report of the study (HTML)"].read_text()
+    csv = got["Results (CSV)"].read_text().splitlines()
+    assert csv[0].startswith("policy,") and any(line.startswith("agent,") for line in csv)
+    assert json.loads(got["Results (JSON)"].read_text())["evaluation"]["summary"]
+    names = zipfile.ZipFile(got["Policy (ONNX + policy.json, zip)"]).namelist()
+    assert {n.split("/")[-1] for n in names} >= {"policy.onnx", "policy.json"}
+    ctx.close()
