@@ -266,6 +266,8 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
             raise UserError(f"no run {resume!r} in {workspace.root}")
         held.callback(lock_run(folder, resume).release)
         config = json.loads((folder / "config.json").read_text())
+        if config.get("kind") == "personalized":  # its K decisions and base are not a driver run's data
+            raise UserError(f"run {resume!r} was personalised: run `laneprint personalize` again instead")
         run_id = resume
         target = Target(**config["target"])
         env_config = EnvConfig.from_dict(config["env"])

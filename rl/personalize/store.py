@@ -132,13 +132,24 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
             "kind": KIND, "decisions": len(used), "decisions_available": len(decision_order(rows)),
             "decision_ids": used, "base": base, "style_estimate": est.to_dict(), "personalize": ps.to_dict()})
         writer = RunWriter(folder, ft_settings.episodes)
+
+        def phase(episodes_total: int, what: str) -> ProgressFn:
+            """Progress to the caller and to status.json (a dashboard follows the run by it)."""
+            def tick(done: int, total: int, message: str = "") -> None:
+                report(progress, done, total, message)
+                writer.episodes = episodes_total
+                writer.status("running", done, what, force=False)
+            return tick
+
         try:
             cached = _cached_base(workspace, key)
             if cached is not None:
                 base_w, base["reused_from"] = cached
             else:
                 writer.status("running", 0, f"training the base agent ({ps.base})")
-                trainer = train_agent(base_app, env, base_dqn, progress=progress,
+                trainer = train_agent(base_app, env, base_dqn,
+                                      progress=phase(base_dqn.resolved_episodes(len(base_app)).episodes,
+                                                     f"training the base agent ({ps.base})"),
                                       label=f"base ({ps.base}{'' if ps.base == 'population' else ' ' + est.style})")
                 base_w = weights_of(trainer)
                 base["episodes"] = trainer.episodes_done
@@ -146,7 +157,9 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
             atomic_write_json(folder / "config.json", config)
             writer.status("running", 0, f"personalising on {len(used)} decisions")
             trainer = personalised_agent(base_w, base_app, own_app, env, dqn, ps, episodes=episodes,
-                                         progress=progress, on_episode=writer.metric)
+                                         progress=phase(ft_settings.episodes, f"personalising on {len(used)} decisions"),
+                                         on_episode=writer.metric)
+            writer.episodes = ft_settings.episodes
         except BaseException as exc:
             writer.flush()
             writer.status("failed", 0, f"{type(exc).__name__}: {exc}")

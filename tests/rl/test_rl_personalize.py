@@ -1,0 +1,134 @@
+"""`laneprint personalize`: a driver's agent from its first K decisions, through the command line."""
+
+from __future__ import annotations
+
+import json
+
+import pandas as pd
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from indicators.settings import AnalysisSettings
+from laneprint.cli import app
+from laneprint.workspace import Workspace
+from rl.personalize.split import decision_order, first_decisions, holdout_split
+from rl.personalize.style import analysis_settings, estimate_style, fit_population
+from rl.problem.rewards import ReferenceLines
+from rl.testing import FAST_CLI, session_decisions
+
+#: Two drivers per style of Table 1, three sessions of six decisions each.
+DRIVERS = {"D01": "Defensive", "D02": "Defensive", "D03": "Normal", "D04": "Normal", "D05": "Aggressive",
+           "D06": "Aggressive"}
+TINY = ["--base-episodes", "60", "--episodes", "40", *FAST_CLI]
+
+
+def _decisions() -> pd.DataFrame:
+    parts = [session_decisions(ReferenceLines.paper(style), 3, 6, driver=d, seed=10 * i)
+             for i, (d, style) in enumerate(DRIVERS.items())]
+    return pd.concat(parts, ignore_index=True)
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory) -> Workspace:
+    """A hand-made analysis of six drivers in three styles (the decisions table, styles, lines, settings)."""
+    ws = Workspace(tmp_path_factory.mktemp("personalize")).ensure()
+    dec = _decisions()
+    styles = pd.DataFrame({"driver_id": list(DRIVERS), "style": list(DRIVERS.values()),
+                           "is_typical": [True, False] * 3, "cluster": [0, 0, 1, 1, 2, 2]})
+    refs = pd.DataFrame([{"scope": "style", "name": s, "kind": "typical", "indicator": ind, "A": a, "b": b,
+                          "source": "Table 1"} for s in ("Defensive", "Normal", "Aggressive")
+                         for ind in ("t_f", "t_nf", "dv_nb") for a, b in [getattr(ReferenceLines.paper(s), ind)]])
+    ws.write_tables("analysis", {"decisions": dec, "styles": styles, "reference_lines": refs},
+                    meta={"settings": AnalysisSettings(min_cluster_decisions=3).to_dict()})
+    return ws
+
+
+def _run(ws: Workspace, *args: str):
+    return CliRunner().invoke(app, ["personalize", *args, "-w", str(ws.root)])
+
+
+def test_first_k_decisions_are_the_earliest_in_time_order() -> None:
+    rows = _decisions()
+    rows = rows[rows["driver_id"] == "D03"]
+    first = first_decisions(rows, 8)
+    assert decision_order(first) == decision_order(rows)[:8]
+    assert sorted(first["session_id"].unique()) == ["D03-rec0", "D03-rec1"]  # 6 of the first session, 2 of the next
+    train, test = holdout_split(rows, 1)
+    assert set(test["session_id"]) == {"D03-rec2"} and "D03-rec2" not in set(train["session_id"])
+
+
+def test_style_of_a_few_decisions_has_a_confidence(study: Workspace) -> None:
+    dec = study.read_table("analysis", "decisions")
+    pop = fit_population(dec, ["D01", "D02", "D03", "D04", "D06"], analysis_settings(study))
+    est = estimate_style(pop, first_decisions(dec[dec["driver_id"] == "D05"], 6), n_bootstrap=50, seed=1)
+    assert est.style == "Aggressive"
+    assert 0 < est.confidence <= 1 and sum(est.bootstrap.values()) == pytest.approx(1.0)
+    assert sum(est.posterior.values()) == pytest.approx(1.0)
+    again = estimate_style(pop, first_decisions(dec[dec["driver_id"] == "D05"], 6), n_bootstrap=50, seed=1)
+    assert again == est  # seeded
+
+
+def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(study: Workspace) -> None:
+    res = _run(study, "--driver", "D03", "--decisions", "5", "--run-id", "p5", "--json", *TINY)
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    dec = study.read_table("analysis", "decisions")
+    expected = decision_order(dec[dec["driver_id"] == "D03"])[:5]
+    folder = study.runs_dir / "p5"
+    config = json.loads((folder / "config.json").read_text())
+    assert config["kind"] == "personalized" and config["decisions"] == 5
+    assert config["decision_ids"] == expected
+    assert config["target"] == {"kind": "driver", "name": "D03"}
+    assert config["base"]["from"] == "population" and "D03" not in config["base"]["drivers"]
+    assert out["style"]["style"] in ("Defensive", "Normal", "Aggressive")
+    assert 0 < out["style"]["confidence"] <= 1
+    assert out["later_decisions"]["n_decisions"] == 18 - 5  # scored on the decisions it did not see
+    for name in ("config.json", "status.json", "metrics.jsonl", "weights.pt", "checkpoint.pt", "evaluation.json",
+                 "base_weights.pt", "personalize.json"):
+        assert (folder / name).exists(), name
+    assert json.loads((folder / "status.json").read_text())["state"] == "done"
+    assert len((folder / "metrics.jsonl").read_text().splitlines()) == 40
+
+    runs = CliRunner().invoke(app, ["runs", "-w", str(study.root), "--json"])
+    assert any(r["run_id"] == "p5" and r["state"] == "done" for r in json.loads(runs.stdout)["runs"])
+    ev = CliRunner().invoke(app, ["evaluate", "p5", "-w", str(study.root), "--json"])
+    assert ev.exit_code == 0, ev.output
+    again = CliRunner().invoke(app, ["train", "--resume", "p5", "-w", str(study.root)])
+    assert again.exit_code == 1 and "was personalised" in again.stderr  # a resume would train on all its data
+
+
+def test_a_second_run_with_the_same_base_reuses_it(study: Workspace) -> None:
+    a = _run(study, "--driver", "D04", "--decisions", "3", "--run-id", "b1", "--json", *TINY)
+    b = _run(study, "--driver", "D04", "--decisions", "6", "--run-id", "b2", "--json", *TINY)
+    assert a.exit_code == 0 and b.exit_code == 0, a.output + b.output
+    assert json.loads(b.stdout)["base"]["reused_from"] == "b1"
+    wa = torch.load(study.runs_dir / "b1" / "base_weights.pt", weights_only=True)
+    wb = torch.load(study.runs_dir / "b2" / "base_weights.pt", weights_only=True)
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+
+
+def test_the_style_base_is_the_assigned_styles_members(study: Workspace) -> None:
+    res = _run(study, "--driver", "D06", "--decisions", "6", "--from", "style", "--run-id", "s6", "--json", *TINY)
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert out["base"]["from"] == "style" and out["base"]["style"] == out["style"]["style"]
+    assert "D06" not in out["base"]["drivers"]
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--driver", "D99"], "no driver 'D99' in the analysis"),
+    (["--driver", "D01", "--decisions", "19"], "--decisions 19: the driver has 18 decisions"),
+    (["--driver", "D01", "--from", "fleet"], "unknown --from 'fleet'"),
+])
+def test_errors_are_one_line(study: Workspace, args: list[str], message: str) -> None:
+    res = _run(study, *args, *TINY)
+    assert res.exit_code == 1
+    err = res.stderr.strip()
+    assert err.startswith("error: ") and message in err and "Traceback" not in res.output
+    assert len(err.splitlines()) == 1
+
+
+def test_no_analysis_is_one_line(tmp_path) -> None:
+    res = _run(Workspace(tmp_path), "--driver", "D01")
+    assert res.exit_code == 1 and res.stderr.strip() == f"error: no analysis in {tmp_path}: run `laneprint analyze` first"
