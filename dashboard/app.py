@@ -16,6 +16,7 @@ nav = st.navigation([
     st.Page(PAGES / "styles.py", title="Styles", icon=":material/scatter_plot:"),
     st.Page(PAGES / "training.py", title="Training", icon=":material/model_training:"),
     st.Page(PAGES / "results.py", title="Results", icon=":material/leaderboard:"),
+    st.Page(PAGES / "personalize.py", title="Personalise", icon=":material/person_add:"),
 ])
 st.sidebar.caption(f"Workspace: `{workspace_root()}`")
 nav.run()

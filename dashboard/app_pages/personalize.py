@@ -1,0 +1,174 @@
+"""Personalise: upload one session of a new driver, see its style with the confidence, and
+train its agent from the other drivers' (`laneprint personalize`), followed live."""
+
+import json
+import sys
+from datetime import datetime, timezone
+
+import pandas as pd
+import plotly.graph_objects as go
+import streamlit as st
+
+from dashboard import jobs, loaders, uploads, views, widgets
+from dashboard.context import max_upload_bytes, workspace
+from dashboard.widgets import progress_to
+from laneprint.errors import UserError
+
+
+def upload_session(ws) -> None:
+    """One session of a new driver: saved, ingested under the driver id given, then the analysis rerun."""
+    st.subheader("A new driver's session")
+    gen = st.session_state.get("p_uploader_gen", 0)
+    c1, c2 = st.columns([3, 1])
+    file = c1.file_uploader("One MCAP or CSV log", key=f"p_upload_{gen}")
+    driver_id = c2.text_input("Driver id", key="p_driver_id", placeholder="e.g. D11")
+    if not st.button("Ingest and analyse", key="p_ingest", disabled=not (file and driver_id.strip()), type="primary"):
+        return
+    from clustering.pipeline import analyze
+    from ingest.pipeline import ingest_paths
+    from rl.personalize.style import analysis_settings
+
+    saved = uploads.save_upload(file.name, file.size, file, ws.root / "uploads", max_upload_bytes())
+    if saved.path is None:
+        st.warning(f"Not ingested: {saved.reason}")
+        return
+    bar = st.progress(0.0, text="Ingesting...")
+    try:
+        report = ingest_paths([saved.path], ws, driver_id=driver_id.strip(), progress=progress_to(bar, "Ingesting..."))
+        refused = [f for f in report.to_dict()["files"] if f.get("status") == "rejected"]
+        if refused:
+            uploads.discard(saved.path, ws.root / "uploads")
+            raise UserError(refused[0].get("reason", "refused"))
+        analyze(ws, analysis_settings(ws), progress_to(bar, "Analysing..."))
+    except UserError as exc:
+        bar.empty()
+        st.warning(f"Not done: {exc}")
+        return
+    bar.empty()
+    st.session_state["p_driver"] = driver_id.strip()
+    st.session_state["p_uploader_gen"] = gen + 1
+    st.rerun()
+
+
+def style_figure(est) -> go.Figure:
+    """The bootstrap share and the posterior of every style."""
+    names = list(est.bootstrap)
+    fig = go.Figure([go.Bar(name="bootstrap over the decisions", x=names, y=[100 * est.bootstrap[n] for n in names]),
+                     go.Bar(name="clusterer's posterior", x=names, y=[100 * est.posterior[n] for n in names])])
+    fig.update_layout(barmode="group", yaxis_title="%", yaxis_range=[0, 100], height=300,
+                      margin={"t": 30, "b": 30}, template="plotly_white")
+    return fig
+
+
+def style_section(ws, decisions: pd.DataFrame) -> tuple[str, int] | None:
+    """Pick a driver and K; show the style its first K decisions give, with the confidence."""
+    from rl.personalize.split import decision_order, driver_rows, first_decisions
+    from rl.personalize.style import analysis_settings, estimate_style, fit_population
+
+    st.subheader("Style from its decisions")
+    drivers = sorted(decisions["driver_id"].astype(str).unique())
+    if len(drivers) < 2:
+        st.info("Personalising needs other drivers to start from: ingest a study first (Data page).")
+        return None
+    chosen = st.session_state.get("p_driver")
+    c1, c2 = st.columns(2)
+    driver = c1.selectbox("Driver", drivers, index=drivers.index(chosen) if chosen in drivers else 0, key="p_sel")
+    rows = driver_rows(decisions, driver)
+    n = len(decision_order(rows))
+    k = int(c2.number_input(f"First K decisions (of {n})", min_value=1, max_value=max(n, 1), value=n, key="p_k"))
+    try:
+        pop = fit_population(decisions, [d for d in drivers if d != driver], analysis_settings(ws))
+        est = estimate_style(pop, first_decisions(rows, k), n_bootstrap=200, seed=0)
+    except UserError as exc:
+        st.warning(str(exc))
+        return None
+    st.metric(f"Style of {driver} from {k} decisions", est.style,
+              f"confidence {100 * est.confidence:.0f} %", delta_color="off")
+    st.plotly_chart(style_figure(est), key="p_style_fig")
+    st.caption(f"Clustered on the other {len(drivers) - 1} drivers with the analysis's features; compared on "
+               f"{', '.join(est.compared)} (the speeds its presses cover). Confidence: the share of {est.n_bootstrap} "
+               "resamples of its decisions that give this style.")
+    return driver, k
+
+
+def launch(ws, driver: str, k: int, base: str, seed: int) -> str:
+    """Start `laneprint personalize` in the background (a run like the Training page's); returns the run id."""
+    slug = "".join(c if c.isalnum() else "-" for c in driver.lower())
+    run_id = f"{datetime.now(timezone.utc):%Y%m%d-%H%M%S}-{slug}-personalized-k{k}-s{seed}"
+    cmd = [sys.executable, "-m", "laneprint.cli", "personalize", "--driver", driver, "--decisions", str(k),
+           "--from", base, "--seed", str(seed), "--run-id", run_id, "--workspace", str(ws.root)]
+    jobs._spawn(jobs.jobs_dir(ws), run_id, cmd, ws.root,  # the Training page's launcher: runs table, status, log
+                {"run_id": run_id, "request": {"kind": "personalized", "driver": driver, "decisions": k,
+                                               "from": base, "seed": seed, "episodes": None}})
+    return run_id
+
+
+def run_panel(ws, run_id: str, status: dict) -> None:
+    """Progress of one personalisation (base agent, then fine-tuning), and its figures when done."""
+    done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
+    st.progress(min(1.0, done / total) if total else 0.0,
+                text=f"{run_id}: {status.get('state')} — {status.get('message', '')} ({done}/{total or '?'})")
+    if status.get("state") in jobs.ACTIVE_STATES:
+        if st.button("Cancel", key=f"p_cancel_{run_id}"):
+            jobs.cancel(ws, run_id)
+    elif status.get("log"):
+        st.code(status["log"], language=None)
+
+
+def personalised_runs(ws) -> pd.DataFrame:
+    """Every personalised run: driver, K, base, style and its figures on the decisions after the first K."""
+    rows = []
+    for folder in sorted(ws.runs_dir.glob("*")) if ws.runs_dir.exists() else []:
+        try:
+            p = json.loads((folder / "personalize.json").read_text())
+        except (OSError, ValueError):
+            continue
+        later = p.get("later_decisions") or {}
+        lo, hi = later.get("balanced_accuracy_ci") or [None, None]
+        rows.append({"run": p["run_id"], "driver": p["driver"], "K": p["decisions"], "of": p["decisions_available"],
+                     "from": p["base"]["from"], "style": p["style"]["style"],
+                     "confidence": round(100 * p["style"]["confidence"]),
+                     "later decisions": later.get("n_decisions"),
+                     "balanced acc. [%]": None if not later else round(100 * later["balanced_accuracy"], 1),
+                     "95 % CI": None if lo is None else f"[{100 * lo:.1f}, {100 * hi:.1f}]",
+                     "timing MAE [s]": later.get("timing_mae_s")})
+    return pd.DataFrame(rows)
+
+
+def main() -> None:
+    st.title("Personalise")
+    ws = workspace()
+    upload_session(ws)
+    tables = loaders.analysis(str(ws.root), loaders.analysis_stamp(ws.root))
+    decisions = tables.get("decisions")
+    if decisions is None or decisions.empty:
+        st.info(f"No analysis yet: upload a study (Data page) and run `{views.cli_hint('analyze', ws.root)}`.")
+        return
+    picked = style_section(ws, decisions)
+    if picked:
+        driver, k = picked
+        c1, c2 = st.columns(2)
+        base = c1.radio("Start from", ["population", "style"], horizontal=True, key="p_base",
+                        help="'population': the agent of all other drivers; 'style': of the style assigned above")
+        seed = int(c2.number_input("Seed", min_value=0, value=0, step=1, key="p_seed"))
+        st.caption(f"`laneprint personalize --driver {driver} --decisions {k} --from {base} --seed {seed} "
+                   f"-w {ws.root}`")
+        if st.button("Personalise", type="primary", key="p_start"):
+            st.session_state.setdefault("p_launched", []).append(launch(ws, driver, k, base, seed))
+            st.rerun()
+    launched = st.session_state.get("p_launched", [])
+    active = [r for r in launched if jobs.run_status(ws, r).get("state") in jobs.ACTIVE_STATES]
+    if launched:
+        st.subheader("Under way" if active else "Last personalisation")
+        widgets.live_panels(active or launched[-1:], lambda r: jobs.run_status(ws, r),
+                            lambda r, status: run_panel(ws, r, status))
+    table = personalised_runs(ws)
+    if len(table):
+        st.subheader("Personalised runs (learning-curve points)")
+        st.dataframe(table, hide_index=True, width="stretch", key="p_runs")
+        st.caption("Figures on each driver's decisions after its first K (never seen by the agent); the runs are "
+                   "ordinary runs on the Results page. The benchmark of the whole curve: "
+                   "`python benchmarks/personalize.py -w WORKSPACE`.")
+
+
+main()
