@@ -47,6 +47,7 @@ class SumoSettings:
     background_sigma: float = 0.0  # Krauss dawdling (0-1) of background vehicles: their speed wavers
 
     # --- background traffic: a bubble around the ego ---------------------------------
+    ahead_streams: tuple[str, ...] = ("slow", "left")  # streams appearing ahead of the ego (traffic.py)
     slow_speed_frac: tuple[float, float] = (0.4, 0.8)  # right-lane vehicles' desired speed / limit ~ Uniform
     truck_share: float = 0.4  # share of right-lane vehicles that are trucks
     slow_spacing_s: tuple[float, float] = (2.0, 16.0)  # [s] spacing of consecutive right-lane vehicles,
@@ -95,12 +96,11 @@ FAMILY_OVERRIDES: dict[str, dict[str, Any]] = {
     "acceptance": {
         "car_follow_model": "IDM",
         "background_sigma": 0.3,
-        "slow_speed_frac": (0.6, 0.85),
+        "ahead_streams": ("slow",),
+        "slow_speed_frac": (0.7, 0.9),
         "slow_spacing_s": (3.0, 20.0),
-        "left_speed_frac": (0.9, 1.0),
-        "left_spacing_s": (6.0, 20.0),
-        "fast_speed_frac": (0.95, 1.15),
-        "fast_interval_s": (2.0, 10.0),
+        "fast_speed_frac": (1.1, 1.3),
+        "fast_interval_s": (3.0, 10.0),
     },
 }
 

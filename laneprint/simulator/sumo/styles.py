@@ -52,16 +52,16 @@ STYLE_PARAMS: dict[str, dict[str, float]] = {
 #: of the `ttc` family (lcSpeedGainLookahead, lcKeepRightAcceptanceTime) are SUMO's defaults for all.
 ACCEPTANCE_STYLE_PARAMS: dict[str, dict[str, float]] = {
     "Defensive": {
-        "tau": 2.2, "minGap": 4.0, "accel": 1.4, "decel": 2.0, "speedFactor": 0.95,
-        "lcAssertive": 0.6, "lcSpeedGain": 0.7, "lcKeepRight": 2.0, "lcCooperative": 1.0,
+        "tau": 2.8, "minGap": 5.0, "accel": 1.2, "decel": 2.0, "speedFactor": 1.0,
+        "lcAssertive": 1.3, "lcSpeedGain": 1.0, "lcKeepRight": 1.5, "lcCooperative": 1.0,
     },
     "Normal": {
-        "tau": 1.3, "minGap": 2.5, "accel": 2.0, "decel": 2.5, "speedFactor": 1.05,
-        "lcAssertive": 1.2, "lcSpeedGain": 1.5, "lcKeepRight": 1.0, "lcCooperative": 0.7,
+        "tau": 1.4, "minGap": 2.5, "accel": 2.0, "decel": 2.8, "speedFactor": 1.07,
+        "lcAssertive": 1.8, "lcSpeedGain": 1.0, "lcKeepRight": 1.0, "lcCooperative": 0.7,
     },
     "Aggressive": {
-        "tau": 0.6, "minGap": 1.2, "accel": 2.8, "decel": 3.2, "speedFactor": 1.15,
-        "lcAssertive": 3.0, "lcSpeedGain": 4.0, "lcKeepRight": 0.5, "lcCooperative": 0.3,
+        "tau": 0.7, "minGap": 1.0, "accel": 3.0, "decel": 4.5, "speedFactor": 1.14,
+        "lcAssertive": 3.0, "lcSpeedGain": 1.2, "lcKeepRight": 1.0, "lcCooperative": 0.3,
     },
 }
 

@@ -6,7 +6,8 @@ Three streams, each vehicle with its own desired speed (a fraction of the limit)
   `slow_spacing_s` seconds (at the limit) apart along the road, so the ego meets
   one every spacing / closing speed seconds, alone or in short platoons;
 - `left`: cars that appear in the left lane, slower than the ego but faster than
-  the right lane (they overtake there and then keep right);
+  the right lane (they overtake there and then keep right); only when
+  `ahead_streams` names it (the default family's; not the `acceptance` family's);
 - `fast`: cars faster than the limit that appear behind the ego in the left lane
   now and then; they close the gap the ego wants and make it wait.
 
@@ -75,7 +76,7 @@ class TrafficBubble:
             if st.x < ego_x - s.remove_behind_m or gone_ahead:
                 self._remove(vid)
         live = {vid: st for vid, st in vehicles.items() if vid in self.stream}
-        for stream in ("slow", "left"):
+        for stream in s.ahead_streams:
             self._spawn_ahead(stream, ego_x, live)
         if t >= self.next_fast_s:
             v = self._u(s.fast_speed_frac) * self.limit
@@ -86,7 +87,7 @@ class TrafficBubble:
         """The first scene: each ahead stream from half the logged range ahead up to `spawn_ahead_m`."""
         s = self.s
         live: dict[str, VehicleState] = {}
-        for stream in ("slow", "left"):
+        for stream in s.ahead_streams:
             x = ego_x + s.scene_range_m / 2 + self._u((0.0, self.spacing[stream]))
             while x <= ego_x + s.spawn_ahead_m:
                 self._add(stream, x, self._speed(stream), live)
