@@ -61,7 +61,7 @@ ACCEPTANCE_STYLE_PARAMS: dict[str, dict[str, float]] = {
     },
     "Aggressive": {
         "tau": 0.7, "minGap": 1.0, "accel": 3.0, "decel": 4.5, "speedFactor": 1.14,
-        "lcAssertive": 3.0, "lcSpeedGain": 1.2, "lcKeepRight": 1.0, "lcCooperative": 0.3,
+        "lcAssertive": 3.0, "lcSpeedGain": 0.6, "lcKeepRight": 1.0, "lcCooperative": 0.3,
     },
 }
 
