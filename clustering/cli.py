@@ -25,7 +25,7 @@ def _line(f: dict[str, Any]) -> str:
     """A fit as 'A/b', with '!' when flagged."""
     if not f or f["status"] != "ok":
         return "-"
-    return f"{f['A']:.2f}/{f['b']:.2f}" + ("!" if f.get("flag") else "")
+    return f"{f['A']:.3g}/{f['b']:.3g}" + ("!" if f.get("flag") else "")
 
 
 def render(result: dict[str, Any], console: Console) -> None:
@@ -44,15 +44,17 @@ def render(result: dict[str, Any], console: Console) -> None:
     shown = list(PAPER_INDICATORS) + [i for i in (feats or {}).get("indicators", []) if i not in PAPER_INDICATORS]
     table = Table(title="drivers: lines I = A v_e + b shown as A/b; ! flagged (see warnings); * typical",
                   box=box.SIMPLE_HEAD, pad_edge=False)
+    widths = {"n": 3, "style": 10, "driver": 6}
     for col in ("driver", "n", "style", "conf", "", *shown):
-        table.add_column(col, no_wrap=True, min_width=11 if col in shown else len(col))
+        table.add_column(col, no_wrap=True, min_width=10 if col in shown else widths.get(col, len(col)))
     for d, info in result["drivers"].items():
         fits = {f["indicator"]: f for f in info["fits"]}
         table.add_row(d, str(info["n_decisions"]), info["style"], f"{info['confidence']:.2f}",
                       "*" if info["is_typical"] else "", *(_line(fits.get(ind)) for ind in shown))
     console.print(table)
     for name, st in result["styles"].items():
-        lines = [ln for ln in st["reference_lines"] if ln["kind"] == "typical" and ln["indicator"] in PAPER_INDICATORS]
+        lines = [ln for ln in st["reference_lines"] if ln["kind"] == "typical" and ln["indicator"] in PAPER_INDICATORS
+                 and ln.get("direction", "both") == "both"]
         txt = ", ".join(format_line(ln["indicator"], ln["A"], ln["b"]) + (" (level)" if ln.get("fit") == "level" else "")
                         for ln in lines)
         console.print(f"[bold]{name}[/bold] ({len(st['members'])}): typical {', '.join(st['typical'])}: {txt}",

@@ -24,6 +24,7 @@ from clustering.features import driver_features, feature_names, transform_featur
 from clustering.selection import MAX_IMPUTED, FeatureSetScore, choose_features, clustering_rows, resolve_features, score_feature_set
 from clustering.styles import StyleClusterer
 from indicators.decisions import empty_decisions, extract_decisions
+from indicators.directions import POOLED, fits_by_direction, press_counts
 from indicators.settings import AnalysisSettings
 from indicators.stats import INDICATOR_COLUMNS, INDICATORS, PAPER_INDICATORS, correlate, fit_flag, fit_lines, fit_pooled, indicator_points
 from laneprint.errors import UserError
@@ -105,7 +106,8 @@ def assign_styles(feats: pd.DataFrame, notes: dict[str, list[str]], n_dec: pd.Se
 
 
 def reference_lines(styles: pd.DataFrame, fits: pd.DataFrame, points: pd.DataFrame,
-                    settings: AnalysisSettings) -> tuple[pd.DataFrame, list[dict[str, str]]]:
+                    settings: AnalysisSettings, by_direction: pd.DataFrame | None = None
+                    ) -> tuple[pd.DataFrame, list[dict[str, str]]]:
     """Per style the typical driver's and the pooled lines, per driver its own, plus Table 1.
 
     A typical driver's or a driver's OLS line that is flagged (`indicators.stats.fit_flag`:
@@ -113,6 +115,10 @@ def reference_lines(styles: pd.DataFrame, fits: pd.DataFrame, points: pd.DataFra
     `flagged_lines='level'` (default) the line is the driver's level, A = 0 and b = the
     median of its values, and column `fit` says 'level' and `source` why; with 'ols' the
     flagged fit is kept (the study's way). Column `fit` is 'ols', 'level' or 'paper'.
+
+    Column `direction` is 'both' for lines fitted on every press; with `by_direction`
+    (`indicators.directions.fits_by_direction`), the typical driver's and each driver's
+    lines on one side ('left', 'right') are added where that side has a fit.
     """
     rows, skipped = [], []
     ok = fits[fits["status"] == "ok"].set_index(["driver_id", "indicator"])
@@ -149,14 +155,33 @@ def reference_lines(styles: pd.DataFrame, fits: pd.DataFrame, points: pd.DataFra
                 skipped.append({"what": "reference_line", "id": f"{style}:pooled:{ind}", "reason": why})
     for (drv, ind), f in ok.iterrows():
         rows.append(from_fit("driver", str(drv), "driver", ind, f, f"driver {drv}"))
+    for r in rows:
+        r["direction"] = POOLED
+    if by_direction is not None:
+        rows += side_lines(assigned, by_direction, from_fit)
     for style, lines in PAPER_TABLE1.items():
         for ind, (A, b) in lines.items():
             rows.append({"scope": "style", "name": style, "kind": "paper", "indicator": ind, "A": A, "b": b,
                          "A_lo": np.nan, "A_hi": np.nan, "b_lo": np.nan, "b_hi": np.nan, "r2": np.nan, "n": 0,
-                         "source": "Table 1 (Li & Liu), SI units", "fit": "paper", "flag": ""})
-    out = pd.DataFrame(rows, columns=REF_COLUMNS + ["fit", "flag"])
+                         "source": "Table 1 (Li & Liu), SI units", "fit": "paper", "flag": "", "direction": POOLED})
+    out = pd.DataFrame(rows, columns=REF_COLUMNS + ["fit", "flag", "direction"])
     out["n"] = out["n"].astype("int64")
     return out, skipped
+
+
+def side_lines(assigned: pd.DataFrame, by_direction: pd.DataFrame, from_fit: Any) -> list[dict[str, Any]]:
+    """Reference lines of one direction: each style's typical driver's and each driver's, where fitted."""
+    rows = []
+    ok = by_direction[by_direction["status"] == "ok"]
+    typical = dict(zip(assigned.loc[assigned["is_typical"], "driver_id"], assigned.loc[assigned["is_typical"], "style"]))
+    for f in ok.to_dict("records"):
+        drv, side = str(f["driver_id"]), f["direction"]
+        if drv in typical:
+            rows.append({**from_fit("style", typical[drv], "typical", f["indicator"], f,
+                                    f"typical driver {drv}, presses to the {side}"), "direction": side})
+        rows.append({**from_fit("driver", drv, "driver", f["indicator"], f, f"driver {drv}, presses to the {side}"),
+                     "direction": side})
+    return rows
 
 
 def pooled_level(points: pd.DataFrame, drivers: list[str], indicator: str) -> float:
@@ -208,7 +233,9 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
     feats, notes = driver_features(points, drivers, settings)
     styles, clf, skipped = assign_styles(feats, notes, n_dec, fits, settings, points)
     styles = styles.merge(feats.reset_index(), on="driver_id", how="left")
-    refs, ref_skipped = reference_lines(styles, fits, points, settings)
+    side_fits = fits_by_direction(decisions, settings, drivers,
+                                  tuple(dict.fromkeys(PAPER_INDICATORS + tuple(settings.feature_indicators))))
+    refs, ref_skipped = reference_lines(styles, fits, points, settings, side_fits)
     for d in drivers:
         if n_dec[d] == 0:
             has_states = bool(len(decisions)) and (decisions["driver_id"].astype(str) == d).any()
@@ -222,6 +249,7 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
         "decisions": decisions,
         "correlations": correlations,
         "fits": fits,
+        "fits_by_direction": side_fits,
         "feature_sets": feature_sets,
         "styles": styles[STYLE_COLUMNS + [c for c in feature_names(settings)]],
         "reference_lines": refs,
@@ -310,6 +338,7 @@ def summary(tables: dict[str, pd.DataFrame]) -> dict[str, Any]:
         "confidence_is": ("bootstrap stability" if tables["styles"]["stability"].notna().any()
                           else "mixture posterior"),
         "features": features,
+        "presses_by_direction": press_counts(dec) if len(dec) else {"left": 0, "right": 0},
         "flagged_fits": flagged_counts(tables["fits"]),
         "warnings": warnings(tables, features),
     }
@@ -360,9 +389,12 @@ def warnings(tables: dict[str, pd.DataFrame], features: dict[str, Any] | None) -
                    + ", ".join(bad) + "; a flagged line is replaced by the driver's level in the reference lines")
     refs = tables["reference_lines"]
     if "fit" in refs:
-        for r in refs[(refs["kind"] == "typical") & (refs["fit"] == "level") & refs["indicator"].isin(shown)].itertuples():
-            out.append(f"{r.name}: the typical driver's {r.indicator} line is flagged ({r.flag}); its reference "
-                       f"line is the level {r.b:.3g} {INDICATOR_COLUMNS[r.indicator][2]}")
+        pooled = refs["direction"] == POOLED if "direction" in refs else True
+        levels = refs[(refs["kind"] == "typical") & (refs["fit"] == "level") & refs["indicator"].isin(shown) & pooled]
+        for style, g in levels.groupby("name", sort=False):
+            what = ", ".join(f"{r.indicator} {r.b:.3g} {INDICATOR_COLUMNS[r.indicator][2]}" for r in g.itertuples())
+            out.append(f"{style}: the typical driver's line of {', '.join(g['indicator'])} is flagged, so its "
+                       f"reference is the level ({what}); see the fits' flags for why")
     return out
 
 

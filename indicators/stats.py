@@ -226,7 +226,8 @@ def ranks(x: np.ndarray) -> np.ndarray:
 
 
 def correlate(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
-              points: pd.DataFrame | None = None, drivers: list[str] | None = None) -> pd.DataFrame:
+              points: pd.DataFrame | None = None, drivers: list[str] | None = None,
+              indicators: tuple[str, ...] = INDICATORS) -> pd.DataFrame:
     """Pearson and Spearman correlation of each indicator with ego speed, per driver.
 
     `significant` = Pearson p < alpha (a linear correlation, as the study counts).
@@ -234,7 +235,7 @@ def correlate(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
     settings = settings or AnalysisSettings()
     points = indicator_points(decisions, settings) if points is None else points
     rows = []
-    for g in iter_groups(points, drivers if drivers is not None else _drivers(decisions)):
+    for g in iter_groups(points, drivers if drivers is not None else _drivers(decisions), indicators):
         reason = _why_not(g, settings)
         row = {"driver_id": g.driver_id, "indicator": g.indicator, "n": int(len(g.v)), "pearson_r": np.nan,
                "pearson_p": np.nan, "spearman_rho": np.nan, "spearman_p": np.nan, "significant": False,
@@ -253,12 +254,13 @@ def correlate(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
 
 
 def fit_lines(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
-              points: pd.DataFrame | None = None, drivers: list[str] | None = None) -> pd.DataFrame:
+              points: pd.DataFrame | None = None, drivers: list[str] | None = None,
+              indicators: tuple[str, ...] = INDICATORS) -> pd.DataFrame:
     """OLS `I = A * v_e + b` per driver and indicator, with SEs, CIs, R², n; 'skipped' rows say why."""
     settings = settings or AnalysisSettings()
     points = indicator_points(decisions, settings) if points is None else points
     rows = []
-    for g in iter_groups(points, drivers if drivers is not None else _drivers(decisions)):
+    for g in iter_groups(points, drivers if drivers is not None else _drivers(decisions), indicators):
         reason = _why_not(g, settings)
         row = {c: np.nan for c in FIT_COLUMNS}
         row.update(driver_id=g.driver_id, indicator=g.indicator, n=int(len(g.v)), status="skipped", reason=reason,

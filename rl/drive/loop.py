@@ -78,6 +78,7 @@ def live_scene(ego: VehicleState, others: dict[str, VehicleState], target: int) 
         cols[f"v_{role}"] = np.array([st.v if st else ego.v])
         cols[f"x_{role}"] = np.array([st.x if st else ego.x])
         cols[f"hl_{role}"] = np.array([(ego.length + st.length) / 2 if st else ego.length])
+    cols["left"] = np.array([target > ego.lane])
     return Scene(**cols), {role: (pick[0] if pick else None) for role, pick in picks.items()}
 
 

@@ -55,7 +55,8 @@ from laneprint.errors import UserError
 from laneprint.reference import FAR_FOLLOWER_M
 from rl.problem.rewards import CHANGE, TERMS, ReferenceLines, RewardSettings, decisions_step_reward, step_reward
 from rl.settings import OBSERVATIONS, SCENES, resolve_formulation
-from rl.problem.scene import INDICATOR_FEATURES, OBS_NAMES, Scene, indicator_features, indicators, observe
+from rl.problem.scene import (DIRECTION_FEATURE, INDICATOR_FEATURES, OBS_NAMES, Scene, direction_feature,
+                              indicator_features, indicators, observe)
 
 ENV_ID = "laneprint/LaneChangeDecision-v0"
 
@@ -117,14 +118,17 @@ class EnvConfig:
 
 def observation_names(cfg: EnvConfig) -> tuple[str, ...]:
     """Names of the observation's values, in order."""
-    return OBS_NAMES + (INDICATOR_FEATURES if cfg.observation == "indicators" else ())
+    extra = INDICATOR_FEATURES if cfg.observation in ("indicators", "direction") else ()
+    return OBS_NAMES + extra + ((DIRECTION_FEATURE,) if cfg.observation == "direction" else ())
 
 
 def observation(scene: Scene, cfg: EnvConfig) -> np.ndarray:
     """What the agent sees of each scene, shape (n, len(observation_names(cfg))) float32."""
     obs = observe(scene, cfg.range_m, cfg.v_max_mps)
-    if cfg.observation == "indicators":
+    if cfg.observation in ("indicators", "direction"):
         obs = np.concatenate([obs, indicator_features(scene, cfg.far_follower_m, cfg.range_m)], axis=1)
+    if cfg.observation == "direction":
+        obs = np.concatenate([obs, direction_feature(scene)], axis=1)
     return obs
 
 
@@ -235,7 +239,8 @@ def scenes_from_decisions(rows: pd.DataFrame, vehicle_length_m: float = 4.5) -> 
         return {f"{prefix}_present": present, f"v_{prefix}": np.where(present, v, v_e),
                 f"x_{prefix}": np.where(present, x, x_e), f"hl_{prefix}": hl}
 
-    return Scene(v_e=v_e, x_e=x_e, **part("f", True), **part("nf", True), **part("nb", False))
+    left = (rows["target_lane"].to_numpy() > rows["ego_lane"].to_numpy()) if "target_lane" in rows else None
+    return Scene(v_e=v_e, x_e=x_e, **part("f", True), **part("nf", True), **part("nb", False), left=left)
 
 
 def approaches_from_decisions(decisions: pd.DataFrame, vehicle_length_m: float = 4.5,

@@ -21,7 +21,7 @@ from __future__ import annotations
 from typing import Any
 
 from rl.problem.env import EnvConfig, observation_names
-from rl.problem.scene import DV_RANGE_MPS, OBS_FLOOR, TTC_CAP_S
+from rl.problem.scene import DIRECTION_FEATURE, DV_RANGE_MPS, OBS_FLOOR, TTC_CAP_S
 
 #: Action index -> meaning (rl.problem.rewards.CHANGE = 0, KEEP = 1).
 ACTIONS: dict[int, str] = {
@@ -72,7 +72,7 @@ def observation_spec(cfg: EnvConfig) -> list[dict[str, Any]]:
         _speed("v_nf", "C_nf", cfg), _position("x_nf", "C_nf", 1.0, cfg),
         _speed("v_nb", "C_nb", cfg), _position("x_nb", "C_nb", 0.0, cfg),
     ]
-    if cfg.observation == "indicators":
+    if cfg.observation in ("indicators", "direction"):
         specs += [
             _ttc("t_f", "C_f"), _ttc("t_nf", "C_nf"),
             {"name": "dv_nb", "quantity": "v_e - v_nb, defined when C_nb is seen within "
@@ -84,6 +84,10 @@ def observation_spec(cfg: EnvConfig) -> list[dict[str, Any]]:
             {"name": "dv_nb_ok", "quantity": "1 when dv_nb is defined", "unit": "-", "transform": "flag",
              "of": "dv_nb"},
         ]
+    if cfg.observation == "direction":
+        specs.append({"name": DIRECTION_FEATURE, "quantity": "the side of the target lane: 1 to the left "
+                      "(overtaking), the floor to the right (returning)", "unit": "-", "transform": "flag",
+                      "of": "target lane side"})
     for i, s in enumerate(specs):
         s["index"] = i
         s["clip"] = [OBS_FLOOR, 1.0]

@@ -99,6 +99,8 @@ class ReferenceLines:
         """Lines of a style (scope='style', kind='typical') or a driver (scope='driver') from REFERENCE_LINES."""
         if (style is None) == (driver is None):
             raise UserError("give exactly one of --style or --driver")
+        if "direction" in lines:  # lines of one direction are the analysis's detail; the agents read both
+            lines = lines[lines["direction"].astype(str) == "both"]
         if style is not None:
             sel = lines[(lines["scope"] == "style") & (lines["name"].str.lower() == style.lower())
                         & (lines["kind"] == "typical")]

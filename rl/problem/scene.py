@@ -6,7 +6,8 @@ replay of recorded approaches and the evaluation all share one model of the
 scene, its indicators and its observation.
 
 Vehicles: the ego, ``f`` (leader in the ego lane), ``nf`` (leader in the target
-lane) and ``nb`` (follower in the target lane). Every vehicle drives at a
+lane) and ``nb`` (follower in the target lane); ``left`` says on which side the
+target lane lies (overtaking to the left, or returning to the right). Every vehicle drives at a
 constant speed; positions are centres [m], ``hl_*`` is half the summed lengths
 of the ego and that vehicle [m], so ``gap = |x - x_e| - hl``.
 
@@ -49,6 +50,11 @@ class Scene:
     v_nb: np.ndarray
     x_nb: np.ndarray
     hl_nb: np.ndarray
+    left: np.ndarray | None = None  # bool: the target lane is to the ego's left (default: every scene)
+
+    def __post_init__(self) -> None:
+        if self.left is None:  # scenes without a side are the study's: overtaking to the left
+            self.left = np.ones(len(self.v_e), dtype=bool)
 
     def __len__(self) -> int:
         return len(self.v_e)
@@ -157,6 +163,8 @@ def observe(scene: Scene, range_m: float, v_max_mps: float) -> np.ndarray:
 
 #: Names of the indicator features `observe_indicators` appends to the study's state.
 INDICATOR_FEATURES: tuple[str, ...] = ("t_f", "t_nf", "dv_nb", "t_f_ok", "t_nf_ok", "dv_nb_ok")
+#: Name of the side feature the 'direction' observation appends.
+DIRECTION_FEATURE: str = "target_left"
 
 TTC_CAP_S: float = 60.0  # TTCs are read on a log scale up to this [s]
 DV_RANGE_MPS: float = 20.0  # dv_nb is read over +-this [m/s]
@@ -180,3 +188,8 @@ def indicator_features(scene: Scene, far_follower_m: float, range_m: float) -> n
     cols = [ttc(ind.t_f, ind.t_f_ok), ttc(ind.t_nf, ind.t_nf_ok), dv,
             ind.t_f_ok.astype(float), ind.t_nf_ok.astype(float), ind.dv_nb_ok.astype(float)]
     return np.clip(np.stack(cols, axis=1), OBS_FLOOR, 1.0).astype(np.float32)
+
+
+def direction_feature(scene: Scene) -> np.ndarray:
+    """1 where the target lane is to the left, OBS_FLOOR where it is to the right; shape (n, 1) float32."""
+    return np.where(scene.left, 1.0, OBS_FLOOR).astype(np.float32)[:, None]

@@ -52,7 +52,7 @@ def test_analyze_writes_stage_and_report(workspace, report):
     assert ((skipped["what"] == "recording") & (skipped["id"] == "nopress0000000000")).any()
     refs = ws.read_table("analysis", "reference_lines")
     for style in report["styles"]:
-        assert len(refs.query("scope == 'style' and kind == 'typical' and name == @style")) == len(INDICATORS)
+        assert len(refs.query("scope == 'style' and kind == 'typical' and name == @style and direction == 'both'")) == len(INDICATORS)
     assert set(report["styles"]) <= {"Defensive", "Normal", "Aggressive"}
     truth = {d["driver_id"]: d["style"] for d in study.ground_truth["drivers"]}
     assert {d: info["style"] for d, info in report["drivers"].items()} == truth

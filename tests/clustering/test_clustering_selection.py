@@ -81,7 +81,7 @@ def test_a_fit_that_means_nothing_is_flagged_and_not_a_reference_line():
     flags = fits.xs("gap_f", level="indicator")["flag"]
     assert (flags != "").sum() >= 6 and all("spans 0" in f or "R²" in f for f in flags if f)
     refs = out["reference_lines"]
-    typ = refs[(refs["kind"] == "typical") & (refs["indicator"] == "gap_f")]
+    typ = refs[(refs["kind"] == "typical") & (refs["indicator"] == "gap_f") & (refs["direction"] == "both")]
     assert len(typ) == 3
     for r in typ.itertuples():
         driver = r.source.split()[2].rstrip(":")

@@ -31,6 +31,7 @@ def test_styles_recovered_and_named_by_defensiveness(synthetic):
 def test_reference_lines_per_style_and_driver(synthetic):
     _, _, out = synthetic
     refs = out["reference_lines"]
+    refs = refs[refs["direction"] == "both"]  # lines of every press (per-direction lines: tests/indicators)
     typ = refs[(refs["scope"] == "style") & (refs["kind"] == "typical")]
     assert sorted(typ["name"].unique()) == ["Aggressive", "Defensive", "Normal"]
     assert len(typ) == 9 and len(refs[refs["kind"] == "pooled"]) == 9 and len(refs[refs["kind"] == "paper"]) == 9
