@@ -159,6 +159,8 @@ def train_command(
         console.print(res["run_id"])
         console.print(f"{res['state']}: {res['target']}, reward {res['reward']}, {res['episodes']} episodes, "
                       f"{res['env_steps']} steps in {res['wall_s']} s — {res['folder']}", highlight=False)
+        if res.get("warning"):
+            console.print(f"[yellow]warning:[/yellow] {res['warning']}", highlight=False)
         if res.get("evaluation"):
             console.print(_summary_table(res["evaluation"], "against the drivers"))
         if res.get("evaluation_note"):

@@ -342,6 +342,10 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
                               "reward": env_config.reward.name, "message": message}
     if resume:
         result["resumed_from_episode"] = resumed_from
+    if trainer.env_steps < settings.learning_starts:  # the replay memory never filled: no update was made
+        result["warning"] = (f"the agent never learnt: {trainer.env_steps:,} transitions in {trainer.episodes_done:,} "
+                             f"episodes, and learning starts after {settings.learning_starts:,}; train more episodes "
+                             "(or lower --learning-starts)")
     if final == "done" and evaluate:
         try:
             ev = evaluate_run(workspace, run_id)

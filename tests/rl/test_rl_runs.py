@@ -101,3 +101,21 @@ def test_sigterm_cancels_cleanly_and_resume_finishes(tmp_path):
     run = load_run(Workspace(tmp_path), "sig")
     assert run["status"]["state"] == "done"
     assert list(run["metrics"]["episode"]) == list(range(1, done + 41))
+
+
+def test_a_run_too_short_to_learn_says_so(tmp_path):
+    import json as _json
+
+    from typer.testing import CliRunner
+
+    from laneprint.cli import app
+
+    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--episodes", "3",
+                                   "--no-evaluate", "-w", str(tmp_path), "--json"])
+    assert res.exit_code == 0, res.output
+    doc = _json.loads(res.stdout)
+    assert doc["warning"].startswith("the agent never learnt") and "--learning-starts" in doc["warning"]
+    ok = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--episodes", "3",
+                                  "--learning-starts", "10", "--batch-size", "8", "--no-evaluate",
+                                  "-w", str(tmp_path), "--json"])
+    assert "warning" not in _json.loads(ok.stdout)
