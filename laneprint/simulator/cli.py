@@ -30,6 +30,9 @@ FamilyOpt = Annotated[Optional[str], typer.Option(
     "--family", help="sumo study family: ttc (default; styles differ in the times to collision they accept) or "
                      "acceptance (IDM drivers whose styles differ in the gaps and headways they accept; most presses "
                      "have no closing leader). See laneprint/simulator/SUMO.md.")]
+LanesOpt = Annotated[Optional[int], typer.Option(
+    "--lanes", help="sumo: lanes of the highway, 2 (default) or 3 (lane 0 rightmost; the ego changes from every "
+                    "lane, both ways from the middle one).")]
 JobsOpt = Annotated[int, typer.Option("--jobs", help="SUMO runs in parallel (sumo).")]
 SeedOpt = Annotated[int, typer.Option("--seed", help="Random seed (same seed, same study).")]
 FormatOpt = Annotated[str, typer.Option(
@@ -43,7 +46,7 @@ ENGINES: tuple[str, ...] = ("synthetic", "sumo")
 def simulate_command(out: OutOpt, drivers: DriversOpt = None, decisions: DecisionsOpt = None, seed: SeedOpt = 0,
                      fmt: FormatOpt = "mixed", force: ForceOpt = False, engine: EngineOpt = "synthetic",
                      minutes: MinutesOpt = None, jobs: JobsOpt = 1, family: FamilyOpt = None,
-                     workspace: WorkspaceOpt = DEFAULT_WS, as_json: JsonOpt = False) -> None:
+                     lanes: LanesOpt = None, workspace: WorkspaceOpt = DEFAULT_WS, as_json: JsonOpt = False) -> None:
     """Generate a DIL study (CSV and MCAP logs, ground_truth.json, README.md) into --out."""
 
     def work() -> dict[str, Any]:
@@ -58,9 +61,9 @@ def simulate_command(out: OutOpt, drivers: DriversOpt = None, decisions: Decisio
         if engine == "sumo":
             if decisions is not None:
                 raise UserError("--decisions is for --engine synthetic; with sumo the drivers decide (use --minutes)")
-            return _simulate_sumo(out, drivers, seed, fmt, force, minutes, jobs, family, as_json)
-        if minutes is not None or jobs != 1 or family is not None:
-            raise UserError("--minutes, --jobs and --family are for --engine sumo")
+            return _simulate_sumo(out, drivers, seed, fmt, force, minutes, jobs, family, lanes, as_json)
+        if minutes is not None or jobs != 1 or family is not None or lanes is not None:
+            raise UserError("--minutes, --jobs, --family and --lanes are for --engine sumo")
         return _simulate_synthetic(out, drivers, decisions, seed, fmt, force, as_json)
 
     run_command(work, as_json, _render_sumo if engine == "sumo" else _render)
@@ -85,21 +88,24 @@ def _simulate_synthetic(out: Path, drivers: Optional[int], decisions: Optional[i
 
 
 def _simulate_sumo(out: Path, drivers: Optional[int], seed: int, fmt: str, force: bool, minutes: Optional[float],
-                   jobs: int, family: Optional[str], as_json: bool) -> dict[str, Any]:
+                   jobs: int, family: Optional[str], lanes: Optional[int], as_json: bool) -> dict[str, Any]:
     from laneprint.simulator.output import check_destination
     from laneprint.simulator.sumo.backend import check_available
     from laneprint.simulator.sumo.output import write_sumo_study
-    from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, FAMILIES, family_settings
+    from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, DEFAULT_LANES, FAMILIES, LANES, family_settings
     from laneprint.simulator.sumo.study import simulate_sumo_study
 
     family = DEFAULT_FAMILY if family is None else family
     if family not in FAMILIES:
         raise UserError(f"unknown --family {family!r}; choose one of {', '.join(FAMILIES)}")
+    lanes = DEFAULT_LANES if lanes is None else lanes
+    if lanes not in LANES:
+        raise UserError(f"--lanes {lanes}: a SUMO highway has {' or '.join(map(str, LANES))} lanes")
     if minutes is not None and not 0 < minutes <= 120:
         raise UserError("--minutes must be more than 0 and at most 120")
     if jobs < 1:
         raise UserError("--jobs must be at least 1")
-    base = family_settings(family)
+    base = family_settings(family, lanes)
     settings = replace(base, n_drivers=base.n_drivers if drivers is None else drivers,
                        minutes=base.minutes if minutes is None else minutes)
     check_available()  # one line telling how to install SUMO, before anything else
@@ -125,11 +131,12 @@ def _render_sumo(result: dict[str, Any], console: Console) -> None:
     counts = ", ".join(f"{d} {styles[d][0]} {n}" for d, n in per.items())
     lines = [
         f"Wrote a SUMO study to {result['out']} (Eclipse SUMO {result['sumo_version']}, family {result['family']}, "
-        f"seed {result['seed']}, format {result['format']}, {result['minutes']:g} min per section)",
+        f"{result['lanes']} lanes, seed {result['seed']}, format {result['format']}, {result['minutes']:g} min per section)",
         f"  drivers     {result['drivers']}",
         f"  recordings  {result['recordings']}",
         f"  decisions   {result['decisions']} ({result['directions']['left']} left, "
         f"{result['directions']['right']} right; {counts})",
+        "  by lane     " + ", ".join(f"{k} {v}" for k, v in result["changes_by_lane"].items()),
         f"  collisions  {result['collisions']}",
         f"  files       {result['files']}, {result['bytes'] / 1e6:.1f} MB",
     ]

@@ -30,13 +30,17 @@ def summary(study: SumoStudy, out: Path, fmt: str, n_files: int, total_bytes: in
     gt = study.ground_truth
     per_driver = {d["driver_id"]: 0 for d in gt["drivers"]}
     directions = {"left": 0, "right": 0}
+    by_lane: dict[str, int] = {}
     for dec in study.decisions:
         per_driver[dec["driver_id"]] += 1
         directions[dec["direction"]] += 1
+        key = f"{dec['from_lane']}>{dec['target_lane']}"
+        by_lane[key] = by_lane.get(key, 0) + 1
     return {
         "out": str(Path(out).resolve()),
         "engine": gt["engine"],
         "family": gt["family"],
+        "lanes": gt["n_lanes"],
         "sumo_version": gt["sumo_version"],
         "seed": study.seed,
         "format": fmt,
@@ -47,6 +51,7 @@ def summary(study: SumoStudy, out: Path, fmt: str, n_files: int, total_bytes: in
         "decisions": len(study.decisions),
         "decisions_per_driver": per_driver,
         "directions": directions,
+        "changes_by_lane": dict(sorted(by_lane.items())),
         "collisions": sum(s["n_collisions"] for s in gt["sessions"]),
         "files": n_files,
         "bytes": total_bytes,

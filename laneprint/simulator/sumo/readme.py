@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from laneprint.simulator.sumo.settings import DEFAULT_FAMILY
+from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, DEFAULT_LANES
 from laneprint.simulator.sumo.study import SumoStudy
 
 #: family -> parameters shown in the README's driver table (all are in ground_truth.json).
@@ -30,6 +30,16 @@ def render_readme(study: SumoStudy, fmt: str, files: list[dict[str, Any]]) -> st
     s, gt = study.settings, study.ground_truth
     shown = _SHOWN[s.family]
     family_opt = "" if s.family == DEFAULT_FAMILY else f" --family {s.family}"
+    family_opt += "" if s.n_lanes == DEFAULT_LANES else f" --lanes {s.n_lanes}"
+    by_lane: dict[str, int] = {}
+    for dec in study.decisions:
+        key = f"{dec['from_lane']} -> {dec['target_lane']}"
+        by_lane[key] = by_lane.get(key, 0) + 1
+    road = ("two-lane road, lane 0 on the right (`y = 0`), lane 1 at `y = {w:g}` m" if s.n_lanes == 2 else
+            "three-lane road, lane 0 on the right (`y = 0`), lane 1 (middle) at `y = {w:g}` m, lane 2 at "
+            "`y = {w2:g}` m").format(w=s.lane_width_m, w2=2 * s.lane_width_m)
+    middle = (f" slower middle-lane cars at {_range(s.middle_speed_frac)} x the limit, spaced "
+              f"{_range(s.middle_spacing_s)} s;" if "middle" in s.ahead_streams else "")
     n_dec = {d["driver_id"]: 0 for d in gt["drivers"]}
     for dec in study.decisions:
         n_dec[dec["driver_id"]] += 1
@@ -54,6 +64,8 @@ def render_readme(study: SumoStudy, fmt: str, files: list[dict[str, Any]]) -> st
         f"({', '.join(str(v) for v in s.speed_limits_kph)} km/h) = {len(study.recordings)} recordings "
         f"(one SUMO run each), {len(study.decisions)} lane changes, {hours:.2f} h of driving at "
         f"{1 / s.step_s:g} Hz.",
+        f"- {s.n_lanes} lanes (`n_lanes` in ground_truth.json); lane changes by lane (from -> target): "
+        + ", ".join(f"{k}: {v}" for k, v in sorted(by_lane.items())) + ".",
         f"- Format `{fmt}`: {n_mcap} MCAP and {len(files) - n_mcap} gzipped CSV files"
         + (" (odd-numbered drivers MCAP, even-numbered CSV)" if fmt == "mixed" else "")
         + "; file names are session ids (`D03_S80`: driver D03, 80 km/h section).",
@@ -71,15 +83,16 @@ def render_readme(study: SumoStudy, fmt: str, files: list[dict[str, Any]]) -> st
         "",
         "## The runs",
         "",
-        f"A straight two-lane road, lane 0 on the right (`y = 0`), lane 1 at `y = {s.lane_width_m:g}` m; "
+        f"A straight {road}; "
         f"edge speed = the section's limit; `--step-length {s.step_s:g}`,",
         f"`--lanechange.duration {s.lane_change_s:g}` (a lane change is a continuous lateral move); "
         f"{s.minutes:g} min logged per run.",
         "Background traffic is a bubble around the ego: right-lane cars and trucks at "
         f"{_range(s.slow_speed_frac)} x the limit ({s.truck_share:.0%} trucks), spaced {_range(s.slow_spacing_s)} s",
-        f"(at the limit) apart; slower left-lane cars at {_range(s.left_speed_frac)} x the limit; now and then "
-        f"a faster car ({_range(s.fast_speed_frac)} x) from behind",
-        f"in the left lane. A vehicle is in the log while its centre is within {s.scene_range_m:g} m of the ego's.",
+        f"(at the limit) apart;{middle}"
+        + (f" slower left-lane cars at {_range(s.left_speed_frac)} x the limit;" if "left" in s.ahead_streams else "")
+        + f" now and then a faster car ({_range(s.fast_speed_frac)} x) from behind",
+        f"in the {'left' if s.n_lanes == 2 else 'leftmost'} lane. A vehicle is in the log while its centre is within {s.scene_range_m:g} m of the ego's.",
         "",
         "The lane-change button is pressed at the first sample at which the ego leaves its lane",
         f"centre (SUMO has begun the manoeuvre), held {s.button_hold_s:g} s, with `lc_direction`; "

@@ -1,6 +1,6 @@
-"""The files of one SUMO run: a straight two-lane road and the vehicle types.
+"""The files of one SUMO run: a straight road of `n_lanes` lanes and the vehicle types.
 
-One edge `road` from x = 0, two lanes (index 0 = right), edge speed = the
+One edge `road` from x = 0, two or three lanes (index 0 = right), edge speed = the
 section's limit. Vehicle types: `ego` (the driver's style, with the family's
 car-following model), `car` and `truck` (background, Krauss; their desired speed
 is set per vehicle, so their `speedFactor` is high and their `maxSpeed` above any
@@ -57,7 +57,7 @@ def build_network(folder: Path, settings: SumoSettings, limit_kph: float) -> Pat
     stem = f"road{int(round(limit_kph))}"
     nodes, edges = folder / f"{stem}.nod.xml", folder / f"{stem}.edg.xml"
     nodes.write_text(f'<nodes>\n    <node id="a" x="0" y="0"/>\n    <node id="b" x="{length:.0f}" y="0"/>\n</nodes>\n')
-    edges.write_text(f'<edges>\n    <edge id="{EDGE}" from="a" to="b" numLanes="2" speed="{limit_kph / 3.6:.6f}" '
+    edges.write_text(f'<edges>\n    <edge id="{EDGE}" from="a" to="b" numLanes="{settings.n_lanes}" speed="{limit_kph / 3.6:.6f}" '
                      f'width="{settings.lane_width_m}"/>\n</edges>\n')
     return run_netconvert(nodes, edges, folder / f"{stem}.net.xml")
 

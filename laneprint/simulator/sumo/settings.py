@@ -18,6 +18,11 @@ from laneprint.reference import SPEED_LIMITS_KPH
 #: (IDM + LC2013 in a busy left lane: most presses have no closing leader). See SUMO.md.
 FAMILIES: tuple[str, ...] = ("ttc", "acceptance")
 DEFAULT_FAMILY = FAMILIES[0]
+#: Numbers of lanes a SUMO road can have (`--lanes N`), the default first. Lane 0 is the rightmost.
+LANES: tuple[int, ...] = (2, 3)
+DEFAULT_LANES = LANES[0]
+#: Background streams (traffic.py) and where they appear: a lane index, or "top" for the leftmost lane.
+STREAM_LANES: dict[str, int | str] = {"slow": 0, "middle": 1, "left": "top", "fast": "top"}
 
 
 @dataclass(frozen=True)
@@ -36,7 +41,8 @@ class SumoSettings:
     # driver's parameters around its style's nominal values
 
     # --- road and vehicles ---------------------------------------------------------
-    lane_width_m: float = 3.5  # [m] two lanes: 0 right (y = 0), 1 left (y = lane_width_m)
+    n_lanes: int = DEFAULT_LANES  # lanes of the road (one of LANES), numbered from 0 on the right
+    lane_width_m: float = 3.5  # [m] lane k's centre is at y = k * lane_width_m (lane 0 right, y = 0)
     ego_length_m: float = 4.5  # [m]
     ego_start_m: float = 400.0  # [m] where the ego departs (front bumper) on the edge
     road_margin_m: float = 1500.0  # [m] road length beyond the farthest the ego can get
@@ -54,6 +60,9 @@ class SumoSettings:
     # in seconds of driving at the limit, ~ Uniform (the ego closes on one every ~20 s)
     left_speed_frac: tuple[float, float] = (0.75, 0.92)  # cars appearing in the left lane, desired speed / limit
     left_spacing_s: tuple[float, float] = (4.0, 15.0)  # [s] their spacing, as slow_spacing_s
+    middle_speed_frac: tuple[float, float] = (0.6, 0.85)  # three lanes: cars appearing in the middle lane
+    # (lane 1), desired speed / limit ~ Uniform: slower than the ego, so it overtakes them on the left
+    middle_spacing_s: tuple[float, float] = (6.0, 20.0)  # [s] their spacing, as slow_spacing_s
     fast_speed_frac: tuple[float, float] = (1.1, 1.3)  # faster left-lane cars from behind, speed / limit ~ Uniform
     fast_interval_s: tuple[float, float] = (60.0, 180.0)  # [s] between two faster cars appearing behind ~ Uniform
     # (they block the ego's change to the left until they have passed)
@@ -70,6 +79,11 @@ class SumoSettings:
             raise ValueError(f"unknown family {self.family!r}; choose one of {', '.join(FAMILIES)}")
         if self.n_drivers < 1:
             raise ValueError("n_drivers must be at least 1")
+        if self.n_lanes not in LANES:
+            raise ValueError(f"n_lanes must be one of {', '.join(map(str, LANES))}")
+        bad = [st for st in self.ahead_streams if st not in STREAM_LANES or self.stream_lane(st) >= self.n_lanes]
+        if bad:
+            raise ValueError(f"stream {bad[0]!r} does not fit a {self.n_lanes}-lane road")
         if not self.speed_limits_kph:
             raise ValueError("speed_limits_kph must name at least one section")
         if self.minutes <= 0:
@@ -81,6 +95,11 @@ class SumoSettings:
     def duration_s(self) -> float:
         """Logged driving per section [s]."""
         return self.minutes * 60.0
+
+    def stream_lane(self, stream: str) -> int:
+        """The lane in which vehicles of `stream` appear."""
+        lane = STREAM_LANES[stream]
+        return self.n_lanes - 1 if lane == "top" else int(lane)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready copy (tuples become lists)."""
@@ -105,8 +124,22 @@ FAMILY_OVERRIDES: dict[str, dict[str, Any]] = {
 }
 
 
-def family_settings(family: str = DEFAULT_FAMILY, **changes: Any) -> SumoSettings:
-    """`SumoSettings` of `family` (its `FAMILY_OVERRIDES`), then `changes` on top."""
+#: What a road of more lanes changes on top of its family's settings: (family, lanes) -> changes.
+#: Three lanes add the `middle` stream (slower cars in lane 1), so the ego meets slower leaders in
+#: every lane but the top one: it changes left from lanes 0 and 1 (speed gain) and right from lanes
+#: 2 and 1 (keep right). The `left` and `fast` streams move to the top lane (`STREAM_LANES`).
+LANE_OVERRIDES: dict[tuple[str, int], dict[str, Any]] = {
+    ("ttc", 3): {"ahead_streams": ("slow", "middle", "left")},
+    ("acceptance", 3): {"ahead_streams": ("slow", "middle"), "middle_speed_frac": (0.8, 0.95),
+                        "middle_spacing_s": (4.0, 16.0)},
+}
+
+
+def family_settings(family: str = DEFAULT_FAMILY, n_lanes: int = DEFAULT_LANES, **changes: Any) -> SumoSettings:
+    """`SumoSettings` of `family` (its `FAMILY_OVERRIDES`) on `n_lanes` lanes (`LANE_OVERRIDES`), then `changes`."""
     if family not in FAMILY_OVERRIDES:
         raise ValueError(f"unknown family {family!r}; choose one of {', '.join(FAMILIES)}")
-    return replace(SumoSettings(), family=family, **{**FAMILY_OVERRIDES[family], **changes})
+    if n_lanes not in LANES:
+        raise ValueError(f"n_lanes must be one of {', '.join(map(str, LANES))}")
+    return replace(SumoSettings(), family=family, n_lanes=n_lanes,
+                   **{**FAMILY_OVERRIDES[family], **LANE_OVERRIDES.get((family, n_lanes), {}), **changes})

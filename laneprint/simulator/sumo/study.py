@@ -22,7 +22,7 @@ from laneprint.progress import ProgressFn, report
 from laneprint.simulator.study import GENERATOR, session_id
 from laneprint.simulator.sumo.scenario import build_network, write_routes
 from laneprint.simulator.sumo.section import SectionLog, run_section
-from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, SumoSettings
+from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, DEFAULT_LANES, SumoSettings
 from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS, SumoDriver, make_sumo_drivers
 
 ENGINE = "sumo"
@@ -93,6 +93,7 @@ def _collect(settings: SumoSettings, seed: int, drivers: list[SumoDriver], tasks
              logs: dict[tuple[int, int], SectionLog]) -> SumoStudy:
     version = next(iter(logs.values())).sumo_version if logs else ""
     family = "" if settings.family == DEFAULT_FAMILY else f" --family {settings.family}"
+    family += "" if settings.n_lanes == DEFAULT_LANES else f" --lanes {settings.n_lanes}"
     simulator = f"Eclipse SUMO {version} (laneprint simulate --engine sumo{family})"
     recordings: list[Recording] = []
     sessions: list[dict[str, Any]] = []
@@ -121,6 +122,7 @@ def _collect(settings: SumoSettings, seed: int, drivers: list[SumoDriver], tasks
         "sumo_api": ", ".join(apis),
         "seed": seed,
         "family": settings.family,
+        "n_lanes": settings.n_lanes,
         "car_follow_model": settings.car_follow_model,
         "settings": settings.to_dict(),
         "style_params": FAMILY_STYLE_PARAMS[settings.family],

@@ -5,11 +5,15 @@ Three streams, each vehicle with its own desired speed (a fraction of the limit)
 - `slow`: cars and trucks in the right lane, slower than the ego; spaced
   `slow_spacing_s` seconds (at the limit) apart along the road, so the ego meets
   one every spacing / closing speed seconds, alone or in short platoons;
-- `left`: cars that appear in the left lane, slower than the ego but faster than
+- `middle` (three lanes only): cars in the middle lane, slower than the ego, so
+  it overtakes them on the left and returns right past them;
+- `left`: cars that appear in the top (leftmost) lane, slower than the ego but faster than
   the right lane (they overtake there and then keep right); only when
   `ahead_streams` names it (the default family's; not the `acceptance` family's);
-- `fast`: cars faster than the limit that appear behind the ego in the left lane
+- `fast`: cars faster than the limit that appear behind the ego in the top lane
   now and then; they close the gap the ego wants and make it wait.
+
+Streams appear in the lanes of `SumoSettings.stream_lane` (`STREAM_LANES`).
 
 Vehicles ahead appear `spawn_ahead_m` in front of the ego (outside the logged
 range), the next one of a stream when its spacing behind the stream's frontmost
@@ -30,7 +34,12 @@ import numpy as np
 from laneprint.simulator.sumo.scenario import CAR_TYPE, ROUTE, TRUCK_TYPE
 from laneprint.simulator.sumo.settings import SumoSettings
 
-STREAM_LANE: dict[str, int] = {"slow": 0, "left": 1, "fast": 1}
+#: stream -> (settings field of its desired speed / limit, settings field of its spacing [s])
+_STREAM_FIELDS: dict[str, tuple[str, str]] = {
+    "slow": ("slow_speed_frac", "slow_spacing_s"),
+    "middle": ("middle_speed_frac", "middle_spacing_s"),
+    "left": ("left_speed_frac", "left_spacing_s"),
+}
 
 
 @dataclass(frozen=True)
@@ -57,6 +66,8 @@ class TrafficBubble:
         self.pending: set[str] = set()  # added, not yet seen on the road
         self.n_added = 0
         self.spacing = {stream: self._spacing(stream) for stream in ("slow", "left")}
+        if "middle" in settings.ahead_streams:  # drawn after the others: two-lane studies keep their draws
+            self.spacing["middle"] = self._spacing("middle")
         self.next_fast_s = self._u(settings.fast_interval_s)
 
     def _u(self, lo_hi: tuple[float, float]) -> float:
@@ -98,11 +109,10 @@ class TrafficBubble:
 
     def _spacing(self, stream: str) -> float:
         """Distance to the stream's next vehicle [m]."""
-        return self._u(self.s.slow_spacing_s if stream == "slow" else self.s.left_spacing_s) * self.limit
+        return self._u(getattr(self.s, _STREAM_FIELDS[stream][1])) * self.limit
 
     def _speed(self, stream: str) -> float:
-        frac = self.s.slow_speed_frac if stream == "slow" else self.s.left_speed_frac
-        return self._u(frac) * self.limit
+        return self._u(getattr(self.s, _STREAM_FIELDS[stream][0])) * self.limit
 
     def _spawn_ahead(self, stream: str, ego_x: float, live: dict[str, VehicleState]) -> None:
         s = self.s
@@ -130,7 +140,7 @@ class TrafficBubble:
     def _add(self, stream: str, x: float, v: float, live: dict[str, VehicleState]) -> bool:
         """Insert a vehicle with centre `x` and desired speed `v` unless the spot is taken."""
         vtype, length = self._length(stream)
-        lane = STREAM_LANE[stream]
+        lane = self.s.stream_lane(stream)
         if x - length / 2 < 1.0 or not self._free(lane, x, v, length, live):
             return False
         self.n_added += 1
