@@ -24,6 +24,7 @@ import argparse
 import json
 import sys
 import time
+import zlib
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -74,10 +75,10 @@ def one_driver(args: tuple) -> dict[str, Any]:
 
 def scores(states: pd.DataFrame, changes: pd.DataFrame, policies: list[str], n_boot: int,
            seed: int) -> list[dict[str, Any]]:
-    """bootstrap_scores of every policy present in `states`."""
-    rng = np.random.default_rng([seed, 11])
+    """bootstrap_scores of every policy present in `states` (each its own seeded resamples)."""
     out = []
     for who in policies:
+        rng = np.random.default_rng([seed, 11, zlib.crc32(who.encode())])
         col = f"action_{who}"
         if col not in states or states[col].isna().all():
             continue
@@ -165,7 +166,7 @@ def main() -> None:
     ap.add_argument("--drivers", default="all", help="'all', N (the first N) or ID,ID,... held out in turn")
     ap.add_argument("--k", default="5,10,20,all", help="decisions shown, comma-separated ('all': every earlier one)")
     ap.add_argument("--episodes", type=int, default=None, help="cap on every agent's episodes (default: the trainer's)")
-    ap.add_argument("--variants", default="finetune:population",
+    ap.add_argument("--variants", default="finetune:style",
                     help="personalised agents, METHOD:BASE,... (the first is 'personalised')")
     ap.add_argument("--test-sessions", type=int, default=1, help="the driver's last sessions, held out")
     ap.add_argument("--seed", type=int, default=0)

@@ -376,7 +376,7 @@ def _render_personalize(res: dict[str, Any], console: Console) -> None:
 def personalize_command(
     driver: Annotated[str, typer.Option("--driver", help="The driver to personalise for.")],
     decisions: Annotated[Optional[int], typer.Option("--decisions", min=1, help="K: its first K decisions in time order (default: all).")] = None,
-    base: Annotated[str, typer.Option("--from", help="Start from the 'population' agent (all other drivers) or the 'style' agent (the style assigned from the K decisions).")] = "population",
+    base: Annotated[str, typer.Option("--from", help="Start from the 'style' agent (the members of the style assigned from the K decisions) or the 'population' agent (all other drivers).")] = "style",
     episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, help="Fine-tuning episodes (default: 60 per decision, 600-3000).")] = None,
     base_episodes: Annotated[Optional[int], typer.Option("--base-episodes", min=1, help="Episodes of the base agent (default: the trainer's rule).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of everything random.")] = 0,

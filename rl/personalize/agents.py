@@ -31,7 +31,7 @@ METHODS: tuple[str, ...] = ("finetune", "mix", "own")
 class PersonalizeSettings:
     """How a driver's agent is made from the base agent and its first K decisions."""
 
-    base: str = "population"  # whose agent is the prior: 'style' (the assigned style's members) or 'population'
+    base: str = "style"  # whose agent is the prior: 'style' (the assigned style's members) or 'population'
     method: str = "finetune"  # 'finetune': base weights, then the mix replayed; 'mix': the mix from scratch;
     # 'own': base weights, then the driver's approaches alone
     driver_share: float = 0.5  # share of the replayed states that are the driver's (finetune, mix)

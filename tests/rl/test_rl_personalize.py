@@ -80,7 +80,8 @@ def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(s
     assert config["kind"] == "personalized" and config["decisions"] == 5
     assert config["decision_ids"] == expected
     assert config["target"] == {"kind": "driver", "name": "D03"}
-    assert config["base"]["from"] == "population" and "D03" not in config["base"]["drivers"]
+    assert config["base"]["from"] == "style" and config["base"]["style"] == out["style"]["style"]
+    assert "D03" not in config["base"]["drivers"]
     assert out["style"]["style"] in ("Defensive", "Normal", "Aggressive")
     assert 0 < out["style"]["confidence"] <= 1
     assert out["later_decisions"]["n_decisions"] == 18 - 5  # scored on the decisions it did not see
@@ -108,12 +109,12 @@ def test_a_second_run_with_the_same_base_reuses_it(study: Workspace) -> None:
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
 
 
-def test_the_style_base_is_the_assigned_styles_members(study: Workspace) -> None:
-    res = _run(study, "--driver", "D06", "--decisions", "6", "--from", "style", "--run-id", "s6", "--json", *TINY)
+def test_the_population_base_is_every_other_driver(study: Workspace) -> None:
+    res = _run(study, "--driver", "D06", "--decisions", "6", "--from", "population", "--run-id", "s6", "--json",
+               *TINY)
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
-    assert out["base"]["from"] == "style" and out["base"]["style"] == out["style"]["style"]
-    assert "D06" not in out["base"]["drivers"]
+    assert out["base"]["from"] == "population" and out["base"]["drivers"] == ["D01", "D02", "D03", "D04", "D05"]
 
 
 @pytest.mark.parametrize("args, message", [
