@@ -116,16 +116,47 @@ def cluster_scatter(styles: pd.DataFrame, x: str | None = None, y: str | None = 
     return fig
 
 
+#: direction of a reference line -> how the figures name its presses.
+DIRECTION_NAMES = {"both": "every press", "left": "presses to the left (overtaking)",
+                   "right": "presses to the right (returning)"}
+
+
+def line_directions(reference_lines: pd.DataFrame | None) -> list[str]:
+    """The directions the styles' lines exist for: ['both'] (an analysis made before directions, or
+    no side with a typical line), else 'both' and the sides that have one."""
+    if reference_lines is None or "direction" not in reference_lines:
+        return ["both"]
+    r = reference_lines[(reference_lines["scope"] == "style") & (reference_lines["kind"] == "typical")]
+    have = set(r["direction"].astype(str))
+    return ["both", *[d for d in ("left", "right") if d in have]]
+
+
 def reference_lines(reference_lines: pd.DataFrame, kinds: tuple[str, ...] = ("typical", "paper"),
                     v_range_mps: tuple[float, float] = (60 / 3.6, 95 / 3.6),
-                    indicators: list[str] | tuple[str, ...] | None = None, columns: int = 3) -> go.Figure:
+                    indicators: list[str] | tuple[str, ...] | None = None, columns: int = 3,
+                    direction: str = "both") -> go.Figure:
     """The styles' reference lines overlaid, one panel per indicator (the paper's three first,
     then any other the table has, or `indicators`), `columns` panels a row: 'typical'
     solid, 'pooled' dashed, 'paper' (Table 1) dotted. Trace names are '<style> <kind>';
     the hover names how the line was fitted (the table's `fit`: 'ols', 'huber' or
     'level', when present). Axis titles are short ('t_nf [s]') so that they stay inside
-    their panel."""
+    their panel.
+
+    `direction` ('both', 'left', 'right'; the table's `direction` column): 'both' draws the
+    lines fitted on every press; a side draws each style's typical line on that side's
+    presses (solid, '<style> typical, to the <side>'), the typical line on every press
+    dashed beside it, and Table 1 dotted."""
     refs = reference_lines[(reference_lines["scope"] == "style") & reference_lines["kind"].isin(kinds)]
+    if "direction" in refs:
+        if direction != "both":
+            side = refs[(refs["direction"] == direction) & (refs["kind"] == "typical")]
+            pooled = refs[(refs["direction"] == "both") & (refs["kind"] == "typical")]
+            refs = pd.concat([side.assign(kind=f"typical, to the {direction}"),
+                              pooled.assign(kind="typical, every press"),
+                              refs[(refs["direction"] == "both") & (refs["kind"] == "paper")]])
+            kinds = (f"typical, to the {direction}", "typical, every press", "paper")
+        else:
+            refs = refs[refs["direction"] == "both"]
     present = list(dict.fromkeys(refs["indicator"]))
     inds = [i for i in (indicators or [*PAPER_INDICATORS, *present]) if i in present] or list(PAPER_INDICATORS)
     inds = list(dict.fromkeys(inds))
@@ -134,7 +165,8 @@ def reference_lines(reference_lines: pd.DataFrame, kinds: tuple[str, ...] = ("ty
     fig = make_subplots(rows=nrow, cols=ncol, subplot_titles=inds, horizontal_spacing=0.09,
                         vertical_spacing=min(0.25, 0.6 / nrow) if nrow > 1 else 0.2)
     grid = np.linspace(*v_range_mps, 30)
-    dash = {"typical": "solid", "pooled": "dash", "paper": "dot"}
+    dash = {"typical": "solid", "pooled": "dash", "paper": "dot", f"typical, to the {direction}": "solid",
+            "typical, every press": "dash"}
     names = list(dict.fromkeys(refs["name"]))
     for k, ind in enumerate(inds):
         row, col = k // ncol + 1, k % ncol + 1
@@ -153,6 +185,9 @@ def reference_lines(reference_lines: pd.DataFrame, kinds: tuple[str, ...] = ("ty
                                                        f"<br>{r['source']}<extra></extra>"), row=row, col=col)
         fig.update_xaxes(title_text=SPEED_LABEL, row=row, col=col)
         fig.update_yaxes(title_text=label_of(ind, short=True), row=row, col=col)
-    fig.update_layout(title="Reference lines per style (solid: typical driver, dotted: Table 1)",
+    title = ("Reference lines per style (solid: typical driver, dotted: Table 1)" if direction == "both" else
+             f"Reference lines per style on the {DIRECTION_NAMES.get(direction, direction)} (solid: typical "
+             "driver on that side, dashed: on every press, dotted: Table 1)")
+    fig.update_layout(title=title,
                       template="plotly_white", height=max(420, 330 * nrow))
     return fig

@@ -139,11 +139,26 @@ def compact(fig: go.Figure, height: int = 440, width_chars: int = 58) -> go.Figu
         axis_title = fig.layout[name].title.text or ""
         if len(axis_title) > 30 and ": " in axis_title and "[" in axis_title:
             fig.layout[name].title.text = f"{axis_title.split(': ', 1)[0]} [{axis_title.rsplit('[', 1)[1]}"
+    # the legend below the x axis title, one entry a line, in a bottom margin made for it: the plot keeps
+    # its height (a legend Plotly fits by itself shrinks the plot until the legend covers the axis title)
+    bottom = 70 + 22 * legend_entries(fig)
+    plot_px = height - 90
     fig.update_layout(title=dict(text=text, font=dict(size=13), x=0, xanchor="left", xref="container",
                                  y=1, yanchor="top", yref="container", pad=dict(t=18, l=8)),
-                      legend=dict(orientation="h", yanchor="top", y=-0.22, x=0), height=height + top - 80,
-                      margin=dict(l=10, r=10, t=top, b=10))
+                      legend=dict(orientation="v", yanchor="top", y=-60 / plot_px, x=0, font=dict(size=11),
+                                  tracegroupgap=0),
+                      height=plot_px + top + bottom, margin=dict(l=10, r=10, t=top, b=bottom))
     return fig
+
+
+def legend_entries(fig: go.Figure) -> int:
+    """How many entries the figure's legend shows (named traces, one per legend group)."""
+    seen = set()
+    for i, tr in enumerate(fig.data):
+        if tr.showlegend is False or not tr.name:
+            continue
+        seen.add(tr.legendgroup or f"_{i}")
+    return len(seen)
 
 
 def bare_table(fig: go.Figure, n_rows: int) -> go.Figure:

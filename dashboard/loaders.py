@@ -17,8 +17,9 @@ import streamlit as st
 
 from laneprint.workspace import Workspace
 
-ANALYSIS_TABLES = ("decisions", "correlations", "fits", "styles", "reference_lines", "skipped", "k_scores",
-                   "feature_sets")
+#: The analysis tables the pages read; one an older analysis lacks is simply absent from `analysis()`.
+ANALYSIS_TABLES = ("decisions", "correlations", "fits", "fits_by_direction", "styles", "reference_lines", "skipped",
+                   "k_scores", "feature_sets")
 
 
 def stamp(root: Path, *parts: str) -> tuple[int, ...]:

@@ -528,3 +528,53 @@ def run_doing(status: dict[str, Any]) -> str:
     if state == "running" and status.get("message") == "evaluating":
         return " (evaluating against greedy, imitation and the drivers' decisions)"
     return ""
+
+
+# --- directions (overtaking to the left, returning to the right) ----------------------------
+
+DIRECTION_FIT_COLUMNS = ["indicator", "direction", "unit", "n", "A", "b", "r2", "pearson_r", "significant", "flag",
+                         "reason"]
+
+
+def direction_fit_summary(fits_by_direction: pd.DataFrame | None) -> pd.DataFrame:
+    """Per-direction fits for a reader: indicator, direction, n, A, b, R², Pearson r, significant, and the
+    flag (a fitted line that means little) or the reason there is no line ('... the pooled line stands').
+    Empty for an analysis made before directions."""
+    from indicators.plots import unit_of
+
+    f = fits_by_direction
+    if f is None or f.empty or "direction" not in f:
+        return pd.DataFrame(columns=DIRECTION_FIT_COLUMNS)
+    out = f.copy()
+    out["unit"] = [unit_of(i) for i in out["indicator"]]
+    for col in ("flag", "reason"):
+        if col in out:
+            out[col] = out[col].fillna("").astype(str)
+    ok = out["status"] == "ok" if "status" in out else True
+    if "reason" in out:  # a fitted line's reason is empty; a skipped side says why
+        out.loc[ok, "reason"] = ""
+    out = out[[c for c in DIRECTION_FIT_COLUMNS if c in out.columns]]
+    # the analysis' order of indicators (the paper's three first), left before right
+    rank = {ind: i for i, ind in enumerate(dict.fromkeys(out["indicator"]))}
+    out = out.sort_values(["indicator", "direction"], kind="stable",
+                          key=lambda s: s.map(rank) if s.name == "indicator" else s.map({"left": 0, "right": 1}))
+    return out.reset_index(drop=True).round(3)
+
+
+def presses_by_direction_text(meta: dict[str, Any]) -> str:
+    """'250 presses to the left (overtaking), 250 to the right (returning)' from the analysis summary;
+    '' for an analysis made before directions."""
+    counts = ((meta or {}).get("summary") or {}).get("presses_by_direction") or {}
+    if not counts:
+        return ""
+    left, right = int(counts.get("left", 0)), int(counts.get("right", 0))
+    return f"{plural(left, 'press', 'presses')} to the left (overtaking), {right:,} to the right (returning)"
+
+
+def driver_presses_by_direction(decisions: pd.DataFrame, driver_id: str) -> dict[str, int]:
+    """Presses of one driver to each side ({} when the decisions table has no lanes)."""
+    if not {"target_lane", "ego_lane"} <= set(decisions.columns):
+        return {}
+    d = decisions[(decisions["driver_id"].astype(str) == driver_id) & (decisions["label"] == "change")]
+    left = int((d["target_lane"] > d["ego_lane"]).sum())
+    return {"left": left, "right": len(d) - left}

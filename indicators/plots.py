@@ -78,17 +78,19 @@ def fit_flag(row: pd.Series | dict | None) -> str:
     return "" if flag is None or (isinstance(flag, float) and np.isnan(flag)) else str(flag)
 
 
-def _off_axis_trace(part: pd.DataFrame, where: pd.DataFrame, name: str, color: str, unit: str) -> go.Scatter:
+def _off_axis_trace(part: pd.DataFrame, where: pd.DataFrame, name: str, color: str | list[str], unit: str,
+                    what: pd.Series | None = None) -> go.Scatter:
+    text = part["decision_id"] + ": " + part["status"] + ("" if what is None else ", " + what)
     return go.Scatter(
         x=part["v"], y=where["y"], mode="markers", name=f"{name}, off the axis ({len(part)})",
         marker={"color": color, "size": 9, "symbol": np.where(where["side"] == "above", "triangle-up",
                                                                "triangle-down").tolist()},
-        cliponaxis=False, customdata=where["value"], text=part["decision_id"] + ": " + part["status"],
+        cliponaxis=False, customdata=where["value"], text=text,
         hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{customdata:.2f} " + unit + " (off the axis)<extra></extra>")
 
 
 def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: str, indicator: str,
-                       alpha: float = 0.05) -> go.Figure:
+                       alpha: float = 0.05, fits_by_direction: pd.DataFrame | None = None) -> go.Figure:
     """One driver's presses: the indicator against ego speed, the OLS line, its (1 - alpha)
     confidence band and prediction band. Points left out of the fit are grey, with their reason.
 
@@ -98,9 +100,15 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
     its trace's name, with its true value in the hover. The title names the fit's flag
     when the analysis flagged it (a low R², a slope interval spanning 0).
 
-    Traces (by name): 'used', 'used, off the axis (n)', 'excluded' and 'excluded, off the
-    axis (n)' (each only when it has points), and when the fit is 'ok': 'prediction
-    band', 'confidence band', 'OLS line'.
+    Presses are marked by the side of their target lane when the decisions table has the
+    lanes (`DIRECTION_STYLE`: blue circles to the left, overtaking; orange diamonds to the
+    right, returning). With `fits_by_direction` (the analysis' per-direction fits), each side
+    the driver has a fit for gets its own dashed line beside the pooled one.
+
+    Traces (by name): 'used' (or, with lanes, 'used, to the left (n)' and 'used, to the right
+    (n)'), 'used, off the axis (n)', 'excluded' and 'excluded, off the axis (n)' (each only
+    when it has points), and when the fit is 'ok': 'prediction band', 'confidence band', 'OLS
+    line'; 'line to the left' / 'line to the right' for each side's fit.
     """
     columns = indicator_columns()
     if indicator not in columns:
@@ -118,11 +126,29 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
     lo, hi = yrange if yrange else (-np.inf, np.inf)
     drawn = clip_to_axis(used["y"], lo, hi)
     inside = (drawn["side"] == "").to_numpy()
-    fig.add_trace(go.Scatter(x=used["v"][inside], y=used["y"][inside], mode="markers", name="used",
-                             marker={"color": "#1f77b4", "size": 7}, text=used["decision_id"][inside],
-                             hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{y:.2f} " + unit))
+    sides = press_directions(d)
+    if sides is None:
+        fig.add_trace(go.Scatter(x=used["v"][inside], y=used["y"][inside], mode="markers", name="used",
+                                 marker={"color": "#1f77b4", "size": 7}, text=used["decision_id"][inside],
+                                 hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{y:.2f} " + unit))
+    else:
+        side = used["decision_id"].map(sides).fillna("").to_numpy()
+        for name, (color, symbol, what) in DIRECTION_STYLE.items():
+            part = used[inside & (side == name)]
+            if len(part):
+                fig.add_trace(go.Scatter(
+                    x=part["v"], y=part["y"], mode="markers", name=f"used, to the {name} ({len(part)})",
+                    marker={"color": color, "size": 7, "symbol": symbol}, text=part["decision_id"] + f": {what}",
+                    hovertemplate="%{text}<br>v=%{x:.2f} m/s<br>%{y:.2f} " + unit + "<extra></extra>"))
     if (~inside).any():
-        fig.add_trace(_off_axis_trace(used[~inside], drawn[~inside], "used", "#1f77b4", unit))
+        off = used[~inside]
+        if sides is None:
+            fig.add_trace(_off_axis_trace(off, drawn[~inside], "used", "#1f77b4", unit))
+        else:  # coloured by direction, as the points on the axis
+            side = off["decision_id"].map(sides).fillna("")
+            fig.add_trace(_off_axis_trace(off, drawn[~inside], "used", [DIRECTION_STYLE.get(s, ("#1f77b4",))[0]
+                                                                        for s in side], unit,
+                                          side.map(lambda s: DIRECTION_STYLE[s][2] if s in DIRECTION_STYLE else "")))
     if len(excl):
         drawn = clip_to_axis(excl["y"], lo, hi)
         inside = (drawn["side"] == "").to_numpy()
@@ -157,11 +183,57 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
             title += f" — flagged: {flag}"
     elif len(row):
         title += f" — no fit: {row.iloc[0]['reason']}"
+    for trace in direction_lines(fits_by_direction, driver_id, indicator, unit):
+        fig.add_trace(trace)
     fig.update_layout(title=title, xaxis_title=SPEED_LABEL, yaxis_title=label_of(indicator),
                       template="plotly_white")
     if yrange:
         fig.update_yaxes(range=list(yrange))
     return fig
+
+
+#: direction -> (colour, marker symbol, what it means) of the presses to each side.
+DIRECTION_STYLE: dict[str, tuple[str, str, str]] = {
+    "left": ("#1f77b4", "circle", "to the left (overtaking)"),
+    "right": ("#ff7f0e", "diamond", "to the right (returning)"),
+}
+
+
+def press_directions(decisions: pd.DataFrame) -> pd.Series | None:
+    """decision_id -> 'left' / 'right' (the side of the target lane; lanes count from the right) of the
+    presses in `decisions`; None when the table has no lanes (an analysis made before directions)."""
+    if not {"target_lane", "ego_lane", "decision_id"} <= set(decisions.columns):
+        return None
+    d = decisions[decisions["label"] == "change"] if "label" in decisions else decisions
+    left = d["target_lane"].to_numpy(dtype=float) > d["ego_lane"].to_numpy(dtype=float)
+    return pd.Series(np.where(left, "left", "right"), index=d["decision_id"].astype(str).to_numpy())
+
+
+def direction_lines(fits_by_direction: pd.DataFrame | None, driver_id: str, indicator: str,
+                    unit: str = "") -> list[go.Scatter]:
+    """The driver's per-direction OLS lines of `indicator` (status 'ok' only), dashed, over each side's
+    speed range: traces 'line to the left' / 'line to the right'; a flagged line is drawn dash-dotted and
+    says so in its name. Empty without per-direction fits."""
+    f = fits_by_direction
+    if f is None or f.empty or "direction" not in f:
+        return []
+    rows = f[(f["driver_id"].astype(str) == str(driver_id)) & (f["indicator"] == indicator) & (f["status"] == "ok")]
+    out = []
+    for name, (color, _, what) in DIRECTION_STYLE.items():
+        r = rows[rows["direction"] == name]
+        if not len(r):
+            continue
+        r = r.iloc[0]
+        flag = fit_flag(r)
+        grid = np.linspace(float(r["v_min"]), float(r["v_max"]), 30)
+        formula = line_formula(indicator, float(r["A"]), float(r["b"]))
+        out.append(go.Scatter(
+            x=grid, y=float(r["A"]) * grid + float(r["b"]), mode="lines",
+            name=f"line to the {name}" + (" (flagged)" if flag else ""),
+            line={"color": color, "width": 2, "dash": "dashdot" if flag else "dash"},
+            hovertemplate=f"presses {what}: {formula} [{unit}]<br>R² {float(r['r2']):.2f}, n {int(r['n'])}"
+                          + (f"<br>flagged: {flag}" if flag else "") + "<extra></extra>"))
+    return out
 
 
 def correlation_table(correlations: pd.DataFrame) -> go.Figure:

@@ -1,5 +1,6 @@
 """Drivers: one driver's indicators against speed with the OLS fits and their flags, grouped (the
-paper's three; what the driver accepts), correlations, fit summary, undefined indicators."""
+paper's three; what the driver accepts), presses marked by direction with each side's line where the
+analysis fitted one, correlations, fit summaries (pooled and per direction), undefined indicators."""
 
 import streamlit as st
 
@@ -20,13 +21,15 @@ def main() -> None:
     if loaders.analysis_is_stale(ws.root):
         st.info("Recordings were added or removed since this analysis ran: run it again on the Styles page.")
     meta = loaders.analysis_meta(str(ws.root), key)
-    decisions, fits = tables["decisions"], tables.get("fits")
+    decisions, fits, side_fits = tables["decisions"], tables.get("fits"), tables.get("fits_by_direction")
     drivers = views.drivers_of(tables)
     driver = st.selectbox("Driver", drivers, key="driver")
     styles = views.for_driver(tables.get("styles"), driver)
     n_press = int(((decisions["driver_id"].astype(str) == driver) & (decisions["label"] == "change")).sum())
     style_txt = f", style **{styles.iloc[0]['style']}**" if len(styles) and "style" in styles else ""
-    st.markdown(f"**{driver}**: {views.plural(n_press, 'lane-change decision')}{style_txt}")
+    sides = views.driver_presses_by_direction(decisions, driver)
+    sides_txt = f" ({sides['left']} to the left, {sides['right']} to the right)" if sides else ""
+    st.markdown(f"**{driver}**: {views.plural(n_press, 'lane-change decision')}{sides_txt}{style_txt}")
 
     fit = views.for_driver(fits, driver)
     flagged = views.flagged_fits(fit)
@@ -46,11 +49,15 @@ def main() -> None:
         cols = st.columns(3)
         for col, ind in zip(cols, inds[start:start + 3]):
             with col:
-                fig = figures.compact(indicator_vs_speed(decisions, fits, driver, ind))
+                fig = figures.compact(indicator_vs_speed(decisions, fits, driver, ind,
+                                                         fits_by_direction=side_fits))
                 st.plotly_chart(fig, key=f"ivs_{ind}")
     st.caption("Each y axis is set by the bulk of the driver's points: a value beyond it (a TTC of minutes behind "
                "a leader that hardly closes) is drawn as a triangle at the axis edge, counted in the legend, its "
-               "value in the hover.")
+               "value in the hover."
+               + (" Presses to the left (overtaking) are blue circles, to the right (returning) orange diamonds; "
+                  "where a side has enough presses its own line is drawn dashed beside the pooled one."
+                  if sides else ""))
 
     st.subheader("Correlation with ego speed")
     corr = views.for_driver(tables.get("correlations"), driver)
@@ -70,6 +77,12 @@ def main() -> None:
         st.dataframe(views.fit_summary(fit), hide_index=True, width="stretch")
     else:
         st.caption("No fits for this driver.")
+    side_table = views.direction_fit_summary(views.for_driver(side_fits, driver))
+    if len(side_table):
+        st.subheader("Fits per direction")
+        st.caption("The same fits on the presses to each side (left: overtaking, right: returning). A side with "
+                   "too few presses has no line: its reason says so, and the pooled line above stands for it.")
+        st.dataframe(side_table, hide_index=True, width="stretch", key="fits_by_direction")
 
     st.subheader("Decisions with undefined indicators")
     bad = views.undefined_decisions(decisions, driver)

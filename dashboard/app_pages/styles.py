@@ -2,7 +2,7 @@
 
 import streamlit as st
 
-from clustering.plots import cluster_scatter, reference_lines
+from clustering.plots import DIRECTION_NAMES, cluster_scatter, line_directions, reference_lines
 from dashboard import figures, loaders, views, widgets
 from dashboard.context import workspace
 from dashboard.widgets import progress_to
@@ -73,6 +73,8 @@ def main() -> None:
         return
     for warning in views.analysis_warnings(meta):
         st.warning(warning)
+    if by_side := views.presses_by_direction_text(meta):
+        st.markdown(f"{views.plural(len(styles), 'driver')}; {by_side}.")
     chosen = views.chosen_indicators(meta)
     feats = (meta.get("summary") or {}).get("features") or {}
     st.subheader("Features the styles were read by")
@@ -101,7 +103,13 @@ def main() -> None:
     st.subheader("Reference lines per style")
     lines = tables.get("reference_lines")
     if lines is not None:
-        st.plotly_chart(reference_lines(lines, indicators=views.reference_indicators(lines, chosen)), key="ref_lines")
+        sides = line_directions(lines)
+        direction = st.radio("Lines fitted on", sides, format_func=DIRECTION_NAMES.get, horizontal=True,
+                             key="ref_direction", help="Overtaking (target lane to the left) and returning (to the "
+                             "right) presses have their own lines where the typical driver's side has enough "
+                             "presses") if len(sides) > 1 else "both"
+        st.plotly_chart(reference_lines(lines, indicators=views.reference_indicators(lines, chosen),
+                                        direction=direction), key="ref_lines")
         if table := widgets.lazy_expander("Reference lines table", key="ref_lines_open"):
             table.dataframe(lines, hide_index=True, width="stretch")
     if assignment := widgets.lazy_expander("Per-driver style assignment", key="assignment_open"):
