@@ -30,6 +30,9 @@ def drive_command(
     out: Annotated[Optional[Path], typer.Option(
         "--out", "-o", help="FILE.mcap (one section; <stem>_S<limit>.mcap for several) or a folder "
                             "(default WORKSPACE/drives/RUN_ID-sSEED/).")] = None,
+    lanes: Annotated[int, typer.Option(
+        "--lanes", help="Lanes of the highway: 2 (default) or 3; in a middle lane the agent is asked about "
+                        "each side and takes the one with the larger advantage Q(change) - Q(keep).")] = 2,
     driver_id: Annotated[Optional[str], typer.Option("--driver-id", help="driver_id of the logs (default agent-RUN_ID).")] = None,
     analyze: Annotated[bool, typer.Option("--analyze", help="Analyse the workspace's study plus the drive (in a scratch workspace) and report the agent's style.")] = False,
     workspace: WorkspaceOpt = DEFAULT_WS,
@@ -44,7 +47,7 @@ def drive_command(
             raise UserError(f"unknown --engine {engine!r}; choose one of {', '.join(ENGINES)}")
         with progress_bar(not as_json) as bar:
             return drive_run(Workspace(workspace), run_id, minutes=minutes, seed=seed, sections=section, out=out,
-                             driver_id=driver_id, analyze=analyze, progress=bar)
+                             driver_id=driver_id, analyze=analyze, lanes=lanes, progress=bar)
 
     run_command(work, as_json, render)
 
@@ -52,7 +55,8 @@ def drive_command(
 def render(result: dict[str, Any], console: Console) -> None:
     """The drive's tables: per section, then the indicators at the agent's decisions against its lines."""
     t = Table(title=f"{result['run_id']} ({result['target']['kind']} {result['target']['name']}) in SUMO "
-                    f"{result['sumo_version']}: {result['minutes']:g} min per section, seed {result['seed']}, "
+                    f"{result['sumo_version']}: {result.get('lanes', 2)} lanes, {result['minutes']:g} min per section, "
+                    f"seed {result['seed']}, "
                     f"ego vType {result['ego_style']}, asked every {result['decision_every_s']:g} s")
     cols = ("section", "asked", "decided", "lane changes (L/R)", "not started", "collisions", "emergency brakes")
     for c in cols:
@@ -63,6 +67,12 @@ def render(result: dict[str, Any], console: Console) -> None:
                   f"{r['lane_changes']} ({r['left']}/{r['right']})", str(r["not_started"]),
                   str(r["collisions"]), str(r["emergency_brakes"]))
     console.print(t)
+    if result.get("lanes", 2) > 2:
+        console.print("lane changes by lane (from>to): " + (", ".join(
+            f"{k} {v}" for k, v in result["changes_by_lane"].items()) or "none"), highlight=False, soft_wrap=True)
+        if not result.get("side_input"):
+            console.print("note: the run's observation has no side input (train with --observation direction): "
+                          "it is asked about both sides alike", highlight=False, soft_wrap=True)
     ind = result["indicators"]
     it = Table(title=f"indicators at the agent's {ind['n_decisions']} changes vs its target's lines "
                      f"({ind['lines'].get('source') or 'run lines'})")

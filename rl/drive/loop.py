@@ -10,8 +10,13 @@ parameters). What changes is who decides a lane change:
   own; a TraCI request is carried out unless it would collide at once).
 - Every ``dt_s`` of the run's `EnvConfig` (0.5 s, the decision rate it was trained
   at), while the ego is at its lane centre (no lane change under way), the agent is
-  asked about the other lane (lane 0 -> 1, lane 1 -> 0; a road with one lane has no
-  target and the agent is never asked). Its observation is built exactly as in
+  asked about each neighbouring lane (two lanes: the other lane; three lanes: from the
+  middle lane both, one Scene per side whose ``left`` says which, so an agent with the
+  'direction' observation knows the side it is asked about). It changes to the side
+  with the larger advantage ``Q(change) - Q(keep)`` when that is not negative (a tie
+  counts as change, as in training's argmax, `rl.learners.dqn.greedy_actions`), and
+  keeps otherwise (`choose_side`); with one neighbour this is exactly the argmax of
+  the two-lane loop. Its observation is built exactly as in
   training (`rl.problem.env.observation` on a `Scene`) from the live SUMO state, read the
   way the analysis reads a log (`indicators/decisions.py`): ``C_f`` = nearest
   vehicle ahead in the ego lane, ``C_nf`` / ``C_nb`` = nearest ahead / behind or
@@ -43,7 +48,7 @@ from laneprint.simulator.sumo.section import EGO_ID, SectionLog, run_section
 from laneprint.simulator.sumo.settings import SumoSettings
 from laneprint.simulator.sumo.traffic import VehicleState
 from rl.problem.env import EnvConfig
-from rl.problem.rewards import CHANGE
+from rl.problem.rewards import CHANGE, KEEP
 from rl.problem.scene import Scene, indicators
 
 #: setLaneChangeMode bits: 0-7 = 0 (no change of the ego's own), 8-9 = 01 (a TraCI request
@@ -51,14 +56,39 @@ from rl.problem.scene import Scene, indicators
 REQUEST_MODE = 0b01_00000000
 N_LANES = 2
 
-Policy = Callable[[Scene], np.ndarray]
+#: Q-values of a batch of scenes, shape (n, 2), columns indexed by `CHANGE` and `KEEP`.
+QFunction = Callable[[Scene], np.ndarray]
 
 
 def target_lane(lane: int, n_lanes: int = N_LANES) -> Optional[int]:
-    """The lane the agent is asked about: the other lane of a two-lane road (None with one lane)."""
+    """The lane the agent is asked about on a two-lane road: the other lane (None with one lane)."""
     if n_lanes < 2:
         return None
     return lane + 1 if lane == 0 else lane - 1
+
+
+def neighbour_lanes(lane: int, n_lanes: int = N_LANES) -> list[int]:
+    """The lanes next to `lane` on a road of `n_lanes` (lane 0 rightmost): the left one first, then the right."""
+    return [k for k in (lane + 1, lane - 1) if 0 <= k < n_lanes]
+
+
+def advantages(q: np.ndarray) -> np.ndarray:
+    """Q(change) - Q(keep) of each row of a (n, 2) array of Q-values."""
+    q = np.asarray(q, dtype=float)
+    return q[:, CHANGE] - q[:, KEEP]
+
+
+def choose_side(adv: dict[int, float]) -> Optional[int]:
+    """The target lane with the largest advantage when it is not negative, else None (keep).
+
+    `adv` maps each neighbouring lane to Q(change) - Q(keep) of the scene asking about it. A
+    tie with keep (advantage exactly 0) counts as change, as training's argmax does; a tie
+    between two sides goes to the lower lane (the right one: keep right).
+    """
+    if not adv:
+        return None
+    lane = max(sorted(adv), key=lambda k: adv[k])  # max keeps the first of equals: the lower lane
+    return lane if adv[lane] >= 0 else None
 
 
 def live_scene(ego: VehicleState, others: dict[str, VehicleState], target: int) -> tuple[Scene, dict[str, Any]]:
@@ -96,13 +126,14 @@ class Decision:
     ids: dict[str, Optional[str]]
     started: bool = False  # a lane change started within dt_s after it
     press_t_s: Optional[float] = None
+    advantages: dict[str, float] = field(default_factory=dict)  # side ('left'/'right') -> Q(change) - Q(keep)
 
 
 class AgentControl:
-    """The `EgoControl` of `run_section`: asks `policy` every `dt_s` and requests its changes."""
+    """The `EgoControl` of `run_section`: asks the agent (`q`) every `dt_s` and requests its changes."""
 
-    def __init__(self, policy: Policy, cfg: EnvConfig, step_s: float, n_lanes: int = N_LANES) -> None:
-        self.policy = policy
+    def __init__(self, q: QFunction, cfg: EnvConfig, step_s: float, n_lanes: int = N_LANES) -> None:
+        self.q = q
         self.cfg = cfg
         self.every = max(1, int(round(cfg.dt_s / step_s)))
         self.n_lanes = n_lanes
@@ -118,16 +149,21 @@ class AgentControl:
         self._steps += 1
         if self._steps % self.every or abs(lateral_m) > 1e-6:
             return  # not a decision step, or a lane change is under way
-        target = target_lane(ego.lane, self.n_lanes)
+        lanes = neighbour_lanes(ego.lane, self.n_lanes)
+        if not lanes:
+            return
+        asked = {lane: live_scene(ego, others, lane) for lane in lanes}
+        adv = dict(zip(lanes, advantages(self.q(Scene.concat([asked[k][0] for k in lanes])))))
+        self.n_asked += 1
+        target = choose_side(adv)
         if target is None:
             return
-        scene, ids = live_scene(ego, others, target)
-        self.n_asked += 1
-        if int(self.policy(scene)[0]) != CHANGE:
-            return
+        scene, ids = asked[target]
         ind = indicators(scene, self.cfg.far_follower_m, self.cfg.range_m)
         self.decisions.append(Decision(t, ego.lane, target, ego.v, _defined(ind.t_f, ind.t_f_ok),
-                                       _defined(ind.t_nf, ind.t_nf_ok), _defined(ind.dv_nb, ind.dv_nb_ok), ids))
+                                       _defined(ind.t_nf, ind.t_nf_ok), _defined(ind.dv_nb, ind.dv_nb_ok), ids,
+                                       advantages={("left" if k > ego.lane else "right"): float(a)
+                                                   for k, a in adv.items()}))
         api.vehicle.changeLane(EGO_ID, target, self.cfg.dt_s)
 
 
@@ -160,9 +196,9 @@ def drive_seed(seed: int, section_index: int) -> tuple[np.random.Generator, int]
     return np.random.default_rng(ss), int(ss.generate_state(1)[0] % (2**31 - 1))
 
 
-def drive_sections(policy: Policy, cfg: EnvConfig, ego_params: dict[str, float], settings: SumoSettings,
+def drive_sections(q: QFunction, cfg: EnvConfig, ego_params: dict[str, float], settings: SumoSettings,
                    seed: int, progress: Optional[ProgressFn] = None) -> list[SectionDrive]:
-    """Drive every section of `settings` with the agent; SUMO runs one after the other."""
+    """Drive every section of `settings` (its `n_lanes`) with the agent `q`; SUMO runs one after the other."""
     out = []
     limits = list(settings.speed_limits_kph)
     with tempfile.TemporaryDirectory(prefix="laneprint-drive-") as workdir:
@@ -173,7 +209,7 @@ def drive_sections(policy: Policy, cfg: EnvConfig, ego_params: dict[str, float],
             net = build_network(folder, settings, float(limit))
             routes = write_routes(folder / "ego.rou.xml", ego_params, settings)
             rng, sumo_seed = drive_seed(seed, j)
-            control = AgentControl(policy, cfg, settings.step_s)
+            control = AgentControl(q, cfg, settings.step_s, settings.n_lanes)
             log = run_section(settings, net, routes, float(limit), sumo_seed, rng, folder, control)
             match_presses(control.decisions, log.lane_changes, cfg.dt_s)
             out.append(SectionDrive(float(limit), log, control.n_asked, control.decisions))

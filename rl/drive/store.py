@@ -25,14 +25,19 @@ from laneprint.errors import UserError
 from laneprint.progress import ProgressFn
 from laneprint.reference import INDICATORS, SPEED_LIMITS_KPH
 from laneprint.workspace import Workspace, atomic_write_json
-from rl.drive.loop import SectionDrive, drive_sections, recordings
-from rl.problem.env import EnvConfig
-from rl.evaluation.evaluate import agent_policy
+from rl.drive.loop import QFunction, SectionDrive, drive_sections, recordings
+from rl.learners.dqn import q_values
+from rl.problem.env import EnvConfig, observation
 from rl.problem.rewards import ReferenceLines
 from rl.runs import Target, load_weights, run_dir
 
 DEFAULT_STYLE = "Normal"
 _ATTR = {"t_f": "t_f_s", "t_nf": "t_nf_s", "dv_nb": "dv_nb_mps"}  # indicator -> `Decision` field
+
+
+def agent_q(net: Any, cfg: EnvConfig) -> QFunction:
+    """The trained agent's Q-values of a batch of scenes (the run's observation), shape (n, 2)."""
+    return lambda scene: q_values(net, observation(scene, cfg))
 
 
 def load_run_config(workspace: Workspace, run_id: str) -> dict[str, Any]:
@@ -104,6 +109,10 @@ def section_rows(drives: list[SectionDrive], paths: list[Path]) -> list[dict[str
     rows = []
     for d, path in zip(drives, paths):
         made = [c for c in d.log.lane_changes if c["changed"]]
+        by_lane: dict[str, int] = {}
+        for c in made:
+            key = f"{c['from_lane']}>{c['target_lane']}"
+            by_lane[key] = by_lane.get(key, 0) + 1
         rows.append({
             "speed_limit_kph": d.speed_limit_kph, "file": str(path), "sumo_seed": d.log.sumo_seed,
             "duration_s": float(d.log.ego["t_s"].iloc[-1]), "decisions_asked": d.n_asked,
@@ -111,8 +120,17 @@ def section_rows(drives: list[SectionDrive], paths: list[Path]) -> list[dict[str
             "left": sum(c["direction"] == "left" for c in made), "right": sum(c["direction"] == "right" for c in made),
             "not_started": sum(not x.started for x in d.decisions),
             "collisions": d.log.n_collisions, "emergency_brakes": d.log.n_emergency_brakes,
+            "changes_by_lane": dict(sorted(by_lane.items())),
         })
     return rows
+
+
+def _sum_counts(counts: list[dict[str, int]]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for c in counts:
+        for k, v in c.items():
+            out[k] = out.get(k, 0) + v
+    return dict(sorted(out.items()))
 
 
 def analysis_settings(workspace: Workspace) -> Any:
@@ -155,13 +173,15 @@ def assigned_style(workspace: Workspace, files: list[Path], driver_id: str) -> d
 
 def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed: int = 0,
               sections: Optional[list[float]] = None, out: Optional[Path] = None,
-              driver_id: Optional[str] = None, analyze: bool = False,
+              driver_id: Optional[str] = None, analyze: bool = False, lanes: int = 2,
               progress: Optional[ProgressFn] = None) -> dict[str, Any]:
-    """Drive the run's agent in SUMO; write the MCAPs; a JSON-ready report."""
+    """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report."""
     from laneprint.simulator.sumo.backend import check_available
-    from laneprint.simulator.sumo.settings import SumoSettings
+    from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, LANES, family_settings
     from laneprint.simulator.sumo.styles import STYLE_PARAMS
 
+    if lanes not in LANES:
+        raise UserError(f"--lanes {lanes}: a SUMO highway has {' or '.join(map(str, LANES))} lanes")
     if not 0 < minutes <= 120:
         raise UserError("--minutes must be more than 0 and at most 120")
     config = load_run_config(workspace, run_id)
@@ -175,9 +195,10 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
         raise UserError(f"--out {out} exists and is not a folder")
     check_available()
     style, why = ego_style(workspace, target)
-    settings = replace(SumoSettings(), speed_limits_kph=limits, minutes=minutes)
-    drives = drive_sections(agent_policy(net, cfg), cfg, STYLE_PARAMS[style], settings, seed, progress)
-    simulator = f"Eclipse SUMO {drives[0].log.sumo_version} (laneprint drive {run_id}, seed {seed})"
+    settings = family_settings(DEFAULT_FAMILY, lanes, speed_limits_kph=limits, minutes=minutes)
+    drives = drive_sections(agent_q(net, cfg), cfg, STYLE_PARAMS[style], settings, seed, progress)
+    lanes_opt = "" if lanes == 2 else f", {lanes} lanes"
+    simulator = f"Eclipse SUMO {drives[0].log.sumo_version} (laneprint drive {run_id}, seed {seed}{lanes_opt})"
     recs = recordings(drives, driver_id, simulator)
     paths = output_paths(out, [meta["session_id"] for meta, _, _ in recs])
     for path, (meta, ego, traffic) in zip(paths, recs):
@@ -187,11 +208,13 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     result: dict[str, Any] = {
         "run_id": run_id, "target": config["target"], "driver_id": driver_id, "seed": seed, "minutes": minutes,
         "sumo_version": drives[0].log.sumo_version, "sumo_api": drives[0].log.api,
-        "ego_style": style, "ego_style_reason": why, "decision_every_s": cfg.dt_s,
+        "ego_style": style, "ego_style_reason": why, "decision_every_s": cfg.dt_s, "lanes": lanes,
+        "side_input": cfg.observation == "direction",
         "files": [str(p) for p in paths], "sections": rows,
         "totals": {k: sum(r[k] for r in rows) for k in ("decisions_asked", "change_decisions", "lane_changes",
                                                         "left", "right", "not_started", "collisions",
                                                         "emergency_brakes")},
+        "changes_by_lane": _sum_counts([r["changes_by_lane"] for r in rows]),
         "indicators": indicators_vs_lines(drives, cfg.lines),
         "decisions": [{"speed_limit_kph": d.speed_limit_kph, **asdict(x)} for d in drives for x in d.decisions],
     }

@@ -18,10 +18,12 @@ from laneprint.cli import app
 from laneprint.errors import UserError
 from laneprint.simulator.sumo.traffic import VehicleState
 from laneprint.workspace import Workspace
-from rl.drive.loop import Decision, live_scene, match_presses, target_lane
+from rl.drive.loop import (AgentControl, Decision, choose_side, live_scene, match_presses, neighbour_lanes,
+                           target_lane)
 from rl.drive.store import output_paths
 from rl.problem.env import EnvConfig, observation
-from rl.problem.scene import indicators
+from rl.problem.rewards import CHANGE, KEEP
+from rl.problem.scene import Scene, indicators
 
 runner = CliRunner()
 
@@ -61,6 +63,87 @@ def test_missing_vehicles_are_shown_as_in_training():
 
 def test_target_lane_is_the_other_lane():
     assert (target_lane(0), target_lane(1), target_lane(0, n_lanes=1)) == (1, 0, None)
+
+
+def test_neighbour_lanes_left_first():
+    assert [neighbour_lanes(k, 3) for k in range(3)] == [[1], [2, 0], [1]]
+    assert [neighbour_lanes(k, 2) for k in range(2)] == [[1], [0]] and neighbour_lanes(0, 1) == []
+
+
+def test_choose_side_takes_the_larger_positive_advantage_and_keeps_otherwise():
+    assert choose_side({2: 0.3, 0: 0.7}) == 0
+    assert choose_side({2: 0.9, 0: 0.1}) == 2
+    assert choose_side({2: 0.4, 0: -2.0}) == 2
+    assert choose_side({2: -0.1, 0: -0.5}) is None  # neither side is worth a change: keep
+    assert choose_side({1: -1e-6}) is None and choose_side({}) is None
+    assert choose_side({1: 0.0}) == 1  # a tie with keep is a change, as training's argmax (two lanes unchanged)
+
+
+class _Vehicle:
+    """The two calls AgentControl makes of SUMO's vehicle API, recorded."""
+
+    def __init__(self) -> None:
+        self.requests: list[tuple[str, int, float]] = []
+
+    def setLaneChangeMode(self, vid: str, mode: int) -> None:
+        pass
+
+    def changeLane(self, vid: str, lane: int, duration: float) -> None:
+        self.requests.append((vid, lane, duration))
+
+
+class _Api:
+    def __init__(self) -> None:
+        self.vehicle = _Vehicle()
+
+
+def _stub_q(adv_left: float, adv_right: float, seen: list) -> "object":
+    """A stub agent: Q(keep) = 0 and Q(change) = the given advantage of the side each scene asks about."""
+    def q(scene: Scene) -> np.ndarray:
+        seen.append(scene.left.copy())
+        out = np.zeros((len(scene), 2))
+        out[:, CHANGE] = np.where(scene.left, adv_left, adv_right)
+        out[:, KEEP] = 0.0
+        return out
+    return q
+
+
+def _ask_once(q, lane: int, n_lanes: int) -> tuple[AgentControl, _Api]:
+    """One decision of the ego in `lane` (the agent is asked every dt_s = 5 steps of 0.1 s)."""
+    control, api = AgentControl(q, EnvConfig(observation="direction"), 0.1, n_lanes), _Api()
+    control.start(api)
+    ego = VehicleState(x=100.0, v=25.0, lane=lane, length=4.5)
+    others = {"f": VehicleState(140.0, 18.0, lane, 4.5), "l": VehicleState(160.0, 24.0, 2, 4.5),
+              "r": VehicleState(130.0, 20.0, 0, 4.5)}
+    for i in range(5):
+        control.step(api, 0.1 * i, ego, 0.0, others)
+    return control, api
+
+
+def test_middle_lane_asks_each_side_and_takes_the_larger_advantage():
+    seen: list = []
+    control, api = _ask_once(_stub_q(0.2, 0.5, seen), lane=1, n_lanes=3)
+    assert [list(s) for s in seen] == [[True, False]]  # one scene per side, the left one first
+    assert control.n_asked == 1 and api.vehicle.requests == [("ego", 0, 0.5)]
+    (d,) = control.decisions
+    assert (d.from_lane, d.target_lane) == (1, 0) and d.advantages == pytest.approx({"left": 0.2, "right": 0.5})
+    assert d.ids == {"f": "f", "nf": "r", "nb": None}  # the chosen side's scene
+    control, api = _ask_once(_stub_q(0.9, 0.5, []), lane=1, n_lanes=3)
+    assert api.vehicle.requests == [("ego", 2, 0.5)] and control.decisions[0].ids["nf"] == "l"
+
+
+def test_keeps_when_neither_side_has_a_positive_advantage():
+    control, api = _ask_once(_stub_q(-0.2, -0.01, []), lane=1, n_lanes=3)
+    assert control.n_asked == 1 and control.decisions == [] and api.vehicle.requests == []
+
+
+def test_outer_lanes_and_two_lanes_ask_about_one_side():
+    seen: list = []
+    _, api = _ask_once(_stub_q(0.3, 0.3, seen), lane=2, n_lanes=3)
+    assert [list(s) for s in seen] == [[False]] and api.vehicle.requests == [("ego", 1, 0.5)]
+    seen.clear()
+    _, api = _ask_once(_stub_q(0.3, -0.3, seen), lane=0, n_lanes=2)
+    assert [list(s) for s in seen] == [[True]] and api.vehicle.requests == [("ego", 1, 0.5)]
 
 
 def test_decisions_are_matched_to_the_lane_change_they_started():
@@ -141,3 +224,28 @@ def test_drive_refuses_an_unknown_run_and_section(trained):
     assert res.exit_code == 1 and "--section 100" in res.output
     res = runner.invoke(app, ["drive", run_id, "--engine", "carla", "-w", str(ws)])
     assert res.exit_code == 1 and "unknown --engine" in res.output
+    for bad in ("1", "7"):
+        res = runner.invoke(app, ["drive", run_id, "--lanes", bad, "-w", str(ws)])
+        assert res.exit_code == 1 and f"--lanes {bad}:" in res.output and "Traceback" not in res.output
+
+
+@pytest.mark.slow
+def test_drive_on_three_lanes(trained, tmp_path):
+    ws, run_id = trained
+    res = _invoke("drive", run_id, "--engine", "sumo", "--lanes", "3", "--minutes", "1", "--section", "90",
+                  "--seed", "2", "--out", str(tmp_path / "d3"), "-w", str(ws))
+    assert res["lanes"] == 3 and res["totals"]["collisions"] == 0
+    assert set(res["changes_by_lane"]) <= {"0>1", "1>0", "1>2", "2>1"}
+    assert sum(res["changes_by_lane"].values()) == res["totals"]["lane_changes"] > 0
+    for d in res["decisions"]:
+        assert set(d["advantages"]) == ({"left", "right"} if d["from_lane"] == 1 else
+                                        {"left" if d["from_lane"] == 0 else "right"})
+        side = "left" if d["target_lane"] > d["from_lane"] else "right"
+        assert d["advantages"][side] == max(d["advantages"].values()) >= 0
+    (meta, ego, _), = [r for r in _ingested(tmp_path / "d3", tmp_path / "ws3")]
+    assert set(ego["ego_lane"].unique()) <= {0, 1, 2}
+
+
+def _ingested(folder: Path, ws: Path) -> list:
+    _invoke("ingest", str(folder), "--driver", "agent", "-w", str(ws))
+    return list(Workspace(ws).iter_recordings())
