@@ -53,7 +53,7 @@ STYLE_PARAMS: dict[str, dict[str, float]] = {
 ACCEPTANCE_STYLE_PARAMS: dict[str, dict[str, float]] = {
     "Defensive": {
         "tau": 2.8, "minGap": 5.0, "accel": 1.2, "decel": 2.0, "speedFactor": 1.0,
-        "lcAssertive": 1.3, "lcSpeedGain": 1.0, "lcKeepRight": 1.5, "lcCooperative": 1.0,
+        "lcAssertive": 1.6, "lcSpeedGain": 2.5, "lcKeepRight": 1.5, "lcCooperative": 1.0,
     },
     "Normal": {
         "tau": 1.4, "minGap": 2.5, "accel": 2.0, "decel": 2.8, "speedFactor": 1.07,
