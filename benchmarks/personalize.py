@@ -157,7 +157,7 @@ def plot(tab: pd.DataFrame, path: Path, title: str) -> None:
                      "arrayminus": 100 * (g["balanced_accuracy"] - g["ba_lo"])}))
     fig.update_layout(title=title, xaxis_title="decisions of the new driver (K)",
                       yaxis_title="held-out balanced accuracy [%] (95 % CI)", template="plotly_white")
-    fig.write_html(path, include_plotlyjs="cdn")
+    fig.write_html(path, include_plotlyjs=True)  # opens offline
 
 
 def main() -> None:

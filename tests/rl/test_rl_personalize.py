@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 
 import pandas as pd
@@ -95,6 +96,9 @@ def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(s
     assert any(r["run_id"] == "p5" and r["state"] == "done" for r in json.loads(runs.stdout)["runs"])
     ev = CliRunner().invoke(app, ["evaluate", "p5", "-w", str(study.root), "--json"])
     assert ev.exit_code == 0, ev.output
+    if importlib.util.find_spec("onnxruntime"):
+        exp = CliRunner().invoke(app, ["export", "p5", "-w", str(study.root), "--json"])
+        assert exp.exit_code == 0, exp.output
     again = CliRunner().invoke(app, ["train", "--resume", "p5", "-w", str(study.root)])
     assert again.exit_code == 1 and "was personalised" in again.stderr  # a resume would train on all its data
 
