@@ -93,6 +93,8 @@ def render_readme(study: SumoStudy, fmt: str, files: list[dict[str, Any]]) -> st
         + (f" slower left-lane cars at {_range(s.left_speed_frac)} x the limit;" if "left" in s.ahead_streams else "")
         + f" now and then a faster car ({_range(s.fast_speed_frac)} x) from behind",
         f"in the {'left' if s.n_lanes == 2 else 'leftmost'} lane. A vehicle is in the log while its centre is within {s.scene_range_m:g} m of the ego's.",
+        *([f"Background vehicles dawdle (Krauss sigma {s.background_sigma:g}): their speeds waver."]
+          if s.background_sigma > 0 else []),
         "",
         "The lane-change button is pressed at the first sample at which the ego leaves its lane",
         f"centre (SUMO has begun the manoeuvre), held {s.button_hold_s:g} s, with `lc_direction`; "
