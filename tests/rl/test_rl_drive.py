@@ -249,3 +249,17 @@ def test_drive_on_three_lanes(trained, tmp_path):
 def _ingested(folder: Path, ws: Path) -> list:
     _invoke("ingest", str(folder), "--driver", "agent", "-w", str(ws))
     return list(Workspace(ws).iter_recordings())
+
+
+def test_side_rules_replayed_offline_agree_with_the_loop():
+    import pandas as pd
+
+    from rl.drive.sides import RULES, _pick
+
+    df = pd.DataFrame({"adv_left": [0.2, 0.9, -0.1, 0.3, 0.0], "adv_right": [0.5, 0.1, -0.2, -0.3, -1.0]})
+    assert RULES[0] == "larger"
+    assert list(_pick(df, "larger")) == ["right", "left", "keep", "left", "left"]
+    assert list(_pick(df, "larger")) == [{2: "left", 0: "right", None: "keep"}[choose_side({2: a, 0: b})]
+                                         for a, b in zip(df["adv_left"], df["adv_right"])]
+    assert list(_pick(df, "right_first")) == ["right", "right", "keep", "left", "left"]
+    assert list(_pick(df, "left_first")) == ["left", "left", "keep", "left", "left"]
