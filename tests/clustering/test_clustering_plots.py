@@ -19,7 +19,8 @@ def test_indicator_vs_speed(tables):
     fig = indicator_vs_speed(tables["decisions"], tables["fits"], "D0000", "t_f")
     assert isinstance(fig, go.Figure)
     names = [t.name for t in fig.data]
-    assert names == ["used", "prediction band", "confidence band", "OLS line"]
+    # the synthetic table's presses all go to the left: one trace of used presses, named by direction
+    assert names == ["used, to the left (20)", "prediction band", "confidence band", "OLS line"]
     assert "[m/s]" in fig.layout.xaxis.title.text and "[s]" in fig.layout.yaxis.title.text
     assert len(fig.data[0].x) == 20
 
@@ -30,7 +31,7 @@ def test_indicator_vs_speed_without_fit(tables):
     fits.loc[:, "status"] = "skipped"
     fits.loc[:, "reason"] = "too few defined values: 1 < 5"
     fig = indicator_vs_speed(dec, fits, "D0001", "dv_nb")
-    assert [t.name for t in fig.data] == ["used"]
+    assert [t.name for t in fig.data] == ["used, to the left (20)"]
     assert "no fit: too few" in fig.layout.title.text and "[m/s]" in fig.layout.yaxis.title.text
 
 
