@@ -7,8 +7,9 @@ Table 1, every evaluated run's in-sample and held-out figures (agent, greedy,
 imitation, with intervals), and provenance (code version, settings, data
 fingerprints). Figures are interactive Plotly figures whose JavaScript is inlined
 once, so the file opens offline and requests nothing from any host. Beside it,
-`<FILE>_files/` holds every table as CSV and every figure as Plotly JSON (and as
-SVG when `kaleido` is installed; it is not a dependency).
+`<FILE>_files/` holds every table as CSV and every figure as Plotly JSON, and as SVG
+when `kaleido` is installed (`pip install -e '.[report]'`; it draws with a local
+Chrome or Chromium, offline).
 
 Pure assembly over the workspace: `build_report(ws)` returns the sections; `render_html`
 writes them out; `report_command` is the CLI.
@@ -299,15 +300,13 @@ def render_html(sections: list[Section], prov: dict[str, Any], title: str = "lan
     return "".join(parts)
 
 
-def write_assets(sections: list[Section], folder: Path) -> dict[str, list[str]]:
-    """Every table as CSV and every figure as Plotly JSON (and SVG with kaleido) under `folder`."""
+def write_assets(sections: list[Section], folder: Path, svg: bool = True) -> dict[str, Any]:
+    """Every table as CSV and every figure as Plotly JSON under `folder`; with `svg` and `kaleido`
+    installed (the `report` extra), every figure as SVG too, all drawn in one headless Chrome session
+    (kaleido starts the browser once per call: 10-15 s). `svg_note` says why there is no SVG, if so."""
     folder.mkdir(parents=True, exist_ok=True)
-    written: dict[str, list[str]] = {"tables": [], "figures": []}
-    try:
-        import kaleido  # noqa: F401
-        svg = True
-    except ImportError:
-        svg = False
+    written: dict[str, Any] = {"tables": [], "figures": [], "svg": [], "svg_note": ""}
+    figures: list[tuple[go.Figure, Path]] = []
     for sec in sections:
         for kind, item in sec.items:
             if kind == "table":
@@ -318,13 +317,27 @@ def write_assets(sections: list[Section], folder: Path) -> dict[str, list[str]]:
                 path = folder / f"{_safe(item[0])}.json"
                 path.write_text(item[1].to_json())
                 written["figures"].append(path.name)
-                if svg:
-                    try:
-                        item[1].write_image(folder / f"{_safe(item[0])}.svg")
-                        written["figures"].append(f"{_safe(item[0])}.svg")
-                    except Exception:  # no browser for kaleido: the JSON stays
-                        svg = False
+                figures.append((item[1], folder / f"{_safe(item[0])}.svg"))
+    if svg and figures:
+        written["svg"], written["svg_note"] = write_svgs(figures)
     return written
+
+
+def write_svgs(figures: list[tuple[go.Figure, Path]]) -> tuple[list[str], str]:
+    """The figures as SVG files with kaleido (one browser session for all); (names written, '' or why none)."""
+    try:
+        import kaleido  # noqa: F401
+    except ImportError:
+        return [], "no SVG: kaleido is not installed (pip install -e '.[report]')"
+    import plotly.io as pio
+
+    try:
+        pio.write_images([f for f, _ in figures], [p for _, p in figures], format="svg")
+    except Exception as exc:  # kaleido finds no Chrome/Chromium (or it fails to start): the JSON stays
+        for _, p in figures:
+            p.unlink(missing_ok=True)
+        return [], f"no SVG: kaleido could not draw ({type(exc).__name__}: {str(exc).splitlines()[0][:200]})"
+    return [p.name for _, p in figures], ""
 
 
 def report_html(ws: Workspace) -> str:
@@ -359,7 +372,7 @@ def report_command(
     workspace: WorkspaceOpt = DEFAULT_WS,
     out: Annotated[Path | None, typer.Option(
         "--out", "-o", help="The HTML file to write (default <workspace>/report.html); tables (CSV) and figures "
-                            "(Plotly JSON, SVG with kaleido) go to <name>_files/ beside it.")] = None,
+                            "(Plotly JSON; SVG with the report extra, kaleido) go to <name>_files/ beside it.")] = None,
     no_assets: Annotated[bool, typer.Option("--no-assets", help="Only the HTML file.")] = False,
     as_json: JsonOpt = False,
 ) -> None:
@@ -375,6 +388,9 @@ def report_command(
     if as_json:
         sys.stdout.write(json.dumps(result) + "\n")
         return
+    written = result.get("written") or {}
     console.print(f"report written to [bold]{result['report']}[/bold] ({result['bytes'] / 1e6:.1f} MB, "
                   f"{result['figures']} figures, {result['tables']} tables, {result['seconds']} s)"
-                  + (f"; tables and figures in {result['assets']}" if result["assets"] else ""), highlight=False)
+                  + (f"; tables and figures in {result['assets']}" if result["assets"] else "")
+                  + (f" ({len(written['svg'])} figures as SVG)" if written.get("svg") else "")
+                  + (f"; {written['svg_note']}" if written.get("svg_note") else ""), highlight=False)
