@@ -1,7 +1,7 @@
 """Time to first render of each dashboard page on a workspace of 100 drivers x 50 decisions and their fleet.
 
     python benchmarks/dashboard.py [--drivers 100] [--decisions 50] [--fleet 100] [--repeat 5] [--browser]
-                                   [--keep DIR] [--baseline DIR]
+                                   [--keep DIR] [--baseline DIR|REV]
 
 The workspace is generated in a temporary folder: one short recording per driver
 (`indicators.synthetic.make_recording`), the analysis of a synthetic decisions
@@ -22,12 +22,14 @@ and 'browser warm': from `goto` in a new tab of a new browser context (nothing c
 this includes loading Streamlit's and Plotly's JavaScript, several MB, as on a first
 visit); 'cold' touches the workspace folders first so the cached loaders miss. 'browser
 nav': in that tab, from the click on the page's sidebar link (coming from another page
-with a chart) -- how the pages switch once the dashboard is open. 'floor': the
+with a chart: `NAV_FROM`) -- how the pages switch once the dashboard is open; 'curves': on Results,
+from the click on the "Training curves" expander to its chart drawn. 'floor': the
 same fresh-tab measurement of a one-chart Streamlit page, visited in turn with the
 pages: what opening any Streamlit + Plotly page costs on this machine.
 
-`--keep DIR` keeps the workspace for the next run; `--baseline DIR` times the code in
-DIR too (e.g. main in a `git worktree`), its pages visited in turn with this checkout's.
+`--keep DIR` keeps the workspace for the next run; `--baseline DIR|REV` times the code in
+DIR, or of a git revision (exported with `git archive`), too, its pages visited in turn with this
+checkout's. A small study: `--drivers 12 --fleet 0`.
 """
 
 from __future__ import annotations
@@ -201,10 +203,17 @@ def serve_floor(folder: Path, ws: Workspace):
     return proc, f"http://127.0.0.1:{port}"
 
 
+#: The page each page is reached from in 'browser nav' (the switches issue 23 timed: Drivers -> Training,
+#: Data -> Styles, Training -> Results).
+NAV_FROM = {"data": "drivers", "drivers": "data", "styles": "data", "training": "drivers", "results": "training"}
+CURVES = "Training curves (Fig. 9)"
+
+
 def browser_times(ws: Workspace, repeat: int, codes: list[Path],
-                  floor: list[float] | None = None) -> list[dict[str, tuple[float, float, float]]]:
+                  floor: list[float] | None = None) -> list[dict[str, tuple[float, ...]]]:
     """Per code folder: (cold, warm, nav) median seconds to a drawn page in headless Chromium, the
-    folders' servers visited in turn (the same load on each)."""
+    folders' servers visited in turn (the same load on each); and for 'results curves' the time from
+    the click on the Results page's "Training curves" expander to its chart drawn."""
     import signal
     import urllib.request
 
@@ -215,7 +224,7 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path],
     servers = [serve(code, ws) for code in codes]
     floor_dir = Path(tempfile.mkdtemp(prefix="laneprint-floor-")) if floor is not None else None
     floor_server = serve_floor(floor_dir, ws) if floor_dir else None
-    times = [{page: ([], [], []) for page in PAGE_NAMES} for _ in codes]
+    times = [{page: ([], [], []) for page in PAGE_NAMES} | {"curves": ([],)} for _ in codes]
     try:
         for _, url in servers + ([floor_server] if floor_server else []):
             for _ in range(600):
@@ -246,14 +255,21 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path],
                 t0 = time.perf_counter()
                 page.goto(f"{url}/{BROWSER_PAGES[name][0]}")
                 opened = drawn(page, name, t0)
-                other = "data" if name == "drivers" else "drivers"
+                other = NAV_FROM[name]
                 page.locator('[data-testid="stSidebarNav"] a', has_text=BROWSER_PAGES[other][1]).first.click()
                 drawn(page, other, time.perf_counter())
                 t0 = time.perf_counter()
                 page.locator('[data-testid="stSidebarNav"] a', has_text=BROWSER_PAGES[name][1]).first.click()
                 nav = drawn(page, name, t0)
+                curves = None
+                if name == "results" and page.get_by_text(CURVES).count():
+                    t0 = time.perf_counter()
+                    page.get_by_text(CURVES).first.click()
+                    expect(page.locator('[class*="st-key-fig9_"] .js-plotly-plot').first).to_be_visible(
+                        timeout=120_000)
+                    curves = drawn(page, name, t0)
                 ctx.close()
-                return opened, nav
+                return opened, nav, curves
 
             for name in PAGE_NAMES:
                 for _, url in servers:
@@ -264,10 +280,12 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path],
                         for sub in ("recordings", "analysis", *(str(p.relative_to(ws.root))
                                                                 for p in ws.root.glob("fleets/*/fleet.json"))):
                             os.utime(ws.root / sub)  # new cache keys: the loaders read again
-                        cold, _ = visit(url, name)
-                        warm, nav = visit(url, name)
+                        cold, _, _ = visit(url, name)
+                        warm, nav, curves = visit(url, name)
                         for series, v in zip(t[name], (cold, warm, nav)):
                             series.append(v)
+                        if curves is not None:
+                            t["curves"][0].append(curves)
                     if floor_server is not None:  # the floor under the same load, in turn with the pages
                         ctx = browser.new_context(viewport={"width": 1400, "height": 1200})
                         page = ctx.new_page()
@@ -282,7 +300,20 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path],
             proc.wait()
         if floor_dir:
             shutil.rmtree(floor_dir, ignore_errors=True)
-    return [{name: tuple(statistics.median(v) for v in series) for name, series in t.items()} for t in times]
+    return [{name: tuple(statistics.median(v) if v else float("nan") for v in series) for name, series in t.items()}
+            for t in times]
+
+
+def checkout(rev: str) -> Path:
+    """The code of git revision `rev` of this repository in a temporary folder (`git archive`: the
+    working tree and the index are left alone)."""
+    import subprocess
+
+    repo = PAGES.parents[1]
+    folder = Path(tempfile.mkdtemp(prefix=f"laneprint-{rev[:12]}-"))
+    archive = subprocess.run(["git", "archive", "--format=tar", rev], cwd=repo, check=True, capture_output=True)
+    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive.stdout, check=True)
+    return folder
 
 
 def main() -> None:
@@ -299,9 +330,10 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None,
                     help="build the workspace in this folder and keep it; reuse it when it is there already "
                          "(the same workspace before and after a change)")
-    ap.add_argument("--baseline", type=Path, default=None,
-                    help="also time the dashboard of the code in this folder (e.g. `git worktree add /tmp/main "
-                         "main`), its pages visited in turn with this checkout's: before and after in one run")
+    ap.add_argument("--baseline", default=None, metavar="DIR|REV",
+                    help="also time the dashboard of the code in this folder, or of this git revision of the "
+                         "repository (e.g. HEAD~3; exported with `git archive` to a temporary folder), its pages "
+                         "visited in turn with this checkout's: before and after in one run")
     ap.add_argument("--code", type=Path, default=None, help=argparse.SUPPRESS)  # the pages timed (--baseline)
     ap.add_argument("--script-json", action="store_true", help=argparse.SUPPRESS)  # script times as JSON only
     args = ap.parse_args()
@@ -322,7 +354,9 @@ def main() -> None:
         print(f"workspace: {args.drivers} drivers x {args.decisions} decisions, "
               f"{len(ws.read_table('analysis', 'decisions'))} decision rows, a fleet of {args.fleet} agents "
               f"({len(list(ws.runs_dir.iterdir()))} runs in all), built in {time.perf_counter() - t0:.1f} s")
-        codes = [PAGES.parents[1]] + ([args.baseline.resolve()] if args.baseline else [])
+        if args.baseline:
+            args.baseline = (Path(args.baseline) if Path(args.baseline).is_dir() else checkout(args.baseline)).resolve()
+        codes = [PAGES.parents[1]] + ([args.baseline] if args.baseline else [])
         names = ["this checkout"] + ([f"baseline {args.baseline}"] if args.baseline else [])
         scripts = [script_times(args.repeat)]
         if args.baseline:
@@ -333,13 +367,20 @@ def main() -> None:
             print(f"\n{name}: medians of {args.repeat} [s]")
             head = f"{'page':<10} {'script cold':>11} {'script warm':>11}"
             if browser:
-                head += f" {'browser cold':>12} {'browser warm':>12} {'browser nav':>11}"
+                head += f" {'browser cold':>12} {'browser warm':>12} {'browser nav':>11}  (nav from)"
             print(head)
             for page in PAGE_NAMES:
                 line = f"{page:<10} {script[page][0]:>11.3f} {script[page][1]:>11.3f}"
                 if browser:
-                    line += f" {browser[page][0]:>12.3f} {browser[page][1]:>12.3f} {browser[page][2]:>11.3f}"
+                    line += (f" {browser[page][0]:>12.3f} {browser[page][1]:>12.3f} {browser[page][2]:>11.3f}"
+                             f"  ({NAV_FROM[page]})")
                 print(line)
+            if browser:
+                print(f"results: '{CURVES}' opened (click to drawn chart): {browser['curves'][0]:.3f}")
+        if args.baseline and browsers[0]:
+            print("\nthis checkout / baseline, browser nav medians: " + ", ".join(
+                f"{p} {browsers[0][p][2]:.2f}/{browsers[1][p][2]:.2f} (x{browsers[1][p][2] / browsers[0][p][2]:.2f})"
+                for p in PAGE_NAMES) + f", curves {browsers[0]['curves'][0]:.2f}/{browsers[1]['curves'][0]:.2f}")
         if floor:
             print(f"\nfloor: a one-chart Streamlit page (title + a 3-point Plotly chart) opened in a new tab of a "
                   f"new browser context, visited in turn with the pages: median {statistics.median(floor):.3f} s "

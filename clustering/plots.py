@@ -98,14 +98,16 @@ def cluster_scatter(styles: pd.DataFrame, x: str | None = None, y: str | None = 
     # every driver is named in the hover; on the plot only labels that overlap nothing, typical drivers first
     sides = spread_labels(styles["_x"], styles["_y"], styles["driver_id"].astype(str),
                           priority=styles["is_typical"].astype(bool).astype(float), max_labels=max_labels)
-    for (_, r), side in zip(styles.iterrows(), sides):
+    labels = []
+    for r, side in zip(styles[["_x", "_y", "driver_id", "is_typical"]].to_dict("records"), sides):
         if not side:
             continue
         # a typical driver's label stands off its star on an arrow: the star is large, its cluster dense
         place = ({"showarrow": True, "arrowwidth": 1, "arrowcolor": "#444", "ax": _ARROW[side][0],
                   "ay": _ARROW[side][1]} if bool(r["is_typical"]) else {"showarrow": False, **_LABEL_OFFSETS[side]})
-        fig.add_annotation(x=r["_x"], y=r["_y"], text=str(r["driver_id"]), font={"size": 11},
-                           bgcolor="rgba(255,255,255,0.8)", borderpad=1, **place)
+        labels.append({"x": r["_x"], "y": r["_y"], "text": str(r["driver_id"]), "font": {"size": 11},
+                       "bgcolor": "rgba(255,255,255,0.8)", "borderpad": 1, **place})
+    fig.update_layout(annotations=labels)  # at once: one validation, not one per label
     for axis, c in (("xaxis", x), ("yaxis", y)):
         if ranges[c]:
             fig.update_layout({axis: {"range": list(ranges[c])}})
@@ -168,6 +170,7 @@ def reference_lines(reference_lines: pd.DataFrame, kinds: tuple[str, ...] = ("ty
     dash = {"typical": "solid", "pooled": "dash", "paper": "dot", f"typical, to the {direction}": "solid",
             "typical, every press": "dash"}
     names = list(dict.fromkeys(refs["name"]))
+    traces, rows, cols = [], [], []  # added at once: Plotly's add_trace per panel costs ~10 ms a call
     for k, ind in enumerate(inds):
         row, col = k // ncol + 1, k % ncol + 1
         for i, name in enumerate(names):
@@ -177,14 +180,18 @@ def reference_lines(reference_lines: pd.DataFrame, kinds: tuple[str, ...] = ("ty
                     continue
                 r = r.iloc[0]
                 how = f" ({r['fit']} fit)" if "fit" in r and isinstance(r["fit"], str) and r["fit"] else ""
-                fig.add_trace(go.Scatter(x=grid, y=r["A"] * grid + r["b"], mode="lines", name=f"{name} {kind}",
+                traces.append(go.Scatter(x=grid, y=r["A"] * grid + r["b"], mode="lines", name=f"{name} {kind}",
                                          legendgroup=f"{name} {kind}", showlegend=k == 0,
                                          line={"color": style_color(name, i), "dash": dash.get(kind, "solid")},
                                          hovertemplate=f"{name} {kind}{how}: "
                                                        f"{line_formula(ind, float(r['A']), float(r['b']))}"
-                                                       f"<br>{r['source']}<extra></extra>"), row=row, col=col)
+                                                       f"<br>{r['source']}<extra></extra>"))
+                rows.append(row)
+                cols.append(col)
         fig.update_xaxes(title_text=SPEED_LABEL, row=row, col=col)
         fig.update_yaxes(title_text=label_of(ind, short=True), row=row, col=col)
+    if traces:
+        fig.add_traces(traces, rows=rows, cols=cols)
     title = ("Reference lines per style (solid: typical driver, dotted: Table 1)" if direction == "both" else
              f"Reference lines per style on the {DIRECTION_NAMES.get(direction, direction)} (solid: typical "
              "driver on that side, dashed: on every press, dotted: Table 1)")

@@ -103,11 +103,12 @@ def driver_targets(reference_lines: pd.DataFrame | None, recordings: pd.DataFram
     return sorted(recordings["driver_id"].astype(str).unique()) if len(recordings) else []
 
 
-def episode_length(ws, req) -> tuple[float | None, str]:
+def episode_length(ws, req, tables: dict[str, pd.DataFrame] | None = None) -> tuple[float | None, str]:
     """Transitions per episode to expect for `req`, and where the figure comes from: the mean episode
     length of this workspace's earlier runs of the same target (early episodes included), else the
     states per recorded approach of the target's drivers (an upper bound: exploring agents change
-    lane, and end their episode, early)."""
+    lane, and end their episode, early). `tables`: the analysis tables when the caller has them
+    (the page's cached loader), else they are read."""
     import json
 
     import numpy as np
@@ -127,12 +128,15 @@ def episode_length(ws, req) -> tuple[float | None, str]:
             lengths.append(float(m["length"].head(2000).mean()))
     if lengths:
         return float(np.median(lengths)), f"the mean episode length of {len(lengths)} earlier run(s) of this target"
-    if not ws.has_table("analysis", "decisions"):
+    if tables is None:
+        tables = {name: ws.read_table("analysis", name) for name in ("decisions", "styles")
+                  if ws.has_table("analysis", name)}
+    dec = tables.get("decisions")
+    if dec is None:
         return None, ""
-    dec = ws.read_table("analysis", "decisions")
     drivers = [req.name]
-    if req.target == "style" and ws.has_table("analysis", "styles"):
-        styles = ws.read_table("analysis", "styles")
+    styles = tables.get("styles")
+    if req.target == "style" and styles is not None:
         drivers = styles.loc[styles["style"].astype(str) == req.name, "driver_id"].astype(str).tolist()
     d = dec[dec["driver_id"].astype(str).isin(drivers)]
     presses = int((d["label"] == "change").sum())
@@ -141,7 +145,8 @@ def episode_length(ws, req) -> tuple[float | None, str]:
     return len(d) / presses, "the recorded states per approach of the target's drivers (an upper bound)"
 
 
-def learning_check(ws, req, values: dict[str, Any] | None = None) -> tuple[str, str]:
+def learning_check(ws, req, values: dict[str, Any] | None = None,
+                   tables: dict[str, pd.DataFrame] | None = None) -> tuple[str, str]:
     """('refuse' | 'warn' | '', why) for a training request: refused when its episodes are too few for
     learning to begin at the current settings (the replay memory must hold `learning_starts`
     transitions before the first update), warned when learning would begin only in the last fifth."""
@@ -149,7 +154,7 @@ def learning_check(ws, req, values: dict[str, Any] | None = None) -> tuple[str, 
 
     values = values or {}
     starts = int(values.get("learning_starts") or DQNSettings().learning_starts)
-    per_episode, source = episode_length(ws, req)
+    per_episode, source = episode_length(ws, req, tables)
     if not per_episode:
         return "", ""
     expected = per_episode * int(req.episodes)

@@ -101,7 +101,7 @@ def drivers_of(tables: dict[str, pd.DataFrame]) -> list[str]:
     for name in ("decisions", "styles", "fits"):
         df = tables.get(name)
         if df is not None and "driver_id" in df.columns:
-            ids |= set(df["driver_id"].astype(str))
+            ids |= set(map(str, df["driver_id"].unique()))  # unique first: the decisions table has many rows
     return sorted(ids)
 
 

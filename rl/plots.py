@@ -10,7 +10,8 @@ import pandas as pd
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
-from laneprint.plotting import clip_to_axis, ema_smooth, envelope_indices, even_indices, sample_rows, tail_range
+from laneprint.plotting import (clip_to_axis, ema_smooth, envelope_indices, even_indices, sample_rows, symbol_codes,
+                                tail_range)
 from laneprint.reference import INDICATORS
 
 _UNITS = {"t_f": "t_f [s]", "t_nf": "t_nf [s]", "dv_nb": "dv_nb [m/s]"}
@@ -119,8 +120,8 @@ def indicators_at_decisions(changes: pd.DataFrame, lines: dict, who: tuple[str, 
             where = clip_to_axis(part[_COLS[k]] if _COLS[k] in part else [], *(yrange or (-np.inf, np.inf)))
             n_all = int((shown["who"] == name).sum())
             label = f"{name} ({n_all})" + ("" if defined[name] or not n_all else ", none with a defined indicator")
-            symbols = np.where(where["side"] == "above", "triangle-up-open",
-                               np.where(where["side"] == "below", "triangle-down-open", "circle")).tolist()
+            symbols = symbol_codes(np.where(where["side"] == "above", "triangle-up-open",
+                                            np.where(where["side"] == "below", "triangle-down-open", "circle")))
             fig.add_trace(go.Scatter(x=part["v_e_mps"], y=where["y"], mode="markers", name=label,
                                      marker={"color": _COLOURS.get(name), "size": 6, "opacity": 0.7, "symbol": symbols},
                                      customdata=where["value"], cliponaxis=False,
@@ -185,7 +186,7 @@ def decision_agreement(states: pd.DataFrame, who: str = "agent", x: str = "v_e_m
         where = clip_to_axis(pd.to_numeric(part[y], errors="coerce") if y in part else np.full(len(part), np.nan),
                              *(yrange or (-np.inf, np.inf)))
         fig.add_trace(go.Scatter(x=part[x], y=where["y"], mode="markers", name=f"{name} ({int((same == ok).sum())})",
-                                 marker={"symbol": np.where(where["side"] != "", symbol + "-open", symbol).tolist(),
+                                 marker={"symbol": symbol_codes(np.where(where["side"] != "", symbol + "-open", symbol)),
                                          "color": colour, "size": 6, "opacity": 0.6},
                                  text=part["label"], customdata=where["value"], cliponaxis=False,
                                  hovertemplate="%{text}<br>%{x:.1f}, %{customdata:.2f}<extra></extra>"))

@@ -25,9 +25,11 @@ def main() -> None:
     drivers = views.drivers_of(tables)
     driver = st.selectbox("Driver", drivers, key="driver")
     styles = views.for_driver(tables.get("styles"), driver)
-    n_press = int(((decisions["driver_id"].astype(str) == driver) & (decisions["label"] == "change")).sum())
+    mine = views.for_driver(decisions, driver)  # the figures read this driver's rows only (fewer to scan)
+    side_fit = views.for_driver(side_fits, driver) if side_fits is not None else None
+    n_press = int((mine["label"] == "change").sum())
     style_txt = f", style **{styles.iloc[0]['style']}**" if len(styles) and "style" in styles else ""
-    sides = views.driver_presses_by_direction(decisions, driver)
+    sides = views.driver_presses_by_direction(mine, driver)
     sides_txt = f" ({sides['left']} to the left, {sides['right']} to the right)" if sides else ""
     st.markdown(f"**{driver}**: {views.plural(n_press, 'lane-change decision')}{sides_txt}{style_txt}")
 
@@ -49,8 +51,7 @@ def main() -> None:
         cols = st.columns(3)
         for col, ind in zip(cols, inds[start:start + 3]):
             with col:
-                fig = figures.compact(indicator_vs_speed(decisions, fits, driver, ind,
-                                                         fits_by_direction=side_fits))
+                fig = figures.compact(indicator_vs_speed(mine, fit, driver, ind, fits_by_direction=side_fit))
                 st.plotly_chart(fig, key=f"ivs_{ind}")
     st.caption("Each y axis is set by the bulk of the driver's points: a value beyond it (a TTC of minutes behind "
                "a leader that hardly closes) is drawn as a triangle at the axis edge, counted in the legend, its "
@@ -77,7 +78,7 @@ def main() -> None:
         st.dataframe(views.fit_summary(fit), hide_index=True, width="stretch")
     else:
         st.caption("No fits for this driver.")
-    side_table = views.direction_fit_summary(views.for_driver(side_fits, driver))
+    side_table = views.direction_fit_summary(side_fit)
     if len(side_table):
         st.subheader("Fits per direction")
         st.caption("The same fits on the presses to each side (left: overtaking, right: returning). A side with "
@@ -85,7 +86,7 @@ def main() -> None:
         st.dataframe(side_table, hide_index=True, width="stretch", key="fits_by_direction")
 
     st.subheader("Decisions with undefined indicators")
-    bad = views.undefined_decisions(decisions, driver)
+    bad = views.undefined_decisions(mine, driver)
     if len(bad):
         st.caption(f"{len(bad)} of {n_press} presses: 'absent' = no such vehicle, 'not_closing' = the gap "
                    "is not closing (TTC undefined), 'far' = follower beyond the no-influence distance.")

@@ -145,11 +145,18 @@ def one_run(ws, run_id: str) -> None:
     left.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="agent")), key=f"fig11a_{run_id}")
     right.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="greedy")),
                        key=f"fig11g_{run_id}")
+    curves_of(run_id, run)
+
+
+@st.fragment
+def curves_of(run_id: str, run: dict) -> None:
+    """Fig. 9 in an expander that draws when opened. A fragment: opening it (or moving its smoothing
+    slider) reruns and redraws this part only, not Figs. 10 and 11 above it."""
     if curves := widgets.lazy_expander("Training curves (Fig. 9)", key=f"fig9_open_{run_id}"):
         with curves:
             smoothing = widgets.smoothing_slider(key=f"smoothing_{run_id}")
-            st.plotly_chart(training_curves(run["metrics"], smoothing, learning_starts=(cfg.get("dqn") or {}).get(
-                "learning_starts")), key=f"fig9_{run_id}")
+            st.plotly_chart(training_curves(run["metrics"], smoothing, learning_starts=(
+                run["config"].get("dqn") or {}).get("learning_starts")), key=f"fig9_{run_id}")
 
 
 def compare(ws, runs: list[str]) -> None:
@@ -164,11 +171,19 @@ def compare(ws, runs: list[str]) -> None:
     loaded = {rid: loaders.run(str(ws.root), rid, loaders.run_stamp(ws.root, rid)) for rid in picked}
     st.dataframe(views.compare_runs({rid: views.evaluation_table((r["evaluation"] or {}).get("summary"))
                                      for rid, r in loaded.items()}), hide_index=True, width="stretch")
-    metrics = {rid: r["metrics"] for rid, r in loaded.items()}
-    smoothing = widgets.smoothing_slider(key="cmp_smoothing")
-    c1, c2 = st.columns(2)
-    c1.plotly_chart(figures.runs_curves(metrics, "loss", smoothing=smoothing), key="cmp_loss")
-    c2.plotly_chart(figures.runs_curves(metrics, "mean_step_reward", smoothing=smoothing), key="cmp_reward")
+    compare_curves({rid: r["metrics"] for rid, r in loaded.items()})
+
+
+@st.fragment
+def compare_curves(metrics: dict) -> None:
+    """The two runs' loss and reward curves, drawn once their expander is opened (a fragment: opening it
+    redraws this part only)."""
+    if box := widgets.lazy_expander("Loss and reward curves of the two runs", key="cmp_curves_open"):
+        with box:
+            smoothing = widgets.smoothing_slider(key="cmp_smoothing")
+            c1, c2 = st.columns(2)
+            c1.plotly_chart(figures.runs_curves(metrics, "loss", smoothing=smoothing), key="cmp_loss")
+            c2.plotly_chart(figures.runs_curves(metrics, "mean_step_reward", smoothing=smoothing), key="cmp_reward")
 
 
 def fleets(ws) -> None:

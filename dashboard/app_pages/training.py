@@ -45,7 +45,7 @@ def launch_form(ws) -> None:
                 step=None if isinstance(default, float) else 1)
     req = jobs.TrainRequest(kind, str(name), int(episodes), int(seed), reward, lines,
                             training.changed_options(values)) if name else None
-    verdict, why = training.learning_check(ws, req, values) if req else ("", "")
+    verdict, why = training.learning_check(ws, req, values, tables) if req else ("", "")
     if verdict:
         (st.warning if verdict == "refuse" else st.info)(why)
     submitted = st.button("Start training", type="primary", key="start_training",
@@ -138,7 +138,7 @@ def fleet_panel(ws, job_id: str, status: dict) -> None:
     if not fleet_id:
         st.progress(0.0, text=f"fleet job {job_id}: {state} — {status.get('message', '')}")
     else:
-        table = fleet_store.fleet_table(ws, fleet_id)
+        table = loaders.fleet_table(str(ws.root), fleet_id, loaders.fleets_stamp(ws.root))
         p = fleet_store.fleet_progress(table)
         frac = min(1.0, p["episode"] / p["episodes"]) if p["episodes"] else 0.0
         st.progress(frac, text=f"fleet {fleet_id}: {state} — {p['n_done']}/{p['n_runs']} agents done, "
@@ -177,6 +177,8 @@ def main() -> None:
     active = [rid for rid in jobs.run_ids(ws) if jobs.run_status(ws, rid).get("state") in jobs.ACTIVE_STATES
               and not jobs.in_fleet(ws, rid)]
 
+    listed: dict[str, object] = {}  # the runs table the live view drew, reused below in the same run
+
     @st.fragment(run_every=poll_seconds() if active else None)
     def live_runs() -> None:
         st.subheader("Running")
@@ -193,7 +195,7 @@ def main() -> None:
             st.rerun()  # redraw the whole page: past runs (the one that ended shown), polling off when none is left
         # the runs table follows the live panel: a running run is not shown 'starting', episode 0
         st.subheader("Runs")
-        table = jobs.runs_table(ws)
+        table = listed["table"] = jobs.runs_table(ws)
         if table.empty:
             st.caption("No runs yet.")
         else:
@@ -208,7 +210,8 @@ def main() -> None:
         st.caption("No cross-validation running: pick a finished run below to cross-validate it.")
 
     st.subheader("A finished run")
-    table = jobs.runs_table(ws)
+    table = listed.get("table")
+    table = jobs.runs_table(ws) if table is None else table
     if table.empty:
         st.caption("No runs yet.")
         return
