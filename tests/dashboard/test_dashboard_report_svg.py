@@ -1,0 +1,45 @@
+"""`laneprint report`'s figures as SVG beside the HTML (the `report` extra: kaleido with a local Chromium)."""
+
+import builtins
+import re
+
+import plotly.graph_objects as go
+import pandas as pd
+import pytest
+
+from laneprint.report import Section, write_assets
+
+
+def sections() -> list[Section]:
+    fig = go.Figure(go.Scatter(x=[1, 2, 3], y=[2, 1, 3], name="presses"))
+    fig.update_layout(title="t_f against ego speed")
+    return [Section("Study", [("table", ("fits", pd.DataFrame({"A": [0.1]}))), ("figure", ("driver D01 t_f", fig)),
+                              ("figure", ("styles", go.Figure(go.Bar(x=["a"], y=[1]))))])]
+
+
+def test_svg_of_every_figure_with_kaleido(tmp_path):
+    pytest.importorskip("kaleido", reason="the report extra: pip install -e '.[report]'")
+    written = write_assets(sections(), tmp_path)
+    assert written["svg_note"] == "" and written["svg"] == ["driver_D01_t_f.svg", "styles.svg"], written
+    text = (tmp_path / "driver_D01_t_f.svg").read_text()
+    assert text.startswith("<svg") and "t_f against ego speed" in text
+    for name in written["svg"]:
+        # nothing but the SVG namespaces points outside: the files open offline
+        urls = set(re.findall(r"https?://[^\"' )]+", (tmp_path / name).read_text()))
+        assert urls <= {"http://www.w3.org/2000/svg", "http://www.w3.org/1999/xlink"}, urls
+    assert sorted(p.suffix for p in tmp_path.iterdir()) == [".csv", ".json", ".json", ".svg", ".svg"]
+
+
+def test_without_kaleido_the_json_stays_and_the_summary_says_why(tmp_path, monkeypatch):
+    real = builtins.__import__
+
+    def no_kaleido(name, *args, **kwargs):
+        if name == "kaleido":
+            raise ImportError("no kaleido")
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_kaleido)
+    written = write_assets(sections(), tmp_path)
+    assert written["svg"] == [] and "pip install -e '.[report]'" in written["svg_note"]
+    assert written["figures"] == ["driver_D01_t_f.json", "styles.json"]
+    assert not list(tmp_path.glob("*.svg"))
