@@ -346,9 +346,10 @@ def report_html(ws: Workspace) -> str:
     return render_html(sections, prov)
 
 
-def write_report(ws: Workspace, out: Path | None = None, assets: bool = True) -> dict[str, Any]:
+def write_report(ws: Workspace, out: Path | None = None, assets: bool = True, svg: bool = True) -> dict[str, Any]:
     """Write the report to `out` (default `<workspace>/report.html`) and, with `assets`, its tables and
-    figures into `<out stem>_files/`; returns what was written."""
+    figures into `<out stem>_files/` (with `svg`, the figures as SVG too where kaleido is installed);
+    returns what was written."""
     from laneprint.workspace import atomic_write_bytes
 
     start = time.perf_counter()
@@ -360,7 +361,7 @@ def write_report(ws: Workspace, out: Path | None = None, assets: bool = True) ->
     sections, prov = build_report(ws)
     text = render_html(sections, prov)
     atomic_write_bytes(out, text.encode())
-    written = write_assets(sections, out.with_name(out.stem + "_files")) if assets else {}
+    written = write_assets(sections, out.with_name(out.stem + "_files"), svg=svg) if assets else {}
     n_fig = sum(1 for s in sections for k, _ in s.items if k == "figure")
     n_tab = sum(1 for s in sections for k, _ in s.items if k == "table")
     return {"report": str(out), "bytes": len(text.encode()), "figures": n_fig, "tables": n_tab,
@@ -374,6 +375,8 @@ def report_command(
         "--out", "-o", help="The HTML file to write (default <workspace>/report.html); tables (CSV) and figures "
                             "(Plotly JSON; SVG with the report extra, kaleido) go to <name>_files/ beside it.")] = None,
     no_assets: Annotated[bool, typer.Option("--no-assets", help="Only the HTML file.")] = False,
+    no_svg: Annotated[bool, typer.Option("--no-svg", help="No SVG of the figures (kaleido takes 10-15 s to start "
+                                                          "its browser, and more for hundreds of figures).")] = False,
     as_json: JsonOpt = False,
 ) -> None:
     """The study in one self-contained HTML file: data, fits and flags, styles, every run's figures."""
@@ -381,7 +384,7 @@ def report_command(
         ws = Workspace(workspace)
         if not ws.root.is_dir():
             raise UserError(f"no workspace at {ws.root}")
-        result = write_report(ws, out, assets=not no_assets)
+        result = write_report(ws, out, assets=not no_assets, svg=not no_svg)
     except UserError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(1) from None
