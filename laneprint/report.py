@@ -102,13 +102,14 @@ def _analysis(ws: Workspace) -> list[Section]:
     if not ws.has_table("analysis", "decisions"):
         return [Section("Analysis").p(f"No analysis yet: `laneprint analyze --workspace {ws.root}`.")]
     meta = ws.read_meta("analysis")
-    t = {n: ws.read_table("analysis", n) for n in ("decisions", "correlations", "fits", "styles", "reference_lines",
-                                                   "skipped") if ws.has_table("analysis", n)}
+    t = {n: ws.read_table("analysis", n) for n in ("decisions", "correlations", "fits", "fits_by_direction", "styles",
+                                                   "reference_lines", "skipped") if ws.has_table("analysis", n)}
     summary = meta.get("summary") or {}
     dec = t["decisions"]
     ind = Section("Indicators, correlations and per-driver fits")
     ind.p(f"{views.plural(int((dec['label'] == 'change').sum()), 'press', 'presses')} and "
-          f"{views.plural(int((dec['label'] == 'keep').sum()), 'not-yet state')} in the decisions table.")
+          f"{views.plural(int((dec['label'] == 'keep').sum()), 'not-yet state')} in the decisions table."
+          + (f" By direction: {by_side}." if (by_side := views.presses_by_direction_text(meta)) else ""))
     share = summary.get("share_significant") or {}
     if share:
         ind.p("Drivers with a significant linear correlation with ego speed: " + ", ".join(
@@ -123,6 +124,13 @@ def _analysis(ws: Workspace) -> list[Section]:
                 f"{r.driver_id} {r.indicator}: {r.flag}" for r in flagged.itertuples()))
         ind.table("fits", views.fit_summary(fits).assign(driver_id=fits["driver_id"].to_numpy())
                   [["driver_id", *views.fit_summary(fits).columns]])
+    side_fits = t.get("fits_by_direction")
+    if side_fits is not None and len(side_fits):
+        ind.p("The same fits on the presses to each side (left: overtaking, right: returning); a side with too "
+              "few presses has no line, and the pooled line stands for it:")
+        ind.table("fits_by_direction", pd.concat(
+            [views.direction_fit_summary(g).assign(driver_id=d) for d, g in side_fits.groupby("driver_id", sort=True)],
+            ignore_index=True).pipe(lambda f: f[["driver_id", *[c for c in f.columns if c != "driver_id"]]]))
     styles = t.get("styles")
     sty = Section("Styles and reference lines")
     for w in views.analysis_warnings(meta):
@@ -145,7 +153,8 @@ def _analysis(ws: Workspace) -> list[Section]:
     lines = t.get("reference_lines")
     if lines is not None and len(lines):
         sty.figure("reference_lines", reference_lines(lines, indicators=views.reference_indicators(lines, chosen)))
-        typical = lines[(lines["scope"] == "style") & (lines["kind"] == "typical")]
+        typical = lines[(lines["scope"] == "style") & (lines["kind"] == "typical")
+                        & ((lines["direction"] == "both") if "direction" in lines else True)]
         rows = []
         for r in typical.itertuples():
             paper = PAPER_TABLE1.get(str(r.name), {}).get(str(r.indicator))
@@ -165,7 +174,7 @@ def _analysis(ws: Workspace) -> list[Section]:
         inds = [i for g in groups.values() for i in g if i in dict.fromkeys(["t_f", "t_nf", "dv_nb", *chosen])]
         for d in shown:
             for i in inds:
-                drv.figure(f"driver_{d}_{i}", indicator_vs_speed(dec, fits, d, i))
+                drv.figure(f"driver_{d}_{i}", indicator_vs_speed(dec, fits, d, i, fits_by_direction=side_fits))
         return [ind, sty, drv]
     return [ind, sty]
 
