@@ -127,7 +127,8 @@ def reference_lines(styles: pd.DataFrame, fits: pd.DataFrame, points: pd.DataFra
         flag = str(f.get("flag", "") or "") if hasattr(f, "get") else ""
         row = {"scope": scope, "name": name, "kind": kind, "indicator": ind, "A": float(f["A"]),
                "b": float(f["b"]), "A_lo": float(f["A_lo"]), "A_hi": float(f["A_hi"]), "b_lo": float(f["b_lo"]),
-               "b_hi": float(f["b_hi"]), "r2": float(f["r2"]), "n": int(f["n"]), "source": source, "fit": "ols",
+               "b_hi": float(f["b_hi"]), "r2": float(f["r2"]), "n": int(f["n"]), "source": source,
+               "fit": str(f.get("fit", "ols")) if hasattr(f, "get") else "ols",
                "flag": flag}
         if flag and settings.flagged_lines == "level" and np.isfinite(f.get("level", np.nan)):
             row.update(A=0.0, b=float(f["level"]), A_lo=np.nan, A_hi=np.nan, b_lo=np.nan, b_hi=np.nan, fit="level",
@@ -139,18 +140,23 @@ def reference_lines(styles: pd.DataFrame, fits: pd.DataFrame, points: pd.DataFra
         typical = members[members["is_typical"]]["driver_id"].tolist()
         drivers = members["driver_id"].tolist()
         for ind in INDICATORS:
+            fit, why = fit_pooled(points, drivers, ind, settings)
+            pooled = None if fit is None else {**fit.__dict__, "flag": fit_flag(fit, settings),
+                                               "level": pooled_level(points, drivers, ind)}
             if typical and (typical[0], ind) in ok.index:
                 rows.append(from_fit("style", style, "typical", ind, ok.loc[(typical[0], ind)],
                                      f"typical driver {typical[0]}"))
+            elif ind in PAPER_INDICATORS:  # the agents need the style's line: a stand-in, which says what it is
+                no_fit = f"typical driver {typical[0] if typical else '-'} has no {ind} fit"
+                line, what = stand_in(style, ind, drivers, pooled, points)
+                rows.append(from_fit("style", style, "typical", ind, line, f"{what} ({no_fit})"))
+                skipped.append({"what": "reference_line", "id": f"{style}:typical:{ind}",
+                                "reason": f"{no_fit}: {what} stands in"})
             else:
                 skipped.append({"what": "reference_line", "id": f"{style}:typical:{ind}",
                                 "reason": f"typical driver {typical[0] if typical else '-'} has no {ind} fit"})
-            fit, why = fit_pooled(points, drivers, ind, settings)
-            if fit is not None:
-                rows.append(from_fit("style", style, "pooled", ind,
-                                     {**fit.__dict__, "flag": fit_flag(fit, settings),
-                                      "level": pooled_level(points, drivers, ind)},
-                                     f"pooled over {len(drivers)} driver(s)"))
+            if pooled is not None:
+                rows.append(from_fit("style", style, "pooled", ind, pooled, f"pooled over {len(drivers)} driver(s)"))
             else:
                 skipped.append({"what": "reference_line", "id": f"{style}:pooled:{ind}", "reason": why})
     for (drv, ind), f in ok.iterrows():
@@ -167,6 +173,25 @@ def reference_lines(styles: pd.DataFrame, fits: pd.DataFrame, points: pd.DataFra
     out = pd.DataFrame(rows, columns=REF_COLUMNS + ["fit", "flag", "direction"])
     out["n"] = out["n"].astype("int64")
     return out, skipped
+
+
+def stand_in(style: str, ind: str, drivers: list[str], pooled: dict[str, Any] | None,
+             points: pd.DataFrame) -> tuple[dict[str, Any], str]:
+    """A style's line for one of the study's indicators its typical driver has no fit of: the
+    style's pooled fit, else the level of its members' values, else of every driver's, else
+    Table 1's line (the style's, or Normal's for a style Table 1 does not name)."""
+    if pooled is not None:
+        return pooled, f"pooled over {len(drivers)} driver(s)"
+    everyone = sorted(points["driver_id"].astype(str).unique())
+    for who, label in ((drivers, "the style's"), (everyone, "every driver's")):
+        level = pooled_level(points, who, ind)
+        if np.isfinite(level):
+            n = int((points["indicator"].eq(ind) & points["driver_id"].isin(who) & points["used"]).sum())
+            return ({"A": 0.0, "b": level, "A_lo": np.nan, "A_hi": np.nan, "b_lo": np.nan, "b_hi": np.nan,
+                     "r2": np.nan, "n": n, "flag": "", "fit": "level"}, f"level of {label} {n} defined value(s)")
+    A, b = PAPER_TABLE1.get(style, PAPER_TABLE1["Normal"])[ind]  # `ind` is one of the study's three
+    return ({"A": A, "b": b, "A_lo": np.nan, "A_hi": np.nan, "b_lo": np.nan, "b_hi": np.nan, "r2": np.nan,
+             "n": 0, "flag": "", "fit": "paper"}, f"Table 1's line (no {ind} defined at any press)")
 
 
 def side_lines(assigned: pd.DataFrame, by_direction: pd.DataFrame, from_fit: Any) -> list[dict[str, Any]]:

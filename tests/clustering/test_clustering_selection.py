@@ -132,3 +132,17 @@ def test_analyze_reports_the_choice_on_the_command_line(tmp_path):
     assert {c["name"] for c in doc["summary"]["features"]["candidates"]} == {"ttc", "acceptance", "all"}
     assert "flag" in doc["drivers"]["D01"]["fits"][0]
     assert doc["summary"]["warnings"]  # one driver, k = 3
+
+
+def test_a_style_whose_typical_driver_has_no_fit_still_gets_a_line_that_says_what_it_is():
+    from rl.problem.rewards import ReferenceLines
+
+    dec, _ = acceptance_table()  # no target-lane leader at any press: t_nf never defined
+    out = analyze_tables(dec, AnalysisSettings(n_bootstrap=0))
+    refs = out["reference_lines"]
+    t_nf = refs[(refs["kind"] == "typical") & (refs["indicator"] == "t_nf") & (refs["direction"] == "both")]
+    assert len(t_nf) == 3 and t_nf["source"].str.contains("Table 1's line").all()
+    for style in ("Defensive", "Normal", "Aggressive"):
+        assert ReferenceLines.from_table(refs, style=style).t_nf is not None  # the agents can train
+    reasons = out["skipped"].query("what == 'reference_line'")["reason"]
+    assert reasons.str.contains("has no t_nf fit: Table 1's line").sum() == 3
