@@ -148,8 +148,9 @@ def main() -> None:
     if picked:
         driver, k = picked
         c1, c2 = st.columns(2)
-        base = c1.radio("Start from", ["population", "style"], horizontal=True, key="p_base",
-                        help="'population': the agent of all other drivers; 'style': of the style assigned above")
+        base = c1.radio("Start from", ["style", "population"], horizontal=True, key="p_base",
+                        help="'style': the agent of the style assigned above (measured better, rl/README.md); "
+                             "'population': of all other drivers")
         seed = int(c2.number_input("Seed", min_value=0, value=0, step=1, key="p_seed"))
         st.caption(f"`laneprint personalize --driver {driver} --decisions {k} --from {base} --seed {seed} "
                    f"-w {ws.root}`")
