@@ -263,3 +263,32 @@ def test_side_rules_replayed_offline_agree_with_the_loop():
                                          for a, b in zip(df["adv_left"], df["adv_right"])]
     assert list(_pick(df, "right_first")) == ["right", "right", "keep", "left", "left"]
     assert list(_pick(df, "left_first")) == ["left", "left", "keep", "left", "left"]
+
+
+def _scenes(n: int, left: bool) -> Scene:
+    ones = np.ones(n)
+    return Scene(v_e=25 * ones, x_e=np.arange(n) * 12.0, f_present=np.ones(n, bool), v_f=15 * ones,
+                 x_f=np.arange(n) * 12.0 + 200.0, hl_f=4.5 * ones, nf_present=np.zeros(n, bool), v_nf=25 * ones,
+                 x_nf=np.zeros(n), hl_nf=4.5 * ones, nb_present=np.zeros(n, bool), v_nb=25 * ones,
+                 x_nb=np.zeros(n), hl_nb=4.5 * ones, left=np.full(n, left))
+
+
+def test_other_side_approaches_cost_a_change_and_end_at_their_last_state():
+    from rl.drive.other_side import NoPressReplay
+    from rl.problem.env import Approach
+    from rl.problem.rewards import RewardSettings
+
+    cfg = EnvConfig(scenes="recorded", observation="direction", reward=RewardSettings(name="decisions"))
+    real = Approach("a", "D1", np.array([0.0, 0.5, 1.0]), _scenes(3, True))
+    other = Approach("a:other", "D1", np.array([0.0, 0.5]), _scenes(2, False))
+    env = NoPressReplay(cfg, [real, other], 2, np.random.default_rng(0), np.array([False, True]))
+    assert list(env.t_rel) == [-1.0, -0.5, 0.0, -1e6, -1e6]
+    env.index[:] = [4, 4]  # both at the last state of the no-press approach
+    env.scene = env.states.take(env.index)
+    out = env.step(np.array([KEEP, CHANGE]))
+    assert list(out["reward"]) == [0.0, -1.0]  # keeping is free, a change costs the floor
+    assert bool(out["truncated"][0]) and bool(out["terminated"][1])  # no run-on past a press that never came
+    assert env.late[0] == 0.0 and env.steps[0] == 0
+    env.index[:] = [2, 2]  # the real press: a change pays 1
+    env.scene = env.states.take(env.index)
+    assert list(env.step(np.array([CHANGE, CHANGE]))["reward"]) == [1.0, 1.0]
