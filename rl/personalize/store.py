@@ -28,7 +28,8 @@ from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.evaluation.crossval import bootstrap_scores
 from rl.evaluation.evaluate import agent_policy, evaluate_policies
-from rl.personalize.agents import PersonalizeSettings, base_seed, personalised_agent, train_agent, weights_of
+from rl.personalize.agents import (PersonalizeSettings, base_seed, finetune_settings, personalised_agent, train_agent,
+                                   weights_of)
 from rl.personalize.split import decision_order, driver_rows, first_decisions
 from rl.personalize.style import analysis_settings, estimate_style, fit_population
 from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config
@@ -185,8 +186,6 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
 
 def personalised_settings(dqn: DQNSettings, ps: PersonalizeSettings, k: int, episodes: int | None) -> DQNSettings:
     """The settings recorded in the run's config.json: the fine-tuning's (or the mix's from scratch)."""
-    from rl.personalize.agents import finetune_settings
-
     if ps.method == "mix":
         return replace(dqn, episodes=episodes or dqn.episodes, episodes_per_approach=0.0 if episodes else
                        dqn.episodes_per_approach)
