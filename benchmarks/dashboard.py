@@ -341,8 +341,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         root = args.keep.resolve() if args.keep else Path(tmp) / "ws"
-        if (root / "fleets").is_dir() or (root / "analysis").is_dir() and not args.fleet:
+        if (root / "analysis").is_dir():  # a kept workspace: reused as it is (with or without its fleet)
             ws = Workspace(root)
+            args.drivers = ws.read_table("analysis", "decisions")["driver_id"].nunique()
+            args.fleet = len(list(root.glob("fleets/*/fleet.json"))) and len(list(ws.runs_dir.glob("*-fleet-*")))
         else:
             ws = build(root, args.drivers, args.decisions)
             if args.fleet:
