@@ -14,7 +14,7 @@ Prints:
 4. optionally (`--messy N`), harder studies: ARI per clustering-feature variant;
 5. optionally (`--study DIR WORKSPACE`, repeated), studies written by `laneprint simulate`
    (their ground_truth.json) and ingested into WORKSPACE: ARI per feature set (`--features`
-   auto, ttc, paper, acceptance, all), the set 'auto' chose, and the flagged per-driver
+   auto, ttc, paper, headway, acceptance, all), the set 'auto' chose, and the flagged per-driver
    lines of the study's three indicators.
 
 Run: .venv/bin/python benchmarks/analysis.py [--seeds 20] [--workspace /tmp/ws] [--messy 12]
@@ -178,10 +178,10 @@ def messy(n_seeds: int) -> None:
         print(f"  {name:<32} mean ARI {np.mean(v):.3f}, ARI = 1 in {sum(a == 1.0 for a in v)}/{len(v)}")
 
 
-FEATURE_SPECS = ("auto", "ttc", "paper", "acceptance", "all")
+FEATURE_SPECS = ("auto", "ttc", "paper", "headway", "acceptance", "all")
 
 
-def study_aris(study: Path, workspace: Path) -> dict[str, object]:
+def study_aris(study: Path, workspace: Path, specs: tuple[str, ...] = FEATURE_SPECS) -> dict[str, object]:
     """ARI of each feature set on one simulated study, the set 'auto' chose and the flagged fits."""
     from clustering.pipeline import extract_all
 
@@ -190,7 +190,7 @@ def study_aris(study: Path, workspace: Path) -> dict[str, object]:
     dec, _, _ = extract_all(ws, AnalysisSettings())
     drivers = list(ws.recordings()["driver_id"].astype(str))
     row: dict[str, object] = {"study": study.name}
-    for spec in FEATURE_SPECS:
+    for spec in specs:
         out = analyze_tables(dec, AnalysisSettings(features=spec), drivers=drivers)
         row[spec] = ari(out["styles"], gt["drivers"])
         if spec == "auto":
@@ -204,16 +204,16 @@ def study_aris(study: Path, workspace: Path) -> dict[str, object]:
     return row
 
 
-def studies(pairs: list[tuple[str, str]]) -> None:
+def studies(pairs: list[tuple[str, str]], specs: tuple[str, ...] = FEATURE_SPECS) -> None:
     print(f"== {len(pairs)} simulated studies: ARI per feature set (--features)")
     rows = []
     for study, workspace in pairs:
-        rows.append(study_aris(Path(study), Path(workspace)))
+        rows.append(study_aris(Path(study), Path(workspace), specs))
         r = rows[-1]
-        print(f"  {r['study']:<8} " + "  ".join(f"{s} {r[s]:.3f}" for s in FEATURE_SPECS)
+        print(f"  {r['study']:<8} " + "  ".join(f"{s} {r[s]:.3f}" for s in specs)
               + f"  chose {r['chosen']}  flagged {r['flagged']}  undefined at presses: t_f {100 * r['t_f undefined']:.0f} %"
               f", t_nf {100 * r['t_nf undefined']:.0f} %", flush=True)
-    for s in FEATURE_SPECS:
+    for s in specs:
         v = [float(r[s]) for r in rows]
         print(f"  {s:<11} mean ARI {np.mean(v):.3f}, min {np.min(v):.3f}, ARI = 1 in {sum(a == 1.0 for a in v)}/{len(v)}")
 
@@ -226,11 +226,13 @@ def main() -> None:
     ap.add_argument("--workspace", type=Path, default=None, help="workspace with sample_logs/ ingested")
     ap.add_argument("--study", nargs=2, action="append", default=[], metavar=("DIR", "WORKSPACE"),
                     help="a simulated study and the workspace it is ingested in (repeat for more)")
+    ap.add_argument("--specs", default=",".join(FEATURE_SPECS),
+                    help="with --study: the --features values to measure, comma-separated (auto first)")
     args = ap.parse_args()
     if args.workspace:
         shipped(args.workspace)
     if args.study:
-        studies(args.study)
+        studies(args.study, tuple(args.specs.split(",")))
     if args.repeats:
         timing(args.repeats)
     if args.seeds:

@@ -99,8 +99,9 @@ def analyze_command(
                                        "the speeds of its presses (default: within them).")] = False,
     features: Annotated[str, typer.Option(
         "--features", help="Indicators the styles are read by: auto (the set whose styles are best separated and "
-                           "most stable), ttc (the study's t_f, t_nf), paper (t_f, t_nf, dv_nb), acceptance (gaps "
-                           "and headways), all, or a comma-separated list of indicators.")] = "auto",
+                           "most stable), ttc (the study's t_f, t_nf), paper (t_f, t_nf, dv_nb), headway (gap and "
+                           "time headway to the leader), acceptance (those and the target lane's lead and lag "
+                           "gaps), all, or a comma-separated list of indicators.")] = "auto",
     flagged_lines: Annotated[str, typer.Option(
         "--flagged-lines", help="A flagged per-driver line (low R², slope interval spanning 0, few points) in the "
                                 "reference lines: level (the driver's median, A = 0) or ols (as fitted, the "

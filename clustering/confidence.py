@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from clustering.features import feature_groups, feature_names, feature_speeds, group_values, lines_by_row, to_space
+from clustering.features import (feature_groups, feature_names, feature_speeds, fit_method, group_values,
+                                 lines_by_row, to_space)
 from clustering.styles import StyleClusterer
 from indicators.settings import AnalysisSettings
 
@@ -34,7 +35,7 @@ def bootstrap_stability(points: pd.DataFrame, drivers: list[str], labels: np.nda
             # too few points / no speed spread: the feature is the median, so resample the median
             values[:, di, ii * n:(ii + 1) * n] = np.median(ys[idx], axis=1)[:, None]
             continue
-        A, b = lines_by_row(g.v[idx], ys[idx], settings.feature_fit)
+        A, b = lines_by_row(g.v[idx], ys[idx], fit_method(g.indicator, settings))
         at = feature_speeds(speeds, g.v, settings)  # the driver's own range, as its features
         values[:, di, ii * n:(ii + 1) * n] = A[:, None] * at[None, :] + b[:, None]
     flat = pd.DataFrame(values.reshape(B * len(drivers), -1), columns=clf.feature_names_in_)

@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from indicators.settings import FEATURE_FITS, AnalysisSettings
-from indicators.stats import INDICATOR_COLUMNS, iter_groups
+from indicators.stats import INDICATOR_COLUMNS, PAPER_COLUMNS, iter_groups
 
 LOG_FLOOR_S = 0.05  # TTCs and headways are clipped here before the log (a zero gap gives 0)
 LOG_FLOOR_M = 0.5  # gaps are clipped here before the log (a car alongside has a gap <= 0)
@@ -107,6 +107,12 @@ def _row_nanmedian(x: np.ndarray) -> np.ndarray:
     return np.where(c > 0, (lo + hi) / 2, np.nan)
 
 
+def fit_method(indicator: str, settings: AnalysisSettings) -> str:
+    """How `indicator`'s feature line is fitted: `feature_fit` for the study's indicators,
+    `acceptance_fit` for those of what the driver accepts (gaps, headways, relative speeds)."""
+    return settings.feature_fit if indicator in PAPER_COLUMNS else settings.acceptance_fit
+
+
 def robust_line(v: np.ndarray, y: np.ndarray, method: str) -> tuple[float, float]:
     """(A, b) of y = A v + b by 'theilsen', 'huber' or 'ols' (see `lines_by_row`)."""
     A, b = lines_by_row(v[None, :], y[None, :], method)
@@ -136,7 +142,7 @@ def group_values(v: np.ndarray, y: np.ndarray, indicator: str, settings: Analysi
     if len(v) < 3 or np.ptp(v) < settings.min_speed_spread_mps:
         why = "too few points" if len(v) < 3 else "no speed spread"
         return np.full(len(speeds_mps), float(np.median(yt))), f"{indicator}: {why}, median used"
-    A, b = robust_line(v, yt, settings.feature_fit)
+    A, b = robust_line(v, yt, fit_method(indicator, settings))
     return A * feature_speeds(speeds_mps, v, settings) + b, ""
 
 
@@ -178,18 +184,20 @@ def driver_features(points: pd.DataFrame, drivers: list[str],
             notes[g.driver_id].append(note)
             values[di, ii * n:(ii + 1) * n] = vals
             continue
-        lines.append((di, ii, g.v, to_space(g.y, g.indicator, settings)))
-    # all lines in one vectorised fit, rows padded with NaN to the longest
-    for start in range(0, len(lines), 4096):
-        chunk = lines[start:start + 4096]
-        width = max(len(c[2]) for c in chunk)
-        V = np.full((len(chunk), width), np.nan)
-        Y = np.full((len(chunk), width), np.nan)
-        for r, (_, _, v, y) in enumerate(chunk):
-            V[r, :len(v)], Y[r, :len(y)] = v, y
-        A, b = lines_by_row(V, Y, settings.feature_fit)
-        for r, (di, ii, v, _) in enumerate(chunk):
-            values[di, ii * n:(ii + 1) * n] = A[r] * feature_speeds(speeds, v, settings) + b[r]
+        lines.append((di, ii, g.v, to_space(g.y, g.indicator, settings), fit_method(g.indicator, settings)))
+    # all lines of one fit method in one vectorised fit, rows padded with NaN to the longest
+    for method in sorted({c[4] for c in lines}):
+        same = [c for c in lines if c[4] == method]
+        for start in range(0, len(same), 4096):
+            chunk = same[start:start + 4096]
+            width = max(len(c[2]) for c in chunk)
+            V = np.full((len(chunk), width), np.nan)
+            Y = np.full((len(chunk), width), np.nan)
+            for r, (_, _, v, y, _) in enumerate(chunk):
+                V[r, :len(v)], Y[r, :len(y)] = v, y
+            A, b = lines_by_row(V, Y, method)
+            for r, (di, ii, v, _, _) in enumerate(chunk):
+                values[di, ii * n:(ii + 1) * n] = A[r] * feature_speeds(speeds, v, settings) + b[r]
     feats = pd.DataFrame(to_units(values, settings), index=pd.Index(drivers, name="driver_id"),
                          columns=feature_names(settings))
     return feats, notes

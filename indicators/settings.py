@@ -18,11 +18,12 @@ FEATURE_FITS: tuple[str, ...] = ("huber", "theilsen", "ols", "median")
 INDICATOR_SETS: dict[str, tuple[str, ...]] = {
     "ttc": ("t_f", "t_nf"),
     "paper": ("t_f", "t_nf", "dv_nb"),
+    "headway": ("gap_f", "thw_f"),
     "acceptance": ("gap_f", "thw_f", "gap_nf", "gap_nb", "thw_nb"),
     "all": ("t_f", "t_nf", "gap_f", "thw_f", "gap_nf", "gap_nb", "thw_nb"),
 }
 #: The sets 'auto' chooses from.
-AUTO_CANDIDATES: tuple[str, ...] = ("ttc", "acceptance", "all")
+AUTO_CANDIDATES: tuple[str, ...] = ("ttc", "headway", "acceptance", "all")
 #: What a flagged line becomes in the reference lines (`AnalysisSettings.flagged_lines`).
 FLAGGED_LINES: tuple[str, ...] = ("level", "ols")
 
@@ -90,8 +91,10 @@ class AnalysisSettings:
     # --- styles ----------------------------------------------------------------
     features: str = "auto"
     """Which indicators make the clustering features: a set of `INDICATOR_SETS`
-    ('ttc': the study's two TTCs, 'paper': its three, 'acceptance': gaps and
-    headways, 'all': TTCs and acceptance), a comma-separated list of indicators, or
+    ('ttc': the study's two TTCs, 'paper': its three, 'headway': the gap and time
+    headway to the leader the driver pulls out from, 'acceptance': those and the lead
+    and lag gaps in the target lane, 'all': TTCs and acceptance), a comma-separated
+    list of indicators, or
     'auto': each of `AUTO_CANDIDATES` is clustered and the one whose styles are best
     separated and most stable is used (`clustering.selection`)."""
     k: int = 3
@@ -114,6 +117,11 @@ class AnalysisSettings:
     (10 of 11 seeds, median 9 of 11). On SUMO studies (seeds 1-23 and 30-39) Huber
     recovered 33 of 34 and median all 34: seed 22's Defensive driver has a steep t_nf
     line on 13 presses that reads like a Normal driver's at 60 km/h."""
+    acceptance_fit: str = "median"
+    """How a driver's gap, headway and relative-speed features are read: 'median' (its
+    level, the gap or headway it keeps whatever the speed; default) or a line as
+    `feature_fit`. On the acceptance family's tuning seeds (SUMO 100-105) the level of
+    gap_f and thw_f recovered the styles on all six, Huber lines on two."""
     feature_log: bool = True
     """Fit the feature lines on log(TTC), log(headway) and log(gap): heavy tails (tens of
     seconds behind a slow leader, gaps of hundreds of metres) then pull far less.
