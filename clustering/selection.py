@@ -100,4 +100,7 @@ def choose_features(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, 
     """The candidate set with the best score, and every candidate's score (in `candidates` order)."""
     scores = [score_feature_set(points, drivers, n_dec, settings, c, INDICATOR_SETS[c]) for c in candidates]
     best = max(range(len(scores)), key=lambda i: (scores[i].score, -i))
+    first = scores[0].score
+    if best and np.isfinite(first) and first > 0 and scores[best].score < settings.auto_margin * first:
+        best = 0  # not clearly better than the study's own reading: keep it
     return scores[best].name, scores

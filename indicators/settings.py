@@ -97,6 +97,9 @@ class AnalysisSettings:
     list of indicators, or
     'auto': each of `AUTO_CANDIDATES` is clustered and the one whose styles are best
     separated and most stable is used (`clustering.selection`)."""
+    auto_margin: float = 1.25
+    """With `features='auto'`, another set replaces the study's TTCs only when its score
+    (silhouette x stability) is at least this many times theirs (`clustering.selection`)."""
     k: int = 3
     """Number of styles when `choose_k` is None."""
     choose_k: str | None = None
