@@ -111,11 +111,12 @@ def test_a_run_too_short_to_learn_says_so(tmp_path):
     from laneprint.cli import app
 
     res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--episodes", "3",
-                                   "--no-evaluate", "-w", str(tmp_path), "--json"])
+                                   "--no-evaluate", "--run-id", "short", "-w", str(tmp_path), "--json"])
     assert res.exit_code == 0, res.output
     doc = _json.loads(res.stdout)
     assert doc["warning"].startswith("the agent never learnt") and "--learning-starts" in doc["warning"]
     ok = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--episodes", "3",
                                   "--learning-starts", "10", "--batch-size", "8", "--no-evaluate",
-                                  "-w", str(tmp_path), "--json"])
+                                  "--run-id", "learns", "-w", str(tmp_path), "--json"])
+    assert ok.exit_code == 0, ok.output
     assert "warning" not in _json.loads(ok.stdout)
