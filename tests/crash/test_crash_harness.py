@@ -63,8 +63,9 @@ def base(tmp_path) -> tuple[Path, Context]:
 
 @pytest.mark.slow
 def test_a_training_killed_after_a_checkpoint_is_interrupted_then_resumed(base, tmp_path):
+    # 10000 episodes: 3000 could all run (about 2 s of CPU) before the poll saw the first checkpoint
     train = Command(lambda c: ["train", "--style", "Normal", "--lines", "paper", "--scenes", "synthetic",
-                               "--episodes", "3000", "--checkpoint-every", "5", "--no-evaluate", "--run-id", "r"],
+                               "--episodes", "10000", "--checkpoint-every", "5", "--no-evaluate", "--run-id", "r"],
                     _runs_complete, trains=True)
     res = kill_once("train", *base, at_cpu_s=0.0, ws=tmp_path / "ws", timeout_s=120, cmd=train,
                     after=lambda ws: (ws / "runs" / "r" / "checkpoint.pt").exists())
