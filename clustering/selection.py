@@ -12,7 +12,8 @@ clustered on that set's features and the styles are scored by
 The score is their product (a set must be both separated and stable; either one alone
 is easy to win: one feature of pure noise can separate well, a single uninformative
 style is perfectly stable). A set with more than `MAX_IMPUTED` of its drivers'
-features undefined (imputed) is not scored. 'auto' picks the highest score; ties go to the earlier set
+features undefined (imputed) is not scored; above `bootstrap_max_drivers` drivers the
+score is the silhouette alone (the bootstrap would cost minutes). 'auto' picks the highest score; ties go to the earlier set
 in `AUTO_CANDIDATES` (the study's TTCs first).
 """
 
@@ -33,6 +34,8 @@ from laneprint.errors import UserError
 
 #: A set whose drivers' features are mostly undefined (imputed) is not a reading of them: not scored.
 MAX_IMPUTED = 0.5
+#: Bootstrap resamples for a set's stability: a coarse share is enough to compare sets.
+SELECTION_BOOTSTRAP = 30
 
 
 @dataclass(frozen=True)
@@ -90,7 +93,9 @@ def score_feature_set(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series
     labels = clf.labels_
     n_labels = len(set(labels.tolist()))
     sil = float(silhouette_score(clf.transform(Xt), labels)) if 2 <= n_labels <= len(rows) - 1 else 0.0
-    boot = s.with_(n_bootstrap=max(s.n_bootstrap, 20))
+    if len(rows) > s.bootstrap_max_drivers:  # as the styles' own confidence: too costly, separation alone
+        return FeatureSetScore(name, tuple(indicators), clf.k_, sil, np.nan, sil, imputed)
+    boot = s.with_(n_bootstrap=SELECTION_BOOTSTRAP)
     stab = float(np.mean(bootstrap_stability(points, list(rows), labels, clf, boot)))
     return FeatureSetScore(name, tuple(indicators), clf.k_, sil, stab, sil * stab, imputed)
 
