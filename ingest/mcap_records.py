@@ -81,7 +81,7 @@ def _inflate(compression: str, raw: bytes, size: int) -> bytes:
         return zstandard.ZstdDecompressor().decompress(raw, max_output_size=size)
     if compression == "lz4":
         import lz4.frame
-        return lz4.frame.decompress(raw)
+        return lz4.frame.LZ4FrameDecompressor().decompress(raw, max_length=size)  # no larger than it claims
     raise Unreadable(f"compression {compression!r}")
 
 

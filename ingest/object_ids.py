@@ -54,7 +54,10 @@ def id_text(value: Any) -> str | None:
         return str(int(value))
     if isinstance(value, (float, np.floating)):
         return str(int(value)) if float(value).is_integer() else str(value)
-    raw = _bytes_of(_wrapped(value))
+    inner = next(iter(value.values())) if isinstance(value, dict) and len(value) == 1 else _wrapped(value)
+    if inner is not value:  # a single-field message or object ({"uuid": [...]}, std_msgs/String): its field
+        return id_text(inner)
+    raw = _bytes_of(value)
     return raw.hex() if raw is not None else str(value)
 
 

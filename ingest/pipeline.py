@@ -116,12 +116,14 @@ def discover(paths: list[Path]) -> list[tuple[Path, str | None]]:
             out.append((p, None))
         elif p.is_dir():
             bags = {m.parent for m in p.rglob("metadata.yaml") if is_bag_folder(m.parent)}
+            bags_listed: set[Path] = set()
             for f in sorted(x for x in p.rglob("*") if x.is_file()):
                 if any(part.startswith(".") for part in f.relative_to(p).parts):
                     continue
                 bag = next((b for b in f.parents if b in bags), None)
                 if bag is not None:  # a part of a split bag: the bag is one log, listed once
-                    if (bag, None) not in out:
+                    if bag not in bags_listed:
+                        bags_listed.add(bag)
                         out.append((bag, None))
                     continue
                 out.append((f, None if log_format(f) else "skip: not a log file"))

@@ -106,10 +106,13 @@ def test_ros2_uuid_object_ids_are_stored_as_hex(tmp_path, recording, path):
     ("car7", "car7"), (7, "7"), (7.0, "7"), (7.5, "7.5"), (None, None),
     (b"V001" + bytes(12), "56303031000000000000000000000000"), ([1, 2, 255], "0102ff"),
     (SimpleNamespace(uuid=b"\x0a\x0b"), "0a0b"),
+    (SimpleNamespace(data="car7"), "car7"), (SimpleNamespace(data=7), "7"),  # std_msgs/String, UInt32
+    ({"uuid": [97, 0, 255]}, "6100ff"), ({"id": "car7"}, "car7"),  # JSON objects of one field
 ])
 def test_object_id_text_is_canonical(value, text):
-    if isinstance(value, SimpleNamespace):  # a decoded ROS 2 UUID message: one slot
-        value = type("UUID", (SimpleNamespace,), {"__slots__": ["uuid"]})(uuid=value.uuid)
+    if isinstance(value, SimpleNamespace):  # a decoded ROS 2 message of one field: one slot
+        (field, inner), = vars(value).items()
+        value = type("Msg", (SimpleNamespace,), {"__slots__": [field]})(**{field: inner})
     assert id_text(value) == text
 
 
