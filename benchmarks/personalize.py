@@ -39,7 +39,7 @@ from laneprint.workspace import Workspace  # noqa: E402
 from rl.evaluation.crossval import bootstrap_scores  # noqa: E402
 from rl.personalize.agents import PersonalizeSettings  # noqa: E402
 from rl.personalize.curve import ALL, CurveSettings, driver_curve  # noqa: E402
-from rl.personalize.style import analysis_settings  # noqa: E402
+from clustering.pipeline import stored_settings  # noqa: E402
 from rl.problem.env import formulation_config  # noqa: E402
 from rl.problem.rewards import ReferenceLines  # noqa: E402
 from rl.settings import DQNSettings  # noqa: E402
@@ -68,7 +68,7 @@ def one_driver(args: tuple) -> dict[str, Any]:
     t0 = time.perf_counter()
     res = driver_curve(decisions, driver, others, env, dqn,
                        CurveSettings(ks=ks, test_sessions=test_sessions, seed=seed, variants=variants),
-                       analysis_settings(ws))
+                       stored_settings(ws))
     res["wall_s"] = time.perf_counter() - t0
     return res
 

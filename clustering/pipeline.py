@@ -453,6 +453,15 @@ def build_report(tables: dict[str, pd.DataFrame], meta: dict[str, Any]) -> dict[
             "fingerprint": meta.get("data_fingerprint"), "code": meta.get("code")}
 
 
+def stored_settings(workspace: Workspace) -> AnalysisSettings:
+    """The settings the workspace's analysis ran with (its resolved feature set included);
+    defaults when there is no analysis or its meta cannot be read."""
+    try:
+        return AnalysisSettings.from_dict(workspace.read_meta("analysis").get("settings", {}))
+    except (UserError, OSError, ValueError, TypeError):
+        return AnalysisSettings()
+
+
 def analyze(workspace: Workspace, settings: AnalysisSettings | None = None,
             progress: ProgressFn | None = None) -> dict[str, Any]:
     """Run the stage on a workspace: store `analysis/` and return the JSON-ready report."""

@@ -236,9 +236,7 @@ def analysis_settings(saved: dict[str, Any], **changes: Any):
     """`AnalysisSettings` from the dict stored in analysis/meta.json (lists back to tuples), with `changes`."""
     from indicators.settings import AnalysisSettings
 
-    fields = AnalysisSettings.__dataclass_fields__
-    base = {k: tuple(v) if isinstance(v, list) else v for k, v in saved.items() if k in fields}
-    return AnalysisSettings(**base).with_(**changes)
+    return AnalysisSettings.from_dict(saved).with_(**changes)
 
 
 # --- cross-validation (held-out figures) -------------------------------------------------

@@ -6,7 +6,6 @@ import numpy as np
 import pandas as pd
 import plotly.graph_objects as go
 
-from indicators import stats as _stats
 from indicators.stats import INDICATOR_COLUMNS, LineFit, indicator_points
 from laneprint.plotting import clip_to_axis, line_formula, tail_range
 
@@ -35,9 +34,8 @@ INDICATOR_GROUPS: dict[str, tuple[str, ...]] = {
 
 
 def indicator_columns() -> dict[str, tuple[str, str, str]]:
-    """indicator -> (value column, status column, unit) as the analysis stage defines them (the paper's
-    three in an older install)."""
-    return dict(getattr(_stats, "INDICATOR_COLUMNS", INDICATOR_COLUMNS))
+    """indicator -> (value column, status column, unit) as the analysis stage defines them."""
+    return dict(INDICATOR_COLUMNS)
 
 
 def unit_of(indicator: str) -> str:

@@ -155,6 +155,13 @@ class AnalysisSettings:
         """Plain JSON-ready dict (tuples as lists)."""
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "AnalysisSettings":
+        """Settings from `to_dict`'s output (as stored in analysis/meta.json); unknown keys are
+        ignored and missing ones take their defaults, so older workspaces read."""
+        known = cls.__dataclass_fields__
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in known})
+
     def with_(self, **changes: Any) -> "AnalysisSettings":
         """A copy with some fields changed."""
         return replace(self, **changes)

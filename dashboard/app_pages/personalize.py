@@ -26,7 +26,7 @@ def upload_session(ws) -> None:
         return
     from clustering.pipeline import analyze
     from ingest.pipeline import ingest_paths
-    from rl.personalize.style import analysis_settings
+    from clustering.pipeline import stored_settings
 
     saved = uploads.save_upload(file.name, file.size, file, ws.root / "uploads", max_upload_bytes())
     if saved.path is None:
@@ -39,7 +39,7 @@ def upload_session(ws) -> None:
         if refused:
             uploads.discard(saved.path, ws.root / "uploads")
             raise UserError(refused[0].get("reason", "refused"))
-        analyze(ws, analysis_settings(ws), progress_to(bar, "Analysing..."))
+        analyze(ws, stored_settings(ws), progress_to(bar, "Analysing..."))
     except UserError as exc:
         bar.empty()
         st.warning(f"Not done: {exc}")
@@ -60,10 +60,24 @@ def style_figure(est) -> go.Figure:
     return fig
 
 
+@st.cache_data(show_spinner="Placing the driver among the styles...", max_entries=32)
+def style_estimate(root: str, stamp: tuple[int, ...], driver: str, k: int):
+    """The style of `driver`'s first `k` decisions among the other drivers (cached on the analysis's
+    stamp: the population is clustered again and 200 resamples drawn, too slow for every rerun)."""
+    from clustering.pipeline import stored_settings
+    from laneprint.workspace import Workspace
+    from rl.personalize.split import driver_rows, first_decisions
+    from rl.personalize.style import estimate_style, fit_population
+
+    decisions = loaders.analysis(root, stamp)["decisions"]
+    others = [d for d in sorted(decisions["driver_id"].astype(str).unique()) if d != driver]
+    pop = fit_population(decisions, others, stored_settings(Workspace(root)))
+    return estimate_style(pop, first_decisions(driver_rows(decisions, driver), k), n_bootstrap=200, seed=0)
+
+
 def style_section(ws, decisions: pd.DataFrame) -> tuple[str, int] | None:
     """Pick a driver and K; show the style its first K decisions give, with the confidence."""
-    from rl.personalize.split import decision_order, driver_rows, first_decisions
-    from rl.personalize.style import analysis_settings, estimate_style, fit_population
+    from rl.personalize.split import decision_order, driver_rows
 
     st.subheader("Style from its decisions")
     drivers = sorted(decisions["driver_id"].astype(str).unique())
@@ -77,8 +91,7 @@ def style_section(ws, decisions: pd.DataFrame) -> tuple[str, int] | None:
     n = len(decision_order(rows))
     k = int(c2.number_input(f"First K decisions (of {n})", min_value=1, max_value=max(n, 1), value=n, key="p_k"))
     try:
-        pop = fit_population(decisions, [d for d in drivers if d != driver], analysis_settings(ws))
-        est = estimate_style(pop, first_decisions(rows, k), n_bootstrap=200, seed=0)
+        est = style_estimate(str(ws.root), loaders.analysis_stamp(ws.root), driver, k)
     except UserError as exc:
         st.warning(str(exc))
         return None
@@ -121,7 +134,8 @@ def personalised_runs(ws) -> pd.DataFrame:
     for folder in sorted(ws.runs_dir.glob("*")) if ws.runs_dir.exists() else []:
         try:
             p = json.loads((folder / "personalize.json").read_text())
-        except (OSError, ValueError):
+            p["base"]["from"], p["style"]["style"], p["style"]["confidence"]  # noqa: B018 (a complete record)
+        except (OSError, ValueError, KeyError, TypeError):
             continue
         later = p.get("later_decisions") or {}
         lo, hi = later.get("balanced_accuracy_ci") or [None, None]

@@ -6,13 +6,12 @@ from clustering.plots import DIRECTION_NAMES, cluster_scatter, line_directions, 
 from dashboard import figures, loaders, views, widgets
 from dashboard.context import workspace
 from dashboard.widgets import progress_to
-from indicators import settings as analysis_settings
-from indicators.settings import FEATURE_FITS
+from indicators.settings import FEATURE_FITS, INDICATOR_SETS
 from laneprint.errors import UserError
 
 CHOOSE_K = {"fixed k": None, "silhouette": "silhouette", "BIC": "bic"}
-#: Feature sets the form offers ('auto': chosen by the data), when the analysis stage knows them.
-FEATURE_SETS = ("auto", *getattr(analysis_settings, "INDICATOR_SETS", {}))
+#: Feature sets the form offers ('auto': chosen by the data).
+FEATURE_SETS = ("auto", *INDICATOR_SETS)
 
 
 def rerun_form(ws, current: dict) -> None:
@@ -27,20 +26,15 @@ def rerun_form(ws, current: dict) -> None:
         fits = list(dict.fromkeys([now.feature_fit, *FEATURE_FITS]))
         fit = c3.selectbox("Feature line fit", fits, key="feature_fit",
                            help="How each driver's line is fitted to make the clustering features")
-        has_sets = "features" in views.analysis_settings({}).__dataclass_fields__ and len(FEATURE_SETS) > 1
-        current_set = getattr(now, "features", "auto")
-        sets = list(dict.fromkeys([current_set, *FEATURE_SETS])) if has_sets else []
-        features = c4.selectbox("Features", sets, key="features", disabled=not has_sets,
+        sets = list(dict.fromkeys([now.features, *FEATURE_SETS]))
+        features = c4.selectbox("Features", sets, key="features",
                                 help="Which indicators make the clustering features; 'auto': each candidate set "
-                                     "is clustered and the best separated, most stable one is used") \
-            if has_sets else None
+                                     "is clustered and the best separated, most stable one is used")
         go = st.form_submit_button("Run analysis", type="primary")
     if go:
         from clustering.pipeline import analyze
 
-        changes = {"k": int(k), "choose_k": CHOOSE_K[how], "feature_fit": fit}
-        if features:
-            changes["features"] = features
+        changes = {"k": int(k), "choose_k": CHOOSE_K[how], "feature_fit": fit, "features": features}
         settings = views.analysis_settings(current, **changes)
         bar = st.progress(0.0, text="Analysing...")
         labels = views.recording_names(loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root)))

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import tempfile
-from dataclasses import asdict, fields, replace
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Optional
 
@@ -133,23 +133,10 @@ def _sum_counts(counts: list[dict[str, int]]) -> dict[str, int]:
     return dict(sorted(out.items()))
 
 
-def analysis_settings(workspace: Workspace) -> Any:
-    """The settings the workspace was analysed with (defaults where none are stored)."""
-    from indicators.settings import AnalysisSettings
-
-    try:
-        stored = workspace.read_meta("analysis").get("settings", {})
-    except (UserError, OSError, ValueError):
-        stored = {}
-    names = {f.name for f in fields(AnalysisSettings)}
-    return replace(AnalysisSettings(), **{k: tuple(v) if isinstance(v, list) else v
-                                          for k, v in stored.items() if k in names})
-
-
 def assigned_style(workspace: Workspace, files: list[Path], driver_id: str) -> dict[str, Any]:
     """Analyse the workspace's recordings plus `files` (as `driver_id`) in a scratch workspace:
     the style given to `driver_id`, its confidence, and every driver's style."""
-    from clustering.pipeline import analyze
+    from clustering.pipeline import analyze, stored_settings
     from ingest.pipeline import ingest_paths
 
     cat = workspace.recordings()
@@ -162,7 +149,7 @@ def assigned_style(workspace: Workspace, files: list[Path], driver_id: str) -> d
         bad = [f for f in rep.files if f.status not in ("ingested", "warning")]
         if bad:
             raise UserError(f"ingest did not store the drive's {bad[0].source} ({bad[0].status}): {bad[0].reason}")
-        analyze(scratch, analysis_settings(workspace))
+        analyze(scratch, stored_settings(workspace))
         styles = scratch.read_table("analysis", "styles")
     styles["driver_id"] = styles["driver_id"].astype(str)
     row = styles[styles["driver_id"] == driver_id]

@@ -22,7 +22,7 @@ from typing import Any
 
 import pandas as pd
 
-from indicators.settings import AnalysisSettings
+from clustering.pipeline import stored_settings
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn
 from laneprint.workspace import Workspace, atomic_write_json
@@ -35,16 +35,6 @@ from rl.settings import DQNSettings
 
 def crossval_dir(workspace: Workspace) -> Path:
     return workspace.root / "crossval"
-
-
-def _analysis_settings(workspace: Workspace) -> AnalysisSettings:
-    path = workspace.root / "analysis" / "meta.json"
-    try:
-        d = json.loads(path.read_text())["settings"]
-        fields = AnalysisSettings.__dataclass_fields__
-        return AnalysisSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in fields})
-    except (OSError, ValueError, KeyError, TypeError):
-        return AnalysisSettings()
 
 
 def style_names(workspace: Workspace) -> list[str]:
@@ -69,7 +59,7 @@ def run_crossval(workspace: Workspace, target: Target, env: EnvConfig, dqn: DQNS
         line_drivers = [typical] if typical else drivers
     else:
         line_drivers = drivers
-    res = crossvalidate(decisions, drivers, line_drivers, env, dqn, settings, _analysis_settings(workspace),
+    res = crossvalidate(decisions, drivers, line_drivers, env, dqn, settings, stored_settings(workspace),
                         refit_lines=lines_source == "analysis", progress=progress, backend=backend,
                         ray_address=ray_address)
     states, changes = res.pop("states"), res.pop("changes")

@@ -31,7 +31,8 @@ from rl.evaluation.evaluate import agent_policy, evaluate_policies
 from rl.personalize.agents import (PersonalizeSettings, base_seed, finetune_settings, personalised_agent, train_agent,
                                    weights_of)
 from rl.personalize.split import decision_order, driver_rows, first_decisions
-from rl.personalize.style import analysis_settings, estimate_style, fit_population
+from clustering.pipeline import stored_settings
+from rl.personalize.style import estimate_style, fit_population
 from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config
 from rl.problem.rewards import ReferenceLines
 from rl.runs import RunWriter, Target, create_run, evaluate_run, new_run_id, now_iso, run_dir
@@ -112,7 +113,7 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
         raise UserError(f"{driver} is the only driver in the workspace: nothing to start from "
                         f"(`laneprint train --driver {driver}` trains on its decisions alone)")
     report(progress, 0, 1, "style from the decisions")
-    pop = fit_population(decisions, others, analysis_settings(workspace))
+    pop = fit_population(decisions, others, stored_settings(workspace))
     est = estimate_style(pop, own_rows, ps.n_bootstrap, seed)
     base_drivers = others if ps.base == "population" else pop.members[est.style]
     env = formulation_config(_lines(workspace, est.style), "decisions")

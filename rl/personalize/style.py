@@ -14,7 +14,6 @@ the analysis reports its bootstrap stability.
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -27,20 +26,9 @@ from clustering.styles import StyleClusterer
 from indicators.settings import AnalysisSettings
 from indicators.stats import indicator_points
 from laneprint.errors import UserError
-from laneprint.workspace import Workspace
 
 #: A feature speed counts as covered when a press was made within this of it [km/h].
 SPEED_TOLERANCE_KPH = 5.0
-
-
-def analysis_settings(workspace: Workspace) -> AnalysisSettings:
-    """The stored analysis's settings (its resolved feature set included), defaults where absent."""
-    try:
-        d = json.loads((workspace.root / "analysis" / "meta.json").read_text())["settings"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return AnalysisSettings()
-    fields = AnalysisSettings.__dataclass_fields__
-    return AnalysisSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in fields})
 
 
 @dataclass

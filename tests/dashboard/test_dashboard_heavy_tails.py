@@ -64,7 +64,7 @@ def test_indicator_vs_speed_tails_and_flags():
     off = next(t for t in fig.data if t.name.startswith("used, off the axis"))
     assert off.name == "used, off the axis (3)" and sorted(off.customdata) == [900.0, 2500.0, 20000.0]
     title = fig.layout.title.text
-    assert " − " in title or " + " in title and "+ -" not in title
+    assert (" − " in title or " + " in title) and "+ -" not in title
     assert "flagged: R² 0.08 < 0.10" in title and "[s]" in title
     assert next(t for t in fig.data if t.name == "OLS line").line.dash == "dot"
 

@@ -14,7 +14,8 @@ from indicators.settings import AnalysisSettings
 from laneprint.cli import app
 from laneprint.workspace import Workspace
 from rl.personalize.split import decision_order, first_decisions, holdout_split
-from rl.personalize.style import analysis_settings, estimate_style, fit_population
+from clustering.pipeline import stored_settings
+from rl.personalize.style import estimate_style, fit_population
 from rl.problem.rewards import ReferenceLines
 from rl.testing import FAST_CLI, session_decisions
 
@@ -61,7 +62,7 @@ def test_first_k_decisions_are_the_earliest_in_time_order() -> None:
 
 def test_style_of_a_few_decisions_has_a_confidence(study: Workspace) -> None:
     dec = study.read_table("analysis", "decisions")
-    pop = fit_population(dec, ["D01", "D02", "D03", "D04", "D06"], analysis_settings(study))
+    pop = fit_population(dec, ["D01", "D02", "D03", "D04", "D06"], stored_settings(study))
     est = estimate_style(pop, first_decisions(dec[dec["driver_id"] == "D05"], 6), n_bootstrap=50, seed=1)
     assert est.style == "Aggressive"
     assert 0 < est.confidence <= 1 and sum(est.bootstrap.values()) == pytest.approx(1.0)
