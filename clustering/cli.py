@@ -12,6 +12,7 @@ from rich.table import Table
 
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
 from laneprint.errors import UserError
+from laneprint.plotting import line_formula
 from laneprint.workspace import Workspace
 
 PAPER_INDICATORS = ("t_f", "t_nf", "dv_nb")
@@ -82,8 +83,8 @@ def render_features(feats: dict[str, Any], console: Console) -> None:
 
 
 def format_line(indicator: str, A: float, b: float) -> str:
-    """'t_f = 0.45 v − 3.26' with the sign of b printed properly."""
-    return f"{indicator} = {A:.2f} v {'−' if b < 0 else '+'} {abs(b):.2f}"
+    """'t_f = 0.45 v − 3.26' with the signs printed properly."""
+    return line_formula(indicator, A, b, x="v", digits_a=2)
 
 
 def analyze_command(

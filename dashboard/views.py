@@ -573,6 +573,6 @@ def driver_presses_by_direction(decisions: pd.DataFrame, driver_id: str) -> dict
     """Presses of one driver to each side ({} when the decisions table has no lanes)."""
     if not {"target_lane", "ego_lane"} <= set(decisions.columns):
         return {}
-    d = decisions[(decisions["driver_id"].astype(str) == driver_id) & (decisions["label"] == "change")]
-    left = int((d["target_lane"] > d["ego_lane"]).sum())
-    return {"left": left, "right": len(d) - left}
+    from indicators.directions import press_counts
+
+    return press_counts(decisions[decisions["driver_id"].astype(str) == driver_id])

@@ -6,6 +6,7 @@ import numpy as np
 import pandas as pd
 import plotly.graph_objects as go
 
+from indicators.directions import directions
 from indicators.stats import INDICATOR_COLUMNS, LineFit, indicator_points
 from laneprint.plotting import clip_to_axis, line_formula, tail_range
 
@@ -203,8 +204,7 @@ def press_directions(decisions: pd.DataFrame) -> pd.Series | None:
     if not {"target_lane", "ego_lane", "decision_id"} <= set(decisions.columns):
         return None
     d = decisions[decisions["label"] == "change"] if "label" in decisions else decisions
-    left = d["target_lane"].to_numpy(dtype=float) > d["ego_lane"].to_numpy(dtype=float)
-    return pd.Series(np.where(left, "left", "right"), index=d["decision_id"].astype(str).to_numpy())
+    return pd.Series(directions(d), index=d["decision_id"].astype(str).to_numpy())
 
 
 def direction_lines(fits_by_direction: pd.DataFrame | None, driver_id: str, indicator: str,

@@ -122,8 +122,8 @@ def _analysis(ws: Workspace) -> list[Section]:
         if len(flagged):
             ind.warn(f"{views.plural(len(flagged), 'per-driver line')} flagged (they mean little): " + "; ".join(
                 f"{r.driver_id} {r.indicator}: {r.flag}" for r in flagged.itertuples()))
-        ind.table("fits", views.fit_summary(fits).assign(driver_id=fits["driver_id"].to_numpy())
-                  [["driver_id", *views.fit_summary(fits).columns]])
+        summary = views.fit_summary(fits)
+        ind.table("fits", summary.assign(driver_id=fits["driver_id"].to_numpy())[["driver_id", *summary.columns]])
     side_fits = t.get("fits_by_direction")
     if side_fits is not None and len(side_fits):
         ind.p("The same fits on the presses to each side (left: overtaking, right: returning); a side with too "
@@ -286,7 +286,6 @@ def render_html(sections: list[Section], prov: dict[str, Any], title: str = "lan
                      "an older set of recordings.</p>")
     parts.append("<nav>" + "".join(f"<a href='#s{i}'>{html.escape(s.title)}</a>" for i, s in enumerate(sections))
                  + "<a href='#provenance'>Provenance</a></nav>")
-    n_fig = 0
     for i, sec in enumerate(sections):
         parts.append(f"<h2 id='s{i}'>{html.escape(sec.title)}</h2>")
         for kind, item in sec.items:
@@ -297,9 +296,7 @@ def render_html(sections: list[Section], prov: dict[str, Any], title: str = "lan
             elif kind == "table":
                 parts.append(_table_html(item[1]))
             else:
-                n_fig += 1
-                fig = go.Figure(item[1])
-                parts.append("<div class='fig'>" + fig.to_html(full_html=False, include_plotlyjs=False,
+                parts.append("<div class='fig'>" + item[1].to_html(full_html=False, include_plotlyjs=False,
                                                                div_id=f"fig-{_safe(item[0])}",
                                                                config={"displaylogo": False,
                                                                        "toImageButtonOptions": {"format": "svg"}})
