@@ -21,6 +21,12 @@ status 'far' (value kept) when the follower's gap exceeds `far_follower_m`. The
 indicators of what the driver accepts (gaps, headways, relative speeds, each with a
 status) are added by `indicators.acceptance`.
 
+In a lane with a neighbour on each side (the middle lane of three) the driver could
+have gone the other way too: `other_lane` is that lane (the mirror of the target
+lane), and `other_nf_*` / `other_nb_*` its nearest vehicles ahead / behind, read as
+`C_nf` / `C_nb` are (`OTHER_SIDE`). A lane exists when some vehicle of the recording
+(ego or traffic) drives in it; elsewhere `other_lane` is -1 and the vehicles absent.
+
 Everything is computed for all states of a recording at once (vectorised).
 """
 
@@ -34,13 +40,36 @@ import pandas as pd
 from indicators.acceptance import DERIVED_COLUMNS, add_acceptance
 from indicators.settings import AnalysisSettings
 from indicators.stats import fit_reasons
-from laneprint.schemas import DECISIONS
+from laneprint.schemas import DECISIONS, Column, Schema
+
+#: The other side of a middle lane at every state: the lane the driver could have changed
+#: to instead of `target_lane`, and its vehicles (what `rl.problem.env.approaches_from_decisions`
+#: turns into the side not taken). Tables analysed before these columns lack them.
+OTHER_SIDE = Schema(
+    "decision_other_side",
+    "In a lane with neighbours on both sides, the neighbouring lane opposite the target lane and "
+    "its nearest vehicles ahead and behind, read as C_nf / C_nb are.",
+    (
+        Column("other_lane", "int", "the ego lane's other neighbour (2 * ego_lane - target_lane); "
+                                    "-1 where the ego lane has none"),
+        Column("other_nf_present", "bool", "a leader in the other lane"),
+        Column("other_nf_x_m", "float", "[m]", nullable=True),
+        Column("other_nf_v_mps", "float", "[m/s]", nullable=True),
+        Column("other_nf_gap_m", "float", "bumper-to-bumper gap [m]", nullable=True),
+        Column("other_nf_id", "str", "", nullable=True),
+        Column("other_nb_present", "bool", "a follower (behind or alongside) in the other lane"),
+        Column("other_nb_x_m", "float", "[m]", nullable=True),
+        Column("other_nb_v_mps", "float", "[m/s]", nullable=True),
+        Column("other_nb_gap_m", "float", "bumper-to-bumper gap [m]", nullable=True),
+        Column("other_nb_id", "str", "", nullable=True),
+    ),
+)
 
 #: Columns added to the DECISIONS contract by this stage.
 EXTRA_COLUMNS: tuple[str, ...] = (
     "press_index", "lc_direction", "lane_change_t_s", "f_id", "nf_id", "nb_id",
     "t_f_reason", "t_nf_reason", "dv_nb_reason",
-)
+) + tuple(OTHER_SIDE.names)
 COLUMNS: list[str] = DECISIONS.names + list(EXTRA_COLUMNS) + list(DERIVED_COLUMNS)
 
 
@@ -53,6 +82,7 @@ def empty_decisions() -> pd.DataFrame:
                  "lane_change_t_s": pd.Series(dtype="float64"), "f_id": pd.Series(dtype="object"),
                  "nf_id": pd.Series(dtype="object"), "nb_id": pd.Series(dtype="object")})
     cols.update({f"{ind}_reason": pd.Series(dtype="object") for ind in ("t_f", "t_nf", "dv_nb")})
+    cols.update({c.name: pd.Series(dtype=dtypes[c.kind]) for c in OTHER_SIDE.columns})
     cols.update({c: pd.Series(dtype="object" if c.endswith("_status") else "float64") for c in DERIVED_COLUMNS})
     return pd.DataFrame(cols)[COLUMNS]
 
@@ -174,10 +204,12 @@ def ego_at(states: pd.DataFrame, ego: pd.DataFrame) -> pd.DataFrame:
 def neighbours(e: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSettings) -> dict[str, np.ndarray]:
     """`C_f`, `C_nf`, `C_nb` at each state of `e` (an `ego_at` frame with `state` = 0..n-1 and a
     `target_lane` column): ``<role>_x_m``, ``<role>_v_mps``, ``<role>_gap_m`` (NaN when absent)
-    and ``<role>_id`` (None), read as the module doc says."""
+    and ``<role>_id`` (None), read as the module doc says. With an `other_lane` column also the
+    roles ``other_nf`` / ``other_nb``, the same reading of that lane (absent where it is -1)."""
     n = len(e)
+    roles = ("f", "nf", "nb") + (("other_nf", "other_nb") if "other_lane" in e.columns else ())
     cols: dict[str, Any] = {}
-    for role in ("f", "nf", "nb"):
+    for role in roles:
         cols[f"{role}_x_m"] = np.full(n, np.nan)
         cols[f"{role}_v_mps"] = np.full(n, np.nan)
         cols[f"{role}_gap_m"] = np.full(n, np.nan)
@@ -218,6 +250,10 @@ def neighbours(e: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSetting
             "nf": _nearest(m[(lane_v == e["target_lane"].to_numpy()[st]) & (m["dx"].to_numpy() > 0)], "dx", True),
             "nb": _nearest(m[(lane_v == e["target_lane"].to_numpy()[st]) & (m["dx"].to_numpy() <= 0)], "dx", False),
         }
+        if "other_lane" in e.columns:  # -1 matches no vehicle's lane
+            other = lane_v == e["other_lane"].to_numpy()[st]
+            picks["other_nf"] = _nearest(m[other & (m["dx"].to_numpy() > 0)], "dx", True)
+            picks["other_nb"] = _nearest(m[other & (m["dx"].to_numpy() <= 0)], "dx", False)
         for role, pk in picks.items():
             idx = pk.index.to_numpy()
             cols[f"{role}_x_m"][idx] = pk["x_m"].to_numpy()
@@ -255,6 +291,7 @@ def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataF
     e, p = e[in_lane].reset_index(drop=True), p[in_lane].reset_index(drop=True)
     e["state"] = np.arange(len(e))
     e["target_lane"] = p["target_lane"].to_numpy()
+    e["other_lane"] = other_lanes(e["ego_lane"].to_numpy(), e["target_lane"].to_numpy(), n_lanes(ego, traffic))
 
     cols = neighbours(e, traffic, settings)
 
@@ -299,6 +336,11 @@ def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataF
     out["lane_change_t_s"] = p["lane_change_t_s"].to_numpy(dtype=float)
     for role in ("f", "nf", "nb"):
         out[f"{role}_id"] = cols[f"{role}_id"]
+    out["other_lane"] = e["other_lane"].to_numpy(dtype=np.int64)
+    for role in ("other_nf", "other_nb"):
+        out[f"{role}_present"] = ~np.isnan(cols[f"{role}_x_m"])
+        for q in ("x_m", "v_mps", "gap_m", "id"):
+            out[f"{role}_{q}"] = cols[f"{role}_{q}"]
     out = add_acceptance(out, settings)
     reasons = fit_reasons(out, settings)
     for ind in ("t_f", "t_nf", "dv_nb"):
@@ -307,6 +349,21 @@ def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataF
         out = _same_leader_run(out)
     out = out.sort_values(["press_index", "t_s"], kind="mergesort").reset_index(drop=True)
     return out[COLUMNS], skipped
+
+
+def n_lanes(ego: pd.DataFrame, traffic: pd.DataFrame) -> int:
+    """Lanes of a recording's road: one more than the highest lane any of its vehicles drives in."""
+    top = int(ego["ego_lane"].max()) if len(ego) else 0
+    if len(traffic):
+        top = max(top, int(traffic["lane"].max()))
+    return top + 1
+
+
+def other_lanes(ego_lane: np.ndarray, target_lane: np.ndarray, lanes: int) -> np.ndarray:
+    """Per state, the ego lane's neighbour opposite the target lane, or -1 where there is none."""
+    other = 2 * np.asarray(ego_lane, np.int64) - np.asarray(target_lane, np.int64)
+    ok = (other >= 0) & (other < lanes) & (other != ego_lane)
+    return np.where(ok, other, -1)
 
 
 def _same_leader_run(states: pd.DataFrame) -> pd.DataFrame:

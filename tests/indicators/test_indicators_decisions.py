@@ -157,3 +157,30 @@ def test_keep_states_cover_only_the_approach_to_the_press_leader():
     assert set(keep["f_id"]) == {"A"}
     dec_all, _ = extract_decisions(meta, ego, traffic, AnalysisSettings(same_leader_approach=False))
     assert (dec_all["label"] == "keep").sum() == 10  # 0.0 .. 4.5 s, OLD leading the first ones
+
+
+def test_other_side_of_a_middle_lane():
+    # three lanes: the ego in lane 1 presses left (to lane 2) at t = 5; lane 0 is the side not taken.
+    # G: lane 0 leader, 18 m/s, 5 m long; H: lane 0 follower, 22 m/s; I: lane 2 leader (the target's).
+    vehicles = [("A", 60, 15, 1, 4.5), ("G", 100, 18, 0, 5.0), ("H", -30, 22, 0, 4.5), ("I", 200, 25, 2, 4.5)]
+    meta, ego, traffic = make_recording(duration_s=10, hz=10, ego_v=20.0, lanes=[(0, 1), (7.0, 2)],
+                                        presses=[(5.0, 0.5, "left")], vehicles=vehicles)
+    dec, _ = extract_decisions(meta, ego, traffic)
+    assert list(dec.columns) == COLUMNS
+    assert (dec["other_lane"] == 0).all()
+    press = dec[dec["label"] == "change"].iloc[0]
+    assert press["target_lane"] == 2 and press["nf_id"] == "I"
+    # ego x = 100; G x = 190: gap = 90 - (4.5 + 5) / 2 = 85.25; H x = 80: gap = 20 - 4.5 = 15.5
+    assert press["other_nf_id"] == "G" and press["other_nf_present"]
+    assert press["other_nf_x_m"] == pytest.approx(190.0) and press["other_nf_v_mps"] == pytest.approx(18.0)
+    assert press["other_nf_gap_m"] == pytest.approx(85.25)
+    assert press["other_nb_id"] == "H" and press["other_nb_gap_m"] == pytest.approx(15.5)
+    assert press["other_nb_v_mps"] == pytest.approx(22.0)
+
+
+def test_no_other_side_outside_a_middle_lane():
+    meta, ego, traffic = scene()  # two lanes: lane 0 -> 1, then a cancelled press right from lane 1
+    dec, _ = extract_decisions(meta, ego, traffic)
+    assert (dec["other_lane"] == -1).all()
+    assert not dec["other_nf_present"].any() and not dec["other_nb_present"].any()
+    assert dec["other_nf_x_m"].isna().all() and dec["other_nb_id"].isna().all()
