@@ -23,6 +23,10 @@ ScenesOpt = Annotated[Optional[str], typer.Option(
     "--scenes", help=f"Where episodes come from: {' or '.join(SCENES)} (default: the reward's own, rl/README.md).")]
 ObservationOpt = Annotated[Optional[str], typer.Option(
     "--observation", help=f"What the agent sees: {' or '.join(OBSERVATIONS)} (default: the reward's own).")]
+OtherSideOpt = Annotated[Optional[bool], typer.Option(
+    "--other-side/--driver-side-only", help="Recorded scenes: also replay the side a middle-lane driver did not "
+                                            "take, as approaches without a press (default), or only the driver's "
+                                            "side (before issue 19). No effect on two lanes.")]
 
 
 def _fmt(x: Any, pct: bool = False) -> str:
@@ -70,6 +74,55 @@ def _render_fleet(res: dict[str, Any], console: Console) -> None:
                   "+ 5 points)", highlight=False)
 
 
+def _target_drivers(styles: Any, target: Any) -> list[str]:
+    """The drivers whose approaches a target replays: the driver, or a style's members."""
+    if target.kind == "driver" or styles is None:
+        return [str(target.name)]
+    return styles.loc[styles["style"].astype(str).str.lower() == str(target.name).lower(), "driver_id"].astype(str).tolist()
+
+
+def learning_checks(ws: Workspace, targets: list[Any], env: Any, settings: DQNSettings,
+                    share: float = 1.0) -> list[tuple[Any, Any]]:
+    """(target, `rl.settings.LearningCheck`) of each target whose run could not learn, or only late, at
+    `settings`, checked before training (`share`: the part of the target's approaches a fold's agent
+    trains on, in cross-validation)."""
+    from rl.settings import approach_steps, learning_check
+
+    tables = {n: ws.read_table("analysis", n) for n in ("decisions", "styles") if ws.has_table("analysis", n)}
+    dec = tables.get("decisions")
+    counts = (dec.assign(press=dec["label"] == "change").groupby(dec["driver_id"].astype(str))["press"]
+              .agg(["size", "sum"]) if dec is not None else None)
+    out = []
+    for target in targets:
+        mine = (counts.reindex(_target_drivers(tables.get("styles"), target)).fillna(0).sum()
+                if counts is not None else {"size": 0, "sum": 0})
+        presses = int(mine["sum"])
+        steps, source = approach_steps(env, int(mine["size"]), presses)
+        resolved = settings.resolved_episodes(max(1, round(presses * share)) if presses and env.scenes == "recorded"
+                                              else None)
+        check = learning_check(resolved, steps, source)
+        if check.verdict:
+            out.append((target, check))
+    return out
+
+
+def _warn_learning(checks: list[tuple[Any, Any]], n_targets: int) -> dict[str, Any] | None:
+    """Print the learning checks' warning on stderr before the run starts; its JSON form (None: none)."""
+    from laneprint.cliutil import err_console
+
+    if not checks:
+        return None
+    target, check = next(((t, c) for t, c in checks if c.verdict == "never"), checks[0])
+    never = sum(c.verdict == "never" for _, c in checks)
+    head = ("" if n_targets == 1 else
+            f"{never or len(checks)} of {n_targets} agents {'would learn nothing' if never else 'would learn late'}"
+            f"; e.g. {target.kind} {target.name}: ")
+    err_console.print(f"warning: {head}{check.message}", markup=False, highlight=False, soft_wrap=True)
+    return {"verdict": check.verdict, "targets": [f"{t.kind} {t.name}" for t, _ in checks],
+            "expected_transitions": round(check.expected), "needed_episodes": check.needed_episodes,
+            "message": head + check.message}
+
+
 def train_command(
     style: Annotated[Optional[str], typer.Option("--style", help="Imitate a style (its typical driver's lines).")] = None,
     driver: Annotated[Optional[str], typer.Option("--driver", help="Imitate one driver (its own lines).")] = None,
@@ -78,6 +131,7 @@ def train_command(
     reward: RewardOpt = None,
     scenes: ScenesOpt = None,
     observation: ObservationOpt = None,
+    other_side: OtherSideOpt = None,
     lines: Annotated[str, typer.Option("--lines", help="Reference lines: 'analysis' or 'paper' (Table 1).")] = "analysis",
     run_id: Annotated[Optional[str], typer.Option("--run-id", help="Id of the new run (default: time-target-reward-seed).")] = None,
     resume: Annotated[Optional[str], typer.Option("--resume", help="Continue an interrupted run from its checkpoint.")] = None,
@@ -109,7 +163,7 @@ def train_command(
     """Train a DQN agent for a style or a driver, or a fleet of them; prints the run (or fleet) id."""
 
     def work() -> dict[str, Any]:
-        from rl.problem.env import formulation_config  # heavy imports (torch) only when the command runs
+        from rl.problem.env import EnvConfig, formulation_config  # heavy imports (torch) only when the command runs
         from rl.fleet.runs import create_fleet, fleet_targets, is_fleet, train_fleet
         from rl.runs import Target, resolve_lines, train_run
 
@@ -139,18 +193,24 @@ def train_command(
             raise UserError(f"bad training setting: {exc}") from None
         if fleet:
             targets = fleet_targets(ws, drivers, styles)
+            fleet_env = formulation_config(EnvConfig().lines, reward, scenes, observation, lines)
+            warned = _warn_learning(learning_checks(ws, targets, fleet_env, settings), len(targets))
             record = create_fleet(ws, targets, list(range(seed, seed + seeds)), settings, reward=reward,
-                                  scenes=scenes, observation=observation, lines_source=lines, dt_s=dt,
+                                  scenes=scenes, observation=observation, other_side=other_side,
+                                  lines_source=lines, dt_s=dt,
                                   backend=backend, fleet_id=run_id)
             with progress_bar(not as_json) as progress:
-                return train_fleet(ws, record["fleet_id"], progress=progress, **fleet_opts)
+                res = train_fleet(ws, record["fleet_id"], progress=progress, **fleet_opts)
+            return {**res, "learning_check": warned} if warned else res
         target = Target("style", style) if style else Target("driver", str(driver))
-        env = formulation_config(resolve_lines(ws, target, lines), reward, scenes, observation, lines)
+        env = formulation_config(resolve_lines(ws, target, lines), reward, scenes, observation, lines, other_side)
         if dt is not None:
             env = replace(env, dt_s=dt)
+        warned = _warn_learning(learning_checks(ws, [target], env, settings), 1)
         with progress_bar(not as_json) as progress:
-            return train_run(ws, target, env, settings, run_id=run_id, lines_source=lines,
-                             evaluate=evaluate, progress=progress)
+            res = train_run(ws, target, env, settings, run_id=run_id, lines_source=lines,
+                            evaluate=evaluate, progress=progress)
+        return {**res, "learning_check": warned} if warned else res
 
     def render(res: dict[str, Any], console: Console) -> None:
         if "fleet_id" in res:
@@ -236,6 +296,7 @@ def crossval_command(
     reward: RewardOpt = None,
     scenes: ScenesOpt = None,
     observation: ObservationOpt = None,
+    other_side: OtherSideOpt = None,
     lines: Annotated[str, typer.Option("--lines", help="'analysis' (refitted per fold) or 'paper' (Table 1).")] = "analysis",
     bootstrap: Annotated[int, typer.Option("--bootstrap", min=10, help="Bootstrap resamples for the intervals.")] = 1000,
     backend: BackendOpt = "local",
@@ -265,7 +326,8 @@ def crossval_command(
             targets = ([Target("style", s) for s in style_names(ws)] if all_styles
                        else [Target("style", style)] if style else [Target("driver", str(driver))])
             dqn = DQNSettings(seed=seed, **({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {}))
-            base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines)
+            base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines, other_side)
+            _warn_learning(learning_checks(ws, targets, base, dqn, share=(folds - 1) / folds), len(targets))
             results = [run_crossval(ws, t, target_env(ws, t, base, lines), dqn, cv, lines, progress=progress, **where)
                        for t in targets]
         return {"results": results} if all_styles else results[0]

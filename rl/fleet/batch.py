@@ -28,7 +28,7 @@ import torch
 from rl.learners import batched
 from rl.learners.dqn import (EpisodeStats, average_due, episode_row, episode_state, epsilon_at, learning_rate_at,
                     load_episode_state)
-from rl.problem.env import Approach, EnvConfig, make_vec_env, observation_names
+from rl.problem.env import Approach, EnvConfig, make_vec_env, observation_names, replayed_approaches
 from rl.fleet.envs import stack_envs
 from rl.problem.rewards import TERMS
 from rl.settings import DQNSettings
@@ -174,7 +174,7 @@ class FleetTrainer:
         self.agents: list[AgentState] = []  # still training, in stack order
         self._finished: list[AgentState] = []
         for i, m in enumerate(members):
-            s = m.settings.resolved_episodes(len(m.approaches) if m.approaches else 0) \
+            s = m.settings.resolved_episodes(replayed_approaches(m.approaches, m.env_config) if m.approaches else 0) \
                 if m.env_config.scenes == "recorded" else m.settings
             envs = make_vec_env(m.env_config, s.num_envs, np.random.default_rng([s.seed, 1]), m.approaches)
             self.agents.append(AgentState(i, s, envs, np.random.default_rng(s.seed), EpisodeStats(s.num_envs),

@@ -70,6 +70,7 @@ class StackedReplayEnvs(VecReplayEnv):
         self.offset = np.r_[0, np.cumsum(self.sizes)[:-1]]
         self.states = Scene.concat([e.states for e in envs])
         self.t_rel = np.concatenate([e.t_rel for e in envs])
+        self.no_press = np.concatenate([e.no_press for e in envs])
         self.last = np.concatenate([e.last + o for e, o in zip(envs, self.offset)])
         self.index = np.concatenate([e.index + o for e, o in zip(envs, self.offset)])
         self.late = np.concatenate([e.late for e in envs])

@@ -34,7 +34,7 @@ from laneprint.errors import UserError
 from laneprint.locks import FileLock
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_json
-from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config
+from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config, replayed_approaches
 from rl.fleet.batch import FleetMember, FleetTrainer
 from rl.fleet.store import fleet_dir, fleet_table
 from rl.runs import (Target, _eval_drivers, _save_torch, _StopFlag, _truncate_metrics, code_version, create_run,
@@ -87,11 +87,12 @@ def fleet_targets(workspace: Workspace, drivers: str | None = None, styles: str 
     return [Target(kind, canonical[n.lower()]) for n in dict.fromkeys(names)]
 
 
-def _approach_counts(workspace: Workspace, targets: list[Target]) -> dict[Target, int]:
-    """Recorded approaches per target (what `resolved_episodes` scales with)."""
+def _approach_counts(workspace: Workspace, targets: list[Target], env: EnvConfig) -> dict[Target, int]:
+    """Replayed approaches per target (what `resolved_episodes` scales with: `replayed_approaches`)."""
     decisions = workspace.read_table("analysis", "decisions")
     approaches, _ = approaches_from_decisions(decisions)
-    per_driver = pd.Series([a.driver_id for a in approaches]).value_counts().to_dict()
+    per_driver = pd.Series([a.driver_id for a in approaches for _ in range(replayed_approaches([a], env))]
+                           ).value_counts().to_dict()
     out = {}
     for t in targets:
         drivers, _ = _eval_drivers(workspace, t)
@@ -101,7 +102,8 @@ def _approach_counts(workspace: Workspace, targets: list[Target]) -> dict[Target
 
 def create_fleet(workspace: Workspace, targets: list[Target], seeds: list[int], base: DQNSettings, *,
                  reward: str | None = None, scenes: str | None = None, observation: str | None = None,
-                 lines_source: str = "analysis", dt_s: float | None = None, backend: str = "local",
+                 other_side: bool | None = None, lines_source: str = "analysis", dt_s: float | None = None,
+                 backend: str = "local",
                  fleet_id: str | None = None) -> dict[str, Any]:
     """Write fleet.json and one run folder per (target, seed); returns the fleet record."""
     workspace.ensure()
@@ -114,11 +116,11 @@ def create_fleet(workspace: Workspace, targets: list[Target], seeds: list[int], 
     runs = []
     for target in targets:
         env = formulation_config(resolve_lines(workspace, target, lines_source), reward, scenes, observation,
-                                 lines_source)
+                                 lines_source, other_side)
         if dt_s is not None:
             env = replace(env, dt_s=dt_s)
         if env.scenes == "recorded" and counts is None:
-            counts = _approach_counts(workspace, targets)
+            counts = _approach_counts(workspace, targets, env)
         for seed in seeds:
             settings = replace(base, seed=seed)
             if env.scenes == "recorded":

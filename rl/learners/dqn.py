@@ -39,7 +39,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from rl.problem.env import Approach, EnvConfig, make_vec_env, observation_names
+from rl.problem.env import Approach, EnvConfig, make_vec_env, observation_names, replayed_approaches
 from rl.problem.rewards import CHANGE, TERMS
 from rl.settings import DQNSettings
 
@@ -222,7 +222,7 @@ class DQNTrainer:
         self.env_config = env_config
         s = settings or DQNSettings()
         if env_config.scenes == "recorded":
-            s = s.resolved_episodes(len(approaches) if approaches else 0)
+            s = s.resolved_episodes(replayed_approaches(approaches, env_config) if approaches else 0)
         self.settings = s
         torch.set_num_threads(s.threads)
         # --- seeding, in one block ---

@@ -33,7 +33,7 @@ from rl.personalize.agents import (PersonalizeSettings, base_seed, finetune_sett
 from rl.personalize.split import decision_order, driver_rows, first_decisions
 from clustering.pipeline import stored_settings
 from rl.personalize.style import estimate_style, fit_population
-from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config
+from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config, replayed_approaches
 from rl.problem.rewards import ReferenceLines
 from rl.runs import RunWriter, Target, create_run, evaluate_run, new_run_id, now_iso, run_dir
 from rl.settings import DQNSettings
@@ -150,7 +150,7 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
             else:
                 writer.status("running", 0, f"training the base agent ({ps.base})")
                 trainer = train_agent(base_app, env, base_dqn,
-                                      progress=phase(base_dqn.resolved_episodes(len(base_app)).episodes,
+                                      progress=phase(base_dqn.resolved_episodes(replayed_approaches(base_app, env)).episodes,
                                                      f"training the base agent ({ps.base})"),
                                       label=f"base ({ps.base}{'' if ps.base == 'population' else ' ' + est.style})")
                 base_w = weights_of(trainer)

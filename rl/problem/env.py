@@ -39,7 +39,11 @@ Starting State
 Replay mode (``approaches=[...]``): each episode is one recorded approach from
 the workspace's decisions table: the not-yet states and the press, in time
 order, then (if the agent has not changed by the press) the press scene moved on
-at constant speeds every ``dt_s``. See `approaches_from_decisions`.
+at constant speeds every ``dt_s``. See `approaches_from_decisions`. In a middle
+lane the driver also passed up the other side at every one of those states: with
+``other_side`` the trainer's `VecReplayEnv` replays that side's scenes too, as an
+approach without a press (a change there is paid as one far too early, -1; a keep
+0; it ends at its last state).
 """
 
 from __future__ import annotations
@@ -87,6 +91,8 @@ class EnvConfig:
     scenes: str = "synthetic"  # 'synthetic' (drawn from the ranges above) or 'recorded' (replayed approaches)
     replay_late_s: float = 10.0  # recorded scenes: after the press, an approach runs on at most this long [s]
     observation: str = "paper"  # 'paper' (8 values) or 'indicators' (the 8 + t_f, t_nf, dv_nb and their flags)
+    other_side: bool = True  # recorded scenes: also replay the side a middle-lane driver did not take, as
+    # approaches without a press (`Approach.other`; no effect on two lanes); False = only the driver's side
     reward: RewardSettings = field(default_factory=RewardSettings)  # which reward, its parameters
     lines: ReferenceLines = field(default_factory=lambda: ReferenceLines.paper("Normal"))  # target lines
 
@@ -107,6 +113,7 @@ class EnvConfig:
         d = dict(d)
         d.setdefault("scenes", "synthetic")  # runs from before these settings
         d.setdefault("observation", "paper")
+        d.setdefault("other_side", False)  # runs from before the setting replayed only the driver's side
         d["reward"] = RewardSettings(**d.get("reward", {}))
         if "lines" in d:
             d["lines"] = ReferenceLines.from_dict(d["lines"])
@@ -133,10 +140,13 @@ def observation(scene: Scene, cfg: EnvConfig) -> np.ndarray:
 
 
 def formulation_config(lines: ReferenceLines, reward: str | None = None, scenes: str | None = None,
-                       observation: str | None = None, lines_source: str = "analysis") -> EnvConfig:
-    """An `EnvConfig` for `lines`, the unnamed settings filled by `rl.settings.resolve_formulation`."""
+                       observation: str | None = None, lines_source: str = "analysis",
+                       other_side: bool | None = None) -> EnvConfig:
+    """An `EnvConfig` for `lines`, the unnamed settings filled by `rl.settings.resolve_formulation`
+    (`other_side` None: `EnvConfig`'s default)."""
     name, scn, obs = resolve_formulation(reward, scenes, observation, lines_source)
-    return EnvConfig(lines=lines, reward=RewardSettings(name=name), scenes=scn, observation=obs)
+    cfg = EnvConfig(lines=lines, reward=RewardSettings(name=name), scenes=scn, observation=obs)
+    return cfg if other_side is None else replace(cfg, other_side=other_side)
 
 
 def default_config() -> EnvConfig:
@@ -206,6 +216,7 @@ class Approach:
     driver_id: str
     t_s: np.ndarray  # time of each recorded state [s]; the last is the press
     scene: Scene  # the recorded scenes, same length
+    other: Scene | None = None  # in a middle lane, the side not taken at the same states (else None)
 
     @property
     def press_t_s(self) -> float:
@@ -224,23 +235,30 @@ SKIP_REASONS = {
     "no_press": "no 'change' row for the decision (its press was dropped by the analysis)",
 }
 
-def scenes_from_decisions(rows: pd.DataFrame, vehicle_length_m: float = 4.5) -> Scene:
-    """Scenes of DECISIONS rows (one per row); absent vehicles flagged, gaps kept exact."""
+def scenes_from_decisions(rows: pd.DataFrame, vehicle_length_m: float = 4.5, other: bool = False) -> Scene:
+    """Scenes of DECISIONS rows (one per row); absent vehicles flagged, gaps kept exact.
+
+    ``other=True``: the scenes asking about the other side of the ego lane (`other_lane`,
+    `other_nf_*` / `other_nb_*`, `indicators.decisions.OTHER_SIDE`) instead of the target lane.
+    """
     def col(name: str) -> np.ndarray:
         return rows[name].to_numpy(dtype=float, na_value=np.nan)
 
     x_e, v_e = col("ego_x_m"), col("ego_v_mps")
 
-    def part(prefix: str, ahead: bool) -> dict[str, np.ndarray]:
-        present = rows[f"{prefix}_present"].to_numpy(dtype=bool)
-        x, v, gap = col(f"{prefix}_x_m"), col(f"{prefix}_v_mps"), col(f"{prefix}_gap_m")
+    def part(role: str, ahead: bool, prefix: str = "") -> dict[str, np.ndarray]:
+        """The Scene fields of `role` (f, nf, nb) from the columns ``<prefix><role>_*``."""
+        present = rows[f"{prefix}{role}_present"].to_numpy(dtype=bool)
+        x, v, gap = col(f"{prefix}{role}_x_m"), col(f"{prefix}{role}_v_mps"), col(f"{prefix}{role}_gap_m")
         dist = (x - x_e) if ahead else (x_e - x)
         hl = np.where(present & np.isfinite(gap) & np.isfinite(dist), dist - gap, vehicle_length_m)
-        return {f"{prefix}_present": present, f"v_{prefix}": np.where(present, v, v_e),
-                f"x_{prefix}": np.where(present, x, x_e), f"hl_{prefix}": hl}
+        return {f"{role}_present": present, f"v_{role}": np.where(present, v, v_e),
+                f"x_{role}": np.where(present, x, x_e), f"hl_{role}": hl}
 
-    left = (rows["target_lane"].to_numpy() > rows["ego_lane"].to_numpy()) if "target_lane" in rows else None
-    return Scene(v_e=v_e, x_e=x_e, **part("f", True), **part("nf", True), **part("nb", False), left=left)
+    prefix, lane = ("other_", "other_lane") if other else ("", "target_lane")
+    left = (rows[lane].to_numpy() > rows["ego_lane"].to_numpy()) if lane in rows else None
+    return Scene(v_e=v_e, x_e=x_e, **part("f", True), **part("nf", True, prefix), **part("nb", False, prefix),
+                 left=left)
 
 
 def approaches_from_decisions(decisions: pd.DataFrame, vehicle_length_m: float = 4.5,
@@ -253,6 +271,12 @@ def approaches_from_decisions(decisions: pd.DataFrame, vehicle_length_m: float =
     every policy. ``include_following=False`` restores the study's rule, which
     skips them (counted as 'no_closing_leader' / 'following'). Undefined ``t_nf``
     or ``dv_nb`` are always kept: the scene models absent and far vehicles.
+
+    An approach made in a lane with a neighbour on each side carries the other
+    side's scene at each of its states in ``other`` (from the analysis's
+    `other_lane` / `other_nf_*` / `other_nb_*` columns; None without them, as in
+    tables analysed before those columns): what `VecReplayEnv` replays as an
+    approach without a press when ``EnvConfig.other_side`` is set.
     """
     skipped = {k: 0 for k in SKIP_REASONS}
     df = decisions.sort_values(["decision_id", "t_s"], kind="stable").reset_index(drop=True)
@@ -278,14 +302,23 @@ def approaches_from_decisions(decisions: pd.DataFrame, vehicle_length_m: float =
     press_t = np.where(ok, t[np.maximum(press, 0)], -np.inf)
     before = (df["label"] == "keep").to_numpy() & (t < press_t[group])
     scenes = scenes_from_decisions(df, vehicle_length_m)
+    has_other = df["other_lane"].to_numpy() >= 0 if "other_lane" in df else np.zeros(len(df), bool)
+    others = scenes_from_decisions(df, vehicle_length_m, other=True) if has_other.any() else None
     drivers = df["driver_id"].astype(str).to_numpy()
     bounds = np.r_[0, np.flatnonzero(group[1:] != group[:-1]) + 1, len(df)]
     out: list[Approach] = []
     for g in np.flatnonzero(ok):
         lo, hi = bounds[g], bounds[g + 1]
         rows = np.r_[lo + np.flatnonzero(before[lo:hi]), press[g]]
-        out.append(Approach(did[lo], drivers[lo], t[rows], scenes.take(rows)))
+        other = others.take(rows) if others is not None and has_other[rows].all() else None
+        out.append(Approach(did[lo], drivers[lo], t[rows], scenes.take(rows), other))
     return out, skipped
+
+
+def replayed_approaches(approaches: list[Approach], config: EnvConfig) -> int:
+    """How many approaches `VecReplayEnv` replays: the recorded ones, and with ``config.other_side``
+    those of the sides not taken (what `DQNSettings.resolved_episodes` scales with)."""
+    return len(approaches) + (sum(a.other is not None for a in approaches) if config.other_side else 0)
 
 
 # --- the gymnasium environment ------------------------------------------------------
@@ -413,6 +446,10 @@ class VecLaneChangeEnv:
         self.steps = np.asarray(state["steps"]).copy()
 
 
+#: "Time from the press" of a state of a side not taken [s]: every change there is far too early.
+NO_PRESS_S = 1e6
+
+
 class VecReplayEnv:
     """`num_envs` environments replaying recorded approaches (``EnvConfig.scenes = 'recorded'``).
 
@@ -424,6 +461,12 @@ class VecReplayEnv:
     constant speeds for at most ``replay_late_s``. While a next recorded state
     exists the data, not the constant-speed model, says what happened: reaching
     the leader is only tested on extrapolated steps.
+
+    With ``config.other_side`` the sides not taken (`Approach.other`) are replayed
+    too, after the recorded approaches, as approaches without a press: their
+    states are ``NO_PRESS_S`` before a press that never comes (a change is paid
+    the `decisions` floor, a keep 0), and a keep at their last state ends the
+    episode (truncated) instead of running on.
     """
 
     def __init__(self, config: EnvConfig, approaches: list[Approach], num_envs: int,
@@ -433,11 +476,14 @@ class VecReplayEnv:
         self.config = config
         self.num_envs = num_envs
         self.rng = rng
-        self.states = Scene.concat([a.scene for a in approaches])
-        lengths = np.array([len(a) for a in approaches])
+        others = [a.other for a in approaches if a.other is not None] if config.other_side else []
+        self.states = Scene.concat([a.scene for a in approaches] + others)
+        lengths = np.array([len(a) for a in approaches] + [len(o) for o in others])
         starts = np.r_[0, np.cumsum(lengths)[:-1]]
         self.last = np.repeat(starts + lengths - 1, lengths)  # index of the press of each state's approach
-        self.t_rel = np.concatenate([a.t_s - a.press_t_s for a in approaches])
+        self.t_rel = np.concatenate([a.t_s - a.press_t_s for a in approaches] + [np.full(len(o), -NO_PRESS_S)
+                                                                                for o in others])
+        self.no_press = np.repeat(np.arange(len(lengths)) >= len(approaches), lengths)  # states of sides not taken
         self.index = self.rng.integers(len(self.t_rel), size=num_envs)  # current recorded state, or its press
         self.late = np.zeros(num_envs)  # time run on past the press [s] (0 while recorded)
         self.scene = self.states.take(self.index)
@@ -456,6 +502,7 @@ class VecReplayEnv:
     def step(self, actions: np.ndarray) -> dict[str, Any]:
         """Step all environments; returns a dict of arrays (see `VecLaneChangeEnv.step`)."""
         recorded_next = (self.late == 0) & (self.index < self.last[self.index])
+        no_press = self.no_press[self.index]
         reward, terms, terminated, reached = transition(self.scene, actions, self.config, self.t_from_press())
         reached = reached & ~recorded_next
         terminated = (np.asarray(actions) == CHANGE) | reached
@@ -464,9 +511,10 @@ class VecReplayEnv:
         nxt = np.flatnonzero(go_on & recorded_next)
         self.index[nxt] += 1
         self.scene.put(nxt, self.states.take(self.index[nxt]))
-        runs_on = go_on & ~recorded_next
+        ends = go_on & ~recorded_next & no_press  # the last state of a side not taken: no press to run on to
+        runs_on = go_on & ~recorded_next & ~no_press
         self.late[runs_on] += self.config.dt_s
-        truncated = go_on & ((self.steps >= self.config.max_steps) | (self.late > self.config.replay_late_s))
+        truncated = go_on & (ends | (self.steps >= self.config.max_steps) | (self.late > self.config.replay_late_s))
         done = terminated | truncated
         final_obs = obs = self.observe()
         if done.any():

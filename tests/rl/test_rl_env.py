@@ -1,5 +1,7 @@
 """The environment: gymnasium contract, dynamics, observation, replay mode."""
 
+from dataclasses import replace
+
 import gymnasium as gym
 import numpy as np
 import pandas as pd
@@ -121,3 +123,75 @@ def test_trains_unchanged_with_stable_baselines3():
     model.learn(total_timesteps=200)
     action, _ = model.predict(LaneChangeDecisionEnv().reset(seed=0)[0], deterministic=True)
     assert int(action) in (0, 1)
+
+
+def _middle_lane(dec: pd.DataFrame, decision_ids) -> pd.DataFrame:
+    """`dec` with the decisions `decision_ids` made from the middle lane of three (to the left); their other
+    side (lane 0) holds the target lane's vehicles 30 m further on, the rest keep two lanes' columns."""
+    dec = dec.copy()
+    mid = dec["decision_id"].isin(decision_ids).to_numpy()
+    dec["ego_lane"], dec["target_lane"] = np.where(mid, 1, 0), np.where(mid, 2, 1)
+    dec["other_lane"] = np.where(mid, 0, -1)
+    for role in ("nf", "nb"):
+        dec[f"other_{role}_present"] = mid & dec[f"{role}_present"].to_numpy()
+        for q, shift in (("x_m", 30.0), ("v_mps", 0.0), ("gap_m", 30.0 if role == "nf" else -30.0)):
+            dec[f"other_{role}_{q}"] = np.where(dec[f"other_{role}_present"], dec[f"{role}_{q}"] + shift, np.nan)
+        dec[f"other_{role}_id"] = None
+    return dec
+
+
+def test_approaches_from_a_middle_lane_carry_the_side_not_taken():
+    dec = rule_driver_decisions(ReferenceLines.paper("Normal"), 3, seed=0, window_s=1.0, every_s=0.5)
+    first = dec["decision_id"].iloc[0]
+    approaches, _ = approaches_from_decisions(_middle_lane(dec, [first]))
+    a = next(x for x in approaches if x.decision_id == first)
+    assert a.other is not None and len(a.other) == len(a)
+    assert a.scene.left.all() and not a.other.left.any()  # the driver went left; the other side is the right
+    np.testing.assert_allclose(a.other.x_nf, a.scene.x_nf + 30.0)
+    np.testing.assert_allclose(a.other.hl_nf, a.scene.hl_nf)  # gap and position moved alike: same lengths
+    np.testing.assert_array_equal(a.other.x_f, a.scene.x_f)  # the ego lane's leader is the same
+    assert all(x.other is None for x in approaches if x.decision_id != first)
+    assert all(x.other is None for x in approaches_from_decisions(dec)[0])  # a table without the columns
+
+
+def test_sides_not_taken_are_replayed_as_approaches_without_a_press():
+    from rl.problem.env import NO_PRESS_S, VecReplayEnv, replayed_approaches
+    from rl.problem.rewards import CHANGE, KEEP, RewardSettings
+    dec = rule_driver_decisions(ReferenceLines.paper("Normal"), 2, seed=0, window_s=1.0, every_s=0.5)
+    approaches, _ = approaches_from_decisions(_middle_lane(dec, dec["decision_id"].unique()[:1]))
+    cfg = EnvConfig(scenes="recorded", observation="direction", reward=RewardSettings(name="decisions"))
+    n = sum(len(a) for a in approaches)
+    env = VecReplayEnv(cfg, approaches, 2, np.random.default_rng(0))
+    assert len(env.t_rel) == n + len(approaches[0]) and env.no_press.sum() == len(approaches[0])
+    assert replayed_approaches(approaches, cfg) == 3
+    assert replayed_approaches(approaches, replace(cfg, other_side=False)) == 2
+    first_other = n  # the side not taken follows the recorded approaches
+    assert (env.t_rel[first_other:] == -NO_PRESS_S).all()
+    # a change there is one far too early (the floor), a keep pays 0 and at its last state ends the episode
+    env.index[:] = [first_other, env.last[first_other]]
+    env.scene = env.states.take(env.index)
+    out = env.step(np.array([CHANGE, KEEP]))
+    assert out["reward"].tolist() == [-1.0, 0.0]
+    assert out["terminated"].tolist() == [True, False] and out["truncated"].tolist() == [False, True]
+    # off: only the driver's side, as before the setting
+    off = VecReplayEnv(replace(cfg, other_side=False), approaches, 2, np.random.default_rng(0))
+    assert len(off.t_rel) == n and not off.no_press.any()
+
+
+def test_the_setting_changes_nothing_without_a_side_not_taken():
+    from rl.problem.env import VecReplayEnv
+    from rl.problem.rewards import RewardSettings
+    approaches, _ = approaches_from_decisions(rule_driver_decisions(ReferenceLines.paper("Normal"), 4, seed=1))
+    cfg = EnvConfig(scenes="recorded", observation="indicators", reward=RewardSettings(name="decisions"))
+    runs = []
+    for on in (True, False):
+        env, rng = VecReplayEnv(replace(cfg, other_side=on), approaches, 4, np.random.default_rng(3)), \
+            np.random.default_rng(5)
+        runs.append([env.step(rng.integers(2, size=4))["obs"] for _ in range(50)])
+    np.testing.assert_array_equal(np.stack(runs[0]), np.stack(runs[1]))
+
+
+def test_runs_from_before_the_setting_replay_only_the_drivers_side():
+    d = EnvConfig().to_dict()
+    del d["other_side"]
+    assert EnvConfig.from_dict(d).other_side is False and EnvConfig().other_side is True

@@ -1,6 +1,6 @@
 """Which side would the closed loop choose at the drivers' own states in a middle lane?
 
-    python -m rl.drive.sides RUN_ID -w WORKSPACE [--json]
+    python benchmarks/sides.py RUN_ID -w WORKSPACE [--json]
 
 The closed loop (`rl.drive.loop.choose_side`) asks the agent about each
 neighbouring lane and takes the side with the larger advantage. This replays that
@@ -8,8 +8,9 @@ rule on the recorded states of the run's target drivers in a middle lane (a lane
 with a neighbour on each side), read from the stored logs exactly as the live loop
 reads SUMO (`live_scene`): at each press, whether the rule picks the driver's side,
 the other side, or keeps; at the not-yet states of the analysis (label 'keep'),
-how often it keeps. In-sample for a run trained on these drivers (the agent saw
-each side's scene of these approaches, never the choice between the sides).
+how often it keeps. In-sample for a run trained on these drivers (with
+`EnvConfig.other_side` it also saw the sides not taken). A diagnostic of issue 19's
+three lanes (rl/README.md), not part of the product.
 """
 
 from __future__ import annotations
@@ -17,19 +18,23 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 from typing import Any
 
-import numpy as np
-import pandas as pd
+# benchmarks/ holds scripts named like packages (dashboard.py, ingest.py): keep it off the import path
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
-from laneprint.errors import UserError
-from laneprint.simulator.sumo.traffic import VehicleState
-from laneprint.workspace import Workspace
-from rl.drive.loop import advantages, live_scene, neighbour_lanes
-from rl.drive.store import agent_q, load_run_config
-from rl.problem.env import EnvConfig
-from rl.problem.scene import Scene
-from rl.runs import Target, load_weights
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from laneprint.errors import UserError  # noqa: E402
+from laneprint.simulator.sumo.traffic import VehicleState  # noqa: E402
+from laneprint.workspace import Workspace  # noqa: E402
+from rl.drive.loop import advantages, live_scene, neighbour_lanes  # noqa: E402
+from rl.drive.store import agent_q, load_run_config  # noqa: E402
+from rl.problem.env import EnvConfig  # noqa: E402
+from rl.problem.scene import Scene  # noqa: E402
+from rl.runs import Target, load_weights  # noqa: E402
 
 
 def _drivers(workspace: Workspace, target: Target) -> set[str]:
