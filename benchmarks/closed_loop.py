@@ -15,6 +15,16 @@ and mean absolute difference), and the style the analysis assigns to the agent's
 drive; then whether the acceptance holds (no collision, 3 of 3 in their style).
 
 Run: python benchmarks/closed_loop.py [--seed 7] [--drivers 9] [--minutes 10] [--workdir /tmp/lp-closed-loop]
+
+Sides not taken (issue 19, three lanes): on an analysed workspace of a SUMO study,
+one agent of a style per `EnvConfig.other_side` setting (`train --other-side` and
+`--driver-side-only`, observation 'direction', `--seed`), each driven with every
+`--drive-seeds` on `--lanes`; prints lane changes per km of each drive (its MCAPs
+ingested in a scratch workspace) against the style's drivers of the study (mean and
+range over the drivers), by lane pair:
+
+    python benchmarks/closed_loop.py --sides --workspace WS --style Normal --lanes 3 \
+        --drive-seeds 460 461 --minutes 5 --seed 0 --workdir /tmp/cl
 """
 
 from __future__ import annotations
@@ -26,6 +36,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 LAPRINT = [sys.executable, "-m", "laneprint.cli"]
@@ -44,13 +56,84 @@ def fmt(x: float | None, spec: str = ".1f") -> str:
     return "-" if x is None else format(x, spec)
 
 
+def changes_per_km(recordings: list[tuple]) -> dict[str, dict]:
+    """Per driver: lane changes (lane flips of the ego), km driven, and changes by lane pair."""
+    out: dict[str, dict] = {}
+    for meta, ego, _ in recordings:
+        ego = ego.sort_values("t_s")
+        lane = ego["ego_lane"].to_numpy()
+        flips = np.flatnonzero(lane[1:] != lane[:-1])
+        d = out.setdefault(str(meta["driver_id"]), {"changes": 0, "km": 0.0, "by_lane": {}})
+        d["changes"] += len(flips)
+        d["km"] += float(ego["ego_x_m"].iloc[-1] - ego["ego_x_m"].iloc[0]) / 1000.0
+        for k in flips:
+            key = f"{lane[k]}>{lane[k + 1]}"
+            d["by_lane"][key] = d["by_lane"].get(key, 0) + 1
+    return out
+
+
+def sides(args: argparse.Namespace) -> None:
+    """Agents with and without the sides not taken, driven on `args.lanes` lanes, against the style's drivers."""
+    from laneprint.workspace import Workspace
+
+    ws = Workspace(args.workspace)
+    styles = ws.read_table("analysis", "styles")
+    members = set(styles.loc[styles["style"].astype(str) == args.style, "driver_id"].astype(str))
+    drivers = {d: v for d, v in changes_per_km(list(ws.iter_recordings())).items() if d in members}
+    rates = np.array([v["changes"] / v["km"] for v in drivers.values()])
+    pairs = sorted({k for v in drivers.values() for k in v["by_lane"]})
+    print(f"## {args.style} on {args.lanes} lanes: lane changes per km ({args.workspace}, training seed {args.seed}, "
+          f"{args.minutes:g} min per section)")
+    print("| who | drive seed | changes | km | per km | vs drivers | " + " | ".join(f"{p} /km" for p in pairs) + " |")
+    print("|---|---|---|---|---|---|" + "---|" * len(pairs))
+    mean = rates.mean()
+    by_pair = {p: np.mean([v["by_lane"].get(p, 0) / v["km"] for v in drivers.values()]) for p in pairs}
+    print(f"| {args.style} drivers (mean of {len(rates)}; range {rates.min():.2f}-{rates.max():.2f}) | - | "
+          f"{np.mean([v['changes'] for v in drivers.values()]):.1f} | {np.mean([v['km'] for v in drivers.values()]):.1f} "
+          f"| {mean:.2f} | 1.00 | " + " | ".join(f"{by_pair[p]:.2f}" for p in pairs) + " |", flush=True)
+    rows = []
+    for flag in ("--other-side", "--driver-side-only"):
+        run_id = f"cl-{args.style.lower()}-{flag.strip('-')}-s{args.seed}"
+        from rl.runs import run_dir
+        if not run_dir(ws, run_id).exists():
+            cli("train", "--style", args.style, "--observation", "direction", flag, "--seed", str(args.seed),
+                "--run-id", run_id, "--no-evaluate", "-w", str(ws.root))
+        for seed in args.drive_seeds:
+            out = args.workdir / f"{run_id}-d{seed}"
+            shutil.rmtree(out, ignore_errors=True)
+            d = cli("drive", run_id, "--engine", "sumo", "--lanes", str(args.lanes), "--minutes", f"{args.minutes:g}",
+                    "--seed", str(seed), "--out", str(out), "-w", str(ws.root))
+            scratch = args.workdir / f"ws-{run_id}-d{seed}"
+            shutil.rmtree(scratch, ignore_errors=True)
+            cli("ingest", *d["files"], "--driver", "agent", "-w", str(scratch))
+            a = changes_per_km(list(Workspace(scratch).iter_recordings()))["agent"]
+            rate = a["changes"] / a["km"]
+            rows.append({"setting": flag, "drive_seed": seed, "rate": rate, "ratio": rate / mean,
+                         "collisions": d["totals"]["collisions"]})
+            print(f"| agent {flag} | {seed} | {a['changes']} | {a['km']:.1f} | {rate:.2f} | {rate / mean:.2f} | "
+                  + " | ".join(f"{a['by_lane'].get(p, 0) / a['km']:.2f}" for p in pairs)
+                  + f" | (collisions {d['totals']['collisions']})", flush=True)
+    print(json.dumps({"style": args.style, "drivers_per_km": rates.tolist(), "drives": rows}))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, default=7, help="seed of the study, the training and the drives")
     ap.add_argument("--drivers", type=int, default=9)
     ap.add_argument("--minutes", type=float, default=10.0, help="minutes of driving per section")
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/lp-closed-loop"))
+    ap.add_argument("--sides", action="store_true", help="compare EnvConfig.other_side on an analysed --workspace")
+    ap.add_argument("--workspace", type=Path, help="--sides: the analysed workspace of a SUMO study")
+    ap.add_argument("--style", default="Normal", help="--sides: the style whose agents are driven")
+    ap.add_argument("--lanes", type=int, default=3, help="--sides: lanes of the drives")
+    ap.add_argument("--drive-seeds", type=int, nargs="+", default=[460, 461], help="--sides: seeds of the drives")
     args = ap.parse_args()
+    if args.sides:
+        if args.workspace is None:
+            sys.exit("error: --sides needs --workspace WS (an analysed SUMO study)")
+        args.workdir.mkdir(parents=True, exist_ok=True)
+        sides(args)
+        return
     work = args.workdir
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
