@@ -89,7 +89,11 @@ def _checks(b: Bounds) -> list[pdr.Check]:
     return checks
 
 
+_SCHEMA_BOUNDS: dict[str, dict[str, Bounds]] = {}  # schema name -> its columns' bounds (for `_all_pass`)
+
+
 def _schema(name: str, bounds: dict[str, Bounds], columns: tuple[str, ...]) -> pdr.DataFrameSchema:
+    _SCHEMA_BOUNDS[name] = {c: bounds[c] for c in columns}
     return pdr.DataFrameSchema({c: pdr.Column(float, _checks(bounds[c]), nullable=True) for c in columns},
                                name=name, strict=False)
 
@@ -99,8 +103,32 @@ EGO_OPTIONAL_SCHEMA = _schema("optional ego signals", BOUNDS, EGO_OPTIONAL)
 TRAFFIC_SCHEMA = _schema("traffic", TRAFFIC_BOUNDS, tuple(TRAFFIC_BOUNDS))
 
 
+def _all_pass(df: pd.DataFrame, schema: pdr.DataFrameSchema) -> bool:
+    """True when every column of `schema` is in `df` as float64 and each value is empty or within
+    its bounds: what the schema's checks accept, tested in numpy (pandera costs ~10x more)."""
+    bounds = _SCHEMA_BOUNDS.get(schema.name)
+    if bounds is None or bounds.keys() != schema.columns.keys():
+        return False
+    for col, b in bounds.items():
+        if col not in df.columns or df[col].dtype != np.float64:
+            return False
+        a = df[col].to_numpy()
+        with np.errstate(invalid="ignore"):
+            inside = ((a > b.lo) if b.lo_open else (a >= b.lo)) & (a <= b.hi)
+            if b.integer:
+                inside &= a == np.round(a)
+        if not np.all(inside | np.isnan(a)):
+            return False
+    return True
+
+
 def failures(df: pd.DataFrame, schema: pdr.DataFrameSchema) -> dict[str, np.ndarray]:
-    """Column -> sorted row positions that fail the schema's checks (empty when all pass)."""
+    """Column -> sorted row positions that fail the schema's checks (empty when all pass).
+
+    The usual case, every value inside its bounds, is found in numpy; pandera runs to
+    collect the failing rows."""
+    if _all_pass(df, schema):
+        return {}
     try:
         schema.validate(df, lazy=True)
     except SchemaErrors as exc:
