@@ -92,3 +92,102 @@ class DQNSettings:
         if "hidden" in d:
             d["hidden"] = tuple(d["hidden"])
         return DQNSettings(**d)
+
+
+# --- can a run learn? (checked before it starts: `laneprint train`, `crossval`, the dashboard) -------------
+
+#: A run whose expected transitions reach `learning_starts` only within this factor is 'late'.
+LATE_FACTOR = 1.25
+
+
+def expected_transitions(settings: DQNSettings, approach_steps: float) -> float:
+    """Transitions a run of `settings.episodes` episodes is expected to collect, at most about.
+
+    Each episode runs until the agent changes lane or its approach ends (`approach_steps`
+    steps); exploring, the agent changes lane at a step with probability epsilon / 2 (a
+    random action), epsilon falling linearly as in the trainer, and its network is taken to
+    say 'keep' (an untrained network that says 'change' ends its episodes sooner). 300 episodes
+    of `rl.testing.analysed_workspace`'s approaches (27 steps): 1,678 expected, 1,344-1,440
+    collected by seeds 0-2 (issue 23's 300-episode run collected 1,616).
+    """
+    import numpy as np
+
+    n = int(settings.episodes)
+    if n <= 0:
+        return 0.0
+    frac = np.minimum(1.0, np.arange(n) / max(1.0, settings.exploration_fraction * n))
+    eps = settings.eps_start + frac * (settings.eps_end - settings.eps_start)
+    p = np.clip(eps / 2.0, 1e-9, 1.0)
+    steps = max(1.0, float(approach_steps))
+    return float(np.sum((1.0 - (1.0 - p) ** steps) / p))
+
+
+def approach_steps(env: Any, n_states: int = 0, n_presses: int = 0) -> tuple[float | None, str]:
+    """(steps an episode runs at most on average, where the figure comes from) for an environment
+    config `env` (`rl.problem.env.EnvConfig`) replaying `n_states` recorded states (not-yet states and
+    presses) of `n_presses` approaches.
+
+    Recorded scenes: the states per approach plus the run-on after the press (`replay_late_s`);
+    synthetic scenes: the mean initial time to collision with the leader over `dt_s` (the episode
+    ends at the leader). (None, '') for recorded scenes without a press.
+    """
+    if env.scenes != "recorded":
+        return (sum(env.t_f0_s) / 2.0) / env.dt_s, "synthetic scenes"
+    if not n_presses:
+        return None, ""
+    return n_states / n_presses + env.replay_late_s / env.dt_s, "the target's recorded approaches"
+
+
+@dataclass(frozen=True)
+class LearningCheck:
+    """Whether a run's episodes are enough for its network to start learning, said before it starts."""
+
+    verdict: str
+    """'' (learning begins in time), 'late' (only in the last part of the run) or 'never'."""
+    expected: float
+    """Transitions the run is expected to collect, at most about (`expected_transitions`)."""
+    needed_episodes: int
+    """About the fewest episodes for `expected` to reach `learning_starts` at these settings."""
+    message: str
+    """One sentence for the user ('' when the verdict is '')."""
+
+
+def learning_check(settings: DQNSettings, steps: float | None, source: str = "",
+                   episodes_name: str = "--episodes", starts_name: str = "--learning-starts") -> LearningCheck:
+    """Check `settings` against episodes of about `steps` steps (`approach_steps`; None: no check).
+
+    `episodes_name`, `starts_name`: how the message names the two settings (the command line's
+    options, or the dashboard's fields).
+    """
+    if not steps:
+        return LearningCheck("", 0.0, 0, "")
+    starts, episodes = int(settings.learning_starts), int(settings.episodes)
+    expected = expected_transitions(settings, steps)
+    if expected >= LATE_FACTOR * starts:
+        return LearningCheck("", expected, 0, "")
+    needed = _fewest_episodes(settings, steps, starts)
+    where = f"episodes of up to {steps:.0f} steps in {source}, most ended early by exploration"
+    if expected < starts:
+        return LearningCheck("never", expected, needed, (
+            f"{episodes:,} episodes make at most about {expected:,.0f} transitions ({where}), but learning "
+            f"starts after {starts:,}: the agent would learn nothing. Use at least about {needed:,} episodes "
+            f"({episodes_name}), or lower {starts_name}."))
+    return LearningCheck("late", expected, needed, (
+        f"learning would begin only near the end: at most about {expected:,.0f} transitions in {episodes:,} "
+        f"episodes ({where}) against {starts:,} before the first update; more episodes ({episodes_name}) "
+        f"or a lower {starts_name} give it time to learn."))
+
+
+def _fewest_episodes(settings: DQNSettings, steps: float, transitions: float) -> int:
+    """The fewest episodes whose expected transitions reach `transitions` (bisection; the schedule
+    stretches with the run, so more episodes never collect fewer)."""
+    lo, hi = 1, 2
+    while expected_transitions(replace(settings, episodes=hi), steps) < transitions and hi < 10**7:
+        lo, hi = hi, hi * 2
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if expected_transitions(replace(settings, episodes=mid), steps) >= transitions:
+            hi = mid
+        else:
+            lo = mid + 1
+    return hi
