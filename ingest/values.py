@@ -282,22 +282,53 @@ def _vid(ids: Any, i: int) -> str:
     return str(ids[i].as_py() if isinstance(ids, pa.Array) else ids[i])
 
 
+def _vehicle_grid(ids: pa.Array, n: int) -> int:
+    """k when the rows are k vehicles in the same order at every sample (n = m * k rows, the
+    usual simulator log): each vehicle's rows are then one column of an (m, k) grid. 0 otherwise."""
+    if ids.null_count:
+        return 0
+    first = ids.slice(0, min(n, 4096)).to_pylist()
+    seen: set[Any] = set()
+    for k, vid in enumerate(first):
+        if vid in seen:
+            break
+        seen.add(vid)
+    else:
+        k = len(first)
+    if k == 0 or n % k or k == n:
+        return 0
+    same = pc.all(pc.equal(ids.slice(k), ids.slice(0, n - k))).as_py()
+    return k if same else 0
+
+
 def _traffic_jumps(tr: dict[str, Any]) -> list[str]:
     """A warning when traffic vehicles move further between their samples than their speed allows."""
     n = len(tr["t_s"])
     if n < 2:
         return []
-    codes = pa.array(tr["vehicle_id"]).dictionary_encode().indices
-    # rows are in time order, and Arrow's sort is stable: each vehicle's rows stay sorted by time
-    order = pc.sort_indices(codes).to_numpy()
-    codes = codes.to_numpy(zero_copy_only=False)
-    c, t, x, v = codes[order], tr["t_s"][order], tr["x_m"][order], tr["v_mps"][order]
-    same = c[1:] == c[:-1]
-    jumps = np.flatnonzero(same & (np.abs(np.diff(x)) > _allowed_step(v[:-1], v[1:], np.diff(t))))
-    if not len(jumps):
-        return []
-    k = int(jumps[0])
-    vid = _vid(tr["vehicle_id"], int(order[k + 1]))
-    return [f"traffic vehicle {vid!r} jumps {abs(x[k + 1] - x[k]):.4g} m in {t[k + 1] - t[k]:.4g} s at "
-            f"t={t[k + 1]:.3f} s, further than its speed allows ({len(jumps)} such jump(s) in "
-            f"{len(np.unique(c[jumps]))} vehicle(s)); kept"]
+    ids = pa.array(tr["vehicle_id"])
+    k = _vehicle_grid(ids, n)
+    if k:  # vehicle j's samples are column j of the (m, k) grids, in time order
+        t, x, v = (tr[c].reshape(-1, k) for c in ("t_s", "x_m", "v_mps"))
+        jump = (np.abs(np.diff(x, axis=0)) > _allowed_step(v[:-1], v[1:], np.diff(t, axis=0))).T
+        if not jump.any():
+            return []
+        j, r = divmod(int(np.argmax(jump)), jump.shape[1])  # the first jump of the first vehicle
+        count, vehicles = int(jump.sum()), int(jump.any(axis=1).sum())
+        t0, t1, x0, x1, vid = t[r, j], t[r + 1, j], x[r, j], x[r + 1, j], _vid(tr["vehicle_id"], (r + 1) * k + j)
+    else:
+        codes = ids.dictionary_encode().indices
+        # rows are in time order, and Arrow's sort is stable: each vehicle's rows stay sorted by time
+        order = pc.sort_indices(codes).to_numpy()
+        codes = codes.to_numpy(zero_copy_only=False)
+        c, t, x, v = codes[order], tr["t_s"][order], tr["x_m"][order], tr["v_mps"][order]
+        same = c[1:] == c[:-1]
+        jumps = np.flatnonzero(same & (np.abs(np.diff(x)) > _allowed_step(v[:-1], v[1:], np.diff(t))))
+        if not len(jumps):
+            return []
+        i = int(jumps[0])
+        count, vehicles = len(jumps), len(np.unique(c[jumps]))
+        t0, t1, x0, x1, vid = t[i], t[i + 1], x[i], x[i + 1], _vid(tr["vehicle_id"], int(order[i + 1]))
+    return [f"traffic vehicle {vid!r} jumps {abs(x1 - x0):.4g} m in {t1 - t0:.4g} s at "
+            f"t={t1:.3f} s, further than its speed allows ({count} such jump(s) in "
+            f"{vehicles} vehicle(s)); kept"]

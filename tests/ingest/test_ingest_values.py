@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 
 from ingest.mapping import IDENTITY
 from ingest.pipeline import ingest_paths
@@ -123,3 +124,65 @@ def test_a_broken_time_stamp_far_from_the_others_is_refused(tmp_path, recording)
     res, _ = _ingest(tmp_path, "t.csv", lambda p: _csv_cell(p, recording, "t", 2, "-1e308"))
     assert res.reason == ("time 't' jumps 1e+308 s at line 3 (from -1e+308 to 0.02 s), more than 3600 s between two "
                           "samples; fix or cut the sample with the broken time before ingesting")
+
+
+def _sorted_jumps(tr):
+    """`_traffic_jumps` through its general path (rows sorted by vehicle), whatever the row layout."""
+    from unittest import mock
+
+    import ingest.values as values
+    with mock.patch.object(values, "_vehicle_grid", return_value=0):
+        return values._traffic_jumps(tr)
+
+
+def test_traffic_jumps_on_a_vehicle_grid_equal_the_sorted_path():
+    from ingest.values import _traffic_jumps, _vehicle_grid
+
+    rng = np.random.default_rng(7)
+    m, k = 200, 6
+    t = np.repeat(np.arange(m) / 50, k)
+    ids = np.tile(np.array([f"v{j}" for j in (3, 1, 4, 0, 5, 2)], dtype=object), m)
+    v = np.tile(rng.uniform(10, 30, k), m)
+    x = np.tile(rng.uniform(-100, 100, k), m) + t * v
+    tr = {"t_s": t, "vehicle_id": ids, "x_m": x, "v_mps": v}
+    assert _vehicle_grid(pa.array(ids), len(t)) == k
+    assert _traffic_jumps(tr) == _sorted_jumps(tr) == []
+    for rows in ([700], [5, 900, 901, 1190]):
+        x_j = x.copy()
+        x_j[rows] += 50.0
+        got = _traffic_jumps({**tr, "x_m": x_j})
+        assert got == _sorted_jumps({**tr, "x_m": x_j}) and len(got) == 1
+    # v3 is the first vehicle seen; v2 jumps once (row 0 -> 1), v3, v1 and v4 out and back
+    assert got[0] == ("traffic vehicle 'v3' jumps 50.45 m in 0.02 s at t=3.000 s, further than its speed allows "
+                      "(7 such jump(s) in 4 vehicle(s)); kept")
+    # not a grid: a vehicle missing from one sample, or one id twice in a sample
+    assert _vehicle_grid(pa.array(np.delete(ids, 7)), len(t) - 1) == 0
+    assert _vehicle_grid(pa.array(np.tile(["a", "b", "a"], 4)), 12) == 0
+
+
+def test_bounds_met_in_numpy_agree_with_pandera():
+    from pandera.errors import SchemaErrors
+
+    from ingest.values import EGO_OPTIONAL_SCHEMA, TRAFFIC_SCHEMA, _all_pass
+
+    def pandera_passes(df, schema):
+        try:
+            schema.validate(df, lazy=True)
+            return True
+        except SchemaErrors:
+            return False
+
+    rng = np.random.default_rng(3)
+    values = [0.0, np.nan, np.inf, -np.inf, -1e7, 1e7 + 1, -10.0, -10.01, 100.0, 100.1, 0.5, 1.5, 20.0, 21.0, 60.0,
+              60.1, -0.0, 4 * np.pi, -4 * np.pi - 1e-9]
+    seen = set()
+    for _ in range(100):
+        for schema in (EGO_REQUIRED_SCHEMA, EGO_OPTIONAL_SCHEMA, TRAFFIC_SCHEMA):
+            pool = values if rng.random() < 0.5 else [0.0, np.nan, 1.0, -0.0]  # half of the frames all inside
+            df = pd.DataFrame({c: rng.choice(pool, 3) for c in schema.columns})
+            ok = _all_pass(df, schema)
+            assert ok == pandera_passes(df, schema), df
+            seen.add(ok)
+    assert seen == {True, False}
+    ints = pd.DataFrame({"ego_x_m": [1], "ego_v_mps": [1.0], "ego_lane": [1.0]})  # not float: pandera decides
+    assert not _all_pass(ints, EGO_REQUIRED_SCHEMA)
