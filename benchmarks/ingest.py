@@ -15,6 +15,7 @@ CSV.gz and MCAP to a temporary folder, then times (median of several repetitions
 Goals: our ingest at least half as fast as the floor (ratio >= 0.5); MCAP at least 3x.
 
     .venv/bin/python benchmarks/ingest.py [--reps 5] [--minutes 10] [--vehicles 20] [--baseline d4815b0]
+                                          [--formats csv,csv.gz,mcap]
 """
 
 from __future__ import annotations
@@ -137,6 +138,7 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--vehicles", type=int, default=20)
     ap.add_argument("--baseline", metavar="REV", help="also time the ingest of this git revision (before/after)")
+    ap.add_argument("--formats", default="csv,csv.gz,mcap", help="comma-separated subset of csv,csv.gz,mcap")
     args = ap.parse_args()
 
     meta, ego, traffic = make_recording(args.minutes, args.vehicles)
@@ -144,7 +146,7 @@ def main() -> None:
     tmp = Path(tempfile.mkdtemp(prefix="lp-bench-"))
     base_ingest = load_baseline(args.baseline, tmp / "base") if args.baseline else None
     try:
-        files = {"csv": tmp / "rec.csv", "csv.gz": tmp / "rec.csv.gz", "mcap": tmp / "rec.mcap"}
+        files = {fmt: tmp / f"rec.{fmt}" for fmt in ("csv", "csv.gz", "mcap") if fmt in args.formats.split(",")}
         for fmt, path in files.items():
             t0 = time.perf_counter()
             (write_mcap if fmt == "mcap" else write_csv)(path, meta, ego, traffic)

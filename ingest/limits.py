@@ -15,6 +15,7 @@ import zlib
 from dataclasses import dataclass, fields
 from typing import Mapping as TypingMapping
 
+from ingest.mcap_records import top_records
 from ingest.rawlog import Rejected, first_line
 from laneprint.errors import UserError
 
@@ -22,7 +23,7 @@ MB = 1 << 20
 RATIO_FLOOR_BYTES = 16 * MB  # [bytes] output below this may compress arbitrarily well (tiny or constant logs)
 _INFLATE_STEP = 4 * MB  # [bytes] gunzip in steps of this much output, checking the limits after each
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
-_OP_FOOTER, _OP_CHUNK = 0x02, 0x06
+_OP_CHUNK = 0x06
 
 
 @dataclass(frozen=True)
@@ -178,18 +179,18 @@ def _check_zstd_frame(data: bytes, body: int, length: int, size: int, pos: int) 
                        f"claims {claimed}")
 
 
-def check_mcap_records(data: bytes, limits: IngestLimits) -> None:
-    """Walk an MCAP's top-level record headers; `Rejected` when one claims more than the file or the limits allow.
+def check_mcap_records(data: bytes, limits: IngestLimits, heads: list[tuple[int, int, int]] | None = None) -> None:
+    """`Rejected` when a top-level MCAP record claims more than the file or the limits allow.
 
     Cheap (headers only, nothing decompressed); what the records hold is the reader's
-    to judge. A walk that ends early (a file without footer) is left to the reader,
-    which names the truncation.
+    to judge. `heads`: the file's `mcap_records.top_records` (walked here when not
+    given). A walk that ends early (a file without footer) is left to the reader, which
+    names the truncation.
     """
-    pos, n = len(_MCAP_MAGIC), len(data)
+    n = len(data)
     total = 0
     record_cap = limits.max_record_mb * MB
-    while pos + 9 <= n:
-        op, length = struct.unpack_from("<BQ", data, pos)
+    for op, pos, length in (top_records(data) if heads is None else heads):
         body = pos + 9
         if length > n - body:
             if not data.endswith(_MCAP_MAGIC):
@@ -214,6 +215,3 @@ def check_mcap_records(data: bytes, limits: IngestLimits) -> None:
             if total > limits.max_inflated_mb * MB:
                 raise Rejected(f"MCAP chunks hold more than the {limits.max_inflated_mb:g} MB limit uncompressed "
                                f"(reached at the chunk at byte {pos}; raise {env_var('max_inflated_mb')})")
-        if op == _OP_FOOTER:
-            return
-        pos = body + length

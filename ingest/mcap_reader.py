@@ -31,11 +31,12 @@ from ingest.logformat import (
 from ingest.alignment import asof, place_presses
 from ingest.jsondecode import float_columns, loads_many
 from ingest.mapping import Mapping
-from ingest.mcap_records import MAGIC, Collected, collect
+from ingest.limits import IngestLimits, check_mcap_records
+from ingest.mcap_records import MAGIC, Collected, collect, top_records
 from ingest.object_ids import id_array
-from ingest.rawlog import RawLog, Rejected, first_line
+from ingest.rawlog import RawLog, Rejected, check_log_bytes, first_line
 
-__all__ = ["MAGIC", "Collected", "read_collected", "read_mcap_log"]
+__all__ = ["MAGIC", "Collected", "read_collected", "read_mcap_file", "read_mcap_log"]
 
 
 def _getter(path: str) -> Callable[[dict], Any]:
@@ -104,11 +105,21 @@ def _floats(values: list[Any], scale: float = 1.0) -> np.ndarray:
     return a * scale if scale != 1.0 else a
 
 
-def read_mcap_log(data: bytes, mapping: Mapping) -> RawLog:
-    """Parse MCAP bytes into a `RawLog`; `Rejected` with a precise reason on bad input."""
+def read_mcap_file(data: bytes, limits: IngestLimits) -> Collected:
+    """The records of one MCAP file; `Rejected`, in this order, for: no bytes, a Git LFS pointer, no
+    MCAP magic, a top-level record beyond the file or `limits` (headers only, before anything is
+    decompressed), damage met while reading the records."""
+    check_log_bytes(data)
     if not data.startswith(MAGIC):
         raise Rejected("not an MCAP file: it does not start with the MCAP magic bytes")
-    return read_collected(collect(data), mapping)
+    heads = top_records(data)  # walked once, for the limits and the reader
+    check_mcap_records(data, limits, heads)
+    return collect(data, heads)
+
+
+def read_mcap_log(data: bytes, mapping: Mapping, limits: IngestLimits | None = None) -> RawLog:
+    """Parse MCAP bytes into a `RawLog`; `Rejected` with a precise reason on bad input."""
+    return read_collected(read_mcap_file(data, limits or IngestLimits()), mapping)
 
 
 def read_collected(got: Collected, mapping: Mapping, warnings: list[str] | None = None) -> RawLog:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import io
 import operator
 import struct
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from mcap.data_stream import ReadDataStream
@@ -29,7 +29,7 @@ from ingest.rawlog import Rejected, first_line
 MAGIC = b"\x89MCAP0\r\n"
 _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_METADATA, _OP_FOOTER = 0x03, 0x04, 0x05, 0x06, 0x0C, 0x02
 _HEAD = struct.Struct("<BQ")  # opcode, record length
-_MSG = struct.Struct("<HIQ")  # channel id, sequence, log_time (publish_time follows)
+_REC = struct.Struct("<BQH4xQ")  # opcode, record length, then a message's channel id, (sequence), log_time
 _MSG_FIXED = 22  # bytes before a message's data
 _CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, length of the compression name
 
@@ -109,22 +109,23 @@ class _Messages:
             got.datas.setdefault(cid, []).extend(datas)
 
 
-def _walk(buf: bytes, pos: int, stop: int, got: Collected, msgs: _Messages,
-          chunk: Callable[[int, int], None] | None) -> int:
-    """Read the records in buf[pos:stop]; the end of the last one (the footer's start at top level)."""
-    head, msg = _HEAD.unpack_from, _MSG.unpack_from
+def _walk(buf: bytes, pos: int, stop: int, got: Collected, msgs: _Messages) -> None:
+    """Read the messages, channels and schemas in buf[pos:stop] (a chunk's records, or one top-level record)."""
+    rec, head = _REC.unpack_from, _HEAD.unpack_from
     add_cid, add_time, add_data = msgs.cids.append, msgs.times.append, msgs.datas.append
     while pos < stop:
-        if pos + 9 > stop:
-            raise Unreadable("record header cut")
-        op, length = head(buf, pos)
+        try:  # a message's header with its record's: one call per message
+            op, length, cid, log_time = rec(buf, pos)
+        except struct.error:  # fewer than 23 bytes left in the buffer
+            if pos + 9 > stop:
+                raise Unreadable("record header cut") from None
+            op, length = head(buf, pos)
         body, end = pos + 9, pos + 9 + length
         if end > stop:
             raise Unreadable("record past its end")
         if op == _OP_MESSAGE:
             if length < _MSG_FIXED:
                 raise Unreadable("short message")
-            cid, _, log_time = msg(buf, body)
             add_cid(cid)
             add_time(log_time)
             add_data(buf[body + _MSG_FIXED:end])
@@ -132,42 +133,59 @@ def _walk(buf: bytes, pos: int, stop: int, got: Collected, msgs: _Messages,
             got.take(_parse(Channel, buf, body, end))
         elif op == _OP_SCHEMA:
             got.take(_parse(Schema, buf, body, end))
-        elif op == _OP_CHUNK and chunk is not None:
-            chunk(body, end)
-        elif op == _OP_METADATA and chunk is not None:
-            got.take(_parse(Metadata, buf, body, end))
-        elif op == _OP_FOOTER and chunk is not None:
-            return pos
         pos = end
-    return pos
 
 
-def read_records(data: bytes) -> Collected:
-    """Every record of a complete MCAP file in file order; `Unreadable` on anything unexpected."""
+def top_records(data: bytes) -> list[tuple[int, int, int]]:
+    """(opcode, byte offset, length) of the top-level records after the leading magic, up to the footer.
+
+    Headers only. The walk stops after the footer, after a record claiming more bytes
+    than the file holds (listed last, for the caller to name), or with fewer than 9
+    bytes left. The limits (`ingest.limits.check_mcap_records`) and the reader
+    (`read_records`) both take this one list.
+    """
+    heads: list[tuple[int, int, int]] = []
+    head = _HEAD.unpack_from
+    pos, n = len(MAGIC), len(data)
+    while pos + 9 <= n:
+        op, length = head(data, pos)
+        heads.append((op, pos, length))
+        if op == _OP_FOOTER or length > n - pos - 9:
+            break
+        pos += 9 + length
+    return heads
+
+
+def read_records(data: bytes, heads: list[tuple[int, int, int]] | None = None) -> Collected:
+    """Every record of a complete MCAP file in file order; `Unreadable` on anything unexpected.
+
+    `heads`: the file's `top_records`, when the caller has them already.
+    """
     if not (data.startswith(MAGIC) and data.endswith(MAGIC)):
         raise Unreadable("no magic")
+    heads = top_records(data) if heads is None else heads
+    if not heads or heads[-1][0] != _OP_FOOTER or heads[-1][1] + 9 + heads[-1][2] + len(MAGIC) != len(data):
+        raise Unreadable("no footer right before the closing magic")
     got = Collected()
     msgs = _Messages()
-
-    def chunk(body: int, end: int) -> None:
-        _, _, size, _, clen = _CHUNK_HEAD.unpack_from(data, body)
-        at = body + _CHUNK_HEAD.size
-        compression = str(data[at:at + clen], "utf-8")
-        (rlen,) = struct.unpack_from("<Q", data, at + clen)
-        start = at + clen + 8
-        if start + rlen > end:
-            raise Unreadable("chunk records past the chunk")
-        inner = _inflate(compression, data[start:start + rlen], size)
-        if len(inner) != size:
-            raise Unreadable("chunk size")
-        _walk(inner, 0, len(inner), got, msgs, None)
-
-    footer = _walk(data, len(MAGIC), len(data), got, msgs, chunk)
-    if footer + 9 > len(data) or data[footer] != _OP_FOOTER:
-        raise Unreadable("no footer")
-    (length,) = struct.unpack_from("<Q", data, footer + 1)
-    if footer + 9 + length + len(MAGIC) != len(data):
-        raise Unreadable("bytes between the footer and the closing magic")
+    for op, pos, length in heads[:-1]:
+        body, end = pos + 9, pos + 9 + length
+        if op == _OP_CHUNK:
+            _, _, size, _, clen = _CHUNK_HEAD.unpack_from(data, body)
+            at = body + _CHUNK_HEAD.size
+            compression = str(data[at:at + clen], "utf-8")
+            (rlen,) = struct.unpack_from("<Q", data, at + clen)
+            start = at + clen + 8
+            if start + rlen > end:
+                raise Unreadable("chunk records past the chunk")
+            inner = _inflate(compression, data[start:start + rlen], size)
+            if len(inner) != size:
+                raise Unreadable("chunk size")
+            _walk(inner, 0, len(inner), got, msgs)
+        elif op == _OP_METADATA:
+            got.take(_parse(Metadata, data, body, end))
+        else:  # a message, channel or schema outside chunks (others are skipped)
+            _walk(data, pos, end, got, msgs)
     msgs.into(got)
     return got
 
@@ -204,10 +222,11 @@ def _check_channels(got: Collected) -> None:
                        f"file defines")
 
 
-def collect(data: bytes) -> Collected:
-    """Channels, schemas, messages and metadata of MCAP bytes; `Rejected` naming the damage."""
+def collect(data: bytes, heads: list[tuple[int, int, int]] | None = None) -> Collected:
+    """Channels, schemas, messages and metadata of MCAP bytes (`heads`: their `top_records`, if
+    known); `Rejected` naming the damage."""
     try:
-        got = read_records(data)
+        got = read_records(data, heads)
     except MemoryError:
         raise
     except Exception:  # Unreadable, struct.error, a decompressor's own error...: the stream reader names it

@@ -28,9 +28,9 @@ import pandas as pd
 
 from ingest.csv_reader import read_csv_log
 from ingest.mapping import Mapping, load_mapping
-from ingest.limits import IngestLimits, check_file_size, check_mcap_records
-from ingest.mcap_reader import MAGIC as MCAP_MAGIC, read_mcap_log
-from ingest.rawlog import RawLog, Rejected, check_lfs_pointer, first_line
+from ingest.limits import IngestLimits, check_file_size
+from ingest.mcap_reader import read_mcap_log
+from ingest.rawlog import RawLog, Rejected, check_log_bytes, first_line
 from ingest.rosbag2 import BagInfo, bag_parts, is_bag_folder, read_split_bag
 from ingest.validate import Canonical, canonicalise
 from laneprint.errors import UserError
@@ -144,13 +144,9 @@ def read_log(data: bytes, fmt: str, mapping: Mapping, limits: IngestLimits | Non
     limits = limits or IngestLimits()
     if bag is not None:
         return read_split_bag(data, bag, mapping, limits)
-    if not data:
-        raise Rejected("empty file (0 bytes)")
-    check_lfs_pointer(data)
     if fmt == "mcap":
-        if data.startswith(MCAP_MAGIC):
-            check_mcap_records(data, limits)
-        return read_mcap_log(data, mapping)
+        return read_mcap_log(data, mapping, limits)
+    check_log_bytes(data)
     return read_csv_log(data, fmt, mapping, limits)
 
 

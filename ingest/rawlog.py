@@ -44,6 +44,13 @@ def first_line(text: str, limit: int = 200) -> str:
 LFS_POINTER = b"version https://git-lfs.github.com/spec/"
 
 
+def check_log_bytes(data: bytes) -> None:
+    """`Rejected` for bytes that cannot be a log of any format: none at all, or a Git LFS pointer."""
+    if not data:
+        raise Rejected("empty file (0 bytes)")
+    check_lfs_pointer(data)
+
+
 def check_lfs_pointer(data: bytes) -> None:
     """`Rejected` when the bytes are a Git LFS pointer (what a clone without LFS holds instead of the file)."""
     if not data.startswith(LFS_POINTER) or len(data) > 1024:

@@ -16,11 +16,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from ingest.limits import IngestLimits, check_mcap_records
+from ingest.limits import IngestLimits
 from ingest.mapping import Mapping
-from ingest.mcap_reader import read_collected
-from ingest.mcap_records import MAGIC, Collected, collect
-from ingest.rawlog import RawLog, Rejected, check_lfs_pointer, first_line
+from ingest.mcap_reader import read_collected, read_mcap_file
+from ingest.mcap_records import Collected
+from ingest.rawlog import RawLog, Rejected, first_line
 
 METADATA = "metadata.yaml"
 _KEY = "rosbag2_bagfile_information"
@@ -134,13 +134,7 @@ def bag_warnings(info: BagInfo, got: Collected, n_files: int) -> list[str]:
 def _read_part(name: str, data: bytes, limits: IngestLimits) -> Collected:
     """One part's records; `Rejected` naming the part."""
     try:
-        if not data:
-            raise Rejected("empty file (0 bytes)")
-        check_lfs_pointer(data)
-        if not data.startswith(MAGIC):
-            raise Rejected("not an MCAP file: it does not start with the MCAP magic bytes")
-        check_mcap_records(data, limits)
-        return collect(data)
+        return read_mcap_file(data, limits)
     except Rejected as exc:
         raise Rejected(f"split rosbag2 part {name}: {exc}") from None
 
