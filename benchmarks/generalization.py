@@ -19,6 +19,11 @@ which checks failed.
 Run: python benchmarks/generalization.py [--sumo-seed 7 [8 ...]] [--jobs 2] [--drivers 9]
      [--episodes 10000] [--folds 4] [--seed 0] [--workdir /tmp/lp-generalization]
      [--skip-shipped] [--skip-sumo]
+
+Issue 19's bar per style and direction from stored `crossval --all --json` documents
+(agent >= greedy + 10 points and >= imitation - 5), one column per document:
+
+     python benchmarks/generalization.py --direction-table A.json [B.json ...] [--labels a b ...]
 """
 
 from __future__ import annotations
@@ -164,8 +169,44 @@ def seeds_table(runs: dict[int, tuple[Checks, list[dict], float | None]]) -> Non
     print(f"\nevery check holds on {held} of {len(runs)} SUMO seeds")
 
 
+def direction_table(paths: list[Path], labels: list[str] | None) -> None:
+    """Balanced accuracy (%) of agent / greedy / imitation per style, pooled and per direction, from crossval
+    documents; then how many (style, direction) cells meet agent >= greedy + 10 and >= imitation - 5."""
+    docs = [json.loads(p.read_text()) for p in paths]
+    labels = labels or [p.stem for p in paths]
+    print("| style | direction | " + " | ".join(f"{lab}: agent [95 % CI] / greedy / imitation" for lab in labels) + " |")
+    print("|---|---|" + "---|" * len(docs))
+    met = {lab: [] for lab in labels}
+    styles = [r["target"]["name"] for r in docs[0]["results"]]
+    for style in styles:
+        for direction in ("pooled", "left", "right"):
+            cells = []
+            for lab, doc in zip(labels, docs):
+                res = next(r for r in doc["results"] if r["target"]["name"] == style)
+                rows = res["summary"] if direction == "pooled" else [
+                    r for r in res["summary_by_direction"] if r["direction"] == direction]
+                ba = {r["who"]: r for r in rows}
+                if "agent" not in ba:
+                    cells.append("-")
+                    continue
+                a, g, i = (100 * ba[w]["balanced_accuracy"] for w in ("agent", "greedy", "imitation"))
+                lo, hi = (100 * x for x in ba["agent"]["balanced_accuracy_ci"])
+                ok = a >= g + 10 and a >= i - 5
+                if direction != "pooled":
+                    met[lab].append((f"{style} {direction}", ok))
+                cells.append(f"{'**' if ok else ''}{a:.1f}{'**' if ok else ''} [{lo:.1f}, {hi:.1f}] / {g:.1f} / {i:.1f}")
+            print(f"| {style} | {direction} | " + " | ".join(cells) + " |")
+    print("\n(bold: agent >= greedy + 10 and >= imitation - 5)")
+    for lab, checks in met.items():
+        failed = [n for n, ok in checks if not ok]
+        print(f"- {lab}: {sum(ok for _, ok in checks)} of {len(checks)} style x direction cells meet the bar"
+              + (f" (not: {'; '.join(failed)})" if failed else ""))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--direction-table", type=Path, nargs="+", help="crossval --all --json documents: issue 19's table")
+    ap.add_argument("--labels", nargs="+", help="--direction-table: a column name per document")
     ap.add_argument("--sumo-seed", type=int, nargs="+", default=[7],
                     help="seed(s) of the SUMO studies (ones nobody tuned on)")
     ap.add_argument("--jobs", type=int, default=1, help="SUMO studies run at once (each is one process)")
@@ -177,6 +218,9 @@ def main() -> None:
     ap.add_argument("--skip-sumo", action="store_true")
     ap.add_argument("--skip-shipped", action="store_true")
     args = ap.parse_args()
+    if args.direction_table:
+        direction_table(args.direction_table, args.labels)
+        return
     args.workdir.mkdir(parents=True, exist_ok=True)
     checks: dict[str, Checks] = {}
     runs: dict[int, tuple[Checks, list[dict], float | None]] = {}

@@ -195,3 +195,24 @@ def test_runs_from_before_the_setting_replay_only_the_drivers_side():
     d = EnvConfig().to_dict()
     del d["other_side"]
     assert EnvConfig.from_dict(d).other_side is False and EnvConfig().other_side is True
+
+
+def test_train_names_the_setting_and_two_lanes_train_alike(tmp_path):
+    import json
+
+    import torch
+    from typer.testing import CliRunner
+
+    from laneprint.cli import app
+    from rl.runs import load_weights, run_dir
+    from rl.testing import FAST_CLI, analysed_workspace
+
+    ws = analysed_workspace(tmp_path)  # a two-lane analysis: no side not taken anywhere
+    for flag, run in (("--other-side", "on"), ("--driver-side-only", "off")):
+        res = CliRunner().invoke(app, ["train", "--style", "Normal", "--episodes", "100", "--seed", "3", flag,
+                                       "--run-id", run, "--no-evaluate", "-w", str(tmp_path), *FAST_CLI])
+        assert res.exit_code == 0, res.output
+    configs = {r: json.loads((run_dir(ws, r) / "config.json").read_text())["env"] for r in ("on", "off")}
+    assert configs["on"]["other_side"] is True and configs["off"]["other_side"] is False
+    on, off = load_weights(ws, "on").state_dict(), load_weights(ws, "off").state_dict()
+    assert all(torch.equal(on[k], off[k]) for k in on)
