@@ -312,3 +312,48 @@ mcap:
 """)
     toml, yaml = (load_mapping(tmp_path / name).mcap_signals for name in ("ros2.toml", "ros2.yaml"))
     assert toml == yaml and toml.topics()[:2] == ["/odom", "/localization/lane"]
+
+
+# ---- ROS 2 decoders: rosbags, with mcap_ros2 behind it ---------------------------------------------------
+
+
+def _parse_both(log, mapping_path, monkeypatch):
+    """`parse_log` of one file as laneprint reads it, and with mcap_ros2's decoder alone."""
+    from ingest import mcap_decoding
+    from ingest.pipeline import ParseJob, parse_log
+
+    job = ParseJob(log.read_bytes(), "mcap", log.stem, load_mapping(mapping_path), None)
+    fast = parse_log(job)
+    with monkeypatch.context() as m:
+        m.setattr(mcap_decoding.FastRos2DecoderFactory, "decoder_for",
+                  lambda self, enc, schema: self.slow.decoder_for(enc, schema))
+        slow = parse_log(job)
+    return fast, slow
+
+
+def _assert_same(fast, slow) -> None:
+    assert fast.reason == slow.reason
+    if slow.rec is None:
+        assert fast.rec is None
+        return
+    assert fast.rec.meta == slow.rec.meta and fast.rec.warnings == slow.rec.warnings
+    assert fast.rec.ego.equals(slow.rec.ego) and fast.rec.traffic.equals(slow.rec.traffic)
+
+
+def test_rosbags_decodes_cdr_as_mcap_ros2_does(tmp_path, ros2_log, monkeypatch):
+    from mcap.records import Schema
+
+    from ingest.mcap_decoding import FastRos2DecoderFactory
+
+    schema = Schema(id=1, name="nav_msgs/msg/Odometry", encoding="ros2msg", data=ODOMETRY_MSGDEF.encode())
+    assert getattr(FastRos2DecoderFactory().decoder_for("cdr", schema), "fast", False)  # rosbags reads it
+    (tmp_path / "ros2.toml").write_text(ROS2_MAPPING)
+    fast, slow = _parse_both(ros2_log, tmp_path / "ros2.toml", monkeypatch)
+    assert fast.rec is not None and len(fast.rec.traffic) > 0
+    _assert_same(fast, slow)
+    # refusals: a field path to a message or an array, a list that is not one: mcap_ros2's reasons
+    for old, new in (('"twist.twist.linear.x"', '"twist.twist.linear"'), ('"twist.twist.linear.x"', '"twist.covariance"'),
+                     ('list = "objects"', 'list = "header"'), ('id = "id"', 'id = "position"')):
+        (tmp_path / "bad.toml").write_text(ROS2_MAPPING.replace(old, new, 1))
+        fast, slow = _parse_both(ros2_log, tmp_path / "bad.toml", monkeypatch)
+        _assert_same(fast, slow)
