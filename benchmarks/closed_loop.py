@@ -100,13 +100,16 @@ def sides(args: argparse.Namespace) -> None:
                 "--run-id", run_id, "--no-evaluate", "-w", str(ws.root))
         for seed in args.drive_seeds:
             out = args.workdir / f"{run_id}-d{seed}"
-            shutil.rmtree(out, ignore_errors=True)
-            d = cli("drive", run_id, "--engine", "sumo", "--lanes", str(args.lanes), "--minutes", f"{args.minutes:g}",
-                    "--seed", str(seed), "--out", str(out), "-w", str(ws.root))
+            if (out / "drive.json").exists():  # driven before with these settings: its report and logs
+                d = json.loads((out / "drive.json").read_text())
+            else:
+                shutil.rmtree(out, ignore_errors=True)
+                d = cli("drive", run_id, "--engine", "sumo", "--lanes", str(args.lanes), "--minutes",
+                        f"{args.minutes:g}", "--seed", str(seed), "--out", str(out), "-w", str(ws.root))
             scratch = args.workdir / f"ws-{run_id}-d{seed}"
             shutil.rmtree(scratch, ignore_errors=True)
-            cli("ingest", *d["files"], "--driver", "agent", "-w", str(scratch))
-            a = changes_per_km(list(Workspace(scratch).iter_recordings()))["agent"]
+            cli("ingest", *d["files"], "-w", str(scratch))
+            (a,) = changes_per_km(list(Workspace(scratch).iter_recordings())).values()  # the drive's one driver
             rate = a["changes"] / a["km"]
             rows.append({"setting": flag, "drive_seed": seed, "rate": rate, "ratio": rate / mean,
                          "collisions": d["totals"]["collisions"]})
