@@ -54,4 +54,13 @@ def float_columns(datas: list[bytes], names: list[str]) -> dict[str, np.ndarray]
         rows = _rows_decoder(unique).decode(b"[" + b",".join(datas) + b"]")
     except msgspec.DecodeError:
         return None
-    return {n: np.array(list(map(operator.attrgetter(f"f{i}"), rows)), dtype=float) for i, n in enumerate(unique)}
+    return {n: _floats(rows, f"f{i}") for i, n in enumerate(unique)}
+
+
+def _floats(rows: list[Any], attr: str) -> np.ndarray:
+    """Field `attr` of every row as floats; None -> NaN."""
+    get = operator.attrgetter(attr)
+    try:
+        return np.fromiter(map(get, rows), dtype=float, count=len(rows))
+    except TypeError:  # a null among them
+        return np.array(list(map(get, rows)), dtype=float)
