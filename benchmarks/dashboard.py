@@ -1,7 +1,7 @@
 """Time to first render of each dashboard page on a workspace of 100 drivers x 50 decisions and their fleet.
 
     python benchmarks/dashboard.py [--drivers 100] [--decisions 50] [--fleet 100] [--repeat 5] [--browser]
-                                   [--keep DIR] [--baseline DIR|REV]
+                                   [--keep DIR] [--baseline DIR|REV] [--pages training,results]
 
 The workspace is generated in a temporary folder: one short recording per driver
 (`indicators.synthetic.make_recording`), the analysis of a synthetic decisions
@@ -140,23 +140,25 @@ def render(page: str, cold: bool, pages: Path = PAGES) -> float:
     return dt
 
 
-def script_times(repeat: int, pages: Path = PAGES) -> dict[str, tuple[float, float]]:
-    """(cold, warm) median seconds of each page's script run (AppTest)."""
-    for page in PAGE_NAMES:
+def script_times(repeat: int, pages: Path = PAGES, names: tuple[str, ...] = PAGE_NAMES
+                 ) -> dict[str, tuple[float, float]]:
+    """(cold, warm) median seconds of each page's script run (AppTest); pages not in `names`: NaN."""
+    for page in names:
         render(page, cold=True, pages=pages)  # imports and first compile out of the way
     return {page: (statistics.median(render(page, cold=True, pages=pages) for _ in range(repeat)),
                    statistics.median(render(page, cold=False, pages=pages) for _ in range(repeat)))
-            for page in PAGE_NAMES}
+            if page in names else (float("nan"), float("nan")) for page in PAGE_NAMES}
 
 
-def baseline_script_times(code: Path, ws: Workspace, repeat: int) -> dict[str, tuple[float, float]]:
+def baseline_script_times(code: Path, ws: Workspace, repeat: int, names: tuple[str, ...] = PAGE_NAMES
+                          ) -> dict[str, tuple[float, float]]:
     """`script_times` of the code in `code` (its packages first on the path), in a child process."""
     import json
     import subprocess
 
     out = subprocess.run([sys.executable, __file__, "--keep", str(ws.root), "--repeat", str(repeat),
-                          "--script-json", "--code", str(code)], check=True, capture_output=True, text=True,
-                         cwd=code, env=dict(os.environ, PYTHONPATH=str(code)))
+                          "--script-json", "--code", str(code), "--pages", ",".join(names)],
+                         check=True, capture_output=True, text=True, cwd=code, env=dict(os.environ, PYTHONPATH=str(code)))
     return {k: tuple(v) for k, v in json.loads(out.stdout.strip().splitlines()[-1]).items()}
 
 
@@ -209,8 +211,8 @@ NAV_FROM = {"data": "drivers", "drivers": "data", "styles": "data", "training": 
 CURVES = "Training curves (Fig. 9)"
 
 
-def browser_times(ws: Workspace, repeat: int, codes: list[Path],
-                  floor: list[float] | None = None) -> list[dict[str, tuple[float, ...]]]:
+def browser_times(ws: Workspace, repeat: int, codes: list[Path], floor: list[float] | None = None,
+                  names: tuple[str, ...] = PAGE_NAMES) -> list[dict[str, tuple[float, ...]]]:
     """Per code folder: (cold, warm, nav) median seconds to a drawn page in headless Chromium, the
     folders' servers visited in turn (the same load on each); and for 'results curves' the time from
     the click on the Results page's "Training curves" expander to its chart drawn."""
@@ -271,10 +273,10 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path],
                 ctx.close()
                 return opened, nav, curves
 
-            for name in PAGE_NAMES:
+            for name in names:
                 for _, url in servers:
                     visit(url, name)  # imports out of the way
-            for name in PAGE_NAMES:
+            for name in names:
                 for _ in range(repeat):
                     for (_, url), t in zip(servers, times):
                         for sub in ("recordings", "analysis", *(str(p.relative_to(ws.root))
@@ -334,10 +336,15 @@ def main() -> None:
                     help="also time the dashboard of the code in this folder, or of this git revision of the "
                          "repository (e.g. HEAD~3; exported with `git archive` to a temporary folder), its pages "
                          "visited in turn with this checkout's: before and after in one run")
+    ap.add_argument("--pages", default=",".join(PAGE_NAMES),
+                    help="the pages to time, comma-separated (default: all: " + ",".join(PAGE_NAMES) + ")")
     ap.add_argument("--code", type=Path, default=None, help=argparse.SUPPRESS)  # the pages timed (--baseline)
     ap.add_argument("--script-json", action="store_true", help=argparse.SUPPRESS)  # script times as JSON only
     args = ap.parse_args()
     pages = (args.code / "dashboard" / "app_pages") if args.code else PAGES
+    names = tuple(p.strip() for p in args.pages.split(",") if p.strip())
+    if not names or set(names) - set(PAGE_NAMES):
+        ap.error(f"--pages: choose among {', '.join(PAGE_NAMES)}")
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         root = args.keep.resolve() if args.keep else Path(tmp) / "ws"
@@ -351,7 +358,7 @@ def main() -> None:
                 build_fleet(ws, args.fleet)
         os.environ["LANEPRINT_WORKSPACE"] = str(ws.root)
         if args.script_json:
-            print(json.dumps(script_times(args.repeat, pages)))
+            print(json.dumps(script_times(args.repeat, pages, names)))
             return
         print(f"workspace: {args.drivers} drivers x {args.decisions} decisions, "
               f"{len(ws.read_table('analysis', 'decisions'))} decision rows, a fleet of {args.fleet} agents "
@@ -359,19 +366,20 @@ def main() -> None:
         if args.baseline:
             args.baseline = (Path(args.baseline) if Path(args.baseline).is_dir() else checkout(args.baseline)).resolve()
         codes = [PAGES.parents[1]] + ([args.baseline] if args.baseline else [])
-        names = ["this checkout"] + ([f"baseline {args.baseline}"] if args.baseline else [])
-        scripts = [script_times(args.repeat)]
+        labels = ["this checkout"] + ([f"baseline {args.baseline}"] if args.baseline else [])
+        scripts = [script_times(args.repeat, names=names)]
         if args.baseline:
-            scripts.append(baseline_script_times(args.baseline.resolve(), ws, args.repeat))
+            scripts.append(baseline_script_times(args.baseline.resolve(), ws, args.repeat, names))
         floor: list[float] = []
-        browsers = browser_times(ws, args.repeat, codes, floor) if args.browser else [None] * len(codes)
-        for name, script, browser in zip(names, scripts, browsers):
+        browsers = (browser_times(ws, args.repeat, codes, floor, names) if args.browser
+                    else [None] * len(codes))
+        for name, script, browser in zip(labels, scripts, browsers):
             print(f"\n{name}: medians of {args.repeat} [s]")
             head = f"{'page':<10} {'script cold':>11} {'script warm':>11}"
             if browser:
                 head += f" {'browser cold':>12} {'browser warm':>12} {'browser nav':>11}  (nav from)"
             print(head)
-            for page in PAGE_NAMES:
+            for page in names:
                 line = f"{page:<10} {script[page][0]:>11.3f} {script[page][1]:>11.3f}"
                 if browser:
                     line += (f" {browser[page][0]:>12.3f} {browser[page][1]:>12.3f} {browser[page][2]:>11.3f}"
@@ -382,7 +390,7 @@ def main() -> None:
         if args.baseline and browsers[0]:
             print("\nthis checkout / baseline, browser nav medians: " + ", ".join(
                 f"{p} {browsers[0][p][2]:.2f}/{browsers[1][p][2]:.2f} (x{browsers[1][p][2] / browsers[0][p][2]:.2f})"
-                for p in PAGE_NAMES) + f", curves {browsers[0]['curves'][0]:.2f}/{browsers[1]['curves'][0]:.2f}")
+                for p in names) + f", curves {browsers[0]['curves'][0]:.2f}/{browsers[1]['curves'][0]:.2f}")
         if floor:
             print(f"\nfloor: a one-chart Streamlit page (title + a 3-point Plotly chart) opened in a new tab of a "
                   f"new browser context, visited in turn with the pages: median {statistics.median(floor):.3f} s "

@@ -80,6 +80,26 @@ def analysis(root: str, key: tuple[int, ...]) -> dict[str, pd.DataFrame]:
 
 
 @st.cache_data(show_spinner=False, max_entries=16)
+def training_inputs(root: str, key: tuple[int, ...]) -> dict[str, pd.DataFrame]:
+    """What the Training page's forms read of the analysis: `reference_lines` and `styles` (when they
+    exist) and `decision_counts` (driver_id -> states, presses: what a learning check needs), not the
+    whole decisions table (55,000 rows at 100 drivers, copied out of the cache on every run)."""
+    ws = Workspace(root)
+    out = {name: ws.read_table("analysis", name) for name in ("reference_lines", "styles")
+           if ws.has_table("analysis", name)}
+    if ws.has_table("analysis", "decisions"):
+        dec = ws.read_table("analysis", "decisions")
+        out["decision_counts"] = decision_counts(dec)
+    return out
+
+
+def decision_counts(decisions: pd.DataFrame) -> pd.DataFrame:
+    """Per driver (index, as text): `states` (rows of the decisions table) and `presses`."""
+    press = (decisions["label"] == "change").rename("presses")
+    return press.groupby(decisions["driver_id"].astype(str)).agg(states="size", presses="sum")
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
 def analysis_meta(root: str, key: tuple[int, ...]) -> dict[str, Any]:
     """`analysis/meta.json` (settings, fingerprint), {} when missing."""
     return Workspace(root).read_meta("analysis")

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 from dashboard.context import EPISODES_ENV, env_int
@@ -103,68 +102,38 @@ def driver_targets(reference_lines: pd.DataFrame | None, recordings: pd.DataFram
     return sorted(recordings["driver_id"].astype(str).unique()) if len(recordings) else []
 
 
-def episode_length(ws, req, tables: dict[str, pd.DataFrame] | None = None) -> tuple[float | None, str]:
-    """Transitions per episode to expect for `req`, and where the figure comes from: the mean episode
-    length of this workspace's earlier runs of the same target (early episodes included), else the
-    states per recorded approach of the target's drivers (an upper bound: exploring agents change
-    lane, and end their episode, early). `tables`: the analysis tables when the caller has them
-    (the page's cached loader), else they are read."""
-    import json
+def learning_check(ws, req, values: dict[str, Any] | None = None,
+                   tables: dict[str, pd.DataFrame] | None = None) -> tuple[str, str]:
+    """('refuse' | 'warn' | '', why) for a training request, as `laneprint train` checks it before a run
+    (`rl.settings.learning_check`): refused when its episodes are too few for learning to begin at the
+    form's settings (the replay memory must hold `learning_starts` transitions before the first update),
+    warned when learning would begin only near the end. `values`: the form's trainer settings;
+    `tables`: `styles` and `decision_counts` (`loaders.training_inputs`) or `decisions` when the caller
+    has them, else they are read."""
+    from dashboard.loaders import decision_counts
+    from rl.problem.env import EnvConfig, formulation_config
+    from rl.settings import DQNSettings, approach_steps
+    from rl.settings import learning_check as check_settings
 
-    import numpy as np
-
-    from rl.runs import read_metrics
-
-    lengths = []
-    for cfg_path in sorted(ws.runs_dir.glob("*/config.json"))[-20:]:
-        try:
-            cfg = json.loads(cfg_path.read_text())
-        except (OSError, ValueError):
-            continue
-        if cfg.get("target") != {"kind": req.target, "name": req.name}:
-            continue
-        m = read_metrics(cfg_path.parent / "metrics.jsonl")
-        if len(m) and "length" in m:
-            lengths.append(float(m["length"].head(2000).mean()))
-    if lengths:
-        return float(np.median(lengths)), f"the mean episode length of {len(lengths)} earlier run(s) of this target"
     if tables is None:
         tables = {name: ws.read_table("analysis", name) for name in ("decisions", "styles")
                   if ws.has_table("analysis", name)}
-    dec = tables.get("decisions")
-    if dec is None:
-        return None, ""
-    drivers = [req.name]
+    counts = tables.get("decision_counts")
+    if counts is None and tables.get("decisions") is not None:
+        counts = decision_counts(tables["decisions"])
+    drivers = [str(req.name)]
     styles = tables.get("styles")
     if req.target == "style" and styles is not None:
-        drivers = styles.loc[styles["style"].astype(str) == req.name, "driver_id"].astype(str).tolist()
-    d = dec[dec["driver_id"].astype(str).isin(drivers)]
-    presses = int((d["label"] == "change").sum())
-    if not presses:
-        return None, ""
-    return len(d) / presses, "the recorded states per approach of the target's drivers (an upper bound)"
-
-
-def learning_check(ws, req, values: dict[str, Any] | None = None,
-                   tables: dict[str, pd.DataFrame] | None = None) -> tuple[str, str]:
-    """('refuse' | 'warn' | '', why) for a training request: refused when its episodes are too few for
-    learning to begin at the current settings (the replay memory must hold `learning_starts`
-    transitions before the first update), warned when learning would begin only in the last fifth."""
-    from rl.settings import DQNSettings
-
-    values = values or {}
-    starts = int(values.get("learning_starts") or DQNSettings().learning_starts)
-    per_episode, source = episode_length(ws, req, tables)
-    if not per_episode:
+        drivers = styles.loc[styles["style"].astype(str).str.lower() == str(req.name).lower(),
+                             "driver_id"].astype(str).tolist()
+    mine = counts.reindex(drivers).fillna(0).sum() if counts is not None else {"states": 0, "presses": 0}
+    env = formulation_config(EnvConfig().lines, req.reward, None, None, req.lines or "analysis")
+    steps, source = approach_steps(env, int(mine["states"]), int(mine["presses"]))
+    try:
+        settings = DQNSettings(episodes=int(req.episodes), episodes_per_approach=0.0,
+                               **{k: v for k, v in (values or {}).items() if k in FORM_SETTINGS})
+    except (TypeError, ValueError):
         return "", ""
-    expected = per_episode * int(req.episodes)
-    needed = int(np.ceil(starts / per_episode)) if per_episode else 0
-    if expected < starts:
-        return "refuse", (f"{req.episodes:,} episodes make about {expected:,.0f} transitions (about {per_episode:.1f} "
-                          f"per episode, from {source}), but learning starts after {starts:,}: the agent would "
-                          f"learn nothing. Use at least about {needed:,} episodes, or lower 'learning starts'.")
-    if expected < 1.25 * starts:
-        return "warn", (f"Learning would begin only near the end: about {expected:,.0f} transitions in "
-                        f"{req.episodes:,} episodes against {starts:,} before the first update (about "
-                        f"{per_episode:.1f} per episode, from {source}).")
-    return "", ""
+    check = check_settings(settings, steps, source, episodes_name="the Episodes field",
+                           starts_name="'learning starts' (Hyperparameters)")
+    return {"never": "refuse", "late": "warn"}.get(check.verdict, ""), check.message[:1].upper() + check.message[1:]

@@ -16,7 +16,7 @@ def launch_form(ws) -> None:
     `laneprint train` in the background. Plain widgets, not an `st.form`: Enter in a field commits
     its value and starts nothing (in a form it submitted the form: a second, identical run followed
     the click). A request that cannot learn, or one identical to a run under way, is not started."""
-    tables = loaders.analysis(str(ws.root), loaders.analysis_stamp(ws.root))
+    tables = loaders.training_inputs(str(ws.root), loaders.analysis_stamp(ws.root))
     recs = loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root))
     lines_table = tables.get("reference_lines")
     kind = st.radio("Imitate", ["style", "driver"], horizontal=True, key="target_kind")
@@ -62,16 +62,18 @@ def launch_form(ws) -> None:
         st.toast(f"Started run {run_id}")
 
 
-def run_panel(ws, run_id: str, status: dict, smoothing: float = 0.95) -> None:
-    """Progress, curves and a Cancel button for one run."""
+def run_panel(ws, run_id: str, status: dict, smoothing: float = 0.95, live: bool = True) -> None:
+    """Progress, curves and a Cancel button for one run; a finished run's curves (`live=False`) are
+    drawn once their expander is opened (a 2,000-point chart was half of this page's drawing time)."""
     done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
     frac = min(1.0, done / total) if total else 0.0
     st.progress(frac, text=f"{run_id}: {status.get('state')} — episode {done}/{total or '?'}"
                            + views.run_doing(status))
-    metrics = read_metrics(ws.runs_dir / run_id / "metrics.jsonl")
+    box = st.container() if live else widgets.lazy_expander("Training curves (Fig. 9)", key="finished_curves_open")
+    metrics = read_metrics(ws.runs_dir / run_id / "metrics.jsonl") if box is not None else ()
     if len(metrics):
         config = jobs.read_json(ws.runs_dir / run_id / "config.json") or {}
-        st.plotly_chart(training_curves(metrics, smoothing, learning_starts=(config.get("dqn") or {}).get(
+        box.plotly_chart(training_curves(metrics, smoothing, learning_starts=(config.get("dqn") or {}).get(
             "learning_starts")), key=f"curves_{run_id}")
     if status.get("state") in jobs.ACTIVE_STATES:
         if st.button("Cancel", key=f"cancel_{run_id}"):
@@ -102,8 +104,7 @@ def crossval_section(ws, run_id: str, status: dict, running: list[str]) -> None:
 
 def fleet_form(ws) -> None:
     """Train every driver (or every style) as one fleet: `laneprint train --drivers all | --styles all`."""
-    tables = loaders.analysis(str(ws.root), loaders.analysis_stamp(ws.root))
-    lines_table = tables.get("reference_lines")
+    lines_table = loaders.training_inputs(str(ws.root), loaders.analysis_stamp(ws.root)).get("reference_lines")
     recs = loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root))
     with st.form("fleet_form"):
         c1, c2, c3, c4 = st.columns(4)
@@ -144,8 +145,12 @@ def fleet_panel(ws, job_id: str, status: dict) -> None:
         st.progress(frac, text=f"fleet {fleet_id}: {state} — {p['n_done']}/{p['n_runs']} agents done, "
                                f"{p['episode']}/{p['episodes'] or '?'} episodes; {p['n_meeting_target']} of "
                                f"{p['n_evaluated']} evaluated meet their target")
-        st.dataframe(views.fleet_view(table), hide_index=True, width="stretch", height=min(420, 38 + 35 * len(table)),
-                     key=f"fleet_table_{job_id}")
+        # a fleet under way shows its agents as they finish; a finished one once asked (Results has it in full)
+        box = (st.container() if state in jobs.ACTIVE_STATES
+               else widgets.lazy_expander(f"Agents of fleet {fleet_id} ({len(table)})", key=f"fleet_agents_open_{job_id}"))
+        if box is not None:
+            box.dataframe(views.fleet_view(table), hide_index=True, width="stretch",
+                          height=min(420, 38 + 35 * len(table)), key=f"fleet_table_{job_id}")
     if state in jobs.ACTIVE_STATES:
         if st.button("Cancel fleet", key=f"fleet_cancel_{job_id}"):
             jobs.cancel_fleet(ws, job_id)
@@ -226,7 +231,7 @@ def main() -> None:
         st.session_state["finished_seen"] = finished
         rid = st.selectbox("Show run", finished, key="show_run")
         status = jobs.run_status(ws, rid)
-        run_panel(ws, rid, status, smoothing)
+        run_panel(ws, rid, status, smoothing, live=status.get("state") in jobs.ACTIVE_STATES)
         crossval_section(ws, rid, status, cv_running)
     else:
         st.caption("No run has finished yet.")

@@ -154,6 +154,7 @@ def test_two_runs_at_once_and_cancel(sample_ws, tmp_path, monkeypatch):
     at.number_input(key="episodes").set_value(100_000)
     start.click().run()
     at.number_input(key="episodes").set_value(200)
+    at.number_input(key="hp_learning_starts").set_value(200)  # 200 episodes can learn from 200 transitions on
     at.number_input(key="seed").set_value(1)
     next(b for b in at.button if b.label == "Start training").click().run()
     assert not at.exception, [e.value for e in at.exception]

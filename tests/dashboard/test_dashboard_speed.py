@@ -41,6 +41,27 @@ def test_refusal_from_the_pages_cached_tables_matches_the_files(use_sample):
         assert training.learning_check(ws, req, tables=tables) == training.learning_check(ws, req)
 
 
+def test_training_page_caches_counts_not_the_decisions_and_agrees_with_the_command_line(use_sample):
+    from dashboard import loaders, training
+    from dashboard.jobs import TrainRequest
+    from rl.cli import learning_checks
+    from rl.problem.env import EnvConfig, formulation_config
+    from rl.runs import Target
+    from rl.settings import DQNSettings
+
+    ws = use_sample
+    cached = loaders.training_inputs.__wrapped__(str(ws.root), ())
+    assert "decisions" not in cached and len(cached["decision_counts"]) == ws.read_table("analysis", "decisions")[
+        "driver_id"].nunique()
+    req = TrainRequest("style", "Normal", 300, 0)
+    verdict, why = training.learning_check(ws, req, tables=cached)
+    assert (verdict, why) == training.learning_check(ws, req)
+    env = formulation_config(EnvConfig().lines, None, None, None, "analysis")
+    [(_, cli)] = learning_checks(ws, [Target("style", "Normal")], env, DQNSettings(episodes=300,
+                                                                                   episodes_per_approach=0.0))
+    assert verdict == "refuse" and cli.verdict == "never" and f"about {cli.expected:,.0f} transitions" in why
+
+
 def test_symbol_numbers_keep_open_and_filled():
     assert symbol_codes(["circle", "circle-open", "triangle-up-open", "triangle-down", "diamond"]) == [0, 100, 105, 6, 2]
 
