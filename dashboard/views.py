@@ -534,15 +534,16 @@ DIRECTION_FIT_COLUMNS = ["indicator", "direction", "unit", "n", "A", "b", "r2", 
                          "reason"]
 
 
-def direction_fit_summary(fits_by_direction: pd.DataFrame | None) -> pd.DataFrame:
+def direction_fit_summary(fits_by_direction: pd.DataFrame | None, keep: tuple[str, ...] = ()) -> pd.DataFrame:
     """Per-direction fits for a reader: indicator, direction, n, A, b, R², Pearson r, significant, and the
     flag (a fitted line that means little) or the reason there is no line ('... the pooled line stands').
-    Empty for an analysis made before directions."""
+    Empty for an analysis made before directions. `keep`: columns kept first and sorted by first (the
+    report's `driver_id`: every driver's fits in one call)."""
     from indicators.plots import unit_of
 
     f = fits_by_direction
     if f is None or f.empty or "direction" not in f:
-        return pd.DataFrame(columns=DIRECTION_FIT_COLUMNS)
+        return pd.DataFrame(columns=[*keep, *DIRECTION_FIT_COLUMNS])
     out = f.copy()
     out["unit"] = [unit_of(i) for i in out["indicator"]]
     for col in ("flag", "reason"):
@@ -551,11 +552,12 @@ def direction_fit_summary(fits_by_direction: pd.DataFrame | None) -> pd.DataFram
     ok = out["status"] == "ok" if "status" in out else True
     if "reason" in out:  # a fitted line's reason is empty; a skipped side says why
         out.loc[ok, "reason"] = ""
-    out = out[[c for c in DIRECTION_FIT_COLUMNS if c in out.columns]]
+    out = out[[*keep, *[c for c in DIRECTION_FIT_COLUMNS if c in out.columns]]]
     # the analysis' order of indicators (the paper's three first), left before right
     rank = {ind: i for i, ind in enumerate(dict.fromkeys(out["indicator"]))}
-    out = out.sort_values(["indicator", "direction"], kind="stable",
-                          key=lambda s: s.map(rank) if s.name == "indicator" else s.map({"left": 0, "right": 1}))
+    order = {"indicator": rank, "direction": {"left": 0, "right": 1}}
+    out = out.sort_values([*keep, "indicator", "direction"], kind="stable",
+                          key=lambda s: s.map(order[s.name]) if s.name in order else s.astype(str))
     return out.reset_index(drop=True).round(3)
 
 

@@ -43,3 +43,30 @@ def test_without_kaleido_the_json_stays_and_the_summary_says_why(tmp_path, monke
     assert written["svg"] == [] and "pip install -e '.[report]'" in written["svg_note"]
     assert written["figures"] == ["driver_D01_t_f.json", "styles.json"]
     assert not list(tmp_path.glob("*.svg"))
+
+
+def test_report_starts_chromium_before_building_and_stops_it(tmp_path, monkeypatch):
+    """kaleido's Chromium starts before the figures are built (its 10-15 s overlap them) and is stopped after."""
+    kaleido = pytest.importorskip("kaleido", reason="the report extra: pip install -e '.[report]'")
+    import laneprint.report as report
+
+    seen = []
+    monkeypatch.setattr(report, "build_report", lambda ws: (seen.append(kaleido._global_server.is_running())
+                                                           or (sections(), {"workspace": "w", "generated_at": "now",
+                                                                            "data_fingerprint": "f"})))
+    res = report.write_report(type("W", (), {"root": tmp_path})(), tmp_path / "r.html")
+    assert seen == [True] and not kaleido._global_server.is_running()
+    assert sorted(res["written"]["svg"]) == ["driver_D01_t_f.svg", "styles.svg"]
+
+
+def test_table_html_reads_as_pandas_writes_it():
+    from laneprint.report import _table_html
+
+    def cells(text):
+        return re.findall(r"<t([hd])(?:\s[^>]*)?>(.*?)</t\1>", text, flags=re.S)
+
+    frame = pd.DataFrame({"driver": ["D01", "<b>"], "A": [0.123456, float("nan")], "n": [3, 4],
+                          "flag": [None, "R² < 0.1"], "ok": [True, False]})
+    theirs = frame.to_html(index=False, na_rep="", float_format=lambda x: f"{x:.4g}", border=0, escape=True)
+    assert cells(_table_html(frame)) == cells(theirs)
+    assert ("d", "&lt;b&gt;") in cells(_table_html(frame)) and ("d", "0.1235") in cells(_table_html(frame))
