@@ -95,6 +95,10 @@ def analyze_command(
     far_follower_m: Annotated[float, typer.Option("--far-follower-m", help="Target-lane follower beyond this gap has no influence [m].")] = 100.0,
     step_s: Annotated[float, typer.Option("--step-s", help="Spacing of the 'not yet' states before a press [s].")] = 0.5,
     feature_fit: Annotated[str, typer.Option("--feature-fit", help="Line fit for the clustering features: huber, theilsen, ols or median (flat).")] = "huber",
+    acceptance_fit: Annotated[str, typer.Option(
+        "--acceptance-fit", help="How gap, headway and relative-speed features are read: trimmed (the driver's "
+                                 "level, a trimmed mean), median (the level as a median), or a line: huber, "
+                                 "theilsen, ols.")] = "trimmed",
     extrapolate_features: Annotated[bool, typer.Option(
         "--extrapolate-features", help="Read each driver's feature line at every section speed, even beyond "
                                        "the speeds of its presses (default: within them).")] = False,
@@ -107,6 +111,9 @@ def analyze_command(
         "--flagged-lines", help="A flagged per-driver line (low R², slope interval spanning 0, few points) in the "
                                 "reference lines: level (the driver's median, A = 0) or ols (as fitted, the "
                                 "study's way).")] = "level",
+    keep_receding: Annotated[bool, typer.Option(
+        "--keep-receding", help="Fit front gaps and headways to leaders pulling away too (default: left out when "
+                                "the leader pulls away faster than 1 m/s: the driver is not held by it).")] = False,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the clustering.")] = 0,
 ) -> None:
     """Indicators at every decision, per-driver correlations and fits, styles and reference lines."""
@@ -119,6 +126,8 @@ def analyze_command(
             raise UserError(f"--choose-k must be 'silhouette' or 'bic', not {choose_k!r}")
         if feature_fit not in FEATURE_FITS:
             raise UserError(f"--feature-fit must be one of {', '.join(FEATURE_FITS)}, not {feature_fit!r}")
+        if acceptance_fit not in FEATURE_FITS:
+            raise UserError(f"--acceptance-fit must be one of {', '.join(FEATURE_FITS)}, not {acceptance_fit!r}")
         if step_s <= 0:
             raise UserError("--step-s must be positive")
         if features != "auto":
@@ -126,8 +135,9 @@ def analyze_command(
         if flagged_lines not in FLAGGED_LINES:
             raise UserError(f"--flagged-lines must be one of {', '.join(FLAGGED_LINES)}, not {flagged_lines!r}")
         settings = AnalysisSettings(k=k, choose_k=choose_k, far_follower_m=far_follower_m, step_s=step_s,
-                                    feature_fit=feature_fit, feature_extrapolate=extrapolate_features,
-                                    features=features, flagged_lines=flagged_lines, random_state=seed)
+                                    feature_fit=feature_fit, acceptance_fit=acceptance_fit, feature_extrapolate=extrapolate_features,
+                                    features=features, flagged_lines=flagged_lines, random_state=seed,
+                                    max_receding_mps=None if keep_receding else AnalysisSettings.max_receding_mps)
         ws = Workspace(Path(workspace))
         if not ws.root.is_dir() or ws.recordings().empty:  # before the progress bar draws anything
             raise UserError(f"no recordings in workspace {ws.root}: run `laneprint ingest PATH` first")

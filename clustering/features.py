@@ -48,13 +48,17 @@ def lines_by_row(V: np.ndarray, Y: np.ndarray, method: str) -> tuple[np.ndarray,
     of different lengths are padded with NaN. 'theilsen': median of pairwise slopes,
     intercept median(y) - A median(v), as scipy's `theilslopes`; 'huber': IRLS with
     Huber's t = 1.345 and MAD scale (about zero) re-estimated every step, as
-    statsmodels' `RLM(M=HuberT())`; 'median': a flat line at the median (A = 0).
+    statsmodels' `RLM(M=HuberT())`; 'median': a flat line at the median (A = 0); 'trimmed':
+    a flat line at the mean of the values left after cutting `TRIM` of them at each end
+    (as scipy's `trim_mean`).
     """
     V = np.atleast_2d(np.asarray(V, dtype=float))
     Y = np.atleast_2d(np.asarray(Y, dtype=float))
     ok = np.isfinite(V) & np.isfinite(Y)
     if method == "median":
         return np.zeros(len(Y)), _row_nanmedian(np.where(ok, Y, np.nan))
+    if method == "trimmed":
+        return np.zeros(len(Y)), _row_trimmed_mean(np.where(ok, Y, np.nan), TRIM)
     if method == "theilsen":
         i, j = np.triu_indices(V.shape[1], 1)
         dv = V[:, j] - V[:, i]
@@ -95,6 +99,23 @@ def _wls(V: np.ndarray, Y: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.nd
     sxx = (W * dv * dv).sum(axis=1)
     A = np.where(sxx > 0, (W * dv * (Y - ym[:, None])).sum(axis=1) / np.where(sxx > 0, sxx, 1.0), 0.0)
     return A, ym - A * vm
+
+
+#: Share of a driver's values cut at each end before the 'trimmed' mean.
+TRIM = 0.2
+
+
+def _row_trimmed_mean(x: np.ndarray, cut: float) -> np.ndarray:
+    """Mean of each row ignoring NaN after dropping int(cut * n) values at each end (as
+    scipy.stats.trim_mean on the row's n defined values)."""
+    srt = np.sort(x, axis=1)  # NaN last
+    c = (~np.isnan(x)).sum(axis=1)
+    k = (cut * c).astype(int)
+    csum = np.concatenate([np.zeros((len(x), 1)), np.cumsum(np.nan_to_num(srt), axis=1)], axis=1)
+    rows = np.arange(len(x))
+    m = c - 2 * k
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(c > 0, (csum[rows, c - k] - csum[rows, k]) / np.where(m > 0, m, 1), np.nan)
 
 
 def _row_nanmedian(x: np.ndarray) -> np.ndarray:

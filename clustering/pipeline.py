@@ -233,6 +233,8 @@ def excluded_values(points: pd.DataFrame, settings: AnalysisSettings) -> list[di
         "not_closing": lambda ind: f"{ind} undefined: the gap to the {_ROLE[ind]} is not closing",
         "following": lambda ind: f"{ind} left out of fits: closing speed below {settings.min_closing_mps:g} m/s "
                                  "(following a slow leader)",
+        "receding": lambda ind: f"{ind} left out of fits: the leader pulls away faster than "
+                                f"{settings.max_receding_mps:g} m/s (not a gap the driver is held by)",
         "far": lambda ind: f"{ind} left out of fits: {_ROLE[ind]} beyond {settings.far_follower_m:g} m (no influence)",
         "stopped": lambda ind: f"{ind} undefined: a headway of a car at (nearly) standstill",
     }

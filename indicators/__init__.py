@@ -24,6 +24,8 @@ Modules (pure functions of DataFrames; only `clustering.pipeline.analyze` touche
 Which presses feed the statistics: label 'change' (cancelled presses included unless
 `fit_cancelled=False`), values with status 'ok' only; 'far' followers are out unless
 `fit_far_followers`; a TTC whose closing speed is below `min_closing_mps` (the driver was
-following a slow leader: TTC of tens or hundreds of seconds) is out with reason 'following'.
+following a slow leader: TTC of tens or hundreds of seconds) is out with reason 'following';
+a front gap or headway whose leader pulls away faster than `max_receding_mps` (the driver is
+not held by it, as on most returns to the right) is out with reason 'receding'.
 The values stay in the decisions table either way.
 """

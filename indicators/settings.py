@@ -13,7 +13,7 @@ from typing import Any
 from laneprint.reference import FAR_FOLLOWER_M, SPEED_LIMITS_KPH
 
 #: How a driver's clustering-feature line can be fitted (`AnalysisSettings.feature_fit`).
-FEATURE_FITS: tuple[str, ...] = ("huber", "theilsen", "ols", "median")
+FEATURE_FITS: tuple[str, ...] = ("huber", "theilsen", "ols", "median", "trimmed")
 #: Named sets of clustering indicators (`AnalysisSettings.features`).
 INDICATOR_SETS: dict[str, tuple[str, ...]] = {
     "ttc": ("t_f", "t_nf"),
@@ -84,6 +84,15 @@ class AnalysisSettings:
     correlations (reason 'following'; the value stays in the table): the driver is
     following a slow leader, and gap / (tiny closing speed) gives tens or hundreds of
     seconds that say nothing about the gap the driver accepts [m/s]."""
+    max_receding_mps: float | None = 1.0
+    """A front gap or time headway (gap_f, thw_f) whose leader pulls away faster than this
+    is left out of the fits and features (reason 'receding'; the value stays in the
+    table): the driver is not held by that leader, so the gap says nothing about the gap
+    it accepts (typically a return to the right, where the car ahead in the fast lane is
+    whatever traffic put there). None: every defined value is used. On the acceptance
+    family's development seeds (SUMO 100-105, 200-211, 220-231) the styles came out right
+    on 27 of 29 with the rule and 25 of 30 without it (the median front gap and headway
+    at the presses, k-means); any threshold from 0.5 to 2 m/s gave the same [m/s]."""
     fit_cancelled: bool = True
     """Include presses not followed by a lane change in the fits (the press is
     still the driver's judgement of the gap)."""
@@ -120,11 +129,15 @@ class AnalysisSettings:
     (10 of 11 seeds, median 9 of 11). On SUMO studies (seeds 1-23 and 30-39) Huber
     recovered 33 of 34 and median all 34: seed 22's Defensive driver has a steep t_nf
     line on 13 presses that reads like a Normal driver's at 60 km/h."""
-    acceptance_fit: str = "median"
-    """How a driver's gap, headway and relative-speed features are read: 'median' (its
-    level, the gap or headway it keeps whatever the speed; default) or a line as
-    `feature_fit`. On the acceptance family's tuning seeds (SUMO 100-105) the level of
-    gap_f and thw_f recovered the styles on all six, Huber lines on two."""
+    acceptance_fit: str = "trimmed"
+    """How a driver's gap, headway and relative-speed features are read: 'trimmed' (its
+    level: the mean after cutting a fifth of its values at each end, on the log scale; the
+    gap or headway it keeps whatever the speed; default), 'median' (the level as a median)
+    or a line as `feature_fit`. On the acceptance family's development seeds (SUMO 100-105,
+    200-211, 220-231; front gap and headway, leaders pulling away left out) k-means on the
+    trimmed means recovered the styles on 29 of 29 studies, on the medians on 27 (a median of
+    4-8 presses, as Defensive drivers make, moves more than a trimmed mean); Huber lines
+    recovered two of six tuning seeds."""
     feature_log: bool = True
     """Fit the feature lines on log(TTC), log(headway) and log(gap): heavy tails (tens of
     seconds behind a slow leader, gaps of hundreds of metres) then pull far less.

@@ -100,7 +100,8 @@ def fit_reasons(decisions: pd.DataFrame, settings: AnalysisSettings | None = Non
     """Per indicator, why each row's value is left out of fits ('' = used).
 
     'absent' / 'not_closing' / 'far' come from the status columns; a defined TTC whose
-    closing speed is below `min_closing_mps` gets 'following'.
+    closing speed is below `min_closing_mps` gets 'following'; a front gap or headway whose
+    leader pulls away faster than `max_receding_mps` gets 'receding'.
     """
     settings = settings or AnalysisSettings()
     if not has_acceptance(decisions):
@@ -120,6 +121,10 @@ def fit_reasons(decisions: pd.DataFrame, settings: AnalysisSettings | None = Non
             with np.errstate(invalid="ignore"):
                 slow = (reason == "") & ((v_e - other) < settings.min_closing_mps)
             reason[slow] = "following"
+        if ind in ("gap_f", "thw_f") and settings.max_receding_mps is not None and "dv_f_mps" in decisions:
+            with np.errstate(invalid="ignore"):
+                away = (reason == "") & (decisions["dv_f_mps"].to_numpy(dtype=float) < -settings.max_receding_mps)
+            reason[away] = "receding"
         out[ind] = reason
     return out
 

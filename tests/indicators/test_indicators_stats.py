@@ -122,3 +122,19 @@ def test_keep_states_and_cancelled_presses():
     both = pd.concat([df, keep], ignore_index=True)
     assert fit_lines(both).set_index("indicator").loc["t_f", "n"] == 6
     assert fit_lines(both, AnalysisSettings(fit_cancelled=False)).set_index("indicator").loc["t_f", "n"] == 5
+
+
+def test_front_gap_to_a_leader_pulling_away_is_left_out_of_fits():
+    # a return to the right: the car ahead in the fast lane runs away at 3 m/s, so its gap
+    # (120 m) is not a gap the driver accepts; the other five presses close in on a leader
+    f_v = V - 2.0
+    f_v[0] = V[0] + 3.0
+    df = table("D1", V, np.full(6, 5.0), f_v=f_v).assign(f_gap_m=[120.0, 30.0, 31.0, 32.0, 33.0, 34.0])
+    reasons = fit_reasons(df)
+    assert list(reasons["gap_f"]) == ["receding"] + [""] * 5
+    assert list(reasons["thw_f"]) == ["receding"] + [""] * 5
+    assert list(reasons["dv_f"]) == [""] * 6  # the relative speed itself is still read
+    assert fit_lines(df).set_index("indicator").loc["gap_f", "n"] == 5
+    # the formulation without the rule stays available by name
+    every = fit_reasons(df, AnalysisSettings(max_receding_mps=None))
+    assert list(every["gap_f"]) == [""] * 6
