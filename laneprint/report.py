@@ -198,7 +198,10 @@ def _runs(ws: Workspace) -> list[Section]:
         overview.p("Every stored cross-validation (held out by session), balanced accuracy per policy:")
         overview.table("crossvals", views.crossvals_view(cvs))
     out.append(overview)
-    for rid in evaluated:
+    fleet_of = {rid: (_read_config(ws, rid).get("fleet_id") or "") for rid in evaluated}
+    for fid in dict.fromkeys(f for f in fleet_of.values() if f):
+        out.append(_fleet(ws, fid))
+    for rid in [r for r in evaluated if not fleet_of[r]]:
         run = load_run(ws, rid)
         cfg, ev = run["config"], run["evaluation"] or {}
         sec = Section(f"Run {rid}")
@@ -233,6 +236,30 @@ def _runs(ws: Workspace) -> list[Section]:
             "learning_starts")))
         out.append(sec)
     return out
+
+
+def _read_config(ws: Workspace, run_id: str) -> dict[str, Any]:
+    try:
+        return json.loads((ws.runs_dir / run_id / "config.json").read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def _fleet(ws: Workspace, fleet_id: str) -> Section:
+    """A fleet's agents side by side, as the dashboard's Results page shows them: one table row per agent
+    (its figures against greedy and imitation) and one figure, not four figures per agent (a 100-agent
+    fleet made the report 400 figures and minutes long)."""
+    from dashboard import figures, views
+    from rl.fleet.store import fleet_table
+
+    table = fleet_table(ws, fleet_id)
+    sec = Section(f"Fleet {fleet_id}")
+    sec.p(f"{views.plural(len(table), 'agent')} trained together, each on its own target. " + views.fleet_headline(table))
+    sec.table(f"fleet_{fleet_id}", views.fleet_view(table))
+    sec.figure(f"fleet_{fleet_id}_agreement", figures.fleet_agreement(table))
+    sec.p("Each agent's training curves and Figs. 10-11 are on the dashboard's Results page (Runs); runs trained "
+          "alone have them here.")
+    return sec
 
 
 def provenance(ws: Workspace) -> dict[str, Any]:

@@ -70,3 +70,22 @@ def test_table_html_reads_as_pandas_writes_it():
     theirs = frame.to_html(index=False, na_rep="", float_format=lambda x: f"{x:.4g}", border=0, escape=True)
     assert cells(_table_html(frame)) == cells(theirs)
     assert ("d", "&lt;b&gt;") in cells(_table_html(frame)) and ("d", "0.1235") in cells(_table_html(frame))
+
+
+def test_a_fleet_is_one_section_with_one_figure(sample_ws, tmp_path):
+    """A fleet's agents are a table and one figure in the report, not four figures each."""
+    import shutil
+
+    from dashboard_support import write_fake_fleet
+    from laneprint.report import build_report
+    from laneprint.workspace import Workspace
+
+    ws = Workspace(shutil.copytree(sample_ws.root, tmp_path / "ws"))
+    runs = write_fake_fleet(ws, "f1", ["D01", "D02", "D03"], seeds=(0, 1))
+    sections, _ = build_report(ws)
+    titles = [s.title for s in sections]
+    assert "Fleet f1" in titles and not any(t == f"Run {r}" for r in runs for t in titles)
+    fleet = sections[titles.index("Fleet f1")]
+    assert [k for k, _ in fleet.items].count("figure") == 1
+    table = next(v[1] for k, v in fleet.items if k == "table")
+    assert len(table) == 6
