@@ -57,3 +57,18 @@ def test_rows_padded_with_nan_fit_like_unpadded(method):
     Y = np.vstack([np.r_[y, np.full(10, np.nan)], np.r_[y, rng.normal(size=10)]])
     A, b = lines_by_row(V, Y, method)
     assert (A[0], b[0]) == pytest.approx(robust_line(v, y, method))
+
+
+def test_trimmed_level_matches_scipy_and_shrugs_off_a_stray_press():
+    rng = np.random.default_rng(3)
+    rows = [rng.lognormal(3.5, 0.3, n) for n in (1, 2, 4, 5, 9, 23)]
+    Y = np.full((len(rows), 23), np.nan)
+    for r, y in enumerate(rows):
+        Y[r, :len(y)] = y
+    A, b = lines_by_row(np.full_like(Y, 20.0), Y, "trimmed")
+    assert (A == 0).all()
+    assert b == pytest.approx([stats.trim_mean(y, 0.2) for y in rows])
+    # a driver's level of gaps it accepts: one gap left open by traffic (300 m) barely moves it
+    gaps = np.array([30.0, 32.0, 31.0, 29.0, 33.0, 30.5, 31.5, 300.0])
+    _, level = lines_by_row(np.full((1, 8), 20.0), gaps[None, :], "trimmed")
+    assert 30.0 < level[0] < 32.0

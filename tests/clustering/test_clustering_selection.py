@@ -150,3 +150,9 @@ def test_a_style_whose_typical_driver_has_no_fit_still_gets_a_line_that_says_wha
         assert ReferenceLines.from_table(refs, style=style).t_nf is not None  # the agents can train
     reasons = out["skipped"].query("what == 'reference_line'")["reason"]
     assert reasons.str.contains("has no t_nf fit: Table 1's line").sum() == 3
+
+
+def test_unknown_acceptance_fit_is_a_one_line_error(tmp_path):
+    res = CliRunner().invoke(app, ["analyze", "--workspace", str(tmp_path), "--acceptance-fit", "mean"])
+    assert res.exit_code == 1
+    assert "--acceptance-fit must be one of" in res.output and "Traceback" not in res.output
