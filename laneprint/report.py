@@ -22,7 +22,6 @@ import json
 import re
 import sys
 import time
-import warnings
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -346,7 +345,8 @@ def render_html(sections: list[Section], prov: dict[str, Any], title: str = "lan
     return "".join(parts)
 
 
-def write_assets(sections: list[Section], folder: Path, svg: bool = True) -> dict[str, Any]:
+def write_assets(sections: list[Section], folder: Path, svg: bool = True,
+                 drawer: "SvgDrawer | None" = None) -> dict[str, Any]:
     """Every table as CSV and every figure as Plotly JSON under `folder`; with `svg` and `kaleido`
     installed (the `report` extra), every figure as SVG too, all drawn in one headless Chrome session
     (kaleido starts the browser once per call: 10-15 s). `svg_note` says why there is no SVG, if so."""
@@ -365,12 +365,13 @@ def write_assets(sections: list[Section], folder: Path, svg: bool = True) -> dic
                 written["figures"].append(path.name)
                 figures.append((item[1], folder / f"{_safe(item[0])}.svg"))
     if svg and figures:
-        written["svg"], written["svg_note"] = write_svgs(figures)
+        written["svg"], written["svg_note"] = write_svgs(figures, drawer)
     return written
 
 
-def write_svgs(figures: list[tuple[go.Figure, Path]]) -> tuple[list[str], str]:
-    """The figures as SVG files with kaleido (one browser session for all); (names written, '' or why none)."""
+def write_svgs(figures: list[tuple[go.Figure, Path]], drawer: "SvgDrawer | None" = None) -> tuple[list[str], str]:
+    """The figures as SVG files with kaleido (one browser session for all: `drawer`'s, started earlier, or
+    a new one); (names written, '' or why none)."""
     try:
         import kaleido  # noqa: F401
     except ImportError:
@@ -378,8 +379,9 @@ def write_svgs(figures: list[tuple[go.Figure, Path]]) -> tuple[list[str], str]:
     import plotly.io as pio
 
     try:
-        with warnings.catch_warnings():  # plotly passes its (unused) options to the running server
-            warnings.filterwarnings("ignore", message="The kopts argument is ignored", category=UserWarning)
+        if drawer is not None:
+            drawer.draw(figures)
+        else:
             pio.write_images([f for f, _ in figures], [p for _, p in figures], format="svg")
     except Exception as exc:  # kaleido finds no Chrome/Chromium (or it fails to start): the JSON stays
         for _, p in figures:
@@ -388,18 +390,65 @@ def write_svgs(figures: list[tuple[go.Figure, Path]]) -> tuple[list[str], str]:
     return [p.name for _, p in figures], ""
 
 
-def _start_svg_server() -> str:
-    """Start kaleido's headless Chromium in the background ('started'), so that it starts while the
-    report's figures are built (10-15 s on the 2-core machine; `write_svgs` then uses it); '' when
-    kaleido is not installed or a server runs already. MathJax off: no request to its CDN."""
-    try:
+class SvgDrawer:
+    """kaleido's headless Chromium started in a thread of its own before the report's figures are built
+    (its start, 10-15 s on the 2-core machine, then overlaps them), drawing them all once they are.
+    MathJax is off (no request to its CDN). A Chromium that fails to start is reported by `draw`."""
+
+    def __init__(self) -> None:
+        import concurrent.futures
+        import queue
+        import threading
+
+        self._jobs: "queue.Queue[list[dict] | None]" = queue.Queue(maxsize=1)
+        self._done: concurrent.futures.Future = concurrent.futures.Future()
+        threading.Thread(target=self._run, name="laneprint-svg", daemon=True).start()
+
+    @classmethod
+    def start(cls) -> "SvgDrawer | None":
+        """A started drawer, or None when kaleido is not installed."""
+        try:
+            import kaleido  # noqa: F401
+        except ImportError:
+            return None
+        return cls()
+
+    def _run(self) -> None:
+        import asyncio
+
+        try:
+            asyncio.run(self._serve())
+        except BaseException as exc:  # noqa: BLE001 - handed to `draw`
+            if not self._done.done():
+                self._done.set_exception(exc)
+
+    async def _serve(self) -> None:
+        import asyncio
+
         import kaleido
-    except ImportError:
-        return ""
-    if kaleido._global_server.is_running():  # noqa: SLF001 - the sync server's own state
-        return ""
-    kaleido.start_sync_server(n=2, mathjax=False, silence_warnings=True)
-    return "started"
+
+        async with kaleido.Kaleido(n=2, mathjax=False) as k:
+            specs = await asyncio.to_thread(self._jobs.get)
+            if specs:
+                await k.write_fig_from_object(specs, cancel_on_error=True)
+        if not self._done.done():
+            self._done.set_result(None)
+
+    def draw(self, figures: list[tuple[go.Figure, Path]], timeout_s: float = 900) -> None:
+        """Write each figure as SVG to its path (plotly's default size, 700 x 500)."""
+        import plotly.io as pio
+
+        size = {"format": "svg", "width": pio.defaults.default_width, "height": pio.defaults.default_height,
+                "scale": pio.defaults.default_scale}
+        self._jobs.put([{"fig": f.to_plotly_json(), "path": p, "opts": dict(size)} for f, p in figures])
+        self._done.result(timeout=timeout_s)
+
+    def close(self) -> None:
+        """Stop the browser if nothing was drawn (the thread ends once its session is closed)."""
+        try:
+            self._jobs.put_nowait(None)
+        except Exception:  # noqa: BLE001 - the figures are queued already
+            pass
 
 
 def report_html(ws: Workspace) -> str:
@@ -420,17 +469,15 @@ def write_report(ws: Workspace, out: Path | None = None, assets: bool = True, sv
         raise UserError(f"--out {out} is a folder: give a file name such as report.html")
     if not out.parent.exists():
         raise UserError(f"--out {out}: folder {out.parent} does not exist")
-    drawer = _start_svg_server() if assets and svg else ""  # Chromium starts while the figures are built
+    drawer = SvgDrawer.start() if assets and svg else None  # Chromium starts while the figures are built
     try:
         sections, prov = build_report(ws)
         text = render_html(sections, prov)
         atomic_write_bytes(out, text.encode())
-        written = write_assets(sections, out.with_name(out.stem + "_files"), svg=svg) if assets else {}
+        written = write_assets(sections, out.with_name(out.stem + "_files"), svg=svg, drawer=drawer) if assets else {}
     finally:
-        if drawer == "started":
-            import kaleido
-
-            kaleido.stop_sync_server(silence_warnings=True)
+        if drawer is not None:
+            drawer.close()
     n_fig = sum(1 for s in sections for k, _ in s.items if k == "figure")
     n_tab = sum(1 for s in sections for k, _ in s.items if k == "table")
     return {"report": str(out), "bytes": len(text.encode()), "figures": n_fig, "tables": n_tab,

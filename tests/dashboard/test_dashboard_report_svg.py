@@ -45,18 +45,54 @@ def test_without_kaleido_the_json_stays_and_the_summary_says_why(tmp_path, monke
     assert not list(tmp_path.glob("*.svg"))
 
 
+def _svg_threads():
+    import threading
+
+    return [t for t in threading.enumerate() if t.name == "laneprint-svg" and t.is_alive()]
+
+
+def _fake_build(seen):
+    return lambda ws: (seen.append(bool(_svg_threads())) or (sections(), {"workspace": "w", "generated_at": "now",
+                                                                          "data_fingerprint": "f"}))
+
+
 def test_report_starts_chromium_before_building_and_stops_it(tmp_path, monkeypatch):
     """kaleido's Chromium starts before the figures are built (its 10-15 s overlap them) and is stopped after."""
-    kaleido = pytest.importorskip("kaleido", reason="the report extra: pip install -e '.[report]'")
+    import time
+
+    pytest.importorskip("kaleido", reason="the report extra: pip install -e '.[report]'")
     import laneprint.report as report
 
     seen = []
-    monkeypatch.setattr(report, "build_report", lambda ws: (seen.append(kaleido._global_server.is_running())
-                                                           or (sections(), {"workspace": "w", "generated_at": "now",
-                                                                            "data_fingerprint": "f"})))
+    monkeypatch.setattr(report, "build_report", _fake_build(seen))
     res = report.write_report(type("W", (), {"root": tmp_path})(), tmp_path / "r.html")
-    assert seen == [True] and not kaleido._global_server.is_running()
-    assert sorted(res["written"]["svg"]) == ["driver_D01_t_f.svg", "styles.svg"]
+    assert seen == [True] and sorted(res["written"]["svg"]) == ["driver_D01_t_f.svg", "styles.svg"]
+    assert (tmp_path / "r_files" / "styles.svg").read_text().startswith("<svg")
+    deadline = time.monotonic() + 30
+    while _svg_threads() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _svg_threads()
+
+
+def test_a_chromium_that_does_not_start_is_said_not_waited_for(tmp_path, monkeypatch):
+    kaleido = pytest.importorskip("kaleido", reason="the report extra: pip install -e '.[report]'")
+    import laneprint.report as report
+
+    class NoBrowser:
+        def __init__(self, *args, **kwargs):
+            pass
+
+        async def __aenter__(self):
+            raise RuntimeError("no Chrome here")
+
+        async def __aexit__(self, *exc):
+            return False
+
+    monkeypatch.setattr(kaleido, "Kaleido", NoBrowser)
+    monkeypatch.setattr(report, "build_report", _fake_build([]))
+    res = report.write_report(type("W", (), {"root": tmp_path})(), tmp_path / "r.html")
+    assert res["written"]["svg"] == [] and "no Chrome here" in res["written"]["svg_note"]
+    assert (tmp_path / "r_files" / "styles.json").exists() and not list((tmp_path / "r_files").glob("*.svg"))
 
 
 def test_table_html_reads_as_pandas_writes_it():
