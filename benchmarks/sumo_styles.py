@@ -1,6 +1,6 @@
 """Figures of a SUMO study after `laneprint ingest` and `laneprint analyze`: are its styles found?
 
-    python -m laneprint.simulator.sumo.measure STUDY:WORKSPACE [STUDY:WORKSPACE ...] [--json]
+    python benchmarks/sumo_styles.py STUDY:WORKSPACE [STUDY:WORKSPACE ...] [--json]
 
 For each pair: the ARI of the analysis's styles (`analysis/styles.parquet`) against
 `ground_truth.json`, the share of presses whose `t_f` / `t_nf` is undefined
