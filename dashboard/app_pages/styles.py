@@ -6,10 +6,12 @@ from clustering.plots import DIRECTION_NAMES, cluster_scatter, line_directions, 
 from dashboard import figures, loaders, views, widgets
 from dashboard.context import workspace
 from dashboard.widgets import progress_to
-from indicators.settings import FEATURE_FITS, INDICATOR_SETS
+from indicators.settings import FEATURE_FITS, INDICATOR_SETS, AnalysisSettings
 from laneprint.errors import UserError
 
 CHOOSE_K = {"fixed k": None, "silhouette": "silhouette", "BIC": "bic"}
+#: The receding-leader threshold the form's tick box switches on [m/s].
+RECEDING_MPS = AnalysisSettings.max_receding_mps
 #: Feature sets the form offers ('auto': chosen by the data).
 FEATURE_SETS = ("auto", *INDICATOR_SETS)
 
@@ -30,11 +32,21 @@ def rerun_form(ws, current: dict) -> None:
         features = c4.selectbox("Features", sets, key="features",
                                 help="Which indicators make the clustering features; 'auto': each candidate set "
                                      "is clustered and the best separated, most stable one is used")
+        d1, d2, _ = st.columns([1, 2, 1])
+        levels = list(dict.fromkeys([now.acceptance_fit, *FEATURE_FITS]))
+        level = d1.selectbox("Gap / headway features", levels, key="acceptance_fit",
+                             help="How a driver's gaps, headways and relative speeds are read: 'trimmed' (its "
+                                  "level, a trimmed mean), 'median', or a line")
+        receding = d2.checkbox("Leave out front gaps to leaders pulling away (> 1 m/s)",
+                               value=now.max_receding_mps is not None, key="receding",
+                               help="The driver is not held by a leader running away (as at most returns "
+                                    "to the right); unticked, every front gap and headway is used")
         go = st.form_submit_button("Run analysis", type="primary")
     if go:
         from clustering.pipeline import analyze
 
-        changes = {"k": int(k), "choose_k": CHOOSE_K[how], "feature_fit": fit, "features": features}
+        changes = {"k": int(k), "choose_k": CHOOSE_K[how], "feature_fit": fit, "features": features,
+                   "acceptance_fit": level, "max_receding_mps": RECEDING_MPS if receding else None}
         settings = views.analysis_settings(current, **changes)
         bar = st.progress(0.0, text="Analysing...")
         labels = views.recording_names(loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root)))

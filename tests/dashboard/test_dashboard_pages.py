@@ -129,9 +129,14 @@ def test_styles_rerun_with_other_k(sample_ws, tmp_path, monkeypatch):
     at = run_page("styles")
     assert at.number_input(key="k").value == 3
     at.number_input(key="k").set_value(2)
+    # how gaps and headways are read: the defaults shown, the other ways available by name
+    assert at.selectbox(key="acceptance_fit").value == "trimmed" and at.checkbox(key="receding").value
+    at.selectbox(key="acceptance_fit").set_value("median")
+    at.checkbox(key="receding").uncheck()
     at.button[0].click().run()  # the form's "Run analysis"
     assert not at.exception, [e.value for e in at.exception]
-    assert ws.read_meta("analysis")["settings"]["k"] == 2
+    saved = ws.read_meta("analysis")["settings"]
+    assert saved["k"] == 2 and saved["acceptance_fit"] == "median" and saved["max_receding_mps"] is None
     assert ws.read_table("analysis", "styles")["style"].nunique() == 2
     assert len(style_table(at)) == 2  # the page shows the new clusters, not cached old ones
 
