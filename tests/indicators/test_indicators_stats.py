@@ -129,7 +129,7 @@ def test_front_gap_to_a_leader_pulling_away_is_left_out_of_fits():
     # (120 m) is not a gap the driver accepts; the other five presses close in on a leader
     f_v = V - 2.0
     f_v[0] = V[0] + 3.0
-    df = table("D1", V, np.full(6, 5.0), f_v=f_v).assign(f_gap_m=[120.0, 30.0, 31.0, 32.0, 33.0, 34.0])
+    df = table("D1", V, 0.3 * V - 1.0, f_v=f_v).assign(f_gap_m=[120.0, 30.0, 31.0, 32.0, 33.0, 34.0])
     reasons = fit_reasons(df)
     assert list(reasons["gap_f"]) == ["receding"] + [""] * 5
     assert list(reasons["thw_f"]) == ["receding"] + [""] * 5
