@@ -16,6 +16,7 @@ import pandas as pd
 import streamlit as st
 
 from laneprint.workspace import Workspace
+from rl.settings import decision_counts
 
 #: The analysis tables the pages read; one an older analysis lacks is simply absent from `analysis()`.
 ANALYSIS_TABLES = ("decisions", "correlations", "fits", "fits_by_direction", "styles", "reference_lines", "skipped",
@@ -91,12 +92,6 @@ def training_inputs(root: str, key: tuple[int, ...]) -> dict[str, pd.DataFrame]:
         dec = ws.read_table("analysis", "decisions")
         out["decision_counts"] = decision_counts(dec)
     return out
-
-
-def decision_counts(decisions: pd.DataFrame) -> pd.DataFrame:
-    """Per driver (index, as text): `states` (rows of the decisions table) and `presses`."""
-    press = (decisions["label"] == "change").rename("presses")
-    return press.groupby(decisions["driver_id"].astype(str)).agg(states="size", presses="sum")
 
 
 @st.cache_data(show_spinner=False, max_entries=16)

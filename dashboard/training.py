@@ -110,9 +110,8 @@ def learning_check(ws, req, values: dict[str, Any] | None = None,
     warned when learning would begin only near the end. `values`: the form's trainer settings;
     `tables`: `styles` and `decision_counts` (`loaders.training_inputs`) or `decisions` when the caller
     has them, else they are read."""
-    from dashboard.loaders import decision_counts
     from rl.problem.env import EnvConfig, formulation_config
-    from rl.settings import DQNSettings, approach_steps
+    from rl.settings import DQNSettings, approach_steps, decision_counts, target_counts
     from rl.settings import learning_check as check_settings
 
     if tables is None:
@@ -121,14 +120,9 @@ def learning_check(ws, req, values: dict[str, Any] | None = None,
     counts = tables.get("decision_counts")
     if counts is None and tables.get("decisions") is not None:
         counts = decision_counts(tables["decisions"])
-    drivers = [str(req.name)]
-    styles = tables.get("styles")
-    if req.target == "style" and styles is not None:
-        drivers = styles.loc[styles["style"].astype(str).str.lower() == str(req.name).lower(),
-                             "driver_id"].astype(str).tolist()
-    mine = counts.reindex(drivers).fillna(0).sum() if counts is not None else {"states": 0, "presses": 0}
+    states, presses = target_counts(counts, tables.get("styles"), req.target, req.name)
     env = formulation_config(EnvConfig().lines, req.reward, None, None, req.lines or "analysis")
-    steps, source = approach_steps(env, int(mine["states"]), int(mine["presses"]))
+    steps, source = approach_steps(env, states, presses)
     try:
         settings = DQNSettings(episodes=int(req.episodes), episodes_per_approach=0.0,
                                **{k: v for k, v in (values or {}).items() if k in FORM_SETTINGS})

@@ -74,30 +74,19 @@ def _render_fleet(res: dict[str, Any], console: Console) -> None:
                   "+ 5 points)", highlight=False)
 
 
-def _target_drivers(styles: Any, target: Any) -> list[str]:
-    """The drivers whose approaches a target replays: the driver, or a style's members."""
-    if target.kind == "driver" or styles is None:
-        return [str(target.name)]
-    return styles.loc[styles["style"].astype(str).str.lower() == str(target.name).lower(), "driver_id"].astype(str).tolist()
-
-
 def learning_checks(ws: Workspace, targets: list[Any], env: Any, settings: DQNSettings,
                     share: float = 1.0) -> list[tuple[Any, Any]]:
     """(target, `rl.settings.LearningCheck`) of each target whose run could not learn, or only late, at
     `settings`, checked before training (`share`: the part of the target's approaches a fold's agent
     trains on, in cross-validation)."""
-    from rl.settings import approach_steps, learning_check
+    from rl.settings import approach_steps, decision_counts, learning_check, target_counts
 
-    tables = {n: ws.read_table("analysis", n) for n in ("decisions", "styles") if ws.has_table("analysis", n)}
-    dec = tables.get("decisions")
-    counts = (dec.assign(press=dec["label"] == "change").groupby(dec["driver_id"].astype(str))["press"]
-              .agg(["size", "sum"]) if dec is not None else None)
+    counts = decision_counts(ws.read_table("analysis", "decisions")) if ws.has_table("analysis", "decisions") else None
+    styles = ws.read_table("analysis", "styles") if ws.has_table("analysis", "styles") else None
     out = []
     for target in targets:
-        mine = (counts.reindex(_target_drivers(tables.get("styles"), target)).fillna(0).sum()
-                if counts is not None else {"size": 0, "sum": 0})
-        presses = int(mine["sum"])
-        steps, source = approach_steps(env, int(mine["size"]), presses)
+        states, presses = target_counts(counts, styles, target.kind, target.name)
+        steps, source = approach_steps(env, states, presses)
         resolved = settings.resolved_episodes(max(1, round(presses * share)) if presses and env.scenes == "recorded"
                                               else None)
         check = learning_check(resolved, steps, source)

@@ -122,6 +122,25 @@ def expected_transitions(settings: DQNSettings, approach_steps: float) -> float:
     return float(np.sum((1.0 - (1.0 - p) ** steps) / p))
 
 
+def decision_counts(decisions: Any) -> Any:
+    """Per driver (index, as text) of an analysis's decisions table: `states` (its rows) and `presses`."""
+    press = (decisions["label"] == "change").rename("presses")
+    return press.groupby(decisions["driver_id"].astype(str)).agg(states="size", presses="sum")
+
+
+def target_counts(counts: Any, styles: Any, kind: str, name: str) -> tuple[int, int]:
+    """(states, presses) a target replays, from `decision_counts` (None: none): the driver's, or those of
+    its style's members in the `styles` table."""
+    if counts is None:
+        return 0, 0
+    drivers = [str(name)]
+    if kind == "style" and styles is not None:
+        drivers = styles.loc[styles["style"].astype(str).str.lower() == str(name).lower(),
+                             "driver_id"].astype(str).tolist()
+    mine = counts.reindex(drivers).fillna(0).sum()
+    return int(mine["states"]), int(mine["presses"])
+
+
 def approach_steps(env: Any, n_states: int = 0, n_presses: int = 0) -> tuple[float | None, str]:
     """(steps an episode runs at most on average, where the figure comes from) for an environment
     config `env` (`rl.problem.env.EnvConfig`) replaying `n_states` recorded states (not-yet states and
