@@ -94,7 +94,7 @@ def analyze_command(
     choose_k: Annotated[Optional[str], typer.Option("--choose-k", help="Choose k by 'silhouette' or 'bic'.")] = None,
     far_follower_m: Annotated[float, typer.Option("--far-follower-m", help="Target-lane follower beyond this gap has no influence [m].")] = 100.0,
     step_s: Annotated[float, typer.Option("--step-s", help="Spacing of the 'not yet' states before a press [s].")] = 0.5,
-    feature_fit: Annotated[str, typer.Option("--feature-fit", help="Line fit for the clustering features: huber, theilsen, ols or median (flat).")] = "huber",
+    feature_fit: Annotated[str, typer.Option("--feature-fit", help="Line fit for the clustering features: huber, theilsen, ols, or a flat level: median or trimmed (mean after cutting a fifth at each end).")] = "huber",
     acceptance_fit: Annotated[str, typer.Option(
         "--acceptance-fit", help="How gap, headway and relative-speed features are read: trimmed (the driver's "
                                  "level, a trimmed mean), median (the level as a median), or a line: huber, "
