@@ -11,7 +11,7 @@ MIN_RECORDED_EPISODES = 2000
 
 #: Where episodes' scenes come from, and what the agent sees.
 SCENES: tuple[str, ...] = ("synthetic", "recorded")
-OBSERVATIONS: tuple[str, ...] = ("paper", "indicators", "direction")
+OBSERVATIONS: tuple[str, ...] = ("paper", "indicators", "direction", "acceptance")
 
 #: The command line's default reward, chosen by held-out agreement (rl/README.md).
 DEFAULT_REWARD = "decisions"

@@ -184,7 +184,7 @@ def _formula(s: dict[str, Any]) -> str:
     if s["transform"] == "linear":
         return f"raw x {s['scale']:.6g} + {s['offset']:g}"
     if s["transform"] == "log1p_capped":
-        return f"log1p(min(raw, {s['cap']:g})) / log1p({s['cap']:g})"
+        return f"log1p(min(max(raw, 0), {s['cap']:g})) / log1p({s['cap']:g})"
     if s["transform"] == "constant":
         return f"{s['value']:g}"
     return f"1 if `{s['of']}` defined else 0"

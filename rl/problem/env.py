@@ -59,8 +59,8 @@ from laneprint.errors import UserError
 from laneprint.reference import FAR_FOLLOWER_M
 from rl.problem.rewards import CHANGE, TERMS, ReferenceLines, RewardSettings, decisions_step_reward, step_reward
 from rl.settings import OBSERVATIONS, SCENES, resolve_formulation
-from rl.problem.scene import (DIRECTION_FEATURE, INDICATOR_FEATURES, OBS_NAMES, Scene, direction_feature,
-                              indicator_features, indicators, observe)
+from rl.problem.scene import (ACCEPTANCE_FEATURES, DIRECTION_FEATURE, INDICATOR_FEATURES, OBS_NAMES, Scene,
+                              acceptance_features, direction_feature, indicator_features, indicators, observe)
 
 ENV_ID = "laneprint/LaneChangeDecision-v0"
 
@@ -123,17 +123,25 @@ class EnvConfig:
         return EnvConfig(**d)
 
 
+#: Observations that append the indicator features to the study's 8 values.
+_WITH_INDICATORS = ("indicators", "direction", "acceptance")
+
+
 def observation_names(cfg: EnvConfig) -> tuple[str, ...]:
     """Names of the observation's values, in order."""
-    extra = INDICATOR_FEATURES if cfg.observation in ("indicators", "direction") else ()
+    extra = INDICATOR_FEATURES if cfg.observation in _WITH_INDICATORS else ()
+    if cfg.observation == "acceptance":
+        extra += ACCEPTANCE_FEATURES
     return OBS_NAMES + extra + ((DIRECTION_FEATURE,) if cfg.observation == "direction" else ())
 
 
 def observation(scene: Scene, cfg: EnvConfig) -> np.ndarray:
     """What the agent sees of each scene, shape (n, len(observation_names(cfg))) float32."""
     obs = observe(scene, cfg.range_m, cfg.v_max_mps)
-    if cfg.observation in ("indicators", "direction"):
+    if cfg.observation in _WITH_INDICATORS:
         obs = np.concatenate([obs, indicator_features(scene, cfg.far_follower_m, cfg.range_m)], axis=1)
+    if cfg.observation == "acceptance":
+        obs = np.concatenate([obs, acceptance_features(scene, cfg.range_m)], axis=1)
     if cfg.observation == "direction":
         obs = np.concatenate([obs, direction_feature(scene)], axis=1)
     return obs

@@ -5,7 +5,7 @@ program outside laneprint (a vehicle stack, a simulator) can build the same
 vector from raw measurements. Each input's ``transform`` is one of
 
 - ``linear``: ``value = raw * scale + offset``;
-- ``log1p_capped``: ``value = log1p(min(raw, cap)) / log1p(cap)``;
+- ``log1p_capped``: ``value = log1p(min(max(raw, 0), cap)) / log1p(cap)``;
 - ``constant``: ``value`` whatever the scene;
 - ``flag``: 1 when the quantity it names is defined, else 0;
 
@@ -21,7 +21,7 @@ from __future__ import annotations
 from typing import Any
 
 from rl.problem.env import EnvConfig, observation_names
-from rl.problem.scene import DIRECTION_FEATURE, DV_RANGE_MPS, OBS_FLOOR, TTC_CAP_S
+from rl.problem.scene import DIRECTION_FEATURE, DV_RANGE_MPS, HEADWAY_CAP_S, OBS_FLOOR, TTC_CAP_S
 
 #: Action index -> meaning (rl.problem.rewards.CHANGE = 0, KEEP = 1).
 ACTIONS: dict[int, str] = {
@@ -62,6 +62,22 @@ def _ttc(name: str, who: str) -> dict[str, Any]:
             "when_undefined": {"value": 1.0, "why": "absent or not closing: read as the cap"}}
 
 
+def _log_gap(name: str, quantity: str, unit: str, cap: float, who: str) -> dict[str, Any]:
+    return {"name": name, "quantity": quantity, "unit": unit, "transform": "log1p_capped", "cap": cap,
+            "when_undefined": {"value": 1.0, "why": f"{who} absent: read as the cap (nothing within range)"}}
+
+
+def _acceptance(cfg: EnvConfig) -> list[dict[str, Any]]:
+    r = cfg.range_m
+    return [
+        _log_gap("gap_f", "gap to C_f (negative: alongside)", "m", r, "C_f"),
+        _log_gap("thw_f", "time headway to C_f: gap_f / v_e", "s", HEADWAY_CAP_S, "C_f"),
+        _log_gap("gap_nf", "gap to C_nf, the lead gap in the target lane", "m", r, "C_nf"),
+        _log_gap("gap_nb", "gap to C_nb, the lag gap in the target lane", "m", r, "C_nb"),
+        _log_gap("thw_nb", "time headway of C_nb to the ego: gap_nb / v_nb", "s", HEADWAY_CAP_S, "C_nb"),
+    ]
+
+
 def observation_spec(cfg: EnvConfig) -> list[dict[str, Any]]:
     """One dict per input of `rl.problem.env.observation(scene, cfg)`, in order (see the module doc)."""
     specs: list[dict[str, Any]] = [
@@ -72,7 +88,7 @@ def observation_spec(cfg: EnvConfig) -> list[dict[str, Any]]:
         _speed("v_nf", "C_nf", cfg), _position("x_nf", "C_nf", 1.0, cfg),
         _speed("v_nb", "C_nb", cfg), _position("x_nb", "C_nb", 0.0, cfg),
     ]
-    if cfg.observation in ("indicators", "direction"):
+    if cfg.observation in ("indicators", "direction", "acceptance"):
         specs += [
             _ttc("t_f", "C_f"), _ttc("t_nf", "C_nf"),
             {"name": "dv_nb", "quantity": "v_e - v_nb, defined when C_nb is seen within "
@@ -84,6 +100,8 @@ def observation_spec(cfg: EnvConfig) -> list[dict[str, Any]]:
             {"name": "dv_nb_ok", "quantity": "1 when dv_nb is defined", "unit": "-", "transform": "flag",
              "of": "dv_nb"},
         ]
+    if cfg.observation == "acceptance":
+        specs += _acceptance(cfg)
     if cfg.observation == "direction":
         specs.append({"name": DIRECTION_FEATURE, "quantity": "the side of the target lane: 1 to the left "
                       "(overtaking), the floor to the right (returning)", "unit": "-", "transform": "flag",
@@ -98,4 +116,5 @@ def observation_spec(cfg: EnvConfig) -> list[dict[str, Any]]:
 def constants(cfg: EnvConfig) -> dict[str, float]:
     """The numbers the observation is built with."""
     return {"range_m": cfg.range_m, "v_max_mps": cfg.v_max_mps, "far_follower_m": cfg.far_follower_m,
-            "ttc_cap_s": TTC_CAP_S, "dv_range_mps": DV_RANGE_MPS, "obs_floor": OBS_FLOOR, "dt_s": cfg.dt_s}
+            "ttc_cap_s": TTC_CAP_S, "headway_cap_s": HEADWAY_CAP_S, "dv_range_mps": DV_RANGE_MPS,
+            "obs_floor": OBS_FLOOR, "dt_s": cfg.dt_s}

@@ -190,6 +190,40 @@ def indicator_features(scene: Scene, far_follower_m: float, range_m: float) -> n
     return np.clip(np.stack(cols, axis=1), OBS_FLOOR, 1.0).astype(np.float32)
 
 
+#: Names of the gap and headway features the 'acceptance' observation appends (what a driver accepts).
+ACCEPTANCE_FEATURES: tuple[str, ...] = ("gap_f", "thw_f", "gap_nf", "gap_nb", "thw_nb")
+HEADWAY_CAP_S: float = 10.0  # time headways are read on a log scale up to this [s]
+
+
+def _log_capped(x: np.ndarray, ok: np.ndarray, cap: float) -> np.ndarray:
+    """``log1p(min(x, cap)) / log1p(cap)`` where `ok` (x below 0 read as 0), 1 (the cap) elsewhere."""
+    return np.log1p(np.where(ok, np.clip(np.nan_to_num(x, nan=cap), 0.0, cap), cap)) / np.log1p(cap)
+
+
+def acceptance_features(scene: Scene, range_m: float) -> np.ndarray:
+    """Gaps and time headways of the scene, scaled to [OBS_FLOOR, 1], shape (n, 5) float32.
+
+    The front gap and time headway to ``C_f`` (gap / v_e), the lead gap to ``C_nf``, the lag
+    gap to ``C_nb`` and that follower's time headway (gap / v_nb), as the analysis reads them
+    (`indicators/acceptance.py`). Gaps are read as ``log1p(gap) / log1p(range_m)``, headways
+    as ``log1p(thw) / log1p(HEADWAY_CAP_S)``: drivers differ by metres at short gaps, not at a
+    hundred. A vehicle not seen reads as the cap (nothing within range); a gap at or below 0
+    (a car alongside) as the floor. The positions of the study's 8 values hold the same
+    information, but a small network learns a ratio such as gap / v_e slowly from few presses.
+    """
+    f, nf, nb = seen(scene, range_m)
+    gap_f = scene.x_f - scene.x_e - scene.hl_f
+    gap_nf = scene.x_nf - scene.x_e - scene.hl_nf
+    gap_nb = scene.x_e - scene.x_nb - scene.hl_nb
+    with np.errstate(divide="ignore", invalid="ignore"):
+        thw_f = np.where(scene.v_e > 0, gap_f / scene.v_e, np.inf)
+        thw_nb = np.where(scene.v_nb > 0, gap_nb / scene.v_nb, np.inf)
+    cols = [_log_capped(gap_f, f, range_m), _log_capped(thw_f, f, HEADWAY_CAP_S),
+            _log_capped(gap_nf, nf, range_m), _log_capped(gap_nb, nb, range_m),
+            _log_capped(thw_nb, nb, HEADWAY_CAP_S)]
+    return np.clip(np.stack(cols, axis=1), OBS_FLOOR, 1.0).astype(np.float32)
+
+
 def direction_feature(scene: Scene) -> np.ndarray:
     """1 where the target lane is to the left, OBS_FLOOR where it is to the right; shape (n, 1) float32."""
     return np.where(scene.left, 1.0, OBS_FLOOR).astype(np.float32)[:, None]

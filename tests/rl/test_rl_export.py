@@ -42,7 +42,7 @@ def value(s, raw):
     elif s["transform"] == "linear":
         v = r * s["scale"] + s["offset"]
     else:
-        v = math.log1p(min(r, s["cap"])) / math.log1p(s["cap"])
+        v = math.log1p(min(max(r, 0.0), s["cap"])) / math.log1p(s["cap"])
     lo, hi = s["clip"]
     return min(max(v, lo), hi)
 
@@ -66,6 +66,11 @@ def raw_measurements(scene: Scene, cfg: EnvConfig) -> list[dict]:
             raw[f"x_{role}"] = float(getattr(scene, f"x_{role}")[i] - scene.x_e[i]) if here else None
         for k in ("t_f", "t_nf", "dv_nb"):
             raw[k] = float(getattr(ind, k)[i]) if getattr(ind, f"{k}_ok")[i] else None
+        hl = {role: float(getattr(scene, f"hl_{role}")[i]) for role in ("f", "nf", "nb")}
+        for role, sign in (("f", 1), ("nf", 1), ("nb", -1)):
+            raw[f"gap_{role}"] = None if raw[f"x_{role}"] is None else sign * raw[f"x_{role}"] - hl[role]
+        raw["thw_f"] = None if raw["gap_f"] is None else raw["gap_f"] / raw["v_e"]
+        raw["thw_nb"] = None if raw["gap_nb"] is None else raw["gap_nb"] / raw["v_nb"]
         out.append(raw)
     return out
 
