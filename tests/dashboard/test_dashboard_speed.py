@@ -30,17 +30,6 @@ def test_run_comparison_curves_draw_once_opened(use_sample):
     assert len(drawn) == 2 and all(len(c["data"]) == 2 for c in drawn)  # both runs on each
 
 
-def test_refusal_from_the_pages_cached_tables_matches_the_files(use_sample):
-    from dashboard import training
-    from dashboard.jobs import TrainRequest
-
-    ws = use_sample
-    tables = {n: ws.read_table("analysis", n) for n in ("decisions", "styles")}
-    for episodes in (5, 100_000):
-        req = TrainRequest("style", "Normal", episodes, 0)
-        assert training.learning_check(ws, req, tables=tables) == training.learning_check(ws, req)
-
-
 def test_training_page_caches_counts_not_the_decisions_and_agrees_with_the_command_line(use_sample):
     from dashboard import loaders, training
     from dashboard.jobs import TrainRequest
