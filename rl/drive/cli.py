@@ -34,6 +34,15 @@ def drive_command(
         "--lanes", help="Lanes of the highway: 2 (default) or 3; in a middle lane the agent is asked about "
                         "each side and takes the one with the larger advantage Q(change) - Q(keep).")] = 2,
     driver_id: Annotated[Optional[str], typer.Option("--driver-id", help="driver_id of the logs (default agent-RUN_ID).")] = None,
+    held_back: Annotated[bool, typer.Option(
+        "--held-back/--no-held-back",
+        help="The assistant's held-back rule (default on): after following a leader slower than the ego's desired "
+             "speed for the target's patience, change when a neighbouring lane is faster and holds a gap the "
+             "target's acceptance lines take (rl/drive/heldback.py). --no-held-back: the pure agent.")] = True,
+    sumo_model: Annotated[bool, typer.Option(
+        "--sumo-model/--no-sumo-model",
+        help="Also drive the same ego with SUMO's own lane-change model of its style in the same traffic and "
+             "seeds, as the comparator (default on).")] = True,
     analyze: Annotated[bool, typer.Option("--analyze", help="Analyse the workspace's study plus the drive (in a scratch workspace) and report the agent's style.")] = False,
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,
@@ -47,9 +56,31 @@ def drive_command(
             raise UserError(f"unknown --engine {engine!r}; choose one of {', '.join(ENGINES)}")
         with progress_bar(not as_json) as bar:
             return drive_run(Workspace(workspace), run_id, minutes=minutes, seed=seed, sections=section, out=out,
-                             driver_id=driver_id, analyze=analyze, lanes=lanes, progress=bar)
+                             driver_id=driver_id, analyze=analyze, lanes=lanes, held_back=held_back,
+                             sumo_model=sumo_model, progress=bar)
 
     run_command(work, as_json, render)
+
+
+def _per_km(r: dict[str, Any]) -> Optional[float]:
+    return r["lane_changes"] / r["km"] if r.get("km") else None
+
+
+def render_model(result: dict[str, Any], console: Console) -> None:
+    """The comparator beside the agent: SUMO's own model of the style in the same traffic."""
+    m = result["sumo_model"]
+    t = Table(title=f"SUMO's own lane changing (LC2013, {result['ego_style']} vType), same traffic and seeds")
+    for c in ("section", "lane changes (L/R)", "per km", "agent per km", "collisions", "emergency brakes",
+              "held back", "longest passed up [s]"):
+        t.add_column(c, justify="right")
+    agent = result["sections"] + [dict(result["totals"], speed_limit_kph=None)]
+    for r, a in zip(m["sections"] + [dict(m["totals"], speed_limit_kph=None)], agent):
+        t.add_row("total" if r["speed_limit_kph"] is None else f"{r['speed_limit_kph']:g} km/h",
+                  f"{r['lane_changes']} ({r['left']}/{r['right']})", _f(_per_km(r)), _f(_per_km(a)),
+                  str(r["collisions"]), str(r["emergency_brakes"]), _f(r["follow"]["held_share"], ".0%"),
+                  _f(r["follow"]["longest_passed_up_s"], ".1f"))
+    console.print(t)
+    console.print(f"agent / SUMO's model, lane changes per km: {_f(m['rate_ratio'])}", highlight=False)
 
 
 def render(result: dict[str, Any], console: Console) -> None:
@@ -58,15 +89,28 @@ def render(result: dict[str, Any], console: Console) -> None:
                     f"{result['sumo_version']}: {result.get('lanes', 2)} lanes, {result['minutes']:g} min per section, "
                     f"seed {result['seed']}, "
                     f"ego vType {result['ego_style']}, asked every {result['decision_every_s']:g} s")
-    cols = ("section", "asked", "decided", "lane changes (L/R)", "not started", "collisions", "emergency brakes")
+    cols = ("section", "asked", "decided", "lane changes (L/R)", "agent / rule", "per km", "not started",
+            "collisions", "emergency brakes", "held back", "longest passed up [s]")
     for c in cols:
         t.add_column(c, justify="right")
     for r in result["sections"] + [dict(result["totals"], speed_limit_kph=None)]:
         t.add_row("total" if r["speed_limit_kph"] is None else f"{r['speed_limit_kph']:g} km/h",
                   str(r["decisions_asked"]), str(r["change_decisions"]),
-                  f"{r['lane_changes']} ({r['left']}/{r['right']})", str(r["not_started"]),
-                  str(r["collisions"]), str(r["emergency_brakes"]))
+                  f"{r['lane_changes']} ({r['left']}/{r['right']})", f"{r['agent_changes']} / {r['rule_changes']}",
+                  _f(_per_km(r)), str(r["not_started"]), str(r["collisions"]), str(r["emergency_brakes"]),
+                  _f(r["follow"]["held_share"], ".0%"), _f(r["follow"]["longest_passed_up_s"], ".1f"))
     console.print(t)
+    hb = result.get("held_back") or {}
+    if hb.get("rule"):
+        rule = hb["rule"]
+        console.print(f"held-back rule {'on' if hb['on'] else 'off (--no-held-back: measured only)'}: patience "
+                      f"{rule['patience_s']:g} s ({rule['source'].get('patience_s', '')}); desired speed "
+                      f"{hb['desired_speed']}; 'longest passed up': the longest time, while held back, that a "
+                      "neighbouring lane held a gap the target accepts", highlight=False, soft_wrap=True)
+    else:
+        console.print(hb.get("note", "no held-back rule"), highlight=False, soft_wrap=True)
+    if "sumo_model" in result:
+        render_model(result, console)
     if result.get("lanes", 2) > 2:
         console.print("lane changes by lane (from>to): " + (", ".join(
             f"{k} {v}" for k, v in result["changes_by_lane"].items()) or "none"), highlight=False, soft_wrap=True)

@@ -47,6 +47,8 @@ from laneprint.simulator.sumo.scenario import build_network, write_routes
 from laneprint.simulator.sumo.section import EGO_ID, SectionLog, run_section
 from laneprint.simulator.sumo.settings import SumoSettings
 from laneprint.simulator.sumo.traffic import VehicleState
+from rl.drive.heldback import (FollowStats, HeldBackClock, HeldBackRule, accepts, faster, held_back,
+                               rule_target)
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
 from rl.problem.scene import Scene, indicators
@@ -127,35 +129,95 @@ class Decision:
     started: bool = False  # a lane change started within dt_s after it
     press_t_s: Optional[float] = None
     advantages: dict[str, float] = field(default_factory=dict)  # side ('left'/'right') -> Q(change) - Q(keep)
+    source: str = "agent"  # who asked for it: 'agent', or 'rule' (the held-back rule, `rl.drive.heldback`)
 
 
-class AgentControl:
-    """The `EgoControl` of `run_section`: asks the agent (`q`) every `dt_s` and requests its changes."""
+class Watch:
+    """The `EgoControl` that only looks: every `dt_s` at the lane centre, the scenes of the neighbouring
+    lanes and how long the ego has been held back (`FollowStats`). SUMO's own lane changing stays on:
+    the comparator of the agent, SUMO's model of the same style in the same traffic."""
 
-    def __init__(self, q: QFunction, cfg: EnvConfig, step_s: float, n_lanes: int = N_LANES) -> None:
-        self.q = q
+    def __init__(self, cfg: EnvConfig, step_s: float, n_lanes: int, rule: HeldBackRule,
+                 desired_mps: float) -> None:
         self.cfg = cfg
         self.every = max(1, int(round(cfg.dt_s / step_s)))
         self.n_lanes = n_lanes
+        self.rule = rule
+        self.desired_mps = desired_mps
+        self.clock = HeldBackClock()
+        self.stats = FollowStats(cfg.dt_s)
         self.n_asked = 0
-        self.decisions: list[Decision] = []
         self._steps = 0
+
+    def start(self, api: Any) -> None:
+        pass
+
+    def look(self, t: float, ego: VehicleState, lateral_m: float, others: dict[str, VehicleState]
+             ) -> Optional[tuple[dict[int, tuple[Scene, dict[str, Any]]], bool, float]]:
+        """(scene and ids per neighbouring lane, held back, for how long) at a decision step, else None."""
+        self._steps += 1
+        if self._steps % self.every:
+            return None
+        if abs(lateral_m) > 1e-6:  # a lane change under way ends a stretch of being held back
+            self.clock.reset()
+            self.stats.interrupt()
+            return None
+        lanes = neighbour_lanes(ego.lane, self.n_lanes)
+        if not lanes:
+            return None
+        asked = {lane: live_scene(ego, others, lane) for lane in lanes}
+        first = asked[lanes[0]][0]
+        held = held_back(first, self.desired_mps, self.rule.slower_mps, self.cfg.range_m)
+        return asked, held, self.clock.update(t, held)
+
+    def record(self, asked: dict[int, tuple[Scene, dict[str, Any]]], held: bool, held_for: float,
+               adv: Optional[float] = None) -> None:
+        scenes = [sc for sc, _ in asked.values()]
+        gap = [bool(accepts(self.rule, sc, self.cfg.range_m)[0]) for sc in scenes]
+        fast = [g and bool(faster(self.rule, sc, self.cfg.range_m)[0]) for g, sc in zip(gap, scenes)]
+        ind = indicators(scenes[0], self.cfg.far_follower_m, self.cfg.range_m)
+        above = bool(ind.t_f_ok[0]) and float(ind.t_f[0]) > float(self.cfg.lines.at(ind.v_e[0])["t_f"])
+        self.stats.record(held, held_for, any(gap), any(fast), bool(ind.t_f_ok[0]), adv, above)
+
+    def step(self, api: Any, t: float, ego: VehicleState, lateral_m: float,
+             others: dict[str, VehicleState]) -> None:
+        seen_now = self.look(t, ego, lateral_m, others)
+        if seen_now is not None:
+            self.n_asked += 1
+            self.record(*seen_now)
+
+
+class AgentControl(Watch):
+    """The `EgoControl` of `run_section`: asks the agent (`q`) every `dt_s` and requests its changes;
+    with `use_rule`, the held-back rule asks for a change the agent does not make (`rl.drive.heldback`)."""
+
+    def __init__(self, q: QFunction, cfg: EnvConfig, step_s: float, n_lanes: int = N_LANES,
+                 rule: Optional[HeldBackRule] = None, desired_mps: float = 0.0, use_rule: bool = False) -> None:
+        from rl.drive.heldback import Line
+
+        never = Line(0.0, np.inf)  # no rule given: desired speed 0, never held back
+        super().__init__(cfg, step_s, n_lanes, rule or HeldBackRule(np.inf, never, never, never), desired_mps)
+        self.q = q
+        self.use_rule = use_rule and rule is not None
+        self.decisions: list[Decision] = []
 
     def start(self, api: Any) -> None:
         api.vehicle.setLaneChangeMode(EGO_ID, REQUEST_MODE)
 
     def step(self, api: Any, t: float, ego: VehicleState, lateral_m: float,
              others: dict[str, VehicleState]) -> None:
-        self._steps += 1
-        if self._steps % self.every or abs(lateral_m) > 1e-6:
-            return  # not a decision step, or a lane change is under way
-        lanes = neighbour_lanes(ego.lane, self.n_lanes)
-        if not lanes:
+        seen_now = self.look(t, ego, lateral_m, others)
+        if seen_now is None:
             return
-        asked = {lane: live_scene(ego, others, lane) for lane in lanes}
+        asked, held, held_for = seen_now
+        lanes = list(asked)
         adv = dict(zip(lanes, advantages(self.q(Scene.concat([asked[k][0] for k in lanes])))))
         self.n_asked += 1
-        target = choose_side(adv)
+        self.record(asked, held, held_for, max(adv.values()))
+        target, source = choose_side(adv), "agent"
+        if target is None and self.use_rule and held:
+            target, source = rule_target(self.rule, {k: sc for k, (sc, _) in asked.items()}, held_for,
+                                         self.cfg.range_m), "rule"
         if target is None:
             return
         scene, ids = asked[target]
@@ -163,7 +225,7 @@ class AgentControl:
         self.decisions.append(Decision(t, ego.lane, target, ego.v, _defined(ind.t_f, ind.t_f_ok),
                                        _defined(ind.t_nf, ind.t_nf_ok), _defined(ind.dv_nb, ind.dv_nb_ok), ids,
                                        advantages={("left" if k > ego.lane else "right"): float(a)
-                                                   for k, a in adv.items()}))
+                                                   for k, a in adv.items()}, source=source))
         api.vehicle.changeLane(EGO_ID, target, self.cfg.dt_s)
 
 
@@ -182,12 +244,14 @@ def match_presses(decisions: list[Decision], changes: list[dict[str, Any]], wind
 
 @dataclass
 class SectionDrive:
-    """One section driven by the agent: the log and the agent's decisions."""
+    """One section driven by the agent (or by SUMO's model): the log, the decisions, the held-back figures."""
 
     speed_limit_kph: float
     log: SectionLog
     n_asked: int
     decisions: list[Decision] = field(default_factory=list)
+    follow: dict[str, Any] = field(default_factory=dict)  # `FollowStats.summary`
+    desired_mps: float = 0.0
 
 
 def drive_seed(seed: int, section_index: int) -> tuple[np.random.Generator, int]:
@@ -196,25 +260,52 @@ def drive_seed(seed: int, section_index: int) -> tuple[np.random.Generator, int]
     return np.random.default_rng(ss), int(ss.generate_state(1)[0] % (2**31 - 1))
 
 
-def drive_sections(q: QFunction, cfg: EnvConfig, ego_params: dict[str, float], settings: SumoSettings,
-                   seed: int, progress: Optional[ProgressFn] = None) -> list[SectionDrive]:
-    """Drive every section of `settings` (its `n_lanes`) with the agent `q`; SUMO runs one after the other."""
+def desired_speed(limit_kph: float, ego_params: dict[str, float]) -> float:
+    """The ego's desired speed in a section [m/s]: the limit times its vType's speedFactor (SUMO's own)."""
+    return limit_kph / 3.6 * float(ego_params.get("speedFactor", 1.0))
+
+
+#: (section limit [km/h], desired speed [m/s]) -> the section's EgoControl (an AgentControl or a Watch)
+ControlFactory = Callable[[float, float], Watch]
+
+
+def run_sections(make: ControlFactory, cfg: EnvConfig, ego_params: dict[str, float], settings: SumoSettings,
+                 seed: int, progress: Optional[ProgressFn] = None, label: str = "SUMO section") -> list[SectionDrive]:
+    """Drive every section of `settings` (its `n_lanes`) with the control `make` gives; one after the other.
+    The traffic and SUMO's seed of section j depend on `seed` and j only (`drive_seed`)."""
     out = []
     limits = list(settings.speed_limits_kph)
     with tempfile.TemporaryDirectory(prefix="laneprint-drive-") as workdir:
         for j, limit in enumerate(limits):
-            report(progress, j, len(limits), f"SUMO section {limit:g} km/h")
+            report(progress, j, len(limits), f"{label} {limit:g} km/h")
             folder = Path(workdir) / f"S{int(round(limit))}"
             folder.mkdir()
             net = build_network(folder, settings, float(limit))
             routes = write_routes(folder / "ego.rou.xml", ego_params, settings)
             rng, sumo_seed = drive_seed(seed, j)
-            control = AgentControl(q, cfg, settings.step_s, settings.n_lanes)
+            desired = desired_speed(float(limit), ego_params)
+            control = make(float(limit), desired)
             log = run_section(settings, net, routes, float(limit), sumo_seed, rng, folder, control)
-            match_presses(control.decisions, log.lane_changes, cfg.dt_s)
-            out.append(SectionDrive(float(limit), log, control.n_asked, control.decisions))
+            decisions = getattr(control, "decisions", [])
+            match_presses(decisions, log.lane_changes, cfg.dt_s)
+            out.append(SectionDrive(float(limit), log, control.n_asked, decisions, control.stats.summary(), desired))
     report(progress, len(limits), len(limits), "driven")
     return out
+
+
+def drive_sections(q: QFunction, cfg: EnvConfig, ego_params: dict[str, float], settings: SumoSettings,
+                   seed: int, progress: Optional[ProgressFn] = None, rule: Optional[HeldBackRule] = None,
+                   use_rule: bool = True) -> list[SectionDrive]:
+    """Drive every section with the agent `q` (and, with `rule` and `use_rule`, the held-back rule)."""
+    return run_sections(lambda _, desired: AgentControl(q, cfg, settings.step_s, settings.n_lanes, rule, desired,
+                                                        use_rule), cfg, ego_params, settings, seed, progress)
+
+
+def sumo_model_sections(cfg: EnvConfig, ego_params: dict[str, float], settings: SumoSettings, seed: int,
+                        rule: HeldBackRule, progress: Optional[ProgressFn] = None) -> list[SectionDrive]:
+    """The comparator: the same ego vType, sections, traffic seeds and SUMO seeds, SUMO's LC2013 deciding."""
+    return run_sections(lambda _, desired: Watch(cfg, settings.step_s, settings.n_lanes, rule, desired), cfg,
+                        ego_params, settings, seed, progress, "SUMO's model, section")
 
 
 def recordings(drives: list[SectionDrive], driver_id: str, simulator: str) -> list[tuple[dict, Any, Any]]:

@@ -5,7 +5,12 @@ weights, as `laneprint evaluate` does), drives the SUMO sections with it
 (`rl.drive.loop`), writes one LOG_FORMAT v1 MCAP per section (`ingest.writers`, as the
 SUMO study) and summarises: lane changes, SUMO's collision and emergency-braking
 counts, and the indicators at the agent's decisions against its target's
-reference lines. With `analyze=True` the study of the workspace plus the drive is
+reference lines. The held-back rule (`rl.drive.heldback`, on unless `held_back=False`) is read
+from the workspace's analysis; the report says how many changes came from it and from the
+agent, and how long the ego was held back. With `sumo_model=True` (the default) the same ego
+vType drives the same sections, traffic and seeds with SUMO's own lane changing (LC2013 with
+the style's parameters): the comparator's lane changes per km and held-back figures are
+reported beside the agent's. With `analyze=True` the study of the workspace plus the drive is
 analysed in a scratch workspace (the user's analysis, which the run was trained
 on, is left alone) and the style it gives the agent is reported.
 """
@@ -25,7 +30,8 @@ from laneprint.errors import UserError
 from laneprint.progress import ProgressFn
 from laneprint.reference import INDICATORS, SPEED_LIMITS_KPH
 from laneprint.workspace import Workspace, atomic_write_json
-from rl.drive.loop import QFunction, SectionDrive, drive_sections, recordings
+from rl.drive.heldback import HeldBackRule, merge_summaries, rule_from_analysis
+from rl.drive.loop import QFunction, SectionDrive, drive_sections, recordings, sumo_model_sections
 from rl.learners.dqn import q_values
 from rl.problem.env import EnvConfig, observation
 from rl.problem.rewards import ReferenceLines
@@ -104,25 +110,61 @@ def indicators_vs_lines(drives: list[SectionDrive], lines: ReferenceLines) -> di
     return out
 
 
+def driven_km(drive: SectionDrive) -> float:
+    """Distance the ego drove in the section [km]."""
+    x = drive.log.ego["ego_x_m"]
+    return float(x.iloc[-1] - x.iloc[0]) / 1000.0
+
+
+def section_row(d: SectionDrive) -> dict[str, Any]:
+    """The figures of one driven section (the agent's or SUMO's model's)."""
+    made = [c for c in d.log.lane_changes if c["changed"]]
+    by_lane: dict[str, int] = {}
+    for c in made:
+        key = f"{c['from_lane']}>{c['target_lane']}"
+        by_lane[key] = by_lane.get(key, 0) + 1
+    started = [x for x in d.decisions if x.started]
+    return {
+        "speed_limit_kph": d.speed_limit_kph, "sumo_seed": d.log.sumo_seed,
+        "duration_s": float(d.log.ego["t_s"].iloc[-1]), "km": driven_km(d), "desired_mps": d.desired_mps,
+        "decisions_asked": d.n_asked, "change_decisions": len(d.decisions), "lane_changes": len(made),
+        "left": sum(c["direction"] == "left" for c in made), "right": sum(c["direction"] == "right" for c in made),
+        "agent_changes": sum(x.source == "agent" for x in started),
+        "rule_changes": sum(x.source == "rule" for x in started),
+        "not_started": sum(not x.started for x in d.decisions),
+        "collisions": d.log.n_collisions, "emergency_brakes": d.log.n_emergency_brakes,
+        "changes_by_lane": dict(sorted(by_lane.items())), "follow": d.follow,
+    }
+
+
 def section_rows(drives: list[SectionDrive], paths: list[Path]) -> list[dict[str, Any]]:
     """One JSON-ready row per driven section."""
-    rows = []
-    for d, path in zip(drives, paths):
-        made = [c for c in d.log.lane_changes if c["changed"]]
-        by_lane: dict[str, int] = {}
-        for c in made:
-            key = f"{c['from_lane']}>{c['target_lane']}"
-            by_lane[key] = by_lane.get(key, 0) + 1
-        rows.append({
-            "speed_limit_kph": d.speed_limit_kph, "file": str(path), "sumo_seed": d.log.sumo_seed,
-            "duration_s": float(d.log.ego["t_s"].iloc[-1]), "decisions_asked": d.n_asked,
-            "change_decisions": len(d.decisions), "lane_changes": len(made),
-            "left": sum(c["direction"] == "left" for c in made), "right": sum(c["direction"] == "right" for c in made),
-            "not_started": sum(not x.started for x in d.decisions),
-            "collisions": d.log.n_collisions, "emergency_brakes": d.log.n_emergency_brakes,
-            "changes_by_lane": dict(sorted(by_lane.items())),
-        })
-    return rows
+    return [{**section_row(d), "file": str(path)} for d, path in zip(drives, paths)]
+
+
+_COUNTS = ("decisions_asked", "change_decisions", "lane_changes", "left", "right", "agent_changes", "rule_changes",
+           "not_started", "collisions", "emergency_brakes")
+
+
+def totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Sums over sections, the distance, lane changes per km and the held-back figures."""
+    out: dict[str, Any] = {k: sum(r[k] for r in rows) for k in _COUNTS}
+    out["km"] = sum(r["km"] for r in rows)
+    out["lane_changes_per_km"] = out["lane_changes"] / out["km"] if out["km"] > 0 else None
+    out["follow"] = merge_summaries([r["follow"] for r in rows])
+    return out
+
+
+def sumo_model_report(drives: list[SectionDrive], agent_totals: dict[str, Any]) -> dict[str, Any]:
+    """SUMO's own model of the ego's style in the same traffic: per section, totals, and the agent's
+    lane changes per km over the model's."""
+    rows = [section_row(d) for d in drives]
+    tot = totals(rows)
+    model, agent = tot["lane_changes_per_km"], agent_totals["lane_changes_per_km"]
+    return {"what": "the same ego vType with SUMO's own lane changing (LC2013, the style's parameters), "
+                    "same sections, traffic seeds and SUMO seeds",
+            "sections": rows, "totals": tot,
+            "rate_ratio": (agent / model) if model and agent is not None else None}
 
 
 def _sum_counts(counts: list[dict[str, int]]) -> dict[str, int]:
@@ -158,11 +200,33 @@ def assigned_style(workspace: Workspace, files: list[Path], driver_id: str) -> d
             "styles": dict(zip(styles["driver_id"], styles["style"].astype(str)))}
 
 
+def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig) -> tuple[Optional[HeldBackRule], str]:
+    """(the rule of the run's target from the analysis, a note); None with why when the analysis lacks it."""
+    try:
+        return rule_from_analysis(workspace, target, cfg.dt_s), "from the workspace's analysis"
+    except (ValueError, KeyError, UserError, FileNotFoundError) as exc:
+        return None, f"no held-back rule: {exc}"
+
+
+def _never() -> HeldBackRule:
+    from rl.drive.heldback import Line
+
+    never = Line(0.0, float("inf"))
+    return HeldBackRule(float("inf"), never, never, never, source={"why": "no rule in the analysis"})
+
+
+_NEVER = _never()
+
+
 def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed: int = 0,
               sections: Optional[list[float]] = None, out: Optional[Path] = None,
               driver_id: Optional[str] = None, analyze: bool = False, lanes: int = 2,
+              held_back: bool = True, sumo_model: bool = True,
               progress: Optional[ProgressFn] = None) -> dict[str, Any]:
-    """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report."""
+    """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
+
+    `held_back`: the assistant's held-back rule acts beside the agent (False: the pure agent; the rule's
+    figures are still measured). `sumo_model`: also drive SUMO's own model of the style (the comparator)."""
     from laneprint.simulator.sumo.backend import check_available
     from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, LANES, family_settings
     from laneprint.simulator.sumo.styles import STYLE_PARAMS
@@ -183,7 +247,9 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     check_available()
     style, why = ego_style(workspace, target)
     settings = family_settings(DEFAULT_FAMILY, lanes, speed_limits_kph=limits, minutes=minutes)
-    drives = drive_sections(agent_q(net, cfg), cfg, STYLE_PARAMS[style], settings, seed, progress)
+    rule, rule_note = held_back_rule(workspace, target, cfg)
+    drives = drive_sections(agent_q(net, cfg), cfg, STYLE_PARAMS[style], settings, seed, progress, rule,
+                            use_rule=held_back)
     lanes_opt = "" if lanes == 2 else f", {lanes} lanes"
     simulator = f"Eclipse SUMO {drives[0].log.sumo_version} (laneprint drive {run_id}, seed {seed}{lanes_opt})"
     recs = recordings(drives, driver_id, simulator)
@@ -197,14 +263,18 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
         "sumo_version": drives[0].log.sumo_version, "sumo_api": drives[0].log.api,
         "ego_style": style, "ego_style_reason": why, "decision_every_s": cfg.dt_s, "lanes": lanes,
         "side_input": cfg.observation == "direction",
-        "files": [str(p) for p in paths], "sections": rows,
-        "totals": {k: sum(r[k] for r in rows) for k in ("decisions_asked", "change_decisions", "lane_changes",
-                                                        "left", "right", "not_started", "collisions",
-                                                        "emergency_brakes")},
+        "files": [str(p) for p in paths], "sections": rows, "totals": totals(rows),
+        "held_back": {"on": bool(held_back and rule is not None), "rule": rule.to_dict() if rule else None,
+                      "note": rule_note, "desired_speed": f"section limit x speedFactor "
+                                                          f"{STYLE_PARAMS[style].get('speedFactor', 1.0):g} "
+                                                          f"(the {style} vType)"},
         "changes_by_lane": _sum_counts([r["changes_by_lane"] for r in rows]),
         "indicators": indicators_vs_lines(drives, cfg.lines),
         "decisions": [{"speed_limit_kph": d.speed_limit_kph, **asdict(x)} for d in drives for x in d.decisions],
     }
+    if sumo_model:
+        model = sumo_model_sections(cfg, STYLE_PARAMS[style], settings, seed, rule or _NEVER, progress)
+        result["sumo_model"] = sumo_model_report(model, result["totals"])
     if analyze:
         result["analysis"] = assigned_style(workspace, paths, driver_id)
         result["analysis"]["target_style"] = target.name if target.kind == "style" else None

@@ -1,0 +1,329 @@
+"""The held-back rule of the assistant: leave a slower leader the agent would follow for ever.
+
+Why (issue 19, "out of its world"): the agents learn from the study's presses, and its
+drivers press almost only while closing in on a leader (t_f defined, median 4.1 s on the
+shipped study). A leader the ego has caught up with and follows at its speed (closing
+speed < 1 m/s: t_f undefined) never looks like a press scene to them, so in other
+traffic they follow slower leaders for minutes while the next lane is free. The agent is
+right about the scenes it learnt; the gap is a situation its data does not hold. So the
+assistant, not the agent, carries a rule for it:
+
+    when the ego has been **held back** for `patience_s` (a leader in its lane within
+    range is slower than the ego's desired speed by `slower_mps`, and the ego itself is
+    that much below its desired speed), and a neighbouring lane holds a gap the target
+    **accepts** (lead gap, lag gap and the follower's time headway at least the target's
+    lines at the ego's speed) and is **faster** (no leader there within range, or one at
+    least `slower_mps` faster than the ego's leader), request the change.
+
+Where its numbers come from (`rule_from_analysis`):
+
+- accepted gaps: the analysis's reference lines of the target (a style's typical driver,
+  or the driver) for `gap_nf`, `gap_nb` and `thw_nb` (`indicators/acceptance.py`: what the
+  driver accepted at its presses; a flagged line is the driver's level), read within the
+  speeds of the fit's presses (as the clustering reads feature lines: no extrapolation);
+  a follower beyond `far_follower_m` does not count (as in the analysis's fits).
+  The lines are central values at the presses, so the rule takes only gaps at least as
+  large as the typical press's: a conservative choice for a rule that acts on its own.
+- patience: the median time the target's drivers had followed their leader (closing
+  speed below the analysis's `min_closing_mps`, 1 m/s) right before a press, over the
+  presses that came after following (shipped study: 5.5-7.25 s per style, 12-16 presses
+  each, 8 % of all); with fewer than `MIN_FOLLOWED` such presses, `DEFAULT_PATIENCE_S`.
+- desired speed: not in the data (the study's drivers drive at their own speed); the
+  vehicle's set speed. `laneprint drive` uses the section's limit times the ego vType's
+  SUMO `speedFactor`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any, Optional
+
+import numpy as np
+import pandas as pd
+
+from laneprint.reference import FAR_FOLLOWER_M
+from rl.problem.scene import Scene, seen
+
+#: the target lane's indicators the rule reads (`indicators.acceptance`)
+ACCEPT_INDICATORS: tuple[str, ...] = ("gap_nf", "gap_nb", "thw_nb")
+FOLLOWING_MPS = 1.0  # [m/s] closing speed below which the ego follows its leader (AnalysisSettings.min_closing_mps)
+MIN_FOLLOWED = 5  # presses after following needed to read a patience from the data
+DEFAULT_PATIENCE_S = 10.0  # [s] patience when the data has too few presses after following
+SLOWER_MPS = 1.0  # [m/s] how much slower than desired a leader (and the ego) must be to hold the ego back
+_MIN_SPEED_MPS = 0.5  # [m/s] a follower slower than this has no time headway (indicators.acceptance)
+
+
+@dataclass(frozen=True)
+class Line:
+    """An acceptance line `value = A v_e + b`, read with v_e clipped to [v_lo, v_hi] (the fit's presses)
+    and never below `floor` (the 5th percentile of the values at the presses: a line read at a low
+    speed can fall under anything the driver took)."""
+
+    A: float
+    b: float
+    v_lo: float = 0.0
+    v_hi: float = np.inf
+    floor: float = 0.0
+
+    def at(self, v_e: np.ndarray | float) -> np.ndarray:
+        return np.maximum(self.A * np.clip(np.asarray(v_e, dtype=float), self.v_lo, self.v_hi) + self.b, self.floor)
+
+
+@dataclass(frozen=True)
+class HeldBackRule:
+    """The rule's numbers (see the module doc); `source` says where each came from."""
+
+    patience_s: float
+    gap_nf: Line  # [m] lead gap in the target lane
+    gap_nb: Line  # [m] lag gap in the target lane
+    thw_nb: Line  # [s] the target-lane follower's time headway to the ego
+    slower_mps: float = SLOWER_MPS
+    far_follower_m: float = FAR_FOLLOWER_M
+    source: dict[str, str] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        for k in ACCEPT_INDICATORS:  # JSON has no infinity
+            d[k]["v_hi"] = None if not np.isfinite(d[k]["v_hi"]) else d[k]["v_hi"]
+        return d
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> "HeldBackRule":
+        d = dict(d)
+        for k in ACCEPT_INDICATORS:
+            line = dict(d[k])
+            line["v_hi"] = np.inf if line.get("v_hi") is None else line["v_hi"]
+            d[k] = Line(**line)
+        return HeldBackRule(**d)
+
+
+def target_gaps(scene: Scene, range_m: float) -> dict[str, np.ndarray]:
+    """Lead gap, lag gap [m] and the follower's time headway [s] of each scene (NaN where not defined)."""
+    _, nf, nb = seen(scene, range_m)
+    gap_nf = np.where(nf, scene.x_nf - scene.x_e - scene.hl_nf, np.nan)
+    gap_nb = np.where(nb, scene.x_e - scene.x_nb - scene.hl_nb, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        thw_nb = np.where(nb & (scene.v_nb >= _MIN_SPEED_MPS), gap_nb / scene.v_nb, np.nan)
+    return {"gap_nf": gap_nf, "gap_nb": gap_nb, "thw_nb": thw_nb}
+
+
+def accepts(rule: HeldBackRule, scene: Scene, range_m: float) -> np.ndarray:
+    """Whether each scene's target lane holds a gap the target accepts (absent vehicles constrain nothing)."""
+    g = target_gaps(scene, range_m)
+    lead_ok = ~np.isfinite(g["gap_nf"]) | (g["gap_nf"] >= rule.gap_nf.at(scene.v_e))
+    near = np.isfinite(g["gap_nb"]) & (g["gap_nb"] <= rule.far_follower_m)
+    lag_ok = g["gap_nb"] >= rule.gap_nb.at(scene.v_e)
+    thw_ok = ~np.isfinite(g["thw_nb"]) | (g["thw_nb"] >= rule.thw_nb.at(scene.v_e))
+    return lead_ok & (~near | (lag_ok & thw_ok))
+
+
+def faster(rule: HeldBackRule, scene: Scene, range_m: float) -> np.ndarray:
+    """Whether each scene's target lane is faster than the ego's: no leader there within range, or one at
+    least `slower_mps` faster than the ego's leader."""
+    _, nf, _ = seen(scene, range_m)
+    return ~nf | (scene.v_nf >= scene.v_f + rule.slower_mps)
+
+
+def held_back(scene: Scene, desired_mps: float, slower_mps: float, range_m: float) -> bool:
+    """The ego (first scene) follows a leader slower than its desired speed and is itself held below it."""
+    f, _, _ = seen(scene, range_m)
+    limit = desired_mps - slower_mps
+    return bool(f[0] and scene.v_f[0] < limit and scene.v_e[0] < limit)
+
+
+@dataclass
+class HeldBackClock:
+    """How long the ego has been held back without a break, from the decision steps it is told about."""
+
+    since: Optional[float] = None
+
+    def update(self, t_s: float, held: bool) -> float:
+        """The time held back at `t_s` (0 when not held back now)."""
+        if not held:
+            self.since = None
+            return 0.0
+        if self.since is None:
+            self.since = t_s
+        return t_s - self.since
+
+    def reset(self) -> None:
+        self.since = None
+
+
+def rule_target(rule: HeldBackRule, scenes: dict[int, Scene], held_for_s: float, range_m: float) -> Optional[int]:
+    """The lane the rule asks for (the faster of the accepted ones; None: the rule does not fire)."""
+    if held_for_s < rule.patience_s:
+        return None
+    ok = [k for k, s in scenes.items() if bool(accepts(rule, s, range_m)[0] and faster(rule, s, range_m)[0])]
+    if not ok:
+        return None
+
+    def speed(k: int) -> float:
+        f, nf, _ = seen(scenes[k], range_m)
+        return float(scenes[k].v_nf[0]) if nf[0] else np.inf
+
+    return max(sorted(ok, reverse=True), key=speed)  # max keeps the first of equals: the left lane
+
+
+# --- from the analysis --------------------------------------------------------------------
+
+
+_COLUMN = {"gap_nf": "nf_gap_m", "gap_nb": "nb_gap_m", "thw_nb": "thw_nb_s"}  # indicator -> decisions column
+FLOOR_PERCENTILE = 5.0
+
+
+def _line(lines: pd.DataFrame, fits: Optional[pd.DataFrame], ind: str, typical: Optional[str],
+          presses: pd.DataFrame) -> tuple[Line, str]:
+    row = lines[lines["indicator"] == ind]
+    if row.empty:
+        raise KeyError(ind)
+    r = row.iloc[0]
+    v_lo, v_hi, span = 0.0, np.inf, ""
+    if fits is not None and typical is not None:
+        fit = fits[(fits["driver_id"].astype(str) == typical) & (fits["indicator"] == ind)]
+        if len(fit) and np.isfinite(fit["v_min"].iloc[0]) and np.isfinite(fit["v_max"].iloc[0]):
+            v_lo, v_hi = float(fit["v_min"].iloc[0]), float(fit["v_max"].iloc[0])
+            span = f", read within {v_lo:.1f}-{v_hi:.1f} m/s"
+    vals = presses[_COLUMN[ind]].to_numpy(dtype=float) if _COLUMN[ind] in presses else np.array([])
+    vals = vals[np.isfinite(vals)]
+    floor = float(np.percentile(vals, FLOOR_PERCENTILE)) if len(vals) else 0.0
+    span += f", at least {floor:.2f} (percentile {FLOOR_PERCENTILE:g} of {len(vals)} presses)" if len(vals) else ""
+    return Line(float(r["A"]), float(r["b"]), v_lo, v_hi, floor), f"{r['source']}{span}"
+
+
+def following_before_press(decisions: pd.DataFrame, step_s: float = 0.5) -> np.ndarray:
+    """Per press, how long [s] the driver had followed its leader (present, closing slower than
+    `FOLLOWING_MPS`) over the states right before it, the press's own state included; 0 when not."""
+    d = decisions.sort_values(["recording_id", "press_index", "t_s"])
+    closing = (d["ego_v_mps"] - d["f_v_mps"]).to_numpy(dtype=float)
+    follow = d["f_present"].to_numpy(dtype=bool) & (np.nan_to_num(closing, nan=np.inf) < FOLLOWING_MPS)
+    out = []
+    press = (d["label"] == "change").to_numpy()
+    for _, idx in d.groupby(["recording_id", "press_index"], sort=False).indices.items():
+        if not press[idx[-1]]:
+            continue  # an approach that ends without a press
+        run = follow[idx][::-1]
+        n = len(run) if run.all() else int(np.argmin(run))
+        out.append(n * step_s)
+    return np.asarray(out, dtype=float)
+
+
+def patience_from(decisions: pd.DataFrame, step_s: float = 0.5) -> tuple[float, str]:
+    """(patience [s], where it came from): the median following time before the presses that came
+    after following, or `DEFAULT_PATIENCE_S` with fewer than `MIN_FOLLOWED` of them."""
+    times = following_before_press(decisions[decisions["press_index"].notna()], step_s)
+    followed = times[times > 0]
+    if len(followed) < MIN_FOLLOWED:
+        return DEFAULT_PATIENCE_S, (f"default {DEFAULT_PATIENCE_S:g} s: {len(followed)} of {len(times)} presses came "
+                                    f"after following (fewer than {MIN_FOLLOWED})")
+    return float(np.median(followed)), (f"median following time before the {len(followed)} of {len(times)} "
+                                        f"presses that came after following (range {followed.min():g}-"
+                                        f"{followed.max():g} s)")
+
+
+def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5) -> HeldBackRule:
+    """The rule of a run's target from the workspace's analysis (`ValueError` when the analysis lacks
+    the acceptance lines: analyse again with a current laneprint)."""
+    lines = workspace.read_table("analysis", "reference_lines")
+    if "direction" in lines:
+        lines = lines[lines["direction"].astype(str) == "both"]
+    fits = workspace.read_table("analysis", "fits") if workspace.has_table("analysis", "fits") else None
+    decisions = workspace.read_table("analysis", "decisions")
+    styles = workspace.read_table("analysis", "styles")
+    if target.kind == "style":
+        members = styles[styles["style"].astype(str).str.lower() == target.name.lower()]
+        drivers = members["driver_id"].astype(str).tolist()
+        typ = members.loc[members["is_typical"].astype(bool), "driver_id"].astype(str).tolist()
+        typical = typ[0] if typ else None
+        sel = lines[(lines["scope"] == "style") & (lines["name"].astype(str).str.lower() == target.name.lower())
+                    & (lines["kind"] == "typical")]
+    else:
+        drivers, typical = [str(target.name)], str(target.name)
+        sel = lines[(lines["scope"] == "driver") & (lines["name"].astype(str) == str(target.name))]
+    if "thw_nb_s" not in decisions:
+        from indicators.acceptance import add_acceptance
+
+        decisions = add_acceptance(decisions)
+    typ_presses = decisions[(decisions["driver_id"].astype(str) == str(typical)) & (decisions["label"] == "change")]
+    try:
+        got = {ind: _line(sel, fits, ind, typical, typ_presses) for ind in ACCEPT_INDICATORS}
+    except KeyError as exc:
+        raise ValueError(f"the analysis has no {exc.args[0]} line for {target.label}: run `laneprint analyze` "
+                         "again (acceptance indicators)") from None
+    mine = decisions[decisions["driver_id"].astype(str).isin(drivers)]
+    patience, why = patience_from(mine, step_s)
+    source = {k: v[1] for k, v in got.items()} | {"patience_s": f"{why}, {target.label}",
+                                                  "slower_mps": "the analysis's min_closing_mps (1 m/s)"}
+    return HeldBackRule(patience, got["gap_nf"][0], got["gap_nb"][0], got["thw_nb"][0], source=source)
+
+
+# --- measured in the closed loop ---------------------------------------------------------------
+
+
+@dataclass
+class FollowStats:
+    """What the ego did while held back, from every decision step of a drive (agent or SUMO's model).
+
+    `longest_passed_up_s`: within one unbroken stretch of being held back, the time during which a
+    neighbouring lane held a gap the target accepts, summed; the largest over the stretches (the
+    issue's "follows a slower leader for more than 60 s while the target lane holds a gap its own
+    lines accept"). `longest_passed_up_faster_s` counts only gaps in a faster lane (the rule's trigger).
+    """
+
+    dt_s: float
+    n_steps: int = 0
+    n_held: int = 0
+    n_held_tf_undefined: int = 0  # held back with t_f undefined (not closing): no press scene of the study
+    n_held_tf_above_line: int = 0  # held back with t_f undefined or above the target's t_f line at v_e
+    longest_held_s: float = 0.0
+    longest_passed_up_s: float = 0.0
+    longest_passed_up_faster_s: float = 0.0
+    adv_held: list[float] = field(default_factory=list)  # the agent's largest Q(change) - Q(keep), held back
+    adv_free: list[float] = field(default_factory=list)  # the same at the other steps
+    _gap_s: float = 0.0
+    _fast_s: float = 0.0
+
+    def record(self, held: bool, held_for_s: float, gap_ok: bool, fast_ok: bool, t_f_defined: bool,
+               adv: Optional[float] = None, t_f_above_line: bool = False) -> None:
+        self.n_steps += 1
+        if adv is not None:
+            (self.adv_held if held else self.adv_free).append(float(adv))
+        if not held:
+            self.interrupt()
+            return
+        self.n_held += 1
+        self.n_held_tf_undefined += int(not t_f_defined)
+        self.n_held_tf_above_line += int(not t_f_defined or t_f_above_line)
+        self.longest_held_s = max(self.longest_held_s, held_for_s + self.dt_s)
+        self._gap_s += self.dt_s if gap_ok else 0.0
+        self._fast_s += self.dt_s if (gap_ok and fast_ok) else 0.0
+        self.longest_passed_up_s = max(self.longest_passed_up_s, self._gap_s)
+        self.longest_passed_up_faster_s = max(self.longest_passed_up_faster_s, self._fast_s)
+
+    def interrupt(self) -> None:
+        """A stretch of being held back ends (not held back, or a lane change under way)."""
+        self._gap_s = self._fast_s = 0.0
+
+    def summary(self) -> dict[str, Any]:
+        def q(xs: list[float]) -> Optional[list[float]]:
+            return [float(v) for v in np.percentile(xs, [10, 50, 90])] if xs else None
+
+        return {"decision_steps": self.n_steps, "held_steps": self.n_held,
+                "held_share": self.n_held / self.n_steps if self.n_steps else None,
+                "held_tf_undefined_steps": self.n_held_tf_undefined,
+                "held_tf_above_line_steps": self.n_held_tf_above_line,
+                "longest_held_s": self.longest_held_s, "longest_passed_up_s": self.longest_passed_up_s,
+                "longest_passed_up_faster_s": self.longest_passed_up_faster_s,
+                "advantage_held_p10_p50_p90": q(self.adv_held), "advantage_free_p10_p50_p90": q(self.adv_free),
+                "advantage_held_nonneg": sum(a >= 0 for a in self.adv_held)}
+
+
+def merge_summaries(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Totals over sections of `FollowStats.summary` rows (longest: the largest; advantages dropped)."""
+    out: dict[str, Any] = {k: sum(r[k] for r in rows) for k in
+                           ("decision_steps", "held_steps", "held_tf_undefined_steps", "held_tf_above_line_steps",
+                            "advantage_held_nonneg")}
+    out["held_share"] = out["held_steps"] / out["decision_steps"] if out["decision_steps"] else None
+    for k in ("longest_held_s", "longest_passed_up_s", "longest_passed_up_faster_s"):
+        out[k] = max((r[k] for r in rows), default=0.0)
+    return out
