@@ -25,6 +25,20 @@ range over the drivers), by lane pair:
 
     python benchmarks/closed_loop.py --sides --workspace WS --style Normal --lanes 3 \
         --drive-seeds 460 461 --minutes 5 --seed 0 --workdir /tmp/cl
+
+Out of its world (issue 19): the shipped study's agents (`ingest sample_logs`, `analyze`,
+`train --style S --seed SEED` with the defaults, in `--workspace` or a new one in
+`--workdir`), each driven in SUMO (`drive --minutes M --seed D` on every `--drive-seeds` and
+`--lanes`) with the held-back rule (the default) and without it (`--no-held-back`: the pure
+agent), against SUMO's own lane-change model of the same style in the same traffic and seeds
+(`drive`'s comparator). One row per (lanes, drive seed, style): lane changes per km of the
+agent (how many from the agent / from the rule), of SUMO's model and their ratio; the longest
+time the ego was held back by a slower leader while a neighbouring lane held a gap the style's
+lines accept ("passed up"); collisions. Acceptance: ratio within [0.5, 2], passed up <= 60 s,
+no collision, for every style:
+
+    python benchmarks/closed_loop.py --out-of-world --lanes 2 3 --drive-seeds 0 --minutes 3 \
+        --seed 0 --workdir /tmp/h19b/oow
 """
 
 from __future__ import annotations
@@ -119,6 +133,64 @@ def sides(args: argparse.Namespace) -> None:
     print(json.dumps({"style": args.style, "drivers_per_km": rates.tolist(), "drives": rows}))
 
 
+def shipped_workspace(args: argparse.Namespace) -> Path:
+    """The analysed workspace of the shipped study: --workspace, or one made in --workdir."""
+    if args.workspace is not None:
+        return args.workspace
+    ws = args.workdir / "ws"
+    if not (ws / "analysis" / "styles.parquet").exists():
+        cli("ingest", str(ROOT / "sample_logs"), "-w", str(ws))
+        cli("analyze", "-w", str(ws))
+    return ws
+
+
+def drive_once(ws: Path, run_id: str, out: Path, lanes: int, seed: int, minutes: float, *extra: str) -> dict:
+    """`laneprint drive` of a run (its report reused when driven before with these settings)."""
+    if (out / "drive.json").exists():
+        return json.loads((out / "drive.json").read_text())
+    shutil.rmtree(out, ignore_errors=True)
+    return cli("drive", run_id, "--engine", "sumo", "--lanes", str(lanes), "--minutes", f"{minutes:g}",
+               "--seed", str(seed), "--out", str(out), "-w", str(ws), *extra)
+
+
+def out_of_world(args: argparse.Namespace) -> bool:
+    """The shipped study's agents in SUMO traffic against SUMO's own model of their style; True when met."""
+    from laneprint.workspace import Workspace
+    from rl.runs import run_dir
+
+    ws = shipped_workspace(args)
+    print(f"## Out of its world: shipped-study agents in SUMO ({ws}, training seed {args.seed}, "
+          f"{args.minutes:g} min per section, 4 sections)")
+    print("| lanes | drive seed | style | agent /km (agent / rule changes) | SUMO's model /km | ratio | "
+          "passed up [s]: agent / SUMO's model | collisions: agent / model | pure agent /km, passed up [s] |")
+    print("|---|---|---|---|---|---|---|---|---|", flush=True)
+    ok = True
+    for lanes in args.lanes:
+        for seed in args.drive_seeds:
+            for style in STYLES:
+                run_id = f"oow-{style.lower()}-s{args.seed}"
+                if not (run_dir(Workspace(ws), run_id) / "weights.pt").exists():
+                    cli("train", "--style", style, "--seed", str(args.seed), "--run-id", run_id, "--no-evaluate",
+                        "-w", str(ws))
+                tag = f"{run_id}-l{lanes}-d{seed}-m{args.minutes:g}"
+                d = drive_once(ws, run_id, args.workdir / tag, lanes, seed, args.minutes)
+                pure = drive_once(ws, run_id, args.workdir / f"{tag}-pure", lanes, seed, args.minutes,
+                                  "--no-held-back", "--no-sumo-model")
+                tot, model = d["totals"], d["sumo_model"]["totals"]
+                ratio = d["sumo_model"]["rate_ratio"]
+                up, up_model = tot["follow"]["longest_passed_up_s"], model["follow"]["longest_passed_up_s"]
+                met = (ratio is not None and 0.5 <= ratio <= 2.0 and up <= 60.0 and tot["collisions"] == 0)
+                ok &= met
+                print(f"| {lanes} | {seed} | {style} | {tot['lane_changes_per_km']:.2f} ({tot['agent_changes']} / "
+                      f"{tot['rule_changes']}) | {model['lane_changes_per_km']:.2f} | {fmt(ratio, '.2f')} | "
+                      f"{up:.1f} / {up_model:.1f} | {tot['collisions']} / {model['collisions']} | "
+                      f"{pure['totals']['lane_changes_per_km']:.2f}, "
+                      f"{pure['totals']['follow']['longest_passed_up_s']:.1f} |" + ("" if met else " not met"),
+                      flush=True)
+    print("acceptance (ratio 0.5-2, passed up <= 60 s, no collision, every row):", "met" if ok else "NOT met")
+    return ok
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, default=7, help="seed of the study, the training and the drives")
@@ -128,10 +200,20 @@ def main() -> None:
     ap.add_argument("--sides", action="store_true", help="compare EnvConfig.other_side on an analysed --workspace")
     ap.add_argument("--workspace", type=Path, help="--sides: the analysed workspace of a SUMO study")
     ap.add_argument("--style", default="Normal", help="--sides: the style whose agents are driven")
-    ap.add_argument("--lanes", type=int, default=3, help="--sides: lanes of the drives")
+    ap.add_argument("--lanes", type=int, nargs="+", default=None,
+                    help="lanes of the drives: --sides one number (default 3); --out-of-world one or more (default 2)")
     ap.add_argument("--drive-seeds", type=int, nargs="+", default=[460, 461], help="--sides: seeds of the drives")
+    ap.add_argument("--out-of-world", action="store_true",
+                    help="the shipped study's agents in SUMO against SUMO's own model of their style")
     args = ap.parse_args()
+    if args.out_of_world:
+        args.lanes = args.lanes or [2]
+        args.workdir.mkdir(parents=True, exist_ok=True)
+        if args.drive_seeds == [460, 461]:
+            args.drive_seeds = [0]
+        sys.exit(0 if out_of_world(args) else 1)
     if args.sides:
+        args.lanes = (args.lanes or [3])[0]
         if args.workspace is None:
             sys.exit("error: --sides needs --workspace WS (an analysed SUMO study)")
         args.workdir.mkdir(parents=True, exist_ok=True)

@@ -11,6 +11,11 @@ The output folder holds
 - ``README.md``: the same for a reader, with a loader that needs only
   onnxruntime and numpy.
 
+Both also carry the assistant's **held-back rule** (`rl.drive.heldback`, as `laneprint drive`
+applies it by default): its patience, the acceptance lines of the target's lead gap, lag gap
+and follower headway, and how a vehicle stack applies it beside the policy (`held_back_rule`
+in policy.json; none when the workspace's analysis lacks the acceptance lines).
+
 The check: onnxruntime's Q-values against torch's on the run's evaluation states
 (the target's recorded not-yet and press states, `rl.runs.recorded_approaches`)
 and on seeded synthetic scenes; the export fails (and writes nothing) when the
@@ -38,6 +43,7 @@ import torch
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
+from rl.drive.heldback import ACCEPT_INDICATORS, rule_from_analysis
 from rl.problem.env import EnvConfig, observation, sample_scenes
 from rl.problem.observation import ACTIONS, ROLES, constants, observation_spec
 from rl.runs import Target, load_weights, recorded_approaches, run_dir
@@ -114,7 +120,32 @@ def check_states(workspace: Workspace, target: Target, cfg: EnvConfig, seed: int
     return out
 
 
-def _describe(config: dict[str, Any], cfg: EnvConfig, checks: dict[str, Any]) -> dict[str, Any]:
+HELD_BACK_HOW = (
+    "Apply beside the policy, every decision step while the ego is at its lane centre: the ego is held back "
+    "when its lane's leader (within range_m) is slower than the ego's desired speed (the driver's set speed) "
+    "by slower_mps and the ego is too; a clock runs while it is held back without a break and stops at a "
+    "lane change. When the policy keeps and the clock has reached patience_s, request the change to a "
+    "neighbouring lane that is faster (no leader there within range_m, or one at least slower_mps faster than "
+    "the ego's leader) and whose gaps the target accepts: lead gap >= gap_nf, and, unless the follower is "
+    "absent or farther than far_follower_m, lag gap >= gap_nb and the follower's time headway (lag gap / its "
+    "speed) >= thw_nb; each threshold is max(A * clip(v_e, v_lo, v_hi) + b, floor), v_e the ego's speed [m/s]. "
+    "Of two such lanes take the one whose leader is faster (none: faster; a tie: the left one).")
+
+
+def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig) -> dict[str, Any]:
+    """The held-back rule of the run's target for policy.json: its numbers and how to apply it."""
+    try:
+        rule = rule_from_analysis(workspace, target, cfg.dt_s)
+    except (ValueError, KeyError, UserError, FileNotFoundError) as exc:
+        return {"available": False, "why": str(exc)}
+    return {"available": True, "how": HELD_BACK_HOW, "units": {"patience_s": "s", "slower_mps": "m/s",
+            "gap_nf": "m", "gap_nb": "m", "thw_nb": "s", "far_follower_m": "m", "v_lo": "m/s", "v_hi": "m/s"},
+            "desired_speed": "the driver's set speed; `laneprint drive` uses the section's limit x the ego "
+                             "vType's SUMO speedFactor", "range_m": cfg.range_m, **rule.to_dict()}
+
+
+def _describe(config: dict[str, Any], cfg: EnvConfig, checks: dict[str, Any],
+              held_back: dict[str, Any] | None = None) -> dict[str, Any]:
     return {
         "format": "onnx", "opset": OPSET, "file": "policy.onnx",
         "input": {"name": INPUT, "dtype": "float32", "shape": ["batch", len(observation_spec(cfg))]},
@@ -127,6 +158,7 @@ def _describe(config: dict[str, Any], cfg: EnvConfig, checks: dict[str, Any]) ->
                                            "data_fingerprint", "code_version", "created_at")}
                | {"observation": cfg.observation, "scenes": cfg.scenes, "episodes": config["dqn"]["episodes"]},
         "check": checks,
+        "held_back_rule": held_back or {"available": False, "why": "not computed"},
     }
 
 
@@ -174,9 +206,38 @@ The vehicles: {'; '.join(f'{k}: {v}' for k, v in doc['roles'].items())}. The tar
 
 `policy.json` holds the same table as data (`inputs`: transform, scale, offset, cap, clip).
 
+{_held_back_text(doc['held_back_rule'])}
+
 ## Check (tolerance {doc['check']['tolerance']} on Q)
 
 {checks}
+"""
+
+
+def _held_back_text(rule: dict[str, Any]) -> str:
+    """The README's section on the held-back rule."""
+    if not rule.get("available"):
+        return f"## Held-back rule\n\nNot available: {rule.get('why', '')}\n"
+    rows = "\n".join(
+        f"| `{k}` | {rule[k]['A']:.4g} | {rule[k]['b']:.4g} | {rule[k]['v_lo']:.3g}-"
+        f"{'inf' if rule[k]['v_hi'] is None else format(rule[k]['v_hi'], '.3g')} | {rule[k]['floor']:.3g} | "
+        f"{rule['units'][k]} | {rule['source'].get(k, '')} |" for k in ACCEPT_INDICATORS)
+    return f"""## Held-back rule (apply beside the policy)
+
+The policy learnt when drivers press while closing in on a leader; a leader the ego has caught up
+with and follows at its speed is not such a scene, so the policy alone may follow it for ever. The
+assistant therefore also applies this rule (`laneprint drive` does by default;
+`policy.json` `held_back_rule`):
+
+{rule['how']}
+
+- patience_s = **{rule['patience_s']:g} s** ({rule['source'].get('patience_s', '')})
+- slower_mps = {rule['slower_mps']:g} m/s, far_follower_m = {rule['far_follower_m']:g} m,
+  range_m = {rule['range_m']:g} m; desired speed: {rule['desired_speed']}
+
+| threshold | A | b | v_e range [m/s] | floor | unit | from |
+|---|---|---|---|---|---|---|
+{rows}
 """
 
 
@@ -234,7 +295,7 @@ def export_run(workspace: Workspace, run_id: str, fmt: str = "onnx", out: Path |
     if not checks["passed"]:
         raise UserError(f"ONNX check failed: max |Q_onnxruntime - Q_torch| = {worst:.3g} > {TOLERANCE:g}; "
                         "nothing written")
-    doc = _describe(config, cfg, checks)
+    doc = _describe(config, cfg, checks, held_back_rule(workspace, target, cfg))
     report(progress, 2, 3, "writing")
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = final.with_name(f".{final.name}.tmp-{uuid.uuid4().hex[:8]}")

@@ -165,6 +165,23 @@ def rule_target(rule: HeldBackRule, scenes: dict[int, Scene], held_for_s: float,
     return max(sorted(ok, reverse=True), key=speed)  # max keeps the first of equals: the left lane
 
 
+@dataclass(frozen=True)
+class LeftBehind:
+    """The lane a rule's change left and the leader the ego followed there."""
+
+    lane: int
+    leader_id: str
+
+    def passed(self, ego_x: float, others: dict[str, Any]) -> bool:
+        """The ego has passed that leader (its centre behind the ego's) or no longer sees it."""
+        st = others.get(self.leader_id)
+        return st is None or st.x < ego_x
+
+    def vetoes(self, target: int, ego_x: float, others: dict[str, Any]) -> bool:
+        """A change to `target` would return behind the leader not yet passed."""
+        return target == self.lane and not self.passed(ego_x, others)
+
+
 # --- from the analysis --------------------------------------------------------------------
 
 
@@ -320,9 +337,9 @@ class FollowStats:
 
 def merge_summaries(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Totals over sections of `FollowStats.summary` rows (longest: the largest; advantages dropped)."""
-    out: dict[str, Any] = {k: sum(r[k] for r in rows) for k in
+    out: dict[str, Any] = {k: sum(r.get(k, 0) for r in rows) for k in
                            ("decision_steps", "held_steps", "held_tf_undefined_steps", "held_tf_above_line_steps",
-                            "advantage_held_nonneg")}
+                            "advantage_held_nonneg", "vetoed")}
     out["held_share"] = out["held_steps"] / out["decision_steps"] if out["decision_steps"] else None
     for k in ("longest_held_s", "longest_passed_up_s", "longest_passed_up_faster_s"):
         out[k] = max((r[k] for r in rows), default=0.0)

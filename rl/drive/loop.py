@@ -47,7 +47,7 @@ from laneprint.simulator.sumo.scenario import build_network, write_routes
 from laneprint.simulator.sumo.section import EGO_ID, SectionLog, run_section
 from laneprint.simulator.sumo.settings import SumoSettings
 from laneprint.simulator.sumo.traffic import VehicleState
-from rl.drive.heldback import (FollowStats, HeldBackClock, HeldBackRule, accepts, faster, held_back,
+from rl.drive.heldback import (FollowStats, HeldBackClock, HeldBackRule, LeftBehind, accepts, faster, held_back,
                                rule_target)
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
@@ -200,6 +200,8 @@ class AgentControl(Watch):
         self.q = q
         self.use_rule = use_rule and rule is not None
         self.decisions: list[Decision] = []
+        self.left_behind: Optional[LeftBehind] = None  # the lane and leader the rule's last change left
+        self.n_vetoed = 0  # agent's changes not requested: back behind the leader the rule left
 
     def start(self, api: Any) -> None:
         api.vehicle.setLaneChangeMode(EGO_ID, REQUEST_MODE)
@@ -215,6 +217,12 @@ class AgentControl(Watch):
         self.n_asked += 1
         self.record(asked, held, held_for, max(adv.values()))
         target, source = choose_side(adv), "agent"
+        lb = self.left_behind
+        if lb is not None and (ego.lane == lb.lane or lb.passed(ego.x, others)):
+            lb = self.left_behind = None  # back in that lane (not by the agent's choice now) or overtaken
+        if target is not None and lb is not None and lb.vetoes(target, ego.x, others):
+            self.n_vetoed += 1
+            target = None
         if target is None and self.use_rule and held:
             target, source = rule_target(self.rule, {k: sc for k, (sc, _) in asked.items()}, held_for,
                                          self.cfg.range_m), "rule"
@@ -226,6 +234,8 @@ class AgentControl(Watch):
                                        _defined(ind.t_nf, ind.t_nf_ok), _defined(ind.dv_nb, ind.dv_nb_ok), ids,
                                        advantages={("left" if k > ego.lane else "right"): float(a)
                                                    for k, a in adv.items()}, source=source))
+        if source == "rule" and ids.get("f") is not None:
+            self.left_behind = LeftBehind(ego.lane, str(ids["f"]))
         api.vehicle.changeLane(EGO_ID, target, self.cfg.dt_s)
 
 
@@ -288,7 +298,8 @@ def run_sections(make: ControlFactory, cfg: EnvConfig, ego_params: dict[str, flo
             log = run_section(settings, net, routes, float(limit), sumo_seed, rng, folder, control)
             decisions = getattr(control, "decisions", [])
             match_presses(decisions, log.lane_changes, cfg.dt_s)
-            out.append(SectionDrive(float(limit), log, control.n_asked, decisions, control.stats.summary(), desired))
+            out.append(SectionDrive(float(limit), log, control.n_asked, decisions,
+                                    {**control.stats.summary(), "vetoed": getattr(control, "n_vetoed", 0)}, desired))
     report(progress, len(limits), len(limits), "driven")
     return out
 

@@ -128,3 +128,32 @@ def test_export_refuses_bad_input(trained_run, tmp_path):
     (tmp_path / "file").write_text("x")
     res = runner.invoke(app, ["export", run_id, "--out", str(tmp_path / "file"), "-w", str(ws.root)])
     assert res.exit_code == 1 and "is a file" in res.output
+
+
+def test_export_carries_the_held_back_rule(trained_run, tmp_path, monkeypatch):
+    """policy.json holds the rule's numbers and says how to apply them; a threshold computed from the
+    documentation alone equals laneprint's; without acceptance lines it says why there is none."""
+    from rl.deploy import export as export_mod
+    from rl.drive.heldback import HeldBackRule, Line
+
+    ws, run_id = trained_run
+    res = CliRunner().invoke(app, ["export", run_id, "--out", str(tmp_path / "none"), "-w", str(ws.root), "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads((tmp_path / "none" / "policy.json").read_text())
+    assert doc["held_back_rule"]["available"] is False and "gap_nf" in doc["held_back_rule"]["why"]
+    assert "Not available" in (tmp_path / "none" / "README.md").read_text()
+
+    rule = HeldBackRule(5.5, Line(5.5, -61.4, 9.0, 25.8, 8.6), Line(0.0, 29.4, 9.0, 25.8, 6.4),
+                        Line(0.0, 3.4, 9.0, 25.8, 0.75), source={"patience_s": "test"})
+    monkeypatch.setattr(export_mod, "rule_from_analysis", lambda *a, **k: rule)
+    res = CliRunner().invoke(app, ["export", run_id, "--out", str(tmp_path / "rule"), "-w", str(ws.root), "--json"])
+    assert res.exit_code == 0, res.output
+    hb = json.loads((tmp_path / "rule" / "policy.json").read_text())["held_back_rule"]
+    assert hb["available"] and hb["patience_s"] == 5.5 and "patience_s" in hb["how"]
+    for k in ("gap_nf", "gap_nb", "thw_nb"):
+        for v in (5.0, 15.0, 30.0):
+            line = hb[k]
+            documented = max(line["A"] * min(max(v, line["v_lo"]), line["v_hi"]) + line["b"], line["floor"])
+            assert documented == float(getattr(rule, k).at(v))
+    text = (tmp_path / "rule" / "README.md").read_text()
+    assert "Held-back rule" in text and "5.5 s" in text and "`gap_nb`" in text

@@ -1,0 +1,217 @@
+"""The held-back rule of `laneprint drive` (rl/drive/heldback.py): fast tests on synthetic scenes."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from laneprint.simulator.sumo.traffic import VehicleState
+from rl.drive.heldback import (DEFAULT_PATIENCE_S, FollowStats, HeldBackRule, Line, accepts, following_before_press,
+                               patience_from, rule_target)
+from rl.drive.loop import AgentControl, Watch, live_scene
+from rl.problem.env import EnvConfig
+from rl.problem.rewards import CHANGE, KEEP
+
+DESIRED = 25.0  # [m/s]
+
+
+class _Vehicle:
+    def __init__(self) -> None:
+        self.requests: list[tuple[str, int, float]] = []
+        self.modes: list[int] = []
+
+    def setLaneChangeMode(self, vid: str, mode: int) -> None:
+        self.modes.append(mode)
+
+    def changeLane(self, vid: str, lane: int, duration: float) -> None:
+        self.requests.append((vid, lane, duration))
+
+
+class _Api:
+    def __init__(self) -> None:
+        self.vehicle = _Vehicle()
+
+
+def _never_changes(scene) -> np.ndarray:
+    """A stub agent that always keeps (the shipped-study agent behind a followed leader)."""
+    q = np.zeros((len(scene), 2))
+    q[:, CHANGE], q[:, KEEP] = -1.5, 0.0
+    return q
+
+
+def _rule(patience: float = 5.0) -> HeldBackRule:
+    return HeldBackRule(patience, gap_nf=Line(0.0, 30.0), gap_nb=Line(0.0, 30.0), thw_nb=Line(0.0, 3.0))
+
+
+def _follow(others: dict[str, VehicleState], seconds: float, rule: HeldBackRule | None = None,
+            use_rule: bool = True, v_e: float = 20.0) -> tuple[AgentControl, _Api, list[float]]:
+    """The ego in lane 0 of two, following `others['f']` at its speed, for `seconds` of 0.1 s steps;
+    the times at which a change was requested."""
+    control = AgentControl(_never_changes, EnvConfig(observation="indicators"), 0.1, 2, rule or _rule(), DESIRED,
+                           use_rule)
+    api = _Api()
+    control.start(api)
+    times: list[float] = []
+    for i in range(int(round(seconds / 0.1))):
+        t = round(0.1 * i, 6)
+        ego = VehicleState(x=100.0 + v_e * t, v=v_e, lane=0, length=4.5)
+        moved = {k: VehicleState(s.x + s.v * t, s.v, s.lane, s.length) for k, s in others.items()}
+        n = len(api.vehicle.requests)
+        control.step(api, t, ego, 0.0, moved)
+        if len(api.vehicle.requests) > n:
+            times.append(t)
+    return control, api, times
+
+
+LEADER = {"f": VehicleState(130.0, 20.0, 0, 4.5)}  # 30 m ahead at the ego's speed: 5 m/s below its desired
+
+
+def test_a_followed_slower_leader_triggers_the_rule_after_the_patience_not_before():
+    control, api, times = _follow(LEADER, 12.0)
+    assert times and times[0] == pytest.approx(5.0, abs=0.51)  # the first decision step once held 5 s
+    assert all(t >= 5.0 - 1e-9 for t in times)
+    assert api.vehicle.requests[0] == ("ego", 1, 0.5)
+    assert {d.source for d in control.decisions} == {"rule"}
+    _, api, times = _follow(LEADER, 4.9)
+    assert times == [] and api.vehicle.requests == []
+
+
+def test_an_unacceptable_gap_does_not_trigger():
+    close_follower = {**LEADER, "b": VehicleState(80.0, 20.0, 1, 4.5)}  # lag gap 15.5 m < 30 m
+    control, api, times = _follow(close_follower, 20.0)
+    assert times == [] and control.stats.n_held > 0
+    short_lead = {**LEADER, "l": VehicleState(115.0, 21.0, 1, 4.5)}  # lead gap 10.5 m, 22.5 m at 12 s: < 30 m
+    _, _, times = _follow(short_lead, 12.0)
+    assert times == []
+    tailgater = {**LEADER, "b": VehicleState(25.5, 25.0, 1, 4.5)}  # lag gap 70 m, 40 m at 6 s, headway < 3 s
+    _, _, times = _follow(tailgater, 6.0)
+    assert times == []
+
+
+def test_a_far_follower_and_a_wide_gap_are_accepted():
+    wide = {**LEADER, "b": VehicleState(40.0, 20.0, 1, 4.5), "l": VehicleState(170.0, 24.0, 1, 4.5)}
+    _, _, times = _follow(wide, 8.0)  # lag gap 55.5 m, but its headway 2.78 s < 3 s
+    assert times == []
+    wider = {**LEADER, "b": VehicleState(30.0, 20.0, 1, 4.5), "l": VehicleState(170.0, 24.0, 1, 4.5)}
+    _, _, times = _follow(wider, 8.0)  # lag 65.5 m, headway 3.3 s; lead 65.5 m, 4 m/s faster than the leader
+    assert times and times[0] == pytest.approx(5.0, abs=0.51)
+    ego = VehicleState(100.0, 20.0, 0, 4.5)
+    strict = HeldBackRule(5.0, Line(0.0, 30.0), Line(0.0, 30.0), Line(0.0, 6.0))
+    far = live_scene(ego, {"b": VehicleState(-10.0, 20.0, 1, 4.5)}, 1)[0]  # 105.5 m > far_follower_m, 5.3 s
+    near = live_scene(ego, {"b": VehicleState(5.0, 20.0, 1, 4.5)}, 1)[0]  # 90.5 m, headway 4.5 s < 6 s
+    assert accepts(strict, far, 150.0)[0] and not accepts(strict, near, 150.0)[0]
+
+
+def test_no_rule_when_the_target_lane_is_not_faster_or_the_leader_is_not_slow():
+    slower_lane = {**LEADER, "l": VehicleState(190.0, 20.5, 1, 4.5)}  # wide gap, but no faster
+    _, _, times = _follow(slower_lane, 12.0)
+    assert times == []
+    quick = {"f": VehicleState(130.0, 24.5, 0, 4.5)}  # 0.5 m/s below the desired speed: not held back
+    control, _, times = _follow(quick, 12.0, v_e=24.5)
+    assert times == [] and control.stats.n_held == 0
+
+
+def test_the_pure_agent_is_measured_but_not_helped():
+    control, api, times = _follow(LEADER, 20.0, use_rule=False)
+    assert times == [] and api.vehicle.requests == []
+    s = control.stats.summary()
+    assert s["held_share"] == 1.0 and s["longest_passed_up_s"] == pytest.approx(20.0, abs=0.01)
+    assert s["advantage_held_nonneg"] == 0 and s["held_tf_above_line_steps"] == s["held_steps"] == 40
+
+
+def test_the_comparator_only_looks():
+    control, api = Watch(EnvConfig(), 0.1, 2, _rule(), DESIRED), _Api()
+    control.start(api)
+    for i in range(100):
+        t = 0.1 * i
+        control.step(api, t, VehicleState(100.0 + 20 * t, 20.0, 0, 4.5), 0.0,
+                     {"f": VehicleState(130.0 + 20 * t, 20.0, 0, 4.5)})
+    assert api.vehicle.modes == [] and api.vehicle.requests == []  # SUMO's own lane changing stays on
+    assert control.n_asked == 20 and control.stats.n_held == 20
+
+
+def test_rule_target_takes_the_faster_accepted_lane():
+    ego = VehicleState(100.0, 20.0, 1, 4.5)
+    others = {"f": VehicleState(130.0, 20.0, 1, 4.5), "l": VehicleState(170.0, 23.0, 2, 4.5),
+              "r": VehicleState(180.0, 26.0, 0, 4.5)}
+    scenes = {k: live_scene(ego, others, k)[0] for k in (2, 0)}
+    assert rule_target(_rule(), scenes, 4.0, 150.0) is None  # not patient long enough yet
+    assert rule_target(_rule(), scenes, 5.0, 150.0) == 0
+    scenes = {k: live_scene(ego, {"f": others["f"]}, k)[0] for k in (2, 0)}
+    assert rule_target(_rule(), scenes, 5.0, 150.0) == 2  # both free: overtake on the left
+
+
+def test_lines_are_read_within_their_speeds_and_above_their_floor():
+    line = Line(5.0, -60.0, v_lo=10.0, v_hi=25.0, floor=8.0)
+    assert line.at([5.0, 14.0, 20.0, 30.0]) == pytest.approx([8.0, 10.0, 40.0, 65.0])
+    ego = VehicleState(100.0, 20.0, 0, 4.5)
+    rule = HeldBackRule(5.0, line, Line(0.0, 30.0), Line(0.0, 3.0))
+    near = live_scene(ego, {"l": VehicleState(140.0, 22.0, 1, 4.5)}, 1)[0]  # lead gap 35.5 m < 40 m
+    far = live_scene(ego, {"l": VehicleState(150.0, 22.0, 1, 4.5)}, 1)[0]
+    assert not accepts(rule, near, 150.0)[0] and accepts(rule, far, 150.0)[0]
+
+
+def test_rule_round_trips_through_json():
+    rule = HeldBackRule(6.0, Line(1.0, 2.0, 3.0, 4.0, 5.0), Line(0.0, 30.0), Line(0.0, 3.0), source={"x": "y"})
+    assert HeldBackRule.from_dict(json.loads(json.dumps(rule.to_dict()))) == rule
+
+
+def test_follow_stats_passed_up_is_per_stretch():
+    s = FollowStats(0.5)
+    for gap in (True, True, False, True):
+        s.record(True, 0.0, gap, gap, False)
+    s.record(False, 0.0, True, True, True)
+    for _ in range(2):
+        s.record(True, 0.0, True, False, False)
+    assert s.longest_passed_up_s == pytest.approx(1.5) and s.longest_passed_up_faster_s == pytest.approx(1.5)
+    assert s.n_held == 6 and s.n_steps == 7
+
+
+def _approach(rec: str, press: int, closing: list[float]) -> pd.DataFrame:
+    n = len(closing)
+    return pd.DataFrame({"recording_id": rec, "press_index": press, "t_s": np.arange(n) * 0.5,
+                         "ego_v_mps": 20.0, "f_v_mps": 20.0 - np.asarray(closing), "f_present": True,
+                         "label": ["keep"] * (n - 1) + ["change"]})
+
+
+def test_patience_is_the_median_following_time_before_presses():
+    followed = [_approach("r", k, [5, 3] + [0.2] * (k + 6)) for k in range(5)]  # 3.5-5.5 s after following
+    closing = [_approach("r", 10 + k, [5, 4, 3, 2]) for k in range(5)]
+    d = pd.concat(followed + closing, ignore_index=True)
+    assert sorted(following_before_press(d)) == [0.0] * 5 + [3.0, 3.5, 4.0, 4.5, 5.0]
+    patience, why = patience_from(d)
+    assert patience == pytest.approx(4.0) and "5 of 10 presses" in why
+    patience, why = patience_from(pd.concat(followed[:2] + closing, ignore_index=True))
+    assert patience == DEFAULT_PATIENCE_S and "fewer than" in why
+
+
+def test_the_agent_does_not_return_behind_the_leader_the_rule_left():
+    """After the rule's change to the left, an agent that wants back right is not asked to while the
+    leader it left is still ahead; once passed, it is."""
+    def back_right(scene) -> np.ndarray:
+        q = np.zeros((len(scene), 2))
+        q[:, CHANGE] = np.where(scene.left, -1.5, 0.5)  # keeps about the left, changes back right
+        return q
+
+    control = AgentControl(back_right, EnvConfig(observation="indicators"), 0.1, 2, _rule(), DESIRED, True)
+    api = _Api()
+    control.start(api)
+    truck = VehicleState(130.0, 20.0, 0, 12.0)
+    for i in range(55):  # held behind the truck in lane 0: the rule asks for lane 1 after 5 s (t = 5.4)
+        control.step(api, 0.1 * i, VehicleState(100.0 + 2.0 * i, 20.0, 0, 4.5), 0.0,
+                     {"f": VehicleState(truck.x + 2.0 * i, 20.0, 0, 12.0)})
+    assert api.vehicle.requests == [("ego", 1, 0.5)] and control.left_behind.leader_id == "f"
+    # now in lane 1, the truck 20 m ahead in lane 0: the agent's wish to go right is vetoed
+    control.step(api, 6.0, VehicleState(230.0, 24.0, 1, 4.5), 0.0, {"f": VehicleState(250.0, 20.0, 0, 12.0)})
+    for i in range(1, 5):
+        control.step(api, 6.0 + 0.1 * i, VehicleState(230.0, 24.0, 1, 4.5), 0.0,
+                     {"f": VehicleState(250.0, 20.0, 0, 12.0)})
+    assert len(api.vehicle.requests) == 1 and control.n_vetoed == 1
+    for i in range(5, 10):  # the truck passed (its centre 30 m behind the ego's): the agent returns
+        control.step(api, 6.0 + 0.1 * i, VehicleState(300.0, 24.0, 1, 4.5), 0.0,
+                     {"f": VehicleState(270.0, 20.0, 0, 12.0)})
+    assert api.vehicle.requests[-1] == ("ego", 0, 0.5) and control.left_behind is None
+    assert control.decisions[-1].source == "agent"
