@@ -8,13 +8,13 @@ CSV.gz and MCAP to a temporary folder, then times (median of several repetitions
 - the floor for the same bytes: `pyarrow.csv.read_csv` (after gunzip for .csv.gz),
   and the `mcap` reader iterating every message and `json.loads`-ing it without
   building any table (and, beside it, the same with msgspec's decoder);
-- with `--baseline REV`, the ingest of git revision REV (its `ingest/` package loaded
-  as `ingest_base`, everything else shared), interleaved with ours: before and after
-  in one run.
+- with `--baseline REV` (repeatable), the ingest of git revision REV (its `ingest/`
+  package and `laneprint/workspace.py`, the store, loaded under another name, everything
+  else shared), interleaved with ours: before and after in one run.
 
 Goals: our ingest at least half as fast as the floor (ratio >= 0.5); MCAP at least 3x.
 
-    .venv/bin/python benchmarks/ingest.py [--reps 5] [--minutes 10] [--vehicles 20] [--baseline d4815b0]
+    .venv/bin/python benchmarks/ingest.py [--reps 5] [--minutes 10] [--vehicles 20] [--baseline c330a54 ...]
                                           [--formats csv,csv.gz,mcap]
 """
 
@@ -120,16 +120,21 @@ def floor_mcap_msgspec(data: bytes) -> None:
 
 
 def load_baseline(rev: str, into: Path):
-    """`ingest_paths` of the `ingest/` package at git revision `rev`, imported as `ingest_base`."""
+    """(`ingest_paths`, `Workspace`) of git revision `rev`: its `ingest/` package imported as
+    `ingest_<rev>` and its `laneprint/workspace.py` (the store) as that package's `_workspace`."""
     repo = Path(__file__).resolve().parent.parent
-    tar = subprocess.run(["git", "-C", str(repo), "archive", rev, "ingest"], capture_output=True, check=True).stdout
+    name = f"ingest_{rev.replace('-', '_').replace('.', '_')}"
+    tar = subprocess.run(["git", "-C", str(repo), "archive", rev, "ingest", "laneprint/workspace.py"],
+                         capture_output=True, check=True).stdout
     with tarfile.open(fileobj=io.BytesIO(tar)) as tf:
         tf.extractall(into, filter="data")
-    (into / "ingest").rename(into / "ingest_base")
-    for f in (into / "ingest_base").rglob("*.py"):
-        f.write_text(f.read_text().replace("from ingest.", "from ingest_base.").replace("import ingest.", "import ingest_base."))
+    (into / "ingest").rename(into / name)
+    (into / "laneprint" / "workspace.py").rename(into / name / "_workspace.py")
+    for f in (into / name).rglob("*.py"):
+        f.write_text(f.read_text().replace("from ingest.", f"from {name}.").replace("import ingest.", f"import {name}.")
+                     .replace("from laneprint.workspace import", f"from {name}._workspace import"))
     sys.path.insert(0, str(into))
-    return importlib.import_module("ingest_base.pipeline").ingest_paths
+    return importlib.import_module(f"{name}.pipeline").ingest_paths, importlib.import_module(f"{name}._workspace").Workspace
 
 
 def main() -> None:
@@ -137,14 +142,15 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=5)
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--vehicles", type=int, default=20)
-    ap.add_argument("--baseline", metavar="REV", help="also time the ingest of this git revision (before/after)")
+    ap.add_argument("--baseline", metavar="REV", action="append", default=[],
+                    help="also time the ingest (and store) of this git revision (before/after); repeatable")
     ap.add_argument("--formats", default="csv,csv.gz,mcap", help="comma-separated subset of csv,csv.gz,mcap")
     args = ap.parse_args()
 
     meta, ego, traffic = make_recording(args.minutes, args.vehicles)
     n = len(ego)
     tmp = Path(tempfile.mkdtemp(prefix="lp-bench-"))
-    base_ingest = load_baseline(args.baseline, tmp / "base") if args.baseline else None
+    bases = [(rev, *load_baseline(rev, tmp / f"base{i}")) for i, rev in enumerate(args.baseline)]
     try:
         files = {fmt: tmp / f"rec.{fmt}" for fmt in ("csv", "csv.gz", "mcap") if fmt in args.formats.split(",")}
         for fmt, path in files.items():
@@ -167,9 +173,9 @@ def main() -> None:
             def read(d=data, f=fmt, p=path) -> None:
                 canonicalise(read_log(d, f, IDENTITY), IDENTITY, session_stem(p), None)
 
-            def full(p=path, run=ingest_paths) -> None:
+            def full(p=path, run=ingest_paths, store=Workspace) -> None:
                 k[0] += 1
-                ws = Workspace(tmp / f"ws{k[0]}")
+                ws = store(tmp / f"ws{k[0]}")
                 rep = run([p], ws)
                 assert rep.files[0].status in ("ingested", "warning"), rep.files[0].reason
                 used.append(ws.root)
@@ -178,9 +184,9 @@ def main() -> None:
             if fmt == "mcap":
                 fns.insert(1, lambda d=data: floor_mcap_msgspec(d))
                 labels.insert(0, "mcap iter + msgspec (floor, msgspec)")
-            if base_ingest is not None:
-                fns.append(lambda p=path: full(p, base_ingest))
-                labels.append(f"ingest (stored), {args.baseline}")
+            for rev, base_ingest, base_ws in bases:
+                fns.append(lambda p=path, r=base_ingest, w=base_ws: full(p, r, w))
+                labels.append(f"ingest (stored), {rev}")
             # interleaved, so a busy machine slows all alike
             times = interleaved(fns, args.reps)
             for root in used:
