@@ -129,7 +129,11 @@ HELD_BACK_HOW = (
     "the ego's leader) and whose gaps the target accepts: lead gap >= gap_nf, and, unless the follower is "
     "absent or farther than far_follower_m, lag gap >= gap_nb and the follower's time headway (lag gap / its "
     "speed) >= thw_nb; each threshold is max(A * clip(v_e, v_lo, v_hi) + b, floor), v_e the ego's speed [m/s]. "
-    "Of two such lanes take the one whose leader is faster (none: faster; a tie: the left one).")
+    "Of two such lanes take the one whose leader is faster (none: faster; a tie: the left one). After such a "
+    "change, do not follow the policy back into the lane it left while the leader it left there is still "
+    "ahead of the ego (centre to centre). And under every change, the policy's too: none into a lead gap "
+    "below gap_nf's floor, or, with a follower within far_follower_m, a lag gap below gap_nb's floor or its "
+    "time headway below thw_nb's floor (the smallest the target took: 5th percentile of its presses).")
 
 
 def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig) -> dict[str, Any]:

@@ -47,8 +47,8 @@ from laneprint.simulator.sumo.scenario import build_network, write_routes
 from laneprint.simulator.sumo.section import EGO_ID, SectionLog, run_section
 from laneprint.simulator.sumo.settings import SumoSettings
 from laneprint.simulator.sumo.traffic import VehicleState
-from rl.drive.heldback import (FollowStats, HeldBackClock, HeldBackRule, LeftBehind, accepts, faster, held_back,
-                               rule_target)
+from rl.drive.heldback import (FollowStats, HeldBackClock, HeldBackRule, LeftBehind, above_floors, accepts, faster,
+                               held_back, rule_target)
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
 from rl.problem.scene import Scene, indicators
@@ -202,6 +202,7 @@ class AgentControl(Watch):
         self.decisions: list[Decision] = []
         self.left_behind: Optional[LeftBehind] = None  # the lane and leader the rule's last change left
         self.n_vetoed = 0  # agent's changes not requested: back behind the leader the rule left
+        self.n_gated = 0  # agent's changes not requested: a gap below the smallest the target took
 
     def start(self, api: Any) -> None:
         api.vehicle.setLaneChangeMode(EGO_ID, REQUEST_MODE)
@@ -222,6 +223,10 @@ class AgentControl(Watch):
             lb = self.left_behind = None  # back in that lane (not by the agent's choice now) or overtaken
         if target is not None and lb is not None and lb.vetoes(target, ego.x, others):
             self.n_vetoed += 1
+            target = None
+        if target is not None and self.use_rule and not above_floors(self.rule, asked[target][0],
+                                                                     self.cfg.range_m)[0]:
+            self.n_gated += 1
             target = None
         if target is None and self.use_rule and held:
             target, source = rule_target(self.rule, {k: sc for k, (sc, _) in asked.items()}, held_for,
@@ -299,7 +304,8 @@ def run_sections(make: ControlFactory, cfg: EnvConfig, ego_params: dict[str, flo
             decisions = getattr(control, "decisions", [])
             match_presses(decisions, log.lane_changes, cfg.dt_s)
             out.append(SectionDrive(float(limit), log, control.n_asked, decisions,
-                                    {**control.stats.summary(), "vetoed": getattr(control, "n_vetoed", 0)}, desired))
+                                    {**control.stats.summary(), "vetoed": getattr(control, "n_vetoed", 0),
+                                     "gated": getattr(control, "n_gated", 0)}, desired))
     report(progress, len(limits), len(limits), "driven")
     return out
 

@@ -215,3 +215,20 @@ def test_the_agent_does_not_return_behind_the_leader_the_rule_left():
                      {"f": VehicleState(270.0, 20.0, 0, 12.0)})
     assert api.vehicle.requests[-1] == ("ego", 0, 0.5) and control.left_behind is None
     assert control.decisions[-1].source == "agent"
+
+
+def test_no_change_of_the_agent_into_a_gap_below_the_targets_floor():
+    def always(scene) -> np.ndarray:
+        q = np.zeros((len(scene), 2))
+        q[:, CHANGE] = 0.5
+        return q
+
+    rule = HeldBackRule(5.0, Line(0.0, 30.0, floor=8.0), Line(0.0, 30.0, floor=6.0), Line(0.0, 3.0, floor=0.75))
+    ego = VehicleState(100.0, 17.0, 0, 4.5)
+    for cut_in, n in ((VehicleState(106.0, 7.0, 1, 4.5), 0), (VehicleState(115.0, 15.0, 1, 4.5), 1)):
+        for use_rule in (True, False):  # lead gap 1.5 m (below the floor), then 10.5 m
+            control, api = AgentControl(always, EnvConfig(), 0.1, 2, rule, DESIRED, use_rule), _Api()
+            for i in range(5):
+                control.step(api, 0.1 * i, ego, 0.0, {"nf": cut_in})
+            assert len(api.vehicle.requests) == (n if use_rule else 1)  # the pure agent has no floor
+            assert control.n_gated == (1 - n if use_rule else 0)
