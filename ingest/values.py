@@ -113,13 +113,27 @@ def _all_pass(df: pd.DataFrame, schema: pdr.DataFrameSchema) -> bool:
         if col not in df.columns or df[col].dtype != np.float64:
             return False
         a = df[col].to_numpy()
-        with np.errstate(invalid="ignore"):
-            inside = ((a > b.lo) if b.lo_open else (a >= b.lo)) & (a <= b.hi)
-            if b.integer:
-                inside &= a == np.round(a)
-        if not np.all(inside | np.isnan(a)):
+        if not (_within(a, b) or _within_elementwise(a, b)):
             return False
     return True
+
+
+def _within(a: np.ndarray, b: Bounds) -> bool:
+    """True when `a` has no empty value and every value is within `b`: two reductions, no
+    temporary array (a NaN makes min and max NaN, so such a column is left to the elementwise test)."""
+    if not len(a) or b.integer:
+        return False
+    lo, hi = a.min(), a.max()
+    return bool(((lo > b.lo) if b.lo_open else (lo >= b.lo)) and hi <= b.hi)
+
+
+def _within_elementwise(a: np.ndarray, b: Bounds) -> bool:
+    """True when each value of `a` is empty or within `b`."""
+    with np.errstate(invalid="ignore"):
+        inside = ((a > b.lo) if b.lo_open else (a >= b.lo)) & (a <= b.hi)
+        if b.integer:
+            inside &= a == np.round(a)
+    return bool(np.all(inside | np.isnan(a)))
 
 
 def failures(df: pd.DataFrame, schema: pdr.DataFrameSchema) -> dict[str, np.ndarray]:
@@ -221,7 +235,13 @@ def check_sample_rate(raw: RawLog, mapping: Mapping) -> None:
 
 def _allowed_step(v0: np.ndarray, v1: np.ndarray, dt: np.ndarray) -> np.ndarray:
     """How far a vehicle can move in `dt` between two samples with speeds v0 and v1 [m]."""
-    return (JUMP_FACTOR * np.maximum(np.abs(v0), np.abs(v1)) + JUMP_SLACK_MPS) * dt + JUMP_SLACK_M
+    out = np.abs(np.asarray(v0, dtype=float))  # in place from here: (JUMP_FACTOR * max|v| + JUMP_SLACK_MPS) * dt + JUMP_SLACK_M
+    np.maximum(out, np.abs(v1), out=out)
+    out *= JUMP_FACTOR
+    out += JUMP_SLACK_MPS
+    out *= dt
+    out += JUMP_SLACK_M
+    return out
 
 
 def check_ego_jumps(raw: RawLog, mapping: Mapping) -> None:
@@ -274,7 +294,10 @@ def check_traffic_values(raw: RawLog, mapping: Mapping) -> list[str]:
         raw.traffic = tr = {k: (pa.array(a).filter(pa.array(keep)) if k == "vehicle_id" else a[keep])
                             for k, a in tr.items()}
         raw.n_vehicles = None
-    warnings += _traffic_jumps(tr)
+    k = _vehicle_grid(pa.array(tr["vehicle_id"]), len(tr["t_s"]))
+    if k and raw.n_vehicles is None:
+        raw.n_vehicles = k  # k vehicles in the same order at every sample: k distinct ids, nothing to count
+    warnings += _traffic_jumps(tr, k)
     return warnings
 
 
@@ -301,13 +324,15 @@ def _vehicle_grid(ids: pa.Array, n: int) -> int:
     return k if same else 0
 
 
-def _traffic_jumps(tr: dict[str, Any]) -> list[str]:
-    """A warning when traffic vehicles move further between their samples than their speed allows."""
+def _traffic_jumps(tr: dict[str, Any], k: int | None = None) -> list[str]:
+    """A warning when traffic vehicles move further between their samples than their speed allows.
+
+    `k`: the rows' `_vehicle_grid`, when the caller has it."""
     n = len(tr["t_s"])
     if n < 2:
         return []
     ids = pa.array(tr["vehicle_id"])
-    k = _vehicle_grid(ids, n)
+    k = _vehicle_grid(ids, n) if k is None else k
     if k:  # vehicle j's samples are column j of the (m, k) grids, in time order
         t, x, v = (tr[c].reshape(-1, k) for c in ("t_s", "x_m", "v_mps"))
         jump = (np.abs(np.diff(x, axis=0)) > _allowed_step(v[:-1], v[1:], np.diff(t, axis=0))).T

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import duckdb
+import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -79,12 +80,28 @@ def _plain_strings(df: pd.DataFrame) -> pd.DataFrame:
     return df
 
 
+def _to_arrow(df: pd.DataFrame) -> pa.Table:
+    """`df` as `pa.Table.from_pandas(df, preserve_index=False)` gives it (schema, pandas metadata, NaN as
+    null), without its NaN scan of float columns that hold no NaN (2.5 ms per 600 000 values, numpy's
+    test 0.3 ms): those are taken without a copy."""
+    schema = pa.Schema.from_pandas(df, preserve_index=False)
+    arrays = []
+    for f in schema:
+        col = df[f.name]
+        values = col.to_numpy() if col.dtype == np.float64 else None
+        if values is not None and not np.isnan(values).any():
+            arrays.append(pa.array(values))
+        else:
+            arrays.append(pa.array(col, type=f.type, from_pandas=True))
+    return pa.Table.from_arrays(arrays, schema=schema)
+
+
 def _write_parquet(df: pd.DataFrame, path: Path, dictionary: tuple[str, ...] = ()) -> None:
     """Write `df` as Parquet (snappy): the named columns dictionary-encoded, float columns
     BYTE_STREAM_SPLIT-encoded (measured: a third of the write time of plain or dictionary
     encoding of float columns, for files 5-25 % larger), other columns plain; no min/max
     statistics (recordings are read whole: they serve no query, and cost ~15 % of the write)."""
-    table = pa.Table.from_pandas(df, preserve_index=False, nthreads=1)  # a thread pool costs more than it saves
+    table = _to_arrow(df)
     floats = [f.name for f in table.schema if pa.types.is_floating(f.type) and f.name not in dictionary]
     pq.write_table(table, path, use_dictionary=[c for c in dictionary if c in table.column_names],
                    column_encoding={c: "BYTE_STREAM_SPLIT" for c in floats} or None,
