@@ -295,16 +295,20 @@ def _traffic_arrow(datas: list[bytes], names: dict[str, str], mapping: Mapping) 
     table = _arrow_table(datas, pa.schema([(names["vehicles"], pa.list_(vehicle))]))
     if table is None:
         return None
-    lists = table.column(names["vehicles"]).combine_chunks()
-    flat = lists.flatten()
+    # chunk by chunk: combining the chunks of the list<struct> column first costs more than the columns
+    chunks = table.column(names["vehicles"]).chunks
+    flats = [c.flatten() for c in chunks]
+    starts = np.cumsum([0] + [len(c) for c in chunks[:-1]])
+    floats = lambda k, scale=1.0: np.concatenate([_column_floats(f.field(names[k]), scale) for f in flats])  # noqa: E731
     return {
-        "rows": pc.list_parent_indices(lists).to_numpy(zero_copy_only=False).astype(np.int64),
-        "vehicle_id": flat.field(names["id"]),
-        "x_m": _column_floats(flat.field(names["x"]), mapping.position_scale),
-        "y_m": _column_floats(flat.field(names["y"]), mapping.position_scale),
-        "v_mps": _column_floats(flat.field(names["v"]), mapping.speed_scale),
-        "lane": _column_floats(flat.field(names["lane"])),
-        "length_m": _column_floats(flat.field(names["length"]), mapping.position_scale),
+        "rows": np.concatenate([pc.list_parent_indices(c).to_numpy(zero_copy_only=False).astype(np.int64) + s
+                                for c, s in zip(chunks, starts)]),
+        "vehicle_id": pa.concat_arrays([f.field(names["id"]) for f in flats]),
+        "x_m": floats("x", mapping.position_scale),
+        "y_m": floats("y", mapping.position_scale),
+        "v_mps": floats("v", mapping.speed_scale),
+        "lane": floats("lane"),
+        "length_m": floats("length", mapping.position_scale),
     }
 
 
