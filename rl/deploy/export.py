@@ -132,7 +132,8 @@ HELD_BACK_HOW = (
     "Of two such lanes take the one whose leader is faster (none: faster; a tie: the left one). After such a "
     "change, do not follow the policy back into the lane it left while the leader it left there is still "
     "ahead of the ego (centre to centre). And under every change, the policy's too: none into a lead gap "
-    "below gap_nf's floor, or, with a follower within far_follower_m, a lag gap below gap_nb's floor or its "
+    "below gap_nf's floor or closing on the target lane's leader with a time to collision below "
+    "t_nf_floor_s, or, with a follower within far_follower_m, a lag gap below gap_nb's floor or its "
     "time headway below thw_nb's floor (the smallest the target took: 5th percentile of its presses).")
 
 
@@ -143,7 +144,7 @@ def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig) -> dict
     except (ValueError, KeyError, UserError, FileNotFoundError) as exc:
         return {"available": False, "why": str(exc)}
     return {"available": True, "how": HELD_BACK_HOW, "units": {"patience_s": "s", "slower_mps": "m/s",
-            "gap_nf": "m", "gap_nb": "m", "thw_nb": "s", "far_follower_m": "m", "v_lo": "m/s", "v_hi": "m/s"},
+            "gap_nf": "m", "gap_nb": "m", "thw_nb": "s", "far_follower_m": "m", "t_nf_floor_s": "s", "v_lo": "m/s", "v_hi": "m/s"},
             "desired_speed": "the driver's set speed; `laneprint drive` uses the section's limit x the ego "
                              "vType's SUMO speedFactor", "range_m": cfg.range_m, **rule.to_dict()}
 
@@ -236,6 +237,7 @@ assistant therefore also applies this rule (`laneprint drive` does by default;
 {rule['how']}
 
 - patience_s = **{rule['patience_s']:g} s** ({rule['source'].get('patience_s', '')})
+- t_nf_floor_s = {rule['t_nf_floor_s']:.3g} s ({rule['source'].get('t_nf_floor_s', '')})
 - slower_mps = {rule['slower_mps']:g} m/s, far_follower_m = {rule['far_follower_m']:g} m,
   range_m = {rule['range_m']:g} m; desired speed: {rule['desired_speed']}
 

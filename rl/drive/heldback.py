@@ -19,7 +19,9 @@ The same lines also give the assistant a **floor** under every change, the agent
 change is requested into a gap smaller than the smallest the target took (each line's `floor`,
 the 5th percentile of its presses' values; `above_floors`). Out of its world the agent can ask
 for a change no driver of its study made (measured: the shipped study's Aggressive agent, in
-SUMO, returned right with a lead gap of about 1 m, t_nf 0.9 s, and collided).
+SUMO, returned right with a lead gap of about 1 m, t_nf 0.9 s, and collided; the Normal one with
+a lead gap above its floor but t_nf 0.8 s, closing at 13 m/s). The time to collision with the
+target lane's leader has a floor too (`t_nf_floor_s`, the 5th percentile of t_nf at the presses).
 
 Where its numbers come from (`rule_from_analysis`):
 
@@ -85,6 +87,7 @@ class HeldBackRule:
     thw_nb: Line  # [s] the target-lane follower's time headway to the ego
     slower_mps: float = SLOWER_MPS
     far_follower_m: float = FAR_FOLLOWER_M
+    t_nf_floor_s: float = 0.0  # [s] no change closing in on the target lane's leader faster than this
     source: dict[str, str] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
@@ -124,9 +127,14 @@ def accepts(rule: HeldBackRule, scene: Scene, range_m: float) -> np.ndarray:
 
 
 def above_floors(rule: HeldBackRule, scene: Scene, range_m: float) -> np.ndarray:
-    """Whether each scene's target lane has no gap below the smallest the target took (the lines' floors)."""
+    """Whether each scene's target lane has no gap below the smallest the target took (the lines' floors)
+    and no leader there closer in time to collision than the smallest t_nf it took."""
     g = target_gaps(scene, range_m)
-    lead_ok = ~np.isfinite(g["gap_nf"]) | (g["gap_nf"] >= rule.gap_nf.floor)
+    _, nf, _ = seen(scene, range_m)
+    closing = scene.v_e - scene.v_nf
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_nf = np.where(nf & (closing > 0), g["gap_nf"] / closing, np.inf)
+    lead_ok = (~np.isfinite(g["gap_nf"]) | (g["gap_nf"] >= rule.gap_nf.floor)) & (t_nf >= rule.t_nf_floor_s)
     near = np.isfinite(g["gap_nb"]) & (g["gap_nb"] <= rule.far_follower_m)
     thw_ok = ~np.isfinite(g["thw_nb"]) | (g["thw_nb"] >= rule.thw_nb.floor)
     return lead_ok & (~near | ((g["gap_nb"] >= rule.gap_nb.floor) & thw_ok))
@@ -277,6 +285,9 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5) -> Held
 
         decisions = add_acceptance(decisions)
     typ_presses = decisions[(decisions["driver_id"].astype(str) == str(typical)) & (decisions["label"] == "change")]
+    t_nf = typ_presses["t_nf_s"].to_numpy(dtype=float) if "t_nf_s" in typ_presses else np.array([])
+    t_nf = t_nf[np.isfinite(t_nf)]
+    t_nf_floor = float(np.percentile(t_nf, FLOOR_PERCENTILE)) if len(t_nf) else 0.0
     try:
         got = {ind: _line(sel, fits, ind, typical, typ_presses) for ind in ACCEPT_INDICATORS}
     except KeyError as exc:
@@ -285,8 +296,11 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5) -> Held
     mine = decisions[decisions["driver_id"].astype(str).isin(drivers)]
     patience, why = patience_from(mine, step_s)
     source = {k: v[1] for k, v in got.items()} | {"patience_s": f"{why}, {target.label}",
-                                                  "slower_mps": "the analysis's min_closing_mps (1 m/s)"}
-    return HeldBackRule(patience, got["gap_nf"][0], got["gap_nb"][0], got["thw_nb"][0], source=source)
+                                                  "slower_mps": "the analysis's min_closing_mps (1 m/s)",
+                                                  "t_nf_floor_s": f"percentile {FLOOR_PERCENTILE:g} of t_nf at "
+                                                                  f"{len(t_nf)} presses of {typical}"}
+    return HeldBackRule(patience, got["gap_nf"][0], got["gap_nb"][0], got["thw_nb"][0], t_nf_floor_s=t_nf_floor,
+                        source=source)
 
 
 # --- measured in the closed loop ---------------------------------------------------------------

@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 
 from laneprint.simulator.sumo.traffic import VehicleState
-from rl.drive.heldback import (DEFAULT_PATIENCE_S, FollowStats, HeldBackRule, Line, accepts, following_before_press,
-                               patience_from, rule_target)
+from rl.drive.heldback import (DEFAULT_PATIENCE_S, FollowStats, HeldBackRule, Line, above_floors, accepts,
+                               following_before_press, patience_from, rule_target)
 from rl.drive.loop import AgentControl, Watch, live_scene
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
@@ -232,3 +232,12 @@ def test_no_change_of_the_agent_into_a_gap_below_the_targets_floor():
                 control.step(api, 0.1 * i, ego, 0.0, {"nf": cut_in})
             assert len(api.vehicle.requests) == (n if use_rule else 1)  # the pure agent has no floor
             assert control.n_gated == (1 - n if use_rule else 0)
+
+
+def test_no_change_closing_on_the_target_leader_faster_than_the_floor():
+    rule = HeldBackRule(5.0, Line(0.0, 30.0, floor=8.0), Line(0.0, 30.0, floor=6.0), Line(0.0, 3.0, floor=0.75),
+                        t_nf_floor_s=1.5)
+    ego = VehicleState(100.0, 23.0, 1, 4.5)
+    fast_close = live_scene(ego, {"r": VehicleState(115.0, 10.0, 0, 4.5)}, 0)[0]  # 10.5 m, t_nf 0.8 s
+    slow_close = live_scene(ego, {"r": VehicleState(115.0, 20.0, 0, 4.5)}, 0)[0]  # 10.5 m, t_nf 3.5 s
+    assert not above_floors(rule, fast_close, 150.0)[0] and above_floors(rule, slow_close, 150.0)[0]
