@@ -21,6 +21,7 @@ Run on an analysed workspace (`laneprint ingest sample_logs -w WS && laneprint a
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -42,28 +43,42 @@ from rl.personalize.curve import ALL, CurveSettings, driver_curve  # noqa: E402
 from clustering.pipeline import stored_settings  # noqa: E402
 from rl.problem.env import formulation_config  # noqa: E402
 from rl.problem.rewards import ReferenceLines  # noqa: E402
-from rl.settings import DQNSettings  # noqa: E402
+from rl.settings import OBSERVATIONS, DQNSettings, resolve_formulation  # noqa: E402
 
 #: The K-decision policies the personalised agent must match (the issue's list).
 RIVALS = ("style", "scratch", "imitation_k", "imitation_pop_k")
 
 
 def parse_variants(spec: str) -> dict[str, PersonalizeSettings]:
-    """'finetune:population,mix:style' -> {'personalised': ..., 'personalised[mix/style]': ...} (first = headline)."""
+    """'finetune:style,finetune:population:min_episodes=2000;eps_start=0.3' -> {'personalised': ...,
+    'personalised[finetune/population min_episodes=2000 eps_start=0.3]': ...} (the first is the headline).
+
+    Each variant is METHOD:BASE, then optionally ':' and `PersonalizeSettings` fields as NAME=VALUE;...
+    """
     out = {}
     for i, part in enumerate(p for p in spec.split(",") if p):
-        method, _, base = part.partition(":")
-        name = "personalised" if i == 0 else f"personalised[{method}/{base or 'population'}]"
-        out[name] = PersonalizeSettings(method=method, base=base or "population")
+        method, _, rest = part.partition(":")
+        base, _, opts = rest.partition(":")
+        fields = {f.name: f.type for f in dataclasses.fields(PersonalizeSettings)}
+        extra: dict[str, Any] = {}
+        for opt in (o for o in opts.split(";") if o):
+            key, _, value = opt.partition("=")
+            if key not in fields:
+                raise SystemExit(f"--variants: no setting {key!r} (settings: {', '.join(fields)})")
+            extra[key] = {"int": int, "float": float}.get(str(fields[key]), str)(value)
+        label = f"{method}/{base or 'population'}" + "".join(f" {o}" for o in opts.split(";") if o)
+        out["personalised" if i == 0 else f"personalised[{label}]"] = \
+            PersonalizeSettings(method=method, base=base or "population", **extra)
     return out
 
 
 def one_driver(args: tuple) -> dict[str, Any]:
     """One held-out driver's curve (a process of its own with --jobs)."""
-    ws_root, driver, others, episodes, seed, ks, variants, test_sessions = args
+    ws_root, driver, others, episodes, seed, ks, variants, test_sessions, obs = args
     ws = Workspace(ws_root)
     decisions = ws.read_table("analysis", "decisions")
-    env = formulation_config(ReferenceLines.paper("Normal"), "decisions")  # lines feed no policy scored here
+    # the lines feed no policy scored here; the observation is the 'decisions' reward's default unless named
+    env = formulation_config(ReferenceLines.paper("Normal"), "decisions", observation=obs)
     dqn = DQNSettings(seed=seed, **({"episodes": episodes} if episodes else {}))
     t0 = time.perf_counter()
     res = driver_curve(decisions, driver, others, env, dqn,
@@ -168,6 +183,8 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=None, help="cap on every agent's episodes (default: the trainer's)")
     ap.add_argument("--variants", default="finetune:style",
                     help="personalised agents, METHOD:BASE,... (the first is 'personalised')")
+    ap.add_argument("--observation", default=None, choices=OBSERVATIONS,
+                    help="what every agent and classifier sees (default: the 'decisions' reward's own)")
     ap.add_argument("--test-sessions", type=int, default=1, help="the driver's last sessions, held out")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--bootstrap", type=int, default=1000)
@@ -190,9 +207,10 @@ def main() -> None:
     ks = tuple(ALL if k == "all" else int(k) for k in a.k.split(","))
     variants = parse_variants(a.variants)
     jobs = [(str(a.workspace), d, [o for o in everyone if o != d], a.episodes, a.seed, ks, variants,
-             a.test_sessions) for d in held]
+             a.test_sessions, a.observation) for d in held]
+    observation = resolve_formulation("decisions", None, a.observation)[2]
     print(f"personalise: {len(held)} held-out driver(s) of {len(everyone)}, K = {a.k}, episodes cap "
-          f"{a.episodes or 'default'}, variants {a.variants}, seed {a.seed}", flush=True)
+          f"{a.episodes or 'default'}, variants {a.variants}, observation {observation}, seed {a.seed}", flush=True)
     t0 = time.perf_counter()
     results = []
     if a.jobs > 1:
@@ -239,8 +257,10 @@ def main() -> None:
     out = a.out or a.workspace / "benchmarks"
     out.mkdir(parents=True, exist_ok=True)
     tab.to_csv(out / "curve.csv", index=False)
+    states.to_pickle(out / "states.pkl")  # every policy's held-out states, per driver and K (for per-driver looks)
+    changes.to_pickle(out / "changes.pkl")
     (out / "curve.json").write_text(json.dumps({
-        "args": {k: str(v) for k, v in vars(a).items()}, "drivers": held,
+        "args": {k: str(v) for k, v in vars(a).items()}, "drivers": held, "observation": observation,
         "table": tab.replace({np.nan: None}).to_dict("records"), "styles": assigned.to_dict("records"),
         "acceptance": acceptance(tab), "wall_s": time.perf_counter() - t0}, indent=2, default=str))
     plot(tab, out / "curve.html", f"personalisation learning curve: {a.workspace.name}, {len(held)} drivers")

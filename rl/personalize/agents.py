@@ -19,21 +19,27 @@ import torch
 
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
+from rl.evaluation.evaluate import Policy
 from rl.learners.dqn import DQNTrainer
 from rl.problem.env import Approach, EnvConfig
+from rl.problem.rewards import CHANGE
+from rl.problem.scene import Scene
 from rl.settings import DQNSettings
 
-BASES: tuple[str, ...] = ("style", "population")
-METHODS: tuple[str, ...] = ("finetune", "mix", "own")
+BASES: tuple[str, ...] = ("style", "population", "auto", "fit")
+METHODS: tuple[str, ...] = ("finetune", "mix", "own", "none")
 
 
 @dataclass(frozen=True)
 class PersonalizeSettings:
     """How a driver's agent is made from the base agent and its first K decisions."""
 
-    base: str = "style"  # whose agent is the prior: 'style' (the assigned style's members) or 'population'
+    base: str = "style"  # whose agent is the prior: 'style' (the assigned style's members), 'population'
+    # (every other driver), 'auto' (the style's when its confidence is at least `min_confidence`, else the
+    # population's) or 'fit' (of every style's agent and the population's, the one that agrees best with the K decisions)
+    min_confidence: float = 0.8  # 'auto': the bootstrap share of the assigned style that trusts it
     method: str = "finetune"  # 'finetune': base weights, then the mix replayed; 'mix': the mix from scratch;
-    # 'own': base weights, then the driver's approaches alone
+    # 'own': base weights, then the driver's approaches alone; 'none': the base agent as it is
     driver_share: float = 0.5  # share of the replayed states that are the driver's (finetune, mix)
     episodes_per_decision: float = 60.0  # fine-tuning episodes per decision of the driver ...
     min_episodes: int = 600  # ... within [min_episodes, max_episodes]
@@ -50,6 +56,12 @@ class PersonalizeSettings:
             raise UserError(f"unknown method {self.method!r}: choose one of {', '.join(METHODS)}")
         if not 0.0 < self.driver_share <= 1.0:
             raise UserError(f"driver_share must be in (0, 1], got {self.driver_share}")
+
+    def base_for(self, confidence: float) -> str:
+        """'style' or 'population': the base used for a style assigned with `confidence`."""
+        if self.base != "auto":
+            return self.base
+        return "style" if confidence >= self.min_confidence else "population"
 
     def finetune_episodes(self, k: int) -> int:
         return int(min(self.max_episodes, max(self.min_episodes, round(self.episodes_per_decision * k))))
@@ -107,6 +119,22 @@ def personalised_agent(base_weights: dict[str, torch.Tensor] | None, base: list[
     data = own if ps.method == "own" else mixed(base, own, ps.driver_share)
     return train_agent(data, env, finetune_settings(dqn, ps, len(own), episodes), base_weights, progress,
                        "personalised", on_episode)
+
+
+def agreement(policy: Policy, approaches: list[Approach]) -> float:
+    """Balanced accuracy of `policy` on the recorded states of `approaches` (press vs not yet)."""
+    scene = Scene.concat([a.scene for a in approaches])
+    y = np.concatenate([np.r_[np.zeros(len(a) - 1, bool), True] for a in approaches])
+    said = np.asarray(policy(scene)) == CHANGE
+    recall = said[y].mean() if y.any() else 0.5
+    spec = (~said[~y]).mean() if (~y).any() else 0.5
+    return float((recall + spec) / 2)
+
+
+def best_fit(fits: dict[str, float], shares: dict[str, float]) -> str:
+    """The base whose agent agrees best with the driver's decisions (`fits`: base -> `agreement`);
+    ties go to the larger bootstrap share of the style (`shares`; the population has none, so it comes last)."""
+    return max(fits, key=lambda b: (round(fits[b], 9), shares.get(b, -1.0)))
 
 
 def weights_of(trainer: DQNTrainer) -> dict[str, torch.Tensor]:

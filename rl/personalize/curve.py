@@ -25,7 +25,8 @@ from indicators.settings import AnalysisSettings
 from laneprint.progress import ProgressFn
 from rl.baselines.imitation import ImitationClassifier
 from rl.evaluation.evaluate import agent_policy, evaluate_policies
-from rl.personalize.agents import PersonalizeSettings, base_seed, personalised_agent, train_agent, weights_of
+from rl.personalize.agents import (PersonalizeSettings, agreement, base_seed, best_fit, personalised_agent, train_agent,
+                                   weights_of)
 from rl.personalize.split import driver_rows, first_decisions, holdout_split
 from rl.personalize.style import estimate_style, fit_population
 from rl.problem.env import EnvConfig, approaches_from_decisions
@@ -64,6 +65,18 @@ def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: E
     pop_agent = train_agent(pop_app, env, base_dqn, progress=progress, label=f"{driver}: population")
     agents = {"population": (weights_of(pop_agent), pop_app)}
     n_train = train_rows.loc[train_rows["label"] == "change", "decision_id"].nunique()
+    need_all = any(ps.base == "fit" for ps in settings.variants.values())
+
+    def style_agent(style: str) -> tuple[dict, list]:
+        """The agent of `style`'s members (trained once per held-out driver)."""
+        key = f"style:{style}"
+        if key not in agents:
+            members = pop.members[style]
+            app, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(members)])
+            trainer = train_agent(app, env, base_dqn, progress=progress, label=f"{driver}: style {style}")
+            agents[key] = (weights_of(trainer), app)
+        return agents[key]
+
     states, changes, style_rows = [], [], []
     for k in settings.ks:
         kk = None if k == ALL or k >= n_train else k
@@ -71,14 +84,21 @@ def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: E
         own_app, _ = approaches_from_decisions(own_rows)
         est = estimate_style(pop, own_rows, PersonalizeSettings().n_bootstrap, settings.seed)
         style_key = f"style:{est.style}"
-        if style_key not in agents:
-            members = pop.members[est.style]
-            app, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(members)])
-            trainer = train_agent(app, env, base_dqn, progress=progress, label=f"{driver}: style {est.style}")
-            agents[style_key] = (weights_of(trainer), app)
+        style_agent(est.style)
+        fits = {}
+        if need_all:
+            fits = {f"style:{s}": agreement(_policy_of(style_agent(s)[0], env, dqn), own_app)
+                    for s in pop.members if pop.members[s]}
+            fits["population"] = agreement(_policy_of(agents["population"][0], env, dqn), own_app)
+        fit_key = best_fit(fits, {f"style:{s}": v for s, v in est.bootstrap.items()}) if fits else style_key
         policies = {}
         for name, ps in settings.variants.items():
-            w, base_app = agents["population" if ps.base == "population" else style_key]
+            base_key = fit_key if ps.base == "fit" else \
+                "population" if ps.base_for(est.confidence) == "population" else style_key
+            w, base_app = agents[base_key]
+            if ps.method == "none":
+                policies[name] = _policy_of(w, env, dqn)
+                continue
             eps = None if ps.method == "mix" else min(dqn.episodes, ps.finetune_episodes(len(own_app)))
             trainer = personalised_agent(w, base_app, own_app, env, dqn, ps, episodes=eps, progress=progress)
             policies[name] = agent_policy(trainer.policy_net, env)
@@ -97,7 +117,8 @@ def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: E
             frame.insert(0, "driver", driver)
             out.append(frame)
         style_rows.append({"driver": driver, "k": _k_label(k), "n_decisions": len(own_app), "style": est.style,
-                           "confidence": est.confidence, "posterior": est.posterior[est.style]})
+                           "confidence": est.confidence, "posterior": est.posterior[est.style],
+                           "fit_base": fit_key if fits else None, **{f"fit[{b}]": v for b, v in fits.items()}})
     return {"states": pd.concat(states, ignore_index=True), "changes": pd.concat(changes, ignore_index=True),
             "styles": pd.DataFrame(style_rows), "n_test_decisions": len(test_app)}
 

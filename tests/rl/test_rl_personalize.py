@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.util
 import json
 
+import numpy as np
 import pandas as pd
 import pytest
 import torch
@@ -138,3 +139,36 @@ def test_errors_are_one_line(study: Workspace, args: list[str], message: str) ->
 def test_no_analysis_is_one_line(tmp_path) -> None:
     res = _run(Workspace(tmp_path), "--driver", "D01")
     assert res.exit_code == 1 and res.stderr.strip() == f"error: no analysis in {tmp_path}: run `laneprint analyze` first"
+
+
+def test_agreement_is_the_balanced_accuracy_on_the_recorded_states() -> None:
+    from rl.personalize.agents import agreement, best_fit
+    from rl.problem.env import approaches_from_decisions
+    from rl.problem.rewards import CHANGE, KEEP
+
+    approaches, _ = approaches_from_decisions(_decisions().query("driver_id == 'D01'"))
+    always, never = (lambda s: np.full(len(s), CHANGE)), (lambda s: np.full(len(s), KEEP))
+    assert agreement(always, approaches) == agreement(never, approaches) == 0.5
+    assert best_fit({"style:A": 0.7, "style:B": 0.8, "population": 0.75}, {"style:A": 0.9, "style:B": 0.1}) == "style:B"
+    # a tie goes to the style the bootstrap gives most, the population last
+    assert best_fit({"style:A": 0.8, "style:B": 0.8, "population": 0.8}, {"style:A": 0.3, "style:B": 0.7}) == "style:B"
+
+
+def test_the_curve_scores_every_policy_and_the_fitted_base(study: Workspace) -> None:
+    from rl.personalize.agents import PersonalizeSettings
+    from rl.personalize.curve import ALL, CurveSettings, driver_curve
+    from rl.problem.env import formulation_config
+    from rl.settings import DQNSettings
+
+    dec = study.read_table("analysis", "decisions")
+    env = formulation_config(ReferenceLines.paper("Normal"), "decisions")
+    dqn = DQNSettings(seed=0, episodes=60, episodes_per_approach=0.0, num_envs=8, batch_size=64, learning_starts=100)
+    variants = {"personalised": PersonalizeSettings(base="fit", min_episodes=30, max_episodes=40),
+                "as is": PersonalizeSettings(base="fit", method="none")}
+    res = driver_curve(dec, "D05", ["D01", "D02", "D03", "D04", "D06"], env, dqn,
+                       CurveSettings(ks=(3, ALL), variants=variants), stored_settings(study))
+    cols = {c for c in res["states"].columns if c.startswith("action_")}
+    assert {f"action_{p}" for p in ("personalised", "as is", "style", "population", "scratch", "imitation_k",
+                                    "imitation_pop_k")} <= cols
+    assert list(res["styles"]["k"]) == ["3", "all"]
+    assert res["styles"]["fit_base"].str.match(r"style:|population").all()
