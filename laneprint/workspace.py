@@ -48,7 +48,7 @@ from laneprint.schemas import EGO, RECORDINGS, REJECTED, TRAFFIC, Schema, valida
 
 DEFAULT_WORKSPACE = Path("workspace")
 TMP_SUFFIX = ".tmp"  # temporary files of atomic_write_bytes: `.<name>.<random>.tmp` beside the target
-_TRAFFIC_DICT_COLUMNS = ("vehicle_id", "lane")
+_TRAFFIC_DICT_COLUMNS = ("lane",)  # vehicle_id plain: its dictionary cost 6 of 44 ms of the write for 3 % of size
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
