@@ -190,19 +190,19 @@ def rule_target(rule: HeldBackRule, scenes: dict[int, Scene], held_for_s: float,
 
 @dataclass(frozen=True)
 class LeftBehind:
-    """The lane a rule's change left and the leader the ego followed there."""
+    """The lane an overtaking left (a change to the left from behind a leader) and that leader."""
 
     lane: int
     leader_id: str
 
-    def passed(self, ego_x: float, others: dict[str, Any]) -> bool:
-        """The ego has passed that leader (its centre behind the ego's) or no longer sees it."""
+    def passed(self, ego_x: float, others: dict[str, Any], range_m: float) -> bool:
+        """The ego has passed that leader (its centre behind the ego's), or it is out of sight."""
         st = others.get(self.leader_id)
-        return st is None or st.x < ego_x
+        return st is None or st.x < ego_x or st.x - ego_x > range_m
 
-    def vetoes(self, target: int, ego_x: float, others: dict[str, Any]) -> bool:
+    def vetoes(self, target: int, ego_x: float, others: dict[str, Any], range_m: float) -> bool:
         """A change to `target` would return behind the leader not yet passed."""
-        return target == self.lane and not self.passed(ego_x, others)
+        return target == self.lane and not self.passed(ego_x, others, range_m)
 
 
 # --- from the analysis --------------------------------------------------------------------

@@ -129,7 +129,7 @@ class Decision:
     started: bool = False  # a lane change started within dt_s after it
     press_t_s: Optional[float] = None
     advantages: dict[str, float] = field(default_factory=dict)  # side ('left'/'right') -> Q(change) - Q(keep)
-    source: str = "agent"  # who asked for it: 'agent', or 'rule' (the held-back rule, `rl.drive.heldback`)
+    source: str = "agent"  # who asked: 'agent'; 'rule' (held back) or 'return' (an overtaking completed), `rl.drive.heldback`
 
 
 class Watch:
@@ -217,20 +217,7 @@ class AgentControl(Watch):
         adv = dict(zip(lanes, advantages(self.q(Scene.concat([asked[k][0] for k in lanes])))))
         self.n_asked += 1
         self.record(asked, held, held_for, max(adv.values()))
-        target, source = choose_side(adv), "agent"
-        lb = self.left_behind
-        if lb is not None and (ego.lane == lb.lane or lb.passed(ego.x, others)):
-            lb = self.left_behind = None  # back in that lane (not by the agent's choice now) or overtaken
-        if target is not None and lb is not None and lb.vetoes(target, ego.x, others):
-            self.n_vetoed += 1
-            target = None
-        if target is not None and self.use_rule and not above_floors(self.rule, asked[target][0],
-                                                                     self.cfg.range_m)[0]:
-            self.n_gated += 1
-            target = None
-        if target is None and self.use_rule and held:
-            target, source = rule_target(self.rule, {k: sc for k, (sc, _) in asked.items()}, held_for,
-                                         self.cfg.range_m), "rule"
+        target, source = self.assist(choose_side(adv), asked, held, held_for, ego, others)
         if target is None:
             return
         scene, ids = asked[target]
@@ -239,9 +226,36 @@ class AgentControl(Watch):
                                        _defined(ind.t_nf, ind.t_nf_ok), _defined(ind.dv_nb, ind.dv_nb_ok), ids,
                                        advantages={("left" if k > ego.lane else "right"): float(a)
                                                    for k, a in adv.items()}, source=source))
-        if source == "rule" and ids.get("f") is not None:
-            self.left_behind = LeftBehind(ego.lane, str(ids["f"]))
+        if self.use_rule:  # an overtaking (to the left, from behind a leader) is followed until complete
+            self.left_behind = (LeftBehind(ego.lane, str(ids["f"])) if target > ego.lane and ids.get("f") is not None
+                                else None)
         api.vehicle.changeLane(EGO_ID, target, self.cfg.dt_s)
+
+    def assist(self, agent: Optional[int], asked: dict[int, tuple[Scene, dict[str, Any]]], held: bool,
+               held_for: float, ego: VehicleState, others: dict[str, VehicleState]) -> tuple[Optional[int], str]:
+        """(lane to request or None, who asks): the agent's choice unless it returns behind the leader an
+        overtaking left (vetoed) or takes a gap below the target's floors (gated); else the overtaking's
+        return once that leader is passed and the lane left holds an accepted gap; else the held-back rule."""
+        if not self.use_rule:
+            return agent, "agent"
+        r, lb = self.cfg.range_m, self.left_behind
+        if lb is not None and abs(ego.lane - lb.lane) != 1:
+            lb = self.left_behind = None  # back in that lane, or moved on: nothing to complete
+        if agent is not None and lb is not None and lb.vetoes(agent, ego.x, others, r):
+            self.n_vetoed += 1
+            agent = None
+        if agent is not None and not above_floors(self.rule, asked[agent][0], r)[0]:
+            self.n_gated += 1
+            agent = None
+        if agent is not None:
+            return agent, "agent"
+        if lb is not None and lb.lane in asked and lb.passed(ego.x, others, r):
+            back = asked[lb.lane][0]
+            if accepts(self.rule, back, r)[0] and above_floors(self.rule, back, r)[0]:
+                return lb.lane, "return"
+        if held:
+            return rule_target(self.rule, {k: sc for k, (sc, _) in asked.items()}, held_for, r), "rule"
+        return None, "agent"
 
 
 def _defined(x: np.ndarray, ok: np.ndarray) -> Optional[float]:

@@ -130,7 +130,8 @@ def section_row(d: SectionDrive) -> dict[str, Any]:
         "decisions_asked": d.n_asked, "change_decisions": len(d.decisions), "lane_changes": len(made),
         "left": sum(c["direction"] == "left" for c in made), "right": sum(c["direction"] == "right" for c in made),
         "agent_changes": sum(x.source == "agent" for x in started),
-        "rule_changes": sum(x.source == "rule" for x in started),
+        "rule_changes": sum(x.source in ("rule", "return") for x in started),  # returns: an overtaking completed
+        "return_changes": sum(x.source == "return" for x in started),
         "not_started": sum(not x.started for x in d.decisions),
         "collisions": d.log.n_collisions, "emergency_brakes": d.log.n_emergency_brakes,
         "changes_by_lane": dict(sorted(by_lane.items())), "follow": d.follow,
@@ -143,7 +144,7 @@ def section_rows(drives: list[SectionDrive], paths: list[Path]) -> list[dict[str
 
 
 _COUNTS = ("decisions_asked", "change_decisions", "lane_changes", "left", "right", "agent_changes", "rule_changes",
-           "not_started", "collisions", "emergency_brakes")
+           "return_changes", "not_started", "collisions", "emergency_brakes")
 
 
 def totals(rows: list[dict[str, Any]]) -> dict[str, Any]:

@@ -241,3 +241,19 @@ def test_no_change_closing_on_the_target_leader_faster_than_the_floor():
     fast_close = live_scene(ego, {"r": VehicleState(115.0, 10.0, 0, 4.5)}, 0)[0]  # 10.5 m, t_nf 0.8 s
     slow_close = live_scene(ego, {"r": VehicleState(115.0, 20.0, 0, 4.5)}, 0)[0]  # 10.5 m, t_nf 3.5 s
     assert not above_floors(rule, fast_close, 150.0)[0] and above_floors(rule, slow_close, 150.0)[0]
+
+
+def test_the_rule_completes_an_overtaking_once_the_leader_is_passed():
+    control = AgentControl(_never_changes, EnvConfig(observation="indicators"), 0.1, 2, _rule(), DESIRED, True)
+    api = _Api()
+    for i in range(55):  # held 5 s behind the truck: the rule changes left
+        control.step(api, 0.1 * i, VehicleState(100.0 + 2.0 * i, 20.0, 0, 4.5), 0.0,
+                     {"f": VehicleState(130.0 + 2.0 * i, 20.0, 0, 12.0)})
+    assert api.vehicle.requests == [("ego", 1, 0.5)]
+    for k, (ego_x, truck_x) in enumerate(((230.0, 250.0), (300.0, 280.0), (400.0, 300.0))):
+        for i in range(5):  # alongside, just passed (lag gap 11.75 m < 30 m), then far ahead (91.75 m)
+            control.step(api, 6.0 + k + 0.1 * i, VehicleState(ego_x, 25.0, 1, 4.5), 0.0,
+                         {"f": VehicleState(truck_x, 20.0, 0, 12.0)})
+        assert len(api.vehicle.requests) == (1 if k < 2 else 2)
+    assert api.vehicle.requests[-1] == ("ego", 0, 0.5) and control.decisions[-1].source == "return"
+    assert control.left_behind is None
