@@ -73,9 +73,9 @@ def _parse(cls: Any, buf: bytes, body: int, end: int) -> Any:
     return cls.read(ReadDataStream(io.BytesIO(buf[body:end])))
 
 
-def _inflate(compression: str, raw: bytes, size: int) -> bytes:
+def _inflate(compression: str, raw: memoryview, size: int) -> bytes:
     if compression == "":
-        return raw
+        return bytes(raw)
     if compression == "zstd":
         import zstandard
         return zstandard.ZstdDecompressor().decompress(raw, max_output_size=size)
@@ -178,7 +178,7 @@ def read_records(data: bytes, heads: list[tuple[int, int, int]] | None = None) -
             start = at + clen + 8
             if start + rlen > end:
                 raise Unreadable("chunk records past the chunk")
-            inner = _inflate(compression, data[start:start + rlen], size)
+            inner = _inflate(compression, memoryview(data)[start:start + rlen], size)  # no copy of the input
             if len(inner) != size:
                 raise Unreadable("chunk size")
             _walk(inner, 0, len(inner), got, msgs)
