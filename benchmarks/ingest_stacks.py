@@ -55,13 +55,13 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--vehicles", type=int, default=20)
-    ap.add_argument("--baseline", metavar="REV", help="also time the ingest of this git revision (before/after)")
+    ap.add_argument("--baseline", metavar="REV", help="also time the ingest (and store) of this git revision (before/after)")
     ap.add_argument("--files", default="json,ros2,protobuf", help="comma-separated subset of json,ros2,protobuf")
     args = ap.parse_args()
     meta, ego, traffic = bench_ingest.make_recording(args.minutes, args.vehicles)
     meta = {**meta, "session_id": "bench"}
     tmp = Path(tempfile.mkdtemp(prefix="lp-bench-stacks-"))
-    base_ingest = bench_ingest.load_baseline(args.baseline, tmp / "base") if args.baseline else None
+    base = bench_ingest.load_baseline(args.baseline, tmp / "base") if args.baseline else None
     try:
         (tmp / "ros2.toml").write_text(ROS2_MAPPING)
         (tmp / "protobuf.toml").write_text(PROTOBUF_MAPPING)
@@ -79,9 +79,9 @@ def main() -> None:
         for name, (path, _, mapping) in files.items():
             data = path.read_bytes()
 
-            def full(p=path, m=mapping, run=ingest_paths) -> None:
+            def full(p=path, m=mapping, run=ingest_paths, store=Workspace) -> None:
                 k[0] += 1
-                ws = Workspace(tmp / f"ws{k[0]}")
+                ws = store(tmp / f"ws{k[0]}")
                 rep = run([p], ws, mapping=m)
                 assert rep.files[0].status in ("ingested", "warning"), rep.files[0].reason
                 shutil.rmtree(ws.root)
@@ -90,8 +90,8 @@ def main() -> None:
             if name == "ros2 cdr":
                 fns["floor, laneprint's CDR decoder"] = lambda d=data: floor(d, FastRos2DecoderFactory)
             fns["ingest (stored)"] = full
-            if base_ingest is not None:
-                fns[f"ingest (stored), {args.baseline}"] = lambda p=path, m=mapping: full(p, m, base_ingest)
+            if base is not None:
+                fns[f"ingest (stored), {args.baseline}"] = lambda p=path, m=mapping: full(p, m, *base)
             times = bench_ingest.interleaved(list(fns.values()), args.reps)
             for label, (wall, cpu) in zip(fns, times):
                 print(f"{name:10} {label:34} {wall:8.2f} {cpu:7.2f} {len(ego) / cpu:16,.0f} {times[0][1] / cpu:17.2f}")
