@@ -15,11 +15,9 @@ failure is turned into a one-line reason with the byte offset (`Rejected`).
 from __future__ import annotations
 
 import io
-import operator
 import struct
 from typing import Any
 
-import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
@@ -86,25 +84,13 @@ def _inflate(compression: str, raw: memoryview, size: int) -> bytes:
 
 
 class _Messages:
-    """Message records as three flat lists, grouped by channel once at the end (in C, not per message)."""
+    """Message records grouped by channel id as the walk meets them: (log times, payloads) per channel."""
 
     def __init__(self) -> None:
-        self.cids: list[int] = []
-        self.times: list[int] = []
-        self.datas: list[bytes] = []
+        self.by_channel: dict[int, tuple[list[int], list[bytes]]] = {}
 
     def into(self, got: Collected) -> None:
-        if not self.cids:
-            return
-        cids = np.asarray(self.cids, dtype=np.int64)
-        order = np.argsort(cids, kind="stable")
-        bounds = np.flatnonzero(np.diff(cids[order])) + 1
-        for idx in np.split(order, bounds):
-            cid = int(cids[idx[0]])
-            pick = operator.itemgetter(*idx.tolist())
-            times, datas = pick(self.times), pick(self.datas)
-            if len(idx) == 1:
-                times, datas = (times,), (datas,)
+        for cid, (times, datas) in self.by_channel.items():
             got.times.setdefault(cid, []).extend(times)
             got.datas.setdefault(cid, []).extend(datas)
 
@@ -112,7 +98,7 @@ class _Messages:
 def _walk(buf: bytes, pos: int, stop: int, got: Collected, msgs: _Messages) -> None:
     """Read the messages, channels and schemas in buf[pos:stop] (a chunk's records, or one top-level record)."""
     rec, head = _REC.unpack_from, _HEAD.unpack_from
-    add_cid, add_time, add_data = msgs.cids.append, msgs.times.append, msgs.datas.append
+    by_channel = msgs.by_channel
     while pos < stop:
         try:  # a message's header with its record's: one call per message
             op, length, cid, log_time = rec(buf, pos)
@@ -126,9 +112,11 @@ def _walk(buf: bytes, pos: int, stop: int, got: Collected, msgs: _Messages) -> N
         if op == _OP_MESSAGE:
             if length < _MSG_FIXED:
                 raise Unreadable("short message")
-            add_cid(cid)
-            add_time(log_time)
-            add_data(buf[body + _MSG_FIXED:end])
+            lists = by_channel.get(cid)  # a dict look-up per message: cheaper than grouping afterwards
+            if lists is None:
+                lists = by_channel[cid] = ([], [])
+            lists[0].append(log_time)
+            lists[1].append(buf[body + _MSG_FIXED:end])
         elif op == _OP_CHANNEL:
             got.take(_parse(Channel, buf, body, end))
         elif op == _OP_SCHEMA:
