@@ -85,7 +85,8 @@ def make_recording(minutes: float, n_vehicles: int, hz: int = 50, seed: int = 0)
 
 
 def interleaved(fns, reps: int) -> list[tuple[float, float]]:
-    """(median wall, median CPU) seconds of each function, run in turn `reps` times after a warm-up.
+    """(median wall, median CPU) seconds of each function, run in turn `reps` times after a warm-up
+    (in the listed order, then the reverse order, alternately).
 
     CPU time (all threads of this process) is less disturbed by other load on the machine.
     """
@@ -93,8 +94,10 @@ def interleaved(fns, reps: int) -> list[tuple[float, float]]:
         fn()
     wall: list[list[float]] = [[] for _ in fns]
     cpu: list[list[float]] = [[] for _ in fns]
-    for _ in range(reps):
-        for i, fn in enumerate(fns):
+    for r in range(reps):
+        # forwards, then backwards: no function always runs right after the same one
+        for i in (range(len(fns)) if r % 2 == 0 else reversed(range(len(fns)))):
+            fn = fns[i]
             t0, c0 = time.perf_counter(), time.process_time()
             fn()
             wall[i].append(time.perf_counter() - t0)
