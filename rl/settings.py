@@ -19,7 +19,7 @@ DEFAULT_REWARD = "decisions"
 #: `decisions` is paid by recorded presses; `timing` and `paper` are the study's
 #: formulation (synthetic scenes, the 8-value state) as the first sessions measured it.
 FORMULATIONS: dict[str, tuple[str, str]] = {
-    "decisions": ("recorded", "indicators"),
+    "decisions": ("recorded", "acceptance"),
     "timing": ("synthetic", "paper"),
     "paper": ("synthetic", "paper"),
 }

@@ -30,7 +30,7 @@ from rl.learners.dqn import (EpisodeStats, average_due, episode_row, episode_sta
                     load_episode_state)
 from rl.problem.env import Approach, EnvConfig, make_vec_env, observation_names, replayed_approaches
 from rl.fleet.envs import stack_envs
-from rl.problem.rewards import TERMS
+from rl.problem.rewards import KEEP, TERMS
 from rl.settings import DQNSettings
 
 #: Settings that must be equal across a fleet (they fix tensor shapes or the shared update).
@@ -255,6 +255,8 @@ class FleetTrainer:
         obs = self._obs
         with torch.inference_mode():
             greedy = batched.forward(self.q, torch.from_numpy(obs)).argmax(dim=2).numpy()
+        starts = np.array([a.settings.learning_starts for a in self.agents])
+        greedy[self.buffer.filled_all() < starts] = KEEP  # untrained: keep, as DQNTrainer
         epsilons = [a.epsilon() for a in self.agents]
         actions = np.empty(greedy.shape, np.int64)
         for j, a in enumerate(self.agents):
@@ -273,7 +275,6 @@ class FleetTrainer:
             self._terms[k] += out["terms"][k]
         self.env_steps += n * len(self.agents)
         # 3. learn: agents whose memory holds `learning_starts` transitions
-        starts = np.array([a.settings.learning_starts for a in self.agents])
         learning = self.buffer.filled_all() >= starts
         if learning.any():
             for _ in range(s0.gradient_steps):

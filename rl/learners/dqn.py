@@ -40,7 +40,7 @@ import torch
 from torch import nn
 
 from rl.problem.env import Approach, EnvConfig, make_vec_env, observation_names, replayed_approaches
-from rl.problem.rewards import CHANGE, TERMS
+from rl.problem.rewards import CHANGE, KEEP, TERMS
 from rl.settings import DQNSettings
 
 __all__ = ["DQNSettings", "DQNTrainer", "ReplayBuffer", "greedy_actions", "q_network", "q_values"]
@@ -325,8 +325,13 @@ class DQNTrainer:
                 break
             # 1. act: epsilon-greedy over the N environments
             eps = self.epsilon()
-            with torch.no_grad():
-                actions = mlp_forward(self._params, torch.from_numpy(self.obs)).argmax(dim=1).numpy()
+            if len(self.buffer) < s.learning_starts:
+                # an untrained network's argmax is arbitrary (with some observations it says 'change'
+                # almost everywhere and ends every episode at once): keep, as the learning check assumes
+                actions = np.full(n, KEEP)
+            else:
+                with torch.no_grad():
+                    actions = mlp_forward(self._params, torch.from_numpy(self.obs)).argmax(dim=1).numpy()
             explore = self.rng.random(n) < eps
             actions = np.where(explore, self.rng.integers(0, 2, n), actions)
             # 2. step, store (bootstrapping through truncation: store the true last observation)

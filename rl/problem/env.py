@@ -90,7 +90,8 @@ class EnvConfig:
     end_at_leader: bool = True  # terminate when the ego reaches C_f without changing
     scenes: str = "synthetic"  # 'synthetic' (drawn from the ranges above) or 'recorded' (replayed approaches)
     replay_late_s: float = 10.0  # recorded scenes: after the press, an approach runs on at most this long [s]
-    observation: str = "paper"  # 'paper' (8 values) or 'indicators' (the 8 + t_f, t_nf, dv_nb and their flags)
+    observation: str = "paper"  # 'paper' (8 values), 'indicators' (the 8 + t_f, t_nf, dv_nb and their flags),
+    # 'direction' (indicators + the target lane's side), 'acceptance' (indicators + gaps and time headways)
     other_side: bool = True  # recorded scenes: also replay the side a middle-lane driver did not take, as
     # approaches without a press (`Approach.other`; no effect on two lanes); False = only the driver's side
     reward: RewardSettings = field(default_factory=RewardSettings)  # which reward, its parameters

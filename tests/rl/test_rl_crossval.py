@@ -43,7 +43,7 @@ def test_decisions_reward_pays_the_press_and_charges_a_passed_up_moment():
 def test_decisions_reward_needs_recorded_scenes():
     with pytest.raises(UserError, match="recorded scenes"):
         EnvConfig(reward=RewardSettings(name="decisions"))
-    assert resolve_formulation(None, None, None) == ("decisions", "recorded", "indicators")
+    assert resolve_formulation(None, None, None) == ("decisions", "recorded", "acceptance")
     assert resolve_formulation(None, None, None, lines="paper") == ("timing", "synthetic", "paper")
     assert resolve_formulation("timing", "recorded", None) == ("timing", "recorded", "paper")
 

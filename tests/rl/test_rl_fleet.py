@@ -87,7 +87,7 @@ def analysed_two_drivers(root) -> Workspace:
 @pytest.mark.slow
 def test_fleet_of_every_driver_learns_in_ordinary_run_folders(tmp_path):
     ws = analysed_two_drivers(tmp_path)
-    res = CliRunner().invoke(app, ["train", "--drivers", "all", "--episodes", "700", "-w", str(tmp_path),
+    res = CliRunner().invoke(app, ["train", "--drivers", "all", "--episodes", "1200", "-w", str(tmp_path),
                                    "--json", *FAST])
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
@@ -96,7 +96,7 @@ def test_fleet_of_every_driver_learns_in_ordinary_run_folders(tmp_path):
     for run_id, summary in zip(fleet["runs"], out["summaries"]):
         run = load_run(ws, run_id)
         assert run["config"]["fleet_id"] == out["fleet_id"] and run["status"]["state"] == "done"
-        assert list(run["metrics"]["episode"]) == list(range(1, 701)) and run["has_weights"]
+        assert list(run["metrics"]["episode"]) == list(range(1, 1201)) and run["has_weights"]
         rows = {r["who"]: r for r in run["evaluation"]["summary"]}
         assert rows["agent"]["recall"] >= 0.95, (run_id, rows)
         assert rows["agent"]["balanced_accuracy"] > rows["greedy"]["balanced_accuracy"], (run_id, rows)
