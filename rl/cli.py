@@ -411,9 +411,14 @@ def _render_personalize(res: dict[str, Any], console: Console) -> None:
                   f"posterior {100 * st['posterior'][st['style']]:.0f} %)", highlight=False)
     base = res["base"]
     src = f"reused from run {base['reused_from']}" if base.get("reused_from") else f"{base.get('episodes')} episodes"
-    who = "all other drivers" if base["from"] == "population" else f"style {base['style']}"
+    chosen = base.get("chosen") or ("population" if base["from"] == "population" else f"style {base['style']}")
+    who = "all other drivers" if chosen == "population" else chosen
     console.print(f"base agent: {who} ({len(base['drivers'])} drivers, {base['n_approaches']} approaches; {src})",
                   highlight=False)
+    if base.get("candidates"):
+        fits = ", ".join(f"{n} {100 * c['agreement']:.1f} %" for n, c in base["candidates"].items())
+        console.print(f"chosen by agreement with the {res['decisions']} decisions (balanced accuracy): {fits}",
+                      highlight=False)
     console.print(f"{res['state']}: {res['message']}, {res['episodes']} episodes in {res['wall_s']} s — "
                   f"{res['folder']}", highlight=False)
     later = res.get("later_decisions")
@@ -427,7 +432,7 @@ def _render_personalize(res: dict[str, Any], console: Console) -> None:
 def personalize_command(
     driver: Annotated[str, typer.Option("--driver", help="The driver to personalise for.")],
     decisions: Annotated[Optional[int], typer.Option("--decisions", min=1, help="K: its first K decisions in time order (default: all).")] = None,
-    base: Annotated[str, typer.Option("--from", help="Start from the 'style' agent (the members of the style assigned from the K decisions) or the 'population' agent (all other drivers).")] = "style",
+    base: Annotated[str, typer.Option("--from", help="Start from the agent that agrees best with the K decisions among every style's and the population's ('fit'), the 'style' agent (the members of the style assigned from the K decisions), the 'population' agent (all other drivers), or 'auto' (the style's when its confidence is at least 80 %, else the population's).")] = "fit",
     episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, help="Fine-tuning episodes (default: 60 per decision, 600-3000).")] = None,
     base_episodes: Annotated[Optional[int], typer.Option("--base-episodes", min=1, help="Episodes of the base agent (default: the trainer's rule).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of everything random.")] = 0,

@@ -140,7 +140,8 @@ def personalised_runs(ws) -> pd.DataFrame:
         later = p.get("later_decisions") or {}
         lo, hi = later.get("balanced_accuracy_ci") or [None, None]
         rows.append({"run": p["run_id"], "driver": p["driver"], "K": p["decisions"], "of": p["decisions_available"],
-                     "from": p["base"]["from"], "style": p["style"]["style"],
+                     "from": p["base"]["from"], "base": p["base"].get("chosen", p["base"]["from"]),
+                     "style": p["style"]["style"],
                      "confidence": round(100 * p["style"]["confidence"]),
                      "later decisions": later.get("n_decisions"),
                      "balanced acc. [%]": None if not later else round(100 * later["balanced_accuracy"], 1),
@@ -162,9 +163,11 @@ def main() -> None:
     if picked:
         driver, k = picked
         c1, c2 = st.columns(2)
-        base = c1.radio("Start from", ["style", "population"], horizontal=True, key="p_base",
-                        help="'style': the agent of the style assigned above (measured better, rl/README.md); "
-                             "'population': of all other drivers")
+        base = c1.radio("Start from", ["fit", "style", "population", "auto"], horizontal=True, key="p_base",
+                        help="'fit': of every style's agent and the population's, the one that agrees best with "
+                             "the K decisions (measured best, rl/README.md); 'style': the agent of the style "
+                             "assigned above; 'population': of all other drivers; 'auto': the style's when its "
+                             "confidence is at least 80 %, else the population's")
         seed = int(c2.number_input("Seed", min_value=0, value=0, step=1, key="p_seed"))
         st.caption(f"`laneprint personalize --driver {driver} --decisions {k} --from {base} --seed {seed} "
                    f"-w {ws.root}`")

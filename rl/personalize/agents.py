@@ -116,6 +116,9 @@ def personalised_agent(base_weights: dict[str, torch.Tensor] | None, base: list[
         return train_agent(data, env, settings, None, progress, "personalised (mix)", on_episode)
     if base_weights is None:
         raise UserError("fine-tuning needs the base agent's weights")
+    if ps.method == "none":  # the base as it is (a trainer of no episodes, so it saves as any run)
+        return train_agent(own, env, replace(dqn, episodes=0, episodes_per_approach=0.0), base_weights, progress,
+                           "personalised (base as is)", on_episode)
     data = own if ps.method == "own" else mixed(base, own, ps.driver_share)
     return train_agent(data, env, finetune_settings(dqn, ps, len(own), episodes), base_weights, progress,
                        "personalised", on_episode)
@@ -135,6 +138,28 @@ def best_fit(fits: dict[str, float], shares: dict[str, float]) -> str:
     """The base whose agent agrees best with the driver's decisions (`fits`: base -> `agreement`);
     ties go to the larger bootstrap share of the style (`shares`; the population has none, so it comes last)."""
     return max(fits, key=lambda b: (round(fits[b], 9), shares.get(b, -1.0)))
+
+
+def candidates(ps: PersonalizeSettings, est: Any, pop: Any, others: list[str]) -> dict[str, list[str]]:
+    """The bases `ps.base` chooses among, name -> drivers: every style's and the population's ('fit'),
+    else the one `ps.base_for` names (`est`: the `StyleEstimate`, `pop`: the `Population`)."""
+    if ps.base == "fit":
+        return {**{f"style {s}": list(m) for s, m in pop.members.items() if m}, "population": list(others)}
+    if ps.base_for(est.confidence) == "population":
+        return {"population": list(others)}
+    return {f"style {est.style}": list(pop.members[est.style])}
+
+
+def policy_of(weights: dict[str, torch.Tensor], env: EnvConfig, dqn: DQNSettings) -> Policy:
+    """The greedy policy of a Q network with `weights` (the shape of `dqn.hidden` on `env`'s observation)."""
+    from rl.evaluation.evaluate import agent_policy
+    from rl.learners.dqn import q_network
+    from rl.problem.env import observation_names
+
+    net = q_network(dqn.hidden, len(observation_names(env)))
+    net.load_state_dict(weights)
+    net.eval()
+    return agent_policy(net, env)
 
 
 def weights_of(trainer: DQNTrainer) -> dict[str, torch.Tensor]:

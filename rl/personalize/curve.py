@@ -25,8 +25,8 @@ from indicators.settings import AnalysisSettings
 from laneprint.progress import ProgressFn
 from rl.baselines.imitation import ImitationClassifier
 from rl.evaluation.evaluate import agent_policy, evaluate_policies
-from rl.personalize.agents import (PersonalizeSettings, agreement, base_seed, best_fit, personalised_agent, train_agent,
-                                   weights_of)
+from rl.personalize.agents import (PersonalizeSettings, agreement, base_seed, best_fit, personalised_agent, policy_of,
+                                   train_agent, weights_of)
 from rl.personalize.split import driver_rows, first_decisions, holdout_split
 from rl.personalize.style import estimate_style, fit_population
 from rl.problem.env import EnvConfig, approaches_from_decisions
@@ -87,9 +87,9 @@ def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: E
         style_agent(est.style)
         fits = {}
         if need_all:
-            fits = {f"style:{s}": agreement(_policy_of(style_agent(s)[0], env, dqn), own_app)
+            fits = {f"style:{s}": agreement(policy_of(style_agent(s)[0], env, dqn), own_app)
                     for s in pop.members if pop.members[s]}
-            fits["population"] = agreement(_policy_of(agents["population"][0], env, dqn), own_app)
+            fits["population"] = agreement(policy_of(agents["population"][0], env, dqn), own_app)
         fit_key = best_fit(fits, {f"style:{s}": v for s, v in est.bootstrap.items()}) if fits else style_key
         policies = {}
         for name, ps in settings.variants.items():
@@ -97,13 +97,13 @@ def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: E
                 "population" if ps.base_for(est.confidence) == "population" else style_key
             w, base_app = agents[base_key]
             if ps.method == "none":
-                policies[name] = _policy_of(w, env, dqn)
+                policies[name] = policy_of(w, env, dqn)
                 continue
             eps = None if ps.method == "mix" else min(dqn.episodes, ps.finetune_episodes(len(own_app)))
             trainer = personalised_agent(w, base_app, own_app, env, dqn, ps, episodes=eps, progress=progress)
             policies[name] = agent_policy(trainer.policy_net, env)
-        policies["style"] = _policy_of(agents[style_key][0], env, dqn)
-        policies["population"] = _policy_of(agents["population"][0], env, dqn)
+        policies["style"] = policy_of(agents[style_key][0], env, dqn)
+        policies["population"] = policy_of(agents["population"][0], env, dqn)
         scratch = train_agent(own_app, env, dqn, progress=progress, label=f"{driver}: scratch K={_k_label(k)}")
         policies["scratch"] = agent_policy(scratch.policy_net, env)
         if k == ALL:
@@ -122,12 +122,3 @@ def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: E
     return {"states": pd.concat(states, ignore_index=True), "changes": pd.concat(changes, ignore_index=True),
             "styles": pd.DataFrame(style_rows), "n_test_decisions": len(test_app)}
 
-
-def _policy_of(weights: dict, env: EnvConfig, dqn: DQNSettings):
-    from rl.learners.dqn import q_network
-    from rl.problem.env import observation_names
-
-    net = q_network(dqn.hidden, len(observation_names(env)))
-    net.load_state_dict(weights)
-    net.eval()
-    return agent_policy(net, env)

@@ -28,8 +28,8 @@ from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.evaluation.crossval import bootstrap_scores
 from rl.evaluation.evaluate import agent_policy, evaluate_policies
-from rl.personalize.agents import (PersonalizeSettings, base_seed, finetune_settings, personalised_agent, train_agent,
-                                   weights_of)
+from rl.personalize.agents import (PersonalizeSettings, agreement, base_seed, best_fit, candidates, finetune_settings,
+                                   personalised_agent, policy_of, train_agent, weights_of)
 from rl.personalize.split import decision_order, driver_rows, first_decisions
 from clustering.pipeline import stored_settings
 from rl.personalize.style import estimate_style, fit_population
@@ -61,9 +61,13 @@ def _cached_base(workspace: Workspace, key: str) -> tuple[dict[str, torch.Tensor
             config = json.loads((folder / "config.json").read_text())
         except (OSError, ValueError):
             continue
-        if config.get("kind") == KIND and config.get("base", {}).get("key") == key \
-                and (folder / "base_weights.pt").exists():
-            return torch.load(folder / "base_weights.pt", weights_only=True), folder.name
+        if config.get("kind") != KIND:
+            continue
+        base = config.get("base", {})
+        for path in ([folder / "base_weights.pt"] if base.get("key") == key else []) + \
+                [folder / "bases" / f"{key}.pt" for c in base.get("candidates", {}).values() if c.get("key") == key]:
+            if path.exists():
+                return torch.load(path, weights_only=True), folder.name
     return None
 
 
@@ -115,21 +119,23 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
     report(progress, 0, 1, "style from the decisions")
     pop = fit_population(decisions, others, stored_settings(workspace))
     est = estimate_style(pop, own_rows, ps.n_bootstrap, seed)
-    base_drivers = others if ps.base == "population" else pop.members[est.style]
     env = formulation_config(_lines(workspace, est.style), "decisions")
     base_dqn = replace(dqn, seed=base_seed(seed), **({"episodes": base_episodes, "episodes_per_approach": 0.0}
                                                       if base_episodes else {}))
-    base_app, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(base_drivers)])
     own_app, _ = approaches_from_decisions(own_rows)
     if not own_app:
         raise UserError(f"none of {driver}'s first {len(used)} decisions can be replayed (no press rows)")
-    key = _base_key(base_drivers, env, base_dqn, workspace.fingerprint())
+    cands = {name: {"drivers": d, "key": _base_key(d, env, base_dqn, workspace.fingerprint())}
+             for name, d in candidates(ps, est, pop, others).items()}
+    first = next(iter(cands))
     target = Target("driver", str(driver))
     with ExitStack() as held:
         run_id = run_id or new_run_id(target, f"personalized-k{len(used)}", seed)
         ft_settings = personalised_settings(dqn, ps, len(own_app), episodes)
-        base = {"from": ps.base, "style": est.style, "drivers": base_drivers, "key": key,
-                "n_approaches": len(base_app), "seed": base_dqn.seed}
+        base = {"from": ps.base, "style": est.style, "chosen": first, "drivers": cands[first]["drivers"],
+                "key": cands[first]["key"], "seed": base_dqn.seed}
+        if len(cands) > 1:
+            base["candidates"] = {n: {"key": c["key"], "drivers": c["drivers"]} for n, c in cands.items()}
         folder, config = create_run(workspace, target, env, ft_settings, run_id=run_id, held=held, extra={
             "kind": KIND, "decisions": len(used), "decisions_available": len(decision_order(rows)),
             "decision_ids": used, "base": base, "style_estimate": est.to_dict(), "personalize": ps.to_dict()})
@@ -144,17 +150,32 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
             return tick
 
         try:
-            cached = _cached_base(workspace, key)
-            if cached is not None:
-                base_w, base["reused_from"] = cached
-            else:
-                writer.status("running", 0, f"training the base agent ({ps.base})")
-                trainer = train_agent(base_app, env, base_dqn,
-                                      progress=phase(base_dqn.resolved_episodes(replayed_approaches(base_app, env)).episodes,
-                                                     f"training the base agent ({ps.base})"),
-                                      label=f"base ({ps.base}{'' if ps.base == 'population' else ' ' + est.style})")
-                base_w = weights_of(trainer)
-                base["episodes"] = trainer.episodes_done
+            weights, apps = {}, {}
+            for name, c in cands.items():
+                app, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(c["drivers"])])
+                apps[name], c["n_approaches"] = app, len(app)
+                cached = _cached_base(workspace, c["key"])
+                if cached is not None:
+                    weights[name], c["reused_from"] = cached
+                    continue
+                what = f"training the base agent ({name})"
+                writer.status("running", 0, what)
+                trainer = train_agent(app, env, base_dqn, label=f"base ({name})", progress=phase(
+                    base_dqn.resolved_episodes(replayed_approaches(app, env)).episodes, what))
+                weights[name], c["episodes"] = weights_of(trainer), trainer.episodes_done
+            chosen = first
+            if len(cands) > 1:  # 'fit': the base that agrees best with the K decisions
+                fits = {n: agreement(policy_of(w, env, dqn), own_app) for n, w in weights.items()}
+                chosen = best_fit(fits, {f"style {s}": v for s, v in est.bootstrap.items()})
+                for n, c in cands.items():
+                    base["candidates"][n].update({"agreement": fits[n], **{x: c[x] for x in
+                                                  ("n_approaches", "episodes", "reused_from") if x in c}})
+                    if n != chosen:
+                        _save(folder / "bases" / f"{c['key']}.pt", weights[n])
+            base.update({"chosen": chosen, "drivers": cands[chosen]["drivers"], "key": cands[chosen]["key"],
+                         **{x: cands[chosen][x] for x in ("n_approaches", "episodes", "reused_from")
+                            if x in cands[chosen]}})
+            base_w, base_app = weights[chosen], apps[chosen]
             _save(folder / "base_weights.pt", base_w)
             atomic_write_json(folder / "config.json", config)
             writer.status("running", 0, f"personalising on {len(used)} decisions")
@@ -178,7 +199,8 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
                  "later_decisions": later, "created_at": now_iso()}
         atomic_write_json(folder / "personalize.json", extra)
         evaluate_run(workspace, run_id)
-        message = f"personalised on {len(used)} decisions from the {ps.base} agent"
+        message = (f"the {chosen} agent as it is, chosen by {len(used)} decisions" if ps.method == "none" else
+                   f"personalised on {len(used)} decisions from the {chosen} agent")
         writer.status("done", trainer.episodes_done, message)
         writer.close()
     return {**extra, "folder": str(folder), "state": "done", "episodes": trainer.episodes_done,

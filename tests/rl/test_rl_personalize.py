@@ -73,7 +73,7 @@ def test_style_of_a_few_decisions_has_a_confidence(study: Workspace) -> None:
 
 
 def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(study: Workspace) -> None:
-    res = _run(study, "--driver", "D03", "--decisions", "5", "--run-id", "p5", "--json", *TINY)
+    res = _run(study, "--driver", "D03", "--decisions", "5", "--from", "style", "--run-id", "p5", "--json", *TINY)
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     dec = study.read_table("analysis", "decisions")
@@ -121,6 +121,21 @@ def test_the_population_base_is_every_other_driver(study: Workspace) -> None:
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["base"]["from"] == "population" and out["base"]["drivers"] == ["D01", "D02", "D03", "D04", "D05"]
+
+
+def test_the_fitted_base_is_the_candidate_that_agrees_best_and_every_candidate_is_kept(study: Workspace) -> None:
+    res = _run(study, "--driver", "D02", "--decisions", "6", "--from", "fit", "--run-id", "f6", "--json", *TINY)
+    assert res.exit_code == 0, res.output
+    base = json.loads(res.stdout)["base"]
+    cands = base["candidates"]
+    assert set(cands) == {"style Defensive", "style Normal", "style Aggressive", "population"}
+    assert cands[base["chosen"]]["agreement"] == max(c["agreement"] for c in cands.values())
+    assert base["drivers"] == cands[base["chosen"]]["drivers"] and "D02" not in base["drivers"]
+    for name, c in cands.items():  # the others' weights kept, so the next personalisation reuses them
+        assert name == base["chosen"] or (study.runs_dir / "f6" / "bases" / f"{c['key']}.pt").exists()
+    again = _run(study, "--driver", "D02", "--decisions", "4", "--from", "fit", "--run-id", "f4", "--json", *TINY)
+    assert again.exit_code == 0, again.output
+    assert all(c.get("reused_from") == "f6" for c in json.loads(again.stdout)["base"]["candidates"].values())
 
 
 @pytest.mark.parametrize("args, message", [
