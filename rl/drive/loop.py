@@ -200,7 +200,8 @@ class AgentControl(Watch):
         self.q = q
         self.use_rule = use_rule and rule is not None
         self.decisions: list[Decision] = []
-        self.left_behind: Optional[LeftBehind] = None  # the lane and leader the rule's last change left
+        self.overtakings: list[LeftBehind] = []  # overtakings not yet completed, the latest last
+        self.lane = -1  # the ego's lane at the last decision step
         self.n_vetoed = 0  # agent's changes not requested: back behind the leader the rule left
         self.n_gated = 0  # agent's changes not requested: a gap below the smallest the target took
 
@@ -226,10 +227,15 @@ class AgentControl(Watch):
                                        _defined(ind.t_nf, ind.t_nf_ok), _defined(ind.dv_nb, ind.dv_nb_ok), ids,
                                        advantages={("left" if k > ego.lane else "right"): float(a)
                                                    for k, a in adv.items()}, source=source))
-        if self.use_rule:  # an overtaking (to the left, from behind a leader) is followed until complete
-            self.left_behind = (LeftBehind(ego.lane, str(ids["f"])) if target > ego.lane and ids.get("f") is not None
-                                else None)
+        if self.use_rule and target > ego.lane and ids.get("f") is not None:
+            self.overtakings.append(LeftBehind(ego.lane, str(ids["f"])))  # followed until complete
         api.vehicle.changeLane(EGO_ID, target, self.cfg.dt_s)
+
+    @property
+    def left_behind(self) -> Optional[LeftBehind]:
+        """The overtaking to complete next: the latest, when it left the lane to the ego's right."""
+        last = self.overtakings[-1] if self.overtakings else None
+        return last if last is not None and last.lane == self.lane - 1 else None
 
     def assist(self, agent: Optional[int], asked: dict[int, tuple[Scene, dict[str, Any]]], held: bool,
                held_for: float, ego: VehicleState, others: dict[str, VehicleState]) -> tuple[Optional[int], str]:
@@ -238,9 +244,10 @@ class AgentControl(Watch):
         return once that leader is passed and the lane left holds an accepted gap; else the held-back rule."""
         if not self.use_rule:
             return agent, "agent"
+        # back in (or right of) a lane an overtaking left: that one is over; one left farther right waits
+        self.lane = ego.lane
+        self.overtakings = [o for o in self.overtakings if o.lane < ego.lane]
         r, lb = self.cfg.range_m, self.left_behind
-        if lb is not None and abs(ego.lane - lb.lane) != 1:
-            lb = self.left_behind = None  # back in that lane, or moved on: nothing to complete
         if agent is not None and lb is not None and lb.vetoes(agent, ego.x, others, r):
             self.n_vetoed += 1
             agent = None

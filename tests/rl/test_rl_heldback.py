@@ -203,7 +203,7 @@ def test_the_agent_does_not_return_behind_the_leader_the_rule_left():
     for i in range(55):  # held behind the truck in lane 0: the rule asks for lane 1 after 5 s (t = 5.4)
         control.step(api, 0.1 * i, VehicleState(100.0 + 2.0 * i, 20.0, 0, 4.5), 0.0,
                      {"f": VehicleState(truck.x + 2.0 * i, 20.0, 0, 12.0)})
-    assert api.vehicle.requests == [("ego", 1, 0.5)] and control.left_behind.leader_id == "f"
+    assert api.vehicle.requests == [("ego", 1, 0.5)] and control.overtakings[-1].leader_id == "f"
     # now in lane 1, the truck 20 m ahead in lane 0: the agent's wish to go right is vetoed
     control.step(api, 6.0, VehicleState(230.0, 24.0, 1, 4.5), 0.0, {"f": VehicleState(250.0, 20.0, 0, 12.0)})
     for i in range(1, 5):
@@ -213,8 +213,7 @@ def test_the_agent_does_not_return_behind_the_leader_the_rule_left():
     for i in range(5, 10):  # the truck passed (its centre 30 m behind the ego's): the agent returns
         control.step(api, 6.0 + 0.1 * i, VehicleState(300.0, 24.0, 1, 4.5), 0.0,
                      {"f": VehicleState(270.0, 20.0, 0, 12.0)})
-    assert api.vehicle.requests[-1] == ("ego", 0, 0.5) and control.left_behind is None
-    assert control.decisions[-1].source == "agent"
+    assert api.vehicle.requests[-1] == ("ego", 0, 0.5) and control.decisions[-1].source == "agent"
 
 
 def test_no_change_of_the_agent_into_a_gap_below_the_targets_floor():
@@ -256,4 +255,39 @@ def test_the_rule_completes_an_overtaking_once_the_leader_is_passed():
                          {"f": VehicleState(truck_x, 20.0, 0, 12.0)})
         assert len(api.vehicle.requests) == (1 if k < 2 else 2)
     assert api.vehicle.requests[-1] == ("ego", 0, 0.5) and control.decisions[-1].source == "return"
-    assert control.left_behind is None
+    for i in range(5):  # back in lane 0: the overtaking is complete
+        control.step(api, 10.0 + 0.1 * i, VehicleState(400.0, 25.0, 0, 4.5), 0.0,
+                     {"f": VehicleState(300.0, 20.0, 0, 12.0)})
+    assert control.overtakings == [] and control.left_behind is None
+
+
+def test_overtakings_stack_on_three_lanes():
+    """0 -> 1 behind a truck, 1 -> 2 behind a car: returned to 1 once the car is passed, then to 0."""
+    control = AgentControl(_never_changes, EnvConfig(observation="indicators"), 0.1, 3, _rule(), DESIRED, True)
+    api = _Api()
+    t = [0.0]
+
+    def until_request(ego: VehicleState, others: dict, n: int = 200) -> None:
+        """Steps of 0.1 s until the control requests a change (at most `n`), then the lane change starts."""
+        before = len(api.vehicle.requests)
+        for _ in range(n):
+            control.step(api, t[0], ego, 0.0, others)
+            t[0] += 0.1
+            if len(api.vehicle.requests) > before:
+                break
+        for _ in range(5):  # under way: off the lane centre
+            control.step(api, t[0], ego, 1.0, others)
+            t[0] += 0.1
+
+    truck, car = VehicleState(130.0, 20.0, 0, 12.0), VehicleState(160.0, 20.0, 1, 4.5)
+    until_request(VehicleState(100.0, 20.0, 0, 4.5), {"t": truck})  # held behind the truck 5 s
+    assert api.vehicle.requests == [("ego", 1, 0.5)]
+    until_request(VehicleState(120.0, 20.0, 1, 4.5), {"t": truck, "c": car})  # held behind the car 5 s
+    assert api.vehicle.requests[-1] == ("ego", 2, 0.5) and [o.lane for o in control.overtakings] == [0, 1]
+    far = {"t": VehicleState(100.0, 20.0, 0, 12.0), "c": VehicleState(150.0, 20.0, 1, 4.5)}
+    until_request(VehicleState(260.0, 25.0, 2, 4.5), far)  # both passed, gaps 105 m and 157 m
+    assert api.vehicle.requests[-1] == ("ego", 1, 0.5) and control.decisions[-1].source == "return"
+    until_request(VehicleState(260.0, 25.0, 1, 4.5), far)
+    assert api.vehicle.requests[-1] == ("ego", 0, 0.5) and control.decisions[-1].source == "return"
+    until_request(VehicleState(260.0, 25.0, 0, 4.5), far, n=20)
+    assert control.overtakings == [] and len(api.vehicle.requests) == 4
