@@ -187,6 +187,10 @@ def out_of_world(args: argparse.Namespace) -> bool:
                       f"{pure['totals']['lane_changes_per_km']:.2f}, "
                       f"{pure['totals']['follow']['longest_passed_up_s']:.1f} |" + ("" if met else " not met"),
                       flush=True)
+    for style in STYLES:
+        cfg = json.loads((run_dir(Workspace(ws), f"oow-{style.lower()}-s{args.seed}") / "config.json").read_text())
+        print(f"{style} agent: reward {cfg['env']['reward']['name']}, observation {cfg['env']['observation']}, "
+              f"{cfg['dqn']['episodes']} episodes")
     print("acceptance (ratio 0.5-2, passed up <= 60 s, no collision, every row):", "met" if ok else "NOT met")
     return ok
 
