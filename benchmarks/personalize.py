@@ -3,7 +3,7 @@
 Leave one driver out: the other drivers are the population; the held-out
 driver's last session(s) are scored; its first K decisions of the earlier
 sessions (K = 5, 10, 20 and all) are what it has shown. Policies side by side
-(`rl.personalize.curve`): the personalised agent (one column per variant), the
+(`benchmarks/personalize_curve.py`): the personalised agent (one column per variant), the
 style agent (style assigned from the K decisions), the population agent, a DQN
 from scratch on the K decisions, the imitation classifier on the K decisions and
 on population + K, and the driver's own agent on all its earlier sessions (the
@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT))
 from laneprint.workspace import Workspace  # noqa: E402
 from rl.evaluation.crossval import bootstrap_scores  # noqa: E402
 from rl.personalize.agents import PersonalizeSettings  # noqa: E402
-from rl.personalize.curve import ALL, CurveSettings, driver_curve  # noqa: E402
+from personalize_curve import ALL, CurveSettings, driver_curve  # noqa: E402  (beside this file)
 from clustering.pipeline import stored_settings  # noqa: E402
 from rl.problem.env import formulation_config  # noqa: E402
 from rl.problem.rewards import ReferenceLines  # noqa: E402

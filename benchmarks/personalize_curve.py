@@ -1,4 +1,5 @@
-"""The learning curve of personalisation, one held-out driver at a time (pure: frames in, frames out).
+"""The learning curve of personalisation, one held-out driver at a time (pure: frames in, frames out);
+the harness of `benchmarks/personalize.py`.
 
 For a driver: its last `test_sessions` sessions are held out; its first K
 decisions of the earlier sessions (K = each of `ks`; 0 = all of them) are what

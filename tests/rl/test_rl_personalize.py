@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -171,7 +173,8 @@ def test_agreement_is_the_balanced_accuracy_on_the_recorded_states() -> None:
 
 def test_the_curve_scores_every_policy_and_the_fitted_base(study: Workspace) -> None:
     from rl.personalize.agents import PersonalizeSettings
-    from rl.personalize.curve import ALL, CurveSettings, driver_curve
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    from personalize_curve import ALL, CurveSettings, driver_curve  # the benchmark's harness
     from rl.problem.env import formulation_config
     from rl.settings import DQNSettings
 
