@@ -137,7 +137,8 @@ def load_baseline(rev: str, into: Path):
         f.write_text(f.read_text().replace("from ingest.", f"from {name}.").replace("import ingest.", f"import {name}.")
                      .replace("from laneprint.workspace import", f"from {name}._workspace import"))
     sys.path.insert(0, str(into))
-    return importlib.import_module(f"{name}.pipeline").ingest_paths, importlib.import_module(f"{name}._workspace").Workspace
+    pipeline, store = importlib.import_module(f"{name}.pipeline"), importlib.import_module(f"{name}._workspace")
+    return pipeline.ingest_paths, store.Workspace
 
 
 def main() -> None:

@@ -55,7 +55,8 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--vehicles", type=int, default=20)
-    ap.add_argument("--baseline", metavar="REV", help="also time the ingest (and store) of this git revision (before/after)")
+    ap.add_argument("--baseline", metavar="REV",
+                    help="also time the ingest (and store) of this git revision (before/after)")
     ap.add_argument("--files", default="json,ros2,protobuf", help="comma-separated subset of json,ros2,protobuf")
     args = ap.parse_args()
     meta, ego, traffic = bench_ingest.make_recording(args.minutes, args.vehicles)

@@ -299,7 +299,10 @@ def _traffic_arrow(datas: list[bytes], names: dict[str, str], mapping: Mapping) 
     chunks = table.column(names["vehicles"]).chunks
     flats = [c.flatten() for c in chunks]
     starts = np.cumsum([0] + [len(c) for c in chunks[:-1]])
-    floats = lambda k, scale=1.0: np.concatenate([_column_floats(f.field(names[k]), scale) for f in flats])  # noqa: E731
+
+    def floats(key: str, scale: float = 1.0) -> np.ndarray:
+        return np.concatenate([_column_floats(f.field(names[key]), scale) for f in flats])
+
     return {
         "rows": np.concatenate([pc.list_parent_indices(c).to_numpy(zero_copy_only=False).astype(np.int64) + s
                                 for c, s in zip(chunks, starts)]),

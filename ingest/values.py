@@ -235,7 +235,8 @@ def check_sample_rate(raw: RawLog, mapping: Mapping) -> None:
 
 def _allowed_step(v0: np.ndarray, v1: np.ndarray, dt: np.ndarray) -> np.ndarray:
     """How far a vehicle can move in `dt` between two samples with speeds v0 and v1 [m]."""
-    out = np.abs(np.asarray(v0, dtype=float))  # in place from here: (JUMP_FACTOR * max|v| + JUMP_SLACK_MPS) * dt + JUMP_SLACK_M
+    # (JUMP_FACTOR * max(|v0|, |v1|) + JUMP_SLACK_MPS) * dt + JUMP_SLACK_M, in place: no temporary per step
+    out = np.abs(np.asarray(v0, dtype=float))
     np.maximum(out, np.abs(v1), out=out)
     out *= JUMP_FACTOR
     out += JUMP_SLACK_MPS
