@@ -433,7 +433,8 @@ def personalize_command(
     driver: Annotated[str, typer.Option("--driver", help="The driver to personalise for.")],
     decisions: Annotated[Optional[int], typer.Option("--decisions", min=1, help="K: its first K decisions in time order (default: all).")] = None,
     base: Annotated[str, typer.Option("--from", help="Start from the agent that agrees best with the K decisions among every style's and the population's ('fit'), the 'style' agent (the members of the style assigned from the K decisions), the 'population' agent (all other drivers), or 'auto' (the style's when its confidence is at least 80 %, else the population's).")] = "fit",
-    episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, help="Fine-tuning episodes (default: 60 per decision, 600-3000).")] = None,
+    fine_tune: Annotated[bool, typer.Option("--fine-tune", help="Fine-tune the base on the K decisions (default: the base as it is, measured better on SUMO studies; rl/README.md).")] = False,
+    episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, help="Fine-tuning episodes with --fine-tune (default: 60 per decision, 600-3000).")] = None,
     base_episodes: Annotated[Optional[int], typer.Option("--base-episodes", min=1, help="Episodes of the base agent (default: the trainer's rule).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of everything random.")] = 0,
     run_id: Annotated[Optional[str], typer.Option("--run-id", help="Id of the new run.")] = None,
@@ -457,7 +458,8 @@ def personalize_command(
             dqn = DQNSettings(**overrides)
         except (TypeError, ValueError) as exc:
             raise UserError(f"bad training setting: {exc}") from None
-        ps = PersonalizeSettings(base=base, **({"learning_starts": min(learning_starts, 500)} if learning_starts else {}))
+        ps = PersonalizeSettings(base=base, method="finetune" if fine_tune else "none",
+                                 **({"learning_starts": min(learning_starts, 500)} if learning_starts else {}))
         with progress_bar(not as_json) as progress:
             return personalize(ws, driver, decisions, ps, dqn, episodes=episodes, base_episodes=base_episodes,
                                seed=seed, run_id=run_id, progress=progress)

@@ -104,15 +104,17 @@ def style_section(ws, decisions: pd.DataFrame) -> tuple[str, int] | None:
     return driver, k
 
 
-def launch(ws, driver: str, k: int, base: str, seed: int) -> str:
+def launch(ws, driver: str, k: int, base: str, seed: int, fine_tune: bool = False) -> str:
     """Start `laneprint personalize` in the background (a run like the Training page's); returns the run id."""
     slug = "".join(c if c.isalnum() else "-" for c in driver.lower())
     run_id = f"{datetime.now(timezone.utc):%Y%m%d-%H%M%S}-{slug}-personalized-k{k}-s{seed}"
     cmd = [sys.executable, "-m", "laneprint.cli", "personalize", "--driver", driver, "--decisions", str(k),
-           "--from", base, "--seed", str(seed), "--run-id", run_id, "--workspace", str(ws.root)]
+           "--from", base, "--seed", str(seed), "--run-id", run_id, "--workspace", str(ws.root)] + \
+        (["--fine-tune"] if fine_tune else [])
     jobs._spawn(jobs.jobs_dir(ws), run_id, cmd, ws.root,  # the Training page's launcher: runs table, status, log
                 {"run_id": run_id, "request": {"kind": "personalized", "driver": driver, "decisions": k,
-                                               "from": base, "seed": seed, "episodes": None}})
+                                               "from": base, "fine_tune": fine_tune, "seed": seed,
+                                               "episodes": None}})
     return run_id
 
 
@@ -169,10 +171,12 @@ def main() -> None:
                              "assigned above; 'population': of all other drivers; 'auto': the style's when its "
                              "confidence is at least 80 %, else the population's")
         seed = int(c2.number_input("Seed", min_value=0, value=0, step=1, key="p_seed"))
-        st.caption(f"`laneprint personalize --driver {driver} --decisions {k} --from {base} --seed {seed} "
-                   f"-w {ws.root}`")
+        fine_tune = st.checkbox("Fine-tune on the K decisions", value=False, key="p_finetune",
+                                help="Off: the base agent as it is (measured better on SUMO studies, rl/README.md)")
+        st.caption(f"`laneprint personalize --driver {driver} --decisions {k} --from {base}"
+                   f"{' --fine-tune' if fine_tune else ''} --seed {seed} -w {ws.root}`")
         if st.button("Personalise", type="primary", key="p_start"):
-            st.session_state.setdefault("p_launched", []).append(launch(ws, driver, k, base, seed))
+            st.session_state.setdefault("p_launched", []).append(launch(ws, driver, k, base, seed, fine_tune))
             st.rerun()
     launched = st.session_state.get("p_launched", [])
     active = [r for r in launched if jobs.run_status(ws, r).get("state") in jobs.ACTIVE_STATES]

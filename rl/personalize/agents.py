@@ -34,11 +34,11 @@ METHODS: tuple[str, ...] = ("finetune", "mix", "own", "none")
 class PersonalizeSettings:
     """How a driver's agent is made from the base agent and its first K decisions."""
 
-    base: str = "style"  # whose agent is the prior: 'style' (the assigned style's members), 'population'
+    base: str = "fit"  # whose agent is the prior: 'style' (the assigned style's members), 'population'
     # (every other driver), 'auto' (the style's when its confidence is at least `min_confidence`, else the
     # population's) or 'fit' (of every style's agent and the population's, the one that agrees best with the K decisions)
     min_confidence: float = 0.8  # 'auto': the bootstrap share of the assigned style that trusts it
-    method: str = "finetune"  # 'finetune': base weights, then the mix replayed; 'mix': the mix from scratch;
+    method: str = "none"  # 'finetune': base weights, then the mix replayed; 'mix': the mix from scratch;
     # 'own': base weights, then the driver's approaches alone; 'none': the base agent as it is
     driver_share: float = 0.5  # share of the replayed states that are the driver's (finetune, mix)
     episodes_per_decision: float = 60.0  # fine-tuning episodes per decision of the driver ...

@@ -212,6 +212,8 @@ def personalised_settings(dqn: DQNSettings, ps: PersonalizeSettings, k: int, epi
     if ps.method == "mix":
         return replace(dqn, episodes=episodes or dqn.episodes, episodes_per_approach=0.0 if episodes else
                        dqn.episodes_per_approach)
+    if ps.method == "none":  # the base as it is: no episodes
+        return replace(finetune_settings(dqn, ps, k), episodes=0)
     return finetune_settings(dqn, ps, k, episodes)
 
 

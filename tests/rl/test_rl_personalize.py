@@ -75,7 +75,8 @@ def test_style_of_a_few_decisions_has_a_confidence(study: Workspace) -> None:
 
 
 def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(study: Workspace) -> None:
-    res = _run(study, "--driver", "D03", "--decisions", "5", "--from", "style", "--run-id", "p5", "--json", *TINY)
+    res = _run(study, "--driver", "D03", "--decisions", "5", "--from", "style", "--fine-tune", "--run-id", "p5",
+               "--json", *TINY)
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     dec = study.read_table("analysis", "decisions")
@@ -135,9 +136,16 @@ def test_the_fitted_base_is_the_candidate_that_agrees_best_and_every_candidate_i
     assert base["drivers"] == cands[base["chosen"]]["drivers"] and "D02" not in base["drivers"]
     for name, c in cands.items():  # the others' weights kept, so the next personalisation reuses them
         assert name == base["chosen"] or (study.runs_dir / "f6" / "bases" / f"{c['key']}.pt").exists()
+    folder = study.runs_dir / "f6"  # without --fine-tune the agent is the chosen base as it is
+    wb, wa = (torch.load(folder / n, weights_only=True) for n in ("base_weights.pt", "weights.pt"))
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+    assert json.loads((folder / "status.json").read_text())["state"] == "done"
     again = _run(study, "--driver", "D02", "--decisions", "4", "--from", "fit", "--run-id", "f4", "--json", *TINY)
     assert again.exit_code == 0, again.output
     assert all(c.get("reused_from") == "f6" for c in json.loads(again.stdout)["base"]["candidates"].values())
+    text = _run(study, "--driver", "D02", "--decisions", "5", "--run-id", "f5", *TINY)  # the default: fit, as is
+    assert text.exit_code == 0, text.output
+    assert "chosen by agreement with the 5 decisions" in text.stdout and "as it is" in text.stdout
 
 
 @pytest.mark.parametrize("args, message", [
