@@ -15,7 +15,7 @@ from laneprint.schemas import DECISIONS, validate
 from laneprint.workspace import Workspace
 from rl.problem.env import EnvConfig, sample_scenes
 from rl.problem.rewards import ReferenceLines
-from rl.problem.scene import Scene, indicators
+from rl.problem.scene import Scene, indicators, seen
 
 
 #: `laneprint train` options that make a test's run train in a second or two.
@@ -121,3 +121,47 @@ def write_style_analysis(ws: Workspace, decisions: pd.DataFrame, lines: Referenc
                          (("t_f", lines.t_f), ("t_nf", lines.t_nf), ("dv_nb", lines.dv_nb))])
     styles = pd.DataFrame({"driver_id": [driver], "style": [style], "is_typical": [True], "cluster": [0]})
     ws.ensure().write_tables("analysis", {"decisions": decisions, "reference_lines": refs, "styles": styles}, meta={})
+
+
+def raw_measurements(scene: Scene, cfg: EnvConfig) -> list[dict]:
+    """What a vehicle stack measures, per scene: speeds, relative positions, TTCs (None = undefined)."""
+    f, nf, nb = seen(scene, cfg.range_m)
+    ind = indicators(scene, cfg.far_follower_m, cfg.range_m)
+    out = []
+    for i in range(len(scene.v_e)):
+        raw = {"v_e": float(scene.v_e[i])}
+        for role, present in (("f", f), ("nf", nf), ("nb", nb)):
+            here = bool(present[i])
+            raw[f"v_{role}"] = float(getattr(scene, f"v_{role}")[i]) if here else None
+            raw[f"x_{role}"] = float(getattr(scene, f"x_{role}")[i] - scene.x_e[i]) if here else None
+        for k in ("t_f", "t_nf", "dv_nb"):
+            raw[k] = float(getattr(ind, k)[i]) if getattr(ind, f"{k}_ok")[i] else None
+        hl = {role: float(getattr(scene, f"hl_{role}")[i]) for role in ("f", "nf", "nb")}
+        for role, sign in (("f", 1), ("nf", 1), ("nb", -1)):
+            raw[f"gap_{role}"] = None if raw[f"x_{role}"] is None else sign * raw[f"x_{role}"] - hl[role]
+        raw["thw_f"] = None if raw["gap_f"] is None else raw["gap_f"] / raw["v_e"]
+        raw["thw_nb"] = None if raw["gap_nb"] is None else raw["gap_nb"] / raw["v_nb"]
+        out.append(raw)
+    return out
+
+
+def spec_value(s: dict, raws: dict) -> float:
+    """One input of the observation from raw measurements and its `observation_spec` entry alone, as
+    `rl.problem.observation`'s module doc says (self-contained: the export test runs its source where
+    laneprint cannot be imported)."""
+    import math
+
+    r = raws.get(s["name"])
+    if s["transform"] == "constant":
+        v = s["value"]
+    elif s["transform"] == "flag":
+        v = 1.0 if raws.get(s["of"]) is not None else 0.0
+    elif r is None:
+        u = s["when_undefined"]
+        v = u["value"] if "value" in u else raws[u["same_as"]] * s["scale"] + s["offset"]
+    elif s["transform"] == "linear":
+        v = r * s["scale"] + s["offset"]
+    else:
+        v = math.log1p(min(max(r, 0.0), s["cap"])) / math.log1p(s["cap"])
+    lo, hi = s["clip"]
+    return min(max(v, lo), hi)

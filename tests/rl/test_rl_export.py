@@ -1,5 +1,6 @@
 """`laneprint export`: ONNX that gives torch's Q-values, loadable and fed without laneprint."""
 
+import inspect
 import json
 import subprocess
 import sys
@@ -14,6 +15,7 @@ from rl.problem.env import EnvConfig, observation, observation_names, sample_sce
 from rl.deploy.export import TOLERANCE
 from rl.runs import Target, load_weights, recorded_approaches, run_dir
 from rl.problem.scene import Scene, indicators, seen
+from rl.testing import raw_measurements, spec_value
 
 # Runs in a fresh interpreter where laneprint, rl and torch cannot be imported: it builds the
 # observation from raw measurements with policy.json's description alone and runs policy.onnx.
@@ -27,52 +29,12 @@ folder, raw_path = sys.argv[1], sys.argv[2]
 spec = json.load(open(f"{folder}/policy.json"))
 raws = json.load(open(raw_path))
 
-def value(s, raw):
-    r = raw.get(s["name"])
-    if s["transform"] == "constant":
-        v = s["value"]
-    elif s["transform"] == "flag":
-        v = 1.0 if raw.get(s["of"]) is not None else 0.0
-    elif r is None:
-        u = s["when_undefined"]
-        if "value" in u:
-            v = u["value"]
-        else:
-            v = raw[u["same_as"]] * s["scale"] + s["offset"]
-    elif s["transform"] == "linear":
-        v = r * s["scale"] + s["offset"]
-    else:
-        v = math.log1p(min(max(r, 0.0), s["cap"])) / math.log1p(s["cap"])
-    lo, hi = s["clip"]
-    return min(max(v, lo), hi)
-
-obs = np.array([[value(s, raw) for s in spec["inputs"]] for raw in raws], dtype=np.float32)
+{spec_value}
+obs = np.array([[spec_value(s, raw) for s in spec["inputs"]] for raw in raws], dtype=np.float32)
 sess = ort.InferenceSession(f"{folder}/policy.onnx", providers=["CPUExecutionProvider"])
 q, action = sess.run(["q_values", "action"], {spec["input"]["name"]: obs})
 json.dump({"q": q.tolist(), "action": action.tolist(), "obs": obs.tolist()}, sys.stdout)
-"""
-
-
-def raw_measurements(scene: Scene, cfg: EnvConfig) -> list[dict]:
-    """What a vehicle stack measures, per scene: speeds, relative positions, TTCs (None = undefined)."""
-    f, nf, nb = seen(scene, cfg.range_m)
-    ind = indicators(scene, cfg.far_follower_m, cfg.range_m)
-    out = []
-    for i in range(len(scene.v_e)):
-        raw = {"v_e": float(scene.v_e[i])}
-        for role, present in (("f", f), ("nf", nf), ("nb", nb)):
-            here = bool(present[i])
-            raw[f"v_{role}"] = float(getattr(scene, f"v_{role}")[i]) if here else None
-            raw[f"x_{role}"] = float(getattr(scene, f"x_{role}")[i] - scene.x_e[i]) if here else None
-        for k in ("t_f", "t_nf", "dv_nb"):
-            raw[k] = float(getattr(ind, k)[i]) if getattr(ind, f"{k}_ok")[i] else None
-        hl = {role: float(getattr(scene, f"hl_{role}")[i]) for role in ("f", "nf", "nb")}
-        for role, sign in (("f", 1), ("nf", 1), ("nb", -1)):
-            raw[f"gap_{role}"] = None if raw[f"x_{role}"] is None else sign * raw[f"x_{role}"] - hl[role]
-        raw["thw_f"] = None if raw["gap_f"] is None else raw["gap_f"] / raw["v_e"]
-        raw["thw_nb"] = None if raw["gap_nb"] is None else raw["gap_nb"] / raw["v_nb"]
-        out.append(raw)
-    return out
+""".replace("{spec_value}", inspect.getsource(spec_value))
 
 
 def test_export_matches_torch_and_needs_nothing_of_laneprint(trained_run, tmp_path):

@@ -9,7 +9,7 @@ from rl.problem.env import EnvConfig, observation, observation_names, sample_sce
 from rl.problem.observation import observation_spec
 from rl.problem.scene import HEADWAY_CAP_S, Scene
 from rl.settings import OBSERVATIONS
-from tests.rl.test_rl_export import raw_measurements
+from rl.testing import raw_measurements, spec_value
 
 
 def scene(**over) -> Scene:
@@ -56,23 +56,5 @@ def test_every_observation_is_rebuilt_from_its_spec_alone(name):
     raws = raw_measurements(s, cfg)
     for raw, left in zip(raws, s.left):
         raw["target lane side"] = "left" if left else None  # the 'direction' flag: 1 to the left
-    rebuilt = np.array([[_value(inp, raw) for inp in spec] for raw in raws], dtype=np.float32)
+    rebuilt = np.array([[spec_value(inp, raw) for inp in spec] for raw in raws], dtype=np.float32)
     np.testing.assert_allclose(rebuilt, observation(s, cfg), atol=1e-6)
-
-
-def _value(s: dict, raws: dict) -> float:
-    """One input from raw measurements as `rl.problem.observation`'s module doc says."""
-    r = raws.get(s["name"])
-    if s["transform"] == "constant":
-        v = s["value"]
-    elif s["transform"] == "flag":
-        v = 1.0 if raws.get(s["of"]) is not None else 0.0
-    elif r is None:
-        u = s["when_undefined"]
-        v = u["value"] if "value" in u else raws[u["same_as"]] * s["scale"] + s["offset"]
-    elif s["transform"] == "linear":
-        v = r * s["scale"] + s["offset"]
-    else:
-        v = math.log1p(min(max(r, 0.0), s["cap"])) / math.log1p(s["cap"])
-    lo, hi = s["clip"]
-    return min(max(v, lo), hi)
