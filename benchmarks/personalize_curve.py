@@ -94,8 +94,8 @@ def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: E
         fit_key = best_fit(fits, {f"style:{s}": v for s, v in est.bootstrap.items()}) if fits else style_key
         policies = {}
         for name, ps in settings.variants.items():
-            base_key = fit_key if ps.base == "fit" else \
-                "population" if ps.base_for(est.confidence) == "population" else style_key
+            which = ps.base_for(est.confidence)
+            base_key = fit_key if which == "fit" else "population" if which == "population" else style_key
             w, base_app = agents[base_key]
             if ps.method == "none":
                 policies[name] = policy_of(w, env, dqn)

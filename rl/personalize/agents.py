@@ -36,8 +36,10 @@ class PersonalizeSettings:
 
     base: str = "fit"  # whose agent is the prior: 'style' (the assigned style's members), 'population'
     # (every other driver), 'auto' (the style's when its confidence is at least `min_confidence`, else the
-    # population's) or 'fit' (of every style's agent and the population's, the one that agrees best with the K decisions)
-    min_confidence: float = 0.8  # 'auto': the bootstrap share of the assigned style that trusts it
+    # population's) or 'fit' (the style's when its confidence is at least `min_confidence`, else, of every style's
+    # agent and the population's, the one that agrees best with the K decisions)
+    min_confidence: float = 0.8  # 'auto', 'fit': the bootstrap share of the assigned style that trusts it
+    # (above 1: 'fit' always chooses by agreement)
     method: str = "none"  # 'finetune': base weights, then the mix replayed; 'mix': the mix from scratch;
     # 'own': base weights, then the driver's approaches alone; 'none': the base agent as it is
     driver_share: float = 0.5  # share of the replayed states that are the driver's (finetune, mix)
@@ -58,10 +60,12 @@ class PersonalizeSettings:
             raise UserError(f"driver_share must be in (0, 1], got {self.driver_share}")
 
     def base_for(self, confidence: float) -> str:
-        """'style' or 'population': the base used for a style assigned with `confidence`."""
-        if self.base != "auto":
+        """'style', 'population' or 'fit' (choose by agreement): the base for a style assigned with `confidence`."""
+        if self.base not in ("auto", "fit"):
             return self.base
-        return "style" if confidence >= self.min_confidence else "population"
+        if confidence >= self.min_confidence:
+            return "style"
+        return "population" if self.base == "auto" else "fit"
 
     def finetune_episodes(self, k: int) -> int:
         return int(min(self.max_episodes, max(self.min_episodes, round(self.episodes_per_decision * k))))
@@ -141,9 +145,9 @@ def best_fit(fits: dict[str, float], shares: dict[str, float]) -> str:
 
 
 def candidates(ps: PersonalizeSettings, est: Any, pop: Any, others: list[str]) -> dict[str, list[str]]:
-    """The bases `ps.base` chooses among, name -> drivers: every style's and the population's ('fit'),
-    else the one `ps.base_for` names (`est`: the `StyleEstimate`, `pop`: the `Population`)."""
-    if ps.base == "fit":
+    """The bases `ps.base` chooses among, name -> drivers: every style's and the population's when it
+    chooses by agreement, else the one `ps.base_for` names (`est`: the `StyleEstimate`, `pop`: the `Population`)."""
+    if ps.base_for(est.confidence) == "fit":
         return {**{f"style {s}": list(m) for s, m in pop.members.items() if m}, "population": list(others)}
     if ps.base_for(est.confidence) == "population":
         return {"population": list(others)}

@@ -127,7 +127,8 @@ def test_the_population_base_is_every_other_driver(study: Workspace) -> None:
 
 
 def test_the_fitted_base_is_the_candidate_that_agrees_best_and_every_candidate_is_kept(study: Workspace) -> None:
-    res = _run(study, "--driver", "D02", "--decisions", "6", "--from", "fit", "--run-id", "f6", "--json", *TINY)
+    always = ["--from", "fit", "--min-confidence", "1.01"]  # choose by agreement however sure the style is
+    res = _run(study, "--driver", "D02", "--decisions", "6", *always, "--run-id", "f6", "--json", *TINY)
     assert res.exit_code == 0, res.output
     base = json.loads(res.stdout)["base"]
     cands = base["candidates"]
@@ -140,12 +141,17 @@ def test_the_fitted_base_is_the_candidate_that_agrees_best_and_every_candidate_i
     wb, wa = (torch.load(folder / n, weights_only=True) for n in ("base_weights.pt", "weights.pt"))
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
     assert json.loads((folder / "status.json").read_text())["state"] == "done"
-    again = _run(study, "--driver", "D02", "--decisions", "4", "--from", "fit", "--run-id", "f4", "--json", *TINY)
+    again = _run(study, "--driver", "D02", "--decisions", "4", *always, "--run-id", "f4", "--json", *TINY)
     assert again.exit_code == 0, again.output
     assert all(c.get("reused_from") == "f6" for c in json.loads(again.stdout)["base"]["candidates"].values())
-    text = _run(study, "--driver", "D02", "--decisions", "5", "--run-id", "f5", *TINY)  # the default: fit, as is
+    text = _run(study, "--driver", "D02", "--decisions", "5", *always, "--run-id", "f5", *TINY)
     assert text.exit_code == 0, text.output
     assert "chosen by agreement with the 5 decisions" in text.stdout and "as it is" in text.stdout
+    sure = _run(study, "--driver", "D02", "--decisions", "6", "--run-id", "f6s", "--json", *TINY)  # the default
+    assert sure.exit_code == 0, sure.output
+    out = json.loads(sure.stdout)
+    if out["style"]["confidence"] >= 0.8:  # a confident style's agent is taken as assigned
+        assert out["base"]["chosen"] == f"style {out['style']['style']}" and "candidates" not in out["base"]
 
 
 @pytest.mark.parametrize("args, message", [
