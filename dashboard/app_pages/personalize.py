@@ -166,7 +166,8 @@ def main() -> None:
         driver, k = picked
         c1, c2 = st.columns(2)
         base = c1.radio("Start from", ["fit", "style", "population", "auto"], horizontal=True, key="p_base",
-                        help="'fit': of every style's agent and the population's, the one that agrees best with "
+                        help="'fit': the agent of the style assigned above when its confidence is at least 80 %, "
+                             "else, of every style's agent and the population's, the one that agrees best with "
                              "the K decisions (measured best, rl/README.md); 'style': the agent of the style "
                              "assigned above; 'population': of all other drivers; 'auto': the style's when its "
                              "confidence is at least 80 %, else the population's")
