@@ -25,6 +25,14 @@ parameters). What changes is who decides a lane change:
   training (nothing within range; indicator undefined, flag 0).
 - TO CHANGE becomes ``changeLane(ego, target, dt_s)``: the request lapses by the
   next decision, so the agent is asked afresh if SUMO did not start it.
+- The assistant around the agent (`AgentControl.assist`, `rl/drive/heldback.py`; off with
+  ``use_rule=False``, the pure agent): a floor under the agent's changes, overtakings carried
+  through (no return behind the leader left; the return once passed), and the held-back rule
+  when the ego has followed a slower leader for the target's patience. Each decision says
+  who asked for it (`Decision.source`).
+- `Watch` only looks, with SUMO's own lane changing left on: the comparator, SUMO's model of
+  the same style in the same traffic and seeds (`sumo_model_sections`). Both record how long
+  the ego was held back and whether a neighbouring lane held an accepted gap (`FollowStats`).
 
 Afterwards the section's log is assembled as the study's (`run_section`): the
 button is pressed at the first sample off the lane centre, so the agent's changes
@@ -47,8 +55,8 @@ from laneprint.simulator.sumo.scenario import build_network, write_routes
 from laneprint.simulator.sumo.section import EGO_ID, SectionLog, run_section
 from laneprint.simulator.sumo.settings import SumoSettings
 from laneprint.simulator.sumo.traffic import VehicleState
-from rl.drive.heldback import (FollowStats, HeldBackClock, HeldBackRule, LeftBehind, above_floors, accepts, faster,
-                               held_back, rule_target)
+from rl.drive.heldback import (FollowStats, HeldBackClock, HeldBackRule, LeftBehind, Line, above_floors, accepts,
+                               faster, held_back, rule_target)
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
 from rl.problem.scene import Scene, indicators
@@ -193,8 +201,6 @@ class AgentControl(Watch):
 
     def __init__(self, q: QFunction, cfg: EnvConfig, step_s: float, n_lanes: int = N_LANES,
                  rule: Optional[HeldBackRule] = None, desired_mps: float = 0.0, use_rule: bool = False) -> None:
-        from rl.drive.heldback import Line
-
         never = Line(0.0, np.inf)  # no rule given: desired speed 0, never held back
         super().__init__(cfg, step_s, n_lanes, rule or HeldBackRule(np.inf, never, never, never), desired_mps)
         self.q = q
