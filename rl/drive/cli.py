@@ -107,6 +107,11 @@ def render(result: dict[str, Any], console: Console) -> None:
                       f"{rule['patience_s']:g} s ({rule['source'].get('patience_s', '')}); desired speed "
                       f"{hb['desired_speed']}; 'longest passed up': the longest time, while held back, that a "
                       "neighbouring lane held a gap the target accepts", highlight=False, soft_wrap=True)
+        tot, fo = result["totals"], result["totals"]["follow"]
+        console.print(f"of the rule's {tot['rule_changes']} changes, {tot['return_changes']} completed an overtaking; "
+                      f"agent's changes not requested: {fo.get('vetoed', 0)} decision steps back behind the leader "
+                      f"an overtaking left, {fo.get('gated', 0)} into a gap below the target's floors",
+                      highlight=False, soft_wrap=True)
     else:
         console.print(hb.get("note", "no held-back rule"), highlight=False, soft_wrap=True)
     if "sumo_model" in result:
@@ -118,7 +123,8 @@ def render(result: dict[str, Any], console: Console) -> None:
             console.print("note: the run's observation has no side input (train with --observation direction): "
                           "it is asked about both sides alike", highlight=False, soft_wrap=True)
     ind = result["indicators"]
-    it = Table(title=f"indicators at the agent's {ind['n_decisions']} changes vs its target's lines "
+    it = Table(title=f"indicators at the {ind['n_decisions']} changes made (the agent's and the rule's) "
+                     f"vs its target's lines "
                      f"({ind['lines'].get('source') or 'run lines'})")
     for c in ("indicator", "defined", "median", "line (median)", "MAE", "bias"):
         it.add_column(c, justify="right")

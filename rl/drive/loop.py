@@ -137,7 +137,7 @@ class Decision:
     started: bool = False  # a lane change started within dt_s after it
     press_t_s: Optional[float] = None
     advantages: dict[str, float] = field(default_factory=dict)  # side ('left'/'right') -> Q(change) - Q(keep)
-    source: str = "agent"  # who asked: 'agent'; 'rule' (held back) or 'return' (an overtaking completed), `rl.drive.heldback`
+    source: str = "agent"  # who asked: 'agent'; 'rule' (held back), 'return' (an overtaking completed)
 
 
 class Watch:
