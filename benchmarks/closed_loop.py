@@ -37,8 +37,11 @@ time the ego was held back by a slower leader while a neighbouring lane held a g
 lines accept ("passed up"); collisions. Acceptance: ratio within [0.5, 2], passed up <= 60 s,
 no collision, for every style:
 
-    python benchmarks/closed_loop.py --out-of-world --lanes 2 3 --drive-seeds 0 --minutes 3 \
-        --seed 0 --workdir /tmp/h19b/oow
+    python benchmarks/closed_loop.py --out-of-world --lanes 2 3 --drive-seeds 0 1 2 --minutes 3 \
+        --seed 0 --workdir DIR          # about 50 minutes on 2 shared cores (README.md, "Out of its world")
+
+Agents found in the workspace as `oow-<style>-s<seed>` are reused (remove them to train afresh
+with the current defaults), and so are drives already in --workdir.
 """
 
 from __future__ import annotations
