@@ -15,7 +15,7 @@ acceptance lines. Writes curve.json, curve.csv and curve.html (Plotly) to --out.
 Run on an analysed workspace (`laneprint ingest sample_logs -w WS && laneprint analyze -w WS`):
 
     python benchmarks/personalize.py -w WS [--drivers all|N|D01,D02] [--k 5,10,20,all]
-        [--episodes N] [--variants finetune:population,...] [--jobs 2] [--seed 0] [--out DIR]
+        [--episodes N] [--variants none:fit,finetune:fit,...] [--observation O] [--jobs 2] [--seed 0] [--out DIR]
 """
 
 from __future__ import annotations
@@ -181,8 +181,9 @@ def main() -> None:
     ap.add_argument("--drivers", default="all", help="'all', N (the first N) or ID,ID,... held out in turn")
     ap.add_argument("--k", default="5,10,20,all", help="decisions shown, comma-separated ('all': every earlier one)")
     ap.add_argument("--episodes", type=int, default=None, help="cap on every agent's episodes (default: the trainer's)")
-    ap.add_argument("--variants", default="finetune:style",
-                    help="personalised agents, METHOD:BASE,... (the first is 'personalised')")
+    ap.add_argument("--variants", default="none:fit",
+                    help="personalised agents, METHOD:BASE[:NAME=VALUE;...],... (the first is 'personalised'; "
+                         "default: laneprint personalize's, the fitted base as it is)")
     ap.add_argument("--observation", default=None, choices=OBSERVATIONS,
                     help="what every agent and classifier sees (default: the 'decisions' reward's own)")
     ap.add_argument("--test-sessions", type=int, default=1, help="the driver's last sessions, held out")
