@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from indicators.acceptance import MIN_SPEED_MPS
 from laneprint.schemas import DECISIONS, validate
 from laneprint.workspace import Workspace
 from rl.problem.env import EnvConfig, sample_scenes
@@ -139,8 +140,9 @@ def raw_measurements(scene: Scene, cfg: EnvConfig) -> list[dict]:
         hl = {role: float(getattr(scene, f"hl_{role}")[i]) for role in ("f", "nf", "nb")}
         for role, sign in (("f", 1), ("nf", 1), ("nb", -1)):
             raw[f"gap_{role}"] = None if raw[f"x_{role}"] is None else sign * raw[f"x_{role}"] - hl[role]
-        raw["thw_f"] = None if raw["gap_f"] is None else raw["gap_f"] / raw["v_e"]
-        raw["thw_nb"] = None if raw["gap_nb"] is None else raw["gap_nb"] / raw["v_nb"]
+        raw["thw_f"] = None if raw["gap_f"] is None or raw["v_e"] < MIN_SPEED_MPS else raw["gap_f"] / raw["v_e"]
+        stopped = raw["v_nb"] is None or raw["v_nb"] < MIN_SPEED_MPS
+        raw["thw_nb"] = None if raw["gap_nb"] is None or stopped else raw["gap_nb"] / raw["v_nb"]
         out.append(raw)
     return out
 

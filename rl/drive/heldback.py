@@ -63,7 +63,7 @@ import numpy as np
 import pandas as pd
 
 from laneprint.reference import FAR_FOLLOWER_M
-from rl.problem.scene import Scene, seen
+from rl.problem.scene import Scene, gaps, seen
 
 #: the target lane's indicators the rule reads (`indicators.acceptance`)
 ACCEPT_INDICATORS: tuple[str, ...] = ("gap_nf", "gap_nb", "thw_nb")
@@ -71,7 +71,6 @@ FOLLOWING_MPS = 1.0  # [m/s] closing speed below which the ego follows its leade
 MIN_FOLLOWED = 5  # presses after following needed to read a patience from the data
 DEFAULT_PATIENCE_S = 10.0  # [s] patience when the data has too few presses after following
 SLOWER_MPS = 1.0  # [m/s] how much slower than desired a leader (and the ego) must be to hold the ego back
-_MIN_SPEED_MPS = 0.5  # [m/s] a follower slower than this has no time headway (indicators.acceptance)
 
 
 @dataclass(frozen=True)
@@ -121,12 +120,7 @@ class HeldBackRule:
 
 def target_gaps(scene: Scene, range_m: float) -> dict[str, np.ndarray]:
     """Lead gap, lag gap [m] and the follower's time headway [s] of each scene (NaN where not defined)."""
-    _, nf, nb = seen(scene, range_m)
-    gap_nf = np.where(nf, scene.x_nf - scene.x_e - scene.hl_nf, np.nan)
-    gap_nb = np.where(nb, scene.x_e - scene.x_nb - scene.hl_nb, np.nan)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        thw_nb = np.where(nb & (scene.v_nb >= _MIN_SPEED_MPS), gap_nb / scene.v_nb, np.nan)
-    return {"gap_nf": gap_nf, "gap_nb": gap_nb, "thw_nb": thw_nb}
+    return {k: v for k, v in gaps(scene, range_m).items() if k in ACCEPT_INDICATORS}
 
 
 def accepts(rule: HeldBackRule, scene: Scene, range_m: float) -> np.ndarray:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from indicators.acceptance import MIN_SPEED_MPS
 from rl.problem.env import EnvConfig, observation_names
 from rl.problem.scene import DIRECTION_FEATURE, DV_RANGE_MPS, HEADWAY_CAP_S, OBS_FLOOR, TTC_CAP_S
 
@@ -62,19 +63,23 @@ def _ttc(name: str, who: str) -> dict[str, Any]:
             "when_undefined": {"value": 1.0, "why": "absent or not closing: read as the cap"}}
 
 
-def _log_gap(name: str, quantity: str, unit: str, cap: float, who: str) -> dict[str, Any]:
+def _log_gap(name: str, quantity: str, unit: str, cap: float, who: str, also: str = "") -> dict[str, Any]:
     return {"name": name, "quantity": quantity, "unit": unit, "transform": "log1p_capped", "cap": cap,
-            "when_undefined": {"value": 1.0, "why": f"{who} absent: read as the cap (nothing within range)"}}
+            "when_undefined": {"value": 1.0, "why": f"{who} absent{also}: read as the cap (nothing within range)"}}
+
+
+_STOPPED = f" or {{}} < {MIN_SPEED_MPS:g} m/s"
 
 
 def _acceptance(cfg: EnvConfig) -> list[dict[str, Any]]:
     r = cfg.range_m
     return [
         _log_gap("gap_f", "gap to C_f (negative: alongside)", "m", r, "C_f"),
-        _log_gap("thw_f", "time headway to C_f: gap_f / v_e", "s", HEADWAY_CAP_S, "C_f"),
+        _log_gap("thw_f", "time headway to C_f: gap_f / v_e", "s", HEADWAY_CAP_S, "C_f", _STOPPED.format("v_e")),
         _log_gap("gap_nf", "gap to C_nf, the lead gap in the target lane", "m", r, "C_nf"),
         _log_gap("gap_nb", "gap to C_nb, the lag gap in the target lane", "m", r, "C_nb"),
-        _log_gap("thw_nb", "time headway of C_nb to the ego: gap_nb / v_nb", "s", HEADWAY_CAP_S, "C_nb"),
+        _log_gap("thw_nb", "time headway of C_nb to the ego: gap_nb / v_nb", "s", HEADWAY_CAP_S, "C_nb",
+                 _STOPPED.format("v_nb")),
     ]
 
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from indicators.acceptance import MIN_SPEED_MPS
 from laneprint.reference import FAR_FOLLOWER_M
 
 #: Order of the observation vector (the study's state, section 4.2).
@@ -115,15 +116,28 @@ def seen(scene: Scene, range_m: float = np.inf) -> tuple[np.ndarray, np.ndarray,
     return one(scene.f_present, scene.x_f), one(scene.nf_present, scene.x_nf), one(scene.nb_present, scene.x_nb)
 
 
+def gaps(scene: Scene, range_m: float = np.inf) -> dict[str, np.ndarray]:
+    """Gaps [m] to ``C_f``, ``C_nf``, ``C_nb`` and the time headways [s] ``thw_f`` (gap_f / v_e) and
+    ``thw_nb`` (gap_nb / v_nb) of every scene, NaN where undefined: the vehicle not seen within
+    `range_m`, or a headway's speed under `indicators.acceptance.MIN_SPEED_MPS` (the analysis's rules)."""
+    f, nf, nb = seen(scene, range_m)
+    gap_f = np.where(f, scene.x_f - scene.x_e - scene.hl_f, np.nan)
+    gap_nb = np.where(nb, scene.x_e - scene.x_nb - scene.hl_nb, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        thw_f = np.where(scene.v_e >= MIN_SPEED_MPS, gap_f / scene.v_e, np.nan)
+        thw_nb = np.where(scene.v_nb >= MIN_SPEED_MPS, gap_nb / scene.v_nb, np.nan)
+    return {"gap_f": gap_f, "thw_f": thw_f, "gap_nf": np.where(nf, scene.x_nf - scene.x_e - scene.hl_nf, np.nan),
+            "gap_nb": gap_nb, "thw_nb": thw_nb}
+
+
 def indicators(scene: Scene, far_follower_m: float = FAR_FOLLOWER_M, range_m: float = np.inf) -> Indicators:
     """t_f, t_nf, dv_nb of every scene, with masks saying where each is defined.
 
     A vehicle farther than `range_m` counts as absent (what the driver's log shows).
     """
     f, nf, nb = seen(scene, range_m)
-    gap_f = np.where(f, scene.x_f - scene.x_e - scene.hl_f, np.nan)
-    gap_nf = np.where(nf, scene.x_nf - scene.x_e - scene.hl_nf, np.nan)
-    gap_nb = np.where(nb, scene.x_e - scene.x_nb - scene.hl_nb, np.nan)
+    g = gaps(scene, range_m)
+    gap_f, gap_nf, gap_nb = g["gap_f"], g["gap_nf"], g["gap_nb"]
     t_f, t_f_ok = _ttc(f, gap_f, scene.v_e - scene.v_f)
     t_nf, t_nf_ok = _ttc(nf, gap_nf, scene.v_e - scene.v_nf)
     nb_ok = nb & (np.nan_to_num(gap_nb, nan=np.inf) <= far_follower_m)
@@ -195,32 +209,26 @@ ACCEPTANCE_FEATURES: tuple[str, ...] = ("gap_f", "thw_f", "gap_nf", "gap_nb", "t
 HEADWAY_CAP_S: float = 10.0  # time headways are read on a log scale up to this [s]
 
 
-def _log_capped(x: np.ndarray, ok: np.ndarray, cap: float) -> np.ndarray:
-    """``log1p(min(x, cap)) / log1p(cap)`` where `ok` (x below 0 read as 0), 1 (the cap) elsewhere."""
-    return np.log1p(np.where(ok, np.clip(np.nan_to_num(x, nan=cap), 0.0, cap), cap)) / np.log1p(cap)
+def _log_capped(x: np.ndarray, cap: float) -> np.ndarray:
+    """``log1p(min(max(x, 0), cap)) / log1p(cap)``; undefined (NaN) reads as 1 (the cap)."""
+    return np.log1p(np.clip(np.nan_to_num(x, nan=cap), 0.0, cap)) / np.log1p(cap)
 
 
 def acceptance_features(scene: Scene, range_m: float) -> np.ndarray:
-    """Gaps and time headways of the scene, scaled to [OBS_FLOOR, 1], shape (n, 5) float32.
+    """Gaps and time headways of the scene (`gaps`), scaled to [OBS_FLOOR, 1], shape (n, 5) float32.
 
-    The front gap and time headway to ``C_f`` (gap / v_e), the lead gap to ``C_nf``, the lag
-    gap to ``C_nb`` and that follower's time headway (gap / v_nb), as the analysis reads them
-    (`indicators/acceptance.py`). Gaps are read as ``log1p(gap) / log1p(range_m)``, headways
-    as ``log1p(thw) / log1p(HEADWAY_CAP_S)``: drivers differ by metres at short gaps, not at a
-    hundred. A vehicle not seen reads as the cap (nothing within range); a gap at or below 0
-    (a car alongside) as the floor. The positions of the study's 8 values hold the same
+    The front gap and time headway to ``C_f``, the lead gap to ``C_nf``, the lag gap to ``C_nb``
+    and that follower's time headway, as the analysis reads them (`indicators/acceptance.py`).
+    Gaps are read as ``log1p(gap) / log1p(range_m)``, headways as ``log1p(thw) /
+    log1p(HEADWAY_CAP_S)``: drivers differ by metres at short gaps, not at a hundred. An
+    undefined value (vehicle not seen) reads as the cap (nothing within range); a gap at or
+    below 0 (a car alongside) as the floor. The positions of the study's 8 values hold the same
     information, but a small network learns a ratio such as gap / v_e slowly from few presses.
     """
-    f, nf, nb = seen(scene, range_m)
-    gap_f = scene.x_f - scene.x_e - scene.hl_f
-    gap_nf = scene.x_nf - scene.x_e - scene.hl_nf
-    gap_nb = scene.x_e - scene.x_nb - scene.hl_nb
-    with np.errstate(divide="ignore", invalid="ignore"):
-        thw_f = np.where(scene.v_e > 0, gap_f / scene.v_e, np.inf)
-        thw_nb = np.where(scene.v_nb > 0, gap_nb / scene.v_nb, np.inf)
-    cols = [_log_capped(gap_f, f, range_m), _log_capped(thw_f, f, HEADWAY_CAP_S),
-            _log_capped(gap_nf, nf, range_m), _log_capped(gap_nb, nb, range_m),
-            _log_capped(thw_nb, nb, HEADWAY_CAP_S)]
+    g = gaps(scene, range_m)
+    caps = {"gap_f": range_m, "thw_f": HEADWAY_CAP_S, "gap_nf": range_m, "gap_nb": range_m,
+            "thw_nb": HEADWAY_CAP_S}
+    cols = [_log_capped(g[name], caps[name]) for name in ACCEPTANCE_FEATURES]
     return np.clip(np.stack(cols, axis=1), OBS_FLOOR, 1.0).astype(np.float32)
 
 

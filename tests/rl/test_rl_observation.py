@@ -45,6 +45,8 @@ def test_acceptance_absent_vehicles_read_far_and_a_car_alongside_reads_as_no_gap
     assert got["gap_nb"] == got["thw_nb"] == pytest.approx(1e-3)  # alongside: the floor
     far = acceptance_inputs(scene(x_nf=cfg.range_m + 10.0), cfg)
     assert far["gap_nf"] == 1.0  # beyond the range: absent
+    stopped = acceptance_inputs(scene(v_nb=0.2), cfg)  # the analysis's rule: no headway below 0.5 m/s
+    assert stopped["thw_nb"] == 1.0 and stopped["gap_nb"] < 1.0
 
 
 @pytest.mark.parametrize("name", OBSERVATIONS)
