@@ -63,7 +63,7 @@ import numpy as np
 import pandas as pd
 
 from laneprint.reference import FAR_FOLLOWER_M
-from rl.problem.scene import Scene, gaps, seen
+from rl.problem.scene import Scene, gaps, indicators, seen
 
 #: the target lane's indicators the rule reads (`indicators.acceptance`)
 ACCEPT_INDICATORS: tuple[str, ...] = ("gap_nf", "gap_nb", "thw_nb")
@@ -137,10 +137,8 @@ def above_floors(rule: HeldBackRule, scene: Scene, range_m: float) -> np.ndarray
     """Whether each scene's target lane has no gap below the smallest the target took (the lines' floors)
     and no leader there closer in time to collision than the smallest t_nf it took."""
     g = target_gaps(scene, range_m)
-    _, nf, _ = seen(scene, range_m)
-    closing = scene.v_e - scene.v_nf
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_nf = np.where(nf & (closing > 0), g["gap_nf"] / closing, np.inf)
+    ind = indicators(scene, rule.far_follower_m, range_m)
+    t_nf = np.where(ind.t_nf_ok, ind.t_nf, np.inf)
     lead_ok = (~np.isfinite(g["gap_nf"]) | (g["gap_nf"] >= rule.gap_nf.floor)) & (t_nf >= rule.t_nf_floor_s)
     near = np.isfinite(g["gap_nb"]) & (g["gap_nb"] <= rule.far_follower_m)
     thw_ok = ~np.isfinite(g["thw_nb"]) | (g["thw_nb"] >= rule.thw_nb.floor)
