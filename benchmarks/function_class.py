@@ -36,7 +36,7 @@ from rl.evaluation.crossval import CrossvalSettings, assign_folds  # noqa: E402
 from rl.learners.dqn import DQNSettings, q_network  # noqa: E402
 from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config  # noqa: E402
 from rl.baselines.imitation import ImitationClassifier, labelled_states  # noqa: E402
-from rl.runs import Target, _eval_drivers  # noqa: E402
+from rl.runs import Target, target_drivers  # noqa: E402
 
 
 def piecewise(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
@@ -75,7 +75,7 @@ def main() -> int:
     args = ap.parse_args()
     torch.set_num_threads(1)
     ws = Workspace(args.workspace)
-    drivers, _ = _eval_drivers(ws, Target("style", args.style))
+    drivers, _ = target_drivers(ws, Target("style", args.style))
     dec = ws.read_table("analysis", "decisions")
     dec = dec[dec["driver_id"].astype(str).isin(drivers)]
     cfg: EnvConfig = formulation_config(EnvConfig().lines)  # the default observation; lines play no part here

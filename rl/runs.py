@@ -371,7 +371,7 @@ def _load_q(folder: Path, settings: DQNSettings, env: EnvConfig) -> torch.nn.Mod
     return net
 
 
-def _eval_drivers(workspace: Workspace, target: Target) -> tuple[list[str], str | None]:
+def target_drivers(workspace: Workspace, target: Target) -> tuple[list[str], str | None]:
     """Drivers whose decisions judge a run: the driver, or a style's members (typical first)."""
     if target.kind == "driver":
         return [target.name], target.name
@@ -405,7 +405,7 @@ def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | No
         if not workspace.has_table("analysis", "decisions"):
             raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first to evaluate against the drivers")
         decisions = workspace.read_table("analysis", "decisions")
-    drivers, typical = _eval_drivers(workspace, target)
+    drivers, typical = target_drivers(workspace, target)
     # the imitation benchmark, fitted on the same states it is scored on (in-sample, like the agent)
     member_approaches, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(drivers)])
     policies = {"agent": agent_policy(net, cfg), "greedy": greedy_policy(cfg)}
@@ -447,7 +447,7 @@ def recorded_approaches(workspace: Workspace, target: Target) -> list["Approach"
     if not workspace.has_table("analysis", "decisions"):
         raise UserError(f"no analysis in {workspace.root}: recorded scenes need `laneprint analyze` first")
     decisions = workspace.read_table("analysis", "decisions")
-    drivers, _ = _eval_drivers(workspace, target)
+    drivers, _ = target_drivers(workspace, target)
     approaches, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(drivers)])
     if not approaches:
         raise UserError(f"no recorded approaches for {target.label}: nothing to replay (try --scenes synthetic)")

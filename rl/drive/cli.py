@@ -83,6 +83,38 @@ def render_model(result: dict[str, Any], console: Console) -> None:
     console.print(f"agent / SUMO's model, lane changes per km: {_f(m['rate_ratio'])}", highlight=False)
 
 
+def _ci(pair: Any, spec: str = ".2f") -> str:
+    return "" if not pair or pair[0] is None else f" [{format(pair[0], spec)}, {format(pair[1], spec)}]"
+
+
+def render_fidelity(fid: dict[str, Any], console: Console) -> None:
+    """The drive beside its target drivers: lane changes per km, sides, indicators at the presses."""
+    if "rate" not in fid:
+        console.print(fid.get("note", "no comparison with the drivers"), highlight=False, soft_wrap=True)
+        return
+    r = fid["rate"]
+    a, d = r["agent"], r["drivers"]
+    rng = d["per_km_range"]
+    console.print(
+        f"like its drivers ({', '.join(fid['drivers'])}): lane changes per km {_f(a['per_km'])}{_ci(a['per_km_ci'])} "
+        f"against {_f(d['per_km'])}{_ci(d['per_km_ci'])} (drivers {_f(rng[0]) if rng else '-'}-"
+        f"{_f(rng[1]) if rng else '-'}), ratio {_f(r['ratio'])} "
+        f"({'within' if r['within_tolerance'] else 'outside'} +-{fid['tolerance']:.0%}); to the left "
+        f"{_f(a['left_share'], '.0%')} against {_f(d['left_share'], '.0%')}", highlight=False, soft_wrap=True)
+    t = Table(title=f"indicators at the drive's {fid['agent_presses']} presses against the drivers' "
+                    f"(read as the analysis reads a log; medians with 95 % intervals)")
+    for c in ("indicator", "n drive / drivers", "drive median [95 %]", "drivers median [95 %]", "drivers IQR",
+              "in IQR", "Wasserstein", "KS (p)"):
+        t.add_column(c, justify="right")
+    for name, v in fid["indicators"].items():
+        x, y = v["agent"], v["drivers"]
+        t.add_row(name, f"{x['n']} / {y['n']}", _f(x["median"], ".1f") + _ci(x["median_ci"], ".1f"),
+                  _f(y["median"], ".1f") + _ci(y["median_ci"], ".1f"), f"{_f(y['q1'], '.1f')}-{_f(y['q3'], '.1f')}",
+                  "-" if v["median_in_iqr"] is None else ("yes" if v["median_in_iqr"] else "no"),
+                  _f(v["wasserstein"], ".1f"), f"{_f(v['ks'])} ({_f(v['ks_p'])})")
+    console.print(t)
+
+
 def render(result: dict[str, Any], console: Console) -> None:
     """The drive's tables: per section, then the indicators at the agent's decisions against its lines."""
     t = Table(title=f"{result['run_id']} ({result['target']['kind']} {result['target']['name']}) in SUMO "
@@ -132,6 +164,8 @@ def render(result: dict[str, Any], console: Console) -> None:
         r = ind[name]
         it.add_row(name, str(r["n"]), _f(r["median"]), _f(r["line_median"]), _f(r["mae"]), _f(r["bias"]))
     console.print(it)
+    if "fidelity" in result:
+        render_fidelity(result["fidelity"], console)
     if "analysis" in result:
         a = result["analysis"]
         verdict = "" if a["target_style"] is None else (

@@ -100,7 +100,12 @@ class HeldBackRule:
     slower_mps: float = SLOWER_MPS
     far_follower_m: float = FAR_FOLLOWER_M
     t_nf_floor_s: float = 0.0  # [s] no change closing in on the target lane's leader faster than this
+    dwell_s: dict[str, float] = field(default_factory=dict)  # 'left>right' etc.: least time from a change to the next
     source: dict[str, str] = field(default_factory=dict)
+
+    def dwell_ok(self, last_side: Optional[str], since_s: float, side: str) -> bool:
+        """Whether a change to `side` may be requested `since_s` after the last lane change (to `last_side`)."""
+        return last_side is None or since_s >= self.dwell_s.get(f"{last_side}>{side}", 0.0)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -215,6 +220,32 @@ class LeftBehind:
 
 _COLUMN = {"gap_nf": "nf_gap_m", "gap_nb": "nb_gap_m", "thw_nb": "thw_nb_s"}  # indicator -> decisions column
 FLOOR_PERCENTILE = 5.0
+MIN_DWELL_PAIRS = 5  # consecutive lane changes of a kind needed to read a dwell from the data
+
+
+def dwell_from(decisions: pd.DataFrame) -> tuple[dict[str, float], str]:
+    """(least time [s] from a lane change to the next press, per kind 'left>right' etc., where from):
+    percentile `FLOOR_PERCENTILE` over the drivers' consecutive changes in one recording, for kinds with
+    at least `MIN_DWELL_PAIRS` of them. The agent decides state by state without memory; the drivers
+    do not press again at once after a change (measured: without this the agents changed back 3 s
+    after a change, the drivers never sooner than 5-16 s after a change to the left)."""
+    p = decisions[(decisions["label"] == "change") & decisions["lc_direction"].notna()]
+    p = p.sort_values(["recording_id", "press_t_s"])
+    gaps_by: dict[str, list[float]] = {}
+    for _, rec in p.groupby("recording_id", sort=False):
+        t_press = rec["press_t_s"].to_numpy(dtype=float)
+        t_change = rec["lane_change_t_s"].to_numpy(dtype=float)
+        side = rec["lc_direction"].astype(str).to_numpy()
+        last = None
+        for i in range(len(rec)):
+            if last is not None and t_press[i] > t_change[last]:
+                gaps_by.setdefault(f"{side[last]}>{side[i]}", []).append(t_press[i] - t_change[last])
+            if np.isfinite(t_change[i]):
+                last = i
+    dwell = {k: float(np.percentile(v, FLOOR_PERCENTILE)) for k, v in sorted(gaps_by.items())
+             if len(v) >= MIN_DWELL_PAIRS}
+    counts = ", ".join(f"{k} {len(v)}" for k, v in sorted(gaps_by.items())) or "none"
+    return dwell, f"percentile {FLOOR_PERCENTILE:g} of the time from a lane change to the next press ({counts})"
 
 
 def _line(lines: pd.DataFrame, fits: Optional[pd.DataFrame], ind: str, typical: Optional[str],
@@ -300,12 +331,14 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5) -> Held
                          "again (acceptance indicators)") from None
     mine = decisions[decisions["driver_id"].astype(str).isin(drivers)]
     patience, why = patience_from(mine, step_s)
+    dwell, dwell_why = dwell_from(mine)
     source = {k: v[1] for k, v in got.items()} | {"patience_s": f"{why}, {target.label}",
                                                   "slower_mps": "the analysis's min_closing_mps (1 m/s)",
                                                   "t_nf_floor_s": f"percentile {FLOOR_PERCENTILE:g} of t_nf at "
-                                                                  f"{len(t_nf)} presses of {typical}"}
+                                                                  f"{len(t_nf)} presses of {typical}",
+                                                  "dwell_s": f"{dwell_why}, {target.label}"}
     return HeldBackRule(patience, got["gap_nf"][0], got["gap_nb"][0], got["thw_nb"][0], t_nf_floor_s=t_nf_floor,
-                        source=source)
+                        dwell_s=dwell, source=source)
 
 
 # --- measured in the closed loop ---------------------------------------------------------------
@@ -373,7 +406,7 @@ def merge_summaries(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Totals over sections of `FollowStats.summary` rows (longest: the largest; advantages dropped)."""
     out: dict[str, Any] = {k: sum(r.get(k, 0) for r in rows) for k in
                            ("decision_steps", "held_steps", "held_tf_undefined_steps", "held_tf_above_line_steps",
-                            "advantage_held_nonneg", "vetoed", "gated")}
+                            "advantage_held_nonneg", "vetoed", "gated", "dwelled")}
     out["held_share"] = out["held_steps"] / out["decision_steps"] if out["decision_steps"] else None
     for k in ("longest_held_s", "longest_passed_up_s", "longest_passed_up_faster_s"):
         out[k] = max((r[k] for r in rows), default=0.0)

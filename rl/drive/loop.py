@@ -82,6 +82,10 @@ def neighbour_lanes(lane: int, n_lanes: int = N_LANES) -> list[int]:
     return [k for k in (lane + 1, lane - 1) if 0 <= k < n_lanes]
 
 
+def _side(lane: int, target: int) -> str:
+    return "left" if target > lane else "right"
+
+
 def advantages(q: np.ndarray) -> np.ndarray:
     """Q(change) - Q(keep) of each row of a (n, 2) array of Q-values."""
     q = np.asarray(q, dtype=float)
@@ -138,6 +142,7 @@ class Decision:
     press_t_s: Optional[float] = None
     advantages: dict[str, float] = field(default_factory=dict)  # side ('left'/'right') -> Q(change) - Q(keep)
     source: str = "agent"  # who asked: 'agent'; 'rule' (held back), 'return' (an overtaking completed)
+    too_soon: list[str] = field(default_factory=list)  # sides not asked about: too soon after the last change
 
 
 class Watch:
@@ -210,12 +215,18 @@ class AgentControl(Watch):
         self.lane = -1  # the ego's lane at the last decision step
         self.n_vetoed = 0  # agent's changes not requested: back behind the leader the rule left
         self.n_gated = 0  # agent's changes not requested: a gap below the smallest the target took
+        self.n_dwelled = 0  # decision steps with a side not asked about: too soon after the last lane change
+        self.last_change: Optional[tuple[float, str]] = None  # (time, side) the ego last crossed into a lane
+        self._lane_now: Optional[int] = None
 
     def start(self, api: Any) -> None:
         api.vehicle.setLaneChangeMode(EGO_ID, REQUEST_MODE)
 
     def step(self, api: Any, t: float, ego: VehicleState, lateral_m: float,
              others: dict[str, VehicleState]) -> None:
+        if self._lane_now is not None and ego.lane != self._lane_now:
+            self.last_change = (t, "left" if ego.lane > self._lane_now else "right")
+        self._lane_now = ego.lane
         seen_now = self.look(t, ego, lateral_m, others)
         if seen_now is None:
             return
@@ -224,6 +235,15 @@ class AgentControl(Watch):
         adv = dict(zip(lanes, advantages(self.q(Scene.concat([asked[k][0] for k in lanes])))))
         self.n_asked += 1
         self.record(asked, held, held_for, max(adv.values()))
+        all_adv = adv
+        if self.use_rule and self.last_change is not None:  # no change sooner than the drivers made one
+            since, side = t - self.last_change[0], self.last_change[1]
+            keep = {k for k in lanes if self.rule.dwell_ok(side, since, _side(ego.lane, k))}
+            if len(keep) < len(lanes):
+                self.n_dwelled += 1
+                asked, adv = {k: asked[k] for k in keep}, {k: adv[k] for k in keep}
+                if not asked:
+                    return
         target, source = self.assist(choose_side(adv), asked, held, held_for, ego, others)
         if target is None:
             return
@@ -231,8 +251,8 @@ class AgentControl(Watch):
         ind = indicators(scene, self.cfg.far_follower_m, self.cfg.range_m)
         self.decisions.append(Decision(t, ego.lane, target, ego.v, _defined(ind.t_f, ind.t_f_ok),
                                        _defined(ind.t_nf, ind.t_nf_ok), _defined(ind.dv_nb, ind.dv_nb_ok), ids,
-                                       advantages={("left" if k > ego.lane else "right"): float(a)
-                                                   for k, a in adv.items()}, source=source))
+                                       advantages={_side(ego.lane, k): float(a) for k, a in all_adv.items()},
+                                       source=source, too_soon=[_side(ego.lane, k) for k in all_adv if k not in adv]))
         if self.use_rule and target > ego.lane and ids.get("f") is not None:
             self.overtakings.append(LeftBehind(ego.lane, str(ids["f"])))  # followed until complete
         api.vehicle.changeLane(EGO_ID, target, self.cfg.dt_s)
@@ -332,7 +352,8 @@ def run_sections(make: ControlFactory, cfg: EnvConfig, ego_params: dict[str, flo
             match_presses(decisions, log.lane_changes, cfg.dt_s)
             out.append(SectionDrive(float(limit), log, control.n_asked, decisions,
                                     {**control.stats.summary(), "vetoed": getattr(control, "n_vetoed", 0),
-                                     "gated": getattr(control, "n_gated", 0)}, desired))
+                                     "gated": getattr(control, "n_gated", 0),
+                                     "dwelled": getattr(control, "n_dwelled", 0)}, desired))
     report(progress, len(limits), len(limits), "driven")
     return out
 

@@ -30,12 +30,13 @@ from laneprint.errors import UserError
 from laneprint.progress import ProgressFn
 from laneprint.reference import INDICATORS, SPEED_LIMITS_KPH
 from laneprint.workspace import Workspace, atomic_write_json
+from rl.drive.fidelity import fidelity
 from rl.drive.heldback import HeldBackRule, merge_summaries, rule_from_analysis
 from rl.drive.loop import QFunction, SectionDrive, drive_sections, recordings, sumo_model_sections
 from rl.learners.dqn import q_values
 from rl.problem.env import EnvConfig, observation
 from rl.problem.rewards import ReferenceLines
-from rl.runs import Target, load_weights, run_dir
+from rl.runs import Target, load_weights, run_dir, target_drivers
 
 DEFAULT_STYLE = "Normal"
 _ATTR = {"t_f": "t_f_s", "t_nf": "t_nf_s", "dv_nb": "dv_nb_mps"}  # indicator -> `Decision` field
@@ -209,6 +210,21 @@ def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig) -> tupl
         return None, f"no held-back rule: {exc}"
 
 
+def drivers_fidelity(workspace: Workspace, target: Target, recs: list[tuple[dict, Any, Any]],
+                     seed: int) -> dict[str, Any]:
+    """The drive beside the target drivers' recordings and presses (`rl.drive.fidelity`); with `note`
+    and no figures when the workspace has no analysis of them."""
+    from clustering.pipeline import stored_settings
+
+    try:
+        drivers, _ = target_drivers(workspace, target)
+        if not workspace.has_table("analysis", "decisions"):
+            raise UserError("no analysis decisions table: run `laneprint analyze` first")
+    except UserError as exc:
+        return {"note": f"no comparison with the drivers: {exc}"}
+    return fidelity(workspace, drivers, recs, stored_settings(workspace), seed)
+
+
 def _never() -> HeldBackRule:
     from rl.drive.heldback import Line
 
@@ -273,6 +289,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
         "indicators": indicators_vs_lines(drives, cfg.lines),
         "decisions": [{"speed_limit_kph": d.speed_limit_kph, **asdict(x)} for d in drives for x in d.decisions],
     }
+    result["fidelity"] = drivers_fidelity(workspace, target, recs, seed)
     if sumo_model:
         model = sumo_model_sections(cfg, STYLE_PARAMS[style], settings, seed, rule or _NEVER, progress)
         result["sumo_model"] = sumo_model_report(model, result["totals"])

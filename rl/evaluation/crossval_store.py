@@ -29,7 +29,7 @@ from laneprint.workspace import Workspace, atomic_write_json
 from rl.evaluation.crossval import CrossvalSettings, crossvalidate
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import ReferenceLines
-from rl.runs import Target, _eval_drivers, now_iso, resolve_lines, run_dir
+from rl.runs import Target, target_drivers, now_iso, resolve_lines, run_dir
 from rl.settings import DQNSettings
 
 
@@ -54,7 +54,7 @@ def run_crossval(workspace: Workspace, target: Target, env: EnvConfig, dqn: DQNS
     if not workspace.has_table("analysis", "decisions"):
         raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first")
     decisions = workspace.read_table("analysis", "decisions")
-    drivers, typical = _eval_drivers(workspace, target)
+    drivers, typical = target_drivers(workspace, target)
     if target.kind == "driver" or settings.lines_from == "typical":
         line_drivers = [typical] if typical else drivers
     else:

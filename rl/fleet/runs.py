@@ -37,7 +37,7 @@ from laneprint.workspace import Workspace, atomic_write_json
 from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config, replayed_approaches
 from rl.fleet.batch import FleetMember, FleetTrainer
 from rl.fleet.store import fleet_dir, fleet_table
-from rl.runs import (Target, _eval_drivers, _save_torch, _StopFlag, _truncate_metrics, code_version, create_run,
+from rl.runs import (Target, target_drivers, _save_torch, _StopFlag, _truncate_metrics, code_version, create_run,
                      evaluate_run, lock_run, now_iso, resolve_lines, run_dir)
 from rl.settings import DQNSettings
 
@@ -95,7 +95,7 @@ def _approach_counts(workspace: Workspace, targets: list[Target], env: EnvConfig
                            ).value_counts().to_dict()
     out = {}
     for t in targets:
-        drivers, _ = _eval_drivers(workspace, t)
+        drivers, _ = target_drivers(workspace, t)
         out[t] = int(sum(per_driver.get(d, 0) for d in drivers))
     return out
 
@@ -198,7 +198,7 @@ def _load_members(workspace: Workspace, run_ids: list[str]) -> tuple[list[FleetM
                 by_driver = {}
                 for a in all_approaches:
                     by_driver.setdefault(a.driver_id, []).append(a)
-            drivers, _ = _eval_drivers(workspace, Target(**config["target"]))
+            drivers, _ = target_drivers(workspace, Target(**config["target"]))
             approaches = [a for d in drivers for a in by_driver.get(d, [])]
         members.append(FleetMember(env, settings, approaches))
         ckpt = folder / "checkpoint.pt"

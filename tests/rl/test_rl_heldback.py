@@ -10,7 +10,7 @@ import pytest
 
 from laneprint.simulator.sumo.traffic import VehicleState
 from rl.drive.heldback import (DEFAULT_PATIENCE_S, FollowStats, HeldBackRule, Line, above_floors, accepts,
-                               following_before_press, patience_from, rule_target)
+                               dwell_from, following_before_press, patience_from, rule_target)
 from rl.drive.loop import AgentControl, Watch, live_scene
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
@@ -291,3 +291,51 @@ def test_overtakings_stack_on_three_lanes():
     assert api.vehicle.requests[-1] == ("ego", 0, 0.5) and control.decisions[-1].source == "return"
     until_request(VehicleState(260.0, 25.0, 0, 4.5), far, n=20)
     assert control.overtakings == [] and len(api.vehicle.requests) == 4
+
+
+def _presses(rows: list[tuple[str, float, str]]) -> pd.DataFrame:
+    """Press rows (recording, press time, side); each lane change 1.5 s after its press."""
+    return pd.DataFrame({"recording_id": [r for r, _, _ in rows], "press_t_s": [t for _, t, _ in rows],
+                         "lane_change_t_s": [t + 1.5 for _, t, _ in rows], "lc_direction": [s for _, _, s in rows],
+                         "label": "change"})
+
+
+def test_dwell_is_a_low_percentile_of_the_time_from_a_change_to_the_next_press():
+    # one recording: left, right 10.5 s after the change, left again, ... (6 left>right, 5 right>left)
+    rows, t = [], 0.0
+    for k in range(6):
+        rows.append(("r", t, "left"))
+        t += 1.5 + 10.0 + k  # left>right: 10-15 s after the change
+        rows.append(("r", t, "right"))
+        t += 1.5 + 2.0  # right>left: 2 s after the change
+    dwell, why = dwell_from(_presses(rows))
+    assert dwell["left>right"] == pytest.approx(np.percentile(np.arange(10.0, 16.0), 5))
+    assert dwell["right>left"] == pytest.approx(2.0) and "left>right 6, right>left 5" in why
+    # pairs never span recordings, and kinds with fewer than MIN_DWELL_PAIRS are not read
+    few = _presses([(f"r{k}", 0.0, "left") for k in range(10)] + [("r0", 20.0, "right")])
+    assert dwell_from(few)[0] == {}
+
+
+def test_the_agent_is_not_asked_about_a_side_sooner_after_a_change_than_its_drivers_pressed():
+    def always(scene) -> np.ndarray:
+        q = np.zeros((len(scene), 2))
+        q[:, CHANGE] = 0.5
+        return q
+
+    rule = HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), dwell_s={"left>right": 4.0})
+    for use_rule, first_back in ((True, 4.0), (False, 0.0)):
+        control, api = AgentControl(always, EnvConfig(observation="indicators"), 0.1, 2, rule, DESIRED,
+                                    use_rule), _Api()
+        control.start(api)
+        control.step(api, 0.0, VehicleState(100.0, 20.0, 0, 4.5), 0.0, {})  # in lane 0 ...
+        times = []
+        for i in range(1, 61):  # ... then in lane 1 from t = 0.1 s: a change to the left just made
+            t = round(0.1 * i, 6)
+            n = len(api.vehicle.requests)
+            control.step(api, t, VehicleState(100.0 + 2.0 * i, 20.0, 1, 4.5), 0.0, {})
+            if len(api.vehicle.requests) > n:
+                times.append(t)
+        assert times and times[0] >= 0.1 + first_back - 1e-9 and times[0] < 0.1 + first_back + 0.5
+        assert (control.n_dwelled > 0) == use_rule
+        if use_rule:
+            assert control.decisions[0].too_soon == [] and api.vehicle.requests[0][1] == 0

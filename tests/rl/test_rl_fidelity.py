@@ -1,0 +1,61 @@
+"""The drive beside its drivers (`rl.drive.fidelity`): rates, sides and indicator distributions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from rl.drive.fidelity import (compare_values, lane_changes, poisson_interval, press_values, rate_comparison)
+
+
+def _ego(lanes: list[int], km: float = 2.0) -> pd.DataFrame:
+    n = len(lanes)
+    return pd.DataFrame({"t_s": np.arange(n) * 1.0, "ego_lane": lanes, "ego_x_m": np.linspace(0.0, km * 1000.0, n)})
+
+
+def test_lane_changes_count_flips_by_side_over_the_distance():
+    got = lane_changes(_ego([0, 0, 1, 1, 2, 1, 0, 0], km=3.0))
+    assert got == {"changes": 4, "left": 2, "right": 2, "km": pytest.approx(3.0)}
+
+
+def test_the_rate_is_within_tolerance_only_near_the_drivers():
+    drivers = pd.DataFrame({"driver_id": ["a", "b"], "changes": [30, 50], "left": [15, 25], "right": [15, 25],
+                            "km": [10.0, 10.0]})  # 4 per km pooled
+    near = rate_comparison({"changes": 45, "left": 30, "right": 15, "km": 10.0}, drivers)
+    assert near["ratio"] == pytest.approx(1.125) and near["within_tolerance"]
+    assert near["agent"]["left_share"] == pytest.approx(2 / 3) and near["drivers"]["left_share"] == 0.5
+    assert near["drivers"]["per_km_range"] == [3.0, 5.0]
+    lo, hi = near["agent"]["per_km_ci"]
+    assert lo < 4.5 < hi
+    far = rate_comparison({"changes": 60, "left": 30, "right": 30, "km": 10.0}, drivers)
+    assert far["ratio"] == pytest.approx(1.5) and not far["within_tolerance"]
+
+
+def test_poisson_interval_covers_the_rate_and_narrows_with_exposure():
+    lo, hi = poisson_interval(10, 5.0)
+    assert lo < 2.0 < hi
+    lo2, hi2 = poisson_interval(100, 50.0)
+    assert hi2 - lo2 < hi - lo
+    assert poisson_interval(0, 5.0)[0] == 0.0 and poisson_interval(3, 0.0) == (None, None)
+
+
+def test_a_median_outside_the_drivers_iqr_is_said():
+    rng = np.random.default_rng(0)
+    drivers = rng.normal(10.0, 2.0, 200)
+    same = compare_values(rng.normal(10.0, 2.0, 50), drivers, rng)
+    shifted = compare_values(rng.normal(16.0, 2.0, 50), drivers, rng)
+    assert same["median_in_iqr"] and not shifted["median_in_iqr"]
+    assert shifted["wasserstein"] > same["wasserstein"] and shifted["ks"] > same["ks"]
+    lo, hi = same["agent"]["median_ci"]
+    assert lo <= same["agent"]["median"] <= hi
+    assert compare_values(np.zeros(0), drivers, rng)["median_in_iqr"] is None
+
+
+def test_press_values_keep_defined_values_at_presses_only():
+    d = pd.DataFrame({"label": ["keep", "change", "change"], "t_f_s": [1.0, 2.0, np.nan],
+                      "t_f_status": ["ok", "ok", "not_closing"], "f_gap_m": [5.0, 6.0, 7.0],
+                      "ego_v_mps": [20.0, 20.0, 20.0], "f_v_mps": [19.0, 19.0, 21.0]})
+    got = press_values(d)
+    assert list(got["t_f"]) == [2.0] and list(got["gap_f"]) == [6.0, 7.0] and list(got["thw_f"]) == [0.3, 0.35]
+    assert len(got["gap_nb"]) == 0
