@@ -9,12 +9,16 @@ Through the real command line:
    sections), then `ingest` of its MCAPs as a new driver (`agent-<style>`);
 4. `analyze` again, on the study plus the three drives.
 
-Prints one row per style: lane changes made, SUMO's collisions and emergency
-brakes, the indicators at the agent's changes against its target's lines (median
-and mean absolute difference), and the style the analysis assigns to the agent's
-drive; then whether the acceptance holds (no collision, 3 of 3 in their style).
+Prints one row per style, the drive beside the style's drivers (`drive`'s `fidelity`,
+`rl/drive/fidelity.py`): lane changes per km with 95 % intervals and their ratio, the share
+to the left, how many of the indicators' medians at the agent's presses lie inside the
+drivers' interquartile range, SUMO's collisions and emergency brakes, and the style the
+analysis assigns to the agent's drive; then whether issue 19's closed-loop acceptance holds
+(per style: no collision, its own style, lane changes per km within +-20 % of its drivers',
+every median inside their IQR) and a JSON line with every figure.
 
-Run: python benchmarks/closed_loop.py [--seed 7] [--drivers 9] [--minutes 10] [--workdir /tmp/lp-closed-loop]
+Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--drive-seed 1] [--drivers 9] [--minutes 10]
+                                      [--workdir /tmp/lp-closed-loop]
 
 Sides not taken (issue 19, three lanes): on an analysed workspace of a SUMO study,
 one agent of a style per `EnvConfig.other_side` setting (`train --other-side` and
@@ -208,8 +212,10 @@ def main() -> None:
     ap.add_argument("--workspace", type=Path, help="--sides: the analysed workspace of a SUMO study")
     ap.add_argument("--style", default="Normal", help="--sides: the style whose agents are driven")
     ap.add_argument("--lanes", type=int, nargs="+", default=None,
-                    help="lanes of the drives: --sides one number (default 3); --out-of-world one or more (default 2)")
+                    help="lanes of the drives: --sides one number (default 3); --out-of-world one or more (default 2); "
+                         "default mode: of the study and the drives (default 2)")
     ap.add_argument("--drive-seeds", type=int, nargs="+", default=[460, 461], help="--sides: seeds of the drives")
+    ap.add_argument("--drive-seed", type=int, default=1, help="seed of the drives' traffic (default mode)")
     ap.add_argument("--out-of-world", action="store_true",
                     help="the shipped study's agents in SUMO against SUMO's own model of their style")
     args = ap.parse_args()
@@ -226,16 +232,22 @@ def main() -> None:
         args.workdir.mkdir(parents=True, exist_ok=True)
         sides(args)
         return
+    sys.exit(0 if closed_loop(args) else 1)
+
+
+def closed_loop(args: argparse.Namespace) -> bool:
+    """A new study, its three style agents driven in its kind of traffic; True when the acceptance holds."""
     work = args.workdir
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
     study, ws = work / "study", work / "ws"
+    lanes = str((args.lanes or [2])[0])
     t0 = time.monotonic()
     cli("simulate", "--engine", "sumo", "--out", str(study), "--drivers", str(args.drivers),
-        "--seed", str(args.seed))
+        "--seed", str(args.seed), "--lanes", lanes)
     cli("ingest", str(study), "-w", str(ws))
     first = cli("analyze", "-w", str(ws))
-    print(f"study: {args.drivers} drivers, seed {args.seed}; styles "
+    print(f"study: {args.drivers} drivers, seed {args.seed}, {lanes} lanes; styles "
           + ", ".join(f"{d} {v['style']}" for d, v in first["drivers"].items()), flush=True)
     drives = {}
     for style in STYLES:
@@ -243,34 +255,45 @@ def main() -> None:
                   "-w", str(ws))
         driver = f"agent-{style.lower()}"
         drives[style] = cli("drive", run["run_id"], "--engine", "sumo", "--minutes", f"{args.minutes:g}",
-                            "--seed", str(args.seed), "--driver-id", driver, "--out", str(work / "drives" / driver),
-                            "-w", str(ws))
+                            "--seed", str(args.drive_seed), "--lanes", lanes, "--driver-id", driver,
+                            "--no-sumo-model", "--out", str(work / "drives" / driver), "-w", str(ws))
         print(f"{style}: trained {run['episodes']} episodes in {run['wall_s']} s; drove "
               f"{drives[style]['totals']['lane_changes']} lane changes", flush=True)
     for style, d in drives.items():
         cli("ingest", *d["files"], "--driver", d["driver_id"], "-w", str(ws))
     final = cli("analyze", "-w", str(ws))
-    print(f"\n## Closed loop in SUMO (study seed {args.seed}, {args.minutes:g} min per section, "
-          f"4 sections, {time.monotonic() - t0:.0f} s in all)")
-    print("| style | lane changes (L/R) | collisions | emergency brakes | not started | "
-          "t_f agent / line [s] (MAE) | t_nf agent / line [s] (MAE) | dv_nb agent / line [m/s] (MAE) | assigned style |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print(f"\n## Closed loop in SUMO (study seed {args.seed}, drive seed {args.drive_seed}, {lanes} lanes, "
+          f"{args.minutes:g} min per section, 4 sections, {time.monotonic() - t0:.0f} s in all)")
+    print("| style | lane changes (L/R) | per km [95 %] | drivers per km [95 %] (range) | ratio | left share: "
+          "agent / drivers | medians in drivers' IQR | collisions | emergency brakes | assigned style |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     checks = []
     for style, d in drives.items():
-        tot, ind = d["totals"], d["indicators"]
+        tot, fid = d["totals"], d["fidelity"]
+        r = fid["rate"]
+        a, dr = r["agent"], r["drivers"]
+        outside = [k for k, v in fid["indicators"].items() if v["median_in_iqr"] is False]
         assigned = final["drivers"].get(d["driver_id"], {}).get("style")
-        cells = [f"{fmt(ind[k]['median'])} / {fmt(ind[k]['line_median'])} ({fmt(ind[k]['mae'])}, n={ind[k]['n']})"
-                 for k in ("t_f", "t_nf", "dv_nb")]
-        print(f"| {style} | {tot['lane_changes']} ({tot['left']}/{tot['right']}) | {tot['collisions']} "
-              f"| {tot['emergency_brakes']} | {tot['not_started']} | {' | '.join(cells)} | {assigned} |")
-        checks.append((style, tot["collisions"] == 0, assigned == style))
+        print(f"| {style} | {tot['lane_changes']} ({tot['left']}/{tot['right']}) | {fmt(a['per_km'], '.2f')} "
+              f"[{fmt(a['per_km_ci'][0], '.2f')}, {fmt(a['per_km_ci'][1], '.2f')}] | {fmt(dr['per_km'], '.2f')} "
+              f"[{fmt(dr['per_km_ci'][0], '.2f')}, {fmt(dr['per_km_ci'][1], '.2f')}] ({fmt(dr['per_km_range'][0], '.2f')}"
+              f"-{fmt(dr['per_km_range'][1], '.2f')}) | {fmt(r['ratio'], '.2f')} | {fmt(a['left_share'], '.2f')} / "
+              f"{fmt(dr['left_share'], '.2f')} | {fid['medians_in_iqr']}{' (not: ' + ', '.join(outside) + ')' if outside else ''} "
+              f"| {tot['collisions']} | {tot['emergency_brakes']} | {assigned} |")
+        checks.append({"style": style, "collision_free": tot["collisions"] == 0, "own_style": assigned == style,
+                       "rate": bool(r["within_tolerance"]), "medians": not outside})
     study_styles = {d: v["style"] for d, v in final["drivers"].items() if not d.startswith("agent-")}
     changed = {d: (first["drivers"][d]["style"], s) for d, s in study_styles.items()
                if first["drivers"][d]["style"] != s}
     print(f"\nstudy drivers whose style changed when the drives joined: {changed or 'none'}")
-    print(f"no collision: {sum(c for _, c, _ in checks)} of 3; in its own style: {sum(s for _, _, s in checks)} of 3")
-    print("acceptance:", "met" if all(c and s for _, c, s in checks) else "NOT met")
-
+    for key, what in (("collision_free", "no collision"), ("own_style", "in its own style"),
+                      ("rate", "lane changes per km within +-20 %"), ("medians", "every median in the drivers' IQR")):
+        print(f"{what}: {sum(c[key] for c in checks)} of 3")
+    ok = all(all(v for k, v in c.items() if k != "style") for c in checks)
+    print("acceptance:", "met" if ok else "NOT met")
+    print(json.dumps({"seed": args.seed, "drive_seed": args.drive_seed, "lanes": int(lanes), "checks": checks,
+                      "fidelity": {s: d["fidelity"] for s, d in drives.items()}}))
+    return ok
 
 if __name__ == "__main__":
     main()
