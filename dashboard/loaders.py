@@ -146,6 +146,24 @@ def run_crossval(root: str, run_id: str, key: tuple[int, ...]) -> dict[str, Any]
         return None
 
 
+def drives_stamp(root: Path) -> tuple[int, ...]:
+    """Modification times of every `drives/*/drive.json` (`laneprint drive`'s default folders)."""
+    return tuple(sorted(_mtimes((Path(root) / "drives").glob("*/drive.json"))))
+
+
+@st.cache_data(show_spinner=False, max_entries=8)
+def drives(root: str, key: tuple[int, ...]) -> dict[str, dict[str, Any]]:
+    """Every readable `drives/<name>/drive.json` of the workspace, by folder name (newest first)."""
+    out = {}
+    paths = sorted((Path(root) / "drives").glob("*/drive.json"), key=lambda p: p.stat().st_mtime, reverse=True)
+    for p in paths:
+        try:
+            out[p.parent.name] = json.loads(p.read_text())
+        except (OSError, ValueError):
+            continue
+    return out
+
+
 def _mtimes(paths) -> list[int]:
     out = []
     for p in paths:

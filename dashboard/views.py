@@ -578,3 +578,13 @@ def driver_presses_by_direction(decisions: pd.DataFrame, driver_id: str) -> dict
     from indicators.directions import press_counts
 
     return press_counts(decisions[decisions["driver_id"].astype(str) == driver_id])
+
+
+def drive_label(folder: str, drive: dict[str, Any]) -> str:
+    """'normal-s1: run R, 3 lanes, seed 1, 2.9 /km (drivers 3.0), 8 of 8 medians inside' for the drive picker."""
+    fid = drive.get("fidelity") or {}
+    rate = fid.get("rate")
+    what = (f", {rate['agent']['per_km']:.2f} /km (drivers {rate['drivers']['per_km']:.2f}), "
+            f"{fid['medians_in_iqr']} medians inside" if rate and rate["agent"]["per_km"] is not None
+            and rate["drivers"]["per_km"] is not None else "")
+    return f"{folder}: run {drive.get('run_id')}, {drive.get('lanes', 2)} lanes, seed {drive.get('seed')}{what}"

@@ -205,3 +205,46 @@ def decision_agreement(states: pd.DataFrame, who: str = "agent", x: str = "v_e_m
     if yrange:
         fig.update_yaxes(range=list(yrange))
     return fig
+
+
+def drive_fidelity(fid: dict) -> go.Figure:
+    """A drive beside its drivers (`rl.drive.fidelity`): lane changes per km with 95 % intervals, then, per
+    indicator at the presses, each side's median with its interquartile range as the bar."""
+    panels = ["lane changes per km [1/km]"] + list(fid["indicators"])
+    cols = 3
+    rows = -(-len(panels) // cols)
+    fig = make_subplots(rows=rows, cols=cols, subplot_titles=panels, horizontal_spacing=0.08,
+                        vertical_spacing=0.12)
+    colours = {"agent": _COLOURS["agent"], "drivers": _COLOURS["driver"]}
+    rate = fid["rate"]
+    for who in ("agent", "drivers"):
+        r = rate[who]
+        lo, hi = r["per_km_ci"]
+        fig.add_trace(go.Scatter(
+            x=[who], y=[r["per_km"]], mode="markers", marker=dict(color=colours[who], size=10), name=who,
+            legendgroup=who, error_y=dict(type="data", symmetric=False, array=[(hi or r["per_km"]) - r["per_km"]],
+                                          arrayminus=[r["per_km"] - (lo or r["per_km"])])), row=1, col=1)
+    d = rate["drivers"]["per_km"]
+    if d:
+        tol = fid.get("tolerance", 0.2)
+        fig.add_hrect(y0=d * (1 - tol), y1=d * (1 + tol), fillcolor=colours["drivers"], opacity=0.12, line_width=0,
+                      row=1, col=1)
+    for k, name in enumerate(panels[1:], start=1):
+        row, col = k // cols + 1, k % cols + 1
+        v = fid["indicators"][name]
+        for who, side in (("agent", v["agent"]), ("drivers", v["drivers"])):
+            if side["median"] is None:
+                continue
+            fig.add_trace(go.Scatter(
+                x=[who], y=[side["median"]], mode="markers", marker=dict(color=colours[who], size=10), name=who,
+                legendgroup=who, showlegend=False, hovertemplate=f"{who}: median %{{y:.2f}}, n={side['n']}",
+                error_y=dict(type="data", symmetric=False, array=[side["q3"] - side["median"]],
+                             arrayminus=[side["median"] - side["q1"]])), row=row, col=col)
+        if v["median_in_iqr"] is False:
+            fig.layout.annotations[k].text = f"{name} (outside the drivers' IQR)"
+    a = rate["agent"]["per_km"]
+    fig.update_layout(height=260 * rows, margin=dict(t=70, l=50, r=20, b=30),
+                      title=f"The drive beside its drivers: {fid['medians_in_iqr']} medians inside their IQR, "
+                            f"lane changes {'-' if a is None else format(a, '.2f')} against "
+                            f"{'-' if d is None else format(d, '.2f')} per km (bars: 95 % interval; IQR)")
+    return fig

@@ -6,7 +6,7 @@ import streamlit as st
 
 from dashboard import figures, jobs, loaders, views, widgets
 from dashboard.context import workspace
-from rl.plots import decision_agreement, indicators_at_decisions, training_curves
+from rl.plots import decision_agreement, drive_fidelity, indicators_at_decisions, training_curves
 
 
 def evaluated_runs(ws) -> list[str]:
@@ -202,6 +202,24 @@ def fleets(ws) -> None:
     st.plotly_chart(figures.fleet_agreement(table), key="fleet_agreement")
 
 
+def drives(ws) -> None:
+    """Closed-loop drives (`laneprint drive`) beside their target drivers."""
+    found = loaders.drives(str(ws.root), loaders.drives_stamp(ws.root))
+    if not found:
+        return
+    st.subheader(f"Closed-loop drives in SUMO ({len(found)})")
+    st.caption("`laneprint drive RUN_ID --engine sumo` writes here (WORKSPACE/drives/); each drive beside the "
+               "target's drivers, read from the logs the same way: lane changes per km within +-20 % is the goal "
+               "(shaded), and each indicator's median at the agent's presses inside the drivers' IQR.")
+    pick = st.selectbox("Drive", list(found), key="drive_pick", format_func=lambda k: views.drive_label(k, found[k]))
+    d = found[pick]
+    if "rate" not in d.get("fidelity", {}):
+        st.info(d.get("fidelity", {}).get("note", "This drive has no comparison with drivers (driven by an older "
+                                                   "laneprint): drive it again."))
+        return
+    st.plotly_chart(drive_fidelity(d["fidelity"]), key="drive_fidelity")
+
+
 def stored_crossvals(ws, show_one: bool) -> None:
     """Every stored cross-validation; with `show_one` (no run to show them beside), a picker for one."""
     table = views.crossvals_view(loaders.crossvals(str(ws.root), loaders.crossvals_stamp(ws.root)))
@@ -224,11 +242,13 @@ def main() -> None:
         st.info("No evaluated runs yet: start one on the Training page (runs are evaluated when they "
                 "finish), or run `laneprint evaluate RUN_ID`.")
         fleets(ws)
+        drives(ws)
         stored_crossvals(ws, show_one=True)
         return
     one_run(ws, st.selectbox("Run", runs, key="result_run"))
     compare(ws, runs)
     fleets(ws)
+    drives(ws)
     stored_crossvals(ws, show_one=False)
 
 

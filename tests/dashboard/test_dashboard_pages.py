@@ -229,3 +229,24 @@ def test_results_training_curves_run_only_once_opened(use_sample):
     assert not at.exception
     fig9 = [c for c in charts(at) if "Fig. 9" in c["layout"].get("title", {}).get("text", "")]
     assert len(fig9) == 1 and at.slider(key=f"smoothing_{run_id}").value == 0.95
+
+
+def test_results_page_draws_a_closed_loop_drive_beside_its_drivers(empty_ws):
+    import numpy as np
+    import pandas as pd
+
+    from rl.drive.fidelity import compare_values, rate_comparison
+
+    rng = np.random.default_rng(0)
+    drivers = pd.DataFrame({"driver_id": ["a"], "changes": [30], "left": [15], "right": [15], "km": [10.0]})
+    fid = {"tolerance": 0.2, "medians_in_iqr": "1 of 1", "drivers": ["a"],
+           "rate": rate_comparison({"changes": 31, "left": 15, "right": 16, "km": 10.0}, drivers),
+           "indicators": {"t_f": compare_values(rng.normal(8, 1, 40), rng.normal(8, 1, 90), rng)}}
+    folder = empty_ws.root / "drives" / "normal-s1"
+    folder.mkdir(parents=True)
+    (folder / "drive.json").write_text(json.dumps({"run_id": "normal", "lanes": 3, "seed": 1, "fidelity": fid}))
+    at = run_page("results")
+    assert any("Closed-loop drives in SUMO (1)" in s.value for s in at.subheader)
+    assert "3 lanes, seed 1, 3.10 /km (drivers 3.00)" in at.selectbox(key="drive_pick").options[0]
+    (fig,) = [c for c in charts(at) if "beside its drivers" in c["layout"]["title"]["text"]]
+    assert len(fig["data"]) == 4

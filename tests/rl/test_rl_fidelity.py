@@ -59,3 +59,20 @@ def test_press_values_keep_defined_values_at_presses_only():
     got = press_values(d)
     assert list(got["t_f"]) == [2.0] and list(got["gap_f"]) == [6.0, 7.0] and list(got["thw_f"]) == [0.3, 0.35]
     assert len(got["gap_nb"]) == 0
+
+
+def test_the_drive_figure_draws_the_rate_and_every_indicator_and_marks_a_miss():
+    from rl.plots import drive_fidelity
+
+    rng = np.random.default_rng(1)
+    drivers = pd.DataFrame({"driver_id": ["a"], "changes": [30], "left": [15], "right": [15], "km": [10.0]})
+    fid = {"tolerance": 0.2, "medians_in_iqr": "1 of 2",
+           "rate": rate_comparison({"changes": 33, "left": 16, "right": 17, "km": 10.0}, drivers),
+           "indicators": {"t_f": compare_values(rng.normal(8, 1, 40), rng.normal(8, 1, 90), rng),
+                          "gap_f": compare_values(rng.normal(90, 5, 40), rng.normal(50, 5, 90), rng)}}
+    fig = drive_fidelity(fid)
+    titles = [a.text for a in fig.layout.annotations]
+    assert titles[:3] == ["lane changes per km [1/km]", "t_f", "gap_f (outside the drivers' IQR)"]
+    assert len(fig.data) == 6  # agent and drivers in each of the three panels
+    rate = [t for t in fig.data if t.xaxis in (None, "x")]
+    assert [t.y[0] for t in rate] == [pytest.approx(3.3), pytest.approx(3.0)]
