@@ -10,7 +10,8 @@ on population + K, and the driver's own agent on all its earlier sessions (the
 ceiling). Balanced accuracy, recall and timing error with bootstrap 95 %
 intervals (`rl.evaluation.crossval.bootstrap_scores`, decisions resampled), per K,
 pooled over drivers and per style (the full analysis's); then the issue's
-acceptance lines. Writes curve.json, curve.csv and curve.html (Plotly) to --out.
+acceptance lines (for the first variant, then for each other as if it were the
+headline). Writes curve.json, curve.csv and curve.html (Plotly) to --out.
 
 Run on an analysed workspace (`laneprint ingest sample_logs -w WS && laneprint analyze -w WS`):
 
@@ -54,6 +55,8 @@ def parse_variants(spec: str) -> dict[str, PersonalizeSettings]:
     'personalised[finetune/population min_episodes=2000 eps_start=0.3]': ...} (the first is the headline).
 
     Each variant is METHOD:BASE, then optionally ':' and `PersonalizeSettings` fields as NAME=VALUE;...
+    (METHOD: none, finetune, unsure (fine-tune when the style's confidence is below min_confidence), mix, own;
+    BASE: fit, style, population, auto).
     """
     out = {}
     for i, part in enumerate(p for p in spec.split(",") if p):
@@ -124,24 +127,24 @@ def table(results: pd.DataFrame, policies: list[str], n_boot: int, seed: int, gr
     return pd.DataFrame(rows)
 
 
-def acceptance(tab: pd.DataFrame) -> list[str]:
-    """The issue's acceptance lines on the pooled table."""
+def acceptance(tab: pd.DataFrame, who: str = "personalised") -> list[str]:
+    """The issue's acceptance lines on the pooled table, for the personalised agent `who` (a variant's column)."""
     lines = []
     pooled = tab[tab["group"] == "pooled"]
     for k, g in pooled.groupby("k", sort=False):
         g = g.set_index("policy")
-        if "personalised" not in g.index:
+        if who not in g.index:
             continue
-        p = g.loc["personalised"]
+        p = g.loc[who]
         rivals = g.loc[[r for r in RIVALS if r in g.index]]
         best = rivals["balanced_accuracy"].idxmax()
         ok = p["balanced_accuracy"] >= rivals.loc[best, "ba_lo"]
-        lines.append(f"K={k}: personalised {100 * p['balanced_accuracy']:.1f} vs best other {best} "
+        lines.append(f"K={k}: {who} {100 * p['balanced_accuracy']:.1f} vs best other {best} "
                      f"{100 * rivals.loc[best, 'balanced_accuracy']:.1f} [{100 * rivals.loc[best, 'ba_lo']:.1f}, "
                      f"{100 * rivals.loc[best, 'ba_hi']:.1f}]: {'holds' if ok else 'FAILS'}")
         if k == "10" and "ceiling" in g.index:
             gap = 100 * (g.loc["ceiling", "balanced_accuracy"] - p["balanced_accuracy"])
-            lines.append(f"K=10: ceiling - personalised = {gap:+.1f} points (at most 3): "
+            lines.append(f"K=10: ceiling - {who} = {gap:+.1f} points (at most 3): "
                          f"{'holds' if gap <= 3 else 'FAILS'}")
     return lines
 
@@ -255,6 +258,10 @@ def main() -> None:
     print("\nacceptance (pooled; 'at least as good' = not below the best other policy's 95 % interval):")
     for line in acceptance(tab):
         print("  " + line)
+    for who in list(variants)[1:]:  # the other variants, as if each were the headline
+        print(f"  {who}:")
+        for line in acceptance(tab, who):
+            print("    " + line)
     out = a.out or a.workspace / "benchmarks"
     out.mkdir(parents=True, exist_ok=True)
     tab.to_csv(out / "curve.csv", index=False)
@@ -263,7 +270,8 @@ def main() -> None:
     (out / "curve.json").write_text(json.dumps({
         "args": {k: str(v) for k, v in vars(a).items()}, "drivers": held, "observation": observation,
         "table": tab.replace({np.nan: None}).to_dict("records"), "styles": assigned.to_dict("records"),
-        "acceptance": acceptance(tab), "wall_s": time.perf_counter() - t0}, indent=2, default=str))
+        "acceptance": acceptance(tab), "acceptance_variants": {w: acceptance(tab, w) for w in list(variants)[1:]},
+        "wall_s": time.perf_counter() - t0}, indent=2, default=str))
     plot(tab, out / "curve.html", f"personalisation learning curve: {a.workspace.name}, {len(held)} drivers")
     print(f"\nwrote {out}/curve.csv, curve.json, curve.html ({time.perf_counter() - t0:.0f} s)")
 

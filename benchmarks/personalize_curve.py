@@ -6,7 +6,8 @@ decisions of the earlier sessions (K = each of `ks`; 0 = all of them) are what
 the new driver has shown; every other driver is the population. Policies, all
 scored on the held-out sessions by `rl.evaluation.evaluate.evaluate_policies`:
 
-- ``personalised`` (one per variant): the base agent fine-tuned on the K decisions;
+- ``personalised`` (one per variant): the base agent as it is or fine-tuned on the K decisions
+  (by the variant's method; 'unsure' fine-tunes when the style's confidence is below its `min_confidence`);
 - ``style``: the agent of the style assigned from the K decisions (its members, the
   driver excluded); ``population``: the agent of all other drivers;
 - ``scratch``: a DQN trained on the K decisions alone (`laneprint train --driver`'s defaults);
@@ -94,6 +95,7 @@ def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: E
         fit_key = best_fit(fits, {f"style:{s}": v for s, v in est.bootstrap.items()}) if fits else style_key
         policies = {}
         for name, ps in settings.variants.items():
+            ps = ps.resolved(est.confidence)  # method 'unsure': fine-tune only when the style is unsure
             which = ps.base_for(est.confidence)
             base_key = fit_key if which == "fit" else "population" if which == "population" else style_key
             w, base_app = agents[base_key]

@@ -436,9 +436,10 @@ def personalize_command(
     driver: Annotated[str, typer.Option("--driver", help="The driver to personalise for.")],
     decisions: Annotated[Optional[int], typer.Option("--decisions", min=1, help="K: its first K decisions in time order (default: all).")] = None,
     base: Annotated[str, typer.Option("--from", help="'fit': the agent of the style assigned from the K decisions when its confidence is at least --min-confidence, else, of every style's agent and the population's, the one that agrees best with the K decisions; 'style': the assigned style's agent; 'population': all other drivers'; 'auto': the style's when confident, else the population's.")] = "fit",
-    min_confidence: Annotated[float, typer.Option("--min-confidence", min=0.0, help="With --from fit or auto: the style's bootstrap confidence from which its agent is taken as it is assigned (below it, 'fit' chooses by agreement, 'auto' takes the population's; above 1: always).")] = 0.8,
-    fine_tune: Annotated[bool, typer.Option("--fine-tune", help="Fine-tune the base on the K decisions (default: the base as it is, measured better on SUMO studies; rl/README.md).")] = False,
-    episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, help="Fine-tuning episodes with --fine-tune (default: 60 per decision, 600-3000).")] = None,
+    min_confidence: Annotated[float, typer.Option("--min-confidence", min=0.0, help="The style's bootstrap confidence from which it counts as sure: with --from fit or auto its agent is taken as it is assigned (below it, 'fit' chooses by agreement, 'auto' takes the population's; above 1: always), and with --fine-tune-unsure the base is fine-tuned below it.")] = 0.8,
+    fine_tune: Annotated[Optional[bool], typer.Option("--fine-tune/--no-fine-tune", help="Fine-tune the base on the K decisions, or not (the default: the base as it is, measured better on SUMO studies; rl/README.md, issue 21).", show_default=False)] = None,
+    fine_tune_unsure: Annotated[bool, typer.Option("--fine-tune-unsure", help="Fine-tune only when the style's confidence is below --min-confidence (the base chosen by agreement); measured no better than the default on SUMO seeds 305-307.")] = False,
+    episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, help="Fine-tuning episodes, when it fine-tunes (default: 60 per decision, 600-3000).")] = None,
     base_episodes: Annotated[Optional[int], typer.Option("--base-episodes", min=1, help="Episodes of the base agent (default: the trainer's rule).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of everything random.")] = 0,
     run_id: Annotated[Optional[str], typer.Option("--run-id", help="Id of the new run.")] = None,
@@ -462,7 +463,11 @@ def personalize_command(
             dqn = DQNSettings(**overrides)
         except (TypeError, ValueError) as exc:
             raise UserError(f"bad training setting: {exc}") from None
-        ps = PersonalizeSettings(base=base, method="finetune" if fine_tune else "none", min_confidence=min_confidence,
+        if fine_tune_unsure and fine_tune is not None:
+            raise UserError(f"--fine-tune-unsure and --{'' if fine_tune else 'no-'}fine-tune: choose one")
+        method = ("unsure" if fine_tune_unsure else PersonalizeSettings().method if fine_tune is None else
+                  "finetune" if fine_tune else "none")
+        ps = PersonalizeSettings(base=base, method=method, min_confidence=min_confidence,
                                  **({"learning_starts": min(learning_starts, 500)} if learning_starts else {}))
         with progress_bar(not as_json) as progress:
             return personalize(ws, driver, decisions, ps, dqn, episodes=episodes, base_episodes=base_episodes,

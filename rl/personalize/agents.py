@@ -27,7 +27,7 @@ from rl.problem.scene import Scene
 from rl.settings import DQNSettings
 
 BASES: tuple[str, ...] = ("style", "population", "auto", "fit")
-METHODS: tuple[str, ...] = ("finetune", "mix", "own", "none")
+METHODS: tuple[str, ...] = ("finetune", "mix", "own", "none", "unsure")
 
 
 @dataclass(frozen=True)
@@ -38,10 +38,11 @@ class PersonalizeSettings:
     # (every other driver), 'auto' (the style's when its confidence is at least `min_confidence`, else the
     # population's) or 'fit' (the style's when its confidence is at least `min_confidence`, else, of every style's
     # agent and the population's, the one that agrees best with the K decisions)
-    min_confidence: float = 0.8  # 'auto', 'fit': the bootstrap share of the assigned style that trusts it
-    # (above 1: 'fit' always chooses by agreement)
+    min_confidence: float = 0.8  # 'auto', 'fit', method 'unsure': the bootstrap share of the assigned style that
+    # trusts it (above 1: 'fit' always chooses by agreement, 'unsure' always fine-tunes)
     method: str = "none"  # 'finetune': base weights, then the mix replayed; 'mix': the mix from scratch;
-    # 'own': base weights, then the driver's approaches alone; 'none': the base agent as it is
+    # 'own': base weights, then the driver's approaches alone; 'none': the base agent as it is;
+    # 'unsure': 'finetune' when the style's confidence is below `min_confidence`, else 'none'
     driver_share: float = 0.5  # share of the replayed states that are the driver's (finetune, mix)
     episodes_per_decision: float = 60.0  # fine-tuning episodes per decision of the driver ...
     min_episodes: int = 600  # ... within [min_episodes, max_episodes]
@@ -66,6 +67,16 @@ class PersonalizeSettings:
         if confidence >= self.min_confidence:
             return "style"
         return "population" if self.base == "auto" else "fit"
+
+    def method_for(self, confidence: float) -> str:
+        """The method for a style assigned with `confidence` ('unsure' resolves to 'finetune' or 'none')."""
+        if self.method != "unsure":
+            return self.method
+        return "none" if confidence >= self.min_confidence else "finetune"
+
+    def resolved(self, confidence: float) -> PersonalizeSettings:
+        """These settings with the method for a style assigned with `confidence`."""
+        return replace(self, method=self.method_for(confidence))
 
     def finetune_episodes(self, k: int) -> int:
         return int(min(self.max_episodes, max(self.min_episodes, round(self.episodes_per_decision * k))))
@@ -112,7 +123,10 @@ def finetune_settings(dqn: DQNSettings, ps: PersonalizeSettings, k: int, episode
 def personalised_agent(base_weights: dict[str, torch.Tensor] | None, base: list[Approach], own: list[Approach],
                        env: EnvConfig, dqn: DQNSettings, ps: PersonalizeSettings, episodes: int | None = None,
                        progress: ProgressFn | None = None, on_episode: Any = None) -> DQNTrainer:
-    """The driver's agent from the base (weights and approaches) and its own approaches, by `ps.method`."""
+    """The driver's agent from the base (weights and approaches) and its own approaches, by `ps.method`
+    ('unsure' must be resolved first: `PersonalizeSettings.resolved`)."""
+    if ps.method == "unsure":
+        raise ValueError("method 'unsure' depends on the style's confidence: resolve it first")
     if ps.method == "mix":
         data = mixed(base, own, ps.driver_share)
         settings = replace(dqn, episodes=episodes or dqn.episodes,

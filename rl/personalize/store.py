@@ -119,6 +119,7 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
     report(progress, 0, 1, "style from the decisions")
     pop = fit_population(decisions, others, stored_settings(workspace))
     est = estimate_style(pop, own_rows, ps.n_bootstrap, seed)
+    used_ps = ps.resolved(est.confidence)  # method 'unsure': fine-tune only when the style is unsure
     env = formulation_config(_lines(workspace, est.style), "decisions")
     base_dqn = replace(dqn, seed=base_seed(seed), **({"episodes": base_episodes, "episodes_per_approach": 0.0}
                                                       if base_episodes else {}))
@@ -131,14 +132,15 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
     target = Target("driver", str(driver))
     with ExitStack() as held:
         run_id = run_id or new_run_id(target, f"personalized-k{len(used)}", seed)
-        ft_settings = personalised_settings(dqn, ps, len(own_app), episodes)
+        ft_settings = personalised_settings(dqn, used_ps, len(own_app), episodes)
         base = {"from": ps.base, "style": est.style, "chosen": first, "drivers": cands[first]["drivers"],
                 "key": cands[first]["key"], "seed": base_dqn.seed}
         if len(cands) > 1:
             base["candidates"] = {n: {"key": c["key"], "drivers": c["drivers"]} for n, c in cands.items()}
         folder, config = create_run(workspace, target, env, ft_settings, run_id=run_id, held=held, extra={
             "kind": KIND, "decisions": len(used), "decisions_available": len(decision_order(rows)),
-            "decision_ids": used, "base": base, "style_estimate": est.to_dict(), "personalize": ps.to_dict()})
+            "decision_ids": used, "base": base, "style_estimate": est.to_dict(), "personalize": ps.to_dict(),
+            "method": used_ps.method})
         writer = RunWriter(folder, ft_settings.episodes)
 
         def phase(episodes_total: int, what: str) -> ProgressFn:
@@ -179,7 +181,7 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
             _save(folder / "base_weights.pt", base_w)
             atomic_write_json(folder / "config.json", config)
             writer.status("running", 0, f"personalising on {len(used)} decisions")
-            trainer = personalised_agent(base_w, base_app, own_app, env, dqn, ps, episodes=episodes,
+            trainer = personalised_agent(base_w, base_app, own_app, env, dqn, used_ps, episodes=episodes,
                                          progress=phase(ft_settings.episodes, f"personalising on {len(used)} decisions"),
                                          on_episode=writer.metric)
             writer.episodes = ft_settings.episodes
@@ -196,11 +198,16 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
         later = later_scores(trainer.policy_net, rows, set(used), env, seed)
         extra = {"run_id": run_id, "driver": str(driver), "decisions": len(used),
                  "decisions_available": config["decisions_available"], "style": est.to_dict(), "base": base,
+                 "method": used_ps.method, "fine_tuned": used_ps.method != "none",
                  "later_decisions": later, "created_at": now_iso()}
         atomic_write_json(folder / "personalize.json", extra)
         evaluate_run(workspace, run_id)
-        message = (f"the {chosen} agent as it is, chosen by {len(used)} decisions" if ps.method == "none" else
+        message = (f"the {chosen} agent as it is, chosen by {len(used)} decisions" if used_ps.method == "none" else
                    f"personalised on {len(used)} decisions from the {chosen} agent")
+        if ps.method == "unsure":  # say why it did or did not fine-tune
+            message += (f" (style {est.style} sure: confidence {est.confidence:.2f} >= {ps.min_confidence:g})"
+                        if used_ps.method == "none" else
+                        f" (style {est.style} unsure: confidence {est.confidence:.2f} < {ps.min_confidence:g})")
         writer.status("done", trainer.episodes_done, message)
         writer.close()
     return {**extra, "folder": str(folder), "state": "done", "episodes": trainer.episodes_done,

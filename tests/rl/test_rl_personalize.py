@@ -127,7 +127,8 @@ def test_the_population_base_is_every_other_driver(study: Workspace) -> None:
 
 
 def test_the_fitted_base_is_the_candidate_that_agrees_best_and_every_candidate_is_kept(study: Workspace) -> None:
-    always = ["--from", "fit", "--min-confidence", "1.01"]  # choose by agreement however sure the style is
+    # choose by agreement however sure the style is, and take the chosen base as it is
+    always = ["--from", "fit", "--min-confidence", "1.01", "--no-fine-tune"]
     res = _run(study, "--driver", "D02", "--decisions", "6", *always, "--run-id", "f6", "--json", *TINY)
     assert res.exit_code == 0, res.output
     base = json.loads(res.stdout)["base"]
@@ -137,7 +138,7 @@ def test_the_fitted_base_is_the_candidate_that_agrees_best_and_every_candidate_i
     assert base["drivers"] == cands[base["chosen"]]["drivers"] and "D02" not in base["drivers"]
     for name, c in cands.items():  # the others' weights kept, so the next personalisation reuses them
         assert name == base["chosen"] or (study.runs_dir / "f6" / "bases" / f"{c['key']}.pt").exists()
-    folder = study.runs_dir / "f6"  # without --fine-tune the agent is the chosen base as it is
+    folder = study.runs_dir / "f6"  # with --no-fine-tune the agent is the chosen base as it is
     wb, wa = (torch.load(folder / n, weights_only=True) for n in ("base_weights.pt", "weights.pt"))
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
     assert json.loads((folder / "status.json").read_text())["state"] == "done"
@@ -147,17 +148,53 @@ def test_the_fitted_base_is_the_candidate_that_agrees_best_and_every_candidate_i
     text = _run(study, "--driver", "D02", "--decisions", "5", *always, "--run-id", "f5", *TINY)
     assert text.exit_code == 0, text.output
     assert "chosen by agreement with the 5 decisions" in text.stdout and "as it is" in text.stdout
-    sure = _run(study, "--driver", "D02", "--decisions", "6", "--run-id", "f6s", "--json", *TINY)  # the default
+    sure = _run(study, "--driver", "D02", "--decisions", "6", "--no-fine-tune", "--run-id", "f6s", "--json", *TINY)
     assert sure.exit_code == 0, sure.output
     out = json.loads(sure.stdout)
     if out["style"]["confidence"] >= 0.8:  # a confident style's agent is taken as assigned
         assert out["base"]["chosen"] == f"style {out['style']['style']}" and "candidates" not in out["base"]
 
 
+def test_fine_tuning_when_unsure_follows_the_styles_confidence() -> None:
+    from rl.personalize.agents import PersonalizeSettings, personalised_agent
+
+    ps = PersonalizeSettings(method="unsure", min_confidence=0.8)
+    assert ps.method_for(0.8) == "none" and ps.method_for(0.79) == "finetune"
+    assert ps.resolved(0.5).method == "finetune" and ps.resolved(0.5).min_confidence == 0.8
+    assert PersonalizeSettings(method="finetune").method_for(0.99) == "finetune"
+    assert PersonalizeSettings(method="none").method_for(0.1) == "none"
+    with pytest.raises(ValueError, match="resolve it first"):
+        personalised_agent({}, [], [], None, None, ps)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("flags, min_conf, requested, tuned", [
+    ([], "1.01", "none", False),  # the default: the base as it is, however unsure the style
+    (["--no-fine-tune"], "1.01", "none", False),
+    (["--fine-tune"], "0", "finetune", True),
+    (["--fine-tune-unsure"], "1.01", "unsure", True),  # never sure above 1: it fine-tunes
+    (["--fine-tune-unsure"], "0", "unsure", False),  # always sure at 0: the base as it is
+])
+def test_fine_tune_flags_and_the_unsure_rule(study: Workspace, flags: list[str], min_conf: str, requested: str,
+                                             tuned: bool) -> None:
+    run_id = f"u-{requested}-{len(flags)}-{min_conf.replace('.', '')}"
+    res = _run(study, "--driver", "D01", "--decisions", "4", "--min-confidence", min_conf, *flags, "--run-id", run_id,
+               "--json", *TINY)
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert out["fine_tuned"] is tuned and out["method"] == ("finetune" if tuned else "none")
+    folder = study.runs_dir / run_id
+    config = json.loads((folder / "config.json").read_text())
+    assert config["personalize"]["method"] == requested and config["method"] == out["method"]
+    assert len((folder / "metrics.jsonl").read_text().splitlines()) == (40 if tuned else 0)
+    if requested == "unsure":  # the run says why
+        assert ("unsure: confidence" if tuned else "sure: confidence") in out["message"]
+
+
 @pytest.mark.parametrize("args, message", [
     (["--driver", "D99"], "no driver 'D99' in the analysis"),
     (["--driver", "D01", "--decisions", "19"], "--decisions 19: the driver has 18 decisions"),
     (["--driver", "D01", "--from", "fleet"], "unknown --from 'fleet'"),
+    (["--driver", "D01", "--fine-tune-unsure", "--fine-tune"], "--fine-tune-unsure and --fine-tune: choose one"),
 ])
 def test_errors_are_one_line(study: Workspace, args: list[str], message: str) -> None:
     res = _run(study, *args, *TINY)
@@ -195,8 +232,11 @@ def test_the_curve_scores_every_policy_and_the_fitted_base(study: Workspace) -> 
     dec = study.read_table("analysis", "decisions")
     env = formulation_config(ReferenceLines.paper("Normal"), "decisions")
     dqn = DQNSettings(seed=0, episodes=60, episodes_per_approach=0.0, num_envs=8, batch_size=64, learning_starts=100)
-    variants = {"personalised": PersonalizeSettings(base="fit", min_episodes=30, max_episodes=40),
-                "as is": PersonalizeSettings(base="fit", method="none")}
+    variants = {"personalised": PersonalizeSettings(base="fit", method="finetune", min_episodes=30, max_episodes=40),
+                "as is": PersonalizeSettings(base="fit", method="none"),
+                "unsure, never sure": PersonalizeSettings(base="fit", method="unsure", min_confidence=1.01,
+                                                          min_episodes=30, max_episodes=40),
+                "unsure, always sure": PersonalizeSettings(base="fit", method="unsure", min_confidence=0.0)}
     res = driver_curve(dec, "D05", ["D01", "D02", "D03", "D04", "D06"], env, dqn,
                        CurveSettings(ks=(3, ALL), variants=variants), stored_settings(study))
     cols = {c for c in res["states"].columns if c.startswith("action_")}
@@ -204,3 +244,16 @@ def test_the_curve_scores_every_policy_and_the_fitted_base(study: Workspace) -> 
                                     "imitation_pop_k")} <= cols
     assert list(res["styles"]["k"]) == ["3", "all"]
     assert res["styles"]["fit_base"].str.match(r"style:|population").all()
+    s = res["states"]  # 'unsure' is 'none' when the style is sure, 'finetune' (the same seed) when it is not
+    assert s["action_unsure, always sure"].equals(s["action_as is"])
+    assert s["action_unsure, never sure"].equals(s["action_personalised"])
+
+
+def test_the_benchmark_reads_the_unsure_variant() -> None:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    from personalize import parse_variants
+
+    v = parse_variants("none:fit,unsure:fit,unsure:fit:min_confidence=0.9")
+    assert list(v) == ["personalised", "personalised[unsure/fit]", "personalised[unsure/fit min_confidence=0.9]"]
+    assert v["personalised[unsure/fit]"].method == "unsure" and v["personalised[unsure/fit]"].base == "fit"
+    assert v["personalised[unsure/fit min_confidence=0.9]"].min_confidence == 0.9
