@@ -135,8 +135,12 @@ HELD_BACK_HOW = (
     "back into the lane it left; once passed, when the policy keeps and that lane's gaps are accepted as "
     "above (and above the floors below), request the return there. And under every change, the policy's too: none into a lead gap "
     "below gap_nf's floor or closing on the target lane's leader with a time to collision below "
-    "t_nf_floor_s, or, with a follower within far_follower_m, a lag gap below gap_nb's floor or its "
-    "time headway below thw_nb's floor (the smallest the target took: 5th percentile of its presses).")
+    "t_nf_floor_s, or, with a follower within far_follower_m, a lag gap below gap_nb's floor, its "
+    "time headway below thw_nb's floor or dv_nb (v_e - v_nb) below dv_nb_floor_mps (the smallest the target "
+    "took: 5th percentile of its presses; null: no floor). And no change at all sooner after the ego's last "
+    "lane change (the moment it crossed into its lane) than dwell_s says for that pair of sides "
+    "('left>right': a change to the right after one to the left; a pair missing: no wait): the policy decides "
+    "state by state without memory, the drivers do not press again at once.")
 
 
 def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig) -> dict[str, Any]:
@@ -146,7 +150,8 @@ def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig) -> dict
     except (ValueError, KeyError, UserError, FileNotFoundError) as exc:
         return {"available": False, "why": str(exc)}
     return {"available": True, "how": HELD_BACK_HOW, "units": {"patience_s": "s", "slower_mps": "m/s",
-            "gap_nf": "m", "gap_nb": "m", "thw_nb": "s", "far_follower_m": "m", "t_nf_floor_s": "s", "v_lo": "m/s", "v_hi": "m/s"},
+            "gap_nf": "m", "gap_nb": "m", "thw_nb": "s", "far_follower_m": "m", "t_nf_floor_s": "s", "dv_nb_floor_mps": "m/s", "dwell_s": "s",
+            "v_lo": "m/s", "v_hi": "m/s"},
             "desired_speed": "the driver's set speed; `laneprint drive` uses the section's limit x the ego "
                              "vType's SUMO speedFactor", "range_m": cfg.range_m, **rule.to_dict()}
 
@@ -240,6 +245,8 @@ assistant therefore also applies this rule (`laneprint drive` does by default;
 
 - patience_s = **{rule['patience_s']:g} s** ({rule['source'].get('patience_s', '')})
 - t_nf_floor_s = {rule['t_nf_floor_s']:.3g} s ({rule['source'].get('t_nf_floor_s', '')})
+- dv_nb_floor_mps = {_num(rule.get('dv_nb_floor_mps'), ' m/s')} ({rule['source'].get('dv_nb_floor_mps', '')})
+- dwell_s = {', '.join(f"{k} {v:.3g} s" for k, v in rule.get('dwell_s', {}).items()) or 'none'} ({rule['source'].get('dwell_s', '')})
 - slower_mps = {rule['slower_mps']:g} m/s, far_follower_m = {rule['far_follower_m']:g} m,
   range_m = {rule['range_m']:g} m; desired speed: {rule['desired_speed']}
 
@@ -247,6 +254,10 @@ assistant therefore also applies this rule (`laneprint drive` does by default;
 |---|---|---|---|---|---|---|
 {rows}
 """
+
+
+def _num(x: Any, unit: str) -> str:
+    return "none" if x is None else f"{x:.3g}{unit}"
 
 
 def _formula(s: dict[str, Any]) -> str:

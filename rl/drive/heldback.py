@@ -100,6 +100,7 @@ class HeldBackRule:
     slower_mps: float = SLOWER_MPS
     far_follower_m: float = FAR_FOLLOWER_M
     t_nf_floor_s: float = 0.0  # [s] no change closing in on the target lane's leader faster than this
+    dv_nb_floor_mps: float = -np.inf  # [m/s] no change in front of a follower closing faster than -this
     dwell_s: dict[str, float] = field(default_factory=dict)  # 'left>right' etc.: least time from a change to the next
     source: dict[str, str] = field(default_factory=dict)
 
@@ -109,6 +110,7 @@ class HeldBackRule:
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
+        d["dv_nb_floor_mps"] = None if not np.isfinite(self.dv_nb_floor_mps) else self.dv_nb_floor_mps
         for k in ACCEPT_INDICATORS:  # JSON has no infinity
             d[k]["v_hi"] = None if not np.isfinite(d[k]["v_hi"]) else d[k]["v_hi"]
         return d
@@ -116,6 +118,8 @@ class HeldBackRule:
     @staticmethod
     def from_dict(d: dict[str, Any]) -> "HeldBackRule":
         d = dict(d)
+        if d.get("dv_nb_floor_mps", 0.0) is None:
+            d["dv_nb_floor_mps"] = -np.inf
         for k in ACCEPT_INDICATORS:
             line = dict(d[k])
             line["v_hi"] = np.inf if line.get("v_hi") is None else line["v_hi"]
@@ -139,15 +143,17 @@ def accepts(rule: HeldBackRule, scene: Scene, range_m: float) -> np.ndarray:
 
 
 def above_floors(rule: HeldBackRule, scene: Scene, range_m: float) -> np.ndarray:
-    """Whether each scene's target lane has no gap below the smallest the target took (the lines' floors)
-    and no leader there closer in time to collision than the smallest t_nf it took."""
+    """Whether each scene's target lane has no gap below the smallest the target took (the lines' floors),
+    no leader there closer in time to collision than the smallest t_nf it took, and no follower there
+    closing on the ego faster than any it let close (dv_nb below its floor)."""
     g = target_gaps(scene, range_m)
     ind = indicators(scene, rule.far_follower_m, range_m)
     t_nf = np.where(ind.t_nf_ok, ind.t_nf, np.inf)
     lead_ok = (~np.isfinite(g["gap_nf"]) | (g["gap_nf"] >= rule.gap_nf.floor)) & (t_nf >= rule.t_nf_floor_s)
     near = np.isfinite(g["gap_nb"]) & (g["gap_nb"] <= rule.far_follower_m)
     thw_ok = ~np.isfinite(g["thw_nb"]) | (g["thw_nb"] >= rule.thw_nb.floor)
-    return lead_ok & (~near | ((g["gap_nb"] >= rule.gap_nb.floor) & thw_ok))
+    dv_ok = ~ind.dv_nb_ok | (ind.dv_nb >= rule.dv_nb_floor_mps)
+    return lead_ok & (~near | ((g["gap_nb"] >= rule.gap_nb.floor) & thw_ok & dv_ok))
 
 
 def faster(rule: HeldBackRule, scene: Scene, range_m: float) -> np.ndarray:
@@ -267,6 +273,11 @@ def _line(lines: pd.DataFrame, fits: Optional[pd.DataFrame], ind: str, typical: 
     return Line(float(r["A"]), float(r["b"]), v_lo, v_hi, floor), f"{r['source']}{span}"
 
 
+def _finite(presses: pd.DataFrame, column: str) -> np.ndarray:
+    x = presses[column].to_numpy(dtype=float) if column in presses else np.array([])
+    return x[np.isfinite(x)]
+
+
 def following_before_press(decisions: pd.DataFrame, step_s: float = 0.5) -> np.ndarray:
     """Per press, how long [s] the driver had followed its leader (present, closing slower than
     `FOLLOWING_MPS`) over the states right before it, the press's own state included; 0 when not."""
@@ -321,9 +332,10 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5) -> Held
 
         decisions = add_acceptance(decisions)
     typ_presses = decisions[(decisions["driver_id"].astype(str) == str(typical)) & (decisions["label"] == "change")]
-    t_nf = typ_presses["t_nf_s"].to_numpy(dtype=float) if "t_nf_s" in typ_presses else np.array([])
-    t_nf = t_nf[np.isfinite(t_nf)]
+    t_nf = _finite(typ_presses, "t_nf_s")
     t_nf_floor = float(np.percentile(t_nf, FLOOR_PERCENTILE)) if len(t_nf) else 0.0
+    dv_nb = _finite(typ_presses, "dv_nb_mps")
+    dv_nb_floor = float(np.percentile(dv_nb, FLOOR_PERCENTILE)) if len(dv_nb) else -np.inf
     try:
         got = {ind: _line(sel, fits, ind, typical, typ_presses) for ind in ACCEPT_INDICATORS}
     except KeyError as exc:
@@ -336,9 +348,11 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5) -> Held
                                                   "slower_mps": "the analysis's min_closing_mps (1 m/s)",
                                                   "t_nf_floor_s": f"percentile {FLOOR_PERCENTILE:g} of t_nf at "
                                                                   f"{len(t_nf)} presses of {typical}",
+                                                  "dv_nb_floor_mps": f"percentile {FLOOR_PERCENTILE:g} of dv_nb at "
+                                                                     f"{len(dv_nb)} presses of {typical}",
                                                   "dwell_s": f"{dwell_why}, {target.label}"}
     return HeldBackRule(patience, got["gap_nf"][0], got["gap_nb"][0], got["thw_nb"][0], t_nf_floor_s=t_nf_floor,
-                        dwell_s=dwell, source=source)
+                        dv_nb_floor_mps=dv_nb_floor, dwell_s=dwell, source=source)
 
 
 # --- measured in the closed loop ---------------------------------------------------------------

@@ -339,3 +339,15 @@ def test_the_agent_is_not_asked_about_a_side_sooner_after_a_change_than_its_driv
         assert (control.n_dwelled > 0) == use_rule
         if use_rule:
             assert control.decisions[0].too_soon == [] and api.vehicle.requests[0][1] == 0
+
+
+def test_no_change_in_front_of_a_follower_closing_faster_than_the_floor():
+    ego = VehicleState(100.0, 20.0, 0, 4.5)
+    fast = live_scene(ego, {"nb": VehicleState(70.0, 25.0, 1, 4.5)}, 1)[0]  # 25.5 m behind, 5 m/s faster
+    slow = live_scene(ego, {"nb": VehicleState(70.0, 18.0, 1, 4.5)}, 1)[0]
+    far = live_scene(ego, {"nb": VehicleState(-100.0, 30.0, 1, 4.5)}, 1)[0]  # beyond far_follower_m
+    rule = HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), dv_nb_floor_mps=-2.0)
+    assert [bool(above_floors(rule, s, 150.0)[0]) for s in (fast, slow, far)] == [False, True, True]
+    assert bool(above_floors(HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0)), fast, 150.0)[0])
+    for r in (rule, HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), dwell_s={"left>right": 3.0})):
+        assert HeldBackRule.from_dict(json.loads(json.dumps(r.to_dict()))) == r  # -inf travels as null
