@@ -8,6 +8,7 @@ scored on the held-out sessions by `rl.evaluation.evaluate.evaluate_policies`:
 
 - ``personalised`` (one per variant): the base agent as it is or fine-tuned on the K decisions
   (by the variant's method; 'unsure' fine-tunes when the style's confidence is below its `min_confidence`);
+  base 'blend': every style's agent and the population's, their advantages weighted by `blend_weights`;
 - ``style``: the agent of the style assigned from the K decisions (its members, the
   driver excluded); ``population``: the agent of all other drivers;
 - ``scratch``: a DQN trained on the K decisions alone (`laneprint train --driver`'s defaults);
@@ -27,8 +28,8 @@ from indicators.settings import AnalysisSettings
 from laneprint.progress import ProgressFn
 from rl.baselines.imitation import ImitationClassifier
 from rl.evaluation.evaluate import agent_policy, evaluate_policies
-from rl.personalize.agents import (PersonalizeSettings, agreement, base_seed, best_fit, personalised_agent, policy_of,
-                                   train_agent, weights_of)
+from rl.personalize.agents import (PersonalizeSettings, advantage_scale, agreement, base_seed, best_fit, blend,
+                                   blend_weights, personalised_agent, policy_of, train_agent, weights_of)
 from rl.personalize.split import driver_rows, first_decisions, holdout_split
 from rl.personalize.style import estimate_style, fit_population
 from rl.problem.env import EnvConfig, approaches_from_decisions
@@ -67,7 +68,8 @@ def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: E
     pop_agent = train_agent(pop_app, env, base_dqn, progress=progress, label=f"{driver}: population")
     agents = {"population": (weights_of(pop_agent), pop_app)}
     n_train = train_rows.loc[train_rows["label"] == "change", "decision_id"].nunique()
-    need_all = any(ps.base == "fit" for ps in settings.variants.values())
+    need_all = any(ps.base in ("fit", "blend") for ps in settings.variants.values())
+    scales: dict[str, float] = {}  # candidate -> the spread of its advantage on the population's states
 
     def style_agent(style: str) -> tuple[dict, list]:
         """The agent of `style`'s members (trained once per held-out driver)."""
@@ -93,17 +95,27 @@ def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: E
                     for s in pop.members if pop.members[s]}
             fits["population"] = agreement(policy_of(agents["population"][0], env, dqn), own_app)
         fit_key = best_fit(fits, {f"style:{s}": v for s, v in est.bootstrap.items()}) if fits else style_key
-        policies = {}
+        policies, blends = {}, {}
         for name, ps in settings.variants.items():
             ps = ps.resolved(est.confidence)  # method 'unsure': fine-tune only when the style is unsure
             which = ps.base_for(est.confidence)
-            base_key = fit_key if which == "fit" else "population" if which == "population" else style_key
-            w, base_app = agents[base_key]
+            net_dqn = dqn
+            if which == "blend":
+                for b in fits:
+                    if b not in scales:
+                        scales[b] = advantage_scale(agents[b][0], env, dqn, pop_app)
+                bw = blend_weights(ps, {f"style:{s}": v for s, v in est.bootstrap.items()}, fits)
+                blends.update({f"blend[{name}][{b}]": v for b, v in bw.items()})
+                w, net_dqn = blend({b: agents[b][0] for b in fits}, bw, scales, dqn)
+                base_app = pop_app
+            else:
+                base_key = fit_key if which == "fit" else "population" if which == "population" else style_key
+                w, base_app = agents[base_key]
             if ps.method == "none":
-                policies[name] = policy_of(w, env, dqn)
+                policies[name] = policy_of(w, env, net_dqn)
                 continue
             eps = None if ps.method == "mix" else min(dqn.episodes, ps.finetune_episodes(len(own_app)))
-            trainer = personalised_agent(w, base_app, own_app, env, dqn, ps, episodes=eps, progress=progress)
+            trainer = personalised_agent(w, base_app, own_app, env, net_dqn, ps, episodes=eps, progress=progress)
             policies[name] = agent_policy(trainer.policy_net, env)
         policies["style"] = policy_of(agents[style_key][0], env, dqn)
         policies["population"] = policy_of(agents["population"][0], env, dqn)
@@ -121,7 +133,8 @@ def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: E
             out.append(frame)
         style_rows.append({"driver": driver, "k": _k_label(k), "n_decisions": len(own_app), "style": est.style,
                            "confidence": est.confidence, "posterior": est.posterior[est.style],
-                           "fit_base": fit_key if fits else None, **{f"fit[{b}]": v for b, v in fits.items()}})
+                           "fit_base": fit_key if fits else None, **{f"fit[{b}]": v for b, v in fits.items()},
+                           **blends})
     return {"states": pd.concat(states, ignore_index=True), "changes": pd.concat(changes, ignore_index=True),
             "styles": pd.DataFrame(style_rows), "n_test_decisions": len(test_app)}
 

@@ -416,12 +416,20 @@ def _render_personalize(res: dict[str, Any], console: Console) -> None:
     src = f"reused from run {base['reused_from']}" if base.get("reused_from") else f"{base.get('episodes')} episodes"
     chosen = base.get("chosen") or ("population" if base["from"] == "population" else f"style {base['style']}")
     who = "all other drivers" if chosen == "population" else chosen
-    console.print(f"base agent: {who} ({len(base['drivers'])} drivers, {base['n_approaches']} approaches; {src})",
-                  highlight=False)
+    if chosen == "blend":
+        console.print(f"base agent: a blend of {len(base['candidates'])} agents ({len(base['drivers'])} other "
+                      "drivers: each style's and the population's)", highlight=False)
+    else:
+        console.print(f"base agent: {who} ({len(base['drivers'])} drivers, {base['n_approaches']} approaches; {src})",
+                      highlight=False)
     if base.get("candidates"):
         fits = ", ".join(f"{n} {100 * c['agreement']:.1f} %" for n, c in base["candidates"].items())
-        console.print(f"chosen by agreement with the {res['decisions']} decisions (balanced accuracy): {fits}",
+        how = "weighted" if chosen == "blend" else "chosen"
+        console.print(f"{how} by agreement with the {res['decisions']} decisions (balanced accuracy): {fits}",
                       highlight=False)
+    if base.get("weights"):
+        console.print("blend weights (advantages scaled by their spread): " + ", ".join(
+            f"{n} {100 * w:.0f} %" for n, w in base["weights"].items()), highlight=False)
     console.print(f"{res['state']}: {res['message']}, {res['episodes']} episodes in {res['wall_s']} s — "
                   f"{res['folder']}", highlight=False)
     later = res.get("later_decisions")
@@ -435,7 +443,7 @@ def _render_personalize(res: dict[str, Any], console: Console) -> None:
 def personalize_command(
     driver: Annotated[str, typer.Option("--driver", help="The driver to personalise for.")],
     decisions: Annotated[Optional[int], typer.Option("--decisions", min=1, help="K: its first K decisions in time order (default: all).")] = None,
-    base: Annotated[str, typer.Option("--from", help="'fit': the agent of the style assigned from the K decisions when its confidence is at least --min-confidence, else, of every style's agent and the population's, the one that agrees best with the K decisions; 'style': the assigned style's agent; 'population': all other drivers'; 'auto': the style's when confident, else the population's.")] = "fit",
+    base: Annotated[str, typer.Option("--from", help="'fit': the agent of the style assigned from the K decisions when its confidence is at least --min-confidence, else, of every style's agent and the population's, the one that agrees best with the K decisions; 'blend': every style's agent and the population's at once, acting on their advantages (each scaled by its spread) weighted by the style's bootstrap share (the population 0.2) times the agreement with the K decisions; 'style': the assigned style's agent; 'population': all other drivers'; 'auto': the style's when confident, else the population's.")] = "fit",
     min_confidence: Annotated[float, typer.Option("--min-confidence", min=0.0, help="The style's bootstrap confidence from which it counts as sure: with --from fit or auto its agent is taken as it is assigned (below it, 'fit' chooses by agreement, 'auto' takes the population's; above 1: always), and with --fine-tune-unsure the base is fine-tuned below it.")] = 0.8,
     fine_tune: Annotated[Optional[bool], typer.Option("--fine-tune/--no-fine-tune", help="Fine-tune the base on the K decisions, or not (the default: the base as it is, measured better on SUMO studies; rl/README.md, issue 21).", show_default=False)] = None,
     fine_tune_unsure: Annotated[bool, typer.Option("--fine-tune-unsure", help="Fine-tune only when the style's confidence is below --min-confidence (the base chosen by agreement); measured no better than the default on SUMO seeds 305-307.")] = False,

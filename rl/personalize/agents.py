@@ -7,6 +7,10 @@ beside the base's own approaches (so the prior is kept where the K decisions say
 nothing, e.g. at speeds the driver has not driven yet). Exploration starts low and
 the step size small, since the base already decides well (rl/README.md,
 "A new driver from a few lane changes", has the variants measured).
+
+The blend (base 'blend') is every candidate at once: the greedy action of the weighted
+sum of their advantages Q(change) - Q(keep), each scaled by its spread on the
+population's states, as one wider network (`blended_network`).
 """
 
 from __future__ import annotations
@@ -26,7 +30,9 @@ from rl.problem.rewards import CHANGE
 from rl.problem.scene import Scene
 from rl.settings import DQNSettings
 
-BASES: tuple[str, ...] = ("style", "population", "auto", "fit")
+BASES: tuple[str, ...] = ("style", "population", "auto", "fit", "blend")
+#: How a blend weighs its candidates before their agreement: the style's bootstrap shares, or all alike.
+BLEND_PRIORS: tuple[str, ...] = ("share", "equal")
 METHODS: tuple[str, ...] = ("finetune", "mix", "own", "none", "unsure")
 
 
@@ -36,8 +42,9 @@ class PersonalizeSettings:
 
     base: str = "fit"  # whose agent is the prior: 'style' (the assigned style's members), 'population'
     # (every other driver), 'auto' (the style's when its confidence is at least `min_confidence`, else the
-    # population's) or 'fit' (the style's when its confidence is at least `min_confidence`, else, of every style's
-    # agent and the population's, the one that agrees best with the K decisions)
+    # population's), 'fit' (the style's when its confidence is at least `min_confidence`, else, of every style's
+    # agent and the population's, the one that agrees best with the K decisions) or 'blend' (every style's agent and
+    # the population's together: the policy acts on the weighted mean of their normalised advantages, `blend_weights`)
     min_confidence: float = 0.8  # 'auto', 'fit', method 'unsure': the bootstrap share of the assigned style that
     # trusts it (above 1: 'fit' always chooses by agreement, 'unsure' always fine-tunes)
     method: str = "none"  # 'finetune': base weights, then the mix replayed; 'mix': the mix from scratch;
@@ -51,17 +58,27 @@ class PersonalizeSettings:
     eps_start: float = 0.2  # exploration at the start of fine-tuning (falls to DQNSettings.eps_end)
     learning_starts: int = 500  # transitions before the first fine-tuning update
     n_bootstrap: int = 200  # resamples of the K decisions for the style's confidence
+    blend_prior: str = "share"  # 'blend': a style's prior weight is its bootstrap share (times 1 - blend_population),
+    # or 'equal': every candidate alike
+    blend_population: float = 0.2  # 'blend', prior 'share': the population agent's prior weight
+    blend_fit_power: float = 1.0  # 'blend': each prior weight times the candidate's agreement with the K
+    # approaches to this power (0: the prior alone)
 
     def __post_init__(self) -> None:
         if self.base not in BASES:
             raise UserError(f"unknown --from {self.base!r}: choose one of {', '.join(BASES)}")
         if self.method not in METHODS:
             raise UserError(f"unknown method {self.method!r}: choose one of {', '.join(METHODS)}")
+        if self.blend_prior not in BLEND_PRIORS:
+            raise UserError(f"unknown blend prior {self.blend_prior!r}: choose one of {', '.join(BLEND_PRIORS)}")
+        if not 0.0 <= self.blend_population <= 1.0 or self.blend_fit_power < 0:
+            raise UserError("blend_population must be in [0, 1] and blend_fit_power at least 0")
         if not 0.0 < self.driver_share <= 1.0:
             raise UserError(f"driver_share must be in (0, 1], got {self.driver_share}")
 
     def base_for(self, confidence: float) -> str:
-        """'style', 'population' or 'fit' (choose by agreement): the base for a style assigned with `confidence`."""
+        """'style', 'population', 'fit' (choose by agreement) or 'blend': the base for a style assigned with
+        `confidence`."""
         if self.base not in ("auto", "fit"):
             return self.base
         if confidence >= self.min_confidence:
@@ -160,8 +177,8 @@ def best_fit(fits: dict[str, float], shares: dict[str, float]) -> str:
 
 def candidates(ps: PersonalizeSettings, est: Any, pop: Any, others: list[str]) -> dict[str, list[str]]:
     """The bases `ps.base` chooses among, name -> drivers: every style's and the population's when it
-    chooses by agreement, else the one `ps.base_for` names (`est`: the `StyleEstimate`, `pop`: the `Population`)."""
-    if ps.base_for(est.confidence) == "fit":
+    chooses by agreement or blends, else the one `ps.base_for` names (`est`: the `StyleEstimate`, `pop`: the `Population`)."""
+    if ps.base_for(est.confidence) in ("fit", "blend"):
         return {**{f"style {s}": list(m) for s, m in pop.members.items() if m}, "population": list(others)}
     if ps.base_for(est.confidence) == "population":
         return {"population": list(others)}
@@ -188,3 +205,83 @@ def weights_of(trainer: DQNTrainer) -> dict[str, torch.Tensor]:
 def base_seed(seed: int) -> int:
     """The base agent's seed, apart from the personalised agent's."""
     return int(np.random.SeedSequence([seed, 3]).generate_state(1)[0] % (2**31))
+
+
+# --- the blend: every candidate's advantage, weighted -------------------------------------------------------------
+
+
+def advantages(weights: dict[str, torch.Tensor], env: EnvConfig, dqn: DQNSettings,
+               approaches: list[Approach]) -> np.ndarray:
+    """Q(change) - Q(keep) of a Q network with `weights` on every recorded state of `approaches`."""
+    from rl.learners.dqn import q_network
+    from rl.problem.env import observation, observation_names
+
+    net = q_network(dqn.hidden, len(observation_names(env)))
+    net.load_state_dict(weights)
+    obs = observation(Scene.concat([a.scene for a in approaches]), env)
+    with torch.no_grad():
+        q = net(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+    keep = 1 - CHANGE
+    return q[:, CHANGE] - q[:, keep]
+
+
+def advantage_scale(weights: dict[str, torch.Tensor], env: EnvConfig, dqn: DQNSettings,
+                    approaches: list[Approach]) -> float:
+    """The spread (std) of an agent's advantage on the states of `approaches` (the population's in a blend:
+    one set of states for every candidate), so that no candidate dominates a blend by the scale of its Q values."""
+    a = advantages(weights, env, dqn, approaches)
+    sd = float(np.std(a)) if len(a) > 1 else 0.0
+    return sd if np.isfinite(sd) and sd > 1e-9 else 1.0
+
+
+def blend_weights(ps: PersonalizeSettings, shares: dict[str, float], fits: dict[str, float]) -> dict[str, float]:
+    """Each candidate's weight in the blend (summing to 1): its prior (prior 'share': a style's bootstrap share
+    times 1 - `blend_population`, the population `blend_population`; 'equal': alike) times its agreement with the
+    K approaches to the power `blend_fit_power`. `fits`: candidate -> agreement (every candidate; the population is
+    'population'); `shares`: candidate -> the style's bootstrap share (the population has none)."""
+    prior = {}
+    for name in fits:
+        if ps.blend_prior == "equal":
+            prior[name] = 1.0
+        elif name == "population":
+            prior[name] = ps.blend_population
+        else:
+            prior[name] = (1.0 - ps.blend_population) * float(shares.get(name, 0.0))
+    raw = {n: prior[n] * max(float(fits[n]), 1e-9) ** ps.blend_fit_power for n in fits}
+    total = sum(raw.values())
+    if total <= 0:  # no prior weight anywhere (e.g. no population and no share): all alike
+        raw, total = dict.fromkeys(fits, 1.0), float(len(fits))
+    return {n: v / total for n, v in raw.items()}
+
+
+def blended_network(parts: list[tuple[dict[str, torch.Tensor], float]]) -> dict[str, torch.Tensor]:
+    """One `q_network` whose Q values are sum_i c_i Q_i(s) for the networks and coefficients in `parts` (all of one
+    shape): the networks side by side (first layer stacked, the hidden layers block-diagonal, the output layer
+    scaled by c_i and summed), so its greedy action is the sign of the weighted sum of the advantages and it saves,
+    evaluates and exports as any run's network (hidden widths times len(parts))."""
+    if not parts:
+        raise ValueError("a blend of no networks")
+    keys = list(parts[0][0])
+    layers = sorted({int(k.split(".")[0]) for k in keys})
+    out: dict[str, torch.Tensor] = {}
+    for j, layer in enumerate(layers):
+        ws = [p[0][f"{layer}.weight"].detach().float() for p in parts]
+        bs = [p[0][f"{layer}.bias"].detach().float() for p in parts]
+        if j == 0:
+            w, b = torch.cat(ws, 0), torch.cat(bs, 0)
+        elif j < len(layers) - 1:
+            w, b = torch.block_diag(*ws), torch.cat(bs, 0)
+        else:
+            w = torch.cat([c * wi for wi, (_, c) in zip(ws, parts)], 1)
+            b = sum(c * bi for bi, (_, c) in zip(bs, parts))
+        out[f"{layer}.weight"], out[f"{layer}.bias"] = w.contiguous(), b.contiguous()
+    return out
+
+
+def blend(nets: dict[str, dict[str, torch.Tensor]], weights: dict[str, float],
+          scales: dict[str, float], dqn: DQNSettings) -> tuple[dict[str, torch.Tensor], DQNSettings]:
+    """The blended network (`blended_network` of the candidates of nonzero weight, coefficients weight / scale)
+    and `dqn` with its hidden widths."""
+    used = [n for n in nets if weights.get(n, 0.0) > 0]
+    parts = [(nets[n], weights[n] / scales[n]) for n in used]
+    return blended_network(parts), replace(dqn, hidden=tuple(h * len(used) for h in dqn.hidden))

@@ -6,7 +6,11 @@ status.json, metrics.jsonl of the fine-tuning, checkpoint.pt, weights.pt and
 evaluation.json, so `runs`, `evaluate` and `export` work on it. Beside them:
 ``base_weights.pt`` (the base agent, reused by a later personalisation with the same
 base, data and settings) and ``personalize.json`` (the style estimate and the agent
-scored on the driver's decisions after the first K, when there are any).
+scored on the driver's decisions after the first K, when there are any). With ``--from
+blend`` the base is every candidate at once: weights.pt (and base_weights.pt) is one
+`q_network` with the candidates side by side (`agents.blended_network`: hidden widths
+times their number, recorded in config.json's ``dqn.hidden``), every candidate kept
+under ``bases/``.
 """
 
 from __future__ import annotations
@@ -28,8 +32,9 @@ from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.evaluation.crossval import bootstrap_scores
 from rl.evaluation.evaluate import agent_policy, evaluate_policies
-from rl.personalize.agents import (PersonalizeSettings, agreement, base_seed, best_fit, candidates, finetune_settings,
-                                   personalised_agent, policy_of, train_agent, weights_of)
+from rl.personalize.agents import (PersonalizeSettings, advantage_scale, agreement, base_seed, best_fit, blend,
+                                   blend_weights, candidates, finetune_settings, personalised_agent, policy_of,
+                                   train_agent, weights_of)
 from rl.personalize.split import decision_order, driver_rows, first_decisions
 from clustering.pipeline import stored_settings
 from rl.personalize.style import estimate_style, fit_population
@@ -165,23 +170,37 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
                 trainer = train_agent(app, env, base_dqn, label=f"base ({name})", progress=phase(
                     base_dqn.resolved_episodes(replayed_approaches(app, env)).episodes, what))
                 weights[name], c["episodes"] = weights_of(trainer), trainer.episodes_done
-            chosen = first
-            if len(cands) > 1:  # 'fit': the base that agrees best with the K decisions
+            chosen, net_dqn = first, dqn
+            blending = used_ps.base_for(est.confidence) == "blend"
+            if len(cands) > 1:  # 'fit': the base that agrees best with the K decisions; 'blend': all, weighted
                 fits = {n: agreement(policy_of(w, env, dqn), own_app) for n, w in weights.items()}
-                chosen = best_fit(fits, {f"style {s}": v for s, v in est.bootstrap.items()})
+                shares = {f"style {s}": v for s, v in est.bootstrap.items()}
+                chosen = "blend" if blending else best_fit(fits, shares)
+                if blending:  # each candidate's advantage scaled by its spread on the population's states
+                    blend_w = blend_weights(used_ps, shares, fits)
+                    scales = {n: advantage_scale(w, env, dqn, apps["population"]) for n, w in weights.items()}
                 for n, c in cands.items():
                     base["candidates"][n].update({"agreement": fits[n], **{x: c[x] for x in
                                                   ("n_approaches", "episodes", "reused_from") if x in c}})
+                    if blending:
+                        base["candidates"][n].update({"weight": blend_w[n], "advantage_std": scales[n]})
                     if n != chosen:
                         _save(folder / "bases" / f"{c['key']}.pt", weights[n])
-            base.update({"chosen": chosen, "drivers": cands[chosen]["drivers"], "key": cands[chosen]["key"],
-                         **{x: cands[chosen][x] for x in ("n_approaches", "episodes", "reused_from")
-                            if x in cands[chosen]}})
-            base_w, base_app = weights[chosen], apps[chosen]
+            if chosen == "blend":
+                base_w, net_dqn = blend(weights, blend_w, scales, dqn)
+                base_app = apps["population"]
+                base.update({"chosen": "blend", "drivers": list(others), "key": None,
+                             "n_approaches": len(base_app), "weights": blend_w, "hidden": list(net_dqn.hidden)})
+                config["dqn"]["hidden"] = list(net_dqn.hidden)  # the blended network's widths (evaluate, export)
+            else:
+                base.update({"chosen": chosen, "drivers": cands[chosen]["drivers"], "key": cands[chosen]["key"],
+                             **{x: cands[chosen][x] for x in ("n_approaches", "episodes", "reused_from")
+                                if x in cands[chosen]}})
+                base_w, base_app = weights[chosen], apps[chosen]
             _save(folder / "base_weights.pt", base_w)
             atomic_write_json(folder / "config.json", config)
             writer.status("running", 0, f"personalising on {len(used)} decisions")
-            trainer = personalised_agent(base_w, base_app, own_app, env, dqn, used_ps, episodes=episodes,
+            trainer = personalised_agent(base_w, base_app, own_app, env, net_dqn, used_ps, episodes=episodes,
                                          progress=phase(ft_settings.episodes, f"personalising on {len(used)} decisions"),
                                          on_episode=writer.metric)
             writer.episodes = ft_settings.episodes
@@ -202,8 +221,10 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
                  "later_decisions": later, "created_at": now_iso()}
         atomic_write_json(folder / "personalize.json", extra)
         evaluate_run(workspace, run_id)
-        message = (f"the {chosen} agent as it is, chosen by {len(used)} decisions" if used_ps.method == "none" else
-                   f"personalised on {len(used)} decisions from the {chosen} agent")
+        what = (f"the blend of {sum(v > 0 for v in base['weights'].values())} agents weighted by {len(used)} "
+                "decisions" if chosen == "blend" else f"the {chosen} agent")
+        message = (f"{what} as it is" + ("" if chosen == "blend" else f", chosen by {len(used)} decisions")
+                   if used_ps.method == "none" else f"personalised on {len(used)} decisions from {what}")
         if ps.method == "unsure":  # say why it did or did not fine-tune
             message += (f" (style {est.style} sure: confidence {est.confidence:.2f} >= {ps.min_confidence:g})"
                         if used_ps.method == "none" else

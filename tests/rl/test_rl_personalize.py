@@ -257,3 +257,103 @@ def test_the_benchmark_reads_the_unsure_variant() -> None:
     assert list(v) == ["personalised", "personalised[unsure/fit]", "personalised[unsure/fit min_confidence=0.9]"]
     assert v["personalised[unsure/fit]"].method == "unsure" and v["personalised[unsure/fit]"].base == "fit"
     assert v["personalised[unsure/fit min_confidence=0.9]"].min_confidence == 0.9
+
+
+# --- the blend (--from blend): every candidate's advantage, weighted ------------------------------------------------
+
+
+def test_the_blended_network_is_the_weighted_sum_of_its_parts() -> None:
+    from rl.learners.dqn import q_network
+    from rl.personalize.agents import blended_network
+
+    torch.manual_seed(0)
+    nets, coefs = [q_network((16, 8), 9) for _ in range(3)], [0.5, 0.2, 1.3]
+    wide = q_network((48, 24), 9)
+    wide.load_state_dict(blended_network([(n.state_dict(), c) for n, c in zip(nets, coefs)]))
+    x = torch.rand(64, 9)
+    with torch.no_grad():
+        assert torch.allclose(wide(x), sum(c * n(x) for n, c in zip(nets, coefs)), atol=1e-5)
+
+
+def test_blend_weights_are_the_shares_times_the_agreement() -> None:
+    from rl.personalize.agents import PersonalizeSettings, blend_weights
+
+    fits = {"style A": 0.8, "style B": 0.6, "population": 0.7}
+    shares = {"style A": 0.75, "style B": 0.25}
+    w = blend_weights(PersonalizeSettings(base="blend", blend_population=0.2), shares, fits)
+    raw = {"style A": 0.8 * 0.75 * 0.8, "style B": 0.8 * 0.25 * 0.6, "population": 0.2 * 0.7}
+    assert w == pytest.approx({n: v / sum(raw.values()) for n, v in raw.items()})
+    prior = blend_weights(PersonalizeSettings(base="blend", blend_fit_power=0.0), shares, fits)
+    assert prior == pytest.approx({"style A": 0.6, "style B": 0.2, "population": 0.2})
+    equal = blend_weights(PersonalizeSettings(base="blend", blend_prior="equal", blend_fit_power=0.0), shares, fits)
+    assert equal == pytest.approx(dict.fromkeys(fits, 1 / 3))
+    sure = blend_weights(PersonalizeSettings(base="blend"), {"style A": 1.0, "style B": 0.0}, fits)
+    assert sure["style B"] == 0.0 and sum(sure.values()) == pytest.approx(1.0)
+    with pytest.raises(Exception, match="unknown blend prior"):
+        PersonalizeSettings(base="blend", blend_prior="vote")
+
+
+def test_the_blend_is_a_run_that_acts_on_the_weighted_advantages(study: Workspace) -> None:
+    from rl.learners.dqn import q_network
+    from rl.personalize.agents import advantages
+    from rl.problem.env import EnvConfig, approaches_from_decisions, observation, observation_names
+    from rl.problem.scene import Scene
+    from rl.settings import DQNSettings
+
+    res = _run(study, "--driver", "D03", "--decisions", "6", "--from", "blend", "--run-id", "bl6", "--json", *TINY)
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    base = out["base"]
+    assert base["chosen"] == "blend" and out["method"] == "none" and "D03" not in base["drivers"]
+    cands = base["candidates"]
+    assert set(cands) == {"style Defensive", "style Normal", "style Aggressive", "population"}
+    assert sum(base["weights"].values()) == pytest.approx(1.0) and base["weights"]["population"] > 0
+    folder = study.runs_dir / "bl6"
+    config = json.loads((folder / "config.json").read_text())
+    used = [n for n, w in base["weights"].items() if w > 0]
+    assert config["dqn"]["hidden"] == [128 * len(used)] * 3 == base["hidden"]
+    # the run's network acts on sum_i weight_i * advantage_i / spread_i of the candidates kept under bases/
+    env, dqn = EnvConfig.from_dict(config["env"]), DQNSettings(seed=0)
+    dec = study.read_table("analysis", "decisions")
+    recorded, _ = approaches_from_decisions(dec[dec["driver_id"] == "D03"])
+    mix = sum(base["weights"][n] / cands[n]["advantage_std"] * advantages(
+        torch.load(folder / "bases" / f"{cands[n]['key']}.pt", weights_only=True), env, dqn, recorded) for n in used)
+    net = q_network(tuple(config["dqn"]["hidden"]), len(observation_names(env)))
+    net.load_state_dict(torch.load(folder / "weights.pt", weights_only=True))
+    with torch.no_grad():
+        q = net(torch.as_tensor(observation(Scene.concat([a.scene for a in recorded]), env))).numpy()
+    assert np.allclose(q[:, 0] - q[:, 1], mix, atol=1e-4)
+    ev = CliRunner().invoke(app, ["evaluate", "bl6", "-w", str(study.root), "--json"])
+    assert ev.exit_code == 0, ev.output
+    if importlib.util.find_spec("onnxruntime"):
+        exp = CliRunner().invoke(app, ["export", "bl6", "-w", str(study.root), "--json"])
+        assert exp.exit_code == 0, exp.output
+    text = _run(study, "--driver", "D03", "--decisions", "5", "--from", "blend", "--run-id", "bl5", *TINY)
+    assert text.exit_code == 0, text.output
+    assert "blend weights" in text.stdout and "blend of" in text.stdout
+    assert all(c.get("reused_from") for c in  # every candidate kept (bl6's, or an earlier run's)
+               json.loads((study.runs_dir / "bl5" / "config.json").read_text())["base"]["candidates"].values())
+
+
+def test_the_curve_scores_the_blend(study: Workspace) -> None:
+    from rl.personalize.agents import PersonalizeSettings
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    from personalize import parse_variants
+    from personalize_curve import ALL, CurveSettings, driver_curve
+    from rl.problem.env import formulation_config
+    from rl.settings import DQNSettings
+
+    v = parse_variants("none:blend,none:blend:blend_prior=equal;blend_fit_power=0")
+    assert v["personalised"].base == "blend" and v["personalised[none/blend blend_prior=equal blend_fit_power=0]"] \
+        .blend_prior == "equal"
+    dec = study.read_table("analysis", "decisions")
+    env = formulation_config(ReferenceLines.paper("Normal"), "decisions")
+    dqn = DQNSettings(seed=0, episodes=60, episodes_per_approach=0.0, num_envs=8, batch_size=64, learning_starts=100)
+    res = driver_curve(dec, "D04", ["D01", "D02", "D03", "D05", "D06"], env, dqn,
+                       CurveSettings(ks=(3, ALL), variants={"personalised": PersonalizeSettings(base="blend"),
+                                                            "equal": PersonalizeSettings(base="blend",
+                                                                                         blend_prior="equal")}),
+                       stored_settings(study))
+    assert res["states"]["action_personalised"].notna().all() and res["states"]["action_equal"].notna().all()
+    w = res["styles"][[c for c in res["styles"] if c.startswith("blend[personalised]")]]
+    assert len(w.columns) == 4 and np.allclose(w.sum(axis=1), 1.0)
