@@ -39,6 +39,10 @@ def drive_command(
         help="The assistant's held-back rule (default on): after following a leader slower than the ego's desired "
              "speed for the target's patience, change when a neighbouring lane is faster and holds a gap the "
              "target's acceptance lines take (rl/drive/heldback.py). --no-held-back: the pure agent.")] = True,
+    dwell: Annotated[bool, typer.Option(
+        "--dwell/--no-dwell",
+        help="With the held-back rule: no change sooner after a lane change than the target's drivers pressed "
+             "(default on; README, 'Driving like its drivers'). --no-dwell: without that wait.")] = True,
     sumo_model: Annotated[bool, typer.Option(
         "--sumo-model/--no-sumo-model",
         help="Also drive the same ego with SUMO's own lane-change model of its style in the same traffic and "
@@ -57,7 +61,7 @@ def drive_command(
         with progress_bar(not as_json) as bar:
             return drive_run(Workspace(workspace), run_id, minutes=minutes, seed=seed, sections=section, out=out,
                              driver_id=driver_id, analyze=analyze, lanes=lanes, held_back=held_back,
-                             sumo_model=sumo_model, progress=bar)
+                             sumo_model=sumo_model, dwell=dwell, progress=bar)
 
     run_command(work, as_json, render)
 
@@ -139,6 +143,10 @@ def render(result: dict[str, Any], console: Console) -> None:
                       f"{rule['patience_s']:g} s ({rule['source'].get('patience_s', '')}); desired speed "
                       f"{hb['desired_speed']}; 'longest passed up': the longest time, while held back, that a "
                       "neighbouring lane held a gap the target accepts", highlight=False, soft_wrap=True)
+        dwell = ", ".join(f"{k} {v:.1f} s" for k, v in rule.get("dwell_s", {}).items()) or "none"
+        console.print(f"dwell after a lane change (none sooner than the target's drivers pressed): {dwell}; "
+                      f"decision steps with a side held by it: {result['totals']['follow'].get('dwelled', 0)}",
+                      highlight=False, soft_wrap=True)
         tot, fo = result["totals"], result["totals"]["follow"]
         console.print(f"of the rule's {tot['rule_changes']} changes, {tot['return_changes']} completed an overtaking; "
                       f"agent's changes not requested: {fo.get('vetoed', 0)} decision steps back behind the leader "

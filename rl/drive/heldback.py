@@ -100,7 +100,7 @@ class HeldBackRule:
     slower_mps: float = SLOWER_MPS
     far_follower_m: float = FAR_FOLLOWER_M
     t_nf_floor_s: float = 0.0  # [s] no change closing in on the target lane's leader faster than this
-    dv_nb_floor_mps: float = -np.inf  # [m/s] no change in front of a follower closing faster than -this
+    dv_nb_floor_mps: float = -np.inf  # [m/s] no change in front of a follower closing faster than -this (<= 0)
     dwell_s: dict[str, float] = field(default_factory=dict)  # 'left>right' etc.: least time from a change to the next
     source: dict[str, str] = field(default_factory=dict)
 
@@ -335,7 +335,8 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5) -> Held
     t_nf = _finite(typ_presses, "t_nf_s")
     t_nf_floor = float(np.percentile(t_nf, FLOOR_PERCENTILE)) if len(t_nf) else 0.0
     dv_nb = _finite(typ_presses, "dv_nb_mps")
-    dv_nb_floor = float(np.percentile(dv_nb, FLOOR_PERCENTILE)) if len(dv_nb) else -np.inf
+    # a follower slower than the ego never closes in: only faster ones than the target let close are refused
+    dv_nb_floor = min(float(np.percentile(dv_nb, FLOOR_PERCENTILE)), 0.0) if len(dv_nb) else -np.inf
     try:
         got = {ind: _line(sel, fits, ind, typical, typ_presses) for ind in ACCEPT_INDICATORS}
     except KeyError as exc:
@@ -349,7 +350,7 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5) -> Held
                                                   "t_nf_floor_s": f"percentile {FLOOR_PERCENTILE:g} of t_nf at "
                                                                   f"{len(t_nf)} presses of {typical}",
                                                   "dv_nb_floor_mps": f"percentile {FLOOR_PERCENTILE:g} of dv_nb at "
-                                                                     f"{len(dv_nb)} presses of {typical}",
+                                                                     f"{len(dv_nb)} presses of {typical}, at most 0",
                                                   "dwell_s": f"{dwell_why}, {target.label}"}
     return HeldBackRule(patience, got["gap_nf"][0], got["gap_nb"][0], got["thw_nb"][0], t_nf_floor_s=t_nf_floor,
                         dv_nb_floor_mps=dv_nb_floor, dwell_s=dwell, source=source)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 import tempfile
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, Optional
 
@@ -238,12 +238,13 @@ _NEVER = _never()
 def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed: int = 0,
               sections: Optional[list[float]] = None, out: Optional[Path] = None,
               driver_id: Optional[str] = None, analyze: bool = False, lanes: int = 2,
-              held_back: bool = True, sumo_model: bool = True,
+              held_back: bool = True, sumo_model: bool = True, dwell: bool = True,
               progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
 
     `held_back`: the assistant's held-back rule acts beside the agent (False: the pure agent; the rule's
-    figures are still measured). `sumo_model`: also drive SUMO's own model of the style (the comparator)."""
+    figures are still measured). `sumo_model`: also drive SUMO's own model of the style (the comparator).
+    `dwell=False`: the rule without its dwell after a lane change (`HeldBackRule.dwell_s` emptied)."""
     from laneprint.simulator.sumo.backend import check_available
     from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, LANES, family_settings
     from laneprint.simulator.sumo.styles import STYLE_PARAMS
@@ -265,6 +266,8 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     style, why = ego_style(workspace, target)
     settings = family_settings(DEFAULT_FAMILY, lanes, speed_limits_kph=limits, minutes=minutes)
     rule, rule_note = held_back_rule(workspace, target, cfg)
+    if rule is not None and not dwell:
+        rule = replace(rule, dwell_s={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
     drives = drive_sections(agent_q(net, cfg), cfg, STYLE_PARAMS[style], settings, seed, progress, rule,
                             use_rule=held_back)
     lanes_opt = "" if lanes == 2 else f", {lanes} lanes"
