@@ -210,7 +210,10 @@ def decision_agreement(states: pd.DataFrame, who: str = "agent", x: str = "v_e_m
 def drive_fidelity(fid: dict) -> go.Figure:
     """A drive beside its drivers (`rl.drive.fidelity`): lane changes per km with 95 % intervals, then, per
     indicator at the presses, each side's median with its interquartile range as the bar."""
-    panels = ["lane changes per km [1/km]"] + list(fid["indicators"])
+    from indicators.plots import label_of
+
+    names = list(fid["indicators"])
+    panels = ["lane changes per km [1/km]"] + [label_of(k, short=True) for k in names]
     cols = 3
     rows = -(-len(panels) // cols)
     fig = make_subplots(rows=rows, cols=cols, subplot_titles=panels, horizontal_spacing=0.08,
@@ -229,7 +232,7 @@ def drive_fidelity(fid: dict) -> go.Figure:
         tol = fid.get("tolerance", 0.2)
         fig.add_hrect(y0=d * (1 - tol), y1=d * (1 + tol), fillcolor=colours["drivers"], opacity=0.12, line_width=0,
                       row=1, col=1)
-    for k, name in enumerate(panels[1:], start=1):
+    for k, name in enumerate(names, start=1):
         row, col = k // cols + 1, k % cols + 1
         v = fid["indicators"][name]
         for who, side in (("agent", v["agent"]), ("drivers", v["drivers"])):
@@ -241,7 +244,7 @@ def drive_fidelity(fid: dict) -> go.Figure:
                 error_y=dict(type="data", symmetric=False, array=[side["q3"] - side["median"]],
                              arrayminus=[side["median"] - side["q1"]])), row=row, col=col)
         if v["median_in_iqr"] is False:
-            fig.layout.annotations[k].text = f"{name} (outside the drivers' IQR)"
+            fig.layout.annotations[k].text = f"{panels[k]} (outside the drivers' IQR)"
     a = rate["agent"]["per_km"]
     fig.update_layout(height=260 * rows, margin=dict(t=70, l=50, r=20, b=30),
                       title=f"The drive beside its drivers: {fid['medians_in_iqr']} medians inside their IQR, "

@@ -72,7 +72,7 @@ def test_the_drive_figure_draws_the_rate_and_every_indicator_and_marks_a_miss():
                           "gap_f": compare_values(rng.normal(90, 5, 40), rng.normal(50, 5, 90), rng)}}
     fig = drive_fidelity(fid)
     titles = [a.text for a in fig.layout.annotations]
-    assert titles[:3] == ["lane changes per km [1/km]", "t_f", "gap_f (outside the drivers' IQR)"]
+    assert titles[:3] == ["lane changes per km [1/km]", "t_f [s]", "gap_f [m] (outside the drivers' IQR)"]
     assert len(fig.data) == 6  # agent and drivers in each of the three panels
     rate = [t for t in fig.data if t.xaxis in (None, "x")]
     assert [t.y[0] for t in rate] == [pytest.approx(3.3), pytest.approx(3.0)]
