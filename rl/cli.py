@@ -154,7 +154,7 @@ def train_command(
     def work() -> dict[str, Any]:
         from rl.problem.env import EnvConfig, formulation_config  # heavy imports (torch) only when the command runs
         from rl.fleet.runs import create_fleet, fleet_targets, is_fleet, train_fleet
-        from rl.runs import Target, multilane, resolve_lines, train_run
+        from rl.runs import Target, resolve_lines, train_run
 
         ws = Workspace(workspace)
         fleet_opts = {"backend": backend, "ray_address": ray_address, "threads": threads, "evaluate": evaluate}
@@ -182,8 +182,7 @@ def train_command(
             raise UserError(f"bad training setting: {exc}") from None
         if fleet:
             targets = fleet_targets(ws, drivers, styles)
-            fleet_env = formulation_config(EnvConfig().lines, reward, scenes, observation, lines,
-                                           multilane=multilane(ws))
+            fleet_env = formulation_config(EnvConfig().lines, reward, scenes, observation, lines)
             warned = _warn_learning(learning_checks(ws, targets, fleet_env, settings), len(targets))
             record = create_fleet(ws, targets, list(range(seed, seed + seeds)), settings, reward=reward,
                                   scenes=scenes, observation=observation, other_side=other_side,
@@ -193,8 +192,7 @@ def train_command(
                 res = train_fleet(ws, record["fleet_id"], progress=progress, **fleet_opts)
             return {**res, "learning_check": warned} if warned else res
         target = Target("style", style) if style else Target("driver", str(driver))
-        env = formulation_config(resolve_lines(ws, target, lines), reward, scenes, observation, lines, other_side,
-                                 multilane(ws))
+        env = formulation_config(resolve_lines(ws, target, lines), reward, scenes, observation, lines, other_side)
         if dt is not None:
             env = replace(env, dt_s=dt)
         warned = _warn_learning(learning_checks(ws, [target], env, settings), 1)
@@ -301,7 +299,7 @@ def crossval_command(
         from rl.evaluation.crossval import CrossvalSettings
         from rl.evaluation.crossval_store import crossval_run, run_crossval, style_names, target_env
         from rl.problem.env import EnvConfig, formulation_config
-        from rl.runs import Target, multilane
+        from rl.runs import Target
         from laneprint.parallel import backend_session
 
         ws = Workspace(workspace)
@@ -317,8 +315,7 @@ def crossval_command(
             targets = ([Target("style", s) for s in style_names(ws)] if all_styles
                        else [Target("style", style)] if style else [Target("driver", str(driver))])
             dqn = DQNSettings(seed=seed, **({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {}))
-            base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines, other_side,
-                                      multilane(ws))
+            base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines, other_side)
             _warn_learning(learning_checks(ws, targets, base, dqn, share=(folds - 1) / folds), len(targets))
             results = [run_crossval(ws, t, target_env(ws, t, base, lines), dqn, cv, lines, progress=progress, **where)
                        for t in targets]

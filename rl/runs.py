@@ -109,15 +109,6 @@ def resolve_lines(workspace: Workspace, target: Target, lines: str) -> Reference
 # --- run folder I/O ------------------------------------------------------------------
 
 
-def multilane(workspace: Workspace) -> bool:
-    """Whether the workspace's analysed study has a press from a lane with a neighbour on each side (its
-    decisions' `other_lane`), which makes the `decisions` reward's default observation the side input's."""
-    if not workspace.has_table("analysis", "decisions"):
-        return False
-    d = workspace.read_table("analysis", "decisions")
-    return "other_lane" in d and bool((d.loc[d["label"] == "change", "other_lane"].fillna(-1) >= 0).any())
-
-
 def run_dir(workspace: Workspace, run_id: str) -> Path:
     return workspace.runs_dir / run_id
 

@@ -25,24 +25,16 @@ FORMULATIONS: dict[str, tuple[str, str]] = {
 }
 
 
-#: The `decisions` reward's observation on a road where drivers pressed from a lane with a neighbour on
-#: each side (three lanes or more): its own plus the side input, measured held out and in closed loop
-#: (rl/README.md, "Three lanes: the side input by default").
-MULTILANE_OBSERVATION = "direction"
-
-
 def resolve_formulation(reward: str | None, scenes: str | None, observation: str | None,
-                        lines: str = "analysis", multilane: bool = False) -> tuple[str, str, str]:
+                        lines: str = "analysis") -> tuple[str, str, str]:
     """(reward, scenes, observation) with the defaults filled in.
 
     Table 1's lines (`lines='paper'`) need no data, so the default reward there is
-    `timing` on synthetic scenes; otherwise `DEFAULT_REWARD`. With `multilane` (the study has
-    presses from a middle lane) the `decisions` reward's default observation is `MULTILANE_OBSERVATION`.
+    `timing` on synthetic scenes; otherwise `DEFAULT_REWARD`.
     """
     reward = reward or (DEFAULT_REWARD if lines == "analysis" else "timing")
     own = FORMULATIONS.get(reward, ("synthetic", "paper"))
-    default_observation = MULTILANE_OBSERVATION if multilane and reward == "decisions" else own[1]
-    return reward, scenes or own[0], observation or default_observation
+    return reward, scenes or own[0], observation or own[1]
 
 
 @dataclass(frozen=True)

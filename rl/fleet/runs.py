@@ -37,7 +37,7 @@ from laneprint.workspace import Workspace, atomic_write_json
 from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config, replayed_approaches
 from rl.fleet.batch import FleetMember, FleetTrainer
 from rl.fleet.store import fleet_dir, fleet_table
-from rl.runs import (Target, multilane, target_drivers, _save_torch, _StopFlag, _truncate_metrics, code_version, create_run,
+from rl.runs import (Target, target_drivers, _save_torch, _StopFlag, _truncate_metrics, code_version, create_run,
                      evaluate_run, lock_run, now_iso, resolve_lines, run_dir)
 from rl.settings import DQNSettings
 
@@ -116,7 +116,7 @@ def create_fleet(workspace: Workspace, targets: list[Target], seeds: list[int], 
     runs = []
     for target in targets:
         env = formulation_config(resolve_lines(workspace, target, lines_source), reward, scenes, observation,
-                                 lines_source, other_side, multilane(workspace))
+                                 lines_source, other_side)
         if dt_s is not None:
             env = replace(env, dt_s=dt_s)
         if env.scenes == "recorded" and counts is None:

@@ -150,10 +150,10 @@ def observation(scene: Scene, cfg: EnvConfig) -> np.ndarray:
 
 def formulation_config(lines: ReferenceLines, reward: str | None = None, scenes: str | None = None,
                        observation: str | None = None, lines_source: str = "analysis",
-                       other_side: bool | None = None, multilane: bool = False) -> EnvConfig:
+                       other_side: bool | None = None) -> EnvConfig:
     """An `EnvConfig` for `lines`, the unnamed settings filled by `rl.settings.resolve_formulation`
-    (`other_side` None: `EnvConfig`'s default; `multilane`: the study has presses from a middle lane)."""
-    name, scn, obs = resolve_formulation(reward, scenes, observation, lines_source, multilane)
+    (`other_side` None: `EnvConfig`'s default)."""
+    name, scn, obs = resolve_formulation(reward, scenes, observation, lines_source)
     cfg = EnvConfig(lines=lines, reward=RewardSettings(name=name), scenes=scn, observation=obs)
     return cfg if other_side is None else replace(cfg, other_side=other_side)
 

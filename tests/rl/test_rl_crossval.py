@@ -48,22 +48,6 @@ def test_decisions_reward_needs_recorded_scenes():
     assert resolve_formulation("timing", "recorded", None) == ("timing", "recorded", "paper")
 
 
-def test_a_study_with_middle_lane_presses_defaults_to_the_side_input(tmp_path):
-    from laneprint.workspace import Workspace
-    from rl.runs import multilane
-
-    assert resolve_formulation(None, None, None, multilane=True) == ("decisions", "recorded", "direction")
-    assert resolve_formulation(None, None, "acceptance", multilane=True)[2] == "acceptance"  # named: kept
-    assert resolve_formulation("timing", None, None, multilane=True)[2] == "paper"
-    ws = Workspace(tmp_path / "ws").ensure()
-    assert not multilane(ws)  # no analysis yet
-    two = pd.DataFrame({"label": ["keep", "change"], "other_lane": [1, -1]})  # a keep state beside lane 1
-    ws.write_tables("analysis", {"decisions": two}, {})
-    assert not multilane(ws)
-    ws.write_tables("analysis", {"decisions": pd.DataFrame({"label": ["change"], "other_lane": [0]})}, {})
-    assert multilane(ws)
-
-
 def test_replay_env_walks_the_recorded_approach_then_runs_on_past_the_press():
     approaches, _ = approaches_from_decisions(rule_driver_decisions(LINES, 1, seed=0, window_s=1.0))
     env = VecReplayEnv(DECISIONS_ENV, approaches, 1, np.random.default_rng(0))
