@@ -16,7 +16,7 @@ headline). Writes curve.json, curve.csv and curve.html (Plotly) to --out.
 Run on an analysed workspace (`laneprint ingest sample_logs -w WS && laneprint analyze -w WS`):
 
     python benchmarks/personalize.py -w WS [--drivers all|N|D01,D02] [--k 5,10,20,all]
-        [--episodes N] [--variants none:fit,finetune:fit,...] [--observation O] [--jobs 2] [--seed 0] [--out DIR]
+        [--episodes N] [--variants none:blend,none:fit,...] [--observation O] [--jobs 2] [--seed 0] [--out DIR]
 """
 
 from __future__ import annotations
@@ -56,7 +56,8 @@ def parse_variants(spec: str) -> dict[str, PersonalizeSettings]:
 
     Each variant is METHOD:BASE, then optionally ':' and `PersonalizeSettings` fields as NAME=VALUE;...
     (METHOD: none, finetune, unsure (fine-tune when the style's confidence is below min_confidence), mix, own;
-    BASE: fit, style, population, auto).
+    BASE: fit, style, population, auto, blend (every style's agent and the population's, their advantages
+    weighted: blend_prior=share|equal, blend_population, blend_fit_power)).
     """
     out = {}
     for i, part in enumerate(p for p in spec.split(",") if p):
@@ -184,9 +185,10 @@ def main() -> None:
     ap.add_argument("--drivers", default="all", help="'all', N (the first N) or ID,ID,... held out in turn")
     ap.add_argument("--k", default="5,10,20,all", help="decisions shown, comma-separated ('all': every earlier one)")
     ap.add_argument("--episodes", type=int, default=None, help="cap on every agent's episodes (default: the trainer's)")
-    ap.add_argument("--variants", default="none:fit",
+    ap.add_argument("--variants", default="none:blend",
                     help="personalised agents, METHOD:BASE[:NAME=VALUE;...],... (the first is 'personalised'; "
-                         "default: laneprint personalize's, the fitted base as it is)")
+                         "default: laneprint personalize's, the blend of the candidates as it is; 'none:fit' the "
+                         "previous default)")
     ap.add_argument("--observation", default=None, choices=OBSERVATIONS,
                     help="what every agent and classifier sees (default: the 'decisions' reward's own)")
     ap.add_argument("--test-sessions", type=int, default=1, help="the driver's last sessions, held out")

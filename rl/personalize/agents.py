@@ -40,7 +40,7 @@ METHODS: tuple[str, ...] = ("finetune", "mix", "own", "none", "unsure")
 class PersonalizeSettings:
     """How a driver's agent is made from the base agent and its first K decisions."""
 
-    base: str = "fit"  # whose agent is the prior: 'style' (the assigned style's members), 'population'
+    base: str = "blend"  # whose agent is the prior: 'style' (the assigned style's members), 'population'
     # (every other driver), 'auto' (the style's when its confidence is at least `min_confidence`, else the
     # population's), 'fit' (the style's when its confidence is at least `min_confidence`, else, of every style's
     # agent and the population's, the one that agrees best with the K decisions) or 'blend' (every style's agent and
@@ -60,7 +60,8 @@ class PersonalizeSettings:
     n_bootstrap: int = 200  # resamples of the K decisions for the style's confidence
     blend_prior: str = "share"  # 'blend': a style's prior weight is its bootstrap share (times 1 - blend_population),
     # or 'equal': every candidate alike
-    blend_population: float = 0.2  # 'blend', prior 'share': the population agent's prior weight
+    blend_population: float = 0.4  # 'blend', prior 'share': the population agent's prior weight (0.4: chosen on
+    # SUMO 302-307 among 0.2 and the variants in rl/README.md, judged on 308-310)
     blend_fit_power: float = 1.0  # 'blend': each prior weight times the candidate's agreement with the K
     # approaches to this power (0: the prior alone)
 

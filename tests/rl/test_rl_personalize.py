@@ -109,8 +109,8 @@ def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(s
 
 
 def test_a_second_run_with_the_same_base_reuses_it(study: Workspace) -> None:
-    a = _run(study, "--driver", "D04", "--decisions", "3", "--run-id", "b1", "--json", *TINY)
-    b = _run(study, "--driver", "D04", "--decisions", "6", "--run-id", "b2", "--json", *TINY)
+    a = _run(study, "--driver", "D04", "--decisions", "3", "--from", "fit", "--run-id", "b1", "--json", *TINY)
+    b = _run(study, "--driver", "D04", "--decisions", "6", "--from", "fit", "--run-id", "b2", "--json", *TINY)
     assert a.exit_code == 0 and b.exit_code == 0, a.output + b.output
     assert json.loads(b.stdout)["base"]["reused_from"] == "b1"
     wa = torch.load(study.runs_dir / "b1" / "base_weights.pt", weights_only=True)
@@ -148,7 +148,8 @@ def test_the_fitted_base_is_the_candidate_that_agrees_best_and_every_candidate_i
     text = _run(study, "--driver", "D02", "--decisions", "5", *always, "--run-id", "f5", *TINY)
     assert text.exit_code == 0, text.output
     assert "chosen by agreement with the 5 decisions" in text.stdout and "as it is" in text.stdout
-    sure = _run(study, "--driver", "D02", "--decisions", "6", "--no-fine-tune", "--run-id", "f6s", "--json", *TINY)
+    sure = _run(study, "--driver", "D02", "--decisions", "6", "--from", "fit", "--no-fine-tune", "--run-id", "f6s",
+                "--json", *TINY)
     assert sure.exit_code == 0, sure.output
     out = json.loads(sure.stdout)
     if out["style"]["confidence"] >= 0.8:  # a confident style's agent is taken as assigned
@@ -280,11 +281,12 @@ def test_blend_weights_are_the_shares_times_the_agreement() -> None:
 
     fits = {"style A": 0.8, "style B": 0.6, "population": 0.7}
     shares = {"style A": 0.75, "style B": 0.25}
+    assert PersonalizeSettings().base == "blend" and PersonalizeSettings().blend_population == 0.4  # the default
     w = blend_weights(PersonalizeSettings(base="blend", blend_population=0.2), shares, fits)
     raw = {"style A": 0.8 * 0.75 * 0.8, "style B": 0.8 * 0.25 * 0.6, "population": 0.2 * 0.7}
     assert w == pytest.approx({n: v / sum(raw.values()) for n, v in raw.items()})
     prior = blend_weights(PersonalizeSettings(base="blend", blend_fit_power=0.0), shares, fits)
-    assert prior == pytest.approx({"style A": 0.6, "style B": 0.2, "population": 0.2})
+    assert prior == pytest.approx({"style A": 0.45, "style B": 0.15, "population": 0.4})
     equal = blend_weights(PersonalizeSettings(base="blend", blend_prior="equal", blend_fit_power=0.0), shares, fits)
     assert equal == pytest.approx(dict.fromkeys(fits, 1 / 3))
     sure = blend_weights(PersonalizeSettings(base="blend"), {"style A": 1.0, "style B": 0.0}, fits)
@@ -300,11 +302,12 @@ def test_the_blend_is_a_run_that_acts_on_the_weighted_advantages(study: Workspac
     from rl.problem.scene import Scene
     from rl.settings import DQNSettings
 
-    res = _run(study, "--driver", "D03", "--decisions", "6", "--from", "blend", "--run-id", "bl6", "--json", *TINY)
+    res = _run(study, "--driver", "D03", "--decisions", "6", "--run-id", "bl6", "--json", *TINY)  # the default
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     base = out["base"]
-    assert base["chosen"] == "blend" and out["method"] == "none" and "D03" not in base["drivers"]
+    assert base["from"] == "blend" and base["chosen"] == "blend" and out["method"] == "none"
+    assert "D03" not in base["drivers"]
     cands = base["candidates"]
     assert set(cands) == {"style Defensive", "style Normal", "style Aggressive", "population"}
     assert sum(base["weights"].values()) == pytest.approx(1.0) and base["weights"]["population"] > 0
