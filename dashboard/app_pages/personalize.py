@@ -165,12 +165,15 @@ def main() -> None:
     if picked:
         driver, k = picked
         c1, c2 = st.columns(2)
-        base = c1.radio("Start from", ["fit", "style", "population", "auto"], horizontal=True, key="p_base",
-                        help="'fit': the agent of the style assigned above when its confidence is at least 80 %, "
-                             "else, of every style's agent and the population's, the one that agrees best with "
-                             "the K decisions (measured best, rl/README.md); 'style': the agent of the style "
-                             "assigned above; 'population': of all other drivers; 'auto': the style's when its "
-                             "confidence is at least 80 %, else the population's")
+        base = c1.radio("Start from", ["blend", "fit", "style", "population", "auto"], horizontal=True,
+                        key="p_base",
+                        help="'blend' (the default): every style's agent and the population's at once, weighted by "
+                             "the style's bootstrap shares and their agreement with the K decisions (measured best "
+                             "held out, rl/README.md); 'fit': the agent of the style assigned above when its "
+                             "confidence is at least 80 %, else the candidate that agrees best with the K "
+                             "decisions; 'style': the agent of the style assigned above; 'population': of all "
+                             "other drivers; 'auto': the style's when its confidence is at least 80 %, else the "
+                             "population's")
         seed = int(c2.number_input("Seed", min_value=0, value=0, step=1, key="p_seed"))
         fine_tune = st.checkbox("Fine-tune on the K decisions", value=False, key="p_finetune",
                                 help="Off: the base agent as it is (measured better on SUMO studies, rl/README.md)")

@@ -250,3 +250,16 @@ def test_results_page_draws_a_closed_loop_drive_beside_its_drivers(empty_ws):
     assert "3 lanes, seed 1, 3.10 /km (drivers 3.00)" in at.selectbox(key="drive_pick").options[0]
     (fig,) = [c for c in charts(at) if "beside its drivers" in c["layout"]["title"]["text"]]
     assert len(fig["data"]) == 4
+
+
+def test_personalize_page_starts_from_the_cli_default(use_sample):
+    from typer.main import get_command
+
+    from laneprint.cli import app
+
+    at = AppTest.from_file(page_path("personalize"), default_timeout=120).run()
+    assert not at.exception, [e.value for e in at.exception]
+    radio = at.radio(key="p_base")
+    params = {p.name: p for p in get_command(app).commands["personalize"].params}
+    assert radio.value == params["base"].default == radio.options[0]
+    assert any(f"--from {radio.value}" in c.value for c in at.caption)
