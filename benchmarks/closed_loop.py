@@ -78,18 +78,17 @@ def fmt(x: float | None, spec: str = ".1f") -> str:
 
 
 def changes_per_km(recordings: list[tuple]) -> dict[str, dict]:
-    """Per driver: lane changes (lane flips of the ego), km driven, and changes by lane pair."""
+    """Per driver: lane changes, km driven, and changes by lane pair (`rl.drive.fidelity`'s reading)."""
+    from rl.drive.fidelity import lane_change_pairs, lane_changes
+
     out: dict[str, dict] = {}
     for meta, ego, _ in recordings:
-        ego = ego.sort_values("t_s")
-        lane = ego["ego_lane"].to_numpy()
-        flips = np.flatnonzero(lane[1:] != lane[:-1])
+        one = lane_changes(ego)
         d = out.setdefault(str(meta["driver_id"]), {"changes": 0, "km": 0.0, "by_lane": {}})
-        d["changes"] += len(flips)
-        d["km"] += float(ego["ego_x_m"].iloc[-1] - ego["ego_x_m"].iloc[0]) / 1000.0
-        for k in flips:
-            key = f"{lane[k]}>{lane[k + 1]}"
-            d["by_lane"][key] = d["by_lane"].get(key, 0) + 1
+        d["changes"] += one["changes"]
+        d["km"] += one["km"]
+        for key, n in lane_change_pairs(ego).items():
+            d["by_lane"][key] = d["by_lane"].get(key, 0) + n
     return out
 
 

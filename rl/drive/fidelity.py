@@ -39,14 +39,23 @@ N_BOOT = 1000
 ALPHA = 0.05
 
 
+def lane_change_pairs(ego: pd.DataFrame) -> dict[str, int]:
+    """Lane changes (flips of `ego_lane`) of one ego log, counted by 'from>to' lane."""
+    lane = ego.sort_values("t_s")["ego_lane"].to_numpy()
+    flips = np.flatnonzero(lane[1:] != lane[:-1])
+    out: dict[str, int] = {}
+    for k in flips:
+        key = f"{lane[k]}>{lane[k + 1]}"
+        out[key] = out.get(key, 0) + 1
+    return out
+
+
 def lane_changes(ego: pd.DataFrame) -> dict[str, float]:
-    """Lane changes (flips of `ego_lane`), to the left and right, and km driven of one ego log."""
-    ego = ego.sort_values("t_s")
-    lane = ego["ego_lane"].to_numpy()
-    step = np.diff(lane)
-    x = ego["ego_x_m"].to_numpy(dtype=float)
-    return {"changes": int(np.count_nonzero(step)), "left": int(np.count_nonzero(step > 0)),
-            "right": int(np.count_nonzero(step < 0)), "km": float(x[-1] - x[0]) / 1000.0 if len(x) else 0.0}
+    """Lane changes, to the left (to a higher lane) and right, and km driven of one ego log."""
+    pairs = [(tuple(map(int, k.split(">"))), n) for k, n in lane_change_pairs(ego).items()]
+    x = ego.sort_values("t_s")["ego_x_m"].to_numpy(dtype=float)
+    return {"changes": sum(n for _, n in pairs), "left": sum(n for (a, b), n in pairs if b > a),
+            "right": sum(n for (a, b), n in pairs if b < a), "km": float(x[-1] - x[0]) / 1000.0 if len(x) else 0.0}
 
 
 def driver_rates(workspace: Workspace, drivers: Iterable[str]) -> pd.DataFrame:
@@ -173,5 +182,5 @@ def fidelity(workspace: Workspace, drivers: list[str], recordings: list[tuple[di
     out["agent_presses"] = int((mine["label"].astype(str) == "change").sum()) if len(mine) else 0
     inside = [v["median_in_iqr"] for v in out["indicators"].values() if v["median_in_iqr"] is not None]
     out["medians_in_iqr"] = f"{sum(inside)} of {len(inside)}"
-    out["met"] = bool(out["rate"]["within_tolerance"]) and all(inside)
+    out["met"] = bool(out["rate"]["within_tolerance"]) and bool(inside) and all(inside)
     return out

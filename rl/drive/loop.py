@@ -225,7 +225,7 @@ class AgentControl(Watch):
     def step(self, api: Any, t: float, ego: VehicleState, lateral_m: float,
              others: dict[str, VehicleState]) -> None:
         if self._lane_now is not None and ego.lane != self._lane_now:
-            self.last_change = (t, "left" if ego.lane > self._lane_now else "right")
+            self.last_change = (t, _side(self._lane_now, ego.lane))
         self._lane_now = ego.lane
         seen_now = self.look(t, ego, lateral_m, others)
         if seen_now is None:

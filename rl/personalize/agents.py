@@ -26,7 +26,7 @@ from laneprint.progress import ProgressFn, report
 from rl.evaluation.evaluate import Policy
 from rl.learners.dqn import DQNTrainer
 from rl.problem.env import Approach, EnvConfig
-from rl.problem.rewards import CHANGE
+from rl.problem.rewards import CHANGE, KEEP
 from rl.problem.scene import Scene
 from rl.settings import DQNSettings
 
@@ -186,16 +186,22 @@ def candidates(ps: PersonalizeSettings, est: Any, pop: Any, others: list[str]) -
     return {f"style {est.style}": list(pop.members[est.style])}
 
 
-def policy_of(weights: dict[str, torch.Tensor], env: EnvConfig, dqn: DQNSettings) -> Policy:
-    """The greedy policy of a Q network with `weights` (the shape of `dqn.hidden` on `env`'s observation)."""
-    from rl.evaluation.evaluate import agent_policy
+def network_of(weights: dict[str, torch.Tensor], env: EnvConfig, dqn: DQNSettings) -> torch.nn.Module:
+    """A Q network with `weights` (the shape of `dqn.hidden` on `env`'s observation), in eval mode."""
     from rl.learners.dqn import q_network
     from rl.problem.env import observation_names
 
     net = q_network(dqn.hidden, len(observation_names(env)))
     net.load_state_dict(weights)
     net.eval()
-    return agent_policy(net, env)
+    return net
+
+
+def policy_of(weights: dict[str, torch.Tensor], env: EnvConfig, dqn: DQNSettings) -> Policy:
+    """The greedy policy of a Q network with `weights` (`network_of`)."""
+    from rl.evaluation.evaluate import agent_policy
+
+    return agent_policy(network_of(weights, env, dqn), env)
 
 
 def weights_of(trainer: DQNTrainer) -> dict[str, torch.Tensor]:
@@ -214,16 +220,11 @@ def base_seed(seed: int) -> int:
 def advantages(weights: dict[str, torch.Tensor], env: EnvConfig, dqn: DQNSettings,
                approaches: list[Approach]) -> np.ndarray:
     """Q(change) - Q(keep) of a Q network with `weights` on every recorded state of `approaches`."""
-    from rl.learners.dqn import q_network
-    from rl.problem.env import observation, observation_names
+    from rl.learners.dqn import q_values
+    from rl.problem.env import observation
 
-    net = q_network(dqn.hidden, len(observation_names(env)))
-    net.load_state_dict(weights)
-    obs = observation(Scene.concat([a.scene for a in approaches]), env)
-    with torch.no_grad():
-        q = net(torch.as_tensor(obs, dtype=torch.float32)).numpy()
-    keep = 1 - CHANGE
-    return q[:, CHANGE] - q[:, keep]
+    q = q_values(network_of(weights, env, dqn), observation(Scene.concat([a.scene for a in approaches]), env))
+    return q[:, CHANGE] - q[:, KEEP]
 
 
 def advantage_scale(weights: dict[str, torch.Tensor], env: EnvConfig, dqn: DQNSettings,

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rl.drive.fidelity import (compare_values, lane_changes, poisson_interval, press_values, rate_comparison)
+from rl.drive.fidelity import (compare_values, lane_change_pairs, lane_changes, poisson_interval, press_values, rate_comparison)
 
 
 def _ego(lanes: list[int], km: float = 2.0) -> pd.DataFrame:
@@ -15,8 +15,9 @@ def _ego(lanes: list[int], km: float = 2.0) -> pd.DataFrame:
 
 
 def test_lane_changes_count_flips_by_side_over_the_distance():
-    got = lane_changes(_ego([0, 0, 1, 1, 2, 1, 0, 0], km=3.0))
-    assert got == {"changes": 4, "left": 2, "right": 2, "km": pytest.approx(3.0)}
+    ego = _ego([0, 0, 1, 1, 2, 1, 0, 0, 1], km=3.0)
+    assert lane_change_pairs(ego) == {"0>1": 2, "1>2": 1, "2>1": 1, "1>0": 1}
+    assert lane_changes(ego) == {"changes": 5, "left": 3, "right": 2, "km": pytest.approx(3.0)}
 
 
 def test_the_rate_is_within_tolerance_only_near_the_drivers():
