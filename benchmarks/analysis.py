@@ -178,7 +178,7 @@ def messy(n_seeds: int) -> None:
         print(f"  {name:<32} mean ARI {np.mean(v):.3f}, ARI = 1 in {sum(a == 1.0 for a in v)}/{len(v)}")
 
 
-FEATURE_SPECS = ("auto", "ttc", "paper", "headway", "acceptance", "all")
+FEATURE_SPECS = ("auto", "ttc", "paper", "headway", "acceptance", "all", "following")
 
 
 def study_aris(study: Path, workspace: Path, specs: tuple[str, ...] = FEATURE_SPECS) -> dict[str, object]:
@@ -187,11 +187,11 @@ def study_aris(study: Path, workspace: Path, specs: tuple[str, ...] = FEATURE_SP
 
     gt = json.loads((study / "ground_truth.json").read_text())
     ws = Workspace(workspace)
-    dec, _, _ = extract_all(ws, AnalysisSettings())
+    dec, _, _, following = extract_all(ws, AnalysisSettings())
     drivers = list(ws.recordings()["driver_id"].astype(str))
     row: dict[str, object] = {"study": study.name}
     for spec in specs:
-        out = analyze_tables(dec, AnalysisSettings(features=spec), drivers=drivers)
+        out = analyze_tables(dec, AnalysisSettings(features=spec), drivers=drivers, following=following)
         row[spec] = ari(out["styles"], gt["drivers"])
         if spec == "auto":
             fs = out["feature_sets"]

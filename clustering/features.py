@@ -19,7 +19,8 @@ import numpy as np
 import pandas as pd
 
 from indicators.settings import FEATURE_FITS, AnalysisSettings
-from indicators.stats import INDICATOR_COLUMNS, PAPER_COLUMNS, iter_groups
+from indicators.following import FOLLOW_QUANTILE
+from indicators.stats import FEATURE_UNITS, PAPER_COLUMNS, TRAIT_UNITS, iter_groups
 
 LOG_FLOOR_S = 0.05  # TTCs and headways are clipped here before the log (a zero gap gives 0)
 LOG_FLOOR_M = 0.5  # gaps are clipped here before the log (a car alongside has a gap <= 0)
@@ -29,7 +30,7 @@ _LOG_FLOOR = {"s": LOG_FLOOR_S, "m": LOG_FLOOR_M}  # units whose features live o
 
 def feature_name(indicator: str, kph: float) -> str:
     """Column name of a feature, e.g. 't_f_at_80kph_s', 'gap_f_at_80kph_m'."""
-    return f"{indicator}_at_{kph:g}kph_{_SUFFIX[INDICATOR_COLUMNS[indicator][2]]}"
+    return f"{indicator}_at_{kph:g}kph_{_SUFFIX[FEATURE_UNITS[indicator]]}"
 
 
 def column_floor(column: str) -> float | None:
@@ -50,7 +51,7 @@ def lines_by_row(V: np.ndarray, Y: np.ndarray, method: str) -> tuple[np.ndarray,
     Huber's t = 1.345 and MAD scale (about zero) re-estimated every step, as
     statsmodels' `RLM(M=HuberT())`; 'median': a flat line at the median (A = 0); 'trimmed':
     a flat line at the mean of the values left after cutting `TRIM` of them at each end
-    (as scipy's `trim_mean`).
+    (as scipy's `trim_mean`); 'q25': a flat line at the `FOLLOW_QUANTILE` quantile.
     """
     V = np.atleast_2d(np.asarray(V, dtype=float))
     Y = np.atleast_2d(np.asarray(Y, dtype=float))
@@ -59,6 +60,9 @@ def lines_by_row(V: np.ndarray, Y: np.ndarray, method: str) -> tuple[np.ndarray,
         return np.zeros(len(Y)), _row_nanmedian(np.where(ok, Y, np.nan))
     if method == "trimmed":
         return np.zeros(len(Y)), _row_trimmed_mean(np.where(ok, Y, np.nan), TRIM)
+    if method == "q25":
+        with np.errstate(all="ignore"):
+            return np.zeros(len(Y)), np.nanquantile(np.where(ok, Y, np.nan), FOLLOW_QUANTILE, axis=1)
     if method == "theilsen":
         i, j = np.triu_indices(V.shape[1], 1)
         dv = V[:, j] - V[:, i]
@@ -130,7 +134,10 @@ def _row_nanmedian(x: np.ndarray) -> np.ndarray:
 
 def fit_method(indicator: str, settings: AnalysisSettings) -> str:
     """How `indicator`'s feature line is fitted: `feature_fit` for the study's indicators,
-    `acceptance_fit` for those of what the driver accepts (gaps, headways, relative speeds)."""
+    `acceptance_fit` for those of what the driver accepts (gaps, headways, relative speeds),
+    the low quantile 'q25' for the headway kept in steady following (`indicators.following`)."""
+    if indicator in TRAIT_UNITS:
+        return "q25"
     return settings.feature_fit if indicator in PAPER_COLUMNS else settings.acceptance_fit
 
 
@@ -142,7 +149,7 @@ def robust_line(v: np.ndarray, y: np.ndarray, method: str) -> tuple[float, float
 
 def to_space(y: np.ndarray, indicator: str, settings: AnalysisSettings) -> np.ndarray:
     """Indicator values in the clustering space (log of times and gaps when `feature_log`)."""
-    floor = _LOG_FLOOR.get(INDICATOR_COLUMNS[indicator][2])
+    floor = _LOG_FLOOR.get(FEATURE_UNITS[indicator])
     return np.log(np.maximum(y, floor)) if (floor is not None and settings.feature_log) else y
 
 
@@ -160,6 +167,9 @@ def group_values(v: np.ndarray, y: np.ndarray, indicator: str, settings: Analysi
     """Feature values of one driver/indicator at `speeds_mps`, in the clustering space
     (log seconds for TTCs when `feature_log`), and a note when not from a line."""
     yt = to_space(y, indicator, settings)
+    if indicator in TRAIT_UNITS:  # a level over the drive's episodes: no line, no speed spread needed
+        A, b = robust_line(v, yt, fit_method(indicator, settings))
+        return np.full(len(speeds_mps), b), ""
     if len(v) < 3 or np.ptp(v) < settings.min_speed_spread_mps:
         why = "too few points" if len(v) < 3 else "no speed spread"
         return np.full(len(speeds_mps), float(np.median(yt))), f"{indicator}: {why}, median used"
@@ -181,7 +191,7 @@ def to_units(values: np.ndarray, settings: AnalysisSettings) -> np.ndarray:
     if settings.feature_log:
         n = len(settings.feature_speeds_kph)
         for ii, ind in enumerate(settings.feature_indicators):
-            if INDICATOR_COLUMNS[ind][2] in _LOG_FLOOR:
+            if FEATURE_UNITS[ind] in _LOG_FLOOR:
                 out[:, ii * n:(ii + 1) * n] = np.exp(out[:, ii * n:(ii + 1) * n])
     return out
 
@@ -202,7 +212,8 @@ def driver_features(points: pd.DataFrame, drivers: list[str],
             continue
         if len(g.v) < 3 or np.ptp(g.v) < settings.min_speed_spread_mps:
             vals, note = group_values(g.v, g.y, g.indicator, settings, speeds)
-            notes[g.driver_id].append(note)
+            if note:
+                notes[g.driver_id].append(note)
             values[di, ii * n:(ii + 1) * n] = vals
             continue
         lines.append((di, ii, g.v, to_space(g.y, g.indicator, settings), fit_method(g.indicator, settings)))

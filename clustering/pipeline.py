@@ -24,9 +24,10 @@ from clustering.features import driver_features, feature_names, transform_featur
 from clustering.selection import MAX_IMPUTED, FeatureSetScore, choose_features, clustering_rows, resolve_features, score_feature_set
 from clustering.styles import StyleClusterer
 from indicators.decisions import empty_decisions, extract_decisions
+from indicators.following import FOLLOWING, empty_following, following_episodes, following_points
 from indicators.directions import POOLED, fits_by_direction, press_counts
 from indicators.settings import AnalysisSettings
-from indicators.stats import INDICATOR_COLUMNS, INDICATORS, PAPER_INDICATORS, correlate, fit_flag, fit_lines, fit_pooled, indicator_points
+from indicators.stats import FEATURE_UNITS, INDICATORS, PAPER_INDICATORS, correlate, fit_flag, fit_lines, fit_pooled, indicator_points
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
 from laneprint.reference import PAPER_TABLE1
@@ -244,15 +245,19 @@ def excluded_values(points: pd.DataFrame, settings: AnalysisSettings) -> list[di
 
 
 def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
-                   drivers: list[str] | None = None) -> dict[str, pd.DataFrame]:
+                   drivers: list[str] | None = None, following: pd.DataFrame | None = None
+                   ) -> dict[str, pd.DataFrame]:
     """Correlations, fits, feature sets, styles, reference lines and skipped rows from a
     decisions table (pure).
 
     `drivers`: drivers to report even when they have no decisions (e.g. the catalogue's).
+    `following`: the drives' steady-following episodes (`indicators.following`), whence the
+    `thw_follow` feature; without them that feature is undefined (and its sets not scored).
     """
     settings = settings or AnalysisSettings()
+    following = empty_following() if following is None else following
     drivers = sorted(set(map(str, decisions["driver_id"].unique())) | set(map(str, drivers or [])))
-    points = indicator_points(decisions, settings)
+    points = pd.concat([indicator_points(decisions, settings), following_points(following)], ignore_index=True)
     correlations = correlate(decisions, settings, points, drivers)
     fits = fit_lines(decisions, settings, points, drivers)
     n_dec = _n_decisions(decisions, drivers)
@@ -260,8 +265,8 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
     feats, notes = driver_features(points, drivers, settings)
     styles, clf, skipped = assign_styles(feats, notes, n_dec, fits, settings, points)
     styles = styles.merge(feats.reset_index(), on="driver_id", how="left")
-    side_fits = fits_by_direction(decisions, settings, drivers,
-                                  tuple(dict.fromkeys(PAPER_INDICATORS + tuple(settings.feature_indicators))))
+    at_decisions = tuple(i for i in settings.feature_indicators if i in INDICATORS)
+    side_fits = fits_by_direction(decisions, settings, drivers, tuple(dict.fromkeys(PAPER_INDICATORS + at_decisions)))
     refs, ref_skipped = reference_lines(styles, fits, points, settings, side_fits)
     for d in drivers:
         if n_dec[d] == 0:
@@ -274,6 +279,7 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
     skipped.extend(excluded_values(points, settings))
     return {
         "decisions": decisions,
+        "following": following,
         "correlations": correlations,
         "fits": fits,
         "fits_by_direction": side_fits,
@@ -305,17 +311,19 @@ def feature_settings(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series,
     return settings.with_(feature_indicators=best.indicators), table
 
 
-def extract_all(workspace: Workspace, settings: AnalysisSettings,
-                progress: ProgressFn | None = None) -> tuple[pd.DataFrame, list[dict[str, str]], int]:
-    """Decisions of every stored recording, what was skipped, and the number of recordings."""
+def extract_all(workspace: Workspace, settings: AnalysisSettings, progress: ProgressFn | None = None
+                ) -> tuple[pd.DataFrame, list[dict[str, str]], int, pd.DataFrame]:
+    """Decisions of every stored recording, what was skipped, the number of recordings, and
+    the recordings' steady-following episodes (`indicators.following`)."""
     catalogue = workspace.recordings()
     total = len(catalogue)
-    frames, skipped = [], []
+    frames, follows, skipped = [], [], []
     for i, rid in enumerate(catalogue["recording_id"]):
         report(progress, i, total, f"decisions {rid}")
         meta, ego, traffic = workspace.load_recording(rid)
         try:
             dec, sk = extract_decisions(meta, ego, traffic, settings)
+            follows.append(following_episodes(meta, ego, traffic, settings))
         except Exception as exc:  # a malformed recording must not stop the others
             dec, sk = empty_decisions(), [{"what": "recording", "id": str(rid),
                                            "reason": f"decision extraction failed: {type(exc).__name__}: {exc}"}]
@@ -324,7 +332,9 @@ def extract_all(workspace: Workspace, settings: AnalysisSettings,
     report(progress, total, total, "decisions extracted")
     non_empty = [f for f in frames if len(f)]
     decisions = pd.concat(non_empty, ignore_index=True) if non_empty else empty_decisions()
-    return decisions, skipped, total
+    follows = [f for f in follows if len(f)]
+    following = pd.concat(follows, ignore_index=True) if follows else empty_following()
+    return decisions, skipped, total, following
 
 
 def code_version() -> dict[str, str | None]:
@@ -410,7 +420,8 @@ def warnings(tables: dict[str, pd.DataFrame], features: dict[str, Any] | None) -
                    "undefined and imputed, so the styles rest on little (try --features auto)")
     counts = flagged_counts(tables["fits"])
     shown = list(PAPER_INDICATORS) + [i for i in (features or {}).get("indicators", []) if i not in PAPER_INDICATORS]
-    bad = [f"{ind} {counts[ind]['flagged']} of {counts[ind]['fitted']}" for ind in shown if counts[ind]["flagged"]]
+    bad = [f"{ind} {counts[ind]['flagged']} of {counts[ind]['fitted']}" for ind in shown
+           if ind in counts and counts[ind]["flagged"]]
     if bad:
         out.append("per-driver lines flagged (R² below the threshold, slope interval spanning 0, or few points): "
                    + ", ".join(bad) + "; a flagged line is replaced by the driver's level in the reference lines")
@@ -419,7 +430,7 @@ def warnings(tables: dict[str, pd.DataFrame], features: dict[str, Any] | None) -
         pooled = refs["direction"] == POOLED if "direction" in refs else True
         levels = refs[(refs["kind"] == "typical") & (refs["fit"] == "level") & refs["indicator"].isin(shown) & pooled]
         for style, g in levels.groupby("name", sort=False):
-            what = ", ".join(f"{r.indicator} {r.b:.3g} {INDICATOR_COLUMNS[r.indicator][2]}" for r in g.itertuples())
+            what = ", ".join(f"{r.indicator} {r.b:.3g} {FEATURE_UNITS[r.indicator]}" for r in g.itertuples())
             out.append(f"{style}: the typical driver's line of {', '.join(g['indicator'])} is flagged, so its "
                        f"reference is the level ({what}); see the fits' flags for why")
     return out
@@ -470,9 +481,10 @@ def analyze(workspace: Workspace, settings: AnalysisSettings | None = None,
     settings = settings or AnalysisSettings()
     if not workspace.root.is_dir() or workspace.recordings().empty:
         raise UserError(f"no recordings in workspace {workspace.root}: run `laneprint ingest PATH` first")
-    decisions, skipped, n_rec = extract_all(workspace, settings, progress)
+    decisions, skipped, n_rec, following = extract_all(workspace, settings, progress)
     report(progress, 0, 1, "fits and styles")
-    tables = analyze_tables(decisions, settings, drivers=list(workspace.recordings()["driver_id"].astype(str)))
+    tables = analyze_tables(decisions, settings, drivers=list(workspace.recordings()["driver_id"].astype(str)),
+                            following=following)
     extra = pd.DataFrame(skipped, columns=SKIPPED_COLUMNS)
     tables["skipped"] = pd.concat([extra, tables["skipped"]], ignore_index=True)
     headline = summary(tables)
@@ -483,6 +495,7 @@ def analyze(workspace: Workspace, settings: AnalysisSettings | None = None,
             "code": code_version(), "data_fingerprint": workspace.fingerprint(), "n_recordings": n_rec,
             "summary": headline}
     workspace.write_tables("analysis", tables, meta,
-                           schemas={"decisions": DECISIONS, "reference_lines": REFERENCE_LINES})
+                           schemas={"decisions": DECISIONS, "reference_lines": REFERENCE_LINES,
+                                    "following": FOLLOWING})
     report(progress, 1, 1, "analysis stored")
     return build_report(tables, meta)

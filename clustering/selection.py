@@ -29,7 +29,7 @@ from clustering.confidence import bootstrap_stability
 from clustering.features import driver_features, transform_features
 from clustering.styles import StyleClusterer
 from indicators.settings import AUTO_CANDIDATES, INDICATOR_SETS, AnalysisSettings
-from indicators.stats import INDICATORS
+from indicators.stats import FEATURE_UNITS
 from laneprint.errors import UserError
 
 #: A set whose drivers' features are mostly undefined (imputed) is not a reading of them: not scored.
@@ -62,10 +62,10 @@ def resolve_features(spec: str) -> tuple[str, tuple[str, ...]]:
     if spec in INDICATOR_SETS:
         return spec, INDICATOR_SETS[spec]
     names = tuple(s.strip() for s in spec.split(",") if s.strip())
-    unknown = [n for n in names if n not in INDICATORS]
+    unknown = [n for n in names if n not in FEATURE_UNITS]
     if not names or unknown:
         raise UserError(f"--features {spec!r}: use auto, {', '.join(INDICATOR_SETS)} or a comma-separated list of "
-                        f"indicators ({', '.join(INDICATORS)})")
+                        f"indicators ({', '.join(FEATURE_UNITS)})")
     return ",".join(names), names
 
 

@@ -13,7 +13,7 @@ from typing import Any
 from laneprint.reference import FAR_FOLLOWER_M, SPEED_LIMITS_KPH
 
 #: How a driver's clustering-feature line can be fitted (`AnalysisSettings.feature_fit`).
-FEATURE_FITS: tuple[str, ...] = ("huber", "theilsen", "ols", "median", "trimmed")
+FEATURE_FITS: tuple[str, ...] = ("huber", "theilsen", "ols", "median", "trimmed", "q25")
 #: Named sets of clustering indicators (`AnalysisSettings.features`).
 INDICATOR_SETS: dict[str, tuple[str, ...]] = {
     "ttc": ("t_f", "t_nf"),
@@ -21,9 +21,10 @@ INDICATOR_SETS: dict[str, tuple[str, ...]] = {
     "headway": ("gap_f", "thw_f"),
     "acceptance": ("gap_f", "thw_f", "gap_nf", "gap_nb", "thw_nb"),
     "all": ("t_f", "t_nf", "gap_f", "thw_f", "gap_nf", "gap_nb", "thw_nb"),
+    "following": ("thw_follow",),
 }
 #: The sets 'auto' chooses from.
-AUTO_CANDIDATES: tuple[str, ...] = ("ttc", "headway", "acceptance", "all")
+AUTO_CANDIDATES: tuple[str, ...] = ("ttc", "headway", "acceptance", "all", "following")
 #: What a flagged line becomes in the reference lines (`AnalysisSettings.flagged_lines`).
 FLAGGED_LINES: tuple[str, ...] = ("level", "ols")
 
@@ -59,6 +60,17 @@ class AnalysisSettings:
     traffic_tolerance_s: float = 0.5
     """A traffic vehicle's latest sample must be at most this old at a state's time
     to count as present [s]; its position is carried forward with its speed."""
+
+    follow_step_s: float = 0.5
+    """Spacing of the states at which the whole drive is read for steady car following
+    (`indicators.following`) [s]."""
+    follow_dv_mps: float = 1.0
+    """A state is steady following when the ego's speed is within this of its leader's [m/s]."""
+    follow_min_speed_mps: float = 5.0
+    """...and the ego drives at least this fast (a queue at walking pace says nothing of a
+    headway kept) [m/s]."""
+    follow_min_s: float = 2.0
+    """A steady-following episode (same leader, same lane) shorter than this is dropped [s]."""
 
     # --- per-driver statistics -----------------------------------------------
     alpha: float = 0.05
@@ -102,8 +114,9 @@ class AnalysisSettings:
     """Which indicators make the clustering features: a set of `INDICATOR_SETS`
     ('ttc': the study's two TTCs, 'paper': its three, 'headway': the gap and time
     headway to the leader the driver pulls out from, 'acceptance': those and the lead
-    and lag gaps in the target lane, 'all': TTCs and acceptance), a comma-separated
-    list of indicators, or
+    and lag gaps in the target lane, 'all': TTCs and acceptance, 'following': the
+    headway the driver keeps in steady car following over the whole drive, `thw_follow`
+    (`indicators.following`), with 'headway'), a comma-separated list of indicators, or
     'auto': each of `AUTO_CANDIDATES` is clustered and the one whose styles are best
     separated and most stable is used (`clustering.selection`)."""
     auto_margin: float = 1.25

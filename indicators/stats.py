@@ -36,6 +36,11 @@ PAPER_COLUMNS: dict[str, tuple[str, str, str]] = {
 INDICATOR_COLUMNS: dict[str, tuple[str, str, str]] = {**PAPER_COLUMNS, **ACCEPTANCE_COLUMNS}
 INDICATORS: tuple[str, ...] = tuple(INDICATOR_COLUMNS)
 PAPER_INDICATORS: tuple[str, ...] = tuple(PAPER_COLUMNS)
+#: Driver traits read over the whole drive rather than at the decisions (unit per trait):
+#: clustering features, not columns of the decisions table (`indicators.following`).
+TRAIT_UNITS: dict[str, str] = {"thw_follow": "s"}
+#: Everything a clustering feature can be made of, with its unit.
+FEATURE_UNITS: dict[str, str] = {**{k: v[2] for k, v in INDICATOR_COLUMNS.items()}, **TRAIT_UNITS}
 
 CORRELATION_COLUMNS = ["driver_id", "indicator", "n", "pearson_r", "pearson_p", "spearman_rho",
                        "spearman_p", "significant", "reason"]

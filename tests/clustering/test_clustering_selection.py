@@ -133,7 +133,7 @@ def test_analyze_reports_the_choice_on_the_command_line(tmp_path):
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
     assert doc["summary"]["features"]["requested"] == "auto"
-    assert {c["name"] for c in doc["summary"]["features"]["candidates"]} == {"ttc", "headway", "acceptance", "all"}
+    assert {c["name"] for c in doc["summary"]["features"]["candidates"]} == {"ttc", "headway", "acceptance", "all", "following"}
     assert "flag" in doc["drivers"]["D01"]["fits"][0]
     assert doc["summary"]["warnings"]  # one driver, k = 3
 
