@@ -16,6 +16,7 @@ from laneprint.plotting import line_formula
 from laneprint.workspace import Workspace
 
 PAPER_INDICATORS = ("t_f", "t_nf", "dv_nb")
+TRAIT_UNITS = ("thw_follow",)  # indicators.stats.TRAIT_UNITS, without importing it at start-up
 
 
 def _fmt(x: Any, spec: str = ".3g") -> str:
@@ -27,6 +28,13 @@ def _line(f: dict[str, Any]) -> str:
     if not f or f["status"] != "ok":
         return "-"
     return f"{f['A']:.3g}/{f['b']:.3g}" + ("!" if f.get("flag") else "")
+
+
+def _kept(f: dict[str, Any] | None) -> str:
+    """A driver's thw_follow level and its number of steady-following episodes."""
+    if not f or f.get("thw_follow_s") is None:
+        return "-"
+    return f"{f['thw_follow_s']:.2f} s ({f['episodes']})"
 
 
 def render(result: dict[str, Any], console: Console) -> None:
@@ -43,7 +51,8 @@ def render(result: dict[str, Any], console: Console) -> None:
     if feats:
         render_features(feats, console)
     shown = list(PAPER_INDICATORS) + [i for i in (feats or {}).get("indicators", []) if i not in PAPER_INDICATORS]
-    table = Table(title="drivers: lines I = A v_e + b shown as A/b; ! flagged (see warnings); * typical",
+    table = Table(title="drivers: lines I = A v_e + b shown as A/b; ! flagged (see warnings); * typical"
+                        + ("; thw_follow: headway kept (episodes)" if any(i in TRAIT_UNITS for i in shown) else ""),
                   box=box.SIMPLE_HEAD, pad_edge=False)
     widths = {"n": 3, "style": 10, "driver": 6}
     for col in ("driver", "n", "style", "conf", "", *shown):
@@ -51,7 +60,8 @@ def render(result: dict[str, Any], console: Console) -> None:
     for d, info in result["drivers"].items():
         fits = {f["indicator"]: f for f in info["fits"]}
         table.add_row(d, str(info["n_decisions"]), info["style"], f"{info['confidence']:.2f}",
-                      "*" if info["is_typical"] else "", *(_line(fits.get(ind)) for ind in shown))
+                      "*" if info["is_typical"] else "",
+                      *(_kept(info.get("following")) if ind in TRAIT_UNITS else _line(fits.get(ind)) for ind in shown))
     console.print(table)
     for name, st in result["styles"].items():
         lines = [ln for ln in st["reference_lines"] if ln["kind"] == "typical" and ln["indicator"] in PAPER_INDICATORS
@@ -106,7 +116,8 @@ def analyze_command(
         "--features", help="Indicators the styles are read by: auto (the set whose styles are best separated and "
                            "most stable), ttc (the study's t_f, t_nf), paper (t_f, t_nf, dv_nb), headway (gap and "
                            "time headway to the leader), acceptance (those and the target lane's lead and lag "
-                           "gaps), all, or a comma-separated list of indicators.")] = "auto",
+                           "gaps), all, following (the time headway kept in steady car following over the "
+                           "whole drive: thw_follow), or a comma-separated list of indicators.")] = "auto",
     flagged_lines: Annotated[str, typer.Option(
         "--flagged-lines", help="A flagged per-driver line (low R², slope interval spanning 0, few points) in the "
                                 "reference lines: level (the driver's median, A = 0) or ols (as fitted, the "

@@ -24,7 +24,7 @@ from clustering.features import driver_features, feature_names, transform_featur
 from clustering.selection import MAX_IMPUTED, FeatureSetScore, choose_features, clustering_rows, resolve_features, score_feature_set
 from clustering.styles import StyleClusterer
 from indicators.decisions import empty_decisions, extract_decisions
-from indicators.following import FOLLOWING, empty_following, following_episodes, following_points
+from indicators.following import FOLLOWING, empty_following, following_episodes, following_levels, following_points
 from indicators.directions import POOLED, fits_by_direction, press_counts
 from indicators.settings import AnalysisSettings
 from indicators.stats import FEATURE_UNITS, INDICATORS, PAPER_INDICATORS, correlate, fit_flag, fit_lines, fit_pooled, indicator_points
@@ -455,6 +455,10 @@ def build_report(tables: dict[str, pd.DataFrame], meta: dict[str, Any]) -> dict[
             "fits": _records(fits[fits["driver_id"] == d][["indicator", "A", "b", "A_lo", "A_hi", "b_lo", "b_hi",
                                                            "r2", "n", "status", "reason", "flag", "level"]]),
         }
+    kept = following_levels(tables.get("following")).set_index("driver_id")
+    for d, rep in drivers.items():
+        rep["following"] = ({"episodes": int(kept.loc[d, "episodes"]), "thw_follow_s": float(kept.loc[d, "thw_follow_s"])}
+                            if d in kept.index else {"episodes": 0, "thw_follow_s": None})
     refs = tables["reference_lines"]
     style_rep = {}
     for name, g in styles[styles["cluster"] >= 0].sort_values("cluster").groupby("style", sort=False):

@@ -20,7 +20,7 @@ from rl.settings import decision_counts
 
 #: The analysis tables the pages read; one an older analysis lacks is simply absent from `analysis()`.
 ANALYSIS_TABLES = ("decisions", "correlations", "fits", "fits_by_direction", "styles", "reference_lines", "skipped",
-                   "k_scores", "feature_sets")
+                   "k_scores", "feature_sets", "following")
 
 
 def stamp(root: Path, *parts: str) -> tuple[int, ...]:

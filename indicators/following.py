@@ -9,7 +9,11 @@ style (the desired time headway of IDM, the `tau` of Krauss).
 Every `follow_step_s` the ego's leader `C_f` is read as at the decision states
 (`indicators.decisions.neighbours`). A state is **steady following** when a leader
 drives ahead in the ego lane, the ego is not slower than `follow_min_speed_mps`, the
-gap is positive and |v_e - v_f| <= `follow_dv_mps`. Consecutive steady states behind
+gap is positive, |v_e - v_f| <= `follow_dv_mps`, and the ego is held back: slower than
+`follow_below_free` times its free speed (`FREE_SPEED_QUANTILE` of its speed over the
+recording). A car ahead that happens to drive at the ego's own desired speed, however
+far, is not followed: without that rule a sporty driver who seldom settles behind
+anyone is read by such cars, at 3-5 s. Consecutive steady states behind
 the same leader in the same lane make an **episode**; episodes shorter than
 `follow_min_s` are dropped (a cut-in or a pass, not a headway settled at). Each
 episode is one row: its median speed, gap and time headway (gap / v_e).
@@ -33,6 +37,8 @@ from laneprint.schemas import Column, Schema
 
 #: The quantile of a driver's episode headways read as the headway it keeps.
 FOLLOW_QUANTILE = 0.25
+#: The quantile of the ego's speed over a recording taken as its free speed there.
+FREE_SPEED_QUANTILE = 0.9
 
 FOLLOWING = Schema(
     "following",
@@ -75,9 +81,10 @@ def steady_states(ego: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSe
     v = e["ego_v_mps"].to_numpy(dtype=float)
     gap = cols["f_gap_m"]
     dv = v - cols["f_v_mps"]
+    free = float(np.nanquantile(v, FREE_SPEED_QUANTILE)) if np.isfinite(v).any() else np.nan
     with np.errstate(invalid="ignore"):
         steady = (np.isfinite(gap) & (gap > 0) & (v >= settings.follow_min_speed_mps)
-                  & (np.abs(dv) <= settings.follow_dv_mps))
+                  & (np.abs(dv) <= settings.follow_dv_mps) & (v < settings.follow_below_free * free))
     return pd.DataFrame({"t_s": t, "ego_lane": e["ego_lane"].to_numpy(dtype=np.int64), "ego_v_mps": v,
                          "f_gap_m": gap, "dv_f_mps": dv, "f_id": cols["f_id"], "steady": steady})
 
@@ -123,3 +130,15 @@ def following_points(following: pd.DataFrame) -> pd.DataFrame:
                          "indicator": "thw_follow",
                          "v": following["ego_v_mps"].to_numpy(dtype=float),
                          "y": following["thw_s"].to_numpy(dtype=float), "status": "ok", "used": True})
+
+
+def following_levels(following: pd.DataFrame) -> pd.DataFrame:
+    """Per driver: its number of episodes and its `thw_follow` level [s] (the `FOLLOW_QUANTILE`
+    quantile of its episodes' headways, on the log scale as the clustering reads it)."""
+    if following is None or following.empty:
+        return pd.DataFrame({"driver_id": pd.Series(dtype=object), "episodes": pd.Series(dtype="int64"),
+                             "thw_follow_s": pd.Series(dtype=float)})
+    g = following.assign(log_thw=np.log(following["thw_s"].astype(float).clip(lower=0.05))).groupby(
+        following["driver_id"].astype(str))["log_thw"]
+    return pd.DataFrame({"episodes": g.size(), "thw_follow_s": np.exp(g.quantile(FOLLOW_QUANTILE))}
+                        ).rename_axis("driver_id").reset_index()

@@ -21,10 +21,12 @@ INDICATOR_SETS: dict[str, tuple[str, ...]] = {
     "headway": ("gap_f", "thw_f"),
     "acceptance": ("gap_f", "thw_f", "gap_nf", "gap_nb", "thw_nb"),
     "all": ("t_f", "t_nf", "gap_f", "thw_f", "gap_nf", "gap_nb", "thw_nb"),
-    "following": ("thw_follow",),
+    "following": ("thw_follow", "gap_f", "thw_f"),
 }
-#: The sets 'auto' chooses from.
-AUTO_CANDIDATES: tuple[str, ...] = ("ttc", "headway", "acceptance", "all", "following")
+#: The sets 'auto' chooses from. 'following' holds 'headway' and the headway kept over the
+#: whole drive; where a study has no steady following, its thw_follow is imputed alike for
+#: every driver and it reads as 'headway', so 'headway' itself is not a candidate.
+AUTO_CANDIDATES: tuple[str, ...] = ("ttc", "following", "acceptance", "all")
 #: What a flagged line becomes in the reference lines (`AnalysisSettings.flagged_lines`).
 FLAGGED_LINES: tuple[str, ...] = ("level", "ols")
 
@@ -69,6 +71,9 @@ class AnalysisSettings:
     follow_min_speed_mps: float = 5.0
     """...and the ego drives at least this fast (a queue at walking pace says nothing of a
     headway kept) [m/s]."""
+    follow_below_free: float = 0.95
+    """...and the ego is held back: slower than this share of its free speed (the 90th
+    percentile of its speed over the recording)."""
     follow_min_s: float = 2.0
     """A steady-following episode (same leader, same lane) shorter than this is dropped [s]."""
 

@@ -69,10 +69,12 @@ def style_estimate(root: str, stamp: tuple[int, ...], driver: str, k: int):
     from rl.personalize.split import driver_rows, first_decisions
     from rl.personalize.style import estimate_style, fit_population
 
-    decisions = loaders.analysis(root, stamp)["decisions"]
+    tables = loaders.analysis(root, stamp)
+    decisions, following = tables["decisions"], tables.get("following")
     others = [d for d in sorted(decisions["driver_id"].astype(str).unique()) if d != driver]
-    pop = fit_population(decisions, others, stored_settings(Workspace(root)))
-    return estimate_style(pop, first_decisions(driver_rows(decisions, driver), k), n_bootstrap=200, seed=0)
+    pop = fit_population(decisions, others, stored_settings(Workspace(root)), following)
+    return estimate_style(pop, first_decisions(driver_rows(decisions, driver), k), n_bootstrap=200, seed=0,
+                          following=following)
 
 
 def style_section(ws, decisions: pd.DataFrame) -> tuple[str, int] | None:

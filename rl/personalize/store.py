@@ -122,8 +122,9 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
         raise UserError(f"{driver} is the only driver in the workspace: nothing to start from "
                         f"(`laneprint train --driver {driver}` trains on its decisions alone)")
     report(progress, 0, 1, "style from the decisions")
-    pop = fit_population(decisions, others, stored_settings(workspace))
-    est = estimate_style(pop, own_rows, ps.n_bootstrap, seed)
+    following = workspace.read_table("analysis", "following") if workspace.has_table("analysis", "following") else None
+    pop = fit_population(decisions, others, stored_settings(workspace), following)
+    est = estimate_style(pop, own_rows, ps.n_bootstrap, seed, following)
     used_ps = ps.resolved(est.confidence)  # method 'unsure': fine-tune only when the style is unsure
     env = formulation_config(_lines(workspace, est.style), "decisions")
     base_dqn = replace(dqn, seed=base_seed(seed), **({"episodes": base_episodes, "episodes_per_approach": 0.0}

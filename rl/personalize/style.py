@@ -10,6 +10,11 @@ over the compared columns, and a bootstrap over the K decisions (each resample
 recomputes the features and assigns them): the share of resamples that give each
 style. The bootstrap share of the assigned style is the reported confidence, as
 the analysis reports its bootstrap stability.
+
+When the analysis reads styles by the headway drivers keep in steady car following
+(`thw_follow`, `indicators.following`), the population's features take its drives'
+episodes and the new driver's take the episodes it had driven by its K-th press
+(`episodes_by`); the bootstrap resamples its presses and its episodes.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import pandas as pd
 from clustering.features import driver_features, transform_features
 from clustering.selection import clustering_rows
 from clustering.styles import StyleClusterer
+from indicators.following import following_points
 from indicators.settings import AnalysisSettings
 from indicators.stats import indicator_points
 from laneprint.errors import UserError
@@ -56,10 +62,35 @@ class StyleEstimate:
         return asdict(self)
 
 
-def fit_population(decisions: pd.DataFrame, drivers: list[str], settings: AnalysisSettings) -> Population:
-    """Cluster `drivers` (the population) as the analysis would, with its settings."""
+def _points(decisions: pd.DataFrame, following: pd.DataFrame | None, settings: AnalysisSettings) -> pd.DataFrame:
+    """Feature points of the presses and, where given, of the steady-following episodes."""
+    points = indicator_points(decisions, settings)
+    if following is None or following.empty:
+        return points
+    return pd.concat([points, following_points(following)], ignore_index=True)
+
+
+def episodes_by(following: pd.DataFrame | None, rows: pd.DataFrame) -> pd.DataFrame | None:
+    """The episodes of `rows`' driver that ended by its last press in each session of `rows`
+    (what it had driven by its K-th decision)."""
+    if following is None or following.empty or rows.empty:
+        return None
+    last = rows.groupby(rows["session_id"].astype(str))["press_t_s"].max()
+    f = following[following["driver_id"].astype(str).isin(set(rows["driver_id"].astype(str)))]
+    ends = f["t_start_s"].to_numpy(dtype=float) + f["duration_s"].to_numpy(dtype=float)
+    by = f["session_id"].astype(str).map(last).to_numpy(dtype=float)
+    with np.errstate(invalid="ignore"):
+        return f[ends <= by]
+
+
+def fit_population(decisions: pd.DataFrame, drivers: list[str], settings: AnalysisSettings,
+                   following: pd.DataFrame | None = None) -> Population:
+    """Cluster `drivers` (the population) as the analysis would, with its settings (and its
+    drives' steady-following episodes, `following`, for the `thw_follow` feature)."""
     dec = decisions[decisions["driver_id"].astype(str).isin(drivers)]
-    points = indicator_points(dec, settings)
+    if following is not None:
+        following = following[following["driver_id"].astype(str).isin(drivers)]
+    points = _points(dec, following, settings)
     feats, _ = driver_features(points, drivers, settings)
     presses = dec[dec["label"] == "change"].groupby(dec["driver_id"].astype(str))["decision_id"].nunique()
     rows = clustering_rows(feats, presses.reindex(drivers, fill_value=0), settings)
@@ -99,18 +130,24 @@ def _posteriors(pop: Population, Xt: pd.DataFrame, cols: list[int]) -> np.ndarra
     return post / post.sum(axis=1, keepdims=True)
 
 
-def estimate_style(pop: Population, rows: pd.DataFrame, n_bootstrap: int = 200, seed: int = 0) -> StyleEstimate:
-    """The style of the driver whose decisions are `rows` (press and not-yet rows of K decisions)."""
+def estimate_style(pop: Population, rows: pd.DataFrame, n_bootstrap: int = 200, seed: int = 0,
+                   following: pd.DataFrame | None = None) -> StyleEstimate:
+    """The style of the driver whose decisions are `rows` (press and not-yet rows of K decisions);
+    `following`: the analysis's episodes (only the driver's, up to its K-th press, are used)."""
     settings = pop.settings
-    points = indicator_points(rows.assign(driver_id="new"), settings)
-    dec_ids = np.array(sorted(points["decision_id"].unique()))
+    episodes = episodes_by(following, rows)
+    press_points = indicator_points(rows.assign(driver_id="new"), settings)
+    points = _points(rows.assign(driver_id="new"), None if episodes is None else episodes.assign(driver_id="new"),
+                     settings)
+    dec_ids = np.array(sorted(press_points["decision_id"].unique()), dtype=object)
+    ep_ids = np.array(sorted(set(points["decision_id"]) - set(dec_ids)), dtype=object)
     if len(dec_ids) == 0:
         raise UserError("no presses among the decisions given: no style can be assigned")
     feats, _ = driver_features(points, ["new"], settings)
     if feats.isna().all(axis=None):
         raise UserError("the decisions given have no defined value of "
                         + "/".join(settings.feature_indicators) + ": no style can be assigned")
-    press_v = points.drop_duplicates("decision_id")["v"].to_numpy(dtype=float)
+    press_v = press_points.drop_duplicates("decision_id")["v"].to_numpy(dtype=float)
     cols = _compared_columns(pop, press_v)
     names = pop.clusterer.names_
     post = _posteriors(pop, transform_features(feats, settings), cols)[0]
@@ -120,9 +157,10 @@ def estimate_style(pop: Population, rows: pd.DataFrame, n_bootstrap: int = 200, 
         rng = np.random.default_rng([seed, 21])
         by_dec = points.set_index("decision_id")
         draws = rng.integers(0, len(dec_ids), (n_bootstrap, len(dec_ids)))
+        ep_draws = rng.integers(0, max(len(ep_ids), 1), (n_bootstrap, len(ep_ids)))
         parts = []
         for b, draw in enumerate(draws):
-            part = by_dec.loc[dec_ids[draw]].reset_index()
+            part = by_dec.loc[np.concatenate([dec_ids[draw], ep_ids[ep_draws[b]]])].reset_index()
             part["driver_id"] = f"b{b}"
             parts.append(part)
         boot_ids = [f"b{b}" for b in range(n_bootstrap)]

@@ -58,7 +58,7 @@ def test_auto_reads_gap_accepting_drivers_by_their_gaps():
     out = analyze_tables(dec, AnalysisSettings(n_bootstrap=30))
     fs = out["feature_sets"].set_index("name")
     chosen = fs.index[fs["chosen"]][0]
-    assert chosen in ("headway", "acceptance") and fs.loc[chosen, "score"] > fs.loc["ttc", "score"]
+    assert chosen in ("following", "acceptance") and fs.loc[chosen, "score"] > fs.loc["ttc", "score"]
     assert ari(out, truth) == 1.0
     assert list(out["styles"].sort_values("driver_id")["style"][:3]) == ["Defensive", "Normal", "Aggressive"]
     assert any(c.startswith("gap_f_at_") and c.endswith("kph_m") for c in out["styles"].columns)
@@ -70,7 +70,7 @@ def test_auto_keeps_the_ttcs_where_they_tell_the_styles_apart():
     dec, truth = make_decision_table(9, 40, seed=1)  # styles of Table 1, no gaps logged
     out = analyze_tables(dec, AnalysisSettings(n_bootstrap=30))
     fs = out["feature_sets"].set_index("name")
-    assert fs.loc["ttc", "chosen"] and pd.isna(fs.loc["headway", "score"])  # no gaps: not scored
+    assert fs.loc["ttc", "chosen"] and pd.isna(fs.loc["following", "score"])  # no gaps: not scored
     assert ari(out, truth) == 1.0
 
 
@@ -133,7 +133,7 @@ def test_analyze_reports_the_choice_on_the_command_line(tmp_path):
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
     assert doc["summary"]["features"]["requested"] == "auto"
-    assert {c["name"] for c in doc["summary"]["features"]["candidates"]} == {"ttc", "headway", "acceptance", "all", "following"}
+    assert {c["name"] for c in doc["summary"]["features"]["candidates"]} == {"ttc", "following", "acceptance", "all"}
     assert "flag" in doc["drivers"]["D01"]["fits"][0]
     assert doc["summary"]["warnings"]  # one driver, k = 3
 

@@ -360,3 +360,29 @@ def test_the_curve_scores_the_blend(study: Workspace) -> None:
     assert res["states"]["action_personalised"].notna().all() and res["states"]["action_equal"].notna().all()
     w = res["styles"][[c for c in res["styles"] if c.startswith("blend[personalised]")]]
     assert len(w.columns) == 4 and np.allclose(w.sum(axis=1), 1.0)
+
+
+def test_a_new_drivers_style_from_the_headway_it_kept_by_its_kth_press() -> None:
+    from tests.clustering.test_clustering_selection import acceptance_table
+    from laneprint.errors import UserError
+
+    dec, truth = acceptance_table()  # presses every 60 s in session r<d> of driver D<d>
+    keep_s = {"Defensive": 3.0, "Normal": 1.8, "Aggressive": 1.0}
+    rng = np.random.default_rng(0)
+    eps = pd.DataFrame([{"driver_id": d, "session_id": f"r{int(d[1:])}", "episode_id": f"{d}:f{i}",
+                         "t_start_s": 30.0 * i, "duration_s": 5.0, "ego_v_mps": 20.0,
+                         "thw_s": keep_s[s] * np.exp(rng.normal(0, 0.1))} for d, s in truth.items() for i in range(40)])
+    # D00 (Defensive) tailgates only after its 6th press (at 300 s): those episodes are not yet driven
+    late = (eps["driver_id"] == "D00") & (eps["t_start_s"] > 300)
+    eps.loc[late, "thw_s"] = 0.8
+    settings = AnalysisSettings(features="following", feature_indicators=("thw_follow",))
+    others = [d for d in truth if d != "D00"]
+    pop = fit_population(dec, others, settings, eps)
+    first6 = first_decisions(dec[dec["driver_id"] == "D00"], 6)
+    est = estimate_style(pop, first6, n_bootstrap=50, seed=1, following=eps)
+    assert est.style == "Defensive" and est.confidence == pytest.approx(1.0)
+    # with every episode (its later tailgating too) it would read otherwise
+    everything = estimate_style(pop, dec[dec["driver_id"] == "D00"], n_bootstrap=0, following=eps)
+    assert everything.style != "Defensive"
+    with pytest.raises(UserError, match="no defined value of thw_follow"):
+        estimate_style(pop, first6, n_bootstrap=0)  # no episodes given
