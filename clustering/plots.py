@@ -29,10 +29,16 @@ def style_color(style: str, i: int = 0) -> str:
 _FEATURE_UNITS = {"s": "s", "m": "m", "mps": "m/s"}
 
 
+#: Features that are a level over the whole drive, not a line read at a speed.
+_DRIVE_LEVELS = {"thw_follow": "headway kept in steady following"}
+
+
 def _feature_label(col: str) -> str:
     # 't_f_at_80kph_s' -> 't_f at 80 km/h [s]', 'gap_f_at_80kph_m' -> 'gap_f at 80 km/h [m]'
     ind, rest = col.rsplit("_at_", 1)
     kph, unit = rest.split("kph_")
+    if ind in _DRIVE_LEVELS:
+        return f"{ind}: {_DRIVE_LEVELS[ind]} [{_FEATURE_UNITS.get(unit, unit)}]"
     return f"{ind} at {kph} km/h [{_FEATURE_UNITS.get(unit, unit)}]"
 
 
@@ -197,4 +203,38 @@ def reference_lines(reference_lines: pd.DataFrame, kinds: tuple[str, ...] = ("ty
              "driver on that side, dashed: on every press, dotted: Table 1)")
     fig.update_layout(title=title,
                       template="plotly_white", height=max(420, 330 * nrow))
+    return fig
+
+
+def following_headways(following: pd.DataFrame, styles: pd.DataFrame) -> go.Figure:
+    """Every steady-following episode's time headway per driver (log axis), drivers grouped and
+    coloured by style, each driver's `thw_follow` level (the low quantile the styles read) as a
+    black bar; the hover gives the episode's speed, gap and length."""
+    from indicators.following import FOLLOW_QUANTILE, following_levels
+
+    style_of = styles.set_index("driver_id")["style"].astype(str).to_dict()
+    order = styles.sort_values(["cluster", "driver_id"])["driver_id"].astype(str).tolist()
+    f = following.assign(driver_id=following["driver_id"].astype(str))
+    f = f[f["driver_id"].isin(order)]
+    fig = go.Figure()
+    for i, style in enumerate(dict.fromkeys(style_of[d] for d in order)):
+        g = f[f["driver_id"].map(style_of) == style]
+        fig.add_trace(go.Box(x=g["driver_id"], y=g["thw_s"], name=style, boxpoints="all", jitter=0.4, pointpos=0,
+                             marker={"color": style_color(style, i), "size": 5}, line={"width": 1},
+                             fillcolor="rgba(0,0,0,0)", customdata=np.c_[g["ego_v_mps"] * 3.6, g["f_gap_m"],
+                                                                        g["duration_s"]],
+                             hovertemplate="%{x}: %{y:.2f} s at %{customdata[0]:.0f} km/h, gap %{customdata[1]:.0f} m,"
+                                           " %{customdata[2]:.0f} s<extra>" + style + "</extra>"))
+    levels = following_levels(f)
+    fig.add_trace(go.Scatter(x=levels["driver_id"].tolist(), y=levels["thw_follow_s"].tolist(), mode="markers",
+                             name="level (thw_follow)",
+                             marker={"symbol": "line-ew-open", "size": 28, "color": "black", "line": {"width": 3, "color": "black"}},
+                             customdata=levels["episodes"],
+                             hovertemplate="%{x}: level %{y:.2f} s from %{customdata} episodes<extra></extra>"))
+    none = [d for d in order if d not in set(levels["driver_id"])]
+    note = f" — no episode: {', '.join(none)}" if none else ""
+    fig.update_layout(title=f"Time headway kept in steady following, per episode; bar: the {FOLLOW_QUANTILE:.0%} "
+                            f"quantile{note}", template="plotly_white", boxmode="overlay",
+                      xaxis={"title": "driver", "categoryorder": "array", "categoryarray": order},
+                      yaxis={"title": "time headway [s] (log)", "type": "log"})
     return fig

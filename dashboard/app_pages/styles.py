@@ -2,7 +2,7 @@
 
 import streamlit as st
 
-from clustering.plots import DIRECTION_NAMES, cluster_scatter, line_directions, reference_lines
+from clustering.plots import DIRECTION_NAMES, cluster_scatter, following_headways, line_directions, reference_lines
 from dashboard import figures, loaders, views, widgets
 from dashboard.context import workspace
 from dashboard.widgets import progress_to
@@ -104,6 +104,13 @@ def main() -> None:
         st.plotly_chart(figures.k_scores(scores, how), key="k_scores")
     st.subheader("Drivers in feature space")
     st.plotly_chart(cluster_scatter(styles, indicators=chosen), key="clusters")
+    following = tables.get("following")
+    if following is not None and len(following):
+        st.subheader("Headway kept in steady following")
+        st.caption("Over the whole drive, press or not: every stretch of at least 2 s at its leader's speed "
+                   "(within 1 m/s) while held below its free speed. The styles read each driver's short end "
+                   "(the bar), where the feature set holds thw_follow.")
+        st.plotly_chart(following_headways(following, styles), key="following")
     st.subheader("Members and typical drivers")
     st.dataframe(views.style_summary(styles), hide_index=True, width="stretch")
     st.subheader("Reference lines per style")

@@ -64,6 +64,15 @@ def test_styles_page_summary(use_sample):
     summary = style_table(at)
     assert summary["drivers"].sum() == 6
     assert set(summary["style"]) <= {"Defensive", "Normal", "Aggressive"}
+    # the headway each driver keeps over its drives, per episode on a log axis, with the level read
+    kept = next(f for f in charts(at) if "steady following" in f["layout"]["title"]["text"])
+    assert kept["layout"]["yaxis"]["type"] == "log"
+    level = next(t for t in kept["data"] if t["name"] == "level (thw_follow)")
+    assert len(level["x"]) >= 1 and all(0.3 < y < 10 for y in level["y"])
+    title = kept["layout"]["title"]["text"]
+    none = title.split("no episode: ")[1].split(", ") if "no episode: " in title else []
+    drivers = use_sample.read_table("analysis", "styles")["driver_id"].astype(str)
+    assert sorted([*level["x"], *none]) == sorted(drivers)  # every driver: a level, or named as having none
 
 
 def test_results_page_compares_two_runs(use_sample):
