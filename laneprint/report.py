@@ -94,7 +94,7 @@ def _study(ws: Workspace) -> Section:
 
 
 def _analysis(ws: Workspace) -> list[Section]:
-    from clustering.plots import cluster_scatter, reference_lines
+    from clustering.plots import cluster_scatter, following_headways, reference_lines
     from dashboard import views
     from indicators.plots import indicator_vs_speed
     from laneprint.reference import PAPER_TABLE1
@@ -103,7 +103,7 @@ def _analysis(ws: Workspace) -> list[Section]:
         return [Section("Analysis").p(f"No analysis yet: `laneprint analyze --workspace {ws.root}`.")]
     meta = ws.read_meta("analysis")
     t = {n: ws.read_table("analysis", n) for n in ("decisions", "correlations", "fits", "fits_by_direction", "styles",
-                                                   "reference_lines", "skipped") if ws.has_table("analysis", n)}
+                                                   "reference_lines", "skipped", "following") if ws.has_table("analysis", n)}
     summary = meta.get("summary") or {}
     dec = t["decisions"]
     ind = Section("Indicators, correlations and per-driver fits")
@@ -147,6 +147,9 @@ def _analysis(ws: Workspace) -> list[Section]:
             sty.figure("drivers_in_feature_space", cluster_scatter(styles, indicators=chosen))
         except ValueError as exc:
             sty.p(f"No feature-space figure: {exc}.")
+        following = t.get("following")
+        if following is not None and len(following):
+            sty.figure("headway_kept_in_steady_following", following_headways(following, styles))
         sty.table("styles", styles)
     lines = t.get("reference_lines")
     if lines is not None and len(lines):

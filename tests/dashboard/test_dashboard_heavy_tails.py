@@ -158,6 +158,7 @@ def test_report_command(sample_ws, tmp_path):
     assert info["figures"] >= 8 and text.count('class="plotly-graph-div"') == info["figures"]
     assert "<script src=" not in text and "cdn." not in text.split("</script>", 1)[1]  # nothing fetched
     assert (tmp_path / "study_files" / "fits.csv").exists() and (tmp_path / "study_files" / "recordings.csv").exists()
+    assert (tmp_path / "study_files" / "headway_kept_in_steady_following.json").exists()  # the drive-long reading
     bad = subprocess.run([sys.executable, "-m", "laneprint.cli", "report", "--workspace", str(tmp_path / "none")],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 1 and bad.stderr.startswith("error: no workspace") and "Traceback" not in bad.stderr
