@@ -201,13 +201,15 @@ def ego_at(states: pd.DataFrame, ego: pd.DataFrame) -> pd.DataFrame:
     return e
 
 
-def neighbours(e: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSettings) -> dict[str, np.ndarray]:
+def neighbours(e: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSettings,
+               only_leader: bool = False) -> dict[str, np.ndarray]:
     """`C_f`, `C_nf`, `C_nb` at each state of `e` (an `ego_at` frame with `state` = 0..n-1 and a
     `target_lane` column): ``<role>_x_m``, ``<role>_v_mps``, ``<role>_gap_m`` (NaN when absent)
     and ``<role>_id`` (None), read as the module doc says. With an `other_lane` column also the
-    roles ``other_nf`` / ``other_nb``, the same reading of that lane (absent where it is -1)."""
+    roles ``other_nf`` / ``other_nb``, the same reading of that lane (absent where it is -1).
+    `only_leader`: `C_f` alone (no `target_lane` needed)."""
     n = len(e)
-    roles = ("f", "nf", "nb") + (("other_nf", "other_nb") if "other_lane" in e.columns else ())
+    roles = ("f",) if only_leader else ("f", "nf", "nb") + (("other_nf", "other_nb") if "other_lane" in e.columns else ())
     cols: dict[str, Any] = {}
     for role in roles:
         cols[f"{role}_x_m"] = np.full(n, np.nan)
@@ -245,12 +247,12 @@ def neighbours(e: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSetting
         m["dx"] = m["x_m"].to_numpy() - e["ego_x_m"].to_numpy()[st]
         m["gap"] = np.abs(m["dx"].to_numpy()) - (m["length_m"].to_numpy() + e["ego_length_m"].to_numpy()[st]) / 2
         lane_v = m["lane"].to_numpy()
-        picks = {
-            "f": _nearest(m[(lane_v == e["ego_lane"].to_numpy()[st]) & (m["dx"].to_numpy() > 0)], "dx", True),
-            "nf": _nearest(m[(lane_v == e["target_lane"].to_numpy()[st]) & (m["dx"].to_numpy() > 0)], "dx", True),
-            "nb": _nearest(m[(lane_v == e["target_lane"].to_numpy()[st]) & (m["dx"].to_numpy() <= 0)], "dx", False),
-        }
-        if "other_lane" in e.columns:  # -1 matches no vehicle's lane
+        picks = {"f": _nearest(m[(lane_v == e["ego_lane"].to_numpy()[st]) & (m["dx"].to_numpy() > 0)], "dx", True)}
+        if not only_leader:
+            picks["nf"] = _nearest(m[(lane_v == e["target_lane"].to_numpy()[st]) & (m["dx"].to_numpy() > 0)], "dx", True)
+            picks["nb"] = _nearest(m[(lane_v == e["target_lane"].to_numpy()[st]) & (m["dx"].to_numpy() <= 0)], "dx",
+                                   False)
+        if "other_lane" in e.columns and not only_leader:  # -1 matches no vehicle's lane
             other = lane_v == e["other_lane"].to_numpy()[st]
             picks["other_nf"] = _nearest(m[other & (m["dx"].to_numpy() > 0)], "dx", True)
             picks["other_nb"] = _nearest(m[other & (m["dx"].to_numpy() <= 0)], "dx", False)

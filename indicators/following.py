@@ -76,8 +76,7 @@ def steady_states(ego: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSe
     ego = ego.sort_values("t_s", kind="mergesort").reset_index(drop=True)
     t = np.arange(float(ego["t_s"].iloc[0]), float(ego["t_s"].iloc[-1]) + 1e-9, settings.follow_step_s)
     e = ego_at(pd.DataFrame({"state": np.arange(len(t)), "t_s": t}), ego)
-    e["target_lane"] = e["ego_lane"]  # only C_f is read; the target-lane roles are ignored
-    cols = neighbours(e, traffic, settings)
+    cols = neighbours(e, traffic, settings, only_leader=True)
     v = e["ego_v_mps"].to_numpy(dtype=float)
     gap = cols["f_gap_m"]
     dv = v - cols["f_v_mps"]
