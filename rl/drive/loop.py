@@ -247,7 +247,6 @@ class AgentControl(Watch):
         self.n_asked += 1
         self.record(asked, held, held_for, max(adv.values()))
         all_adv = adv
-        wanted = choose_side(adv, self.side_choice)
         if self.use_rule and self.last_change is not None:  # no change sooner than the drivers made one
             since, side = t - self.last_change[0], self.last_change[1]
             keep = {k for k in lanes if self.rule.dwell_ok(side, since, _side(ego.lane, k))}
@@ -256,9 +255,7 @@ class AgentControl(Watch):
                 asked, adv = {k: asked[k] for k in keep}, {k: adv[k] for k in keep}
                 if not asked:
                     return
-        # the dwell delays the agent's choice, it does not turn it to the other side
-        agent = wanted if wanted in asked else None
-        target, source = self.assist(agent, asked, held, held_for, ego, others)
+        target, source = self.assist(choose_side(adv, self.side_choice), asked, held, held_for, ego, others)
         if target is None:
             return
         scene, ids = asked[target]
