@@ -18,7 +18,7 @@ analysis assigns to the agent's drive; then whether issue 19's closed-loop accep
 every median inside their IQR) and a JSON line with every figure.
 
 Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--drive-seed 1] [--drivers 9] [--minutes 10]
-                                      [--side-choice advantage|keep-right] [--workdir /tmp/lp-closed-loop]
+                                      [--workdir /tmp/lp-closed-loop]
 
 Sides not taken (issue 19, three lanes): on an analysed workspace of a SUMO study,
 one agent of a style per `EnvConfig.other_side` setting (`train --other-side` and
@@ -215,8 +215,6 @@ def main() -> None:
                          "default mode: of the study and the drives (default 2)")
     ap.add_argument("--drive-seeds", type=int, nargs="+", default=[460, 461], help="--sides: seeds of the drives")
     ap.add_argument("--drive-seed", type=int, default=1, help="seed of the drives' traffic (default mode)")
-    ap.add_argument("--side-choice", default="advantage", help="default mode: drive's --side-choice (advantage, "
-                                                                  "keep-right)")
     ap.add_argument("--out-of-world", action="store_true",
                     help="the shipped study's agents in SUMO against SUMO's own model of their style")
     args = ap.parse_args()
@@ -257,8 +255,7 @@ def closed_loop(args: argparse.Namespace) -> bool:
         driver = f"agent-{style.lower()}"
         drives[style] = cli("drive", run["run_id"], "--engine", "sumo", "--minutes", f"{args.minutes:g}",
                             "--seed", str(args.drive_seed), "--lanes", lanes, "--driver-id", driver,
-                            "--no-sumo-model", "--side-choice", args.side_choice, "--out", str(work / "drives" / driver),
-                            "-w", str(ws))
+                            "--no-sumo-model", "--out", str(work / "drives" / driver), "-w", str(ws))
         print(f"{style}: trained {run['episodes']} episodes in {run['wall_s']} s; drove "
               f"{drives[style]['totals']['lane_changes']} lane changes", flush=True)
     for style, d in drives.items():
