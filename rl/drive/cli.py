@@ -43,10 +43,6 @@ def drive_command(
         "--dwell/--no-dwell",
         help="With the held-back rule: no change sooner after a lane change than the target's drivers pressed "
              "(default on; README, 'Driving like its drivers'). --no-dwell: without that wait.")] = True,
-    side_choice: Annotated[str, typer.Option(
-        "--side-choice", help="In a middle lane, when the agent would change to either side: advantage (the "
-                              "larger Q(change) - Q(keep), default) or keep-right (the right side whenever the "
-                              "agent would go there).")] = "advantage",
     sumo_model: Annotated[bool, typer.Option(
         "--sumo-model/--no-sumo-model",
         help="Also drive the same ego with SUMO's own lane-change model of its style in the same traffic and "
@@ -65,7 +61,7 @@ def drive_command(
         with progress_bar(not as_json) as bar:
             return drive_run(Workspace(workspace), run_id, minutes=minutes, seed=seed, sections=section, out=out,
                              driver_id=driver_id, analyze=analyze, lanes=lanes, held_back=held_back,
-                             sumo_model=sumo_model, dwell=dwell, side_choice=side_choice, progress=bar)
+                             sumo_model=sumo_model, dwell=dwell, progress=bar)
 
     run_command(work, as_json, render)
 

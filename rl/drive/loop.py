@@ -92,24 +92,15 @@ def advantages(q: np.ndarray) -> np.ndarray:
     return q[:, CHANGE] - q[:, KEEP]
 
 
-#: How the side is chosen when the agent would change to either (`choose_side`).
-SIDE_CHOICES = ("advantage", "keep-right")
-
-
-def choose_side(adv: dict[int, float], how: str = "advantage") -> Optional[int]:
-    """The target lane, or None (keep).
+def choose_side(adv: dict[int, float]) -> Optional[int]:
+    """The target lane with the largest advantage when it is not negative, else None (keep).
 
     `adv` maps each neighbouring lane to Q(change) - Q(keep) of the scene asking about it. A
-    tie with keep (advantage exactly 0) counts as change, as training's argmax does.
-    'advantage': the lane with the largest advantage when it is not negative; a tie between two
-    sides goes to the lower lane (the right one). 'keep-right': the lowest lane whose advantage
-    is not negative (the rule of the road: back to the right whenever the agent would go there,
-    to the left only when it would not).
+    tie with keep (advantage exactly 0) counts as change, as training's argmax does; a tie
+    between two sides goes to the lower lane (the right one: keep right).
     """
     if not adv:
         return None
-    if how == "keep-right":
-        return next((k for k in sorted(adv) if adv[k] >= 0), None)
     lane = max(sorted(adv), key=lambda k: adv[k])  # max keeps the first of equals: the lower lane
     return lane if adv[lane] >= 0 else None
 
@@ -214,12 +205,10 @@ class AgentControl(Watch):
     with `use_rule`, the held-back rule asks for a change the agent does not make (`rl.drive.heldback`)."""
 
     def __init__(self, q: QFunction, cfg: EnvConfig, step_s: float, n_lanes: int = N_LANES,
-                 rule: Optional[HeldBackRule] = None, desired_mps: float = 0.0, use_rule: bool = False,
-                 side_choice: str = "advantage") -> None:
+                 rule: Optional[HeldBackRule] = None, desired_mps: float = 0.0, use_rule: bool = False) -> None:
         never = Line(0.0, np.inf)  # no rule given: desired speed 0, never held back
         super().__init__(cfg, step_s, n_lanes, rule or HeldBackRule(np.inf, never, never, never), desired_mps)
         self.q = q
-        self.side_choice = side_choice
         self.use_rule = use_rule and rule is not None
         self.decisions: list[Decision] = []
         self.overtakings: list[LeftBehind] = []  # overtakings not yet completed, the latest last
@@ -255,7 +244,7 @@ class AgentControl(Watch):
                 asked, adv = {k: asked[k] for k in keep}, {k: adv[k] for k in keep}
                 if not asked:
                     return
-        target, source = self.assist(choose_side(adv, self.side_choice), asked, held, held_for, ego, others)
+        target, source = self.assist(choose_side(adv), asked, held, held_for, ego, others)
         if target is None:
             return
         scene, ids = asked[target]
@@ -371,12 +360,10 @@ def run_sections(make: ControlFactory, cfg: EnvConfig, ego_params: dict[str, flo
 
 def drive_sections(q: QFunction, cfg: EnvConfig, ego_params: dict[str, float], settings: SumoSettings,
                    seed: int, progress: Optional[ProgressFn] = None, rule: Optional[HeldBackRule] = None,
-                   use_rule: bool = True, side_choice: str = "advantage") -> list[SectionDrive]:
-    """Drive every section with the agent `q` (and, with `rule` and `use_rule`, the held-back rule);
-    `side_choice`: how a middle lane's side is chosen (`choose_side`)."""
+                   use_rule: bool = True) -> list[SectionDrive]:
+    """Drive every section with the agent `q` (and, with `rule` and `use_rule`, the held-back rule)."""
     return run_sections(lambda _, desired: AgentControl(q, cfg, settings.step_s, settings.n_lanes, rule, desired,
-                                                        use_rule, side_choice), cfg, ego_params, settings, seed,
-                        progress)
+                                                        use_rule), cfg, ego_params, settings, seed, progress)
 
 
 def sumo_model_sections(cfg: EnvConfig, ego_params: dict[str, float], settings: SumoSettings, seed: int,

@@ -32,7 +32,7 @@ from laneprint.reference import INDICATORS, SPEED_LIMITS_KPH
 from laneprint.workspace import Workspace, atomic_write_json
 from rl.drive.fidelity import fidelity
 from rl.drive.heldback import HeldBackRule, merge_summaries, rule_from_analysis
-from rl.drive.loop import SIDE_CHOICES, QFunction, SectionDrive, drive_sections, recordings, sumo_model_sections
+from rl.drive.loop import QFunction, SectionDrive, drive_sections, recordings, sumo_model_sections
 from rl.learners.dqn import q_values
 from rl.problem.env import EnvConfig, observation
 from rl.problem.rewards import ReferenceLines
@@ -239,22 +239,18 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
               sections: Optional[list[float]] = None, out: Optional[Path] = None,
               driver_id: Optional[str] = None, analyze: bool = False, lanes: int = 2,
               held_back: bool = True, sumo_model: bool = True, dwell: bool = True,
-              side_choice: str = "advantage", progress: Optional[ProgressFn] = None) -> dict[str, Any]:
+              progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
 
     `held_back`: the assistant's held-back rule acts beside the agent (False: the pure agent; the rule's
     figures are still measured). `sumo_model`: also drive SUMO's own model of the style (the comparator).
-    `dwell=False`: the rule without its dwell after a lane change (`HeldBackRule.dwell_s` emptied).
-    `side_choice`: in a middle lane, the side with the larger advantage or the right one first
-    (`rl.drive.loop.choose_side`)."""
+    `dwell=False`: the rule without its dwell after a lane change (`HeldBackRule.dwell_s` emptied)."""
     from laneprint.simulator.sumo.backend import check_available
     from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, LANES, family_settings
     from laneprint.simulator.sumo.styles import STYLE_PARAMS
 
     if lanes not in LANES:
         raise UserError(f"--lanes {lanes}: a SUMO highway has {' or '.join(map(str, LANES))} lanes")
-    if side_choice not in SIDE_CHOICES:
-        raise UserError(f"--side-choice {side_choice!r}: use one of {', '.join(SIDE_CHOICES)}")
     if not 0 < minutes <= 120:
         raise UserError("--minutes must be more than 0 and at most 120")
     config = load_run_config(workspace, run_id)
@@ -273,7 +269,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     if rule is not None and not dwell:
         rule = replace(rule, dwell_s={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
     drives = drive_sections(agent_q(net, cfg), cfg, STYLE_PARAMS[style], settings, seed, progress, rule,
-                            use_rule=held_back, side_choice=side_choice)
+                            use_rule=held_back)
     lanes_opt = "" if lanes == 2 else f", {lanes} lanes"
     simulator = f"Eclipse SUMO {drives[0].log.sumo_version} (laneprint drive {run_id}, seed {seed}{lanes_opt})"
     recs = recordings(drives, driver_id, simulator)
@@ -286,7 +282,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
         "run_id": run_id, "target": config["target"], "driver_id": driver_id, "seed": seed, "minutes": minutes,
         "sumo_version": drives[0].log.sumo_version, "sumo_api": drives[0].log.api,
         "ego_style": style, "ego_style_reason": why, "decision_every_s": cfg.dt_s, "lanes": lanes,
-        "side_input": cfg.observation == "direction", "side_choice": side_choice,
+        "side_input": cfg.observation == "direction",
         "files": [str(p) for p in paths], "sections": rows, "totals": totals(rows),
         "held_back": {"on": bool(held_back and rule is not None), "rule": rule.to_dict() if rule else None,
                       "note": rule_note, "desired_speed": f"section limit x speedFactor "

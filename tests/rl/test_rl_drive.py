@@ -79,13 +79,6 @@ def test_choose_side_takes_the_larger_positive_advantage_and_keeps_otherwise():
     assert choose_side({1: 0.0}) == 1  # a tie with keep is a change, as training's argmax (two lanes unchanged)
 
 
-def test_keep_right_takes_the_right_side_whenever_the_agent_would_go_there():
-    assert choose_side({2: 0.9, 0: 0.1}, "keep-right") == 0
-    assert choose_side({2: 0.4, 0: -2.0}, "keep-right") == 2  # left only where right is not wanted
-    assert choose_side({2: -0.1, 0: -0.5}, "keep-right") is None
-    assert choose_side({1: 0.2}, "keep-right") == choose_side({1: 0.2}) == 1  # two lanes: the same
-
-
 class _Vehicle:
     """The two calls AgentControl makes of SUMO's vehicle API, recorded."""
 
