@@ -323,10 +323,14 @@ def extract_all(workspace: Workspace, settings: AnalysisSettings, progress: Prog
         meta, ego, traffic = workspace.load_recording(rid)
         try:
             dec, sk = extract_decisions(meta, ego, traffic, settings)
-            follows.append(following_episodes(meta, ego, traffic, settings))
         except Exception as exc:  # a malformed recording must not stop the others
             dec, sk = empty_decisions(), [{"what": "recording", "id": str(rid),
                                            "reason": f"decision extraction failed: {type(exc).__name__}: {exc}"}]
+        try:  # its decisions stand without it
+            follows.append(following_episodes(meta, ego, traffic, settings))
+        except Exception as exc:
+            sk.append({"what": "recording", "id": str(rid),
+                       "reason": f"steady-following extraction failed: {type(exc).__name__}: {exc}"})
         frames.append(dec)
         skipped.extend(sk)
     report(progress, total, total, "decisions extracted")

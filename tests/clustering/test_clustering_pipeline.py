@@ -101,3 +101,25 @@ def test_workspace_without_any_press_completes(tmp_path):
     assert reasons[("recording", "nopress")] == "no lane-change button presses"
     assert reasons[("driver", "D07")] in ("no style: no presses", "no decisions in any recording")
     assert len(ws.read_table("analysis", "decisions")) == 0
+
+
+def test_a_recording_whose_following_cannot_be_read_keeps_its_decisions(workspace, tmp_path, monkeypatch):
+    import clustering.pipeline as pipeline
+
+    ws = workspace[0]
+    full = ws.read_table("analysis", "decisions")
+    calls = []
+
+    def broken_once(meta, ego, traffic, settings):
+        calls.append(meta["recording_id"])
+        if len(calls) == 1:
+            raise ValueError("a broken traffic table")
+        return real(meta, ego, traffic, settings)
+
+    real = pipeline.following_episodes
+    monkeypatch.setattr(pipeline, "following_episodes", broken_once)
+    decisions, skipped, n_rec, following = pipeline.extract_all(ws, AnalysisSettings())
+    assert len(decisions) == len(full)  # every recording's decisions, the broken one's too
+    assert [s["reason"] for s in skipped if s["id"] == calls[0]] == [
+        "steady-following extraction failed: ValueError: a broken traffic table"]
+    assert calls[0] not in set(following["recording_id"]) and n_rec == len(calls)
