@@ -258,3 +258,30 @@ def correlation_table(correlations: pd.DataFrame) -> go.Figure:
                                     "align": "left"}))
     fig.update_layout(title="Correlation of each indicator with ego speed, per driver (Pearson p < alpha = significant)")
     return fig
+
+
+def following_vs_speed(following: pd.DataFrame, driver: str) -> go.Figure:
+    """One driver's steady-following episodes (`indicators.following`): time headway against ego
+    speed on a log axis, marker area by the episode's length, and its `thw_follow` level (the low
+    quantile the styles read) as a line."""
+    from indicators.following import FOLLOW_QUANTILE, following_levels
+
+    mine = following[following["driver_id"].astype(str) == str(driver)]
+    fig = go.Figure()
+    size = np.clip(np.sqrt(mine["duration_s"].to_numpy(dtype=float)) * 3, 5, 18)
+    fig.add_trace(go.Scatter(
+        x=mine["ego_v_mps"].tolist(), y=mine["thw_s"].tolist(), mode="markers", name="episodes",
+        marker={"size": size.tolist(), "color": "#1f77b4", "opacity": 0.7},
+        customdata=np.c_[mine["f_gap_m"], mine["duration_s"]].tolist(),
+        hovertemplate="%{y:.2f} s at %{x:.1f} m/s, gap %{customdata[0]:.0f} m, %{customdata[1]:.0f} s<extra></extra>"))
+    level = following_levels(mine)
+    title = f"{driver}: no steady following in its drives"
+    if len(level):
+        thw, n = float(level["thw_follow_s"].iloc[0]), int(level["episodes"].iloc[0])
+        fig.add_hline(y=thw, line={"color": "black", "width": 2},
+                      annotation_text=f"thw_follow {thw:.2f} s", annotation_position="top left")
+        title = (f"{driver}: time headway kept in steady following, {n} episode{'s' if n != 1 else ''}; "
+                 f"line: the {FOLLOW_QUANTILE:.0%} quantile")
+    fig.update_layout(title=title, template="plotly_white", showlegend=False,
+                      xaxis={"title": SPEED_LABEL}, yaxis={"title": "time headway gap / v_e [s] (log)", "type": "log"})
+    return fig

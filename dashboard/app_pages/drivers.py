@@ -6,7 +6,7 @@ import streamlit as st
 
 from dashboard import figures, loaders, views, widgets
 from dashboard.context import workspace
-from indicators.plots import correlation_table, indicator_vs_speed
+from indicators.plots import correlation_table, following_vs_speed, indicator_vs_speed
 
 
 def main() -> None:
@@ -59,6 +59,14 @@ def main() -> None:
                + (" Presses to the left (overtaking) are blue circles, to the right (returning) orange diamonds; "
                   "where a side has enough presses its own line is drawn dashed beside the pooled one."
                   if sides else ""))
+
+    following = tables.get("following")
+    if following is not None:
+        st.subheader("Headway kept in steady following")
+        st.caption("Over the whole drive, press or not: every stretch of at least 2 s at the leader's speed "
+                   "(within 1 m/s) while held below its free speed; marker area by its length. The line is the "
+                   "level the styles read (thw_follow) where the feature set holds it.")
+        st.plotly_chart(following_vs_speed(following, driver), key="following")
 
     st.subheader("Correlation with ego speed")
     corr = views.for_driver(tables.get("correlations"), driver)

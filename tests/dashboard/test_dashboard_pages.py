@@ -46,17 +46,25 @@ def test_data_page_lists_recordings_and_views_one(use_sample):
     assert fig["layout"]["yaxis"]["title"]["text"] == "ego speed [m/s]"
 
 
-def test_drivers_page_shows_three_indicators(use_sample):
+def test_drivers_page_shows_three_indicators_and_the_headway_kept(use_sample):
     at = run_page("drivers")
     assert at.selectbox(key="driver").value == "D01"
     figs = charts(at)
-    assert len(figs) == 4  # three indicators and the correlation table
-    for fig in figs[:3]:
+    assert len(figs) == 5  # three indicators, the headway kept in steady following, the correlation table
+    for fig in figs[:4]:
         assert "[m/s]" in fig["layout"]["xaxis"]["title"]["text"]  # units on every axis
         assert "[" in fig["layout"]["yaxis"]["title"]["text"]
-    assert figs[3]["data"][0]["type"] == "table"
+    kept = figs[3]
+    assert kept["layout"]["yaxis"]["type"] == "log" and kept["layout"]["title"]["text"].startswith("D01: ")
+    episodes = use_sample.read_table("analysis", "following")
+    assert len(kept["data"][0]["x"]) == int((episodes["driver_id"] == "D01").sum())
+    assert figs[4]["data"][0]["type"] == "table"
     at.selectbox(key="driver").set_value("D04").run()
     assert not at.exception and "D04" in at.markdown[0].value
+    d04 = next(f for f in charts(at) if f["layout"]["title"]["text"].startswith("D04: time headway kept"))
+    n = int((episodes["driver_id"] == "D04").sum())
+    assert n > 0 and len(d04["data"][0]["x"]) == n  # every episode of its drives, and the level line
+    assert any(a["text"].startswith("thw_follow ") for a in d04["layout"]["annotations"])
 
 
 def test_styles_page_summary(use_sample):
