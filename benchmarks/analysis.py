@@ -14,7 +14,7 @@ Prints:
 4. optionally (`--messy N`), harder studies: ARI per clustering-feature variant;
 5. optionally (`--study DIR WORKSPACE`, repeated), studies written by `laneprint simulate`
    (their ground_truth.json) and ingested into WORKSPACE: ARI per feature set (`--features`
-   auto, ttc, paper, headway, acceptance, all), the set 'auto' chose, and the flagged per-driver
+   auto, ttc, paper, headway, acceptance, all, following), the set 'auto' chose, and the flagged per-driver
    lines of the study's three indicators.
 
 Run: .venv/bin/python benchmarks/analysis.py [--seeds 20] [--workspace /tmp/ws] [--messy 12]
