@@ -13,7 +13,7 @@ from typing import Any
 from laneprint.reference import FAR_FOLLOWER_M, SPEED_LIMITS_KPH
 
 #: How a driver's clustering-feature line can be fitted (`AnalysisSettings.feature_fit`).
-FEATURE_FITS: tuple[str, ...] = ("huber", "theilsen", "ols", "median", "trimmed", "q25")
+FEATURE_FITS: tuple[str, ...] = ("huber", "theilsen", "ols", "median", "trimmed")
 #: Named sets of clustering indicators (`AnalysisSettings.features`).
 INDICATOR_SETS: dict[str, tuple[str, ...]] = {
     "ttc": ("t_f", "t_nf"),
