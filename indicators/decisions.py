@@ -201,6 +201,41 @@ def ego_at(states: pd.DataFrame, ego: pd.DataFrame) -> pd.DataFrame:
     return e
 
 
+def latest_samples(states: np.ndarray, t_states: np.ndarray, tr: pd.DataFrame, n_vehicles: int,
+                   tolerance_s: float) -> pd.DataFrame:
+    """Every (state, vehicle) pair with that vehicle's latest sample at or before the state's time
+    and at most `tolerance_s` old: columns state, t_s, vehicle_id, veh_t_s and `tr`'s x_m, v_mps,
+    lane, length_m; pairs in time order of the states (stable), vehicles in code order.
+
+    `tr` holds integer `vehicle_id` codes 0..n_vehicles-1, sorted by `t_s` (stable). This is
+    `pd.merge_asof(by="vehicle_id", direction="backward", tolerance=tolerance_s)` of the states x
+    vehicles grid, done as one `searchsorted` of the states' times per vehicle: the same pairs, the
+    same sample among equal times (the last), faster on a long drive's grid."""
+    order = np.argsort(t_states, kind="mergesort")
+    q_t_sorted = t_states[order]
+    q_state = np.repeat(states[order], n_vehicles)
+    q_t = np.repeat(q_t_sorted, n_vehicles)
+    q_code = np.tile(np.arange(n_vehicles, dtype=np.int64), len(states))
+    code = tr["vehicle_id"].to_numpy(dtype=np.int64)
+    t = tr["t_s"].to_numpy(dtype=float)
+    by_vehicle = np.argsort(code, kind="mergesort")  # stable: each vehicle's samples stay in time order
+    bounds = np.searchsorted(code[by_vehicle], np.arange(n_vehicles + 1))
+    at = np.full((len(states), n_vehicles), -1, dtype=np.int64)  # row of tr per (state in time order, vehicle)
+    for c in range(n_vehicles):
+        rows = by_vehicle[bounds[c]:bounds[c + 1]]
+        i = np.searchsorted(t[rows], q_t_sorted, side="right") - 1  # the last sample at or before (raw times)
+        at[:, c] = np.where(i >= 0, rows[np.maximum(i, 0)], -1)
+    at = at.ravel()
+    hit = at >= 0
+    row = np.where(hit, at, 0)
+    hit &= (q_t - t[row]) <= tolerance_s
+    row = row[hit]
+    return pd.DataFrame({"state": q_state[hit], "t_s": q_t[hit], "vehicle_id": q_code[hit], "veh_t_s": t[row],
+                         "x_m": tr["x_m"].to_numpy(dtype=float)[row], "v_mps": tr["v_mps"].to_numpy(dtype=float)[row],
+                         "lane": tr["lane"].to_numpy(dtype=np.int64)[row],
+                         "length_m": tr["length_m"].to_numpy(dtype=float)[row]})
+
+
 def neighbours(e: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSettings,
                only_leader: bool = False) -> dict[str, np.ndarray]:
     """`C_f`, `C_nf`, `C_nb` at each state of `e` (an `ego_at` frame with `state` = 0..n-1 and a
@@ -234,14 +269,8 @@ def neighbours(e: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSetting
         if len(tr) > 1 and np.any(np.diff(tr["t_s"].to_numpy()) < 0):
             tr = tr.sort_values("t_s", kind="mergesort")
         vid_names = np.asarray([str(v) for v in vids], dtype=object)
-        left = pd.DataFrame({"state": np.repeat(e["state"].to_numpy(), len(vids)),
-                             "t_s": np.repeat(e["t_s"].to_numpy(), len(vids)),
-                             "vehicle_id": np.tile(np.arange(len(vids), dtype=np.int64), n)}
-                            ).sort_values("t_s", kind="mergesort")
-        m = pd.merge_asof(left, tr.rename(columns={"t_s": "veh_t_s"}), left_on="t_s", right_on="veh_t_s",
-                          by="vehicle_id", direction="backward",
-                          tolerance=settings.traffic_tolerance_s)
-        m = m.dropna(subset=["veh_t_s"])
+        m = latest_samples(e["state"].to_numpy(), e["t_s"].to_numpy(dtype=float), tr, len(vids),
+                           settings.traffic_tolerance_s)
         m["x_m"] = m["x_m"] + m["v_mps"] * (m["t_s"] - m["veh_t_s"])
         st = m["state"].to_numpy()
         m["dx"] = m["x_m"].to_numpy() - e["ego_x_m"].to_numpy()[st]

@@ -98,25 +98,29 @@ def following_episodes(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.Data
     steady = s["steady"].to_numpy()
     lead = s["f_id"].to_numpy(dtype=object)
     lane = s["ego_lane"].to_numpy()
-    same = np.r_[False, (lead[1:] == lead[:-1]) & (lane[1:] == lane[:-1]) & steady[:-1]]
-    episode = np.cumsum(~same)  # a new number wherever a run of the same steady leader breaks
-    s = s.assign(episode=episode)[steady]
-    if s.empty:
+    # runs of consecutive steady states behind the same leader in the same lane: [start, stop)
+    same = (lead[1:] == lead[:-1]) & (lane[1:] == lane[:-1]) & steady[1:] & steady[:-1]
+    starts = np.flatnonzero(steady & ~np.r_[False, same])
+    stops = np.flatnonzero(steady & ~np.r_[same, False]) + 1
+    t = s["t_s"].to_numpy()
+    long_enough = t[stops - 1] - t[starts] + settings.follow_step_s >= settings.follow_min_s - 1e-9
+    starts, stops = starts[long_enough], stops[long_enough]
+    if len(starts) == 0:
         return empty_following()
-    s = s.assign(thw_s=s["f_gap_m"] / s["ego_v_mps"])
-    g = s.groupby("episode", sort=True)
-    ep = g.agg(t_start_s=("t_s", "min"), t_end_s=("t_s", "max"), ego_lane=("ego_lane", "first"),
-               f_id=("f_id", "first"), ego_v_mps=("ego_v_mps", "median"), f_gap_m=("f_gap_m", "median"),
-               dv_f_mps=("dv_f_mps", "median"), thw_s=("thw_s", "median"))
-    ep["duration_s"] = ep["t_end_s"] - ep["t_start_s"] + settings.follow_step_s
-    ep = ep[ep["duration_s"] >= settings.follow_min_s - 1e-9].reset_index(drop=True)
+    v, gap, dv = (s[c].to_numpy(dtype=float) for c in ("ego_v_mps", "f_gap_m", "dv_f_mps"))
+    thw = gap / v
+
+    def median(x: np.ndarray) -> list[float]:
+        return [float(np.median(x[a:b])) for a, b in zip(starts, stops)]
+
     rid = str(meta.get("recording_id", ""))
-    ep["driver_id"] = str(meta.get("driver_id", ""))
-    ep["recording_id"] = rid
-    ep["session_id"] = str(meta.get("session_id", ""))
-    ep["episode_id"] = [f"{rid}:f{i}" for i in range(len(ep))]
-    ep["f_id"] = ep["f_id"].astype(str)
-    return ep[COLUMNS] if len(ep) else empty_following()
+    ep = pd.DataFrame({
+        "driver_id": str(meta.get("driver_id", "")), "recording_id": rid,
+        "session_id": str(meta.get("session_id", "")), "episode_id": [f"{rid}:f{i}" for i in range(len(starts))],
+        "t_start_s": t[starts], "duration_s": t[stops - 1] - t[starts] + settings.follow_step_s,
+        "ego_lane": lane[starts].astype(np.int64), "f_id": [str(x) for x in lead[starts]],
+        "ego_v_mps": median(v), "f_gap_m": median(gap), "dv_f_mps": median(dv), "thw_s": median(thw)})
+    return ep[COLUMNS]
 
 
 def following_points(following: pd.DataFrame) -> pd.DataFrame:
