@@ -184,3 +184,28 @@ def test_no_other_side_outside_a_middle_lane():
     assert (dec["other_lane"] == -1).all()
     assert not dec["other_nf_present"].any() and not dec["other_nb_present"].any()
     assert dec["other_nf_x_m"].isna().all() and dec["other_nb_id"].isna().all()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_latest_samples_are_merge_asofs(seed):
+    """Each vehicle's latest sample at or before each state (within the tolerance), as pandas'
+    merge_asof finds it: own clocks, gaps, duplicate times and states out of time order."""
+    from indicators.decisions import latest_samples
+
+    rng = np.random.default_rng(seed)
+    n_veh, n_rows = 5, 200
+    t = np.round(np.sort(rng.uniform(0, 20, n_rows)), 1)  # rounded: equal times within and across vehicles
+    tr = pd.DataFrame({"t_s": t, "vehicle_id": rng.integers(0, n_veh, n_rows).astype(np.int64),
+                       "x_m": rng.normal(0, 50, n_rows), "v_mps": rng.uniform(10, 30, n_rows),
+                       "lane": rng.integers(0, 3, n_rows).astype(np.int64), "length_m": rng.uniform(4, 15, n_rows)})
+    t_states = rng.permutation(np.round(np.arange(0, 21, 0.5) + rng.normal(0, 1e-9, 42), 9))
+    states = np.arange(len(t_states))
+    got = latest_samples(states, t_states, tr, n_veh, 0.5)
+    left = pd.DataFrame({"state": np.repeat(states, n_veh), "t_s": np.repeat(t_states, n_veh),
+                         "vehicle_id": np.tile(np.arange(n_veh, dtype=np.int64), len(states))}
+                        ).sort_values("t_s", kind="mergesort")
+    want = pd.merge_asof(left, tr.rename(columns={"t_s": "veh_t_s"}), left_on="t_s", right_on="veh_t_s",
+                         by="vehicle_id", direction="backward", tolerance=0.5).dropna(subset=["veh_t_s"])
+    assert len(got) > 0
+    pd.testing.assert_frame_equal(got.reset_index(drop=True), want[got.columns].reset_index(drop=True),
+                                  check_dtype=False)
