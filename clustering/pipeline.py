@@ -24,7 +24,7 @@ from clustering.features import driver_features, feature_names, transform_featur
 from clustering.selection import MAX_IMPUTED, FeatureSetScore, choose_features, clustering_rows, resolve_features, score_feature_set
 from clustering.styles import StyleClusterer
 from indicators.decisions import empty_decisions, extract_decisions
-from indicators.following import FOLLOWING, empty_following, following_episodes, following_levels, following_points
+from indicators.following import FOLLOWING, empty_following, following_episodes, following_levels
 from indicators.directions import POOLED, fits_by_direction, press_counts
 from indicators.settings import AnalysisSettings
 from indicators.stats import FEATURE_UNITS, INDICATORS, PAPER_INDICATORS, correlate, fit_flag, fit_lines, fit_pooled, indicator_points
@@ -257,7 +257,7 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
     settings = settings or AnalysisSettings()
     following = empty_following() if following is None else following
     drivers = sorted(set(map(str, decisions["driver_id"].unique())) | set(map(str, drivers or [])))
-    points = pd.concat([indicator_points(decisions, settings), following_points(following)], ignore_index=True)
+    points = indicator_points(decisions, settings, following)
     correlations = correlate(decisions, settings, points, drivers)
     fits = fit_lines(decisions, settings, points, drivers)
     n_dec = _n_decisions(decisions, drivers)

@@ -24,6 +24,7 @@ from scipy import special
 from scipy import stats as sstats
 
 from indicators.acceptance import ACCEPTANCE_COLUMNS, add_acceptance, has_acceptance
+from indicators.following import following_points
 from indicators.settings import INDICATOR_SETS, AnalysisSettings  # noqa: F401  (INDICATOR_SETS: public here too)
 
 #: The study's three indicators: indicator -> (value column, status column, unit)
@@ -134,11 +135,13 @@ def fit_reasons(decisions: pd.DataFrame, settings: AnalysisSettings | None = Non
     return out
 
 
-def indicator_points(decisions: pd.DataFrame, settings: AnalysisSettings | None = None) -> pd.DataFrame:
+def indicator_points(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
+                     following: pd.DataFrame | None = None) -> pd.DataFrame:
     """Long table of the presses' indicator values: driver_id, decision_id, indicator, v, y, status, used.
 
     `status` is the reason a value is not used ('' when used: see `fit_reasons`);
-    unused rows are kept so callers can say why a driver has no points.
+    unused rows are kept so callers can say why a driver has no points. With `following` (the
+    drives' steady-following episodes) also one 'thw_follow' row per episode, its id as decision_id.
     """
     settings = settings or AnalysisSettings()
     d = decisions[decisions["label"] == "change"]
@@ -156,6 +159,8 @@ def indicator_points(decisions: pd.DataFrame, settings: AnalysisSettings | None 
         parts.append(pd.DataFrame({"driver_id": drivers, "decision_id": dec_ids, "indicator": ind, "v": v,
                                    "y": d[col].to_numpy(dtype=float), "status": np.where(why == "", "ok", why),
                                    "used": why == ""}))
+    if following is not None and len(following):
+        parts.append(following_points(following))
     return pd.concat(parts, ignore_index=True)
 
 

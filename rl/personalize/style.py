@@ -28,7 +28,6 @@ import pandas as pd
 from clustering.features import driver_features, transform_features
 from clustering.selection import clustering_rows
 from clustering.styles import StyleClusterer
-from indicators.following import following_points
 from indicators.settings import AnalysisSettings
 from indicators.stats import indicator_points
 from laneprint.errors import UserError
@@ -62,14 +61,6 @@ class StyleEstimate:
         return asdict(self)
 
 
-def _points(decisions: pd.DataFrame, following: pd.DataFrame | None, settings: AnalysisSettings) -> pd.DataFrame:
-    """Feature points of the presses and, where given, of the steady-following episodes."""
-    points = indicator_points(decisions, settings)
-    if following is None or following.empty:
-        return points
-    return pd.concat([points, following_points(following)], ignore_index=True)
-
-
 def episodes_by(following: pd.DataFrame | None, rows: pd.DataFrame) -> pd.DataFrame | None:
     """The episodes of `rows`' driver that ended by its last press in each session of `rows`
     (what it had driven by its K-th decision)."""
@@ -90,7 +81,7 @@ def fit_population(decisions: pd.DataFrame, drivers: list[str], settings: Analys
     dec = decisions[decisions["driver_id"].astype(str).isin(drivers)]
     if following is not None:
         following = following[following["driver_id"].astype(str).isin(drivers)]
-    points = _points(dec, following, settings)
+    points = indicator_points(dec, settings, following)
     feats, _ = driver_features(points, drivers, settings)
     presses = dec[dec["label"] == "change"].groupby(dec["driver_id"].astype(str))["decision_id"].nunique()
     rows = clustering_rows(feats, presses.reindex(drivers, fill_value=0), settings)
@@ -136,18 +127,18 @@ def estimate_style(pop: Population, rows: pd.DataFrame, n_bootstrap: int = 200, 
     `following`: the analysis's episodes (only the driver's, up to its K-th press, are used)."""
     settings = pop.settings
     episodes = episodes_by(following, rows)
-    press_points = indicator_points(rows.assign(driver_id="new"), settings)
-    points = _points(rows.assign(driver_id="new"), None if episodes is None else episodes.assign(driver_id="new"),
-                     settings)
-    dec_ids = np.array(sorted(press_points["decision_id"].unique()), dtype=object)
-    ep_ids = np.array(sorted(set(points["decision_id"]) - set(dec_ids)), dtype=object)
+    points = indicator_points(rows.assign(driver_id="new"), settings,
+                              None if episodes is None else episodes.assign(driver_id="new"))
+    is_press = points["indicator"] != "thw_follow"
+    dec_ids = np.array(sorted(points.loc[is_press, "decision_id"].unique()), dtype=object)
+    ep_ids = np.array(sorted(points.loc[~is_press, "decision_id"].unique()), dtype=object)
     if len(dec_ids) == 0:
         raise UserError("no presses among the decisions given: no style can be assigned")
     feats, _ = driver_features(points, ["new"], settings)
     if feats.isna().all(axis=None):
         raise UserError("the decisions given have no defined value of "
                         + "/".join(settings.feature_indicators) + ": no style can be assigned")
-    press_v = press_points.drop_duplicates("decision_id")["v"].to_numpy(dtype=float)
+    press_v = points[is_press].drop_duplicates("decision_id")["v"].to_numpy(dtype=float)
     cols = _compared_columns(pop, press_v)
     names = pop.clusterer.names_
     post = _posteriors(pop, transform_features(feats, settings), cols)[0]
