@@ -123,18 +123,6 @@ def following_episodes(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.Data
     return ep[COLUMNS]
 
 
-def following_points(following: pd.DataFrame) -> pd.DataFrame:
-    """The episodes as rows of `indicators.stats.indicator_points` (indicator 'thw_follow',
-    one point per episode, `decision_id` = the episode), for the clustering features."""
-    if following is None or following.empty:
-        return pd.DataFrame(columns=["driver_id", "decision_id", "indicator", "v", "y", "status", "used"])
-    return pd.DataFrame({"driver_id": following["driver_id"].astype(str).to_numpy(dtype=object),
-                         "decision_id": following["episode_id"].astype(str).to_numpy(dtype=object),
-                         "indicator": "thw_follow",
-                         "v": following["ego_v_mps"].to_numpy(dtype=float),
-                         "y": following["thw_s"].to_numpy(dtype=float), "status": "ok", "used": True})
-
-
 def following_levels(following: pd.DataFrame) -> pd.DataFrame:
     """Per driver: its number of episodes and its `thw_follow` level [s] (the `FOLLOW_QUANTILE`
     quantile of its episodes' headways, on the log scale as the clustering reads it)."""

@@ -24,7 +24,6 @@ from scipy import special
 from scipy import stats as sstats
 
 from indicators.acceptance import ACCEPTANCE_COLUMNS, add_acceptance, has_acceptance
-from indicators.following import following_points
 from indicators.settings import INDICATOR_SETS, AnalysisSettings  # noqa: F401  (INDICATOR_SETS: public here too)
 
 #: The study's three indicators: indicator -> (value column, status column, unit)
@@ -162,6 +161,18 @@ def indicator_points(decisions: pd.DataFrame, settings: AnalysisSettings | None 
     if following is not None and len(following):
         parts.append(following_points(following))
     return pd.concat(parts, ignore_index=True)
+
+
+def following_points(following: pd.DataFrame) -> pd.DataFrame:
+    """Steady-following episodes (`indicators.following`) as rows of `indicator_points`
+    (indicator 'thw_follow', one point per episode, `decision_id` = the episode)."""
+    if following is None or following.empty:
+        return pd.DataFrame(columns=["driver_id", "decision_id", "indicator", "v", "y", "status", "used"])
+    return pd.DataFrame({"driver_id": following["driver_id"].astype(str).to_numpy(dtype=object),
+                         "decision_id": following["episode_id"].astype(str).to_numpy(dtype=object),
+                         "indicator": "thw_follow",
+                         "v": following["ego_v_mps"].to_numpy(dtype=float),
+                         "y": following["thw_s"].to_numpy(dtype=float), "status": "ok", "used": True})
 
 
 @dataclass(frozen=True)

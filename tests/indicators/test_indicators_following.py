@@ -7,7 +7,8 @@ from sklearn.metrics import adjusted_rand_score
 
 from clustering.features import driver_features
 from clustering.pipeline import analyze_tables
-from indicators.following import COLUMNS, FOLLOWING, following_episodes, following_points
+from indicators.following import COLUMNS, FOLLOWING, following_episodes
+from indicators.stats import following_points
 from indicators.settings import AnalysisSettings
 from indicators.synthetic import make_recording
 from laneprint.schemas import validate
