@@ -14,7 +14,8 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, IndexType, Writer
 from typer.testing import CliRunner
 
-from ingest.mcap_records import read_records, read_stream
+import ingest.mcap_records as mcap_records
+from ingest.mcap_records import read_records, read_stream, top_records
 from ingest.pipeline import ingest_paths
 from ingest.writers import write_mcap
 from laneprint.cli import app
@@ -104,6 +105,38 @@ def test_fast_walk_reads_what_the_mcap_stream_reader_reads(variants, name):
     fast, slow = read_records(data), read_stream(data)
     assert _messages(fast) == _messages(slow) and len(_messages(fast)) == 200 * 3 + 4 + 1
     assert fast.metadata == slow.metadata and fast.metadata["session"]["session_id"] == name
+
+
+def _walked_only(data: bytes, monkeypatch):
+    with monkeypatch.context() as m:
+        m.setattr(mcap_records, "_walk_indexed", lambda *args: False)
+        return read_records(data)
+
+
+@pytest.mark.parametrize("name", ["default", "small_chunks_lz4_no_repeats", "no_repeats"])
+def test_chunks_cut_at_their_message_index_read_as_the_walk_does(variants, name, monkeypatch):
+    """The numpy cut by Message Index offsets gives the walk's messages in the walk's order."""
+    data = (variants / f"{name}.mcap").read_bytes()
+    used = []
+    real = mcap_records._walk_indexed
+    monkeypatch.setattr(mcap_records, "_walk_indexed", lambda *a: used.append(real(*a)) or used[-1])
+    fast = read_records(data)
+    assert used and all(used)
+    walked = _walked_only(data, monkeypatch)
+    assert (fast.times, fast.datas, fast.channels.keys()) == (walked.times, walked.datas, walked.channels.keys())
+
+
+def test_a_message_index_that_lies_sends_its_chunk_to_the_walk(variants, monkeypatch):
+    data = bytearray((variants / "default.mcap").read_bytes())
+    op, pos, length = next(h for h in top_records(bytes(data)) if h[0] == 0x07 and h[2] > 6 + 16)
+    data[pos + 9 + 6 + 8:pos + 9 + 6 + 16] = (7).to_bytes(8, "little")  # its first offset, into a record
+    used = []
+    real = mcap_records._walk_indexed
+    monkeypatch.setattr(mcap_records, "_walk_indexed", lambda *a: used.append(real(*a)) or used[-1])
+    got = read_records(bytes(data))
+    assert False in used
+    walked = _walked_only(bytes(data), monkeypatch)
+    assert (got.times, got.datas) == (walked.times, walked.datas) and sum(map(len, got.times.values())) == 605
 
 
 def test_messages_on_a_channel_no_record_defines_are_refused_naming_the_id(tmp_path):
