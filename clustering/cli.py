@@ -49,7 +49,7 @@ def render(result: dict[str, Any], console: Console) -> None:
                   + f"; all three {_fmt(None if s['share_drivers_all_significant'] is None else 100 * s['share_drivers_all_significant'], '.0f')} %")
     feats = s.get("features")
     if feats:
-        render_features(feats, console)
+        render_features(feats, console, int((result.get("settings") or {}).get("min_fit_points", 5)))
     shown = list(PAPER_INDICATORS) + [i for i in (feats or {}).get("indicators", []) if i not in PAPER_INDICATORS]
     table = Table(title="drivers: lines I = A v_e + b shown as A/b; ! flagged (see warnings); * typical"
                         + ("; thw_follow: headway kept (episodes)" if any(i in TRAIT_UNITS for i in shown) else ""),
@@ -79,7 +79,16 @@ def render(result: dict[str, Any], console: Console) -> None:
     console.print(f"stored in {result['workspace']}/analysis", markup=False, highlight=False)
 
 
-def render_features(feats: dict[str, Any], console: Console) -> None:
+def _read_text(c: dict[str, Any], min_points: int) -> str:
+    """'  read at N presses per driver' of a candidate, and whether 'auto' leaves it out for that."""
+    read = c.get("presses_read")
+    if read is None:  # every indicator read over the drive, or an analysis made before it was measured
+        return ""
+    out = f"  read at {read:g} presses per driver"
+    return out + (f" (under {min_points}: auto leaves it out)" if read < min_points else "")
+
+
+def render_features(feats: dict[str, Any], console: Console, min_points: int = 5) -> None:
     """Which indicators the styles were read by, and the figures of each set measured."""
     how = "chosen by the data" if feats["requested"] == "auto" else "as requested"
     console.print(f"styles read by [bold]{feats['chosen']}[/bold] ({', '.join(feats['indicators'])}), {how}:",
@@ -88,7 +97,8 @@ def render_features(feats: dict[str, Any], console: Console) -> None:
         mark = "*" if c["chosen"] else " "
         console.print(f"  {mark} {c['name']:<11} silhouette {_fmt(c['silhouette'], '.2f')}  stability "
                       f"{_fmt(c['stability'], '.2f')}  score {_fmt(c['score'], '.3f')}  "
-                      f"imputed {_fmt(None if c['imputed'] is None else 100 * c['imputed'], '.0f')} %",
+                      f"imputed {_fmt(None if c['imputed'] is None else 100 * c['imputed'], '.0f')} %"
+                      + _read_text(c, min_points),
                       markup=False, highlight=False)
 
 

@@ -292,8 +292,8 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
     }
 
 
-FEATURE_SET_COLUMNS = ["name", "indicators", "k", "silhouette", "stability", "score", "imputed", "chosen",
-                       "requested"]
+FEATURE_SET_COLUMNS = ["name", "indicators", "k", "silhouette", "stability", "score", "imputed", "presses_read",
+                       "chosen", "requested"]
 
 
 def feature_settings(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings

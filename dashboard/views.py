@@ -200,16 +200,20 @@ def chosen_indicators(meta: dict[str, Any]) -> list[str]:
 
 def feature_candidates(meta: dict[str, Any]) -> pd.DataFrame:
     """The feature sets the analysis measured, the chosen one first: set, indicators, k, silhouette,
-    stability, score, chosen. Empty for an analysis made before the choice existed."""
+    stability, score, presses read per driver (the median driver's defined values of the set's sparsest
+    press indicator), chosen. Empty for an analysis made before the choice existed."""
     feats = ((meta or {}).get("summary") or {}).get("features") or {}
     rows = []
     for c in feats.get("candidates") or []:
         inds = c.get("indicators")
         rows.append({"feature set": c.get("name"), "indicators": ", ".join(inds) if isinstance(inds, list) else inds,
                      "k": c.get("k"), "silhouette [-]": c.get("silhouette"), "stability [-]": c.get("stability"),
-                     "score [-]": c.get("score"), "chosen": c.get("name") == feats.get("chosen")})
+                     "score [-]": c.get("score"),
+                     "presses read per driver": c.get("presses_read"),
+                     "chosen": c.get("name") == feats.get("chosen")})
     out = pd.DataFrame(rows, columns=["feature set", "indicators", "k", "silhouette [-]", "stability [-]",
-                                      "score [-]", "chosen"])
+                                      "score [-]", "presses read per driver", "chosen"])
+    out["presses read per driver"] = pd.to_numeric(out["presses read per driver"], errors="coerce")
     for c in ("silhouette [-]", "stability [-]", "score [-]"):
         out[c] = pd.to_numeric(out[c], errors="coerce").round(3)
     return out.sort_values("chosen", ascending=False, kind="stable").reset_index(drop=True)

@@ -92,7 +92,9 @@ def main() -> None:
         if len(candidates):
             st.caption("Every feature set measured: silhouette (how well the styles are separated, -1 to 1), "
                        "stability (share of bootstrap resamples of each driver's presses that keep its style), "
-                       "and the score the choice is made on.")
+                       "the score the choice is made on, and at how many presses the median driver has a value "
+                       "of the set's sparsest indicator ('auto' leaves out a set read at fewer presses than a "
+                       "fit takes).")
             st.dataframe(candidates, hide_index=True, width="stretch")
     else:
         st.markdown(f"Indicators **{', '.join(chosen)}**, each driver's line read at {views.speeds_text(meta)} "

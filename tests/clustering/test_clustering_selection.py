@@ -74,6 +74,41 @@ def test_auto_keeps_the_ttcs_where_they_tell_the_styles_apart():
     assert ari(out, truth) == 1.0
 
 
+def test_auto_leaves_out_a_set_read_at_fewer_presses_than_a_fit_takes(monkeypatch):
+    """A set whose sparsest indicator the median driver has at 2 presses cannot keep the study's
+    benefit of the doubt (measured: SUMO study 602, ttc 0.496 vs following 0.507, ARI -0.03 vs 1.0)."""
+    import clustering.selection as selection
+    from clustering.selection import FeatureSetScore
+
+    def fake(read_ttc):
+        scores = {"ttc": (0.496, read_ttc), "following": (0.507, 9.0), "acceptance": (0.15, 9.0), "all": (0.27, 2.0)}
+        return lambda points, drivers, n_dec, settings, name, inds: FeatureSetScore(
+            name, tuple(inds), 3, scores[name][0], 1.0, scores[name][0], 0.0, scores[name][1])
+
+    monkeypatch.setattr(selection, "score_feature_set", fake(2.0))
+    assert selection.choose_features(pd.DataFrame(), [], pd.Series(dtype=float), AnalysisSettings())[0] == "following"
+    monkeypatch.setattr(selection, "score_feature_set", fake(44.0))  # read at every press: the margin keeps it
+    assert selection.choose_features(pd.DataFrame(), [], pd.Series(dtype=float), AnalysisSettings())[0] == "ttc"
+
+
+def test_presses_read_per_driver_is_measured_and_shown(tmp_path):
+    dec, _ = acceptance_table()  # t_nf is never defined, gaps at every press
+    fs = analyze_tables(dec, AnalysisSettings(n_bootstrap=0))["feature_sets"].set_index("name")
+    assert fs.loc["ttc", "presses_read"] == 0 and fs.loc["following", "presses_read"] >= 20
+    from clustering.cli import render_features
+    from rich.console import Console
+
+    console = Console(record=True, width=200)
+    render_features({"requested": "auto", "chosen": "following", "indicators": ["gap_f"], "candidates": [
+        {"name": "ttc", "chosen": False, "silhouette": 0.5, "stability": 1.0, "score": 0.5, "imputed": 0.0,
+         "presses_read": 2.0},
+        {"name": "following", "chosen": True, "silhouette": 0.5, "stability": 1.0, "score": 0.5, "imputed": 0.0,
+         "presses_read": 9.0}]}, console, min_points=5)
+    text = console.export_text()
+    assert "read at 2 presses per driver (under 5: auto leaves it out)" in text
+    assert "read at 9 presses per driver\n" in text
+
+
 def test_a_fit_that_means_nothing_is_flagged_and_not_a_reference_line():
     dec, _ = acceptance_table()
     s = AnalysisSettings(features="acceptance", n_bootstrap=0)
