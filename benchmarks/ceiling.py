@@ -46,6 +46,9 @@ from rl.problem.scene import Scene  # noqa: E402
 from rl.runs import Target, target_drivers  # noqa: E402
 
 
+READERS = ("trees", "logistic", "forest")
+
+
 def classifiers(seed: int) -> dict:
     """The optimistic readers: name -> unfitted scikit-learn classifier (classes balanced)."""
     from sklearn.ensemble import HistGradientBoostingClassifier, RandomForestClassifier
@@ -91,9 +94,8 @@ def style_ceiling(ws: Workspace, style: str, seed: int) -> dict:
                                                          speed_limit_kph=("speed_limit_kph", "first")).reset_index()
     fold_of = assign_folds(sessions, CrossvalSettings(seed=seed))
     fold = dec["recording_id"].astype(str).map(fold_of).to_numpy()
-    names = ["greedy", "imitation", *classifiers(seed)]
     said: dict[str, list[np.ndarray]] = {n: [] for n in ("greedy", "imitation")}
-    probs: dict[str, list[np.ndarray]] = {n: [] for n in classifiers(seed)}
+    probs: dict[str, list[np.ndarray]] = {n: [] for n in READERS}
     labels = []
     for k in range(int(fold.max()) + 1):
         train_app, _ = approaches_from_decisions(dec[fold != k])
@@ -114,7 +116,7 @@ def style_ceiling(ws: Workspace, style: str, seed: int) -> dict:
                 probs[name].append(clf.fit(X, y).predict_proba(Xt)[:, 1])
     y = np.concatenate(labels)
     out = {"style": style, "seed": seed, "n_presses": int(y.sum()), "n_states": int(len(y))}
-    for name in names:
+    for name in [*said, *probs]:
         out[name] = (balanced_accuracy(np.concatenate(said[name]), y) if name in said
                      else best_threshold_ba(np.concatenate(probs[name]), y))
     out["ceiling"] = max(out[n] for n in probs)

@@ -129,14 +129,18 @@ def _walk(buf: bytes, pos: int, stop: int, got: Collected, msgs: _Messages) -> N
         pos = end
 
 
-def _index_entries(data: bytes, indexes: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _index_entries(data: bytes, indexes: list[tuple[int, int]]
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(channel id, log time, offset) of every entry of a chunk's Message Index records
-    (`indexes`: their (body offset, length) in `data`)."""
+    (`indexes`: their (body offset, length) in `data`); None when one does not fit its record
+    (an index is only a shortcut: the chunk is then walked)."""
     cids, times, offsets = [], [], []
     for body, length in indexes:
+        if length < 6:
+            return None
         cid, nbytes = struct.unpack_from("<HI", data, body)
         if nbytes % 16 or 6 + nbytes > length:
-            raise Unreadable("message index past its record")
+            return None
         pairs = np.frombuffer(data, dtype="<u8", count=nbytes // 8, offset=body + 6).reshape(-1, 2)
         cids.append(np.full(len(pairs), cid, dtype=np.int64))
         times.append(pairs[:, 0])
@@ -151,12 +155,14 @@ def _gather_u64(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(buf[at[:, None] + np.arange(8)]).view("<u8").ravel()
 
 
-def _walk_indexed(inner: bytes, entries: tuple[np.ndarray, np.ndarray, np.ndarray], got: Collected,
+def _walk_indexed(inner: bytes, entries: tuple[np.ndarray, np.ndarray, np.ndarray] | None, got: Collected,
                   msgs: _Messages) -> bool:
     """Cut a chunk's messages at the offsets its Message Index records give, checked against the
     chunk's own bytes (each offset a message record on that channel at that log time, the records
     in order without overlap); the bytes between them (channels, schemas) are walked. False, with
     nothing taken, when anything does not match: the caller then walks the whole chunk."""
+    if entries is None:
+        return False
     cids, times, offsets = entries
     size = len(inner)
     if len(offsets) == 0 or int(offsets.max()) + 9 + _MSG_FIXED > size:

@@ -29,7 +29,7 @@ from clustering.features import driver_features, transform_features
 from clustering.selection import clustering_rows
 from clustering.styles import StyleClusterer
 from indicators.settings import AnalysisSettings
-from indicators.stats import indicator_points
+from indicators.stats import TRAIT_UNITS, indicator_points
 from laneprint.errors import UserError
 
 #: A feature speed counts as covered when a press was made within this of it [km/h].
@@ -129,7 +129,7 @@ def estimate_style(pop: Population, rows: pd.DataFrame, n_bootstrap: int = 200, 
     episodes = episodes_by(following, rows)
     points = indicator_points(rows.assign(driver_id="new"), settings,
                               None if episodes is None else episodes.assign(driver_id="new"))
-    is_press = points["indicator"] != "thw_follow"
+    is_press = ~points["indicator"].isin(list(TRAIT_UNITS))  # the rest are following episodes
     dec_ids = np.array(sorted(points.loc[is_press, "decision_id"].unique()), dtype=object)
     ep_ids = np.array(sorted(points.loc[~is_press, "decision_id"].unique()), dtype=object)
     if len(dec_ids) == 0:

@@ -139,6 +139,15 @@ def test_a_message_index_that_lies_sends_its_chunk_to_the_walk(variants, monkeyp
     assert (got.times, got.datas) == (walked.times, walked.datas) and sum(map(len, got.times.values())) == 605
 
 
+def test_a_message_index_that_does_not_fit_its_record_is_skipped_not_fatal(variants, monkeypatch):
+    data = bytearray((variants / "default.mcap").read_bytes())
+    op, pos, length = next(h for h in top_records(bytes(data)) if h[0] == 0x07 and h[2] > 6 + 16)
+    data[pos + 9 + 2:pos + 9 + 6] = (length + 16).to_bytes(4, "little")  # entries past the record's end
+    got = read_records(bytes(data))  # the chunk is walked instead: no refusal, nothing lost
+    assert (got.times, got.datas) == (lambda w: (w.times, w.datas))(_walked_only(bytes(data), monkeypatch))
+    assert sum(map(len, got.times.values())) == 605
+
+
 def test_messages_on_a_channel_no_record_defines_are_refused_naming_the_id(tmp_path):
     out = io.BytesIO()
     w = Writer(out, use_chunking=False, **{k: v for k, v in NO_SUMMARY.items()})
