@@ -281,12 +281,12 @@ def read_csv_log(data: bytes, fmt: str, mapping: Mapping, limits: IngestLimits |
         ego["lc_direction"] = np.full(n, None, dtype=object)
 
     t0 = t_abs[0] if n else 0.0
-    traffic, n_vehicles = _long_traffic(table, vehicles, t_abs - t0, mapping)
+    traffic, n_vehicles, grid = _long_traffic(table, vehicles, t_abs - t0, mapping)
     return RawLog(
         format=fmt, meta=meta, t_abs_s=t_abs, t_s=t_abs - t0, ego=ego, traffic=traffic,
         locate=lambda i: f"line {i + 2}", time_name=col(CSV_TIME),
         names={"ego_x_m": col("ego_x"), "ego_v_mps": col("ego_v"), "ego_lane": col("ego_lane")},
-        has_button=has_button, warnings=warnings, n_vehicles=n_vehicles,
+        has_button=has_button, warnings=warnings, n_vehicles=n_vehicles, vehicle_grid=grid,
     )
 
 
@@ -305,9 +305,10 @@ def _grid(table: pa.Table, names: list[str | None], n: int) -> np.ndarray:
 
 
 def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.ndarray,
-                  mapping: Mapping) -> tuple[dict[str, np.ndarray], int]:
+                  mapping: Mapping) -> tuple[dict[str, np.ndarray], int, int]:
     """Wide `<id>_<field>` columns -> long-form arrays, one row per vehicle present per sample,
-    and the number of vehicles present at least once.
+    the number of vehicles present at least once, and k when the rows are the k vehicles in the
+    same order at every sample (`RawLog.vehicle_grid`; 0 otherwise).
 
     Rows are time-major (by sample, then by vehicle in header order). Each field is laid
     out as a (samples, vehicles) grid; when every vehicle is present in every sample
@@ -319,7 +320,7 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
     if not ids or n == 0:
         empty = np.zeros(0)
         return {"t_s": empty, "vehicle_id": pa.array([], pa.string()), "x_m": empty, "y_m": empty,
-                "v_mps": empty, "lane": empty, "length_m": empty}, 0
+                "v_mps": empty, "lane": empty, "length_m": empty}, 0, 0
 
     x = _grid(table, [vehicles[vid]["x"] for vid in ids], n)
     present = ~np.isnan(x)
@@ -336,18 +337,24 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
     def pick(grid: np.ndarray) -> np.ndarray:
         return grid.reshape(-1) if everywhere else grid[present]
 
-    out = {"t_s": t_long, "vehicle_id": pa.array(ids, pa.string()).take(pa.array(codes))}
-    for fld, key, scale in (("x", "x_m", mapping.position_scale), ("v", "v_mps", mapping.speed_scale),
-                            ("lane", "lane", 1.0), ("y", "y_m", mapping.position_scale),
-                            ("length", "length_m", mapping.position_scale)):
+    def field(fld: str, scale: float) -> np.ndarray:
         names = [vehicles[vid].get(fld) for vid in ids]
         if not any(names):
-            vals = np.full(len(codes), DEFAULT_LENGTH_M if fld == "length" else np.nan)
-        else:
-            vals = pick(x if fld == "x" else _grid(table, names, n))
-            if scale != 1.0:
-                vals *= scale  # vals is a fresh array of ours
-        out[key] = vals
+            return np.full(len(codes), DEFAULT_LENGTH_M if fld == "length" else np.nan)
+        vals = pick(x if fld == "x" else _grid(table, names, n))
+        if scale != 1.0:
+            vals *= scale  # vals is a fresh array of ours
+        return vals
+
+    out = {"t_s": t_long}
+    fields = {"x_m": ("x", mapping.position_scale), "v_mps": ("v", mapping.speed_scale), "lane": ("lane", 1.0),
+              "y_m": ("y", mapping.position_scale), "length_m": ("length", mapping.position_scale)}
+    # the grids are numpy copies and transposes, which release the GIL: two at a time
+    with ThreadPoolExecutor(1) as pool:
+        later = {key: pool.submit(field, *fields[key]) for key in ("v_mps", "y_m")}
+        out["vehicle_id"] = pa.array(ids, pa.string()).take(pa.array(codes))
+        out.update({key: field(*fields[key]) for key in ("x_m", "lane", "length_m")})
+        out.update({key: f.result() for key, f in later.items()})
     for key, fld in (("v_mps", "v"), ("lane", "lane")):
         bad = np.isnan(out[key])
         if bad.any():
@@ -359,4 +366,4 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
     gaps = np.isnan(out["length_m"])
     if gaps.any():
         out["length_m"][gaps] = DEFAULT_LENGTH_M
-    return out, n_vehicles
+    return out, n_vehicles, k if everywhere else 0

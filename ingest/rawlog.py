@@ -33,6 +33,8 @@ class RawLog:
     has_button: bool = True  # whether the log records the lane-change button at all
     warnings: list[str] = field(default_factory=list)
     n_vehicles: int | None = None  # distinct traffic vehicles, when the reader knows it without counting
+    vehicle_grid: int = 0  # k when the reader knows the traffic rows are k vehicles in the same order at
+    # every sample (`values._vehicle_grid`); 0 when it does not
 
 
 def first_line(text: str, limit: int = 200) -> str:

@@ -295,7 +295,8 @@ def check_traffic_values(raw: RawLog, mapping: Mapping) -> list[str]:
         raw.traffic = tr = {k: (pa.array(a).filter(pa.array(keep)) if k == "vehicle_id" else a[keep])
                             for k, a in tr.items()}
         raw.n_vehicles = None
-    k = _vehicle_grid(pa.array(tr["vehicle_id"]), len(tr["t_s"]))
+    known = raw.vehicle_grid if not bad else 0  # dropping rows may break the reader's grid
+    k = known or _vehicle_grid(pa.array(tr["vehicle_id"]), len(tr["t_s"]))
     if k and raw.n_vehicles is None:
         raw.n_vehicles = k  # k vehicles in the same order at every sample: k distinct ids, nothing to count
     warnings += _traffic_jumps(tr, k)

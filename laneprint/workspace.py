@@ -100,12 +100,19 @@ def _write_parquet(df: pd.DataFrame, path: Path, dictionary: tuple[str, ...] = (
     """Write `df` as Parquet (snappy): the named columns dictionary-encoded, float columns
     BYTE_STREAM_SPLIT-encoded (measured: a third of the write time of plain or dictionary
     encoding of float columns, for files 5-25 % larger), other columns plain; no min/max
-    statistics (recordings are read whole: they serve no query, and cost ~15 % of the write)."""
+    statistics (recordings are read whole: they serve no query, and cost ~15 % of the write); data
+    pages of version 2 (a quarter less time than version 1 for the traffic of a 10-minute, 20-vehicle
+    log, the same size; pyarrow, pandas and DuckDB read both)."""
     table = _to_arrow(df)
     floats = [f.name for f in table.schema if pa.types.is_floating(f.type) and f.name not in dictionary]
     pq.write_table(table, path, use_dictionary=[c for c in dictionary if c in table.column_names],
                    column_encoding={c: "BYTE_STREAM_SPLIT" for c in floats} or None,
-                   write_statistics=False)
+                   write_statistics=False, data_page_version="2.0")
+
+
+def _validated_write(df: pd.DataFrame, schema: Schema, path: Path, dictionary: tuple[str, ...] = ()) -> None:
+    """`validate(df, schema)`, then `_write_parquet`."""
+    _write_parquet(validate(df, schema), path, dictionary)
 
 
 _RENAME_EXCHANGE = 2
@@ -188,18 +195,19 @@ class Workspace:
         """Store one recording atomically. Returns False if it was already there."""
         meta_df = validate(pd.DataFrame([meta]), RECORDINGS)
         validate(ego, EGO)
-        validate(traffic, TRAFFIC)
         rid = meta["recording_id"]
         final = self.recordings_dir / rid
         if final.exists():
             return False
         with self.staging() as tmp:
-            # the two tables are encoded side by side: pyarrow releases the GIL while it writes
+            # the traffic, by far the longest write, is checked and encoded on a thread of its own
+            # (pyarrow releases the GIL while it writes) while the ego and meta are written here
             with ThreadPoolExecutor(1) as pool:
-                egos = pool.submit(_write_parquet, ego, tmp / "ego.parquet", ("ego_lane",))
-                _write_parquet(traffic, tmp / "traffic.parquet", _TRAFFIC_DICT_COLUMNS)
+                traffics = pool.submit(_validated_write, traffic, TRAFFIC, tmp / "traffic.parquet",
+                                       _TRAFFIC_DICT_COLUMNS)
+                _write_parquet(ego, tmp / "ego.parquet", ("ego_lane",))
                 meta_df.to_parquet(tmp / "meta.parquet", index=False)
-                egos.result()
+                traffics.result()
             try:
                 os.rename(tmp, final)
             except OSError:  # another process stored the same bytes first

@@ -186,3 +186,31 @@ def test_bounds_met_in_numpy_agree_with_pandera():
     assert seen == {True, False}
     ints = pd.DataFrame({"ego_x_m": [1], "ego_v_mps": [1.0], "ego_lane": [1.0]})  # not float: pandera decides
     assert not _all_pass(ints, EGO_REQUIRED_SCHEMA)
+
+
+def test_a_csv_reader_s_vehicle_grid_warns_of_traffic_jumps_as_the_mcap_path_does(tmp_path, recording):
+    from ingest.pipeline import read_log
+
+    meta, ego, _ = recording
+    t = ego["t_s"].to_numpy()
+    n = len(t)
+    traffic = pd.DataFrame({
+        "t_s": np.repeat(t, 2), "vehicle_id": np.tile(["a", "b"], n),
+        "x_m": np.round(np.repeat(100 + 22 * t, 2) + np.tile([0.0, 40.0], n), 3),
+        "y_m": np.tile([0.0, 3.5], n), "v_mps": 22.0, "lane": np.tile([0, 1], n), "length_m": 4.5,
+    })
+    traffic.loc[2 * 50 + 1, "x_m"] += 50.0  # vehicle b jumps at sample 50 and back at 51
+    write_csv(tmp_path / "grid.csv", meta, ego, traffic)
+    assert read_log((tmp_path / "grid.csv").read_bytes(), "csv", IDENTITY).vehicle_grid == 2  # the reader knows it
+    for bad_speed in (False, True):  # with an impossible sample dropped, the rows are no longer a grid
+        tr = traffic.assign(v_mps=traffic["v_mps"].where(traffic.index != 20, 500.0)) if bad_speed else traffic
+        results = []
+        for ext, write in (("csv", write_csv), ("mcap", write_mcap)):
+            (tmp_path / f"{ext}{bad_speed}").mkdir()
+            results.append(_ingest(tmp_path / f"{ext}{bad_speed}", f"grid.{ext}", lambda p: write(p, meta, ego, tr))[0])
+        c, m = results
+        jumps = [w for w in c.warnings if "jumps" in w]
+        assert jumps == [w for w in m.warnings if "jumps" in w]
+        assert jumps == ["traffic vehicle 'b' jumps 50.44 m in 0.02 s at t=1.000 s, further than its speed allows "
+                         "(2 such jump(s) in 1 vehicle(s)); kept"]
+        assert any(w.startswith("traffic: dropped 1 of") for w in c.warnings) == bad_speed
