@@ -127,7 +127,8 @@ def analyze_command(
                            "most stable), ttc (the study's t_f, t_nf), paper (t_f, t_nf, dv_nb), headway (gap and "
                            "time headway to the leader), acceptance (those and the target lane's lead and lag "
                            "gaps), all, following (the time headway kept in steady car following over the "
-                           "whole drive: thw_follow), or a comma-separated list of indicators.")] = "auto",
+                           "whole drive, thw_follow, and the one accepted at the press, thw_f), or a "
+                           "comma-separated list of indicators.")] = "auto",
     flagged_lines: Annotated[str, typer.Option(
         "--flagged-lines", help="A flagged per-driver line (low R², slope interval spanning 0, few points) in the "
                                 "reference lines: level (the driver's median, A = 0) or ols (as fitted, the "

@@ -21,11 +21,13 @@ INDICATOR_SETS: dict[str, tuple[str, ...]] = {
     "headway": ("gap_f", "thw_f"),
     "acceptance": ("gap_f", "thw_f", "gap_nf", "gap_nb", "thw_nb"),
     "all": ("t_f", "t_nf", "gap_f", "thw_f", "gap_nf", "gap_nb", "thw_nb"),
-    "following": ("thw_follow", "gap_f", "thw_f"),
+    # gap_f is left out: it is thw_f times the ego speed, the same press read twice, which
+    # outvoted the headway kept (README, issue 18: acceptance studies 625 and 627 at 15 min)
+    "following": ("thw_follow", "thw_f"),
 }
-#: The sets 'auto' chooses from. 'following' holds 'headway' and the headway kept over the
-#: whole drive; where a study has no steady following, its thw_follow is imputed alike for
-#: every driver and it reads as 'headway', so 'headway' itself is not a candidate.
+#: The sets 'auto' chooses from. 'following' holds the headway accepted at the press and the
+#: headway kept over the whole drive; where a study has no steady following, its thw_follow is
+#: imputed alike for every driver and it reads as thw_f, so 'headway' is not a candidate.
 AUTO_CANDIDATES: tuple[str, ...] = ("ttc", "following", "acceptance", "all")
 #: What a flagged line becomes in the reference lines (`AnalysisSettings.flagged_lines`).
 FLAGGED_LINES: tuple[str, ...] = ("level", "ols")

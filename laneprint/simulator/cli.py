@@ -25,7 +25,7 @@ DecisionsOpt = Annotated[Optional[int], typer.Option(
 EngineOpt = Annotated[str, typer.Option(
     "--engine", help="synthetic (laneprint's generator) or sumo (Eclipse SUMO's models decide).")]
 MinutesOpt = Annotated[Optional[float], typer.Option(
-    "--minutes", help="Minutes of driving per section (sumo; default 5).")]
+    "--minutes", help="Minutes of driving per section (sumo; default 5, 15 for --family acceptance).")]
 FamilyOpt = Annotated[Optional[str], typer.Option(
     "--family", help="sumo study family: ttc (default; styles differ in the times to collision they accept) or "
                      "acceptance (IDM drivers whose styles differ in the gaps and headways they accept; most presses "

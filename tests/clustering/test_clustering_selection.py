@@ -61,7 +61,8 @@ def test_auto_reads_gap_accepting_drivers_by_their_gaps():
     assert chosen in ("following", "acceptance") and fs.loc[chosen, "score"] > fs.loc["ttc", "score"]
     assert ari(out, truth) == 1.0
     assert list(out["styles"].sort_values("driver_id")["style"][:3]) == ["Defensive", "Normal", "Aggressive"]
-    assert any(c.startswith("gap_f_at_") and c.endswith("kph_m") for c in out["styles"].columns)
+    # read by the headway accepted at the press (the gap at the ego's speed)
+    assert any(c.startswith("thw_f_at_") and c.endswith("kph_s") for c in out["styles"].columns)
     # the study's TTCs alone do not separate them
     assert ari(analyze_tables(dec, AnalysisSettings(features="ttc", n_bootstrap=0)), truth) < 0.6
 

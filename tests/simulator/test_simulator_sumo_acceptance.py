@@ -35,6 +35,9 @@ def test_families_default_first_and_settings_per_family():
     acc = family_settings("acceptance")
     assert acc.family == "acceptance" and acc.car_follow_model == "IDM" and acc.ahead_streams == ("slow",)
     assert family_settings("acceptance", minutes=2).minutes == 2
+    # gap-waiting drivers press a third as often: their studies drive three times as long by default
+    assert (family_settings("ttc").minutes, family_settings("acceptance").minutes) == (5.0, 15.0)
+    assert family_settings("acceptance", 3).minutes == 15.0
     with pytest.raises(ValueError, match="unknown family"):
         family_settings("nope")
     assert FAMILY_STYLE_PARAMS["ttc"] is STYLE_PARAMS and FAMILY_STYLE_PARAMS["acceptance"] is ACCEPTANCE_STYLE_PARAMS

@@ -109,10 +109,14 @@ class SumoSettings:
 #: What each family changes in `SumoSettings()` (the default family changes nothing). `acceptance`:
 #: IDM for the ego; slower right-lane vehicles with wavering speeds, and a busy left lane fed from
 #: behind by cars near the limit, so the ego mostly follows a leader at its own speed and waits for a
-#: gap it accepts before changing left, and returns right when the right lane has room.
+#: gap it accepts before changing left, and returns right when the right lane has room. Its drivers
+#: wait for gaps, so they press about a third as often as the `ttc` family's: 15 minutes a section
+#: give a study about as many presses as the third simulator's study of issue 18 (SUMO.md, "Study
+#: length").
 FAMILY_OVERRIDES: dict[str, dict[str, Any]] = {
     "ttc": {},
     "acceptance": {
+        "minutes": 15.0,
         "car_follow_model": "IDM",
         "background_sigma": 0.3,
         "ahead_streams": ("slow",),
