@@ -123,7 +123,8 @@ class AnalysisSettings:
     headway to the leader the driver pulls out from, 'acceptance': those and the lead
     and lag gaps in the target lane, 'all': TTCs and acceptance, 'following': the
     headway the driver keeps in steady car following over the whole drive, `thw_follow`
-    (`indicators.following`), with 'headway'), a comma-separated list of indicators, or
+    (`indicators.following`), with the one it accepts at the press, `thw_f`), a
+    comma-separated list of indicators, or
     'auto': each of `AUTO_CANDIDATES` is clustered and the one whose styles are best
     separated and most stable is used (`clustering.selection`)."""
     auto_margin: float = 1.25
