@@ -17,8 +17,8 @@ analysis assigns to the agent's drive; then whether issue 19's closed-loop accep
 (per style: no collision, its own style, lane changes per km within +-20 % of its drivers',
 every median inside their IQR) and a JSON line with every figure.
 
-Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--drive-seed 1] [--drivers 9] [--minutes 10]
-                                      [--workdir /tmp/lp-closed-loop]
+Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--family ttc|acceptance] [--drive-seed 1]
+                                      [--drivers 9] [--minutes 10] [--workdir /tmp/lp-closed-loop]
 
 Sides not taken (issue 19, three lanes): on an analysed workspace of a SUMO study,
 one agent of a style per `EnvConfig.other_side` setting (`train --other-side` and
@@ -215,6 +215,7 @@ def main() -> None:
                          "default mode: of the study and the drives (default 2)")
     ap.add_argument("--drive-seeds", type=int, nargs="+", default=[460, 461], help="--sides: seeds of the drives")
     ap.add_argument("--drive-seed", type=int, default=1, help="seed of the drives' traffic (default mode)")
+    ap.add_argument("--family", default="ttc", help="default mode: the SUMO study family of the study and the drives")
     ap.add_argument("--out-of-world", action="store_true",
                     help="the shipped study's agents in SUMO against SUMO's own model of their style")
     args = ap.parse_args()
@@ -243,10 +244,10 @@ def closed_loop(args: argparse.Namespace) -> bool:
     lanes = str((args.lanes or [2])[0])
     t0 = time.monotonic()
     cli("simulate", "--engine", "sumo", "--out", str(study), "--drivers", str(args.drivers),
-        "--seed", str(args.seed), "--lanes", lanes)
+        "--seed", str(args.seed), "--lanes", lanes, "--family", args.family)
     cli("ingest", str(study), "-w", str(ws))
     first = cli("analyze", "-w", str(ws))
-    print(f"study: {args.drivers} drivers, seed {args.seed}, {lanes} lanes; styles "
+    print(f"study: {args.drivers} drivers, seed {args.seed}, {lanes} lanes, family {args.family}; styles "
           + ", ".join(f"{d} {v['style']}" for d, v in first["drivers"].items()), flush=True)
     drives = {}
     for style in STYLES:
@@ -254,14 +255,15 @@ def closed_loop(args: argparse.Namespace) -> bool:
                   "-w", str(ws))
         driver = f"agent-{style.lower()}"
         drives[style] = cli("drive", run["run_id"], "--engine", "sumo", "--minutes", f"{args.minutes:g}",
-                            "--seed", str(args.drive_seed), "--lanes", lanes, "--driver-id", driver,
+                            "--seed", str(args.drive_seed), "--lanes", lanes, "--family", args.family,
+                            "--driver-id", driver,
                             "--no-sumo-model", "--out", str(work / "drives" / driver), "-w", str(ws))
         print(f"{style}: trained {run['episodes']} episodes in {run['wall_s']} s; drove "
               f"{drives[style]['totals']['lane_changes']} lane changes", flush=True)
     for style, d in drives.items():
         cli("ingest", *d["files"], "--driver", d["driver_id"], "-w", str(ws))
     final = cli("analyze", "-w", str(ws))
-    print(f"\n## Closed loop in SUMO (study seed {args.seed}, drive seed {args.drive_seed}, {lanes} lanes, "
+    print(f"\n## Closed loop in SUMO (study seed {args.seed}, family {args.family}, drive seed {args.drive_seed}, {lanes} lanes, "
           f"{args.minutes:g} min per section, 4 sections, {time.monotonic() - t0:.0f} s in all)")
     print("| style | lane changes (L/R) | per km [95 %] | drivers per km [95 %] (range) | ratio | left share: "
           "agent / drivers | medians in drivers' IQR | collisions | emergency brakes | assigned style |")
@@ -290,7 +292,8 @@ def closed_loop(args: argparse.Namespace) -> bool:
         print(f"{what}: {sum(c[key] for c in checks)} of 3")
     ok = all(all(v for k, v in c.items() if k != "style") for c in checks)
     print("acceptance:", "met" if ok else "NOT met")
-    print(json.dumps({"seed": args.seed, "drive_seed": args.drive_seed, "lanes": int(lanes), "checks": checks,
+    print(json.dumps({"seed": args.seed, "family": args.family, "drive_seed": args.drive_seed, "lanes": int(lanes),
+                      "checks": checks,
                       "fidelity": {s: d["fidelity"] for s, d in drives.items()}}))
     return ok
 

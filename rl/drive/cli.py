@@ -33,6 +33,9 @@ def drive_command(
     lanes: Annotated[int, typer.Option(
         "--lanes", help="Lanes of the highway: 2 (default) or 3; in a middle lane the agent is asked about "
                         "each side and takes the one with the larger advantage Q(change) - Q(keep).")] = 2,
+    family: Annotated[str, typer.Option(
+        "--family", help="SUMO traffic and style vTypes of a study family: ttc (default) or acceptance "
+                         "(laneprint simulate --family); use that of the study the agent learnt from.")] = "ttc",
     driver_id: Annotated[Optional[str], typer.Option("--driver-id", help="driver_id of the logs (default agent-RUN_ID).")] = None,
     held_back: Annotated[bool, typer.Option(
         "--held-back/--no-held-back",
@@ -61,7 +64,7 @@ def drive_command(
         with progress_bar(not as_json) as bar:
             return drive_run(Workspace(workspace), run_id, minutes=minutes, seed=seed, sections=section, out=out,
                              driver_id=driver_id, analyze=analyze, lanes=lanes, held_back=held_back,
-                             sumo_model=sumo_model, dwell=dwell, progress=bar)
+                             sumo_model=sumo_model, dwell=dwell, family=family, progress=bar)
 
     run_command(work, as_json, render)
 
@@ -122,7 +125,8 @@ def render_fidelity(fid: dict[str, Any], console: Console) -> None:
 def render(result: dict[str, Any], console: Console) -> None:
     """The drive's tables: per section, then the indicators at the agent's decisions against its lines."""
     t = Table(title=f"{result['run_id']} ({result['target']['kind']} {result['target']['name']}) in SUMO "
-                    f"{result['sumo_version']}: {result.get('lanes', 2)} lanes, {result['minutes']:g} min per section, "
+                    f"{result['sumo_version']}: {result.get('lanes', 2)} lanes, {result.get('family', 'ttc')} traffic, "
+                    f"{result['minutes']:g} min per section, "
                     f"seed {result['seed']}, "
                     f"ego vType {result['ego_style']}, asked every {result['decision_every_s']:g} s")
     cols = ("section", "asked", "decided", "lane changes (L/R)", "agent / rule", "per km", "not started",

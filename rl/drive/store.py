@@ -238,17 +238,24 @@ _NEVER = _never()
 def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed: int = 0,
               sections: Optional[list[float]] = None, out: Optional[Path] = None,
               driver_id: Optional[str] = None, analyze: bool = False, lanes: int = 2,
-              held_back: bool = True, sumo_model: bool = True, dwell: bool = True,
+              held_back: bool = True, sumo_model: bool = True, dwell: bool = True, family: str = "ttc",
               progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
+
+    `family`: the SUMO study family whose traffic and style vTypes the drive uses
+    (`laneprint.simulator.sumo.settings.FAMILIES`): that of the study the agent learnt from, so that
+    the drive and its drivers are in the same kind of traffic.
 
     `held_back`: the assistant's held-back rule acts beside the agent (False: the pure agent; the rule's
     figures are still measured). `sumo_model`: also drive SUMO's own model of the style (the comparator).
     `dwell=False`: the rule without its dwell after a lane change (`HeldBackRule.dwell_s` emptied)."""
     from laneprint.simulator.sumo.backend import check_available
-    from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, LANES, family_settings
-    from laneprint.simulator.sumo.styles import STYLE_PARAMS
+    from laneprint.simulator.sumo.settings import FAMILIES, LANES, family_settings
+    from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS
 
+    if family not in FAMILIES:
+        raise UserError(f"unknown --family {family!r}; choose one of {', '.join(FAMILIES)}")
+    style_params = FAMILY_STYLE_PARAMS[family]
     if lanes not in LANES:
         raise UserError(f"--lanes {lanes}: a SUMO highway has {' or '.join(map(str, LANES))} lanes")
     if not 0 < minutes <= 120:
@@ -264,11 +271,11 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
         raise UserError(f"--out {out} exists and is not a folder")
     check_available()
     style, why = ego_style(workspace, target)
-    settings = family_settings(DEFAULT_FAMILY, lanes, speed_limits_kph=limits, minutes=minutes)
+    settings = family_settings(family, lanes, speed_limits_kph=limits, minutes=minutes)
     rule, rule_note = held_back_rule(workspace, target, cfg)
     if rule is not None and not dwell:
         rule = replace(rule, dwell_s={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
-    drives = drive_sections(agent_q(net, cfg), cfg, STYLE_PARAMS[style], settings, seed, progress, rule,
+    drives = drive_sections(agent_q(net, cfg), cfg, style_params[style], settings, seed, progress, rule,
                             use_rule=held_back)
     lanes_opt = "" if lanes == 2 else f", {lanes} lanes"
     simulator = f"Eclipse SUMO {drives[0].log.sumo_version} (laneprint drive {run_id}, seed {seed}{lanes_opt})"
@@ -281,12 +288,12 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     result: dict[str, Any] = {
         "run_id": run_id, "target": config["target"], "driver_id": driver_id, "seed": seed, "minutes": minutes,
         "sumo_version": drives[0].log.sumo_version, "sumo_api": drives[0].log.api,
-        "ego_style": style, "ego_style_reason": why, "decision_every_s": cfg.dt_s, "lanes": lanes,
+        "ego_style": style, "ego_style_reason": why, "decision_every_s": cfg.dt_s, "lanes": lanes, "family": family,
         "side_input": cfg.observation == "direction",
         "files": [str(p) for p in paths], "sections": rows, "totals": totals(rows),
         "held_back": {"on": bool(held_back and rule is not None), "rule": rule.to_dict() if rule else None,
                       "note": rule_note, "desired_speed": f"section limit x speedFactor "
-                                                          f"{STYLE_PARAMS[style].get('speedFactor', 1.0):g} "
+                                                          f"{style_params[style].get('speedFactor', 1.0):g} "
                                                           f"(the {style} vType)"},
         "changes_by_lane": _sum_counts([r["changes_by_lane"] for r in rows]),
         "indicators": indicators_vs_lines(drives, cfg.lines),
@@ -294,7 +301,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     }
     result["fidelity"] = drivers_fidelity(workspace, target, recs, seed)
     if sumo_model:
-        model = sumo_model_sections(cfg, STYLE_PARAMS[style], settings, seed, rule or _NEVER, progress)
+        model = sumo_model_sections(cfg, style_params[style], settings, seed, rule or _NEVER, progress)
         result["sumo_model"] = sumo_model_report(model, result["totals"])
     if analyze:
         result["analysis"] = assigned_style(workspace, paths, driver_id)

@@ -257,3 +257,18 @@ def test_drive_on_three_lanes(trained, tmp_path):
 def _ingested(folder: Path, ws: Path) -> list:
     _invoke("ingest", str(folder), "--driver", "agent", "-w", str(ws))
     return list(Workspace(ws).iter_recordings())
+
+
+@pytest.mark.slow
+def test_drive_in_the_traffic_and_vtypes_of_another_family(trained, tmp_path):
+    from laneprint.simulator.sumo.styles import ACCEPTANCE_STYLE_PARAMS, STYLE_PARAMS
+
+    ws, run_id = trained
+    res = _invoke("drive", run_id, "--engine", "sumo", "--family", "acceptance", "--minutes", "1", "--section", "90",
+                  "--seed", "1", "--no-sumo-model", "--out", str(tmp_path / "acc"), "-w", str(ws))
+    factor = ACCEPTANCE_STYLE_PARAMS["Aggressive"]["speedFactor"]
+    assert factor != STYLE_PARAMS["Aggressive"]["speedFactor"]  # else this test could not tell the families apart
+    assert res["family"] == "acceptance" and f"speedFactor {factor:g} " in res["held_back"]["desired_speed"]
+    assert res["totals"]["collisions"] == 0 and res["totals"]["km"] > 0
+    bad = runner.invoke(app, ["drive", run_id, "--family", "nope", "-w", str(ws)])
+    assert bad.exit_code == 1 and "unknown --family 'nope'" in bad.output and "Traceback" not in bad.output
