@@ -97,17 +97,26 @@ def target_lanes(ego_lane: np.ndarray, top_lane: int) -> np.ndarray:
 
 
 def decision_steps(ego: pd.DataFrame, traffic: pd.DataFrame, cfg: EnvConfig,
-                   settings: AnalysisSettings | None = None) -> tuple[pd.DataFrame, Scene]:
-    """One row per agent step (t_s, ego_lane, target_lane, status, neighbour ids) and its scenes."""
+                   settings: AnalysisSettings | None = None, side: int | None = None) -> tuple[pd.DataFrame, Scene]:
+    """One row per agent step (t_s, ego_lane, target_lane, status, neighbour ids) and its scenes.
+
+    `side`: None asks about the lane `target_lanes` picks; +1 / -1 about the lane to the left / right
+    (status 'no_target_lane' where there is none), with the side in the scenes as `drive` has it."""
     settings = settings or AnalysisSettings()
     ego = ego.sort_values("t_s", kind="mergesort").reset_index(drop=True)
     t0, t1 = float(ego["t_s"].iloc[0]), float(ego["t_s"].iloc[-1])
     grid = t0 + cfg.dt_s * np.arange(int(np.floor((t1 - t0) / cfg.dt_s + 1e-9)) + 1)
     e = ego_at(pd.DataFrame({"state": np.arange(len(grid)), "t_s": grid}), ego)
     lanes = [int(ego["ego_lane"].max())] + ([int(traffic["lane"].max())] if len(traffic) else [])
-    e["target_lane"] = target_lanes(e["ego_lane"].to_numpy(dtype=np.int64), max(lanes))
+    lane = e["ego_lane"].to_numpy(dtype=np.int64)
+    if side is None:
+        e["target_lane"] = target_lanes(lane, max(lanes))
+    else:
+        e["target_lane"] = np.where((lane + side >= 0) & (lane + side <= max(lanes)), lane + side, -1)
     cols = neighbours(e, traffic, settings)
     rows = pd.DataFrame({"ego_x_m": e["ego_x_m"], "ego_v_mps": e["ego_v_mps"]})
+    if side is not None:  # the scenes know their side ('direction' observation)
+        rows["ego_lane"], rows["target_lane"] = lane, e["target_lane"].to_numpy(dtype=np.int64)
     for role in ("f", "nf", "nb"):
         rows[f"{role}_present"] = ~np.isnan(cols[f"{role}_x_m"])
         for k in ("x_m", "v_mps", "gap_m"):

@@ -34,6 +34,7 @@ import os
 import shutil
 import uuid
 import warnings
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -44,9 +45,10 @@ from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.drive.heldback import ACCEPT_INDICATORS, rule_from_analysis
+from rl.drive.pace import pace_threshold
 from rl.problem.env import EnvConfig, observation, sample_scenes
 from rl.problem.observation import ACTIONS, ROLES, constants, observation_spec
-from rl.runs import Target, load_weights, recorded_approaches, run_dir
+from rl.runs import Target, load_weights, recorded_approaches, run_dir, target_drivers
 from rl.problem.scene import Scene
 
 FORMATS = ("onnx",)
@@ -140,18 +142,29 @@ HELD_BACK_HOW = (
     "took: 5th percentile of its presses; null: no floor). And no change at all sooner after the ego's last "
     "lane change (the moment it crossed into its lane) than dwell_s says for that pair of sides "
     "('left>right': a change to the right after one to the left; a pair missing: no wait): the policy decides "
-    "state by state without memory, the drivers do not press again at once.")
+    "state by state without memory, the drivers do not press again at once. The policy's own change is taken "
+    "only when q_change - q_keep >= min_advantage (its drivers' pace: replayed along their logs, the policy "
+    "then starts wanting a change no more often than they pressed).")
 
 
-def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig) -> dict[str, Any]:
-    """The held-back rule of the run's target for policy.json: its numbers and how to apply it."""
+def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig,
+                   net: torch.nn.Module | None = None) -> dict[str, Any]:
+    """The held-back rule of the run's target for policy.json: its numbers and how to apply it (with
+    `net`, the policy's pace, `rl.drive.pace`, as `drive` applies it)."""
     try:
         rule = rule_from_analysis(workspace, target, cfg.dt_s)
     except (ValueError, KeyError, UserError, FileNotFoundError) as exc:
         return {"available": False, "why": str(exc)}
+    try:
+        drivers = target_drivers(workspace, target)[0] if net is not None else None
+    except UserError:
+        drivers = None
+    if drivers:
+        pace = pace_threshold(workspace, drivers, net, cfg)
+        rule = replace(rule, min_advantage=pace["min_advantage"], source={**rule.source, "min_advantage": pace["note"]})
     return {"available": True, "how": HELD_BACK_HOW, "units": {"patience_s": "s", "slower_mps": "m/s",
             "gap_nf": "m", "gap_nb": "m", "thw_nb": "s", "far_follower_m": "m", "t_nf_floor_s": "s", "dv_nb_floor_mps": "m/s", "dwell_s": "s",
-            "v_lo": "m/s", "v_hi": "m/s"},
+            "min_advantage": "Q units", "v_lo": "m/s", "v_hi": "m/s"},
             "desired_speed": "the driver's set speed; `laneprint drive` uses the section's limit x the ego "
                              "vType's SUMO speedFactor", "range_m": cfg.range_m, **rule.to_dict()}
 
@@ -247,6 +260,7 @@ assistant therefore also applies this rule (`laneprint drive` does by default;
 - t_nf_floor_s = {rule['t_nf_floor_s']:.3g} s ({rule['source'].get('t_nf_floor_s', '')})
 - dv_nb_floor_mps = {_num(rule.get('dv_nb_floor_mps'), ' m/s')} ({rule['source'].get('dv_nb_floor_mps', '')})
 - dwell_s = {', '.join(f"{k} {v:.3g} s" for k, v in rule.get('dwell_s', {}).items()) or 'none'} ({rule['source'].get('dwell_s', '')})
+- min_advantage = {rule.get('min_advantage', 0.0):g} ({rule['source'].get('min_advantage', 'the policy as trained')})
 - slower_mps = {rule['slower_mps']:g} m/s, far_follower_m = {rule['far_follower_m']:g} m,
   range_m = {rule['range_m']:g} m; desired speed: {rule['desired_speed']}
 
@@ -314,7 +328,7 @@ def export_run(workspace: Workspace, run_id: str, fmt: str = "onnx", out: Path |
     if not checks["passed"]:
         raise UserError(f"ONNX check failed: max |Q_onnxruntime - Q_torch| = {worst:.3g} > {TOLERANCE:g}; "
                         "nothing written")
-    doc = _describe(config, cfg, checks, held_back_rule(workspace, target, cfg))
+    doc = _describe(config, cfg, checks, held_back_rule(workspace, target, cfg, net))
     report(progress, 2, 3, "writing")
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = final.with_name(f".{final.name}.tmp-{uuid.uuid4().hex[:8]}")

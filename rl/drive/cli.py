@@ -46,6 +46,11 @@ def drive_command(
         "--dwell/--no-dwell",
         help="With the held-back rule: no change sooner after a lane change than the target's drivers pressed "
              "(default on; README, 'Driving like its drivers'). --no-dwell: without that wait.")] = True,
+    pace: Annotated[bool, typer.Option(
+        "--pace/--no-pace",
+        help="With the held-back rule: the agent's own change needs the advantage at which, replayed along its "
+             "drivers' recordings, it starts wanting a change no more often than they pressed (default on; "
+             "rl/drive/pace.py). --no-pace: any advantage of at least 0.")] = True,
     sumo_model: Annotated[bool, typer.Option(
         "--sumo-model/--no-sumo-model",
         help="Also drive the same ego with SUMO's own lane-change model of its style in the same traffic and "
@@ -64,7 +69,7 @@ def drive_command(
         with progress_bar(not as_json) as bar:
             return drive_run(Workspace(workspace), run_id, minutes=minutes, seed=seed, sections=section, out=out,
                              driver_id=driver_id, analyze=analyze, lanes=lanes, held_back=held_back,
-                             sumo_model=sumo_model, dwell=dwell, family=family, progress=bar)
+                             sumo_model=sumo_model, dwell=dwell, family=family, pace=pace, progress=bar)
 
     run_command(work, as_json, render)
 
@@ -158,6 +163,12 @@ def render(result: dict[str, Any], console: Console) -> None:
                       highlight=False, soft_wrap=True)
     else:
         console.print(hb.get("note", "no held-back rule"), highlight=False, soft_wrap=True)
+    pace = result.get("pace") or {}
+    if "min_advantage" in pace:
+        console.print(f"pace: the agent's own change needs an advantage of at least {pace['min_advantage']:g} "
+                      f"({pace['note']})", highlight=False, soft_wrap=True)
+    elif pace:
+        console.print(f"pace: {pace['note']}", highlight=False, soft_wrap=True)
     if "sumo_model" in result:
         render_model(result, console)
     if result.get("lanes", 2) > 2:

@@ -102,6 +102,7 @@ class HeldBackRule:
     t_nf_floor_s: float = 0.0  # [s] no change closing in on the target lane's leader faster than this
     dv_nb_floor_mps: float = -np.inf  # [m/s] no change in front of a follower closing faster than -this (<= 0)
     dwell_s: dict[str, float] = field(default_factory=dict)  # 'left>right' etc.: least time from a change to the next
+    min_advantage: float = 0.0  # the agent's own change needs Q(change) - Q(keep) at least this (rl.drive.pace)
     source: dict[str, str] = field(default_factory=dict)
 
     def dwell_ok(self, last_side: Optional[str], since_s: float, side: str) -> bool:

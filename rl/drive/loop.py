@@ -92,17 +92,18 @@ def advantages(q: np.ndarray) -> np.ndarray:
     return q[:, CHANGE] - q[:, KEEP]
 
 
-def choose_side(adv: dict[int, float]) -> Optional[int]:
-    """The target lane with the largest advantage when it is not negative, else None (keep).
+def choose_side(adv: dict[int, float], threshold: float = 0.0) -> Optional[int]:
+    """The target lane with the largest advantage when it reaches `threshold`, else None (keep).
 
-    `adv` maps each neighbouring lane to Q(change) - Q(keep) of the scene asking about it. A
-    tie with keep (advantage exactly 0) counts as change, as training's argmax does; a tie
-    between two sides goes to the lower lane (the right one: keep right).
+    `adv` maps each neighbouring lane to Q(change) - Q(keep) of the scene asking about it. With the
+    default threshold 0 a tie with keep counts as change, as training's argmax does; a tie
+    between two sides goes to the lower lane (the right one: keep right). The assistant raises the
+    threshold to the target drivers' pace (`HeldBackRule.min_advantage`, `rl.drive.pace`).
     """
     if not adv:
         return None
     lane = max(sorted(adv), key=lambda k: adv[k])  # max keeps the first of equals: the lower lane
-    return lane if adv[lane] >= 0 else None
+    return lane if adv[lane] >= threshold else None
 
 
 def live_scene(ego: VehicleState, others: dict[str, VehicleState], target: int) -> tuple[Scene, dict[str, Any]]:
@@ -244,7 +245,8 @@ class AgentControl(Watch):
                 asked, adv = {k: asked[k] for k in keep}, {k: adv[k] for k in keep}
                 if not asked:
                     return
-        target, source = self.assist(choose_side(adv), asked, held, held_for, ego, others)
+        threshold = self.rule.min_advantage if self.use_rule else 0.0
+        target, source = self.assist(choose_side(adv, threshold), asked, held, held_for, ego, others)
         if target is None:
             return
         scene, ids = asked[target]

@@ -210,6 +210,18 @@ def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig) -> tupl
         return None, f"no held-back rule: {exc}"
 
 
+def rule_pace(workspace: Workspace, target: Target, net: Any, cfg: EnvConfig) -> Optional[dict[str, Any]]:
+    """The advantage the agent's own changes need to keep its drivers' pace (`rl.drive.pace`); None
+    when the target's drivers are not known."""
+    from rl.drive.pace import pace_threshold
+
+    try:
+        drivers, _ = target_drivers(workspace, target)
+    except UserError:
+        return None
+    return pace_threshold(workspace, drivers, net, cfg)
+
+
 def drivers_fidelity(workspace: Workspace, target: Target, recs: list[tuple[dict, Any, Any]],
                      seed: int) -> dict[str, Any]:
     """The drive beside the target drivers' recordings and presses (`rl.drive.fidelity`); with `note`
@@ -239,7 +251,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
               sections: Optional[list[float]] = None, out: Optional[Path] = None,
               driver_id: Optional[str] = None, analyze: bool = False, lanes: int = 2,
               held_back: bool = True, sumo_model: bool = True, dwell: bool = True, family: str = "ttc",
-              progress: Optional[ProgressFn] = None) -> dict[str, Any]:
+              pace: bool = True, progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
 
     `family`: the SUMO study family whose traffic and style vTypes the drive uses
@@ -248,7 +260,9 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
 
     `held_back`: the assistant's held-back rule acts beside the agent (False: the pure agent; the rule's
     figures are still measured). `sumo_model`: also drive SUMO's own model of the style (the comparator).
-    `dwell=False`: the rule without its dwell after a lane change (`HeldBackRule.dwell_s` emptied)."""
+    `dwell=False`: the rule without its dwell after a lane change (`HeldBackRule.dwell_s` emptied).
+    `pace=False`: the agent's own changes need only a positive advantage, not its drivers' pace
+    (`HeldBackRule.min_advantage`, `rl.drive.pace`)."""
     from laneprint.simulator.sumo.backend import check_available
     from laneprint.simulator.sumo.settings import FAMILIES, LANES, family_settings
     from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS
@@ -275,6 +289,9 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     rule, rule_note = held_back_rule(workspace, target, cfg)
     if rule is not None and not dwell:
         rule = replace(rule, dwell_s={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
+    paced = rule_pace(workspace, target, net, cfg) if rule is not None and pace else None
+    if paced is not None:
+        rule = replace(rule, min_advantage=paced["min_advantage"], source={**rule.source, "min_advantage": paced["note"]})
     drives = drive_sections(agent_q(net, cfg), cfg, style_params[style], settings, seed, progress, rule,
                             use_rule=held_back)
     lanes_opt = "" if lanes == 2 else f", {lanes} lanes"
@@ -295,6 +312,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
                       "note": rule_note, "desired_speed": f"section limit x speedFactor "
                                                           f"{style_params[style].get('speedFactor', 1.0):g} "
                                                           f"(the {style} vType)"},
+        "pace": paced or {"note": "off (--no-pace)" if rule is not None else "no held-back rule"},
         "changes_by_lane": _sum_counts([r["changes_by_lane"] for r in rows]),
         "indicators": indicators_vs_lines(drives, cfg.lines),
         "decisions": [{"speed_limit_kph": d.speed_limit_kph, **asdict(x)} for d in drives for x in d.decisions],

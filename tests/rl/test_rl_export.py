@@ -119,3 +119,8 @@ def test_export_carries_the_held_back_rule(trained_run, tmp_path, monkeypatch):
             assert documented == float(getattr(rule, k).at(v))
     text = (tmp_path / "rule" / "README.md").read_text()
     assert "Held-back rule" in text and "5.5 s" in text and "`gap_nb`" in text
+    # the policy's pace, as drive applies it, documented with where it came from (the shared workspace
+    # holds a recording of D01 or none, depending on which tests ran before)
+    why = hb["source"]["min_advantage"]
+    assert hb["min_advantage"] >= 0 and ("replayed along" in why or "no recording with presses" in why)
+    assert "min_advantage" in hb["how"] and f"min_advantage = {hb['min_advantage']:g}" in text

@@ -1,0 +1,30 @@
+"""The drivers' pace: the advantage an agent's own change needs (`rl.drive.pace`, `choose_side`)."""
+
+import numpy as np
+
+from rl.drive.loop import choose_side
+from rl.drive.pace import lowest_threshold, onsets
+
+
+def test_an_onset_is_the_start_of_a_run_of_wanting_a_change():
+    a = np.array([-1.0, 0.2, 0.6, 0.1, 0.7, 0.8, -np.inf, 0.9])
+    assert onsets([a], 0.0) == 2  # from the start of the 0.2 run and after the -inf step
+    assert onsets([a], 0.5) == 3  # 0.6, then 0.7-0.8, then 0.9
+    assert onsets([a, a], 0.5) == 6 and onsets([a], 1.0) == 0
+    assert onsets([np.array([0.4, 0.4])], 0.0) == 1  # wanting from the first step counts once
+
+
+def test_the_threshold_is_the_lowest_whose_onsets_do_not_exceed_the_presses():
+    # a run that wants a change in short bursts at low advantage and once for long at a high one
+    a = np.array([0.1, -1, 0.1, -1, 0.1, -1, 0.1, -1, 0.9, 0.9, 0.9, -1])
+    tau, counts = lowest_threshold([a], presses=1)
+    assert counts[0.0] == 5 and counts[tau] <= 1 and tau == 0.15  # the first grid step above the bursts
+    assert lowest_threshold([a], presses=5)[0] == 0.0  # already at the drivers' pace: the agent as trained
+    never = lowest_threshold([np.full(4, 9.0)], presses=0)[0]
+    assert never == 3.0  # wants a change everywhere and its drivers never pressed: the largest tried
+
+
+def test_choose_side_needs_the_threshold():
+    assert choose_side({0: 0.3}) == 0 and choose_side({0: 0.0}) == 0 and choose_side({0: -0.1}) is None
+    assert choose_side({0: 0.3}, threshold=0.5) is None and choose_side({0: 0.6, 2: 0.55}, threshold=0.5) == 0
+    assert choose_side({0: 0.2, 2: 0.55}, threshold=0.5) == 2
