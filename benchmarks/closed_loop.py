@@ -17,7 +17,7 @@ analysis assigns to the agent's drive; then whether issue 19's closed-loop accep
 (per style: no collision, its own style, lane changes per km within +-20 % of its drivers',
 every median inside their IQR) and a JSON line with every figure.
 
-Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--family ttc|acceptance] [--drive-seed 1]
+Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--family ttc|acceptance] [--no-pace] [--drive-seed 1]
                                       [--drivers 9] [--minutes 10] [--workdir /tmp/lp-closed-loop]
 
 Sides not taken (issue 19, three lanes): on an analysed workspace of a SUMO study,
@@ -216,6 +216,7 @@ def main() -> None:
     ap.add_argument("--drive-seeds", type=int, nargs="+", default=[460, 461], help="--sides: seeds of the drives")
     ap.add_argument("--drive-seed", type=int, default=1, help="seed of the drives' traffic (default mode)")
     ap.add_argument("--family", default="ttc", help="default mode: the SUMO study family of the study and the drives")
+    ap.add_argument("--no-pace", action="store_true", help="default mode: drive without the drivers' pace (drive --no-pace)")
     ap.add_argument("--out-of-world", action="store_true",
                     help="the shipped study's agents in SUMO against SUMO's own model of their style")
     args = ap.parse_args()
@@ -256,7 +257,7 @@ def closed_loop(args: argparse.Namespace) -> bool:
         driver = f"agent-{style.lower()}"
         drives[style] = cli("drive", run["run_id"], "--engine", "sumo", "--minutes", f"{args.minutes:g}",
                             "--seed", str(args.drive_seed), "--lanes", lanes, "--family", args.family,
-                            "--driver-id", driver,
+                            *(["--no-pace"] if args.no_pace else []), "--driver-id", driver,
                             "--no-sumo-model", "--out", str(work / "drives" / driver), "-w", str(ws))
         print(f"{style}: trained {run['episodes']} episodes in {run['wall_s']} s; drove "
               f"{drives[style]['totals']['lane_changes']} lane changes", flush=True)
@@ -264,6 +265,7 @@ def closed_loop(args: argparse.Namespace) -> bool:
         cli("ingest", *d["files"], "--driver", d["driver_id"], "-w", str(ws))
     final = cli("analyze", "-w", str(ws))
     print(f"\n## Closed loop in SUMO (study seed {args.seed}, family {args.family}, drive seed {args.drive_seed}, {lanes} lanes, "
+          f"pace {'off' if args.no_pace else 'on'}, "
           f"{args.minutes:g} min per section, 4 sections, {time.monotonic() - t0:.0f} s in all)")
     print("| style | lane changes (L/R) | per km [95 %] | drivers per km [95 %] (range) | ratio | left share: "
           "agent / drivers | medians in drivers' IQR | collisions | emergency brakes | assigned style |")
