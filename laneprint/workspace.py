@@ -34,7 +34,7 @@ import uuid
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import duckdb
 import numpy as np
@@ -96,7 +96,7 @@ def _to_arrow(df: pd.DataFrame) -> pa.Table:
     return pa.Table.from_arrays(arrays, schema=schema)
 
 
-def _write_parquet(df: pd.DataFrame, path: Path, dictionary: tuple[str, ...] = ()) -> None:
+def _write_parquet(df: pd.DataFrame, path: Path | pa.NativeFile, dictionary: tuple[str, ...] = ()) -> None:
     """Write `df` as Parquet (snappy): the named columns dictionary-encoded, float columns
     BYTE_STREAM_SPLIT-encoded (measured: a third of the write time of plain or dictionary
     encoding of float columns, for files 5-25 % larger), other columns plain; no min/max
@@ -113,6 +113,23 @@ def _write_parquet(df: pd.DataFrame, path: Path, dictionary: tuple[str, ...] = (
 def _validated_write(df: pd.DataFrame, schema: Schema, path: Path, dictionary: tuple[str, ...] = ()) -> None:
     """`validate(df, schema)`, then `_write_parquet`."""
     _write_parquet(validate(df, schema), path, dictionary)
+
+
+def _write_traffic(traffic: pd.DataFrame, path: Path, encoded: Callable[[], bytes | None] | None) -> None:
+    data = encoded() if encoded is not None else None
+    if data is None:
+        _validated_write(traffic, TRAFFIC, path, _TRAFFIC_DICT_COLUMNS)
+    else:
+        path.write_bytes(data)
+
+
+def encode_traffic(traffic: pd.DataFrame) -> bytes:
+    """The TRAFFIC table as `write_recording` stores it (validated, then Parquet bytes): lets a caller
+    encode it while other work runs (`ingest.pipeline.parse_log` does it beside the ego checks);
+    `SchemaError` when it does not fit."""
+    buf = pa.BufferOutputStream()
+    _write_parquet(validate(traffic, TRAFFIC), buf, _TRAFFIC_DICT_COLUMNS)
+    return buf.getvalue().to_pybytes()
 
 
 _RENAME_EXCHANGE = 2
@@ -191,8 +208,12 @@ class Workspace:
     def has_recording(self, recording_id: str) -> bool:
         return (self.recordings_dir / recording_id / "meta.parquet").exists()
 
-    def write_recording(self, meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame) -> bool:
-        """Store one recording atomically. Returns False if it was already there."""
+    def write_recording(self, meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame,
+                        encoded_traffic: Callable[[], bytes | None] | None = None) -> bool:
+        """Store one recording atomically. Returns False if it was already there.
+
+        `encoded_traffic`: gives `encode_traffic(traffic)` when the caller has it (or is encoding it), or
+        None; called on the thread that writes the traffic, beside the other writes."""
         meta_df = validate(pd.DataFrame([meta]), RECORDINGS)
         validate(ego, EGO)
         rid = meta["recording_id"]
@@ -203,8 +224,7 @@ class Workspace:
             # the traffic, by far the longest write, is checked and encoded on a thread of its own
             # (pyarrow releases the GIL while it writes) while the ego and meta are written here
             with ThreadPoolExecutor(1) as pool:
-                traffics = pool.submit(_validated_write, traffic, TRAFFIC, tmp / "traffic.parquet",
-                                       _TRAFFIC_DICT_COLUMNS)
+                traffics = pool.submit(_write_traffic, traffic, tmp / "traffic.parquet", encoded_traffic)
                 _write_parquet(ego, tmp / "ego.parquet", ("ego_lane",))
                 meta_df.to_parquet(tmp / "meta.parquet", index=False)
                 traffics.result()

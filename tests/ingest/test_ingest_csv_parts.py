@@ -57,3 +57,12 @@ def test_errors_in_a_later_part_name_the_files_line(csv_bytes, monkeypatch):
 
     ragged = "\n".join(lines[:150] + [lines[150] + ",1"] + lines[151:]) + "\n"
     assert str(_read(ragged.encode(), 3, monkeypatch)) == "malformed CSV: line 151 has 30 fields, the header has 29"
+
+
+def test_vehicle_ids_of_a_grid_are_the_ids_repeated_per_sample():
+    """The ids of a log whose vehicles are present at every sample, built from Arrow buffers."""
+    ids = ["a", "V12", "é-7", ""]
+    got = csv_reader._tiled(ids, 3)
+    assert got.type == pa.string()
+    assert got.to_pylist() == ids * 3
+    assert csv_reader._tiled(ids, 0).to_pylist() == []

@@ -8,7 +8,7 @@ import pytest
 
 from laneprint.errors import UserError
 from laneprint.schemas import EGO, RECORDINGS, SchemaError, validate
-from laneprint.workspace import Workspace
+from laneprint.workspace import Workspace, encode_traffic
 
 
 def _recording(rid: str = "abcd1234abcd1234", driver: str = "D01"):
@@ -44,6 +44,17 @@ def test_recording_round_trip_and_catalogue(tmp_path):
     pd.testing.assert_frame_equal(e, ego)
     pd.testing.assert_frame_equal(t, traffic)
     assert not any(ws.root.joinpath(".tmp").iterdir())  # nothing left half written
+
+
+def test_traffic_encoded_beforehand_is_stored_as_encoded_here(tmp_path):
+    """Ingest encodes the traffic beside its checks; what is stored reads back as the table itself."""
+    meta, ego, traffic = _recording()
+    for i, encoded in enumerate((lambda: encode_traffic(traffic), lambda: None)):  # None: encoded here
+        ws = Workspace(tmp_path / f"ws{i}").ensure()
+        assert ws.write_recording(meta, ego, traffic, encoded) is True
+        pd.testing.assert_frame_equal(ws.load_recording(meta["recording_id"])[2], traffic)
+    with pytest.raises(SchemaError, match="x_m"):
+        encode_traffic(traffic.drop(columns=["x_m"]))
 
 
 def test_invalid_recording_is_not_written(tmp_path):
