@@ -172,17 +172,17 @@ class Parsed:
     reason: str = ""
 
 
-_ENCODER = ThreadPoolExecutor(1, thread_name_prefix="laneprint-encode")
-
-
 def parse_log(job: ParseJob) -> Parsed:
     """Read and validate one file's bytes into canonical tables; pure (no workspace, no file system)."""
     try:
         raw = read_log(job.data, job.fmt, job.mapping, job.limits, job.bag)
         traffic = traffic_frame(raw)
         # the traffic's Parquet encoding (pyarrow, mostly without the GIL) starts now and runs beside the
-        # checks and the store's other writes: measured, a fifth of a 10-minute, 20-vehicle CSV's ingest
-        encoding = _ENCODER.submit(encode_traffic, traffic)
+        # checks and the store's other writes (measured: 10-20 % off a 10-minute, 20-vehicle CSV's ingest
+        # wall time), on a thread of this call's own (a module-wide pool would be dead in a forked child)
+        encoder = ThreadPoolExecutor(1, thread_name_prefix="laneprint-encode")
+        encoding = encoder.submit(encode_traffic, traffic)
+        encoder.shutdown(wait=False)  # the encoding runs on; nothing else is given to this pool
         rec = canonicalise(raw, job.mapping, job.session_default, job.driver, traffic)
         if rec.traffic is traffic:  # not when the checks dropped samples
             rec.traffic_parquet = encoding
