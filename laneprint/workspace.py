@@ -110,19 +110,6 @@ def _write_parquet(df: pd.DataFrame, path: Path | pa.NativeFile, dictionary: tup
                    write_statistics=False, data_page_version="2.0")
 
 
-def _validated_write(df: pd.DataFrame, schema: Schema, path: Path, dictionary: tuple[str, ...] = ()) -> None:
-    """`validate(df, schema)`, then `_write_parquet`."""
-    _write_parquet(validate(df, schema), path, dictionary)
-
-
-def _write_traffic(traffic: pd.DataFrame, path: Path, encoded: Callable[[], bytes | None] | None) -> None:
-    data = encoded() if encoded is not None else None
-    if data is None:
-        _validated_write(traffic, TRAFFIC, path, _TRAFFIC_DICT_COLUMNS)
-    else:
-        path.write_bytes(data)
-
-
 def encode_traffic(traffic: pd.DataFrame) -> bytes:
     """The TRAFFIC table as `write_recording` stores it (validated, then Parquet bytes): lets a caller
     encode it while other work runs (`ingest.pipeline.parse_log` does it beside the ego checks);
@@ -130,6 +117,11 @@ def encode_traffic(traffic: pd.DataFrame) -> bytes:
     buf = pa.BufferOutputStream()
     _write_parquet(validate(traffic, TRAFFIC), buf, _TRAFFIC_DICT_COLUMNS)
     return buf.getvalue().to_pybytes()
+
+
+def _write_traffic(traffic: pd.DataFrame, path: Path, encoded: Callable[[], bytes | None] | None) -> None:
+    data = encoded() if encoded is not None else None
+    path.write_bytes(encode_traffic(traffic) if data is None else data)
 
 
 _RENAME_EXCHANGE = 2
