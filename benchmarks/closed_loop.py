@@ -17,7 +17,7 @@ analysis assigns to the agent's drive; then whether issue 19's closed-loop accep
 (per style: no collision, its own style, lane changes per km within +-20 % of its drivers',
 every median inside their IQR) and a JSON line with every figure.
 
-Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--family ttc|acceptance] [--no-pace] [--drive-seed 1]
+Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--family ttc|acceptance] [--no-pace] [--drive-seed 1 [2 ...]]
                                       [--drivers 9] [--minutes 10] [--workdir /tmp/lp-closed-loop]
 
 Sides not taken (issue 19, three lanes): on an analysed workspace of a SUMO study,
@@ -214,7 +214,10 @@ def main() -> None:
                     help="lanes of the drives: --sides one number (default 3); --out-of-world one or more (default 2); "
                          "default mode: of the study and the drives (default 2)")
     ap.add_argument("--drive-seeds", type=int, nargs="+", default=[460, 461], help="--sides: seeds of the drives")
-    ap.add_argument("--drive-seed", type=int, default=1, help="seed of the drives' traffic (default mode)")
+    ap.add_argument("--drive-seed", type=int, nargs="+", default=[1],
+                    help="seed(s) of the drives' traffic (default mode); with several, each agent drives each seed and "
+                         "its rate and indicators are judged over all of them (the first seed's drive is analysed "
+                         "for its style)")
     ap.add_argument("--family", default="ttc", help="default mode: the SUMO study family of the study and the drives")
     ap.add_argument("--no-pace", action="store_true", help="default mode: drive without the drivers' pace (drive --no-pace)")
     ap.add_argument("--out-of-world", action="store_true",
@@ -236,6 +239,26 @@ def main() -> None:
     sys.exit(0 if closed_loop(args) else 1)
 
 
+def pooled(ws: Path, work: Path, style: str, seeds: list[dict], drive_seeds: list[int]) -> dict:
+    """One style's drives on several seeds as one drive: totals summed, `fidelity` over all their recordings
+    (read back through a scratch ingest; each seed's drive is its own driver), the ratio of each seed's drive kept."""
+    from clustering.pipeline import stored_settings
+    from laneprint.workspace import Workspace
+    from rl.drive.fidelity import fidelity
+
+    scratch = work / f"ws-pooled-{style.lower()}"
+    shutil.rmtree(scratch, ignore_errors=True)
+    for d in seeds:
+        cli("ingest", *d["files"], "-w", str(scratch))
+    recs = list(Workspace(scratch).iter_recordings())
+    study = Workspace(ws)
+    fid = fidelity(study, seeds[0]["fidelity"]["drivers"], recs, stored_settings(study), drive_seeds[0])
+    fid["ratio_per_seed"] = [d["fidelity"]["rate"]["ratio"] for d in seeds]
+    totals = {k: sum(d["totals"][k] for d in seeds) for k in ("lane_changes", "left", "right", "collisions",
+                                                               "emergency_brakes")}
+    return {**seeds[0], "totals": totals, "fidelity": fid}
+
+
 def closed_loop(args: argparse.Namespace) -> bool:
     """A new study, its three style agents driven in its kind of traffic; True when the acceptance holds."""
     work = args.workdir
@@ -250,26 +273,33 @@ def closed_loop(args: argparse.Namespace) -> bool:
     first = cli("analyze", "-w", str(ws))
     print(f"study: {args.drivers} drivers, seed {args.seed}, {lanes} lanes, family {args.family}; styles "
           + ", ".join(f"{d} {v['style']}" for d, v in first["drivers"].items()), flush=True)
-    drives = {}
+    drives, more = {}, {}
     for style in STYLES:
         run = cli("train", "--style", style, "--seed", str(args.seed), "--run-id", f"closed-loop-{style.lower()}",
                   "-w", str(ws))
         driver = f"agent-{style.lower()}"
-        drives[style] = cli("drive", run["run_id"], "--engine", "sumo", "--minutes", f"{args.minutes:g}",
-                            "--seed", str(args.drive_seed), "--lanes", lanes, "--family", args.family,
-                            *(["--no-pace"] if args.no_pace else []), "--driver-id", driver,
-                            "--no-sumo-model", "--out", str(work / "drives" / driver), "-w", str(ws))
+        seeds = [cli("drive", run["run_id"], "--engine", "sumo", "--minutes", f"{args.minutes:g}",
+                     "--seed", str(seed), "--lanes", lanes, "--family", args.family,
+                     *(["--no-pace"] if args.no_pace else []), "--no-sumo-model",
+                     "--driver-id", driver if len(args.drive_seed) == 1 else f"{driver}-d{seed}",
+                     "--out", str(work / "drives" / f"{driver}-d{seed}"), "-w", str(ws)) for seed in args.drive_seed]
+        drives[style], more[style] = seeds[0], seeds
         print(f"{style}: trained {run['episodes']} episodes in {run['wall_s']} s; drove "
-              f"{drives[style]['totals']['lane_changes']} lane changes", flush=True)
+              + ", ".join(f"{d['totals']['lane_changes']}" for d in seeds) + " lane changes", flush=True)
+    if len(args.drive_seed) > 1:
+        for style, seeds in more.items():
+            drives[style] = pooled(ws, work, style, seeds, args.drive_seed)
     for style, d in drives.items():
-        cli("ingest", *d["files"], "--driver", d["driver_id"], "-w", str(ws))
+        cli("ingest", *more[style][0]["files"], "--driver", d["driver_id"], "-w", str(ws))
     final = cli("analyze", "-w", str(ws))
-    print(f"\n## Closed loop in SUMO (study seed {args.seed}, family {args.family}, drive seed {args.drive_seed}, {lanes} lanes, "
+    print(f"\n## Closed loop in SUMO (study seed {args.seed}, family {args.family}, drive seed "
+          f"{' '.join(map(str, args.drive_seed))}, {lanes} lanes, "
           f"pace {'off' if args.no_pace else 'on'}, "
           f"{args.minutes:g} min per section, 4 sections, {time.monotonic() - t0:.0f} s in all)")
     print("| style | lane changes (L/R) | per km [95 %] | drivers per km [95 %] (range) | ratio | left share: "
-          "agent / drivers | medians in drivers' IQR | collisions | emergency brakes | assigned style |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "agent / drivers | medians in drivers' IQR | collisions | emergency brakes | assigned style |"
+          + (" ratio per drive seed |" if len(args.drive_seed) > 1 else ""))
+    print("|---|---|---|---|---|---|---|---|---|---|" + ("---|" if len(args.drive_seed) > 1 else ""))
     checks = []
     for style, d in drives.items():
         tot, fid = d["totals"], d["fidelity"]
@@ -282,7 +312,8 @@ def closed_loop(args: argparse.Namespace) -> bool:
               f"[{fmt(dr['per_km_ci'][0], '.2f')}, {fmt(dr['per_km_ci'][1], '.2f')}] ({fmt(dr['per_km_range'][0], '.2f')}"
               f"-{fmt(dr['per_km_range'][1], '.2f')}) | {fmt(r['ratio'], '.2f')} | {fmt(a['left_share'], '.2f')} / "
               f"{fmt(dr['left_share'], '.2f')} | {fid['medians_in_iqr']}{' (not: ' + ', '.join(outside) + ')' if outside else ''} "
-              f"| {tot['collisions']} | {tot['emergency_brakes']} | {assigned} |")
+              f"| {tot['collisions']} | {tot['emergency_brakes']} | {assigned} |"
+              + (f" {' '.join(format(x, '.2f') for x in fid['ratio_per_seed'])} |" if "ratio_per_seed" in fid else ""))
         checks.append({"style": style, "collision_free": tot["collisions"] == 0, "own_style": assigned == style,
                        "rate": bool(r["within_tolerance"]), "medians": not outside})
     study_styles = {d: v["style"] for d, v in final["drivers"].items() if not d.startswith("agent-")}
