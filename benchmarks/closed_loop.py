@@ -171,6 +171,7 @@ def out_of_world(args: argparse.Namespace) -> bool:
           "passed up [s]: agent / SUMO's model | collisions: agent / model | pure agent /km, passed up [s] |")
     print("|---|---|---|---|---|---|---|---|---|", flush=True)
     ok = True
+    pooled_rows: dict[tuple[int, str], list[dict]] = {}
     for lanes in args.lanes:
         for seed in args.drive_seeds:
             for style in STYLES:
@@ -183,6 +184,7 @@ def out_of_world(args: argparse.Namespace) -> bool:
                 pure = drive_once(ws, run_id, args.workdir / f"{tag}-pure", lanes, seed, args.minutes,
                                   "--no-held-back", "--no-sumo-model")
                 tot, model = d["totals"], d["sumo_model"]["totals"]
+                pooled_rows.setdefault((lanes, style), []).append(d)
                 ratio = d["sumo_model"]["rate_ratio"]
                 up, up_model = tot["follow"]["longest_passed_up_s"], model["follow"]["longest_passed_up_s"]
                 met = (ratio is not None and 0.5 <= ratio <= 2.0 and up <= 60.0 and tot["collisions"] == 0)
@@ -193,6 +195,17 @@ def out_of_world(args: argparse.Namespace) -> bool:
                       f"{pure['totals']['lane_changes_per_km']:.2f}, "
                       f"{pure['totals']['follow']['longest_passed_up_s']:.1f} |" + ("" if met else " not met"),
                       flush=True)
+    if len(args.drive_seeds) > 1:
+        print(f"\nPooled over drive seeds {' '.join(map(str, args.drive_seeds))}: lane changes per km, agent / SUMO's model")
+        print("| lanes | style | agent /km | SUMO's model /km | ratio | longest passed up [s] | collisions |")
+        print("|---|---|---|---|---|---|---|")
+        for (lanes, style), ds in pooled_rows.items():
+            km, km_m = sum(d["totals"]["km"] for d in ds), sum(d["sumo_model"]["totals"]["km"] for d in ds)
+            a = sum(d["totals"]["lane_changes"] for d in ds) / km
+            m = sum(d["sumo_model"]["totals"]["lane_changes"] for d in ds) / km_m
+            up = max(d["totals"]["follow"]["longest_passed_up_s"] for d in ds)
+            print(f"| {lanes} | {style} | {a:.2f} | {m:.2f} | {a / m:.2f} | {up:.1f} | "
+                  f"{sum(d['totals']['collisions'] for d in ds)} |")
     for style in STYLES:
         cfg = json.loads((run_dir(Workspace(ws), f"oow-{style.lower()}-s{args.seed}") / "config.json").read_text())
         print(f"{style} agent: reward {cfg['env']['reward']['name']}, observation {cfg['env']['observation']}, "
