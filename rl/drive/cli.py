@@ -51,6 +51,11 @@ def drive_command(
         help="With the held-back rule: the agent's own change needs the advantage at which, replayed along its "
              "drivers' recordings, it starts wanting a change no more often than they pressed (default on; "
              "rl/drive/pace.py). --no-pace: any advantage of at least 0.")] = True,
+    undo_check: Annotated[bool, typer.Option(
+        "--undo-check/--no-undo-check",
+        help="With the held-back rule: the agent's change to the left is requested only if, put in that lane "
+             "as the traffic is, it would not want back at once (default on; rl/drive/heldback.py). "
+             "--no-undo-check: without that look.")] = True,
     sumo_model: Annotated[bool, typer.Option(
         "--sumo-model/--no-sumo-model",
         help="Also drive the same ego with SUMO's own lane-change model of its style in the same traffic and "
@@ -69,7 +74,8 @@ def drive_command(
         with progress_bar(not as_json) as bar:
             return drive_run(Workspace(workspace), run_id, minutes=minutes, seed=seed, sections=section, out=out,
                              driver_id=driver_id, analyze=analyze, lanes=lanes, held_back=held_back,
-                             sumo_model=sumo_model, dwell=dwell, family=family, pace=pace, progress=bar)
+                             sumo_model=sumo_model, dwell=dwell, family=family, pace=pace,
+                             undo_check=undo_check, progress=bar)
 
     run_command(work, as_json, render)
 
@@ -159,7 +165,8 @@ def render(result: dict[str, Any], console: Console) -> None:
         tot, fo = result["totals"], result["totals"]["follow"]
         console.print(f"of the rule's {tot['rule_changes']} changes, {tot['return_changes']} completed an overtaking; "
                       f"agent's changes not requested: {fo.get('vetoed', 0)} decision steps back behind the leader "
-                      f"an overtaking left, {fo.get('gated', 0)} into a gap below the target's floors",
+                      f"an overtaking left, {fo.get('gated', 0)} into a gap below the target's floors, "
+                      f"{fo.get('undone', 0)} to the left that it would at once undo",
                       highlight=False, soft_wrap=True)
     else:
         console.print(hb.get("note", "no held-back rule"), highlight=False, soft_wrap=True)

@@ -36,6 +36,13 @@ SUMO, returned right with a lead gap of about 1 m, t_nf 0.9 s, and collided; the
 a lead gap above its floor but t_nf 0.8 s, closing at 13 m/s). The time to collision with the
 target lane's leader has a floor too (`t_nf_floor_s`, the 5th percentile of t_nf at the presses).
 
+And a change of the agent's **to the left is requested only if the agent would not undo it** at
+once (`undo_check`; `rl.drive.loop.AgentControl.would_undo`): put in the target lane as the traffic
+is, and asked about the lane it would leave, it must not want back (advantage below its pace's
+`min_advantage`). Behind a slower leader the lane left holds that leader, which keeps the agent
+out; in an empty world an agent that does not know the side (it learnt returns to the right as
+changes into a free lane) wants both ways and weaves (measured on study 660: README).
+
 Where its numbers come from (`rule_from_analysis`):
 
 - accepted gaps: the analysis's reference lines of the target (a style's typical driver,
@@ -103,6 +110,7 @@ class HeldBackRule:
     dv_nb_floor_mps: float = -np.inf  # [m/s] no change in front of a follower closing faster than -this (<= 0)
     dwell_s: dict[str, float] = field(default_factory=dict)  # 'left>right' etc.: least time from a change to the next
     min_advantage: float = 0.0  # the agent's own change needs Q(change) - Q(keep) at least this (rl.drive.pace)
+    undo_check: bool = True  # no change of the agent's to the left that it would at once want to undo
     source: dict[str, str] = field(default_factory=dict)
 
     def dwell_ok(self, last_side: Optional[str], since_s: float, side: str) -> bool:
@@ -352,7 +360,9 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5) -> Held
                                                                   f"{len(t_nf)} presses of {typical}",
                                                   "dv_nb_floor_mps": f"percentile {FLOOR_PERCENTILE:g} of dv_nb at "
                                                                      f"{len(dv_nb)} presses of {typical}, at most 0",
-                                                  "dwell_s": f"{dwell_why}, {target.label}"}
+                                                  "dwell_s": f"{dwell_why}, {target.label}",
+                                                  "undo_check": "on: no change to the left the agent would at once "
+                                                                "undo (README, 'Driving like its drivers')"}
     return HeldBackRule(patience, got["gap_nf"][0], got["gap_nb"][0], got["thw_nb"][0], t_nf_floor_s=t_nf_floor,
                         dv_nb_floor_mps=dv_nb_floor, dwell_s=dwell, source=source)
 
@@ -422,7 +432,7 @@ def merge_summaries(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Totals over sections of `FollowStats.summary` rows (longest: the largest; advantages dropped)."""
     out: dict[str, Any] = {k: sum(r.get(k, 0) for r in rows) for k in
                            ("decision_steps", "held_steps", "held_tf_undefined_steps", "held_tf_above_line_steps",
-                            "advantage_held_nonneg", "vetoed", "gated", "dwelled")}
+                            "advantage_held_nonneg", "vetoed", "gated", "dwelled", "undone")}
     out["held_share"] = out["held_steps"] / out["decision_steps"] if out["decision_steps"] else None
     for k in ("longest_held_s", "longest_passed_up_s", "longest_passed_up_faster_s"):
         out[k] = max((r[k] for r in rows), default=0.0)

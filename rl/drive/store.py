@@ -251,7 +251,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
               sections: Optional[list[float]] = None, out: Optional[Path] = None,
               driver_id: Optional[str] = None, analyze: bool = False, lanes: int = 2,
               held_back: bool = True, sumo_model: bool = True, dwell: bool = True, family: str = "ttc",
-              pace: bool = True, progress: Optional[ProgressFn] = None) -> dict[str, Any]:
+              pace: bool = True, undo_check: bool = True, progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
 
     `family`: the SUMO study family whose traffic and style vTypes the drive uses
@@ -262,7 +262,8 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     figures are still measured). `sumo_model`: also drive SUMO's own model of the style (the comparator).
     `dwell=False`: the rule without its dwell after a lane change (`HeldBackRule.dwell_s` emptied).
     `pace=False`: the agent's own changes need only a positive advantage, not its drivers' pace
-    (`HeldBackRule.min_advantage`, `rl.drive.pace`)."""
+    (`HeldBackRule.min_advantage`, `rl.drive.pace`). `undo_check=False`: the agent's changes to the left
+    are requested even when it would want back at once (`HeldBackRule.undo_check`)."""
     from laneprint.simulator.sumo.backend import check_available
     from laneprint.simulator.sumo.settings import FAMILIES, LANES, family_settings
     from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS
@@ -289,6 +290,8 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     rule, rule_note = held_back_rule(workspace, target, cfg)
     if rule is not None and not dwell:
         rule = replace(rule, dwell_s={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
+    if rule is not None and not undo_check:
+        rule = replace(rule, undo_check=False, source={**rule.source, "undo_check": "off (--no-undo-check)"})
     paced = rule_pace(workspace, target, net, cfg) if rule is not None and pace else None
     if paced is not None:
         rule = replace(rule, min_advantage=paced["min_advantage"], source={**rule.source, "min_advantage": paced["note"]})

@@ -124,3 +124,5 @@ def test_export_carries_the_held_back_rule(trained_run, tmp_path, monkeypatch):
     why = hb["source"]["min_advantage"]
     assert hb["min_advantage"] >= 0 and ("replayed along" in why or "no recording with presses" in why)
     assert "min_advantage" in hb["how"] and f"min_advantage = {hb['min_advantage']:g}" in text
+    # the undo check on the policy's changes to the left: on, with how a vehicle stack applies it
+    assert hb["undo_check"] is True and "undo_check" in hb["how"] and "undo_check = true" in text

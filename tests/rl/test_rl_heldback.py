@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -222,7 +223,8 @@ def test_no_change_of_the_agent_into_a_gap_below_the_targets_floor():
         q[:, CHANGE] = 0.5
         return q
 
-    rule = HeldBackRule(5.0, Line(0.0, 30.0, floor=8.0), Line(0.0, 30.0, floor=6.0), Line(0.0, 3.0, floor=0.75))
+    rule = HeldBackRule(5.0, Line(0.0, 30.0, floor=8.0), Line(0.0, 30.0, floor=6.0), Line(0.0, 3.0, floor=0.75),
+                        undo_check=False)  # an agent that changes everywhere would undo every change to the left
     ego = VehicleState(100.0, 17.0, 0, 4.5)
     for cut_in, n in ((VehicleState(106.0, 7.0, 1, 4.5), 0), (VehicleState(115.0, 15.0, 1, 4.5), 1)):
         for use_rule in (True, False):  # lead gap 1.5 m (below the floor), then 10.5 m
@@ -351,3 +353,39 @@ def test_no_change_in_front_of_a_follower_closing_faster_than_the_floor():
     assert bool(above_floors(HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0)), fast, 150.0)[0])
     for r in (rule, HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), dwell_s={"left>right": 3.0})):
         assert HeldBackRule.from_dict(json.loads(json.dumps(r.to_dict()))) == r  # -inf travels as null
+
+
+def _side_blind(scene) -> np.ndarray:
+    """An agent that does not know the side: it changes behind a closer, slower leader (an overtaking) and
+    into a free lane when its own is free too (how returns to the right look)."""
+    closing = scene.f_present & (scene.x_f - scene.x_e < 60.0) & (scene.v_f < scene.v_e - 1.0)
+    free = ~scene.f_present & ~scene.nf_present
+    q = np.zeros((len(scene), 2))
+    q[:, CHANGE] = np.where(closing | free, 0.5, -0.5)
+    return q
+
+
+def _requests(rule: HeldBackRule, lane: int, others: dict[str, VehicleState], n_lanes: int = 2) -> tuple[list, AgentControl]:
+    control, api = AgentControl(_side_blind, EnvConfig(observation="indicators"), 0.1, n_lanes, rule, DESIRED,
+                                True), _Api()
+    control.start(api)
+    for i in range(5):
+        control.step(api, 0.1 * i, VehicleState(100.0 + 2.5 * i, 25.0, lane, 4.5), 0.0,
+                     {k: VehicleState(s.x + s.v * 0.1 * i, s.v, s.lane, s.length) for k, s in others.items()})
+    return [lane for _, lane, _ in api.vehicle.requests], control
+
+
+def test_no_change_to_the_left_that_the_agent_would_at_once_undo():
+    """In an empty world a side-blind agent wants both ways: its change to the left is not requested (it
+    would want back at once), its return to the right is; behind a slower leader it overtakes, since
+    from the left lane it would not go back behind that leader. `undo_check=False` requests all."""
+    rule = HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0))
+    requests, control = _requests(rule, 0, {})
+    assert requests == [] and control.n_undone > 0
+    assert _requests(replace(rule, undo_check=False), 0, {})[0] == [1]
+    assert _requests(rule, 1, {})[0] == [0]  # the return to the right: not checked
+    slow = {"f": VehicleState(140.0, 18.0, 0, 4.5)}  # 40 m ahead, 7 m/s slower
+    requests, control = _requests(rule, 0, slow)
+    assert requests == [1] and control.n_undone == 0
+    middle, _ = _requests(rule, 1, {}, n_lanes=3)  # the middle lane of an empty road: right, never left
+    assert middle == [0]
