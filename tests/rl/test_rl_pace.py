@@ -3,7 +3,7 @@
 import numpy as np
 
 from rl.drive.loop import choose_side
-from rl.drive.pace import lowest_threshold, onsets
+from rl.drive.pace import exceeds, lowest_threshold, onsets
 
 
 def test_an_onset_is_the_start_of_a_run_of_wanting_a_change():
@@ -15,13 +15,23 @@ def test_an_onset_is_the_start_of_a_run_of_wanting_a_change():
 
 
 def test_the_threshold_is_the_lowest_whose_onsets_do_not_exceed_the_presses():
-    # a run that wants a change in short bursts at low advantage and once for long at a high one
-    a = np.array([0.1, -1, 0.1, -1, 0.1, -1, 0.1, -1, 0.9, 0.9, 0.9, -1])
-    tau, counts = lowest_threshold([a], presses=1)
-    assert counts[0.0] == 5 and counts[tau] <= 1 and tau == 0.15  # the first grid step above the bursts
-    assert lowest_threshold([a], presses=5)[0] == 0.0  # already at the drivers' pace: the agent as trained
-    never = lowest_threshold([np.full(4, 9.0)], presses=0)[0]
+    # recordings that want a change in short bursts at low advantage and once for long at a high one
+    a = [np.array([0.1, -1, 0.1, -1, 0.1, -1, 0.1, -1, 0.9, 0.9, 0.9, -1])] * 20
+    tau, counts = lowest_threshold(a, presses=20)
+    assert counts[0.0] == 100 and counts[tau] <= 20 and tau == 0.15  # the first grid step above the bursts
+    assert lowest_threshold(a, presses=100)[0] == 0.0  # already at the drivers' pace: the agent as trained
+    never = lowest_threshold([np.full(4, 9.0)] * 10, presses=0)[0]
     assert never == 3.0  # wants a change everywhere and its drivers never pressed: the largest tried
+
+
+def test_an_excess_within_chance_leaves_the_agent_as_trained():
+    """156 onsets against 150 presses (the shipped study's Aggressive agent) is no evidence of a faster
+    pace: the threshold stays 0, where the strict count would take the first one under 150."""
+    a = [np.array([0.1, -1.0, 0.1, -1.0])] * 75 + [np.array([0.1, -1.0, 0.1])] * 3  # 156 onsets, below 0.15
+    assert onsets(a, 0.0) == 156 and onsets(a, 0.15) == 0
+    assert not exceeds(156, 150) and exceeds(200, 150) and not exceeds(5, 1)  # a few events prove nothing
+    assert lowest_threshold(a, presses=150)[0] == 0.0
+    assert lowest_threshold(a, presses=120)[0] == 0.15  # 30 % more: beyond chance
 
 
 def test_choose_side_needs_the_threshold():
