@@ -144,11 +144,11 @@ HELD_BACK_HOW = (
     "('left>right': a change to the right after one to the left; a pair missing: no wait): the policy decides "
     "state by state without memory, the drivers do not press again at once. The policy's own change is taken "
     "only when q_change - q_keep >= min_advantage (its drivers' pace: replayed along their logs, the policy "
-    "then starts wanting a change no more often than they pressed). When undo_check is true, the policy's own "
-    "change to the left is requested only if it would not undo it at once: build the observation as if the "
-    "ego were already in the target lane (same position and speed; its leader there becomes the leader, the "
-    "lane it would leave becomes the target lane) and run the policy; if q_change - q_keep >= min_advantage "
-    "there, keep.")
+    "then starts wanting a change no more often than they pressed). When undo_check is true and the ego has no leader "
+    "within range_m, the policy's own change to the left is requested only if it would not undo it at once: "
+    "build the observation as if the ego were already in the target lane (same position and speed; the "
+    "leader there becomes its leader, the lane it would leave becomes the target lane) and run the policy; "
+    "if q_change - q_keep >= min_advantage there, keep.")
 
 
 def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig,
@@ -265,7 +265,7 @@ assistant therefore also applies this rule (`laneprint drive` does by default;
 - dv_nb_floor_mps = {_num(rule.get('dv_nb_floor_mps'), ' m/s')} ({rule['source'].get('dv_nb_floor_mps', '')})
 - dwell_s = {', '.join(f"{k} {v:.3g} s" for k, v in rule.get('dwell_s', {}).items()) or 'none'} ({rule['source'].get('dwell_s', '')})
 - min_advantage = {rule.get('min_advantage', 0.0):g} ({rule['source'].get('min_advantage', 'the policy as trained')})
-- undo_check = {str(rule.get('undo_check', False)).lower()} ({rule['source'].get('undo_check', "no change to the left the policy would at once undo")})
+- undo_check = {str(rule.get('undo_check', False)).lower()} ({rule['source'].get('undo_check', "with no leader, no change to the left the policy would at once undo")})
 - slower_mps = {rule['slower_mps']:g} m/s, far_follower_m = {rule['far_follower_m']:g} m,
   range_m = {rule['range_m']:g} m; desired speed: {rule['desired_speed']}
 

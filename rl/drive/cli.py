@@ -53,8 +53,9 @@ def drive_command(
              "rl/drive/pace.py). --no-pace: any advantage of at least 0.")] = True,
     undo_check: Annotated[bool, typer.Option(
         "--undo-check/--no-undo-check",
-        help="With the held-back rule: the agent's change to the left is requested only if, put in that lane "
-             "as the traffic is, it would not want back at once (default on; rl/drive/heldback.py). "
+        help="With the held-back rule and no leader within range: the agent's change to the left is requested "
+             "only if, put in that lane as the traffic is, it would not want back at once (default on; "
+             "rl/drive/heldback.py). "
              "--no-undo-check: without that look.")] = True,
     sumo_model: Annotated[bool, typer.Option(
         "--sumo-model/--no-sumo-model",
@@ -166,7 +167,7 @@ def render(result: dict[str, Any], console: Console) -> None:
         console.print(f"of the rule's {tot['rule_changes']} changes, {tot['return_changes']} completed an overtaking; "
                       f"agent's changes not requested: {fo.get('vetoed', 0)} decision steps back behind the leader "
                       f"an overtaking left, {fo.get('gated', 0)} into a gap below the target's floors, "
-                      f"{fo.get('undone', 0)} to the left that it would at once undo",
+                      f"{fo.get('undone', 0)} to the left with no leader that it would at once undo",
                       highlight=False, soft_wrap=True)
     else:
         console.print(hb.get("note", "no held-back rule"), highlight=False, soft_wrap=True)

@@ -36,12 +36,12 @@ SUMO, returned right with a lead gap of about 1 m, t_nf 0.9 s, and collided; the
 a lead gap above its floor but t_nf 0.8 s, closing at 13 m/s). The time to collision with the
 target lane's leader has a floor too (`t_nf_floor_s`, the 5th percentile of t_nf at the presses).
 
-And a change of the agent's **to the left is requested only if the agent would not undo it** at
-once (`undo_check`; `rl.drive.loop.AgentControl.would_undo`): put in the target lane as the traffic
-is, and asked about the lane it would leave, it must not want back (advantage below its pace's
-`min_advantage`). Behind a slower leader the lane left holds that leader, which keeps the agent
-out; in an empty world an agent that does not know the side (it learnt returns to the right as
-changes into a free lane) wants both ways and weaves (measured on study 660: README).
+And with no leader within range, a change of the agent's **to the left is requested only if the
+agent would not undo it** at once (`undo_check`; `rl.drive.loop.AgentControl.would_undo`): put in
+the target lane as the traffic is, and asked about the lane it would leave, it must not want back
+(advantage below its pace's `min_advantage`). With nothing to pass, an agent that does not know the
+side (it learnt returns to the right as changes into a free lane) wants both ways and weaves
+(measured on study 660: README).
 
 Where its numbers come from (`rule_from_analysis`):
 
@@ -110,7 +110,7 @@ class HeldBackRule:
     dv_nb_floor_mps: float = -np.inf  # [m/s] no change in front of a follower closing faster than -this (<= 0)
     dwell_s: dict[str, float] = field(default_factory=dict)  # 'left>right' etc.: least time from a change to the next
     min_advantage: float = 0.0  # the agent's own change needs Q(change) - Q(keep) at least this (rl.drive.pace)
-    undo_check: bool = True  # no change of the agent's to the left that it would at once want to undo
+    undo_check: bool = True  # with no leader, no change of the agent's to the left that it would at once undo
     source: dict[str, str] = field(default_factory=dict)
 
     def dwell_ok(self, last_side: Optional[str], since_s: float, side: str) -> bool:
@@ -361,8 +361,8 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5) -> Held
                                                   "dv_nb_floor_mps": f"percentile {FLOOR_PERCENTILE:g} of dv_nb at "
                                                                      f"{len(dv_nb)} presses of {typical}, at most 0",
                                                   "dwell_s": f"{dwell_why}, {target.label}",
-                                                  "undo_check": "on: no change to the left the agent would at once "
-                                                                "undo (README, 'Driving like its drivers')"}
+                                                  "undo_check": "on: with no leader, no change to the left the agent "
+                                                                "would at once undo (README, 'Driving like its drivers')"}
     return HeldBackRule(patience, got["gap_nf"][0], got["gap_nb"][0], got["thw_nb"][0], t_nf_floor_s=t_nf_floor,
                         dv_nb_floor_mps=dv_nb_floor, dwell_s=dwell, source=source)
 

@@ -377,8 +377,8 @@ def _requests(rule: HeldBackRule, lane: int, others: dict[str, VehicleState], n_
 
 def test_no_change_to_the_left_that_the_agent_would_at_once_undo():
     """In an empty world a side-blind agent wants both ways: its change to the left is not requested (it
-    would want back at once), its return to the right is; behind a slower leader it overtakes, since
-    from the left lane it would not go back behind that leader. `undo_check=False` requests all."""
+    would want back at once), its return to the right is; behind a slower leader it overtakes (the check
+    is made only with no leader within range). `undo_check=False` requests all."""
     rule = HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0))
     requests, control = _requests(rule, 0, {})
     assert requests == [] and control.n_undone > 0
@@ -389,3 +389,16 @@ def test_no_change_to_the_left_that_the_agent_would_at_once_undo():
     assert requests == [1] and control.n_undone == 0
     middle, _ = _requests(rule, 1, {}, n_lanes=3)  # the middle lane of an empty road: right, never left
     assert middle == [0]
+    # an agent that wants every change would undo every one; behind a leader it is not asked, so it goes
+    def always(scene) -> np.ndarray:
+        q = np.zeros((len(scene), 2))
+        q[:, CHANGE] = 0.5
+        return q
+
+    for others, requested in (({}, []), ({"f": VehicleState(200.0, 25.0, 0, 4.5)}, [1])):
+        control, api = AgentControl(always, EnvConfig(observation="indicators"), 0.1, 2, rule, DESIRED, True), _Api()
+        for i in range(5):
+            control.step(api, 0.1 * i, VehicleState(100.0 + 2.5 * i, 25.0, 0, 4.5), 0.0,
+                         {k: VehicleState(s.x + 2.5 * i, s.v, s.lane, s.length) for k, s in others.items()})
+        assert [lane for _, lane, _ in api.vehicle.requests] == requested
+        assert (control.n_undone > 0) == (not others)
