@@ -7,7 +7,8 @@ Through the real command line:
 2. per style, `laneprint train --style STYLE` with the default settings;
 3. per agent, `laneprint drive RUN --engine sumo --minutes 10 --seed S` (four
    sections), then `ingest` of its MCAPs as a new driver (`agent-<style>`);
-4. `analyze` again, on the study plus the three drives.
+4. `analyze` again, on the study plus the three drives, in a copy of the study's workspace
+   (`--workdir`/ws-with-drives): `--workdir`/ws stays the study, for further `drive`s.
 
 Prints one row per style, the drive beside the style's drivers (`drive`'s `fidelity`,
 `rl/drive/fidelity.py`): lane changes per km with 95 % intervals and their ratio, the share
@@ -17,7 +18,7 @@ analysis assigns to the agent's drive; then whether issue 19's closed-loop accep
 (per style: no collision, its own style, lane changes per km within +-20 % of its drivers',
 every median inside their IQR) and a JSON line with every figure.
 
-Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--family ttc|acceptance] [--no-pace] [--drive-seed 1 [2 ...]]
+Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--family ttc|acceptance] [--no-pace] [--no-undo-check] [--drive-seed 1 [2 ...]]
                                       [--drivers 9] [--minutes 10] [--workdir /tmp/lp-closed-loop]
 
 Sides not taken (issue 19, three lanes): on an analysed workspace of a SUMO study,
@@ -233,6 +234,8 @@ def main() -> None:
                          "for its style)")
     ap.add_argument("--family", default="ttc", help="default mode: the SUMO study family of the study and the drives")
     ap.add_argument("--no-pace", action="store_true", help="default mode: drive without the drivers' pace (drive --no-pace)")
+    ap.add_argument("--no-undo-check", action="store_true",
+                    help="default mode: drive without the undo check (drive --no-undo-check)")
     ap.add_argument("--out-of-world", action="store_true",
                     help="the shipped study's agents in SUMO against SUMO's own model of their style")
     args = ap.parse_args()
@@ -293,7 +296,8 @@ def closed_loop(args: argparse.Namespace) -> bool:
         driver = f"agent-{style.lower()}"
         seeds = [cli("drive", run["run_id"], "--engine", "sumo", "--minutes", f"{args.minutes:g}",
                      "--seed", str(seed), "--lanes", lanes, "--family", args.family,
-                     *(["--no-pace"] if args.no_pace else []), "--no-sumo-model",
+                     *(["--no-pace"] if args.no_pace else []),
+                     *(["--no-undo-check"] if args.no_undo_check else []), "--no-sumo-model",
                      "--driver-id", driver if len(args.drive_seed) == 1 else f"{driver}-d{seed}",
                      "--out", str(work / "drives" / f"{driver}-d{seed}"), "-w", str(ws)) for seed in args.drive_seed]
         drives[style], more[style] = seeds[0], seeds
@@ -302,12 +306,16 @@ def closed_loop(args: argparse.Namespace) -> bool:
     if len(args.drive_seed) > 1:
         for style, seeds in more.items():
             drives[style] = pooled(ws, work, style, seeds, args.drive_seed)
+    # the drives join the study in a copy: left in the study's workspace, they would be counted among
+    # their style's drivers by a later `drive` there (its rule, pace and fidelity)
+    joined = work / "ws-with-drives"
+    shutil.copytree(ws, joined)
     for style, d in drives.items():
-        cli("ingest", *more[style][0]["files"], "--driver", d["driver_id"], "-w", str(ws))
-    final = cli("analyze", "-w", str(ws))
+        cli("ingest", *more[style][0]["files"], "--driver", d["driver_id"], "-w", str(joined))
+    final = cli("analyze", "-w", str(joined))
     print(f"\n## Closed loop in SUMO (study seed {args.seed}, family {args.family}, drive seed "
           f"{' '.join(map(str, args.drive_seed))}, {lanes} lanes, "
-          f"pace {'off' if args.no_pace else 'on'}, "
+          f"pace {'off' if args.no_pace else 'on'}, undo check {'off' if args.no_undo_check else 'on'}, "
           f"{args.minutes:g} min per section, 4 sections, {time.monotonic() - t0:.0f} s in all)")
     print("| style | lane changes (L/R) | per km [95 %] | drivers per km [95 %] (range) | ratio | left share: "
           "agent / drivers | medians in drivers' IQR | collisions | emergency brakes | assigned style |"
