@@ -250,7 +250,7 @@ class AgentControl(Watch):
         threshold = self.rule.min_advantage if self.use_rule else 0.0
         wanted = adv
         if self.use_rule and self.rule.undo_check and not self.has_leader(asked):
-            undone = {k for k, a in adv.items() if k > ego.lane and a >= threshold and self.would_undo(ego, others, k)}
+            undone = {k for k, a in adv.items() if k > ego.lane and a >= threshold and self.would_undo(ego, others, k, threshold)}
             if undone:
                 self.n_undone += 1
                 wanted = {k: a for k, a in adv.items() if k not in undone}
@@ -272,9 +272,10 @@ class AgentControl(Watch):
         """Whether the ego has a leader within range (the same in every side's scene)."""
         return bool(seen(next(iter(asked.values()))[0], self.cfg.range_m)[0][0])
 
-    def would_undo(self, ego: VehicleState, others: dict[str, VehicleState], target: int) -> bool:
+    def would_undo(self, ego: VehicleState, others: dict[str, VehicleState], target: int, threshold: float) -> bool:
         """Whether the agent, put in lane `target` as the traffic is now, would want back into the ego's lane
-        at once (with the advantage its own changes need). Asked only with no leader within range.
+        at once (an advantage of at least `threshold`, what its own changes need). Asked only with no leader
+        within range.
 
         With no leader (where drivers change lane mostly to return right), an agent that does not know
         the side reads an empty lane to the left as a place to return to, and in an empty world it
@@ -285,7 +286,7 @@ class AgentControl(Watch):
         lane it would reach, a side-blind agent also reads the leader left behind as a return's target
         (study 662's Aggressive agent would undo 373 of its 664 steps of wanting to leave the slow lane)."""
         back, _ = live_scene(replace(ego, lane=target), others, ego.lane)
-        return bool(advantages(self.q(back))[0] >= self.rule.min_advantage)
+        return bool(advantages(self.q(back))[0] >= threshold)
 
     @property
     def left_behind(self) -> Optional[LeftBehind]:
