@@ -3,9 +3,7 @@
 `ingest_paths` never stops at a bad file: each file gets a `FileResult` with a
 status and, when refused, a one-line reason; refused files are remembered in the
 workspace (`Workspace.record_rejected`). Recordings are keyed by content hash, so
-the same bytes are stored once; a file new to the workspace by its path is hashed on a
-thread beside its parse (the hash is needed only to store it), a path stored from before
-is hashed first so that its unchanged bytes are not parsed again. A session (driver_id, session_id) is stored once
+the same bytes are stored once. A session (driver_id, session_id) is stored once
 too: the CSV and the MCAP of the same session are one recording, the second is a
 'duplicate'. Concurrent ingests are safe: a session is claimed under a flock that
 dies with its process before its recording is written (see `_claim_session`).
@@ -20,7 +18,7 @@ from __future__ import annotations
 
 import hashlib
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
@@ -196,11 +194,6 @@ def parse_log(job: ParseJob) -> Parsed:
         return Parsed(reason=f"unexpected content ({type(exc).__name__}: {first_line(exc)}); please report this file")
 
 
-def content_hash(data: bytes) -> str:
-    """A recording's id: the first 16 hex digits of its bytes' SHA-256."""
-    return hashlib.sha256(data).hexdigest()[:16]
-
-
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
@@ -255,7 +248,6 @@ class _Batch:
             (str(r.driver_id), str(r.session_id)): (str(r.recording_id), str(r.source_name))
             for r in cat.itertuples()
         }
-        self.sources = set(cat["source_path"].astype(str)) if len(cat) else set()  # paths stored from
 
     def reject(self, path: Path, fmt: str, rid: str, reason: str) -> FileResult:
         self.ws.record_rejected({
@@ -264,9 +256,8 @@ class _Batch:
         })
         return FileResult(str(path), "rejected", fmt, recording_id=rid, reason=reason)
 
-    def prepare(self, path: Path) -> FileResult | tuple[ParseJob, str | Future[str]]:
-        """Read a file's bytes: its `ParseJob` and content hash (or the hash being computed), or its
-        result when it needs no parsing."""
+    def prepare(self, path: Path) -> FileResult | tuple[ParseJob, str]:
+        """Read a file's bytes: its `ParseJob` and content hash, or its result when it needs no parsing."""
         fmt = log_format(path) or ""
         bag = None
         try:
@@ -279,19 +270,11 @@ class _Batch:
             return self.reject(path, fmt, "", str(exc))
         except OSError as exc:
             return self.reject(path, fmt, "", f"cannot read the file: {exc.strerror or exc}")
-        session = session_stem(path) if bag is None else path.name
-        job = ParseJob(data, fmt, session, self.mapping, self.driver, self.limits, bag)
-        if str(path.resolve()) not in self.sources:
-            # most likely new bytes: hashed on a thread beside the parse (the hash is needed only to
-            # store); bytes stored before from another path are still found, after their parse
-            hasher = ThreadPoolExecutor(1, thread_name_prefix="laneprint-hash")
-            pending = hasher.submit(content_hash, data)
-            hasher.shutdown(wait=False)
-            return job, pending
-        rid = content_hash(data)  # ingested from this path before: most likely the same bytes again
+        rid = hashlib.sha256(data).hexdigest()[:16]
         if self.ws.has_recording(rid):
             return self.same_bytes(path, fmt, rid)
-        return job, rid
+        session = session_stem(path) if bag is None else path.name
+        return ParseJob(data, fmt, session, self.mapping, self.driver, self.limits, bag), rid
 
     def read_bag(self, folder: Path) -> tuple[BagInfo, bytes]:
         """A split rosbag2 folder's info (with each part's size) and its parts' bytes in order."""
@@ -306,11 +289,9 @@ class _Batch:
         return FileResult(str(path), "duplicate", fmt, recording_id=rid,
                           reason=f"same bytes already ingested as recording {rid}")
 
-    def store(self, path: Path, rid: str | Future[str], parsed: Parsed) -> FileResult:
-        """Keep a parsed file: reject it, call it a duplicate (bytes or session), or write its recording.
-        `rid`: its content hash, or the hash being computed."""
+    def store(self, path: Path, rid: str, parsed: Parsed) -> FileResult:
+        """Keep a parsed file: reject it, call it a duplicate (bytes or session), or write its recording."""
         fmt = log_format(path) or ""
-        rid = rid.result() if isinstance(rid, Future) else rid
         if self.ws.has_recording(rid):  # an identical file earlier in this batch
             return self.same_bytes(path, fmt, rid)
         if parsed.rec is None:
@@ -410,7 +391,7 @@ def ingest_paths(paths: list[Path], workspace: Workspace, driver_id: str | None 
         done += 1
         report(progress, done, len(to_read), Path(result.source).name)
 
-    queued: deque[tuple[int, Path, str | Future[str]]] = deque()  # files handed to the tasks, in order
+    queued: deque[tuple[int, Path, str]] = deque()  # files handed to the tasks, in order
 
     def jobs() -> Iterator[ParseJob]:
         """Read each file as the tasks ask for it; a file that needs no parsing is finished here."""

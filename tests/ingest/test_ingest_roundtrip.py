@@ -75,11 +75,10 @@ def test_same_bytes_under_another_name_is_a_duplicate(tmp_path, recording, monke
     copy = tmp_path / "copy" / "renamed.csv"
     copy.parent.mkdir()
     copy.write_bytes(path.read_bytes())
-    # new to the workspace by its path: parsed while its bytes are hashed, then found stored
     again = ingest_paths([copy], ws).files[0]
     assert (again.status, again.recording_id) == ("duplicate", first.recording_id)
     assert again.reason == f"same bytes already ingested as recording {first.recording_id}"
-    # a path ingested before is hashed first: the same bytes again are not parsed at all
+    # the bytes are hashed before anything else: the same bytes again are not parsed at all
     monkeypatch.setattr(pipeline, "parse_log", lambda job: pytest.fail("parsed a file already stored"))
     assert ingest_paths([path], ws).files[0].status == "duplicate"
     assert len(ws.recordings()) == 1
