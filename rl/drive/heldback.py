@@ -17,8 +17,9 @@ assistant, not the agent, carries a rule for it:
 
 An overtaking (a change to the left from behind a leader, the rule's or the agent's) is carried
 through (`LeftBehind`): **until the ego has passed the leader it left** (that vehicle's centre
-behind the ego's, or out of sight) the agent's change back into the lane it left is not
-requested, and **once passed**, when the agent keeps and that lane holds a gap the target accepts,
+behind the ego's, or out of sight), while that leader still holds it back (slower than the
+ego's desired speed by `slower_mps`, as for being held back), the agent's change back into the
+lane it left is not requested, and **once over**, when the agent keeps and that lane holds a gap the target accepts,
 the assistant returns there (source 'return'). Overtakings stack: on three lanes, one from lane 0
 to 1 and then one from 1 to 2 are completed in turn, back to lane 1 and then to lane 0 (keep right
 to where the ego came from). Measured why: without the first, the shipped study's Defensive agent
@@ -225,9 +226,18 @@ class LeftBehind:
         st = others.get(self.leader_id)
         return st is None or st.x < ego_x or st.x - ego_x > range_m
 
-    def vetoes(self, target: int, ego_x: float, others: dict[str, Any], range_m: float) -> bool:
-        """A change to `target` would return behind the leader not yet passed."""
-        return target == self.lane and not self.passed(ego_x, others, range_m)
+    def over(self, ego_x: float, others: dict[str, Any], range_m: float, holding_mps: float) -> bool:
+        """The overtaking is over: that leader is passed or out of sight, or it no longer holds the ego
+        back (its speed at least `holding_mps`, the held-back rule's limit: the ego's desired speed less
+        `slower_mps`). A leader that has sped up is not being overtaken: behind it the ego does not catch
+        up again (measured on study 662: the Aggressive agent waited in the fast lane, its return vetoed,
+        while the car it had changed out behind pulled away to 146 m ahead)."""
+        st = others.get(self.leader_id)
+        return self.passed(ego_x, others, range_m) or st.v >= holding_mps
+
+    def vetoes(self, target: int, ego_x: float, others: dict[str, Any], range_m: float, holding_mps: float) -> bool:
+        """A change to `target` would return behind the leader while the overtaking is not over."""
+        return target == self.lane and not self.over(ego_x, others, range_m, holding_mps)
 
 
 # --- from the analysis --------------------------------------------------------------------

@@ -27,7 +27,7 @@ parameters). What changes is who decides a lane change:
   next decision, so the agent is asked afresh if SUMO did not start it.
 - The assistant around the agent (`AgentControl.assist`, `rl/drive/heldback.py`; off with
   ``use_rule=False``, the pure agent): a floor under the agent's changes, overtakings carried
-  through (no return behind the leader left; the return once passed), and the held-back rule
+  through (no return behind the leader left; the return once it is over), and the held-back rule
   when the ego has followed a slower leader for the target's patience. Each decision says
   who asked for it (`Decision.source`).
 - `Watch` only looks, with SUMO's own lane changing left on: the comparator, SUMO's model of
@@ -298,14 +298,16 @@ class AgentControl(Watch):
                held_for: float, ego: VehicleState, others: dict[str, VehicleState]) -> tuple[Optional[int], str]:
         """(lane to request or None, who asks): the agent's choice unless it returns behind the leader an
         overtaking left (vetoed) or takes a gap below the target's floors (gated); else the overtaking's
-        return once that leader is passed and the lane left holds an accepted gap; else the held-back rule."""
+        return once it is over (that leader passed, or no longer holding the ego back) and the lane left
+        holds an accepted gap; else the held-back rule."""
         if not self.use_rule:
             return agent, "agent"
         # back in (or right of) a lane an overtaking left: that one is over; one left farther right waits
         self.lane = ego.lane
         self.overtakings = [o for o in self.overtakings if o.lane < ego.lane]
         r, lb = self.cfg.range_m, self.left_behind
-        if agent is not None and lb is not None and lb.vetoes(agent, ego.x, others, r):
+        holding = self.desired_mps - self.rule.slower_mps  # a left-behind leader this fast is not overtaken
+        if agent is not None and lb is not None and lb.vetoes(agent, ego.x, others, r, holding):
             self.n_vetoed += 1
             agent = None
         if agent is not None and not above_floors(self.rule, asked[agent][0], r)[0]:
@@ -313,7 +315,7 @@ class AgentControl(Watch):
             agent = None
         if agent is not None:
             return agent, "agent"
-        if lb is not None and lb.lane in asked and lb.passed(ego.x, others, r):
+        if lb is not None and lb.lane in asked and lb.over(ego.x, others, r, holding):
             back = asked[lb.lane][0]
             if accepts(self.rule, back, r)[0] and above_floors(self.rule, back, r)[0]:
                 return lb.lane, "return"

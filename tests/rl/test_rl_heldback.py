@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from laneprint.simulator.sumo.traffic import VehicleState
-from rl.drive.heldback import (DEFAULT_PATIENCE_S, FollowStats, HeldBackRule, Line, above_floors, accepts,
+from rl.drive.heldback import (DEFAULT_PATIENCE_S, FollowStats, HeldBackRule, LeftBehind, Line, above_floors, accepts,
                                dwell_from, following_before_press, patience_from, rule_target)
 from rl.drive.loop import AgentControl, Watch, live_scene
 from rl.problem.env import EnvConfig
@@ -215,6 +215,25 @@ def test_the_agent_does_not_return_behind_the_leader_the_rule_left():
         control.step(api, 6.0 + 0.1 * i, VehicleState(300.0, 24.0, 1, 4.5), 0.0,
                      {"f": VehicleState(270.0, 20.0, 0, 12.0)})
     assert api.vehicle.requests[-1] == ("ego", 0, 0.5) and control.decisions[-1].source == "agent"
+
+
+def test_no_veto_behind_a_leader_that_no_longer_holds_the_ego_back():
+    """The car the ego changed out behind speeds up and pulls away: the overtaking is over, the agent's
+    return behind it is requested (before, it waited until that car was out of sight)."""
+    def back_right(scene) -> np.ndarray:
+        q = np.zeros((len(scene), 2))
+        q[:, CHANGE] = np.where(scene.left, -1.5, 0.5)
+        return q
+
+    control = AgentControl(back_right, EnvConfig(observation="indicators"), 0.1, 2, _rule(), DESIRED, True)
+    api = _Api()
+    control.overtakings.append(LeftBehind(0, "f"))  # an overtaking of "f" from lane 0, under way
+    ego = VehicleState(230.0, 24.0, 1, 4.5)
+    for v_f, requests in ((20.0, 0), (DESIRED - 1.0, 1)):  # slower than the ego's desired speed, then not
+        for i in range(5):
+            control.step(api, 6.0 + 0.1 * i, ego, 0.0, {"f": VehicleState(290.0, v_f, 0, 4.5)})
+        assert len(api.vehicle.requests) == requests
+    assert api.vehicle.requests[-1] == ("ego", 0, 0.5) and control.n_vetoed == 1
 
 
 def test_no_change_of_the_agent_into_a_gap_below_the_targets_floor():
