@@ -16,13 +16,13 @@ assistant, not the agent, carries a rule for it:
     least `slower_mps` faster than the ego's leader), request the change.
 
 An overtaking (a change to the left from behind a leader, the rule's or the agent's) is carried
-through (`LeftBehind`): **until the ego has passed the leader it left** (that vehicle's centre
-behind the ego's, or out of sight), while that leader still holds it back (slower than the
-ego's desired speed by `slower_mps`, as for being held back), the agent's change back into the
-lane it left is not requested, and **once over**, when the agent keeps and that lane holds a gap the target accepts,
-the assistant returns there (source 'return'). Overtakings stack: on three lanes, one from lane 0
-to 1 and then one from 1 to 2 are completed in turn, back to lane 1 and then to lane 0 (keep right
-to where the ego came from). Measured why: without the first, the shipped study's Defensive agent
+through (`LeftBehind`): **until it is over** (the ego has passed the leader it left: that
+vehicle's centre behind the ego's, or out of sight; or that leader no longer holds the ego back:
+it is as fast as the ego's desired speed less `slower_mps`, the limit of being held back) the
+agent's change back into the lane it left is not requested, and **once over**, when the agent
+keeps and that lane holds a gap the target accepts, the assistant returns there (source 'return').
+Overtakings stack: on three lanes, one from lane 0 to 1 and then one from 1 to 2 are completed in
+turn, back to lane 1 and then to lane 0 (keep right to where the ego came from). Measured why: without the first, the shipped study's Defensive agent
 returned right 5-8 s after most of the rule's changes, behind the truck it had followed (t_nf about
 4 s), and weaved every 15 s; without the second, once the floors below kept it from cutting in,
 the agents stayed in the left lane after an overtaking (their study's presses to the right are

@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 
 from laneprint.simulator.sumo.traffic import VehicleState
-from rl.drive.heldback import (DEFAULT_PATIENCE_S, FollowStats, HeldBackRule, LeftBehind, Line, above_floors, accepts,
-                               dwell_from, following_before_press, patience_from, rule_target)
+from rl.drive.heldback import (DEFAULT_PATIENCE_S, FollowStats, HeldBackRule, LeftBehind, Line, above_floors,
+                               accepts, dwell_from, following_before_press, patience_from, rule_target)
 from rl.drive.loop import AgentControl, Watch, live_scene
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
