@@ -209,11 +209,14 @@ def decision_agreement(states: pd.DataFrame, who: str = "agent", x: str = "v_e_m
 
 def drive_fidelity(fid: dict) -> go.Figure:
     """A drive beside its drivers (`rl.drive.fidelity`): lane changes per km with 95 % intervals, then, per
-    indicator at the presses, each side's median with its interquartile range as the bar."""
+    indicator at the presses, each side's median with its interquartile range as the bar; last, where
+    each side drove (time in each lane, lane changes per km by lane pair) when the report has it."""
     from indicators.plots import label_of
 
     names = list(fid["indicators"])
-    panels = ["lane changes per km [1/km]"] + [label_of(k, short=True) for k in names]
+    lanes = fid.get("lanes")  # drives before the by-lane comparison have none
+    panels = (["lane changes per km [1/km]"] + [label_of(k, short=True) for k in names]
+              + (["time in each lane [share]", "lane changes per km by lane pair"] if lanes else []))
     cols = 3
     rows = -(-len(panels) // cols)
     fig = make_subplots(rows=rows, cols=cols, subplot_titles=panels, horizontal_spacing=0.08,
@@ -245,6 +248,13 @@ def drive_fidelity(fid: dict) -> go.Figure:
                              arrayminus=[side["median"] - side["q1"]])), row=row, col=col)
         if v["median_in_iqr"] is False:
             fig.layout.annotations[k].text = f"{panels[k]} (outside the drivers' IQR)"
+    if lanes:
+        for k, key in ((len(names) + 1, "time_share"), (len(names) + 2, "pairs_per_km")):
+            row, col = k // cols + 1, k % cols + 1
+            cats = sorted(set(lanes["agent"][key]) | set(lanes["drivers"][key]), key=lambda c: (len(c), c))
+            for who in ("agent", "drivers"):
+                fig.add_trace(go.Bar(x=cats, y=[lanes[who][key].get(c, 0.0) for c in cats], name=who, legendgroup=who,
+                                     showlegend=False, marker_color=colours[who], offsetgroup=who), row=row, col=col)
     a = rate["agent"]["per_km"]
     fig.update_layout(height=260 * rows, margin=dict(t=70, l=50, r=20, b=30),
                       title=f"The drive beside its drivers: {fid['medians_in_iqr']} medians inside their IQR, "

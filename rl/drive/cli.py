@@ -120,6 +120,8 @@ def render_fidelity(fid: dict[str, Any], console: Console) -> None:
         f"{_f(rng[1]) if rng else '-'}), ratio {_f(r['ratio'])} "
         f"({'within' if r['within_tolerance'] else 'outside'} +-{fid['tolerance']:.0%}); to the left "
         f"{_f(a['left_share'], '.0%')} against {_f(d['left_share'], '.0%')}", highlight=False, soft_wrap=True)
+    if "lanes" in fid:
+        render_lanes(fid["lanes"], console)
     t = Table(title=f"indicators at the drive's {fid['agent_presses']} presses against the drivers' "
                     f"(read as the analysis reads a log; medians with 95 % intervals)")
     for c in ("indicator", "n drive / drivers", "drive median [95 %]", "drivers median [95 %]", "drivers IQR",
@@ -132,6 +134,18 @@ def render_fidelity(fid: dict[str, Any], console: Console) -> None:
                   "-" if v["median_in_iqr"] is None else ("yes" if v["median_in_iqr"] else "no"),
                   _f(v["wasserstein"], ".1f"), f"{_f(v['ks'])} ({_f(v['ks_p'])})")
     console.print(t)
+
+
+def render_lanes(lanes: dict[str, Any], console: Console) -> None:
+    """Time in each lane and lane changes per km by lane pair, the drive's against the drivers'."""
+    a, d = lanes["agent"], lanes["drivers"]
+    share = sorted(set(a["time_share"]) | set(d["time_share"]), key=int)
+    pairs = sorted(set(a["pairs_per_km"]) | set(d["pairs_per_km"]))
+    console.print("by lane, drive against drivers: time in lane " + ", ".join(
+        f"{k} {_f(a['time_share'].get(k, 0.0), '.0%')} / {_f(d['time_share'].get(k, 0.0), '.0%')}" for k in share)
+        + "; changes per km " + ", ".join(
+        f"{k} {_f(a['pairs_per_km'].get(k, 0.0))} / {_f(d['pairs_per_km'].get(k, 0.0))}" for k in pairs),
+        highlight=False, soft_wrap=True)
 
 
 def render(result: dict[str, Any], console: Console) -> None:

@@ -5,6 +5,8 @@ Both sides are read the same way, from logs:
 - **lane changes per km**: flips of the ego's lane over the distance driven, and the share
   to each side (lane 0 is the rightmost: a higher lane is a change to the left), with an
   exact Poisson interval for the agent's rate and the drivers' pooled rate;
+- **by lane**: the share of time in each lane and the lane changes per km by 'from>to' pair
+  (`lane_use`), beside the drivers';
 - **the indicators at the presses**: `indicators.decisions.extract_decisions` (the analysis's
   own reading) on the drive's recordings, against the target drivers' presses in the
   workspace's decisions table. Per indicator, over the presses where it is defined: the
@@ -19,7 +21,7 @@ kind of road and traffic when both come from the same SUMO family, not the same 
 
 from __future__ import annotations
 
-from typing import Any, Iterable, Optional
+from typing import Any, Iterable, Iterator, Optional
 
 import numpy as np
 import pandas as pd
@@ -58,15 +60,44 @@ def lane_changes(ego: pd.DataFrame) -> dict[str, float]:
             "right": sum(n for (a, b), n in pairs if b < a), "km": float(x[-1] - x[0]) / 1000.0 if len(x) else 0.0}
 
 
-def driver_rates(workspace: Workspace, drivers: Iterable[str]) -> pd.DataFrame:
-    """One row per driver: lane changes, left, right and km over its stored recordings."""
+def lane_seconds(ego: pd.DataFrame) -> dict[int, float]:
+    """Seconds spent in each lane of one ego log (a sample's lane holds until the next sample)."""
+    e = ego.sort_values("t_s")
+    lane, dt = e["ego_lane"].to_numpy()[:-1], np.diff(e["t_s"].to_numpy(dtype=float))
+    return {int(k): float(dt[lane == k].sum()) for k in np.unique(lane)}
+
+
+def lane_use(egos: Iterable[pd.DataFrame]) -> dict[str, dict[str, float]]:
+    """Where a set of ego logs drove: the share of time in each lane, and lane changes per km by
+    'from>to' pair (on three lanes the total rate can hide a shuttle between two of them)."""
+    seconds: dict[int, float] = {}
+    pairs: dict[str, int] = {}
+    km = 0.0
+    for ego in egos:
+        for k, v in lane_seconds(ego).items():
+            seconds[k] = seconds.get(k, 0.0) + v
+        for k, n in lane_change_pairs(ego).items():
+            pairs[k] = pairs.get(k, 0) + n
+        km += lane_changes(ego)["km"]
+    total = sum(seconds.values())
+    return {"time_share": {str(k): v / total for k, v in sorted(seconds.items())} if total > 0 else {},
+            "pairs_per_km": {k: n / km for k, n in sorted(pairs.items())} if km > 0 else {}}
+
+
+def driver_egos(workspace: Workspace, drivers: Iterable[str]) -> Iterator[tuple[str, pd.DataFrame]]:
+    """(driver id, ego log with t_s, ego_lane, ego_x_m) of each stored recording of `drivers`."""
     want = set(map(str, drivers))
     cat = workspace.recordings()
-    rows: dict[str, dict[str, float]] = {}
     for rid, did in zip(cat["recording_id"], cat["driver_id"].astype(str)):
-        if did not in want:
-            continue
-        ego = pd.read_parquet(workspace.recordings_dir / rid / "ego.parquet", columns=["t_s", "ego_lane", "ego_x_m"])
+        if did in want:
+            yield did, pd.read_parquet(workspace.recordings_dir / rid / "ego.parquet",
+                                       columns=["t_s", "ego_lane", "ego_x_m"])
+
+
+def driver_rates(workspace: Workspace, drivers: Iterable[str]) -> pd.DataFrame:
+    """One row per driver: lane changes, left, right and km over its stored recordings."""
+    rows: dict[str, dict[str, float]] = {}
+    for did, ego in driver_egos(workspace, drivers):
         one = lane_changes(ego)
         acc = rows.setdefault(did, {"changes": 0, "left": 0, "right": 0, "km": 0.0})
         for k, v in one.items():
@@ -182,5 +213,7 @@ def fidelity(workspace: Workspace, drivers: list[str], recordings: list[tuple[di
     out["agent_presses"] = int((mine["label"].astype(str) == "change").sum()) if len(mine) else 0
     inside = [v["median_in_iqr"] for v in out["indicators"].values() if v["median_in_iqr"] is not None]
     out["medians_in_iqr"] = f"{sum(inside)} of {len(inside)}"
+    out["lanes"] = {"agent": lane_use(ego for _, ego, _ in recordings),
+                    "drivers": lane_use(ego for _, ego in driver_egos(workspace, drivers))}
     out["met"] = bool(out["rate"]["within_tolerance"]) and bool(inside) and all(inside)
     return out

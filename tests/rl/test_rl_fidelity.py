@@ -6,7 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rl.drive.fidelity import (compare_values, lane_change_pairs, lane_changes, poisson_interval, press_values, rate_comparison)
+from rl.drive.fidelity import (compare_values, lane_change_pairs, lane_changes, lane_use, poisson_interval, press_values,
+                               rate_comparison)
 
 
 def _ego(lanes: list[int], km: float = 2.0) -> pd.DataFrame:
@@ -18,6 +19,16 @@ def test_lane_changes_count_flips_by_side_over_the_distance():
     ego = _ego([0, 0, 1, 1, 2, 1, 0, 0, 1], km=3.0)
     assert lane_change_pairs(ego) == {"0>1": 2, "1>2": 1, "2>1": 1, "1>0": 1}
     assert lane_changes(ego) == {"changes": 5, "left": 3, "right": 2, "km": pytest.approx(3.0)}
+
+
+def test_lane_use_gives_the_time_in_each_lane_and_the_pairs_per_km():
+    # 1 s per sample: lane 0 for 2 s, lane 1 for 5 s, lane 2 for 1 s (the last sample holds no time)
+    one = _ego([0, 0, 1, 1, 2, 1, 1, 1, 1], km=2.0)
+    two = _ego([1, 1, 1, 1, 1], km=2.0)  # 4 s in lane 1, no change
+    use = lane_use([one, two])
+    assert use["time_share"] == {"0": pytest.approx(2 / 12), "1": pytest.approx(9 / 12), "2": pytest.approx(1 / 12)}
+    assert use["pairs_per_km"] == {"0>1": pytest.approx(0.25), "1>2": pytest.approx(0.25), "2>1": pytest.approx(0.25)}
+    assert lane_use([]) == {"time_share": {}, "pairs_per_km": {}}
 
 
 def test_the_rate_is_within_tolerance_only_near_the_drivers():
@@ -77,3 +88,20 @@ def test_the_drive_figure_draws_the_rate_and_every_indicator_and_marks_a_miss():
     assert len(fig.data) == 6  # agent and drivers in each of the three panels
     rate = [t for t in fig.data if t.xaxis in (None, "x")]
     assert [t.y[0] for t in rate] == [pytest.approx(3.3), pytest.approx(3.0)]
+
+
+def test_the_drive_figure_shows_where_each_side_drove_by_lane():
+    from rl.plots import drive_fidelity
+
+    drivers = pd.DataFrame({"driver_id": ["a"], "changes": [30], "left": [15], "right": [15], "km": [10.0]})
+    fid = {"tolerance": 0.2, "medians_in_iqr": "0 of 0", "indicators": {},
+           "rate": rate_comparison({"changes": 33, "left": 16, "right": 17, "km": 10.0}, drivers),
+           "lanes": {"agent": lane_use([_ego([0, 1, 2, 2, 2, 1])]), "drivers": lane_use([_ego([0, 0, 0, 1, 1, 0])])}}
+    fig = drive_fidelity(fid)
+    assert [a.text for a in fig.layout.annotations][1:] == ["time in each lane [share]",
+                                                             "lane changes per km by lane pair"]
+    shares = {t.name: dict(zip(t.x, t.y)) for t in fig.data if t.type == "bar" and "0>1" not in t.x}
+    assert shares["agent"] == {"0": pytest.approx(0.2), "1": pytest.approx(0.2), "2": pytest.approx(0.6)}
+    assert shares["drivers"] == {"0": pytest.approx(0.6), "1": pytest.approx(0.4), "2": 0.0}
+    del fid["lanes"]  # a drive reported before the comparison by lane: the figure without those panels
+    assert len(drive_fidelity(fid).layout.annotations) == 1
