@@ -52,12 +52,17 @@ def lane_change_pairs(ego: pd.DataFrame) -> dict[str, int]:
     return out
 
 
+def driven_km(ego: pd.DataFrame) -> float:
+    """Distance driven in one ego log [km]."""
+    x = ego.sort_values("t_s")["ego_x_m"].to_numpy(dtype=float)
+    return float(x[-1] - x[0]) / 1000.0 if len(x) else 0.0
+
+
 def lane_changes(ego: pd.DataFrame) -> dict[str, float]:
     """Lane changes, to the left (to a higher lane) and right, and km driven of one ego log."""
     pairs = [(tuple(map(int, k.split(">"))), n) for k, n in lane_change_pairs(ego).items()]
-    x = ego.sort_values("t_s")["ego_x_m"].to_numpy(dtype=float)
     return {"changes": sum(n for _, n in pairs), "left": sum(n for (a, b), n in pairs if b > a),
-            "right": sum(n for (a, b), n in pairs if b < a), "km": float(x[-1] - x[0]) / 1000.0 if len(x) else 0.0}
+            "right": sum(n for (a, b), n in pairs if b < a), "km": driven_km(ego)}
 
 
 def lane_seconds(ego: pd.DataFrame) -> dict[int, float]:
@@ -78,7 +83,7 @@ def lane_use(egos: Iterable[pd.DataFrame]) -> dict[str, dict[str, float]]:
             seconds[k] = seconds.get(k, 0.0) + v
         for k, n in lane_change_pairs(ego).items():
             pairs[k] = pairs.get(k, 0) + n
-        km += lane_changes(ego)["km"]
+        km += driven_km(ego)
     total = sum(seconds.values())
     return {"time_share": {str(k): v / total for k, v in sorted(seconds.items())} if total > 0 else {},
             "pairs_per_km": {k: n / km for k, n in sorted(pairs.items())} if km > 0 else {}}
@@ -94,10 +99,10 @@ def driver_egos(workspace: Workspace, drivers: Iterable[str]) -> Iterator[tuple[
                                        columns=["t_s", "ego_lane", "ego_x_m"])
 
 
-def driver_rates(workspace: Workspace, drivers: Iterable[str]) -> pd.DataFrame:
-    """One row per driver: lane changes, left, right and km over its stored recordings."""
+def driver_rates(egos: Iterable[tuple[str, pd.DataFrame]]) -> pd.DataFrame:
+    """One row per driver: lane changes, left, right and km over its ego logs (`driver_egos`)."""
     rows: dict[str, dict[str, float]] = {}
-    for did, ego in driver_egos(workspace, drivers):
+    for did, ego in egos:
         one = lane_changes(ego)
         acc = rows.setdefault(did, {"changes": 0, "left": 0, "right": 0, "km": 0.0})
         for k, v in one.items():
@@ -202,8 +207,9 @@ def fidelity(workspace: Workspace, drivers: list[str], recordings: list[tuple[di
     for _, ego, _ in recordings:
         for k, v in lane_changes(ego).items():
             agent[k] += v
+    their_egos = list(driver_egos(workspace, drivers))
     out: dict[str, Any] = {"drivers": list(drivers), "tolerance": RATE_TOLERANCE,
-                           "rate": rate_comparison(agent, driver_rates(workspace, drivers))}
+                           "rate": rate_comparison(agent, driver_rates(their_egos))}
     theirs = workspace.read_table("analysis", "decisions")
     theirs = theirs[theirs["driver_id"].astype(str).isin(set(drivers))]
     mine = drive_decisions(recordings, settings)
@@ -214,6 +220,6 @@ def fidelity(workspace: Workspace, drivers: list[str], recordings: list[tuple[di
     inside = [v["median_in_iqr"] for v in out["indicators"].values() if v["median_in_iqr"] is not None]
     out["medians_in_iqr"] = f"{sum(inside)} of {len(inside)}"
     out["lanes"] = {"agent": lane_use(ego for _, ego, _ in recordings),
-                    "drivers": lane_use(ego for _, ego in driver_egos(workspace, drivers))}
+                    "drivers": lane_use(ego for _, ego in their_egos)}
     out["met"] = bool(out["rate"]["within_tolerance"]) and bool(inside) and all(inside)
     return out

@@ -22,12 +22,13 @@ it is as fast as the ego's desired speed less `slower_mps`, the limit of being h
 agent's change back into the lane it left is not requested, and **once over**, when the agent
 keeps and that lane holds a gap the target accepts, the assistant returns there (source 'return').
 Overtakings stack: on three lanes, one from lane 0 to 1 and then one from 1 to 2 are completed in
-turn, back to lane 1 and then to lane 0 (keep right to where the ego came from). Measured why: without the first, the shipped study's Defensive agent
-returned right 5-8 s after most of the rule's changes, behind the truck it had followed (t_nf about
-4 s), and weaved every 15 s; without the second, once the floors below kept it from cutting in,
-the agents stayed in the left lane after an overtaking (their study's presses to the right are
-closing-in scenes too: a free right lane is none), the Normal one changing lane 0.3 times per km
-against SUMO's model's 2.7-3.4; without the stack, on three lanes they stayed in the middle lane.
+turn, back to lane 1 and then to lane 0 (keep right to where the ego came from). Measured why:
+without the first, the shipped study's Defensive agent returned right 5-8 s after most of the
+rule's changes, behind the truck it had followed (t_nf about 4 s), and weaved every 15 s; without
+the second, once the floors below kept it from cutting in, the agents stayed in the left lane after
+an overtaking (their study's presses to the right are closing-in scenes too: a free right lane is
+none), the Normal one changing lane 0.3 times per km against SUMO's model's 2.7-3.4; without the
+stack, on three lanes they stayed in the middle lane.
 
 The same lines also give the assistant a **floor** under every change, the agent's included: no
 change is requested into a gap smaller than the smallest the target took (each line's `floor`,
@@ -173,10 +174,15 @@ def faster(rule: HeldBackRule, scene: Scene, range_m: float) -> np.ndarray:
     return ~nf | (scene.v_nf >= scene.v_f + rule.slower_mps)
 
 
+def holding_limit(desired_mps: float, slower_mps: float) -> float:
+    """The speed [m/s] below which a leader holds the ego back: its desired speed less `slower_mps`."""
+    return desired_mps - slower_mps
+
+
 def held_back(scene: Scene, desired_mps: float, slower_mps: float, range_m: float) -> bool:
     """The ego (first scene) follows a leader slower than its desired speed and is itself held below it."""
     f, _, _ = seen(scene, range_m)
-    limit = desired_mps - slower_mps
+    limit = holding_limit(desired_mps, slower_mps)
     return bool(f[0] and scene.v_f[0] < limit and scene.v_e[0] < limit)
 
 
@@ -228,10 +234,10 @@ class LeftBehind:
 
     def over(self, ego_x: float, others: dict[str, Any], range_m: float, holding_mps: float) -> bool:
         """The overtaking is over: that leader is passed or out of sight, or it no longer holds the ego
-        back (its speed at least `holding_mps`, the held-back rule's limit: the ego's desired speed less
-        `slower_mps`). A leader that has sped up is not being overtaken: behind it the ego does not catch
-        up again (measured on study 662: the Aggressive agent waited in the fast lane, its return vetoed,
-        while the car it had changed out behind pulled away to 146 m ahead)."""
+        back (its speed at least `holding_mps`, the held-back rule's `holding_limit`). A leader that has
+        sped up is not being overtaken: behind it the ego does not catch up again (measured on study 662:
+        the Aggressive agent waited in the fast lane, its return vetoed, while the car it had changed out
+        behind pulled away to 146 m ahead)."""
         st = others.get(self.leader_id)
         return self.passed(ego_x, others, range_m) or st.v >= holding_mps
 

@@ -56,7 +56,7 @@ from laneprint.simulator.sumo.section import EGO_ID, SectionLog, run_section
 from laneprint.simulator.sumo.settings import SumoSettings
 from laneprint.simulator.sumo.traffic import VehicleState
 from rl.drive.heldback import (FollowStats, HeldBackClock, HeldBackRule, LeftBehind, Line, above_floors, accepts,
-                               faster, held_back, rule_target)
+                               faster, held_back, holding_limit, rule_target)
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
 from rl.problem.scene import Scene, indicators, seen
@@ -250,7 +250,8 @@ class AgentControl(Watch):
         threshold = self.rule.min_advantage if self.use_rule else 0.0
         wanted = adv
         if self.use_rule and self.rule.undo_check and not self.has_leader(asked):
-            undone = {k for k, a in adv.items() if k > ego.lane and a >= threshold and self.would_undo(ego, others, k, threshold)}
+            undone = {k for k, a in adv.items()
+                      if k > ego.lane and a >= threshold and self.would_undo(ego, others, k, threshold)}
             if undone:
                 self.n_undone += 1
                 wanted = {k: a for k, a in adv.items() if k not in undone}
@@ -306,7 +307,7 @@ class AgentControl(Watch):
         self.lane = ego.lane
         self.overtakings = [o for o in self.overtakings if o.lane < ego.lane]
         r, lb = self.cfg.range_m, self.left_behind
-        holding = self.desired_mps - self.rule.slower_mps  # a left-behind leader this fast is not overtaken
+        holding = holding_limit(self.desired_mps, self.rule.slower_mps)  # a leader left this fast: no overtaking
         if agent is not None and lb is not None and lb.vetoes(agent, ego.x, others, r, holding):
             self.n_vetoed += 1
             agent = None
