@@ -165,7 +165,11 @@ def test_drivers_page_draws_directions_in_the_browser(server, page):
     expect(page.get_by_role("heading", name="Drivers", exact=True).first).to_be_visible(timeout=60_000)
     expect(page.locator(".js-plotly-plot").first).to_be_visible(timeout=60_000)
     expect(page.get_by_role("heading", name="Fits per direction")).to_be_visible(timeout=60_000)
-    page.wait_for_function("() => [...document.querySelectorAll('.js-plotly-plot')].some(g => g._fullData)")
+    # Plotly draws each figure when it scrolls into reach: wait for the traces asserted on, not for any figure
+    page.wait_for_function("""() => {
+        const names = [...document.querySelectorAll('.js-plotly-plot')].flatMap(g => (g._fullData || []).map(t => t.name || ''));
+        return ['used, to the left', 'used, to the right'].every(p => names.some(n => n.startsWith(p)));
+    }""", timeout=60_000)
     drawn = page.evaluate("""() => [...document.querySelectorAll('.js-plotly-plot')].filter(g => g._fullData)
         .map(g => g._fullData.filter(t => t.visible !== false).map(t => [t.name, (t.line || {}).dash || '']))""")
     names = [name for fig in drawn for name, _ in fig]
