@@ -18,7 +18,8 @@ analysis assigns to the agent's drive; then whether issue 19's closed-loop accep
 (per style: no collision, its own style, lane changes per km within +-20 % of its drivers',
 every median inside their IQR) and a JSON line with every figure.
 
-Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--family ttc|acceptance] [--no-pace] [--no-undo-check] [--drive-seed 1 [2 ...]]
+Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--family ttc|acceptance] [--no-pace]
+     [--pace-by pooled|side] [--no-undo-check] [--drive-seed 1 [2 ...]]
                                       [--drivers 9] [--minutes 10] [--workdir /tmp/lp-closed-loop]
 
 Sides not taken (issue 19, three lanes): on an analysed workspace of a SUMO study,
@@ -181,7 +182,8 @@ def out_of_world(args: argparse.Namespace) -> bool:
                     cli("train", "--style", style, "--seed", str(args.seed), "--run-id", run_id, "--no-evaluate",
                         "-w", str(ws))
                 tag = f"{run_id}-l{lanes}-d{seed}-m{args.minutes:g}"
-                d = drive_once(ws, run_id, args.workdir / tag, lanes, seed, args.minutes)
+                paced = f"{tag}-pace-by-side" if args.pace_by == "side" else tag
+                d = drive_once(ws, run_id, args.workdir / paced, lanes, seed, args.minutes, "--pace-by", args.pace_by)
                 pure = drive_once(ws, run_id, args.workdir / f"{tag}-pure", lanes, seed, args.minutes,
                                   "--no-held-back", "--no-sumo-model")
                 tot, model = d["totals"], d["sumo_model"]["totals"]
@@ -234,6 +236,8 @@ def main() -> None:
                          "for its style)")
     ap.add_argument("--family", default="ttc", help="default mode: the SUMO study family of the study and the drives")
     ap.add_argument("--no-pace", action="store_true", help="default mode: drive without the drivers' pace (drive --no-pace)")
+    ap.add_argument("--pace-by", choices=("pooled", "side"), default="pooled",
+                    help="the pace read for both sides at once or per side (drive --pace-by)")
     ap.add_argument("--no-undo-check", action="store_true",
                     help="default mode: drive without the undo check (drive --no-undo-check)")
     ap.add_argument("--out-of-world", action="store_true",
@@ -296,7 +300,7 @@ def closed_loop(args: argparse.Namespace) -> bool:
         driver = f"agent-{style.lower()}"
         seeds = [cli("drive", run["run_id"], "--engine", "sumo", "--minutes", f"{args.minutes:g}",
                      "--seed", str(seed), "--lanes", lanes, "--family", args.family,
-                     *(["--no-pace"] if args.no_pace else []),
+                     *(["--no-pace"] if args.no_pace else []), "--pace-by", args.pace_by,
                      *(["--no-undo-check"] if args.no_undo_check else []), "--no-sumo-model",
                      "--driver-id", driver if len(args.drive_seed) == 1 else f"{driver}-d{seed}",
                      "--out", str(work / "drives" / f"{driver}-d{seed}"), "-w", str(ws)) for seed in args.drive_seed]
@@ -315,7 +319,7 @@ def closed_loop(args: argparse.Namespace) -> bool:
     final = cli("analyze", "-w", str(joined))
     print(f"\n## Closed loop in SUMO (study seed {args.seed}, family {args.family}, drive seed "
           f"{' '.join(map(str, args.drive_seed))}, {lanes} lanes, "
-          f"pace {'off' if args.no_pace else 'on'}, undo check {'off' if args.no_undo_check else 'on'}, "
+          f"pace {'off' if args.no_pace else 'on, ' + args.pace_by}, undo check {'off' if args.no_undo_check else 'on'}, "
           f"{args.minutes:g} min per section, 4 sections, {time.monotonic() - t0:.0f} s in all)")
     print("| style | lane changes (L/R) | per km [95 %] | drivers per km [95 %] (range) | ratio | left share: "
           "agent / drivers | medians in drivers' IQR | collisions | emergency brakes | assigned style |"

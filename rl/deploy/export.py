@@ -34,7 +34,6 @@ import os
 import shutil
 import uuid
 import warnings
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -145,11 +144,13 @@ HELD_BACK_HOW = (
     "('left>right': a change to the right after one to the left; a pair missing: no wait): the policy decides "
     "state by state without memory, the drivers do not press again at once. The policy's own change is taken "
     "only when q_change - q_keep >= min_advantage (its drivers' pace: replayed along their logs, the policy "
-    "then starts wanting a change no more often than they pressed). When undo_check is true and the ego has no leader "
+    "then starts wanting a change no more often than they pressed); where min_advantage_by_side is given, a change "
+    "to the left needs its 'left' value and one to the right its 'right' value instead (each side held to the "
+    "drivers' presses to that side). When undo_check is true and the ego has no leader "
     "within range_m, the policy's own change to the left is requested only if it would not undo it at once: "
     "build the observation as if the ego were already in the target lane (same position and speed; the "
     "leader there becomes its leader, the lane it would leave becomes the target lane) and run the policy; "
-    "if q_change - q_keep >= min_advantage there, keep.")
+    "if q_change - q_keep there reaches what a change to the right needs, keep.")
 
 
 def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig,
@@ -165,8 +166,7 @@ def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig,
     except UserError:
         drivers = None
     if drivers:
-        pace = pace_threshold(workspace, drivers, net, cfg)
-        rule = replace(rule, min_advantage=pace["min_advantage"], source={**rule.source, "min_advantage": pace["note"]})
+        rule = rule.with_pace(pace_threshold(workspace, drivers, net, cfg))
     return {"available": True, "how": HELD_BACK_HOW, "units": {"patience_s": "s", "slower_mps": "m/s",
             "gap_nf": "m", "gap_nb": "m", "thw_nb": "s", "far_follower_m": "m", "t_nf_floor_s": "s", "dv_nb_floor_mps": "m/s", "dwell_s": "s",
             "min_advantage": "Q units", "v_lo": "m/s", "v_hi": "m/s"},
@@ -265,7 +265,7 @@ assistant therefore also applies this rule (`laneprint drive` does by default;
 - t_nf_floor_s = {rule['t_nf_floor_s']:.3g} s ({rule['source'].get('t_nf_floor_s', '')})
 - dv_nb_floor_mps = {_num(rule.get('dv_nb_floor_mps'), ' m/s')} ({rule['source'].get('dv_nb_floor_mps', '')})
 - dwell_s = {', '.join(f"{k} {v:.3g} s" for k, v in rule.get('dwell_s', {}).items()) or 'none'} ({rule['source'].get('dwell_s', '')})
-- min_advantage = {rule.get('min_advantage', 0.0):g} ({rule['source'].get('min_advantage', 'the policy as trained')})
+- min_advantage = {_pace(rule)} ({rule['source'].get('min_advantage', 'the policy as trained')})
 - undo_check = {str(rule.get('undo_check', False)).lower()} ({rule['source'].get('undo_check', "with no leader, no change to the left the policy would at once undo")})
 - slower_mps = {rule['slower_mps']:g} m/s, far_follower_m = {rule['far_follower_m']:g} m,
   range_m = {rule['range_m']:g} m; desired speed: {rule['desired_speed']}
@@ -274,6 +274,13 @@ assistant therefore also applies this rule (`laneprint drive` does by default;
 |---|---|---|---|---|---|---|
 {rows}
 """
+
+
+def _pace(rule: dict[str, Any]) -> str:
+    by_side = rule.get("min_advantage_by_side") or {}
+    if by_side:
+        return ", ".join(f"{v:g} to the {k}" for k, v in by_side.items()) + " (min_advantage_by_side)"
+    return f"{rule.get('min_advantage', 0.0):g}"
 
 
 def _num(x: Any, unit: str) -> str:

@@ -51,6 +51,11 @@ def drive_command(
         help="With the held-back rule: the agent's own change needs the advantage at which, replayed along its "
              "drivers' recordings, it starts wanting a change no more often than they pressed (default on; "
              "rl/drive/pace.py). --no-pace: any advantage of at least 0.")] = True,
+    pace_by: Annotated[str, typer.Option(
+        "--pace-by",
+        help="How the pace is read: 'pooled' (default), one threshold for changes to either side against all "
+             "the drivers' presses; 'side', one for changes to the left against their presses to the left and "
+             "one for the right against theirs (README, 'The pace by side').")] = "pooled",
     undo_check: Annotated[bool, typer.Option(
         "--undo-check/--no-undo-check",
         help="With the held-back rule and no leader within range: the agent's change to the left is requested "
@@ -75,7 +80,7 @@ def drive_command(
         with progress_bar(not as_json) as bar:
             return drive_run(Workspace(workspace), run_id, minutes=minutes, seed=seed, sections=section, out=out,
                              driver_id=driver_id, analyze=analyze, lanes=lanes, held_back=held_back,
-                             sumo_model=sumo_model, dwell=dwell, family=family, pace=pace,
+                             sumo_model=sumo_model, dwell=dwell, family=family, pace=pace, pace_by=pace_by,
                              undo_check=undo_check, progress=bar)
 
     run_command(work, as_json, render)
@@ -186,7 +191,11 @@ def render(result: dict[str, Any], console: Console) -> None:
     else:
         console.print(hb.get("note", "no held-back rule"), highlight=False, soft_wrap=True)
     pace = result.get("pace") or {}
-    if "min_advantage" in pace:
+    if "min_advantage_by_side" in pace:
+        sides = ", ".join(f"{v:g} to the {k}" for k, v in pace["min_advantage_by_side"].items())
+        console.print(f"pace: the agent's own change needs an advantage of at least {sides} ({pace['note']})",
+                      highlight=False, soft_wrap=True)
+    elif "min_advantage" in pace:
         console.print(f"pace: the agent's own change needs an advantage of at least {pace['min_advantage']:g} "
                       f"({pace['note']})", highlight=False, soft_wrap=True)
     elif pace:

@@ -65,7 +65,7 @@ Where its numbers come from (`rule_from_analysis`):
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Optional
 
 import numpy as np
@@ -112,12 +112,23 @@ class HeldBackRule:
     dv_nb_floor_mps: float = -np.inf  # [m/s] no change in front of a follower closing faster than -this (<= 0)
     dwell_s: dict[str, float] = field(default_factory=dict)  # 'left>right' etc.: least time from a change to the next
     min_advantage: float = 0.0  # the agent's own change needs Q(change) - Q(keep) at least this (rl.drive.pace)
+    min_advantage_by_side: dict[str, float] = field(default_factory=dict)  # 'left'/'right': this instead, by side
     undo_check: bool = True  # with no leader, no change of the agent's to the left that it would at once undo
     source: dict[str, str] = field(default_factory=dict)
 
     def dwell_ok(self, last_side: Optional[str], since_s: float, side: str) -> bool:
         """Whether a change to `side` may be requested `since_s` after the last lane change (to `last_side`)."""
         return last_side is None or since_s >= self.dwell_s.get(f"{last_side}>{side}", 0.0)
+
+    def needs(self, side: str) -> float:
+        """The advantage the agent's own change to `side` ('left' or 'right') needs (its drivers' pace)."""
+        return self.min_advantage_by_side.get(side, self.min_advantage)
+
+    def with_pace(self, pace: dict[str, Any]) -> "HeldBackRule":
+        """This rule with the pace `rl.drive.pace.pace_threshold` found (one threshold, or one per side)."""
+        return replace(self, min_advantage=pace["min_advantage"],
+                       min_advantage_by_side=dict(pace.get("min_advantage_by_side", {})),
+                       source={**self.source, "min_advantage": pace["note"]})
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)

@@ -92,18 +92,20 @@ def advantages(q: np.ndarray) -> np.ndarray:
     return q[:, CHANGE] - q[:, KEEP]
 
 
-def choose_side(adv: dict[int, float], threshold: float = 0.0) -> Optional[int]:
-    """The target lane with the largest advantage when it reaches `threshold`, else None (keep).
+def choose_side(adv: dict[int, float], threshold: float | dict[int, float] = 0.0) -> Optional[int]:
+    """Of the target lanes whose advantage reaches their threshold, the one with the largest; else None (keep).
 
-    `adv` maps each neighbouring lane to Q(change) - Q(keep) of the scene asking about it. With the
-    default threshold 0 a tie with keep counts as change, as training's argmax does; a tie
-    between two sides goes to the lower lane (the right one: keep right). The assistant raises the
-    threshold to the target drivers' pace (`HeldBackRule.min_advantage`, `rl.drive.pace`).
+    `adv` maps each neighbouring lane to Q(change) - Q(keep) of the scene asking about it; `threshold`
+    is one for every lane or one per lane. With the default threshold 0 a tie with keep counts as
+    change, as training's argmax does; a tie between two sides goes to the lower lane (the right
+    one: keep right). The assistant raises the thresholds to the target drivers' pace by side
+    (`HeldBackRule.needs`, `rl.drive.pace`).
     """
-    if not adv:
+    need = threshold if isinstance(threshold, dict) else dict.fromkeys(adv, threshold)
+    ok = {k: a for k, a in adv.items() if a >= need[k]}
+    if not ok:
         return None
-    lane = max(sorted(adv), key=lambda k: adv[k])  # max keeps the first of equals: the lower lane
-    return lane if adv[lane] >= threshold else None
+    return max(sorted(ok), key=lambda k: ok[k])  # max keeps the first of equals: the lower lane
 
 
 def live_scene(ego: VehicleState, others: dict[str, VehicleState], target: int) -> tuple[Scene, dict[str, Any]]:
@@ -247,15 +249,16 @@ class AgentControl(Watch):
                 asked, adv = {k: asked[k] for k in keep}, {k: adv[k] for k in keep}
                 if not asked:
                     return
-        threshold = self.rule.min_advantage if self.use_rule else 0.0
+        need = {k: self.rule.needs(_side(ego.lane, k)) if self.use_rule else 0.0 for k in lanes}
         wanted = adv
         if self.use_rule and self.rule.undo_check and not self.has_leader(asked):
+            # back from a lane to the left is a change to the right: it needs what one to the right needs
             undone = {k for k, a in adv.items()
-                      if k > ego.lane and a >= threshold and self.would_undo(ego, others, k, threshold)}
+                      if k > ego.lane and a >= need[k] and self.would_undo(ego, others, k, self.rule.needs("right"))}
             if undone:
                 self.n_undone += 1
                 wanted = {k: a for k, a in adv.items() if k not in undone}
-        target, source = self.assist(choose_side(wanted, threshold), asked, held, held_for, ego, others)
+        target, source = self.assist(choose_side(wanted, need), asked, held, held_for, ego, others)
         if target is None:
             return
         scene, ids = asked[target]
@@ -275,7 +278,7 @@ class AgentControl(Watch):
 
     def would_undo(self, ego: VehicleState, others: dict[str, VehicleState], target: int, threshold: float) -> bool:
         """Whether the agent, put in lane `target` as the traffic is now, would want back into the ego's lane
-        at once (an advantage of at least `threshold`, what its own changes need). Asked only with no leader
+        at once (an advantage of at least `threshold`, what its own change back there needs). Asked only with no leader
         within range.
 
         With no leader (where drivers change lane mostly to return right), an agent that does not know

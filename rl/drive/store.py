@@ -210,16 +210,17 @@ def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig) -> tupl
         return None, f"no held-back rule: {exc}"
 
 
-def rule_pace(workspace: Workspace, target: Target, net: Any, cfg: EnvConfig) -> Optional[dict[str, Any]]:
-    """The advantage the agent's own changes need to keep its drivers' pace (`rl.drive.pace`); None
-    when the target's drivers are not known."""
+def rule_pace(workspace: Workspace, target: Target, net: Any, cfg: EnvConfig,
+              by: str = "pooled") -> Optional[dict[str, Any]]:
+    """The advantage the agent's own changes need to keep its drivers' pace (`rl.drive.pace`, by side or
+    pooled); None when the target's drivers are not known."""
     from rl.drive.pace import pace_threshold
 
     try:
         drivers, _ = target_drivers(workspace, target)
     except UserError:
         return None
-    return pace_threshold(workspace, drivers, net, cfg)
+    return pace_threshold(workspace, drivers, net, cfg, by)
 
 
 def drivers_fidelity(workspace: Workspace, target: Target, recs: list[tuple[dict, Any, Any]],
@@ -251,7 +252,8 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
               sections: Optional[list[float]] = None, out: Optional[Path] = None,
               driver_id: Optional[str] = None, analyze: bool = False, lanes: int = 2,
               held_back: bool = True, sumo_model: bool = True, dwell: bool = True, family: str = "ttc",
-              pace: bool = True, undo_check: bool = True, progress: Optional[ProgressFn] = None) -> dict[str, Any]:
+              pace: bool = True, pace_by: str = "pooled", undo_check: bool = True,
+              progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
 
     `family`: the SUMO study family whose traffic and style vTypes the drive uses
@@ -262,14 +264,18 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     figures are still measured). `sumo_model`: also drive SUMO's own model of the style (the comparator).
     `dwell=False`: the rule without its dwell after a lane change (`HeldBackRule.dwell_s` emptied).
     `pace=False`: the agent's own changes need only a positive advantage, not its drivers' pace
-    (`HeldBackRule.min_advantage`, `rl.drive.pace`). `undo_check=False`: the agent's changes to the left
-    are requested even when it would want back at once (`HeldBackRule.undo_check`)."""
+    (`HeldBackRule.min_advantage`, `rl.drive.pace`); `pace_by`: that pace read for both sides at once
+    ('pooled') or per side ('side', `rl.drive.pace.PACE_BY`). `undo_check=False`: the agent's changes to
+    the left are requested even when it would want back at once (`HeldBackRule.undo_check`)."""
     from laneprint.simulator.sumo.backend import check_available
     from laneprint.simulator.sumo.settings import FAMILIES, LANES, family_settings
     from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS
+    from rl.drive.pace import PACE_BY
 
     if family not in FAMILIES:
         raise UserError(f"unknown --family {family!r}; choose one of {', '.join(FAMILIES)}")
+    if pace_by not in PACE_BY:
+        raise UserError(f"unknown --pace-by {pace_by!r}; choose one of {', '.join(PACE_BY)}")
     style_params = FAMILY_STYLE_PARAMS[family]
     if lanes not in LANES:
         raise UserError(f"--lanes {lanes}: a SUMO highway has {' or '.join(map(str, LANES))} lanes")
@@ -292,9 +298,9 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
         rule = replace(rule, dwell_s={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
     if rule is not None and not undo_check:
         rule = replace(rule, undo_check=False, source={**rule.source, "undo_check": "off (--no-undo-check)"})
-    paced = rule_pace(workspace, target, net, cfg) if rule is not None and pace else None
+    paced = rule_pace(workspace, target, net, cfg, pace_by) if rule is not None and pace else None
     if paced is not None:
-        rule = replace(rule, min_advantage=paced["min_advantage"], source={**rule.source, "min_advantage": paced["note"]})
+        rule = rule.with_pace(paced)
     drives = drive_sections(agent_q(net, cfg), cfg, style_params[style], settings, seed, progress, rule,
                             use_rule=held_back)
     lanes_opt = "" if lanes == 2 else f", {lanes} lanes"

@@ -209,6 +209,7 @@ def test_drive_writes_a_log_whose_presses_are_the_agents_lane_changes(trained, t
     pace = res["pace"]  # the agent's own changes no more often than its drivers pressed, replayed on their logs
     assert pace["presses"] > 0 and pace["onsets_per_km"] <= pace["presses_per_km"] + 1e-9
     assert res["held_back"]["rule"]["min_advantage"] == pace["min_advantage"] >= 0
+    assert pace["by"] == "pooled" and res["held_back"]["rule"]["min_advantage_by_side"] == {}  # the default
 
     ingested = _invoke("ingest", str(out), "--driver", "agent", "-w", str(tmp_path / "ws2"))
     assert ingested["counts"]["ingested"] + ingested["counts"]["warning"] == 1
@@ -231,6 +232,8 @@ def test_drive_refuses_an_unknown_run_and_section(trained):
     assert res.exit_code == 1 and "--section 100" in res.output
     res = runner.invoke(app, ["drive", run_id, "--engine", "carla", "-w", str(ws)])
     assert res.exit_code == 1 and "unknown --engine" in res.output
+    res = runner.invoke(app, ["drive", run_id, "--pace-by", "lane", "-w", str(ws)])
+    assert res.exit_code == 1 and "unknown --pace-by 'lane'" in res.output and "Traceback" not in res.output
     for bad in ("1", "7"):
         res = runner.invoke(app, ["drive", run_id, "--lanes", bad, "-w", str(ws)])
         assert res.exit_code == 1 and f"--lanes {bad}:" in res.output and "Traceback" not in res.output
@@ -240,22 +243,27 @@ def test_drive_refuses_an_unknown_run_and_section(trained):
 def test_drive_on_three_lanes(trained, tmp_path):
     ws, run_id = trained
     res = _invoke("drive", run_id, "--engine", "sumo", "--lanes", "3", "--minutes", "1", "--section", "90",
-                  "--seed", "2", "--out", str(tmp_path / "d3"), "-w", str(ws))
+                  "--seed", "2", "--pace-by", "side", "--out", str(tmp_path / "d3"), "-w", str(ws))
     assert res["lanes"] == 3 and res["totals"]["collisions"] == 0
+    pace = res["pace"]  # the study's presses all carry their side: the pace is read by side
+    assert pace["by"] == "side" and set(pace["min_advantage_by_side"]) == {"left", "right"} and "by side" in pace["note"]
+    assert res["held_back"]["rule"]["min_advantage_by_side"] == res["pace"].get("min_advantage_by_side", {})
     assert set(res["changes_by_lane"]) <= {"0>1", "1>0", "1>2", "2>1"}
     assert sum(res["changes_by_lane"].values()) == res["totals"]["lane_changes"] > 0
     for d in res["decisions"]:
         assert set(d["advantages"]) == ({"left", "right"} if d["from_lane"] == 1 else
                                         {"left" if d["from_lane"] == 0 else "right"})
         side = "left" if d["target_lane"] > d["from_lane"] else "right"
+        rule = res["held_back"]["rule"]
+        need = {k: rule["min_advantage_by_side"].get(k, rule["min_advantage"]) for k in ("left", "right")}
         if d["source"] == "agent":  # the held-back rule changes where the agent keeps
             asked = {k: v for k, v in d["advantages"].items() if k not in d["too_soon"] + d["undone"]}
-            assert side in asked and d["advantages"][side] == max(asked.values()) >= 0
+            reached = {k: v for k, v in asked.items() if v >= need[k]}  # each side its own pace
+            assert side in reached and d["advantages"][side] == max(reached.values())
         else:  # the rule changes where the agent keeps: below its pace (its drivers' onsets, rl.drive.pace)
             # on every side it may take (a change to the left it would at once undo it may not)
-            pace = res["held_back"]["rule"]["min_advantage"]
-            wanted = [v for k, v in d["advantages"].items() if k not in d["undone"]]
-            assert d["source"] in ("rule", "return") and max(wanted, default=-np.inf) < pace
+            wanted = {k: v for k, v in d["advantages"].items() if k not in d["undone"]}
+            assert d["source"] in ("rule", "return") and all(v < need[k] for k, v in wanted.items())
     assert res["totals"]["follow"]["undone"] >= sum(bool(d["undone"]) for d in res["decisions"])
     (meta, ego, _), = [r for r in _ingested(tmp_path / "d3", tmp_path / "ws3")]
     assert set(ego["ego_lane"].unique()) <= {0, 1, 2}

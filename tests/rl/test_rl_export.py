@@ -123,6 +123,10 @@ def test_export_carries_the_held_back_rule(trained_run, tmp_path, monkeypatch):
     # holds a recording of D01 or none, depending on which tests ran before)
     why = hb["source"]["min_advantage"]
     assert hb["min_advantage"] >= 0 and ("replayed along" in why or "no recording with presses" in why)
-    assert "min_advantage" in hb["how"] and f"min_advantage = {hb['min_advantage']:g}" in text
+    assert "min_advantage" in hb["how"] and "min_advantage = " in text and "min_advantage_by_side" in hb["how"]
+    for side, value in hb["min_advantage_by_side"].items():  # by side: each written where the README says
+        assert f"{value:g} to the {side}" in text
+    if not hb["min_advantage_by_side"]:
+        assert f"min_advantage = {hb['min_advantage']:g}" in text
     # the undo check on the policy's changes to the left: on, with how a vehicle stack applies it
     assert hb["undo_check"] is True and "undo_check" in hb["how"] and "undo_check = true" in text

@@ -394,6 +394,20 @@ def _requests(rule: HeldBackRule, lane: int, others: dict[str, VehicleState], n_
     return [lane for _, lane, _ in api.vehicle.requests], control
 
 
+def test_the_agents_own_change_needs_its_sides_pace():
+    """Behind a slower leader the side-blind agent wants left with an advantage of 0.5: requested when the
+    drivers' pace to the left asks less, not when it asks more (the pace to the right does not matter)."""
+    rule = HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0))
+    slow = {"f": VehicleState(140.0, 18.0, 0, 4.5)}
+    assert _requests(replace(rule, min_advantage_by_side={"left": 0.4, "right": 9.0}), 0, slow)[0] == [1]
+    assert _requests(replace(rule, min_advantage_by_side={"left": 0.6, "right": 0.0}), 0, slow)[0] == []
+    assert _requests(replace(rule, min_advantage=0.6), 0, slow)[0] == []  # pooled: one threshold for both
+    paced = rule.with_pace({"min_advantage": 0.2, "min_advantage_by_side": {"left": 0.6, "right": 0.0}, "note": "n"})
+    assert (paced.needs("left"), paced.needs("right"), paced.source["min_advantage"]) == (0.6, 0.0, "n")
+    assert rule.with_pace({"min_advantage": 0.2, "note": "pooled"}).needs("left") == 0.2
+    assert HeldBackRule.from_dict(json.loads(json.dumps(paced.to_dict()))) == paced  # policy.json carries it
+
+
 def test_no_change_to_the_left_that_the_agent_would_at_once_undo():
     """In an empty world a side-blind agent wants both ways: its change to the left is not requested (it
     would want back at once), its return to the right is; behind a slower leader it overtakes (the check

@@ -3,7 +3,7 @@
 import numpy as np
 
 from rl.drive.loop import choose_side
-from rl.drive.pace import exceeds, lowest_threshold, onsets
+from rl.drive.pace import exceeds, lowest_threshold, onsets, thresholds
 
 
 def test_an_onset_is_the_start_of_a_run_of_wanting_a_change():
@@ -38,3 +38,26 @@ def test_choose_side_needs_the_threshold():
     assert choose_side({0: 0.3}) == 0 and choose_side({0: 0.0}) == 0 and choose_side({0: -0.1}) is None
     assert choose_side({0: 0.3}, threshold=0.5) is None and choose_side({0: 0.6, 2: 0.55}, threshold=0.5) == 0
     assert choose_side({0: 0.2, 2: 0.55}, threshold=0.5) == 2
+
+
+def test_choose_side_takes_each_lanes_own_threshold():
+    need = {0: 0.0, 2: 0.5}  # to the right as trained, to the left the drivers' pace
+    assert choose_side({0: 0.3, 2: 0.45}, need) == 0  # the larger advantage does not reach its side's threshold
+    assert choose_side({0: 0.3, 2: 0.6}, need) == 2 and choose_side({0: -0.1, 2: 0.45}, need) is None
+
+
+def test_by_side_the_presses_to_the_right_do_not_pay_for_onsets_to_the_left():
+    """The agent wants left twice as often as its drivers pressed left and right never (in the closed
+    loop the assistant's returns and the agent's own come after its changes to the left): pooled, the
+    presses to the right hide the excess; by side the left needs the pace of the presses to the left."""
+    adv = [{"left": np.array([0.1, -1.0] * 10), "right": np.full(20, -1.0)} for _ in range(10)]  # 100 onsets left
+    presses = {"left": 50, "right": 50, "unknown": 0}
+    pooled = thresholds(adv, presses, km=10.0)  # the default
+    assert pooled["min_advantage"] == 0.0 and "min_advantage_by_side" not in pooled  # 100 onsets, 100 presses
+    by_side = thresholds(adv, presses, km=10.0, by="side")
+    assert by_side["by"] == "side" and by_side["min_advantage"] == 0.0
+    assert by_side["min_advantage_by_side"] == {"left": 0.15, "right": 0.0}
+    assert "to the left 10.00 as trained, 0.00 with at least 0.15, against 5.00 presses" in by_side["note"]
+    # a press without a side: the pace cannot be read by side, and says so
+    unknown = thresholds(adv, {**presses, "unknown": 3}, km=10.0, by="side")
+    assert "min_advantage_by_side" not in unknown and "3 of the presses have no side" in unknown["note"]
