@@ -19,7 +19,7 @@ analysis assigns to the agent's drive; then whether issue 19's closed-loop accep
 every median inside their IQR) and a JSON line with every figure.
 
 Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--family ttc|acceptance] [--no-pace]
-     [--pace-by pooled|side] [--no-undo-check] [--drive-seed 1 [2 ...]]
+     [--pace-by pooled|side] [--dwell-percentile 5] [--no-undo-check] [--drive-seed 1 [2 ...]]
                                       [--drivers 9] [--minutes 10] [--workdir /tmp/lp-closed-loop]
 
 Sides not taken (issue 19, three lanes): on an analysed workspace of a SUMO study,
@@ -182,8 +182,10 @@ def out_of_world(args: argparse.Namespace) -> bool:
                     cli("train", "--style", style, "--seed", str(args.seed), "--run-id", run_id, "--no-evaluate",
                         "-w", str(ws))
                 tag = f"{run_id}-l{lanes}-d{seed}-m{args.minutes:g}"
-                paced = f"{tag}-pace-by-side" if args.pace_by == "side" else tag
-                d = drive_once(ws, run_id, args.workdir / paced, lanes, seed, args.minutes, "--pace-by", args.pace_by)
+                assist = ("-pace-by-side" if args.pace_by == "side" else "") + (
+                    f"-dwell{args.dwell_percentile:g}" if args.dwell_percentile != 5.0 else "")
+                d = drive_once(ws, run_id, args.workdir / f"{tag}{assist}", lanes, seed, args.minutes,
+                               "--pace-by", args.pace_by, "--dwell-percentile", f"{args.dwell_percentile:g}")
                 pure = drive_once(ws, run_id, args.workdir / f"{tag}-pure", lanes, seed, args.minutes,
                                   "--no-held-back", "--no-sumo-model")
                 tot, model = d["totals"], d["sumo_model"]["totals"]
@@ -238,6 +240,9 @@ def main() -> None:
     ap.add_argument("--no-pace", action="store_true", help="default mode: drive without the drivers' pace (drive --no-pace)")
     ap.add_argument("--pace-by", choices=("pooled", "side"), default="pooled",
                     help="the pace read for both sides at once or per side (drive --pace-by)")
+    ap.add_argument("--dwell-percentile", type=float, default=5.0,
+                    help="the dwell's percentile of the drivers' times from a change to the next press (drive "
+                         "--dwell-percentile)")
     ap.add_argument("--no-undo-check", action="store_true",
                     help="default mode: drive without the undo check (drive --no-undo-check)")
     ap.add_argument("--out-of-world", action="store_true",
@@ -301,6 +306,7 @@ def closed_loop(args: argparse.Namespace) -> bool:
         seeds = [cli("drive", run["run_id"], "--engine", "sumo", "--minutes", f"{args.minutes:g}",
                      "--seed", str(seed), "--lanes", lanes, "--family", args.family,
                      *(["--no-pace"] if args.no_pace else []), "--pace-by", args.pace_by,
+                     "--dwell-percentile", f"{args.dwell_percentile:g}",
                      *(["--no-undo-check"] if args.no_undo_check else []), "--no-sumo-model",
                      "--driver-id", driver if len(args.drive_seed) == 1 else f"{driver}-d{seed}",
                      "--out", str(work / "drives" / f"{driver}-d{seed}"), "-w", str(ws)) for seed in args.drive_seed]
@@ -319,7 +325,8 @@ def closed_loop(args: argparse.Namespace) -> bool:
     final = cli("analyze", "-w", str(joined))
     print(f"\n## Closed loop in SUMO (study seed {args.seed}, family {args.family}, drive seed "
           f"{' '.join(map(str, args.drive_seed))}, {lanes} lanes, "
-          f"pace {'off' if args.no_pace else 'on, ' + args.pace_by}, undo check {'off' if args.no_undo_check else 'on'}, "
+          f"pace {'off' if args.no_pace else 'on, ' + args.pace_by}, dwell percentile {args.dwell_percentile:g}, "
+          f"undo check {'off' if args.no_undo_check else 'on'}, "
           f"{args.minutes:g} min per section, 4 sections, {time.monotonic() - t0:.0f} s in all)")
     print("| style | lane changes (L/R) | per km [95 %] | drivers per km [95 %] (range) | ratio | left share: "
           "agent / drivers | medians in drivers' IQR | collisions | emergency brakes | assigned style |"

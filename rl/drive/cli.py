@@ -12,6 +12,7 @@ from rich.table import Table
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
+from rl.drive.heldback import DWELL_PERCENTILE
 
 ENGINES = ("sumo",)
 
@@ -46,6 +47,11 @@ def drive_command(
         "--dwell/--no-dwell",
         help="With the held-back rule: no change sooner after a lane change than the target's drivers pressed "
              "(default on; README, 'Driving like its drivers'). --no-dwell: without that wait.")] = True,
+    dwell_percentile: Annotated[float, typer.Option(
+        "--dwell-percentile",
+        help="The dwell's percentile of the drivers' times from a lane change to their next press (default: 5, "
+             "their floor; 25: closer to drivers who stay long in the left lane; README, 'The dwell')."
+    )] = DWELL_PERCENTILE,
     pace: Annotated[bool, typer.Option(
         "--pace/--no-pace",
         help="With the held-back rule: the agent's own change needs the advantage at which, replayed along its "
@@ -80,7 +86,8 @@ def drive_command(
         with progress_bar(not as_json) as bar:
             return drive_run(Workspace(workspace), run_id, minutes=minutes, seed=seed, sections=section, out=out,
                              driver_id=driver_id, analyze=analyze, lanes=lanes, held_back=held_back,
-                             sumo_model=sumo_model, dwell=dwell, family=family, pace=pace, pace_by=pace_by,
+                             sumo_model=sumo_model, dwell=dwell,
+                             dwell_percentile=dwell_percentile, family=family, pace=pace, pace_by=pace_by,
                              undo_check=undo_check, progress=bar)
 
     run_command(work, as_json, render)

@@ -31,7 +31,7 @@ from laneprint.progress import ProgressFn
 from laneprint.reference import INDICATORS, SPEED_LIMITS_KPH
 from laneprint.workspace import Workspace, atomic_write_json
 from rl.drive.fidelity import fidelity
-from rl.drive.heldback import HeldBackRule, merge_summaries, rule_from_analysis
+from rl.drive.heldback import DWELL_PERCENTILE, HeldBackRule, merge_summaries, rule_from_analysis
 from rl.drive.loop import QFunction, SectionDrive, drive_sections, recordings, sumo_model_sections
 from rl.learners.dqn import q_values
 from rl.problem.env import EnvConfig, observation
@@ -202,10 +202,11 @@ def assigned_style(workspace: Workspace, files: list[Path], driver_id: str) -> d
             "styles": dict(zip(styles["driver_id"], styles["style"].astype(str)))}
 
 
-def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig) -> tuple[Optional[HeldBackRule], str]:
+def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig,
+                   dwell_percentile: float = DWELL_PERCENTILE) -> tuple[Optional[HeldBackRule], str]:
     """(the rule of the run's target from the analysis, a note); None with why when the analysis lacks it."""
     try:
-        return rule_from_analysis(workspace, target, cfg.dt_s), "from the workspace's analysis"
+        return rule_from_analysis(workspace, target, cfg.dt_s, dwell_percentile), "from the workspace's analysis"
     except (ValueError, KeyError, UserError, FileNotFoundError) as exc:
         return None, f"no held-back rule: {exc}"
 
@@ -251,7 +252,8 @@ _NEVER = _never()
 def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed: int = 0,
               sections: Optional[list[float]] = None, out: Optional[Path] = None,
               driver_id: Optional[str] = None, analyze: bool = False, lanes: int = 2,
-              held_back: bool = True, sumo_model: bool = True, dwell: bool = True, family: str = "ttc",
+              held_back: bool = True, sumo_model: bool = True, dwell: bool = True,
+              dwell_percentile: float = DWELL_PERCENTILE, family: str = "ttc",
               pace: bool = True, pace_by: str = "pooled", undo_check: bool = True,
               progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
@@ -262,7 +264,8 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
 
     `held_back`: the assistant's held-back rule acts beside the agent (False: the pure agent; the rule's
     figures are still measured). `sumo_model`: also drive SUMO's own model of the style (the comparator).
-    `dwell=False`: the rule without its dwell after a lane change (`HeldBackRule.dwell_s` emptied).
+    `dwell=False`: the rule without its dwell after a lane change (`HeldBackRule.dwell_s` emptied);
+    `dwell_percentile`: the dwell's percentile of the drivers' times from a change to the next press.
     `pace=False`: the agent's own changes need only a positive advantage, not its drivers' pace
     (`HeldBackRule.min_advantage`, `rl.drive.pace`); `pace_by`: that pace read for both sides at once
     ('pooled') or per side ('side', `rl.drive.pace.PACE_BY`). `undo_check=False`: the agent's changes to
@@ -293,7 +296,9 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     check_available()
     style, why = ego_style(workspace, target)
     settings = family_settings(family, lanes, speed_limits_kph=limits, minutes=minutes)
-    rule, rule_note = held_back_rule(workspace, target, cfg)
+    if not 0 <= dwell_percentile <= 100:
+        raise UserError(f"--dwell-percentile {dwell_percentile:g}: give a percentile from 0 to 100")
+    rule, rule_note = held_back_rule(workspace, target, cfg, dwell_percentile)
     if rule is not None and not dwell:
         rule = replace(rule, dwell_s={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
     if rule is not None and not undo_check:

@@ -234,6 +234,8 @@ def test_drive_refuses_an_unknown_run_and_section(trained):
     assert res.exit_code == 1 and "unknown --engine" in res.output
     res = runner.invoke(app, ["drive", run_id, "--pace-by", "lane", "-w", str(ws)])
     assert res.exit_code == 1 and "unknown --pace-by 'lane'" in res.output and "Traceback" not in res.output
+    res = runner.invoke(app, ["drive", run_id, "--dwell-percentile", "150", "-w", str(ws)])
+    assert res.exit_code == 1 and "--dwell-percentile 150" in res.output and "Traceback" not in res.output
     for bad in ("1", "7"):
         res = runner.invoke(app, ["drive", run_id, "--lanes", bad, "-w", str(ws)])
         assert res.exit_code == 1 and f"--lanes {bad}:" in res.output and "Traceback" not in res.output

@@ -321,7 +321,7 @@ def _presses(rows: list[tuple[str, float, str]]) -> pd.DataFrame:
                          "label": "change"})
 
 
-def test_dwell_is_a_low_percentile_of_the_time_from_a_change_to_the_next_press():
+def test_dwell_is_a_percentile_of_the_time_from_a_change_to_the_next_press():
     # one recording: left, right 10.5 s after the change, left again, ... (6 left>right, 5 right>left)
     rows, t = [], 0.0
     for k in range(6):
@@ -330,8 +330,11 @@ def test_dwell_is_a_low_percentile_of_the_time_from_a_change_to_the_next_press()
         rows.append(("r", t, "right"))
         t += 1.5 + 2.0  # right>left: 2 s after the change
     dwell, why = dwell_from(_presses(rows))
-    assert dwell["left>right"] == pytest.approx(np.percentile(np.arange(10.0, 16.0), 5))
+    assert dwell["left>right"] == pytest.approx(10.25)  # the 5th percentile of 10-15 s (DWELL_PERCENTILE)
     assert dwell["right>left"] == pytest.approx(2.0) and "left>right 6, right>left 5" in why
+    assert "percentile 5 " in why
+    quartile, why = dwell_from(_presses(rows), percentile=25.0)  # drive --dwell-percentile 25
+    assert quartile["left>right"] == pytest.approx(11.25) and "percentile 25 " in why
     # pairs never span recordings, and kinds with fewer than MIN_DWELL_PAIRS are not read
     few = _presses([(f"r{k}", 0.0, "left") for k in range(10)] + [("r0", 20.0, "right")])
     assert dwell_from(few)[0] == {}
