@@ -278,8 +278,8 @@ class AgentControl(Watch):
 
     def would_undo(self, ego: VehicleState, others: dict[str, VehicleState], target: int, threshold: float) -> bool:
         """Whether the agent, put in lane `target` as the traffic is now, would want back into the ego's lane
-        at once (an advantage of at least `threshold`, what its own change back there needs). Asked only with no leader
-        within range.
+        at once (an advantage of at least `threshold`, what its own change back there needs). Asked only with
+        no leader within range.
 
         With no leader (where drivers change lane mostly to return right), an agent that does not know
         the side reads an empty lane to the left as a place to return to, and in an empty world it

@@ -14,14 +14,14 @@ one-sided exact test at `SIGNIFICANCE`). Without that test a 4 % excess at 0 on 
 before it falls, next came under the presses, and out of its world the Aggressive agent made almost
 none of its changes itself (README, 'Driving like its drivers').
 
-**By side** (`by="side"`, `drive --pace-by side`): each side has its own threshold, its onsets to that side
-against the drivers' presses to that side. Pooled, the presses to one side paid for onsets to the
-other: along study 647's recordings the agents start wanting a change to the left 1.4-1.7 times as
-often as their drivers pressed left and to the right 0.3-0.6 times as often as they pressed right
-(at the pooled threshold), so the pooled threshold let the excess to the left through, while on two lanes every change to the left is
-followed by one back, and the side with the faster pace sets the rate (README, issue 19, 'The pace
-by side'). It is not the default: out of its world it takes the shipped study's Aggressive agent
-below half of SUMO's model's rate on three lanes (0.51 -> 0.44), where the pooled pace stays inside.
+**By side** (`by="side"`, `drive --pace-by side`): each side has its own threshold, its onsets to
+that side against the drivers' presses to that side. Pooled, the presses to one side pay for onsets
+to the other: along study 647's recordings, at the pooled threshold, the agents start wanting a
+change to the left 1.4-1.7 times as often as their drivers pressed left and to the right 0.3-0.6
+times as often as they pressed right, while on two lanes every change to the left is followed by one
+back, so the side with the faster pace sets the rate (README, issue 19, 'The pace by side'). It is
+not the default: out of its world it takes the shipped study's Aggressive agent below half of SUMO's
+model's rate on three lanes (0.51 -> 0.44), where the pooled pace stays inside.
 
 It uses the drivers' recordings only (no closed-loop drive, no held-out data), like the rest of
 the assistant's numbers (`rl.drive.heldback`).
@@ -60,12 +60,6 @@ def side_advantages(ego: pd.DataFrame, traffic: pd.DataFrame, net: torch.nn.Modu
         dec = decide(net, cfg, steps, scene)
         out[name] = np.nan_to_num((dec["q_change"] - dec["q_keep"]).to_numpy(dtype=float), nan=-np.inf)
     return out
-
-
-def step_advantages(ego: pd.DataFrame, traffic: pd.DataFrame, net: torch.nn.Module, cfg: EnvConfig) -> np.ndarray:
-    """Per agent step of a recording: the best advantage over its neighbouring lanes (-inf: none asked)."""
-    by_side = side_advantages(ego, traffic, net, cfg)
-    return np.maximum(by_side["left"], by_side["right"])
 
 
 def onsets(advantages: list[np.ndarray], threshold: float) -> int:
