@@ -152,6 +152,11 @@ def shipped_workspace(args: argparse.Namespace) -> Path:
     return ws
 
 
+def dwell_option(args: argparse.Namespace) -> list[str]:
+    """`--dwell-percentile P` for `laneprint drive` when one was given (else drive's default)."""
+    return [] if args.dwell_percentile is None else ["--dwell-percentile", f"{args.dwell_percentile:g}"]
+
+
 def drive_once(ws: Path, run_id: str, out: Path, lanes: int, seed: int, minutes: float, *extra: str) -> dict:
     """`laneprint drive` of a run (its report reused when driven before with these settings)."""
     if (out / "drive.json").exists():
@@ -183,9 +188,9 @@ def out_of_world(args: argparse.Namespace) -> bool:
                         "-w", str(ws))
                 tag = f"{run_id}-l{lanes}-d{seed}-m{args.minutes:g}"
                 assist = ("-pace-by-side" if args.pace_by == "side" else "") + (
-                    f"-dwell{args.dwell_percentile:g}" if args.dwell_percentile != 5.0 else "")
+                    "" if args.dwell_percentile is None else f"-dwell{args.dwell_percentile:g}")
                 d = drive_once(ws, run_id, args.workdir / f"{tag}{assist}", lanes, seed, args.minutes,
-                               "--pace-by", args.pace_by, "--dwell-percentile", f"{args.dwell_percentile:g}")
+                               "--pace-by", args.pace_by, *dwell_option(args))
                 pure = drive_once(ws, run_id, args.workdir / f"{tag}-pure", lanes, seed, args.minutes,
                                   "--no-held-back", "--no-sumo-model")
                 tot, model = d["totals"], d["sumo_model"]["totals"]
@@ -240,9 +245,9 @@ def main() -> None:
     ap.add_argument("--no-pace", action="store_true", help="default mode: drive without the drivers' pace (drive --no-pace)")
     ap.add_argument("--pace-by", choices=("pooled", "side"), default="pooled",
                     help="the pace read for both sides at once or per side (drive --pace-by)")
-    ap.add_argument("--dwell-percentile", type=float, default=5.0,
+    ap.add_argument("--dwell-percentile", type=float,
                     help="the dwell's percentile of the drivers' times from a change to the next press (drive "
-                         "--dwell-percentile)")
+                         "--dwell-percentile; default: drive's)")
     ap.add_argument("--no-undo-check", action="store_true",
                     help="default mode: drive without the undo check (drive --no-undo-check)")
     ap.add_argument("--out-of-world", action="store_true",
@@ -306,7 +311,7 @@ def closed_loop(args: argparse.Namespace) -> bool:
         seeds = [cli("drive", run["run_id"], "--engine", "sumo", "--minutes", f"{args.minutes:g}",
                      "--seed", str(seed), "--lanes", lanes, "--family", args.family,
                      *(["--no-pace"] if args.no_pace else []), "--pace-by", args.pace_by,
-                     "--dwell-percentile", f"{args.dwell_percentile:g}",
+                     *dwell_option(args),
                      *(["--no-undo-check"] if args.no_undo_check else []), "--no-sumo-model",
                      "--driver-id", driver if len(args.drive_seed) == 1 else f"{driver}-d{seed}",
                      "--out", str(work / "drives" / f"{driver}-d{seed}"), "-w", str(ws)) for seed in args.drive_seed]
@@ -325,7 +330,8 @@ def closed_loop(args: argparse.Namespace) -> bool:
     final = cli("analyze", "-w", str(joined))
     print(f"\n## Closed loop in SUMO (study seed {args.seed}, family {args.family}, drive seed "
           f"{' '.join(map(str, args.drive_seed))}, {lanes} lanes, "
-          f"pace {'off' if args.no_pace else 'on, ' + args.pace_by}, dwell percentile {args.dwell_percentile:g}, "
+          f"pace {'off' if args.no_pace else 'on, ' + args.pace_by}, dwell percentile "
+          f"{'default' if args.dwell_percentile is None else format(args.dwell_percentile, 'g')}, "
           f"undo check {'off' if args.no_undo_check else 'on'}, "
           f"{args.minutes:g} min per section, 4 sections, {time.monotonic() - t0:.0f} s in all)")
     print("| style | lane changes (L/R) | per km [95 %] | drivers per km [95 %] (range) | ratio | left share: "

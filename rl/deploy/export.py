@@ -43,7 +43,7 @@ import torch
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
-from rl.drive.heldback import ACCEPT_INDICATORS, rule_from_analysis
+from rl.drive.heldback import ACCEPT_INDICATORS, by_side_text, rule_from_analysis
 from rl.drive.pace import pace_threshold
 from rl.problem.env import EnvConfig, observation, sample_scenes
 from rl.problem.observation import ACTIONS, ROLES, constants, observation_spec
@@ -265,7 +265,7 @@ assistant therefore also applies this rule (`laneprint drive` does by default;
 - t_nf_floor_s = {rule['t_nf_floor_s']:.3g} s ({rule['source'].get('t_nf_floor_s', '')})
 - dv_nb_floor_mps = {_num(rule.get('dv_nb_floor_mps'), ' m/s')} ({rule['source'].get('dv_nb_floor_mps', '')})
 - dwell_s = {', '.join(f"{k} {v:.3g} s" for k, v in rule.get('dwell_s', {}).items()) or 'none'} ({rule['source'].get('dwell_s', '')})
-- min_advantage = {_pace(rule)} ({rule['source'].get('min_advantage', 'the policy as trained')})
+- min_advantage = {by_side_text(rule.get('min_advantage_by_side') or {}) or format(rule.get('min_advantage', 0.0), 'g')} ({rule['source'].get('min_advantage', 'the policy as trained')})
 - undo_check = {str(rule.get('undo_check', False)).lower()} ({rule['source'].get('undo_check', "with no leader, no change to the left the policy would at once undo")})
 - slower_mps = {rule['slower_mps']:g} m/s, far_follower_m = {rule['far_follower_m']:g} m,
   range_m = {rule['range_m']:g} m; desired speed: {rule['desired_speed']}
@@ -274,13 +274,6 @@ assistant therefore also applies this rule (`laneprint drive` does by default;
 |---|---|---|---|---|---|---|
 {rows}
 """
-
-
-def _pace(rule: dict[str, Any]) -> str:
-    by_side = rule.get("min_advantage_by_side") or {}
-    if by_side:
-        return ", ".join(f"{v:g} to the {k}" for k, v in by_side.items()) + " (min_advantage_by_side)"
-    return f"{rule.get('min_advantage', 0.0):g}"
 
 
 def _num(x: Any, unit: str) -> str:

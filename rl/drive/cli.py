@@ -12,7 +12,7 @@ from rich.table import Table
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
-from rl.drive.heldback import DWELL_PERCENTILE
+from rl.drive.heldback import DWELL_PERCENTILE, by_side_text
 
 ENGINES = ("sumo",)
 
@@ -198,13 +198,10 @@ def render(result: dict[str, Any], console: Console) -> None:
     else:
         console.print(hb.get("note", "no held-back rule"), highlight=False, soft_wrap=True)
     pace = result.get("pace") or {}
-    if "min_advantage_by_side" in pace:
-        sides = ", ".join(f"{v:g} to the {k}" for k, v in pace["min_advantage_by_side"].items())
-        console.print(f"pace: the agent's own change needs an advantage of at least {sides} ({pace['note']})",
+    if "min_advantage" in pace:
+        needs = by_side_text(pace.get("min_advantage_by_side", {})) or f"{pace['min_advantage']:g}"
+        console.print(f"pace: the agent's own change needs an advantage of at least {needs} ({pace['note']})",
                       highlight=False, soft_wrap=True)
-    elif "min_advantage" in pace:
-        console.print(f"pace: the agent's own change needs an advantage of at least {pace['min_advantage']:g} "
-                      f"({pace['note']})", highlight=False, soft_wrap=True)
     elif pace:
         console.print(f"pace: {pace['note']}", highlight=False, soft_wrap=True)
     if "sumo_model" in result:

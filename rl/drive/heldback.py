@@ -185,6 +185,11 @@ def faster(rule: HeldBackRule, scene: Scene, range_m: float) -> np.ndarray:
     return ~nf | (scene.v_nf >= scene.v_f + rule.slower_mps)
 
 
+def by_side_text(by_side: dict[str, float]) -> str:
+    """'0.4 to the left, 0 to the right' ('' when empty): the pace's thresholds by side."""
+    return ", ".join(f"{v:g} to the {k}" for k, v in by_side.items())
+
+
 def holding_limit(desired_mps: float, slower_mps: float) -> float:
     """The speed [m/s] below which a leader holds the ego back: its desired speed less `slower_mps`."""
     return desired_mps - slower_mps

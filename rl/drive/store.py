@@ -279,6 +279,8 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
         raise UserError(f"unknown --family {family!r}; choose one of {', '.join(FAMILIES)}")
     if pace_by not in PACE_BY:
         raise UserError(f"unknown --pace-by {pace_by!r}; choose one of {', '.join(PACE_BY)}")
+    if not 0 <= dwell_percentile <= 100:
+        raise UserError(f"--dwell-percentile {dwell_percentile:g}: give a percentile from 0 to 100")
     style_params = FAMILY_STYLE_PARAMS[family]
     if lanes not in LANES:
         raise UserError(f"--lanes {lanes}: a SUMO highway has {' or '.join(map(str, LANES))} lanes")
@@ -296,8 +298,6 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     check_available()
     style, why = ego_style(workspace, target)
     settings = family_settings(family, lanes, speed_limits_kph=limits, minutes=minutes)
-    if not 0 <= dwell_percentile <= 100:
-        raise UserError(f"--dwell-percentile {dwell_percentile:g}: give a percentile from 0 to 100")
     rule, rule_note = held_back_rule(workspace, target, cfg, dwell_percentile)
     if rule is not None and not dwell:
         rule = replace(rule, dwell_s={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
