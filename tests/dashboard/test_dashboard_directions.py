@@ -165,11 +165,10 @@ def test_drivers_page_draws_directions_in_the_browser(server, page):
     expect(page.get_by_role("heading", name="Drivers", exact=True).first).to_be_visible(timeout=60_000)
     expect(page.locator(".js-plotly-plot").first).to_be_visible(timeout=60_000)
     expect(page.get_by_role("heading", name="Fits per direction")).to_be_visible(timeout=60_000)
-    # Plotly draws each figure when it scrolls into reach: wait for the traces asserted on, not for any figure
-    page.wait_for_function("""() => {
-        const names = [...document.querySelectorAll('.js-plotly-plot')].flatMap(g => (g._fullData || []).map(t => t.name || ''));
-        return ['used, to the left', 'used, to the right'].every(p => names.some(n => n.startsWith(p)));
-    }""", timeout=60_000)
+    # Plotly draws the figures one by one: wait for what is asserted on (the three indicator figures, each
+    # with its legend entry for the presses to the left), not for the first figure drawn
+    page.wait_for_function("""() => [...document.querySelectorAll('.legendtext')]
+        .filter(e => e.textContent.toLowerCase().includes('to the left')).length >= 3""", timeout=60_000)
     drawn = page.evaluate("""() => [...document.querySelectorAll('.js-plotly-plot')].filter(g => g._fullData)
         .map(g => g._fullData.filter(t => t.visible !== false).map(t => [t.name, (t.line || {}).dash || '']))""")
     names = [name for fig in drawn for name, _ in fig]
@@ -177,7 +176,7 @@ def test_drivers_page_draws_directions_in_the_browser(server, page):
     assert any(n.startswith("used, to the right") for n in names), names
     sides = [dash for fig in drawn for name, dash in fig if name.startswith("line to the ")]
     assert sides and set(sides) <= {"dash", "dashdot"}, drawn
-    # every indicator figure shows the presses by direction and has a legend entry for them
+    # every indicator figure shows the presses by direction and has a legend entry for them (waited for above)
     assert page.locator(".legendtext", has_text="to the left").count() >= 3
     from dashboard_support import SHOT_DIR
 
