@@ -38,7 +38,7 @@ from laneprint.errors import UserError
 from laneprint.parallel import check_backend, iter_tasks
 from laneprint.progress import ProgressFn, report
 from laneprint.schemas import SchemaError
-from laneprint.workspace import Workspace, atomic_write_bytes, encode_traffic
+from laneprint.workspace import Workspace, atomic_write_bytes, content_id, encode_traffic
 
 LOG_SUFFIXES = (".csv.gz", ".csv", ".mcap")
 STATUSES = ("ingested", "warning", "duplicate", "rejected", "skipped")
@@ -270,7 +270,7 @@ class _Batch:
             return self.reject(path, fmt, "", str(exc))
         except OSError as exc:
             return self.reject(path, fmt, "", f"cannot read the file: {exc.strerror or exc}")
-        rid = hashlib.sha256(data).hexdigest()[:16]
+        rid = content_id(data)
         if self.ws.has_recording(rid):
             return self.same_bytes(path, fmt, rid)
         session = session_stem(path) if bag is None else path.name

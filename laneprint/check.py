@@ -18,7 +18,6 @@ writers hold it until their file is in place, and the kernel drops it when they 
 
 from __future__ import annotations
 
-import hashlib
 import json
 import shutil
 import time
@@ -32,7 +31,7 @@ import pyarrow.parquet as pq
 from laneprint.errors import UserError
 from laneprint.locks import is_locked
 from laneprint.schemas import DECISIONS, EGO, RECORDINGS, REFERENCE_LINES, REJECTED, TRAFFIC, Schema, SchemaError, validate
-from laneprint.workspace import TMP_SUFFIX, Workspace
+from laneprint.workspace import TMP_SUFFIX, Workspace, content_id, legacy_content_id
 
 #: tables of a stage folder that have a schema (the others are checked for being readable)
 STAGE_SCHEMAS: dict[tuple[str, str], Schema] = {
@@ -175,8 +174,9 @@ def _check_recording(ws: Workspace, folder: Path) -> Iterator[Finding]:
         yield Finding("problem", f"{rel}/ego.parquet", f"{len(ego)} samples, the catalogue says {int(row['n_samples'])}")
     source = Path(str(row["source_path"]))
     if source.is_file():
-        digest = hashlib.sha256(source.read_bytes()).hexdigest()[:16]
-        if digest != folder.name:
+        data = source.read_bytes()
+        digest = content_id(data)
+        if folder.name not in (digest, legacy_content_id(data)):
             yield Finding("note", rel, f"its source {source} changed since it was ingested (content hash {digest})")
 
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import ctypes
 import errno
+import hashlib
 import json
 import os
 import shutil
@@ -38,6 +39,7 @@ from typing import Any, Callable, Iterator
 
 import duckdb
 import numpy as np
+import xxhash
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -48,7 +50,20 @@ from laneprint.schemas import EGO, RECORDINGS, REJECTED, TRAFFIC, Schema, valida
 
 DEFAULT_WORKSPACE = Path("workspace")
 TMP_SUFFIX = ".tmp"  # temporary files of atomic_write_bytes: `.<name>.<random>.tmp` beside the target
-_TRAFFIC_DICT_COLUMNS = ("lane",)  # vehicle_id plain: its dictionary cost 6 of 44 ms of the write for 3 % of size
+
+
+def content_id(data: bytes) -> str:
+    """A file's recording id: the first 16 hex digits of the XXH3-128 hash of its bytes.
+
+    XXH3 hashes an 18 MB log in 1 ms where SHA-256 (the id of workspaces written before
+    2026-12-03, see `legacy_content_id`) took 11 ms, 8 % of a CSV ingest. The id tells identical files
+    apart from different ones; nothing relies on it being hard to forge."""
+    return xxhash.xxh3_128_hexdigest(data)[:16]
+
+
+def legacy_content_id(data: bytes) -> str:
+    """The recording id workspaces written before 2026-12-03 gave a file (SHA-256)."""
+    return hashlib.sha256(data).hexdigest()[:16]
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -80,33 +95,39 @@ def _plain_strings(df: pd.DataFrame) -> pd.DataFrame:
     return df
 
 
-def _to_arrow(df: pd.DataFrame) -> pa.Table:
-    """`df` as `pa.Table.from_pandas(df, preserve_index=False)` gives it (schema, pandas metadata, NaN as
-    null), without its NaN scan of float columns that hold no NaN (2.5 ms per 600 000 values, numpy's
-    test 0.3 ms): those are taken without a copy."""
-    schema = pa.Schema.from_pandas(df, preserve_index=False)
+_ARROW_TYPES = {"float": pa.float64(), "int": pa.int64(), "bool": pa.bool_(), "str": pa.string()}
+
+
+def _to_arrow(df: pd.DataFrame, schema: Schema) -> pa.Table:
+    """`df` as an Arrow table, NaN and None as null; object columns typed by `schema` (a column of only
+    None would otherwise be stored as type null), others as pyarrow converts them. Without pandas' metadata: `pa.Table.from_pandas` infers it by scanning every object
+    column (2 ms for a one-row catalogue entry) and readers need none of it. Float columns without a
+    NaN (the test is a minimum, which a NaN turns NaN: no temporary array) are taken without a copy."""
+    kinds = {c.name: c.kind for c in schema.columns}
     arrays = []
-    for f in schema:
-        col = df[f.name]
-        values = col.to_numpy() if col.dtype == np.float64 else None
-        if values is not None and not np.isnan(values).any():
-            arrays.append(pa.array(values))
-        else:
-            arrays.append(pa.array(col, type=f.type, from_pandas=True))
-    return pa.Table.from_arrays(arrays, schema=schema)
+    for name in df.columns:
+        col = df[name]
+        if col.dtype == np.float64:
+            values = col.to_numpy()
+            if not (len(values) and np.isnan(values.min())):
+                arrays.append(pa.array(values))
+                continue
+        kind = kinds.get(name) if col.dtype == object else None  # typed columns keep their Arrow type
+        arrays.append(pa.array(col, type=_ARROW_TYPES[kind] if kind else None, from_pandas=True))
+    return pa.Table.from_arrays(arrays, names=[str(c) for c in df.columns])
 
 
-def _write_parquet(df: pd.DataFrame, path: Path | pa.NativeFile, dictionary: tuple[str, ...] = ()) -> None:
-    """Write `df` as Parquet (snappy): the named columns dictionary-encoded, float columns
-    BYTE_STREAM_SPLIT-encoded (measured: a third of the write time of plain or dictionary
-    encoding of float columns, for files 5-25 % larger), other columns plain; no min/max
-    statistics (recordings are read whole: they serve no query, and cost ~15 % of the write); data
-    pages of version 2 (a quarter less time than version 1 for the traffic of a 10-minute, 20-vehicle
-    log, the same size; pyarrow, pandas and DuckDB read both)."""
-    table = _to_arrow(df)
-    floats = [f.name for f in table.schema if pa.types.is_floating(f.type) and f.name not in dictionary]
-    pq.write_table(table, path, use_dictionary=[c for c in dictionary if c in table.column_names],
-                   column_encoding={c: "BYTE_STREAM_SPLIT" for c in floats} or None,
+def _write_parquet(df: pd.DataFrame, path: Path | pa.NativeFile, schema: Schema) -> None:
+    """Write `df` as Parquet the fast way (measured on the traffic of a 10-minute, 20-vehicle log:
+    `benchmarks/ingest.py`, README "Ingest speed"): float columns BYTE_STREAM_SPLIT (a third of the
+    time of plain or dictionary encoding), integer columns DELTA_BINARY_PACKED (half the time of a
+    dictionary), text plain; LZ4 (raw) compression, as fast as snappy and a quarter smaller here; no
+    min/max statistics (recordings are read whole: they serve no query, and cost ~15 % of the write);
+    data pages of version 2 (a quarter less time than version 1). pyarrow, pandas and DuckDB read it."""
+    table = _to_arrow(df, schema)
+    encodings = {f.name: "BYTE_STREAM_SPLIT" if pa.types.is_floating(f.type) else "DELTA_BINARY_PACKED"
+                 for f in table.schema if pa.types.is_floating(f.type) or pa.types.is_integer(f.type)}
+    pq.write_table(table, path, use_dictionary=False, column_encoding=encodings or None, compression="lz4",
                    write_statistics=False, data_page_version="2.0")
 
 
@@ -115,7 +136,7 @@ def encode_traffic(traffic: pd.DataFrame) -> bytes:
     encode it while other work runs (`ingest.pipeline.parse_log` does it beside the ego checks);
     `SchemaError` when it does not fit."""
     buf = pa.BufferOutputStream()
-    _write_parquet(validate(traffic, TRAFFIC), buf, _TRAFFIC_DICT_COLUMNS)
+    _write_parquet(validate(traffic, TRAFFIC), buf, TRAFFIC)
     return buf.getvalue().to_pybytes()
 
 
@@ -217,8 +238,8 @@ class Workspace:
             # (pyarrow releases the GIL while it writes) while the ego and meta are written here
             with ThreadPoolExecutor(1) as pool:
                 traffics = pool.submit(_write_traffic, traffic, tmp / "traffic.parquet", encoded_traffic)
-                _write_parquet(ego, tmp / "ego.parquet", ("ego_lane",))
-                meta_df.to_parquet(tmp / "meta.parquet", index=False)
+                _write_parquet(ego, tmp / "ego.parquet", EGO)
+                _write_parquet(meta_df, tmp / "meta.parquet", RECORDINGS)
                 traffics.result()
             try:
                 os.rename(tmp, final)
@@ -243,7 +264,7 @@ class Workspace:
         d = self.recordings_dir / recording_id
         if not (d / "meta.parquet").exists():
             raise UserError(f"no recording {recording_id!r} in workspace {self.root}")
-        meta = pd.read_parquet(d / "meta.parquet").iloc[0].to_dict()
+        meta = {k: None if pd.isna(v) else v for k, v in pd.read_parquet(d / "meta.parquet").iloc[0].items()}
         return meta, _plain_strings(pd.read_parquet(d / "ego.parquet")), _plain_strings(
             pd.read_parquet(d / "traffic.parquet"))
 

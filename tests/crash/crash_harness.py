@@ -61,10 +61,10 @@ class Command:
 
 def _held_back_stored(ws: Path, ctx: Context) -> list[str]:
     """Every held-back log is a recording, stored once (by content hash)."""
-    import hashlib
+    from laneprint.workspace import content_id
 
     missing = [p.name for p in sorted(ctx.logs.iterdir())
-               if not (ws / "recordings" / hashlib.sha256(p.read_bytes()).hexdigest()[:16] / "meta.parquet").exists()]
+               if not (ws / "recordings" / content_id(p.read_bytes()) / "meta.parquet").exists()]
     return [f"held-back log {m} not stored" for m in missing]
 
 

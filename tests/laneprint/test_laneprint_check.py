@@ -11,14 +11,15 @@ import sys
 import time
 from pathlib import Path
 
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from ingest.pipeline import _session_key, ingest_paths
+from ingest.pipeline import _claim_path, _session_key, ingest_paths
 from laneprint.check import check_workspace
 from laneprint.cli import app
 from laneprint.locks import FileLock, is_locked
-from laneprint.workspace import Workspace, atomic_write_json, exchange_paths
+from laneprint.workspace import Workspace, atomic_write_json, content_id, exchange_paths, legacy_content_id
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_logs"
 OLD = time.time() - 60  # an mtime past the creation grace
@@ -112,6 +113,27 @@ def test_damaged_recordings_are_problems_repair_leaves_them(ws):
     assert (ws.recordings_dir / a).exists()
     human = CliRunner().invoke(app, ["check", "-w", str(ws.root)])
     assert human.exit_code == 1 and f"problem: recordings/{a}/ego.parquet: unreadable" in human.stdout
+
+
+def test_a_changed_source_is_a_note_and_an_older_workspace_s_ids_still_match(ws):
+    cat = ws.recordings().set_index("recording_id")
+    a, b = cat.index
+    source = Path(cat.loc[a, "source_path"])
+    assert a == content_id(source.read_bytes())
+    # a recording stored by a version that named recordings by SHA-256: its source still matches
+    legacy = legacy_content_id(Path(cat.loc[b, "source_path"]).read_bytes())
+    meta = ws.recordings_dir / b / "meta.parquet"
+    m = pd.read_parquet(meta).assign(recording_id=legacy)
+    m.to_parquet(meta, index=False)
+    (ws.recordings_dir / b).rename(ws.recordings_dir / legacy)
+    claim = _claim_path(ws, *cat.loc[b, ["driver_id", "session_id"]])
+    claim.write_text(legacy)
+    source.write_bytes(source.read_bytes() + b"\n")
+    code, report = _check(ws)
+    assert code == 0, report["findings"]
+    notes = _kinds(report)
+    assert list(notes) == ["note"] and len(notes["note"]) == 1
+    assert notes["note"][0].startswith(f"recordings/{a}: its source") and "changed since it was ingested" in notes["note"][0]
 
 
 def test_a_lock_dies_with_its_process(tmp_path):

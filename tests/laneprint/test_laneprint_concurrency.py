@@ -3,7 +3,6 @@ duplicated, nothing lost, and `laneprint check` finds the workspace whole."""
 
 from __future__ import annotations
 
-import hashlib
 import json
 import shutil
 import subprocess
@@ -14,7 +13,7 @@ import pytest
 
 from ingest.pipeline import ingest_paths
 from laneprint.check import check_workspace
-from laneprint.workspace import Workspace
+from laneprint.workspace import Workspace, content_id
 from rl.runs import read_metrics
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_logs"
@@ -57,7 +56,7 @@ def test_two_ingests_an_analysis_and_a_training_at_once(tmp_path):
     assert all(c["ingested"] + c["duplicate"] == 4 and c["rejected"] == 0 for c in counts)
     cat = ws.recordings()
     all_files = [p for d in (base, a, b) for p in d.iterdir()]
-    assert sorted(cat["recording_id"]) == sorted({hashlib.sha256(p.read_bytes()).hexdigest()[:16] for p in all_files})
+    assert sorted(cat["recording_id"]) == sorted({content_id(p.read_bytes()) for p in all_files})
     assert not cat.duplicated(["driver_id", "session_id"]).any() and len(cat) == 8
 
     assert json.loads(outs["analyze"][0])  # stored an analysis of what was there when it started
