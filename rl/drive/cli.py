@@ -52,6 +52,10 @@ def drive_command(
         help="The dwell's percentile of the drivers' times from a lane change to their next press (default: 5, "
              "their floor; 25: closer to drivers who stay long in the left lane; README, 'The dwell')."
     )] = DWELL_PERCENTILE,
+    dwell_draw: Annotated[bool, typer.Option(
+        "--dwell-draw",
+        help="Draw each dwell, at each lane change, from the target's drivers' own times from a change to their "
+             "next press (seeded by --seed) instead of one percentile of them (README, 'The dwell drawn').")] = False,
     pace: Annotated[bool, typer.Option(
         "--pace/--no-pace",
         help="With the held-back rule: the agent's own change needs the advantage at which, replayed along its "
@@ -88,7 +92,7 @@ def drive_command(
                              driver_id=driver_id, analyze=analyze, lanes=lanes, held_back=held_back,
                              sumo_model=sumo_model, dwell=dwell,
                              dwell_percentile=dwell_percentile, family=family, pace=pace, pace_by=pace_by,
-                             undo_check=undo_check, progress=bar)
+                             undo_check=undo_check, dwell_draw=dwell_draw, progress=bar)
 
     run_command(work, as_json, render)
 

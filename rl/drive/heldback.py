@@ -115,10 +115,24 @@ class HeldBackRule:
     min_advantage_by_side: dict[str, float] = field(default_factory=dict)  # 'left'/'right': this instead, by side
     undo_check: bool = True  # with no leader, no change of the agent's to the left that it would at once undo
     source: dict[str, str] = field(default_factory=dict)
+    # 'left>right' etc.: the drivers' own times from a change to the next press; when given, each lane change
+    # draws the next dwell of each kind from them (`draw_dwell`, `drive --dwell-draw`) instead of `dwell_s`
+    dwell_draws: dict[str, list[float]] = field(default_factory=dict)
 
-    def dwell_ok(self, last_side: Optional[str], since_s: float, side: str) -> bool:
-        """Whether a change to `side` may be requested `since_s` after the last lane change (to `last_side`)."""
-        return last_side is None or since_s >= self.dwell_s.get(f"{last_side}>{side}", 0.0)
+    def dwell_ok(self, last_side: Optional[str], since_s: float, side: str,
+                 drawn: Optional[dict[str, float]] = None) -> bool:
+        """Whether a change to `side` may be requested `since_s` after the last lane change (to `last_side`);
+        `drawn`: the dwells drawn at that change (`draw_dwell`), where they replace `dwell_s`."""
+        if last_side is None:
+            return True
+        kind = f"{last_side}>{side}"
+        return since_s >= (drawn[kind] if drawn and kind in drawn else self.dwell_s.get(kind, 0.0))
+
+    def draw_dwell(self, last_side: str, rng: np.random.Generator) -> dict[str, float]:
+        """At a lane change to `last_side`: one dwell per kind that starts there, each drawn from the drivers'
+        own times of that kind (`dwell_draws`; empty when there are none)."""
+        return {k: float(rng.choice(v)) for k, v in sorted(self.dwell_draws.items())
+                if k.startswith(f"{last_side}>")}
 
     def needs(self, side: str) -> float:
         """The advantage the agent's own change to `side` ('left' or 'right') needs (its drivers' pace)."""
@@ -277,13 +291,9 @@ DWELL_PERCENTILE = FLOOR_PERCENTILE
 MIN_DWELL_PAIRS = 5  # consecutive lane changes of a kind needed to read a dwell from the data
 
 
-def dwell_from(decisions: pd.DataFrame, percentile: float = DWELL_PERCENTILE) -> tuple[dict[str, float], str]:
-    """(least time [s] from a lane change to the next press, per kind 'left>right' etc., where from):
-    `percentile` over the drivers' consecutive changes in one recording, for kinds with at least
-    `MIN_DWELL_PAIRS` of them. The agent decides state by state without memory; the drivers do not
-    press again at once after a change (measured: without this the agents changed back 3 s after a
-    change, the drivers never sooner than 5-16 s after a change to the left), and an agent that wants
-    back at once comes back as soon as the dwell allows (`DWELL_PERCENTILE`)."""
+def dwell_times(decisions: pd.DataFrame) -> dict[str, list[float]]:
+    """Per kind of consecutive presses ('left>right' etc.), the drivers' times [s] from a lane change to
+    the next press in the same recording."""
     p = decisions[(decisions["label"] == "change") & decisions["lc_direction"].notna()]
     p = p.sort_values(["recording_id", "press_t_s"])
     gaps_by: dict[str, list[float]] = {}
@@ -294,12 +304,22 @@ def dwell_from(decisions: pd.DataFrame, percentile: float = DWELL_PERCENTILE) ->
         last = None
         for i in range(len(rec)):
             if last is not None and t_press[i] > t_change[last]:
-                gaps_by.setdefault(f"{side[last]}>{side[i]}", []).append(t_press[i] - t_change[last])
+                gaps_by.setdefault(f"{side[last]}>{side[i]}", []).append(float(t_press[i] - t_change[last]))
             if np.isfinite(t_change[i]):
                 last = i
-    dwell = {k: float(np.percentile(v, percentile)) for k, v in sorted(gaps_by.items())
-             if len(v) >= MIN_DWELL_PAIRS}
-    counts = ", ".join(f"{k} {len(v)}" for k, v in sorted(gaps_by.items())) or "none"
+    return dict(sorted(gaps_by.items()))
+
+
+def dwell_from(decisions: pd.DataFrame, percentile: float = DWELL_PERCENTILE) -> tuple[dict[str, float], str]:
+    """(least time [s] from a lane change to the next press, per kind 'left>right' etc., where from):
+    `percentile` over the drivers' consecutive changes in one recording (`dwell_times`), for kinds with
+    at least `MIN_DWELL_PAIRS` of them. The agent decides state by state without memory; the drivers do
+    not press again at once after a change (measured: without this the agents changed back 3 s after a
+    change, the drivers never sooner than 5-16 s after a change to the left), and an agent that wants
+    back at once comes back as soon as the dwell allows (`DWELL_PERCENTILE`)."""
+    gaps_by = dwell_times(decisions)
+    dwell = {k: float(np.percentile(v, percentile)) for k, v in gaps_by.items() if len(v) >= MIN_DWELL_PAIRS}
+    counts = ", ".join(f"{k} {len(v)}" for k, v in gaps_by.items()) or "none"
     return dwell, f"percentile {percentile:g} of the time from a lane change to the next press ({counts})"
 
 
@@ -358,9 +378,10 @@ def patience_from(decisions: pd.DataFrame, step_s: float = 0.5) -> tuple[float, 
 
 
 def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5,
-                       dwell_percentile: float = DWELL_PERCENTILE) -> HeldBackRule:
+                       dwell_percentile: float = DWELL_PERCENTILE, dwell_draw: bool = False) -> HeldBackRule:
     """The rule of a run's target from the workspace's analysis (`ValueError` when the analysis lacks
-    the acceptance lines: analyse again with a current laneprint); its dwell at `dwell_percentile`."""
+    the acceptance lines: analyse again with a current laneprint); its dwell at `dwell_percentile`, or
+    with `dwell_draw` drawn at each change from the drivers' own times (`HeldBackRule.dwell_draws`)."""
     lines = workspace.read_table("analysis", "reference_lines")
     if "direction" in lines:
         lines = lines[lines["direction"].astype(str) == "both"]
@@ -395,6 +416,10 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5,
     mine = decisions[decisions["driver_id"].astype(str).isin(drivers)]
     patience, why = patience_from(mine, step_s)
     dwell, dwell_why = dwell_from(mine, dwell_percentile)
+    draws = ({k: v for k, v in dwell_times(mine).items() if len(v) >= MIN_DWELL_PAIRS} if dwell_draw else {})
+    if draws:
+        dwell_why = (f"drawn at each lane change from the drivers' times from a change to the next press "
+                     f"({', '.join(f'{k} {len(v)}' for k, v in draws.items())}); where none, {dwell_why}")
     source = {k: v[1] for k, v in got.items()} | {"patience_s": f"{why}, {target.label}",
                                                   "slower_mps": "the analysis's min_closing_mps (1 m/s)",
                                                   "t_nf_floor_s": f"percentile {FLOOR_PERCENTILE:g} of t_nf at "
@@ -405,7 +430,7 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5,
                                                   "undo_check": "on: with no leader, no change to the left the agent "
                                                                 "would at once undo (README, 'Driving like its drivers')"}
     return HeldBackRule(patience, got["gap_nf"][0], got["gap_nb"][0], got["thw_nb"][0], t_nf_floor_s=t_nf_floor,
-                        dv_nb_floor_mps=dv_nb_floor, dwell_s=dwell, source=source)
+                        dv_nb_floor_mps=dv_nb_floor, dwell_s=dwell, source=source, dwell_draws=draws)
 
 
 # --- measured in the closed loop ---------------------------------------------------------------

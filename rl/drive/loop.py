@@ -209,7 +209,8 @@ class AgentControl(Watch):
     with `use_rule`, the held-back rule asks for a change the agent does not make (`rl.drive.heldback`)."""
 
     def __init__(self, q: QFunction, cfg: EnvConfig, step_s: float, n_lanes: int = N_LANES,
-                 rule: Optional[HeldBackRule] = None, desired_mps: float = 0.0, use_rule: bool = False) -> None:
+                 rule: Optional[HeldBackRule] = None, desired_mps: float = 0.0, use_rule: bool = False,
+                 dwell_rng: Optional[np.random.Generator] = None) -> None:
         never = Line(0.0, np.inf)  # no rule given: desired speed 0, never held back
         super().__init__(cfg, step_s, n_lanes, rule or HeldBackRule(np.inf, never, never, never), desired_mps)
         self.q = q
@@ -222,6 +223,8 @@ class AgentControl(Watch):
         self.n_dwelled = 0  # decision steps with a side not asked about: too soon after the last lane change
         self.n_undone = 0  # decision steps (no leader) with a side to the left the agent wanted but would at once undo
         self.last_change: Optional[tuple[float, str]] = None  # (time, side) the ego last crossed into a lane
+        self.dwell_rng = dwell_rng or np.random.default_rng(0)  # the rule's drawn dwells (`dwell_draws`)
+        self.drawn: dict[str, float] = {}  # the dwells drawn at the last lane change
         self._lane_now: Optional[int] = None
 
     def start(self, api: Any) -> None:
@@ -231,6 +234,7 @@ class AgentControl(Watch):
              others: dict[str, VehicleState]) -> None:
         if self._lane_now is not None and ego.lane != self._lane_now:
             self.last_change = (t, _side(self._lane_now, ego.lane))
+            self.drawn = self.rule.draw_dwell(self.last_change[1], self.dwell_rng)
         self._lane_now = ego.lane
         seen_now = self.look(t, ego, lateral_m, others)
         if seen_now is None:
@@ -243,7 +247,7 @@ class AgentControl(Watch):
         all_adv = adv
         if self.use_rule and self.last_change is not None:  # no change sooner than the drivers made one
             since, side = t - self.last_change[0], self.last_change[1]
-            keep = {k for k in lanes if self.rule.dwell_ok(side, since, _side(ego.lane, k))}
+            keep = {k for k in lanes if self.rule.dwell_ok(side, since, _side(ego.lane, k), self.drawn)}
             if len(keep) < len(lanes):
                 self.n_dwelled += 1
                 asked, adv = {k: asked[k] for k in keep}, {k: adv[k] for k in keep}
@@ -399,9 +403,11 @@ def run_sections(make: ControlFactory, cfg: EnvConfig, ego_params: dict[str, flo
 def drive_sections(q: QFunction, cfg: EnvConfig, ego_params: dict[str, float], settings: SumoSettings,
                    seed: int, progress: Optional[ProgressFn] = None, rule: Optional[HeldBackRule] = None,
                    use_rule: bool = True) -> list[SectionDrive]:
-    """Drive every section with the agent `q` (and, with `rule` and `use_rule`, the held-back rule)."""
-    return run_sections(lambda _, desired: AgentControl(q, cfg, settings.step_s, settings.n_lanes, rule, desired,
-                                                        use_rule), cfg, ego_params, settings, seed, progress)
+    """Drive every section with the agent `q` (and, with `rule` and `use_rule`, the held-back rule); a
+    rule's drawn dwells come from a generator seeded by `seed` and the section's limit."""
+    return run_sections(lambda limit, desired: AgentControl(
+        q, cfg, settings.step_s, settings.n_lanes, rule, desired, use_rule,
+        np.random.default_rng([seed, int(round(limit))])), cfg, ego_params, settings, seed, progress)
 
 
 def sumo_model_sections(cfg: EnvConfig, ego_params: dict[str, float], settings: SumoSettings, seed: int,

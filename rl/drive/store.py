@@ -202,11 +202,12 @@ def assigned_style(workspace: Workspace, files: list[Path], driver_id: str) -> d
             "styles": dict(zip(styles["driver_id"], styles["style"].astype(str)))}
 
 
-def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig,
-                   dwell_percentile: float = DWELL_PERCENTILE) -> tuple[Optional[HeldBackRule], str]:
+def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig, dwell_percentile: float = DWELL_PERCENTILE,
+                   dwell_draw: bool = False) -> tuple[Optional[HeldBackRule], str]:
     """(the rule of the run's target from the analysis, a note); None with why when the analysis lacks it."""
     try:
-        return rule_from_analysis(workspace, target, cfg.dt_s, dwell_percentile), "from the workspace's analysis"
+        return (rule_from_analysis(workspace, target, cfg.dt_s, dwell_percentile, dwell_draw),
+                "from the workspace's analysis")
     except (ValueError, KeyError, UserError, FileNotFoundError) as exc:
         return None, f"no held-back rule: {exc}"
 
@@ -254,7 +255,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
               driver_id: Optional[str] = None, analyze: bool = False, lanes: int = 2,
               held_back: bool = True, sumo_model: bool = True, dwell: bool = True,
               dwell_percentile: float = DWELL_PERCENTILE, family: str = "ttc",
-              pace: bool = True, pace_by: str = "pooled", undo_check: bool = True,
+              pace: bool = True, pace_by: str = "pooled", undo_check: bool = True, dwell_draw: bool = False,
               progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
 
@@ -269,7 +270,9 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     `pace=False`: the agent's own changes need only a positive advantage, not its drivers' pace
     (`HeldBackRule.min_advantage`, `rl.drive.pace`); `pace_by`: that pace read for both sides at once
     ('pooled') or per side ('side', `rl.drive.pace.PACE_BY`). `undo_check=False`: the agent's changes to
-    the left are requested even when it would want back at once (`HeldBackRule.undo_check`)."""
+    the left are requested even when it would want back at once (`HeldBackRule.undo_check`). `dwell_draw`:
+    each lane change draws the next dwell from the drivers' own times (`HeldBackRule.dwell_draws`, seeded by
+    `seed` and the section) instead of their `dwell_percentile`."""
     from laneprint.simulator.sumo.backend import check_available
     from laneprint.simulator.sumo.settings import FAMILIES, LANES, family_settings
     from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS
@@ -298,9 +301,9 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     check_available()
     style, why = ego_style(workspace, target)
     settings = family_settings(family, lanes, speed_limits_kph=limits, minutes=minutes)
-    rule, rule_note = held_back_rule(workspace, target, cfg, dwell_percentile)
+    rule, rule_note = held_back_rule(workspace, target, cfg, dwell_percentile, dwell_draw)
     if rule is not None and not dwell:
-        rule = replace(rule, dwell_s={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
+        rule = replace(rule, dwell_s={}, dwell_draws={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
     if rule is not None and not undo_check:
         rule = replace(rule, undo_check=False, source={**rule.source, "undo_check": "off (--no-undo-check)"})
     paced = rule_pace(workspace, target, net, cfg, pace_by) if rule is not None and pace else None

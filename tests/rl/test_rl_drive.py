@@ -245,8 +245,11 @@ def test_drive_refuses_an_unknown_run_and_section(trained):
 def test_drive_on_three_lanes(trained, tmp_path):
     ws, run_id = trained
     res = _invoke("drive", run_id, "--engine", "sumo", "--lanes", "3", "--minutes", "1", "--section", "90",
-                  "--seed", "2", "--pace-by", "side", "--out", str(tmp_path / "d3"), "-w", str(ws))
+                  "--seed", "2", "--pace-by", "side", "--dwell-draw", "--out", str(tmp_path / "d3"), "-w", str(ws))
     assert res["lanes"] == 3 and res["totals"]["collisions"] == 0
+    draws = res["held_back"]["rule"]["dwell_draws"]  # the drivers' own times, drawn from at each change
+    assert draws and all(len(v) >= 5 and min(v) > 0 for v in draws.values())
+    assert res["held_back"]["rule"]["source"]["dwell_s"].startswith("drawn at each lane change")
     pace = res["pace"]  # the study's presses all carry their side: the pace is read by side
     assert pace["by"] == "side" and set(pace["min_advantage_by_side"]) == {"left", "right"}
     assert "by side" in pace["note"]

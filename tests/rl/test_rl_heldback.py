@@ -11,7 +11,8 @@ import pytest
 
 from laneprint.simulator.sumo.traffic import VehicleState
 from rl.drive.heldback import (DEFAULT_PATIENCE_S, FollowStats, HeldBackRule, LeftBehind, Line, above_floors,
-                               accepts, dwell_from, following_before_press, patience_from, rule_target)
+                               accepts, dwell_from, dwell_times, following_before_press, patience_from,
+                               rule_target)
 from rl.drive.loop import AgentControl, Watch, live_scene
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
@@ -363,6 +364,56 @@ def test_the_agent_is_not_asked_about_a_side_sooner_after_a_change_than_its_driv
         assert (control.n_dwelled > 0) == use_rule
         if use_rule:
             assert control.decisions[0].too_soon == [] and api.vehicle.requests[0][1] == 0
+
+
+def test_drawn_dwells_come_from_the_drivers_own_times():
+    rows, t = [], 0.0
+    for k in range(6):
+        rows.append(("r", t, "left"))
+        t += 1.5 + 10.0 + k  # left>right: 10-15 s after the change
+        rows.append(("r", t, "right"))
+        t += 1.5 + 2.0  # right>left: 2 s after the change
+    times = dwell_times(_presses(rows))
+    assert times["left>right"] == pytest.approx([10.0, 11.0, 12.0, 13.0, 14.0, 15.0])
+    assert times["right>left"] == pytest.approx([2.0] * 5)
+    rule = HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), dwell_s={"left>right": 10.25},
+                        dwell_draws=times)
+    drawn = [rule.draw_dwell("left", np.random.default_rng([3, k])) for k in range(50)]
+    assert all(set(d) == {"left>right"} and d["left>right"] in times["left>right"] for d in drawn)
+    assert len({d["left>right"] for d in drawn}) > 3  # spread over the drivers' times, not one percentile
+    assert drawn[7] == rule.draw_dwell("left", np.random.default_rng([3, 7]))  # seeded
+    assert rule.draw_dwell("right", np.random.default_rng(0)) == {"right>left": 2.0}
+    # the drawn dwell replaces the percentile for its kind; a kind not drawn keeps `dwell_s`
+    assert rule.dwell_ok("left", 12.5, "right", {"left>right": 12.0})
+    assert not rule.dwell_ok("left", 11.5, "right", {"left>right": 12.0})
+    assert not rule.dwell_ok("left", 10.0, "right", {}) and rule.dwell_ok("left", 10.5, "right", {})
+
+
+def test_the_agent_waits_the_dwell_drawn_at_its_change():
+    def always(scene) -> np.ndarray:
+        q = np.zeros((len(scene), 2))
+        q[:, CHANGE] = 0.5
+        return q
+
+    draws = {"left>right": [2.0, 3.0, 4.0, 5.0, 6.0]}
+    rule = HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), dwell_s={"left>right": 2.0},
+                        dwell_draws=draws)
+    firsts = []
+    for seed in range(6):
+        control, api = AgentControl(always, EnvConfig(observation="indicators"), 0.1, 2, rule, DESIRED, True,
+                                    np.random.default_rng(seed)), _Api()
+        control.start(api)
+        control.step(api, 0.0, VehicleState(100.0, 20.0, 0, 4.5), 0.0, {})  # in lane 0 ...
+        for i in range(1, 81):  # ... then in lane 1 from t = 0.1 s: a change to the left just made
+            n = len(api.vehicle.requests)
+            control.step(api, round(0.1 * i, 6), VehicleState(100.0 + 2.0 * i, 20.0, 1, 4.5), 0.0, {})
+            if len(api.vehicle.requests) > n:
+                break
+        wait = control.drawn["left>right"]
+        assert wait == rule.draw_dwell("left", np.random.default_rng(seed))["left>right"]
+        assert wait - 1e-9 <= round(0.1 * i, 6) - 0.1 < wait + 0.5  # back once its drawn dwell has passed
+        firsts.append(wait)
+    assert len(set(firsts)) > 1  # each drive its own draws
 
 
 def test_no_change_in_front_of_a_follower_closing_faster_than_the_floor():
