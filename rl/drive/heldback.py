@@ -286,7 +286,8 @@ FLOOR_PERCENTILE = 5.0
 #: on the `acceptance` family's study 647 end within a second of it (an agent without memory wants back
 #: as soon as the dwell allows); 25 brings that family's closed loop near its drivers but takes the
 #: shipped study's Aggressive agent under half of SUMO's model's rate out of its world (README, 'The
-#: dwell'), so the default stays the floor.
+#: dwell'), so the default stays the floor. `drive --dwell-draw` draws each dwell from the drivers' times
+#: instead (`HeldBackRule.dwell_draws`; README, 'The dwell drawn').
 DWELL_PERCENTILE = FLOOR_PERCENTILE
 MIN_DWELL_PAIRS = 5  # consecutive lane changes of a kind needed to read a dwell from the data
 
