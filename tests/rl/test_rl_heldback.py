@@ -322,19 +322,25 @@ def _presses(rows: list[tuple[str, float, str]]) -> pd.DataFrame:
                          "label": "change"})
 
 
-def test_dwell_is_a_percentile_of_the_time_from_a_change_to_the_next_press():
-    # one recording: left, right 10.5 s after the change, left again, ... (6 left>right, 5 right>left)
+def _back_and_forth() -> pd.DataFrame:
+    """One recording: left, right 10-15 s after the change, left again 2 s after that, ... (6 left>right,
+    5 right>left)."""
     rows, t = [], 0.0
     for k in range(6):
         rows.append(("r", t, "left"))
         t += 1.5 + 10.0 + k  # left>right: 10-15 s after the change
         rows.append(("r", t, "right"))
         t += 1.5 + 2.0  # right>left: 2 s after the change
-    dwell, why = dwell_from(_presses(rows))
+    return _presses(rows)
+
+
+def test_dwell_is_a_percentile_of_the_time_from_a_change_to_the_next_press():
+    rows = _back_and_forth()
+    dwell, why = dwell_from(rows)
     assert dwell["left>right"] == pytest.approx(10.25)  # the 5th percentile of 10-15 s (DWELL_PERCENTILE)
     assert dwell["right>left"] == pytest.approx(2.0) and "left>right 6, right>left 5" in why
     assert "percentile 5 " in why
-    quartile, why = dwell_from(_presses(rows), percentile=25.0)  # drive --dwell-percentile 25
+    quartile, why = dwell_from(rows, percentile=25.0)  # drive --dwell-percentile 25
     assert quartile["left>right"] == pytest.approx(11.25) and "percentile 25 " in why
     # pairs never span recordings, and kinds with fewer than MIN_DWELL_PAIRS are not read
     few = _presses([(f"r{k}", 0.0, "left") for k in range(10)] + [("r0", 20.0, "right")])
@@ -367,13 +373,7 @@ def test_the_agent_is_not_asked_about_a_side_sooner_after_a_change_than_its_driv
 
 
 def test_drawn_dwells_come_from_the_drivers_own_times():
-    rows, t = [], 0.0
-    for k in range(6):
-        rows.append(("r", t, "left"))
-        t += 1.5 + 10.0 + k  # left>right: 10-15 s after the change
-        rows.append(("r", t, "right"))
-        t += 1.5 + 2.0  # right>left: 2 s after the change
-    times = dwell_times(_presses(rows))
+    times = dwell_times(_back_and_forth())
     assert times["left>right"] == pytest.approx([10.0, 11.0, 12.0, 13.0, 14.0, 15.0])
     assert times["right>left"] == pytest.approx([2.0] * 5)
     rule = HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), dwell_s={"left>right": 10.25},
