@@ -19,7 +19,7 @@ analysis assigns to the agent's drive; then whether issue 19's closed-loop accep
 every median inside their IQR) and a JSON line with every figure.
 
 Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--family ttc|acceptance] [--no-pace]
-     [--pace-by pooled|side] [--dwell-percentile 5] [--dwell-draw] [--no-undo-check] [--drive-seed 1 [2 ...]]
+     [--pace-by pooled|side] [--dwell-percentile 5] [--dwell-draw | --dwell-calibrated] [--no-undo-check] [--drive-seed 1 [2 ...]]
                                       [--drivers 9] [--minutes 10] [--workdir /tmp/lp-closed-loop]
 
 Sides not taken (issue 19, three lanes): on an analysed workspace of a SUMO study,
@@ -156,7 +156,7 @@ def dwell_option(args: argparse.Namespace) -> list[str]:
     """`--dwell-percentile P` for `laneprint drive` when one was given (else drive's default), and
     `--dwell-draw` when asked."""
     return (([] if args.dwell_percentile is None else ["--dwell-percentile", f"{args.dwell_percentile:g}"])
-            + (["--dwell-draw"] if args.dwell_draw else []))
+            + (["--dwell-draw"] if args.dwell_draw else []) + (["--dwell-calibrated"] if args.dwell_calibrated else []))
 
 
 def drive_once(ws: Path, run_id: str, out: Path, lanes: int, seed: int, minutes: float, *extra: str) -> dict:
@@ -191,7 +191,7 @@ def out_of_world(args: argparse.Namespace) -> bool:
                 tag = f"{run_id}-l{lanes}-d{seed}-m{args.minutes:g}"
                 assist = ("-pace-by-side" if args.pace_by == "side" else "") + (
                     "" if args.dwell_percentile is None else f"-dwell{args.dwell_percentile:g}") + (
-                    "-dwell-draw" if args.dwell_draw else "")
+                    "-dwell-draw" if args.dwell_draw else "") + ("-dwell-calibrated" if args.dwell_calibrated else "")
                 d = drive_once(ws, run_id, args.workdir / f"{tag}{assist}", lanes, seed, args.minutes,
                                "--pace-by", args.pace_by, *dwell_option(args))
                 pure = drive_once(ws, run_id, args.workdir / f"{tag}-pure", lanes, seed, args.minutes,
@@ -253,6 +253,8 @@ def main() -> None:
                          "--dwell-percentile; default: drive's)")
     ap.add_argument("--dwell-draw", action="store_true",
                     help="each dwell drawn from the drivers' own times at each lane change (drive --dwell-draw)")
+    ap.add_argument("--dwell-calibrated", action="store_true",
+                    help="each dwell drawn from the run's closed-loop calibration (drive --dwell-calibrated)")
     ap.add_argument("--no-undo-check", action="store_true",
                     help="default mode: drive without the undo check (drive --no-undo-check)")
     ap.add_argument("--out-of-world", action="store_true",
@@ -337,7 +339,7 @@ def closed_loop(args: argparse.Namespace) -> bool:
           f"{' '.join(map(str, args.drive_seed))}, {lanes} lanes, "
           f"pace {'off' if args.no_pace else 'on, ' + args.pace_by}, dwell percentile "
           f"{'default' if args.dwell_percentile is None else format(args.dwell_percentile, 'g')}"
-          f"{', dwell drawn' if args.dwell_draw else ''}, "
+          f"{', dwell drawn' if args.dwell_draw else ''}{', dwell calibrated' if args.dwell_calibrated else ''}, "
           f"undo check {'off' if args.no_undo_check else 'on'}, "
           f"{args.minutes:g} min per section, 4 sections, {time.monotonic() - t0:.0f} s in all)")
     print("| style | lane changes (L/R) | per km [95 %] | drivers per km [95 %] (range) | ratio | left share: "

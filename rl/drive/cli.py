@@ -56,6 +56,12 @@ def drive_command(
         "--dwell-draw",
         help="Draw each dwell, at each lane change, from the target's drivers' own times from a change to their "
              "next press (seeded by --seed) instead of one percentile of them (README, 'The dwell drawn').")] = False,
+    dwell_calibrated: Annotated[bool, typer.Option(
+        "--dwell-calibrated",
+        help="Draw each dwell from the run's closed-loop calibration in this traffic: drives with the default "
+             "dwell on calibration seeds 1001-1002 give the agent's own stays, and the dwell is what makes its "
+             "stays like its drivers' (made once per family, lanes and minutes, kept in the run; README, 'The "
+             "dwell calibrated').")] = False,
     pace: Annotated[bool, typer.Option(
         "--pace/--no-pace",
         help="With the held-back rule: the agent's own change needs the advantage at which, replayed along its "
@@ -92,7 +98,8 @@ def drive_command(
                              driver_id=driver_id, analyze=analyze, lanes=lanes, held_back=held_back,
                              sumo_model=sumo_model, dwell=dwell,
                              dwell_percentile=dwell_percentile, family=family, pace=pace, pace_by=pace_by,
-                             undo_check=undo_check, dwell_draw=dwell_draw, progress=bar)
+                             undo_check=undo_check, dwell_draw=dwell_draw, dwell_calibrated=dwell_calibrated,
+                             progress=bar)
 
     run_command(work, as_json, render)
 

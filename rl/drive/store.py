@@ -212,6 +212,23 @@ def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig, dwell_p
         return None, f"no held-back rule: {exc}"
 
 
+def calibrated(workspace: Workspace, run_id: str, target: Target, family: str, lanes: int, minutes: float,
+               pace_by: str, undo_check: bool, progress: Optional[ProgressFn]) -> dict[str, Any]:
+    """The run's closed-loop dwell calibration for this traffic (`rl.drive.calibrate`), made when missing
+    by drives with the default dwell on the calibration seeds."""
+    from rl.drive.calibrate import calibrate_dwell, load_calibration
+
+    stored = load_calibration(workspace, run_id, family, lanes, minutes)
+    if stored is not None:
+        return stored
+
+    def drive(seed: int, out: Path) -> list[str]:
+        return drive_run(workspace, run_id, minutes=minutes, seed=seed, out=out, lanes=lanes, family=family,
+                         sumo_model=False, pace_by=pace_by, undo_check=undo_check, progress=progress)["files"]
+
+    return calibrate_dwell(workspace, run_id, target, drive, family, lanes, minutes)
+
+
 def rule_pace(workspace: Workspace, target: Target, net: Any, cfg: EnvConfig,
               by: str = "pooled") -> Optional[dict[str, Any]]:
     """The advantage the agent's own changes need to keep its drivers' pace (`rl.drive.pace`, by side or
@@ -256,7 +273,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
               held_back: bool = True, sumo_model: bool = True, dwell: bool = True,
               dwell_percentile: float = DWELL_PERCENTILE, family: str = "ttc",
               pace: bool = True, pace_by: str = "pooled", undo_check: bool = True, dwell_draw: bool = False,
-              progress: Optional[ProgressFn] = None) -> dict[str, Any]:
+              dwell_calibrated: bool = False, progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
 
     `family`: the SUMO study family whose traffic and style vTypes the drive uses
@@ -272,7 +289,8 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     ('pooled') or per side ('side', `rl.drive.pace.PACE_BY`). `undo_check=False`: the agent's changes to
     the left are requested even when it would want back at once (`HeldBackRule.undo_check`). `dwell_draw`:
     each lane change draws the next dwell from the drivers' own times (`HeldBackRule.dwell_draws`, seeded by
-    `seed` and the section) instead of their `dwell_percentile`."""
+    `seed` and the section) instead of their `dwell_percentile`; `dwell_calibrated`: drawn from the run's
+    closed-loop calibration in this traffic (`rl.drive.calibrate`; made first when the run has none)."""
     from laneprint.simulator.sumo.backend import check_available
     from laneprint.simulator.sumo.settings import FAMILIES, LANES, family_settings
     from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS
@@ -282,6 +300,8 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
         raise UserError(f"unknown --family {family!r}; choose one of {', '.join(FAMILIES)}")
     if pace_by not in PACE_BY:
         raise UserError(f"unknown --pace-by {pace_by!r}; choose one of {', '.join(PACE_BY)}")
+    if dwell_draw and dwell_calibrated:
+        raise UserError("--dwell-draw and --dwell-calibrated: choose one")
     if not 0 <= dwell_percentile <= 100:
         raise UserError(f"--dwell-percentile {dwell_percentile:g}: give a percentile from 0 to 100")
     style_params = FAMILY_STYLE_PARAMS[family]
@@ -304,6 +324,13 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     rule, rule_note = held_back_rule(workspace, target, cfg, dwell_percentile, dwell_draw)
     if rule is not None and not dwell:
         rule = replace(rule, dwell_s={}, dwell_draws={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
+    calibration = None
+    if rule is not None and dwell and dwell_calibrated:
+        calibration = calibrated(workspace, run_id, target, family, lanes, minutes, pace_by, undo_check, progress)
+        rule = replace(rule, dwell_draws={k: [max(x, rule.dwell_s.get(k, 0.0)) for x in v]
+                                          for k, v in calibration["draws"].items()},
+                       source={**rule.source,
+                               "dwell_s": f"drawn from the closed-loop calibration: {calibration['note']}"})
     if rule is not None and not undo_check:
         rule = replace(rule, undo_check=False, source={**rule.source, "undo_check": "off (--no-undo-check)"})
     paced = rule_pace(workspace, target, net, cfg, pace_by) if rule is not None and pace else None
@@ -330,6 +357,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
                                                           f"{style_params[style].get('speedFactor', 1.0):g} "
                                                           f"(the {style} vType)"},
         "pace": paced or {"note": "off (--no-pace)" if rule is not None else "no held-back rule"},
+        "dwell_calibration": ({k: v for k, v in calibration.items() if k != "draws"} if calibration else None),
         "changes_by_lane": _sum_counts([r["changes_by_lane"] for r in rows]),
         "indicators": indicators_vs_lines(drives, cfg.lines),
         "decisions": [{"speed_limit_kph": d.speed_limit_kph, **asdict(x)} for d in drives for x in d.decisions],

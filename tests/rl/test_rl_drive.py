@@ -293,3 +293,23 @@ def test_drive_in_the_traffic_and_vtypes_of_another_family(trained, tmp_path):
     assert res["totals"]["collisions"] == 0 and res["totals"]["km"] > 0
     bad = runner.invoke(app, ["drive", run_id, "--family", "nope", "-w", str(ws)])
     assert bad.exit_code == 1 and "unknown --family 'nope'" in bad.output and "Traceback" not in bad.output
+
+
+@pytest.mark.slow
+def test_drive_with_the_dwell_calibrated_in_closed_loop(trained, tmp_path):
+    ws, run_id = trained
+    args = ("drive", run_id, "--engine", "sumo", "--minutes", "1", "--section", "90", "--no-sumo-model",
+            "--dwell-calibrated", "-w", str(ws))
+    res = _invoke(*args, "--seed", "3", "--out", str(tmp_path / "a"))
+    cal = res["dwell_calibration"]
+    assert cal["seeds"] == [1001, 1002] and cal["family"] == "ttc" and cal["lanes"] == 2
+    assert "calibrated on drive seeds 1001, 1002" in cal["note"]
+    assert res["held_back"]["rule"]["source"]["dwell_s"].startswith("drawn from the closed-loop calibration")
+    stored = Workspace(ws).runs_dir / run_id / "dwell_calibration.json"
+    first = stored.read_text()
+    again = _invoke(*args, "--seed", "4", "--out", str(tmp_path / "b"))  # made once per traffic, then reused
+    assert stored.read_text() == first and again["dwell_calibration"] == cal
+    for kind, draws in again["held_back"]["rule"]["dwell_draws"].items():  # never under the drivers' floor
+        assert min(draws) >= again["held_back"]["rule"]["dwell_s"].get(kind, 0.0)
+    both = runner.invoke(app, [*args, "--dwell-draw"])
+    assert both.exit_code == 1 and "choose one" in both.output and "Traceback" not in both.output

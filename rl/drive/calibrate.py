@@ -1,0 +1,122 @@
+"""The dwell calibrated in closed loop (`drive --dwell-calibrated`): stays after a lane change like the drivers'.
+
+Why (README, issue 19, 'The dwell calibrated'): an agent without memory that wants back at once comes
+back exactly when the dwell allows, so a fixed dwell gives stays all of one length; a dwell drawn from
+the drivers' own times (`drive --dwell-draw`) gives stays that are the longer of the draw and the agent's
+own wait, and the drivers' times already hold their waits: too long wherever the agent does not want
+back at once. The agent's own wait shows only in closed loop. So:
+
+1. drive the agent with the default dwell (the drivers' floor) on calibration seeds (`CALIBRATION_SEEDS`,
+   never the seeds a drive is judged on) in the study family's traffic: its stays per kind of pair
+   ('left>right': from a change to the left to the next change, to the right), W;
+2. the drivers' stays of the same kinds along their recordings, D;
+3. if the drawn dwell X and the agent's wait are independent, a stay is max(X, W), whose distribution is
+   F_X F_W; so F_X = F_D / F_W, taken as the largest non-decreasing function with F_X F_W <= F_D (where
+   the agent already stays longer than the drivers, no dwell is needed: F_X = 1 there);
+4. each lane change draws the next dwell from F_X (`HeldBackRule.dwell_draws`), never under the floor.
+
+The calibration is kept in the run's folder (`dwell_calibration.json`, per family, lanes and minutes)
+and reused. Out of its world there are no drivers in the traffic to calibrate against: the default
+dwell stays.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+import numpy as np
+import pandas as pd
+
+from laneprint.workspace import Workspace, atomic_write_json
+from rl.runs import Target, run_dir, target_drivers
+
+#: Drive seeds of the calibration drives (the seeds a drive is judged on are others).
+CALIBRATION_SEEDS: tuple[int, ...] = (1001, 1002)
+#: The dwell's distribution is read on this grid [s] and drawn from this many quantiles.
+GRID_S = 0.5
+QUANTILES = 200
+MIN_STAYS = 5  # stays of a kind, of the drivers and of the agent, needed to calibrate that kind
+CALIBRATION_FILE = "dwell_calibration.json"
+
+
+def stays_by_kind(egos: list[pd.DataFrame]) -> dict[str, list[float]]:
+    """Per kind of consecutive lane changes ('left>right' etc.), the times [s] from one change to the next
+    within a recording (lane 0 is the rightmost; a higher lane is to the left)."""
+    out: dict[str, list[float]] = defaultdict(list)
+    for ego in egos:
+        lane = ego["ego_lane"].to_numpy()
+        t = ego["t_s"].to_numpy(dtype=float)
+        changes = np.flatnonzero(np.diff(lane) != 0) + 1
+        side = ["left" if lane[i] > lane[i - 1] else "right" for i in changes]
+        for k in range(len(changes) - 1):
+            out[f"{side[k]}>{side[k + 1]}"].append(float(t[changes[k + 1]] - t[changes[k]]))
+    return dict(sorted(out.items()))
+
+
+def _ecdf(x: list[float], grid: np.ndarray) -> np.ndarray:
+    return np.searchsorted(np.sort(np.asarray(x, dtype=float)), grid, side="right") / len(x)
+
+
+def deconvolved_dwell(drivers: list[float], agent: list[float], n: int = QUANTILES) -> list[float]:
+    """`n` quantiles of the dwell X whose max with the agent's own stays (`agent`, driven with the floor
+    dwell) is distributed like the drivers' stays (`drivers`): F_X = F_D / F_W, the largest non-decreasing
+    function with F_X F_W <= F_D."""
+    grid = np.arange(0.0, max(max(drivers), max(agent)) + GRID_S, GRID_S)
+    f_d, f_w = _ecdf(drivers, grid), _ecdf(agent, grid)
+    ratio = np.where(f_w > 0, np.minimum(f_d / np.maximum(f_w, 1e-12), 1.0), 1.0)
+    f_x = np.minimum.accumulate(ratio[::-1])[::-1]
+    u = (np.arange(n) + 0.5) / n
+    return [float(v) for v in grid[np.minimum(np.searchsorted(f_x, u, side="left"), len(grid) - 1)]]
+
+
+def calibration_key(family: str, lanes: int, minutes: float) -> str:
+    return f"{family}-{lanes}-{minutes:g}"
+
+
+def load_calibration(workspace: Workspace, run_id: str, family: str, lanes: int,
+                     minutes: float) -> Optional[dict[str, Any]]:
+    """The run's stored calibration for this traffic, or None."""
+    path = run_dir(workspace, run_id) / CALIBRATION_FILE
+    if not path.exists():
+        return None
+    return json.loads(path.read_text()).get(calibration_key(family, lanes, minutes))
+
+
+def calibrate_dwell(workspace: Workspace, run_id: str, target: Target, drive: Callable[[int, Path], list[str]],
+                    family: str, lanes: int, minutes: float,
+                    seeds: tuple[int, ...] = CALIBRATION_SEEDS) -> dict[str, Any]:
+    """Calibrate (see the module doc) with `drive(seed, out)`, a drive of the run with the default dwell
+    that returns its MCAP files; store the result in the run's folder and return it."""
+    from ingest.mapping import IDENTITY
+    from ingest.pipeline import read_log
+    from ingest.validate import canonicalise
+
+    drivers, _ = target_drivers(workspace, target)
+    cat = workspace.recordings()
+    rids = cat.loc[cat["driver_id"].astype(str).isin(drivers), "recording_id"].astype(str)
+    theirs = stays_by_kind([workspace.load_recording(r)[1] for r in rids])
+    egos = []
+    with tempfile.TemporaryDirectory(prefix="laneprint-calibrate-") as tmp:
+        for seed in seeds:
+            for f in drive(seed, Path(tmp) / f"s{seed}"):
+                egos.append(canonicalise(read_log(Path(f).read_bytes(), "mcap", IDENTITY), IDENTITY, "x", None).ego)
+    mine = stays_by_kind(egos)
+    kinds = [k for k in theirs if len(theirs[k]) >= MIN_STAYS and len(mine.get(k, [])) >= MIN_STAYS]
+    result = {
+        "family": family, "lanes": lanes, "minutes": minutes, "seeds": list(seeds),
+        "draws": {k: deconvolved_dwell(theirs[k], mine[k]) for k in kinds},
+        "stays": {k: {"drivers": len(theirs[k]), "drivers_median_s": float(np.median(theirs[k])),
+                      "agent": len(mine[k]), "agent_median_s": float(np.median(mine[k]))} for k in kinds},
+        "note": (f"calibrated on drive seeds {', '.join(map(str, seeds))} ({family} traffic, {lanes} lanes, "
+                 f"{minutes:g} min per section) against {len(rids)} recordings of {', '.join(drivers)}; kinds "
+                 f"with fewer than {MIN_STAYS} stays of either keep the floor"),
+    }
+    path = run_dir(workspace, run_id) / CALIBRATION_FILE
+    stored = json.loads(path.read_text()) if path.exists() else {}
+    stored[calibration_key(family, lanes, minutes)] = result
+    atomic_write_json(path, stored)
+    return result
