@@ -260,6 +260,11 @@ def main() -> None:
     ap.add_argument("--out-of-world", action="store_true",
                     help="the shipped study's agents in SUMO against SUMO's own model of their style")
     args = ap.parse_args()
+    if args.dwell_draw and args.dwell_calibrated:
+        ap.error("--dwell-draw and --dwell-calibrated: choose one")
+    if args.out_of_world and args.dwell_calibrated:
+        ap.error("--dwell-calibrated calibrates against the drivers in their own traffic; "
+                 "out of its world there are none")
     if args.out_of_world:
         args.lanes = args.lanes or [2]
         args.workdir.mkdir(parents=True, exist_ok=True)
