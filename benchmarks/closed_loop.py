@@ -19,8 +19,8 @@ analysis assigns to the agent's drive; then whether issue 19's closed-loop accep
 every median inside their IQR) and a JSON line with every figure.
 
 Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--family ttc|acceptance] [--no-pace]
-     [--pace-by pooled|side] [--dwell-percentile 5] [--dwell-draw | --dwell-calibrated] [--no-undo-check] [--drive-seed 1 [2 ...]]
-                                      [--drivers 9] [--minutes 10] [--workdir /tmp/lp-closed-loop]
+     [--pace-by pooled|side] [--dwell-percentile 5] [--dwell-draw | --dwell-calibrated] [--no-undo-check]
+     [--drive-seed 1 [2 ...]] [--drivers 9] [--minutes 10] [--workdir /tmp/lp-closed-loop]
 
 Sides not taken (issue 19, three lanes): on an analysed workspace of a SUMO study,
 one agent of a style per `EnvConfig.other_side` setting (`train --other-side` and
@@ -154,9 +154,10 @@ def shipped_workspace(args: argparse.Namespace) -> Path:
 
 def dwell_option(args: argparse.Namespace) -> list[str]:
     """`--dwell-percentile P` for `laneprint drive` when one was given (else drive's default), and
-    `--dwell-draw` when asked."""
+    `--dwell-draw` or `--dwell-calibrated` when asked."""
     return (([] if args.dwell_percentile is None else ["--dwell-percentile", f"{args.dwell_percentile:g}"])
-            + (["--dwell-draw"] if args.dwell_draw else []) + (["--dwell-calibrated"] if args.dwell_calibrated else []))
+            + (["--dwell-draw"] if args.dwell_draw else [])
+            + (["--dwell-calibrated"] if args.dwell_calibrated else []))
 
 
 def drive_once(ws: Path, run_id: str, out: Path, lanes: int, seed: int, minutes: float, *extra: str) -> dict:

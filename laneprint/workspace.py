@@ -100,9 +100,10 @@ _ARROW_TYPES = {"float": pa.float64(), "int": pa.int64(), "bool": pa.bool_(), "s
 
 def _to_arrow(df: pd.DataFrame, schema: Schema) -> pa.Table:
     """`df` as an Arrow table, NaN and None as null; object columns typed by `schema` (a column of only
-    None would otherwise be stored as type null), others as pyarrow converts them. Without pandas' metadata: `pa.Table.from_pandas` infers it by scanning every object
-    column (2 ms for a one-row catalogue entry) and readers need none of it. Float columns without a
-    NaN (the test is a minimum, which a NaN turns NaN: no temporary array) are taken without a copy."""
+    None would otherwise be stored as type null), others as pyarrow converts them. Without pandas'
+    metadata: `pa.Table.from_pandas` infers it by scanning every object column (2 ms for a one-row
+    catalogue entry) and readers need none of it. Float columns without a NaN (the test is a minimum,
+    which a NaN turns NaN: no temporary array) are taken without a copy."""
     kinds = {c.name: c.kind for c in schema.columns}
     arrays = []
     for name in df.columns:

@@ -15,9 +15,9 @@ back at once. The agent's own wait shows only in closed loop. So:
    the agent already stays longer than the drivers, no dwell is needed: F_X = 1 there);
 4. each lane change draws the next dwell from F_X (`HeldBackRule.dwell_draws`), never under the floor.
 
-The calibration is kept in the run's folder (`dwell_calibration.json`, per family, lanes and minutes)
-and reused. Out of its world there are no drivers in the traffic to calibrate against: the default
-dwell stays.
+The calibration is kept in the run's folder (`dwell_calibration.json`, per traffic and drive settings:
+family, lanes, minutes, pace and undo check) and reused. Out of its world there are no drivers in the
+traffic to calibrate against: the default dwell stays.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from laneprint.workspace import Workspace, atomic_write_json
+from rl.drive.fidelity import driver_egos
 from rl.runs import Target, run_dir, target_drivers
 
 #: Drive seeds of the calibration drives (the seeds a drive is judged on are others).
@@ -73,32 +74,31 @@ def deconvolved_dwell(drivers: list[float], agent: list[float], n: int = QUANTIL
     return [float(v) for v in grid[np.minimum(np.searchsorted(f_x, u, side="left"), len(grid) - 1)]]
 
 
-def calibration_key(family: str, lanes: int, minutes: float) -> str:
-    return f"{family}-{lanes}-{minutes:g}"
+def calibration_key(setting: dict[str, Any]) -> str:
+    """The key of a calibration's traffic and drive settings, e.g. 'family=acceptance,lanes=2,...'."""
+    return ",".join(f"{k}={v}" for k, v in setting.items())
 
 
-def load_calibration(workspace: Workspace, run_id: str, family: str, lanes: int,
-                     minutes: float) -> Optional[dict[str, Any]]:
-    """The run's stored calibration for this traffic, or None."""
+def load_calibration(workspace: Workspace, run_id: str, setting: dict[str, Any]) -> Optional[dict[str, Any]]:
+    """The run's stored calibration for this traffic and these drive settings, or None."""
     path = run_dir(workspace, run_id) / CALIBRATION_FILE
     if not path.exists():
         return None
-    return json.loads(path.read_text()).get(calibration_key(family, lanes, minutes))
+    return json.loads(path.read_text()).get(calibration_key(setting))
 
 
 def calibrate_dwell(workspace: Workspace, run_id: str, target: Target, drive: Callable[[int, Path], list[str]],
-                    family: str, lanes: int, minutes: float,
-                    seeds: tuple[int, ...] = CALIBRATION_SEEDS) -> dict[str, Any]:
+                    setting: dict[str, Any], seeds: tuple[int, ...] = CALIBRATION_SEEDS) -> dict[str, Any]:
     """Calibrate (see the module doc) with `drive(seed, out)`, a drive of the run with the default dwell
-    that returns its MCAP files; store the result in the run's folder and return it."""
+    that returns its MCAP files, in the traffic and drive settings `setting` (family, lanes, minutes,
+    ...); store the result in the run's folder and return it."""
     from ingest.mapping import IDENTITY
     from ingest.pipeline import read_log
     from ingest.validate import canonicalise
 
     drivers, _ = target_drivers(workspace, target)
-    cat = workspace.recordings()
-    rids = cat.loc[cat["driver_id"].astype(str).isin(drivers), "recording_id"].astype(str)
-    theirs = stays_by_kind([workspace.load_recording(r)[1] for r in rids])
+    their_egos = [ego for _, ego in driver_egos(workspace, drivers)]
+    theirs = stays_by_kind(their_egos)
     egos = []
     with tempfile.TemporaryDirectory(prefix="laneprint-calibrate-") as tmp:
         for seed in seeds:
@@ -107,16 +107,16 @@ def calibrate_dwell(workspace: Workspace, run_id: str, target: Target, drive: Ca
     mine = stays_by_kind(egos)
     kinds = [k for k in theirs if len(theirs[k]) >= MIN_STAYS and len(mine.get(k, [])) >= MIN_STAYS]
     result = {
-        "family": family, "lanes": lanes, "minutes": minutes, "seeds": list(seeds),
+        **setting, "seeds": list(seeds),
         "draws": {k: deconvolved_dwell(theirs[k], mine[k]) for k in kinds},
         "stays": {k: {"drivers": len(theirs[k]), "drivers_median_s": float(np.median(theirs[k])),
                       "agent": len(mine[k]), "agent_median_s": float(np.median(mine[k]))} for k in kinds},
-        "note": (f"calibrated on drive seeds {', '.join(map(str, seeds))} ({family} traffic, {lanes} lanes, "
-                 f"{minutes:g} min per section) against {len(rids)} recordings of {', '.join(drivers)}; kinds "
-                 f"with fewer than {MIN_STAYS} stays of either keep the floor"),
+        "note": (f"calibrated on drive seeds {', '.join(map(str, seeds))} ({calibration_key(setting)}) against "
+                 f"{len(their_egos)} recordings of {', '.join(drivers)}; kinds with fewer than {MIN_STAYS} stays of "
+                 f"either keep the floor"),
     }
     path = run_dir(workspace, run_id) / CALIBRATION_FILE
     stored = json.loads(path.read_text()) if path.exists() else {}
-    stored[calibration_key(family, lanes, minutes)] = result
+    stored[calibration_key(setting)] = result
     atomic_write_json(path, stored)
     return result

@@ -60,7 +60,7 @@ def drive_command(
         "--dwell-calibrated",
         help="Draw each dwell from the run's closed-loop calibration in this traffic: drives with the default "
              "dwell on calibration seeds 1001-1002 give the agent's own stays, and the dwell is what makes its "
-             "stays like its drivers' (made once per family, lanes and minutes, kept in the run; README, 'The "
+             "stays like its drivers' (made once per traffic and drive settings, kept in the run; README, 'The "
              "dwell calibrated').")] = False,
     pace: Annotated[bool, typer.Option(
         "--pace/--no-pace",

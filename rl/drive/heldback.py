@@ -115,8 +115,9 @@ class HeldBackRule:
     min_advantage_by_side: dict[str, float] = field(default_factory=dict)  # 'left'/'right': this instead, by side
     undo_check: bool = True  # with no leader, no change of the agent's to the left that it would at once undo
     source: dict[str, str] = field(default_factory=dict)
-    # 'left>right' etc.: the drivers' own times from a change to the next press; when given, each lane change
-    # draws the next dwell of each kind from them (`draw_dwell`, `drive --dwell-draw`) instead of `dwell_s`
+    # 'left>right' etc.: what each lane change draws the next dwell of that kind from (`draw_dwell`) instead
+    # of `dwell_s`: the drivers' own times from a change to the next press (`drive --dwell-draw`) or the
+    # closed-loop calibration's dwells (`drive --dwell-calibrated`, `rl.drive.calibrate`)
     dwell_draws: dict[str, list[float]] = field(default_factory=dict)
 
     def dwell_ok(self, last_side: Optional[str], since_s: float, side: str,
@@ -129,8 +130,8 @@ class HeldBackRule:
         return since_s >= (drawn[kind] if drawn and kind in drawn else self.dwell_s.get(kind, 0.0))
 
     def draw_dwell(self, last_side: str, rng: np.random.Generator) -> dict[str, float]:
-        """At a lane change to `last_side`: one dwell per kind that starts there, each drawn from the drivers'
-        own times of that kind (`dwell_draws`; empty when there are none)."""
+        """At a lane change to `last_side`: one dwell per kind that starts there, each drawn from that kind's
+        `dwell_draws` (empty when there are none)."""
         return {k: float(rng.choice(v)) for k, v in sorted(self.dwell_draws.items())
                 if k.startswith(f"{last_side}>")}
 

@@ -214,11 +214,12 @@ def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig, dwell_p
 
 def calibrated(workspace: Workspace, run_id: str, target: Target, family: str, lanes: int, minutes: float,
                pace_by: str, undo_check: bool, progress: Optional[ProgressFn]) -> dict[str, Any]:
-    """The run's closed-loop dwell calibration for this traffic (`rl.drive.calibrate`), made when missing
-    by drives with the default dwell on the calibration seeds."""
+    """The run's closed-loop dwell calibration for this traffic and these settings (`rl.drive.calibrate`),
+    made when missing by drives with the default dwell on the calibration seeds."""
     from rl.drive.calibrate import calibrate_dwell, load_calibration
 
-    stored = load_calibration(workspace, run_id, family, lanes, minutes)
+    setting = {"family": family, "lanes": lanes, "minutes": minutes, "pace_by": pace_by, "undo_check": undo_check}
+    stored = load_calibration(workspace, run_id, setting)
     if stored is not None:
         return stored
 
@@ -226,7 +227,7 @@ def calibrated(workspace: Workspace, run_id: str, target: Target, family: str, l
         return drive_run(workspace, run_id, minutes=minutes, seed=seed, out=out, lanes=lanes, family=family,
                          sumo_model=False, pace_by=pace_by, undo_check=undo_check, progress=progress)["files"]
 
-    return calibrate_dwell(workspace, run_id, target, drive, family, lanes, minutes)
+    return calibrate_dwell(workspace, run_id, target, drive, setting)
 
 
 def rule_pace(workspace: Workspace, target: Target, net: Any, cfg: EnvConfig,
@@ -302,6 +303,9 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
         raise UserError(f"unknown --pace-by {pace_by!r}; choose one of {', '.join(PACE_BY)}")
     if dwell_draw and dwell_calibrated:
         raise UserError("--dwell-draw and --dwell-calibrated: choose one")
+    if (dwell_draw or dwell_calibrated) and not (held_back and dwell):
+        raise UserError("--dwell-draw and --dwell-calibrated set the held-back rule's dwell: not with "
+                        "--no-held-back or --no-dwell")
     if not 0 <= dwell_percentile <= 100:
         raise UserError(f"--dwell-percentile {dwell_percentile:g}: give a percentile from 0 to 100")
     style_params = FAMILY_STYLE_PARAMS[family]
@@ -325,7 +329,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     if rule is not None and not dwell:
         rule = replace(rule, dwell_s={}, dwell_draws={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
     calibration = None
-    if rule is not None and dwell and dwell_calibrated:
+    if rule is not None and dwell_calibrated:
         calibration = calibrated(workspace, run_id, target, family, lanes, minutes, pace_by, undo_check, progress)
         rule = replace(rule, dwell_draws={k: [max(x, rule.dwell_s.get(k, 0.0)) for x in v]
                                           for k, v in calibration["draws"].items()},

@@ -303,6 +303,7 @@ def test_drive_with_the_dwell_calibrated_in_closed_loop(trained, tmp_path):
     res = _invoke(*args, "--seed", "3", "--out", str(tmp_path / "a"))
     cal = res["dwell_calibration"]
     assert cal["seeds"] == [1001, 1002] and cal["family"] == "ttc" and cal["lanes"] == 2
+    assert cal["pace_by"] == "pooled" and cal["undo_check"] is True
     assert "calibrated on drive seeds 1001, 1002" in cal["note"]
     assert res["held_back"]["rule"]["source"]["dwell_s"].startswith("drawn from the closed-loop calibration")
     stored = Workspace(ws).runs_dir / run_id / "dwell_calibration.json"
@@ -313,3 +314,7 @@ def test_drive_with_the_dwell_calibrated_in_closed_loop(trained, tmp_path):
         assert min(draws) >= again["held_back"]["rule"]["dwell_s"].get(kind, 0.0)
     both = runner.invoke(app, [*args, "--dwell-draw"])
     assert both.exit_code == 1 and "choose one" in both.output and "Traceback" not in both.output
+    for off in ("--no-dwell", "--no-held-back"):  # no dwell to calibrate: refused, nothing driven
+        res = runner.invoke(app, [*args, off])
+        assert res.exit_code == 1 and "not with --no-held-back or --no-dwell" in res.output
+    assert stored.read_text() == first
