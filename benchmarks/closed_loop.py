@@ -19,7 +19,7 @@ analysis assigns to the agent's drive; then whether issue 19's closed-loop accep
 every median inside their IQR) and a JSON line with every figure.
 
 Run: python benchmarks/closed_loop.py [--seed 7] [--lanes 2|3] [--family ttc|acceptance] [--no-pace]
-     [--pace-by pooled|side] [--dwell-percentile 5] [--dwell-draw | --dwell-calibrated] [--no-undo-check]
+     [--pace-by pooled|side] [--dwell-percentile 5] [--dwell-draw | --no-dwell-calibrated] [--no-undo-check]
      [--drive-seed 1 [2 ...]] [--drivers 9] [--minutes 10] [--workdir /tmp/lp-closed-loop]
 
 Sides not taken (issue 19, three lanes): on an analysed workspace of a SUMO study,
@@ -154,10 +154,11 @@ def shipped_workspace(args: argparse.Namespace) -> Path:
 
 def dwell_option(args: argparse.Namespace) -> list[str]:
     """`--dwell-percentile P` for `laneprint drive` when one was given (else drive's default), and
-    `--dwell-draw` or `--dwell-calibrated` when asked."""
+    `--dwell-draw`, `--dwell-calibrated` or `--no-dwell-calibrated` when asked."""
     return (([] if args.dwell_percentile is None else ["--dwell-percentile", f"{args.dwell_percentile:g}"])
             + (["--dwell-draw"] if args.dwell_draw else [])
-            + (["--dwell-calibrated"] if args.dwell_calibrated else []))
+            + (["--dwell-calibrated"] if args.dwell_calibrated else [])
+            + (["--no-dwell-calibrated"] if args.no_dwell_calibrated else []))
 
 
 def drive_once(ws: Path, run_id: str, out: Path, lanes: int, seed: int, minutes: float, *extra: str) -> dict:
@@ -192,7 +193,7 @@ def out_of_world(args: argparse.Namespace) -> bool:
                 tag = f"{run_id}-l{lanes}-d{seed}-m{args.minutes:g}"
                 assist = ("-pace-by-side" if args.pace_by == "side" else "") + (
                     "" if args.dwell_percentile is None else f"-dwell{args.dwell_percentile:g}") + (
-                    "-dwell-draw" if args.dwell_draw else "") + ("-dwell-calibrated" if args.dwell_calibrated else "")
+                    "-dwell-draw" if args.dwell_draw else "")
                 d = drive_once(ws, run_id, args.workdir / f"{tag}{assist}", lanes, seed, args.minutes,
                                "--pace-by", args.pace_by, *dwell_option(args))
                 pure = drive_once(ws, run_id, args.workdir / f"{tag}-pure", lanes, seed, args.minutes,
@@ -255,14 +256,18 @@ def main() -> None:
     ap.add_argument("--dwell-draw", action="store_true",
                     help="each dwell drawn from the drivers' own times at each lane change (drive --dwell-draw)")
     ap.add_argument("--dwell-calibrated", action="store_true",
-                    help="each dwell drawn from the run's closed-loop calibration (drive --dwell-calibrated)")
+                    help="each dwell drawn from the run's closed-loop calibration (drive --dwell-calibrated; "
+                         "drive's default in its drivers' own traffic, so in the default mode)")
+    ap.add_argument("--no-dwell-calibrated", action="store_true",
+                    help="the dwell not calibrated: the drivers' percentile (drive --no-dwell-calibrated; before "
+                         "2026-12-04 the default)")
     ap.add_argument("--no-undo-check", action="store_true",
                     help="default mode: drive without the undo check (drive --no-undo-check)")
     ap.add_argument("--out-of-world", action="store_true",
                     help="the shipped study's agents in SUMO against SUMO's own model of their style")
     args = ap.parse_args()
-    if args.dwell_draw and args.dwell_calibrated:
-        ap.error("--dwell-draw and --dwell-calibrated: choose one")
+    if args.dwell_draw + args.dwell_calibrated + args.no_dwell_calibrated > 1:
+        ap.error("--dwell-draw, --dwell-calibrated and --no-dwell-calibrated: choose one")
     if args.out_of_world and args.dwell_calibrated:
         ap.error("--dwell-calibrated calibrates against the drivers in their own traffic; "
                  "out of its world there are none")
@@ -343,9 +348,8 @@ def closed_loop(args: argparse.Namespace) -> bool:
     final = cli("analyze", "-w", str(joined))
     print(f"\n## Closed loop in SUMO (study seed {args.seed}, family {args.family}, drive seed "
           f"{' '.join(map(str, args.drive_seed))}, {lanes} lanes, "
-          f"pace {'off' if args.no_pace else 'on, ' + args.pace_by}, dwell percentile "
-          f"{'default' if args.dwell_percentile is None else format(args.dwell_percentile, 'g')}"
-          f"{', dwell drawn' if args.dwell_draw else ''}{', dwell calibrated' if args.dwell_calibrated else ''}, "
+          f"pace {'off' if args.no_pace else 'on, ' + args.pace_by}, dwell: "
+          f"{more['Normal'][0].get('dwell', 'the percentile (before 2026-12-04)')}, "
           f"undo check {'off' if args.no_undo_check else 'on'}, "
           f"{args.minutes:g} min per section, 4 sections, {time.monotonic() - t0:.0f} s in all)")
     print("| style | lane changes (L/R) | per km [95 %] | drivers per km [95 %] (range) | ratio | left share: "

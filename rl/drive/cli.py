@@ -34,9 +34,10 @@ def drive_command(
     lanes: Annotated[int, typer.Option(
         "--lanes", help="Lanes of the highway: 2 (default) or 3; in a middle lane the agent is asked about "
                         "each side and takes the one with the larger advantage Q(change) - Q(keep).")] = 2,
-    family: Annotated[str, typer.Option(
-        "--family", help="SUMO traffic and style vTypes of a study family: ttc (default) or acceptance "
-                         "(laneprint simulate --family); use that of the study the agent learnt from.")] = "ttc",
+    family: Annotated[Optional[str], typer.Option(
+        "--family", help="SUMO traffic and style vTypes of a study family: ttc or acceptance (laneprint simulate "
+                         "--family). Default: that of the study the agent learnt from when its drivers drove a "
+                         "laneprint SUMO study, else ttc.")] = None,
     driver_id: Annotated[Optional[str], typer.Option("--driver-id", help="driver_id of the logs (default agent-RUN_ID).")] = None,
     held_back: Annotated[bool, typer.Option(
         "--held-back/--no-held-back",
@@ -56,12 +57,14 @@ def drive_command(
         "--dwell-draw",
         help="Draw each dwell, at each lane change, from the target's drivers' own times from a change to their "
              "next press (seeded by --seed) instead of one percentile of them (README, 'The dwell drawn').")] = False,
-    dwell_calibrated: Annotated[bool, typer.Option(
-        "--dwell-calibrated",
-        help="Draw each dwell from the run's closed-loop calibration in this traffic: drives with the default "
+    dwell_calibrated: Annotated[Optional[bool], typer.Option(
+        "--dwell-calibrated/--no-dwell-calibrated",
+        help="Draw each dwell from the run's closed-loop calibration in this traffic: drives with the floor "
              "dwell on calibration seeds 1001-1002 give the agent's own stays, and the dwell is what makes its "
              "stays like its drivers' (made once per traffic and drive settings, kept in the run; README, 'The "
-             "dwell calibrated').")] = False,
+             "dwell calibrated'). Default: on when the drive is in its drivers' own traffic (the family and "
+             "lanes of their laneprint SUMO study) and neither --dwell-draw nor --no-dwell is given; off "
+             "elsewhere (no drivers there to calibrate against).")] = None,
     pace: Annotated[bool, typer.Option(
         "--pace/--no-pace",
         help="With the held-back rule: the agent's own change needs the advantage at which, replayed along its "
@@ -171,10 +174,20 @@ def render_lanes(lanes: dict[str, Any], console: Console) -> None:
         highlight=False, soft_wrap=True)
 
 
+def _own_traffic(result: dict[str, Any]) -> str:
+    own = result.get("drivers_traffic")
+    if not own:
+        return " (its drivers drove another simulator)"
+    if own["same_as_drive"]:
+        return " (its drivers' own)"
+    return f" (its drivers drove {own['family']} traffic on {own['lanes']} lanes)"
+
+
 def render(result: dict[str, Any], console: Console) -> None:
     """The drive's tables: per section, then the indicators at the agent's decisions against its lines."""
     t = Table(title=f"{result['run_id']} ({result['target']['kind']} {result['target']['name']}) in SUMO "
-                    f"{result['sumo_version']}: {result.get('lanes', 2)} lanes, {result.get('family', 'ttc')} traffic, "
+                    f"{result['sumo_version']}: {result.get('lanes', 2)} lanes, {result.get('family', 'ttc')} traffic"
+                    f"{_own_traffic(result)}, "
                     f"{result['minutes']:g} min per section, "
                     f"seed {result['seed']}, "
                     f"ego vType {result['ego_style']}, asked every {result['decision_every_s']:g} s")
@@ -197,7 +210,7 @@ def render(result: dict[str, Any], console: Console) -> None:
                       f"{hb['desired_speed']}; 'longest passed up': the longest time, while held back, that a "
                       "neighbouring lane held a gap the target accepts", highlight=False, soft_wrap=True)
         dwell = ", ".join(f"{k} {v:.1f} s" for k, v in rule.get("dwell_s", {}).items()) or "none"
-        console.print(f"dwell after a lane change (none sooner than the target's drivers pressed): {dwell}; "
+        console.print(f"dwell after a lane change: {result.get('dwell', '')}; floor {dwell}; "
                       f"decision steps with a side held by it: {result['totals']['follow'].get('dwelled', 0)}",
                       highlight=False, soft_wrap=True)
         tot, fo = result["totals"], result["totals"]["follow"]

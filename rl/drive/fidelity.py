@@ -21,6 +21,7 @@ kind of road and traffic when both come from the same SUMO family, not the same 
 
 from __future__ import annotations
 
+import re
 from typing import Any, Iterable, Iterator, Optional
 
 import numpy as np
@@ -97,6 +98,28 @@ def driver_egos(workspace: Workspace, drivers: Iterable[str]) -> Iterator[tuple[
         if did in want:
             yield did, pd.read_parquet(workspace.recordings_dir / rid / "ego.parquet",
                                        columns=["t_s", "ego_lane", "ego_x_m"])
+
+
+def study_traffic(simulator: Any) -> Optional[tuple[str, int]]:
+    """(family, lanes) of a recording written by `laneprint simulate --engine sumo` (its `simulator`
+    text, e.g. 'Eclipse SUMO 1.24.0 (laneprint simulate --engine sumo --family acceptance --lanes 3)'),
+    else None."""
+    from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, DEFAULT_LANES
+
+    m = re.search(r"\(laneprint simulate --engine sumo((?: --[a-z]+ \S+)*)\)", str(simulator or ""))
+    if m is None:
+        return None
+    opts = dict(re.findall(r"--([a-z]+) (\S+)", m.group(1)))
+    return opts.get("family", DEFAULT_FAMILY), int(opts.get("lanes", DEFAULT_LANES))
+
+
+def drivers_traffic(workspace: Workspace, drivers: Iterable[str]) -> Optional[tuple[str, int]]:
+    """(family, lanes) of the laneprint SUMO traffic every stored recording of `drivers` was driven in,
+    or None when they were not all driven in one such traffic (another simulator, or a mix)."""
+    want = set(map(str, drivers))
+    cat = workspace.recordings()
+    worlds = {study_traffic(s) for s, d in zip(cat["simulator"], cat["driver_id"].astype(str)) if d in want}
+    return worlds.pop() if len(worlds) == 1 else None
 
 
 def driver_rates(egos: Iterable[tuple[str, pd.DataFrame]]) -> pd.DataFrame:

@@ -30,7 +30,7 @@ from laneprint.errors import UserError
 from laneprint.progress import ProgressFn
 from laneprint.reference import INDICATORS, SPEED_LIMITS_KPH
 from laneprint.workspace import Workspace, atomic_write_json
-from rl.drive.fidelity import fidelity
+from rl.drive.fidelity import drivers_traffic, fidelity
 from rl.drive.heldback import DWELL_PERCENTILE, HeldBackRule, merge_summaries, rule_from_analysis
 from rl.drive.loop import QFunction, SectionDrive, drive_sections, recordings, sumo_model_sections
 from rl.learners.dqn import q_values
@@ -56,6 +56,16 @@ def load_run_config(workspace: Workspace, run_id: str) -> dict[str, Any]:
         raise UserError(f"no run {run_id!r} in {workspace.root} (see `laneprint train`)") from None
     except (OSError, ValueError) as exc:
         raise UserError(f"{path} is not readable JSON: {exc}") from None
+
+
+def own_traffic(workspace: Workspace, target: Target) -> Optional[tuple[str, int]]:
+    """(family, lanes) of the laneprint SUMO study the target's drivers drove, or None (another simulator,
+    a mix, or no analysis to name them)."""
+    try:
+        drivers, _ = target_drivers(workspace, target)
+    except UserError:
+        return None
+    return drivers_traffic(workspace, drivers)
 
 
 def ego_style(workspace: Workspace, target: Target) -> tuple[str, str]:
@@ -213,19 +223,21 @@ def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig, dwell_p
 
 
 def calibrated(workspace: Workspace, run_id: str, target: Target, family: str, lanes: int, minutes: float,
-               pace_by: str, undo_check: bool, progress: Optional[ProgressFn]) -> dict[str, Any]:
+               pace: bool, pace_by: str, undo_check: bool, progress: Optional[ProgressFn]) -> dict[str, Any]:
     """The run's closed-loop dwell calibration for this traffic and these settings (`rl.drive.calibrate`),
     made when missing by drives with the default dwell on the calibration seeds."""
     from rl.drive.calibrate import calibrate_dwell, load_calibration
 
-    setting = {"family": family, "lanes": lanes, "minutes": minutes, "pace_by": pace_by, "undo_check": undo_check}
+    setting = {"family": family, "lanes": lanes, "minutes": minutes, "pace": pace, "pace_by": pace_by,
+               "undo_check": undo_check}
     stored = load_calibration(workspace, run_id, setting)
     if stored is not None:
         return stored
 
     def drive(seed: int, out: Path) -> list[str]:
         return drive_run(workspace, run_id, minutes=minutes, seed=seed, out=out, lanes=lanes, family=family,
-                         sumo_model=False, pace_by=pace_by, undo_check=undo_check, progress=progress)["files"]
+                         sumo_model=False, pace=pace, pace_by=pace_by, undo_check=undo_check,
+                         dwell_calibrated=False, progress=progress)["files"]
 
     return calibrate_dwell(workspace, run_id, target, drive, setting)
 
@@ -258,6 +270,20 @@ def drivers_fidelity(workspace: Workspace, target: Target, recs: list[tuple[dict
     return fidelity(workspace, drivers, recs, stored_settings(workspace), seed)
 
 
+def dwell_mode(rule: Optional[HeldBackRule], held_back: bool, drawn: bool, calibration: Optional[dict],
+               percentile: float) -> str:
+    """Which wait after a lane change the drive had, in words."""
+    if rule is None or not held_back:
+        return "none (no held-back rule)"
+    if not rule.dwell_s and not rule.dwell_draws:
+        return "off"
+    if calibration is not None:
+        return f"calibrated in closed loop (never under the drivers' {percentile:g}th percentile)"
+    if drawn:
+        return "drawn from the drivers' own times"
+    return f"the drivers' {percentile:g}th percentile"
+
+
 def _never() -> HeldBackRule:
     from rl.drive.heldback import Line
 
@@ -272,14 +298,15 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
               sections: Optional[list[float]] = None, out: Optional[Path] = None,
               driver_id: Optional[str] = None, analyze: bool = False, lanes: int = 2,
               held_back: bool = True, sumo_model: bool = True, dwell: bool = True,
-              dwell_percentile: float = DWELL_PERCENTILE, family: str = "ttc",
+              dwell_percentile: float = DWELL_PERCENTILE, family: Optional[str] = None,
               pace: bool = True, pace_by: str = "pooled", undo_check: bool = True, dwell_draw: bool = False,
-              dwell_calibrated: bool = False, progress: Optional[ProgressFn] = None) -> dict[str, Any]:
+              dwell_calibrated: Optional[bool] = None, progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
 
     `family`: the SUMO study family whose traffic and style vTypes the drive uses
-    (`laneprint.simulator.sumo.settings.FAMILIES`): that of the study the agent learnt from, so that
-    the drive and its drivers are in the same kind of traffic.
+    (`laneprint.simulator.sumo.settings.FAMILIES`); None: that of the study the agent learnt from when
+    its drivers drove a laneprint SUMO study (`rl.drive.fidelity.drivers_traffic`), so that the drive
+    and its drivers are in the same kind of traffic, else the default family.
 
     `held_back`: the assistant's held-back rule acts beside the agent (False: the pure agent; the rule's
     figures are still measured). `sumo_model`: also drive SUMO's own model of the style (the comparator).
@@ -291,13 +318,15 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     the left are requested even when it would want back at once (`HeldBackRule.undo_check`). `dwell_draw`:
     each lane change draws the next dwell from the drivers' own times (`HeldBackRule.dwell_draws`, seeded by
     `seed` and the section) instead of their `dwell_percentile`; `dwell_calibrated`: drawn from the run's
-    closed-loop calibration in this traffic (`rl.drive.calibrate`; made first when the run has none)."""
+    closed-loop calibration in this traffic (`rl.drive.calibrate`; made first when the run has none), never
+    under the percentile; None (the default): calibrated when the drive is in its drivers' own traffic (the
+    family and lanes of their study) with the rule's dwell on and not drawn, else the percentile."""
     from laneprint.simulator.sumo.backend import check_available
-    from laneprint.simulator.sumo.settings import FAMILIES, LANES, family_settings
+    from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, FAMILIES, LANES, family_settings
     from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS
     from rl.drive.pace import PACE_BY
 
-    if family not in FAMILIES:
+    if family is not None and family not in FAMILIES:
         raise UserError(f"unknown --family {family!r}; choose one of {', '.join(FAMILIES)}")
     if pace_by not in PACE_BY:
         raise UserError(f"unknown --pace-by {pace_by!r}; choose one of {', '.join(PACE_BY)}")
@@ -308,7 +337,6 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
                         "--no-held-back or --no-dwell")
     if not 0 <= dwell_percentile <= 100:
         raise UserError(f"--dwell-percentile {dwell_percentile:g}: give a percentile from 0 to 100")
-    style_params = FAMILY_STYLE_PARAMS[family]
     if lanes not in LANES:
         raise UserError(f"--lanes {lanes}: a SUMO highway has {' or '.join(map(str, LANES))} lanes")
     if not 0 < minutes <= 120:
@@ -316,6 +344,12 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     config = load_run_config(workspace, run_id)
     target = Target(**config["target"])
     cfg = EnvConfig.from_dict(config["env"])
+    own = own_traffic(workspace, target)
+    family = family or (own[0] if own else DEFAULT_FAMILY)
+    in_own_traffic = own == (family, lanes)
+    if dwell_calibrated is None:
+        dwell_calibrated = in_own_traffic and held_back and dwell and not dwell_draw
+    style_params = FAMILY_STYLE_PARAMS[family]
     net = load_weights(workspace, run_id)
     limits = check_sections(sections)
     driver_id = driver_id or f"agent-{run_id}"
@@ -330,7 +364,8 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
         rule = replace(rule, dwell_s={}, dwell_draws={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
     calibration = None
     if rule is not None and dwell_calibrated:
-        calibration = calibrated(workspace, run_id, target, family, lanes, minutes, pace_by, undo_check, progress)
+        calibration = calibrated(workspace, run_id, target, family, lanes, minutes, pace, pace_by, undo_check,
+                                 progress)
         rule = replace(rule, dwell_draws={k: [max(x, rule.dwell_s.get(k, 0.0)) for x in v]
                                           for k, v in calibration["draws"].items()},
                        source={**rule.source,
@@ -354,6 +389,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
         "run_id": run_id, "target": config["target"], "driver_id": driver_id, "seed": seed, "minutes": minutes,
         "sumo_version": drives[0].log.sumo_version, "sumo_api": drives[0].log.api,
         "ego_style": style, "ego_style_reason": why, "decision_every_s": cfg.dt_s, "lanes": lanes, "family": family,
+        "drivers_traffic": ({"family": own[0], "lanes": own[1], "same_as_drive": in_own_traffic} if own else None),
         "side_input": cfg.observation == "direction",
         "files": [str(p) for p in paths], "sections": rows, "totals": totals(rows),
         "held_back": {"on": bool(held_back and rule is not None), "rule": rule.to_dict() if rule else None,
@@ -361,6 +397,7 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
                                                           f"{style_params[style].get('speedFactor', 1.0):g} "
                                                           f"(the {style} vType)"},
         "pace": paced or {"note": "off (--no-pace)" if rule is not None else "no held-back rule"},
+        "dwell": dwell_mode(rule, held_back, dwell_draw, calibration, dwell_percentile),
         "dwell_calibration": ({k: v for k, v in calibration.items() if k != "draws"} if calibration else None),
         "changes_by_lane": _sum_counts([r["changes_by_lane"] for r in rows]),
         "indicators": indicators_vs_lines(drives, cfg.lines),

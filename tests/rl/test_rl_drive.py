@@ -61,6 +61,19 @@ def test_missing_vehicles_are_shown_as_in_training():
     assert obs[-3] == pytest.approx(1e-3) and obs[-2] == 1.0 and obs[-1] == pytest.approx(1e-3)
 
 
+def test_study_traffic_is_read_from_the_simulator_text_of_a_laneprint_sumo_study():
+    from rl.drive.fidelity import study_traffic
+
+    assert study_traffic("Eclipse SUMO 1.24.0 (laneprint simulate --engine sumo)") == ("ttc", 2)
+    assert study_traffic("Eclipse SUMO 1.24.0 (laneprint simulate --engine sumo --family acceptance --lanes 3)") \
+        == ("acceptance", 3)
+    assert study_traffic("Eclipse SUMO 1.24.0 (laneprint simulate --engine sumo --lanes 3)") == ("ttc", 3)
+    # another simulator, the synthetic study, a drive's own logs, nothing: not a study's traffic
+    for other in ("laneprint.simulator v1 (seed 0)", "Eclipse SUMO 1.24.0 (laneprint drive r1, seed 0)",
+                  None, ""):
+        assert study_traffic(other) is None
+
+
 def test_target_lane_is_the_other_lane():
     assert (target_lane(0), target_lane(1), target_lane(0, n_lanes=1)) == (1, 0, None)
 
@@ -196,6 +209,10 @@ def test_drive_writes_a_log_whose_presses_are_the_agents_lane_changes(trained, t
                   "--out", str(out), "-w", str(ws))
     assert res["files"] == [str(out)] and out.is_file()
     assert res["ego_style"] == "Aggressive"
+    # its drivers drove this traffic (the study's family and lanes, read from their logs): the drive takes
+    # it by default, and its dwell is calibrated against them
+    assert res["family"] == "ttc" and res["drivers_traffic"] == {"family": "ttc", "lanes": 2, "same_as_drive": True}
+    assert res["dwell"].startswith("calibrated in closed loop") and res["dwell_calibration"]["seeds"] == [1001, 1002]
     tot = res["totals"]
     assert tot["collisions"] == 0
     assert tot["decisions_asked"] >= tot["change_decisions"] >= tot["lane_changes"]
@@ -290,6 +307,9 @@ def test_drive_in_the_traffic_and_vtypes_of_another_family(trained, tmp_path):
     factor = ACCEPTANCE_STYLE_PARAMS["Aggressive"]["speedFactor"]
     assert factor != STYLE_PARAMS["Aggressive"]["speedFactor"]  # else this test could not tell the families apart
     assert res["family"] == "acceptance" and f"speedFactor {factor:g} " in res["held_back"]["desired_speed"]
+    # not its drivers' traffic: nobody there to calibrate the dwell against, so the drivers' floor
+    assert res["drivers_traffic"] == {"family": "ttc", "lanes": 2, "same_as_drive": False}
+    assert res["dwell_calibration"] is None and res["dwell"] == "the drivers' 5th percentile"
     assert res["totals"]["collisions"] == 0 and res["totals"]["km"] > 0
     bad = runner.invoke(app, ["drive", run_id, "--family", "nope", "-w", str(ws)])
     assert bad.exit_code == 1 and "unknown --family 'nope'" in bad.output and "Traceback" not in bad.output
@@ -303,7 +323,7 @@ def test_drive_with_the_dwell_calibrated_in_closed_loop(trained, tmp_path):
     res = _invoke(*args, "--seed", "3", "--out", str(tmp_path / "a"))
     cal = res["dwell_calibration"]
     assert cal["seeds"] == [1001, 1002] and cal["family"] == "ttc" and cal["lanes"] == 2
-    assert cal["pace_by"] == "pooled" and cal["undo_check"] is True
+    assert cal["pace_by"] == "pooled" and cal["undo_check"] is True and cal["pace"] is True
     assert "calibrated on drive seeds 1001, 1002" in cal["note"]
     assert res["held_back"]["rule"]["source"]["dwell_s"].startswith("drawn from the closed-loop calibration")
     stored = Workspace(ws).runs_dir / run_id / "dwell_calibration.json"
@@ -318,3 +338,7 @@ def test_drive_with_the_dwell_calibrated_in_closed_loop(trained, tmp_path):
         res = runner.invoke(app, [*args, off])
         assert res.exit_code == 1 and "not with --no-held-back or --no-dwell" in res.output
     assert stored.read_text() == first
+    floor = _invoke("drive", run_id, "--engine", "sumo", "--minutes", "1", "--section", "90", "--no-sumo-model",
+                    "--no-dwell-calibrated", "--seed", "3", "--out", str(tmp_path / "c"), "-w", str(ws))
+    assert floor["dwell_calibration"] is None and floor["dwell"] == "the drivers' 5th percentile"
+    assert not floor["held_back"]["rule"].get("dwell_draws")
