@@ -84,7 +84,7 @@ def main() -> int:
     fold_of = assign_folds(sessions, CrossvalSettings(folds=args.folds, seed=args.seed))
     fold = dec["recording_id"].astype(str).map(fold_of).to_numpy()
     scores: dict[str, list[np.ndarray]] = {"trees": [], "mlp": [], "mlp-piecewise": []}
-    labels = []
+    labels, left = [], []
     for k in range(int(fold.max()) + 1):
         train, _ = approaches_from_decisions(dec[fold != k])
         test, _ = approaches_from_decisions(dec[fold == k])
@@ -96,14 +96,22 @@ def main() -> int:
         edges = np.quantile(x_tr, np.linspace(0, 1, 9), axis=0).T
         scores["mlp-piecewise"].append(mlp_scores(piecewise(x_tr, edges), y_tr, piecewise(x_te, edges), args.seed + k))
         labels.append(y_te)
+        left.append(np.concatenate([a.scene.left for a in test]))
         print(f"fold {k + 1}: {len(train)} training decisions, {len(test)} held out", flush=True)
-    y = np.concatenate(labels)
+    y, side = np.concatenate(labels), np.concatenate(left)
     print(f"\n{args.style}, {len(y)} held-out states ({int(y.sum())} presses), observation '{cfg.observation}':")
     for name, parts in scores.items():
         s = np.concatenate(parts)
-        ba = 0.5 * ((s[y == 1] > 0).mean() + (s[y == 0] <= 0).mean())
-        print(f"  {name:14s} ROC AUC {roc_auc_score(y, s):.3f}   balanced accuracy {100 * ba:.1f} %")
+        line = f"  {name:14s} " + _figures(y, s)
+        if side.any() and not side.all():  # changes to both sides: each side's figures too
+            line += "   left " + _figures(y[side], s[side]) + "   right " + _figures(y[~side], s[~side])
+        print(line)
     return 0
+
+
+def _figures(y: np.ndarray, s: np.ndarray) -> str:
+    ba = 0.5 * ((s[y == 1] > 0).mean() + (s[y == 0] <= 0).mean())
+    return f"ROC AUC {roc_auc_score(y, s):.3f}, balanced accuracy {100 * ba:.1f} %"
 
 
 if __name__ == "__main__":
