@@ -13,7 +13,8 @@ folds' states, in the agent's own observation, and judged on the held-out fold:
 If the plain MLP ranks the held-out states worse than the trees even when taught
 the labels directly, the agent's gap to the classifier is its function class,
 not its reward or its training. Prints per classifier the pooled held-out ROC AUC
-(ranking) and balanced accuracy (at the balanced 0.5 threshold).
+(ranking) and balanced accuracy (at the balanced 0.5 threshold), and each side's where
+the target changed lanes to both.
 
     python benchmarks/function_class.py -w WORKSPACE --style Aggressive [--folds 4] [--seed 0]
 """
