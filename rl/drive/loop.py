@@ -108,11 +108,24 @@ def choose_side(adv: dict[int, float], threshold: float | dict[int, float] = 0.0
     return max(sorted(ok), key=lambda k: ok[k])  # max keeps the first of equals: the lower lane
 
 
+#: A vehicle this far [m] off its lane's centre towards a neighbouring lane is changing into it.
+ENTERING_M = 0.2
+
+
+def in_lane(st: VehicleState, lane: int) -> bool:
+    """The vehicle is in `lane`, or is changing into it from a neighbouring lane (on three lanes a car
+    from the far lane may be entering the lane the ego is about to enter: the ego's target lane holds it)."""
+    side = lane - st.lane
+    return side == 0 or (abs(side) == 1 and st.lat * side > ENTERING_M)
+
+
 def live_scene(ego: VehicleState, others: dict[str, VehicleState], target: int) -> tuple[Scene, dict[str, Any]]:
-    """The decision scene of the ego (the analysis's reading of a log) and the ids of f, nf, nb."""
+    """The decision scene of the ego (the analysis's reading of a log) and the ids of f, nf, nb; a vehicle
+    changing into the target lane counts as in it (`in_lane`)."""
     def nearest(lane: int, ahead: bool) -> Optional[tuple[str, VehicleState]]:
+        within = (lambda st: st.lane == lane) if lane == ego.lane else (lambda st: in_lane(st, lane))
         cands = [(vid, st) for vid, st in others.items()
-                 if st.lane == lane and ((st.x - ego.x > 0) if ahead else (st.x - ego.x <= 0))]
+                 if within(st) and ((st.x - ego.x > 0) if ahead else (st.x - ego.x <= 0))]
         if not cands:
             return None
         return min(cands, key=lambda c: abs(c[1].x - ego.x))

@@ -49,6 +49,22 @@ def test_live_scene_reads_the_nearest_vehicles_as_the_analysis_does():
     assert ind.dv_nb[0] == pytest.approx(-2.0)
 
 
+def test_a_car_changing_into_the_target_lane_from_the_far_lane_is_in_it():
+    # three lanes: the ego in the left lane (2) asks about the middle one (1) while a car of the right lane
+    # (0), 20 m ahead and slower, is already moving into the middle lane (SUMO drove the ego into it)
+    ego = VehicleState(x=100.0, v=24.0, lane=2, length=4.5)
+    merging = VehicleState(x=120.0, v=14.6, lane=0, length=4.5, lat=1.4)
+    scene, ids = live_scene(ego, {"m": merging}, 1)
+    assert ids["nf"] == "m" and scene.nf_present[0]
+    assert indicators(scene, 100.0, 150.0).t_nf[0] == pytest.approx((20.0 - 4.5) / (24.0 - 14.6))
+    keeping = VehicleState(x=120.0, v=14.6, lane=0, length=4.5, lat=0.1)  # within its lane: not entering
+    away = VehicleState(x=120.0, v=14.6, lane=0, length=4.5, lat=-1.4)  # leaving to the right, not towards lane 1
+    for st in (keeping, away):
+        assert live_scene(ego, {"m": st}, 1)[1]["nf"] is None
+    # in the ego's own lane a neighbour's car counts only once it is there (the analysis's reading)
+    assert live_scene(VehicleState(100.0, 24.0, 1, 4.5), {"m": merging}, 2)[1]["f"] is None
+
+
 def test_missing_vehicles_are_shown_as_in_training():
     ego = VehicleState(x=0.0, v=20.0, lane=1, length=4.5)
     scene, ids = live_scene(ego, {"ahead_right": VehicleState(60.0, 15.0, 0, 4.5)}, target_lane(1))

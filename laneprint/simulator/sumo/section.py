@@ -148,7 +148,7 @@ def _log_step(res: dict[str, dict[int, Any]], t: float, s: SumoSettings, ego_row
     for vid, r in res.items():
         if vid == EGO_ID:
             continue
-        st = VehicleState(r[_POS] - r[_LEN] / 2, r[_SPEED], int(r[_LANE]), r[_LEN])
+        st = VehicleState(r[_POS] - r[_LEN] / 2, r[_SPEED], int(r[_LANE]), r[_LEN], r[_LAT])
         states[vid] = st
         if abs(st.x - ex) <= s.scene_range_m:
             traffic_rows.append((t, vid, st.x, st.lane * s.lane_width_m + r[_LAT], st.v, st.lane, st.length))

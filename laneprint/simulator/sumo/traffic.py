@@ -44,12 +44,14 @@ _STREAM_FIELDS: dict[str, tuple[str, str]] = {
 
 @dataclass(frozen=True)
 class VehicleState:
-    """A vehicle at one step: centre position [m], speed [m/s], lane, length [m]."""
+    """A vehicle at one step: centre position [m], speed [m/s], lane, length [m], and its lateral offset
+    from its lane's centre [m] (positive to the left; away from 0 while it changes lane)."""
 
     x: float
     v: float
     lane: int
     length: float
+    lat: float = 0.0
 
 
 class TrafficBubble:
