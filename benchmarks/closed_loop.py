@@ -349,7 +349,7 @@ def closed_loop(args: argparse.Namespace) -> bool:
     print(f"\n## Closed loop in SUMO (study seed {args.seed}, family {args.family}, drive seed "
           f"{' '.join(map(str, args.drive_seed))}, {lanes} lanes, "
           f"pace {'off' if args.no_pace else 'on, ' + args.pace_by}, dwell: "
-          f"{more['Normal'][0].get('dwell', 'the percentile (before 2026-12-04)')}, "
+          f"{more['Normal'][0]['dwell']}, "
           f"undo check {'off' if args.no_undo_check else 'on'}, "
           f"{args.minutes:g} min per section, 4 sections, {time.monotonic() - t0:.0f} s in all)")
     print("| style | lane changes (L/R) | per km [95 %] | drivers per km [95 %] (range) | ratio | left share: "

@@ -21,7 +21,6 @@ kind of road and traffic when both come from the same SUMO family, not the same 
 
 from __future__ import annotations
 
-import re
 from typing import Any, Iterable, Iterator, Optional
 
 import numpy as np
@@ -32,6 +31,7 @@ from indicators.acceptance import add_acceptance
 from indicators.decisions import extract_decisions
 from indicators.settings import AnalysisSettings
 from indicators.stats import INDICATOR_COLUMNS
+from laneprint.simulator.sumo.settings import study_traffic
 from laneprint.workspace import Workspace
 
 #: The indicators compared at the presses: the paper's three, then what the driver accepts.
@@ -100,22 +100,10 @@ def driver_egos(workspace: Workspace, drivers: Iterable[str]) -> Iterator[tuple[
                                        columns=["t_s", "ego_lane", "ego_x_m"])
 
 
-def study_traffic(simulator: Any) -> Optional[tuple[str, int]]:
-    """(family, lanes) of a recording written by `laneprint simulate --engine sumo` (its `simulator`
-    text, e.g. 'Eclipse SUMO 1.24.0 (laneprint simulate --engine sumo --family acceptance --lanes 3)'),
-    else None."""
-    from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, DEFAULT_LANES
-
-    m = re.search(r"\(laneprint simulate --engine sumo((?: --[a-z]+ \S+)*)\)", str(simulator or ""))
-    if m is None:
-        return None
-    opts = dict(re.findall(r"--([a-z]+) (\S+)", m.group(1)))
-    return opts.get("family", DEFAULT_FAMILY), int(opts.get("lanes", DEFAULT_LANES))
-
-
 def drivers_traffic(workspace: Workspace, drivers: Iterable[str]) -> Optional[tuple[str, int]]:
-    """(family, lanes) of the laneprint SUMO traffic every stored recording of `drivers` was driven in,
-    or None when they were not all driven in one such traffic (another simulator, or a mix)."""
+    """(family, lanes) of the laneprint SUMO traffic every stored recording of `drivers` was driven in
+    (`laneprint.simulator.sumo.settings.study_traffic`), or None when they were not all driven in one such
+    traffic (another simulator, or a mix)."""
     want = set(map(str, drivers))
     cat = workspace.recordings()
     worlds = {study_traffic(s) for s, d in zip(cat["simulator"], cat["driver_id"].astype(str)) if d in want}

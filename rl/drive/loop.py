@@ -113,8 +113,8 @@ ENTERING_M = 0.2
 
 
 def in_lane(st: VehicleState, lane: int) -> bool:
-    """The vehicle is in `lane`, or is changing into it from a neighbouring lane (on three lanes a car
-    from the far lane may be entering the lane the ego is about to enter: the ego's target lane holds it)."""
+    """The vehicle is in `lane`, or is changing into it from a neighbouring lane (it keeps its old lane index
+    until it crosses the line; on three lanes a car of the far lane may be entering the ego's target lane)."""
     side = lane - st.lane
     return side == 0 or (abs(side) == 1 and st.lat * side > ENTERING_M)
 
@@ -123,9 +123,9 @@ def live_scene(ego: VehicleState, others: dict[str, VehicleState], target: int) 
     """The decision scene of the ego (the analysis's reading of a log) and the ids of f, nf, nb; a vehicle
     changing into the target lane counts as in it (`in_lane`)."""
     def nearest(lane: int, ahead: bool) -> Optional[tuple[str, VehicleState]]:
-        within = (lambda st: st.lane == lane) if lane == ego.lane else (lambda st: in_lane(st, lane))
         cands = [(vid, st) for vid, st in others.items()
-                 if within(st) and ((st.x - ego.x > 0) if ahead else (st.x - ego.x <= 0))]
+                 if (st.lane == lane if lane == ego.lane else in_lane(st, lane))
+                 and ((st.x - ego.x > 0) if ahead else (st.x - ego.x <= 0))]
         if not cands:
             return None
         return min(cands, key=lambda c: abs(c[1].x - ego.x))

@@ -77,13 +77,13 @@ def test_missing_vehicles_are_shown_as_in_training():
     assert obs[-3] == pytest.approx(1e-3) and obs[-2] == 1.0 and obs[-1] == pytest.approx(1e-3)
 
 
-def test_study_traffic_is_read_from_the_simulator_text_of_a_laneprint_sumo_study():
-    from rl.drive.fidelity import study_traffic
+def test_study_traffic_reads_back_the_simulator_text_a_sumo_study_writes():
+    from laneprint.simulator.sumo.settings import FAMILIES, LANES, simulator_text, study_traffic
 
-    assert study_traffic("Eclipse SUMO 1.24.0 (laneprint simulate --engine sumo)") == ("ttc", 2)
-    assert study_traffic("Eclipse SUMO 1.24.0 (laneprint simulate --engine sumo --family acceptance --lanes 3)") \
-        == ("acceptance", 3)
-    assert study_traffic("Eclipse SUMO 1.24.0 (laneprint simulate --engine sumo --lanes 3)") == ("ttc", 3)
+    for family in FAMILIES:  # what `simulate --engine sumo` writes into every recording, read back
+        for lanes in LANES:
+            assert study_traffic(simulator_text("1.24.0", family, lanes)) == (family, lanes)
+    assert simulator_text("1.24.0") == "Eclipse SUMO 1.24.0 (laneprint simulate --engine sumo)"
     # another simulator, the synthetic study, a drive's own logs, nothing: not a study's traffic
     for other in ("laneprint.simulator v1 (seed 0)", "Eclipse SUMO 1.24.0 (laneprint drive r1, seed 0)",
                   None, ""):

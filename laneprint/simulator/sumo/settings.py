@@ -7,8 +7,9 @@ seed: every random choice (driver perturbations, background traffic, SUMO's own
 
 from __future__ import annotations
 
+import re
 from dataclasses import asdict, dataclass, replace
-from typing import Any
+from typing import Any, Optional
 
 from laneprint.reference import SPEED_LIMITS_KPH
 
@@ -147,3 +148,20 @@ def family_settings(family: str = DEFAULT_FAMILY, n_lanes: int = DEFAULT_LANES, 
         raise ValueError(f"n_lanes must be one of {', '.join(map(str, LANES))}")
     return replace(SumoSettings(), family=family, n_lanes=n_lanes,
                    **{**FAMILY_OVERRIDES[family], **LANE_OVERRIDES.get((family, n_lanes), {}), **changes})
+
+
+def simulator_text(sumo_version: str, family: str = DEFAULT_FAMILY, n_lanes: int = DEFAULT_LANES) -> str:
+    """The `simulator` field of a study's recordings, e.g. 'Eclipse SUMO 1.24.0 (laneprint simulate --engine
+    sumo --family acceptance --lanes 3)' (defaults left out); `study_traffic` reads it back."""
+    opts = "" if family == DEFAULT_FAMILY else f" --family {family}"
+    opts += "" if n_lanes == DEFAULT_LANES else f" --lanes {n_lanes}"
+    return f"Eclipse SUMO {sumo_version} (laneprint simulate --engine sumo{opts})"
+
+
+def study_traffic(simulator: Any) -> Optional[tuple[str, int]]:
+    """(family, lanes) of a recording whose `simulator` field `simulator_text` wrote, else None."""
+    m = re.search(r"\(laneprint simulate --engine sumo((?: --[a-z]+ \S+)*)\)", str(simulator or ""))
+    if m is None:
+        return None
+    opts = dict(re.findall(r"--([a-z]+) (\S+)", m.group(1)))
+    return opts.get("family", DEFAULT_FAMILY), int(opts.get("lanes", DEFAULT_LANES))

@@ -22,7 +22,7 @@ from laneprint.progress import ProgressFn, report
 from laneprint.simulator.study import GENERATOR, session_id
 from laneprint.simulator.sumo.scenario import build_network, write_routes
 from laneprint.simulator.sumo.section import SectionLog, run_section
-from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, DEFAULT_LANES, SumoSettings
+from laneprint.simulator.sumo.settings import SumoSettings, simulator_text
 from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS, SumoDriver, make_sumo_drivers
 
 ENGINE = "sumo"
@@ -92,9 +92,7 @@ def simulate_sumo_study(settings: Optional[SumoSettings] = None, seed: int = 0,
 def _collect(settings: SumoSettings, seed: int, drivers: list[SumoDriver], tasks: list,
              logs: dict[tuple[int, int], SectionLog]) -> SumoStudy:
     version = next(iter(logs.values())).sumo_version if logs else ""
-    family = "" if settings.family == DEFAULT_FAMILY else f" --family {settings.family}"
-    family += "" if settings.n_lanes == DEFAULT_LANES else f" --lanes {settings.n_lanes}"
-    simulator = f"Eclipse SUMO {version} (laneprint simulate --engine sumo{family})"
+    simulator = simulator_text(version, settings.family, settings.n_lanes)
     recordings: list[Recording] = []
     sessions: list[dict[str, Any]] = []
     decisions: list[dict[str, Any]] = []
