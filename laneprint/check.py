@@ -313,7 +313,8 @@ def _check_run(ws: Workspace, folder: Path) -> Iterator[Finding | _Leftover]:
         return
     try:
         config = _read_json(folder / "config.json")
-        total = int(config["dqn"]["episodes"])
+        trees = config.get("learner", "dqn") == "trees"  # fitted in one go: its status counts Q functions fitted
+        total = int(config["trees"]["iterations"]) + 1 if trees else int(config["dqn"]["episodes"])
     except (OSError, ValueError, KeyError, TypeError) as exc:
         yield Finding("problem", f"{rel}/config.json", f"unreadable ({_first_line(exc)})")
         return
@@ -344,6 +345,9 @@ def _check_run(ws: Workspace, folder: Path) -> Iterator[Finding | _Leftover]:
         _, err = _torch_file(folder / "weights.pt")
         if err:
             yield Finding("problem", f"{rel}/weights.pt", f"unreadable ({err})")
+    if state == "interrupted" and trees:
+        yield Finding("note", rel, "tree fit interrupted: fit it again with `laneprint train --learner trees`")
+        return
     if state == "interrupted":
         frm = f"its checkpoint at episode {ckpt_episode}" if ckpt_episode is not None else "the start (no checkpoint)"
         tail = f"; {bad} half-written metrics line(s), dropped on resume" if bad else ""

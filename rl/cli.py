@@ -15,7 +15,7 @@ from laneprint.cliutil import (DEFAULT_WS, BackendOpt, JsonOpt, RayAddressOpt, W
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from rl.problem.rewards import REWARDS
-from rl.settings import DEFAULT_REWARD, OBSERVATIONS, SCENES, DQNSettings
+from rl.settings import DEFAULT_REWARD, LEARNERS, OBSERVATIONS, SCENES, DQNSettings, TreeQSettings
 
 RewardOpt = Annotated[Optional[str], typer.Option(
     "--reward", help=f"Reward: {', '.join(REWARDS)} (default {DEFAULT_REWARD}; timing with --lines paper).")]
@@ -27,6 +27,17 @@ OtherSideOpt = Annotated[Optional[bool], typer.Option(
     "--other-side/--driver-side-only", help="Recorded scenes: also replay the side a middle-lane driver did not "
                                             "take, as approaches without a press (default), or only the driver's "
                                             "side (before issue 19). No effect on two lanes.")]
+
+LearnerOpt = Annotated[str, typer.Option(
+    "--learner", help=f"Who learns the Q function: {' or '.join(LEARNERS)} (the study's DQN; 'trees': fitted Q "
+                      "iteration with boosted trees on the recorded approaches, for the decisions reward).")]
+
+
+def learner_settings(learner: str, dqn: DQNSettings) -> DQNSettings | TreeQSettings:
+    """`dqn`, or the tree learner's settings with its seed (`--learner`)."""
+    if learner not in LEARNERS:
+        raise UserError(f"unknown --learner {learner!r}: choose one of {', '.join(LEARNERS)}")
+    return dqn if learner == "dqn" else TreeQSettings(seed=dqn.seed)
 
 
 def _fmt(x: Any, pct: bool = False) -> str:
@@ -121,6 +132,7 @@ def train_command(
     scenes: ScenesOpt = None,
     observation: ObservationOpt = None,
     other_side: OtherSideOpt = None,
+    learner: LearnerOpt = "dqn",
     lines: Annotated[str, typer.Option("--lines", help="Reference lines: 'analysis' or 'paper' (Table 1).")] = "analysis",
     run_id: Annotated[Optional[str], typer.Option("--run-id", help="Id of the new run (default: time-target-reward-seed).")] = None,
     resume: Annotated[Optional[str], typer.Option("--resume", help="Continue an interrupted run from its checkpoint.")] = None,
@@ -180,6 +192,8 @@ def train_command(
             settings = DQNSettings(**overrides)
         except (TypeError, ValueError) as exc:
             raise UserError(f"bad training setting: {exc}") from None
+        if learner != "dqn" and fleet:
+            raise UserError("--learner trees fits one style or driver: leave out --drivers/--styles")
         if fleet:
             targets = fleet_targets(ws, drivers, styles)
             fleet_env = formulation_config(EnvConfig().lines, reward, scenes, observation, lines)
@@ -195,9 +209,10 @@ def train_command(
         env = formulation_config(resolve_lines(ws, target, lines), reward, scenes, observation, lines, other_side)
         if dt is not None:
             env = replace(env, dt_s=dt)
-        warned = _warn_learning(learning_checks(ws, [target], env, settings), 1)
+        learner_set = learner_settings(learner, settings)
+        warned = _warn_learning(learning_checks(ws, [target], env, settings), 1) if learner == "dqn" else None
         with progress_bar(not as_json) as progress:
-            res = train_run(ws, target, env, settings, run_id=run_id, lines_source=lines,
+            res = train_run(ws, target, env, learner_set, run_id=run_id, lines_source=lines,
                             evaluate=evaluate, progress=progress)
         return {**res, "learning_check": warned} if warned else res
 
@@ -206,8 +221,12 @@ def train_command(
             _render_fleet(res, console)
             return
         console.print(res["run_id"])
-        console.print(f"{res['state']}: {res['target']}, reward {res['reward']}, {res['episodes']} episodes, "
-                      f"{res['env_steps']} steps in {res['wall_s']} s — {res['folder']}", highlight=False)
+        if res.get("learner") == "trees":
+            console.print(f"{res['state']}: {res['target']}, reward {res['reward']}, tree Q functions fitted in "
+                          f"{res['wall_s']} s — {res['folder']}", highlight=False)
+        else:
+            console.print(f"{res['state']}: {res['target']}, reward {res['reward']}, {res['episodes']} episodes, "
+                          f"{res['env_steps']} steps in {res['wall_s']} s — {res['folder']}", highlight=False)
         if res.get("warning"):
             console.print(f"[yellow]warning:[/yellow] {res['warning']}", highlight=False)
         if res.get("evaluation"):
@@ -286,6 +305,7 @@ def crossval_command(
     scenes: ScenesOpt = None,
     observation: ObservationOpt = None,
     other_side: OtherSideOpt = None,
+    learner: LearnerOpt = "dqn",
     lines: Annotated[str, typer.Option("--lines", help="'analysis' (refitted per fold) or 'paper' (Table 1).")] = "analysis",
     bootstrap: Annotated[int, typer.Option("--bootstrap", min=10, help="Bootstrap resamples for the intervals.")] = 1000,
     backend: BackendOpt = "local",
@@ -316,8 +336,10 @@ def crossval_command(
                        else [Target("style", style)] if style else [Target("driver", str(driver))])
             dqn = DQNSettings(seed=seed, **({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {}))
             base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines, other_side)
-            _warn_learning(learning_checks(ws, targets, base, dqn, share=(folds - 1) / folds), len(targets))
-            results = [run_crossval(ws, t, target_env(ws, t, base, lines), dqn, cv, lines, progress=progress, **where)
+            if learner == "dqn":
+                _warn_learning(learning_checks(ws, targets, base, dqn, share=(folds - 1) / folds), len(targets))
+            agent = learner_settings(learner, dqn)
+            results = [run_crossval(ws, t, target_env(ws, t, base, lines), agent, cv, lines, progress=progress, **where)
                        for t in targets]
         return {"results": results} if all_styles else results[0]
 

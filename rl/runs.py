@@ -43,6 +43,7 @@ from rl.problem.env import Approach, EnvConfig, approaches_from_decisions, obser
 from rl.evaluation.evaluate import agent_policy, evaluate_policies, greedy_policy
 from rl.baselines.imitation import fitted_classifier
 from rl.problem.rewards import ReferenceLines
+from rl.settings import LearnerSettings, TreeQSettings, learner_config, stored_learner
 
 RUN_STATES = ("running", "done", "failed", "cancelled")
 RUN_LOCK = "run.lock"
@@ -208,7 +209,7 @@ class _StopFlag:
         return self.signal is not None
 
 
-def create_run(workspace: Workspace, target: Target, env_config: EnvConfig, settings: DQNSettings, *,
+def create_run(workspace: Workspace, target: Target, env_config: EnvConfig, settings: LearnerSettings, *,
                run_id: str | None = None, lines_source: str = "analysis",
                extra: dict[str, Any] | None = None, held: ExitStack | None = None) -> tuple[Path, dict[str, Any]]:
     """Make a new run folder with its config.json; returns (folder, config). With `held`, the
@@ -227,7 +228,7 @@ def create_run(workspace: Workspace, target: Target, env_config: EnvConfig, sett
     config = {
         "run_id": run_id, "target": asdict(target), "reward": env_config.reward.name,
         "lines_source": lines_source, "lines": env_config.lines.to_dict(), "seed": settings.seed,
-        "env": env_config.to_dict(), "dqn": settings.to_dict(), "created_at": now_iso(), **(extra or {}),
+        "env": env_config.to_dict(), **learner_config(settings), "created_at": now_iso(), **(extra or {}),
     }
     # a fleet passes these once for all its runs (each costs a git call or a folder scan)
     config.setdefault("code_version", code_version())
@@ -237,7 +238,7 @@ def create_run(workspace: Workspace, target: Target, env_config: EnvConfig, sett
 
 
 def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig | None,
-              settings: DQNSettings | None, *, run_id: str | None = None, lines_source: str = "analysis",
+              settings: LearnerSettings | None, *, run_id: str | None = None, lines_source: str = "analysis",
               resume: str | None = None, episodes: int | None = None, evaluate: bool = True,
               progress: ProgressFn | None = None) -> dict[str, Any]:
     """Train (or resume) one run in the workspace; returns a JSON-ready summary.
@@ -256,7 +257,7 @@ def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig
 
 
 def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig | None,
-               settings: DQNSettings | None, held: ExitStack, *, run_id: str | None, lines_source: str,
+               settings: LearnerSettings | None, held: ExitStack, *, run_id: str | None, lines_source: str,
                resume: str | None, episodes: int | None, evaluate: bool,
                progress: ProgressFn | None) -> dict[str, Any]:
     workspace.ensure()
@@ -268,6 +269,8 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
         config = json.loads((folder / "config.json").read_text())
         if config.get("kind") == "personalized":  # its K decisions and base are not a driver run's data
             raise UserError(f"run {resume!r} was personalised: run `laneprint personalize` again instead")
+        if config.get("learner", "dqn") != "dqn":
+            raise UserError(f"run {resume!r} is a tree learner's, fitted in one go: train it again instead")
         run_id = resume
         target = Target(**config["target"])
         env_config = EnvConfig.from_dict(config["env"])
@@ -287,6 +290,8 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
                                     lines_source=lines_source, held=held)
         run_id = config["run_id"]
         state, started_at = None, None
+        if isinstance(settings, TreeQSettings):
+            return _fit_tree_run(workspace, folder, config, target, env_config, settings, evaluate, progress)
 
     approaches = None
     if env_config.scenes == "recorded":
@@ -358,15 +363,61 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
     return result
 
 
+def _fit_tree_run(workspace: Workspace, folder: Path, config: dict[str, Any], target: Target, env_config: EnvConfig,
+                  settings: TreeQSettings, evaluate: bool, progress: ProgressFn | None) -> dict[str, Any]:
+    """`train_run` with the tree learner: fitted Q iteration on the target's recorded approaches, in one go
+    (its status counts fitted Q functions instead of episodes; a killed fit is 'interrupted', fit it again)."""
+    from rl.learners.trees import fit_tree_q
+
+    approaches = recorded_approaches(workspace, target)
+    config["scene_decisions"] = len(approaches)
+    atomic_write_json(folder / "config.json", config)
+    total = settings.iterations + 1
+    writer = RunWriter(folder, total)
+    writer.status("running", 0, "fitting the tree Q functions")
+    t0 = time.perf_counter()
+
+    def step(done: int, _total: int, label: str) -> None:
+        writer.status("running", done, label)
+        report(progress, done, total, f"{target.label}: {label}")
+
+    try:
+        net = fit_tree_q(approaches, env_config, settings, progress=step, label="tree Q fitted")
+    except BaseException as exc:
+        writer.status("failed", 0, f"{type(exc).__name__}: {exc}")
+        writer.close()
+        raise
+    _save_torch(folder / "weights.pt", net.state_dict())
+    result: dict[str, Any] = {"run_id": config["run_id"], "folder": str(folder), "state": "done", "learner": "trees",
+                              "episodes": 0, "env_steps": 0, "wall_s": round(time.perf_counter() - t0, 2),
+                              "target": target.label, "reward": env_config.reward.name, "message": ""}
+    if evaluate:
+        writer.status("running", total, "evaluating")
+        try:
+            ev = evaluate_run(workspace, config["run_id"])
+            result["evaluation"] = ev.get("summary_typical") or ev.get("summary")
+            result["evaluation_note"] = ev.get("note", "")
+        except UserError as exc:
+            result["evaluation_note"] = str(exc)
+    writer.status("done", total, "done")
+    writer.close()
+    return result
+
+
 # --- evaluation of a run ----------------------------------------------------------------
 
 
-def _load_q(folder: Path, settings: DQNSettings, env: EnvConfig) -> torch.nn.Module:
-    net = q_network(settings.hidden, len(observation_names(env)))
+def _load_q(folder: Path, settings: LearnerSettings, env: EnvConfig) -> torch.nn.Module:
     path = folder / "weights.pt"
     if not path.exists():
         raise UserError(f"run {folder.name!r} has no weights yet (still training or failed)")
-    net.load_state_dict(torch.load(path, weights_only=True))
+    state = torch.load(path, weights_only=True)
+    if isinstance(settings, TreeQSettings):
+        from rl.learners.trees import TreeQNetwork
+
+        return TreeQNetwork.from_state_dict(state).eval()
+    net = q_network(settings.hidden, len(observation_names(env)))
+    net.load_state_dict(state)
     net.eval()
     return net
 
@@ -399,7 +450,7 @@ def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | No
     config = json.loads((folder / "config.json").read_text())
     target = Target(**config["target"])
     cfg = EnvConfig.from_dict(config["env"])
-    settings = DQNSettings.from_dict(config["dqn"])
+    settings = stored_learner(config)
     net = _load_q(folder, settings, cfg)
     if decisions is None:
         if not workspace.has_table("analysis", "decisions"):
@@ -532,4 +583,4 @@ def load_weights(workspace: Workspace, run_id: str) -> torch.nn.Module:
     config = _read_json(folder / "config.json")
     if config is None:
         raise UserError(f"no run {run_id!r} in {workspace.root}")
-    return _load_q(folder, DQNSettings.from_dict(config["dqn"]), EnvConfig.from_dict(config["env"]))
+    return _load_q(folder, stored_learner(config), EnvConfig.from_dict(config["env"]))

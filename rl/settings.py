@@ -94,6 +94,61 @@ class DQNSettings:
         return DQNSettings(**d)
 
 
+#: Who learns the Q function: the study's DQN, or fitted Q iteration with boosted trees (`rl.learners.trees`).
+LEARNERS: tuple[str, ...] = ("dqn", "trees")
+
+
+@dataclass(frozen=True)
+class TreeQSettings:
+    """Fitted Q iteration with boosted regression trees (`--learner trees`), for the `decisions` reward.
+
+    Each Q function is scikit-learn's `GradientBoostingRegressor` with these settings (the
+    imitation classifier's tree size and step); `iterations` bootstraps Q(keep) this many
+    steps back from the press.
+    """
+
+    iterations: int = 10  # fitted Q iterations of Q(keep)
+    trees: int = 200  # boosting stages per Q function
+    learning_rate: float = 0.05  # boosting step
+    max_leaf_nodes: int = 15  # leaves per tree
+    min_samples_leaf: int = 20  # states per leaf, at least
+    gamma: float = 0.98  # discount per step (the DQN's)
+    seed: int = 0  # seeds the trees' random tie-breaks
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1 or self.trees < 1:
+            raise ValueError("the tree learner needs at least one iteration and one tree")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> "TreeQSettings":
+        return TreeQSettings(**d)
+
+
+#: A learner's settings: the DQN's, or the tree learner's.
+LearnerSettings = DQNSettings | TreeQSettings
+
+
+def learner_name(settings: LearnerSettings) -> str:
+    """'trees' or 'dqn'."""
+    return "trees" if isinstance(settings, TreeQSettings) else "dqn"
+
+
+def learner_config(settings: LearnerSettings) -> dict[str, Any]:
+    """How a run or a cross-validation stores its learner: ``{"learner": name, name: settings}``
+    (a DQN run's settings stay under "dqn", as before the tree learner)."""
+    return {"learner": learner_name(settings), learner_name(settings): settings.to_dict()}
+
+
+def stored_learner(config: dict[str, Any]) -> LearnerSettings:
+    """The learner settings stored by `learner_config` (a config without "learner" is a DQN's)."""
+    if config.get("learner", "dqn") == "trees":
+        return TreeQSettings.from_dict(config["trees"])
+    return DQNSettings.from_dict(config["dqn"])
+
+
 # --- can a run learn? (checked before it starts: `laneprint train`, `crossval`, the dashboard) -------------
 
 #: A run whose expected transitions reach `learning_starts` only within this factor is 'late'.

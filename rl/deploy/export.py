@@ -186,10 +186,18 @@ def _describe(config: dict[str, Any], cfg: EnvConfig, checks: dict[str, Any],
         "actions": {str(k): v for k, v in ACTIONS.items()},
         "run": {k: config.get(k) for k in ("run_id", "target", "reward", "lines_source", "lines", "seed",
                                            "data_fingerprint", "code_version", "created_at")}
-               | {"observation": cfg.observation, "scenes": cfg.scenes, "episodes": config["dqn"]["episodes"]},
+               | {"observation": cfg.observation, "scenes": cfg.scenes, "learner": config.get("learner", "dqn"),
+                  "episodes": (config.get("dqn") or {}).get("episodes")},
         "check": checks,
         "held_back_rule": held_back or {"available": False, "why": "not computed"},
     }
+
+
+def _learned(run: dict[str, Any]) -> str:
+    """How the policy was learnt, for the README."""
+    if run.get("learner") == "trees":
+        return "Q functions fitted by fitted Q iteration with boosted trees (each tree a run of Gather nodes)"
+    return f"{run['episodes']} episodes of DQN"
 
 
 def _readme(doc: dict[str, Any]) -> str:
@@ -203,7 +211,7 @@ def _readme(doc: dict[str, Any]) -> str:
     return f"""# Lane-change policy `{run['run_id']}` (ONNX)
 
 Trained by laneprint for {run['target']['kind']} **{run['target']['name']}**, reward `{run['reward']}`,
-observation `{run['observation']}`, scenes `{run['scenes']}`, {run['episodes']} episodes, seed {run['seed']};
+observation `{run['observation']}`, scenes `{run['scenes']}`, {_learned(run)}, seed {run['seed']};
 reference lines ({run['lines_source']}: {lines.get('source', '')}): t_f = {lines.get('t_f')},
 t_nf = {lines.get('t_nf')}, dv_nb = {lines.get('dv_nb')} (A, b of `I = A v_e + b`). Data fingerprint
 `{run['data_fingerprint']}`, code {(run.get('code_version') or {}).get('git_commit')}.

@@ -41,7 +41,7 @@ from rl.problem.env import Approach, EnvConfig, approaches_from_decisions
 from rl.evaluation.evaluate import evaluate_policies, greedy_policy
 from rl.baselines.imitation import ImitationClassifier
 from rl.problem.rewards import ReferenceLines
-from rl.settings import DQNSettings
+from rl.settings import LearnerSettings, TreeQSettings, learner_config
 
 SPLITS: tuple[str, ...] = ("session", "section")
 POLICIES: tuple[str, ...] = ("agent", "greedy", "imitation")
@@ -188,11 +188,15 @@ def bootstrap_scores(states: pd.DataFrame, changes: pd.DataFrame, who: str, n_bo
             "n_decisions": int(n), "n_states": int(len(states))}
 
 
-def _train_agent(approaches: list[Approach], cfg: EnvConfig, dqn: DQNSettings, progress: ProgressFn | None,
+def _train_agent(approaches: list[Approach], cfg: EnvConfig, dqn: LearnerSettings, progress: ProgressFn | None,
                  label: str):
     from rl.learners.dqn import DQNTrainer
     from rl.evaluation.evaluate import agent_policy
 
+    if isinstance(dqn, TreeQSettings):
+        from rl.learners.trees import fit_tree_q
+
+        return agent_policy(fit_tree_q(approaches, cfg, dqn, progress, label), cfg)
     trainer = DQNTrainer(cfg, dqn, approaches=approaches if cfg.scenes == "recorded" else None)
 
     def tick(t) -> bool:
@@ -213,7 +217,7 @@ class FoldJob:
     test: list[Approach]  # the held-out fold's
     skipped: dict[str, int]  # held-out decisions that could not be scored, by reason
     env: EnvConfig  # with the fold's refitted lines
-    dqn: DQNSettings  # with the fold's seed
+    dqn: LearnerSettings  # the learner's settings (DQN or trees), with the fold's seed
     imitation_seed: int
     progress: ProgressFn | None = None  # the agent's episodes; in-process only (local backend)
 
@@ -263,7 +267,7 @@ def summary_by_direction(decisions: pd.DataFrame, states: pd.DataFrame, changes:
 
 
 def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: list[str], env: EnvConfig,
-                  dqn: DQNSettings, settings: CrossvalSettings, analysis: AnalysisSettings | None = None,
+                  dqn: LearnerSettings, settings: CrossvalSettings, analysis: AnalysisSettings | None = None,
                   refit_lines: bool = True, progress: ProgressFn | None = None, backend: str = "local",
                   ray_address: str | None = None) -> dict[str, Any]:
     """Held-out figures of agent, greedy and imitation on `drivers`' decisions (see the module doc).
@@ -323,7 +327,7 @@ def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: lis
     n_scored = int(states["decision_id"].nunique())
     return {
         "drivers": drivers, "line_drivers": line_drivers, "folds": n_folds, "settings": asdict(settings),
-        "env": env.to_dict(), "dqn": dqn.to_dict(), "summary": summary, "summary_by_direction": by_direction,
+        "env": env.to_dict(), **learner_config(dqn), "summary": summary, "summary_by_direction": by_direction,
         "per_fold": per_fold,
         "n_decisions_total": n_total, "n_decisions_scored": n_scored,
         "scored_share": n_scored / n_total if n_total else None,

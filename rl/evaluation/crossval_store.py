@@ -30,7 +30,7 @@ from rl.evaluation.crossval import CrossvalSettings, crossvalidate
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import ReferenceLines
 from rl.runs import Target, target_drivers, now_iso, resolve_lines, run_dir
-from rl.settings import DQNSettings
+from rl.settings import DQNSettings, LearnerSettings, stored_learner
 
 
 def crossval_dir(workspace: Workspace) -> Path:
@@ -46,7 +46,7 @@ def style_names(workspace: Workspace) -> list[str]:
     return list(dict.fromkeys(st["style"].astype(str)))
 
 
-def run_crossval(workspace: Workspace, target: Target, env: EnvConfig, dqn: DQNSettings,
+def run_crossval(workspace: Workspace, target: Target, env: EnvConfig, dqn: LearnerSettings,
                  settings: CrossvalSettings, lines_source: str = "analysis", run_id: str | None = None,
                  progress: ProgressFn | None = None, backend: str = "local",
                  ray_address: str | None = None) -> dict[str, Any]:
@@ -88,8 +88,8 @@ def crossval_run(workspace: Workspace, run_id: str, settings: CrossvalSettings, 
     except (OSError, ValueError):
         raise UserError(f"no run {run_id!r} in {workspace.root}") from None
     env = EnvConfig.from_dict(config["env"])
-    dqn = DQNSettings.from_dict(config["dqn"])
-    if episodes is not None:
+    dqn = stored_learner(config)
+    if episodes is not None and isinstance(dqn, DQNSettings):
         dqn = replace(dqn, episodes=episodes)
     return run_crossval(workspace, Target(**config["target"]), env, dqn, settings,
                         config.get("lines_source", "analysis"), run_id=run_id, progress=progress, backend=backend,

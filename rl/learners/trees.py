@@ -1,0 +1,154 @@
+"""Fitted Q iteration with boosted regression trees (Ernst, Geurts & Wehenkel 2005) on recorded approaches.
+
+The `decisions` reward's problem is known in full from the recordings: at each recorded
+state TO CHANGE ends the approach with `press_reward` (its time to the driver's press), and
+NOT TO CHANGE moves on to the next recorded state (earning 0) or, at the press, costs the pass
+penalty and leaves a change one step late as the best that is left. So no exploration is
+needed: Q(change) is regressed once on its reward and Q(keep) `iterations` times on
+``gamma * max(Q(next state))``. A side a middle-lane driver did not take (`Approach.other`)
+is an approach without a press, as in `VecReplayEnv`: a change there earns the reward's floor,
+keeping to its end earns 0.
+
+Why trees: where a driver changes the moment a gap turns acceptable (a sharp threshold), the
+Q network cannot tell the press from the step before it and changes early, while trees can
+(rl/README.md, "A tree Q function"). The fitted ensembles become `TreeQNetwork`, a torch
+module with the Q network's interface (observations in, Q(change) and Q(keep) out), so
+evaluation, `drive`, `annotate` and the ONNX export read it as they read the DQN's network.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from sklearn.ensemble import GradientBoostingRegressor
+from torch import nn
+
+from laneprint.errors import UserError
+from laneprint.progress import ProgressFn, report
+from rl.problem.env import Approach, EnvConfig, observation
+from rl.problem.rewards import CHANGE, KEEP, press_reward
+from rl.settings import TreeQSettings
+
+__all__ = ["TreeQNetwork", "fit_tree_q", "fitted_q_data"]
+
+#: A side not taken is this far before a press that never comes (as `VecReplayEnv` replays it).
+NO_PRESS_S = 30.0
+
+
+def fitted_q_data(approaches: list[Approach], cfg: EnvConfig) -> dict[str, np.ndarray]:
+    """The recorded transitions as arrays, one row per state: `obs`, `r_change` (TO CHANGE's
+    reward), `next` (the next state's row; its own at an approach's end), `end` (an approach's
+    last state) and `end_keep` (NOT TO CHANGE's value there, where the approach ends)."""
+    reward = cfg.reward
+    after_press = -reward.pass_penalty + float(press_reward(np.array([cfg.dt_s]), reward)[0])
+    sides = [(a.scene, a.t_s - a.press_t_s, after_press) for a in approaches]
+    if cfg.other_side:
+        sides += [(a.other, np.full(len(a), -NO_PRESS_S), 0.0) for a in approaches if a.other is not None]
+    if not sides:
+        raise UserError("no recorded approaches to fit the tree Q function on")
+    lengths = np.array([len(t) for _, t, _ in sides])
+    end = np.zeros(lengths.sum(), bool)
+    end[np.cumsum(lengths) - 1] = True
+    rows = np.arange(len(end))
+    return {"obs": np.concatenate([observation(s, cfg) for s, _, _ in sides]).astype(np.float32),
+            "r_change": press_reward(np.concatenate([t for _, t, _ in sides]), reward),
+            "next": np.where(end, rows, rows + 1), "end": end,
+            "end_keep": np.repeat([v for _, _, v in sides], lengths)}
+
+
+def _regressor(settings: TreeQSettings, seed: int) -> GradientBoostingRegressor:
+    return GradientBoostingRegressor(n_estimators=settings.trees, learning_rate=settings.learning_rate,
+                                     max_leaf_nodes=settings.max_leaf_nodes, max_depth=None,
+                                     min_samples_leaf=settings.min_samples_leaf, random_state=seed)
+
+
+def fit_tree_q(approaches: list[Approach], cfg: EnvConfig, settings: TreeQSettings,
+               progress: ProgressFn | None = None, label: str = "tree Q") -> "TreeQNetwork":
+    """Fitted Q iteration on `approaches` (the `decisions` reward); the Q function as a torch module."""
+    if cfg.reward.name != "decisions" or cfg.scenes != "recorded":
+        raise UserError("the tree learner fits the 'decisions' reward on recorded scenes: "
+                        "leave out --reward/--scenes or use --learner dqn")
+    d = fitted_q_data(approaches, cfg)
+    x, nxt, end = d["obs"], d["next"], d["end"]
+    total = settings.iterations + 1
+    q_change = _regressor(settings, settings.seed).fit(x, d["r_change"])
+    change_x = q_change.predict(x)
+    report(progress, 1, total, label)
+    keep_x = np.zeros(len(x))
+    q_keep = None
+    for it in range(settings.iterations):
+        target = np.where(end, d["end_keep"], settings.gamma * np.maximum(change_x[nxt], keep_x[nxt]))
+        q_keep = _regressor(settings, settings.seed + 1 + it).fit(x, target)
+        keep_x = q_keep.predict(x)
+        report(progress, it + 2, total, label)
+    if q_keep is None:
+        raise UserError("the tree learner needs at least one iteration")
+    return TreeQNetwork.from_ensembles({CHANGE: q_change, KEEP: q_keep}, x[:1])
+
+
+class TreeQNetwork(nn.Module):
+    """Boosted regression trees as a torch module: `forward(obs) -> Q` of shape (n, 2), like `q_network`.
+
+    Every tree of every action is one row of padded node arrays; a batch walks all trees at
+    once, one level per step, by gathering each node's feature, threshold and children (a leaf
+    is its own child). Its state dict is plain tensors, so a run's `weights.pt` holds it and
+    `torch.onnx.export` writes it as Gather and Where operators.
+    """
+
+    def __init__(self, feature: torch.Tensor, threshold: torch.Tensor, left: torch.Tensor, right: torch.Tensor,
+                 value: torch.Tensor, base: torch.Tensor, depth: torch.Tensor) -> None:
+        super().__init__()
+        for name, t in (("feature", feature), ("threshold", threshold), ("left", left), ("right", right),
+                        ("value", value), ("base", base), ("depth", depth)):
+            self.register_buffer(name, t)
+        self.n_actions = int(base.shape[0])
+        self.n_levels = int(depth.item())
+
+    @staticmethod
+    def from_state_dict(state: dict[str, torch.Tensor]) -> "TreeQNetwork":
+        """The module saved by `state_dict()` (a run's `weights.pt`)."""
+        return TreeQNetwork(**{k: state[k] for k in ("feature", "threshold", "left", "right", "value", "base",
+                                                       "depth")})
+
+    @staticmethod
+    def from_ensembles(models: dict[int, GradientBoostingRegressor], x0: np.ndarray) -> "TreeQNetwork":
+        """Module of one fitted ensemble per action index (each of as many trees); `x0`: one observation,
+        to read each ensemble's constant (its prediction there less its trees' sum)."""
+        trees = [(a, est.tree_, m.learning_rate) for a, m in sorted(models.items())
+                 for est in m.estimators_[:, 0]]
+        width = max(t.node_count for _, t, _ in trees)
+        n = len(trees)
+        feature, left, right = (np.zeros((n, width), np.int64) for _ in range(3))
+        threshold, value = np.zeros((n, width), np.float32), np.zeros((n, width), np.float32)
+        depth = 0
+        for i, (_, t, lr) in enumerate(trees):
+            k = t.node_count
+            leaf = t.children_left[:k] < 0
+            own = np.arange(k)
+            feature[i, :k] = np.where(leaf, 0, t.feature[:k])
+            threshold[i, :k] = np.where(leaf, np.inf, t.threshold[:k])
+            left[i, :k] = np.where(leaf, own, t.children_left[:k])
+            right[i, :k] = np.where(leaf, own, t.children_right[:k])
+            value[i, :k] = lr * t.value[:k, 0, 0]
+            depth = max(depth, int(t.max_depth))
+        n_actions = max(models) + 1
+        net = TreeQNetwork(torch.from_numpy(feature), torch.from_numpy(threshold), torch.from_numpy(left),
+                           torch.from_numpy(right), torch.from_numpy(value), torch.zeros(n_actions),
+                           torch.tensor(depth))
+        with torch.no_grad():
+            sums = net.forward(torch.as_tensor(x0, dtype=torch.float32))[0]
+        base = torch.tensor([float(models[a].predict(x0)[0]) - float(sums[a]) for a in range(n_actions)])
+        net.base.copy_(base)
+        return net
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        n_trees, width = self.feature.shape
+        offset = torch.arange(n_trees) * width
+        flat = [t.reshape(-1) for t in (self.feature, self.threshold, self.left, self.right, self.value)]
+        f, thr, lft, rgt, val = flat
+        node = offset.unsqueeze(0).expand(x.shape[0], n_trees)
+        for _ in range(self.n_levels):
+            go_left = x.gather(1, f[node]) <= thr[node]
+            node = offset + torch.where(go_left, lft[node], rgt[node])
+        leaves = val[node].reshape(x.shape[0], self.n_actions, n_trees // self.n_actions)
+        return leaves.sum(dim=2) + self.base

@@ -1,0 +1,99 @@
+"""The tree learner (`--learner trees`): fitted Q iteration, its torch module, and the commands that use it."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import torch
+from sklearn.ensemble import GradientBoostingRegressor
+from typer.testing import CliRunner
+
+from laneprint.cli import app
+from laneprint.workspace import Workspace
+from rl.baselines.imitation import labelled_states
+from rl.learners.dqn import q_values
+from rl.learners.trees import TreeQNetwork, fit_tree_q, fitted_q_data
+from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config
+from rl.problem.rewards import CHANGE, KEEP, ReferenceLines
+from rl.runs import load_weights
+from rl.settings import TreeQSettings
+from rl.testing import analysed_workspace, session_decisions, write_style_analysis
+
+LINES = ReferenceLines.paper("Normal")
+SMALL = TreeQSettings(trees=40, iterations=4, learning_rate=0.2)
+
+
+def test_the_module_predicts_what_the_ensembles_predict():
+    rng = np.random.default_rng(0)
+    x = rng.random((2000, 6)).astype(np.float32)
+    fit = lambda y: GradientBoostingRegressor(n_estimators=30, max_leaf_nodes=9, max_depth=None,  # noqa: E731
+                                              random_state=0).fit(x, y)
+    change, keep = fit((x[:, 0] > 0.3) + x[:, 1]), fit(np.sin(6 * x[:, 2]))
+    net = TreeQNetwork.from_ensembles({CHANGE: change, KEEP: keep}, x[:1])
+    q = q_values(net, x)
+    assert np.abs(q[:, CHANGE] - change.predict(x)).max() < 1e-5
+    assert np.abs(q[:, KEEP] - keep.predict(x)).max() < 1e-5
+    again = TreeQNetwork.from_state_dict(net.state_dict())  # what a run's weights.pt holds
+    assert torch.equal(again(torch.as_tensor(x)), net(torch.as_tensor(x)))
+
+
+def test_fitted_q_iteration_changes_at_the_press_and_keeps_before():
+    dec = session_decisions(LINES, 4, 8)
+    approaches, _ = approaches_from_decisions(dec)
+    cfg = formulation_config(LINES)
+    data = fitted_q_data(approaches, cfg)
+    assert data["end"].sum() == len(approaches) and data["r_change"][data["end"]].min() == 1.0
+    net = fit_tree_q(approaches, cfg, SMALL)
+    x, y = labelled_states(approaches, cfg)
+    acts = q_values(net, x).argmax(axis=1)
+    said_change = acts == CHANGE
+    assert said_change[y == 1].mean() >= 0.9  # the presses
+    assert (~said_change[y == 0]).mean() >= 0.8  # the states before them
+
+
+def test_the_tree_learner_needs_the_decisions_reward():
+    approaches, _ = approaches_from_decisions(session_decisions(LINES, 2, 4))
+    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--learner", "trees", "--reward", "timing",
+                                   "-w", "unused"])
+    assert res.exit_code == 1
+    try:
+        fit_tree_q(approaches, EnvConfig(lines=LINES), SMALL)  # synthetic scenes, timing reward
+    except Exception as exc:  # noqa: BLE001 - the message is what the user reads
+        assert "decisions" in str(exc)
+    else:
+        raise AssertionError("a timing reward was fitted")
+
+
+def test_train_evaluate_export_and_check_a_tree_run(tmp_path):
+    ws = analysed_workspace(tmp_path)
+    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--learner", "trees", "--run-id", "t1",
+                                   "-w", str(tmp_path), "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert out["learner"] == "trees" and out["state"] == "done"
+    agent = next(r for r in out["evaluation"] if r["who"] == "agent")
+    assert agent["recall"] >= 0.9
+    config = json.loads((tmp_path / "runs" / "t1" / "config.json").read_text())
+    assert config["learner"] == "trees" and config["trees"]["iterations"] == TreeQSettings().iterations
+    assert isinstance(load_weights(ws, "t1"), TreeQNetwork)
+    exported = CliRunner().invoke(app, ["export", "t1", "-w", str(tmp_path), "--json"])
+    assert exported.exit_code == 0, exported.output
+    doc = json.loads((tmp_path / "exports" / "t1" / "policy.json").read_text())
+    assert doc["run"]["learner"] == "trees"
+    assert all(s["actions_agree"] == s["n_states"] for s in json.loads(exported.stdout)["check"]["sets"].values())
+    checked = CliRunner().invoke(app, ["check", "-w", str(tmp_path), "--json"])
+    assert "runs/t1" not in checked.stdout, checked.stdout
+    again = CliRunner().invoke(app, ["train", "--resume", "t1", "-w", str(tmp_path)])
+    assert again.exit_code == 1 and "train it again" in again.output
+
+
+def test_crossval_with_the_tree_learner_says_so(tmp_path):
+    write_style_analysis(Workspace(tmp_path), session_decisions(LINES, 4, 6), LINES)
+    res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--learner", "trees",
+                                   "--bootstrap", "50", "-w", str(tmp_path), "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert out["learner"] == "trees" and "trees" in out and "dqn" not in out
+    agent = next(r for r in out["summary"] if r["who"] == "agent")
+    assert agent["balanced_accuracy"] > 0.7
