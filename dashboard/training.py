@@ -51,6 +51,13 @@ def rewards() -> list[str]:
     return [default, *[r for r in REWARDS if r != default]]
 
 
+def learners() -> list[str]:
+    """The learners `laneprint train --learner` offers, the DQN first."""
+    from rl.settings import LEARNERS
+
+    return list(LEARNERS)
+
+
 def hyperparameters() -> dict[str, Any]:
     """The form's trainer settings with their defaults (the study's Table 2)."""
     from rl.settings import DQNSettings

@@ -206,7 +206,8 @@ def train_command(
                 res = train_fleet(ws, record["fleet_id"], progress=progress, **fleet_opts)
             return {**res, "learning_check": warned} if warned else res
         target = Target("style", style) if style else Target("driver", str(driver))
-        env = formulation_config(resolve_lines(ws, target, lines), reward, scenes, observation, lines, other_side)
+        env = formulation_config(resolve_lines(ws, target, lines), reward, scenes, observation, lines, other_side,
+                                 learner)
         if dt is not None:
             env = replace(env, dt_s=dt)
         learner_set = learner_settings(learner, settings)
@@ -335,7 +336,7 @@ def crossval_command(
             targets = ([Target("style", s) for s in style_names(ws)] if all_styles
                        else [Target("style", style)] if style else [Target("driver", str(driver))])
             dqn = DQNSettings(seed=seed, **({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {}))
-            base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines, other_side)
+            base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines, other_side, learner)
             if learner == "dqn":
                 _warn_learning(learning_checks(ws, targets, base, dqn, share=(folds - 1) / folds), len(targets))
             agent = learner_settings(learner, dqn)

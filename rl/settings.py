@@ -96,14 +96,17 @@ class DQNSettings:
 
 #: Who learns the Q function: the study's DQN, or fitted Q iteration with boosted trees (`rl.learners.trees`).
 LEARNERS: tuple[str, ...] = ("dqn", "trees")
+#: The `decisions` reward's press scale the tree learner fits [s]: a change's reward falls by 1 per
+#: half a second off the press, a sharp reward the trees resolve and the network does not (rl/README.md).
+TREES_PRESS_SCALE_S = 0.5
 
 
 @dataclass(frozen=True)
 class TreeQSettings:
     """Fitted Q iteration with boosted regression trees (`--learner trees`), for the `decisions` reward.
 
-    Each Q function is scikit-learn's `GradientBoostingRegressor` with these settings (the
-    imitation classifier's tree size and step); `iterations` bootstraps Q(keep) this many
+    Each Q function is scikit-learn's `HistGradientBoostingRegressor` with these settings (the
+    imitation classifier's tree size and step, no early stopping); `iterations` bootstraps Q(keep) this many
     steps back from the press.
     """
 
@@ -112,6 +115,7 @@ class TreeQSettings:
     learning_rate: float = 0.05  # boosting step
     max_leaf_nodes: int = 15  # leaves per tree
     min_samples_leaf: int = 20  # states per leaf, at least
+    press_weight: float = 2.0  # weight of a press state in the regressions, against 1 for the others
     gamma: float = 0.98  # discount per step (the DQN's)
     seed: int = 0  # seeds the trees' random tie-breaks
 

@@ -5,7 +5,8 @@ state TO CHANGE ends the approach with `press_reward` (its time to the driver's 
 NOT TO CHANGE moves on to the next recorded state (earning 0) or, at the press, costs the pass
 penalty and leaves a change one step late as the best that is left. So no exploration is
 needed: Q(change) is regressed once on its reward and Q(keep) `iterations` times on
-``gamma * max(Q(next state))``. A side a middle-lane driver did not take (`Approach.other`)
+``gamma * max(Q(next state))``. The presses, one state in 10-30, weigh `press_weight` times
+the others in both regressions (unweighted, the trees keep too often). A side a middle-lane driver did not take (`Approach.other`)
 is an approach without a press, as in `VecReplayEnv`: a change there earns the reward's floor,
 keeping to its end earns 0.
 
@@ -20,7 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from sklearn.ensemble import GradientBoostingRegressor
+from sklearn.ensemble import HistGradientBoostingRegressor
+from threadpoolctl import threadpool_limits
 from torch import nn
 
 from laneprint.errors import UserError
@@ -37,7 +39,7 @@ NO_PRESS_S = 30.0
 
 def fitted_q_data(approaches: list[Approach], cfg: EnvConfig) -> dict[str, np.ndarray]:
     """The recorded transitions as arrays, one row per state: `obs`, `r_change` (TO CHANGE's
-    reward), `next` (the next state's row; its own at an approach's end), `end` (an approach's
+    reward), `press` (the driver's press), `next` (the next state's row; its own at an approach's end), `end` (an approach's
     last state) and `end_keep` (NOT TO CHANGE's value there, where the approach ends)."""
     reward = cfg.reward
     after_press = -reward.pass_penalty + float(press_reward(np.array([cfg.dt_s]), reward)[0])
@@ -50,16 +52,30 @@ def fitted_q_data(approaches: list[Approach], cfg: EnvConfig) -> dict[str, np.nd
     end = np.zeros(lengths.sum(), bool)
     end[np.cumsum(lengths) - 1] = True
     rows = np.arange(len(end))
+    t_rel = np.concatenate([t for _, t, _ in sides])
     return {"obs": np.concatenate([observation(s, cfg) for s, _, _ in sides]).astype(np.float32),
-            "r_change": press_reward(np.concatenate([t for _, t, _ in sides]), reward),
+            "r_change": press_reward(t_rel, reward), "press": t_rel == 0.0,
             "next": np.where(end, rows, rows + 1), "end": end,
             "end_keep": np.repeat([v for _, _, v in sides], lengths)}
 
 
-def _regressor(settings: TreeQSettings, seed: int) -> GradientBoostingRegressor:
-    return GradientBoostingRegressor(n_estimators=settings.trees, learning_rate=settings.learning_rate,
-                                     max_leaf_nodes=settings.max_leaf_nodes, max_depth=None,
-                                     min_samples_leaf=settings.min_samples_leaf, random_state=seed)
+def _regressor(settings: TreeQSettings, seed: int) -> HistGradientBoostingRegressor:
+    return HistGradientBoostingRegressor(max_iter=settings.trees, learning_rate=settings.learning_rate,
+                                         max_leaf_nodes=settings.max_leaf_nodes,
+                                         min_samples_leaf=settings.min_samples_leaf, early_stopping=False,
+                                         random_state=seed)
+
+
+def _fit(model: HistGradientBoostingRegressor, x: np.ndarray, y: np.ndarray,
+         weight: np.ndarray) -> HistGradientBoostingRegressor:
+    # one OpenMP thread, as the imitation classifier (a busy machine's spinning thread team cost 10x)
+    with threadpool_limits(limits=1, user_api="openmp"):
+        return model.fit(x, y, sample_weight=weight)
+
+
+def _predict(model: HistGradientBoostingRegressor, x: np.ndarray) -> np.ndarray:
+    with threadpool_limits(limits=1, user_api="openmp"):
+        return model.predict(x)
 
 
 def fit_tree_q(approaches: list[Approach], cfg: EnvConfig, settings: TreeQSettings,
@@ -70,16 +86,17 @@ def fit_tree_q(approaches: list[Approach], cfg: EnvConfig, settings: TreeQSettin
                         "leave out --reward/--scenes or use --learner dqn")
     d = fitted_q_data(approaches, cfg)
     x, nxt, end = d["obs"], d["next"], d["end"]
+    weight = np.where(d["press"], settings.press_weight, 1.0)
     total = settings.iterations + 1
-    q_change = _regressor(settings, settings.seed).fit(x, d["r_change"])
-    change_x = q_change.predict(x)
+    q_change = _fit(_regressor(settings, settings.seed), x, d["r_change"], weight)
+    change_x = _predict(q_change, x)
     report(progress, 1, total, label)
     keep_x = np.zeros(len(x))
     q_keep = None
     for it in range(settings.iterations):
         target = np.where(end, d["end_keep"], settings.gamma * np.maximum(change_x[nxt], keep_x[nxt]))
-        q_keep = _regressor(settings, settings.seed + 1 + it).fit(x, target)
-        keep_x = q_keep.predict(x)
+        q_keep = _fit(_regressor(settings, settings.seed + 1 + it), x, target, weight)
+        keep_x = _predict(q_keep, x)
         report(progress, it + 2, total, label)
     if q_keep is None:
         raise UserError("the tree learner needs at least one iteration")
@@ -96,10 +113,10 @@ class TreeQNetwork(nn.Module):
     """
 
     def __init__(self, feature: torch.Tensor, threshold: torch.Tensor, left: torch.Tensor, right: torch.Tensor,
-                 value: torch.Tensor, base: torch.Tensor, depth: torch.Tensor) -> None:
+                 value: torch.Tensor, missing_left: torch.Tensor, base: torch.Tensor, depth: torch.Tensor) -> None:
         super().__init__()
         for name, t in (("feature", feature), ("threshold", threshold), ("left", left), ("right", right),
-                        ("value", value), ("base", base), ("depth", depth)):
+                        ("value", value), ("missing_left", missing_left), ("base", base), ("depth", depth)):
             self.register_buffer(name, t)
         self.n_actions = int(base.shape[0])
         self.n_levels = int(depth.item())
@@ -107,48 +124,60 @@ class TreeQNetwork(nn.Module):
     @staticmethod
     def from_state_dict(state: dict[str, torch.Tensor]) -> "TreeQNetwork":
         """The module saved by `state_dict()` (a run's `weights.pt`)."""
-        return TreeQNetwork(**{k: state[k] for k in ("feature", "threshold", "left", "right", "value", "base",
-                                                       "depth")})
+        return TreeQNetwork(**{k: state[k] for k in ("feature", "threshold", "left", "right", "value",
+                                                       "missing_left", "base", "depth")})
 
     @staticmethod
-    def from_ensembles(models: dict[int, GradientBoostingRegressor], x0: np.ndarray) -> "TreeQNetwork":
-        """Module of one fitted ensemble per action index (each of as many trees); `x0`: one observation,
-        to read each ensemble's constant (its prediction there less its trees' sum)."""
-        trees = [(a, est.tree_, m.learning_rate) for a, m in sorted(models.items())
-                 for est in m.estimators_[:, 0]]
-        width = max(t.node_count for _, t, _ in trees)
-        n = len(trees)
-        feature, left, right = (np.zeros((n, width), np.int64) for _ in range(3))
-        threshold, value = np.zeros((n, width), np.float32), np.zeros((n, width), np.float32)
-        depth = 0
-        for i, (_, t, lr) in enumerate(trees):
-            k = t.node_count
-            leaf = t.children_left[:k] < 0
-            own = np.arange(k)
-            feature[i, :k] = np.where(leaf, 0, t.feature[:k])
-            threshold[i, :k] = np.where(leaf, np.inf, t.threshold[:k])
-            left[i, :k] = np.where(leaf, own, t.children_left[:k])
-            right[i, :k] = np.where(leaf, own, t.children_right[:k])
-            value[i, :k] = lr * t.value[:k, 0, 0]
-            depth = max(depth, int(t.max_depth))
+    def from_ensembles(models: dict[int, HistGradientBoostingRegressor], x0: np.ndarray) -> "TreeQNetwork":
+        """Module of one fitted ensemble per action index; `x0`: one observation, to read each ensemble's
+        constant (its prediction there less its trees' sum).
+
+        Reads scikit-learn's fitted trees (`_predictors`: per boosting round, a `TreePredictor` whose
+        `nodes` hold feature, threshold, children and the leaf value with the step applied); the tests
+        check the module against `predict`, so a scikit-learn that changes them fails there first.
+        """
+        try:
+            per_action = {a: [p[0].nodes for p in m._predictors] for a, m in models.items()}
+        except AttributeError as exc:  # pragma: no cover - a scikit-learn without the fitted trees we read
+            raise UserError(f"this scikit-learn's boosted trees cannot be read as a Q module ({exc})") from None
         n_actions = max(models) + 1
+        n_trees = max(len(t) for t in per_action.values())
+        width = max(len(nodes) for t in per_action.values() for nodes in t)
+        shape = (n_actions * n_trees, width)
+        feature, left, right = (np.zeros(shape, np.int64) for _ in range(3))
+        threshold, value = np.full(shape, np.inf, np.float32), np.zeros(shape, np.float32)
+        missing_left = np.ones(shape, bool)
+        depth = 0
+        for a in range(n_actions):  # an action's trees fill its block; the rest stay one-leaf trees of value 0
+            for j, nodes in enumerate(per_action.get(a, [])):
+                i, k = a * n_trees + j, len(nodes)
+                leaf = nodes["is_leaf"].astype(bool)
+                own = np.arange(k)
+                feature[i, :k] = np.where(leaf, 0, nodes["feature_idx"])
+                threshold[i, :k] = np.where(leaf, np.inf, nodes["num_threshold"])
+                missing_left[i, :k] = leaf | nodes["missing_go_to_left"].astype(bool)
+                left[i, :k] = np.where(leaf, own, nodes["left"])
+                right[i, :k] = np.where(leaf, own, nodes["right"])
+                value[i, :k] = np.where(leaf, nodes["value"], 0.0)
+                depth = max(depth, int(nodes["depth"].max()))
         net = TreeQNetwork(torch.from_numpy(feature), torch.from_numpy(threshold), torch.from_numpy(left),
-                           torch.from_numpy(right), torch.from_numpy(value), torch.zeros(n_actions),
-                           torch.tensor(depth))
+                           torch.from_numpy(right), torch.from_numpy(value), torch.from_numpy(missing_left),
+                           torch.zeros(n_actions), torch.tensor(depth))
         with torch.no_grad():
             sums = net.forward(torch.as_tensor(x0, dtype=torch.float32))[0]
-        base = torch.tensor([float(models[a].predict(x0)[0]) - float(sums[a]) for a in range(n_actions)])
-        net.base.copy_(base)
+        net.base.copy_(torch.tensor([float(_predict(models[a], x0)[0]) - float(sums[a]) if a in models else 0.0
+                                     for a in range(n_actions)]))
         return net
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         n_trees, width = self.feature.shape
         offset = torch.arange(n_trees) * width
-        flat = [t.reshape(-1) for t in (self.feature, self.threshold, self.left, self.right, self.value)]
-        f, thr, lft, rgt, val = flat
+        f, thr, lft, rgt, val, miss = (t.reshape(-1) for t in (self.feature, self.threshold, self.left,
+                                                                self.right, self.value, self.missing_left))
         node = offset.unsqueeze(0).expand(x.shape[0], n_trees)
         for _ in range(self.n_levels):
-            go_left = x.gather(1, f[node]) <= thr[node]
+            xv = x.gather(1, f[node])
+            go_left = (xv <= thr[node]) | (torch.isnan(xv) & miss[node])  # NaN: the side trained for it
             node = offset + torch.where(go_left, lft[node], rgt[node])
         leaves = val[node].reshape(x.shape[0], self.n_actions, n_trees // self.n_actions)
         return leaves.sum(dim=2) + self.base

@@ -58,7 +58,7 @@ import pandas as pd
 from laneprint.errors import UserError
 from laneprint.reference import FAR_FOLLOWER_M
 from rl.problem.rewards import CHANGE, TERMS, ReferenceLines, RewardSettings, decisions_step_reward, step_reward
-from rl.settings import OBSERVATIONS, SCENES, resolve_formulation
+from rl.settings import OBSERVATIONS, SCENES, TREES_PRESS_SCALE_S, resolve_formulation
 from rl.problem.scene import (ACCEPTANCE_FEATURES, DIRECTION_FEATURE, INDICATOR_FEATURES, OBS_NAMES, Scene,
                               acceptance_features, direction_feature, indicator_features, indicators, observe)
 
@@ -150,11 +150,15 @@ def observation(scene: Scene, cfg: EnvConfig) -> np.ndarray:
 
 def formulation_config(lines: ReferenceLines, reward: str | None = None, scenes: str | None = None,
                        observation: str | None = None, lines_source: str = "analysis",
-                       other_side: bool | None = None) -> EnvConfig:
+                       other_side: bool | None = None, learner: str = "dqn") -> EnvConfig:
     """An `EnvConfig` for `lines`, the unnamed settings filled by `rl.settings.resolve_formulation`
-    (`other_side` None: `EnvConfig`'s default)."""
+    (`other_side` None: `EnvConfig`'s default). `learner` 'trees' fits the `decisions` reward
+    with its own press scale (`rl.settings.TREES_PRESS_SCALE_S`)."""
     name, scn, obs = resolve_formulation(reward, scenes, observation, lines_source)
-    cfg = EnvConfig(lines=lines, reward=RewardSettings(name=name), scenes=scn, observation=obs)
+    rew = RewardSettings(name=name)
+    if learner == "trees" and name == "decisions":
+        rew = replace(rew, press_scale_s=TREES_PRESS_SCALE_S)
+    cfg = EnvConfig(lines=lines, reward=rew, scenes=scn, observation=obs)
     return cfg if other_side is None else replace(cfg, other_side=other_side)
 
 

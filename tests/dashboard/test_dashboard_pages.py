@@ -280,3 +280,32 @@ def test_personalize_page_starts_from_the_cli_default(use_sample):
     params = {p.name: p for p in get_command(app).commands["personalize"].params}
     assert radio.value == params["base"].default == radio.options[0]
     assert any(f"--from {radio.value}" in c.value for c in at.caption)
+
+
+@pytest.mark.slow
+def test_a_tree_run_from_the_form_trains_and_shows(sample_ws, tmp_path, monkeypatch):
+    """Learner 'trees' on the form launches `train --learner trees`; the run finishes and the
+    Results page shows it."""
+    import shutil
+    import time
+
+    from dashboard import jobs
+    from laneprint.workspace import Workspace
+
+    ws = Workspace(shutil.copytree(sample_ws.root, tmp_path / "ws"))
+    monkeypatch.setenv("LANEPRINT_WORKSPACE", str(ws.root))
+    at = run_page("training")
+    at.selectbox(key="learner").set_value("trees").run()
+    assert at.number_input(key="episodes").disabled
+    next(b for b in at.button if b.label == "Start training").click().run()
+    assert not at.exception, [e.value for e in at.exception]
+    (run_id,) = at.session_state["launched"]
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and jobs.run_status(ws, run_id)["state"] in jobs.ACTIVE_STATES:
+        time.sleep(0.5)
+    assert jobs.run_status(ws, run_id)["state"] == "done", jobs.log_tail(ws, run_id)
+    config = json.loads((ws.root / "runs" / run_id / "config.json").read_text())
+    assert config["learner"] == "trees"
+    results = run_page("results")
+    assert not results.exception, [e.value for e in results.exception]
+    assert run_id in results.selectbox(key="result_run").options

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import torch
-from sklearn.ensemble import GradientBoostingRegressor
+from sklearn.ensemble import HistGradientBoostingRegressor
 from typer.testing import CliRunner
 
 from laneprint.cli import app
@@ -17,7 +17,7 @@ from rl.learners.trees import TreeQNetwork, fit_tree_q, fitted_q_data
 from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config
 from rl.problem.rewards import CHANGE, KEEP, ReferenceLines
 from rl.runs import load_weights
-from rl.settings import TreeQSettings
+from rl.settings import TREES_PRESS_SCALE_S, TreeQSettings
 from rl.testing import analysed_workspace, session_decisions, write_style_analysis
 
 LINES = ReferenceLines.paper("Normal")
@@ -27,9 +27,10 @@ SMALL = TreeQSettings(trees=40, iterations=4, learning_rate=0.2)
 def test_the_module_predicts_what_the_ensembles_predict():
     rng = np.random.default_rng(0)
     x = rng.random((2000, 6)).astype(np.float32)
-    fit = lambda y: GradientBoostingRegressor(n_estimators=30, max_leaf_nodes=9, max_depth=None,  # noqa: E731
-                                              random_state=0).fit(x, y)
-    change, keep = fit((x[:, 0] > 0.3) + x[:, 1]), fit(np.sin(6 * x[:, 2]))
+    x[rng.random(x.shape) < 0.05] = np.nan  # a missing value goes the way the trees learnt
+    fit = lambda y, n: HistGradientBoostingRegressor(max_iter=n, max_leaf_nodes=9).fit(x, y)  # noqa: E731
+    target = np.nan_to_num(x)
+    change, keep = fit((target[:, 0] > 0.3) + target[:, 1], 30), fit(np.sin(6 * target[:, 2]), 20)
     net = TreeQNetwork.from_ensembles({CHANGE: change, KEEP: keep}, x[:1])
     q = q_values(net, x)
     assert np.abs(q[:, CHANGE] - change.predict(x)).max() < 1e-5
@@ -44,6 +45,7 @@ def test_fitted_q_iteration_changes_at_the_press_and_keeps_before():
     cfg = formulation_config(LINES)
     data = fitted_q_data(approaches, cfg)
     assert data["end"].sum() == len(approaches) and data["r_change"][data["end"]].min() == 1.0
+    assert (data["press"] == data["end"]).all()  # two lanes: every approach ends at its press
     net = fit_tree_q(approaches, cfg, SMALL)
     x, y = labelled_states(approaches, cfg)
     acts = q_values(net, x).argmax(axis=1)
@@ -95,5 +97,6 @@ def test_crossval_with_the_tree_learner_says_so(tmp_path):
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["learner"] == "trees" and "trees" in out and "dqn" not in out
+    assert out["env"]["reward"]["press_scale_s"] == TREES_PRESS_SCALE_S  # the trees' own sharp reward
     agent = next(r for r in out["summary"] if r["who"] == "agent")
     assert agent["balanced_accuracy"] > 0.7
