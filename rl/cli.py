@@ -15,7 +15,7 @@ from laneprint.cliutil import (DEFAULT_WS, BackendOpt, JsonOpt, RayAddressOpt, W
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from rl.problem.rewards import REWARDS
-from rl.settings import DEFAULT_REWARD, LEARNERS, OBSERVATIONS, SCENES, DQNSettings, TreeQSettings
+from rl.settings import DEFAULT_REWARD, LEARNERS, OBSERVATIONS, SCENES, AutoSettings, DQNSettings, TreeQSettings
 
 RewardOpt = Annotated[Optional[str], typer.Option(
     "--reward", help=f"Reward: {', '.join(REWARDS)} (default {DEFAULT_REWARD}; timing with --lines paper).")]
@@ -29,15 +29,27 @@ OtherSideOpt = Annotated[Optional[bool], typer.Option(
                                             "side (before issue 19). No effect on two lanes.")]
 
 LearnerOpt = Annotated[str, typer.Option(
-    "--learner", help=f"Who learns the Q function: {' or '.join(LEARNERS)} (the study's DQN; 'trees': fitted Q "
-                      "iteration with boosted trees on the recorded approaches, for the decisions reward).")]
+    "--learner", help=f"Who learns the Q function: {', '.join(LEARNERS)} ('dqn': the study's DQN; 'trees': fitted "
+                      "Q iteration with boosted trees on the recorded approaches, decisions reward only; 'auto': "
+                      "per target the one of the two that agrees better on a quarter of its sessions held out).")]
 
 
-def learner_settings(learner: str, dqn: DQNSettings) -> DQNSettings | TreeQSettings:
-    """`dqn`, or the tree learner's settings with its seed (`--learner`)."""
+def learner_settings(learner: str, dqn: DQNSettings) -> DQNSettings | TreeQSettings | AutoSettings:
+    """`dqn`, the tree learner's settings, or both to choose from, with `dqn`'s seed (`--learner`)."""
     if learner not in LEARNERS:
         raise UserError(f"unknown --learner {learner!r}: choose one of {', '.join(LEARNERS)}")
-    return dqn if learner == "dqn" else TreeQSettings(seed=dqn.seed)
+    if learner == "dqn":
+        return dqn
+    trees = TreeQSettings(seed=dqn.seed)
+    return trees if learner == "trees" else AutoSettings(dqn=dqn, trees=trees, seed=dqn.seed)
+
+
+def check_learner(learner: str, env: Any) -> None:
+    """The tree learner (alone or in 'auto') fits the decisions reward on recorded scenes only."""
+    if learner != "dqn" and (env.reward.name != "decisions" or env.scenes != "recorded"):
+        raise UserError(f"--learner {learner} needs the decisions reward on recorded scenes (the trees fit the "
+                        f"drivers' recorded presses), not reward {env.reward.name!r} on {env.scenes} scenes: "
+                        "leave out --reward/--scenes/--lines paper, or use --learner dqn")
 
 
 def _fmt(x: Any, pct: bool = False) -> str:
@@ -211,7 +223,8 @@ def train_command(
         if dt is not None:
             env = replace(env, dt_s=dt)
         learner_set = learner_settings(learner, settings)
-        warned = _warn_learning(learning_checks(ws, [target], env, settings), 1) if learner == "dqn" else None
+        check_learner(learner, env)
+        warned = _warn_learning(learning_checks(ws, [target], env, settings), 1) if learner != "trees" else None
         with progress_bar(not as_json) as progress:
             res = train_run(ws, target, env, learner_set, run_id=run_id, lines_source=lines,
                             evaluate=evaluate, progress=progress)
@@ -337,7 +350,8 @@ def crossval_command(
                        else [Target("style", style)] if style else [Target("driver", str(driver))])
             dqn = DQNSettings(seed=seed, **({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {}))
             base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines, other_side, learner)
-            if learner == "dqn":
+            check_learner(learner, base)
+            if learner != "trees":
                 _warn_learning(learning_checks(ws, targets, base, dqn, share=(folds - 1) / folds), len(targets))
             agent = learner_settings(learner, dqn)
             results = [run_crossval(ws, t, target_env(ws, t, base, lines), agent, cv, lines, progress=progress, **where)

@@ -43,7 +43,7 @@ from rl.problem.env import Approach, EnvConfig, approaches_from_decisions, obser
 from rl.evaluation.evaluate import agent_policy, evaluate_policies, greedy_policy
 from rl.baselines.imitation import fitted_classifier
 from rl.problem.rewards import ReferenceLines
-from rl.settings import LearnerSettings, TreeQSettings, learner_config, stored_learner
+from rl.settings import AutoSettings, LearnerSettings, TreeQSettings, learner_config, stored_learner
 
 RUN_STATES = ("running", "done", "failed", "cancelled")
 RUN_LOCK = "run.lock"
@@ -290,6 +290,8 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
                                     lines_source=lines_source, held=held)
         run_id = config["run_id"]
         state, started_at = None, None
+        if isinstance(settings, AutoSettings):
+            settings, env_config = _choose_learner(workspace, folder, config, target, env_config, settings, progress)
         if isinstance(settings, TreeQSettings):
             return _fit_tree_run(workspace, folder, config, target, env_config, settings, evaluate, progress)
 
@@ -361,6 +363,22 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
     writer.status(final, trainer.episodes_done, message or "done")
     writer.close()
     return result
+
+
+def _choose_learner(workspace: Workspace, folder: Path, config: dict[str, Any], target: Target, env_config: EnvConfig,
+                    settings: AutoSettings, progress: ProgressFn | None) -> tuple[Any, EnvConfig]:
+    """`--learner auto`: choose on an inner split of the target's sessions (`rl.learners.choice`); the run's
+    config then names the chosen learner (its settings and environment) and keeps the choice."""
+    from rl.learners.choice import choose_learner, chosen_settings
+    from rl.problem.env import learner_env
+
+    RunWriter(folder, 1).status("running", 0, "choosing the learner")
+    choice = choose_learner(recorded_approaches(workspace, target), env_config, settings, progress,
+                            f"{target.label}")
+    chosen, env = chosen_settings(settings, choice), learner_env(env_config, choice.learner)
+    config.update(learner_config(chosen), env=env.to_dict(), learner_choice=choice.to_dict())
+    atomic_write_json(folder / "config.json", config)
+    return chosen, env
 
 
 def _fit_tree_run(workspace: Workspace, folder: Path, config: dict[str, Any], target: Target, env_config: EnvConfig,

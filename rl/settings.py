@@ -94,8 +94,9 @@ class DQNSettings:
         return DQNSettings(**d)
 
 
-#: Who learns the Q function: the study's DQN, or fitted Q iteration with boosted trees (`rl.learners.trees`).
-LEARNERS: tuple[str, ...] = ("dqn", "trees")
+#: Who learns the Q function: the study's DQN, fitted Q iteration with boosted trees (`rl.learners.trees`),
+#: or per target the one of the two that agrees better on an inner split (`rl.learners.choice`).
+LEARNERS: tuple[str, ...] = ("dqn", "trees", "auto")
 #: The `decisions` reward's press scale the tree learner fits [s]: a change's reward falls by 1 per
 #: half a second off the press, a sharp reward the trees resolve and the network does not (rl/README.md).
 TREES_PRESS_SCALE_S = 0.5
@@ -131,13 +132,32 @@ class TreeQSettings:
         return TreeQSettings(**d)
 
 
-#: A learner's settings: the DQN's, or the tree learner's.
-LearnerSettings = DQNSettings | TreeQSettings
+@dataclass(frozen=True)
+class AutoSettings:
+    """`--learner auto`: both learners' settings, and how much of the target's sessions decide between them."""
+
+    dqn: DQNSettings = DQNSettings()
+    trees: TreeQSettings = TreeQSettings()
+    holdout: float = 0.25  # share of each driver's sessions held out to choose (at least one kept to fit on)
+    seed: int = 0  # seeds the inner split and both learners
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"dqn": self.dqn.to_dict(), "trees": self.trees.to_dict(), "holdout": self.holdout,
+                "seed": self.seed}
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> "AutoSettings":
+        return AutoSettings(DQNSettings.from_dict(d["dqn"]), TreeQSettings.from_dict(d["trees"]),
+                            d.get("holdout", 0.25), d.get("seed", 0))
+
+
+#: A learner's settings: the DQN's, the tree learner's, or both with the choice between them.
+LearnerSettings = DQNSettings | TreeQSettings | AutoSettings
 
 
 def learner_name(settings: LearnerSettings) -> str:
-    """'trees' or 'dqn'."""
-    return "trees" if isinstance(settings, TreeQSettings) else "dqn"
+    """'dqn', 'trees' or 'auto'."""
+    return {TreeQSettings: "trees", AutoSettings: "auto"}.get(type(settings), "dqn")
 
 
 def learner_config(settings: LearnerSettings) -> dict[str, Any]:
@@ -148,8 +168,11 @@ def learner_config(settings: LearnerSettings) -> dict[str, Any]:
 
 def stored_learner(config: dict[str, Any]) -> LearnerSettings:
     """The learner settings stored by `learner_config` (a config without "learner" is a DQN's)."""
-    if config.get("learner", "dqn") == "trees":
+    kind = config.get("learner", "dqn")
+    if kind == "trees":
         return TreeQSettings.from_dict(config["trees"])
+    if kind == "auto":
+        return AutoSettings.from_dict(config["auto"])
     return DQNSettings.from_dict(config["dqn"])
 
 

@@ -41,7 +41,7 @@ from rl.problem.env import Approach, EnvConfig, approaches_from_decisions
 from rl.evaluation.evaluate import evaluate_policies, greedy_policy
 from rl.baselines.imitation import ImitationClassifier
 from rl.problem.rewards import ReferenceLines
-from rl.settings import LearnerSettings, TreeQSettings, learner_config
+from rl.settings import AutoSettings, LearnerSettings, learner_config, learner_name
 
 SPLITS: tuple[str, ...] = ("session", "section")
 POLICIES: tuple[str, ...] = ("agent", "greedy", "imitation")
@@ -189,22 +189,17 @@ def bootstrap_scores(states: pd.DataFrame, changes: pd.DataFrame, who: str, n_bo
 
 
 def _train_agent(approaches: list[Approach], cfg: EnvConfig, dqn: LearnerSettings, progress: ProgressFn | None,
-                 label: str):
-    from rl.learners.dqn import DQNTrainer
+                 label: str) -> tuple[Any, dict[str, Any]]:
+    """(the fold's agent as a policy, which learner made it: ``{"learner": ...}`` and, for 'auto', the
+    inner scores it chose by)."""
     from rl.evaluation.evaluate import agent_policy
+    from rl.learners.choice import choose_learner, chosen_settings, fit_learner
 
-    if isinstance(dqn, TreeQSettings):
-        from rl.learners.trees import fit_tree_q
-
-        return agent_policy(fit_tree_q(approaches, cfg, dqn, progress, label), cfg)
-    trainer = DQNTrainer(cfg, dqn, approaches=approaches if cfg.scenes == "recorded" else None)
-
-    def tick(t) -> bool:
-        report(progress, t.episodes_done, t.settings.episodes, label)
-        return False
-
-    trainer.train(on_vector_step=tick)
-    return agent_policy(trainer.policy_net, cfg)
+    if isinstance(dqn, AutoSettings):
+        choice = choose_learner(approaches, cfg, dqn, progress, label)
+        net = fit_learner(approaches, cfg, chosen_settings(dqn, choice), progress, f"{label}: {choice.learner}")
+        return agent_policy(net, cfg), {"learner": choice.learner, "learner_scores": choice.scores}
+    return agent_policy(fit_learner(approaches, cfg, dqn, progress, label), cfg), {"learner": learner_name(dqn)}
 
 
 @dataclass
@@ -228,14 +223,16 @@ def score_fold(job: FoldJob) -> dict[str, Any]:
     Returns `evaluate_policies`'s dict (``states`` and ``changes`` tagged with the fold).
     """
     label = f"fold {job.fold + 1}/{job.n_folds}: agent"
+    agent, learner = _train_agent(job.train, job.env, job.dqn, job.progress, label)
     policies = {
-        "agent": _train_agent(job.train, job.env, job.dqn, job.progress, label),
+        "agent": agent,
         "greedy": greedy_policy(job.env),
         "imitation": ImitationClassifier(random_state=job.imitation_seed).fit(job.train, job.env).policy(job.env),
     }
     ev = evaluate_policies(policies, job.test, job.env, job.skipped)
     ev["states"].insert(0, "fold", job.fold)
     ev["changes"].insert(0, "fold", job.fold)
+    ev["learner"] = learner
     return ev
 
 
@@ -317,7 +314,7 @@ def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: lis
     for job, ev in zip(jobs, evs):
         held_out = dec.loc[fold == job.fold, "recording_id"].astype(str)
         per_fold.append({"fold": job.fold, "sessions": sorted(held_out.unique()), "n_train_decisions": len(job.train), "n_decisions": ev["n_decisions"],
-                         "lines": job.env.lines.to_dict(),
+                         "lines": job.env.lines.to_dict(), **ev.get("learner", {}),
                          **{f"{r['who']}_balanced_accuracy": r["balanced_accuracy"] for r in ev["summary"]}})
     states = pd.concat([ev["states"] for ev in evs], ignore_index=True)
     changes = pd.concat([ev["changes"] for ev in evs], ignore_index=True)

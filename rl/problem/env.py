@@ -155,11 +155,16 @@ def formulation_config(lines: ReferenceLines, reward: str | None = None, scenes:
     (`other_side` None: `EnvConfig`'s default). `learner` 'trees' fits the `decisions` reward
     with its own press scale (`rl.settings.TREES_PRESS_SCALE_S`)."""
     name, scn, obs = resolve_formulation(reward, scenes, observation, lines_source)
-    rew = RewardSettings(name=name)
-    if learner == "trees" and name == "decisions":
-        rew = replace(rew, press_scale_s=TREES_PRESS_SCALE_S)
-    cfg = EnvConfig(lines=lines, reward=rew, scenes=scn, observation=obs)
+    cfg = learner_env(EnvConfig(lines=lines, reward=RewardSettings(name=name), scenes=scn, observation=obs), learner)
     return cfg if other_side is None else replace(cfg, other_side=other_side)
+
+
+def learner_env(cfg: EnvConfig, learner: str) -> EnvConfig:
+    """`cfg` as `learner` fits it: the trees fit the `decisions` reward with their own press scale
+    (`rl.settings.TREES_PRESS_SCALE_S`); the DQN (and 'auto', which hands each learner its own) as it is."""
+    if learner == "trees" and cfg.reward.name == "decisions":
+        return replace(cfg, reward=replace(cfg.reward, press_scale_s=TREES_PRESS_SCALE_S))
+    return cfg
 
 
 def default_config() -> EnvConfig:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 import torch
 from sklearn.ensemble import HistGradientBoostingRegressor
 from typer.testing import CliRunner
@@ -12,13 +13,14 @@ from typer.testing import CliRunner
 from laneprint.cli import app
 from laneprint.workspace import Workspace
 from rl.baselines.imitation import labelled_states
+from rl.learners.choice import inner_split, session_of
 from rl.learners.dqn import q_values
 from rl.learners.trees import TreeQNetwork, fit_tree_q, fitted_q_data
 from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config
-from rl.problem.rewards import CHANGE, KEEP, ReferenceLines
+from rl.problem.rewards import CHANGE, KEEP, ReferenceLines, RewardSettings
 from rl.runs import load_weights
 from rl.settings import TREES_PRESS_SCALE_S, TreeQSettings
-from rl.testing import analysed_workspace, session_decisions, write_style_analysis
+from rl.testing import FAST_CLI, analysed_workspace, session_decisions, write_style_analysis
 
 LINES = ReferenceLines.paper("Normal")
 SMALL = TreeQSettings(trees=40, iterations=4, learning_rate=0.2)
@@ -100,3 +102,37 @@ def test_crossval_with_the_tree_learner_says_so(tmp_path):
     assert out["env"]["reward"]["press_scale_s"] == TREES_PRESS_SCALE_S  # the trees' own sharp reward
     agent = next(r for r in out["summary"] if r["who"] == "agent")
     assert agent["balanced_accuracy"] > 0.7
+
+
+def test_the_inner_split_holds_out_whole_sessions_and_keeps_each_driver_on_both_sides():
+    dec = pd.concat([session_decisions(LINES, 4, 3, driver=d, seed=i) for i, d in enumerate(("D01", "D02"))])
+    approaches, _ = approaches_from_decisions(dec)
+    fit, held = inner_split(approaches, 0.25, seed=0)
+    sessions = lambda apps: {session_of(a.decision_id) for a in apps}  # noqa: E731
+    assert not sessions(fit) & sessions(held) and len(fit) + len(held) == len(approaches)
+    for d in ("D01", "D02"):
+        assert any(a.driver_id == d for a in fit) and any(a.driver_id == d for a in held)
+    assert inner_split(approaches, 0.25, seed=0)[1] == held  # seeded
+
+
+def test_auto_chooses_a_learner_per_fold_and_per_run(tmp_path):
+    write_style_analysis(Workspace(tmp_path), session_decisions(LINES, 8, 4), LINES)
+    res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--learner", "auto",
+                                   "--episodes", "200", "--bootstrap", "50", "-w", str(tmp_path), "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert out["learner"] == "auto"
+    for fold in out["per_fold"]:
+        assert fold["learner"] in ("dqn", "trees") and set(fold["learner_scores"]) == {"dqn", "trees"}
+        assert fold["learner_scores"][fold["learner"]] == max(fold["learner_scores"].values())
+    trained = CliRunner().invoke(app, ["train", "--style", "Normal", "--learner", "auto", "--episodes", "200",
+                                       "--run-id", "a1", "-w", str(tmp_path), "--json", *FAST_CLI])
+    assert trained.exit_code == 0, trained.output
+    config = json.loads((tmp_path / "runs" / "a1" / "config.json").read_text())
+    choice = config["learner_choice"]
+    assert config["learner"] == choice["learner"] and choice["n_holdout"] > 0
+    scale = config["env"]["reward"]["press_scale_s"]
+    assert scale == (TREES_PRESS_SCALE_S if choice["learner"] == "trees" else RewardSettings().press_scale_s)
+    bad = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--learner", "auto", "--reward", "timing",
+                                   "-w", str(tmp_path)])
+    assert bad.exit_code == 1 and "decisions reward" in bad.output
