@@ -246,6 +246,8 @@ def main() -> None:
                     help="seed(s) of the drives' traffic (default mode); with several, each agent drives each seed and "
                          "its rate and indicators are judged over all of them (the first seed's drive is analysed "
                          "for its style)")
+    ap.add_argument("--learner", choices=("dqn", "trees", "auto"), default="dqn",
+                    help="default mode: who learns each style's agent (train --learner)")
     ap.add_argument("--family", default="ttc", help="default mode: the SUMO study family of the study and the drives")
     ap.add_argument("--no-pace", action="store_true", help="default mode: drive without the drivers' pace (drive --no-pace)")
     ap.add_argument("--pace-by", choices=("pooled", "side"), default="pooled",
@@ -324,7 +326,7 @@ def closed_loop(args: argparse.Namespace) -> bool:
     drives, more = {}, {}
     for style in STYLES:
         run = cli("train", "--style", style, "--seed", str(args.seed), "--run-id", f"closed-loop-{style.lower()}",
-                  "-w", str(ws))
+                  "--learner", args.learner, "-w", str(ws))
         driver = f"agent-{style.lower()}"
         seeds = [cli("drive", run["run_id"], "--engine", "sumo", "--minutes", f"{args.minutes:g}",
                      "--seed", str(seed), "--lanes", lanes, "--family", args.family,
@@ -334,7 +336,8 @@ def closed_loop(args: argparse.Namespace) -> bool:
                      "--driver-id", driver if len(args.drive_seed) == 1 else f"{driver}-d{seed}",
                      "--out", str(work / "drives" / f"{driver}-d{seed}"), "-w", str(ws)) for seed in args.drive_seed]
         drives[style], more[style] = seeds[0], seeds
-        print(f"{style}: trained {run['episodes']} episodes in {run['wall_s']} s; drove "
+        how = "fitted trees" if run.get("learner") == "trees" else f"trained {run['episodes']} episodes"
+        print(f"{style}: {how} in {run['wall_s']} s; drove "
               + ", ".join(f"{d['totals']['lane_changes']}" for d in seeds) + " lane changes", flush=True)
     if len(args.drive_seed) > 1:
         for style, seeds in more.items():

@@ -241,6 +241,11 @@ def train_command(
         else:
             console.print(f"{res['state']}: {res['target']}, reward {res['reward']}, {res['episodes']} episodes, "
                           f"{res['env_steps']} steps in {res['wall_s']} s — {res['folder']}", highlight=False)
+        if res.get("learner_choice"):
+            c = res["learner_choice"]
+            console.print(f"learner chosen: {c['learner']} (held-out agreement on {c['n_holdout']} of the target's "
+                          "approaches, mean over the sides: "
+                          + ", ".join(f"{k} {100 * v:.1f} %" for k, v in c["scores"].items()) + ")", highlight=False)
         if res.get("warning"):
             console.print(f"[yellow]warning:[/yellow] {res['warning']}", highlight=False)
         if res.get("evaluation"):
@@ -301,6 +306,9 @@ def _render_cv(res: dict[str, Any], console: Console) -> None:
             console.print(by_dir)
         if r.get("unscored"):
             console.print(f"not scored: {r['unscored']}", highlight=False)
+        if r.get("learner") == "auto":
+            chosen = [f.get("learner", "?") for f in r.get("per_fold", [])]
+            console.print(f"learner chosen per fold (auto): {', '.join(chosen)}", highlight=False)
         console.print(f"stored as crossval/{r['crossval_id']}", highlight=False)
 
 

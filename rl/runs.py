@@ -343,12 +343,14 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
     _save_torch(folder / "weights.pt", trainer.policy_net.state_dict())
     writer.status(final if final != "done" else "running", trainer.episodes_done,
                   message or ("evaluating" if evaluate else "done"))
-    result: dict[str, Any] = {"run_id": run_id, "folder": str(folder), "state": final,
+    result: dict[str, Any] = {"run_id": run_id, "folder": str(folder), "state": final, "learner": "dqn",
                               "episodes": trainer.episodes_done, "env_steps": trainer.env_steps,
                               "wall_s": round(trainer.wall_s, 2), "target": target.label,
                               "reward": env_config.reward.name, "message": message}
     if resume:
         result["resumed_from_episode"] = resumed_from
+    if config.get("learner_choice"):
+        result["learner_choice"] = config["learner_choice"]
     if trainer.env_steps < settings.learning_starts:  # the replay memory never filled: no update was made
         result["warning"] = (f"the agent never learnt: {trainer.env_steps:,} transitions in {trainer.episodes_done:,} "
                              f"episodes, and learning starts after {settings.learning_starts:,}; train more episodes "
@@ -409,6 +411,8 @@ def _fit_tree_run(workspace: Workspace, folder: Path, config: dict[str, Any], ta
     result: dict[str, Any] = {"run_id": config["run_id"], "folder": str(folder), "state": "done", "learner": "trees",
                               "episodes": 0, "env_steps": 0, "wall_s": round(time.perf_counter() - t0, 2),
                               "target": target.label, "reward": env_config.reward.name, "message": ""}
+    if config.get("learner_choice"):
+        result["learner_choice"] = config["learner_choice"]
     if evaluate:
         writer.status("running", total, "evaluating")
         try:
