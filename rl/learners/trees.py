@@ -27,20 +27,18 @@ from torch import nn
 
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
-from rl.problem.env import Approach, EnvConfig, observation
+from rl.problem.env import NO_PRESS_S, Approach, EnvConfig, observation
 from rl.problem.rewards import CHANGE, KEEP, press_reward
 from rl.settings import TreeQSettings
 
 __all__ = ["TreeQNetwork", "fit_tree_q", "fitted_q_data"]
 
-#: A side not taken is this far before a press that never comes (as `VecReplayEnv` replays it).
-NO_PRESS_S = 30.0
-
-
 def fitted_q_data(approaches: list[Approach], cfg: EnvConfig) -> dict[str, np.ndarray]:
     """The recorded transitions as arrays, one row per state: `obs`, `r_change` (TO CHANGE's
-    reward), `press` (the driver's press), `next` (the next state's row; its own at an approach's end), `end` (an approach's
-    last state) and `end_keep` (NOT TO CHANGE's value there, where the approach ends)."""
+    reward), `press` (the driver's press), `next` (the next state's row; its own at an approach's
+    end), `end` (an approach's last state) and `end_keep` (NOT TO CHANGE's value there, where the
+    approach ends). A side not taken sits `NO_PRESS_S` before a press that never comes, as
+    `VecReplayEnv` replays it."""
     reward = cfg.reward
     after_press = -reward.pass_penalty + float(press_reward(np.array([cfg.dt_s]), reward)[0])
     sides = [(a.scene, a.t_s - a.press_t_s, after_press) for a in approaches]
