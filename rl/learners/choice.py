@@ -5,7 +5,8 @@ driver who changes the moment a gap turns acceptable, the DQN reads the smoother
 the shipped study better. So `choose_learner` holds out a share of the target's own training
 sessions, fits both on the rest, scores each on the held-out presses and not-yet states (the
 mean of the left and right balanced accuracies, so a weak side counts), and fits the better
-one on all of them. Inside `crossval` this happens within each fold's training sessions: the
+one on all of them; the trees must win by more than `AutoSettings.margin` (a near-tie keeps
+the DQN). Inside `crossval` this happens within each fold's training sessions: the
 held-out fold never takes part in the choice.
 """
 
@@ -118,8 +119,8 @@ def choose_learner(approaches: list[Approach], cfg: EnvConfig, settings: AutoSet
     for name, s in (("dqn", settings.dqn), ("trees", settings.trees)):
         net = fit_learner(fit, cfg, s, progress, f"{label}: choosing, {name}")
         scores[name] = round(side_score(net, held, learner_env(cfg, name)), 4)
-    best = max(scores, key=lambda n: (np.nan_to_num(scores[n], nan=-1.0), n == "dqn"))
-    return Choice(best, scores, len(fit), len(held))
+    gain = np.nan_to_num(scores["trees"], nan=-1.0) - np.nan_to_num(scores["dqn"], nan=-1.0)
+    return Choice("trees" if gain > settings.margin else "dqn", scores, len(fit), len(held))
 
 
 def chosen_settings(settings: AutoSettings, choice: Choice) -> DQNSettings | TreeQSettings:
