@@ -205,7 +205,8 @@ def train_command(
         except (TypeError, ValueError) as exc:
             raise UserError(f"bad training setting: {exc}") from None
         if learner != "dqn" and fleet:
-            raise UserError("--learner trees fits one style or driver: leave out --drivers/--styles")
+            raise UserError(f"--learner {learner} fits one style or driver (fleets train DQN agents): "
+                            "leave out --drivers/--styles, or use --learner dqn")
         if fleet:
             targets = fleet_targets(ws, drivers, styles)
             fleet_env = formulation_config(EnvConfig().lines, reward, scenes, observation, lines)
@@ -358,10 +359,10 @@ def crossval_command(
                        else [Target("style", style)] if style else [Target("driver", str(driver))])
             dqn = DQNSettings(seed=seed, **({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {}))
             base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines, other_side, learner)
+            agent = learner_settings(learner, dqn)
             check_learner(learner, base)
             if learner != "trees":
                 _warn_learning(learning_checks(ws, targets, base, dqn, share=(folds - 1) / folds), len(targets))
-            agent = learner_settings(learner, dqn)
             results = [run_crossval(ws, t, target_env(ws, t, base, lines), agent, cv, lines, progress=progress, **where)
                        for t in targets]
         return {"results": results} if all_styles else results[0]

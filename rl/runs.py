@@ -374,7 +374,9 @@ def _choose_learner(workspace: Workspace, folder: Path, config: dict[str, Any], 
     from rl.learners.choice import choose_learner, chosen_settings
     from rl.problem.env import learner_env
 
-    RunWriter(folder, 1).status("running", 0, "choosing the learner")
+    writer = RunWriter(folder, 1)
+    writer.status("running", 0, "choosing the learner")
+    writer.close()
     choice = choose_learner(recorded_approaches(workspace, target), env_config, settings, progress,
                             f"{target.label}")
     chosen, env = chosen_settings(settings, choice), learner_env(env_config, choice.learner)

@@ -90,14 +90,11 @@ def fit_tree_q(approaches: list[Approach], cfg: EnvConfig, settings: TreeQSettin
     change_x = _predict(q_change, x)
     report(progress, 1, total, label)
     keep_x = np.zeros(len(x))
-    q_keep = None
-    for it in range(settings.iterations):
+    for it in range(settings.iterations):  # at least one (`TreeQSettings` checks)
         target = np.where(end, d["end_keep"], settings.gamma * np.maximum(change_x[nxt], keep_x[nxt]))
         q_keep = _fit(_regressor(settings, settings.seed + 1 + it), x, target, weight)
         keep_x = _predict(q_keep, x)
         report(progress, it + 2, total, label)
-    if q_keep is None:
-        raise UserError("the tree learner needs at least one iteration")
     return TreeQNetwork.from_ensembles({CHANGE: q_change, KEEP: q_keep}, x[:1])
 
 

@@ -6,11 +6,13 @@ import json
 
 import numpy as np
 import pandas as pd
+import pytest
 import torch
 from sklearn.ensemble import HistGradientBoostingRegressor
 from typer.testing import CliRunner
 
 from laneprint.cli import app
+from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from rl.baselines.imitation import labelled_states
 from rl.learners.choice import inner_split, session_of
@@ -56,17 +58,17 @@ def test_fitted_q_iteration_changes_at_the_press_and_keeps_before():
     assert (~said_change[y == 0]).mean() >= 0.8  # the states before them
 
 
-def test_the_tree_learner_needs_the_decisions_reward():
-    approaches, _ = approaches_from_decisions(session_decisions(LINES, 2, 4))
+def test_the_tree_learner_needs_the_decisions_reward(tmp_path):
+    analysed_workspace(tmp_path)
     res = CliRunner().invoke(app, ["train", "--style", "Normal", "--learner", "trees", "--reward", "timing",
-                                   "-w", "unused"])
-    assert res.exit_code == 1
-    try:
+                                   "-w", str(tmp_path)])
+    assert res.exit_code == 1 and "needs the decisions reward" in res.output
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())  # nothing half written
+    fleet = CliRunner().invoke(app, ["train", "--styles", "all", "--learner", "auto", "-w", str(tmp_path)])
+    assert fleet.exit_code == 1 and "--learner auto fits one style or driver" in fleet.output
+    approaches, _ = approaches_from_decisions(session_decisions(LINES, 2, 4))
+    with pytest.raises(UserError, match="decisions"):
         fit_tree_q(approaches, EnvConfig(lines=LINES), SMALL)  # synthetic scenes, timing reward
-    except Exception as exc:  # noqa: BLE001 - the message is what the user reads
-        assert "decisions" in str(exc)
-    else:
-        raise AssertionError("a timing reward was fitted")
 
 
 def test_train_evaluate_export_and_check_a_tree_run(tmp_path):
