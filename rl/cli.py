@@ -245,7 +245,7 @@ def train_command(
         if res.get("learner_choice"):
             c = res["learner_choice"]
             console.print(f"learner chosen: {c['learner']} (held-out agreement on {c['n_holdout']} of the target's "
-                          "approaches, mean over the sides: "
+                          f"{c['n_train']} approaches over {c.get('folds') or 1} inner folds, mean over the sides: "
                           + ", ".join(f"{k} {100 * v:.1f} %" for k, v in c["scores"].items()) + ")", highlight=False)
         if res.get("warning"):
             console.print(f"[yellow]warning:[/yellow] {res['warning']}", highlight=False)

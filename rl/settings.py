@@ -138,19 +138,19 @@ class AutoSettings:
 
     dqn: DQNSettings = DQNSettings()
     trees: TreeQSettings = TreeQSettings()
-    holdout: float = 0.25  # share of each driver's sessions held out to choose (at least one kept to fit on)
+    folds: int = 3  # inner folds of each driver's sessions that decide (every session scored once)
     margin: float = 0.01  # the trees are taken only when they agree better by more than this (a near-tie keeps
     # the study's DQN: on the shipped study a fold that took the trees by 0.006 lost 4 points held out)
     seed: int = 0  # seeds the inner split and both learners
 
     def to_dict(self) -> dict[str, Any]:
-        return {"dqn": self.dqn.to_dict(), "trees": self.trees.to_dict(), "holdout": self.holdout,
+        return {"dqn": self.dqn.to_dict(), "trees": self.trees.to_dict(), "folds": self.folds,
                 "margin": self.margin, "seed": self.seed}
 
     @staticmethod
     def from_dict(d: dict[str, Any]) -> "AutoSettings":
         return AutoSettings(DQNSettings.from_dict(d["dqn"]), TreeQSettings.from_dict(d["trees"]),
-                            d.get("holdout", 0.25), d.get("margin", 0.0), d.get("seed", 0))
+                            d.get("folds", 3), d.get("margin", 0.0), d.get("seed", 0))
 
 
 #: A learner's settings: the DQN's, the tree learner's, or both with the choice between them.

@@ -2,11 +2,12 @@
 
 Neither learner is best everywhere (rl/README.md, "A tree Q function"): the trees resolve a
 driver who changes the moment a gap turns acceptable, the DQN reads the smoother presses of
-the shipped study better. So `choose_learner` holds out a share of the target's own training
-sessions, fits both on the rest, scores each on the held-out presses and not-yet states (the
-mean of the left and right balanced accuracies, so a weak side counts), and fits the better
-one on all of them; the trees must win by more than `AutoSettings.margin` (a near-tie keeps
-the DQN). Inside `crossval` this happens within each fold's training sessions: the
+the shipped study better. So `choose_learner` deals the target's own training sessions into
+inner folds, fits both learners on all but one fold and predicts that one, scores each
+learner's pooled predictions of every session once (the mean of the left and right balanced
+accuracies on the presses and not-yet states, so a weak side counts), and fits the better one on
+all of them; the trees must win by more than `AutoSettings.margin` (a near-tie keeps the DQN).
+One split of a quarter of the sessions was too noisy a judge (rl/README.md). Inside `crossval` this happens within each fold's training sessions: the
 held-out fold never takes part in the choice.
 """
 
@@ -23,7 +24,7 @@ from rl.problem.env import Approach, EnvConfig, learner_env
 from rl.problem.rewards import CHANGE
 from rl.settings import AutoSettings, DQNSettings, TreeQSettings
 
-__all__ = ["Choice", "choose_learner", "chosen_settings", "fit_learner", "inner_split"]
+__all__ = ["Choice", "choose_learner", "chosen_settings", "fit_learner", "inner_folds"]
 
 
 @dataclass(frozen=True)
@@ -32,12 +33,13 @@ class Choice:
 
     learner: str  # 'dqn' or 'trees'
     scores: dict[str, float]  # each learner's inner held-out score (mean balanced accuracy over the sides)
-    n_train: int  # approaches the candidates were fitted on
-    n_holdout: int  # approaches they were scored on
+    n_train: int  # the target's approaches
+    n_holdout: int  # approaches the candidates were scored on (each once, by a fit without its session)
+    folds: int = 0  # inner folds
 
     def to_dict(self) -> dict[str, Any]:
         return {"learner": self.learner, "scores": self.scores, "n_train": self.n_train,
-                "n_holdout": self.n_holdout}
+                "n_holdout": self.n_holdout, "folds": self.folds}
 
 
 def session_of(decision_id: str) -> str:
@@ -45,43 +47,54 @@ def session_of(decision_id: str) -> str:
     return decision_id.rsplit(":", 1)[0]
 
 
-def inner_split(approaches: list[Approach], share: float, seed: int) -> tuple[list[Approach], list[Approach]]:
-    """(fit, hold-out): about `share` of the sessions held out, drawn per driver so each driver keeps
-    sessions on both sides where it has two or more (seeded)."""
+def inner_folds(approaches: list[Approach], folds: int, seed: int) -> list[tuple[list[Approach], list[Approach]]]:
+    """`folds` (fit, hold-out) pairs whose hold-outs cover the sessions once each (seeded).
+
+    Each driver's sessions are shuffled and dealt in turn to the folds, so every driver with two or
+    more sessions is held out somewhere and kept to fit on everywhere; a driver with one session is
+    always fitted on. Where no driver has two sessions, whole sessions are dealt instead.
+    """
     rng = np.random.default_rng([seed, 11])
     by_driver: dict[str, list[str]] = {}
     for a in approaches:
         s = session_of(a.decision_id)
         if s not in by_driver.setdefault(a.driver_id, []):
             by_driver[a.driver_id].append(s)
-    held: set[str] = set()
-    for sessions in by_driver.values():
-        if len(sessions) < 2:
-            continue
-        k = max(1, int(round(share * len(sessions))))
-        held.update(rng.choice(sorted(sessions), size=min(k, len(sessions) - 1), replace=False).tolist())
-    if not held:  # one session per driver: hold out whole drivers' sessions instead
-        sessions = sorted({session_of(a.decision_id) for a in approaches})
-        k = max(1, int(round(share * len(sessions))))
-        held = set(rng.choice(sessions, size=min(k, len(sessions) - 1), replace=False).tolist())
-    fit = [a for a in approaches if session_of(a.decision_id) not in held]
-    out = [a for a in approaches if session_of(a.decision_id) in held]
-    return fit, out
+    groups = [sessions for sessions in by_driver.values() if len(sessions) >= 2]
+    if not groups:  # one session per driver: deal the sessions themselves
+        groups = [sorted({session_of(a.decision_id) for a in approaches})]
+    fold_of: dict[str, int] = {}
+    offset = 0
+    for sessions in groups:
+        for i, s in enumerate(rng.permutation(sorted(sessions))):
+            fold_of[str(s)] = (offset + i) % folds  # a driver's sessions go to different folds first
+        offset += len(sessions)  # the next driver starts where this one stopped: folds stay even
+    pairs = []
+    for f in range(folds):
+        out = [a for a in approaches if fold_of.get(session_of(a.decision_id)) == f]
+        fit = [a for a in approaches if fold_of.get(session_of(a.decision_id)) != f]
+        if out and fit:
+            pairs.append((fit, out))
+    return pairs
 
 
-def side_score(net: Any, approaches: list[Approach], cfg: EnvConfig) -> float:
-    """Mean over the sides present of the balanced accuracy of `net`'s greedy actions."""
-    from rl.learners.dqn import greedy_actions
-
-    x, y = labelled_states(approaches, cfg)
-    left = np.concatenate([a.scene.left for a in approaches])
-    change = greedy_actions(net, x) == CHANGE
+def side_score(change: np.ndarray, y: np.ndarray, left: np.ndarray) -> float:
+    """Mean over the sides present of the balanced accuracy of the changes `change` against labels `y`."""
     scores = []
     for side in (left, ~left):
         yes, no = side & (y == 1), side & (y == 0)
         if yes.any() and no.any():
             scores.append(0.5 * (change[yes].mean() + (~change[no]).mean()))
     return float(np.mean(scores)) if scores else float("nan")
+
+
+def held_out_changes(net: Any, approaches: list[Approach], cfg: EnvConfig) -> tuple[np.ndarray, ...]:
+    """(`net`'s greedy change-or-not, the labels, whether the side is left) on `approaches`' states."""
+    from rl.learners.dqn import greedy_actions
+
+    x, y = labelled_states(approaches, cfg)
+    left = np.concatenate([a.scene.left for a in approaches])
+    return greedy_actions(net, x) == CHANGE, y, left
 
 
 def fit_learner(approaches: list[Approach], cfg: EnvConfig, settings: DQNSettings | TreeQSettings,
@@ -106,21 +119,26 @@ def fit_learner(approaches: list[Approach], cfg: EnvConfig, settings: DQNSetting
 
 def choose_learner(approaches: list[Approach], cfg: EnvConfig, settings: AutoSettings,
                    progress: ProgressFn | None = None, label: str = "agent") -> Choice:
-    """Which learner to fit on `approaches`: both fitted on part of the sessions, scored on the rest.
+    """Which learner to fit on `approaches`: both fitted and scored across inner folds of the sessions.
 
-    `cfg` is the DQN's environment; the trees read it with their own press scale (`learner_env`).
-    With too few sessions to hold any out, the DQN is taken.
+    Each learner's held-out changes from every inner fold are pooled and scored once, so every
+    session the target drove takes part in the choice. `cfg` is the DQN's environment; the trees read
+    it with their own press scale (`learner_env`). With too few sessions to hold any out, the DQN is taken.
     """
     settings = with_seed(settings, settings.seed)
-    fit, held = inner_split(approaches, settings.holdout, settings.seed)
-    if not fit or not held:
+    pairs = inner_folds(approaches, settings.folds, settings.seed)
+    if not pairs:
         return Choice("dqn", {}, len(approaches), 0)
     scores = {}
     for name, s in (("dqn", settings.dqn), ("trees", settings.trees)):
-        net = fit_learner(fit, cfg, s, progress, f"{label}: choosing, {name}")
-        scores[name] = round(side_score(net, held, learner_env(cfg, name)), 4)
+        pooled = []
+        for i, (fit, held) in enumerate(pairs):
+            net = fit_learner(fit, cfg, s, progress, f"{label}: choosing, {name} {i + 1}/{len(pairs)}")
+            pooled.append(held_out_changes(net, held, learner_env(cfg, name)))
+        scores[name] = round(side_score(*(np.concatenate(parts) for parts in zip(*pooled))), 4)
     gain = np.nan_to_num(scores["trees"], nan=-1.0) - np.nan_to_num(scores["dqn"], nan=-1.0)
-    return Choice("trees" if gain > settings.margin else "dqn", scores, len(fit), len(held))
+    return Choice("trees" if gain > settings.margin else "dqn", scores, len(approaches),
+                  sum(len(held) for _, held in pairs), len(pairs))
 
 
 def chosen_settings(settings: AutoSettings, choice: Choice) -> DQNSettings | TreeQSettings:

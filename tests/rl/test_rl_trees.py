@@ -15,7 +15,7 @@ from laneprint.cli import app
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from rl.baselines.imitation import labelled_states
-from rl.learners.choice import inner_split, session_of
+from rl.learners.choice import inner_folds, session_of
 from rl.learners.dqn import q_values
 from rl.learners.trees import TreeQNetwork, fit_tree_q, fitted_q_data
 from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config
@@ -106,15 +106,21 @@ def test_crossval_with_the_tree_learner_says_so(tmp_path):
     assert agent["balanced_accuracy"] > 0.7
 
 
-def test_the_inner_split_holds_out_whole_sessions_and_keeps_each_driver_on_both_sides():
+def test_the_inner_folds_hold_out_every_session_once_and_keep_each_driver_to_fit_on():
     dec = pd.concat([session_decisions(LINES, 4, 3, driver=d, seed=i) for i, d in enumerate(("D01", "D02"))])
+    dec = pd.concat([dec, session_decisions(LINES, 1, 3, driver="D03", seed=7)])  # one session: always fitted on
     approaches, _ = approaches_from_decisions(dec)
-    fit, held = inner_split(approaches, 0.25, seed=0)
+    pairs = inner_folds(approaches, 3, seed=0)
     sessions = lambda apps: {session_of(a.decision_id) for a in apps}  # noqa: E731
-    assert not sessions(fit) & sessions(held) and len(fit) + len(held) == len(approaches)
-    for d in ("D01", "D02"):
-        assert any(a.driver_id == d for a in fit) and any(a.driver_id == d for a in held)
-    assert inner_split(approaches, 0.25, seed=0)[1] == held  # seeded
+    assert len(pairs) == 3
+    held_out = [sessions(held) for _, held in pairs]
+    assert sorted(s for h in held_out for s in h) == sorted(sessions(approaches) - sessions(
+        [a for a in approaches if a.driver_id == "D03"]))  # every session of a driver with two or more, once
+    for fit, held in pairs:
+        assert not sessions(fit) & sessions(held) and len(fit) + len(held) == len(approaches)
+        assert {a.driver_id for a in fit} == {"D01", "D02", "D03"}
+    assert [sessions(h) for _, h in inner_folds(approaches, 3, seed=0)] == held_out  # seeded
+    assert [sessions(h) for _, h in inner_folds(approaches, 3, seed=1)] != held_out
 
 
 def test_auto_chooses_a_learner_per_fold_and_per_run(tmp_path):
@@ -133,7 +139,8 @@ def test_auto_chooses_a_learner_per_fold_and_per_run(tmp_path):
     assert trained.exit_code == 0, trained.output
     config = json.loads((tmp_path / "runs" / "a1" / "config.json").read_text())
     choice = config["learner_choice"]
-    assert config["learner"] == choice["learner"] and choice["n_holdout"] > 0
+    assert config["learner"] == choice["learner"] and choice["folds"] == AutoSettings().folds
+    assert choice["n_holdout"] == choice["n_train"]  # eight sessions a driver: every one scored once
     scale = config["env"]["reward"]["press_scale_s"]
     assert scale == (TREES_PRESS_SCALE_S if choice["learner"] == "trees" else RewardSettings().press_scale_s)
     bad = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--learner", "auto", "--reward", "timing",
