@@ -36,10 +36,11 @@ class Choice:
     n_train: int  # the target's approaches
     n_holdout: int  # approaches the candidates were scored on (each once, by a fit without its session)
     folds: int = 0  # inner folds
+    by_side: dict[str, dict[str, float]] | None = None  # each learner's score per side ('left', 'right')
 
     def to_dict(self) -> dict[str, Any]:
         return {"learner": self.learner, "scores": self.scores, "n_train": self.n_train,
-                "n_holdout": self.n_holdout, "folds": self.folds}
+                "n_holdout": self.n_holdout, "folds": self.folds, "by_side": self.by_side or {}}
 
 
 def session_of(decision_id: str) -> str:
@@ -78,14 +79,14 @@ def inner_folds(approaches: list[Approach], folds: int, seed: int) -> list[tuple
     return pairs
 
 
-def side_score(change: np.ndarray, y: np.ndarray, left: np.ndarray) -> float:
-    """Mean over the sides present of the balanced accuracy of the changes `change` against labels `y`."""
-    scores = []
-    for side in (left, ~left):
+def side_scores(change: np.ndarray, y: np.ndarray, left: np.ndarray) -> dict[str, float]:
+    """The balanced accuracy of the changes `change` against labels `y`, per side present ('left', 'right')."""
+    scores = {}
+    for name, side in (("left", left), ("right", ~left)):
         yes, no = side & (y == 1), side & (y == 0)
         if yes.any() and no.any():
-            scores.append(0.5 * (change[yes].mean() + (~change[no]).mean()))
-    return float(np.mean(scores)) if scores else float("nan")
+            scores[name] = round(float(0.5 * (change[yes].mean() + (~change[no]).mean())), 4)
+    return scores
 
 
 def held_out_changes(net: Any, approaches: list[Approach], cfg: EnvConfig) -> tuple[np.ndarray, ...]:
@@ -129,16 +130,17 @@ def choose_learner(approaches: list[Approach], cfg: EnvConfig, settings: AutoSet
     pairs = inner_folds(approaches, settings.folds, settings.seed)
     if not pairs:
         return Choice("dqn", {}, len(approaches), 0)
-    scores = {}
+    scores, by_side = {}, {}
     for name, s in (("dqn", settings.dqn), ("trees", settings.trees)):
         pooled = []
         for i, (fit, held) in enumerate(pairs):
             net = fit_learner(fit, cfg, s, progress, f"{label}: choosing, {name} {i + 1}/{len(pairs)}")
             pooled.append(held_out_changes(net, held, learner_env(cfg, name)))
-        scores[name] = round(side_score(*(np.concatenate(parts) for parts in zip(*pooled))), 4)
+        by_side[name] = side_scores(*(np.concatenate(parts) for parts in zip(*pooled)))
+        scores[name] = round(float(np.mean(list(by_side[name].values()))), 4) if by_side[name] else float("nan")
     gain = np.nan_to_num(scores["trees"], nan=-1.0) - np.nan_to_num(scores["dqn"], nan=-1.0)
     return Choice("trees" if gain > settings.margin else "dqn", scores, len(approaches),
-                  sum(len(held) for _, held in pairs), len(pairs))
+                  sum(len(held) for _, held in pairs), len(pairs), by_side)
 
 
 def chosen_settings(settings: AutoSettings, choice: Choice) -> DQNSettings | TreeQSettings:

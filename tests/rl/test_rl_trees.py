@@ -133,6 +133,8 @@ def test_auto_chooses_a_learner_per_fold_and_per_run(tmp_path):
     for fold in out["per_fold"]:
         assert fold["learner"] in ("dqn", "trees") and set(fold["learner_scores"]) == {"dqn", "trees"}
         sc = fold["learner_scores"]
+        for name, sides in fold["learner_scores_by_side"].items():  # the score is the mean over the sides
+            assert set(sides) <= {"left", "right"} and sc[name] == pytest.approx(np.mean(list(sides.values())), abs=1e-4)
         assert fold["learner"] == ("trees" if sc["trees"] > sc["dqn"] + AutoSettings().margin else "dqn")
     trained = CliRunner().invoke(app, ["train", "--style", "Normal", "--learner", "auto", "--episodes", "200",
                                        "--run-id", "a1", "-w", str(tmp_path), "--json", *FAST_CLI])
