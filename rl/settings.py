@@ -141,7 +141,7 @@ class AutoSettings:
     folds: int = 3  # inner folds of each driver's sessions that decide (every session scored once)
     margin: float = 0.01  # the trees are taken only when they agree better by more than this (a near-tie keeps
     # the study's DQN: on the shipped study a fold that took the trees by 0.006 lost 4 points held out)
-    seed: int = 0  # seeds the inner split and both learners
+    seed: int = 0  # seeds the inner folds and both learners
 
     def to_dict(self) -> dict[str, Any]:
         return {"dqn": self.dqn.to_dict(), "trees": self.trees.to_dict(), "folds": self.folds,

@@ -199,7 +199,7 @@ def _train_agent(approaches: list[Approach], cfg: EnvConfig, dqn: LearnerSetting
         choice = choose_learner(approaches, cfg, dqn, progress, label)
         net = fit_learner(approaches, cfg, chosen_settings(dqn, choice), progress, f"{label}: {choice.learner}")
         return agent_policy(net, cfg), {"learner": choice.learner, "learner_scores": choice.scores,
-                                        "learner_scores_by_side": choice.by_side or {}}
+                                        "learner_scores_by_side": choice.by_side}
     return agent_policy(fit_learner(approaches, cfg, dqn, progress, label), cfg), {"learner": learner_name(dqn)}
 
 

@@ -7,13 +7,13 @@ inner folds, fits both learners on all but one fold and predicts that one, score
 learner's pooled predictions of every session once (the mean of the left and right balanced
 accuracies on the presses and not-yet states, so a weak side counts), and fits the better one on
 all of them; the trees must win by more than `AutoSettings.margin` (a near-tie keeps the DQN).
-One split of a quarter of the sessions was too noisy a judge (rl/README.md). Inside `crossval` this happens within each fold's training sessions: the
-held-out fold never takes part in the choice.
+One split of a quarter of the sessions was too noisy a judge (rl/README.md). Inside `crossval`
+this happens within each fold's training sessions: the held-out fold never takes part in the choice.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -36,11 +36,11 @@ class Choice:
     n_train: int  # the target's approaches
     n_holdout: int  # approaches the candidates were scored on (each once, by a fit without its session)
     folds: int = 0  # inner folds
-    by_side: dict[str, dict[str, float]] | None = None  # each learner's score per side ('left', 'right')
+    by_side: dict[str, dict[str, float]] = field(default_factory=dict)  # each learner's score per side
 
     def to_dict(self) -> dict[str, Any]:
         return {"learner": self.learner, "scores": self.scores, "n_train": self.n_train,
-                "n_holdout": self.n_holdout, "folds": self.folds, "by_side": self.by_side or {}}
+                "n_holdout": self.n_holdout, "folds": self.folds, "by_side": self.by_side}
 
 
 def session_of(decision_id: str) -> str:
