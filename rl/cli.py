@@ -31,7 +31,7 @@ OtherSideOpt = Annotated[Optional[bool], typer.Option(
 LearnerOpt = Annotated[str, typer.Option(
     "--learner", help=f"Who learns the Q function: {', '.join(LEARNERS)} ('dqn': the study's DQN; 'trees': fitted "
                       "Q iteration with boosted trees on the recorded approaches, decisions reward only; 'auto': "
-                      "per target the one of the two that agrees better on a quarter of its sessions held out).")]
+                      "per target the one of the two that agrees better across inner folds of its own sessions).")]
 
 
 def learner_settings(learner: str, dqn: DQNSettings) -> DQNSettings | TreeQSettings | AutoSettings:
