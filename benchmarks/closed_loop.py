@@ -246,8 +246,9 @@ def main() -> None:
                     help="seed(s) of the drives' traffic (default mode); with several, each agent drives each seed and "
                          "its rate and indicators are judged over all of them (the first seed's drive is analysed "
                          "for its style)")
-    ap.add_argument("--learner", choices=("dqn", "trees", "auto"), default="dqn",
-                    help="default mode: who learns each style's agent (train --learner)")
+    ap.add_argument("--learner", choices=("auto", "dqn", "trees"), default=None,
+                    help="default mode: who learns each style's agent (train --learner; default: train's, 'auto'; "
+                         "the README's closed-loop figures before 2026-12-05 are the DQN's)")
     ap.add_argument("--family", default="ttc", help="default mode: the SUMO study family of the study and the drives")
     ap.add_argument("--no-pace", action="store_true", help="default mode: drive without the drivers' pace (drive --no-pace)")
     ap.add_argument("--pace-by", choices=("pooled", "side"), default="pooled",
@@ -326,7 +327,7 @@ def closed_loop(args: argparse.Namespace) -> bool:
     drives, more = {}, {}
     for style in STYLES:
         run = cli("train", "--style", style, "--seed", str(args.seed), "--run-id", f"closed-loop-{style.lower()}",
-                  "--learner", args.learner, "-w", str(ws))
+                  *(["--learner", args.learner] if args.learner else []), "-w", str(ws))
         driver = f"agent-{style.lower()}"
         seeds = [cli("drive", run["run_id"], "--engine", "sumo", "--minutes", f"{args.minutes:g}",
                      "--seed", str(seed), "--lanes", lanes, "--family", args.family,

@@ -17,7 +17,7 @@ several SUMO seeds (never judge on one), a last table of every seed's margins an
 which checks failed.
 
 Run: python benchmarks/generalization.py [--sumo-seed 7 [8 ...]] [--jobs 2] [--drivers 9]
-     [--episodes 10000] [--folds 4] [--seed 0] [--workdir /tmp/lp-generalization]
+     [--episodes 10000] [--learner auto|dqn|trees] [--folds 4] [--seed 0] [--workdir /tmp/lp-generalization]
      [--skip-shipped] [--skip-sumo]
 
 Issue 19's bar per style and direction from stored `crossval --all --json` documents
@@ -52,6 +52,11 @@ def cli(*args: str) -> dict:
     if proc.returncode != 0:
         sys.exit(f"laneprint {' '.join(args)} failed: {proc.stderr.strip()[-2000:]}")
     return json.loads(proc.stdout)
+
+
+def learner_option(args: argparse.Namespace) -> list[str]:
+    """`--learner NAME` when one was asked for; otherwise the commands' own default ('auto')."""
+    return ["--learner", args.learner] if args.learner else []
 
 
 def ari(ws: Path, logs: Path) -> float | None:
@@ -109,7 +114,7 @@ def study(name: str, logs: Path, ws: Path, args: argparse.Namespace,
         cli("analyze", "-w", str(ws))
     score = ari(ws, logs)
     say(f"\n# {name} ({logs}); styles ARI vs ground truth: {score if score is None else round(score, 3)}")
-    extra = ["--episodes", str(args.episodes)] if args.episodes else []
+    extra = (["--episodes", str(args.episodes)] if args.episodes else []) + learner_option(args)
     res = cli("crossval", "--all", "--folds", str(args.folds), "--seed", str(args.seed), "-w", str(ws), *extra)
     checks = held_out_table(name, res["results"], out)
     if score is not None:
@@ -124,7 +129,7 @@ def in_sample_shipped(ws: Path, args: argparse.Namespace) -> Checks:
     print("|---|---|---|---|")
     checks = []
     for style in ("Defensive", "Normal", "Aggressive"):
-        extra = ["--episodes", str(args.episodes)] if args.episodes else []
+        extra = (["--episodes", str(args.episodes)] if args.episodes else []) + learner_option(args)
         run = cli("train", "--style", style, "--seed", str(args.seed), "-w", str(ws), *extra)
         rows = {r["who"]: r for r in run["evaluation"]}
         a, g = rows["agent"], rows["greedy"]
@@ -212,6 +217,8 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1, help="SUMO studies run at once (each is one process)")
     ap.add_argument("--drivers", type=int, default=9)
     ap.add_argument("--episodes", type=int, default=None, help="episodes per agent (default: train's)")
+    ap.add_argument("--learner", choices=("auto", "dqn", "trees"), default=None,
+                    help="who learns the agents (train/crossval --learner; default: theirs)")
     ap.add_argument("--folds", type=int, default=4)
     ap.add_argument("--seed", type=int, default=0, help="seed of folds, agents, classifier, bootstrap")
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/lp-generalization"))

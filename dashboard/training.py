@@ -51,11 +51,14 @@ def rewards() -> list[str]:
     return [default, *[r for r in REWARDS if r != default]]
 
 
-def learners() -> list[str]:
-    """The learners `laneprint train --learner` offers, the DQN first."""
-    from rl.settings import LEARNERS
+def learners(reward: str, lines: str) -> list[str]:
+    """The learners `laneprint train --learner` offers for `reward` and `lines`, the default first (the trees,
+    alone or in 'auto', fit only the decisions reward on recorded scenes)."""
+    from rl.settings import LEARNERS, default_learner, resolve_formulation
 
-    return list(LEARNERS)
+    name, scenes, _ = resolve_formulation(reward, None, None, lines)
+    default = default_learner(name, scenes)
+    return [default, *[x for x in LEARNERS if x != default]] if default != "dqn" else ["dqn"]
 
 
 def hyperparameters() -> dict[str, Any]:

@@ -15,7 +15,8 @@ from laneprint.cliutil import (DEFAULT_WS, BackendOpt, JsonOpt, RayAddressOpt, W
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from rl.problem.rewards import REWARDS
-from rl.settings import DEFAULT_REWARD, LEARNERS, OBSERVATIONS, SCENES, AutoSettings, DQNSettings, TreeQSettings
+from rl.settings import (DEFAULT_REWARD, LEARNERS, OBSERVATIONS, SCENES, AutoSettings, DQNSettings, TreeQSettings,
+                         default_learner)
 
 RewardOpt = Annotated[Optional[str], typer.Option(
     "--reward", help=f"Reward: {', '.join(REWARDS)} (default {DEFAULT_REWARD}; timing with --lines paper).")]
@@ -28,10 +29,12 @@ OtherSideOpt = Annotated[Optional[bool], typer.Option(
                                             "take, as approaches without a press (default), or only the driver's "
                                             "side (before issue 19). No effect on two lanes.")]
 
-LearnerOpt = Annotated[str, typer.Option(
-    "--learner", help=f"Who learns the Q function: {', '.join(LEARNERS)} ('dqn': the study's DQN; 'trees': fitted "
-                      "Q iteration with boosted trees on the recorded approaches, decisions reward only; 'auto': "
-                      "per target the one of the two that agrees better across inner folds of its own sessions).")]
+LearnerOpt = Annotated[Optional[str], typer.Option(
+    "--learner", help=f"Who learns the Q function: {', '.join(LEARNERS)} ('auto': per target the one of the "
+                      "DQN and the trees that agrees better across inner folds of its own sessions; 'dqn': the "
+                      "study's DQN; 'trees': fitted Q iteration with boosted trees on the recorded approaches). "
+                      "Default: 'auto' for one style or driver on the decisions reward with recorded scenes, "
+                      "'dqn' for fleets and the other formulations (the paper's among them).")]
 
 
 def learner_settings(learner: str, dqn: DQNSettings) -> DQNSettings | TreeQSettings | AutoSettings:
@@ -44,12 +47,21 @@ def learner_settings(learner: str, dqn: DQNSettings) -> DQNSettings | TreeQSetti
     return trees if learner == "trees" else AutoSettings(dqn=dqn, trees=trees, seed=dqn.seed)
 
 
-def check_learner(learner: str, env: Any) -> None:
-    """The tree learner (alone or in 'auto') fits the decisions reward on recorded scenes only."""
+def resolve_learner(learner: str | None, env: Any, fleet: bool = False) -> str:
+    """`--learner` as given, or the default for `env`'s formulation (`rl.settings.default_learner`); a named
+    tree learner (alone or in 'auto') must fit the decisions reward on recorded scenes, one target at a time."""
+    if learner is None:
+        return default_learner(env.reward.name, env.scenes, fleet)
+    if learner not in LEARNERS:
+        raise UserError(f"unknown --learner {learner!r}: choose one of {', '.join(LEARNERS)}")
+    if learner != "dqn" and fleet:
+        raise UserError(f"--learner {learner} fits one style or driver (fleets train DQN agents): "
+                        "leave out --drivers/--styles, or use --learner dqn")
     if learner != "dqn" and (env.reward.name != "decisions" or env.scenes != "recorded"):
         raise UserError(f"--learner {learner} needs the decisions reward on recorded scenes (the trees fit the "
                         f"drivers' recorded presses), not reward {env.reward.name!r} on {env.scenes} scenes: "
                         "leave out --reward/--scenes/--lines paper, or use --learner dqn")
+    return learner
 
 
 def _fmt(x: Any, pct: bool = False) -> str:
@@ -144,7 +156,7 @@ def train_command(
     scenes: ScenesOpt = None,
     observation: ObservationOpt = None,
     other_side: OtherSideOpt = None,
-    learner: LearnerOpt = "dqn",
+    learner: LearnerOpt = None,
     lines: Annotated[str, typer.Option("--lines", help="Reference lines: 'analysis' or 'paper' (Table 1).")] = "analysis",
     run_id: Annotated[Optional[str], typer.Option("--run-id", help="Id of the new run (default: time-target-reward-seed).")] = None,
     resume: Annotated[Optional[str], typer.Option("--resume", help="Continue an interrupted run from its checkpoint.")] = None,
@@ -173,10 +185,10 @@ def train_command(
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,
 ) -> None:
-    """Train a DQN agent for a style or a driver, or a fleet of them; prints the run (or fleet) id."""
+    """Train an agent for a style or a driver (see --learner), or a fleet of them; prints the run (or fleet) id."""
 
     def work() -> dict[str, Any]:
-        from rl.problem.env import EnvConfig, formulation_config  # heavy imports (torch) only when the command runs
+        from rl.problem.env import EnvConfig, formulation_config, learner_env  # torch only when the command runs
         from rl.fleet.runs import create_fleet, fleet_targets, is_fleet, train_fleet
         from rl.runs import Target, resolve_lines, train_run
 
@@ -204,12 +216,10 @@ def train_command(
             settings = DQNSettings(**overrides)
         except (TypeError, ValueError) as exc:
             raise UserError(f"bad training setting: {exc}") from None
-        if learner != "dqn" and fleet:
-            raise UserError(f"--learner {learner} fits one style or driver (fleets train DQN agents): "
-                            "leave out --drivers/--styles, or use --learner dqn")
         if fleet:
-            targets = fleet_targets(ws, drivers, styles)
             fleet_env = formulation_config(EnvConfig().lines, reward, scenes, observation, lines)
+            resolve_learner(learner, fleet_env, fleet=True)
+            targets = fleet_targets(ws, drivers, styles)
             warned = _warn_learning(learning_checks(ws, targets, fleet_env, settings), len(targets))
             record = create_fleet(ws, targets, list(range(seed, seed + seeds)), settings, reward=reward,
                                   scenes=scenes, observation=observation, other_side=other_side,
@@ -219,13 +229,11 @@ def train_command(
                 res = train_fleet(ws, record["fleet_id"], progress=progress, **fleet_opts)
             return {**res, "learning_check": warned} if warned else res
         target = Target("style", style) if style else Target("driver", str(driver))
-        env = formulation_config(resolve_lines(ws, target, lines), reward, scenes, observation, lines, other_side,
-                                 learner)
-        if dt is not None:
-            env = replace(env, dt_s=dt)
-        learner_set = learner_settings(learner, settings)
-        check_learner(learner, env)
-        warned = _warn_learning(learning_checks(ws, [target], env, settings), 1) if learner != "trees" else None
+        env = formulation_config(resolve_lines(ws, target, lines), reward, scenes, observation, lines, other_side)
+        who = resolve_learner(learner, env)
+        env = learner_env(env if dt is None else replace(env, dt_s=dt), who)
+        learner_set = learner_settings(who, settings)
+        warned = _warn_learning(learning_checks(ws, [target], env, settings), 1) if who != "trees" else None
         with progress_bar(not as_json) as progress:
             res = train_run(ws, target, env, learner_set, run_id=run_id, lines_source=lines,
                             evaluate=evaluate, progress=progress)
@@ -328,7 +336,7 @@ def crossval_command(
     scenes: ScenesOpt = None,
     observation: ObservationOpt = None,
     other_side: OtherSideOpt = None,
-    learner: LearnerOpt = "dqn",
+    learner: LearnerOpt = None,
     lines: Annotated[str, typer.Option("--lines", help="'analysis' (refitted per fold) or 'paper' (Table 1).")] = "analysis",
     bootstrap: Annotated[int, typer.Option("--bootstrap", min=10, help="Bootstrap resamples for the intervals.")] = 1000,
     backend: BackendOpt = "local",
@@ -341,7 +349,7 @@ def crossval_command(
     def work() -> dict[str, Any]:
         from rl.evaluation.crossval import CrossvalSettings
         from rl.evaluation.crossval_store import crossval_run, run_crossval, style_names, target_env
-        from rl.problem.env import EnvConfig, formulation_config
+        from rl.problem.env import EnvConfig, formulation_config, learner_env
         from rl.runs import Target
         from laneprint.parallel import backend_session
 
@@ -358,10 +366,11 @@ def crossval_command(
             targets = ([Target("style", s) for s in style_names(ws)] if all_styles
                        else [Target("style", style)] if style else [Target("driver", str(driver))])
             dqn = DQNSettings(seed=seed, **({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {}))
-            base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines, other_side, learner)
-            agent = learner_settings(learner, dqn)
-            check_learner(learner, base)
-            if learner != "trees":
+            base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines, other_side)
+            who = resolve_learner(learner, base)
+            base = learner_env(base, who)
+            agent = learner_settings(who, dqn)
+            if who != "trees":
                 _warn_learning(learning_checks(ws, targets, base, dqn, share=(folds - 1) / folds), len(targets))
             results = [run_crossval(ws, t, target_env(ws, t, base, lines), agent, cv, lines, progress=progress, **where)
                        for t in targets]

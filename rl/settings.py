@@ -94,9 +94,17 @@ class DQNSettings:
         return DQNSettings(**d)
 
 
-#: Who learns the Q function: the study's DQN, fitted Q iteration with boosted trees (`rl.learners.trees`),
-#: or per target the one of the two that agrees better on an inner split (`rl.learners.choice`).
-LEARNERS: tuple[str, ...] = ("dqn", "trees", "auto")
+#: Who learns the Q function: per target the one of the DQN and the trees that agrees better across inner
+#: folds of its sessions (`rl.learners.choice`), the study's DQN, or fitted Q iteration with boosted trees
+#: (`rl.learners.trees`). The first is the default where it applies (`default_learner`).
+LEARNERS: tuple[str, ...] = ("auto", "dqn", "trees")
+
+
+def default_learner(reward: str, scenes: str, fleet: bool = False) -> str:
+    """The learner a command takes when none is named: 'auto' for one style or driver on the `decisions`
+    reward with recorded scenes (the only formulation the trees fit); the study's DQN for fleets (trained
+    batched) and for every other formulation, the paper's among them."""
+    return "auto" if not fleet and reward == "decisions" and scenes == "recorded" else "dqn"
 #: The `decisions` reward's press scale the tree learner fits [s]: a change's reward falls by 1 per
 #: half a second off the press, a sharp reward the trees resolve and the network does not (rl/README.md).
 TREES_PRESS_SCALE_S = 0.5

@@ -30,9 +30,11 @@ def launch_form(ws) -> None:
     lines = c3.selectbox("Reference lines", line_opts, key="lines",
                          help="'analysis': lines fitted on this workspace; 'paper': Table 1 of the study")
     c4, c5, c6 = st.columns(3)
-    learner = c4.selectbox("Learner", training.learners(), key="learner",
-                           help="'dqn': the study's DQN; 'trees': fitted Q iteration with boosted trees on the "
-                                "recorded approaches (decisions reward only; no episodes, fitted in a minute)")
+    learner = c4.selectbox("Learner", training.learners(reward, lines), key="learner",
+                           help="'auto': the one of the DQN and the trees that agrees better across inner folds "
+                                "of the target's sessions (a few minutes); 'dqn': the study's DQN; 'trees': "
+                                "fitted Q iteration with boosted trees on the recorded approaches (no episodes, "
+                                "fitted in a minute). The trees fit the decisions reward only")
     episodes = c5.number_input("Episodes", min_value=1, max_value=100_000, step=100,
                                value=training.default_episodes(), key="episodes", disabled=learner == "trees")
     seed = c6.number_input("Seed", min_value=0, value=0, step=1, key="seed")
@@ -46,9 +48,9 @@ def launch_form(ws) -> None:
                 label, value=default, key=f"hp_{field}",
                 format="%g" if isinstance(default, float) else "%d",
                 step=None if isinstance(default, float) else 1)
-    options = training.changed_options(values) if learner == "dqn" else {"--learner": learner}
+    options = {"--learner": learner} | (training.changed_options(values) if learner != "trees" else {})
     req = jobs.TrainRequest(kind, str(name), int(episodes), int(seed), reward, lines, options) if name else None
-    verdict, why = training.learning_check(ws, req, values, tables) if req and learner == "dqn" else ("", "")
+    verdict, why = training.learning_check(ws, req, values, tables) if req and learner != "trees" else ("", "")
     if verdict:
         (st.warning if verdict == "refuse" else st.info)(why)
     submitted = st.button("Start training", type="primary", key="start_training",

@@ -79,3 +79,13 @@ def test_check_target_says_why_the_trainer_would_refuse(tmp_path):
     assert check_target(ws, jobs.TrainRequest("style", "Normal", 10, lines="paper")) == ""
     assert "needs --style" in check_target(ws, jobs.TrainRequest("driver", "D01", 10, lines="paper"))
     assert "no analysis" in check_target(ws, jobs.TrainRequest("style", "Normal", 10, lines="analysis"))
+
+
+def test_the_form_offers_the_trainers_default_learner_first():
+    """The Training form's learners follow `train`: 'auto' first on the decisions reward, only the DQN
+    for the paper's formulations (which the trees cannot fit, so `train` would refuse them)."""
+    from dashboard.training import learners
+
+    assert learners("decisions", "analysis") == ["auto", "dqn", "trees"]
+    assert learners("timing", "paper") == ["dqn"]
+    assert learners("paper", "analysis") == ["dqn"]

@@ -148,3 +148,24 @@ def test_auto_chooses_a_learner_per_fold_and_per_run(tmp_path):
     bad = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--learner", "auto", "--reward", "timing",
                                    "-w", str(tmp_path)])
     assert bad.exit_code == 1 and "decisions reward" in bad.output
+
+
+def test_the_default_learner_is_auto_for_one_target_and_the_dqn_otherwise(tmp_path):
+    """Without --learner, one style on the decisions reward takes `auto`; the paper's formulation
+    (which the trees cannot fit) and fleets take the DQN instead of refusing."""
+    from rl.settings import default_learner
+
+    assert default_learner("decisions", "recorded") == "auto"
+    assert default_learner("decisions", "recorded", fleet=True) == "dqn"
+    assert default_learner("timing", "synthetic") == "dqn"
+    analysed_workspace(tmp_path)
+    plain = CliRunner().invoke(app, ["train", "--style", "Normal", "--episodes", "200", "--run-id", "d1",
+                                     "-w", str(tmp_path), "--json", *FAST_CLI])
+    assert plain.exit_code == 0, plain.output
+    config = json.loads((tmp_path / "runs" / "d1" / "config.json").read_text())
+    assert config["learner_choice"]["learner"] == config["learner"]  # chosen across the inner folds
+    paper = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--episodes", "20",
+                                     "--run-id", "p1", "-w", str(tmp_path), "--json", *FAST_CLI])
+    assert paper.exit_code == 0, paper.output
+    config = json.loads((tmp_path / "runs" / "p1" / "config.json").read_text())
+    assert config.get("learner", "dqn") == "dqn" and "learner_choice" not in config
