@@ -38,9 +38,7 @@ LearnerOpt = Annotated[Optional[str], typer.Option(
 
 
 def learner_settings(learner: str, dqn: DQNSettings) -> DQNSettings | TreeQSettings | AutoSettings:
-    """`dqn`, the tree learner's settings, or both to choose from, with `dqn`'s seed (`--learner`)."""
-    if learner not in LEARNERS:
-        raise UserError(f"unknown --learner {learner!r}: choose one of {', '.join(LEARNERS)}")
+    """`dqn`, the tree learner's settings, or both to choose from, with `dqn`'s seed (a `resolve_learner` name)."""
     if learner == "dqn":
         return dqn
     trees = TreeQSettings(seed=dqn.seed)

@@ -150,12 +150,11 @@ def observation(scene: Scene, cfg: EnvConfig) -> np.ndarray:
 
 def formulation_config(lines: ReferenceLines, reward: str | None = None, scenes: str | None = None,
                        observation: str | None = None, lines_source: str = "analysis",
-                       other_side: bool | None = None, learner: str = "dqn") -> EnvConfig:
+                       other_side: bool | None = None) -> EnvConfig:
     """An `EnvConfig` for `lines`, the unnamed settings filled by `rl.settings.resolve_formulation`
-    (`other_side` None: `EnvConfig`'s default). `learner` 'trees' fits the `decisions` reward
-    with its own press scale (`rl.settings.TREES_PRESS_SCALE_S`)."""
+    (`other_side` None: `EnvConfig`'s default), as the DQN fits it (`learner_env` for the trees')."""
     name, scn, obs = resolve_formulation(reward, scenes, observation, lines_source)
-    cfg = learner_env(EnvConfig(lines=lines, reward=RewardSettings(name=name), scenes=scn, observation=obs), learner)
+    cfg = EnvConfig(lines=lines, reward=RewardSettings(name=name), scenes=scn, observation=obs)
     return cfg if other_side is None else replace(cfg, other_side=other_side)
 
 
