@@ -16,7 +16,7 @@ from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from rl.problem.rewards import REWARDS
 from rl.settings import (DEFAULT_REWARD, LEARNERS, OBSERVATIONS, SCENES, AutoSettings, DQNSettings, TreeQSettings,
-                         default_learner)
+                         default_learner, trees_fit)
 
 RewardOpt = Annotated[Optional[str], typer.Option(
     "--reward", help=f"Reward: {', '.join(REWARDS)} (default {DEFAULT_REWARD}; timing with --lines paper).")]
@@ -55,7 +55,7 @@ def resolve_learner(learner: str | None, env: Any, fleet: bool = False) -> str:
     if learner != "dqn" and fleet:
         raise UserError(f"--learner {learner} fits one style or driver (fleets train DQN agents): "
                         "leave out --drivers/--styles, or use --learner dqn")
-    if learner != "dqn" and (env.reward.name != "decisions" or env.scenes != "recorded"):
+    if learner != "dqn" and not trees_fit(env.reward.name, env.scenes):
         raise UserError(f"--learner {learner} needs the decisions reward on recorded scenes (the trees fit the "
                         f"drivers' recorded presses), not reward {env.reward.name!r} on {env.scenes} scenes: "
                         "leave out --reward/--scenes/--lines paper, or use --learner dqn")

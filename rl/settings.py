@@ -100,11 +100,19 @@ class DQNSettings:
 LEARNERS: tuple[str, ...] = ("auto", "dqn", "trees")
 
 
+def trees_fit(reward: str, scenes: str) -> bool:
+    """Whether the tree learner (alone or in 'auto') can fit this formulation: the `decisions` reward on
+    recorded scenes only (the trees fit the drivers' recorded presses)."""
+    return reward == "decisions" and scenes == "recorded"
+
+
 def default_learner(reward: str, scenes: str, fleet: bool = False) -> str:
-    """The learner a command takes when none is named: 'auto' for one style or driver on the `decisions`
-    reward with recorded scenes (the only formulation the trees fit); the study's DQN for fleets (trained
-    batched) and for every other formulation, the paper's among them."""
-    return "auto" if not fleet and reward == "decisions" and scenes == "recorded" else "dqn"
+    """The learner a command takes when none is named: 'auto' for one style or driver where the trees fit
+    (`trees_fit`); the study's DQN for fleets (trained batched) and every other formulation, the paper's
+    among them."""
+    return "auto" if not fleet and trees_fit(reward, scenes) else "dqn"
+
+
 #: The `decisions` reward's press scale the tree learner fits [s]: a change's reward falls by 1 per
 #: half a second off the press, a sharp reward the trees resolve and the network does not (rl/README.md).
 TREES_PRESS_SCALE_S = 0.5

@@ -29,7 +29,7 @@ from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
 from rl.problem.env import NO_PRESS_S, Approach, EnvConfig, observation
 from rl.problem.rewards import CHANGE, KEEP, press_reward
-from rl.settings import TreeQSettings
+from rl.settings import TreeQSettings, trees_fit
 
 __all__ = ["TreeQNetwork", "fit_tree_q", "fitted_q_data"]
 
@@ -79,7 +79,7 @@ def _predict(model: HistGradientBoostingRegressor, x: np.ndarray) -> np.ndarray:
 def fit_tree_q(approaches: list[Approach], cfg: EnvConfig, settings: TreeQSettings,
                progress: ProgressFn | None = None, label: str = "tree Q") -> "TreeQNetwork":
     """Fitted Q iteration on `approaches` (the `decisions` reward); the Q function as a torch module."""
-    if cfg.reward.name != "decisions" or cfg.scenes != "recorded":
+    if not trees_fit(cfg.reward.name, cfg.scenes):
         raise UserError("the tree learner fits the 'decisions' reward on recorded scenes: "
                         "leave out --reward/--scenes or use --learner dqn")
     d = fitted_q_data(approaches, cfg)

@@ -309,3 +309,15 @@ def test_a_tree_run_from_the_form_trains_and_shows(sample_ws, tmp_path, monkeypa
     results = run_page("results")
     assert not results.exception, [e.value for e in results.exception]
     assert run_id in results.selectbox(key="result_run").options
+
+
+def test_the_learner_follows_the_reward_on_the_training_form(sample_ws, monkeypatch):
+    """'auto' is the form's default learner on the decisions reward; a reward the trees cannot fit
+    leaves only the DQN, even after the trees were picked, without an error on the page."""
+    monkeypatch.setenv("LANEPRINT_WORKSPACE", str(sample_ws.root))
+    at = run_page("training")
+    assert at.selectbox(key="learner").value == "auto"
+    at.selectbox(key="learner").set_value("trees").run()
+    at.selectbox(key="reward").set_value("timing").run()
+    assert not at.exception
+    assert at.selectbox(key="learner").options == ["dqn"] and at.selectbox(key="learner").value == "dqn"
