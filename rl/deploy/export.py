@@ -139,7 +139,7 @@ HELD_BACK_HOW = (
     "below gap_nf's floor or closing on the target lane's leader with a time to collision below "
     "t_nf_floor_s, or, with a follower within far_follower_m, a lag gap below gap_nb's floor, its "
     "time headway below thw_nb's floor or dv_nb (v_e - v_nb) below dv_nb_floor_mps (the smallest the target "
-    "took: 5th percentile of its presses; null: no floor). And no change at all sooner after the ego's last "
+    "took: 5th percentile of its presses; null: no floor). Where lag_draws has a list for a side, draw one value of it at random at each of the ego's lane changes (and at the start); until the next one, the policy's own change to that side in front of a follower within far_follower_m needs that follower's time headway at least the value drawn (the headways at which the target's drivers pressed to that side). And no change at all sooner after the ego's last "
     "lane change (the moment it crossed into its lane) than dwell_s says for that pair of sides "
     "('left>right': a change to the right after one to the left; a pair missing: no wait): the policy decides "
     "state by state without memory, the drivers do not press again at once. The policy's own change is taken "
@@ -168,7 +168,7 @@ def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig,
     if drivers:
         rule = rule.with_pace(pace_threshold(workspace, drivers, net, cfg))
     return {"available": True, "how": HELD_BACK_HOW, "units": {"patience_s": "s", "slower_mps": "m/s",
-            "gap_nf": "m", "gap_nb": "m", "thw_nb": "s", "far_follower_m": "m", "t_nf_floor_s": "s", "dv_nb_floor_mps": "m/s", "dwell_s": "s",
+            "gap_nf": "m", "gap_nb": "m", "thw_nb": "s", "far_follower_m": "m", "t_nf_floor_s": "s", "dv_nb_floor_mps": "m/s", "dwell_s": "s", "lag_draws": "s",
             "min_advantage": "Q units", "v_lo": "m/s", "v_hi": "m/s"},
             "desired_speed": "the driver's set speed; `laneprint drive` uses the section's limit x the ego "
                              "vType's SUMO speedFactor", "range_m": cfg.range_m, **rule.to_dict()}

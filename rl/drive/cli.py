@@ -65,6 +65,12 @@ def drive_command(
              "dwell calibrated'). Default: on when the drive is in its drivers' own traffic (the family and "
              "lanes of their laneprint SUMO study) and neither --dwell-draw nor --no-dwell is given; off "
              "elsewhere (no drivers there to calibrate against).")] = None,
+    lag_draw: Annotated[bool, typer.Option(
+        "--lag-draw/--no-lag-draw",
+        help="With the held-back rule: at each lane change draw, per side, a follower time headway from the "
+             "target's drivers' presses to that side with a follower near; the agent's own change there needs "
+             "at least that (default on; README, 'The follower's headway drawn'). --no-lag-draw: only the "
+             "floors.")] = True,
     pace: Annotated[bool, typer.Option(
         "--pace/--no-pace",
         help="With the held-back rule: the agent's own change needs the advantage at which, replayed along its "
@@ -102,7 +108,7 @@ def drive_command(
                              sumo_model=sumo_model, dwell=dwell,
                              dwell_percentile=dwell_percentile, family=family, pace=pace, pace_by=pace_by,
                              undo_check=undo_check, dwell_draw=dwell_draw, dwell_calibrated=dwell_calibrated,
-                             progress=bar)
+                             lag_draw=lag_draw, progress=bar)
 
     run_command(work, as_json, render)
 
@@ -217,6 +223,7 @@ def render(result: dict[str, Any], console: Console) -> None:
         console.print(f"of the rule's {tot['rule_changes']} changes, {tot['return_changes']} completed an overtaking; "
                       f"agent's changes not requested: {fo.get('vetoed', 0)} decision steps back behind the leader "
                       f"an overtaking left, {fo.get('gated', 0)} into a gap below the target's floors, "
+                      f"{fo.get('lagged', 0)} in front of a follower closer than the headway drawn, "
                       f"{fo.get('undone', 0)} to the left with no leader that it would at once undo",
                       highlight=False, soft_wrap=True)
     else:

@@ -38,6 +38,19 @@ SUMO, returned right with a lead gap of about 1 m, t_nf 0.9 s, and collided; the
 a lead gap above its floor but t_nf 0.8 s, closing at 13 m/s). The time to collision with the
 target lane's leader has a floor too (`t_nf_floor_s`, the 5th percentile of t_nf at the presses).
 
+Above the floor, the agent's own change in front of a near follower needs that follower's **time
+headway drawn from its drivers'** (`lag_draws`, `lag_accepted`; `drive --no-lag-draw`: the floors
+only). At each lane change the ego draws, per side, one of the headways (thw_nb) at which the
+target's drivers pressed to that side with a follower within `far_follower_m`; until the next change
+its own changes to that side wait for at least that. Why: the agent decides state by state and, asked
+every 0.5 s, changes at the first state that reads as a press, near the low end of the drivers'
+spread. Returning right past an overtaken car, the follower's headway only grows, so on study 723
+the Defensive agent returned at a median 0.81 s where its drivers returned at 2.45 s (their IQR
+1.02-3.77; replayed along its own training approaches it changed a median 3 s before the drivers'
+returns). A driver's critical gap is itself a draw (traffic engineering's gap acceptance); with one
+drawn per lane change, the first headway the agent takes is the draw, and its presses spread as its
+drivers' did.
+
 And with no leader within range, a change of the agent's **to the left is requested only if the
 agent would not undo it** at once (`undo_check`; `rl.drive.loop.AgentControl.would_undo`): put in
 the target lane as the traffic is, and asked about the lane it would leave, it must not want back
@@ -119,6 +132,10 @@ class HeldBackRule:
     # of `dwell_s`: the drivers' own times from a change to the next press (`drive --dwell-draw`) or the
     # closed-loop calibration's dwells (`drive --dwell-calibrated`, `rl.drive.calibrate`)
     dwell_draws: dict[str, list[float]] = field(default_factory=dict)
+    # 'left'/'right': the drivers' follower time headways (thw_nb) at their presses to that side with a
+    # follower within far_follower_m; the agent's own change to a side needs a follower headway at least
+    # the one drawn for that side at the ego's last lane change (`draw_lag`, `lag_accepted`)
+    lag_draws: dict[str, list[float]] = field(default_factory=dict)
 
     def dwell_ok(self, last_side: Optional[str], since_s: float, side: str,
                  drawn: Optional[dict[str, float]] = None) -> bool:
@@ -134,6 +151,11 @@ class HeldBackRule:
         `dwell_draws` (empty when there are none)."""
         return {k: float(rng.choice(v)) for k, v in sorted(self.dwell_draws.items())
                 if k.startswith(f"{last_side}>")}
+
+    def draw_lag(self, rng: np.random.Generator) -> dict[str, float]:
+        """One follower headway [s] per side that the agent's own changes to it need until the next lane
+        change, each drawn from that side's `lag_draws` (empty when there are none)."""
+        return {k: float(rng.choice(v)) for k, v in sorted(self.lag_draws.items()) if v}
 
     def needs(self, side: str) -> float:
         """The advantage the agent's own change to `side` ('left' or 'right') needs (its drivers' pace)."""
@@ -191,6 +213,14 @@ def above_floors(rule: HeldBackRule, scene: Scene, range_m: float) -> np.ndarray
     thw_ok = ~np.isfinite(g["thw_nb"]) | (g["thw_nb"] >= rule.thw_nb.floor)
     dv_ok = ~ind.dv_nb_ok | (ind.dv_nb >= rule.dv_nb_floor_mps)
     return lead_ok & (~near | ((g["gap_nb"] >= rule.gap_nb.floor) & thw_ok & dv_ok))
+
+
+def lag_accepted(rule: HeldBackRule, scene: Scene, range_m: float, headway_s: float) -> np.ndarray:
+    """Whether each scene's target lane has no follower within `rule.far_follower_m`, or one whose time
+    headway to the ego (thw_nb) is at least `headway_s` (a stopped follower's is not defined: accepted)."""
+    g = target_gaps(scene, range_m)
+    near = np.isfinite(g["gap_nb"]) & (g["gap_nb"] <= rule.far_follower_m)
+    return ~near | (np.nan_to_num(g["thw_nb"], nan=np.inf) >= headway_s)
 
 
 def faster(rule: HeldBackRule, scene: Scene, range_m: float) -> np.ndarray:
@@ -293,6 +323,23 @@ DWELL_PERCENTILE = FLOOR_PERCENTILE
 MIN_DWELL_PAIRS = 5  # consecutive lane changes of a kind needed to read a dwell from the data
 
 
+MIN_LAG_PRESSES = 10  # presses to a side with a near follower needed to draw that side's headways alone
+
+
+def lag_headways(decisions: pd.DataFrame, far_follower_m: float = FAR_FOLLOWER_M) -> dict[str, list[float]]:
+    """Per side ('left'/'right'), the follower time headways thw_nb [s] at the drivers' presses to that
+    side with a follower within `far_follower_m`; a side with fewer than `MIN_LAG_PRESSES` takes both
+    sides' together, and with fewer than that in all there are none."""
+    p = decisions[(decisions["label"] == "change") & decisions["lc_direction"].isin(["left", "right"])]
+    p = p[(p["nb_gap_m"] <= far_follower_m) & np.isfinite(p["thw_nb_s"].astype(float))]
+    if len(p) < MIN_LAG_PRESSES:
+        return {}
+    pooled = sorted(p["thw_nb_s"].astype(float).tolist())
+    by_side = {side: sorted(g["thw_nb_s"].astype(float).tolist()) for side, g in p.groupby("lc_direction")}
+    return {side: (by_side[side] if len(by_side.get(side, [])) >= MIN_LAG_PRESSES else pooled)
+            for side in ("left", "right")}
+
+
 def dwell_times(decisions: pd.DataFrame) -> dict[str, list[float]]:
     """Per kind of consecutive presses ('left>right' etc.), the drivers' times [s] from a lane change to
     the next press in the same recording."""
@@ -380,10 +427,13 @@ def patience_from(decisions: pd.DataFrame, step_s: float = 0.5) -> tuple[float, 
 
 
 def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5,
-                       dwell_percentile: float = DWELL_PERCENTILE, dwell_draw: bool = False) -> HeldBackRule:
+                       dwell_percentile: float = DWELL_PERCENTILE, dwell_draw: bool = False,
+                       lag_draw: bool = True) -> HeldBackRule:
     """The rule of a run's target from the workspace's analysis (`ValueError` when the analysis lacks
     the acceptance lines: analyse again with a current laneprint); its dwell at `dwell_percentile`, or
-    with `dwell_draw` drawn at each change from the drivers' own times (`HeldBackRule.dwell_draws`)."""
+    with `dwell_draw` drawn at each change from the drivers' own times (`HeldBackRule.dwell_draws`);
+    with `lag_draw`, the follower headways the agent's own changes need drawn from its drivers' presses
+    (`HeldBackRule.lag_draws`)."""
     lines = workspace.read_table("analysis", "reference_lines")
     if "direction" in lines:
         lines = lines[lines["direction"].astype(str) == "both"]
@@ -419,6 +469,12 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5,
     patience, why = patience_from(mine, step_s)
     dwell, dwell_why = dwell_from(mine, dwell_percentile)
     draws = ({k: v for k, v in dwell_times(mine).items() if len(v) >= MIN_DWELL_PAIRS} if dwell_draw else {})
+    lag = lag_headways(mine) if lag_draw else {}
+    lag_why = ("off (--no-lag-draw)" if not lag_draw else
+               f"drawn at each lane change from the follower headways at {target.label}'s presses with a follower "
+               f"within {FAR_FOLLOWER_M:g} m ({', '.join(f'{k} {len(v)}' for k, v in lag.items())})" if lag else
+               f"none: fewer than {MIN_LAG_PRESSES} presses of {target.label} with a follower within "
+               f"{FAR_FOLLOWER_M:g} m")
     if draws:
         dwell_why = (f"drawn at each lane change from the drivers' times from a change to the next press "
                      f"({', '.join(f'{k} {len(v)}' for k, v in draws.items())}); where none, {dwell_why}")
@@ -429,10 +485,12 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5,
                                                   "dv_nb_floor_mps": f"percentile {FLOOR_PERCENTILE:g} of dv_nb at "
                                                                      f"{len(dv_nb)} presses of {typical}, at most 0",
                                                   "dwell_s": f"{dwell_why}, {target.label}",
+                                                  "lag_draws": lag_why,
                                                   "undo_check": "on: with no leader, no change to the left the agent "
                                                                 "would at once undo (README, 'Driving like its drivers')"}
     return HeldBackRule(patience, got["gap_nf"][0], got["gap_nb"][0], got["thw_nb"][0], t_nf_floor_s=t_nf_floor,
-                        dv_nb_floor_mps=dv_nb_floor, dwell_s=dwell, source=source, dwell_draws=draws)
+                        dv_nb_floor_mps=dv_nb_floor, dwell_s=dwell, source=source, dwell_draws=draws,
+                        lag_draws=lag)
 
 
 # --- measured in the closed loop ---------------------------------------------------------------
@@ -500,7 +558,7 @@ def merge_summaries(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Totals over sections of `FollowStats.summary` rows (longest: the largest; advantages dropped)."""
     out: dict[str, Any] = {k: sum(r.get(k, 0) for r in rows) for k in
                            ("decision_steps", "held_steps", "held_tf_undefined_steps", "held_tf_above_line_steps",
-                            "advantage_held_nonneg", "vetoed", "gated", "dwelled", "undone")}
+                            "advantage_held_nonneg", "vetoed", "gated", "lagged", "dwelled", "undone")}
     out["held_share"] = out["held_steps"] / out["decision_steps"] if out["decision_steps"] else None
     for k in ("longest_held_s", "longest_passed_up_s", "longest_passed_up_faster_s"):
         out[k] = max((r[k] for r in rows), default=0.0)

@@ -56,7 +56,7 @@ from laneprint.simulator.sumo.section import EGO_ID, SectionLog, run_section
 from laneprint.simulator.sumo.settings import SumoSettings
 from laneprint.simulator.sumo.traffic import VehicleState
 from rl.drive.heldback import (FollowStats, HeldBackClock, HeldBackRule, LeftBehind, Line, above_floors, accepts,
-                               faster, held_back, holding_limit, rule_target)
+                               faster, held_back, holding_limit, lag_accepted, rule_target)
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
 from rl.problem.scene import Scene, indicators, seen
@@ -238,6 +238,8 @@ class AgentControl(Watch):
         self.last_change: Optional[tuple[float, str]] = None  # (time, side) the ego last crossed into a lane
         self.dwell_rng = dwell_rng or np.random.default_rng(0)  # the rule's drawn dwells (`dwell_draws`)
         self.drawn: dict[str, float] = {}  # the dwells drawn at the last lane change
+        self.n_lagged = 0  # agent's changes not requested: a follower headway below the one drawn for that side
+        self.lag_drawn = self.rule.draw_lag(self.dwell_rng)  # per side: the headway drawn at the last change
         self._lane_now: Optional[int] = None
 
     def start(self, api: Any) -> None:
@@ -248,6 +250,7 @@ class AgentControl(Watch):
         if self._lane_now is not None and ego.lane != self._lane_now:
             self.last_change = (t, _side(self._lane_now, ego.lane))
             self.drawn = self.rule.draw_dwell(self.last_change[1], self.dwell_rng)
+            self.lag_drawn = self.rule.draw_lag(self.dwell_rng)
         self._lane_now = ego.lane
         seen_now = self.look(t, ego, lateral_m, others)
         if seen_now is None:
@@ -318,7 +321,8 @@ class AgentControl(Watch):
     def assist(self, agent: Optional[int], asked: dict[int, tuple[Scene, dict[str, Any]]], held: bool,
                held_for: float, ego: VehicleState, others: dict[str, VehicleState]) -> tuple[Optional[int], str]:
         """(lane to request or None, who asks): the agent's choice unless it returns behind the leader an
-        overtaking left (vetoed) or takes a gap below the target's floors (gated); else the overtaking's
+        overtaking left (vetoed), takes a gap below the target's floors (gated) or cuts in front of a
+        follower closer in time than the headway drawn for that side at the last change (lagged); else the overtaking's
         return once it is over (that leader passed, or no longer holding the ego back) and the lane left
         holds an accepted gap; else the held-back rule."""
         if not self.use_rule:
@@ -333,6 +337,10 @@ class AgentControl(Watch):
             agent = None
         if agent is not None and not above_floors(self.rule, asked[agent][0], r)[0]:
             self.n_gated += 1
+            agent = None
+        side = None if agent is None else _side(ego.lane, agent)
+        if side in self.lag_drawn and not lag_accepted(self.rule, asked[agent][0], r, self.lag_drawn[side])[0]:
+            self.n_lagged += 1
             agent = None
         if agent is not None:
             return agent, "agent"
@@ -407,6 +415,7 @@ def run_sections(make: ControlFactory, cfg: EnvConfig, ego_params: dict[str, flo
             out.append(SectionDrive(float(limit), log, control.n_asked, decisions,
                                     {**control.stats.summary(), "vetoed": getattr(control, "n_vetoed", 0),
                                      "gated": getattr(control, "n_gated", 0),
+                                     "lagged": getattr(control, "n_lagged", 0),
                                      "dwelled": getattr(control, "n_dwelled", 0),
                                      "undone": getattr(control, "n_undone", 0)}, desired))
     report(progress, len(limits), len(limits), "driven")

@@ -213,23 +213,24 @@ def assigned_style(workspace: Workspace, files: list[Path], driver_id: str) -> d
 
 
 def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig, dwell_percentile: float = DWELL_PERCENTILE,
-                   dwell_draw: bool = False) -> tuple[Optional[HeldBackRule], str]:
+                   dwell_draw: bool = False, lag_draw: bool = True) -> tuple[Optional[HeldBackRule], str]:
     """(the rule of the run's target from the analysis, a note); None with why when the analysis lacks it."""
     try:
-        return (rule_from_analysis(workspace, target, cfg.dt_s, dwell_percentile, dwell_draw),
+        return (rule_from_analysis(workspace, target, cfg.dt_s, dwell_percentile, dwell_draw, lag_draw),
                 "from the workspace's analysis")
     except (ValueError, KeyError, UserError, FileNotFoundError) as exc:
         return None, f"no held-back rule: {exc}"
 
 
 def calibrated(workspace: Workspace, run_id: str, target: Target, family: str, lanes: int, minutes: float,
-               pace: bool, pace_by: str, undo_check: bool, progress: Optional[ProgressFn]) -> dict[str, Any]:
+               pace: bool, pace_by: str, undo_check: bool, lag_draw: bool,
+               progress: Optional[ProgressFn]) -> dict[str, Any]:
     """The run's closed-loop dwell calibration for this traffic and these settings (`rl.drive.calibrate`),
     made when missing by drives with the default dwell on the calibration seeds."""
     from rl.drive.calibrate import calibrate_dwell, load_calibration
 
     setting = {"family": family, "lanes": lanes, "minutes": minutes, "pace": pace, "pace_by": pace_by,
-               "undo_check": undo_check}
+               "undo_check": undo_check, "lag_draw": lag_draw}
     stored = load_calibration(workspace, run_id, setting)
     if stored is not None:
         return stored
@@ -237,7 +238,7 @@ def calibrated(workspace: Workspace, run_id: str, target: Target, family: str, l
     def drive(seed: int, out: Path) -> list[str]:
         return drive_run(workspace, run_id, minutes=minutes, seed=seed, out=out, lanes=lanes, family=family,
                          sumo_model=False, pace=pace, pace_by=pace_by, undo_check=undo_check,
-                         dwell_calibrated=False, progress=progress)["files"]
+                         dwell_calibrated=False, lag_draw=lag_draw, progress=progress)["files"]
 
     return calibrate_dwell(workspace, run_id, target, drive, setting)
 
@@ -300,7 +301,8 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
               held_back: bool = True, sumo_model: bool = True, dwell: bool = True,
               dwell_percentile: float = DWELL_PERCENTILE, family: Optional[str] = None,
               pace: bool = True, pace_by: str = "pooled", undo_check: bool = True, dwell_draw: bool = False,
-              dwell_calibrated: Optional[bool] = None, progress: Optional[ProgressFn] = None) -> dict[str, Any]:
+              dwell_calibrated: Optional[bool] = None, lag_draw: bool = True,
+              progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
 
     `family`: the SUMO study family whose traffic and style vTypes the drive uses
@@ -320,7 +322,9 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     `seed` and the section) instead of their `dwell_percentile`; `dwell_calibrated`: drawn from the run's
     closed-loop calibration in this traffic (`rl.drive.calibrate`; made first when the run has none), never
     under the percentile; None (the default): calibrated when the drive is in its drivers' own traffic (the
-    family and lanes of their study) with the rule's dwell on and not drawn, else the percentile."""
+    family and lanes of their study) with the rule's dwell on and not drawn, else the percentile. `lag_draw`:
+    the agent's own change to a side needs a follower headway drawn at each lane change from its drivers'
+    presses to that side (`HeldBackRule.lag_draws`); False: only the floors."""
     from laneprint.simulator.sumo.backend import check_available
     from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, FAMILIES, LANES, family_settings
     from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS
@@ -359,13 +363,13 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     check_available()
     style, why = ego_style(workspace, target)
     settings = family_settings(family, lanes, speed_limits_kph=limits, minutes=minutes)
-    rule, rule_note = held_back_rule(workspace, target, cfg, dwell_percentile, dwell_draw)
+    rule, rule_note = held_back_rule(workspace, target, cfg, dwell_percentile, dwell_draw, lag_draw)
     if rule is not None and not dwell:
         rule = replace(rule, dwell_s={}, dwell_draws={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
     calibration = None
     if rule is not None and dwell_calibrated:
         calibration = calibrated(workspace, run_id, target, family, lanes, minutes, pace, pace_by, undo_check,
-                                 progress)
+                                 lag_draw, progress)
         rule = replace(rule, dwell_draws={k: [max(x, rule.dwell_s.get(k, 0.0)) for x in v]
                                           for k, v in calibration["draws"].items()},
                        source={**rule.source,

@@ -10,9 +10,9 @@ import pandas as pd
 import pytest
 
 from laneprint.simulator.sumo.traffic import VehicleState
-from rl.drive.heldback import (DEFAULT_PATIENCE_S, FollowStats, HeldBackRule, LeftBehind, Line, above_floors,
-                               accepts, dwell_from, dwell_times, following_before_press, patience_from,
-                               rule_target)
+from rl.drive.heldback import (DEFAULT_PATIENCE_S, MIN_LAG_PRESSES, FollowStats, HeldBackRule, LeftBehind, Line,
+                               above_floors, accepts, dwell_from, dwell_times, following_before_press, lag_headways,
+                               patience_from, rule_target)
 from rl.drive.loop import AgentControl, Watch, live_scene
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
@@ -489,3 +489,39 @@ def test_no_change_to_the_left_that_the_agent_would_at_once_undo():
                          {k: VehicleState(s.x + 2.5 * i, s.v, s.lane, s.length) for k, s in others.items()})
         assert [lane for _, lane, _ in api.vehicle.requests] == requested
         assert (control.n_undone > 0) == (not others)
+
+
+def test_follower_headways_are_read_per_side_from_presses_with_a_near_follower():
+    def presses(side: str, n: int, thw: float, gap: float = 30.0) -> list[dict]:
+        return [{"label": "change", "lc_direction": side, "nb_gap_m": gap, "thw_nb_s": thw + 0.1 * i}
+                for i in range(n)]
+
+    rows = presses("right", 12, 1.0) + presses("left", 3, 4.0) + presses("left", 5, 9.0, gap=150.0)
+    rows += [{"label": "keep", "lc_direction": "left", "nb_gap_m": 10.0, "thw_nb_s": 0.2}]
+    lag = lag_headways(pd.DataFrame(rows))
+    assert lag["right"] == pytest.approx([1.0 + 0.1 * i for i in range(12)])
+    # three near presses to the left are too few: that side draws from both sides'; far followers never count
+    assert lag["left"] == pytest.approx(sorted(lag["right"] + [4.0, 4.1, 4.2]))
+    assert lag_headways(pd.DataFrame(presses("right", MIN_LAG_PRESSES - 1, 1.0))) == {}
+
+
+def test_the_agent_does_not_cut_in_front_of_a_follower_closer_than_the_headway_drawn():
+    def always(scene) -> np.ndarray:
+        q = np.zeros((len(scene), 2))
+        q[:, CHANGE] = 0.5
+        return q
+
+    rule = HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), undo_check=False,
+                        lag_draws={"left": [2.0]})
+    ego = VehicleState(100.0, 20.0, 0, 4.5)
+    # a follower in the left lane at the ego's speed: 15.5 m (0.78 s) behind, then 55.5 m (2.78 s)
+    for follower, requested in ((VehicleState(80.0, 20.0, 1, 4.5), 0), (VehicleState(40.0, 20.0, 1, 4.5), 1)):
+        for use_lag in (True, False):
+            control = AgentControl(always, EnvConfig(), 0.1, 2, rule if use_lag else replace(rule, lag_draws={}),
+                                   DESIRED, True)
+            api = _Api()
+            for i in range(5):
+                control.step(api, 0.1 * i, ego, 0.0, {"nb": follower})
+            assert control.lag_drawn == ({"left": 2.0} if use_lag else {})
+            assert len(api.vehicle.requests) == (requested if use_lag else 1)  # only the floors without draws
+            assert control.n_lagged == (1 - requested if use_lag else 0)
