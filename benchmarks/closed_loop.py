@@ -154,12 +154,14 @@ def shipped_workspace(args: argparse.Namespace) -> Path:
 
 def dwell_option(args: argparse.Namespace) -> list[str]:
     """`--dwell-percentile P` for `laneprint drive` when one was given (else drive's default), and
-    `--dwell-draw`, `--dwell-calibrated`, `--no-dwell-calibrated` or `--no-lag-draw` when asked."""
+    `--dwell-draw`, `--dwell-calibrated`, `--no-dwell-calibrated`, `--lag-draw` or `--no-lag-calibrated` when
+    asked."""
     return (([] if args.dwell_percentile is None else ["--dwell-percentile", f"{args.dwell_percentile:g}"])
             + (["--dwell-draw"] if args.dwell_draw else [])
             + (["--dwell-calibrated"] if args.dwell_calibrated else [])
             + (["--no-dwell-calibrated"] if args.no_dwell_calibrated else [])
-            + (["--no-lag-draw"] if args.no_lag_draw else []))
+            + (["--lag-draw"] if args.lag_draw else [])
+            + (["--no-lag-calibrated"] if args.no_lag_calibrated else []))
 
 
 def drive_once(ws: Path, run_id: str, out: Path, lanes: int, seed: int, minutes: float, *extra: str) -> dict:
@@ -194,7 +196,7 @@ def out_of_world(args: argparse.Namespace) -> bool:
                 tag = f"{run_id}-l{lanes}-d{seed}-m{args.minutes:g}"
                 assist = ("-pace-by-side" if args.pace_by == "side" else "") + (
                     "" if args.dwell_percentile is None else f"-dwell{args.dwell_percentile:g}") + (
-                    "-dwell-draw" if args.dwell_draw else "") + ("-no-lag-draw" if args.no_lag_draw else "")
+                    "-dwell-draw" if args.dwell_draw else "") + ("-lag-draw" if args.lag_draw else "")
                 d = drive_once(ws, run_id, args.workdir / f"{tag}{assist}", lanes, seed, args.minutes,
                                "--pace-by", args.pace_by, *dwell_option(args))
                 pure = drive_once(ws, run_id, args.workdir / f"{tag}-pure", lanes, seed, args.minutes,
@@ -265,9 +267,12 @@ def main() -> None:
     ap.add_argument("--no-dwell-calibrated", action="store_true",
                     help="the dwell not calibrated: the drivers' percentile (drive --no-dwell-calibrated; before "
                          "2026-12-04 the default)")
-    ap.add_argument("--no-lag-draw", action="store_true",
-                    help="the agent's changes held only by the floors, no follower headway drawn from its drivers' "
-                         "(drive --no-lag-draw; before 2026-12-05 (third session) the default)")
+    ap.add_argument("--lag-draw", action="store_true",
+                    help="the follower headway the agent's own changes need drawn from its drivers' presses (drive "
+                         "--lag-draw)")
+    ap.add_argument("--no-lag-calibrated", action="store_true",
+                    help="default mode: the floors alone, no follower headway calibrated in closed loop (drive "
+                         "--no-lag-calibrated; before 2026-12-05 (third session) the default)")
     ap.add_argument("--no-undo-check", action="store_true",
                     help="default mode: drive without the undo check (drive --no-undo-check)")
     ap.add_argument("--out-of-world", action="store_true",
@@ -359,7 +364,7 @@ def closed_loop(args: argparse.Namespace) -> bool:
           f"pace {'off' if args.no_pace else 'on, ' + args.pace_by}, dwell: "
           f"{more['Normal'][0]['dwell']}, "
           f"undo check {'off' if args.no_undo_check else 'on'}, "
-          f"follower headway {'floors only' if args.no_lag_draw else 'drawn'}, "
+          f"follower's headway: {more['Normal'][0]['lag']}, "
           f"{args.minutes:g} min per section, 4 sections, {time.monotonic() - t0:.0f} s in all)")
     print("| style | lane changes (L/R) | per km [95 %] | drivers per km [95 %] (range) | ratio | left share: "
           "agent / drivers | medians in drivers' IQR | collisions | emergency brakes | assigned style |"

@@ -66,11 +66,15 @@ def drive_command(
              "lanes of their laneprint SUMO study) and neither --dwell-draw nor --no-dwell is given; off "
              "elsewhere (no drivers there to calibrate against).")] = None,
     lag_draw: Annotated[bool, typer.Option(
-        "--lag-draw/--no-lag-draw",
+        "--lag-draw",
         help="With the held-back rule: at each lane change draw, per side, a follower time headway from the "
-             "target's drivers' presses to that side with a follower near; the agent's own change there needs "
-             "at least that (default on; README, 'The follower's headway drawn'). --no-lag-draw: only the "
-             "floors.")] = True,
+             "target's drivers' presses to that side with a follower within 100 m; the agent's own change there "
+             "needs at least that (README, 'The follower's headway calibrated').")] = False,
+    lag_calibrated: Annotated[Optional[bool], typer.Option(
+        "--lag-calibrated/--no-lag-calibrated",
+        help="Draw that headway from the run's closed-loop calibration in this traffic (the dwell's drives): "
+             "the draw that makes the agent's headways at its own changes like its drivers' at their presses. "
+             "Default: on in its drivers' own traffic unless --lag-draw; elsewhere the floors alone.")] = None,
     pace: Annotated[bool, typer.Option(
         "--pace/--no-pace",
         help="With the held-back rule: the agent's own change needs the advantage at which, replayed along its "
@@ -108,7 +112,7 @@ def drive_command(
                              sumo_model=sumo_model, dwell=dwell,
                              dwell_percentile=dwell_percentile, family=family, pace=pace, pace_by=pace_by,
                              undo_check=undo_check, dwell_draw=dwell_draw, dwell_calibrated=dwell_calibrated,
-                             lag_draw=lag_draw, progress=bar)
+                             lag_draw=lag_draw, lag_calibrated=lag_calibrated, progress=bar)
 
     run_command(work, as_json, render)
 
@@ -218,6 +222,8 @@ def render(result: dict[str, Any], console: Console) -> None:
         dwell = ", ".join(f"{k} {v:.1f} s" for k, v in rule.get("dwell_s", {}).items()) or "none"
         console.print(f"dwell after a lane change: {result.get('dwell', '')}; floor {dwell}; "
                       f"decision steps with a side held by it: {result['totals']['follow'].get('dwelled', 0)}",
+                      highlight=False, soft_wrap=True)
+        console.print(f"follower's headway the agent's own changes need: {result.get('lag', '')}",
                       highlight=False, soft_wrap=True)
         tot, fo = result["totals"], result["totals"]["follow"]
         console.print(f"of the rule's {tot['rule_changes']} changes, {tot['return_changes']} completed an overtaking; "

@@ -38,18 +38,17 @@ SUMO, returned right with a lead gap of about 1 m, t_nf 0.9 s, and collided; the
 a lead gap above its floor but t_nf 0.8 s, closing at 13 m/s). The time to collision with the
 target lane's leader has a floor too (`t_nf_floor_s`, the 5th percentile of t_nf at the presses).
 
-Above the floor, the agent's own change in front of a near follower needs that follower's **time
-headway drawn from its drivers'** (`lag_draws`, `lag_accepted`; `drive --no-lag-draw`: the floors
-only). At each lane change the ego draws, per side, one of the headways (thw_nb) at which the
-target's drivers pressed to that side with a follower within `far_follower_m`; until the next change
-its own changes to that side wait for at least that. Why: the agent decides state by state and, asked
-every 0.5 s, changes at the first state that reads as a press, near the low end of the drivers'
-spread. Returning right past an overtaken car, the follower's headway only grows, so on study 723
-the Defensive agent returned at a median 0.81 s where its drivers returned at 2.45 s (their IQR
-1.02-3.77; replayed along its own training approaches it changed a median 3 s before the drivers'
-returns). A driver's critical gap is itself a draw (traffic engineering's gap acceptance); with one
-drawn per lane change, the first headway the agent takes is the draw, and its presses spread as its
-drivers' did.
+Above the floor, the agent's own change in front of a near follower can need that follower's **time
+headway drawn** at each lane change, per side (`lag_draws`, `lag_accepted`): until the next change its
+own changes to that side wait for at least the headway drawn. Why: the agent decides state by state
+and, asked every 0.5 s, changes at the first state that reads as a press, near the low end of its
+drivers' spread. Returning right past an overtaken car the follower's headway only grows, so on study
+723 the Defensive agent returned at a median 0.81 s where its drivers returned at 2.45 s (their IQR
+1.02-3.77; replayed along its own training approaches it changed a median 3 s before its drivers'
+returns). A driver's critical gap is itself a draw (traffic engineering's gap acceptance). In its
+drivers' own traffic the draws are calibrated in closed loop (`rl.drive.calibrate`, the default there);
+`drive --lag-draw` draws from the headways at which the target's drivers pressed to that side with a
+follower within `far_follower_m` (`lag_headways`); elsewhere the floors alone hold it.
 
 And with no leader within range, a change of the agent's **to the left is requested only if the
 agent would not undo it** at once (`undo_check`; `rl.drive.loop.AgentControl.would_undo`): put in
@@ -428,7 +427,7 @@ def patience_from(decisions: pd.DataFrame, step_s: float = 0.5) -> tuple[float, 
 
 def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5,
                        dwell_percentile: float = DWELL_PERCENTILE, dwell_draw: bool = False,
-                       lag_draw: bool = True) -> HeldBackRule:
+                       lag_draw: bool = False) -> HeldBackRule:
     """The rule of a run's target from the workspace's analysis (`ValueError` when the analysis lacks
     the acceptance lines: analyse again with a current laneprint); its dwell at `dwell_percentile`, or
     with `dwell_draw` drawn at each change from the drivers' own times (`HeldBackRule.dwell_draws`);
@@ -470,7 +469,7 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5,
     dwell, dwell_why = dwell_from(mine, dwell_percentile)
     draws = ({k: v for k, v in dwell_times(mine).items() if len(v) >= MIN_DWELL_PAIRS} if dwell_draw else {})
     lag = lag_headways(mine) if lag_draw else {}
-    lag_why = ("off (--no-lag-draw)" if not lag_draw else
+    lag_why = ("the floors alone" if not lag_draw else
                f"drawn at each lane change from the follower headways at {target.label}'s presses with a follower "
                f"within {FAR_FOLLOWER_M:g} m ({', '.join(f'{k} {len(v)}' for k, v in lag.items())})" if lag else
                f"none: fewer than {MIN_LAG_PRESSES} presses of {target.label} with a follower within "

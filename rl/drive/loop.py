@@ -59,7 +59,7 @@ from rl.drive.heldback import (FollowStats, HeldBackClock, HeldBackRule, LeftBeh
                                faster, held_back, holding_limit, lag_accepted, rule_target)
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
-from rl.problem.scene import Scene, indicators, seen
+from rl.problem.scene import Scene, gaps, indicators, seen
 
 #: setLaneChangeMode bits: 0-7 = 0 (no change of the ego's own), 8-9 = 01 (a TraCI request
 #: is carried out unless it collides at once; others' braking is the agent's responsibility)
@@ -160,6 +160,7 @@ class Decision:
     source: str = "agent"  # who asked: 'agent'; 'rule' (held back), 'return' (an overtaking completed)
     too_soon: list[str] = field(default_factory=list)  # sides not asked about: too soon after the last change
     undone: list[str] = field(default_factory=list)  # sides the agent wanted but would at once undo (left only)
+    thw_nb_s: Optional[float] = None  # the target lane's follower's time headway [s], when within far_follower_m
 
 
 class Watch:
@@ -287,7 +288,8 @@ class AgentControl(Watch):
                                        _defined(ind.t_nf, ind.t_nf_ok), _defined(ind.dv_nb, ind.dv_nb_ok), ids,
                                        advantages={_side(ego.lane, k): float(a) for k, a in all_adv.items()},
                                        source=source, too_soon=[_side(ego.lane, k) for k in all_adv if k not in adv],
-                                       undone=[_side(ego.lane, k) for k in adv if k not in wanted]))
+                                       undone=[_side(ego.lane, k) for k in adv if k not in wanted],
+                                       thw_nb_s=follower_headway(scene, self.cfg.far_follower_m, self.cfg.range_m)))
         if self.use_rule and target > ego.lane and ids.get("f") is not None:
             self.overtakings.append(LeftBehind(ego.lane, str(ids["f"])))  # followed until complete
         api.vehicle.changeLane(EGO_ID, target, self.cfg.dt_s)
@@ -351,6 +353,14 @@ class AgentControl(Watch):
         if held:
             return rule_target(self.rule, {k: sc for k, (sc, _) in asked.items()}, held_for, r), "rule"
         return None, "agent"
+
+
+def follower_headway(scene: Scene, far_follower_m: float, range_m: float) -> Optional[float]:
+    """The time headway [s] of the first scene's target-lane follower, None when there is none within
+    `far_follower_m` (or it is stopped)."""
+    g = gaps(scene, range_m)
+    near = np.isfinite(g["gap_nb"][0]) and g["gap_nb"][0] <= far_follower_m
+    return float(g["thw_nb"][0]) if near and np.isfinite(g["thw_nb"][0]) else None
 
 
 def _defined(x: np.ndarray, ok: np.ndarray) -> Optional[float]:

@@ -213,7 +213,7 @@ def assigned_style(workspace: Workspace, files: list[Path], driver_id: str) -> d
 
 
 def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig, dwell_percentile: float = DWELL_PERCENTILE,
-                   dwell_draw: bool = False, lag_draw: bool = True) -> tuple[Optional[HeldBackRule], str]:
+                   dwell_draw: bool = False, lag_draw: bool = False) -> tuple[Optional[HeldBackRule], str]:
     """(the rule of the run's target from the analysis, a note); None with why when the analysis lacks it."""
     try:
         return (rule_from_analysis(workspace, target, cfg.dt_s, dwell_percentile, dwell_draw, lag_draw),
@@ -223,24 +223,24 @@ def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig, dwell_p
 
 
 def calibrated(workspace: Workspace, run_id: str, target: Target, family: str, lanes: int, minutes: float,
-               pace: bool, pace_by: str, undo_check: bool, lag_draw: bool,
-               progress: Optional[ProgressFn]) -> dict[str, Any]:
-    """The run's closed-loop dwell calibration for this traffic and these settings (`rl.drive.calibrate`),
-    made when missing by drives with the default dwell on the calibration seeds."""
-    from rl.drive.calibrate import calibrate_dwell, load_calibration
+               pace: bool, pace_by: str, undo_check: bool, progress: Optional[ProgressFn]) -> dict[str, Any]:
+    """The run's closed-loop calibration of the dwell and the follower's headway for this traffic and these
+    settings (`rl.drive.calibrate`), made when missing by drives with the default dwell and the floors alone
+    on the calibration seeds."""
+    from rl.drive.calibrate import calibrate, load_calibration
 
     setting = {"family": family, "lanes": lanes, "minutes": minutes, "pace": pace, "pace_by": pace_by,
-               "undo_check": undo_check, "lag_draw": lag_draw}
+               "undo_check": undo_check}
     stored = load_calibration(workspace, run_id, setting)
-    if stored is not None:
+    if stored is not None and "lag_draws" in stored:  # one made before the headway was calibrated: again
         return stored
 
-    def drive(seed: int, out: Path) -> list[str]:
+    def drive(seed: int, out: Path, lag: dict[str, list[float]]) -> dict[str, Any]:
         return drive_run(workspace, run_id, minutes=minutes, seed=seed, out=out, lanes=lanes, family=family,
                          sumo_model=False, pace=pace, pace_by=pace_by, undo_check=undo_check,
-                         dwell_calibrated=False, lag_draw=lag_draw, progress=progress)["files"]
+                         dwell_calibrated=False, lag_calibrated=False, lag_draws=lag, progress=progress)
 
-    return calibrate_dwell(workspace, run_id, target, drive, setting)
+    return calibrate(workspace, run_id, target, drive, setting)
 
 
 def rule_pace(workspace: Workspace, target: Target, net: Any, cfg: EnvConfig,
@@ -285,6 +285,19 @@ def dwell_mode(rule: Optional[HeldBackRule], held_back: bool, drawn: bool, calib
     return f"the drivers' {percentile:g}th percentile"
 
 
+def lag_mode(rule: Optional[HeldBackRule], held_back: bool, drawn: bool, calibrated_: bool) -> str:
+    """Which follower headway the agent's own changes needed, in words."""
+    if rule is None or not held_back:
+        return "none (no held-back rule)"
+    if not rule.lag_draws:
+        return "the floors alone"
+    if calibrated_:
+        return f"calibrated in closed loop ({', '.join(sorted(rule.lag_draws))})"
+    if drawn:
+        return f"drawn from the drivers' presses ({', '.join(sorted(rule.lag_draws))})"
+    return f"given ({', '.join(sorted(rule.lag_draws))})"
+
+
 def _never() -> HeldBackRule:
     from rl.drive.heldback import Line
 
@@ -301,7 +314,8 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
               held_back: bool = True, sumo_model: bool = True, dwell: bool = True,
               dwell_percentile: float = DWELL_PERCENTILE, family: Optional[str] = None,
               pace: bool = True, pace_by: str = "pooled", undo_check: bool = True, dwell_draw: bool = False,
-              dwell_calibrated: Optional[bool] = None, lag_draw: bool = True,
+              dwell_calibrated: Optional[bool] = None, lag_draw: bool = False,
+              lag_calibrated: Optional[bool] = None, lag_draws: Optional[dict[str, list[float]]] = None,
               progress: Optional[ProgressFn] = None) -> dict[str, Any]:
     """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
 
@@ -324,7 +338,10 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     under the percentile; None (the default): calibrated when the drive is in its drivers' own traffic (the
     family and lanes of their study) with the rule's dwell on and not drawn, else the percentile. `lag_draw`:
     the agent's own change to a side needs a follower headway drawn at each lane change from its drivers'
-    presses to that side (`HeldBackRule.lag_draws`); False: only the floors."""
+    presses to that side (`HeldBackRule.lag_draws`); `lag_calibrated`: drawn from the same calibration,
+    so that the agent's headways with the draw are like its drivers'; None (the default): calibrated in
+    its drivers' own traffic with the rule on and not drawn, else the floors alone; `lag_draws`: these
+    headways to draw instead (the calibration's own drives)."""
     from laneprint.simulator.sumo.backend import check_available
     from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, FAMILIES, LANES, family_settings
     from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS
@@ -339,6 +356,10 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     if (dwell_draw or dwell_calibrated) and not (held_back and dwell):
         raise UserError("--dwell-draw and --dwell-calibrated set the held-back rule's dwell: not with "
                         "--no-held-back or --no-dwell")
+    if lag_draw and lag_calibrated:
+        raise UserError("--lag-draw and --lag-calibrated: choose one")
+    if (lag_draw or lag_calibrated) and not held_back:
+        raise UserError("--lag-draw and --lag-calibrated set the held-back rule's headways: not with --no-held-back")
     if not 0 <= dwell_percentile <= 100:
         raise UserError(f"--dwell-percentile {dwell_percentile:g}: give a percentile from 0 to 100")
     if lanes not in LANES:
@@ -353,6 +374,8 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     in_own_traffic = own == (family, lanes)
     if dwell_calibrated is None:
         dwell_calibrated = in_own_traffic and held_back and dwell and not dwell_draw
+    if lag_calibrated is None:
+        lag_calibrated = in_own_traffic and held_back and not lag_draw
     style_params = FAMILY_STYLE_PARAMS[family]
     net = load_weights(workspace, run_id)
     limits = check_sections(sections)
@@ -367,13 +390,20 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     if rule is not None and not dwell:
         rule = replace(rule, dwell_s={}, dwell_draws={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
     calibration = None
-    if rule is not None and dwell_calibrated:
+    if rule is not None and (dwell_calibrated or lag_calibrated):
         calibration = calibrated(workspace, run_id, target, family, lanes, minutes, pace, pace_by, undo_check,
-                                 lag_draw, progress)
+                                 progress)
+    if calibration is not None and dwell_calibrated:
         rule = replace(rule, dwell_draws={k: [max(x, rule.dwell_s.get(k, 0.0)) for x in v]
                                           for k, v in calibration["draws"].items()},
                        source={**rule.source,
                                "dwell_s": f"drawn from the closed-loop calibration: {calibration['note']}"})
+    if rule is not None and lag_draws is not None:
+        rule = replace(rule, lag_draws=lag_draws, source={**rule.source, "lag_draws": "given (a calibration drive)"})
+    if calibration is not None and lag_calibrated:
+        rule = replace(rule, lag_draws=calibration["lag_draws"],
+                       source={**rule.source, "lag_draws": f"drawn from the closed-loop calibration: "
+                                                           f"{calibration['note']}"})
     if rule is not None and not undo_check:
         rule = replace(rule, undo_check=False, source={**rule.source, "undo_check": "off (--no-undo-check)"})
     paced = rule_pace(workspace, target, net, cfg, pace_by) if rule is not None and pace else None
@@ -401,8 +431,12 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
                                                           f"{style_params[style].get('speedFactor', 1.0):g} "
                                                           f"(the {style} vType)"},
         "pace": paced or {"note": "off (--no-pace)" if rule is not None else "no held-back rule"},
-        "dwell": dwell_mode(rule, held_back, dwell_draw, calibration, dwell_percentile),
-        "dwell_calibration": ({k: v for k, v in calibration.items() if k != "draws"} if calibration else None),
+        "dwell": dwell_mode(rule, held_back, dwell_draw, calibration if dwell_calibrated else None, dwell_percentile),
+        "lag": lag_mode(rule, held_back, lag_draw, lag_calibrated),
+        "dwell_calibration": ({k: v for k, v in calibration.items() if k not in ("draws", "lag_draws")}
+                              if calibration and dwell_calibrated else None),
+        "lag_calibration": ({k: v for k, v in calibration.items() if k not in ("draws", "lag_draws", "stays")}
+                            if calibration and lag_calibrated else None),
         "changes_by_lane": _sum_counts([r["changes_by_lane"] for r in rows]),
         "indicators": indicators_vs_lines(drives, cfg.lines),
         "decisions": [{"speed_limit_kph": d.speed_limit_kph, **asdict(x)} for d in drives for x in d.decisions],

@@ -1,10 +1,11 @@
-"""The dwell calibrated in closed loop (`rl.drive.calibrate`, `drive --dwell-calibrated`)."""
+"""The dwell and the follower's headway calibrated in closed loop (`rl.drive.calibrate`)."""
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from rl.drive.calibrate import deconvolved_dwell, stays_by_kind
+from rl.drive.calibrate import (MIN_HEADWAYS, agent_headways, calibrated_headways, deconvolved_dwell,
+                                stays_by_kind)
 
 
 def test_stays_are_the_times_between_consecutive_changes_by_kind():
@@ -44,3 +45,22 @@ def test_the_calibrated_dwell_is_closer_to_the_drivers_than_their_own_times_draw
     for q in (25, 50):
         want = np.percentile(drivers, q)
         assert abs(np.percentile(calibrated, q) - want) < abs(np.percentile(drawn, q) - want) - 1.0
+
+
+def test_the_headway_is_calibrated_only_where_the_agent_takes_shorter_ones_than_its_drivers():
+    def change(side: str, thw: float | None, source: str = "agent", started: bool = True) -> dict:
+        return {"started": started, "source": source, "thw_nb_s": thw, "from_lane": 1,
+                "target_lane": 2 if side == "left" else 0}
+
+    rng = np.random.default_rng(5)
+    early = list(rng.uniform(0.4, 1.2, 60))  # returns right as soon as the overtaken car is behind
+    rows = [change("right", x) for x in early] + [change("left", 3.0 + 0.01 * i) for i in range(40)]
+    rows += [change("right", 0.1, source="rule"), change("right", 0.1, started=False), change("left", None)]
+    mine = agent_headways(rows)
+    assert mine["right"] == pytest.approx(early) and len(mine["left"]) == 40  # its own, started, near ones
+    drivers = {"right": list(rng.uniform(1.0, 4.0, 80)), "left": [3.0 + 0.01 * i for i in range(40)]}
+    lag = calibrated_headways(drivers, mine)
+    assert set(lag["left"]) == {0.0}  # already its drivers' headways: nothing to wait for
+    with_draw = np.maximum(rng.choice(lag["right"], 20000), rng.choice(early, 20000))
+    assert np.median(with_draw) == pytest.approx(np.median(drivers["right"]), abs=0.15)
+    assert calibrated_headways(drivers, {"right": early[:MIN_HEADWAYS - 1]}) == {}  # too few of its own

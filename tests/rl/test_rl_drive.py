@@ -20,10 +20,13 @@ from laneprint.simulator.sumo.traffic import VehicleState
 from laneprint.workspace import Workspace
 from rl.drive.loop import (AgentControl, Decision, choose_side, live_scene, match_presses, neighbour_lanes,
                            target_lane)
+from rl.drive.calibrate import MIN_HEADWAYS
+from rl.drive.heldback import lag_headways
 from rl.drive.store import output_paths
 from rl.problem.env import EnvConfig, observation
 from rl.problem.rewards import CHANGE, KEEP
 from rl.problem.scene import Scene, indicators
+from rl.runs import Target, target_drivers
 
 runner = CliRunner()
 
@@ -326,6 +329,7 @@ def test_drive_in_the_traffic_and_vtypes_of_another_family(trained, tmp_path):
     # not its drivers' traffic: nobody there to calibrate the dwell against, so the drivers' floor
     assert res["drivers_traffic"] == {"family": "ttc", "lanes": 2, "same_as_drive": False}
     assert res["dwell_calibration"] is None and res["dwell"] == "the drivers' 5th percentile"
+    assert res["lag"] == "the floors alone"  # nor the follower's headway
     assert res["totals"]["collisions"] == 0 and res["totals"]["km"] > 0
     bad = runner.invoke(app, ["drive", run_id, "--family", "nope", "-w", str(ws)])
     assert bad.exit_code == 1 and "unknown --family 'nope'" in bad.output and "Traceback" not in bad.output
@@ -342,14 +346,18 @@ def test_drive_with_the_dwell_calibrated_in_closed_loop(trained, tmp_path):
     assert cal["pace_by"] == "pooled" and cal["undo_check"] is True and cal["pace"] is True
     assert "calibrated on drive seeds 1001, 1002" in cal["note"]
     assert res["held_back"]["rule"]["source"]["dwell_s"].startswith("drawn from the closed-loop calibration")
+    # the same drives calibrate the follower's headway, on the sides where the agent changed often enough
+    lag = res["held_back"]["rule"]["lag_draws"]
+    assert set(lag) <= {side for side, h in cal["headways"].items() if h["agent"] >= MIN_HEADWAYS}
+    assert res["lag"] == ("the floors alone" if not lag else f"calibrated in closed loop ({', '.join(sorted(lag))})")
     stored = Workspace(ws).runs_dir / run_id / "dwell_calibration.json"
     first = stored.read_text()
     again = _invoke(*args, "--seed", "4", "--out", str(tmp_path / "b"))  # made once per traffic, then reused
     assert stored.read_text() == first and again["dwell_calibration"] == cal
     for kind, draws in again["held_back"]["rule"]["dwell_draws"].items():  # never under the drivers' floor
         assert min(draws) >= again["held_back"]["rule"]["dwell_s"].get(kind, 0.0)
-    both = runner.invoke(app, [*args, "--dwell-draw"])
-    assert both.exit_code == 1 and "choose one" in both.output and "Traceback" not in both.output
+    for both in (runner.invoke(app, [*args, "--dwell-draw"]), runner.invoke(app, [*args, "--lag-draw", "--lag-calibrated"])):
+        assert both.exit_code == 1 and "choose one" in both.output and "Traceback" not in both.output
     for off in ("--no-dwell", "--no-held-back"):  # no dwell to calibrate: refused, nothing driven
         res = runner.invoke(app, [*args, off])
         assert res.exit_code == 1 and "not with --no-held-back or --no-dwell" in res.output
@@ -358,3 +366,12 @@ def test_drive_with_the_dwell_calibrated_in_closed_loop(trained, tmp_path):
                     "--no-dwell-calibrated", "--seed", "3", "--out", str(tmp_path / "c"), "-w", str(ws))
     assert floor["dwell_calibration"] is None and floor["dwell"] == "the drivers' 5th percentile"
     assert not floor["held_back"]["rule"].get("dwell_draws")
+    assert floor["lag_calibration"]["headways"] == cal["headways"]  # the headway still calibrated, from the same drives
+    drawn = _invoke("drive", run_id, "--engine", "sumo", "--minutes", "1", "--section", "90", "--no-sumo-model",
+                    "--no-dwell-calibrated", "--lag-draw", "--seed", "3", "--out", str(tmp_path / "d"), "-w", str(ws))
+    decisions = Workspace(ws).read_table("analysis", "decisions")
+    members, _ = target_drivers(Workspace(ws), Target("style", "Aggressive"))
+    presses = lag_headways(decisions[decisions["driver_id"].astype(str).isin(members)])
+    assert drawn["held_back"]["rule"]["lag_draws"] == pytest.approx(presses)
+    assert drawn["lag"] == (f"drawn from the drivers' presses ({', '.join(sorted(presses))})" if presses
+                            else "the floors alone")
