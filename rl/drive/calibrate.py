@@ -114,10 +114,12 @@ def agent_headways(decisions: list[dict[str, Any]]) -> dict[str, list[float]]:
 
 def calibrated_headways(drivers: dict[str, list[float]], agent: dict[str, list[float]]) -> dict[str, list[float]]:
     """Per side with enough of both (`MIN_HEADWAYS` of the agent's; the drivers' as `lag_headways` gives
-    them), the headways to draw (`HeldBackRule.lag_draws`): X with max(X, agent's) distributed like the
-    drivers'."""
+    them) where the agent's median headway is under its drivers' lower quartile, the headways to draw
+    (`HeldBackRule.lag_draws`): X with max(X, agent's) distributed like the drivers'. Within their spread
+    waiting for a draw only costs lane changes (study 723's Aggressive agent, median 0.77 s against its
+    drivers' 1.13 and lower quartile 0.56: rate 0.84 of theirs without the draw, 0.77 with it)."""
     return {side: deconvolved_dwell(d, agent[side], step=LAG_GRID_S) for side, d in drivers.items()
-            if len(agent.get(side, [])) >= MIN_HEADWAYS}
+            if len(agent.get(side, [])) >= MIN_HEADWAYS and np.median(agent[side]) < np.percentile(d, 25)}
 
 
 def calibrate(workspace: Workspace, run_id: str, target: Target,

@@ -60,7 +60,8 @@ def test_the_headway_is_calibrated_only_where_the_agent_takes_shorter_ones_than_
     assert mine["right"] == pytest.approx(early) and len(mine["left"]) == 40  # its own, started, near ones
     drivers = {"right": list(rng.uniform(1.0, 4.0, 80)), "left": [3.0 + 0.01 * i for i in range(40)]}
     lag = calibrated_headways(drivers, mine)
-    assert set(lag["left"]) == {0.0}  # already its drivers' headways: nothing to wait for
+    assert "left" not in lag  # already its drivers' headways: nothing to wait for
+    assert "right" not in calibrated_headways({"right": list(rng.uniform(0.2, 2.0, 80))}, mine)  # within their spread
     with_draw = np.maximum(rng.choice(lag["right"], 20000), rng.choice(early, 20000))
     assert np.median(with_draw) == pytest.approx(np.median(drivers["right"]), abs=0.15)
     assert calibrated_headways(drivers, {"right": early[:MIN_HEADWAYS - 1]}) == {}  # too few of its own
