@@ -70,6 +70,10 @@ def render(result: dict[str, Any], console: Console) -> None:
                         for ln in lines)
         console.print(f"[bold]{name}[/bold] ({len(st['members'])}): typical {', '.join(st['typical'])}: {txt}",
                       highlight=False)
+        if st.get("description"):
+            console.print(f"  {name}: {st['description']}", markup=False, highlight=False)
+    for d, why in (s.get("unsure_drivers") or {}).items():
+        console.print(f"unsure: {d}: {why}", markup=False, highlight=False)
     for w in s.get("warnings", []):
         console.print(f"[yellow]warning:[/yellow] {w}", highlight=False)
     if result["skipped"]:
@@ -89,16 +93,25 @@ def _read_text(c: dict[str, Any], min_points: int) -> str:
 
 
 def render_features(feats: dict[str, Any], console: Console, min_points: int = 5) -> None:
-    """Which indicators the styles were read by, and the figures of each set measured."""
-    how = "chosen by the data" if feats["requested"] == "auto" else "as requested"
+    """Which reading the styles were read by, and the figures of the readings measured."""
+    how = "chosen by the data" if feats["requested"] in ("auto", "behaviour", "auto-silhouette") else "as requested"
     console.print(f"styles read by [bold]{feats['chosen']}[/bold] ({', '.join(feats['indicators'])}), {how}:",
                   highlight=False)
-    for c in feats["candidates"]:
-        mark = "*" if c["chosen"] else " "
+    cands = feats["candidates"]
+    heldout = any(c.get("heldout_ll") is not None for c in cands)
+    for c in cands[:8] if heldout else cands:
+        mark = "*" if c["chosen"] else ("~" if c.get("plausible") else " ")
+        if heldout:
+            console.print(f"  {mark} {c['name']:<28} held-out log-likelihood {_fmt(c['heldout_ll'], '.1f')}"
+                          f"  (± {_fmt(c.get('heldout_se'), '.1f')} against the best)", markup=False, highlight=False)
+            continue
         console.print(f"  {mark} {c['name']:<11} silhouette {_fmt(c['silhouette'], '.2f')}  stability "
                       f"{_fmt(c['stability'], '.2f')}  score {_fmt(c['score'], '.3f')}  "
                       f"imputed {_fmt(None if c['imputed'] is None else 100 * c['imputed'], '.0f')} %"
                       + _read_text(c, min_points),
+                      markup=False, highlight=False)
+    if heldout and len(cands) > 8:
+        console.print(f"  ... {len(cands) - 8} more readings; ~ marks readings as plausible as the chosen one",
                       markup=False, highlight=False)
 
 
@@ -123,12 +136,12 @@ def analyze_command(
         "--extrapolate-features", help="Read each driver's feature line at every section speed, even beyond "
                                        "the speeds of its presses (default: within them).")] = False,
     features: Annotated[str, typer.Option(
-        "--features", help="Indicators the styles are read by: auto (the set whose styles are best separated and "
-                           "most stable), ttc (the study's t_f, t_nf), paper (t_f, t_nf, dv_nb), headway (gap and "
-                           "time headway to the leader), acceptance (those and the target lane's lead and lag "
-                           "gaps), all, following (the time headway kept in steady car following over the "
-                           "whole drive, thw_follow, and the one accepted at the press, thw_f), or a "
-                           "comma-separated list of indicators.")] = "auto",
+        "--features", help="What the styles are read by: auto (the reading whose styles best predict the "
+                           "drivers' held-out decisions and following headways), behaviour (only the drivers' "
+                           "critical gaps and following headway), behaviour:PARAMS (e.g. behaviour:thw_nb+thw_follow), "
+                           "an indicator set: ttc (the study's t_f, t_nf), paper (t_f, t_nf, dv_nb), headway, "
+                           "acceptance, all, following, a comma-separated list of indicators, or auto-silhouette "
+                           "(the indicator set best separated and most stable).")] = "auto",
     flagged_lines: Annotated[str, typer.Option(
         "--flagged-lines", help="A flagged per-driver line (low R², slope interval spanning 0, few points) in the "
                                 "reference lines: level (the driver's median, A = 0) or ols (as fitted, the "
@@ -152,7 +165,7 @@ def analyze_command(
             raise UserError(f"--acceptance-fit must be one of {', '.join(FEATURE_FITS)}, not {acceptance_fit!r}")
         if step_s <= 0:
             raise UserError("--step-s must be positive")
-        if features != "auto":
+        if features not in ("auto", "auto-silhouette", "behaviour"):
             resolve_features(features)  # a one-line error before any work
         if flagged_lines not in FLAGGED_LINES:
             raise UserError(f"--flagged-lines must be one of {', '.join(FLAGGED_LINES)}, not {flagged_lines!r}")

@@ -19,6 +19,8 @@ import numpy as np
 import pandas as pd
 
 import laneprint
+from clustering import choice as choosing
+from clustering.behaviour import PARAMETERS, Behaviour, driver_behaviour
 from clustering.confidence import bootstrap_stability
 from clustering.features import driver_features, feature_names, transform_features
 from clustering.selection import MAX_IMPUTED, FeatureSetScore, choose_features, clustering_rows, resolve_features, score_feature_set
@@ -36,7 +38,7 @@ from laneprint.workspace import Workspace
 
 SKIPPED_COLUMNS = ["what", "id", "reason"]
 STYLE_COLUMNS = ["driver_id", "style", "cluster", "confidence", "posterior", "stability", "margin", "is_typical",
-                 "n_decisions", "defensiveness", "assigned_by", "note"]
+                 "n_decisions", "defensiveness", "assigned_by", "note", "reading_agreement", "unsure"]
 REF_COLUMNS = REFERENCE_LINES.names
 
 
@@ -261,10 +263,29 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
     correlations = correlate(decisions, settings, points, drivers)
     fits = fit_lines(decisions, settings, points, drivers)
     n_dec = _n_decisions(decisions, drivers)
-    settings, feature_sets = feature_settings(points, drivers, n_dec, settings)
-    feats, notes = driver_features(points, drivers, settings)
-    styles, clf, skipped = assign_styles(feats, notes, n_dec, fits, settings, points)
-    styles = styles.merge(feats.reset_index(), on="driver_id", how="left")
+    behaviour = driver_behaviour(decisions, following, drivers, settings.random_state)
+    choice = None
+    if settings.features in choosing.HELDOUT_CHOICES or choosing.is_behaviour(settings.features):
+        choice = choosing.choose(decisions, following, points, drivers, n_dec, behaviour, settings)
+    if choice is not None and choosing.is_behaviour(choice.name):
+        settings = settings.with_(feature_indicators=choice.parameters)
+        styles, clf, skipped = behaviour_styles(choice, behaviour, drivers, n_dec, fits, settings)
+        feature_sets = choice_table(choice, settings.features)
+        feature_cols: list[str] = []
+    else:
+        requested = settings.features
+        if choice is not None:  # an indicator set won the held-out choice: read the drivers by it
+            settings = settings.with_(features=choice.name or "ttc")
+        settings, feature_sets = feature_settings(points, drivers, n_dec, settings)
+        if choice is not None:
+            feature_sets = choice_table(choice, requested, feature_sets)
+            settings = settings.with_(features=requested)
+        feats, notes = driver_features(points, drivers, settings)
+        styles, clf, skipped = assign_styles(feats, notes, n_dec, fits, settings, points)
+        styles = styles.merge(feats.reset_index(), on="driver_id", how="left")
+        feature_cols = feature_names(settings)
+    styles = honest_confidence(styles, choice, behaviour)
+    styles = styles.merge(behaviour_table_wide(behaviour), on="driver_id", how="left")
     at_decisions = tuple(i for i in settings.feature_indicators if i in INDICATORS)
     side_fits = fits_by_direction(decisions, settings, drivers, tuple(dict.fromkeys(PAPER_INDICATORS + at_decisions)))
     refs, ref_skipped = reference_lines(styles, fits, points, settings, side_fits)
@@ -284,7 +305,10 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
         "fits": fits,
         "fits_by_direction": side_fits,
         "feature_sets": feature_sets,
-        "styles": styles[STYLE_COLUMNS + [c for c in feature_names(settings)]],
+        "styles": styles[STYLE_COLUMNS + feature_cols + choosing.behaviour_columns()],
+        "behaviour": behaviour_long(behaviour),
+        "style_descriptions": pd.DataFrame(list(choosing.describe_styles(styles, behaviour).items()),
+                                           columns=["style", "description"]),
         "reference_lines": refs,
         "skipped": pd.DataFrame(skipped, columns=SKIPPED_COLUMNS),
         "k_scores": pd.DataFrame({"k": list(clf.k_scores_), "score": list(clf.k_scores_.values())})
@@ -293,14 +317,119 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
 
 
 FEATURE_SET_COLUMNS = ["name", "indicators", "k", "silhouette", "stability", "score", "imputed", "presses_read",
-                       "chosen", "requested"]
+                       "heldout_ll", "heldout_se", "plausible", "chosen", "requested"]
+
+
+def choice_table(choice: "choosing.Choice", requested: str, measured: pd.DataFrame | None = None) -> pd.DataFrame:
+    """The readings the held-out choice scored, best first, with the silhouette figures of the
+    chosen indicator set where `measured` has them."""
+    rows = []
+    for sc in choice.scores:
+        row = {"name": sc.name, "indicators": ",".join(sc.parameters), "k": len(set(sc.labels.values())),
+               "silhouette": np.nan, "stability": np.nan, "score": np.nan, "imputed": np.nan,
+               "presses_read": np.nan, "heldout_ll": sc.heldout_ll, "heldout_se": sc.se,
+               "plausible": sc.plausible, "chosen": sc.chosen, "requested": requested}
+        if measured is not None and sc.name in set(measured["name"]):
+            m = measured[measured["name"] == sc.name].iloc[0]
+            row.update({c: m[c] for c in ("silhouette", "stability", "score", "imputed", "presses_read")})
+        rows.append(row)
+    return pd.DataFrame(rows, columns=FEATURE_SET_COLUMNS)
+
+
+def behaviour_styles(choice: "choosing.Choice", behaviour: Behaviour, drivers: list[str], n_dec: pd.Series,
+                     fits: pd.DataFrame, settings: AnalysisSettings
+                     ) -> tuple[pd.DataFrame, StyleClusterer | None, list[dict[str, str]]]:
+    """The styles table of a chosen behaviour reading (columns as `assign_styles`'), its clusterer
+    and the drivers skipped."""
+    style, conf, defn = choosing.assign(choice, behaviour, drivers, n_dec, settings)
+    clf = choice.clusterer
+    names = list(clf.names_) if clf is not None else []
+    fit_on = set(clf_rows(choice))
+    styles = pd.DataFrame({
+        "driver_id": drivers, "style": style.to_numpy(), "cluster": [names.index(s) if s in names else -1 for s in style],
+        "confidence": conf.to_numpy(), "posterior": conf.to_numpy(), "stability": np.nan, "margin": np.nan,
+        "is_typical": False, "n_decisions": n_dec.reindex(drivers).to_numpy(), "defensiveness": defn.to_numpy(),
+        "assigned_by": ["clustered" if d in fit_on else ("nearest centre" if style[d] != "unassigned" else "none")
+                        for d in drivers],
+        "note": ["" if d in fit_on or style[d] == "unassigned" else
+                 f"only {n_dec[d]} presses: assigned to the nearest centre" for d in drivers]})
+    skipped = [{"what": "driver", "id": d, "reason": "no style: no presses"} for d in drivers if style[d] == "unassigned"]
+    if clf is not None:
+        assigned = [d for d in drivers if style[d] != "unassigned"]
+        X = behaviour.values.loc[assigned, clf.feature_names_in_]
+        dist = pd.Series(clf.distances(X).min(axis=1), index=assigned)
+        ok_fits = fits[fits["status"] == "ok"].groupby("driver_id")["indicator"].nunique()
+        for name in names:
+            members = [d for d in assigned if style[d] == name]
+            if members:
+                best = min(members, key=lambda d: (-int(n_dec[d] >= settings.min_typical_decisions),
+                                                   -int(ok_fits.get(d, 0)), float(dist[d])))
+                styles.loc[styles["driver_id"] == best, "is_typical"] = True
+    styles["cluster"] = styles["cluster"].astype("int64")
+    styles["n_decisions"] = styles["n_decisions"].astype("int64")
+    styles["is_typical"] = styles["is_typical"].astype(bool)
+    return styles, clf, skipped
+
+
+def clf_rows(choice: "choosing.Choice") -> list[str]:
+    """The drivers that placed the chosen reading's centres."""
+    chosen = next((s for s in choice.scores if s.chosen), None)
+    return list(chosen.labels) if chosen is not None else []
+
+
+def honest_confidence(styles: pd.DataFrame, choice: "choosing.Choice | None", behaviour: Behaviour) -> pd.DataFrame:
+    """Confidence = the driver's own data's (bootstrap or parameter draws) x the share of plausible
+    readings that agree, with the reasons a driver is unsure in column `unsure`."""
+    styles = styles.copy()
+    st = styles.set_index("driver_id")["style"]
+    if choice is not None:
+        agreement, others = choosing.reading_agreement(choice, st)
+    else:
+        agreement, others = pd.Series(1.0, index=st.index), {d: [] for d in st.index}
+    params = choice.parameters if choice is not None and choosing.is_behaviour(choice.name) else ()
+    data_conf = styles["confidence"].to_numpy(dtype=float)
+    agree = agreement.reindex(styles["driver_id"]).fillna(1.0).to_numpy()
+    styles["reading_agreement"] = agree
+    styles["confidence"] = np.where(styles["style"] == "unassigned", 0.0, data_conf * agree)
+    styles["unsure"] = [
+        "" if s == "unassigned" else choosing.unsure_reasons(d, int(n), c, a, others.get(d, []), behaviour, params)
+        for d, s, n, c, a in zip(styles["driver_id"], styles["style"], styles["n_decisions"], data_conf, agree)]
+    return styles
+
+
+def behaviour_table_wide(behaviour: Behaviour) -> pd.DataFrame:
+    """Per driver its behaviour parameters in seconds and metres (styles-table columns)."""
+    wide = np.exp(behaviour.values.where(behaviour.defined > 0))
+    wide.columns = choosing.behaviour_columns(tuple(wide.columns))
+    return wide.reset_index()
+
+
+BEHAVIOUR_COLUMNS = ["driver_id", "parameter", "value", "lo", "hi", "se_log", "informed_by", "unit", "meaning"]
+
+
+def behaviour_long(behaviour: Behaviour) -> pd.DataFrame:
+    """The `behaviour` table: one row per driver and parameter, the value and its 95 % interval in
+    units, the standard error on the log scale, and how many presses (episodes) inform it."""
+    from clustering.behaviour import VARIABLES
+    rows = []
+    for d in behaviour.values.index:
+        for p in PARAMETERS:
+            mu, se, n = behaviour.values.loc[d, p], behaviour.se.loc[d, p], int(behaviour.defined.loc[d, p])
+            unit = VARIABLES[p][3] if p in VARIABLES else "s"
+            meaning = VARIABLES[p][4] if p in VARIABLES else "time headway kept while following a leader"
+            ok = np.isfinite(mu) and n > 0
+            rows.append({"driver_id": d, "parameter": p, "value": float(np.exp(mu)) if ok else np.nan,
+                         "lo": float(np.exp(mu - 1.96 * se)) if ok and np.isfinite(se) else np.nan,
+                         "hi": float(np.exp(mu + 1.96 * se)) if ok and np.isfinite(se) else np.nan,
+                         "se_log": float(se) if ok else np.nan, "informed_by": n, "unit": unit, "meaning": meaning})
+    return pd.DataFrame(rows, columns=BEHAVIOUR_COLUMNS)
 
 
 def feature_settings(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings
                      ) -> tuple[AnalysisSettings, pd.DataFrame]:
     """`settings` with `feature_indicators` resolved from `settings.features`, and the table of the
     feature sets measured (every candidate with 'auto', the requested one otherwise)."""
-    if settings.features == "auto":
+    if settings.features in ("auto", "auto-silhouette"):
         chosen, scores = choose_features(points, drivers, n_dec, settings)
     else:
         chosen, inds = resolve_features(settings.features)
@@ -376,13 +505,22 @@ def summary(tables: dict[str, pd.DataFrame]) -> dict[str, Any]:
         "n_skipped": int(len(tables["skipped"])),
         "styles": {str(k): int(v) for k, v in tables["styles"]["style"].value_counts().items()},
         "typical_drivers": {str(r.style): str(r.driver_id) for r in tables["styles"].itertuples() if r.is_typical},
-        "confidence_is": ("bootstrap stability" if tables["styles"]["stability"].notna().any()
-                          else "mixture posterior"),
+        "confidence_is": ("the share of draws of the driver's own estimates (bootstrap of its presses, or its "
+                          "parameters from their standard errors) that keep its style, times the share of "
+                          "plausible readings that agree"),
+        "style_descriptions": descriptions(tables),
+        "unsure_drivers": {str(r.driver_id): str(r.unsure) for r in tables["styles"].itertuples() if r.unsure},
         "features": features,
         "presses_by_direction": press_counts(dec) if len(dec) else {"left": 0, "right": 0},
         "flagged_fits": flagged_counts(tables["fits"]),
         "warnings": warnings(tables, features),
     }
+
+
+def descriptions(tables: dict[str, pd.DataFrame]) -> dict[str, str]:
+    """Per style what sets it apart, in words (the `style_descriptions` table as a dict)."""
+    t = tables.get("style_descriptions")
+    return {} if t is None or t.empty else dict(zip(t["style"].astype(str), t["description"].astype(str)))
 
 
 def feature_summary(feature_sets: pd.DataFrame | None) -> dict[str, Any] | None:
@@ -454,7 +592,7 @@ def build_report(tables: dict[str, pd.DataFrame], meta: dict[str, Any]) -> dict[
         s = styles.loc[d]
         drivers[d] = {
             "n_decisions": int(s["n_decisions"]), "style": s["style"], "confidence": float(s["confidence"]),
-            "is_typical": bool(s["is_typical"]), "note": s["note"],
+            "is_typical": bool(s["is_typical"]), "note": s["note"], "unsure": str(s.get("unsure", "") or ""),
             "correlations": _records(corr[corr["driver_id"] == d].drop(columns="driver_id")),
             "fits": _records(fits[fits["driver_id"] == d][["indicator", "A", "b", "A_lo", "A_hi", "b_lo", "b_hi",
                                                            "r2", "n", "status", "reason", "flag", "level"]]),
@@ -468,6 +606,7 @@ def build_report(tables: dict[str, pd.DataFrame], meta: dict[str, Any]) -> dict[
     for name, g in styles[styles["cluster"] >= 0].sort_values("cluster").groupby("style", sort=False):
         lines = refs[(refs["scope"] == "style") & (refs["name"] == name)]
         style_rep[name] = {"members": list(g.index), "typical": [d for d in g.index if g.loc[d, "is_typical"]],
+                           "description": (meta["summary"].get("style_descriptions") or {}).get(name, ""),
                            "reference_lines": _records(lines.drop(columns=["scope", "name"]))}
     return {"workspace": meta.get("workspace"), "summary": meta["summary"], "drivers": drivers,
             "styles": style_rep, "skipped": _records(tables["skipped"]), "settings": meta["settings"],

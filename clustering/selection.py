@@ -70,11 +70,20 @@ def resolve_features(spec: str) -> tuple[str, tuple[str, ...]]:
     indicators ('auto' is resolved by `choose_features`). Raises `UserError` when unknown."""
     if spec in INDICATOR_SETS:
         return spec, INDICATOR_SETS[spec]
+    if spec in ("auto", "auto-silhouette", "behaviour"):
+        return spec, ()
+    if spec.startswith("behaviour:"):
+        from clustering.choice import behaviour_params
+        try:
+            return spec, behaviour_params(spec)
+        except ValueError as exc:
+            raise UserError(f"--features {spec!r}: {exc}") from None
     names = tuple(s.strip() for s in spec.split(",") if s.strip())
     unknown = [n for n in names if n not in FEATURE_UNITS]
     if not names or unknown:
-        raise UserError(f"--features {spec!r}: use auto, {', '.join(INDICATOR_SETS)} or a comma-separated list of "
-                        f"indicators ({', '.join(FEATURE_UNITS)})")
+        raise UserError(f"--features {spec!r}: use auto, behaviour, behaviour:<parameters>, auto-silhouette, "
+                        f"{', '.join(INDICATOR_SETS)} or a comma-separated list of indicators "
+                        f"({', '.join(FEATURE_UNITS)})")
     return ",".join(names), names
 
 

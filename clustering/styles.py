@@ -50,11 +50,15 @@ class StyleClusterer:
         for BIC: with a handful of drivers, a tiny floor lets single drivers become their own
         near-zero-variance cluster and BIC then prefers many clusters (seen on the shipped study:
         k = 5 with 1e-3, k = 3 with 0.01-0.1).
+    :param room: the features that measure the room a driver keeps (larger = more defensive), by
+        which the styles are ordered and named; None: every feature whose name ends in `_s` or `_m`.
     """
 
     def __init__(self, k: int = 3, choose_k: str | None = None, k_range: tuple[int, int] = (2, 6),
-                 n_init: int = 50, random_state: int = 0, bic_variance_floor: float = 0.05) -> None:
+                 n_init: int = 50, random_state: int = 0, bic_variance_floor: float = 0.05,
+                 room: list[str] | None = None) -> None:
         self.k = k
+        self.room = room
         self.choose_k = choose_k
         self.k_range = k_range
         self.n_init = n_init
@@ -148,7 +152,10 @@ class StyleClusterer:
         return labels, conf, margin
 
     def _defensiveness(self, Z: np.ndarray) -> np.ndarray:
-        room = np.array([c.endswith(("_s", "_m")) for c in self.feature_names_in_])
+        if self.room is not None:
+            room = np.array([c in self.room for c in self.feature_names_in_])
+        else:
+            room = np.array([c.endswith(("_s", "_m")) for c in self.feature_names_in_])
         cols = room if room.any() else np.ones(len(room), dtype=bool)
         return Z[:, cols].mean(axis=1)
 

@@ -1,0 +1,196 @@
+"""The styles as the analysis reports them: the reading chosen on held-out behaviour, each
+driver's honest confidence and the reason it is unsure, and each style in words.
+
+Two kinds of reading compete on the same held-out criterion (`clustering.readings`):
+
+- **behaviour readings** (`behaviour:<params>`): clusters of the drivers' critical values and
+  following headway (`clustering.behaviour`), estimated from presses and not-yet states;
+- **indicator readings** (the named sets 'ttc', 'following', 'acceptance', 'all'): clusters of
+  each driver's indicator lines at the presses (`clustering.features`), the earlier way.
+
+`--features auto` takes whichever predicts held-out behaviour best; `--features behaviour` only
+the behaviour readings; a set name or `behaviour:<params>` that reading alone; 'auto-silhouette'
+the earlier choice by silhouette x stability (`clustering.selection`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from clustering.behaviour import PARAMETERS, VARIABLES, Behaviour, decision_data, subset
+from clustering.features import driver_features, transform_features
+from clustering.readings import (ReadingScore, candidate_readings, choose_reading, cluster_reading,
+                                 draw_confidence)
+from clustering.selection import MAX_IMPUTED, clustering_rows
+from clustering.styles import StyleClusterer
+from indicators.settings import AUTO_CANDIDATES, INDICATOR_SETS, AnalysisSettings
+
+#: `features` values that choose on held-out behaviour.
+HELDOUT_CHOICES: tuple[str, ...] = ("auto", "behaviour")
+#: Prefix of a behaviour reading's name.
+BEHAVIOUR = "behaviour:"
+#: Largest number of behaviour parameters in one candidate reading.
+MAX_READING_SIZE = 2
+#: A driver with fewer presses than this is unsure whatever its estimates say.
+FEW_PRESSES = 8
+
+
+def is_behaviour(name: str) -> bool:
+    return name.startswith(BEHAVIOUR)
+
+
+def behaviour_params(name: str) -> tuple[str, ...]:
+    """('thw_nb', 'thw_follow') of 'behaviour:thw_nb+thw_follow'; ValueError for an unknown parameter."""
+    params = tuple(p for p in name[len(BEHAVIOUR):].split("+") if p)
+    unknown = [p for p in params if p not in PARAMETERS]
+    if not params or unknown:
+        raise ValueError(f"unknown behaviour parameter(s) {', '.join(unknown) or '(none)'}: "
+                         f"use {', '.join(PARAMETERS)} joined by '+'")
+    return params
+
+
+@dataclass
+class Choice:
+    """The reading chosen and what the choice saw."""
+
+    name: str
+    parameters: tuple[str, ...]
+    scores: list[ReadingScore]
+    clusterer: StyleClusterer | None  # the chosen behaviour reading's (None for an indicator reading)
+
+
+def indicator_labels(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings,
+                     name: str) -> dict[str, str] | None:
+    """Styles of the drivers that place the centres, read by indicator set `name` (None: not readable)."""
+    s = settings.with_(feature_indicators=INDICATOR_SETS[name])
+    feats, _ = driver_features(points, drivers, s)
+    rows = clustering_rows(feats, n_dec, s)
+    if len(rows) <= s.k or float(feats.loc[rows].isna().to_numpy().mean()) > MAX_IMPUTED:
+        return None
+    clf = StyleClusterer(k=s.k, n_init=s.n_init, random_state=s.random_state).fit(transform_features(feats, s).loc[rows])
+    return {str(d): clf.names_[i] for d, i in zip(rows, clf.labels_)}
+
+
+def choose(decisions: pd.DataFrame, following: pd.DataFrame | None, points: pd.DataFrame, drivers: list[str],
+           n_dec: pd.Series, behaviour: Behaviour, settings: AnalysisSettings) -> Choice:
+    """The reading of `settings.features` (chosen on held-out behaviour for 'auto' / 'behaviour')."""
+    fit_on = [d for d in drivers if n_dec.get(d, 0) >= settings.min_cluster_decisions] or \
+        [d for d in drivers if n_dec.get(d, 0) > 0]
+    data = decision_data(decisions)
+    data = subset(data, np.isin(data.driver, fit_on))
+    spec = settings.features
+    if spec in HELDOUT_CHOICES:
+        readings = {BEHAVIOUR + n: p for n, p in candidate_readings(max_size=MAX_READING_SIZE).items()}
+        extra = {}
+        if spec == "auto":
+            for name in AUTO_CANDIDATES:
+                labels = indicator_labels(points, drivers, n_dec, settings, name)
+                if labels is not None:
+                    extra[name] = (INDICATOR_SETS[name], labels)
+    elif is_behaviour(spec):
+        readings, extra = {spec: behaviour_params(spec)}, {}
+    else:
+        raise ValueError(f"{spec!r} is not a held-out choice")
+    best, scores, clusterers = choose_reading(behaviour, data, fit_on, settings.k, settings.n_init,
+                                              settings.random_state, readings, following, extra)
+    if not best:
+        return Choice("", (), [], None)
+    chosen = next(s for s in scores if s.name == best)
+    return Choice(best, chosen.parameters, scores, clusterers.get(best))
+
+
+def behaviour_columns(params: tuple[str, ...] = PARAMETERS) -> list[str]:
+    """Styles-table columns of behaviour parameters, e.g. 'crit_thw_nb_s', 'kept_thw_follow_s'."""
+    return [column(p) for p in params]
+
+
+def column(param: str) -> str:
+    if param == "thw_follow":
+        return "kept_thw_follow_s"
+    return f"crit_{param}_{'m' if VARIABLES[param][3] == 'm' else 's'}"
+
+
+def assign(choice: Choice, behaviour: Behaviour, drivers: list[str], n_dec: pd.Series,
+           settings: AnalysisSettings) -> tuple[pd.Series, pd.Series, pd.Series]:
+    """(style, data confidence, defensiveness) of every driver under a chosen behaviour reading
+    ('unassigned' / 0 for drivers with no presses)."""
+    clf = choice.clusterer
+    style = pd.Series("unassigned", index=drivers, dtype=object)
+    conf = pd.Series(0.0, index=drivers)
+    defn = pd.Series(np.nan, index=drivers)
+    rows = [d for d in drivers if n_dec.get(d, 0) > 0]
+    if clf is None or not rows:
+        return style, conf, defn
+    X = behaviour.values.loc[rows, clf.feature_names_in_]
+    labels = clf.predict(X)
+    style[rows] = [clf.names_[i] for i in labels]
+    conf[rows] = draw_confidence(behaviour, rows, clf, labels, settings.random_state)
+    defn[rows] = clf.defensiveness(X)
+    return style, conf, defn
+
+
+def reading_agreement(choice: Choice, styles: pd.Series) -> tuple[pd.Series, dict[str, list[str]]]:
+    """Per driver: the share of plausible readings that give it its style, and the readings that
+    read it otherwise (with the style they give)."""
+    plausible = [s for s in choice.scores if s.plausible]
+    share = pd.Series(1.0, index=styles.index)
+    other: dict[str, list[str]] = {d: [] for d in styles.index}
+    if len(plausible) <= 1:
+        return share, other
+    for d in styles.index:
+        votes = [s for s in plausible if d in s.labels]
+        if not votes:
+            continue
+        agree = [s for s in votes if s.labels[d] == styles[d]]
+        share[d] = len(agree) / len(votes)
+        other[d] = [f"{s.labels[d]} by {s.name}" for s in votes if s.labels[d] != styles[d]]
+    return share, other
+
+
+def unsure_reasons(d: str, n_presses: int, data_conf: float, agreement: float, others: list[str],
+                   behaviour: Behaviour, params: tuple[str, ...]) -> str:
+    """Why driver `d`'s style is not sure, in one line ('' when it is)."""
+    why = []
+    if n_presses < FEW_PRESSES:
+        why.append(f"only {n_presses} presses")
+    if data_conf < 0.9 and params:
+        wide = [p for p in params if np.isfinite(behaviour.se.loc[d, p]) and behaviour.se.loc[d, p] > 0.3]
+        what = ", ".join(f"{p} x/÷ {np.exp(behaviour.se.loc[d, p]):.1f}" for p in wide)
+        why.append(f"its own estimates leave it in its style in {100 * data_conf:.0f} % of draws"
+                   + (f" ({what})" if what else ""))
+    if agreement < 1.0 and others:
+        shown = "; ".join(others[:3]) + (f"; {len(others) - 3} more" if len(others) > 3 else "")
+        why.append(f"readings as plausible disagree: {shown}")
+    return "; ".join(why)
+
+
+_WORDS = {
+    "thw_nb": "accepts lag gaps down to {v:.2g} s headway",
+    "gap_nf": "lead gaps down to {v:.3g} m",
+    "t_nf": "a TTC to the new leader down to {v:.2g} s",
+    "thw_f": "wants out when its leader is {v:.2g} s ahead",
+    "t_f": "wants out at a TTC to its leader of {v:.2g} s",
+    "thw_follow": "follows at {v:.2g} s",
+}
+
+
+def describe_styles(styles: pd.DataFrame, behaviour: Behaviour) -> dict[str, str]:
+    """Per style, what sets it apart, in words with units: the members' median critical values and
+    following headway (`_WORDS`), the parameters that differ most between styles first."""
+    assigned = styles[styles["style"] != "unassigned"]
+    if assigned.empty:
+        return {}
+    vals = behaviour.values.loc[assigned["driver_id"]]
+    informed = behaviour.defined.loc[assigned["driver_id"]] > 0
+    vals = vals.where(informed)
+    by_style = vals.groupby(assigned["style"].to_numpy()).median()
+    spread = (by_style.max() - by_style.min()) / vals.std().replace(0, np.nan)
+    order = [p for p in spread.sort_values(ascending=False).index if np.isfinite(spread[p])]
+    out = {}
+    for st, row in by_style.iterrows():
+        parts = [_WORDS[p].format(v=float(np.exp(row[p]))) for p in order[:4] if np.isfinite(row[p])]
+        out[str(st)] = "; ".join(parts)
+    return out
