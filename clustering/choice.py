@@ -8,9 +8,11 @@ Two kinds of reading compete on the same held-out criterion (`clustering.reading
 - **indicator readings** (the named sets 'ttc', 'following', 'acceptance', 'all'): clusters of
   each driver's indicator lines at the presses (`clustering.features`), the earlier way.
 
-`--features auto` takes whichever predicts held-out behaviour best; `--features behaviour` only
-the behaviour readings; a set name or `behaviour:<params>` that reading alone; 'auto-silhouette'
-the earlier choice by silhouette x stability (`clustering.selection`).
+`--features heldout` takes whichever predicts held-out behaviour best; `--features behaviour`
+only the behaviour readings; a set name or `behaviour:<params>` that reading alone. The default,
+'auto', is still the choice among indicator sets by silhouette x stability
+(`clustering.selection`) until the held-out choice is judged on the zoo of worlds
+(`benchmarks/analysis.py --zoo`).
 """
 
 from __future__ import annotations
@@ -28,8 +30,9 @@ from clustering.selection import MAX_IMPUTED, clustering_rows
 from clustering.styles import StyleClusterer
 from indicators.settings import AUTO_CANDIDATES, INDICATOR_SETS, AnalysisSettings
 
-#: `features` values that choose on held-out behaviour.
-HELDOUT_CHOICES: tuple[str, ...] = ("auto", "behaviour")
+#: `features` values that choose on held-out behaviour: 'heldout' among every reading,
+#: 'behaviour' among the behaviour readings only.
+HELDOUT_CHOICES: tuple[str, ...] = ("heldout", "behaviour")
 #: Prefix of a behaviour reading's name.
 BEHAVIOUR = "behaviour:"
 #: Largest number of behaviour parameters in one candidate reading.
@@ -85,7 +88,7 @@ def choose(decisions: pd.DataFrame, following: pd.DataFrame | None, points: pd.D
     if spec in HELDOUT_CHOICES:
         readings = {BEHAVIOUR + n: p for n, p in candidate_readings(max_size=MAX_READING_SIZE).items()}
         extra = {}
-        if spec == "auto":
+        if spec == "heldout":
             for name in AUTO_CANDIDATES:
                 labels = indicator_labels(points, drivers, n_dec, settings, name)
                 if labels is not None:
@@ -100,6 +103,28 @@ def choose(decisions: pd.DataFrame, following: pd.DataFrame | None, points: pd.D
         return Choice("", (), [], None)
     chosen = next(s for s in scores if s.name == best)
     return Choice(best, chosen.parameters, scores, clusterers.get(best))
+
+
+def silhouette_alternatives(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings,
+                            feature_sets: pd.DataFrame) -> Choice:
+    """The indicator sets 'auto' could as well have chosen (a score within `auto_margin` of the
+    chosen set's) as a `Choice`, so that a driver they read otherwise is reported unsure."""
+    scored = feature_sets[np.isfinite(feature_sets["score"].astype(float))]
+    if scored.empty or not scored["chosen"].any():
+        return Choice("", (), [], None)
+    chosen = scored[scored["chosen"]].iloc[0]
+    top = float(chosen["score"])
+    scores = []
+    for r in scored.itertuples():
+        if r.name not in INDICATOR_SETS:
+            continue
+        plausible = bool(r.chosen) or (top > 0 and float(r.score) * settings.auto_margin >= top)
+        labels = indicator_labels(points, drivers, n_dec, settings, r.name) if plausible else None
+        if plausible and labels is None:
+            continue
+        scores.append(ReadingScore(r.name, INDICATOR_SETS[r.name], np.nan, np.nan, np.nan, plausible, bool(r.chosen),
+                                   labels or {}))
+    return Choice(str(chosen["name"]), INDICATOR_SETS.get(str(chosen["name"]), ()), scores, None)
 
 
 def behaviour_columns(params: tuple[str, ...] = PARAMETERS) -> list[str]:
@@ -150,13 +175,19 @@ def reading_agreement(choice: Choice, styles: pd.Series) -> tuple[pd.Series, dic
     return share, other
 
 
+def succession(n_presses: int) -> float:
+    """The most a style read from `n_presses` presses can be trusted: Laplace's rule of succession,
+    (n + 1) / (n + 2): 0.8 at 3 presses, 0.9 at 8, 0.95 at 18."""
+    return (n_presses + 1) / (n_presses + 2)
+
+
 def unsure_reasons(d: str, n_presses: int, data_conf: float, agreement: float, others: list[str],
                    behaviour: Behaviour, params: tuple[str, ...]) -> str:
     """Why driver `d`'s style is not sure, in one line ('' when it is)."""
     why = []
     if n_presses < FEW_PRESSES:
-        why.append(f"only {n_presses} presses")
-    if data_conf < 0.9 and params:
+        why.append(f"only {n_presses} presses (confidence at most {succession(n_presses):.2f})")
+    if data_conf < 0.9 and params and d in behaviour.se.index:
         wide = [p for p in params if np.isfinite(behaviour.se.loc[d, p]) and behaviour.se.loc[d, p] > 0.3]
         what = ", ".join(f"{p} x/÷ {np.exp(behaviour.se.loc[d, p]):.1f}" for p in wide)
         why.append(f"its own estimates leave it in its style in {100 * data_conf:.0f} % of draws"

@@ -94,7 +94,7 @@ def _read_text(c: dict[str, Any], min_points: int) -> str:
 
 def render_features(feats: dict[str, Any], console: Console, min_points: int = 5) -> None:
     """Which reading the styles were read by, and the figures of the readings measured."""
-    how = "chosen by the data" if feats["requested"] in ("auto", "behaviour", "auto-silhouette") else "as requested"
+    how = "chosen by the data" if feats["requested"] in ("auto", "heldout", "behaviour") else "as requested"
     console.print(f"styles read by [bold]{feats['chosen']}[/bold] ({', '.join(feats['indicators'])}), {how}:",
                   highlight=False)
     cands = feats["candidates"]
@@ -136,12 +136,13 @@ def analyze_command(
         "--extrapolate-features", help="Read each driver's feature line at every section speed, even beyond "
                                        "the speeds of its presses (default: within them).")] = False,
     features: Annotated[str, typer.Option(
-        "--features", help="What the styles are read by: auto (the reading whose styles best predict the "
-                           "drivers' held-out decisions and following headways), behaviour (only the drivers' "
-                           "critical gaps and following headway), behaviour:PARAMS (e.g. behaviour:thw_nb+thw_follow), "
-                           "an indicator set: ttc (the study's t_f, t_nf), paper (t_f, t_nf, dv_nb), headway, "
-                           "acceptance, all, following, a comma-separated list of indicators, or auto-silhouette "
-                           "(the indicator set best separated and most stable).")] = "auto",
+        "--features", help="What the styles are read by: auto (the indicator set whose styles are best separated "
+                           "and most stable), heldout (the reading whose styles best predict the drivers' held-out "
+                           "decisions and following headways: indicator sets and the drivers' critical gaps), "
+                           "behaviour (only the critical gaps and following headway), behaviour:PARAMS (e.g. "
+                           "behaviour:thw_nb+thw_follow), an indicator set: ttc (the study's t_f, t_nf), paper "
+                           "(t_f, t_nf, dv_nb), headway, acceptance, all, following, or a comma-separated list of "
+                           "indicators.")] = "auto",
     flagged_lines: Annotated[str, typer.Option(
         "--flagged-lines", help="A flagged per-driver line (low R², slope interval spanning 0, few points) in the "
                                 "reference lines: level (the driver's median, A = 0) or ols (as fitted, the "
@@ -165,7 +166,7 @@ def analyze_command(
             raise UserError(f"--acceptance-fit must be one of {', '.join(FEATURE_FITS)}, not {acceptance_fit!r}")
         if step_s <= 0:
             raise UserError("--step-s must be positive")
-        if features not in ("auto", "auto-silhouette", "behaviour"):
+        if features not in ("auto", "heldout", "behaviour"):
             resolve_features(features)  # a one-line error before any work
         if flagged_lines not in FLAGGED_LINES:
             raise UserError(f"--flagged-lines must be one of {', '.join(FLAGGED_LINES)}, not {flagged_lines!r}")

@@ -284,6 +284,8 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
         styles, clf, skipped = assign_styles(feats, notes, n_dec, fits, settings, points)
         styles = styles.merge(feats.reset_index(), on="driver_id", how="left")
         feature_cols = feature_names(settings)
+        if choice is None and requested == "auto":
+            choice = choosing.silhouette_alternatives(points, drivers, n_dec, settings, feature_sets)
     styles = honest_confidence(styles, choice, behaviour)
     styles = styles.merge(behaviour_table_wide(behaviour), on="driver_id", how="left")
     at_decisions = tuple(i for i in settings.feature_indicators if i in INDICATORS)
@@ -379,7 +381,8 @@ def clf_rows(choice: "choosing.Choice") -> list[str]:
 
 def honest_confidence(styles: pd.DataFrame, choice: "choosing.Choice | None", behaviour: Behaviour) -> pd.DataFrame:
     """Confidence = the driver's own data's (bootstrap or parameter draws) x the share of plausible
-    readings that agree, with the reasons a driver is unsure in column `unsure`."""
+    readings that agree, at most (n + 1) / (n + 2) for n presses (`choice.succession`), with the
+    reasons a driver is unsure in column `unsure`."""
     styles = styles.copy()
     st = styles.set_index("driver_id")["style"]
     if choice is not None:
@@ -389,8 +392,9 @@ def honest_confidence(styles: pd.DataFrame, choice: "choosing.Choice | None", be
     params = choice.parameters if choice is not None and choosing.is_behaviour(choice.name) else ()
     data_conf = styles["confidence"].to_numpy(dtype=float)
     agree = agreement.reindex(styles["driver_id"]).fillna(1.0).to_numpy()
+    cap = np.array([choosing.succession(int(n)) for n in styles["n_decisions"]])
     styles["reading_agreement"] = agree
-    styles["confidence"] = np.where(styles["style"] == "unassigned", 0.0, data_conf * agree)
+    styles["confidence"] = np.where(styles["style"] == "unassigned", 0.0, np.minimum(data_conf * agree, cap))
     styles["unsure"] = [
         "" if s == "unassigned" else choosing.unsure_reasons(d, int(n), c, a, others.get(d, []), behaviour, params)
         for d, s, n, c, a in zip(styles["driver_id"], styles["style"], styles["n_decisions"], data_conf, agree)]
@@ -429,7 +433,7 @@ def feature_settings(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series,
                      ) -> tuple[AnalysisSettings, pd.DataFrame]:
     """`settings` with `feature_indicators` resolved from `settings.features`, and the table of the
     feature sets measured (every candidate with 'auto', the requested one otherwise)."""
-    if settings.features in ("auto", "auto-silhouette"):
+    if settings.features == "auto":
         chosen, scores = choose_features(points, drivers, n_dec, settings)
     else:
         chosen, inds = resolve_features(settings.features)
@@ -507,7 +511,7 @@ def summary(tables: dict[str, pd.DataFrame]) -> dict[str, Any]:
         "typical_drivers": {str(r.style): str(r.driver_id) for r in tables["styles"].itertuples() if r.is_typical},
         "confidence_is": ("the share of draws of the driver's own estimates (bootstrap of its presses, or its "
                           "parameters from their standard errors) that keep its style, times the share of "
-                          "plausible readings that agree"),
+                          "plausible readings that agree, at most (n + 1) / (n + 2) for n presses"),
         "style_descriptions": descriptions(tables),
         "unsure_drivers": {str(r.driver_id): str(r.unsure) for r in tables["styles"].itertuples() if r.unsure},
         "features": features,

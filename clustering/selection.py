@@ -70,7 +70,7 @@ def resolve_features(spec: str) -> tuple[str, tuple[str, ...]]:
     indicators ('auto' is resolved by `choose_features`). Raises `UserError` when unknown."""
     if spec in INDICATOR_SETS:
         return spec, INDICATOR_SETS[spec]
-    if spec in ("auto", "auto-silhouette", "behaviour"):
+    if spec in ("auto", "heldout", "behaviour"):
         return spec, ()
     if spec.startswith("behaviour:"):
         from clustering.choice import behaviour_params
@@ -81,7 +81,7 @@ def resolve_features(spec: str) -> tuple[str, tuple[str, ...]]:
     names = tuple(s.strip() for s in spec.split(",") if s.strip())
     unknown = [n for n in names if n not in FEATURE_UNITS]
     if not names or unknown:
-        raise UserError(f"--features {spec!r}: use auto, behaviour, behaviour:<parameters>, auto-silhouette, "
+        raise UserError(f"--features {spec!r}: use auto, heldout, behaviour, behaviour:<parameters>, "
                         f"{', '.join(INDICATOR_SETS)} or a comma-separated list of indicators "
                         f"({', '.join(FEATURE_UNITS)})")
     return ",".join(names), names
