@@ -123,3 +123,32 @@ def test_a_recording_whose_following_cannot_be_read_keeps_its_decisions(workspac
     assert [s["reason"] for s in skipped if s["id"] == calls[0]] == [
         "steady-following extraction failed: ValueError: a broken traffic table"]
     assert calls[0] not in set(following["recording_id"]) and n_rec == len(calls)
+
+
+def test_heldout_reading_end_to_end(workspace, tmp_path):
+    """`--features heldout`: the reading chosen on held-out behaviour, stored with its scores; each
+    driver's behaviour parameters with intervals; every style described; confidence capped by
+    the rule of succession; the human summary shows the choice and the descriptions."""
+    ws, study = workspace
+    res = CliRunner().invoke(app, ["analyze", "-w", str(ws.root), "--features", "heldout", "--json"])
+    assert res.exit_code == 0, res.output
+    rep = json.loads(res.stdout)
+    feats = rep["summary"]["features"]
+    assert feats["requested"] == "heldout"
+    cands = {c["name"]: c for c in feats["candidates"]}
+    assert any(n.startswith("behaviour:") for n in cands) and sum(c["chosen"] for c in cands.values()) == 1
+    assert all(c["heldout_ll"] is not None and c["heldout_ll"] < 0 for c in cands.values())
+    assert set(rep["summary"]["style_descriptions"]) == set(rep["styles"])
+    assert all(" s" in t or " m" in t for t in rep["summary"]["style_descriptions"].values())
+    for info in rep["drivers"].values():
+        assert info["confidence"] <= (info["n_decisions"] + 1) / (info["n_decisions"] + 2) + 1e-9
+    beh = ws.read_table("analysis", "behaviour")
+    ok = beh[(beh["informed_by"] > 0) & beh["value"].notna()]
+    assert len(ok) and ((ok["lo"] <= ok["value"]) & (ok["value"] <= ok["hi"])).all()
+    text = CliRunner().invoke(app, ["analyze", "-w", str(ws.root), "--features", "heldout"]).stdout
+    assert "held-out log-likelihood" in text and "Defensive:" in text
+
+
+def test_unknown_behaviour_parameter_is_one_line(workspace):
+    res = CliRunner().invoke(app, ["analyze", "-w", str(workspace[0].root), "--features", "behaviour:wrong"])
+    assert res.exit_code == 1 and "unknown behaviour parameter" in res.output and "Traceback" not in res.output

@@ -1,0 +1,103 @@
+"""Behaviour parameters (critical gaps by penalised maximum likelihood) and the held-out choice."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import optimize
+
+from clustering import behaviour as B
+from clustering import choice as C
+from clustering import readings as R
+
+
+def gap_world(critical: dict[str, float], approaches: int = 40, seed: int = 0) -> pd.DataFrame:
+    """Decision states of drivers who press at the first state whose lag headway exceeds their
+    critical value times lognormal noise (0.15 in log units); 4 sessions each."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for drv, crit in critical.items():
+        for a in range(approaches):
+            session = f"{drv}_S{a % 4}"
+            for k in range(40):
+                thw = float(np.exp(rng.normal(np.log(1.5), 0.8)))
+                press = thw > crit * np.exp(rng.normal(0, 0.15))
+                rows.append({"driver_id": drv, "session_id": session, "decision_id": f"{drv}:{a}",
+                             "label": "change" if press else "keep", "thw_nb_s": thw})
+                if press:
+                    break
+    return pd.DataFrame(rows)
+
+
+def test_gradient_matches_finite_differences(monkeypatch):
+    d = gap_world({"A": 0.6, "B": 2.0}, approaches=10)
+    data = B.decision_data(d, ("thw_nb", "thw_f"))
+    seen = {}
+    real = optimize.minimize
+
+    def spy(fun, x0, **kw):
+        seen["f"], seen["x0"] = fun, x0
+        return real(fun, x0, **kw)
+
+    monkeypatch.setattr(B.optimize, "minimize", spy)
+    B.fit_gap_model(data, data.driver)
+    f = seen["f"]
+    x = seen["x0"] + np.random.default_rng(1).normal(0, 0.3, len(seen["x0"]))
+    _, grad = f(x)
+    num = np.array([(f(x + e)[0] - f(x - e)[0]) / 2e-6 for e in np.eye(len(x)) * 1e-6])
+    assert np.allclose(grad, num, atol=1e-4 * max(1.0, np.abs(num).max()))
+
+
+def test_critical_values_recovered_with_standard_errors():
+    truth = {"calm": 2.5, "mid": 1.2, "sporty": 0.5}
+    b = B.driver_behaviour(gap_world(truth, approaches=60), None, list(truth))
+    got = b.in_units()["thw_nb"]
+    for drv, crit in truth.items():
+        assert got[drv] == pytest.approx(crit, rel=0.25)
+    assert (b.se["thw_nb"] > 0).all() and (b.se["thw_nb"] < 0.3).all()
+    assert b.defined.loc["calm", "thw_nb"] == 60 and b.defined.loc["calm", "t_f"] == 0
+
+
+def test_few_presses_give_wide_errors_and_are_pooled():
+    d = gap_world({"many": 0.5, "few": 0.5, "other": 2.5}, approaches=60)
+    d = d[~d["decision_id"].isin([f"few:{a}" for a in range(3, 60)])]
+    b = B.driver_behaviour(d, None, ["many", "few", "other"])
+    assert b.presses["few"] == 3
+    assert b.se.loc["few", "thw_nb"] > 2 * b.se.loc["many", "thw_nb"]
+
+
+def test_heldout_choice_prefers_the_parameter_that_tells_styles_apart():
+    truth = {f"a{i}": 0.5 * (1 + 0.05 * i) for i in range(3)} | {f"n{i}": 1.2 * (1 + 0.05 * i) for i in range(3)} \
+        | {f"d{i}": 2.6 * (1 + 0.05 * i) for i in range(3)}
+    d = gap_world(truth, approaches=24, seed=3)
+    # a second variable that says nothing about the drivers: the leader's headway, pure noise
+    d["thw_f_s"] = np.exp(np.random.default_rng(4).normal(0, 0.5, len(d)))
+    drivers = sorted(truth)
+    b = B.driver_behaviour(d, None, drivers)
+    data = B.decision_data(d)
+    best, scores, _ = R.choose_reading(b, data, drivers, 3, n_init=5,
+                                       candidates={"thw_nb": ("thw_nb",), "thw_f": ("thw_f",)})
+    assert best == "thw_nb"
+    chosen = next(s for s in scores if s.chosen)
+    assert {chosen.labels[x] for x in ("d0", "d1", "d2")} == {"Defensive"}
+    assert {chosen.labels[x] for x in ("a0", "a1", "a2")} == {"Aggressive"}
+
+
+def test_session_folds_deal_each_drivers_sessions():
+    driver = np.array(["A"] * 4 + ["B"] * 2, dtype=object)
+    session = np.array(["s1", "s2", "s3", "s4", "t1", "t2"], dtype=object)
+    assert R.session_folds(driver, session, 4).tolist() == [0, 1, 2, 3, 0, 1]
+
+
+def test_succession_caps_confidence_of_few_presses():
+    assert C.succession(3) == pytest.approx(0.8)
+    assert C.succession(8) == pytest.approx(0.9)
+    why = C.unsure_reasons("x", 3, 1.0, 1.0, [], None, ())  # type: ignore[arg-type]
+    assert "only 3 presses" in why
+
+
+def test_behaviour_params_parse_and_refuse():
+    assert C.behaviour_params("behaviour:thw_nb+thw_follow") == ("thw_nb", "thw_follow")
+    with pytest.raises(ValueError, match="unknown behaviour parameter"):
+        C.behaviour_params("behaviour:nonsense")
