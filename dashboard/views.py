@@ -105,17 +105,32 @@ def drivers_of(tables: dict[str, pd.DataFrame]) -> list[str]:
     return sorted(ids)
 
 
-def style_summary(styles: pd.DataFrame) -> pd.DataFrame:
-    """Per style: number of members, the typical driver and the members."""
+def style_summary(styles: pd.DataFrame, meta: dict[str, Any] | None = None) -> pd.DataFrame:
+    """Per style: number of members, the typical driver, the members and, from the analysis's
+    summary, what sets the style apart in words (empty for an analysis made before)."""
     if styles is None or styles.empty or "style" not in styles:
-        return pd.DataFrame(columns=["style", "drivers", "typical driver", "members"])
+        return pd.DataFrame(columns=["style", "drivers", "typical driver", "members", "what sets it apart"])
+    words = ((meta or {}).get("summary") or {}).get("style_descriptions") or {}
     rows = []
     for style, g in styles.groupby("style", sort=False):
         flag = next((c for c in ("is_typical", "typical") if c in g), None)
         typical = g.loc[g[flag].astype(bool), "driver_id"].tolist() if flag else []
         rows.append({"style": style, "drivers": len(g), "typical driver": ", ".join(map(str, typical)),
-                     "members": ", ".join(sorted(map(str, g["driver_id"])))})
+                     "members": ", ".join(sorted(map(str, g["driver_id"]))),
+                     "what sets it apart": str(words.get(str(style), ""))})
     return pd.DataFrame(rows)
+
+
+def unsure_drivers(styles: pd.DataFrame) -> pd.DataFrame:
+    """The drivers whose style is not sure, with their confidence and why (empty when none is, or
+    for an analysis made before the reasons were kept)."""
+    cols = ["driver", "style", "confidence [-]", "why unsure"]
+    if styles is None or "unsure" not in styles:
+        return pd.DataFrame(columns=cols)
+    g = styles[styles["unsure"].fillna("").astype(str) != ""]
+    return pd.DataFrame({"driver": g["driver_id"].astype(str), "style": g["style"].astype(str),
+                         "confidence [-]": g["confidence"].astype(float).round(2),
+                         "why unsure": g["unsure"].astype(str)}, columns=cols).reset_index(drop=True)
 
 
 #: evaluation summary column -> (shown name, scale); shares are shown in percent.
@@ -210,9 +225,12 @@ def feature_candidates(meta: dict[str, Any]) -> pd.DataFrame:
                      "k": c.get("k"), "silhouette [-]": c.get("silhouette"), "stability [-]": c.get("stability"),
                      "score [-]": c.get("score"),
                      "presses read per driver": c.get("presses_read"),
+                     "held-out log-likelihood [-]": c.get("heldout_ll"),
                      "chosen": c.get("name") == feats.get("chosen")})
     out = pd.DataFrame(rows, columns=["feature set", "indicators", "k", "silhouette [-]", "stability [-]",
-                                      "score [-]", "presses read per driver", "chosen"])
+                                      "score [-]", "presses read per driver", "held-out log-likelihood [-]",
+                                      "chosen"])
+    out["held-out log-likelihood [-]"] = pd.to_numeric(out["held-out log-likelihood [-]"], errors="coerce").round(1)
     out["presses read per driver"] = pd.to_numeric(out["presses read per driver"], errors="coerce")
     for c in ("silhouette [-]", "stability [-]", "score [-]"):
         out[c] = pd.to_numeric(out[c], errors="coerce").round(3)

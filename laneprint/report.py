@@ -142,7 +142,13 @@ def _analysis(ws: Workspace) -> list[Section]:
     if len(cands):
         sty.table("feature_sets", cands)
     if styles is not None and len(styles):
-        sty.table("style_summary", views.style_summary(styles))
+        sty.table("style_summary", views.style_summary(styles, meta))
+        unsure = views.unsure_drivers(styles)
+        if len(unsure):
+            sty.p("Drivers whose style is not sure, and why (confidence: the share of draws of the driver's own "
+                  "estimates that keep its style, times the share of plausible readings that agree, at most "
+                  "(n + 1) / (n + 2) for n presses):")
+            sty.table("unsure_drivers", unsure)
         try:
             sty.figure("drivers_in_feature_space", cluster_scatter(styles, indicators=chosen))
         except ValueError as exc:

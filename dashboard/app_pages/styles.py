@@ -114,7 +114,18 @@ def main() -> None:
                    "(the bar), where the feature set holds thw_follow.")
         st.plotly_chart(following_headways(following, styles), key="following")
     st.subheader("Members and typical drivers")
-    st.dataframe(views.style_summary(styles), hide_index=True, width="stretch")
+    st.caption("What sets each style apart: its members' median critical values (the smallest gap they accept, "
+               "how close a leader comes before they want out; estimated from their presses and the states they "
+               "let pass) and the headway they keep while following.")
+    st.table(views.style_summary(styles, meta).set_index("style"))
+    unsure = views.unsure_drivers(styles)
+    st.subheader("Unsure drivers")
+    if unsure.empty:
+        st.caption("Every driver's style is sure: its own presses and every plausible reading agree.")
+    else:
+        st.caption("Confidence is the share of draws of the driver's own estimates that keep its style, times the "
+                   "share of plausible readings that agree, at most (n + 1) / (n + 2) for n presses.")
+        st.table(unsure.set_index("driver"))
     st.subheader("Reference lines per style")
     lines = tables.get("reference_lines")
     if lines is not None:

@@ -51,6 +51,18 @@ def test_every_page_renders(server, page):
                 path=str(SHOT_DIR / "data_recording_viewer.png"), animations="disabled")
 
 
+def test_styles_say_what_sets_them_apart_and_who_is_unsure(server, page):
+    """The Styles page describes every style in words with units, and has its unsure-driver section."""
+    url, _ws = server
+    open_page(page, url, "styles", "Styles")
+    expect(page.get_by_role("heading", name="Unsure drivers").first).to_be_visible(timeout=30_000)
+    members = page.locator('[data-testid="stTable"]').filter(has_text="what sets it apart").first
+    expect(members).to_be_visible(timeout=30_000)
+    text = members.inner_text()
+    assert re.search(r"\d(\.\d+)? (s|m)\b", text), text
+    no_errors(page)
+
+
 def test_upload_logs(server, page, tmp_path):
     url, ws = server
     good = tmp_path / "drive_b1.mcap"

@@ -31,10 +31,16 @@ def test_undefined_decisions_lists_only_presses_with_a_reason():
 def test_style_summary_and_for_driver():
     styles = pd.DataFrame({"driver_id": ["D1", "D2", "D3"], "style": ["Normal", "Normal", "Aggressive"],
                            "is_typical": [False, True, True]})
-    s = views.style_summary(styles)
+    meta = {"summary": {"style_descriptions": {"Normal": "follows at 1.5 s"}}}
+    s = views.style_summary(styles, meta)
     assert s.to_dict("records") == [
-        {"style": "Normal", "drivers": 2, "typical driver": "D2", "members": "D1, D2"},
-        {"style": "Aggressive", "drivers": 1, "typical driver": "D3", "members": "D3"}]
+        {"style": "Normal", "drivers": 2, "typical driver": "D2", "members": "D1, D2",
+         "what sets it apart": "follows at 1.5 s"},
+        {"style": "Aggressive", "drivers": 1, "typical driver": "D3", "members": "D3", "what sets it apart": ""}]
+    styles["confidence"] = [0.97, 0.5, 0.8]
+    styles["unsure"] = ["", "only 3 presses", "*readings* disagree"]
+    unsure = views.unsure_drivers(styles)
+    assert unsure["driver"].tolist() == ["D2", "D3"] and unsure["why unsure"].tolist()[1] == "*readings* disagree"
     skipped = pd.DataFrame({"what": ["driver", "indicator", "indicator"], "id": ["D1", "D1:t_nf", "D10:t_f"],
                             "reason": ["a", "b", "c"]})
     assert views.for_driver(skipped, "D1")["reason"].tolist() == ["a", "b"]
