@@ -17,6 +17,10 @@ Prints:
    auto, ttc, paper, headway, acceptance, all, following), the set 'auto' chose, and the flagged per-driver
    lines of the study's three indicators.
 
+6. optionally (`--zoo WORLD,... --zoo-seeds S ...`), the zoo of worlds judged one world out
+   (`benchmarks/zoo.py`): ARI per world and method, the leave-one-world-out table and the
+   reliability of the stated confidence, written to `benchmarks/results/analysis_zoo.json`.
+
 Run: .venv/bin/python benchmarks/analysis.py [--seeds 20] [--workspace /tmp/ws] [--messy 12]
      [--study /tmp/s200 /tmp/ws200 ...] [--seeds 0 --repeats 0: only what is asked]
 """
@@ -228,7 +232,17 @@ def main() -> None:
                     help="a simulated study and the workspace it is ingested in (repeat for more)")
     ap.add_argument("--specs", default=",".join(FEATURE_SPECS),
                     help="with --study: the --features values to measure, comma-separated (auto first)")
+    ap.add_argument("--zoo", default="", help="worlds of benchmarks/zoo.py, comma-separated ('all': every one)")
+    ap.add_argument("--zoo-seeds", type=int, nargs="+", default=[9101, 9102, 9103])
+    ap.add_argument("--zoo-root", type=Path, default=Path("/tmp/laneprint-zoo"), help="where studies are cached")
+    ap.add_argument("--zoo-methods", default="auto,heldout,behaviour", help="--features values to judge")
+    ap.add_argument("--zoo-out", default="analysis_zoo.json", help="file name under benchmarks/results/")
     args = ap.parse_args()
+    if args.zoo:
+        from zoo import WORLDS, run as run_zoo
+        worlds = list(WORLDS) if args.zoo == "all" else args.zoo.split(",")
+        run_zoo(worlds, args.zoo_seeds, args.zoo_root, tuple(args.zoo_methods.split(",")), args.zoo_out)
+        return
     if args.workspace:
         shipped(args.workspace)
     if args.study:

@@ -24,7 +24,7 @@ from itertools import combinations
 import numpy as np
 import pandas as pd
 
-from clustering.behaviour import (PARAMETERS, ROOM_PARAMETERS, Behaviour, DecisionData, GapModel, fit_gap_model,
+from clustering.behaviour import (PARAMETERS, Behaviour, DecisionData, GapModel, fit_gap_model,
                                   subset)
 from clustering.styles import StyleClusterer
 
@@ -123,27 +123,32 @@ def fold_models(data: DecisionData, n_folds: int = FOLDS) -> FoldModels:
 
 
 def heldout_loglik(data: DecisionData, labels: dict[str, str], fm: FoldModels) -> np.ndarray:
-    """Held-out log-likelihood of every state under its driver's style model fitted on the other
-    folds: the style's critical values are its members' (fitted on those folds), pooled by their
-    precision. NaN for states of drivers without a label or a fitted model."""
+    """Held-out log-likelihood of every state under its style's model, the driver's own data left out
+    twice: the state's session is held out (the models of the other folds), and the style's critical
+    values are those of its *other* members, pooled by their precision (the population's for a
+    driver alone in its style). So a grouping scores well when each driver decides like the others
+    of its style. NaN for states of drivers without a label or a fitted model."""
     out = np.full(len(data.y), np.nan)
     for f, model in fm.models.items():
         test = (fm.folds == f) & np.isin(data.driver, list(labels))
         if not test.any():
             continue
         index = {g: i for i, g in enumerate(model.groups)}
-        styles = sorted(set(labels.values()))
-        mu = np.zeros((len(styles), model.mu.shape[1]))
-        for si, st in enumerate(styles):
-            rows = [index[d] for d, lab in labels.items() if lab == st and d in index]
+        drivers = [d for d in labels if d in index]
+        mu = np.zeros((len(drivers), model.mu.shape[1]))
+        for di, d in enumerate(drivers):
+            rows = [index[o] for o in drivers if o != d and labels[o] == labels[d]]
             if rows:
                 w = 1.0 / np.maximum(model.mu_se[rows], 1e-3) ** 2
-                mu[si] = (w * model.mu[rows]).sum(axis=0) / w.sum(axis=0)
-        of = np.array([styles.index(labels[d]) if d in index else -1 for d in data.driver[test]])
+                mu[di] = (w * model.mu[rows]).sum(axis=0) / w.sum(axis=0)
+            else:
+                mu[di] = model.m
+        pos = {d: i for i, d in enumerate(drivers)}
+        of = np.array([pos.get(d, -1) for d in data.driver[test]])
         ll = np.full(len(of), np.nan)
         ok = of >= 0
         if ok.any():
-            pooled = GapModel(tuple(styles), mu, mu, model.sigma, model.m, model.hazard, model.lapse,
+            pooled = GapModel(tuple(drivers), mu, mu, model.sigma, model.m, model.hazard, model.lapse,
                               model.variables, model.n_presses, model.n_defined)
             ll[ok] = pooled.log_likelihood(subset(subset(data, test), ok), of[ok])
         out[np.flatnonzero(test)] = ll
@@ -152,10 +157,11 @@ def heldout_loglik(data: DecisionData, labels: dict[str, str], fm: FoldModels) -
 
 def cluster_reading(behaviour: Behaviour, params: tuple[str, ...], fit_on: list[str], k: int, n_init: int,
                     random_state: int) -> StyleClusterer:
-    """Styles of the drivers `fit_on` read by `params` (k-means on robustly standardised log values)."""
+    """Styles of the drivers `fit_on` read by `params` (k-means on robustly standardised log values),
+    named by the centres' mean standardised value (every parameter reads larger = more cautious:
+    larger gaps accepted, a leader left further away, a longer headway kept)."""
     X = behaviour.values.loc[fit_on, list(params)]
-    room = [p for p in params if p in ROOM_PARAMETERS]
-    return StyleClusterer(k=k, n_init=n_init, random_state=random_state, room=room or None).fit(X)
+    return StyleClusterer(k=k, n_init=n_init, random_state=random_state, room=list(params)).fit(X)
 
 
 def usable_parameters(behaviour: Behaviour, drivers: list[str]) -> tuple[str, ...]:

@@ -138,6 +138,17 @@ class StyleClusterer:
         self.labels_, self.confidence_, self.margin_ = self._assign(Z)
         return self
 
+    def order_by(self, score: np.ndarray) -> "StyleClusterer":
+        """Re-order (and so re-name) the fitted clusters by `score` per cluster, most defensive
+        (largest) first: for styles named by measures other than the features clustered on."""
+        order = np.argsort(-np.asarray(score, dtype=float), kind="stable")
+        inverse = np.empty_like(order)
+        inverse[order] = np.arange(len(order))
+        self.cluster_centers_ = self.cluster_centers_[order]
+        self.defensiveness_ = np.asarray(score, dtype=float)[order]
+        self.labels_ = inverse[self.labels_]
+        return self
+
     def _assign(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         d2 = ((Z[:, None, :] - self.cluster_centers_[None, :, :]) ** 2).sum(axis=2)
         labels = d2.argmin(axis=1)

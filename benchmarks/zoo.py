@@ -1,0 +1,188 @@
+"""The analysis judged on a zoo of worlds, one world out (`python benchmarks/analysis.py --zoo ...`).
+
+Worlds (`WORLDS`): laneprint's own generator, SUMO's `ttc`, `acceptance` and `sublane`
+families, and highway-env's IDM + MOBIL (a simulator written by others), on two and three
+lanes where the generator has them. Each (world, seed) study is generated with
+`laneprint simulate`, ingested and its decisions extracted once (cached under `--root`);
+then every method (`--methods`: values of `laneprint analyze --features`) reads its styles.
+
+Reported, and written to `benchmarks/results/analysis_zoo.json` with the command, commit,
+date and machine:
+- per world and method: mean and minimum ARI over the seeds, and the share of drivers whose
+  style name is right (Defensive the most cautious group);
+- leave-one-world-out: for each world, the method with the best mean ARI on the *other*
+  worlds, and its ARI on this one (a choice made without the world it is judged on);
+- reliability: stated confidence (binned) against the share of drivers right, pooled over the
+  zoo, per method.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import subprocess
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from sklearn.metrics import adjusted_rand_score
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+#: world -> `laneprint simulate` options
+WORLDS: dict[str, list[str]] = {
+    "synthetic-2": [],
+    "sumo-ttc-2": ["--engine", "sumo", "--family", "ttc", "--lanes", "2"],
+    "sumo-ttc-3": ["--engine", "sumo", "--family", "ttc", "--lanes", "3"],
+    "sumo-acceptance-2": ["--engine", "sumo", "--family", "acceptance", "--lanes", "2"],
+    "sumo-acceptance-3": ["--engine", "sumo", "--family", "acceptance", "--lanes", "3"],
+    "sumo-sublane-2": ["--engine", "sumo", "--family", "sublane", "--lanes", "2"],
+    "sumo-sublane-3": ["--engine", "sumo", "--family", "sublane", "--lanes", "3"],
+    "highway-2": ["--engine", "highway", "--lanes", "2"],
+    "highway-3": ["--engine", "highway", "--lanes", "3"],
+}
+METHODS: tuple[str, ...] = ("auto", "heldout", "behaviour")
+BINS = (0.0, 0.5, 0.7, 0.8, 0.9, 1.0001)
+
+
+def laneprint(*args: str) -> None:
+    exe = Path(sys.executable).with_name("laneprint")
+    subprocess.run([str(exe), *args], check=True, stdout=subprocess.DEVNULL)
+
+
+def study(world: str, seed: int, root: Path) -> tuple[Path, Path]:
+    """(study folder, workspace) of one world and seed, generated and ingested unless cached."""
+    out, ws = root / f"{world}-{seed}", root / f"{world}-{seed}.ws"
+    if not (out / "ground_truth.json").exists():
+        laneprint("simulate", "--out", str(out), "--seed", str(seed), "--format", "csv", "--force", *WORLDS[world])
+    if not (ws / "recordings").is_dir():
+        laneprint("ingest", str(out), "-w", str(ws), "--json")
+    return out, ws
+
+
+def decisions_of(ws: Path) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
+    """The workspace's decisions and following episodes (cached beside it) and its drivers."""
+    from clustering.pipeline import extract_all
+    from indicators.settings import AnalysisSettings
+    from laneprint.workspace import Workspace
+
+    cache_d, cache_f = ws / "zoo_decisions.parquet", ws / "zoo_following.parquet"
+    w = Workspace(ws)
+    drivers = sorted(w.recordings()["driver_id"].astype(str).unique())
+    if cache_d.exists() and cache_f.exists():
+        return pd.read_parquet(cache_d), pd.read_parquet(cache_f), drivers
+    dec, _, _, following = extract_all(w, AnalysisSettings())
+    dec.to_parquet(cache_d)
+    following.to_parquet(cache_f)
+    return dec, following, drivers
+
+
+def judge(world: str, seed: int, root: Path, methods: tuple[str, ...]) -> list[dict]:
+    """One row per (method, driver): truth, style, confidence, presses; plus the method's ARI."""
+    from clustering.pipeline import analyze_tables
+    from indicators.settings import AnalysisSettings
+
+    out, ws = study(world, seed, root)
+    truth = {d["driver_id"]: d["style"] for d in json.loads((out / "ground_truth.json").read_text())["drivers"]}
+    dec, following, drivers = decisions_of(ws)
+    rows = []
+    for method in methods:
+        t0 = time.perf_counter()
+        st = analyze_tables(dec, AnalysisSettings(features=method), drivers=drivers, following=following)["styles"]
+        seconds = time.perf_counter() - t0
+        st = st[st["driver_id"].isin(truth)]
+        a = float(adjusted_rand_score([truth[d] for d in st["driver_id"]], st["style"]))
+        chosen = ""
+        for r in st.itertuples():
+            rows.append({"world": world, "seed": seed, "method": method, "driver": r.driver_id, "truth": truth[r.driver_id],
+                         "style": r.style, "confidence": float(r.confidence), "presses": int(r.n_decisions),
+                         "ari": a, "seconds": seconds, "unsure": str(r.unsure)})
+        del chosen
+    return rows
+
+
+def summarise(df: pd.DataFrame) -> dict:
+    """Per world and method, leave-one-world-out, and reliability tables (JSON-ready)."""
+    studies = df.groupby(["world", "method", "seed"]).agg(ari=("ari", "first"),
+                                                          named=("right", "mean"), seconds=("seconds", "first"))
+    per = studies.groupby(["world", "method"]).agg(mean_ari=("ari", "mean"), min_ari=("ari", "min"),
+                                                   names_right=("named", "mean"), seeds=("ari", "size"),
+                                                   median_seconds=("seconds", "median")).reset_index()
+    lowo = []
+    for world in sorted(per["world"].unique()):
+        others = per[per["world"] != world].groupby("method")["mean_ari"].mean()
+        if others.empty:
+            continue
+        pick = str(others.idxmax())
+        here = per[(per["world"] == world) & (per["method"] == pick)].iloc[0]
+        lowo.append({"world": world, "method_chosen_elsewhere": pick, "mean_ari": float(here["mean_ari"]),
+                     "min_ari": float(here["min_ari"]), "names_right": float(here["names_right"])})
+    rel = []
+    for method, g in df.groupby("method"):
+        bins = pd.cut(g["confidence"], BINS, right=False)
+        for interval, h in g.groupby(bins, observed=True):
+            rel.append({"method": method, "confidence": f"[{interval.left:.1f}, {min(interval.right, 1.0):.1f})",
+                        "drivers": int(len(h)), "share_right": float(h["right"].mean())})
+        hi = g[g["confidence"] >= 0.9]
+        rel.append({"method": method, "confidence": ">= 0.9", "drivers": int(len(hi)),
+                    "share_right": float(hi["right"].mean()) if len(hi) else None})
+    return {"per_world": per.to_dict("records"), "leave_one_world_out": lowo, "reliability": rel}
+
+
+def run(worlds: list[str], seeds: list[int], root: Path, methods: tuple[str, ...], out_name: str) -> dict:
+    root.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for world in worlds:
+        for seed in seeds:
+            t0 = time.perf_counter()
+            try:
+                rows += judge(world, seed, root, methods)
+            except subprocess.CalledProcessError as exc:
+                print(f"  {world} seed {seed}: generation failed ({exc})", flush=True)
+                continue
+            last = [r for r in rows if r["world"] == world and r["seed"] == seed]
+            print(f"  {world:<18} seed {seed:5d} " + "  ".join(
+                f"{m} {next(r['ari'] for r in last if r['method'] == m):.2f}" for m in methods)
+                + f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
+    df = pd.DataFrame(rows)
+    df["right"] = df["style"] == df["truth"]
+    result = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]), "commit": _commit(),
+              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+              "machine": f"{platform.node()} {platform.machine()} {_cores()} cores",
+              "worlds": worlds, "seeds": seeds, "methods": list(methods), **summarise(df),
+              "drivers": df.to_dict("records")}
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / out_name).write_text(json.dumps(result, indent=1, default=float) + "\n")
+    print_tables(result)
+    return result
+
+
+def print_tables(result: dict) -> None:
+    per = pd.DataFrame(result["per_world"])
+    print("\nmean ARI (min) per world and method; share of drivers named right")
+    for world, g in per.groupby("world"):
+        print(f"  {world:<18} " + "  ".join(f"{r.method} {r.mean_ari:.2f} ({r.min_ari:.2f}) {100 * r.names_right:.0f} %"
+                                             for r in g.itertuples()))
+    print("\nleave one world out: the method best on the other worlds, judged on this one")
+    for r in result["leave_one_world_out"]:
+        print(f"  {r['world']:<18} {r['method_chosen_elsewhere']:<10} mean ARI {r['mean_ari']:.2f}, "
+              f"min {r['min_ari']:.2f}, names right {100 * r['names_right']:.0f} %")
+    print("\nreliability: stated confidence against the share of drivers right (pooled over the zoo)")
+    for r in result["reliability"]:
+        share = "-" if r["share_right"] is None else f"{100 * r['share_right']:.0f} %"
+        print(f"  {r['method']:<10} {r['confidence']:<12} {r['drivers']:4d} drivers  right {share}")
+
+
+def _commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    except OSError:
+        return ""
+
+
+def _cores() -> int:
+    import os
+    return os.cpu_count() or 0
