@@ -120,6 +120,25 @@ def format_line(indicator: str, A: float, b: float) -> str:
     return line_formula(indicator, A, b, x="v", digits_a=2)
 
 
+def with_config(path: Path, flags: "AnalysisSettings") -> "AnalysisSettings":
+    """The settings of `path`, with every option given on the command line (differing from its
+    default) on top; the result checked as the options are."""
+    from dataclasses import fields, replace
+
+    from indicators.settings import DRIVER_LINES, AnalysisSettings
+    from laneprint.config import read_config
+
+    settings = read_config(path, AnalysisSettings)
+    default = AnalysisSettings()
+    given = {f.name: getattr(flags, f.name) for f in fields(AnalysisSettings)
+             if getattr(flags, f.name) != getattr(default, f.name)}
+    settings = replace(settings, **given)
+    if settings.driver_lines not in DRIVER_LINES:
+        raise UserError(f"--config {path}: driver_lines must be one of {', '.join(DRIVER_LINES)}, "
+                        f"not {settings.driver_lines!r}")
+    return settings
+
+
 def analyze_command(
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,
@@ -151,6 +170,9 @@ def analyze_command(
         "--keep-receding", help="Fit front gaps and headways to leaders pulling away too (default: left out when "
                                 "the leader pulls away faster than 1 m/s: the driver is not held by it).")] = False,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the clustering.")] = 0,
+    config: Annotated[Optional[Path], typer.Option(
+        "--config", help="A TOML file of analysis settings (the fields of AnalysisSettings, e.g. "
+                         "driver_lines = \"mixed\"); options given on the command line take precedence.")] = None,
 ) -> None:
     """Indicators at every decision, per-driver correlations and fits, styles and reference lines."""
     from clustering.pipeline import analyze
@@ -170,10 +192,13 @@ def analyze_command(
             resolve_features(features)  # a one-line error before any work
         if flagged_lines not in FLAGGED_LINES:
             raise UserError(f"--flagged-lines must be one of {', '.join(FLAGGED_LINES)}, not {flagged_lines!r}")
-        settings = AnalysisSettings(k=k, choose_k=choose_k, far_follower_m=far_follower_m, step_s=step_s,
-                                    feature_fit=feature_fit, acceptance_fit=acceptance_fit, feature_extrapolate=extrapolate_features,
-                                    features=features, flagged_lines=flagged_lines, random_state=seed,
-                                    max_receding_mps=None if keep_receding else AnalysisSettings.max_receding_mps)
+        flags = AnalysisSettings(k=k, choose_k=choose_k, far_follower_m=far_follower_m, step_s=step_s,
+                                 feature_fit=feature_fit, acceptance_fit=acceptance_fit, feature_extrapolate=extrapolate_features,
+                                 features=features, flagged_lines=flagged_lines, random_state=seed,
+                                 max_receding_mps=None if keep_receding else AnalysisSettings.max_receding_mps)
+        settings = flags if config is None else with_config(config, flags)
+        if settings.features not in ("auto", "heldout", "behaviour"):
+            resolve_features(settings.features)
         ws = Workspace(Path(workspace))
         if not ws.root.is_dir() or ws.recordings().empty:  # before the progress bar draws anything
             raise UserError(f"no recordings in workspace {ws.root}: run `laneprint ingest PATH` first")

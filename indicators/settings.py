@@ -29,6 +29,8 @@ INDICATOR_SETS: dict[str, tuple[str, ...]] = {
 #: headway kept over the whole drive; where a study has no steady following, its thw_follow is
 #: imputed alike for every driver and it reads as thw_f, so 'headway' is not a candidate.
 AUTO_CANDIDATES: tuple[str, ...] = ("ttc", "following", "acceptance", "all")
+#: How a driver's indicator line is fitted (`AnalysisSettings.driver_lines`).
+DRIVER_LINES: tuple[str, ...] = ("ols", "mixed")
 #: What a flagged line becomes in the reference lines (`AnalysisSettings.flagged_lines`).
 FLAGGED_LINES: tuple[str, ...] = ("level", "ols")
 
@@ -92,6 +94,10 @@ class AnalysisSettings:
     indicator, so the line is no reference to steer by."""
     min_flag_points: int = 10
     """A fitted line on fewer points than this is flagged."""
+    driver_lines: str = "ols"
+    """How each driver's indicator line is fitted: 'ols' (its own presses alone, the study's way)
+    or 'mixed' (a mixed model over every driver with a random intercept and slope per driver,
+    `indicators.mixed`: a driver with few presses borrows strength from the others)."""
     flagged_lines: str = "level"
     """What a style's or driver's reference line is when its OLS fit is flagged: 'level'
     (A = 0, b = the median of the driver's values: the level it keeps, whatever the

@@ -282,16 +282,34 @@ def correlate(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
 def fit_lines(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
               points: pd.DataFrame | None = None, drivers: list[str] | None = None,
               indicators: tuple[str, ...] = INDICATORS) -> pd.DataFrame:
-    """OLS `I = A * v_e + b` per driver and indicator, with SEs, CIs, R², n; 'skipped' rows say why."""
+    """`I = A * v_e + b` per driver and indicator, with SEs, CIs, R², n; 'skipped' rows say why.
+
+    `settings.driver_lines`: 'ols' (each driver's own OLS line, the study's way) or 'mixed' (the
+    driver's prediction from a mixed model over every driver, `indicators.mixed`: a driver with
+    few presses borrows from the others). With 'mixed', a driver needs only
+    `indicators.mixed.MIN_MIXED_POINTS` points for a line, which `fit_flag` flags when it rests on
+    few; where the mixed model cannot be fitted, OLS stands in."""
+    from indicators.mixed import MIN_MIXED_POINTS, mixed_fits
+
     settings = settings or AnalysisSettings()
     points = indicator_points(decisions, settings) if points is None else points
+    groups = list(iter_groups(points, drivers if drivers is not None else _drivers(decisions), indicators))
+    mixed: dict[str, dict | None] = {}
+    if settings.driver_lines == "mixed":
+        for ind in indicators:
+            mixed[ind] = mixed_fits([g for g in groups if g.indicator == ind and len(g.v) >= MIN_MIXED_POINTS],
+                                    settings.alpha)
     rows = []
-    for g in iter_groups(points, drivers if drivers is not None else _drivers(decisions), indicators):
+    for g in groups:
         reason = _why_not(g, settings)
         row = {c: np.nan for c in FIT_COLUMNS}
         row.update(driver_id=g.driver_id, indicator=g.indicator, n=int(len(g.v)), status="skipped", reason=reason,
                    df_resid=0, flag="", level=float(np.median(g.y)) if len(g.y) else np.nan)
-        if not reason:
+        pooled = (mixed.get(g.indicator) or {}).get(g.driver_id)
+        if pooled is not None:
+            row.update(v_min=float(g.v.min()), v_max=float(g.v.max()), **pooled)
+            row.update(status="ok", reason="", flag=fit_flag(LineFit(**pooled, alpha=settings.alpha), settings))
+        elif not reason:
             row.update(v_min=float(g.v.min()), v_max=float(g.v.max()))
             fit = fit_line(g.v, g.y, settings.alpha)
             row.update({k: getattr(fit, k) for k in ("A", "b", "A_se", "b_se", "A_lo", "A_hi", "b_lo", "b_hi",
