@@ -111,14 +111,15 @@ class FoldModels:
     models: dict[int, GapModel]
 
 
-def fold_models(data: DecisionData, n_folds: int = FOLDS) -> FoldModels:
-    """Fit the per-driver model once per held-out fold (the expensive part, shared by every reading)."""
+def fold_models(data: DecisionData, n_folds: int = FOLDS, start: GapModel | None = None) -> FoldModels:
+    """Fit the per-driver model once per held-out fold (the expensive part, shared by every reading),
+    each from `start` (the fit on every fold)."""
     folds = session_folds(data.driver, data.session, n_folds)
     models = {}
     for f in np.unique(folds):
         train = folds != f
         if (data.y[train] > 0).any():
-            models[int(f)] = fit_gap_model(subset(data, train), data.driver[train])
+            models[int(f)] = fit_gap_model(subset(data, train), data.driver[train], start=start)
     return FoldModels(folds, models)
 
 
@@ -184,7 +185,7 @@ def choose_reading(behaviour: Behaviour, data: DecisionData, fit_on: list[str], 
     candidates = candidates or candidate_readings()
     candidates = {n: p for n, p in candidates.items() if set(p) <= usable}
     groupings: dict[str, dict[str, str]] = {}
-    fm = fold_models(data)
+    fm = fold_models(data, start=behaviour.model)
     scored: dict[str, tuple[np.ndarray, dict[str, str]]] = {}
     clusterers: dict[str, StyleClusterer] = {}
     rows = behaviour.values.index.isin(fit_on)
