@@ -13,7 +13,7 @@ CHOOSE_K = {"fixed k": None, "silhouette": "silhouette", "BIC": "bic"}
 #: The receding-leader threshold the form's tick box switches on [m/s].
 RECEDING_MPS = AnalysisSettings.max_receding_mps
 #: Feature sets the form offers ('auto': chosen by the data).
-FEATURE_SETS = ("auto", *INDICATOR_SETS)
+FEATURE_SETS = ("auto", "heldout", "behaviour", *INDICATOR_SETS)
 
 
 def rerun_form(ws, current: dict) -> None:
@@ -30,8 +30,10 @@ def rerun_form(ws, current: dict) -> None:
                            help="How each driver's line is fitted to make the clustering features")
         sets = list(dict.fromkeys([now.features, *FEATURE_SETS]))
         features = c4.selectbox("Features", sets, key="features",
-                                help="Which indicators make the clustering features; 'auto': each candidate set "
-                                     "is clustered and the best separated, most stable one is used")
+                                help="What the styles are read by; 'auto': the indicator set best separated and "
+                                     "most stable; 'heldout': the reading whose styles best predict the drivers' "
+                                     "held-out decisions and following headways; 'behaviour': the same among the "
+                                     "drivers' critical gaps and following headway only")
         d1, d2, _ = st.columns([1, 2, 1])
         levels = list(dict.fromkeys([now.acceptance_fit, *FEATURE_FITS]))
         level = d1.selectbox("Gap / headway features", levels, key="acceptance_fit",
