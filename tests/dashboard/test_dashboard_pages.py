@@ -17,7 +17,8 @@ def run_page(name: str) -> AppTest:
 
 
 def style_table(at: AppTest):
-    return next(d.value for d in at.dataframe if "typical driver" in d.value.columns)
+    """The Styles page's members table (a static table, its text wraps), `style` a column."""
+    return next(t.value.reset_index() for t in at.table if "typical driver" in t.value.columns)
 
 
 def charts(at: AppTest) -> list[dict]:
