@@ -55,6 +55,8 @@ VARIABLES: dict[str, tuple[str, int, float, str, str]] = {
 PARAMETERS: tuple[str, ...] = tuple(VARIABLES) + ("thw_follow",)
 #: Parameters that measure the room a driver needs (larger = more defensive), for naming styles.
 ROOM_PARAMETERS: tuple[str, ...] = ("thw_nb", "gap_nf", "t_nf", "thw_follow")
+#: Prefix of a behaviour reading's name (`laneprint analyze --features behaviour:thw_nb+thw_follow`).
+BEHAVIOUR = "behaviour:"
 #: Standard deviation of the partial-pooling prior of a driver's log critical value.
 PRIOR_SD = 1.0
 #: Values are capped here before the log (a TTC of an hour says no more than one of 15 min).
@@ -63,6 +65,16 @@ _CAP = 1e3
 FOLLOW_QUANTILE = 0.25
 _FOLLOW_BOOT = 200
 _MIN_EPISODES = 3
+
+
+def behaviour_params(name: str) -> tuple[str, ...]:
+    """('thw_nb', 'thw_follow') of 'behaviour:thw_nb+thw_follow'; ValueError for an unknown parameter."""
+    params = tuple(p for p in name[len(BEHAVIOUR):].split("+") if p)
+    unknown = [p for p in params if p not in PARAMETERS]
+    if not params or unknown:
+        raise ValueError(f"unknown behaviour parameter(s) {', '.join(unknown) or '(none)'}: "
+                         f"use {', '.join(PARAMETERS)} joined by '+'")
+    return params
 
 
 @dataclass(frozen=True)

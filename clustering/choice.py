@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from clustering.behaviour import PARAMETERS, VARIABLES, Behaviour, decision_data, subset
+from clustering.behaviour import BEHAVIOUR, PARAMETERS, VARIABLES, Behaviour, behaviour_params, decision_data, subset
 from clustering.features import driver_features, transform_features
 from clustering.readings import (ReadingScore, candidate_readings, choose_reading, cluster_reading,
                                  draw_confidence)
@@ -33,8 +33,6 @@ from indicators.settings import AUTO_CANDIDATES, INDICATOR_SETS, AnalysisSetting
 #: `features` values that choose on held-out behaviour: 'heldout' among every reading,
 #: 'behaviour' among the behaviour readings only.
 HELDOUT_CHOICES: tuple[str, ...] = ("heldout", "behaviour")
-#: Prefix of a behaviour reading's name.
-BEHAVIOUR = "behaviour:"
 #: Largest number of behaviour parameters in one candidate reading.
 MAX_READING_SIZE = 2
 #: A driver with fewer presses than this is unsure whatever its estimates say.
@@ -43,16 +41,6 @@ FEW_PRESSES = 8
 
 def is_behaviour(name: str) -> bool:
     return name.startswith(BEHAVIOUR)
-
-
-def behaviour_params(name: str) -> tuple[str, ...]:
-    """('thw_nb', 'thw_follow') of 'behaviour:thw_nb+thw_follow'; ValueError for an unknown parameter."""
-    params = tuple(p for p in name[len(BEHAVIOUR):].split("+") if p)
-    unknown = [p for p in params if p not in PARAMETERS]
-    if not params or unknown:
-        raise ValueError(f"unknown behaviour parameter(s) {', '.join(unknown) or '(none)'}: "
-                         f"use {', '.join(PARAMETERS)} joined by '+'")
-    return params
 
 
 @dataclass

@@ -73,7 +73,7 @@ def resolve_features(spec: str) -> tuple[str, tuple[str, ...]]:
     if spec in ("auto", "heldout", "behaviour"):
         return spec, ()
     if spec.startswith("behaviour:"):
-        from clustering.choice import behaviour_params
+        from clustering.behaviour import behaviour_params
         try:
             return spec, behaviour_params(spec)
         except ValueError as exc:

@@ -98,6 +98,6 @@ def test_succession_caps_confidence_of_few_presses():
 
 
 def test_behaviour_params_parse_and_refuse():
-    assert C.behaviour_params("behaviour:thw_nb+thw_follow") == ("thw_nb", "thw_follow")
+    assert B.behaviour_params("behaviour:thw_nb+thw_follow") == ("thw_nb", "thw_follow")
     with pytest.raises(ValueError, match="unknown behaviour parameter"):
-        C.behaviour_params("behaviour:nonsense")
+        B.behaviour_params("behaviour:nonsense")
