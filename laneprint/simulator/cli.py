@@ -25,11 +25,13 @@ DecisionsOpt = Annotated[Optional[int], typer.Option(
 EngineOpt = Annotated[str, typer.Option(
     "--engine", help="synthetic (laneprint's generator) or sumo (Eclipse SUMO's models decide).")]
 MinutesOpt = Annotated[Optional[float], typer.Option(
-    "--minutes", help="Minutes of driving per section (sumo; default 5, 15 for --family acceptance).")]
+    "--minutes", help="Minutes of driving per section (sumo; default 5, 15 for --family acceptance, 6 for "
+                      "--family sublane).")]
 FamilyOpt = Annotated[Optional[str], typer.Option(
-    "--family", help="sumo study family: ttc (default; styles differ in the times to collision they accept) or "
+    "--family", help="sumo study family: ttc (default; styles differ in the times to collision they accept), "
                      "acceptance (IDM drivers whose styles differ in the gaps and headways they accept; most presses "
-                     "have no closing leader). See laneprint/simulator/SUMO.md.")]
+                     "have no closing leader) or sublane (SUMO's sublane model SL2015 for every vehicle: lane changes "
+                     "are lateral moves at the driver's own lateral speed). See laneprint/simulator/SUMO.md.")]
 LanesOpt = Annotated[Optional[int], typer.Option(
     "--lanes", help="sumo: lanes of the highway, 2 (default) or 3 (lane 0 rightmost; the ego changes from every "
                     "lane, both ways from the middle one).")]

@@ -371,6 +371,9 @@ def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed:
     cfg = EnvConfig.from_dict(config["env"])
     own = own_traffic(workspace, target)
     family = family or (own[0] if own else DEFAULT_FAMILY)
+    if family == "sublane":  # the controller reads a lane change under way from the ego leaving its lane centre
+        raise UserError("laneprint drive does not drive on sublanes (--family sublane): give --family ttc or "
+                        "acceptance")
     in_own_traffic = own == (family, lanes)
     if dwell_calibrated is None:
         dwell_calibrated = in_own_traffic and held_back and dwell and not dwell_draw

@@ -1,6 +1,6 @@
 """An independent study generator on Eclipse SUMO (`laneprint simulate --engine sumo`).
 
-The drivers decide by SUMO's own models (Krauss car following, LC2013 lane
+The drivers decide by SUMO's own models (Krauss or IDM car following, LC2013 or SL2015 lane
 changes), not by laneprint's: a test of whether the analysis generalises. See
 `laneprint/simulator/SUMO.md`.
 

@@ -16,8 +16,10 @@ from laneprint.reference import SPEED_LIMITS_KPH
 #: Study families (`laneprint simulate --engine sumo --family NAME`), the default first: `ttc`, styles
 #: that differ in the times to collision they accept (Krauss + LC2013 in traffic that keeps the ego
 #: closing on slower leaders); `acceptance`, styles that differ in the gaps and headways they accept
-#: (IDM + LC2013 in a busy left lane: most presses have no closing leader). See SUMO.md.
-FAMILIES: tuple[str, ...] = ("ttc", "acceptance")
+#: (IDM + LC2013 in a busy left lane: most presses have no closing leader); `sublane`, SUMO's sublane
+#: model (Krauss + SL2015, SL2015 for the traffic too, `--lateral-resolution`): lane changes are lateral
+#: moves at the driver's own lateral speed, styles differ in headway and SL2015's eagerness. See SUMO.md.
+FAMILIES: tuple[str, ...] = ("ttc", "acceptance", "sublane")
 DEFAULT_FAMILY = FAMILIES[0]
 #: Numbers of lanes a SUMO road can have (`--lanes N`), the default first. Lane 0 is the rightmost.
 LANES: tuple[int, ...] = (2, 3)
@@ -51,6 +53,9 @@ class SumoSettings:
     truck_length_m: tuple[float, float] = (10.0, 16.0)  # [m] truck length ~ Uniform
     scene_range_m: float = 150.0  # [m] a vehicle is in the log while |x - ego_x| <= this (centres)
     car_follow_model: str = "Krauss"  # the ego's SUMO carFollowModel (its parameters come with the style)
+    lane_change_model: str = "LC2013"  # the ego's SUMO laneChangeModel; SL2015 (sublane) for every vehicle
+    lateral_resolution_m: float = 0.0  # [m] SUMO's --lateral-resolution (sublane width); 0: no sublanes
+    # (LC2013). SL2015 needs it > 0: a lane change is then a lateral move at the vehicle's lateral speed
     background_sigma: float = 0.0  # Krauss dawdling (0-1) of background vehicles: their speed wavers
 
     # --- background traffic: a bubble around the ego ---------------------------------
@@ -87,6 +92,8 @@ class SumoSettings:
             raise ValueError(f"stream {bad[0]!r} does not fit a {self.n_lanes}-lane road")
         if not self.speed_limits_kph:
             raise ValueError("speed_limits_kph must name at least one section")
+        if (self.lane_change_model == "SL2015") != (self.lateral_resolution_m > 0):
+            raise ValueError("SL2015 needs lateral_resolution_m > 0 (sublanes), and sublanes need SL2015")
         if self.minutes <= 0:
             raise ValueError("minutes must be positive")
         if self.spawn_ahead_m <= self.scene_range_m or self.remove_ahead_m <= self.spawn_ahead_m:
@@ -113,7 +120,10 @@ class SumoSettings:
 #: gap it accepts before changing left, and returns right when the right lane has room. Its drivers
 #: wait for gaps, so they press about a third as often as the `ttc` family's: 15 minutes a section
 #: give a study about as many presses as the third simulator's study of issue 18 (SUMO.md, "Study
-#: length").
+#: length"). `sublane`: SL2015 on sublanes of `lateral_resolution_m` for every vehicle, Krauss for the
+#: ego; the default family's traffic with faster cars from behind every 8-25 s (they are the target
+#: lane's followers the styles accept or wait for); 6 minutes a section give every driver 20 or more
+#: presses (SUMO.md, "The `sublane` family").
 FAMILY_OVERRIDES: dict[str, dict[str, Any]] = {
     "ttc": {},
     "acceptance": {
@@ -126,6 +136,14 @@ FAMILY_OVERRIDES: dict[str, dict[str, Any]] = {
         "fast_speed_frac": (1.1, 1.3),
         "fast_interval_s": (3.0, 10.0),
     },
+    "sublane": {
+        "minutes": 6.0,
+        "car_follow_model": "Krauss",
+        "lane_change_model": "SL2015",
+        "lateral_resolution_m": 0.8,
+        "fast_speed_frac": (1.05, 1.25),
+        "fast_interval_s": (8.0, 25.0),
+    },
 }
 
 
@@ -137,6 +155,7 @@ LANE_OVERRIDES: dict[tuple[str, int], dict[str, Any]] = {
     ("ttc", 3): {"ahead_streams": ("slow", "middle", "left")},
     ("acceptance", 3): {"ahead_streams": ("slow", "middle"), "middle_speed_frac": (0.8, 0.95),
                         "middle_spacing_s": (4.0, 16.0)},
+    ("sublane", 3): {"ahead_streams": ("slow", "middle", "left")},
 }
 
 

@@ -1,8 +1,9 @@
 """Driver styles as SUMO vehicle-type parameters, and the study's drivers.
 
-A style is a set of car-following and LC2013 lane-change parameters, one set per
+A style is a set of car-following and lane-change parameters, one set per
 study family (`FAMILY_STYLE_PARAMS`; see `laneprint/simulator/SUMO.md` for why
-these values): Krauss for `ttc`, IDM for `acceptance`. Drivers get styles
+these values): Krauss + LC2013 for `ttc`, IDM + LC2013 for `acceptance`, Krauss +
+SL2015 for `sublane`. Drivers get styles
 round-robin (D01 Defensive, D02 Normal, D03 Aggressive, D04 Defensive, ...); the
 first driver of each style drives the nominal values (`typical`), every other one
 has each value multiplied by `exp(N(0, perturbation_sd))`, clipped to +-2 sd (a
@@ -65,14 +66,49 @@ ACCEPTANCE_STYLE_PARAMS: dict[str, dict[str, float]] = {
     },
 }
 
+#: The `sublane` family: style -> SUMO vType attribute -> nominal value. Car following (Krauss, as
+#: `ttc`): tau [s] (about the time headway it keeps), minGap [m], accel / decel [m/s^2], speedFactor,
+#: sigma (dawdling 0-1: its speed wavers). Lane change (SL2015 on sublanes): lcAssertive (divides the
+#: safe gaps to the target lane's vehicles: larger accepts shorter gaps), lcSpeedGain (eagerness to
+#: change for speed), lcKeepRight and lcKeepRightAcceptanceTime [s] (eagerness to return right; the
+#: free time at full speed it wants ahead in the right lane), lcCooperative, lcPushy (0-1: squeezes into
+#: a lateral gap under minGapLat), lcImpatience (-1..1: SUMO's factor on lcAssertive and lcPushy),
+#: minGapLat [m] (lateral gap it keeps), maxSpeedLat [m/s] (how fast it moves sideways: a lane change
+#: of 3.5 m takes about 3.5 / maxSpeedLat s and more), lcSigma (lateral positioning imperfection: it
+#: wanders about its lane centre; not a randomness of its decisions, which SL2015 takes deterministically).
+#: Every parameter is ordered by style, so the parameters alone tell the styles apart (the test
+#: clusters them).
+SUBLANE_STYLE_PARAMS: dict[str, dict[str, float]] = {
+    "Defensive": {
+        "tau": 2.2, "minGap": 4.0, "accel": 1.4, "decel": 2.5, "speedFactor": 1.0, "sigma": 0.3,
+        "lcAssertive": 0.7, "lcSpeedGain": 1.5, "lcKeepRight": 0.7, "lcKeepRightAcceptanceTime": 5.0,
+        "lcCooperative": 1.0, "lcPushy": 0.05, "lcImpatience": 0.1, "minGapLat": 0.9, "maxSpeedLat": 0.8,
+        "lcSigma": 0.05,
+    },
+    "Normal": {
+        "tau": 1.3, "minGap": 2.5, "accel": 2.0, "decel": 3.0, "speedFactor": 1.07, "sigma": 0.2,
+        "lcAssertive": 1.4, "lcSpeedGain": 2.5, "lcKeepRight": 1.5, "lcKeepRightAcceptanceTime": 3.0,
+        "lcCooperative": 0.7, "lcPushy": 0.3, "lcImpatience": 0.4, "minGapLat": 0.6, "maxSpeedLat": 1.2,
+        "lcSigma": 0.1,
+    },
+    "Aggressive": {
+        "tau": 0.7, "minGap": 1.2, "accel": 3.0, "decel": 4.5, "speedFactor": 1.14, "sigma": 0.1,
+        "lcAssertive": 3.0, "lcSpeedGain": 4.0, "lcKeepRight": 3.0, "lcKeepRightAcceptanceTime": 2.0,
+        "lcCooperative": 0.3, "lcPushy": 0.7, "lcImpatience": 0.8, "minGapLat": 0.3, "maxSpeedLat": 1.8,
+        "lcSigma": 0.2,
+    },
+}
+
 #: family (settings.FAMILIES) -> its styles' parameters.
 FAMILY_STYLE_PARAMS: dict[str, dict[str, dict[str, float]]] = {
     "ttc": STYLE_PARAMS,
     "acceptance": ACCEPTANCE_STYLE_PARAMS,
+    "sublane": SUBLANE_STYLE_PARAMS,
 }
 
 #: Parameters kept within these bounds after a perturbation (SUMO rejects some values outside).
-_BOUNDS: dict[str, tuple[float, float]] = {"sigma": (0.0, 1.0), "lcCooperative": (0.0, 1.0)}
+_BOUNDS: dict[str, tuple[float, float]] = {"sigma": (0.0, 1.0), "lcCooperative": (0.0, 1.0), "lcPushy": (0.0, 1.0),
+                                          "lcImpatience": (-1.0, 1.0)}
 #: Relative perturbation of a parameter, as a multiple of `perturbation_sd` (1 when not listed).
 _SD_SCALE: dict[str, float] = {"speedFactor": 0.2}
 
