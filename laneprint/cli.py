@@ -27,7 +27,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
-app.command("simulate", help="Generate a driver-in-the-loop study (CSV and MCAP logs): synthetic, or Eclipse SUMO with --engine sumo.")(simulate_command)
+app.command("simulate", help="Generate a driver-in-the-loop study (CSV and MCAP logs): synthetic, Eclipse SUMO with --engine sumo, or highway-env with --engine highway.")(simulate_command)
 app.command("ingest", help="Read, validate and store simulator logs in the workspace.")(ingest_command)
 app.command("analyze", help="Indicators at decisions, per-driver fits and driving styles.")(analyze_command)
 app.command("train", help="Train a DQN agent for a style or a driver, or a fleet of them (--drivers/--styles).")(train_command)
