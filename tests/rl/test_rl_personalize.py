@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -223,9 +222,9 @@ def test_agreement_is_the_balanced_accuracy_on_the_recorded_states() -> None:
     assert best_fit({"style:A": 0.8, "style:B": 0.8, "population": 0.8}, {"style:A": 0.3, "style:B": 0.7}) == "style:B"
 
 
-def test_the_curve_scores_every_policy_and_the_fitted_base(study: Workspace) -> None:
+def test_the_curve_scores_every_policy_and_the_fitted_base(study: Workspace, monkeypatch) -> None:
     from rl.personalize.agents import PersonalizeSettings
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from personalize_curve import ALL, CurveSettings, driver_curve  # the benchmark's harness
     from rl.problem.env import formulation_config
     from rl.settings import DQNSettings
@@ -250,8 +249,8 @@ def test_the_curve_scores_every_policy_and_the_fitted_base(study: Workspace) -> 
     assert s["action_unsure, never sure"].equals(s["action_personalised"])
 
 
-def test_the_benchmark_reads_the_unsure_variant() -> None:
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+def test_the_benchmark_reads_the_unsure_variant(monkeypatch) -> None:
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from personalize import parse_variants
 
     v = parse_variants("none:fit,unsure:fit,unsure:fit:min_confidence=0.9")
@@ -338,9 +337,9 @@ def test_the_blend_is_a_run_that_acts_on_the_weighted_advantages(study: Workspac
                json.loads((study.runs_dir / "bl5" / "config.json").read_text())["base"]["candidates"].values())
 
 
-def test_the_curve_scores_the_blend(study: Workspace) -> None:
+def test_the_curve_scores_the_blend(study: Workspace, monkeypatch) -> None:
     from rl.personalize.agents import PersonalizeSettings
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from personalize import parse_variants
     from personalize_curve import ALL, CurveSettings, driver_curve
     from rl.problem.env import formulation_config
