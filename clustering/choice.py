@@ -17,22 +17,30 @@ only the behaviour readings; a set name or `behaviour:<params>` that reading alo
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
+from sklearn.metrics import silhouette_score
 
 from clustering.behaviour import BEHAVIOUR, PARAMETERS, VARIABLES, Behaviour, behaviour_params, decision_data, subset
 from clustering.features import driver_features, transform_features
 from clustering.readings import (ReadingScore, candidate_readings, choose_reading, cluster_reading,
-                                 draw_confidence)
-from clustering.selection import MAX_IMPUTED, clustering_rows
+                                 draw_confidence, most_reliable, parameter_reliability, usable_parameters)
+from clustering.selection import MAX_IMPUTED, choose_features, clustering_rows
 from clustering.styles import StyleClusterer
 from indicators.settings import AUTO_CANDIDATES, INDICATOR_SETS, AnalysisSettings
 
 #: `features` values that choose on held-out behaviour: 'heldout' among every reading,
 #: 'behaviour' among the behaviour readings only.
 HELDOUT_CHOICES: tuple[str, ...] = ("heldout", "behaviour")
+#: `features` value that reads the drivers by their most reliable behaviour parameters.
+RELIABLE = "reliable"
+#: `features` value that takes the best separated and most stable reading of all, indicator sets
+#: and behaviour readings alike, with no margin for any.
+SEPARATED = "separated"
+#: With 'separated', this many of the best readings are plausible (a driver they read otherwise is unsure).
+PLAUSIBLE_READINGS = 3
 #: Largest number of behaviour parameters in one candidate reading.
 MAX_READING_SIZE = 2
 #: A driver with fewer presses than this is unsure whatever its estimates say.
@@ -73,6 +81,10 @@ def choose(decisions: pd.DataFrame, following: pd.DataFrame | None, points: pd.D
     data = decision_data(decisions)
     data = subset(data, np.isin(data.driver, fit_on))
     spec = settings.features
+    if spec == RELIABLE:
+        return choose_reliable(behaviour, fit_on, settings)
+    if spec == SEPARATED:
+        return choose_separated(points, drivers, fit_on, n_dec, behaviour, settings)
     if spec in HELDOUT_CHOICES:
         readings = {BEHAVIOUR + n: p for n, p in candidate_readings(max_size=MAX_READING_SIZE).items()}
         extra = {}
@@ -91,6 +103,64 @@ def choose(decisions: pd.DataFrame, following: pd.DataFrame | None, points: pd.D
         return Choice("", (), [], None)
     chosen = next(s for s in scores if s.name == best)
     return Choice(best, chosen.parameters, scores, clusterers.get(best))
+
+
+def choose_reliable(behaviour: Behaviour, fit_on: list[str], settings: AnalysisSettings) -> Choice:
+    """The drivers read by the `MAX_READING_SIZE` behaviour parameters in which they differ most
+    reliably (`parameter_reliability`); each of those parameters alone is a plausible reading
+    too, so a driver they place in different styles is unsure."""
+    params = most_reliable(behaviour, fit_on, MAX_READING_SIZE)
+    if not params or len(fit_on) <= settings.k:
+        return Choice("", (), [], None)
+    rel = parameter_reliability(behaviour, fit_on)
+    name = BEHAVIOUR + "+".join(params)
+    readings = {name: params} | ({BEHAVIOUR + p: (p,) for p in params} if len(params) > 1 else {})
+    scores, clusterers = [], {}
+    for n, ps in readings.items():
+        clf = cluster_reading(behaviour, ps, fit_on, settings.k, settings.n_init, settings.random_state)
+        labels = {d: clf.names_[i] for d, i in zip(fit_on, clf.labels_)}
+        clusterers[n] = clf
+        scores.append(ReadingScore(n, ps, np.nan, np.nan, np.nan, True, n == name, labels,
+                                   float(min(rel[p] for p in ps))))
+    return Choice(name, params, scores, clusterers[name])
+
+
+def choose_separated(points: pd.DataFrame, drivers: list[str], fit_on: list[str], n_dec: pd.Series,
+                     behaviour: Behaviour, settings: AnalysisSettings) -> Choice:
+    """The reading with the highest silhouette x stability among the indicator sets 'auto' weighs
+    (those that read the decisions) and the behaviour readings of up to `MAX_READING_SIZE`
+    parameters (stability: the share of draws of each driver's estimates, from their standard
+    errors, left in its style). No reading is favoured; the `PLAUSIBLE_READINGS` best are plausible."""
+    scores: list[ReadingScore] = []
+    clusterers: dict[str, StyleClusterer] = {}
+    if len(fit_on) > settings.k:
+        usable = set(usable_parameters(behaviour, fit_on))
+        for n, ps in candidate_readings(max_size=MAX_READING_SIZE).items():
+            if not set(ps) <= usable:
+                continue
+            clf = cluster_reading(behaviour, ps, fit_on, settings.k, settings.n_init, settings.random_state)
+            if len(set(clf.labels_.tolist())) < 2:
+                continue
+            sil = float(silhouette_score(clf.transform(behaviour.values.loc[fit_on, list(ps)]), clf.labels_))
+            stab = float(draw_confidence(behaviour, fit_on, clf, clf.labels_, settings.random_state).mean())
+            labels = {d: clf.names_[i] for d, i in zip(fit_on, clf.labels_)}
+            clusterers[BEHAVIOUR + n] = clf
+            scores.append(ReadingScore(BEHAVIOUR + n, ps, np.nan, np.nan, np.nan, False, False, labels,
+                                       silhouette=sil, stability=stab))
+    _, set_scores = choose_features(points, drivers, n_dec, settings)
+    for sc in set_scores:
+        if sc.presses_read < settings.min_fit_points or not np.isfinite(sc.score):
+            continue
+        labels = indicator_labels(points, drivers, n_dec, settings, sc.name)
+        if labels is not None:
+            scores.append(ReadingScore(sc.name, INDICATOR_SETS[sc.name], np.nan, np.nan, np.nan, False, False, labels,
+                                       silhouette=sc.silhouette, stability=sc.stability))
+    if not scores:
+        return Choice("", (), [], None)
+    scores.sort(key=lambda r: -(r.silhouette * np.nan_to_num(r.stability, nan=1.0)))
+    scores = [replace(r, plausible=i < PLAUSIBLE_READINGS, chosen=i == 0) for i, r in enumerate(scores)]
+    best = scores[0]
+    return Choice(best.name, best.parameters, scores, clusterers.get(best.name))
 
 
 def silhouette_alternatives(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings,

@@ -14,6 +14,7 @@ from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, r
 from laneprint.errors import UserError
 from laneprint.plotting import line_formula
 from laneprint.workspace import Workspace
+from indicators.settings import CHOSEN_BY_DATA
 
 PAPER_INDICATORS = ("t_f", "t_nf", "dv_nb")
 TRAIT_UNITS = ("thw_follow",)  # indicators.stats.TRAIT_UNITS, without importing it at start-up
@@ -94,7 +95,7 @@ def _read_text(c: dict[str, Any], min_points: int) -> str:
 
 def render_features(feats: dict[str, Any], console: Console, min_points: int = 5) -> None:
     """Which reading the styles were read by, and the figures of the readings measured."""
-    how = "chosen by the data" if feats["requested"] in ("auto", "heldout", "behaviour") else "as requested"
+    how = "chosen by the data" if feats["requested"] in CHOSEN_BY_DATA else "as requested"
     console.print(f"styles read by [bold]{feats['chosen']}[/bold] ({', '.join(feats['indicators'])}), {how}:",
                   highlight=False)
     cands = feats["candidates"]
@@ -156,7 +157,10 @@ def analyze_command(
                                        "the speeds of its presses (default: within them).")] = False,
     features: Annotated[str, typer.Option(
         "--features", help="What the styles are read by: auto (the indicator set whose styles are best separated "
-                           "and most stable), heldout (the reading whose styles best predict the drivers' held-out "
+                           "and most stable, the study's TTCs unless another is clearly better), separated (the "
+                           "best separated and most stable of the indicator sets and the behaviour readings, no "
+                           "margin for any), reliable (the two behaviour parameters in which the drivers differ "
+                           "most reliably), heldout (the reading whose styles best predict the drivers' held-out "
                            "decisions and following headways: indicator sets and the drivers' critical gaps), "
                            "behaviour (only the critical gaps and following headway), behaviour:PARAMS (e.g. "
                            "behaviour:thw_nb+thw_follow), an indicator set: ttc (the study's t_f, t_nf), paper "
@@ -188,7 +192,7 @@ def analyze_command(
             raise UserError(f"--acceptance-fit must be one of {', '.join(FEATURE_FITS)}, not {acceptance_fit!r}")
         if step_s <= 0:
             raise UserError("--step-s must be positive")
-        if features not in ("auto", "heldout", "behaviour"):
+        if features not in CHOSEN_BY_DATA:
             resolve_features(features)  # a one-line error before any work
         if flagged_lines not in FLAGGED_LINES:
             raise UserError(f"--flagged-lines must be one of {', '.join(FLAGGED_LINES)}, not {flagged_lines!r}")
@@ -197,7 +201,7 @@ def analyze_command(
                                  features=features, flagged_lines=flagged_lines, random_state=seed,
                                  max_receding_mps=None if keep_receding else AnalysisSettings.max_receding_mps)
         settings = flags if config is None else with_config(config, flags)
-        if settings.features not in ("auto", "heldout", "behaviour"):
+        if settings.features not in CHOSEN_BY_DATA:
             resolve_features(settings.features)
         ws = Workspace(Path(workspace))
         if not ws.root.is_dir() or ws.recordings().empty:  # before the progress bar draws anything

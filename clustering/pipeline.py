@@ -265,7 +265,8 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
     n_dec = _n_decisions(decisions, drivers)
     behaviour = driver_behaviour(decisions, following, drivers, settings.random_state)
     choice = None
-    if settings.features in choosing.HELDOUT_CHOICES or choosing.is_behaviour(settings.features):
+    if settings.features in (choosing.RELIABLE, choosing.SEPARATED, *choosing.HELDOUT_CHOICES) \
+            or choosing.is_behaviour(settings.features):
         choice = choosing.choose(decisions, following, points, drivers, n_dec, behaviour, settings)
     if choice is not None and choosing.is_behaviour(choice.name):
         settings = settings.with_(feature_indicators=choice.parameters)
@@ -319,7 +320,7 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
 
 
 FEATURE_SET_COLUMNS = ["name", "indicators", "k", "silhouette", "stability", "score", "imputed", "presses_read",
-                       "heldout_ll", "heldout_se", "plausible", "chosen", "requested"]
+                       "heldout_ll", "heldout_se", "plausible", "chosen", "requested", "reliability"]
 
 
 def choice_table(choice: "choosing.Choice", requested: str, measured: pd.DataFrame | None = None) -> pd.DataFrame:
@@ -330,7 +331,12 @@ def choice_table(choice: "choosing.Choice", requested: str, measured: pd.DataFra
         row = {"name": sc.name, "indicators": ",".join(sc.parameters), "k": len(set(sc.labels.values())),
                "silhouette": np.nan, "stability": np.nan, "score": np.nan, "imputed": np.nan,
                "presses_read": np.nan, "heldout_ll": sc.heldout_ll, "heldout_se": sc.se,
-               "plausible": sc.plausible, "chosen": sc.chosen, "requested": requested}
+               "plausible": sc.plausible, "chosen": sc.chosen, "requested": requested,
+               "reliability": sc.reliability}
+        if np.isfinite(sc.silhouette):
+            stab = sc.stability
+            row.update({"silhouette": sc.silhouette, "stability": stab,
+                        "score": sc.silhouette * (stab if np.isfinite(stab) else 1.0)})
         if measured is not None and sc.name in set(measured["name"]):
             m = measured[measured["name"] == sc.name].iloc[0]
             row.update({c: m[c] for c in ("silhouette", "stability", "score", "imputed", "presses_read")})

@@ -60,6 +60,9 @@ class ReadingScore:
     plausible: bool
     chosen: bool
     labels: dict[str, str] = field(default_factory=dict)  # driver -> style
+    reliability: float = float("nan")  # the least reliable of its parameters (`parameter_reliability`)
+    silhouette: float = float("nan")  # of its styles, in its standardised space
+    stability: float = float("nan")  # mean share of each driver's redraws (or resamples) left in its style
 
 
 def session_folds(driver: np.ndarray, session: np.ndarray, n_folds: int = FOLDS) -> np.ndarray:
@@ -169,6 +172,31 @@ def usable_parameters(behaviour: Behaviour, drivers: list[str]) -> tuple[str, ..
     """Parameters estimated (informed by the data) for most of `drivers`."""
     informed = behaviour.defined.loc[drivers] > 0
     return tuple(p for p in PARAMETERS if informed[p].mean() >= 1 - MAX_MISSING)
+
+
+def parameter_reliability(behaviour: Behaviour, drivers: list[str]) -> pd.Series:
+    """Per parameter, the share of its spread between `drivers` that is not estimation noise:
+    1 - mean(SE^2) / var(estimates) on the log scale (classical test theory's reliability).
+    Near 1: the drivers really differ in it; at or below 0: the differences are noise. NaN for a
+    parameter estimated for fewer than 3 of the drivers."""
+    out = {}
+    for p in PARAMETERS:
+        x = behaviour.values.loc[drivers, p].to_numpy(dtype=float)
+        se = behaviour.se.loc[drivers, p].to_numpy(dtype=float)
+        informed = (behaviour.defined.loc[drivers, p] > 0).to_numpy() & np.isfinite(x) & np.isfinite(se)
+        if informed.sum() < 3 or x[informed].var(ddof=1) <= 0:
+            out[p] = np.nan
+            continue
+        out[p] = 1.0 - float(np.mean(se[informed] ** 2)) / float(x[informed].var(ddof=1))
+    return pd.Series(out, name="reliability")
+
+
+def most_reliable(behaviour: Behaviour, drivers: list[str], size: int) -> tuple[str, ...]:
+    """The `size` usable parameters of highest reliability (those above 0 only), most reliable first."""
+    rel = parameter_reliability(behaviour, drivers)
+    usable = set(usable_parameters(behaviour, drivers))
+    ranked = [p for p in rel.sort_values(ascending=False).index if p in usable and rel[p] > 0]
+    return tuple(ranked[:size])
 
 
 def choose_reading(behaviour: Behaviour, data: DecisionData, fit_on: list[str], k: int, n_init: int = 20,

@@ -36,7 +36,7 @@ from sklearn.metrics import silhouette_score
 from clustering.confidence import bootstrap_stability
 from clustering.features import driver_features, transform_features
 from clustering.styles import StyleClusterer
-from indicators.settings import AUTO_CANDIDATES, INDICATOR_SETS, AnalysisSettings
+from indicators.settings import AUTO_CANDIDATES, CHOSEN_BY_DATA, INDICATOR_SETS, AnalysisSettings
 from indicators.stats import FEATURE_UNITS, TRAIT_UNITS
 from laneprint.errors import UserError
 
@@ -70,7 +70,7 @@ def resolve_features(spec: str) -> tuple[str, tuple[str, ...]]:
     indicators ('auto' is resolved by `choose_features`). Raises `UserError` when unknown."""
     if spec in INDICATOR_SETS:
         return spec, INDICATOR_SETS[spec]
-    if spec in ("auto", "heldout", "behaviour"):
+    if spec in CHOSEN_BY_DATA:
         return spec, ()
     if spec.startswith("behaviour:"):
         from clustering.behaviour import behaviour_params

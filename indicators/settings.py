@@ -25,6 +25,8 @@ INDICATOR_SETS: dict[str, tuple[str, ...]] = {
     # outvoted the headway kept (README, issue 18: acceptance studies 625 and 627 at 15 min)
     "following": ("thw_follow", "thw_f"),
 }
+#: `AnalysisSettings.features` values for which the data chooses the reading (`clustering.choice`).
+CHOSEN_BY_DATA: tuple[str, ...] = ("auto", "separated", "reliable", "heldout", "behaviour")
 #: The sets 'auto' chooses from. 'following' holds the headway accepted at the press and the
 #: headway kept over the whole drive; where a study has no steady following, its thw_follow is
 #: imputed alike for every driver and it reads as thw_f, so 'headway' is not a candidate.
