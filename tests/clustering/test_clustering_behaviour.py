@@ -101,3 +101,37 @@ def test_behaviour_params_parse_and_refuse():
     assert B.behaviour_params("behaviour:thw_nb+thw_follow") == ("thw_nb", "thw_follow")
     with pytest.raises(ValueError, match="unknown behaviour parameter"):
         B.behaviour_params("behaviour:nonsense")
+
+
+def _three_styles_with_a_noise_variable(seed: int = 3):
+    truth = {f"a{i}": 0.5 * (1 + 0.05 * i) for i in range(3)} | {f"n{i}": 1.2 * (1 + 0.05 * i) for i in range(3)} \
+        | {f"d{i}": 2.6 * (1 + 0.05 * i) for i in range(3)}
+    d = gap_world(truth, approaches=24, seed=seed)
+    d["thw_f_s"] = np.exp(np.random.default_rng(4).normal(0, 0.5, len(d)))  # says nothing about the drivers
+    drivers = sorted(truth)
+    return d, drivers, B.driver_behaviour(d, None, drivers)
+
+
+def test_reliability_tells_a_trait_from_noise():
+    _, drivers, b = _three_styles_with_a_noise_variable()
+    rel = R.parameter_reliability(b, drivers)
+    assert rel["thw_nb"] > 0.9
+    assert not rel["thw_f"] > 0.5  # the drivers differ in it by estimation noise (or it is not estimated)
+    assert R.most_reliable(b, drivers, 2)[0] == "thw_nb"
+
+
+def test_separated_reads_the_styles_by_the_parameter_that_separates_them(monkeypatch):
+    from indicators.settings import AnalysisSettings
+
+    d, drivers, b = _three_styles_with_a_noise_variable()
+    monkeypatch.setattr(C, "choose_features", lambda *a, **k: ("", []))  # no indicator set in this world
+    points = pd.DataFrame()
+    n_dec = pd.Series(24, index=drivers)
+    choice = C.choose_separated(points, drivers, drivers, n_dec, b, AnalysisSettings(features="separated", n_init=5))
+    assert choice.name.startswith("behaviour:") and "thw_nb" in choice.parameters
+    chosen = next(s for s in choice.scores if s.chosen)
+    assert {chosen.labels[x] for x in ("d0", "d1", "d2")} == {"Defensive"}
+    assert {chosen.labels[x] for x in ("a0", "a1", "a2")} == {"Aggressive"}
+    assert sum(s.plausible for s in choice.scores) == min(C.PLAUSIBLE_READINGS, len(choice.scores))
+    ranked = [s.silhouette * s.stability for s in choice.scores]
+    assert ranked == sorted(ranked, reverse=True)

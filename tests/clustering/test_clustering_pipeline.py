@@ -152,3 +152,19 @@ def test_heldout_reading_end_to_end(workspace, tmp_path):
 def test_unknown_behaviour_parameter_is_one_line(workspace):
     res = CliRunner().invoke(app, ["analyze", "-w", str(workspace[0].root), "--features", "behaviour:wrong"])
     assert res.exit_code == 1 and "unknown behaviour parameter" in res.output and "Traceback" not in res.output
+
+
+@pytest.mark.parametrize("features", ["separated", "reliable"])
+def test_chosen_readings_end_to_end(workspace, features):
+    """`--features separated|reliable` run through the command line: one chosen reading, stored with
+    its scores, every driver with a style or a reason."""
+    ws, _ = workspace
+    res = CliRunner().invoke(app, ["analyze", "-w", str(ws.root), "--features", features, "--json"])
+    assert res.exit_code == 0, res.output
+    rep = json.loads(res.stdout)
+    feats = rep["summary"]["features"]
+    assert feats["requested"] == features
+    assert sum(c["chosen"] for c in feats["candidates"]) == 1
+    assert set(rep["summary"]["style_descriptions"]) == set(rep["styles"])
+    text = CliRunner().invoke(app, ["analyze", "-w", str(ws.root), "--features", features]).stdout
+    assert "chosen by the data" in text
