@@ -226,13 +226,14 @@ def feature_candidates(meta: dict[str, Any]) -> pd.DataFrame:
                      "score [-]": c.get("score"),
                      "presses read per driver": c.get("presses_read"),
                      "held-out log-likelihood [-]": c.get("heldout_ll"),
+                     "reliability [-]": c.get("reliability"),
                      "chosen": c.get("name") == feats.get("chosen")})
     out = pd.DataFrame(rows, columns=["feature set", "indicators", "k", "silhouette [-]", "stability [-]",
                                       "score [-]", "presses read per driver", "held-out log-likelihood [-]",
-                                      "chosen"])
+                                      "reliability [-]", "chosen"])
     out["held-out log-likelihood [-]"] = pd.to_numeric(out["held-out log-likelihood [-]"], errors="coerce").round(1)
     out["presses read per driver"] = pd.to_numeric(out["presses read per driver"], errors="coerce")
-    for c in ("silhouette [-]", "stability [-]", "score [-]"):
+    for c in ("silhouette [-]", "stability [-]", "score [-]", "reliability [-]"):
         out[c] = pd.to_numeric(out[c], errors="coerce").round(3)
     return out.sort_values("chosen", ascending=False, kind="stable").reset_index(drop=True)
 

@@ -13,7 +13,7 @@ CHOOSE_K = {"fixed k": None, "silhouette": "silhouette", "BIC": "bic"}
 #: The receding-leader threshold the form's tick box switches on [m/s].
 RECEDING_MPS = AnalysisSettings.max_receding_mps
 #: Feature sets the form offers ('auto': chosen by the data).
-FEATURE_SETS = ("auto", "heldout", "behaviour", *INDICATOR_SETS)
+FEATURE_SETS = ("auto", "separated", "reliable", "heldout", "behaviour", *INDICATOR_SETS)
 
 
 def rerun_form(ws, current: dict) -> None:
@@ -31,7 +31,9 @@ def rerun_form(ws, current: dict) -> None:
         sets = list(dict.fromkeys([now.features, *FEATURE_SETS]))
         features = c4.selectbox("Features", sets, key="features",
                                 help="What the styles are read by; 'auto': the indicator set best separated and "
-                                     "most stable; 'heldout': the reading whose styles best predict the drivers' "
+                                     "most stable; 'separated': the best separated and most stable of the indicator "
+                                     "sets and the behaviour readings; 'reliable': the two behaviour parameters in "
+                                     "which the drivers differ most reliably; 'heldout': the reading whose styles best predict the drivers' "
                                      "held-out decisions and following headways; 'behaviour': the same among the "
                                      "drivers' critical gaps and following headway only")
         d1, d2, _ = st.columns([1, 2, 1])
