@@ -3,7 +3,7 @@
 The files are written by the libraries' own writers (`mcap_ros2.writer.Writer`,
 `mcap_protobuf.writer.Writer`) from the conftest recording, ingested through the
 `laneprint ingest PATH --mapping FILE` command, and compared with what was written.
-The files and mappings are the worked examples of ingest/README.md (`ingest/stack_examples.py`).
+The files and mappings are the worked examples of docs/your-own-study.md (`ingest/stack_examples.py`).
 """
 
 from __future__ import annotations
