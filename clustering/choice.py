@@ -9,7 +9,9 @@ Two kinds of reading compete on the same held-out criterion (`clustering.reading
   each driver's indicator lines at the presses (`clustering.features`), the earlier way.
 
 `--features heldout` takes whichever predicts held-out behaviour best; `--features behaviour`
-only the behaviour readings; a set name or `behaviour:<params>` that reading alone. The default,
+only the behaviour readings; a set name or `behaviour:<params>` that reading alone.
+`--features separated` takes the best separated and most stable reading of either kind (no
+margin); `--features reliable` the two behaviour parameters the drivers differ in most reliably. The default,
 'auto', is still the choice among indicator sets by silhouette x stability
 (`clustering.selection`) until the held-out choice is judged on the zoo of worlds
 (`benchmarks/analysis.py --zoo`).
@@ -78,13 +80,13 @@ def choose(decisions: pd.DataFrame, following: pd.DataFrame | None, points: pd.D
     """The reading of `settings.features` (chosen on held-out behaviour for 'auto' / 'behaviour')."""
     fit_on = [d for d in drivers if n_dec.get(d, 0) >= settings.min_cluster_decisions] or \
         [d for d in drivers if n_dec.get(d, 0) > 0]
-    data = decision_data(decisions)
-    data = subset(data, np.isin(data.driver, fit_on))
     spec = settings.features
     if spec == RELIABLE:
         return choose_reliable(behaviour, fit_on, settings)
     if spec == SEPARATED:
         return choose_separated(points, drivers, fit_on, n_dec, behaviour, settings)
+    data = decision_data(decisions)
+    data = subset(data, np.isin(data.driver, fit_on))
     if spec in HELDOUT_CHOICES:
         readings = {BEHAVIOUR + n: p for n, p in candidate_readings(max_size=MAX_READING_SIZE).items()}
         extra = {}
