@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -14,7 +15,8 @@ from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, r
 from laneprint.errors import UserError
 from laneprint.plotting import line_formula
 from laneprint.workspace import Workspace
-from indicators.settings import CHOSEN_BY_DATA
+from indicators.settings import CHOSEN_BY_DATA, AnalysisSettings
+from laneprint.options import Section, Settings, configurable
 
 PAPER_INDICATORS = ("t_f", "t_nf", "dv_nb")
 TRAIT_UNITS = ("thw_follow",)  # indicators.stats.TRAIT_UNITS, without importing it at start-up
@@ -121,92 +123,39 @@ def format_line(indicator: str, A: float, b: float) -> str:
     return line_formula(indicator, A, b, x="v", digits_a=2)
 
 
-def with_config(path: Path, flags: "AnalysisSettings") -> "AnalysisSettings":
-    """The settings of `path`, with every option given on the command line (differing from its
-    default) on top; the result checked as the options are."""
-    from dataclasses import fields, replace
-
-    from indicators.settings import DRIVER_LINES, AnalysisSettings
-    from laneprint.config import read_config
-
-    settings = read_config(path, AnalysisSettings)
-    default = AnalysisSettings()
-    given = {f.name: getattr(flags, f.name) for f in fields(AnalysisSettings)
-             if getattr(flags, f.name) != getattr(default, f.name)}
-    settings = replace(settings, **given)
-    if settings.driver_lines not in DRIVER_LINES:
-        raise UserError(f"--config {path}: driver_lines must be one of {', '.join(DRIVER_LINES)}, "
-                        f"not {settings.driver_lines!r}")
-    return settings
-
-
+@configurable("analyze", Section("analysis", AnalysisSettings, visible=("features", "k", "choose_k", "random_state"),
+                                aliases={"random_state": ("--seed",), "feature_extrapolate": ("--extrapolate-features",)}))
 def analyze_command(
+    settings: Settings,
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,
-    k: Annotated[int, typer.Option("--k", help="Number of styles.", min=1)] = 3,
-    choose_k: Annotated[Optional[str], typer.Option("--choose-k", help="Choose k by 'silhouette' or 'bic'.")] = None,
-    far_follower_m: Annotated[float, typer.Option("--far-follower-m", help="Target-lane follower beyond this gap has no influence [m].")] = 100.0,
-    step_s: Annotated[float, typer.Option("--step-s", help="Spacing of the 'not yet' states before a press [s].")] = 0.5,
-    feature_fit: Annotated[str, typer.Option("--feature-fit", help="Line fit for the clustering features: huber, theilsen, ols, or a flat level: median or trimmed (mean after cutting a fifth at each end).")] = "huber",
-    acceptance_fit: Annotated[str, typer.Option(
-        "--acceptance-fit", help="How gap, headway and relative-speed features are read: trimmed (the driver's "
-                                 "level, a trimmed mean), median (the level as a median), or a line: huber, "
-                                 "theilsen, ols.")] = "trimmed",
-    extrapolate_features: Annotated[bool, typer.Option(
-        "--extrapolate-features", help="Read each driver's feature line at every section speed, even beyond "
-                                       "the speeds of its presses (default: within them).")] = False,
-    features: Annotated[str, typer.Option(
-        "--features", help="What the styles are read by: auto (the indicator set whose styles are best separated "
-                           "and most stable, the study's TTCs unless another is clearly better), separated (the "
-                           "best separated and most stable of the indicator sets and the behaviour readings, no "
-                           "margin for any), reliable (the two behaviour parameters in which the drivers differ "
-                           "most reliably), heldout (the reading whose styles best predict the drivers' held-out "
-                           "decisions and following headways: indicator sets and the drivers' critical gaps), "
-                           "behaviour (only the critical gaps and following headway), behaviour:PARAMS (e.g. "
-                           "behaviour:thw_nb+thw_follow), an indicator set: ttc (the study's t_f, t_nf), paper "
-                           "(t_f, t_nf, dv_nb), headway, acceptance, all, following, or a comma-separated list of "
-                           "indicators.")] = "auto",
-    flagged_lines: Annotated[str, typer.Option(
-        "--flagged-lines", help="A flagged per-driver line (low R², slope interval spanning 0, few points) in the "
-                                "reference lines: level (the driver's median, A = 0) or ols (as fitted, the "
-                                "study's way).")] = "level",
     keep_receding: Annotated[bool, typer.Option(
-        "--keep-receding", help="Fit front gaps and headways to leaders pulling away too (default: left out when "
-                                "the leader pulls away faster than 1 m/s: the driver is not held by it).")] = False,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the clustering.")] = 0,
-    config: Annotated[Optional[Path], typer.Option(
-        "--config", help="A TOML file of analysis settings (the fields of AnalysisSettings, e.g. "
-                         "driver_lines = \"mixed\"); options given on the command line take precedence.")] = None,
+        "--keep-receding", hidden=True,
+        help="Fit front gaps and headways to leaders pulling away too (sets max_receding_mps to none).")] = False,
 ) -> None:
     """Indicators at every decision, per-driver correlations and fits, styles and reference lines."""
     from clustering.pipeline import analyze
     from clustering.selection import resolve_features
-    from indicators.settings import FEATURE_FITS, FLAGGED_LINES, AnalysisSettings
+    from indicators.settings import DRIVER_LINES, FEATURE_FITS, FLAGGED_LINES
 
     def work() -> dict[str, Any]:
-        if choose_k not in (None, "silhouette", "bic"):
-            raise UserError(f"--choose-k must be 'silhouette' or 'bic', not {choose_k!r}")
-        if feature_fit not in FEATURE_FITS:
-            raise UserError(f"--feature-fit must be one of {', '.join(FEATURE_FITS)}, not {feature_fit!r}")
-        if acceptance_fit not in FEATURE_FITS:
-            raise UserError(f"--acceptance-fit must be one of {', '.join(FEATURE_FITS)}, not {acceptance_fit!r}")
-        if step_s <= 0:
+        st = settings.analysis if not keep_receding else replace(settings.analysis, max_receding_mps=None)
+        if st.choose_k not in (None, "silhouette", "bic"):
+            raise UserError(f"--choose-k must be 'silhouette' or 'bic', not {st.choose_k!r}")
+        for name, value, allowed in (("feature-fit", st.feature_fit, FEATURE_FITS),
+                                     ("acceptance-fit", st.acceptance_fit, FEATURE_FITS),
+                                     ("flagged-lines", st.flagged_lines, FLAGGED_LINES),
+                                     ("driver-lines", st.driver_lines, DRIVER_LINES)):
+            if value not in allowed:
+                raise UserError(f"--{name} must be one of {', '.join(allowed)}, not {value!r}")
+        if st.step_s <= 0:
             raise UserError("--step-s must be positive")
-        if features not in CHOSEN_BY_DATA:
-            resolve_features(features)  # a one-line error before any work
-        if flagged_lines not in FLAGGED_LINES:
-            raise UserError(f"--flagged-lines must be one of {', '.join(FLAGGED_LINES)}, not {flagged_lines!r}")
-        flags = AnalysisSettings(k=k, choose_k=choose_k, far_follower_m=far_follower_m, step_s=step_s,
-                                 feature_fit=feature_fit, acceptance_fit=acceptance_fit, feature_extrapolate=extrapolate_features,
-                                 features=features, flagged_lines=flagged_lines, random_state=seed,
-                                 max_receding_mps=None if keep_receding else AnalysisSettings.max_receding_mps)
-        settings = flags if config is None else with_config(config, flags)
-        if settings.features not in CHOSEN_BY_DATA:
-            resolve_features(settings.features)
+        if st.features not in CHOSEN_BY_DATA:
+            resolve_features(st.features)  # a one-line error before any work
         ws = Workspace(Path(workspace))
         if not ws.root.is_dir() or ws.recordings().empty:  # before the progress bar draws anything
             raise UserError(f"no recordings in workspace {ws.root}: run `laneprint ingest PATH` first")
         with progress_bar(enabled=not as_json) as progress:
-            return analyze(ws, settings, progress)
+            return analyze(ws, st, progress)
 
     run_command(work, as_json, render)

@@ -126,15 +126,15 @@ class AnalysisSettings:
 
     # --- styles ----------------------------------------------------------------
     features: str = "auto"
-    """Which indicators make the clustering features: a set of `INDICATOR_SETS`
-    ('ttc': the study's two TTCs, 'paper': its three, 'headway': the gap and time
-    headway to the leader the driver pulls out from, 'acceptance': those and the lead
-    and lag gaps in the target lane, 'all': TTCs and acceptance, 'following': the
-    headway the driver keeps in steady car following over the whole drive, `thw_follow`
-    (`indicators.following`), with the one it accepts at the press, `thw_f`), a
-    comma-separated list of indicators, or
-    'auto': each of `AUTO_CANDIDATES` is clustered and the one whose styles are best
-    separated and most stable is used (`clustering.selection`)."""
+    """What the styles are read by: 'auto' (the indicator set whose styles are best separated
+    and most stable, the study's TTCs unless another is clearly better), 'separated' (the best
+    separated and most stable of the indicator sets and the behaviour readings, no margin for
+    any), 'reliable' (the two behaviour parameters in which the drivers differ most reliably),
+    'heldout' (the reading whose styles best predict the drivers' held-out decisions and
+    following headways), 'behaviour' (the drivers' critical gaps and following headway),
+    'behaviour:PARAMS' (e.g. behaviour:thw_nb+thw_follow), an indicator set of
+    `INDICATOR_SETS` ('ttc': the study's t_f and t_nf, 'paper': its three, 'headway',
+    'acceptance', 'all', 'following'), or a comma-separated list of indicators."""
     auto_margin: float = 1.25
     """With `features='auto'`, another set replaces the study's TTCs only when its score
     (silhouette x stability) is at least this many times theirs (`clustering.selection`)."""

@@ -1,4 +1,4 @@
-"""The `laneprint` command line: wires the stages together (see DESIGN.md).
+"""The `laneprint` command line: wires the stages together.
 
 Each stage owns its command in its own package (`<stage>/cli.py`); this module
 only registers them, plus `run`, which chains ingest and analysis (and training
@@ -25,12 +25,13 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # help texts are plain: "[ray]" and "[dqn]" are words, not markup
 )
 
 app.command("simulate", help="Generate a driver-in-the-loop study (CSV and MCAP logs): synthetic, Eclipse SUMO with --engine sumo, or highway-env with --engine highway.")(simulate_command)
 app.command("ingest", help="Read, validate and store simulator logs in the workspace.")(ingest_command)
 app.command("analyze", help="Indicators at decisions, per-driver fits and driving styles.")(analyze_command)
-app.command("train", help="Train a DQN agent for a style or a driver, or a fleet of them (--drivers/--styles).")(train_command)
+app.command("train", help="Train an agent for a style or a driver (learner: --learner), or a fleet of them (--drivers/--styles).")(train_command)
 app.command("personalize", help="An agent for one driver from its first K decisions, starting from the other drivers' agent.")(personalize_command)
 app.command("evaluate", help="Evaluate a trained run against the drivers' decisions.")(evaluate_command)
 app.command("crossval", help="Held-out figures: agent vs greedy vs imitation, by session folds.")(crossval_command)

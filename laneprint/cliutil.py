@@ -29,7 +29,7 @@ JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON document i
 BackendOpt = Annotated[str, typer.Option(
     "--backend", help="Where the work runs: 'local' (this process) or 'ray' (Ray workers; pip install -e '.[ray]').")]
 RayAddressOpt = Annotated[Optional[str], typer.Option(
-    "--ray-address", metavar="ADDR",
+    "--ray-address", metavar="ADDR", hidden=True,
     help="With --backend ray: join this Ray cluster (host:port or 'auto'); default: start a local Ray instance "
          "with this machine's cores.")]
 

@@ -13,21 +13,28 @@ from rich.table import Table
 from laneprint.cliutil import (DEFAULT_WS, BackendOpt, JsonOpt, RayAddressOpt, WorkspaceOpt, progress_bar,
                                run_command)
 from laneprint.errors import UserError
+from laneprint.options import Section, Settings, configurable
 from laneprint.workspace import Workspace
 from rl.problem.rewards import REWARDS
+from rl.evaluation.settings import CrossvalSettings
+from rl.personalize.settings import PersonalizeSettings
 from rl.settings import (DEFAULT_REWARD, LEARNERS, OBSERVATIONS, SCENES, AutoSettings, DQNSettings, TreeQSettings,
                          default_learner, trees_fit)
 
+#: older names of DQNSettings' options, still accepted
+DQN_ALIASES = {"learning_rate": ("--lr",), "learning_rate_end": ("--lr-end",),
+               "target_update_episodes": ("--target-update",)}
+
 RewardOpt = Annotated[Optional[str], typer.Option(
-    "--reward", help=f"Reward: {', '.join(REWARDS)} (default {DEFAULT_REWARD}; timing with --lines paper).")]
+    "--reward", hidden=True, help=f"Reward: {', '.join(REWARDS)} (default {DEFAULT_REWARD}; timing with --lines paper).")]
 ScenesOpt = Annotated[Optional[str], typer.Option(
-    "--scenes", help=f"Where episodes come from: {' or '.join(SCENES)} (default: the reward's own, rl/README.md).")]
+    "--scenes", hidden=True, help=f"Where episodes come from: {' or '.join(SCENES)} (default: the reward's own).")]
 ObservationOpt = Annotated[Optional[str], typer.Option(
-    "--observation", help=f"What the agent sees: {' or '.join(OBSERVATIONS)} (default: the reward's own).")]
+    "--observation", hidden=True, help=f"What the agent sees: {' or '.join(OBSERVATIONS)} (default: the reward's own).")]
 OtherSideOpt = Annotated[Optional[bool], typer.Option(
-    "--other-side/--driver-side-only", help="Recorded scenes: also replay the side a middle-lane driver did not "
-                                            "take, as approaches without a press (default), or only the driver's "
-                                            "side (before issue 19). No effect on two lanes.")]
+    "--other-side/--driver-side-only", hidden=True,
+    help="Recorded scenes: also replay the side a middle-lane driver did not take, as approaches without a "
+         "press (default), or only the driver's side. No effect on two lanes.")]
 
 LearnerOpt = Annotated[Optional[str], typer.Option(
     "--learner", help=f"Who learns the Q function: {', '.join(LEARNERS)} ('auto': per target the one of the "
@@ -37,12 +44,14 @@ LearnerOpt = Annotated[Optional[str], typer.Option(
                       "'dqn' for fleets and the other formulations (the paper's among them).")]
 
 
-def learner_settings(learner: str, dqn: DQNSettings) -> DQNSettings | TreeQSettings | AutoSettings:
-    """`dqn`, the tree learner's settings, or both to choose from, with `dqn`'s seed (a `resolve_learner` name)."""
+def learner_settings(learner: str, dqn: DQNSettings, trees: TreeQSettings | None = None,
+                     auto: AutoSettings | None = None) -> DQNSettings | TreeQSettings | AutoSettings:
+    """`dqn`, the tree learner's settings, or both to choose from (`auto`'s folds and margin), all with `dqn`'s
+    seed (`learner`: a `resolve_learner` name)."""
     if learner == "dqn":
         return dqn
-    trees = TreeQSettings(seed=dqn.seed)
-    return trees if learner == "trees" else AutoSettings(dqn=dqn, trees=trees, seed=dqn.seed)
+    trees = replace(trees or TreeQSettings(), seed=dqn.seed)
+    return trees if learner == "trees" else replace(auto or AutoSettings(), dqn=dqn, trees=trees, seed=dqn.seed)
 
 
 def resolve_learner(learner: str | None, env: Any, fleet: bool = False) -> str:
@@ -145,39 +154,25 @@ def _warn_learning(checks: list[tuple[Any, Any]], n_targets: int) -> dict[str, A
             "message": head + check.message}
 
 
+@configurable("train", Section("dqn", DQNSettings, visible=("episodes", "seed"), aliases=DQN_ALIASES),
+              Section("trees", TreeQSettings, options=False), Section("auto", AutoSettings, options=False))
 def train_command(
+    settings: Settings,
     style: Annotated[Optional[str], typer.Option("--style", help="Imitate a style (its typical driver's lines).")] = None,
     driver: Annotated[Optional[str], typer.Option("--driver", help="Imitate one driver (its own lines).")] = None,
-    episodes: Annotated[Optional[int], typer.Option("--episodes", help="Episodes to train (Table 2: 10000).")] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of everything random.")] = 0,
+    drivers: Annotated[Optional[str], typer.Option("--drivers", help="A fleet: one agent per driver, 'all' or ID,ID,...")] = None,
+    styles: Annotated[Optional[str], typer.Option("--styles", help="A fleet: one agent per style, 'all' or NAME,NAME,...")] = None,
+    learner: LearnerOpt = None,
+    resume: Annotated[Optional[str], typer.Option("--resume", help="Continue an interrupted run from its checkpoint.")] = None,
     reward: RewardOpt = None,
     scenes: ScenesOpt = None,
     observation: ObservationOpt = None,
     other_side: OtherSideOpt = None,
-    learner: LearnerOpt = None,
-    lines: Annotated[str, typer.Option("--lines", help="Reference lines: 'analysis' or 'paper' (Table 1).")] = "analysis",
-    run_id: Annotated[Optional[str], typer.Option("--run-id", help="Id of the new run (default: time-target-reward-seed).")] = None,
-    resume: Annotated[Optional[str], typer.Option("--resume", help="Continue an interrupted run from its checkpoint.")] = None,
-    lr: Annotated[Optional[float], typer.Option("--lr", help="Learning rate (0.005).")] = None,
-    gamma: Annotated[Optional[float], typer.Option("--gamma", help="Discount per step (0.98).")] = None,
-    eps_start: Annotated[Optional[float], typer.Option("--eps-start", help="Initial exploration (0.8).")] = None,
-    eps_end: Annotated[Optional[float], typer.Option("--eps-end", help="Final exploration (0.1).")] = None,
-    batch_size: Annotated[Optional[int], typer.Option("--batch-size", help="Transitions per update.")] = None,
-    buffer_size: Annotated[Optional[int], typer.Option("--buffer-size", help="Replay memory (10000).")] = None,
-    learning_starts: Annotated[Optional[int], typer.Option("--learning-starts", help="Transitions before learning (2000).")] = None,
-    target_update: Annotated[Optional[int], typer.Option("--target-update", help="Episodes between target copies (20).")] = None,
-    num_envs: Annotated[Optional[int], typer.Option("--num-envs", help="Environments stepped together (1 = the study's loop).")] = None,
-    gradient_steps: Annotated[Optional[int], typer.Option("--gradient-steps", help="Updates per vector step.")] = None,
-    lr_end: Annotated[Optional[float], typer.Option("--lr-end", min=0.0, help="Learning rate at the end of the run (0.0005; = --lr for a constant one).")] = None,
-    average_tau: Annotated[Optional[float], typer.Option("--average-tau", min=0.0, max=1.0, help="Polyak step of the averaged policy (0.02; 0 = the online net is the policy).")] = None,
-    average_from: Annotated[Optional[float], typer.Option("--average-from", min=0.0, max=1.0, help="Share of the episodes after which the averaged net is the policy (0.5).")] = None,
-    threads: Annotated[Optional[int], typer.Option("--threads", help="torch threads (1).")] = None,
-    dt: Annotated[Optional[float], typer.Option("--dt", help="Seconds between decisions (0.5).")] = None,
-    checkpoint_every: Annotated[Optional[int], typer.Option("--checkpoint-every", help="Episodes between checkpoints.")] = None,
-    evaluate: Annotated[bool, typer.Option("--evaluate/--no-evaluate", help="Evaluate against the drivers at the end.")] = True,
-    drivers: Annotated[Optional[str], typer.Option("--drivers", help="A fleet: one agent per driver, 'all' or ID,ID,...")] = None,
-    styles: Annotated[Optional[str], typer.Option("--styles", help="A fleet: one agent per style, 'all' or NAME,NAME,...")] = None,
-    seeds: Annotated[int, typer.Option("--seeds", min=1, help="A fleet: agents per target, seeds --seed, --seed+1, ...")] = 1,
+    lines: Annotated[str, typer.Option("--lines", hidden=True, help="Reference lines: 'analysis' or 'paper' (Table 1).")] = "analysis",
+    run_id: Annotated[Optional[str], typer.Option("--run-id", hidden=True, help="Id of the new run (default: time-target-reward-seed).")] = None,
+    dt: Annotated[Optional[float], typer.Option("--dt", hidden=True, help="Seconds between decisions (default 0.5).")] = None,
+    evaluate: Annotated[bool, typer.Option("--evaluate/--no-evaluate", hidden=True, help="Evaluate against the drivers at the end.")] = True,
+    seeds: Annotated[int, typer.Option("--seeds", min=1, hidden=True, help="A fleet: agents per target, seeds --seed, --seed+1, ...")] = 1,
     backend: BackendOpt = "local",
     ray_address: RayAddressOpt = None,
     workspace: WorkspaceOpt = DEFAULT_WS,
@@ -191,6 +186,11 @@ def train_command(
         from rl.runs import Target, resolve_lines, train_run
 
         ws = Workspace(workspace)
+        dqn = settings.dqn
+        if "episodes" in settings.given("dqn"):  # a number asked for: no per-approach rule
+            dqn = replace(dqn, episodes_per_approach=0.0)
+        threads = dqn.threads if "threads" in settings.given("dqn") else None
+        episodes = dqn.episodes if "episodes" in settings.given("dqn") else None
         fleet_opts = {"backend": backend, "ray_address": ray_address, "threads": threads, "evaluate": evaluate}
         if resume:
             if style or driver or drivers or styles:
@@ -203,23 +203,12 @@ def train_command(
         fleet = drivers is not None or styles is not None
         if sum(x is not None for x in (style, driver, drivers, styles)) != 1:
             raise UserError("give exactly one of --style NAME, --driver ID, --drivers all|ID,... or --styles all|NAME,...")
-        overrides = {k: v for k, v in {
-            "episodes": episodes, "episodes_per_approach": 0.0 if episodes else None, "seed": seed, "learning_rate": lr, "gamma": gamma, "eps_start": eps_start,
-            "eps_end": eps_end, "batch_size": batch_size, "buffer_size": buffer_size,
-            "learning_starts": learning_starts, "target_update_episodes": target_update, "num_envs": num_envs,
-            "gradient_steps": gradient_steps, "threads": threads, "checkpoint_every": checkpoint_every,
-            "learning_rate_end": lr_end, "average_tau": average_tau, "average_from": average_from,
-        }.items() if v is not None}
-        try:
-            settings = DQNSettings(**overrides)
-        except (TypeError, ValueError) as exc:
-            raise UserError(f"bad training setting: {exc}") from None
         if fleet:
             fleet_env = formulation_config(EnvConfig().lines, reward, scenes, observation, lines)
             resolve_learner(learner, fleet_env, fleet=True)
             targets = fleet_targets(ws, drivers, styles)
-            warned = _warn_learning(learning_checks(ws, targets, fleet_env, settings), len(targets))
-            record = create_fleet(ws, targets, list(range(seed, seed + seeds)), settings, reward=reward,
+            warned = _warn_learning(learning_checks(ws, targets, fleet_env, dqn), len(targets))
+            record = create_fleet(ws, targets, list(range(dqn.seed, dqn.seed + seeds)), dqn, reward=reward,
                                   scenes=scenes, observation=observation, other_side=other_side,
                                   lines_source=lines, dt_s=dt,
                                   backend=backend, fleet_id=run_id)
@@ -230,8 +219,8 @@ def train_command(
         env = formulation_config(resolve_lines(ws, target, lines), reward, scenes, observation, lines, other_side)
         who = resolve_learner(learner, env)
         env = learner_env(env if dt is None else replace(env, dt_s=dt), who)
-        learner_set = learner_settings(who, settings)
-        warned = _warn_learning(learning_checks(ws, [target], env, settings), 1) if who != "trees" else None
+        learner_set = learner_settings(who, dqn, settings.trees, settings.auto)
+        warned = _warn_learning(learning_checks(ws, [target], env, dqn), 1) if who != "trees" else None
         with progress_bar(not as_json) as progress:
             res = train_run(ws, target, env, learner_set, run_id=run_id, lines_source=lines,
                             evaluate=evaluate, progress=progress)
@@ -319,24 +308,22 @@ def _render_cv(res: dict[str, Any], console: Console) -> None:
         console.print(f"stored as crossval/{r['crossval_id']}", highlight=False)
 
 
+@configurable("crossval", Section("crossval", CrossvalSettings, visible=("folds", "seed"),
+                                 aliases={"n_bootstrap": ("--bootstrap",)}),
+              Section("dqn", DQNSettings, aliases=DQN_ALIASES),
+              Section("trees", TreeQSettings, options=False), Section("auto", AutoSettings, options=False))
 def crossval_command(
+    settings: Settings,
     style: Annotated[Optional[str], typer.Option("--style", help="Hold out sessions of a style's drivers.")] = None,
     driver: Annotated[Optional[str], typer.Option("--driver", help="Hold out sessions of one driver.")] = None,
     all_styles: Annotated[bool, typer.Option("--all", help="Every style of the analysis, one result each.")] = False,
-    run: Annotated[Optional[str], typer.Option("--run", help="Take target and settings from a trained run.")] = None,
-    folds: Annotated[int, typer.Option("--folds", min=2, help="K: sessions are split into K folds.")] = 4,
-    split: Annotated[str, typer.Option("--split", help="'session' (each driver's sessions dealt to folds, every "
-                                                      "speed section kept in training) or 'section' (whole "
-                                                      "speed sections held out).")] = "session",
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the folds, bootstrap, classifier and agents.")] = 0,
-    episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, help="Episodes per fold's agent (10000).")] = None,
+    run: Annotated[Optional[str], typer.Option("--run", hidden=True, help="Take target and settings from a trained run.")] = None,
     reward: RewardOpt = None,
     scenes: ScenesOpt = None,
     observation: ObservationOpt = None,
     other_side: OtherSideOpt = None,
     learner: LearnerOpt = None,
-    lines: Annotated[str, typer.Option("--lines", help="'analysis' (refitted per fold) or 'paper' (Table 1).")] = "analysis",
-    bootstrap: Annotated[int, typer.Option("--bootstrap", min=10, help="Bootstrap resamples for the intervals.")] = 1000,
+    lines: Annotated[str, typer.Option("--lines", hidden=True, help="'analysis' (refitted per fold) or 'paper' (Table 1).")] = "analysis",
     backend: BackendOpt = "local",
     ray_address: RayAddressOpt = None,
     workspace: WorkspaceOpt = DEFAULT_WS,
@@ -345,14 +332,17 @@ def crossval_command(
     """Held-out figures: agent, greedy and imitation scored on sessions none of them was fitted on."""
 
     def work() -> dict[str, Any]:
-        from rl.evaluation.crossval import CrossvalSettings
         from rl.evaluation.crossval_store import crossval_run, run_crossval, style_names, target_env
         from rl.problem.env import EnvConfig, formulation_config, learner_env
         from rl.runs import Target
         from laneprint.parallel import backend_session
 
         ws = Workspace(workspace)
-        cv = CrossvalSettings(folds=folds, split=split, seed=seed, n_bootstrap=bootstrap)
+        cv = settings.crossval
+        dqn = settings.dqn if "seed" in settings.given("dqn") else replace(settings.dqn, seed=cv.seed)
+        episodes = dqn.episodes if "episodes" in settings.given("dqn") else None
+        if episodes:
+            dqn = replace(dqn, episodes_per_approach=0.0)
         where = {"backend": backend, "ray_address": ray_address}
         with backend_session(**where), progress_bar(not as_json) as progress:  # one Ray instance for every target
             if run:
@@ -363,13 +353,12 @@ def crossval_command(
                 raise UserError("give exactly one of --style NAME, --driver ID, --all or --run RUN_ID")
             targets = ([Target("style", s) for s in style_names(ws)] if all_styles
                        else [Target("style", style)] if style else [Target("driver", str(driver))])
-            dqn = DQNSettings(seed=seed, **({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {}))
             base = formulation_config(EnvConfig().lines, reward, scenes, observation, lines, other_side)
             who = resolve_learner(learner, base)
             base = learner_env(base, who)
-            agent = learner_settings(who, dqn)
+            agent = learner_settings(who, dqn, settings.trees, settings.auto)
             if who != "trees":
-                _warn_learning(learning_checks(ws, targets, base, dqn, share=(folds - 1) / folds), len(targets))
+                _warn_learning(learning_checks(ws, targets, base, dqn, share=(cv.folds - 1) / cv.folds), len(targets))
             results = [run_crossval(ws, t, target_env(ws, t, base, lines), agent, cv, lines, progress=progress, **where)
                        for t in targets]
         return {"results": results} if all_styles else results[0]
@@ -490,43 +479,35 @@ def _render_personalize(res: dict[str, Any], console: Console) -> None:
                       f"{100 * later['recall']:.1f} %, timing MAE {_fmt(later['timing_mae_s'])} s", highlight=False)
 
 
+@configurable("personalize", Section("dqn", DQNSettings, aliases=DQN_ALIASES),
+              Section("personalize", PersonalizeSettings, visible=("base",), aliases={"base": ("--from",)}))
 def personalize_command(
+    settings: Settings,
     driver: Annotated[str, typer.Option("--driver", help="The driver to personalise for.")],
     decisions: Annotated[Optional[int], typer.Option("--decisions", min=1, help="K: its first K decisions in time order (default: all).")] = None,
-    base: Annotated[str, typer.Option("--from", help="'blend' (the default): every style's agent and the population's at once, acting on their advantages (each scaled by its spread) weighted by the style's bootstrap share (the population 0.4) times the agreement with the K decisions; 'fit' (the default before): the agent of the style assigned from the K decisions when its confidence is at least --min-confidence, else, of every style's agent and the population's, the one that agrees best with the K decisions; 'style': the assigned style's agent; 'population': all other drivers'; 'auto': the style's when confident, else the population's.")] = "blend",
-    min_confidence: Annotated[float, typer.Option("--min-confidence", min=0.0, help="The style's bootstrap confidence from which it counts as sure: with --from fit or auto its agent is taken as it is assigned (below it, 'fit' chooses by agreement, 'auto' takes the population's; above 1: always), and with --fine-tune-unsure the base is fine-tuned below it.")] = 0.8,
-    fine_tune: Annotated[Optional[bool], typer.Option("--fine-tune/--no-fine-tune", help="Fine-tune the base on the K decisions, or not (the default: the base as it is, measured better on SUMO studies; rl/README.md, issue 21).", show_default=False)] = None,
-    fine_tune_unsure: Annotated[bool, typer.Option("--fine-tune-unsure", help="Fine-tune only when the style's confidence is below --min-confidence (the base chosen by agreement); measured no better than the default on SUMO seeds 305-307.")] = False,
-    episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, help="Fine-tuning episodes, when it fine-tunes (default: 60 per decision, 600-3000).")] = None,
-    base_episodes: Annotated[Optional[int], typer.Option("--base-episodes", min=1, help="Episodes of the base agent (default: the trainer's rule).")] = None,
+    fine_tune: Annotated[Optional[bool], typer.Option("--fine-tune/--no-fine-tune", hidden=True, help="Fine-tune the base on the K decisions, or not (the default: the base as it is).", show_default=False)] = None,
+    fine_tune_unsure: Annotated[bool, typer.Option("--fine-tune-unsure", hidden=True, help="Fine-tune only when the style's confidence is below min_confidence (as personalize.method = 'unsure').")] = False,
+    episodes: Annotated[Optional[int], typer.Option("--episodes", min=1, hidden=True, help="Fine-tuning episodes, when it fine-tunes (default: 60 per decision, 600-3000).")] = None,
+    base_episodes: Annotated[Optional[int], typer.Option("--base-episodes", min=1, hidden=True, help="Episodes of the base agent (default: the trainer's rule).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of everything random.")] = 0,
-    run_id: Annotated[Optional[str], typer.Option("--run-id", help="Id of the new run.")] = None,
-    num_envs: Annotated[Optional[int], typer.Option("--num-envs", help="Environments stepped together.")] = None,
-    batch_size: Annotated[Optional[int], typer.Option("--batch-size", help="Transitions per update.")] = None,
-    learning_starts: Annotated[Optional[int], typer.Option("--learning-starts", help="Transitions before the base agent learns (2000).")] = None,
+    run_id: Annotated[Optional[str], typer.Option("--run-id", hidden=True, help="Id of the new run.")] = None,
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,
 ) -> None:
     """An agent for one driver from its first K decisions, starting from the other drivers' agent."""
 
     def work() -> dict[str, Any]:
-        from rl.personalize.agents import PersonalizeSettings  # torch only when the command runs
-        from rl.personalize.store import check_request, personalize
+        from rl.personalize.store import check_request, personalize  # torch only when the command runs
 
         ws = Workspace(workspace)
         check_request(ws, driver, decisions)
-        overrides = {k: v for k, v in {"num_envs": num_envs, "batch_size": batch_size,
-                                       "learning_starts": learning_starts}.items() if v is not None}
-        try:
-            dqn = DQNSettings(**overrides)
-        except (TypeError, ValueError) as exc:
-            raise UserError(f"bad training setting: {exc}") from None
+        dqn, ps = settings.dqn, settings.personalize
         if fine_tune_unsure and fine_tune is not None:
             raise UserError(f"--fine-tune-unsure and --{'' if fine_tune else 'no-'}fine-tune: choose one")
-        method = ("unsure" if fine_tune_unsure else PersonalizeSettings().method if fine_tune is None else
-                  "finetune" if fine_tune else "none")
-        ps = PersonalizeSettings(base=base, method=method, min_confidence=min_confidence,
-                                 **({"learning_starts": min(learning_starts, 500)} if learning_starts else {}))
+        if fine_tune_unsure or fine_tune is not None:
+            ps = replace(ps, method="unsure" if fine_tune_unsure else "finetune" if fine_tune else "none")
+        if "learning_starts" in settings.given("dqn") and "learning_starts" not in settings.given("personalize"):
+            ps = replace(ps, learning_starts=min(dqn.learning_starts, 500))
         with progress_bar(not as_json) as progress:
             return personalize(ws, driver, decisions, ps, dqn, episodes=episodes, base_episodes=base_episodes,
                                seed=seed, run_id=run_id, progress=progress)

@@ -47,7 +47,8 @@ class DQNSettings:
     is the study's loop.
     """
 
-    episodes: int = 10000  # N_e: stop after this many finished episodes
+    episodes: int = 10000  # episodes to train (the study's N_e); on recorded scenes, unless set, 30 per recorded
+    # approach of the target (`episodes_per_approach`), at most this
     episodes_per_approach: float = 30.0  # recorded scenes: episodes = this x recorded approaches, within
     # [MIN_RECORDED_EPISODES, episodes] (0 = exactly `episodes`); see `resolved_episodes`
     learning_rate: float = 0.005  # eta, Adam step size at the start
@@ -69,7 +70,7 @@ class DQNSettings:
     average_tau: float = 0.02  # if > 0, the policy is a Polyak average of the online weights (step tau per update) ...
     average_from: float = 0.5  # ... from this share of `episodes` on (before it, the online net is the policy)
     threads: int = 1  # torch intra-op threads (small nets oversubscribe with more)
-    seed: int = 0  # seeds numpy (environments, exploration, sampling) and torch (init)
+    seed: int = 0  # seed of everything random: environments, exploration, sampling (numpy) and the network (torch)
     checkpoint_every: int = 500  # save a checkpoint every this many episodes (0 = never)
 
     def resolved_episodes(self, n_approaches: int | None) -> "DQNSettings":
@@ -152,8 +153,8 @@ class TreeQSettings:
 class AutoSettings:
     """`--learner auto`: both learners' settings, and how much of the target's sessions decide between them."""
 
-    dqn: DQNSettings = DQNSettings()
-    trees: TreeQSettings = TreeQSettings()
+    dqn: DQNSettings = DQNSettings()  # the DQN's settings (in a config file: the [dqn] table)
+    trees: TreeQSettings = TreeQSettings()  # the trees' settings (in a config file: the [trees] table)
     folds: int = 3  # inner folds of each driver's sessions that decide (every session scored once)
     margin: float = 0.01  # the trees are taken only when they agree better by more than this (a near-tie keeps
     # the study's DQN: on the shipped study a fold that took the trees by 0.006 lost 4 points held out)

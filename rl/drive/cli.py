@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
@@ -12,7 +13,9 @@ from rich.table import Table
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
-from rl.drive.heldback import DWELL_PERCENTILE, by_side_text
+from laneprint.options import Section, Settings, configurable
+from rl.drive.heldback import by_side_text
+from rl.drive.settings import DriveSettings
 
 ENGINES = ("sumo",)
 
@@ -21,81 +24,16 @@ def _f(x: Any, spec: str = ".2f") -> str:
     return "-" if x is None else format(x, spec)
 
 
+@configurable("drive", Section("drive", DriveSettings,
+                               visible=("minutes", "seed", "lanes", "family", "analyze")))
 def drive_command(
+    settings: Settings,
     run_id: Annotated[str, typer.Argument(help="A trained run of the workspace (see `laneprint train`).")],
-    engine: Annotated[str, typer.Option("--engine", help="Simulator: sumo (Eclipse SUMO, from the sumo extra of the install).")] = "sumo",
-    minutes: Annotated[float, typer.Option("--minutes", help="Minutes of driving per section.")] = 10.0,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the traffic and of SUMO.")] = 0,
     section: Annotated[Optional[list[float]], typer.Option(
         "--section", help="Speed limit in km/h of a section to drive, repeatable (default 60, 70, 80, 90).")] = None,
     out: Annotated[Optional[Path], typer.Option(
         "--out", "-o", help="FILE.mcap (one section; <stem>_S<limit>.mcap for several) or a folder "
                             "(default WORKSPACE/drives/RUN_ID-sSEED/).")] = None,
-    lanes: Annotated[int, typer.Option(
-        "--lanes", help="Lanes of the highway: 2 (default) or 3; in a middle lane the agent is asked about "
-                        "each side and takes the one with the larger advantage Q(change) - Q(keep).")] = 2,
-    family: Annotated[Optional[str], typer.Option(
-        "--family", help="SUMO traffic and style vTypes of a study family: ttc or acceptance (laneprint simulate "
-                         "--family). Default: that of the study the agent learnt from when its drivers drove a "
-                         "laneprint SUMO study, else ttc.")] = None,
-    driver_id: Annotated[Optional[str], typer.Option("--driver-id", help="driver_id of the logs (default agent-RUN_ID).")] = None,
-    held_back: Annotated[bool, typer.Option(
-        "--held-back/--no-held-back",
-        help="The assistant's held-back rule (default on): after following a leader slower than the ego's desired "
-             "speed for the target's patience, change when a neighbouring lane is faster and holds a gap the "
-             "target's acceptance lines take (rl/drive/heldback.py). --no-held-back: the pure agent.")] = True,
-    dwell: Annotated[bool, typer.Option(
-        "--dwell/--no-dwell",
-        help="With the held-back rule: no change sooner after a lane change than the target's drivers pressed "
-             "(default on; README, 'Driving like its drivers'). --no-dwell: without that wait.")] = True,
-    dwell_percentile: Annotated[float, typer.Option(
-        "--dwell-percentile",
-        help="The dwell's percentile of the drivers' times from a lane change to their next press (default: 5, "
-             "their floor; 25: closer to drivers who stay long in the left lane; README, 'The dwell')."
-    )] = DWELL_PERCENTILE,
-    dwell_draw: Annotated[bool, typer.Option(
-        "--dwell-draw",
-        help="Draw each dwell, at each lane change, from the target's drivers' own times from a change to their "
-             "next press (seeded by --seed) instead of one percentile of them (README, 'The dwell drawn').")] = False,
-    dwell_calibrated: Annotated[Optional[bool], typer.Option(
-        "--dwell-calibrated/--no-dwell-calibrated",
-        help="Draw each dwell from the run's closed-loop calibration in this traffic: drives with the floor "
-             "dwell on calibration seeds 1001-1002 give the agent's own stays, and the dwell is what makes its "
-             "stays like its drivers' (made once per traffic and drive settings, kept in the run; README, 'The "
-             "dwell calibrated'). Default: on when the drive is in its drivers' own traffic (the family and "
-             "lanes of their laneprint SUMO study) and neither --dwell-draw nor --no-dwell is given; off "
-             "elsewhere (no drivers there to calibrate against).")] = None,
-    lag_draw: Annotated[bool, typer.Option(
-        "--lag-draw",
-        help="With the held-back rule: at each lane change draw, per side, a follower time headway from the "
-             "target's drivers' presses to that side with a follower within 100 m; the agent's own change there "
-             "needs at least that (README, 'The follower's headway calibrated').")] = False,
-    lag_calibrated: Annotated[Optional[bool], typer.Option(
-        "--lag-calibrated/--no-lag-calibrated",
-        help="Draw that headway from the run's closed-loop calibration in this traffic (the dwell's drives): "
-             "the draw that makes the agent's headways at its own changes like its drivers' at their presses. "
-             "Default: on in its drivers' own traffic unless --lag-draw; elsewhere the floors alone.")] = None,
-    pace: Annotated[bool, typer.Option(
-        "--pace/--no-pace",
-        help="With the held-back rule: the agent's own change needs the advantage at which, replayed along its "
-             "drivers' recordings, it starts wanting a change no more often than they pressed (default on; "
-             "rl/drive/pace.py). --no-pace: any advantage of at least 0.")] = True,
-    pace_by: Annotated[str, typer.Option(
-        "--pace-by",
-        help="How the pace is read: 'pooled' (default), one threshold for changes to either side against all "
-             "the drivers' presses; 'side', one for changes to the left against their presses to the left and "
-             "one for the right against theirs (README, 'The pace by side').")] = "pooled",
-    undo_check: Annotated[bool, typer.Option(
-        "--undo-check/--no-undo-check",
-        help="With the held-back rule and no leader within range: the agent's change to the left is requested "
-             "only if, put in that lane as the traffic is, it would not want back at once (default on; "
-             "rl/drive/heldback.py). "
-             "--no-undo-check: without that look.")] = True,
-    sumo_model: Annotated[bool, typer.Option(
-        "--sumo-model/--no-sumo-model",
-        help="Also drive the same ego with SUMO's own lane-change model of its style in the same traffic and "
-             "seeds, as the comparator (default on).")] = True,
-    analyze: Annotated[bool, typer.Option("--analyze", help="Analyse the workspace's study plus the drive (in a scratch workspace) and report the agent's style.")] = False,
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,
 ) -> None:
@@ -104,15 +42,12 @@ def drive_command(
     def work() -> dict[str, Any]:
         from rl.drive.store import drive_run
 
-        if engine not in ENGINES:
-            raise UserError(f"unknown --engine {engine!r}; choose one of {', '.join(ENGINES)}")
+        st = settings.drive
+        if st.engine not in ENGINES:
+            raise UserError(f"unknown --engine {st.engine!r}; choose one of {', '.join(ENGINES)}")
+        options = {k: v for k, v in asdict(st).items() if k != "engine"}
         with progress_bar(not as_json) as bar:
-            return drive_run(Workspace(workspace), run_id, minutes=minutes, seed=seed, sections=section, out=out,
-                             driver_id=driver_id, analyze=analyze, lanes=lanes, held_back=held_back,
-                             sumo_model=sumo_model, dwell=dwell,
-                             dwell_percentile=dwell_percentile, family=family, pace=pace, pace_by=pace_by,
-                             undo_check=undo_check, dwell_draw=dwell_draw, dwell_calibrated=dwell_calibrated,
-                             lag_draw=lag_draw, lag_calibrated=lag_calibrated, progress=bar)
+            return drive_run(Workspace(workspace), run_id, sections=section, out=out, progress=bar, **options)
 
     run_command(work, as_json, render)
 

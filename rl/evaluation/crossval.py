@@ -37,33 +37,16 @@ from laneprint.errors import UserError
 from laneprint.parallel import run_tasks
 from laneprint.progress import ProgressFn, report
 from laneprint.reference import INDICATORS
+from rl.evaluation.settings import SPLITS, CrossvalSettings  # noqa: F401
 from rl.problem.env import Approach, EnvConfig, approaches_from_decisions
 from rl.evaluation.evaluate import evaluate_policies, greedy_policy
 from rl.baselines.imitation import ImitationClassifier
 from rl.problem.rewards import ReferenceLines
 from rl.settings import AutoSettings, LearnerSettings, learner_config, learner_name
 
-SPLITS: tuple[str, ...] = ("session", "section")
 POLICIES: tuple[str, ...] = ("agent", "greedy", "imitation")
 
 
-@dataclass(frozen=True)
-class CrossvalSettings:
-    """How the sessions are split and scored."""
-
-    folds: int = 4  # K (with split='section': at most the number of sections)
-    split: str = "session"  # 'session' or 'section' (see the module doc)
-    seed: int = 0  # fold assignment, bootstrap, imitation classifier; agents use DQNSettings.seed + fold
-    n_bootstrap: int = 1000  # resamples of the decisions for the intervals
-    lines_from: str = "typical"  # style targets: refit the 'typical' driver's lines, or 'pooled' over members
-
-    def __post_init__(self) -> None:
-        if self.split not in SPLITS:
-            raise UserError(f"unknown split {self.split!r}: choose one of {', '.join(SPLITS)}")
-        if self.folds < 2:
-            raise UserError(f"--folds must be at least 2, got {self.folds}")
-        if self.lines_from not in ("typical", "pooled"):
-            raise UserError(f"lines_from must be 'typical' or 'pooled', got {self.lines_from!r}")
 
 
 def assign_folds(sessions: pd.DataFrame, settings: CrossvalSettings) -> dict[str, int]:

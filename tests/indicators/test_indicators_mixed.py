@@ -9,7 +9,7 @@ from indicators.mixed import mixed_fits
 from indicators.settings import AnalysisSettings
 from indicators.stats import Group
 from laneprint.cli import app
-from laneprint.config import read_config
+from laneprint.options import Section, build, read_tables
 from laneprint.errors import UserError
 
 
@@ -37,22 +37,26 @@ def test_one_driver_is_no_mixed_model():
     assert mixed_fits(groups({"A": 30})) is None
 
 
-def test_read_config_checks_keys_and_types(tmp_path):
+def test_config_table_checks_keys_and_types(tmp_path):
     good = tmp_path / "a.toml"
-    good.write_text('driver_lines = "mixed"\nk = 4\nalpha = 1\nfeature_speeds_kph = [60, 90]\n')
-    s = read_config(good, AnalysisSettings)
+    good.write_text('[analysis]\ndriver_lines = "mixed"\nk = 4\nalpha = 1\nfeature_speeds_kph = [60, 90]\n')
+    sec = Section("analysis", AnalysisSettings)
+    s, given = build(sec, read_tables(good)["analysis"], {}, "here")
     assert (s.driver_lines, s.k, s.alpha, s.feature_speeds_kph) == ("mixed", 4, 1.0, (60, 90))
-    for text, why in [("nope = 1\n", "unknown setting"), ('k = "three"\n', "k must be int"),
-                      ("k = [\n", "not valid TOML"), ("fit_cancelled = 1\n", "fit_cancelled must be bool")]:
+    assert given == {"driver_lines", "k", "alpha", "feature_speeds_kph"}
+    for text, why in [("[analysis]\nnope = 1\n", "has no setting 'nope'"), ('[analysis]\nk = "three"\n', "k must be int"),
+                      ("[analysis]\nk = [\n", "not valid TOML"),
+                      ("[analysis]\nfit_cancelled = 1\n", "fit_cancelled must be bool"),
+                      ("k = 3\n", "outside any table"), ("[analysys]\nk = 3\n", "did you mean analysis")]:
         bad = tmp_path / "b.toml"
         bad.write_text(text)
         with pytest.raises(UserError, match=why):
-            read_config(bad, AnalysisSettings)
+            build(sec, read_tables(bad).get("analysis", {}), {}, "here")
 
 
 def test_analyze_config_refuses_in_one_line(tmp_path):
     bad = tmp_path / "c.toml"
-    bad.write_text('driver_lines = "bayes"\n')
+    bad.write_text('[analysis]\ndriver_lines = "bayes"\n')
     ws = tmp_path / "ws"
     res = CliRunner().invoke(app, ["analyze", "-w", str(ws), "--config", str(bad)])
     assert res.exit_code == 1 and "Traceback" not in res.output
