@@ -15,6 +15,7 @@ import typer
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, console, err_console
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
+from laneprint.options import configurable
 
 APP = Path(__file__).with_name("app.py")
 #: Largest upload the server accepts [MB]; the Data page refuses bigger files with a hint.
@@ -30,6 +31,7 @@ def streamlit_command(port: int, host: str, workspace: Path) -> list[str]:
             "--", "--workspace", str(workspace)]
 
 
+@configurable("dashboard")
 def dashboard_command(
     workspace: WorkspaceOpt = DEFAULT_WS,
     port: Annotated[int, typer.Option("--port", "-p", help="TCP port to serve on.")] = 8501,

@@ -16,6 +16,7 @@ from ingest.limits import IngestLimits
 from ingest.mapping import load_mapping
 from laneprint.parallel import backend_session
 from laneprint.workspace import Workspace
+from laneprint.options import configurable
 
 _STYLE = {"ingested": "green", "warning": "yellow", "duplicate": "cyan", "rejected": "red", "skipped": "dim"}
 
@@ -63,6 +64,7 @@ def render_ingest(result: dict[str, Any], console: Console) -> None:
         console.print(f"error: {result['error']}", markup=False, highlight=False)
 
 
+@configurable("ingest")
 def ingest_command(
     paths: Annotated[list[Path], typer.Argument(metavar="PATH", help="Log files (.csv, .csv.gz, .mcap) or folders to walk.", show_default=False)],
     driver: Annotated[Optional[str], typer.Option(

@@ -9,6 +9,7 @@ from rich.console import Console
 
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, run_command
 from laneprint.workspace import Workspace
+from laneprint.options import configurable
 
 
 def _render(res: dict[str, Any], console: Console) -> None:
@@ -23,6 +24,7 @@ def _render(res: dict[str, Any], console: Console) -> None:
                   f"{len(res['repaired'])} repaired, {c['note']} note(s)", highlight=False, markup=False)
 
 
+@configurable("check")
 def check_command(
     repair: Annotated[bool, typer.Option("--repair", help="Remove leftovers of interrupted writes (nothing else).")] = False,
     workspace: WorkspaceOpt = DEFAULT_WS,

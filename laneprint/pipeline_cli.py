@@ -16,11 +16,18 @@ from rich.console import Console
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
+from indicators.settings import AnalysisSettings
+from laneprint.options import Section, Settings, configurable
+from rl.settings import DQNSettings
 
 
 def run_pipeline(paths: list[Path], workspace: Path, driver: str | None, mapping: Path | None,
-                 train: bool, episodes: int | None, seed: int, show_progress: bool) -> dict[str, Any]:
-    """Ingest -> analyze -> train and evaluate one agent per style; a JSON-ready report."""
+                 train: bool, episodes: int | None, seed: int, show_progress: bool,
+                 analysis_settings: Any = None, dqn_settings: Any = None) -> dict[str, Any]:
+    """Ingest -> analyze -> train and evaluate one agent per style; a JSON-ready report (settings: the
+    `[analysis]` and `[dqn]` tables of a config file, seeded by `seed`)."""
+    from dataclasses import replace
+
     from clustering.pipeline import analyze
     from ingest.cli import ingest_result
     from indicators.settings import AnalysisSettings
@@ -31,16 +38,15 @@ def run_pipeline(paths: list[Path], workspace: Path, driver: str | None, mapping
         raise UserError(f"no recordings could be stored from {', '.join(map(str, paths))}; see the reasons above "
                         "(`laneprint ingest --json` lists them)")
     with progress_bar(show_progress) as progress:
-        analysis = analyze(ws, AnalysisSettings(random_state=seed), progress)
+        analysis = analyze(ws, replace(analysis_settings or AnalysisSettings(), random_state=seed), progress)
     runs = []
     if train:
-        from rl.learners.dqn import DQNSettings
         from rl.fleet.runs import create_fleet, train_fleet
         from rl.runs import Target
 
         overrides = {"seed": seed} | ({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {})
         targets = [Target("style", style) for style in analysis["styles"]]
-        fleet = create_fleet(ws, targets, [seed], DQNSettings(**overrides))  # the styles' agents, batched
+        fleet = create_fleet(ws, targets, [seed], replace(dqn_settings or DQNSettings(), **overrides))  # the styles' agents, batched
         with progress_bar(show_progress) as progress:
             runs = train_fleet(ws, fleet["fleet_id"], progress=progress)["summaries"]
     return {"workspace": str(ws.root), "ingest": ingest, "analysis": analysis, "runs": runs,
@@ -65,10 +71,12 @@ def render_run(result: dict[str, Any], console: Console) -> None:
     console.print(f"open the dashboard: {result['dashboard']}", markup=False, highlight=False)
 
 
+@configurable("run", Section("analysis", AnalysisSettings, options=False), Section("dqn", DQNSettings, options=False))
 def run_command_cli(
+    settings: Settings,
     paths: Annotated[list[Path], typer.Argument(help="Log files or folders (e.g. sample_logs).")],
     driver: Annotated[Optional[str], typer.Option("--driver", help="Driver id for files that carry none.")] = None,
-    mapping: Annotated[Optional[Path], typer.Option("--mapping", help="Name/unit mapping file (see ingest/README.md).")] = None,
+    mapping: Annotated[Optional[Path], typer.Option("--mapping", help="Name/unit mapping file (docs: your own study).")] = None,
     train: Annotated[bool, typer.Option("--train/--no-train", help="Train and evaluate one agent per style.")] = True,
     episodes: Annotated[Optional[int], typer.Option("--episodes", help="Training episodes per agent (default: the trainer's).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the clustering and the training.")] = 0,
@@ -76,5 +84,5 @@ def run_command_cli(
     as_json: JsonOpt = False,
 ) -> None:
     """Ingest PATHs, analyze, and train/evaluate one agent per style."""
-    run_command(lambda: run_pipeline(paths, workspace, driver, mapping, train, episodes, seed, not as_json),
-                as_json, render_run)
+    run_command(lambda: run_pipeline(paths, workspace, driver, mapping, train, episodes, seed, not as_json,
+                                     settings.analysis, settings.dqn), as_json, render_run)

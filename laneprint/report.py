@@ -34,6 +34,7 @@ import typer
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, console, err_console
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
+from laneprint.options import configurable
 
 #: Per-driver figures are drawn for at most this many drivers (the typical drivers first); every
 #: driver's fits are in the tables either way.
@@ -494,6 +495,7 @@ def write_report(ws: Workspace, out: Path | None = None, assets: bool = True, sv
             "sections": [s.title for s in sections], "seconds": round(time.perf_counter() - start, 2)}
 
 
+@configurable("report")
 def report_command(
     workspace: WorkspaceOpt = DEFAULT_WS,
     out: Annotated[Path | None, typer.Option(

@@ -252,6 +252,7 @@ def train_command(
     run_command(work, as_json, render)
 
 
+@configurable("evaluate")
 def evaluate_command(
     run_id: Annotated[str, typer.Argument(help="Run to evaluate (see the workspace's runs/).")],
     workspace: WorkspaceOpt = DEFAULT_WS,
@@ -377,6 +378,7 @@ def _render_export(res: dict[str, Any], console: Console) -> None:
                       f"{s['actions_agree']}", highlight=False)
 
 
+@configurable("export")
 def export_command(
     run_id: Annotated[str, typer.Argument(help="Run whose policy to export (see the workspace's runs/).")],
     fmt: Annotated[str, typer.Option("--format", help="Model format: onnx.")] = "onnx",
@@ -402,6 +404,7 @@ def _render_annotate(res: dict[str, Any], console: Console) -> None:
                   f"{res['presses']} presses", highlight=False)
 
 
+@configurable("annotate")
 def annotate_command(
     run_id: Annotated[str, typer.Argument(help="Run whose decisions to write (see the workspace's runs/).")],
     recording: Annotated[str, typer.Argument(help="Recording id (or a unique prefix, or its session id).")],
@@ -417,6 +420,7 @@ def annotate_command(
             return annotate_recording(Workspace(workspace), run_id, recording, out, progress)
 
     run_command(work, as_json, _render_annotate)
+@configurable("runs")
 def runs_command(
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,

@@ -178,7 +178,7 @@ def main() -> None:
                              "population's")
         seed = int(c2.number_input("Seed", min_value=0, value=0, step=1, key="p_seed"))
         fine_tune = st.checkbox("Fine-tune on the K decisions", value=False, key="p_finetune",
-                                help="Off: the base agent as it is (measured better on SUMO studies, rl/README.md)")
+                                help="Off: the base agent as it is (measured better on SUMO studies).")
         st.caption(f"`laneprint personalize --driver {driver} --decisions {k} --from {base}"
                    f"{' --fine-tune' if fine_tune else ''} --seed {seed} -w {ws.root}`")
         if st.button("Personalise", type="primary", key="p_start"):

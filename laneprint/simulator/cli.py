@@ -18,6 +18,7 @@ from rich.console import Console
 
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
 from laneprint.errors import UserError
+from laneprint.options import configurable
 
 OutOpt = Annotated[Path, typer.Option("--out", "-o", help="Folder to write the study into.")]
 DriversOpt = Annotated[Optional[int], typer.Option(
@@ -52,6 +53,7 @@ ForceOpt = Annotated[bool, typer.Option("--force", help="Write into a folder tha
 ENGINES: tuple[str, ...] = ("synthetic", "sumo", "highway")
 
 
+@configurable("simulate")
 def simulate_command(out: OutOpt, drivers: DriversOpt = None, decisions: DecisionsOpt = None, seed: SeedOpt = 0,
                      fmt: FormatOpt = None, force: ForceOpt = False, engine: EngineOpt = "synthetic",
                      minutes: MinutesOpt = None, jobs: JobsOpt = 1, family: FamilyOpt = None,
