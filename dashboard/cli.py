@@ -22,9 +22,24 @@ APP = Path(__file__).with_name("app.py")
 MAX_UPLOAD_MB = 1024
 
 
+def allowed_hosts(host: str) -> list[str]:
+    """The names a browser may reach the dashboard by: this machine's (and `host` when it is a name or
+    address of its own). Any other Host header is refused, so a web page whose name resolves to
+    127.0.0.1 (DNS rebinding) cannot drive the dashboard."""
+    import socket
+
+    names = ["localhost", "127.0.0.1", "::1"]
+    if host in ("0.0.0.0", "::", ""):  # served to the network: the machine's own names too
+        names += [socket.gethostname(), socket.getfqdn()]
+    elif host not in names:
+        names.append(host)
+    return list(dict.fromkeys(n for n in names if n))
+
+
 def streamlit_command(port: int, host: str, workspace: Path) -> list[str]:
-    """The `streamlit run` command line serving the app (headless, no usage statistics)."""
-    return [sys.executable, "-m", "streamlit", "run", str(APP),
+    """The `streamlit run` command line serving the app (headless, no usage statistics, own hosts only)."""
+    hosts = [arg for name in allowed_hosts(host) for arg in ("--server.allowedHosts", name)]
+    return [sys.executable, "-m", "streamlit", "run", str(APP), *hosts,
             "--server.headless", "true", "--server.port", str(port), "--server.address", host,
             "--server.maxUploadSize", str(MAX_UPLOAD_MB), "--server.fileWatcherType", "none",
             "--browser.gatherUsageStats", "false", "--client.toolbarMode", "viewer",

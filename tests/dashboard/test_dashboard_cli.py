@@ -4,7 +4,7 @@ from pathlib import Path
 
 from typer.testing import CliRunner
 
-from dashboard.cli import MAX_UPLOAD_MB, streamlit_command
+from dashboard.cli import MAX_UPLOAD_MB, allowed_hosts, streamlit_command
 from laneprint.cli import app
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -42,6 +42,22 @@ def test_only_the_dashboard_imports_streamlit():
     assert offenders == []
 
 
+def websocket_status(port: int, host_header: str) -> int:
+    """The HTTP status of a WebSocket handshake to the dashboard under `host_header`."""
+    import socket
+
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
+        sock.sendall((f"GET /_stcore/stream HTTP/1.1\r\nHost: {host_header}\r\nConnection: Upgrade\r\n"
+                      "Upgrade: websocket\r\nSec-WebSocket-Version: 13\r\n"
+                      "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n").encode())
+        return int(sock.recv(64).split()[1])
+
+
+def test_allowed_hosts_are_this_machines():
+    assert allowed_hosts("127.0.0.1") == ["localhost", "127.0.0.1", "::1"]
+    assert "lab-pc" in allowed_hosts("lab-pc") and "*" not in allowed_hosts("0.0.0.0")
+
+
 def test_laneprint_dashboard_serves_and_stops(tmp_path):
     import os
     import signal
@@ -55,6 +71,9 @@ def test_laneprint_dashboard_serves_and_stops(tmp_path):
                             text=True, start_new_session=True)
     try:
         wait_healthy(f"http://127.0.0.1:{port}", proc)
+        # DNS rebinding: a page whose name resolves here is another origin, refused at the WebSocket
+        assert websocket_status(port, f"localhost:{port}") == 101
+        assert websocket_status(port, f"rebind.example.com:{port}") == 403
         proc.send_signal(signal.SIGTERM)  # to the CLI only: it must stop the server it started
         out, _ = proc.communicate(timeout=20)
     finally:
