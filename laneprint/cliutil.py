@@ -9,6 +9,7 @@ dict (--json) or the human summary drawn by `render`.
 from __future__ import annotations
 
 import json
+import re
 import sys
 from contextlib import contextmanager
 from pathlib import Path
@@ -33,6 +34,22 @@ RayAddressOpt = Annotated[Optional[str], typer.Option(
     help="With --backend ray: join this Ray cluster (host:port or 'auto'); default: start a local Ray instance "
          "with this machine's cores.")]
 
+#: C0 controls but tab and newline, DEL and C1: bytes that a terminal obeys as commands
+_CONTROLS = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
+
+
+def visible(value: Any) -> Any:
+    """`value` (a str, or dicts and lists of them) with terminal control characters shown as escapes
+    (\\x1b), so a file name or driver id from the data cannot clear the screen or retitle the window."""
+    if isinstance(value, str):
+        return _CONTROLS.sub(lambda m: f"\\x{ord(m.group()):02x}", value)
+    if isinstance(value, dict):
+        return {visible(k): visible(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(visible(v) for v in value)
+    return value
+
+
 console = Console(stderr=False)
 err_console = Console(stderr=True)
 
@@ -45,7 +62,7 @@ def run_command(work: Callable[[], dict[str, Any]], as_json: bool,
     try:
         result = work()
     except UserError as exc:
-        err_console.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
+        err_console.print(f"error: {visible(str(exc))}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(1) from None
     except KeyboardInterrupt:
         err_console.print("interrupted", markup=False)
@@ -53,7 +70,7 @@ def run_command(work: Callable[[], dict[str, Any]], as_json: bool,
     if as_json:
         sys.stdout.write(json.dumps(result, indent=2, default=str) + "\n")
     else:
-        render(result, console)
+        render(visible(result), console)
     if result.get("exit_code"):
         raise typer.Exit(int(result["exit_code"]))
     return result
@@ -70,5 +87,5 @@ def progress_bar(enabled: bool = True) -> Iterator[ProgressFn]:
     task = bar.add_task("", total=None)
     with bar:
         def update(done: int, total: int, message: str = "") -> None:
-            bar.update(task, completed=done, total=total, description=message[:60])
+            bar.update(task, completed=done, total=total, description=visible(message)[:60])
         yield update
