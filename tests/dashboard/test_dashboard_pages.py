@@ -275,12 +275,14 @@ def test_personalize_page_starts_from_the_cli_default(use_sample):
     from typer.main import get_command
 
     from laneprint.cli import app
+    from rl.personalize.settings import PersonalizeSettings
 
     at = AppTest.from_file(page_path("personalize"), default_timeout=120).run()
     assert not at.exception, [e.value for e in at.exception]
     radio = at.radio(key="p_base")
-    params = {p.name: p for p in get_command(app).commands["personalize"].params}
-    assert radio.value == params["base"].default == radio.options[0]
+    opts = {o for p in get_command(app).commands["personalize"].params for o in p.opts}
+    assert "--from" in opts  # the option the caption names; its default is the settings' own
+    assert radio.value == PersonalizeSettings().base == radio.options[0]
     assert any(f"--from {radio.value}" in c.value for c in at.caption)
 
 
