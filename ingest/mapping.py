@@ -193,14 +193,21 @@ def load_mapping(path: Path | None) -> Mapping:
     path = Path(path)
     if not path.is_file():
         raise UserError(f"mapping file {path} does not exist")
-    text = path.read_text(encoding="utf-8")
+    if path.stat().st_size > 1024 * 1024:
+        raise UserError(f"mapping {path.name}: larger than 1024 KB, not a mapping file")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise UserError(f"mapping {path.name}: not UTF-8 text") from None
     if path.suffix.lower() in (".yaml", ".yml"):
         try:
             import yaml
         except ImportError:  # pragma: no cover - PyYAML is optional
             raise UserError("YAML mapping files need PyYAML (pip install pyyaml); or write it as TOML") from None
         try:
-            doc = yaml.safe_load(text) or {}
+            from ingest.small_yaml import load as load_yaml
+
+            doc = load_yaml(text) or {}
         except yaml.YAMLError as exc:
             raise UserError(f"mapping {path.name}: invalid YAML: {str(exc).splitlines()[0]}") from None
     else:

@@ -62,8 +62,10 @@ def read_bag_info(folder: Path) -> BagInfo:
     """The parts and time span of a bag folder; `Rejected` for what laneprint cannot read."""
     import yaml
 
+    from ingest.small_yaml import load as load_yaml
+
     try:
-        doc = yaml.safe_load((folder / METADATA).read_text())
+        doc = load_yaml((folder / METADATA).read_text())
     except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
         raise Rejected(f"{METADATA} of the rosbag2 folder is not readable YAML ({first_line(exc)})") from None
     info = _nested(doc, _KEY)
@@ -82,6 +84,9 @@ def read_bag_info(folder: Path) -> BagInfo:
         files = sorted(found, key=lambda n: (int(m.group(1)) if (m := _PART.search(n)) else -1, n))
     if not files:
         raise Rejected(f"rosbag2 folder with no .mcap file ({METADATA} lists none)")
+    twice = next((f for i, f in enumerate(files) if Path(f).name in {Path(g).name for g in files[:i]}), None)
+    if twice is not None:
+        raise Rejected(f"{METADATA} lists the part {Path(twice).name} more than once; list each part once")
     return BagInfo(tuple(Path(f).name for f in files),
                    _int(_nested(info, "starting_time", "nanoseconds_since_epoch")),
                    _int(_nested(info, "duration", "nanoseconds")), _int(info.get("message_count")))

@@ -1,0 +1,50 @@
+"""Settings files that arrive with the data, small files meant to grow: refused in one line, fast."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from ingest.mapping import load_mapping
+from ingest.rosbag2 import read_bag_info
+from ingest.rawlog import Rejected
+from laneprint.errors import UserError
+
+LAUGHS = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+    f"{chr(98 + i)}: &{chr(98 + i)} [*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, "
+    f"*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}]\n" for i in range(9))
+
+
+def test_yaml_mapping_with_nested_aliases_is_refused_at_once(tmp_path):
+    path = tmp_path / "bomb.yaml"
+    path.write_text(LAUGHS)
+    t0 = time.perf_counter()
+    with pytest.raises(UserError, match="aliases"):
+        load_mapping(path)
+    assert time.perf_counter() - t0 < 2
+
+
+def test_bag_metadata_with_aliases_is_refused(tmp_path):
+    (tmp_path / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  x: 1\n" + LAUGHS)
+    with pytest.raises(Rejected, match="aliases"):
+        read_bag_info(tmp_path)
+
+
+def test_bag_part_listed_twice_is_refused(tmp_path):
+    (tmp_path / "metadata.yaml").write_text(
+        "rosbag2_bagfile_information:\n  storage_identifier: mcap\n  relative_file_paths:\n"
+        + "    - bag_0.mcap\n" * 100)
+    with pytest.raises(Rejected, match="more than once"):
+        read_bag_info(tmp_path)
+
+
+def test_huge_or_binary_mapping_is_refused(tmp_path):
+    big = tmp_path / "big.toml"
+    big.write_text("# " + "x" * (1024 * 1024 + 10))
+    with pytest.raises(UserError, match="larger than"):
+        load_mapping(big)
+    binary = tmp_path / "bin.toml"
+    binary.write_bytes(b"\xff\xfe\x00garbage")
+    with pytest.raises(UserError, match="UTF-8"):
+        load_mapping(binary)
