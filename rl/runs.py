@@ -269,16 +269,26 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
         config = json.loads((folder / "config.json").read_text())
         if config.get("kind") == "personalized":  # its K decisions and base are not a driver run's data
             raise UserError(f"run {resume!r} was personalised: run `laneprint personalize` again instead")
-        if config.get("learner", "dqn") != "dqn":
-            raise UserError(f"run {resume!r} is a tree learner's, fitted in one go: train it again instead")
         run_id = resume
         target = Target(**config["target"])
         env_config = EnvConfig.from_dict(config["env"])
+        restarted = config.get("learner", "dqn") != "dqn"
+        if restarted:  # a learner choice or a tree fit: both go in one go,
+            config.setdefault("resumed_at", []).append(now_iso())  # so they start over with the run's settings
+            atomic_write_json(folder / "config.json", config)
+            settings = stored_learner(config)
+            if isinstance(settings, AutoSettings):
+                settings, env_config = _choose_learner(workspace, folder, config, target, env_config, settings,
+                                                       progress)
+            if isinstance(settings, TreeQSettings):
+                return _fit_tree_run(workspace, folder, config, target, env_config, settings, evaluate, progress)
+            (folder / "checkpoint.pt").unlink(missing_ok=True)
         settings = DQNSettings.from_dict(config["dqn"])
         if episodes is not None and episodes != settings.episodes:
             settings = replace(settings, episodes=episodes)
             config["dqn"]["episodes"] = episodes
-        config.setdefault("resumed_at", []).append(now_iso())
+        if not restarted:
+            config.setdefault("resumed_at", []).append(now_iso())
         atomic_write_json(folder / "config.json", config)
         # killed before its first checkpoint: start over with the run's own settings
         state = torch.load(folder / "checkpoint.pt", weights_only=True) if (folder / "checkpoint.pt").exists() else None

@@ -90,8 +90,37 @@ def test_train_evaluate_export_and_check_a_tree_run(tmp_path):
     assert all(s["actions_agree"] == s["n_states"] for s in json.loads(exported.stdout)["check"]["sets"].values())
     checked = CliRunner().invoke(app, ["check", "-w", str(tmp_path), "--json"])
     assert "runs/t1" not in checked.stdout, checked.stdout
-    again = CliRunner().invoke(app, ["train", "--resume", "t1", "-w", str(tmp_path)])
-    assert again.exit_code == 1 and "train it again" in again.output
+    again = CliRunner().invoke(app, ["train", "--resume", "t1", "-w", str(tmp_path), "--json"])
+    assert again.exit_code == 0, again.output  # fitted in one go: a resume fits it again, same settings
+    assert json.loads(again.stdout)["state"] == "done"
+    assert len(json.loads((tmp_path / "runs" / "t1" / "config.json").read_text())["resumed_at"]) == 1
+
+
+@pytest.mark.slow
+def test_default_learner_killed_while_choosing_resumes(tmp_path):
+    """kill -9 while `auto` chooses its learner: the run reads interrupted, and --resume ends it done."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    analysed_workspace(tmp_path)
+    proc = subprocess.Popen([sys.executable, "-m", "laneprint.cli", "train", "--style", "Normal", "--run-id", "k1",
+                             "--episodes", "300", "-w", str(tmp_path), "--json"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    status = tmp_path / "runs" / "k1" / "status.json"
+    deadline = time.time() + 120
+    while time.time() < deadline and not (status.exists() and "choosing" in status.read_text()):
+        time.sleep(0.2)
+    assert "choosing" in status.read_text()
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    runs = json.loads(CliRunner().invoke(app, ["runs", "-w", str(tmp_path), "--json"]).stdout)["runs"]
+    assert runs[0]["state"] == "interrupted"
+    again = CliRunner().invoke(app, ["train", "--resume", "k1", "-w", str(tmp_path), "--json"])
+    assert again.exit_code == 0, again.output
+    out = json.loads(again.stdout)
+    assert out["state"] == "done" and out["learner_choice"]["learner"] in ("dqn", "trees")
 
 
 def test_crossval_with_the_tree_learner_says_so(tmp_path):
