@@ -37,8 +37,8 @@ class PersonalizeSettings:
     n_bootstrap: int = 200  # resamples of the K decisions for the style's confidence
     blend_prior: str = "share"  # 'blend': a style's prior weight is its bootstrap share (times 1 - blend_population),
     # or 'equal': every candidate alike
-    blend_population: float = 0.4  # 'blend', prior 'share': the population agent's prior weight (0.4: chosen on
-    # SUMO 302-307 among 0.2 and the variants in rl/README.md, judged on 308-310)
+    blend_population: float = 0.4  # 'blend', prior 'share': the population agent's prior weight (chosen on
+    # development studies among 0.2 and other variants, judged on others)
     blend_fit_power: float = 1.0  # 'blend': each prior weight times the candidate's agreement with the K
     # approaches to this power (0: the prior alone)
 
