@@ -6,6 +6,8 @@ Every check either passes, adds a warning (the recording is kept), or raises
 
 from __future__ import annotations
 
+import unicodedata
+
 from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any
@@ -137,9 +139,27 @@ def _directions(pressed: np.ndarray, raw_dirs: np.ndarray, warnings: list[str]) 
     return out, len(starts)
 
 
+#: A driver id longer than this is no id (it names files and figures) [characters].
+MAX_ID_CHARS = 64
+
+
+def clean_id(value: Any, what: str = "driver id") -> str:
+    """`value` as an id: one Unicode form (NFC, so a composed and a decomposed name are one driver), at
+    most `MAX_ID_CHARS`, no control characters; `Rejected` otherwise."""
+    text = unicodedata.normalize("NFC", str(value)).strip()
+    if len(text) > MAX_ID_CHARS:
+        raise Rejected(f"{what} of {len(text)} characters: at most {MAX_ID_CHARS}")
+    if any(unicodedata.category(c) == "Cc" for c in text):
+        raise Rejected(f"{what} {text.encode('unicode_escape').decode()[:80]!r} holds control characters")
+    return text
+
+
 def resolve_driver(file_id: Any, default: Any, override: str | None, warnings: list[str]) -> str:
-    """The file's own driver id wins; `--driver` fills in when it has none (a conflict warns)."""
-    own = str(file_id).strip() if file_id not in (None, "") else ""
+    """The file's own driver id wins; `--driver` fills in when it has none (a conflict warns). Each is
+    checked and normalised by `clean_id`."""
+    override = clean_id(override) if override else override
+    default = clean_id(default) if default not in (None, "") else default
+    own = clean_id(file_id) if file_id not in (None, "") else ""
     if own:
         if override and override != own:
             warnings.append(f"file says driver {own!r}; --driver {override!r} ignored for it")

@@ -48,3 +48,16 @@ def test_huge_or_binary_mapping_is_refused(tmp_path):
     binary.write_bytes(b"\xff\xfe\x00garbage")
     with pytest.raises(UserError, match="UTF-8"):
         load_mapping(binary)
+
+
+def test_driver_ids_are_one_form_bounded_and_printable():
+    from ingest.validate import clean_id, resolve_driver
+
+    composed, decomposed = "Jos\u00e9", "Jose\u0301"
+    assert resolve_driver(composed, None, None, []) == resolve_driver(decomposed, None, None, [])
+    with pytest.raises(Rejected, match="at most"):
+        resolve_driver("x" * 300, None, None, [])
+    with pytest.raises(Rejected, match="control characters"):
+        clean_id("D01\x1b[2J")
+    with pytest.raises(Rejected, match="at most"):
+        resolve_driver(None, None, "y" * 65, [])
