@@ -50,7 +50,17 @@ def run_pipeline(paths: list[Path], workspace: Path, driver: str | None, mapping
         with progress_bar(show_progress) as progress:
             runs = train_fleet(ws, fleet["fleet_id"], progress=progress)["summaries"]
     return {"workspace": str(ws.root), "ingest": ingest, "analysis": analysis, "runs": runs,
-            "dashboard": f"laneprint dashboard --workspace {ws.root}"}
+            "dashboard": f"{_laneprint_exe()} dashboard --workspace {ws.root}"}
+
+
+def _laneprint_exe() -> str:
+    """`laneprint` when the shell finds this one, else its full path (a virtual environment not activated)."""
+    import shutil
+    import sys
+
+    mine = Path(sys.executable).with_name("laneprint")
+    found = shutil.which("laneprint")
+    return "laneprint" if found and Path(found).resolve() == mine.resolve() else str(mine)
 
 
 def render_run(result: dict[str, Any], console: Console) -> None:
