@@ -35,7 +35,7 @@ import pandas as pd
 from indicators.settings import AnalysisSettings
 from laneprint.errors import UserError
 from laneprint.parallel import run_tasks
-from laneprint.progress import ProgressFn, report
+from laneprint.progress import ProgressFn
 from laneprint.reference import INDICATORS
 from rl.evaluation.settings import SPLITS, CrossvalSettings  # noqa: F401
 from rl.problem.env import Approach, EnvConfig, approaches_from_decisions
