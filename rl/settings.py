@@ -73,6 +73,21 @@ class DQNSettings:
     seed: int = 0  # seed of everything random: environments, exploration, sampling (numpy) and the network (torch)
     checkpoint_every: int = 500  # save a checkpoint every this many episodes (0 = never)
 
+    def __post_init__(self) -> None:
+        shares = ("eps_start", "eps_end", "exploration_fraction", "gamma", "average_tau", "average_from")
+        bad = [f"{k} must be in [0, 1]" for k in shares if not 0.0 <= getattr(self, k) <= 1.0]
+        bad += [f"{k} must be at least 1" for k in ("episodes", "buffer_size", "batch_size", "num_envs",
+                                                    "gradient_steps", "target_update_episodes", "threads")
+                if getattr(self, k) < 1]
+        bad += [f"{k} must be at least 0" for k in ("episodes_per_approach", "learning_starts", "max_grad_norm",
+                                                    "checkpoint_every") if getattr(self, k) < 0]
+        if self.learning_rate <= 0 or (self.learning_rate_end is not None and self.learning_rate_end < 0):
+            bad.append("learning_rate must be above 0 and learning_rate_end at least 0")
+        if self.loss not in ("mse", "huber"):
+            bad.append(f"loss must be 'mse' or 'huber', not {self.loss!r}")
+        if bad:
+            raise ValueError("; ".join(bad))
+
     def resolved_episodes(self, n_approaches: int | None) -> "DQNSettings":
         """These settings with `episodes` fixed for `n_approaches` recorded approaches (None: synthetic scenes).
 

@@ -52,7 +52,7 @@ def test_train_with_paper_lines_writes_the_run_folder(tmp_path):
     assert res.exit_code == 1 and "exists already" in res.output
     res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--average-from", "2",
                                    "-w", str(tmp_path)])
-    assert res.exit_code == 2 and "--average-from" in res.output  # a share of the episodes, refused before training
+    assert res.exit_code == 1 and "average_from must be in [0, 1]" in res.output  # refused before training
 
 
 def test_evaluate_against_the_drivers(tmp_path):
