@@ -76,10 +76,10 @@ class DQNSettings:
     def __post_init__(self) -> None:
         shares = ("eps_start", "eps_end", "exploration_fraction", "gamma", "average_tau", "average_from")
         bad = [f"{k} must be in [0, 1]" for k in shares if not 0.0 <= getattr(self, k) <= 1.0]
-        bad += [f"{k} must be at least 1" for k in ("episodes", "buffer_size", "batch_size", "num_envs",
+        bad += [f"{k} must be at least 1" for k in ("buffer_size", "batch_size", "num_envs",
                                                     "gradient_steps", "target_update_episodes", "threads")
                 if getattr(self, k) < 1]
-        bad += [f"{k} must be at least 0" for k in ("episodes_per_approach", "learning_starts", "max_grad_norm",
+        bad += [f"{k} must be at least 0" for k in ("episodes", "episodes_per_approach", "learning_starts", "max_grad_norm",
                                                     "checkpoint_every") if getattr(self, k) < 0]
         if self.learning_rate <= 0 or (self.learning_rate_end is not None and self.learning_rate_end < 0):
             bad.append("learning_rate must be above 0 and learning_rate_end at least 0")
