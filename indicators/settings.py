@@ -125,11 +125,11 @@ class AnalysisSettings:
     still the driver's judgement of the gap)."""
 
     # --- styles ----------------------------------------------------------------
-    features: str = "auto"
-    """What the styles are read by: 'auto' (the indicator set whose styles are best separated
-    and most stable, the study's TTCs unless another is clearly better), 'separated' (the best
-    separated and most stable of the indicator sets and the behaviour readings, no margin for
-    any), 'reliable' (the two behaviour parameters in which the drivers differ most reliably),
+    features: str = "separated"
+    """What the styles are read by: 'separated' (the default: the best separated and most stable
+    of the indicator sets and the behaviour readings, no margin for any; chosen one world out on
+    the zoo of worlds), 'auto' (the indicator set whose styles are best separated and most
+    stable, the study's TTCs unless another is clearly better), 'reliable' (the two behaviour parameters in which the drivers differ most reliably),
     'heldout' (the reading whose styles best predict the drivers' held-out decisions and
     following headways), 'behaviour' (the drivers' critical gaps and following headway),
     'behaviour:PARAMS' (e.g. behaviour:thw_nb+thw_follow), an indicator set of

@@ -24,7 +24,7 @@ def awkward_table() -> pd.DataFrame:
 
 
 def test_awkward_drivers_complete_with_reasons():
-    out = analyze_tables(awkward_table())
+    out = analyze_tables(awkward_table(), AnalysisSettings(features="auto"))
     fits = out["fits"].set_index(["driver_id", "indicator"])
     skipped = out["skipped"]
     why = {(r.what, r.id): r.reason for r in skipped.itertuples()}

@@ -55,7 +55,7 @@ def ari(out: dict, truth: dict[str, str]) -> float:
 
 def test_auto_reads_gap_accepting_drivers_by_their_gaps():
     dec, truth = acceptance_table()
-    out = analyze_tables(dec, AnalysisSettings(n_bootstrap=30))
+    out = analyze_tables(dec, AnalysisSettings(features="auto", n_bootstrap=30))
     fs = out["feature_sets"].set_index("name")
     chosen = fs.index[fs["chosen"]][0]
     assert chosen in ("following", "acceptance") and fs.loc[chosen, "score"] > fs.loc["ttc", "score"]
@@ -69,7 +69,7 @@ def test_auto_reads_gap_accepting_drivers_by_their_gaps():
 
 def test_auto_keeps_the_ttcs_where_they_tell_the_styles_apart():
     dec, truth = make_decision_table(9, 40, seed=1)  # styles of Table 1, no gaps logged
-    out = analyze_tables(dec, AnalysisSettings(n_bootstrap=30))
+    out = analyze_tables(dec, AnalysisSettings(features="auto", n_bootstrap=30))
     fs = out["feature_sets"].set_index("name")
     assert fs.loc["ttc", "chosen"] and pd.isna(fs.loc["following", "score"])  # no gaps: not scored
     assert ari(out, truth) == 1.0
@@ -87,14 +87,14 @@ def test_auto_leaves_out_a_set_read_at_fewer_presses_than_a_fit_takes(monkeypatc
             name, tuple(inds), 3, scores[name][0], 1.0, scores[name][0], 0.0, scores[name][1])
 
     monkeypatch.setattr(selection, "score_feature_set", fake(2.0))
-    assert selection.choose_features(pd.DataFrame(), [], pd.Series(dtype=float), AnalysisSettings())[0] == "following"
+    assert selection.choose_features(pd.DataFrame(), [], pd.Series(dtype=float), AnalysisSettings(features="auto"))[0] == "following"
     monkeypatch.setattr(selection, "score_feature_set", fake(44.0))  # read at every press: the margin keeps it
-    assert selection.choose_features(pd.DataFrame(), [], pd.Series(dtype=float), AnalysisSettings())[0] == "ttc"
+    assert selection.choose_features(pd.DataFrame(), [], pd.Series(dtype=float), AnalysisSettings(features="auto"))[0] == "ttc"
 
 
 def test_presses_read_per_driver_is_measured_and_shown(tmp_path):
     dec, _ = acceptance_table()  # t_nf is never defined, gaps at every press
-    fs = analyze_tables(dec, AnalysisSettings(n_bootstrap=0))["feature_sets"].set_index("name")
+    fs = analyze_tables(dec, AnalysisSettings(features="auto", n_bootstrap=0))["feature_sets"].set_index("name")
     assert fs.loc["ttc", "presses_read"] == 0 and fs.loc["following", "presses_read"] >= 20
     from clustering.cli import render_features
     from rich.console import Console
@@ -136,7 +136,7 @@ def test_a_fit_that_means_nothing_is_flagged_and_not_a_reference_line():
 
 def test_clean_lines_are_not_flagged():
     dec, _ = make_decision_table(6, 50, seed=2)
-    fits = analyze_tables(dec, AnalysisSettings(n_bootstrap=0))["fits"]
+    fits = analyze_tables(dec, AnalysisSettings(features="auto", n_bootstrap=0))["fits"]
     assert (fits[fits["indicator"].isin(["t_f", "dv_nb"])]["flag"] == "").all()
 
 
@@ -144,7 +144,7 @@ def test_warnings_for_one_driver_styles_and_flagged_fits(tmp_path):
     from clustering.pipeline import summary
 
     dec, _ = acceptance_table(n_drivers=3)
-    out = analyze_tables(dec, AnalysisSettings(n_bootstrap=0))
+    out = analyze_tables(dec, AnalysisSettings(features="auto", n_bootstrap=0))
     warn = summary(out)["warnings"]
     assert any(w.startswith("k = 3 styles from 3 clustered driver(s)") for w in warn)
     assert sum("holds one driver" in w for w in warn) == 3
@@ -165,7 +165,7 @@ def test_analyze_reports_the_choice_on_the_command_line(tmp_path):
     meta, ego, traffic = make_recording(20, 10, 25.0, [(0, 0), (6.0, 1)], presses=[(5.0, 0.3, "left")],
                                         vehicles=[("L", 40.0, 20.0, 0, 4.5)])
     ws.write_recording(catalogue_row(meta, ego, traffic), ego, traffic)
-    res = CliRunner().invoke(app, ["analyze", "--workspace", str(ws.root), "--json"])
+    res = CliRunner().invoke(app, ["analyze", "--workspace", str(ws.root), "--json", "--features", "auto"])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
     assert doc["summary"]["features"]["requested"] == "auto"
@@ -178,7 +178,7 @@ def test_a_style_whose_typical_driver_has_no_fit_still_gets_a_line_that_says_wha
     from rl.problem.rewards import ReferenceLines
 
     dec, _ = acceptance_table()  # no target-lane leader at any press: t_nf never defined
-    out = analyze_tables(dec, AnalysisSettings(n_bootstrap=0))
+    out = analyze_tables(dec, AnalysisSettings(features="auto", n_bootstrap=0))
     refs = out["reference_lines"]
     t_nf = refs[(refs["kind"] == "typical") & (refs["indicator"] == "t_nf") & (refs["direction"] == "both")]
     assert len(t_nf) == 3 and t_nf["source"].str.contains("Table 1's line").all()

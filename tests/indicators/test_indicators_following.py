@@ -103,7 +103,7 @@ def test_auto_reads_a_driver_by_the_headway_it_keeps_when_its_presses_mislead():
     assert truth["D01"] == "Normal"
     headway = analyze_tables(dec, AnalysisSettings(features="headway", n_bootstrap=0))
     assert adjusted_rand_score([truth[d] for d in headway["styles"]["driver_id"]], headway["styles"]["style"]) < 1
-    out = analyze_tables(dec, AnalysisSettings(n_bootstrap=30), following=episodes_by_style(truth))
+    out = analyze_tables(dec, AnalysisSettings(features="auto", n_bootstrap=30), following=episodes_by_style(truth))
     fs = out["feature_sets"].set_index("name")
     assert fs.index[fs["chosen"]][0] == "following"
     st = out["styles"]
