@@ -107,7 +107,9 @@ IDENTITY = Mapping()
 
 
 def _check_keys(section: str, got: dict[str, Any], allowed: tuple[str, ...] | set[str]) -> None:
-    unknown = sorted(set(got) - set(allowed))
+    if not isinstance(got, dict):
+        raise UserError(f"mapping: [{section}] must be a table of names, not {type(got).__name__} {str(got)[:40]!r}")
+    unknown = sorted(set(map(str, got)) - set(allowed))
     if unknown:
         raise UserError(f"mapping: unknown key(s) {', '.join(unknown)} in [{section}] "
                         f"(known: {', '.join(sorted(allowed))})")
@@ -122,8 +124,8 @@ def _str_dict(section: str, value: Any) -> dict[str, str]:
 def _scale(units: dict[str, Any], name: str, table: dict[str, float]) -> float:
     if f"{name}_scale" in units:
         value = units[f"{name}_scale"]
-        if not isinstance(value, (int, float)) or value <= 0:
-            raise UserError(f"mapping: [units] {name}_scale must be a positive number")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < float("inf"):
+            raise UserError(f"mapping: [units] {name}_scale must be a positive finite number")
         return float(value)
     unit = units.get(name)
     if unit is None:

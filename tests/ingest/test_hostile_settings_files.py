@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import time
 
 import pytest
@@ -61,3 +62,19 @@ def test_driver_ids_are_one_form_bounded_and_printable():
         clean_id("D01\x1b[2J")
     with pytest.raises(Rejected, match="at most"):
         resolve_driver(None, None, "y" * 65, [])
+
+
+@pytest.mark.parametrize("text, why", [
+    ("csv = 5\n", "[csv] must be a table"),
+    ("csv = [1, 2]\n", "[csv] must be a table"),
+    ("units = [1]\n", "[units] must be a table"),
+    ('[csv]\ntraffic = "x"\n', "[csv.traffic] must be a table"),
+    ("[units]\nspeed_scale = nan\n", "positive finite number"),
+    ("[units]\nspeed_scale = inf\n", "positive finite number"),
+    ("[units]\nspeed_scale = true\n", "positive finite number"),
+])
+def test_mappings_of_the_wrong_type_are_one_line(tmp_path, text, why):
+    path = tmp_path / "m.toml"
+    path.write_text(text)
+    with pytest.raises(UserError, match=re.escape(why)):
+        load_mapping(path)
