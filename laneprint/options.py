@@ -37,8 +37,8 @@ from laneprint.errors import UserError
 MAX_CONFIG_BYTES = 64 * 1024
 #: table name -> settings dataclass, of every section any command takes (filled as commands are declared)
 SECTIONS: dict[str, type] = {}
-#: command name -> {option key: help} of the commands that read a `[command]` table
-COMMANDS: dict[str, dict[str, str]] = {}
+#: the commands, each of which reads a `[command]` table of its own options
+COMMANDS: set[str] = set()
 SCALARS = (bool, int, float, str)
 
 
@@ -56,8 +56,8 @@ class Section:
 class Settings:
     """The built settings of a command: `settings.dqn` is the `[dqn]` section's dataclass."""
 
-    def __init__(self, values: dict[str, Any], given: dict[str, set[str]], config: Path | None) -> None:
-        self._values, self._given, self.config = values, given, config
+    def __init__(self, values: dict[str, Any], given: dict[str, set[str]]) -> None:
+        self._values, self._given = values, given
 
     def __getattr__(self, table: str) -> Any:
         try:
@@ -244,7 +244,8 @@ def configurable(command: str, *sections: Section) -> Callable[[Callable[..., An
                 generated[name] = (sec.table, f.name)
                 extra.append(inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=None,
                                                annotation=_field_option(sec, f, typ, docs.get(f.name, ""))))
-        COMMANDS[command] = {keys[p.name]: "" for p in own}
+        COMMANDS.add(command)
+        by_field = {field: (table, field) for table, field in generated.values()}  # `[command]` keys of sections
         config = inspect.Parameter("config", inspect.Parameter.KEYWORD_ONLY, default=None, annotation=Annotated[
             Optional[Path], typer.Option("--config", metavar="FILE.toml", help=(
                 "Settings from a TOML file: tables " + ", ".join(f"[{s.table}]" for s in sections)
@@ -274,12 +275,17 @@ def configurable(command: str, *sections: Section) -> Callable[[Callable[..., An
             ctx = kwargs.pop("typer_context", None)
             same = next((sec for sec in sections if sec.table == command), None)  # e.g. [drive]: both
             shared = {f.name for f in dataclasses.fields(same.cls)} if same else set()
+            from_command: dict[str, dict[str, Any]] = {}  # section options set in `[command]`, e.g. [train] episodes
             for key, value in tables.get(command, {}).items():
                 name = by_key.get(key)
                 if name is None and key in shared:
                     continue
+                if name is None and key in by_field:
+                    table, field = by_field[key]
+                    from_command.setdefault(table, {})[field] = value
+                    continue
                 if name is None:
-                    choices = set(by_key) | shared
+                    choices = set(by_key) | shared | set(by_field)
                     raise UserError(f"{where}: [{command}] has no option {key!r}{_suggest(key, choices)}")
                 source = ctx.get_parameter_source(name) if ctx is not None else None
                 if source is None or source.name in ("DEFAULT", "DEFAULT_MAP"):
@@ -288,11 +294,11 @@ def configurable(command: str, *sections: Section) -> Callable[[Callable[..., An
             for sec in sections:
                 cli = {field: kwargs[name] for name, (table, field) in generated.items()
                        if table == sec.table and kwargs.get(name) is not None}
-                table = {k: v for k, v in tables.get(sec.table, {}).items()
-                         if sec.table != command or k not in by_key}
+                table = {**{k: v for k, v in tables.get(sec.table, {}).items()
+                            if sec.table != command or k not in by_key}, **from_command.get(sec.table, {})}
                 values[sec.table], given[sec.table] = build(sec, table, cli, where)
             if takes_settings:
-                call["settings"] = Settings(values, given, path)
+                call["settings"] = Settings(values, given)
             return call
 
         context = inspect.Parameter("typer_context", inspect.Parameter.KEYWORD_ONLY, annotation=typer.Context)

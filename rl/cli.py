@@ -44,6 +44,15 @@ LearnerOpt = Annotated[Optional[str], typer.Option(
                       "'dqn' for fleets and the other formulations (the paper's among them).")]
 
 
+def dqn_as_asked(settings: Settings) -> tuple[DQNSettings, int | None]:
+    """The `[dqn]` settings, and the episodes asked for (None: not asked). Asked, they are the number to
+    train, not the per-approach rule's ceiling."""
+    dqn = settings.dqn
+    if "episodes" not in settings.given("dqn"):
+        return dqn, None
+    return replace(dqn, episodes_per_approach=0.0), dqn.episodes
+
+
 def learner_settings(learner: str, dqn: DQNSettings, trees: TreeQSettings | None = None,
                      auto: AutoSettings | None = None) -> DQNSettings | TreeQSettings | AutoSettings:
     """`dqn`, the tree learner's settings, or both to choose from (`auto`'s folds and margin), all with `dqn`'s
@@ -186,11 +195,8 @@ def train_command(
         from rl.runs import Target, resolve_lines, train_run
 
         ws = Workspace(workspace)
-        dqn = settings.dqn
-        if "episodes" in settings.given("dqn"):  # a number asked for: no per-approach rule
-            dqn = replace(dqn, episodes_per_approach=0.0)
+        dqn, episodes = dqn_as_asked(settings)
         threads = dqn.threads if "threads" in settings.given("dqn") else None
-        episodes = dqn.episodes if "episodes" in settings.given("dqn") else None
         fleet_opts = {"backend": backend, "ray_address": ray_address, "threads": threads, "evaluate": evaluate}
         if resume:
             if style or driver or drivers or styles:
@@ -340,10 +346,9 @@ def crossval_command(
 
         ws = Workspace(workspace)
         cv = settings.crossval
-        dqn = settings.dqn if "seed" in settings.given("dqn") else replace(settings.dqn, seed=cv.seed)
-        episodes = dqn.episodes if "episodes" in settings.given("dqn") else None
-        if episodes:
-            dqn = replace(dqn, episodes_per_approach=0.0)
+        dqn, episodes = dqn_as_asked(settings)
+        if "seed" not in settings.given("dqn"):  # the folds' seed seeds the agents too
+            dqn = replace(dqn, seed=cv.seed)
         where = {"backend": backend, "ray_address": ray_address}
         with backend_session(**where), progress_bar(not as_json) as progress:  # one Ray instance for every target
             if run:

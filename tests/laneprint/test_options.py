@@ -91,3 +91,24 @@ def test_config_reference_lists_every_table():
     for table in ("dqn", "trees", "auto", "analysis", "crossval", "personalize", "drive"):
         assert f"## [{table}]" in ref
     assert "| `learning_rate` | float | `0.005` |" in ref
+
+
+def test_a_section_option_in_the_command_table(tmp_path):
+    """`[toy] lr_like = ...`: a section's option set in the command's own table (as `[train] episodes`),
+    above the section's table and below the command line; a typo is named with the nearest key."""
+    toy, got = typer.Typer(), {}
+
+    @toy.command()
+    @configurable("toy2", Section("dqn", DQNSettings, visible=("episodes",)))
+    def toy_command(settings: Settings) -> None:
+        got.update(dqn=settings.dqn, given=settings.given("dqn"))
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[dqn]\nepisodes = 10\ngamma = 0.5\n[toy2]\nepisodes = 20\n")
+    assert CliRunner().invoke(toy, ["--config", str(cfg)]).exit_code == 0
+    assert (got["dqn"].episodes, got["dqn"].gamma) == (20, 0.5) and "episodes" in got["given"]
+    assert CliRunner().invoke(toy, ["--config", str(cfg), "--episodes", "30"]).exit_code == 0
+    assert got["dqn"].episodes == 30
+    cfg.write_text("[toy2]\nepisode = 20\n")
+    res = CliRunner().invoke(toy, ["--config", str(cfg)])
+    assert res.exit_code == 1 and "did you mean episodes" in res.output
