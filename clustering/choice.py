@@ -10,11 +10,12 @@ Two kinds of reading compete on the same held-out criterion (`clustering.reading
 
 `--features heldout` takes whichever predicts held-out behaviour best; `--features behaviour`
 only the behaviour readings; a set name or `behaviour:<params>` that reading alone.
-`--features separated` takes the best separated and most stable reading of either kind (no
-margin); `--features reliable` the two behaviour parameters the drivers differ in most reliably. The default,
-'auto', is still the choice among indicator sets by silhouette x stability
-(`clustering.selection`) until the held-out choice is judged on the zoo of worlds
-(`benchmarks/analysis.py --zoo`).
+`--features consensus`, the default, reads the styles the five best separated and most stable
+readings of either kind agree on (`clustering.consensus`); `--features separated` takes the one
+best of them (no margin for any); `--features reliable` the two behaviour parameters the drivers
+differ in most reliably; 'auto' the choice among indicator sets by silhouette x stability
+(`clustering.selection`). The default was chosen one world out on the zoo of worlds
+(`benchmarks/analysis.py --zoo`, `benchmarks/consensus.py`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import numpy as np
 import pandas as pd
 from sklearn.metrics import silhouette_score
 
+from clustering.consensus import CONSENSUS_READINGS, consensus_groups, vote_defensiveness
 from clustering.behaviour import BEHAVIOUR, PARAMETERS, VARIABLES, Behaviour, behaviour_params, decision_data, subset
 from clustering.features import driver_features, transform_features
 from clustering.readings import (ReadingScore, candidate_readings, choose_reading, cluster_reading,
@@ -41,6 +43,8 @@ RELIABLE = "reliable"
 #: `features` value that takes the best separated and most stable reading of all, indicator sets
 #: and behaviour readings alike, with no margin for any.
 SEPARATED = "separated"
+#: `features` value that reads the drivers by the consensus of the best separated readings.
+CONSENSUS = "consensus"
 #: With 'separated', this many of the best readings are plausible (a driver they read otherwise is unsure).
 PLAUSIBLE_READINGS = 3
 #: Largest number of behaviour parameters in one candidate reading.
@@ -51,6 +55,11 @@ FEW_PRESSES = 8
 
 def is_behaviour(name: str) -> bool:
     return name.startswith(BEHAVIOUR)
+
+
+def reads_behaviour(name: str) -> bool:
+    """Whether a chosen reading's styles live in behaviour parameters (a behaviour reading or the consensus)."""
+    return is_behaviour(name) or name == CONSENSUS
 
 
 @dataclass
@@ -83,6 +92,8 @@ def choose(decisions: pd.DataFrame, following: pd.DataFrame | None, points: pd.D
     spec = settings.features
     if spec == RELIABLE:
         return choose_reliable(behaviour, fit_on, settings)
+    if spec == CONSENSUS:
+        return choose_consensus(points, drivers, fit_on, n_dec, behaviour, settings)
     if spec == SEPARATED:
         return choose_separated(points, drivers, fit_on, n_dec, behaviour, settings)
     data = decision_data(decisions)
@@ -127,12 +138,14 @@ def choose_reliable(behaviour: Behaviour, fit_on: list[str], settings: AnalysisS
     return Choice(name, params, scores, clusterers[name])
 
 
-def choose_separated(points: pd.DataFrame, drivers: list[str], fit_on: list[str], n_dec: pd.Series,
-                     behaviour: Behaviour, settings: AnalysisSettings) -> Choice:
-    """The reading with the highest silhouette x stability among the indicator sets 'auto' weighs
-    (those that read the decisions) and the behaviour readings of up to `MAX_READING_SIZE`
-    parameters (stability: the share of draws of each driver's estimates, from their standard
-    errors, left in its style). No reading is favoured; the `PLAUSIBLE_READINGS` best are plausible."""
+def ranked_readings(points: pd.DataFrame, drivers: list[str], fit_on: list[str], n_dec: pd.Series,
+                    behaviour: Behaviour, settings: AnalysisSettings
+                    ) -> tuple[list[ReadingScore], dict[str, StyleClusterer]]:
+    """Every reading, best separated and most stable first: the indicator sets 'auto' weighs (those
+    that read the decisions) and the behaviour readings of up to `MAX_READING_SIZE` parameters,
+    each scored by silhouette x stability (stability: the share of draws of each driver's
+    estimates, from their standard errors, left in its style), with no margin for any; and the
+    clusterer of each behaviour reading."""
     scores: list[ReadingScore] = []
     clusterers: dict[str, StyleClusterer] = {}
     if len(fit_on) > settings.k:
@@ -157,12 +170,50 @@ def choose_separated(points: pd.DataFrame, drivers: list[str], fit_on: list[str]
         if labels is not None:
             scores.append(ReadingScore(sc.name, INDICATOR_SETS[sc.name], np.nan, np.nan, np.nan, False, False, labels,
                                        silhouette=sc.silhouette, stability=sc.stability))
+    scores.sort(key=lambda r: -(r.silhouette * np.nan_to_num(r.stability, nan=1.0)))
+    return scores, clusterers
+
+
+def choose_separated(points: pd.DataFrame, drivers: list[str], fit_on: list[str], n_dec: pd.Series,
+                     behaviour: Behaviour, settings: AnalysisSettings) -> Choice:
+    """The best separated and most stable reading (`ranked_readings`); the `PLAUSIBLE_READINGS`
+    best are plausible."""
+    scores, clusterers = ranked_readings(points, drivers, fit_on, n_dec, behaviour, settings)
     if not scores:
         return Choice("", (), [], None)
-    scores.sort(key=lambda r: -(r.silhouette * np.nan_to_num(r.stability, nan=1.0)))
     scores = [replace(r, plausible=i < PLAUSIBLE_READINGS, chosen=i == 0) for i, r in enumerate(scores)]
     best = scores[0]
     return Choice(best.name, best.parameters, scores, clusterers.get(best.name))
+
+
+def choose_consensus(points: pd.DataFrame, drivers: list[str], fit_on: list[str], n_dec: pd.Series,
+                     behaviour: Behaviour, settings: AnalysisSettings) -> Choice:
+    """The styles the `CONSENSUS_READINGS` best separated readings agree on (`clustering.consensus`).
+
+    The voters are the plausible readings. The styles' centres sit in the space of the behaviour
+    parameters the voters read (every usable one if only indicator sets voted), where drivers
+    with too few presses to place a centre are assigned and each driver's estimates are drawn
+    for its confidence."""
+    scores, _ = ranked_readings(points, drivers, fit_on, n_dec, behaviour, settings)
+    if not scores:
+        return Choice("", (), [], None)
+    voters = scores[:CONSENSUS_READINGS]
+    groups = consensus_groups(voters, fit_on, settings.k)
+    params = tuple(dict.fromkeys(p for r in voters if is_behaviour(r.name) for p in r.parameters)) \
+        or usable_parameters(behaviour, fit_on)
+    clf = StyleClusterer(k=settings.k, random_state=settings.random_state, room=list(params))
+    clf.fit_partition(behaviour.values.loc[fit_on, list(params)], groups)
+    ids = sorted(set(groups.tolist()))
+    votes = vote_defensiveness(voters, fit_on, groups)
+    clf.order_by(votes[np.asarray(ids)[clf.order_]])  # named as the voters name their members
+    labels = {d: clf.names_[i] for d, i in zip(fit_on, clf.labels_)}
+    scores = [replace(r, plausible=i < CONSENSUS_READINGS) for i, r in enumerate(scores)]
+    sil = float(silhouette_score(clf.transform(behaviour.values.loc[fit_on, list(params)]), clf.labels_)) \
+        if len(set(clf.labels_.tolist())) > 1 else np.nan
+    stab = float(draw_confidence(behaviour, fit_on, clf, clf.labels_, settings.random_state).mean())
+    chosen = ReadingScore(CONSENSUS, params, np.nan, np.nan, np.nan, False, True, labels,
+                          silhouette=sil, stability=stab)
+    return Choice(CONSENSUS, params, [chosen, *scores], clf)
 
 
 def silhouette_alternatives(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings,
@@ -211,6 +262,10 @@ def assign(choice: Choice, behaviour: Behaviour, drivers: list[str], n_dec: pd.S
         return style, conf, defn
     X = behaviour.values.loc[rows, clf.feature_names_in_]
     labels = clf.predict(X)
+    chosen = next((s for s in choice.scores if s.chosen), None)
+    if chosen is not None:  # drivers that placed the centres keep the style the choice gave them
+        labels = np.array([clf.names_.index(chosen.labels[d]) if d in chosen.labels else lab
+                           for d, lab in zip(rows, labels)])
     style[rows] = [clf.names_[i] for i in labels]
     conf[rows] = draw_confidence(behaviour, rows, clf, labels, settings.random_state)
     defn[rows] = clf.defensiveness(X)

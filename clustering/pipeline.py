@@ -265,10 +265,10 @@ def analyze_tables(decisions: pd.DataFrame, settings: AnalysisSettings | None = 
     n_dec = _n_decisions(decisions, drivers)
     behaviour = driver_behaviour(decisions, following, drivers, settings.random_state)
     choice = None
-    if settings.features in (choosing.RELIABLE, choosing.SEPARATED, *choosing.HELDOUT_CHOICES) \
+    if settings.features in (choosing.RELIABLE, choosing.SEPARATED, choosing.CONSENSUS, *choosing.HELDOUT_CHOICES) \
             or choosing.is_behaviour(settings.features):
         choice = choosing.choose(decisions, following, points, drivers, n_dec, behaviour, settings)
-    if choice is not None and choosing.is_behaviour(choice.name):
+    if choice is not None and choosing.reads_behaviour(choice.name):
         settings = settings.with_(feature_indicators=choice.parameters)
         styles, clf, skipped = behaviour_styles(choice, behaviour, drivers, n_dec, fits, settings)
         feature_sets = choice_table(choice, settings.features)
@@ -395,7 +395,7 @@ def honest_confidence(styles: pd.DataFrame, choice: "choosing.Choice | None", be
         agreement, others = choosing.reading_agreement(choice, st)
     else:
         agreement, others = pd.Series(1.0, index=st.index), {d: [] for d in st.index}
-    params = choice.parameters if choice is not None and choosing.is_behaviour(choice.name) else ()
+    params = choice.parameters if choice is not None and choosing.reads_behaviour(choice.name) else ()
     data_conf = styles["confidence"].to_numpy(dtype=float)
     agree = agreement.reindex(styles["driver_id"]).fillna(1.0).to_numpy()
     cap = np.array([choosing.succession(int(n)) for n in styles["n_decisions"]])

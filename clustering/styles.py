@@ -101,6 +101,31 @@ class StyleClusterer:
 
     def fit(self, features: pd.DataFrame) -> "StyleClusterer":
         """Cluster the rows of `features` (drivers x features; NaN allowed). Returns self."""
+        Z = self._fit_scale(features)
+        if self.choose_k:
+            k, self.k_scores_ = self._pick_k(Z)
+        else:
+            k, self.k_scores_ = min(self.k, len(Z)), {}
+        km = self._kmeans(Z, k)
+        return self._place(Z, km.cluster_centers_, km.labels_)
+
+    def fit_partition(self, features: pd.DataFrame, groups: np.ndarray) -> "StyleClusterer":
+        """Centres at the means of given groups of the rows of `features` (a partition made
+        elsewhere, e.g. by the consensus of several readings) instead of k-means. Returns self."""
+        Z = self._fit_scale(features)
+        groups = np.asarray(groups)
+        ids = sorted(set(groups.tolist()))
+        self.k_scores_ = {}
+        index = np.array([ids.index(g) for g in groups])
+        self._place(Z, np.array([Z[groups == g].mean(axis=0) for g in ids]), index)
+        # the given groups stay the labels (not the nearest centre): cluster i is group ids[order_[i]]
+        inverse = np.empty(len(ids), dtype=int)
+        inverse[self.order_] = np.arange(len(ids))
+        self.labels_ = inverse[index]
+        return self
+
+    def _fit_scale(self, features: pd.DataFrame) -> np.ndarray:
+        """Fit the robust standardisation; the rows standardised."""
         X = features.astype(float)
         if len(X) == 0:
             raise ValueError("no drivers to cluster")
@@ -113,28 +138,28 @@ class StyleClusterer:
         scale = np.where(mad > 1e-9, mad, np.where(sd > 1e-9, sd, 1.0))
         self.scale_ = np.where(np.isnan(scale), 1.0, scale)
         self.center_ = np.where(np.isnan(self.center_), 0.0, self.center_)
-        Z = self._standardise(X)
-        if self.choose_k:
-            k, self.k_scores_ = self._pick_k(Z)
-        else:
-            k, self.k_scores_ = min(self.k, len(Z)), {}
-        km = self._kmeans(Z, k)
-        centres = km.cluster_centers_
+        return self._standardise(X)
+
+    def _place(self, Z: np.ndarray, centres: np.ndarray, labels: np.ndarray) -> "StyleClusterer":
+        """Order the centres by defensiveness, name them, and fit the posterior's variance."""
+        k = len(centres)
         score = self._defensiveness(centres)
         order = np.argsort(-score, kind="stable")  # most defensive first
         self.cluster_centers_ = centres[order]
         self.defensiveness_ = score[order]
+        self.order_ = order
         self.k_ = k
         self.names_ = style_names(k)
         # Pooled within-cluster variance per effective dimension, for the posterior. The
         # features are strongly correlated (one line evaluated at several speeds), so the
         # dimension count is the participation ratio of the within-cluster covariance's
         # eigenvalues rather than the number of columns (which would make it overconfident).
-        resid = Z - km.cluster_centers_[km.labels_]
+        resid = Z - centres[labels]
         eig = np.clip(np.linalg.eigvalsh(resid.T @ resid / max(len(Z), 1)), 0, None)
         p_eff = float(eig.sum() ** 2 / (eig ** 2).sum()) if (eig ** 2).sum() > 0 else 1.0
         self.effective_dims_ = p_eff
-        self.sigma2_ = max(float(km.inertia_) / max(Z.shape[0] * p_eff, 1e-9), 1e-6)
+        inertia = float((resid ** 2).sum())
+        self.sigma2_ = max(inertia / max(Z.shape[0] * p_eff, 1e-9), 1e-6)
         self.labels_, self.confidence_, self.margin_ = self._assign(Z)
         return self
 

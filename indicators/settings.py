@@ -26,7 +26,7 @@ INDICATOR_SETS: dict[str, tuple[str, ...]] = {
     "following": ("thw_follow", "thw_f"),
 }
 #: `AnalysisSettings.features` values for which the data chooses the reading (`clustering.choice`).
-CHOSEN_BY_DATA: tuple[str, ...] = ("auto", "separated", "reliable", "heldout", "behaviour")
+CHOSEN_BY_DATA: tuple[str, ...] = ("auto", "separated", "consensus", "reliable", "heldout", "behaviour")
 #: The sets 'auto' chooses from. 'following' holds the headway accepted at the press and the
 #: headway kept over the whole drive; where a study has no steady following, its thw_follow is
 #: imputed alike for every driver and it reads as thw_f, so 'headway' is not a candidate.
@@ -125,10 +125,11 @@ class AnalysisSettings:
     still the driver's judgement of the gap)."""
 
     # --- styles ----------------------------------------------------------------
-    features: str = "separated"
-    """What the styles are read by: 'separated' (the default: the best separated and most stable
-    of the indicator sets and the behaviour readings, no margin for any; chosen one world out on
-    the zoo of worlds), 'auto' (the indicator set whose styles are best separated and most
+    features: str = "consensus"
+    """What the styles are read by: 'consensus' (the default: the styles the five best separated
+    and most stable readings, indicator sets and behaviour readings alike, agree on; chosen one
+    world out on the zoo of worlds), 'separated' (the one best separated and most stable of those
+    readings), 'auto' (the indicator set whose styles are best separated and most
     stable, the study's TTCs unless another is clearly better), 'reliable' (the two behaviour parameters in which the drivers differ most reliably),
     'heldout' (the reading whose styles best predict the drivers' held-out decisions and
     following headways), 'behaviour' (the drivers' critical gaps and following headway),

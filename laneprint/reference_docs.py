@@ -48,7 +48,7 @@ def config_page() -> str:
             "(`[train]`, `[drive]`) sets that command's options by their names (`episodes`, `learner`); the "
             "tables below set the settings of the stages, each key a field of a settings dataclass. A "
             "value resolves as: the default, then the file, then the command line. One file serves every "
-            "command; each reads the tables it knows.\n\n```toml\n[analysis]\nfeatures = \"separated\"\n\n"
+            "command; each reads the tables it knows.\n\n```toml\n[analysis]\nfeatures = \"consensus\"\n\n"
             "[dqn]\nlearning_rate = 0.002\nnum_envs = 8\n\n[train]\nlearner = \"dqn\"\n```\n\n"
             + config_reference())
 

@@ -13,7 +13,7 @@ CHOOSE_K = {"fixed k": None, "silhouette": "silhouette", "BIC": "bic"}
 #: The receding-leader threshold the form's tick box switches on [m/s].
 RECEDING_MPS = AnalysisSettings.max_receding_mps
 #: Feature sets the form offers ('auto': chosen by the data).
-FEATURE_SETS = ("auto", "separated", "reliable", "heldout", "behaviour", *INDICATOR_SETS)
+FEATURE_SETS = ("consensus", "auto", "separated", "reliable", "heldout", "behaviour", *INDICATOR_SETS)
 
 
 def rerun_form(ws, current: dict) -> None:
@@ -30,7 +30,8 @@ def rerun_form(ws, current: dict) -> None:
                            help="How each driver's line is fitted to make the clustering features")
         sets = list(dict.fromkeys([now.features, *FEATURE_SETS]))
         features = c4.selectbox("Features", sets, key="features",
-                                help="What the styles are read by; 'auto': the indicator set best separated and "
+                                help="What the styles are read by; 'consensus' (the default): the styles the five best "
+                                     "separated and most stable readings agree on; 'auto': the indicator set best separated and "
                                      "most stable; 'separated': the best separated and most stable of the indicator "
                                      "sets and the behaviour readings; 'reliable': the two behaviour parameters in "
                                      "which the drivers differ most reliably; 'heldout': the reading whose styles best predict the drivers' "

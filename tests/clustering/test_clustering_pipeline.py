@@ -154,9 +154,9 @@ def test_unknown_behaviour_parameter_is_one_line(workspace):
     assert res.exit_code == 1 and "unknown behaviour parameter" in res.output and "Traceback" not in res.output
 
 
-@pytest.mark.parametrize("features", ["separated", "reliable"])
+@pytest.mark.parametrize("features", ["consensus", "separated", "reliable"])
 def test_chosen_readings_end_to_end(workspace, features):
-    """`--features separated|reliable` run through the command line: one chosen reading, stored with
+    """`--features consensus|separated|reliable` run through the command line: one chosen reading, stored with
     its scores, every driver with a style or a reason."""
     ws, _ = workspace
     res = CliRunner().invoke(app, ["analyze", "-w", str(ws.root), "--features", features, "--json"])

@@ -1,0 +1,76 @@
+"""Styles by the consensus of the best readings, not by the one best.
+
+Picking the single best separated reading (`--features separated`) is fragile: on a study of
+nine drivers one parameter alone (the headway kept while following, say) can split the drivers
+cleanly and still wrongly, while the styles, which differ in many parameters at once, show up
+in most of the good readings. Here the `CONSENSUS_READINGS` best separated readings vote
+(`clustering.choice.ranked_readings`): two drivers are together as often as the readings put
+them together, weighted by each reading's silhouette x stability (the co-association matrix of
+ensemble clustering, Fred & Jain 2005), and the drivers are cut into k groups by complete
+linkage on it (two drivers share a style only if every pair in the group is mostly together).
+Each group is named by the readings' votes: the style name they give its members, weighted alike.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.cluster.hierarchy import fcluster, linkage
+from scipy.spatial.distance import squareform
+
+from clustering.readings import ReadingScore
+from clustering.styles import style_names
+
+#: How many of the best separated readings vote.
+CONSENSUS_READINGS = 5
+#: The linkage the drivers are cut by (scipy's names).
+LINKAGE = "complete"
+
+
+def weight(reading: ReadingScore) -> float:
+    """A reading's vote: its silhouette x stability (stability 1 where unmeasured), at least 0."""
+    stab = reading.stability if np.isfinite(reading.stability) else 1.0
+    return max(float(reading.silhouette) * stab, 0.0) if np.isfinite(reading.silhouette) else 0.0
+
+
+def co_association(readings: Sequence[ReadingScore], drivers: list[str]) -> np.ndarray:
+    """Weighted share of the readings (among those that read both) that put each pair of
+    `drivers` in the same style (1 on the diagonal)."""
+    n = len(drivers)
+    together, seen = np.zeros((n, n)), np.zeros((n, n))
+    for r in readings:
+        w = weight(r)
+        rows = np.array([i for i, d in enumerate(drivers) if d in r.labels], dtype=int)
+        if w <= 0 or len(rows) == 0:
+            continue
+        lab = np.array([r.labels[drivers[i]] for i in rows], dtype=object)
+        together[np.ix_(rows, rows)] += w * (lab[:, None] == lab[None, :])
+        seen[np.ix_(rows, rows)] += w
+    out = np.divide(together, seen, out=np.zeros_like(together), where=seen > 0)
+    np.fill_diagonal(out, 1.0)
+    return out
+
+
+def consensus_groups(readings: Sequence[ReadingScore], drivers: list[str], k: int) -> np.ndarray:
+    """Group (0 .. k-1, unnamed) of every driver: complete linkage on 1 - co-association, cut at k."""
+    if len(drivers) <= k:
+        return np.arange(len(drivers))
+    distance = 1.0 - co_association(readings, drivers)
+    tree = linkage(squareform(distance, checks=False), method=LINKAGE)
+    return fcluster(tree, k, criterion="maxclust") - 1
+
+
+def vote_defensiveness(readings: Sequence[ReadingScore], drivers: list[str], groups: np.ndarray) -> np.ndarray:
+    """Per group, how defensive the readings call its members: the weighted mean of the names'
+    rank (Defensive highest), for ordering and naming the groups."""
+    n_groups = int(groups.max()) + 1
+    score, total = np.zeros(n_groups), np.zeros(n_groups)
+    for r in readings:
+        names = style_names(len(set(r.labels.values()))) if r.labels else []
+        w = weight(r)
+        for d, g in zip(drivers, groups):
+            if d in r.labels and r.labels[d] in names:
+                score[g] += w * -names.index(r.labels[d]) / max(len(names) - 1, 1)
+                total[g] += w
+    return np.divide(score, total, out=np.zeros_like(score), where=total > 0)

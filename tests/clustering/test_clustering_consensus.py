@@ -1,0 +1,71 @@
+"""The consensus of several readings (`clustering.consensus`, `--features consensus`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from clustering import choice as C
+from clustering import consensus as K
+from clustering.readings import ReadingScore
+from clustering.styles import StyleClusterer
+from indicators.settings import AnalysisSettings
+
+DRIVERS = ["d0", "d1", "n0", "n1", "a0", "a1"]
+RIGHT = {"d0": "Defensive", "d1": "Defensive", "n0": "Normal", "n1": "Normal", "a0": "Aggressive", "a1": "Aggressive"}
+
+
+def reading(name: str, labels: dict[str, str], silhouette: float) -> ReadingScore:
+    return ReadingScore(name, (name,), np.nan, np.nan, np.nan, False, False, labels, silhouette=silhouette,
+                        stability=1.0)
+
+
+def test_co_association_weighs_each_reading_by_its_score():
+    split = {**RIGHT, "n0": "Defensive"}  # puts n0 with the defensive drivers
+    co = K.co_association([reading("a", RIGHT, 0.6), reading("b", split, 0.2)], DRIVERS)
+    i, j = DRIVERS.index("n0"), DRIVERS.index("d0")
+    assert np.isclose(co[i, j], 0.2 / 0.8)
+    assert np.isclose(co[i, DRIVERS.index("n1")], 0.6 / 0.8)
+    assert np.allclose(np.diag(co), 1.0) and np.allclose(co, co.T)
+
+
+def test_the_readings_outvote_the_single_best():
+    """The best separated reading is wrong; the next ones, together heavier, are right."""
+    wrong = {**RIGHT, "n0": "Defensive", "n1": "Defensive", "d0": "Normal", "d1": "Normal"}
+    voters = [reading("one", wrong, 0.9), reading("two", RIGHT, 0.6), reading("three", RIGHT, 0.5)]
+    groups = K.consensus_groups(voters, DRIVERS, 3)
+    assert len(set(groups)) == 3
+    for a, b in (("d0", "d1"), ("n0", "n1"), ("a0", "a1")):
+        assert groups[DRIVERS.index(a)] == groups[DRIVERS.index(b)]
+    votes = K.vote_defensiveness(voters, DRIVERS, groups)
+    assert votes[groups[DRIVERS.index("a0")]] == votes.min()  # the aggressive pair is named so by every voter
+    assert votes[groups[DRIVERS.index("d0")]] > votes[groups[DRIVERS.index("a0")]]
+
+
+def test_fit_partition_keeps_the_given_groups_and_orders_by_room():
+    X = pd.DataFrame({"thw_nb": [3.0, 2.9, 1.5, 1.6, 0.5, 0.6]}, index=DRIVERS)
+    groups = np.array([2, 2, 0, 0, 1, 0])  # a1 placed with the middle drivers by the partition
+    clf = StyleClusterer(k=3, room=["thw_nb"]).fit_partition(X, groups)
+    names = [clf.names_[i] for i in clf.labels_]
+    assert names[:2] == ["Defensive", "Defensive"] and names[4] == "Aggressive"
+    assert names[5] == names[2] == "Normal"  # kept with its group although nearer another centre
+    assert list(clf.predict(X.loc[["a1"]])) != [clf.labels_[5]]
+
+
+def test_choose_consensus_names_the_styles_and_reports_its_voters(monkeypatch):
+    from test_clustering_behaviour import _three_styles_with_a_noise_variable  # this folder is on the path
+
+    _, drivers, b = _three_styles_with_a_noise_variable()
+    monkeypatch.setattr(C, "choose_features", lambda *a, **k: ("", []))  # no indicator set in this world
+    n_dec = pd.Series(24, index=drivers)
+    choice = C.choose_consensus(pd.DataFrame(), drivers, drivers, n_dec, b,
+                                AnalysisSettings(features="consensus", n_init=5))
+    assert choice.name == C.CONSENSUS and C.reads_behaviour(choice.name)
+    chosen = [s for s in choice.scores if s.chosen]
+    assert len(chosen) == 1 and chosen[0].name == C.CONSENSUS
+    assert sum(s.plausible for s in choice.scores) == min(K.CONSENSUS_READINGS, len(choice.scores) - 1)
+    labels = chosen[0].labels
+    assert {labels[x] for x in ("d0", "d1", "d2")} == {"Defensive"}
+    assert {labels[x] for x in ("a0", "a1", "a2")} == {"Aggressive"}
+    style, conf, _ = C.assign(choice, b, drivers, n_dec, AnalysisSettings())
+    assert (style == pd.Series(labels)).all() and ((conf >= 0) & (conf <= 1)).all()
