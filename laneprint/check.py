@@ -378,7 +378,8 @@ def _check_run(ws: Workspace, folder: Path) -> Iterator[Finding | _Leftover]:
         if err:
             yield Finding("problem", f"{rel}/weights.pt", f"unreadable ({err})")
     if state == "interrupted" and trees:
-        yield Finding("note", rel, "tree fit interrupted: fit it again with `laneprint train --learner trees`")
+        yield Finding("note", rel, f"tree fit interrupted: `laneprint train --resume {folder.name}` fits it again "
+                                   f"with the run's settings")
         return
     if state == "interrupted":
         frm = f"its checkpoint at episode {ckpt_episode}" if ckpt_episode is not None else "the start (no checkpoint)"

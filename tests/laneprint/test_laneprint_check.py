@@ -183,7 +183,9 @@ def test_a_running_status_without_its_lock_is_interrupted(ws):
     assert _kinds(report)["note"] == ["runs/r1: training interrupted at episode 2: `laneprint train --resume r1` "
                                       "continues from the start (no checkpoint); 1 half-written metrics line(s), "
                                       "dropped on resume"]
-    with FileLock(d / "run.lock"):
+    assert json.loads((d / "status.json").read_text())["state"] == "interrupted"  # the file says so too
+    with FileLock(d / "run.lock"):  # a resume: it holds the lock and writes 'running'
+        atomic_write_json(d / "status.json", {"state": "running", "pid": 1, "episode": 2, "episodes": 4})
         assert json.loads(CliRunner().invoke(app, ["runs", "-w", str(ws.root), "--json"]).stdout)["runs"][0][
             "state"] == "running"
         assert run_status(ws, "r1")["state"] == "running"
