@@ -120,8 +120,14 @@ def discover(paths: list[Path]) -> list[tuple[Path, str | None]]:
         elif p.is_dir():
             bags = {m.parent for m in p.rglob("metadata.yaml") if is_bag_folder(m.parent)}
             bags_listed: set[Path] = set()
+            inside = p.resolve()
             for f in sorted(x for x in p.rglob("*") if x.is_file()):
                 if any(part.startswith(".") for part in f.relative_to(p).parts):
+                    continue
+                real = f.resolve()
+                if not real.is_relative_to(inside):  # a link out of the folder: not followed without a word
+                    out.append((f, f"a symbolic link out of {p.name or p} (to {real}): not followed; "
+                                   f"name that file itself to ingest it"))
                     continue
                 bag = next((b for b in f.parents if b in bags), None)
                 if bag is not None:  # a part of a split bag: the bag is one log, listed once

@@ -236,3 +236,27 @@ def test_mapping_default_speed_limit_is_checked_before_any_log(tmp_path, value, 
     path.write_text(f"[metadata]\nspeed_limit_kph = {value}\n")
     with pytest.raises(UserError, match=why):
         load_mapping(path)
+
+
+# --- names and links -----------------------------------------------------------------------------
+
+
+def test_a_symlink_out_of_the_input_folder_is_refused_with_its_target(tmp_path):
+    outside = tmp_path / "private"
+    outside.mkdir()
+    write_csv(outside / "secret.csv", *make_recording())
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    meta, ego, traffic = make_recording()
+    write_csv(logs / "own.csv", dict(meta, session_id="own"), ego, traffic)
+    (logs / "link.csv").symlink_to(outside / "secret.csv")
+    (logs / "inner.csv").symlink_to(logs / "own.csv")  # a link inside the folder: read (a duplicate)
+    before, t0 = _peak_mb(), time.perf_counter()
+    report = ingest_paths([logs], Workspace(tmp_path / "ws"))
+    assert time.perf_counter() - t0 < MAX_SECONDS and _peak_mb() - before < MAX_GROWTH_MB
+    by_name = {Path(f.source).name: f for f in report.files}
+    assert by_name["link.csv"].status == "rejected" and "symbolic link out of logs" in by_name["link.csv"].reason
+    assert str(outside / "secret.csv") in by_name["link.csv"].reason
+    assert {by_name["own.csv"].status, by_name["inner.csv"].status} == {"ingested", "duplicate"}
+    # named itself, the linked file is the user's choice and is read
+    assert ingest_paths([logs / "link.csv"], Workspace(tmp_path / "ws")).files[0].status == "ingested"
