@@ -260,3 +260,13 @@ def test_a_symlink_out_of_the_input_folder_is_refused_with_its_target(tmp_path):
     assert {by_name["own.csv"].status, by_name["inner.csv"].status} == {"ingested", "duplicate"}
     # named itself, the linked file is the user's choice and is read
     assert ingest_paths([logs / "link.csv"], Workspace(tmp_path / "ws")).files[0].status == "ingested"
+
+
+@pytest.mark.parametrize("driver_id", ["![x](http://127.0.0.1:9/img.png)", "[click](javascript:alert(1))",
+                                       "**bold** <b>x</b>", "`code` $x$"])
+def test_a_driver_id_in_markdown_is_shown_as_text(driver_id):
+    from dashboard.views import md_escape
+
+    shown = md_escape(driver_id)
+    assert "](" not in shown and "<b>" not in shown and "**" not in shown.replace("\\*", "")
+    assert shown.replace("\\", "") == driver_id.replace("\\", "")
