@@ -34,7 +34,7 @@ from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
 from laneprint.reference import PAPER_TABLE1
 from laneprint.schemas import DECISIONS, REFERENCE_LINES
-from laneprint.workspace import Workspace
+from laneprint.workspace import DamagedFile, Workspace
 
 SKIPPED_COLUMNS = ["what", "id", "reason"]
 STYLE_COLUMNS = ["driver_id", "style", "cluster", "confidence", "posterior", "stability", "margin", "is_typical",
@@ -457,9 +457,15 @@ def extract_all(workspace: Workspace, settings: AnalysisSettings, progress: Prog
     catalogue = workspace.recordings()
     total = len(catalogue)
     frames, follows, skipped = [], [], []
+    for path, why in workspace.damaged.items():  # a damaged catalogue entry: left out, named
+        skipped.append({"what": "file", "id": path, "reason": f"damaged, left out ({why})"})
     for i, rid in enumerate(catalogue["recording_id"]):
         report(progress, i, total, f"decisions {rid}")
-        meta, ego, traffic = workspace.load_recording(rid)
+        try:
+            meta, ego, traffic = workspace.load_recording(rid)
+        except DamagedFile as exc:
+            skipped.append({"what": "recording", "id": str(rid), "reason": str(exc)})
+            continue
         try:
             dec, sk = extract_decisions(meta, ego, traffic, settings)
         except Exception as exc:  # a malformed recording must not stop the others
@@ -638,6 +644,7 @@ def analyze(workspace: Workspace, settings: AnalysisSettings | None = None,
     settings = settings or AnalysisSettings()
     if not workspace.root.is_dir() or workspace.recordings().empty:
         raise UserError(f"no recordings in workspace {workspace.root}: run `laneprint ingest PATH` first")
+    workspace.check_writable()  # before the work: its tables are written at the end
     decisions, skipped, n_rec, following = extract_all(workspace, settings, progress)
     report(progress, 0, 1, "fits and styles")
     tables = analyze_tables(decisions, settings, drivers=list(workspace.recordings()["driver_id"].astype(str)),

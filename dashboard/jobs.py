@@ -180,10 +180,10 @@ def run_status(ws: Workspace, run_id: str) -> dict[str, Any]:
     'cancelled', plus 'interrupted' for a run marked running whose process no longer
     holds the run's lock (killed: `rl.runs.run_state`).
     """
-    from rl.runs import run_state
+    from rl.runs import mark_interrupted, run_state
 
     job = read_json(jobs_dir(ws) / f"{run_id}.json") or {}
-    status = read_json(ws.runs_dir / run_id / "status.json")
+    status = mark_interrupted(ws.runs_dir / run_id, read_json(ws.runs_dir / run_id / "status.json"))
     if status is None:
         if job and pid_alive(job.get("pid")):
             return {"state": "starting", "pid": job.get("pid"), "episode": 0,

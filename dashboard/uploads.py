@@ -1,7 +1,7 @@
 """Saving browser uploads under the workspace, safely, before they are ingested.
 
 An upload's name comes from the user's browser and is not trusted: only its last
-path component is kept, reduced to `[A-Za-z0-9._-]`, and the resolved target is
+path component is kept, reduced to letters, digits and `._-`, and the resolved target is
 checked to lie inside `workspace/uploads/`. Bytes are copied to disk in chunks
 (`shutil.copyfileobj`), counted as they come: more than the limit is refused whatever
 size the browser declared.
@@ -16,6 +16,7 @@ import hashlib
 import os
 import re
 import shutil
+import unicodedata
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,15 +24,18 @@ from typing import BinaryIO
 
 LOG_SUFFIXES = (".csv", ".csv.gz", ".mcap")
 _CHUNK = 1 << 20
-_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+_UNSAFE = re.compile(r"[^\w.-]+")  # letters and digits of every script stay: Cyrillic names stay apart
 
 
 def safe_filename(name: str) -> str:
-    """A file name that cannot leave its folder: last path part, safe characters, no leading dots."""
-    base = re.split(r"[\\/]", name or "")[-1]
-    base = _UNSAFE.sub("_", base).lstrip(".")
-    base = base[-120:] if len(base) > 120 else base
-    return base if base.strip("._-") else "upload"
+    """A file name that cannot leave its folder: last path part (NFC), letters and digits of any script,
+    '.', '_' and '-' (everything else, controls and bidi overrides too, becomes '_'), no leading dots, at
+    most 120 characters; a log suffix is kept ('.csv' alone is 'upload.csv')."""
+    base = unicodedata.normalize("NFC", re.split(r"[\\/]", name or "")[-1])
+    suffix = next((s for s in sorted(LOG_SUFFIXES, key=len, reverse=True) if base.lower().endswith(s)), "")
+    stem = _UNSAFE.sub("_", base[: len(base) - len(suffix)]).lstrip(".")
+    stem = stem[-(120 - len(suffix)):] if len(stem) + len(suffix) > 120 else stem
+    return (stem if stem.strip("._-") else "upload") + base[len(base) - len(suffix):]
 
 
 def has_log_suffix(name: str) -> bool:

@@ -29,6 +29,7 @@ def ingest_result(paths: list[Path], driver: str | None, mapping: Path | None, w
     load_mapping(mapping)  # a bad mapping file is one error line, before any bar is drawn
     limits = IngestLimits.from_env()  # so is a bad LANEPRINT_MAX_* value
     check_paths(paths)
+    Workspace(workspace).check_writable()  # so is a workspace that cannot be written
     with backend_session(backend, ray_address), progress_bar(show_progress) as progress:
         report = ingest_paths(paths, Workspace(workspace), driver_id=driver, mapping=mapping, progress=progress,
                               backend=backend, ray_address=ray_address, limits=limits)
@@ -60,6 +61,9 @@ def render_ingest(result: dict[str, Any], console: Console) -> None:
     c = result["counts"]
     console.print(f"{c['ingested']} ingested, {c['warning']} ingested with warnings, {c['duplicate']} duplicate, "
                   f"{c['rejected']} rejected, {c['skipped']} skipped (not logs)", highlight=False)
+    for note in result.get("notes", []):
+        console.print(f"note: {note}; `laneprint check --repair` moves it to quarantine/", markup=False,
+                      highlight=False, soft_wrap=True)
     if result.get("error"):
         console.print(f"error: {result['error']}", markup=False, highlight=False)
 

@@ -177,6 +177,11 @@ def mapping_from_dict(doc: dict[str, Any], source: str = "") -> Mapping:
     _check_keys("units", units, {"speed", "position", "time", "speed_scale", "position_scale", "time_scale"})
     defaults = dict(doc.get("metadata", {}) or {})
     _check_keys("metadata", defaults, META_KEYS)
+    from ingest.plausible import speed_limit_problem
+
+    problem = speed_limit_problem(defaults.get("speed_limit_kph"))
+    if problem:
+        raise UserError(f"mapping: [metadata] {problem}")
     return Mapping(
         csv_columns=columns, csv_delimiter=delimiter, traffic_pattern=pattern, traffic_fields=tfields,
         mcap_topics=topics, mcap_fields=fields, mcap_signals=signals,

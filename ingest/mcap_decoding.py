@@ -330,7 +330,8 @@ def _directions(values: list[Any], sig: Signal) -> np.ndarray:
     return out
 
 
-def _button(reader: _SignalReader, signals: McapSignals) -> tuple[np.ndarray, np.ndarray, bool]:
+def _button(reader: _SignalReader, signals: McapSignals,
+            warnings: list[str] | None = None) -> tuple[np.ndarray, np.ndarray, bool]:
     """(lc_button, lc_direction) on the ego samples, and whether the file logs the button."""
     n = len(reader.base.times)
     btn = signals.ego.get("lc_button")
@@ -350,7 +351,7 @@ def _button(reader: _SignalReader, signals: McapSignals) -> tuple[np.ndarray, np
         else:  # the direction at each button message: the last one published at or before it
             idx = asof(dec.times, ddec.times)
             dirs[idx >= 0] = raw_dirs[idx[idx >= 0]]
-    pressed, direction = place_presses(reader.base.times, dec.times, states, list(dirs))
+    pressed, direction = place_presses(reader.base.times, dec.times, states, list(dirs), warnings)
     return pressed, direction, True
 
 
@@ -474,7 +475,7 @@ def _read_decoded(got: Any, mapping: Mapping, meta: dict[str, Any], warnings: li
     ego["ego_length_m"] = np.where(np.isnan(ego["ego_length_m"]), DEFAULT_LENGTH_M, ego["ego_length_m"])
     if "ego_lane" not in signals.ego:
         ego["ego_lane"] = signals.lane_from_y.lanes(ego["ego_y_m"])
-    ego["lc_button"], ego["lc_direction"], has_button = _button(reader, signals)
+    ego["lc_button"], ego["lc_direction"], has_button = _button(reader, signals, warnings)
     t0 = int(base.times[0])
     clock = "log_time" if signals.time == LOG_TIME else signals.time
     where = {k: f"{signals.ego[n].topic}.{signals.ego[n].path}"

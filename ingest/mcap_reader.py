@@ -214,7 +214,7 @@ def read_collected(got: Collected, mapping: Mapping, warnings: list[str] | None 
 
     _controls(ego, messages(TOPIC_CONTROLS, False), ego_times, mapping)
     button = messages(TOPIC_BUTTON, False)
-    _button(ego, button, ego_times, mapping)
+    _button(ego, button, ego_times, mapping, warnings)
     traffic = _traffic(traffic_raw, t0, mapping)
 
     topic_ego = mapping.topic(TOPIC_EGO)
@@ -272,7 +272,7 @@ def _controls(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | N
 
 
 def _button(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | None,
-            ego_times: np.ndarray, mapping: Mapping) -> None:
+            ego_times: np.ndarray, mapping: Mapping, warnings: list[str] | None = None) -> None:
     """Button state on the ego samples (state of the last message), each press on >= 1 sample."""
     if raw is None or not raw[0]:
         n = len(ego_times)
@@ -283,7 +283,7 @@ def _button(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | Non
     get_d = _getter(mapping.msg_field(TOPIC_BUTTON, "direction"))
     states = np.array([bool(get_p(msgs[i])) if isinstance(msgs[i], dict) else False for i in order], dtype=bool)
     dirs = [get_d(msgs[i]) if isinstance(msgs[i], dict) else None for i in order]
-    ego["lc_button"], ego["lc_direction"] = place_presses(ego_times, times[order], states, dirs)
+    ego["lc_button"], ego["lc_direction"] = place_presses(ego_times, times[order], states, dirs, warnings)
 
 
 def _traffic_arrow(datas: list[bytes], names: dict[str, str], mapping: Mapping) -> dict[str, Any] | None:

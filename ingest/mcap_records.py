@@ -59,12 +59,22 @@ class Collected:
         times.append(log_time)
         self.datas[channel_id].append(data)
 
+    def add_channel(self, ch: Channel) -> None:
+        """Keep a Channel record; `Rejected` when its id was declared before as another channel (the
+        summary repeats each channel as it was: the same record again is fine)."""
+        known = self.channels.get(ch.id)
+        if known is not None and (known.topic, known.message_encoding, known.schema_id) != (
+                ch.topic, ch.message_encoding, ch.schema_id):
+            raise Rejected(f"corrupt MCAP: channel id {ch.id} is declared twice, as {known.topic!r} and as "
+                           f"{ch.topic!r}: its messages cannot be told apart; write each channel with its own id")
+        self.channels[ch.id] = ch
+
     def take(self, rec: Any) -> None:
         """Keep one record parsed by the mcap library."""
         if isinstance(rec, Message):
             self.add(rec.channel_id, rec.log_time, rec.data)
         elif isinstance(rec, Channel):
-            self.channels[rec.id] = rec
+            self.add_channel(rec)
         elif isinstance(rec, Schema):
             self.schemas[rec.id] = rec
         elif isinstance(rec, Metadata):
@@ -185,7 +195,8 @@ def _walk_indexed(inner: bytes, entries: tuple[np.ndarray, np.ndarray, np.ndarra
         _walk(inner, int(gap_starts[g]), int(gap_ends[g]), between, gap_msgs)
         if gap_msgs.by_channel:  # a message the index does not list: keep the walk's file order
             return False
-    got.channels.update(between.channels)
+    for ch in between.channels.values():
+        got.add_channel(ch)
     got.schemas.update(between.schemas)
     starts = (at + 9 + _MSG_FIXED).tolist()
     end_list = ends.tolist()
@@ -270,6 +281,8 @@ def read_stream(data: bytes) -> Collected:
             for inner in (breakup_chunk(rec) if isinstance(rec, Chunk) else (rec,)):
                 got.take(inner)
             last_end = bio.tell()
+    except Rejected:
+        raise
     except Exception as exc:
         truncated = not data.endswith(MAGIC)
         if truncated and last_end >= len(data):
@@ -297,7 +310,7 @@ def collect(data: bytes, heads: list[tuple[int, int, int]] | None = None) -> Col
     known); `Rejected` naming the damage."""
     try:
         got = read_records(data, heads)
-    except MemoryError:
+    except (MemoryError, Rejected):
         raise
     except Exception:  # Unreadable, struct.error, a decompressor's own error...: the stream reader names it
         got = read_stream(data)

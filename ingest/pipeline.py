@@ -66,6 +66,7 @@ class IngestReport:
 
     files: list[FileResult]
     workspace: str
+    notes: list[str] = field(default_factory=list)  # about the workspace (a damaged file left out)
 
     @property
     def counts(self) -> dict[str, int]:
@@ -79,7 +80,8 @@ class IngestReport:
         return [f for f in self.files if f.status in ("ingested", "warning")]
 
     def to_dict(self) -> dict[str, Any]:
-        return {"workspace": self.workspace, "counts": self.counts, "files": [asdict(f) for f in self.files]}
+        return {"workspace": self.workspace, "counts": self.counts, "files": [asdict(f) for f in self.files],
+                "notes": self.notes}
 
 
 def log_format(path: Path) -> str | None:
@@ -118,8 +120,14 @@ def discover(paths: list[Path]) -> list[tuple[Path, str | None]]:
         elif p.is_dir():
             bags = {m.parent for m in p.rglob("metadata.yaml") if is_bag_folder(m.parent)}
             bags_listed: set[Path] = set()
+            inside = p.resolve()
             for f in sorted(x for x in p.rglob("*") if x.is_file()):
                 if any(part.startswith(".") for part in f.relative_to(p).parts):
+                    continue
+                real = f.resolve()
+                if not real.is_relative_to(inside):  # a link out of the folder: not followed without a word
+                    out.append((f, f"a symbolic link out of {p.name or p} (to {real}): not followed; "
+                                   f"name that file itself to ingest it"))
                     continue
                 bag = next((b for b in f.parents if b in bags), None)
                 if bag is not None:  # a part of a split bag: the bag is one log, listed once
@@ -250,11 +258,22 @@ class _Batch:
         }
 
     def reject(self, path: Path, fmt: str, rid: str, reason: str) -> FileResult:
-        self.ws.record_rejected({
-            "content_hash": rid, "source_name": path.name, "source_path": str(path.resolve()),
-            "format": fmt, "reason": reason, "rejected_at": _now(),
-        })
+        try:
+            self.ws.record_rejected({
+                "content_hash": rid, "source_name": path.name, "source_path": str(path.resolve()),
+                "format": fmt, "reason": reason, "rejected_at": _now(),
+            })
+        except OSError:  # the workspace cannot be written (full, read-only): the report says why all the same
+            pass
         return FileResult(str(path), "rejected", fmt, recording_id=rid, reason=reason)
+
+    def not_stored(self, path: Path, rid: str, exc: OSError) -> FileResult:
+        """The result of a file whose recording could not be written (a full disk, a read-only folder):
+        nothing of it is left in the workspace (writes are staged and renamed into place)."""
+        where = f" ({Path(exc.filename).name})" if getattr(exc, "filename", None) else ""
+        return self.reject(path, log_format(path) or "", rid, f"not stored: the workspace cannot be written: "
+                                                            f"{exc.strerror or exc}{where}; free space or fix "
+                                                            f"the permissions and ingest it again")
 
     def prepare(self, path: Path) -> FileResult | tuple[ParseJob, str]:
         """Read a file's bytes: its `ParseJob` and content hash, or its result when it needs no parsing."""
@@ -365,12 +384,10 @@ def ingest_paths(paths: list[Path], workspace: Workspace, driver_id: str | None 
     paths = check_paths(paths)
     the_mapping = load_mapping(mapping)
     check_backend(backend, ray_address)
-    try:
-        ws = workspace.ensure()
-    except OSError as exc:
-        raise UserError(f"cannot use workspace {workspace.root}: {exc.strerror or exc}") from None
+    ws = workspace.check_writable()
     limits = limits or IngestLimits.from_env()
     batch = _Batch(ws, the_mapping, driver_id.strip() if driver_id and driver_id.strip() else None, limits)
+    notes = [f"{path}: damaged, left out of the catalogue ({why})" for path, why in ws.damaged.items()]
     found = discover(paths)
     results: list[FileResult | None] = [None] * len(found)
     to_read = []
@@ -406,8 +423,12 @@ def ingest_paths(paths: list[Path], workspace: Workspace, driver_id: str | None 
     report(progress, 0, len(to_read), "ingest")
     for parsed in iter_tasks(parse_log, jobs(), backend=backend, ray_address=ray_address):
         i, path, rid = queued.popleft()
-        finish(i, batch.store(path, rid, parsed))
-    return IngestReport([r for r in results if r is not None], str(ws.root))
+        try:
+            result = batch.store(path, rid, parsed)
+        except OSError as exc:  # this file's recording cannot be written; the next ones are tried
+            result = batch.not_stored(path, rid, exc)
+        finish(i, result)
+    return IngestReport([r for r in results if r is not None], str(ws.root), notes)
 
 
 def catalogue_row(ws: Workspace, recording_id: str) -> pd.Series:

@@ -17,8 +17,10 @@ import pandas as pd
 import pyarrow as pa
 
 from ingest.mapping import Mapping
+from ingest.plausible import check_press_rate, check_samples, check_static_ego, ego_overlaps, speed_limit_problem
 from ingest.rawlog import RawLog, Rejected
-from ingest.values import check_ego_jumps, check_ego_values, check_sample_rate, check_traffic_values
+from ingest.values import (check_ego_jumps, check_ego_values, check_sample_rate, check_traffic_values,
+                           signal_label)
 from laneprint.schemas import EGO, TRAFFIC, SchemaError
 
 KMH_MEDIAN_MPS = 45.0  # [m/s] a median ego speed above this (162 km/h) is taken for km/h
@@ -198,13 +200,16 @@ def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: st
     traffic_read = raw.traffic
     if len(raw.t_s) == 0:
         raise Rejected("no samples: the log has a header but no data rows")
+    check_samples(raw)
     _check_time(raw)
     check_sample_rate(raw, mapping)
     _check_gaps(raw)
     _check_kmh(raw, mapping)
     warnings = list(raw.warnings) + check_ego_values(raw, mapping)
     check_ego_jumps(raw, mapping)
+    check_static_ego(raw, signal_label(raw, "ego_x_m", mapping))
     warnings += check_traffic_values(raw, mapping) + _unit_warnings(raw)
+    ego_overlaps(raw, warnings)
     meta = dict(raw.meta)
     meta["driver_id"] = resolve_driver(meta.get("driver_id"), mapping.defaults.get("driver_id"), driver, warnings)
     meta["session_id"] = str(meta.get("session_id") or mapping.defaults.get("session_id") or session_default)
@@ -212,11 +217,15 @@ def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: st
         if meta.get(key) is None and mapping.defaults.get(key) is not None:
             meta[key] = mapping.defaults[key]
     sl = meta.get("speed_limit_kph")
-    meta["speed_limit_kph"] = float(sl) if sl is not None else float("nan")
+    problem = speed_limit_problem(sl)
+    if problem:
+        raise Rejected(f"{problem}; fix the file's speed_limit_kph")
+    meta["speed_limit_kph"] = float(sl) if sl is not None and str(sl).strip() else float("nan")
     meta["simulator"] = None if meta.get("simulator") is None else str(meta["simulator"])
 
     e = raw.ego
     pressed = e["lc_button"].astype(bool)
+    check_press_rate(raw, pressed, warnings)
     directions, n_presses = _directions(pressed, e["lc_direction"], warnings)
     if n_presses == 0:
         warnings.append("no lane-change button presses: the recording holds no decisions"

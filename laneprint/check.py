@@ -19,6 +19,7 @@ writers hold it until their file is in place, and the kernel drops it when they 
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import time
 from dataclasses import asdict, dataclass
@@ -58,7 +59,25 @@ class Finding:
 @dataclass
 class _Leftover:
     finding: Finding
-    remove: Callable[[], None]
+    remove: Callable[[], None]  # raises OSError when it cannot
+    verb: str = "removed"
+
+
+QUARANTINE = "quarantine"  # damaged recordings and tables are moved here by --repair, not deleted
+
+
+def _quarantiner(ws: Workspace, path: Path) -> Callable[[], None]:
+    """Move `path` (a recording folder, a table) to `quarantine/` under its relative path, beside any
+    earlier one of the same name, so the rest of the workspace reads again."""
+    def move() -> None:
+        target = ws.root / QUARANTINE / _rel(ws, path)
+        k = 1
+        while target.exists():
+            target = target.with_name(f"{target.name.split('~')[0]}~{k}")
+            k += 1
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.rename(path, target)
+    return move
 
 
 def _rel(ws: Workspace, path: Path) -> str:
@@ -85,10 +104,14 @@ def _unheld(path: Path) -> bool:
 def _remover(path: Path) -> Callable[[], None]:
     def remove() -> None:
         if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path, ignore_errors=True)
+            errors: list[BaseException] = []
+            shutil.rmtree(path, onerror=lambda fn, p, info: errors.append(info[1]))
+            if errors or path.exists():
+                raise errors[0] if errors else OSError(f"{path} is still there")
         else:
             path.unlink(missing_ok=True)
     return remove
+
 
 
 def _read_json(path: Path) -> Any:
@@ -148,7 +171,7 @@ def _read_whole(path: Path, schema: Schema) -> Any:
     return df
 
 
-def _check_recording(ws: Workspace, folder: Path) -> Iterator[Finding]:
+def _check_recording(ws: Workspace, folder: Path) -> Iterator[Finding | _Leftover]:
     rel = _rel(ws, folder)
     frames: dict[str, Any] = {}
     for name, schema in RECORDING_FILES.items():
@@ -159,7 +182,10 @@ def _check_recording(ws: Workspace, folder: Path) -> Iterator[Finding]:
         try:
             frames[name] = _read_whole(path, schema)
         except (OSError, ValueError, SchemaError) as exc:
-            yield Finding("problem", f"{rel}/{name}", f"unreadable or off-schema ({_first_line(exc)})")
+            yield _Leftover(Finding("problem", f"{rel}/{name}", f"unreadable or off-schema ({_first_line(exc)}); "
+                                                                f"the recording can be set aside in {QUARANTINE}/"),
+                            _quarantiner(ws, folder), verb=f"moved to {QUARANTINE}/")
+            return
     meta = frames.get("meta.parquet")
     if meta is None:
         return
@@ -195,7 +221,10 @@ def _check_recordings(ws: Workspace) -> Iterator[Finding | _Leftover]:
         if not folder.is_dir():
             yield Finding("problem", _rel(ws, folder), "a file where a recording folder is expected")
             continue
-        yield from _check_recording(ws, folder)
+        found = list(_check_recording(ws, folder))
+        yield from found
+        if any(isinstance(f, _Leftover) for f in found):  # damaged: its ids are not to be trusted
+            continue
         try:
             meta = pq.read_table(folder / "meta.parquet", columns=["driver_id", "session_id"]).to_pylist()[0]
         except (OSError, ValueError, IndexError):
@@ -214,7 +243,8 @@ def _check_recordings(ws: Workspace) -> Iterator[Finding | _Leftover]:
     stored = _stored_ids(ws)  # after the catalogue: a recording landing meanwhile is in both or only here
     for rid in sorted(listed - stored):
         yield Finding("problem", f"recordings/{rid}", "in the catalogue but its folder is gone")
-    for rid in sorted(set(before) - listed):
+    damaged = {Path(p).parent.name for p in ws.damaged}  # named above, file by file
+    for rid in sorted(set(before) - listed - damaged):
         yield Finding("problem", f"recordings/{rid}", "a stored recording the catalogue does not list")
     for p in sorted(ws.rejected_dir.glob("*.json")) if ws.rejected_dir.is_dir() else []:
         try:
@@ -232,7 +262,7 @@ def _check_recordings(ws: Workspace) -> Iterator[Finding | _Leftover]:
 # --- stage tables and cross-validations -----------------------------------------------------
 
 
-def _check_stage(ws: Workspace, folder: Path) -> Iterator[Finding]:
+def _check_stage(ws: Workspace, folder: Path) -> Iterator[Finding | _Leftover]:
     try:
         _read_json(folder / "meta.json")
     except (OSError, ValueError) as exc:
@@ -244,7 +274,9 @@ def _check_stage(ws: Workspace, folder: Path) -> Iterator[Finding]:
             if schema is not None:
                 validate(df, schema)
         except (OSError, ValueError, SchemaError) as exc:
-            yield Finding("problem", _rel(ws, path), f"unreadable or off-schema ({_first_line(exc)})")
+            yield _Leftover(Finding("problem", _rel(ws, path), f"unreadable or off-schema ({_first_line(exc)}); "
+                                                               f"it can be set aside in {QUARANTINE}/"),
+                            _quarantiner(ws, path), verb=f"moved to {QUARANTINE}/")
 
 
 def _check_crossvals(ws: Workspace) -> Iterator[Finding | _Leftover]:
@@ -346,7 +378,8 @@ def _check_run(ws: Workspace, folder: Path) -> Iterator[Finding | _Leftover]:
         if err:
             yield Finding("problem", f"{rel}/weights.pt", f"unreadable ({err})")
     if state == "interrupted" and trees:
-        yield Finding("note", rel, "tree fit interrupted: fit it again with `laneprint train --learner trees`")
+        yield Finding("note", rel, f"tree fit interrupted: `laneprint train --resume {folder.name}` fits it again "
+                                   f"with the run's settings")
         return
     if state == "interrupted":
         frm = f"its checkpoint at episode {ckpt_episode}" if ckpt_episode is not None else "the start (no checkpoint)"
@@ -393,8 +426,13 @@ def check_workspace(ws: Workspace, repair: bool = False) -> dict[str, Any]:
         for item in part:
             if isinstance(item, _Leftover):
                 if repair:
-                    item.remove()
-                    repaired.append(f"removed {item.finding.path} ({item.finding.message})")
+                    try:
+                        item.remove()
+                    except OSError as exc:  # said as it is: not removed, and why
+                        findings.append(Finding("problem", item.finding.path, f"{item.finding.message}; could not be "
+                                                f"{item.verb.split(' ')[0]}: {exc.strerror or exc}"))
+                        continue
+                    repaired.append(f"{item.verb} {item.finding.path} ({item.finding.message})")
                     continue
                 item = item.finding
             findings.append(item)

@@ -8,6 +8,7 @@ dict (--json) or the human summary drawn by `render`.
 
 from __future__ import annotations
 
+import errno
 import json
 import re
 import sys
@@ -50,6 +51,9 @@ def visible(value: Any) -> Any:
     return value
 
 
+#: what the machine, not the program, is to blame for: a folder that cannot be written, a full disk
+_ENVIRONMENT_ERRNOS = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT}
+
 console = Console(stderr=False)
 err_console = Console(stderr=True)
 
@@ -63,6 +67,13 @@ def run_command(work: Callable[[], dict[str, Any]], as_json: bool,
         result = work()
     except UserError as exc:
         err_console.print(f"error: {visible(str(exc))}", markup=False, highlight=False, soft_wrap=True)
+        raise typer.Exit(1) from None
+    except OSError as exc:
+        if exc.errno not in _ENVIRONMENT_ERRNOS:
+            raise
+        where = f": {exc.filename}" if exc.filename else ""
+        err_console.print(f"error: {exc.strerror or exc}{visible(where)} (a read-only folder or a full disk?)",
+                          markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(1) from None
     except KeyboardInterrupt:
         err_console.print("interrupted", markup=False)

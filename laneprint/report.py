@@ -31,7 +31,7 @@ import pandas as pd
 import plotly.graph_objects as go
 import typer
 
-from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, console, err_console
+from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, console, err_console, visible
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from laneprint.options import configurable
@@ -513,7 +513,7 @@ def report_command(
             raise UserError(f"no workspace at {ws.root}")
         result = write_report(ws, out, assets=not no_assets, svg=not no_svg)
     except UserError as exc:
-        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        err_console.print(f"error: {visible(str(exc))}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(1) from None
     if as_json:
         sys.stdout.write(json.dumps(result) + "\n")

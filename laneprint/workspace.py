@@ -163,11 +163,22 @@ def exchange_paths(a: Path, b: Path) -> bool:
     raise OSError(err, os.strerror(err), str(a))
 
 
+class DamagedFile(UserError):
+    """A file of the workspace that cannot be read (not Parquet, cut short); the message names it."""
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0][:160] if text else ''}"
+
+
 class Workspace:
     """A folder holding everything laneprint has ingested, analysed and trained."""
 
     def __init__(self, root: Path | str = DEFAULT_WORKSPACE) -> None:
         self.root = Path(root).resolve()
+        # files the last `recordings()` left out because they cannot be read: path (relative) -> why
+        self.damaged: dict[str, str] = {}
 
     # --- paths -------------------------------------------------------------
 
@@ -192,6 +203,18 @@ class Workspace:
             raise UserError(f"workspace {self.root} is a file, not a folder")
         for d in (self.recordings_dir, self.rejected_dir, self.runs_dir, self.root / ".tmp"):
             d.mkdir(parents=True, exist_ok=True)
+        return self
+
+    def check_writable(self) -> "Workspace":
+        """`ensure` the workspace and create (then remove) a file in it: `UserError` in one line when it
+        cannot be written (a read-only file system, no permission, a full disk)."""
+        try:
+            self.ensure()
+            fd, probe = tempfile.mkstemp(dir=self.root / ".tmp", prefix=".probe.", suffix=TMP_SUFFIX)
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as exc:
+            raise UserError(f"cannot write to workspace {self.root}: {exc.strerror or exc}") from None
         return self
 
     @property
@@ -251,23 +274,45 @@ class Workspace:
     def recordings(self) -> pd.DataFrame:
         """The catalogue: one RECORDINGS row per stored recording, sorted by driver and session."""
         files = sorted(self.recordings_dir.glob("*/meta.parquet"))
+        self.damaged = {}
+        if files:
+            try:
+                return self._catalogue(files)
+            except duckdb.Error:  # a damaged file: find it, leave it out, and read the others
+                files = [f for f in files if self._readable(f)]
         if not files:
             return pd.DataFrame({c: pd.Series(dtype="object") for c in RECORDINGS.names})
+        return self._catalogue(files)
+
+    @staticmethod
+    def _catalogue(files: list[Path]) -> pd.DataFrame:
         with duckdb.connect() as con:
-            df = con.execute(
+            return con.execute(
                 "SELECT * FROM read_parquet(?, union_by_name=true) ORDER BY driver_id, session_id",
                 [[str(f) for f in files]],
             ).df()
-        return df
+
+    def _readable(self, path: Path) -> bool:
+        """True when `path` reads as Parquet; otherwise it is noted in `damaged`."""
+        try:
+            pq.read_table(path)
+            return True
+        except (OSError, ValueError) as exc:  # pyarrow's ArrowInvalid is a ValueError, ArrowIOError an OSError
+            self.damaged[str(path.relative_to(self.root))] = _first_line(exc)
+            return False
 
     def load_recording(self, recording_id: str) -> tuple[dict[str, Any], pd.DataFrame, pd.DataFrame]:
         """Return (meta, ego, traffic) of one stored recording."""
         d = self.recordings_dir / recording_id
         if not (d / "meta.parquet").exists():
             raise UserError(f"no recording {recording_id!r} in workspace {self.root}")
-        meta = {k: None if pd.isna(v) else v for k, v in pd.read_parquet(d / "meta.parquet").iloc[0].items()}
-        return meta, _plain_strings(pd.read_parquet(d / "ego.parquet")), _plain_strings(
-            pd.read_parquet(d / "traffic.parquet"))
+        try:
+            meta = {k: None if pd.isna(v) else v for k, v in pd.read_parquet(d / "meta.parquet").iloc[0].items()}
+            return meta, _plain_strings(pd.read_parquet(d / "ego.parquet")), _plain_strings(
+                pd.read_parquet(d / "traffic.parquet"))
+        except (OSError, ValueError, IndexError) as exc:
+            raise DamagedFile(f"recording {recording_id} cannot be read, a file of it is damaged "
+                              f"({_first_line(exc)}); `laneprint check` names it") from None
 
     def iter_recordings(self) -> Iterator[tuple[dict[str, Any], pd.DataFrame, pd.DataFrame]]:
         """Yield (meta, ego, traffic) for every stored recording, in catalogue order."""
@@ -332,7 +377,11 @@ class Workspace:
         path = self.stage_dir(stage) / f"{name}.parquet"
         if not path.exists():
             raise UserError(f"no {stage} table {name!r} in {self.root}: run `laneprint {stage if stage != 'analysis' else 'analyze'}` first")
-        return pd.read_parquet(path)
+        try:
+            return pd.read_parquet(path)
+        except (OSError, ValueError) as exc:
+            raise DamagedFile(f"{stage} table {path.relative_to(self.root)} is damaged ({_first_line(exc)}): "
+                              f"run `laneprint {stage if stage != 'analysis' else 'analyze'}` again") from None
 
     def read_meta(self, stage: str) -> dict[str, Any]:
         path = self.stage_dir(stage) / "meta.json"

@@ -45,7 +45,7 @@ from rl.baselines.imitation import fitted_classifier
 from rl.problem.rewards import ReferenceLines
 from rl.settings import AutoSettings, LearnerSettings, TreeQSettings, learner_config, stored_learner
 
-RUN_STATES = ("running", "done", "failed", "cancelled")
+RUN_STATES = ("running", "done", "failed", "cancelled", "interrupted")
 RUN_LOCK = "run.lock"
 
 
@@ -124,6 +124,34 @@ def run_state(folder: Path, status: dict[str, Any] | None) -> str | None:
     if state is None and (folder / "config.json").exists():  # before its first status
         return "starting" if is_locked(folder / RUN_LOCK) else "interrupted"
     return state
+
+
+def mark_interrupted(folder: Path, status: dict[str, Any] | None) -> dict[str, Any] | None:
+    """`status` of a run left 'running' by a process that died, written back to its status.json as
+    'interrupted', so the file says what every view shows. Done under the run's own lock: never over a
+    live trainer's status (a trainer that just finished wrote 'done' before dropping it: re-read)."""
+    if (status or {}).get("state") != "running" or is_locked(folder / RUN_LOCK):
+        return status
+    lock = FileLock(folder / RUN_LOCK)
+    try:
+        if not lock.acquire(blocking=False):
+            return status
+    except OSError:  # a workspace that cannot be written: the views still say interrupted
+        return status
+    try:
+        current = _read_json(folder / "status.json")
+        if not current or current.get("state") != "running":
+            return current or status
+        current = dict(current, state="interrupted", message=(
+            f"interrupted at episode {current.get('episode', 0)} (its process died); "
+            f"resume it with `laneprint train --resume {folder.name}`"))
+        try:
+            atomic_write_json(folder / "status.json", current)
+        except OSError:
+            pass
+        return current
+    finally:
+        lock.release()
 
 
 def lock_run(folder: Path, run_id: str) -> FileLock:
@@ -580,7 +608,7 @@ def list_runs(workspace: Workspace) -> pd.DataFrame:
         config = _read_json(folder / "config.json")
         if config is None:
             continue
-        status = _read_json(folder / "status.json") or {}
+        status = mark_interrupted(folder, _read_json(folder / "status.json")) or {}
         ev = _read_json(folder / "evaluation.json") or {}
         agent = next((r for r in ev.get("summary", []) if r.get("who") == "agent"), {})
         rows.append({

@@ -28,10 +28,10 @@ def main() -> None:
     mine = views.for_driver(decisions, driver)  # the figures read this driver's rows only (fewer to scan)
     side_fit = views.for_driver(side_fits, driver) if side_fits is not None else None
     n_press = int((mine["label"] == "change").sum())
-    style_txt = f", style **{styles.iloc[0]['style']}**" if len(styles) and "style" in styles else ""
+    style_txt = f", style **{views.md_escape(styles.iloc[0]['style'])}**" if len(styles) and "style" in styles else ""
     sides = views.driver_presses_by_direction(mine, driver)
     sides_txt = f" ({sides['left']} to the left, {sides['right']} to the right)" if sides else ""
-    st.markdown(f"**{driver}**: {views.plural(n_press, 'lane-change decision')}{sides_txt}{style_txt}")
+    st.markdown(f"**{views.md_escape(driver)}**: {views.plural(n_press, 'lane-change decision')}{sides_txt}{style_txt}")
 
     fit = views.for_driver(fits, driver)
     flagged = views.flagged_fits(fit)

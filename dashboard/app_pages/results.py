@@ -19,7 +19,7 @@ def in_sample_tables(ev: dict) -> None:
     st.caption("In-sample: scored on the decisions the agent was trained on (and the imitation classifier, "
                "when present, fitted on); the held-out figures below hold sessions out.")
     if ev.get("summary_typical"):
-        st.caption(f"On the typical driver's decisions ({ev.get('typical_driver')}, "
+        st.caption(f"On the typical driver's decisions ({views.md_escape(ev.get('typical_driver'))}, "
                    f"{ev.get('n_decisions_typical')} decisions), in-sample:")
         st.dataframe(views.evaluation_table(ev["summary_typical"]), hide_index=True, width="stretch")
     n = len(ev.get("drivers", []))
@@ -129,7 +129,7 @@ def one_run(ws, run_id: str) -> None:
     run = loaders.run(str(ws.root), run_id, loaders.run_stamp(ws.root, run_id))
     ev = run["evaluation"]
     cfg = run["config"]
-    st.markdown(f"**{run_id}**: {cfg['target']['kind']} **{cfg['target']['name']}**, reward `{cfg.get('reward')}`, "
+    st.markdown(f"**{views.md_escape(run_id)}**: {cfg['target']['kind']} **{views.md_escape(cfg['target']['name'])}**, reward `{cfg.get('reward')}`, "
                 f"lines `{cfg.get('lines_source')}`, seed {cfg.get('seed')}, "
                 f"{(run['status'] or {}).get('episode', '?')} episodes")
     never = views.never_learnt(run["metrics"], cfg)

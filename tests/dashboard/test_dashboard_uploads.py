@@ -20,6 +20,16 @@ def test_safe_filename(name, expected):
     assert safe_filename(name) == expected
 
 
+def test_names_in_other_scripts_stay_apart_and_a_bare_suffix_stays_a_log():
+    names = ["Сессия_01.csv", "Поездка_01.csv", "运行_01.csv", "جلسة_01.csv"]
+    saved = [safe_filename(n) for n in names]
+    assert saved == names and len(set(saved)) == 4
+    assert safe_filename("Jose\u0301.csv") == "Jos\u00e9.csv"  # one form
+    assert safe_filename("a\u202ecod.exe.csv") == "a_cod.exe.csv"  # a bidi override is not kept
+    assert safe_filename(".csv") == "upload.csv" and safe_filename(".MCAP") == "upload.MCAP"
+    assert has_log_suffix(safe_filename(".csv.gz"))
+
+
 def test_has_log_suffix():
     assert [has_log_suffix(n) for n in ("a.CSV", "a.csv.gz", "b.mcap", "c.txt", "d.gz")] == [
         True, True, True, False, False]

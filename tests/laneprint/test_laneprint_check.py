@@ -97,22 +97,22 @@ def test_leftovers_are_reported_then_repaired_and_live_ones_kept(ws):
         lock.release()
 
 
-def test_damaged_recordings_are_problems_repair_leaves_them(ws):
+def test_damaged_recordings_are_problems_repair_quarantines_the_unreadable(ws):
     a, b = ws.recordings()["recording_id"]
     ego = ws.recordings_dir / a / "ego.parquet"
     ego.write_bytes(ego.read_bytes()[: ego.stat().st_size // 2])  # half-written, visible
     (ws.recordings_dir / b / "traffic.parquet").unlink()
     shutil.copytree(ws.recordings_dir / b, ws.recordings_dir / "ffffffffffffffff")  # same session twice, wrong id
-    code, report = _check(ws, "--repair")
-    assert code == 1 and report["repaired"] == []
-    problems = "\n".join(_kinds(report)["problem"])
-    assert f"recordings/{a}/ego.parquet: unreadable" in problems
-    assert f"recordings/{b}/traffic.parquet: missing" in problems
-    assert "recordings/ffffffffffffffff: meta says recording" in problems
-    assert "is stored twice" in problems
-    assert (ws.recordings_dir / a).exists()
     human = CliRunner().invoke(app, ["check", "-w", str(ws.root)])
     assert human.exit_code == 1 and f"problem: recordings/{a}/ego.parquet: unreadable" in human.stdout
+    code, report = _check(ws, "--repair")
+    assert code == 1 and len(report["repaired"]) == 1
+    assert report["repaired"][0].startswith(f"moved to quarantine/ recordings/{a}/ego.parquet (unreadable")
+    problems = "\n".join(_kinds(report)["problem"])
+    assert f"recordings/{b}/traffic.parquet: missing" in problems  # not unreadable: a person decides
+    assert "recordings/ffffffffffffffff: meta says recording" in problems
+    assert "is stored twice" in problems
+    assert not (ws.recordings_dir / a).exists() and (ws.root / "quarantine" / "recordings" / a / "ego.parquet").exists()
 
 
 def test_a_changed_source_is_a_note_and_an_older_workspace_s_ids_still_match(ws):
@@ -183,7 +183,9 @@ def test_a_running_status_without_its_lock_is_interrupted(ws):
     assert _kinds(report)["note"] == ["runs/r1: training interrupted at episode 2: `laneprint train --resume r1` "
                                       "continues from the start (no checkpoint); 1 half-written metrics line(s), "
                                       "dropped on resume"]
-    with FileLock(d / "run.lock"):
+    assert json.loads((d / "status.json").read_text())["state"] == "interrupted"  # the file says so too
+    with FileLock(d / "run.lock"):  # a resume: it holds the lock and writes 'running'
+        atomic_write_json(d / "status.json", {"state": "running", "pid": 1, "episode": 2, "episodes": 4})
         assert json.loads(CliRunner().invoke(app, ["runs", "-w", str(ws.root), "--json"]).stdout)["runs"][0][
             "state"] == "running"
         assert run_status(ws, "r1")["state"] == "running"

@@ -1,0 +1,272 @@
+"""Hostile input, third round: small generated logs that are well formed but not physical, and MCAPs
+that declare a channel twice. Each is refused with one line or kept with a warning that says what
+was changed, never taken silently as a driver; each in under 5 s and 600 MB, without a traceback."""
+
+from __future__ import annotations
+
+import json
+import resource
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from ingest.logformat import METADATA_NAME, TOPIC_BUTTON, TOPIC_EGO, TOPIC_TRAFFIC
+from ingest.pipeline import ingest_paths
+from ingest.writers import write_csv, write_mcap
+from laneprint.workspace import Workspace
+from tests.ingest.conftest import make_recording
+
+MAX_SECONDS = 5.0
+MAX_GROWTH_MB = 600.0
+
+
+def _peak_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def ingest_one(path: Path, ws_root: Path, **kwargs):
+    """Ingest one generated file: its FileResult, checked for time and memory."""
+    before, t0 = _peak_mb(), time.perf_counter()
+    report = ingest_paths([path], Workspace(ws_root), **kwargs)
+    assert time.perf_counter() - t0 < MAX_SECONDS
+    assert _peak_mb() - before < MAX_GROWTH_MB
+    (res,) = report.files
+    for line in [res.reason, *res.warnings]:
+        assert "\n" not in line and "Traceback" not in line and "please report" not in line
+    return res
+
+
+# --- generated recordings ----------------------------------------------------------------------
+
+
+def _ego_copy(meta, ego, traffic):
+    """The ego listed among its own traffic, 1 m ahead at its own speed."""
+    copy = pd.DataFrame({"t_s": ego["t_s"], "vehicle_id": "me", "x_m": ego["ego_x_m"] + 1.0, "y_m": ego["ego_y_m"],
+                         "v_mps": ego["ego_v_mps"], "lane": ego["ego_lane"], "length_m": 4.5})
+    return meta, ego, pd.concat([traffic, copy], ignore_index=True).sort_values(["t_s", "vehicle_id"], ignore_index=True)
+
+
+def _static_ego(meta, ego, traffic):
+    ego = ego.assign(ego_x_m=100.0, ego_v_mps=30.0)
+    return meta, ego, traffic.iloc[0:0]
+
+
+def _toggling(meta, ego, traffic):
+    ego = ego.copy()
+    ego["lc_button"] = np.arange(len(ego)) % 2 == 1
+    ego["lc_direction"] = None
+    return meta, ego, traffic
+
+
+def _bounce(meta, ego, traffic):
+    ego = ego.copy()
+    i = int(np.flatnonzero(ego["lc_button"].to_numpy())[0])
+    ego.loc[i + 3, "lc_button"] = False  # the first press released for one sample (50 Hz): a bounce
+    return meta, ego, traffic
+
+
+def _one_sample(meta, ego, traffic):
+    ego = ego.iloc[:1].copy()
+    ego["lc_button"] = True
+    return meta, ego, traffic[traffic["t_s"] == 0.0]
+
+
+def _limit(value):
+    def change(meta, ego, traffic):
+        return dict(meta, speed_limit_kph=value), ego, traffic
+    return change
+
+
+def _fast_presses(meta, ego, traffic):
+    """A press every 0.5 s for 20 s: each one slow enough, far too many for decisions."""
+    meta, ego, traffic = make_recording(seconds=20.0, hz=10)
+    ego = ego.copy()
+    ego["lc_button"] = np.arange(len(ego)) % 5 == 0
+    ego["lc_direction"] = None
+    return meta, ego, traffic
+
+
+CASES = {
+    # name: (change, format, expected status, text in the reason or warnings)
+    "ego listed among its traffic (csv)": (_ego_copy, "csv", "warning", "ego listed among its own traffic"),
+    "ego listed among its traffic (mcap)": (_ego_copy, "mcap", "warning", "ego listed among its own traffic"),
+    "static ego with a speed (csv)": (_static_ego, "csv", "rejected", "does not follow the speed"),
+    "static ego with a speed (mcap)": (_static_ego, "mcap", "rejected", "does not follow the speed"),
+    "button toggles every sample (csv)": (_toggling, "csv", "rejected", "faster than a person presses"),
+    "button toggles every sample (mcap)": (_toggling, "mcap", "rejected", "faster than a person presses"),
+    "a press every half second": (_fast_presses, "csv", "rejected", "faster than a person presses"),
+    "a bouncing press": (_bounce, "csv", "warning", "bouncing button"),
+    "one sample with a press (csv)": (_one_sample, "csv", "rejected", "one sample only"),
+    "one sample with a press (mcap)": (_one_sample, "mcap", "rejected", "one sample only"),
+    "speed limit inf (csv)": (_limit(float("inf")), "csv", "rejected", "not a finite number"),
+    "speed limit inf (mcap)": (_limit(float("inf")), "mcap", "rejected", "not a finite number"),
+    "speed limit -80 (csv)": (_limit(-80), "csv", "rejected", "not a road's"),
+    "speed limit -80 (mcap)": (_limit(-80), "mcap", "rejected", "not a road's"),
+    "speed limit 5000 (csv)": (_limit(5000), "csv", "rejected", "not a road's"),
+    "speed limit 0 (mcap)": (_limit(0), "mcap", "rejected", "not a road's"),
+}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_not_physical_is_refused_or_warned(tmp_path, name):
+    change, fmt, status, text = CASES[name]
+    meta, ego, traffic = change(*make_recording())
+    path = tmp_path / f"case.{fmt}"
+    (write_csv if fmt == "csv" else write_mcap)(path, meta, ego, traffic)
+    res = ingest_one(path, tmp_path / "ws")
+    assert res.status == status, (res.reason, res.warnings)
+    assert text in (res.reason + " ".join(res.warnings))
+
+
+def test_ego_copy_is_dropped_from_the_stored_traffic(tmp_path):
+    meta, ego, traffic = _ego_copy(*make_recording())
+    write_csv(tmp_path / "copy.csv", meta, ego, traffic)
+    res = ingest_one(tmp_path / "copy.csv", tmp_path / "ws")
+    _, _, stored = Workspace(tmp_path / "ws").load_recording(res.recording_id)
+    assert "me" not in set(stored["vehicle_id"]) and {"a", "b", "c12"} <= set(stored["vehicle_id"])
+
+
+def test_a_plain_recording_has_no_plausibility_warning(tmp_path):
+    write_csv(tmp_path / "ok.csv", *make_recording())
+    res = ingest_one(tmp_path / "ok.csv", tmp_path / "ws")
+    assert res.status == "ingested", res.warnings
+
+
+def test_a_collision_is_kept_with_a_warning(tmp_path):
+    meta, ego, traffic = make_recording()
+    hit = ego[(ego["t_s"] >= 2.0) & (ego["t_s"] < 2.2)]
+    crash = pd.DataFrame({"t_s": hit["t_s"], "vehicle_id": "z", "x_m": hit["ego_x_m"] + 2.0, "y_m": hit["ego_y_m"],
+                          "v_mps": hit["ego_v_mps"], "lane": hit["ego_lane"], "length_m": 4.5})
+    before = pd.DataFrame({"t_s": ego["t_s"][ego["t_s"] < 2.0], "vehicle_id": "z",
+                           "x_m": ego["ego_x_m"][ego["t_s"] < 2.0] + 40.0, "y_m": 0.0,
+                           "v_mps": ego["ego_v_mps"][ego["t_s"] < 2.0], "lane": 2, "length_m": 4.5})
+    traffic = pd.concat([traffic, before, crash], ignore_index=True).sort_values(["t_s", "vehicle_id"], ignore_index=True)
+    write_csv(tmp_path / "crash.csv", meta, ego, traffic)
+    res = ingest_one(tmp_path / "crash.csv", tmp_path / "ws")
+    assert res.status == "warning" and any("a collision or wrong positions; kept" in w for w in res.warnings)
+
+
+# --- MCAPs written record by record --------------------------------------------------------------
+
+
+def _raw_mcap(path: Path, records: list[tuple[str, int, str | None, int, bytes]], meta: dict) -> None:
+    """An MCAP from (kind, channel id, topic, log time, data) records in order, written without chunks so
+    that a Channel record may appear twice with another topic ('channel'), or a message ('message')."""
+    from mcap.records import Channel, Footer, Header, Message, Metadata, DataEnd
+    from mcap.data_stream import RecordBuilder
+
+    out = bytearray(b"\x89MCAP0\r\n")
+
+    def emit(rec) -> None:
+        rb = RecordBuilder()
+        rec.write(rb)
+        out.extend(rb.end())
+
+    emit(Header(profile="", library="test"))
+    emit(Metadata(name=METADATA_NAME, metadata=meta))
+    seq = 0
+    for kind, cid, topic, ts, data in records:
+        if kind == "channel":
+            emit(Channel(id=cid, topic=topic or "", message_encoding="json", schema_id=0, metadata={}))
+        else:
+            emit(Message(channel_id=cid, sequence=seq, log_time=ts, publish_time=ts, data=data))
+            seq += 1
+    emit(DataEnd(data_section_crc=0))
+    emit(Footer(summary_start=0, summary_offset_start=0, summary_crc=0))
+    out.extend(b"\x89MCAP0\r\n")
+    path.write_bytes(bytes(out))
+
+
+def _samples(n: int = 60, button: int | None = 3, press_after_ns: int | None = None):
+    recs = []
+    for i in range(n):
+        ts = 1_000_000_000 + i * 100_000_000
+        recs.append(("message", 1, None, ts, json.dumps({"x": 100 + 2.5 * i, "v": 25.0, "lane": 0}).encode()))
+        recs.append(("message", 2, None, ts, b'{"vehicles":[]}'))
+        if button is not None and i in (10, 11, 30, 31):
+            recs.append(("message", button, None, ts, json.dumps({"pressed": i in (10, 30), "direction": "left"}).encode()))
+    if press_after_ns is not None:
+        last = 1_000_000_000 + (n - 1) * 100_000_000
+        recs.append(("message", button, None, last + press_after_ns, b'{"pressed":true,"direction":"left"}'))
+    return recs
+
+
+HEAD = [("channel", 1, TOPIC_EGO, 0, b""), ("channel", 2, TOPIC_TRAFFIC, 0, b""), ("channel", 3, TOPIC_BUTTON, 0, b"")]
+
+
+def test_mcap_channel_id_declared_twice_with_another_topic_is_refused(tmp_path):
+    redeclared = HEAD + [("channel", 3, "/other/topic", 0, b"")]
+    _raw_mcap(tmp_path / "twice.mcap", redeclared + _samples(), {"driver_id": "D1", "session_id": "s1"})
+    res = ingest_one(tmp_path / "twice.mcap", tmp_path / "ws")
+    assert res.status == "rejected" and "channel id 3 is declared twice" in res.reason, res.reason
+
+
+def test_mcap_channel_declared_twice_the_same_way_is_read(tmp_path):
+    _raw_mcap(tmp_path / "same.mcap", HEAD + [HEAD[2]] + _samples(), {"driver_id": "D1", "session_id": "s1"})
+    res = ingest_one(tmp_path / "same.mcap", tmp_path / "ws")
+    assert res.status in ("ingested", "warning") and res.n_presses == 2, (res.reason, res.warnings)
+
+
+def test_a_press_after_the_last_sample_is_warned_not_dropped_silently(tmp_path):
+    _raw_mcap(tmp_path / "late.mcap", HEAD + _samples(press_after_ns=500_000_000),
+              {"driver_id": "D1", "session_id": "s1"})
+    res = ingest_one(tmp_path / "late.mcap", tmp_path / "ws")
+    assert res.status == "warning" and res.n_presses == 2
+    assert any("after the last ego sample" in w and "0.5 s" in w for w in res.warnings), res.warnings
+
+
+@pytest.mark.parametrize("limit, why", [("inf", "not a finite number"), ("-80", "not a road's"),
+                                        ("1e9", "not a road's")])
+def test_mcap_metadata_speed_limit_impossible(tmp_path, limit, why):
+    _raw_mcap(tmp_path / "l.mcap", HEAD + _samples(), {"driver_id": "D1", "session_id": "s1", "speed_limit_kph": limit})
+    res = ingest_one(tmp_path / "l.mcap", tmp_path / "ws")
+    assert res.status == "rejected" and why in res.reason, res.reason
+
+
+@pytest.mark.parametrize("value, why", [('"fast"', "not a number"), ("-80", "not a road's"), ("inf", "finite"),
+                                        ("true", "not a number")])
+def test_mapping_default_speed_limit_is_checked_before_any_log(tmp_path, value, why):
+    from ingest.mapping import load_mapping
+    from laneprint.errors import UserError
+
+    path = tmp_path / "m.toml"
+    path.write_text(f"[metadata]\nspeed_limit_kph = {value}\n")
+    with pytest.raises(UserError, match=why):
+        load_mapping(path)
+
+
+# --- names and links -----------------------------------------------------------------------------
+
+
+def test_a_symlink_out_of_the_input_folder_is_refused_with_its_target(tmp_path):
+    outside = tmp_path / "private"
+    outside.mkdir()
+    write_csv(outside / "secret.csv", *make_recording())
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    meta, ego, traffic = make_recording()
+    write_csv(logs / "own.csv", dict(meta, session_id="own"), ego, traffic)
+    (logs / "link.csv").symlink_to(outside / "secret.csv")
+    (logs / "inner.csv").symlink_to(logs / "own.csv")  # a link inside the folder: read (a duplicate)
+    before, t0 = _peak_mb(), time.perf_counter()
+    report = ingest_paths([logs], Workspace(tmp_path / "ws"))
+    assert time.perf_counter() - t0 < MAX_SECONDS and _peak_mb() - before < MAX_GROWTH_MB
+    by_name = {Path(f.source).name: f for f in report.files}
+    assert by_name["link.csv"].status == "rejected" and "symbolic link out of logs" in by_name["link.csv"].reason
+    assert str(outside / "secret.csv") in by_name["link.csv"].reason
+    assert {by_name["own.csv"].status, by_name["inner.csv"].status} == {"ingested", "duplicate"}
+    # named itself, the linked file is the user's choice and is read
+    assert ingest_paths([logs / "link.csv"], Workspace(tmp_path / "ws")).files[0].status == "ingested"
+
+
+@pytest.mark.parametrize("driver_id", ["![x](http://127.0.0.1:9/img.png)", "[click](javascript:alert(1))",
+                                       "**bold** <b>x</b>", "`code` $x$"])
+def test_a_driver_id_in_markdown_is_shown_as_text(driver_id):
+    from dashboard.views import md_escape
+
+    shown = md_escape(driver_id)
+    assert "](" not in shown and "<b>" not in shown and "**" not in shown.replace("\\*", "")
+    assert shown.replace("\\", "") == driver_id.replace("\\", "")
