@@ -13,8 +13,8 @@ from clustering.cli import render
 from clustering.pipeline import analyze
 from indicators.settings import AnalysisSettings
 from indicators.stats import INDICATORS
-from indicators.synthetic import catalogue_row, make_recording
-from laneprint.cli import app
+from tests.support.synthetic_decisions import catalogue_row, make_recording
+from laneprint.app.cli import app
 from laneprint.simulator import StudySettings, simulate_study
 from laneprint.workspace import Workspace
 

@@ -6,7 +6,7 @@ import pytest
 from clustering.pipeline import analyze_tables
 from clustering.plots import cluster_scatter, reference_lines
 from indicators.plots import correlation_table, indicator_vs_speed
-from indicators.synthetic import make_decision_table
+from tests.support.synthetic_decisions import make_decision_table
 
 
 @pytest.fixture(scope="module")

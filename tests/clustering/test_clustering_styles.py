@@ -8,7 +8,7 @@ from sklearn.metrics import adjusted_rand_score
 from clustering.pipeline import analyze_tables
 from clustering.styles import StyleClusterer, style_names
 from indicators.settings import AnalysisSettings
-from indicators.synthetic import make_decision_table
+from tests.support.synthetic_decisions import make_decision_table
 
 
 @pytest.fixture(scope="module")

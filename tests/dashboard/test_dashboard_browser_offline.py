@@ -177,7 +177,7 @@ def test_enter_in_episodes_starts_nothing(heavy_server, browser):
 
 def test_report_opens_offline_with_every_figure(sample_ws, browser, tmp_path):
     out = tmp_path / "report.html"
-    res = subprocess.run([sys.executable, "-m", "laneprint.cli", "report", "--workspace", str(sample_ws.root),
+    res = subprocess.run([sys.executable, "-m", "laneprint.app.cli", "report", "--workspace", str(sample_ws.root),
                           "--out", str(out), "--json", "--no-assets"], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     n = json.loads(res.stdout)["figures"]

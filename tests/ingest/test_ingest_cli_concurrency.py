@@ -11,7 +11,7 @@ from pathlib import Path
 from typer.testing import CliRunner
 
 from ingest.writers import write_csv, write_mcap
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.workspace import Workspace
 
 

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from rl.evaluation.crossval import CrossvalSettings, assign_folds, crossvalidate
@@ -17,7 +17,7 @@ from rl.evaluation.evaluate import agent_policy, evaluate_policies, greedy_polic
 from rl.baselines.imitation import ImitationClassifier
 from rl.problem.rewards import CHANGE, KEEP, ReferenceLines, RewardSettings, decisions_step_reward
 from rl.settings import resolve_formulation
-from rl.testing import rule_driver_decisions, session_decisions, write_style_analysis
+from tests.support.rl_workspaces import rule_driver_decisions, session_decisions, write_style_analysis
 
 LINES = ReferenceLines.paper("Normal")
 DECISIONS_ENV = EnvConfig(lines=LINES, reward=RewardSettings(name="decisions"), scenes="recorded",

@@ -11,7 +11,7 @@ from rl.learners.dqn import DQNSettings, DQNTrainer, mlp_forward, q_network
 from rl.problem.env import EnvConfig, approaches_from_decisions
 from rl.evaluation.evaluate import agent_policy, evaluate_policies, greedy_policy
 from rl.problem.rewards import ReferenceLines, RewardSettings
-from rl.testing import rule_driver_decisions
+from tests.support.rl_workspaces import rule_driver_decisions
 
 LINES = ReferenceLines((0.2, 0.0), (0.2, 0.0), (1.0, -10.0))
 # one moving part: no target-lane leader, a far follower; only t_f sets the moment

@@ -13,13 +13,13 @@ import torch
 from typer.testing import CliRunner
 
 from indicators.settings import AnalysisSettings
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.workspace import Workspace
 from rl.personalize.split import decision_order, first_decisions, holdout_split
 from clustering.pipeline import stored_settings
 from rl.personalize.style import estimate_style, fit_population
 from rl.problem.rewards import ReferenceLines
-from rl.testing import FAST_CLI, session_decisions
+from tests.support.rl_workspaces import FAST_CLI, session_decisions
 
 #: Two drivers per style of Table 1, three sessions of six decisions each.
 DRIVERS = {"D01": "Defensive", "D02": "Defensive", "D03": "Normal", "D04": "Normal", "D05": "Aggressive",

@@ -11,7 +11,7 @@ import torch
 from sklearn.ensemble import HistGradientBoostingRegressor
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from rl.baselines.imitation import labelled_states
@@ -22,7 +22,7 @@ from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_con
 from rl.problem.rewards import CHANGE, KEEP, ReferenceLines, RewardSettings
 from rl.runs import load_weights
 from rl.settings import TREES_PRESS_SCALE_S, AutoSettings, TreeQSettings
-from rl.testing import FAST_CLI, analysed_workspace, session_decisions, write_style_analysis
+from tests.support.rl_workspaces import FAST_CLI, analysed_workspace, session_decisions, write_style_analysis
 
 LINES = ReferenceLines.paper("Normal")
 SMALL = TreeQSettings(trees=40, iterations=4, learning_rate=0.2)
@@ -105,7 +105,7 @@ def test_default_learner_killed_while_choosing_resumes(tmp_path):
     import time
 
     analysed_workspace(tmp_path)
-    proc = subprocess.Popen([sys.executable, "-m", "laneprint.cli", "train", "--style", "Normal", "--run-id", "k1",
+    proc = subprocess.Popen([sys.executable, "-m", "laneprint.app.cli", "train", "--style", "Normal", "--run-id", "k1",
                              "--episodes", "300", "-w", str(tmp_path), "--json"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     status = tmp_path / "runs" / "k1" / "status.json"

@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.schemas import EGO, TRAFFIC
 from laneprint.simulator.highway.settings import HighwaySettings, simulator_text, study_world
 from laneprint.simulator.highway.styles import STYLE_PARAMS, make_highway_drivers, style_order, true_parameter_ari
