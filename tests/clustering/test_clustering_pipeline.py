@@ -3,7 +3,6 @@
 import json
 from dataclasses import replace
 
-import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -51,7 +50,7 @@ def test_analyze_writes_stage_and_report(workspace, report):
     skipped = ws.read_table("analysis", "skipped")
     assert ((skipped["what"] == "recording") & (skipped["id"] == "nopress0000000000")).any()
     refs = ws.read_table("analysis", "reference_lines")
-    for style in report["styles"]:
+    for _style in report["styles"]:
         assert len(refs.query("scope == 'style' and kind == 'typical' and name == @style and direction == 'both'")) == len(INDICATORS)
     assert set(report["styles"]) <= {"Defensive", "Normal", "Aggressive"}
     truth = {d["driver_id"]: d["style"] for d in study.ground_truth["drivers"]}

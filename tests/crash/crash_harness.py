@@ -230,7 +230,7 @@ def kill_live(start: Callable[[float], Attempt], rng: np.random.Generator, start
     at most `RETRIES` + 1 times: an attempt that finished first is a fresh measurement of its work,
     the next moment is drawn from it. Returns the last attempt, its drawn fraction, the work
     estimate (CPU s) and the number of attempts that finished first (redrawn, not kills)."""
-    for retry in range(RETRIES + 1):
+    for retry in range(RETRIES + 1):  # noqa: B007 - returned after the loop
         fraction, at = plan_kill(rng, startup_s, work_s)
         attempt = start(at)
         if not attempt.finished:

@@ -7,7 +7,6 @@ import sys
 
 import numpy as np
 import pandas as pd
-import pytest
 
 from dashboard import figures, training, views
 from laneprint.plotting import line_formula, range_set_by_few, tail_range

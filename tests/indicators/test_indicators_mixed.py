@@ -1,7 +1,6 @@
 """Per-driver lines by partial pooling (`driver_lines = "mixed"`) and `analyze --config`."""
 
 import numpy as np
-import pandas as pd
 import pytest
 from typer.testing import CliRunner
 

@@ -94,7 +94,7 @@ def test_two_ingests_at_once_store_each_session_once(tmp_path, recording):
         for order in (paths, paths[::-1])
     ]
     outs = [p.communicate(timeout=120) for p in procs]
-    for (out, err), p in zip(outs, procs):
+    for (_out, err), p in zip(outs, procs):
         assert p.returncode == 0, err
     counts = [json.loads(out) for out, _ in outs]
     assert sum(c["ingested"] for c in counts) == 6

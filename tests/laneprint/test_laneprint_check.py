@@ -16,7 +16,6 @@ import pytest
 from typer.testing import CliRunner
 
 from ingest.pipeline import _claim_path, _session_key, ingest_paths
-from laneprint.app.check import check_workspace
 from laneprint.app.cli import app
 from laneprint.locks import FileLock, is_locked
 from laneprint.workspace import Workspace, atomic_write_json, content_id, exchange_paths, legacy_content_id

@@ -1,13 +1,11 @@
 """Run folders and the `train` / `evaluate` commands, including SIGTERM and resume."""
 
 import json
-import os
 import signal
 import subprocess
 import sys
 import time
 
-import pytest
 import torch
 from typer.testing import CliRunner
 
