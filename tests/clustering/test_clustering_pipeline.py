@@ -58,6 +58,7 @@ def test_analyze_writes_stage_and_report(workspace, report):
     json.dumps(report)  # JSON-ready
 
 
+@pytest.mark.slow
 def test_cli_json(workspace):
     ws, _ = workspace
     res = CliRunner().invoke(app, ["analyze", "-w", str(ws.root), "--json", "--far-follower-m", "120",
@@ -124,6 +125,7 @@ def test_a_recording_whose_following_cannot_be_read_keeps_its_decisions(workspac
     assert calls[0] not in set(following["recording_id"]) and n_rec == len(calls)
 
 
+@pytest.mark.slow
 def test_heldout_reading_end_to_end(workspace, tmp_path):
     """`--features heldout`: the reading chosen on held-out behaviour, stored with its scores; each
     driver's behaviour parameters with intervals; every style described; confidence capped by
@@ -153,6 +155,7 @@ def test_unknown_behaviour_parameter_is_one_line(workspace):
     assert res.exit_code == 1 and "unknown behaviour parameter" in res.output and "Traceback" not in res.output
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("features", ["separated", "reliable"])
 def test_chosen_readings_end_to_end(workspace, features):
     """`--features separated|reliable` run through the command line: one chosen reading, stored with

@@ -74,6 +74,7 @@ def test_excluded_ttcs_far_off_do_not_stretch_the_axis(tables):
     assert list(off.marker.symbol) == ["triangle-up"] * 2
 
 
+@pytest.mark.slow
 def test_cluster_scatter_labels_do_not_overlap():
     df, _ = make_decision_table(60, 12, seed=3, keep_per_press=1)
     styles = analyze_tables(df)["styles"]

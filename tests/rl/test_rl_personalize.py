@@ -73,6 +73,7 @@ def test_style_of_a_few_decisions_has_a_confidence(study: Workspace) -> None:
     assert again == est  # seeded
 
 
+@pytest.mark.slow
 def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(study: Workspace) -> None:
     res = _run(study, "--driver", "D03", "--decisions", "5", "--from", "style", "--fine-tune", "--run-id", "p5",
                "--json", *TINY)
@@ -125,6 +126,7 @@ def test_the_population_base_is_every_other_driver(study: Workspace) -> None:
     assert out["base"]["from"] == "population" and out["base"]["drivers"] == ["D01", "D02", "D03", "D04", "D05"]
 
 
+@pytest.mark.slow
 def test_the_fitted_base_is_the_candidate_that_agrees_best_and_every_candidate_is_kept(study: Workspace) -> None:
     # choose by agreement however sure the style is, and take the chosen base as it is
     always = ["--from", "fit", "--min-confidence", "1.01", "--no-fine-tune"]
@@ -337,6 +339,7 @@ def test_the_blend_is_a_run_that_acts_on_the_weighted_advantages(study: Workspac
                json.loads((study.runs_dir / "bl5" / "config.json").read_text())["base"]["candidates"].values())
 
 
+@pytest.mark.slow
 def test_the_curve_scores_the_blend(study: Workspace, monkeypatch) -> None:
     from rl.personalize.agents import PersonalizeSettings
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "benchmarks"))
