@@ -8,6 +8,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from ingest.writers import write_csv, write_mcap
@@ -77,6 +78,7 @@ _WORKER = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_two_ingests_at_once_store_each_session_once(tmp_path, recording):
     meta, ego, traffic = recording
     logs = tmp_path / "logs"

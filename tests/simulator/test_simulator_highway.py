@@ -137,6 +137,7 @@ def test_presses_match_the_ground_truth(tiny):
     assert sum(d["pressed"] for d in gt["decisions"]) > 0
 
 
+@pytest.mark.slow
 def test_same_seed_same_study_whatever_the_jobs(tiny):
     again = simulate_highway_study(TINY, seed=4, jobs=2)
     assert again.ground_truth == tiny.ground_truth
