@@ -17,7 +17,7 @@ from playwright.sync_api import expect
 from dashboard_support import ROOT, SHOT_DIR, free_port, wait_healthy
 from laneprint.workspace import Workspace
 
-pytestmark = pytest.mark.browser
+pytestmark = [pytest.mark.browser, pytest.mark.slow]  # a headless Chromium: seconds to tens of seconds each
 
 TTC_AXIS = ("t_f", "t_nf", "gap")
 

@@ -2,6 +2,7 @@ import re
 import sys
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from dashboard.cli import MAX_UPLOAD_MB, allowed_hosts, streamlit_command
@@ -58,6 +59,7 @@ def test_allowed_hosts_are_this_machines():
     assert "lab-pc" in allowed_hosts("lab-pc") and "*" not in allowed_hosts("0.0.0.0")
 
 
+@pytest.mark.slow
 def test_laneprint_dashboard_serves_and_stops(tmp_path):
     import os
     import signal

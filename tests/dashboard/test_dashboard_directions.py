@@ -156,6 +156,7 @@ def test_an_older_analysis_without_directions_still_draws(sample_ws, tmp_path, m
     assert not at.radio and "Normal typical" in _trace_names(at)
 
 
+@pytest.mark.slow
 @pytest.mark.browser
 def test_drivers_page_draws_directions_in_the_browser(server, page):
     from playwright.sync_api import expect

@@ -7,6 +7,7 @@ import sys
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from dashboard import figures, training, views
 from laneprint.plotting import line_formula, range_set_by_few, tail_range
@@ -147,6 +148,7 @@ def test_plural_and_hints():
     assert views.cli_hint("ingest", "/w s", "sample_logs/") == "laneprint ingest sample_logs/ --workspace '/w s'"
 
 
+@pytest.mark.slow
 def test_report_command(sample_ws, tmp_path):
     out = tmp_path / "study.html"
     res = subprocess.run([sys.executable, "-m", "laneprint.app.cli", "report", "--workspace", str(sample_ws.root),

@@ -137,6 +137,7 @@ def test_upload_ingests_and_refuses_with_reasons(empty_ws, tmp_path):
     assert at.dataframe[0].value["status"].tolist() == ["duplicate"]
 
 
+@pytest.mark.slow
 def test_styles_rerun_with_other_k(sample_ws, tmp_path, monkeypatch):
     import shutil
 

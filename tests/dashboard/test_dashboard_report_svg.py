@@ -17,6 +17,7 @@ def sections() -> list[Section]:
                               ("figure", ("styles", go.Figure(go.Bar(x=["a"], y=[1]))))])]
 
 
+@pytest.mark.slow
 def test_svg_of_every_figure_with_kaleido(tmp_path):
     pytest.importorskip("kaleido", reason="the report extra: pip install -e '.[report]'")
     written = write_assets(sections(), tmp_path)
@@ -56,6 +57,7 @@ def _fake_build(seen):
                                                                           "data_fingerprint": "f"}))
 
 
+@pytest.mark.slow
 def test_report_starts_chromium_before_building_and_stops_it(tmp_path, monkeypatch):
     """kaleido's Chromium starts before the figures are built (its 10-15 s overlap them) and is stopped after."""
     import time

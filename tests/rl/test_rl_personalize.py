@@ -224,6 +224,7 @@ def test_agreement_is_the_balanced_accuracy_on_the_recorded_states() -> None:
     assert best_fit({"style:A": 0.8, "style:B": 0.8, "population": 0.8}, {"style:A": 0.3, "style:B": 0.7}) == "style:B"
 
 
+@pytest.mark.slow
 def test_the_curve_scores_every_policy_and_the_fitted_base(study: Workspace, monkeypatch) -> None:
     from rl.personalize.agents import PersonalizeSettings
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "benchmarks"))
@@ -296,6 +297,7 @@ def test_blend_weights_are_the_shares_times_the_agreement() -> None:
         PersonalizeSettings(base="blend", blend_prior="vote")
 
 
+@pytest.mark.slow
 def test_the_blend_is_a_run_that_acts_on_the_weighted_advantages(study: Workspace) -> None:
     from rl.learners.dqn import q_network
     from rl.personalize.agents import advantages

@@ -6,6 +6,7 @@ import subprocess
 import sys
 import time
 
+import pytest
 import torch
 from typer.testing import CliRunner
 
@@ -77,6 +78,7 @@ def test_evaluate_against_the_drivers(tmp_path):
     assert info["decision_id"] == env.approaches[3].decision_id and info["recorded"]
 
 
+@pytest.mark.slow
 def test_sigterm_cancels_cleanly_and_resume_finishes(tmp_path):
     cmd = [sys.executable, "-m", "laneprint.app.cli", "train", "--style", "Normal", "--lines", "paper",
            "--episodes", "10000000", "--run-id", "sig", "-w", str(tmp_path), "--json", *FAST]

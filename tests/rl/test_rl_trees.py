@@ -43,6 +43,7 @@ def test_the_module_predicts_what_the_ensembles_predict():
     assert torch.equal(again(torch.as_tensor(x)), net(torch.as_tensor(x)))
 
 
+@pytest.mark.slow
 def test_fitted_q_iteration_changes_at_the_press_and_keeps_before():
     dec = session_decisions(LINES, 4, 8)
     approaches, _ = approaches_from_decisions(dec)
@@ -71,6 +72,7 @@ def test_the_tree_learner_needs_the_decisions_reward(tmp_path):
         fit_tree_q(approaches, EnvConfig(lines=LINES), SMALL)  # synthetic scenes, timing reward
 
 
+@pytest.mark.slow
 def test_train_evaluate_export_and_check_a_tree_run(tmp_path):
     ws = analysed_workspace(tmp_path)
     res = CliRunner().invoke(app, ["train", "--style", "Normal", "--learner", "trees", "--run-id", "t1",
@@ -123,6 +125,7 @@ def test_default_learner_killed_while_choosing_resumes(tmp_path):
     assert out["state"] == "done" and out["learner_choice"]["learner"] in ("dqn", "trees")
 
 
+@pytest.mark.slow
 def test_crossval_with_the_tree_learner_says_so(tmp_path):
     write_style_analysis(Workspace(tmp_path), session_decisions(LINES, 4, 6), LINES)
     res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--learner", "trees",
@@ -152,6 +155,7 @@ def test_the_inner_folds_hold_out_every_session_once_and_keep_each_driver_to_fit
     assert [sessions(h) for _, h in inner_folds(approaches, 3, seed=1)] != held_out
 
 
+@pytest.mark.slow
 def test_auto_chooses_a_learner_per_fold_and_per_run(tmp_path):
     write_style_analysis(Workspace(tmp_path), session_decisions(LINES, 8, 4), LINES)
     res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--learner", "auto",
