@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -40,12 +41,14 @@ from sklearn.metrics import adjusted_rand_score
 from clustering.pipeline import analyze, analyze_tables
 from indicators.decisions import extract_decisions
 from indicators.settings import AnalysisSettings
-from indicators.synthetic import make_decision_table
 from laneprint.reference import INDICATORS
 from laneprint.simulator import StudySettings, simulate_study
 from laneprint.workspace import Workspace
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # the checkout: the test tools (tests.support)
+
+from tests.support.synthetic_decisions import make_decision_table  # noqa: E402
 
 
 def coverage(fits: pd.DataFrame, drivers: list[dict]) -> list[dict]:

@@ -44,7 +44,7 @@ def main() -> None:
         subprocess.run(["git", "worktree", "add", "-q", "--detach", str(base), args.baseline], cwd=ROOT, check=True)
         try:
             ws = tmp / "ws"
-            subprocess.run([sys.executable, "-m", "laneprint.cli", "ingest", str(ROOT / "sample_logs"), "-w", str(ws),
+            subprocess.run([sys.executable, "-m", "laneprint.app.cli", "ingest", str(ROOT / "sample_logs"), "-w", str(ws),
                             "--json"], cwd=ROOT, check=True, capture_output=True)
             sides = {"this checkout": ROOT, args.baseline: base}
             spaces = {name: shutil.copytree(ws, tmp / f"ws-{i}") for i, name in enumerate(sides)}

@@ -22,7 +22,7 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-LANEPRINT = [sys.executable, "-m", "laneprint.cli"]
+LANEPRINT = [sys.executable, "-m", "laneprint.app.cli"]
 VOLATILE = re.compile(r"(seconds|_s_wall|wall|elapsed|duration|started|finished|_at$|^at$|time_s$|code_version|"
                       r"git|pid|host|created|updated|modified|version)", re.I)
 STAMP = re.compile(r"\d{8}-\d{6}(-\d{6})?-")  # the date-time that begins run, fleet and cross-validation ids

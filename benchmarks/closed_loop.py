@@ -63,7 +63,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-LAPRINT = [sys.executable, "-m", "laneprint.cli"]
+LAPRINT = [sys.executable, "-m", "laneprint.app.cli"]
 STYLES = ("Defensive", "Normal", "Aggressive")
 
 

@@ -4,7 +4,7 @@
                                    [--keep DIR] [--baseline DIR|REV] [--pages training,results]
 
 The workspace is generated in a temporary folder: one short recording per driver
-(`indicators.synthetic.make_recording`), the analysis of a synthetic decisions
+(`tests.support.synthetic_decisions.make_recording`), the analysis of a synthetic decisions
 table (`make_decision_table` + the real `analyze_tables`), two short real
 training runs (`rl.runs.train_run`, 300 episodes, evaluated), and a fleet of
 `--fleet` agents, one per driver (`fleets/<id>/fleet.json` and a run folder each,
@@ -44,6 +44,7 @@ from pathlib import Path
 
 # this file is named like the package it measures: keep its folder off the import path
 sys.path = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout: the test tools (tests.support)
 
 import streamlit as st  # noqa: E402
 from streamlit.testing.v1 import AppTest  # noqa: E402
@@ -55,7 +56,7 @@ PAGES = Path(__file__).resolve().parents[1] / "dashboard" / "app_pages"
 
 def build(root: Path, n_drivers: int, n_decisions: int) -> Workspace:
     from clustering.pipeline import analyze_tables
-    from indicators.synthetic import make_decision_table, make_recording
+    from tests.support.synthetic_decisions import make_decision_table, make_recording
 
     ws = Workspace(root).ensure()
     for i in range(n_drivers):

@@ -48,7 +48,7 @@ from rl.settings import DQNSettings
 
 
 def cli(*args: str) -> None:
-    subprocess.run([sys.executable, "-m", "laneprint.cli", *args], check=True, stdout=subprocess.DEVNULL)
+    subprocess.run([sys.executable, "-m", "laneprint.app.cli", *args], check=True, stdout=subprocess.DEVNULL)
 
 
 def prepare(workdir: Path, drivers: int) -> Workspace:

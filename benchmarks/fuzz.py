@@ -3,10 +3,10 @@
     python benchmarks/fuzz.py [--cases 10000] [--seed 0] [--case N]
 
 Seed files are short excerpts of the shipped sample logs written as .csv, .csv.gz and
-.mcap (`ingest.mutations.excerpts`). Each case picks a seed file and a mutation kind
+.mcap (`tests.support.ingest_mutations.excerpts`). Each case picks a seed file and a mutation kind
 and mutates it with `random.Random(f"{seed}:{case}")` (so `--case N` replays one
 file), then runs it in-process through the ingest pipeline (`_Batch.prepare`, `parse_log`,
-`_Batch.store`: what `laneprint ingest` runs per file) and judges the end (`ingest.mutations.try_ingest`):
+`_Batch.store`: what `laneprint ingest` runs per file) and judges the end (`tests.support.ingest_mutations.try_ingest`):
 
 - ingested: stored, and the stored tables pass the canonical schemas and value bounds;
 - refused: rejected with a reason naming a signal or a byte offset / line / message;
@@ -33,8 +33,9 @@ from pathlib import Path
 
 # this script lives beside benchmarks/ingest.py, named like the `ingest` package: keep its folder off the path
 sys.path = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout: the test tools (tests.support)
 
-from ingest.mutations import OUTCOMES, excerpts, kinds_for, mutate, try_ingest  # noqa: E402
+from tests.support.ingest_mutations import OUTCOMES, excerpts, kinds_for, mutate, try_ingest  # noqa: E402
 from laneprint.cliutil import progress_bar  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -42,7 +42,7 @@ from typing import TextIO
 from sklearn.metrics import adjusted_rand_score
 
 ROOT = Path(__file__).resolve().parents[1]
-LAPRINT = [sys.executable, "-m", "laneprint.cli"]
+LAPRINT = [sys.executable, "-m", "laneprint.app.cli"]
 STUDY_RECALL = {"Defensive": 0.959, "Normal": 1.0, "Aggressive": 0.986}  # the paper's agents (section 5)
 
 

@@ -1,7 +1,7 @@
 """Ingest of ROS 2 (CDR) and protobuf MCAP files vs the same recording as v1 JSON MCAP.
 
 Writes the 10-minute, 20-vehicle, 50 Hz recording of `benchmarks/ingest.py` as the
-worked examples of ingest/README.md (`ingest/stack_examples.py`) and as v1 JSON, then
+worked examples of ingest/README.md (`tests/support/stack_examples.py`) and as v1 JSON, then
 times (medians, interleaved):
 
 - the floor: mcap's reader with the decoder factories (`iter_decoded_messages`),
@@ -27,6 +27,7 @@ from pathlib import Path
 
 # this folder holds a script named like the `ingest` package: keep it off the import path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout: the test tools (tests.support)
 
 from mcap.reader import make_reader  # noqa: E402
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory  # noqa: E402
@@ -34,7 +35,7 @@ from mcap_ros2.decoder import DecoderFactory as Ros2DecoderFactory  # noqa: E402
 
 from ingest.mcap_decoding import FastRos2DecoderFactory, JsonDecoderFactory  # noqa: E402
 from ingest.pipeline import ingest_paths  # noqa: E402
-from ingest.stack_examples import PROTOBUF_MAPPING, ROS2_MAPPING, write_protobuf, write_ros2  # noqa: E402
+from tests.support.stack_examples import PROTOBUF_MAPPING, ROS2_MAPPING, write_protobuf, write_ros2  # noqa: E402
 from ingest.writers import write_mcap  # noqa: E402
 from laneprint.workspace import Workspace  # noqa: E402
 

@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-LANEPRINT = [sys.executable, "-m", "laneprint.cli"]
+LANEPRINT = [sys.executable, "-m", "laneprint.app.cli"]
 
 
 def timed(args: list[str]) -> tuple[float, dict]:

@@ -17,7 +17,8 @@ from pathlib import Path
 # benchmarks/ingest.py would shadow the `ingest` package: keep this folder off the import path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
-from laneprint.simulator import StudySettings, simulate_study, write_study  # noqa: E402
+from laneprint.app.simulator.output import write_study  # noqa: E402
+from laneprint.simulator import StudySettings, simulate_study  # noqa: E402
 
 
 def main() -> None:

@@ -48,7 +48,7 @@ REPO = Path(__file__).resolve().parents[1]
 def ensure_analysis(ws: Workspace) -> None:
     if ws.has_table("analysis", "decisions"):
         return
-    exe = [sys.executable, "-m", "laneprint.cli"]
+    exe = [sys.executable, "-m", "laneprint.app.cli"]
     subprocess.run(exe + ["ingest", str(REPO / "sample_logs"), "-w", str(ws.root), "--json"], check=True,
                    stdout=subprocess.DEVNULL)
     subprocess.run(exe + ["analyze", "-w", str(ws.root), "--json"], check=True, stdout=subprocess.DEVNULL)

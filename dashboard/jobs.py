@@ -70,7 +70,7 @@ def train_command(req: TrainRequest, workspace: Path, run_id: str) -> list[str]:
     """The `laneprint train` command line for `req` (run with this interpreter)."""
     if req.target not in ("style", "driver"):
         raise ValueError(f"target must be 'style' or 'driver', not {req.target!r}")
-    cmd = [sys.executable, "-m", "laneprint.cli", "train", f"--{req.target}", req.name,
+    cmd = [sys.executable, "-m", "laneprint.app.cli", "train", f"--{req.target}", req.name,
            "--episodes", str(int(req.episodes)), "--seed", str(int(req.seed)),
            "--run-id", run_id, "--workspace", str(workspace)]
     if req.reward:
@@ -297,7 +297,7 @@ class CrossvalRequest:
 
 def crossval_command(req: CrossvalRequest, workspace: Path) -> list[str]:
     """The `laneprint crossval --run` command line for `req` (run with this interpreter)."""
-    cmd = [sys.executable, "-m", "laneprint.cli", "crossval", "--run", req.run_id,
+    cmd = [sys.executable, "-m", "laneprint.app.cli", "crossval", "--run", req.run_id,
            "--folds", str(int(req.folds)), "--split", req.split, "--seed", str(int(req.seed)),
            "--bootstrap", str(int(req.bootstrap))]
     if req.episodes is not None:
@@ -456,7 +456,7 @@ def fleet_command(req: FleetRequest, workspace: Path) -> list[str]:
         raise ValueError(f"kind must be 'drivers' or 'styles', not {req.kind!r}")
     if req.backend not in ("local", "ray"):
         raise ValueError(f"backend must be 'local' or 'ray', not {req.backend!r}")
-    cmd = [sys.executable, "-m", "laneprint.cli", "train", f"--{req.kind}", ",".join(req.names) or "all",
+    cmd = [sys.executable, "-m", "laneprint.app.cli", "train", f"--{req.kind}", ",".join(req.names) or "all",
            "--seeds", str(int(req.seeds)), "--episodes", str(int(req.episodes))]
     if req.backend != "local":  # the trainer's default; older trainers know no --backend
         cmd += ["--backend", req.backend]
@@ -556,6 +556,6 @@ def policy_zip(ws: Workspace, run_id: str) -> bytes:
 
 def report_bytes(ws: Workspace) -> bytes:
     """`laneprint report` of the workspace as one HTML file's bytes."""
-    from laneprint.report import report_html
+    from dashboard.report import report_html
 
     return report_html(ws).encode()

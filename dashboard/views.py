@@ -410,10 +410,10 @@ def crossval_differences(result: dict[str, Any], run_id: str, config: dict[str, 
 
 
 def command_text(cmd: list[str]) -> str:
-    """A launched command as a reader would type it: `laneprint ...` instead of `python -m laneprint.cli ...`."""
+    """A launched command as a reader would type it: `laneprint ...` instead of `python -m laneprint.app.cli ...`."""
     import shlex
 
-    if len(cmd) > 2 and cmd[1:3] == ["-m", "laneprint.cli"]:
+    if len(cmd) > 2 and cmd[1:3] == ["-m", "laneprint.app.cli"]:
         cmd = ["laneprint", *cmd[3:]]
     return shlex.join(cmd)
 

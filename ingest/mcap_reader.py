@@ -67,7 +67,7 @@ def _decode(topic: str, datas: list[bytes], times: list[int]) -> list[Any]:
             except (ValueError, UnicodeDecodeError) as exc:
                 raise Rejected(f"message {i} on {topic} (log_time {times[i]} ns) is not valid JSON: "
                                f"{first_line(exc)}") from None
-        raise Rejected(f"messages on {topic} are not valid JSON")
+        raise Rejected(f"messages on {topic} are not valid JSON") from None
 
 
 def _arrow_table(datas: list[bytes], schema: pa.Schema) -> pa.Table | None:

@@ -314,7 +314,7 @@ def _vehicle_grid(ids: pa.Array, n: int) -> int:
         return 0
     first = ids.slice(0, min(n, 4096)).to_pylist()
     seen: set[Any] = set()
-    for k, vid in enumerate(first):
+    for k, vid in enumerate(first):  # noqa: B007 - k is read after the loop
         if vid in seen:
             break
         seen.add(vid)

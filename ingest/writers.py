@@ -185,8 +185,8 @@ def csv_table(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame) ->
 
 
 def _strings(table: pa.Table) -> Iterable[str]:
-    for field, col in zip(table.schema, table.columns):
-        if pa.types.is_string(field.type):
+    for fld, col in zip(table.schema, table.columns):
+        if pa.types.is_string(fld.type):
             yield from (s for s in col.unique().to_pylist() if s is not None)
 
 

@@ -1,7 +1,7 @@
 """Errors a user can act on.
 
 Anything raised as `UserError` reaches the user as one line on stderr and exit
-status 1, never as a traceback (see `laneprint.cli`).
+status 1, never as a traceback (see `laneprint.app.cli`).
 """
 
 

@@ -189,27 +189,6 @@ DECISIONS = Schema(
     ),
 )
 
-#: Columns `laneprint analyze` adds to its decisions table (`indicators.acceptance`): what the
-#: driver accepts. Derived from the scene columns above, so older tables get them on reading.
-DECISION_ACCEPTANCE = Schema(
-    "decision_acceptance",
-    "Gaps, headways and relative speeds at each state; NaN with a status saying why when undefined.",
-    (
-        Column("thw_f_s", "float", "time headway to the ego-lane leader: f_gap_m / ego_v_mps [s]", nullable=True),
-        Column("thw_f_status", "str", "'ok', 'absent' or 'stopped' (ego below 0.5 m/s)"),
-        Column("dv_f_mps", "float", "v_ego - v_f [m/s] (> 0: closing in)", nullable=True),
-        Column("dv_f_status", "str", "'ok' or 'absent'"),
-        Column("gap_f_status", "str", "status of f_gap_m: 'ok' or 'absent'"),
-        Column("dv_nf_mps", "float", "v_ego - v_nf [m/s]", nullable=True),
-        Column("dv_nf_status", "str", "'ok' or 'absent'"),
-        Column("gap_nf_status", "str", "status of nf_gap_m (the lead gap): 'ok' or 'absent'"),
-        Column("gap_nb_status", "str", "status of nb_gap_m (the lag gap): 'ok', 'absent' or 'far' (kept, not fitted)"),
-        Column("thw_nb_s", "float", "time headway of the target-lane follower to the ego: nb_gap_m / v_nb [s]",
-               nullable=True),
-        Column("thw_nb_status", "str", "'ok', 'absent', 'stopped' (follower below 0.5 m/s) or 'far'"),
-    ),
-)
-
 REFERENCE_LINES = Schema(
     "reference_lines",
     "Lines I = A * v_e[m/s] + b per style or driver and indicator; what the RL stage reads.",

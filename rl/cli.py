@@ -86,7 +86,7 @@ def _fmt(x: Any, pct: bool = False) -> str:
     return f"{100 * x:.1f} %" if pct else f"{x:.2f}"
 
 
-def _summary_table(rows: list[dict[str, Any]], title: str) -> Table:
+def summary_table(rows: list[dict[str, Any]], title: str) -> Table:
     t = Table(title=title)
     for col in ("who", "recall", "balanced acc.", "timing MAE [s]", "never", "MAE t_f [s]", "MAE t_nf [s]",
                 "MAE dv_nb [m/s]"):
@@ -103,7 +103,7 @@ def _render_eval(ev: dict[str, Any], console: Console) -> None:
         if rows:
             who = ev["typical_driver"] if group == "typical" else ", ".join(ev["drivers"])
             skipped = {k: v for k, v in ev.get(f"skipped_{group}", {}).items() if v}
-            console.print(_summary_table(rows, f"{group}: {who} — {ev[f'n_decisions_{group}']} decisions, "
+            console.print(summary_table(rows, f"{group}: {who} — {ev[f'n_decisions_{group}']} decisions, "
                                                f"{ev[f'n_states_{group}']} states, skipped {skipped or 'none'}"))
 
 
@@ -251,7 +251,7 @@ def train_command(
         if res.get("warning"):
             console.print(f"[yellow]warning:[/yellow] {res['warning']}", highlight=False)
         if res.get("evaluation"):
-            console.print(_summary_table(res["evaluation"], "against the drivers"))
+            console.print(summary_table(res["evaluation"], "against the drivers"))
         if res.get("evaluation_note"):
             console.print(res["evaluation_note"], highlight=False)
 

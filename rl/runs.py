@@ -39,7 +39,7 @@ from laneprint.locks import FileLock, is_locked
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.learners.dqn import DQNSettings, DQNTrainer, q_network
-from rl.problem.env import Approach, EnvConfig, approaches_from_decisions, observation_names
+from rl.problem.env import Approach, EnvConfig, LaneChangeDecisionEnv, approaches_from_decisions, observation_names
 from rl.evaluation.evaluate import agent_policy, evaluate_policies, greedy_policy
 from rl.baselines.imitation import fitted_classifier
 from rl.problem.rewards import ReferenceLines
@@ -569,8 +569,6 @@ def recorded_approaches(workspace: Workspace, target: Target) -> list["Approach"
 
 def replay_env(workspace: Workspace, target: Target, config: EnvConfig | None = None) -> "LaneChangeDecisionEnv":
     """The environment in replay mode over the recorded approaches of a driver or a style's members."""
-    from rl.problem.env import LaneChangeDecisionEnv
-
     approaches = recorded_approaches(workspace, target)
     return LaneChangeDecisionEnv(config or EnvConfig(lines=resolve_lines(workspace, target, "analysis")),
                                  approaches=approaches)

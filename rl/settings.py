@@ -223,7 +223,7 @@ def expected_transitions(settings: DQNSettings, approach_steps: float) -> float:
     steps); exploring, the agent changes lane at a step with probability epsilon / 2 (a
     random action), epsilon falling linearly as in the trainer, and its network is taken to
     say 'keep' (an untrained network that says 'change' ends its episodes sooner). 300 episodes
-    of `rl.testing.analysed_workspace`'s approaches (27 steps): 1,678 expected, 1,344-1,440
+    of `tests.support.rl_workspaces.analysed_workspace`'s approaches (27 steps): 1,678 expected, 1,344-1,440
     collected by seeds 0-2 (issue 23's 300-episode run collected 1,616).
     """
     import numpy as np

@@ -110,7 +110,7 @@ def launch(ws, driver: str, k: int, base: str, seed: int, fine_tune: bool = Fals
     """Start `laneprint personalize` in the background (a run like the Training page's); returns the run id."""
     slug = "".join(c if c.isalnum() else "-" for c in driver.lower())
     run_id = f"{datetime.now(timezone.utc):%Y%m%d-%H%M%S}-{slug}-personalized-k{k}-s{seed}"
-    cmd = [sys.executable, "-m", "laneprint.cli", "personalize", "--driver", driver, "--decisions", str(k),
+    cmd = [sys.executable, "-m", "laneprint.app.cli", "personalize", "--driver", driver, "--decisions", str(k),
            "--from", base, "--seed", str(seed), "--run-id", run_id, "--workspace", str(ws.root)] + \
         (["--fine-tune"] if fine_tune else [])
     jobs._spawn(jobs.jobs_dir(ws), run_id, cmd, ws.root,  # the Training page's launcher: runs table, status, log

@@ -21,7 +21,7 @@ from laneprint.simulator.config import (
     CASE_SLOWED,
     StudySettings,
 )
-from laneprint.simulator.drivers import Driver, make_drivers
+from laneprint.simulator.drivers import make_drivers
 from laneprint.simulator.recording import RecordingBuilder
 
 GENERATOR = "laneprint.simulator"
@@ -124,10 +124,3 @@ def simulate_study(settings: Optional[StudySettings] = None, seed: int = 0,
         "decisions": decisions,
     }
     return Study(recordings, ground_truth, settings, seed)
-
-
-def driver_by_id(study: Study) -> dict[str, Driver]:
-    """The study's drivers as `Driver` objects, by id."""
-    return {d["driver_id"]: Driver(d["driver_id"], d["style"], d["typical"],
-                                   {k: (v["A"], v["b"]) for k, v in d["lines"].items()})
-            for d in study.ground_truth["drivers"]}

@@ -1,4 +1,4 @@
-"""Policies the agents are measured against: the study's greedy benchmark, an imitation classifier, the exact optimum."""
+"""Policies the agents are measured against: the study's greedy benchmark, an imitation classifier."""
 
 from laneprint.lazy import lazy_exports
 
@@ -6,6 +6,4 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "greedy_actions": "rl.baselines.greedy",
     "ImitationClassifier": "rl.baselines.imitation",
     "fitted_classifier": "rl.baselines.imitation",
-    "optimal_actions": "rl.baselines.oracle",
-    "oracle_policy": "rl.baselines.oracle",
 })

@@ -34,7 +34,7 @@ from laneprint.reference import INDICATORS
 from rl.learners.dqn import greedy_actions as q_greedy_actions
 from rl.problem.env import Approach, EnvConfig, observation
 from rl.baselines.greedy import greedy_actions
-from rl.problem.rewards import CHANGE, ReferenceLines
+from rl.problem.rewards import CHANGE
 from rl.problem.scene import Scene, indicators
 
 Policy = Callable[[Scene], np.ndarray]
@@ -54,7 +54,7 @@ def _indicator_frame(scene: Scene, cfg: EnvConfig) -> pd.DataFrame:
     ind = indicators(scene, cfg.far_follower_m, cfg.range_m)
     ref = cfg.lines.at(ind.v_e)
     df = pd.DataFrame({"v_e_mps": ind.v_e, "t_f_s": ind.t_f, "t_nf_s": ind.t_nf, "dv_nb_mps": ind.dv_nb})
-    for k, col in zip(INDICATORS, ("t_f_s", "t_nf_s", "dv_nb_mps")):
+    for k, _col in zip(INDICATORS, ("t_f_s", "t_nf_s", "dv_nb_mps")):
         df[f"{k}_ref"] = ref[k]
     return df
 

@@ -20,7 +20,7 @@ def gap_world(critical: dict[str, float], approaches: int = 40, seed: int = 0) -
     for drv, crit in critical.items():
         for a in range(approaches):
             session = f"{drv}_S{a % 4}"
-            for k in range(40):
+            for _k in range(40):
                 thw = float(np.exp(rng.normal(np.log(1.5), 0.8)))
                 press = thw > crit * np.exp(rng.normal(0, 0.15))
                 rows.append({"driver_id": drv, "session_id": session, "decision_id": f"{drv}:{a}",

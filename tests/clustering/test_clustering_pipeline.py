@@ -3,7 +3,6 @@
 import json
 from dataclasses import replace
 
-import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -13,8 +12,8 @@ from clustering.cli import render
 from clustering.pipeline import analyze
 from indicators.settings import AnalysisSettings
 from indicators.stats import INDICATORS
-from indicators.synthetic import catalogue_row, make_recording
-from laneprint.cli import app
+from tests.support.synthetic_decisions import catalogue_row, make_recording
+from laneprint.app.cli import app
 from laneprint.simulator import StudySettings, simulate_study
 from laneprint.workspace import Workspace
 
@@ -51,7 +50,7 @@ def test_analyze_writes_stage_and_report(workspace, report):
     skipped = ws.read_table("analysis", "skipped")
     assert ((skipped["what"] == "recording") & (skipped["id"] == "nopress0000000000")).any()
     refs = ws.read_table("analysis", "reference_lines")
-    for style in report["styles"]:
+    for _style in report["styles"]:
         assert len(refs.query("scope == 'style' and kind == 'typical' and name == @style and direction == 'both'")) == len(INDICATORS)
     assert set(report["styles"]) <= {"Defensive", "Normal", "Aggressive"}
     truth = {d["driver_id"]: d["style"] for d in study.ground_truth["drivers"]}
@@ -59,6 +58,7 @@ def test_analyze_writes_stage_and_report(workspace, report):
     json.dumps(report)  # JSON-ready
 
 
+@pytest.mark.slow
 def test_cli_json(workspace):
     ws, _ = workspace
     res = CliRunner().invoke(app, ["analyze", "-w", str(ws.root), "--json", "--far-follower-m", "120",
@@ -125,6 +125,7 @@ def test_a_recording_whose_following_cannot_be_read_keeps_its_decisions(workspac
     assert calls[0] not in set(following["recording_id"]) and n_rec == len(calls)
 
 
+@pytest.mark.slow
 def test_heldout_reading_end_to_end(workspace, tmp_path):
     """`--features heldout`: the reading chosen on held-out behaviour, stored with its scores; each
     driver's behaviour parameters with intervals; every style described; confidence capped by
@@ -154,6 +155,7 @@ def test_unknown_behaviour_parameter_is_one_line(workspace):
     assert res.exit_code == 1 and "unknown behaviour parameter" in res.output and "Traceback" not in res.output
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("features", ["consensus", "separated", "reliable"])
 def test_chosen_readings_end_to_end(workspace, features):
     """`--features consensus|separated|reliable` run through the command line: one chosen reading, stored with

@@ -6,7 +6,7 @@ import pytest
 from clustering.pipeline import analyze_tables
 from clustering.plots import cluster_scatter, reference_lines
 from indicators.plots import correlation_table, indicator_vs_speed
-from indicators.synthetic import make_decision_table
+from tests.support.synthetic_decisions import make_decision_table
 
 
 @pytest.fixture(scope="module")
@@ -74,6 +74,7 @@ def test_excluded_ttcs_far_off_do_not_stretch_the_axis(tables):
     assert list(off.marker.symbol) == ["triangle-up"] * 2
 
 
+@pytest.mark.slow
 def test_cluster_scatter_labels_do_not_overlap():
     df, _ = make_decision_table(60, 12, seed=3, keep_per_press=1)
     styles = analyze_tables(df)["styles"]

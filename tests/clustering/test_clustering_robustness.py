@@ -5,7 +5,7 @@ import pandas as pd
 
 from clustering.pipeline import analyze_tables
 from indicators.settings import AnalysisSettings
-from indicators.synthetic import make_decision_table
+from tests.support.synthetic_decisions import make_decision_table
 
 
 def awkward_table() -> pd.DataFrame:

@@ -11,8 +11,8 @@ from typer.testing import CliRunner
 from clustering.pipeline import analyze_tables
 from indicators.settings import AnalysisSettings
 from indicators.stats import fit_reasons
-from indicators.synthetic import make_decision_table
-from laneprint.cli import app
+from tests.support.synthetic_decisions import make_decision_table
+from laneprint.app.cli import app
 
 STYLES = ("Defensive", "Normal", "Aggressive")
 FRONT_GAP_M = {"Defensive": 60.0, "Normal": 38.0, "Aggressive": 20.0}
@@ -159,7 +159,7 @@ def test_unknown_feature_set_is_a_one_line_error(tmp_path):
 
 def test_analyze_reports_the_choice_on_the_command_line(tmp_path):
     from laneprint.workspace import Workspace
-    from indicators.synthetic import catalogue_row, make_recording
+    from tests.support.synthetic_decisions import catalogue_row, make_recording
 
     ws = Workspace(tmp_path / "ws").ensure()
     meta, ego, traffic = make_recording(20, 10, 25.0, [(0, 0), (6.0, 1)], presses=[(5.0, 0.3, "left")],

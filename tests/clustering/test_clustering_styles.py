@@ -8,7 +8,7 @@ from sklearn.metrics import adjusted_rand_score
 from clustering.pipeline import analyze_tables
 from clustering.styles import StyleClusterer, style_names
 from indicators.settings import AnalysisSettings
-from indicators.synthetic import make_decision_table
+from tests.support.synthetic_decisions import make_decision_table
 
 
 @pytest.fixture(scope="module")
@@ -71,6 +71,7 @@ def test_style_names():
     assert style_names(5)[1:4] == ["Normal 1", "Normal 2", "Normal 3"]
 
 
+@pytest.mark.slow
 def test_choose_k_through_settings(synthetic):
     df, _, _ = synthetic
     out = analyze_tables(df, AnalysisSettings(choose_k="silhouette", k_range=(2, 5), n_bootstrap=0))
@@ -78,6 +79,7 @@ def test_choose_k_through_settings(synthetic):
     assert out["styles"]["cluster"].max() + 1 == out["k_scores"].loc[out["k_scores"]["score"].idxmax(), "k"]
 
 
+@pytest.mark.slow
 def test_bic_picks_three_styles_on_few_drivers(synthetic):
     df, truth, _ = synthetic
     out = analyze_tables(df, AnalysisSettings(choose_k="bic", n_bootstrap=0))

@@ -16,7 +16,7 @@ One kill (`kill_once`), on a fresh copy of a prepared workspace:
 4. recovery, with a timeout (a stale lock would make it wait): each interrupted run is
    resumed with `laneprint train --resume RUN_ID` (from its last checkpoint), and the
    command is run again when nothing was resumed;
-5. the check (`laneprint.check.check_workspace`, in this process) must be clean, and the command's own postcondition must hold
+5. the check (`laneprint.app.check.check_workspace`, in this process) must be clean, and the command's own postcondition must hold
    (`Command.verify`: e.g. every held-back log stored once, a resumed run's metrics
    numbered 1..N with no gap or repeat).
 
@@ -113,7 +113,7 @@ COMMANDS: dict[str, Command] = {
 
 def laneprint(args: list[str], ws: Path, timeout: float | None = None) -> subprocess.CompletedProcess:
     """Run `laneprint ARGS -w WS --json` to the end (as the user would, in a subprocess)."""
-    return subprocess.run([sys.executable, "-m", "laneprint.cli", *args, "-w", str(ws), "--json"],
+    return subprocess.run([sys.executable, "-m", "laneprint.app.cli", *args, "-w", str(ws), "--json"],
                           capture_output=True, text=True, timeout=timeout)
 
 
@@ -197,13 +197,13 @@ def run_until(argv: list[str], at_cpu_s: float, ws: Path | None = None,
 
 
 def _argv(cmd: Command, ctx: Context, ws: Path) -> list[str]:
-    return [sys.executable, "-m", "laneprint.cli", *cmd.args(ctx), "-w", str(ws), "--json"]
+    return [sys.executable, "-m", "laneprint.app.cli", *cmd.args(ctx), "-w", str(ws), "--json"]
 
 
 def calibrate(base: Path, ctx: Context, names: list[str], scratch: Path) -> tuple[float, dict[str, float]]:
     """CPU seconds of the CLI's start-up (`laneprint --help`) and of each command, untouched, on a copy
     of the base workspace."""
-    startup = run_until([sys.executable, "-m", "laneprint.cli", "--help"], float("inf")).cpu_s
+    startup = run_until([sys.executable, "-m", "laneprint.app.cli", "--help"], float("inf")).cpu_s
     out = {}
     for name in names:
         ws = scratch / f"calibrate-{name}"
@@ -230,7 +230,7 @@ def kill_live(start: Callable[[float], Attempt], rng: np.random.Generator, start
     at most `RETRIES` + 1 times: an attempt that finished first is a fresh measurement of its work,
     the next moment is drawn from it. Returns the last attempt, its drawn fraction, the work
     estimate (CPU s) and the number of attempts that finished first (redrawn, not kills)."""
-    for retry in range(RETRIES + 1):
+    for retry in range(RETRIES + 1):  # noqa: B007 - returned after the loop
         fraction, at = plan_kill(rng, startup_s, work_s)
         attempt = start(at)
         if not attempt.finished:
@@ -313,7 +313,7 @@ def kill_once(name: str, base: Path, ctx: Context, at_cpu_s: float, ws: Path, ti
         res.problems.append(f"recovery did not finish within {timeout_s:.0f} s (waiting on a lock?)")
     res.recovery_s = round(time.monotonic() - t0, 1)
 
-    from laneprint.check import check_workspace
+    from laneprint.app.check import check_workspace
     from laneprint.workspace import Workspace
 
     final = check_workspace(Workspace(ws))  # what `laneprint check` runs, in this process (saves a start-up)
@@ -328,7 +328,7 @@ def prepare(scratch: Path, seed: int, drivers: int = 3, held_back: int = 2) -> t
     held-back logs, under `scratch`."""
     study, logs, base = scratch / "study", scratch / "held_back", scratch / "base"
     for args in (["simulate", "--out", str(study), "--drivers", str(drivers), "--seed", str(seed)],):
-        out = subprocess.run([sys.executable, "-m", "laneprint.cli", *args, "--json"], capture_output=True, text=True)
+        out = subprocess.run([sys.executable, "-m", "laneprint.app.cli", *args, "--json"], capture_output=True, text=True)
         if out.returncode != 0:
             raise RuntimeError(out.stderr[-300:])
     files = sorted(p for p in study.iterdir() if p.name.endswith((".mcap", ".csv.gz", ".csv")))

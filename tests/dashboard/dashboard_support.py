@@ -76,7 +76,7 @@ def train_short_run(ws: Workspace, run_id: str, seed: int, episodes: int = 30) -
 
 def log_bytes(tmp_path: Path, driver_id: str | None = "D77", fmt: str = "csv", seed: int = 0) -> bytes:
     """A small valid log (one press, two traffic cars) as the bytes of a CSV or MCAP file."""
-    from indicators.synthetic import make_recording
+    from tests.support.synthetic_decisions import make_recording
     from ingest.writers import write_csv, write_mcap
 
     meta, ego, traffic = make_recording(

@@ -7,7 +7,7 @@ from playwright.sync_api import expect
 
 from dashboard_support import SHOT_DIR, log_bytes
 
-pytestmark = pytest.mark.browser
+pytestmark = [pytest.mark.browser, pytest.mark.slow]  # a headless Chromium: seconds to tens of seconds each
 
 ERRORS = '[data-testid="stException"], [data-testid="stAlertContentError"]'
 

@@ -17,7 +17,7 @@ from playwright.sync_api import expect
 from dashboard_support import ROOT, SHOT_DIR, free_port, wait_healthy
 from laneprint.workspace import Workspace
 
-pytestmark = pytest.mark.browser
+pytestmark = [pytest.mark.browser, pytest.mark.slow]  # a headless Chromium: seconds to tens of seconds each
 
 TTC_AXIS = ("t_f", "t_nf", "gap")
 
@@ -177,7 +177,7 @@ def test_enter_in_episodes_starts_nothing(heavy_server, browser):
 
 def test_report_opens_offline_with_every_figure(sample_ws, browser, tmp_path):
     out = tmp_path / "report.html"
-    res = subprocess.run([sys.executable, "-m", "laneprint.cli", "report", "--workspace", str(sample_ws.root),
+    res = subprocess.run([sys.executable, "-m", "laneprint.app.cli", "report", "--workspace", str(sample_ws.root),
                           "--out", str(out), "--json", "--no-assets"], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     n = json.loads(res.stdout)["figures"]

@@ -2,10 +2,11 @@ import re
 import sys
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from dashboard.cli import MAX_UPLOAD_MB, allowed_hosts, streamlit_command
-from laneprint.cli import app
+from laneprint.app.cli import app
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -58,6 +59,7 @@ def test_allowed_hosts_are_this_machines():
     assert "lab-pc" in allowed_hosts("lab-pc") and "*" not in allowed_hosts("0.0.0.0")
 
 
+@pytest.mark.slow
 def test_laneprint_dashboard_serves_and_stops(tmp_path):
     import os
     import signal
@@ -66,7 +68,7 @@ def test_laneprint_dashboard_serves_and_stops(tmp_path):
     from dashboard_support import free_port, wait_healthy
 
     port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "laneprint.cli", "dashboard", "--port", str(port),
+    proc = subprocess.Popen([sys.executable, "-m", "laneprint.app.cli", "dashboard", "--port", str(port),
                              "-w", str(tmp_path / "ws")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True, start_new_session=True)
     try:

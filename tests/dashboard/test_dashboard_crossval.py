@@ -113,7 +113,7 @@ def test_which_crossval_is_shown_beside_a_run():
 
 def test_crossval_command_line(tmp_path):
     cmd = jobs.crossval_command(jobs.CrossvalRequest("Normal-seed0", folds=3, episodes=500, bootstrap=200), tmp_path)
-    assert cmd == [sys.executable, "-m", "laneprint.cli", "crossval", "--run", "Normal-seed0", "--folds", "3",
+    assert cmd == [sys.executable, "-m", "laneprint.app.cli", "crossval", "--run", "Normal-seed0", "--folds", "3",
                    "--split", "session", "--seed", "0", "--bootstrap", "200", "--episodes", "500",
                    "--workspace", str(tmp_path)]
     same = jobs.crossval_command(jobs.CrossvalRequest("r", split="section"), tmp_path)
@@ -289,7 +289,7 @@ def test_training_page_launches_crossval_of_a_finished_run(copy_ws, monkeypatch)
     at.button(key="cv_start_Normal-seed1").click().run()
     assert not at.exception, [e.value for e in at.exception]
     (cmd, env), = spawned
-    assert cmd[2:] == ["laneprint.cli", "crossval", "--run", "Normal-seed1", "--folds", "2", "--split", "session",
+    assert cmd[2:] == ["laneprint.app.cli", "crossval", "--run", "Normal-seed1", "--folds", "2", "--split", "session",
                        "--seed", "0", "--bootstrap", "1000", "--episodes", "40", "--workspace", str(copy_ws.root)]
     assert env["TTY_COMPATIBLE"] == "1"
     assert len(at.session_state["crossval_launched"]) == 1

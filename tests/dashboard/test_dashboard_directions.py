@@ -16,7 +16,7 @@ from indicators.stats import fit_lines
 
 def two_sided(n_left: int = 30, n_right: int = 3) -> pd.DataFrame:
     """One driver's presses: `n_left` overtaking (t_f = 0.2 v + 1), `n_right` returning (t_f = 0.3 v - 1)."""
-    from indicators.synthetic import make_decision_table
+    from tests.support.synthetic_decisions import make_decision_table
 
     dec, _ = make_decision_table(1, n_left + n_right, seed=3, keep_per_press=0)
     press = dec.index[dec["label"] == "change"]
@@ -156,6 +156,7 @@ def test_an_older_analysis_without_directions_still_draws(sample_ws, tmp_path, m
     assert not at.radio and "Normal typical" in _trace_names(at)
 
 
+@pytest.mark.slow
 @pytest.mark.browser
 def test_drivers_page_draws_directions_in_the_browser(server, page):
     from playwright.sync_api import expect

@@ -32,7 +32,7 @@ def copy_ws(sample_ws, tmp_path, monkeypatch):
 
 def test_fleet_command_line(tmp_path):
     cmd = jobs.fleet_command(jobs.FleetRequest("drivers", 400, seeds=3), tmp_path)
-    assert cmd[:4] == [sys.executable, "-m", "laneprint.cli", "train"]
+    assert cmd[:4] == [sys.executable, "-m", "laneprint.app.cli", "train"]
     assert cmd[4:] == ["--drivers", "all", "--seeds", "3", "--episodes", "400", "--workspace", str(tmp_path)]
     cmd = jobs.fleet_command(jobs.FleetRequest("styles", 10, names=("Normal", "Defensive"), backend="ray"), tmp_path)
     assert cmd[4:] == ["--styles", "Normal,Defensive", "--seeds", "1", "--episodes", "10", "--backend", "ray",

@@ -41,7 +41,7 @@ def test_formulas_print_their_signs():
 
 def _drivers_decisions() -> tuple[pd.DataFrame, pd.DataFrame]:
     from indicators.stats import fit_lines
-    from indicators.synthetic import make_decision_table
+    from tests.support.synthetic_decisions import make_decision_table
 
     dec, _ = make_decision_table(3, 60, seed=4, keep_per_press=1)
     press = dec.index[(dec["driver_id"] == "D0000") & (dec["label"] == "change")]
@@ -148,9 +148,10 @@ def test_plural_and_hints():
     assert views.cli_hint("ingest", "/w s", "sample_logs/") == "laneprint ingest sample_logs/ --workspace '/w s'"
 
 
+@pytest.mark.slow
 def test_report_command(sample_ws, tmp_path):
     out = tmp_path / "study.html"
-    res = subprocess.run([sys.executable, "-m", "laneprint.cli", "report", "--workspace", str(sample_ws.root),
+    res = subprocess.run([sys.executable, "-m", "laneprint.app.cli", "report", "--workspace", str(sample_ws.root),
                           "--out", str(out), "--json"], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     info = json.loads(res.stdout)
@@ -159,6 +160,6 @@ def test_report_command(sample_ws, tmp_path):
     assert "<script src=" not in text and "cdn." not in text.split("</script>", 1)[1]  # nothing fetched
     assert (tmp_path / "study_files" / "fits.csv").exists() and (tmp_path / "study_files" / "recordings.csv").exists()
     assert (tmp_path / "study_files" / "headway_kept_in_steady_following.json").exists()  # the drive-long reading
-    bad = subprocess.run([sys.executable, "-m", "laneprint.cli", "report", "--workspace", str(tmp_path / "none")],
+    bad = subprocess.run([sys.executable, "-m", "laneprint.app.cli", "report", "--workspace", str(tmp_path / "none")],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 1 and bad.stderr.startswith("error: no workspace") and "Traceback" not in bad.stderr

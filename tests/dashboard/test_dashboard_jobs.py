@@ -10,7 +10,7 @@ from laneprint.workspace import Workspace, atomic_write_json
 def test_train_command_line(tmp_path):
     req = jobs.TrainRequest("driver", "D03", 40, seed=7, reward="timing", lines="paper")
     cmd = jobs.train_command(req, tmp_path, "r1")
-    assert cmd[:4] == [sys.executable, "-m", "laneprint.cli", "train"]
+    assert cmd[:4] == [sys.executable, "-m", "laneprint.app.cli", "train"]
     assert cmd[4:] == ["--driver", "D03", "--episodes", "40", "--seed", "7", "--run-id", "r1",
                        "--workspace", str(tmp_path), "--reward", "timing", "--lines", "paper"]
     rid = jobs.new_run_id(jobs.TrainRequest("style", "Very Normal/..", 1))

@@ -137,6 +137,7 @@ def test_upload_ingests_and_refuses_with_reasons(empty_ws, tmp_path):
     assert at.dataframe[0].value["status"].tolist() == ["duplicate"]
 
 
+@pytest.mark.slow
 def test_styles_rerun_with_other_k(sample_ws, tmp_path, monkeypatch):
     import shutil
 
@@ -274,7 +275,7 @@ def test_results_page_draws_a_closed_loop_drive_beside_its_drivers(empty_ws):
 def test_personalize_page_starts_from_the_cli_default(use_sample):
     from typer.main import get_command
 
-    from laneprint.cli import app
+    from laneprint.app.cli import app
     from rl.personalize.settings import PersonalizeSettings
 
     at = AppTest.from_file(page_path("personalize"), default_timeout=120).run()

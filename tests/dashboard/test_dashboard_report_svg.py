@@ -7,7 +7,7 @@ import plotly.graph_objects as go
 import pandas as pd
 import pytest
 
-from laneprint.report import Section, write_assets
+from dashboard.report import Section, write_assets
 
 
 def sections() -> list[Section]:
@@ -17,6 +17,7 @@ def sections() -> list[Section]:
                               ("figure", ("styles", go.Figure(go.Bar(x=["a"], y=[1]))))])]
 
 
+@pytest.mark.slow
 def test_svg_of_every_figure_with_kaleido(tmp_path):
     pytest.importorskip("kaleido", reason="the report extra: pip install -e '.[report]'")
     written = write_assets(sections(), tmp_path)
@@ -56,12 +57,13 @@ def _fake_build(seen):
                                                                           "data_fingerprint": "f"}))
 
 
+@pytest.mark.slow
 def test_report_starts_chromium_before_building_and_stops_it(tmp_path, monkeypatch):
     """kaleido's Chromium starts before the figures are built (its 10-15 s overlap them) and is stopped after."""
     import time
 
     pytest.importorskip("kaleido", reason="the report extra: pip install -e '.[report]'")
-    import laneprint.report as report
+    import dashboard.report as report
 
     seen = []
     monkeypatch.setattr(report, "build_report", _fake_build(seen))
@@ -76,7 +78,7 @@ def test_report_starts_chromium_before_building_and_stops_it(tmp_path, monkeypat
 
 def test_a_chromium_that_does_not_start_is_said_not_waited_for(tmp_path, monkeypatch):
     kaleido = pytest.importorskip("kaleido", reason="the report extra: pip install -e '.[report]'")
-    import laneprint.report as report
+    import dashboard.report as report
 
     class NoBrowser:
         def __init__(self, *args, **kwargs):
@@ -96,7 +98,7 @@ def test_a_chromium_that_does_not_start_is_said_not_waited_for(tmp_path, monkeyp
 
 
 def test_table_html_reads_as_pandas_writes_it():
-    from laneprint.report import _table_html
+    from dashboard.report import _table_html
 
     def cells(text):
         return re.findall(r"<t([hd])(?:\s[^>]*)?>(.*?)</t\1>", text, flags=re.S)
@@ -113,7 +115,7 @@ def test_a_fleet_is_one_section_with_one_figure(sample_ws, tmp_path):
     import shutil
 
     from dashboard_support import write_fake_fleet
-    from laneprint.report import build_report
+    from dashboard.report import build_report
     from laneprint.workspace import Workspace
 
     ws = Workspace(shutil.copytree(sample_ws.root, tmp_path / "ws"))

@@ -9,16 +9,16 @@ import subprocess
 import sys
 from pathlib import Path
 
-from laneprint.reference_docs import pages
+from laneprint.app.reference_docs import pages
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_reference_pages_match_the_app():
-    """Regenerate with `python -m laneprint.reference_docs` when a command or setting changes."""
+    """Regenerate with `python -m laneprint.app.reference_docs` when a command or setting changes."""
     for name, text in pages().items():
         committed = (ROOT / "docs" / "reference" / name).read_text(encoding="utf-8")
-        assert committed == text, f"docs/reference/{name} is out of date: python -m laneprint.reference_docs"
+        assert committed == text, f"docs/reference/{name} is out of date: python -m laneprint.app.reference_docs"
 
 
 def test_readme_and_reference_carry_no_issue_numbers():

@@ -7,7 +7,7 @@ import pytest
 from indicators.acceptance import add_acceptance
 from indicators.decisions import extract_decisions
 from indicators.settings import AnalysisSettings
-from indicators.synthetic import make_recording
+from tests.support.synthetic_decisions import make_recording
 
 
 def scene(**cols) -> pd.DataFrame:

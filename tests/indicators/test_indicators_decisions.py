@@ -6,7 +6,7 @@ import pytest
 
 from indicators.decisions import COLUMNS, extract_decisions
 from indicators.settings import AnalysisSettings
-from indicators.synthetic import make_recording
+from tests.support.synthetic_decisions import make_recording
 from laneprint.schemas import DECISIONS, validate
 
 # ego at 20 m/s from x = 0, length 4.5; lane 0 until the flip at t = 7.0, then lane 1.

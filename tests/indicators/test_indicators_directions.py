@@ -7,7 +7,7 @@ import pytest
 from clustering.pipeline import analyze_tables
 from indicators.directions import fits_by_direction, press_counts
 from indicators.settings import AnalysisSettings
-from indicators.synthetic import make_decision_table
+from tests.support.synthetic_decisions import make_decision_table
 from rl.problem.rewards import ReferenceLines
 
 

@@ -10,7 +10,7 @@ from clustering.pipeline import analyze_tables
 from indicators.following import COLUMNS, FOLLOWING, following_episodes
 from indicators.stats import following_points
 from indicators.settings import AnalysisSettings
-from indicators.synthetic import make_recording
+from tests.support.synthetic_decisions import make_recording
 from laneprint.schemas import validate
 
 

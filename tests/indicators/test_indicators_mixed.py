@@ -1,14 +1,13 @@
 """Per-driver lines by partial pooling (`driver_lines = "mixed"`) and `analyze --config`."""
 
 import numpy as np
-import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
 from indicators.mixed import mixed_fits
 from indicators.settings import AnalysisSettings
 from indicators.stats import Group
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.options import Section, build, read_tables
 from laneprint.errors import UserError
 

@@ -8,10 +8,11 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from ingest.writers import write_csv, write_mcap
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.workspace import Workspace
 
 
@@ -77,6 +78,7 @@ _WORKER = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_two_ingests_at_once_store_each_session_once(tmp_path, recording):
     meta, ego, traffic = recording
     logs = tmp_path / "logs"
@@ -94,7 +96,7 @@ def test_two_ingests_at_once_store_each_session_once(tmp_path, recording):
         for order in (paths, paths[::-1])
     ]
     outs = [p.communicate(timeout=120) for p in procs]
-    for (out, err), p in zip(outs, procs):
+    for (_out, err), p in zip(outs, procs):
         assert p.returncode == 0, err
     counts = [json.loads(out) for out, _ in outs]
     assert sum(c["ingested"] for c in counts) == 6

@@ -2,7 +2,7 @@
 
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 
 
 def test_reason_with_brackets_is_printed_whole(tmp_path):

@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ingest.mutations import excerpts, kinds_for, mutate, try_ingest
+from tests.support.ingest_mutations import excerpts, kinds_for, mutate, try_ingest
 
 ROOT = Path(__file__).resolve().parents[2]
 

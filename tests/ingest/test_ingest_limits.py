@@ -33,7 +33,7 @@ _MEASURE = ("import resource, subprocess, sys; r = subprocess.run(sys.argv[1:]);
 
 def _peak_rss_mb(args: list[str]) -> tuple[int, str, float]:
     """Run `laneprint ARGS` in a child; (exit status, stdout, the child's peak RSS in MB)."""
-    cli = [sys.executable, "-c", "from laneprint.cli import main; main()", *args]
+    cli = [sys.executable, "-c", "from laneprint.app.cli import main; main()", *args]
     proc = subprocess.run([sys.executable, "-c", _MEASURE, *cli], capture_output=True, text=True)
     peak_kb = int(proc.stderr.strip().splitlines()[-1])  # ru_maxrss is in KB on Linux
     return proc.returncode, proc.stdout, peak_kb / 1024
@@ -151,7 +151,7 @@ def test_gzip_of_several_members_is_read_whole_and_garbage_after_it_refused(tmp_
 def test_cli_with_a_bad_limit_is_one_error_line(tmp_path, recording):
     from typer.testing import CliRunner
 
-    from laneprint.cli import app
+    from laneprint.app.cli import app
 
     write_csv(tmp_path / "r.csv", *recording)
     out = CliRunner().invoke(app, ["ingest", str(tmp_path / "r.csv"), "-w", str(tmp_path / "ws")],

@@ -3,7 +3,7 @@
 The files are written by the libraries' own writers (`mcap_ros2.writer.Writer`,
 `mcap_protobuf.writer.Writer`) from the conftest recording, ingested through the
 `laneprint ingest PATH --mapping FILE` command, and compared with what was written.
-The files and mappings are the worked examples of docs/your-own-study.md (`ingest/stack_examples.py`).
+The files and mappings are the worked examples of docs/your-own-study.md (`tests/support/stack_examples.py`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from mcap_ros2.writer import Writer as Ros2Writer
 from typer.testing import CliRunner
 
 from ingest.mapping import load_mapping
-from ingest.stack_examples import (
+from tests.support.stack_examples import (
     ODOMETRY_MSGDEF,
     PROTOBUF_MAPPING,
     ROS2_MAPPING,
@@ -29,7 +29,7 @@ from ingest.stack_examples import (
     write_ros2,
 )
 from ingest.writers import write_mcap
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 

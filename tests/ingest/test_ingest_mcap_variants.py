@@ -18,7 +18,7 @@ import ingest.mcap_records as mcap_records
 from ingest.mcap_records import read_records, read_stream, top_records
 from ingest.pipeline import ingest_paths
 from ingest.writers import write_mcap
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.workspace import Workspace
 
 CONFORMANCE = Path(__file__).parent / "data" / "mcap_conformance.tar.gz"

@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 from ingest.mcap_signals import LaneFromY
 from ingest.object_ids import id_text
 from ingest.writers import write_csv, write_mcap
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.workspace import Workspace
 
 

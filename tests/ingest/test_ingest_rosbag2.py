@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from ingest.rosbag2 import read_bag_info
 from ingest.writers import write_mcap
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.workspace import Workspace
 
 METADATA = """\

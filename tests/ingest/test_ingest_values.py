@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+import pytest
 
 from ingest.mapping import IDENTITY
 from ingest.pipeline import ingest_paths
@@ -160,6 +161,7 @@ def test_traffic_jumps_on_a_vehicle_grid_equal_the_sorted_path():
     assert _vehicle_grid(pa.array(np.tile(["a", "b", "a"], 4)), 12) == 0
 
 
+@pytest.mark.slow
 def test_bounds_met_in_numpy_agree_with_pandera():
     from pandera.errors import SchemaErrors
 

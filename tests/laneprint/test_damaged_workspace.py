@@ -20,7 +20,7 @@ from indicators.settings import AnalysisSettings
 from indicators.synthetic import catalogue_row
 from ingest.pipeline import ingest_paths
 from ingest.writers import write_csv
-from laneprint.check import check_workspace
+from laneprint.app.check import check_workspace
 from laneprint.cli import app
 from laneprint.simulator import StudySettings, simulate_study
 from laneprint.workspace import Workspace

@@ -16,8 +16,7 @@ import pytest
 from typer.testing import CliRunner
 
 from ingest.pipeline import _claim_path, _session_key, ingest_paths
-from laneprint.check import check_workspace
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.locks import FileLock, is_locked
 from laneprint.workspace import Workspace, atomic_write_json, content_id, exchange_paths, legacy_content_id
 

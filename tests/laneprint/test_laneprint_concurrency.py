@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from ingest.pipeline import ingest_paths
-from laneprint.check import check_workspace
+from laneprint.app.check import check_workspace
 from laneprint.workspace import Workspace, content_id
 from rl.runs import read_metrics
 
@@ -20,7 +20,7 @@ SAMPLE = Path(__file__).resolve().parents[2] / "sample_logs"
 
 
 def _laneprint(*args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "laneprint.cli", *args, "--json"],
+    return subprocess.Popen([sys.executable, "-m", "laneprint.app.cli", *args, "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

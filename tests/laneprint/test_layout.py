@@ -51,6 +51,26 @@ def test_no_import_circles(package):
     assert cycles(import_graph(package)) == []
 
 
-def test_the_product_package_holds_no_test_tools():
-    assert not (ROOT / "laneprint" / "crash_harness.py").exists()
-    assert (ROOT / "tests" / "crash" / "crash_harness.py").exists()
+TEST_TOOLS = {"laneprint/crash_harness.py": "tests/crash/crash_harness.py",
+              "rl/testing.py": "tests/support/rl_workspaces.py",
+              "ingest/mutations.py": "tests/support/ingest_mutations.py",
+              "ingest/stack_examples.py": "tests/support/stack_examples.py",
+              "indicators/synthetic.py": "tests/support/synthetic_decisions.py"}
+
+
+@pytest.mark.parametrize("product, support", sorted(TEST_TOOLS.items()))
+def test_the_product_packages_hold_no_test_tools(product, support):
+    assert not (ROOT / product).exists()
+    assert (ROOT / support).exists()
+
+
+def test_no_product_module_imports_the_test_tools():
+    """The product never imports `tests` (the test tools are not installed with it)."""
+    found = []
+    for package in ["laneprint", "ingest", "indicators", "clustering", "rl", "dashboard"]:
+        for path in (ROOT / package).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text())):
+                names = ([node.module or ""] if isinstance(node, ast.ImportFrom)
+                         else [a.name for a in node.names] if isinstance(node, ast.Import) else [])
+                found += [f"{path.relative_to(ROOT)}: {n}" for n in names if n.split(".")[0] == "tests"]
+    assert found == []

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.options import SECTIONS, Section, Settings, config_reference, configurable, field_docs
 from rl.drive.settings import DriveSettings
 from rl.settings import DQNSettings

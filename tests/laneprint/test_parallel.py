@@ -12,12 +12,12 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.errors import UserError
 from laneprint.parallel import backend_session, iter_tasks, run_tasks
 from laneprint.workspace import Workspace
 from rl.problem.rewards import ReferenceLines
-from rl.testing import session_decisions, write_style_analysis
+from tests.support.rl_workspaces import session_decisions, write_style_analysis
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_logs"
 

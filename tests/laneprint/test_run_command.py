@@ -7,7 +7,7 @@ from pathlib import Path
 
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_logs"
 
@@ -38,7 +38,7 @@ def test_control_characters_from_the_data_do_not_reach_the_terminal(tmp_path):
 
     from typer.testing import CliRunner
 
-    from laneprint.cli import app
+    from laneprint.app.cli import app
 
     src = next(p for p in (Path(__file__).resolve().parents[2] / "sample_logs").rglob("*.csv*"))
     logs = tmp_path / "logs"

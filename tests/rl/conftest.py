@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.workspace import Workspace
-from rl.testing import FAST_CLI as FAST, analysed_workspace
+from tests.support.rl_workspaces import FAST_CLI as FAST, analysed_workspace
 
 
 

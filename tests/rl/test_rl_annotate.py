@@ -10,7 +10,7 @@ import pytest
 from mcap.reader import make_reader
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.workspace import Workspace
 from rl.deploy.annotate import SCHEMAS, TOPIC_AGENT, TOPIC_DRIVER, TOPIC_GREEDY, TOPIC_SCENE, target_lanes
 

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from rl.evaluation.crossval import CrossvalSettings, assign_folds, crossvalidate
@@ -17,7 +17,7 @@ from rl.evaluation.evaluate import agent_policy, evaluate_policies, greedy_polic
 from rl.baselines.imitation import ImitationClassifier
 from rl.problem.rewards import CHANGE, KEEP, ReferenceLines, RewardSettings, decisions_step_reward
 from rl.settings import resolve_formulation
-from rl.testing import rule_driver_decisions, session_decisions, write_style_analysis
+from tests.support.rl_workspaces import rule_driver_decisions, session_decisions, write_style_analysis
 
 LINES = ReferenceLines.paper("Normal")
 DECISIONS_ENV = EnvConfig(lines=LINES, reward=RewardSettings(name="decisions"), scenes="recorded",
@@ -86,6 +86,7 @@ def test_gym_env_replays_with_the_decisions_reward():
     assert terminated and reward == pytest.approx(1.0) and info["terms"]["press"] == pytest.approx(1.0)
 
 
+@pytest.mark.slow
 def test_agent_on_recorded_scenes_learns_the_drivers_moment():
     dec = rule_driver_decisions(LINES, 40, seed=0, window_s=4.0)
     approaches, _ = approaches_from_decisions(dec)
@@ -140,6 +141,7 @@ def test_session_folds_keep_every_speed_section_in_training():
         assert sorted(s.groupby("fold").size()) == [3, 3, 3, 3]
 
 
+@pytest.mark.slow
 def test_crossval_scores_every_decision_once_on_sessions_not_trained_on():
     dec = sessions(4, 8)
     res = crossvalidate(dec, ["D01"], ["D01"], DECISIONS_ENV, DQNSettings(episodes=300, **FAST),
@@ -156,6 +158,7 @@ def test_crossval_scores_every_decision_once_on_sessions_not_trained_on():
     assert states.groupby("decision_id")["fold"].nunique().max() == 1
 
 
+@pytest.mark.slow
 def test_crossval_command_prints_one_row_per_policy(tmp_path):
     write_style_analysis(Workspace(tmp_path), sessions(4, 6), LINES)
     res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--episodes", "200",
@@ -172,6 +175,7 @@ def test_crossval_command_prints_one_row_per_policy(tmp_path):
     assert bad.exit_code == 1 and "--folds" in bad.output
 
 
+@pytest.mark.slow
 def test_crossval_scores_each_direction_apart_with_the_pooled_fields(tmp_path):
     dec = sessions(4, 6)
     # the second half of every session's presses return to the right: target lane below the ego's

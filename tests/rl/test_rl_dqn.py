@@ -5,13 +5,14 @@ from dataclasses import replace
 
 import numpy as np
 import pandas as pd
+import pytest
 import torch
 
 from rl.learners.dqn import DQNSettings, DQNTrainer, mlp_forward, q_network
 from rl.problem.env import EnvConfig, approaches_from_decisions
 from rl.evaluation.evaluate import agent_policy, evaluate_policies, greedy_policy
 from rl.problem.rewards import ReferenceLines, RewardSettings
-from rl.testing import rule_driver_decisions
+from tests.support.rl_workspaces import rule_driver_decisions
 
 LINES = ReferenceLines((0.2, 0.0), (0.2, 0.0), (1.0, -10.0))
 # one moving part: no target-lane leader, a far follower; only t_f sets the moment
@@ -37,6 +38,7 @@ def test_trainer_forward_is_the_modules():
     assert torch.equal(mlp_forward(list(net.parameters()), obs), net(obs))
 
 
+@pytest.mark.slow
 def test_learns_the_drivers_moment_and_beats_greedy():
     dec = rule_driver_decisions(LINES, 60, seed=1, cfg=TINY, with_nf=False, nb_gap_m=(110.0, 140.0),
                                 noise=(0.2, 0.2, 0.5))

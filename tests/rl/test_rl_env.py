@@ -12,7 +12,7 @@ import rl
 from rl.problem.env import EnvConfig, LaneChangeDecisionEnv, VecLaneChangeEnv, approaches_from_decisions, sample_scenes
 from rl.problem.rewards import ReferenceLines
 from rl.problem.scene import Scene, indicators, observe
-from rl.testing import rule_driver_decisions
+from tests.support.rl_workspaces import rule_driver_decisions
 
 
 def one_scene(**kw) -> Scene:
@@ -203,9 +203,9 @@ def test_train_names_the_setting_and_two_lanes_train_alike(tmp_path):
     import torch
     from typer.testing import CliRunner
 
-    from laneprint.cli import app
+    from laneprint.app.cli import app
     from rl.runs import load_weights, run_dir
-    from rl.testing import FAST_CLI, analysed_workspace
+    from tests.support.rl_workspaces import FAST_CLI, analysed_workspace
 
     ws = analysed_workspace(tmp_path)  # a two-lane analysis: no side not taken anywhere
     for flag, run in (("--other-side", "on"), ("--driver-side-only", "off")):

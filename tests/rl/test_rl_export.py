@@ -10,12 +10,12 @@ import numpy as np
 import torch
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from rl.problem.env import EnvConfig, observation, observation_names, sample_scenes
 from rl.deploy.export import TOLERANCE
 from rl.runs import Target, load_weights, recorded_approaches, run_dir
 from rl.problem.scene import Scene, indicators, seen
-from rl.testing import raw_measurements, spec_value
+from tests.support.rl_workspaces import raw_measurements, spec_value
 
 # Runs in a fresh interpreter where laneprint, rl and torch cannot be imported: it builds the
 # observation from raw measurements with policy.json's description alone and runs policy.onnx.

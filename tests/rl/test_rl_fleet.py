@@ -13,7 +13,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.workspace import Workspace
 from rl.learners.dqn import DQNTrainer
 from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config
@@ -22,7 +22,7 @@ from rl.fleet.runs import read_fleet
 from rl.problem.rewards import ReferenceLines
 from rl.runs import load_run
 from rl.settings import DQNSettings
-from rl.testing import rule_driver_decisions
+from tests.support.rl_workspaces import rule_driver_decisions
 
 STYLES = {"D01": "Defensive", "D02": "Aggressive"}
 FAST = ["--num-envs", "8", "--batch-size", "64", "--learning-starts", "200"]
@@ -117,7 +117,7 @@ def test_fleet_needs_known_targets(tmp_path):
 @pytest.mark.slow
 def test_a_killed_fleet_resumes(tmp_path):
     ws = analysed_two_drivers(tmp_path)
-    cmd = [sys.executable, "-m", "laneprint.cli", "train", "--drivers", "all", "--episodes", "400",
+    cmd = [sys.executable, "-m", "laneprint.app.cli", "train", "--drivers", "all", "--episodes", "400",
            "--checkpoint-every", "50", "--run-id", "f1", "-w", str(tmp_path), "--json", *FAST]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     checkpoints = [tmp_path / "runs" / f"f1-{d.lower()}-s0" / "checkpoint.pt" for d in STYLES]

@@ -7,7 +7,7 @@ def test_a_drivers_classifier_is_fitted_once_for_all_its_seeds():
     from rl.problem.env import approaches_from_decisions, formulation_config
     from rl.baselines.imitation import ImitationClassifier, fitted_classifier, labelled_states
     from rl.problem.rewards import ReferenceLines
-    from rl.testing import rule_driver_decisions
+    from tests.support.rl_workspaces import rule_driver_decisions
 
     lines = ReferenceLines.paper("Normal")
     approaches, _ = approaches_from_decisions(rule_driver_decisions(lines, 30, seed=3))

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from rl.testing import FAST_CLI, analysed_workspace
 
 # learner -> (extra options, the status message at which the process is killed)
@@ -26,7 +26,7 @@ LEARNERS = {
 
 
 def _train(ws: Path, run_id: str, extra: list[str]) -> list[str]:
-    return [sys.executable, "-m", "laneprint.cli", "train", "--style", "Normal", "--run-id", run_id,
+    return [sys.executable, "-m", "laneprint.app.cli", "train", "--style", "Normal", "--run-id", run_id,
             "-w", str(ws), "--json", *extra]
 
 

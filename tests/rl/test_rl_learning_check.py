@@ -8,10 +8,10 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from rl.problem.env import EnvConfig
 from rl.settings import DQNSettings, approach_steps, expected_transitions, learning_check
-from rl.testing import analysed_workspace
+from tests.support.rl_workspaces import analysed_workspace
 
 
 def test_expected_transitions_by_hand():

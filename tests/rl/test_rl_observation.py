@@ -9,7 +9,7 @@ from rl.problem.env import EnvConfig, observation, observation_names, sample_sce
 from rl.problem.observation import observation_spec
 from rl.problem.scene import HEADWAY_CAP_S, Scene
 from rl.settings import OBSERVATIONS
-from rl.testing import raw_measurements, spec_value
+from tests.support.rl_workspaces import raw_measurements, spec_value
 
 
 def scene(**over) -> Scene:

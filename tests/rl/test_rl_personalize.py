@@ -13,13 +13,13 @@ import torch
 from typer.testing import CliRunner
 
 from indicators.settings import AnalysisSettings
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.workspace import Workspace
 from rl.personalize.split import decision_order, first_decisions, holdout_split
 from clustering.pipeline import stored_settings
 from rl.personalize.style import estimate_style, fit_population
 from rl.problem.rewards import ReferenceLines
-from rl.testing import FAST_CLI, session_decisions
+from tests.support.rl_workspaces import FAST_CLI, session_decisions
 
 #: Two drivers per style of Table 1, three sessions of six decisions each.
 DRIVERS = {"D01": "Defensive", "D02": "Defensive", "D03": "Normal", "D04": "Normal", "D05": "Aggressive",
@@ -73,6 +73,7 @@ def test_style_of_a_few_decisions_has_a_confidence(study: Workspace) -> None:
     assert again == est  # seeded
 
 
+@pytest.mark.slow
 def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(study: Workspace) -> None:
     res = _run(study, "--driver", "D03", "--decisions", "5", "--from", "style", "--fine-tune", "--run-id", "p5",
                "--json", *TINY)
@@ -125,6 +126,7 @@ def test_the_population_base_is_every_other_driver(study: Workspace) -> None:
     assert out["base"]["from"] == "population" and out["base"]["drivers"] == ["D01", "D02", "D03", "D04", "D05"]
 
 
+@pytest.mark.slow
 def test_the_fitted_base_is_the_candidate_that_agrees_best_and_every_candidate_is_kept(study: Workspace) -> None:
     # choose by agreement however sure the style is, and take the chosen base as it is
     always = ["--from", "fit", "--min-confidence", "1.01", "--no-fine-tune"]
@@ -222,6 +224,7 @@ def test_agreement_is_the_balanced_accuracy_on_the_recorded_states() -> None:
     assert best_fit({"style:A": 0.8, "style:B": 0.8, "population": 0.8}, {"style:A": 0.3, "style:B": 0.7}) == "style:B"
 
 
+@pytest.mark.slow
 def test_the_curve_scores_every_policy_and_the_fitted_base(study: Workspace, monkeypatch) -> None:
     from rl.personalize.agents import PersonalizeSettings
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "benchmarks"))
@@ -294,6 +297,7 @@ def test_blend_weights_are_the_shares_times_the_agreement() -> None:
         PersonalizeSettings(base="blend", blend_prior="vote")
 
 
+@pytest.mark.slow
 def test_the_blend_is_a_run_that_acts_on_the_weighted_advantages(study: Workspace) -> None:
     from rl.learners.dqn import q_network
     from rl.personalize.agents import advantages
@@ -337,6 +341,7 @@ def test_the_blend_is_a_run_that_acts_on_the_weighted_advantages(study: Workspac
                json.loads((study.runs_dir / "bl5" / "config.json").read_text())["base"]["candidates"].values())
 
 
+@pytest.mark.slow
 def test_the_curve_scores_the_blend(study: Workspace, monkeypatch) -> None:
     from rl.personalize.agents import PersonalizeSettings
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "benchmarks"))

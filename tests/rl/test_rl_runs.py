@@ -1,7 +1,6 @@
 """Run folders and the `train` / `evaluate` commands, including SIGTERM and resume."""
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -11,12 +10,12 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.workspace import Workspace
 from rl.learners.dqn import q_network
 from rl.plots import decision_agreement, indicators_at_decisions, training_curves
 from rl.runs import Target, list_runs, load_run, replay_env
-from rl.testing import FAST_CLI as FAST, analysed_workspace
+from tests.support.rl_workspaces import FAST_CLI as FAST, analysed_workspace
 
 
 
@@ -79,8 +78,9 @@ def test_evaluate_against_the_drivers(tmp_path):
     assert info["decision_id"] == env.approaches[3].decision_id and info["recorded"]
 
 
+@pytest.mark.slow
 def test_sigterm_cancels_cleanly_and_resume_finishes(tmp_path):
-    cmd = [sys.executable, "-m", "laneprint.cli", "train", "--style", "Normal", "--lines", "paper",
+    cmd = [sys.executable, "-m", "laneprint.app.cli", "train", "--style", "Normal", "--lines", "paper",
            "--episodes", "10000000", "--run-id", "sig", "-w", str(tmp_path), "--json", *FAST]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     metrics = tmp_path / "runs" / "sig" / "metrics.jsonl"
@@ -108,7 +108,7 @@ def test_a_run_too_short_to_learn_says_so(tmp_path):
 
     from typer.testing import CliRunner
 
-    from laneprint.cli import app
+    from laneprint.app.cli import app
 
     res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--episodes", "3",
                                    "--no-evaluate", "--run-id", "short", "-w", str(tmp_path), "--json"])

@@ -5,7 +5,7 @@ import sys
 
 
 def test_cli_import_does_not_import_torch():
-    code = "import sys, laneprint.cli, rl.settings; print(sorted(m for m in sys.modules if m.split('.')[0] == 'torch'))"
+    code = "import sys, laneprint.app.cli, rl.settings; print(sorted(m for m in sys.modules if m.split('.')[0] == 'torch'))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]"
 

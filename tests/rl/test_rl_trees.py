@@ -11,7 +11,7 @@ import torch
 from sklearn.ensemble import HistGradientBoostingRegressor
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from rl.baselines.imitation import labelled_states
@@ -22,7 +22,7 @@ from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_con
 from rl.problem.rewards import CHANGE, KEEP, ReferenceLines, RewardSettings
 from rl.runs import load_weights
 from rl.settings import TREES_PRESS_SCALE_S, AutoSettings, TreeQSettings
-from rl.testing import FAST_CLI, analysed_workspace, session_decisions, write_style_analysis
+from tests.support.rl_workspaces import FAST_CLI, analysed_workspace, session_decisions, write_style_analysis
 
 LINES = ReferenceLines.paper("Normal")
 SMALL = TreeQSettings(trees=40, iterations=4, learning_rate=0.2)
@@ -43,6 +43,7 @@ def test_the_module_predicts_what_the_ensembles_predict():
     assert torch.equal(again(torch.as_tensor(x)), net(torch.as_tensor(x)))
 
 
+@pytest.mark.slow
 def test_fitted_q_iteration_changes_at_the_press_and_keeps_before():
     dec = session_decisions(LINES, 4, 8)
     approaches, _ = approaches_from_decisions(dec)
@@ -71,6 +72,7 @@ def test_the_tree_learner_needs_the_decisions_reward(tmp_path):
         fit_tree_q(approaches, EnvConfig(lines=LINES), SMALL)  # synthetic scenes, timing reward
 
 
+@pytest.mark.slow
 def test_train_evaluate_export_and_check_a_tree_run(tmp_path):
     ws = analysed_workspace(tmp_path)
     res = CliRunner().invoke(app, ["train", "--style", "Normal", "--learner", "trees", "--run-id", "t1",
@@ -105,7 +107,7 @@ def test_default_learner_killed_while_choosing_resumes(tmp_path):
     import time
 
     analysed_workspace(tmp_path)
-    proc = subprocess.Popen([sys.executable, "-m", "laneprint.cli", "train", "--style", "Normal", "--run-id", "k1",
+    proc = subprocess.Popen([sys.executable, "-m", "laneprint.app.cli", "train", "--style", "Normal", "--run-id", "k1",
                              "--episodes", "300", "-w", str(tmp_path), "--json"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     status = tmp_path / "runs" / "k1" / "status.json"
@@ -123,6 +125,7 @@ def test_default_learner_killed_while_choosing_resumes(tmp_path):
     assert out["state"] == "done" and out["learner_choice"]["learner"] in ("dqn", "trees")
 
 
+@pytest.mark.slow
 def test_crossval_with_the_tree_learner_says_so(tmp_path):
     write_style_analysis(Workspace(tmp_path), session_decisions(LINES, 4, 6), LINES)
     res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--learner", "trees",
@@ -152,6 +155,7 @@ def test_the_inner_folds_hold_out_every_session_once_and_keep_each_driver_to_fit
     assert [sessions(h) for _, h in inner_folds(approaches, 3, seed=1)] != held_out
 
 
+@pytest.mark.slow
 def test_auto_chooses_a_learner_per_fold_and_per_run(tmp_path):
     write_style_analysis(Workspace(tmp_path), session_decisions(LINES, 8, 4), LINES)
     res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--learner", "auto",

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
-from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.errors import UserError
-from laneprint.simulator import StudySettings, simulate_study, write_study
+from laneprint.app.simulator.output import write_study
+from laneprint.simulator import StudySettings, simulate_study
 
 runner = CliRunner()
 TINY = ["--drivers", "2", "--decisions", "4", "--seed", "5"]
@@ -74,7 +74,7 @@ def test_cli_rejects_bad_options(tmp_path):
 
 def test_a_failed_write_leaves_nothing(tmp_path, monkeypatch):
     study = simulate_study(replace(StudySettings(), n_drivers=1, decisions_per_driver=4), seed=1)
-    import laneprint.simulator.output as output
+    import laneprint.app.simulator.output as output
 
     calls = {"n": 0}
     real = output.write_csv
@@ -136,7 +136,8 @@ def test_written_logs_ingest_back_with_the_same_presses_and_indicators(tmp_path,
 
 
 def test_ground_truth_reads_back_as_a_table(both_formats, tmp_path):
-    from laneprint.simulator import decisions_frame, read_ground_truth
+    from laneprint.app.simulator.output import read_ground_truth
+    from laneprint.simulator import decisions_frame
 
     out, gt = both_formats
     again = read_ground_truth(out)

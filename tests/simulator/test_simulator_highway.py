@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.schemas import EGO, TRAFFIC
 from laneprint.simulator.highway.settings import HighwaySettings, simulator_text, study_world
 from laneprint.simulator.highway.styles import STYLE_PARAMS, make_highway_drivers, style_order, true_parameter_ari
@@ -137,6 +137,7 @@ def test_presses_match_the_ground_truth(tiny):
     assert sum(d["pressed"] for d in gt["decisions"]) > 0
 
 
+@pytest.mark.slow
 def test_same_seed_same_study_whatever_the_jobs(tiny):
     again = simulate_highway_study(TINY, seed=4, jobs=2)
     assert again.ground_truth == tiny.ground_truth

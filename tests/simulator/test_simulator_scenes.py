@@ -25,7 +25,7 @@ def test_small_study_has_every_case(small_study):
 
 def test_presses_in_frames_are_the_ground_truth_presses(small_study, presses):
     recs = _by_session(small_study)
-    for sid, (meta, ego, traffic) in recs.items():
+    for sid, (meta, ego, _traffic) in recs.items():
         truth = [d["press_t_s"] for d in small_study.decisions if d["session_id"] == sid]
         assert presses(ego) == pytest.approx(truth, abs=1e-9)
         assert meta["session_id"] == sid and meta["driver_id"] == sid.split("_")[0]
@@ -89,13 +89,13 @@ def test_direction_matches_the_lane_change(small_study):
 
 
 def test_frames_match_the_schemas_and_physics(small_study):
-    for meta, ego, traffic in small_study.recordings:
+    for _meta, ego, traffic in small_study.recordings:
         validate(ego, EGO)
         validate(traffic, TRAFFIC)
         assert np.all(np.diff(ego["t_s"]) > 0)
         assert np.diff(ego["t_s"]).max() == pytest.approx(0.02)
         # each vehicle: constant lane and speed, x moving at that speed
-        for vid, g in traffic.groupby("vehicle_id"):
+        for _vid, g in traffic.groupby("vehicle_id"):
             assert g["lane"].nunique() == 1 and g["v_mps"].nunique() == 1
             slope = np.diff(g["x_m"]) / np.diff(g["t_s"])
             assert slope == pytest.approx(np.full(len(slope), g["v_mps"].iloc[0]), rel=1e-6)

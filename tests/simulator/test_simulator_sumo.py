@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.errors import UserError
 from laneprint.simulator.sumo.section import lane_change_starts
 from laneprint.simulator.sumo.styles import STYLE_PARAMS, make_sumo_drivers

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.errors import UserError
 from laneprint.simulator.sumo.scenario import routes_xml
 from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, FAMILIES, SumoSettings, family_settings

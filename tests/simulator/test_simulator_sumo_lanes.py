@@ -17,7 +17,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.errors import UserError
 from laneprint.simulator.sumo.settings import LANES, SumoSettings, family_settings
 from laneprint.workspace import Workspace

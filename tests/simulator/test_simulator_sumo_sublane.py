@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.errors import UserError
 from laneprint.reference import STYLES
 from laneprint.simulator.sumo.scenario import build_network, routes_xml, write_routes

@@ -7,7 +7,7 @@ traffic written by highway-env too (`traffic.py`, `world.py`): a world not writt
 by us to judge the analysis on.
 
 Public API: `HighwaySettings`, `simulate_highway_study(settings, seed) -> HighwayStudy`,
-`write_highway_study(study, out, fmt)`, `STYLE_PARAMS`, `make_highway_drivers`,
+`STYLE_PARAMS`, `make_highway_drivers`,
 `true_parameter_ari`. highway-env itself (the `highway` extra, `pip install -e
 '.[highway]'`) is only imported when recordings are simulated.
 """
@@ -17,12 +17,5 @@ from laneprint.simulator.highway.styles import STYLE_PARAMS, HighwayDriver, make
 from laneprint.simulator.highway.study import HighwayStudy, simulate_highway_study
 
 
-def write_highway_study(*args, **kwargs):  # noqa: ANN002, ANN003 - thin lazy wrapper
-    """See `laneprint.simulator.highway.output.write_highway_study`."""
-    from laneprint.simulator.highway.output import write_highway_study as _write
-
-    return _write(*args, **kwargs)
-
-
 __all__ = ["STYLE_PARAMS", "HighwayDriver", "HighwaySettings", "HighwayStudy", "make_highway_drivers",
-           "simulate_highway_study", "true_parameter_ari", "write_highway_study"]
+           "simulate_highway_study", "true_parameter_ari"]

@@ -94,7 +94,6 @@ class TrafficWindow:
     def fill(self, ego: Any) -> None:
         """Lay out every stream in its home lane from the window's rear edge to its front edge."""
         x0 = ego.position[0]
-        ego_lane = self.s.n_lanes - 1 - int(ego.lane_index[2])
         for lane in range(self.s.n_lanes):
             x = x0 - self.s.spawn_behind_m + self.rng.uniform(0.0, self._spacing(lane))
             while x < x0 + self.s.spawn_ahead_m:

@@ -5,7 +5,7 @@ changes), not by laneprint's: a test of whether the analysis generalises. See
 `laneprint/simulator/SUMO.md`.
 
 Public API: `SumoSettings`, `simulate_sumo_study(settings, seed) -> SumoStudy`,
-`write_sumo_study(study, out, fmt)`, `STYLE_PARAMS`. SUMO itself is only needed
+`STYLE_PARAMS`. SUMO itself is only needed
 when a study is simulated (`pip install -e '.[sumo]'`).
 """
 
@@ -14,12 +14,4 @@ from laneprint.simulator.sumo.styles import STYLE_PARAMS, SumoDriver, make_sumo_
 from laneprint.simulator.sumo.study import SumoStudy, simulate_sumo_study
 
 
-def write_sumo_study(*args, **kwargs):  # noqa: ANN002, ANN003 - thin lazy wrapper
-    """See `laneprint.simulator.sumo.output.write_sumo_study`."""
-    from laneprint.simulator.sumo.output import write_sumo_study as _write
-
-    return _write(*args, **kwargs)
-
-
-__all__ = ["STYLE_PARAMS", "SumoDriver", "SumoSettings", "SumoStudy", "make_sumo_drivers", "simulate_sumo_study",
-           "write_sumo_study"]
+__all__ = ["STYLE_PARAMS", "SumoDriver", "SumoSettings", "SumoStudy", "make_sumo_drivers", "simulate_sumo_study"]

@@ -10,12 +10,12 @@ from __future__ import annotations
 import typer
 
 from clustering.cli import analyze_command
-from laneprint.check_cli import check_command
+from laneprint.app.check_cli import check_command
 from dashboard.cli import dashboard_command
 from ingest.cli import ingest_command
-from laneprint.simulator.cli import simulate_command
-from laneprint.pipeline_cli import run_command_cli
-from laneprint.report import report_command
+from laneprint.app.simulator.cli import simulate_command
+from laneprint.app.pipeline_cli import run_command_cli
+from laneprint.app.report_cli import report_command
 from rl.cli import annotate_command, crossval_command, evaluate_command, export_command, personalize_command, runs_command, train_command
 from rl.drive.cli import drive_command
 

@@ -31,6 +31,6 @@ def check_command(
     as_json: JsonOpt = False,
 ) -> None:
     """Verify the workspace: recordings, tables, catalogue, runs, leftovers; exit 1 on a problem."""
-    from laneprint.check import check_workspace
+    from laneprint.app.check import check_workspace
 
     run_command(lambda: check_workspace(Workspace(workspace), repair=repair), as_json, _render)

@@ -12,7 +12,7 @@ when `kaleido` is installed (`pip install -e '.[report]'`; it draws with a local
 Chrome or Chromium, offline).
 
 Pure assembly over the workspace: `build_report(ws)` returns the sections; `render_html`
-writes them out; `report_command` is the CLI.
+writes them out. The command line (`report_command`) is `laneprint.app.report_cli`.
 """
 
 from __future__ import annotations
@@ -20,21 +20,17 @@ from __future__ import annotations
 import html
 import json
 import re
-import sys
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import pandas as pd
 import plotly.graph_objects as go
-import typer
 
-from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, console, err_console, visible
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
-from laneprint.options import configurable
 
 #: Per-driver figures are drawn for at most this many drivers (the typical drivers first); every
 #: driver's fits are in the tables either way.
@@ -493,34 +489,3 @@ def write_report(ws: Workspace, out: Path | None = None, assets: bool = True, sv
     return {"report": str(out), "bytes": len(text.encode()), "figures": n_fig, "tables": n_tab,
             "assets": str(out.with_name(out.stem + "_files")) if assets else None, "written": written,
             "sections": [s.title for s in sections], "seconds": round(time.perf_counter() - start, 2)}
-
-
-@configurable("report")
-def report_command(
-    workspace: WorkspaceOpt = DEFAULT_WS,
-    out: Annotated[Path | None, typer.Option(
-        "--out", "-o", help="The HTML file to write (default <workspace>/report.html); tables (CSV) and figures "
-                            "(Plotly JSON; SVG with the report extra, kaleido) go to <name>_files/ beside it.")] = None,
-    no_assets: Annotated[bool, typer.Option("--no-assets", help="Only the HTML file.")] = False,
-    no_svg: Annotated[bool, typer.Option("--no-svg", help="No SVG of the figures (kaleido takes 10-15 s to start "
-                                                          "its browser, and more for hundreds of figures).")] = False,
-    as_json: JsonOpt = False,
-) -> None:
-    """The study in one self-contained HTML file: data, fits and flags, styles, every run's figures."""
-    try:
-        ws = Workspace(workspace)
-        if not ws.root.is_dir():
-            raise UserError(f"no workspace at {ws.root}")
-        result = write_report(ws, out, assets=not no_assets, svg=not no_svg)
-    except UserError as exc:
-        err_console.print(f"error: {visible(str(exc))}", markup=False, highlight=False, soft_wrap=True)
-        raise typer.Exit(1) from None
-    if as_json:
-        sys.stdout.write(json.dumps(result) + "\n")
-        return
-    written = result.get("written") or {}
-    console.print(f"report written to [bold]{result['report']}[/bold] ({result['bytes'] / 1e6:.1f} MB, "
-                  f"{result['figures']} figures, {result['tables']} tables, {result['seconds']} s)"
-                  + (f"; tables and figures in {result['assets']}" if result["assets"] else "")
-                  + (f" ({len(written['svg'])} figures as SVG)" if written.get("svg") else "")
-                  + (f"; {written['svg_note']}" if written.get("svg_note") else ""), highlight=False)

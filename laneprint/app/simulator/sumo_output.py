@@ -1,6 +1,6 @@
 """Write a SUMO study to a folder: the logs (via `ingest.writers`), ground_truth.json, README.md.
 
-Same conventions as the synthetic study (`laneprint.simulator.output`): file names
+Same conventions as the synthetic study (`laneprint.app.simulator.output`): file names
 are session ids, `mixed` writes odd drivers as MCAP and even ones as .csv.gz,
 everything goes into a temporary sibling folder and is moved into place at the
 end, and a folder is only written into when it is empty, holds a previous study,
@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from laneprint.progress import ProgressFn
-from laneprint.simulator.output import write_study_files  # one set of file conventions for both engines
+from laneprint.app.simulator.output import write_study_files  # one set of file conventions for both engines
 from laneprint.simulator.sumo.readme import render_readme
 from laneprint.simulator.sumo.study import SumoStudy
 

@@ -62,7 +62,7 @@ def simulate_command(out: OutOpt, drivers: DriversOpt = None, decisions: Decisio
     """Generate a DIL study (CSV and MCAP logs, ground_truth.json, README.md) into --out."""
 
     def work() -> dict[str, Any]:
-        from laneprint.simulator.output import FORMATS
+        from laneprint.app.simulator.output import FORMATS
 
         if engine not in ENGINES:
             raise UserError(f"unknown --engine {engine!r}; choose one of {', '.join(ENGINES)}")
@@ -93,7 +93,7 @@ def simulate_command(out: OutOpt, drivers: DriversOpt = None, decisions: Decisio
 def _simulate_synthetic(out: Path, drivers: Optional[int], decisions: Optional[int], seed: int, fmt: str,
                         force: bool, as_json: bool) -> dict[str, Any]:
     from laneprint.simulator.config import StudySettings
-    from laneprint.simulator.output import check_destination, write_study
+    from laneprint.app.simulator.output import check_destination, write_study
     from laneprint.simulator.study import simulate_study
 
     base = StudySettings()
@@ -110,9 +110,9 @@ def _simulate_synthetic(out: Path, drivers: Optional[int], decisions: Optional[i
 
 def _simulate_sumo(out: Path, drivers: Optional[int], seed: int, fmt: str, force: bool, minutes: Optional[float],
                    jobs: int, family: Optional[str], lanes: Optional[int], as_json: bool) -> dict[str, Any]:
-    from laneprint.simulator.output import check_destination
+    from laneprint.app.simulator.output import check_destination
     from laneprint.simulator.sumo.backend import check_available
-    from laneprint.simulator.sumo.output import write_sumo_study
+    from laneprint.app.simulator.sumo_output import write_sumo_study
     from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, DEFAULT_LANES, FAMILIES, LANES, family_settings
     from laneprint.simulator.sumo.study import simulate_sumo_study
 
@@ -149,10 +149,10 @@ def parse_shares(text: str) -> tuple[float, float, float]:
 
 def _simulate_highway(out: Path, drivers: Optional[int], seed: int, fmt: str, force: bool, minutes: Optional[float],
                       jobs: int, lanes: Optional[int], shares: Optional[str], as_json: bool) -> dict[str, Any]:
-    from laneprint.simulator.highway.output import write_highway_study
+    from laneprint.app.simulator.highway_output import write_highway_study
     from laneprint.simulator.highway.settings import DEFAULT_LANES, LANES, HighwaySettings
     from laneprint.simulator.highway.study import check_available, simulate_highway_study
-    from laneprint.simulator.output import check_destination
+    from laneprint.app.simulator.output import check_destination
 
     lanes = DEFAULT_LANES if lanes is None else lanes
     if lanes not in LANES:

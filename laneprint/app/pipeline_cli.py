@@ -71,13 +71,13 @@ def render_run(result: dict[str, Any], console: Console) -> None:
     render_ingest(result["ingest"], console)
     render_analysis(result["analysis"], console)
     if result["runs"]:
-        from rl.cli import _summary_table
+        from rl.cli import summary_table
 
         for run in result["runs"]:
             console.print(f"run {run['run_id']}: {run['state']}, {run.get('target', '')}, reward "
                           f"{run.get('reward', '')}, {run.get('episodes', '?')} episodes", highlight=False)
             if run.get("evaluation"):
-                console.print(_summary_table(run["evaluation"], f"{run['target']} against its typical driver"))
+                console.print(summary_table(run["evaluation"], f"{run['target']} against its typical driver"))
     console.print(f"open the dashboard: {result['dashboard']}", markup=False, highlight=False)
 
 

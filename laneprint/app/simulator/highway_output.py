@@ -1,6 +1,6 @@
 """Write a highway-env study to a folder: the logs (via `ingest.writers`), ground_truth.json, README.md.
 
-The same file conventions as the other engines (`laneprint.simulator.output.write_study_files`):
+The same file conventions as the other engines (`laneprint.app.simulator.output.write_study_files`):
 file names are session ids, everything is written into a temporary sibling folder
 and moved into place at the end, and a folder is only written into when it is
 empty, holds a previous study, or `force` is given.
@@ -14,7 +14,7 @@ from typing import Any, Optional
 from laneprint.progress import ProgressFn
 from laneprint.simulator.highway.readme import render_readme
 from laneprint.simulator.highway.study import HighwayStudy
-from laneprint.simulator.output import write_study_files
+from laneprint.app.simulator.output import write_study_files
 
 
 def write_highway_study(study: HighwayStudy, out: Path, fmt: str = "csv", force: bool = False,

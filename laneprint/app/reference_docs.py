@@ -1,6 +1,6 @@
 """The command-line and config-file reference pages of the documentation, generated from the app.
 
-`python -m laneprint.reference_docs` writes `docs/reference/cli.md` and `docs/reference/config.md`;
+`python -m laneprint.app.reference_docs` writes `docs/reference/cli.md` and `docs/reference/config.md`;
 a test fails when the committed pages and the app differ, so the reference cannot drift.
 """
 
@@ -11,11 +11,11 @@ from pathlib import Path
 
 import typer
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.options import config_reference
 
 PAGES = ("cli.md", "config.md", "results.md")
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "benchmarks" / "results"
 
 
@@ -29,7 +29,7 @@ def cli_reference() -> str:
     """Markdown: every command, its arguments and its options shown in `--help`."""
     group = typer.main.get_command(app)
     out = ["# Command line", "",
-           "Generated from the app (`python -m laneprint.reference_docs`). Each command shows its everyday "
+           "Generated from the app (`python -m laneprint.app.reference_docs`). Each command shows its everyday "
            "options; every setting is also a key of a `--config FILE.toml` table "
            "([config reference](config.md)), and the research settings are there only.", ""]
     for name, cmd in group.commands.items():  # type: ignore[attr-defined]
@@ -83,7 +83,7 @@ def results_page() -> str:
     """Markdown: every result file of `benchmarks/results/`, with the command that reproduces it."""
     import json
 
-    out = ["# Results", "", "Generated from `benchmarks/results/*.json` (`python -m laneprint.reference_docs`): "
+    out = ["# Results", "", "Generated from `benchmarks/results/*.json` (`python -m laneprint.app.reference_docs`): "
            "each figure with the command, commit and date that produced it. Development seeds chose the "
            "methods; judged seeds were generated after.", ""]
     for path in sorted(RESULTS.glob("*.json")):
