@@ -23,15 +23,12 @@ sample, a speed limit no road has. Such a recording would otherwise pass as a dr
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
 from ingest.rawlog import RawLog, Rejected
-
-if TYPE_CHECKING:
-    from ingest.mapping import Mapping
 
 MIN_SAMPLES = 2  # a recording of one sample has no duration: nothing in it can be measured
 MAX_SPEED_LIMIT_KPH = 300.0  # no road's limit is higher; an unlimited road is an empty limit, not inf

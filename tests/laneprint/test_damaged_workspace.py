@@ -21,7 +21,7 @@ from indicators.synthetic import catalogue_row
 from ingest.pipeline import ingest_paths
 from ingest.writers import write_csv
 from laneprint.app.check import check_workspace
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.simulator import StudySettings, simulate_study
 from laneprint.workspace import Workspace
 from tests.ingest.conftest import make_recording
