@@ -516,6 +516,23 @@ def never_learnt(metrics: pd.DataFrame | None, config: dict[str, Any]) -> str:
             "transitions).")
 
 
+def analysis_notice(recorded: str | None, current: str | None, what: str = "run") -> tuple[str, str]:
+    """(level, text) saying which analysis a result was made from: level 'warning' for a result made
+    with an earlier analysis than the current one ("made with an earlier analysis: re-run"), 'info' for
+    one without a fingerprint ("analysis unknown", made before results recorded it), 'ok' otherwise."""
+    from laneprint.provenance import analysis_mark
+
+    mark = analysis_mark(recorded, current)
+    if mark["analysis"] == "earlier":
+        return "warning", (f"This {what} was {mark['analysis_label']}. It was made with analysis "
+                           f"`{recorded}`; the current analysis is `{current or 'none'}` (its styles or reference "
+                           f"lines differ), so its drivers, typical driver and lines may no longer be the style's.")
+    if mark["analysis"] == "unknown":
+        return "info", (f"This {what}: {mark['analysis_label']} (made before results recorded the analysis they "
+                        "used); re-run it to be sure it matches the current analysis.")
+    return "ok", f"This {what} was {mark['analysis_label']} (`{current}`)."
+
+
 def run_results(run: dict[str, Any], crossval: dict[str, Any] | None) -> dict[str, Any]:
     """What a run's results download holds: config, status, in-sample evaluation, its cross-validation."""
     return {"run_id": run.get("run_id"), "config": run.get("config"), "status": run.get("status"),

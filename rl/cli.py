@@ -435,18 +435,25 @@ def runs_command(
     def work() -> dict[str, Any]:
         from rl.runs import list_runs
 
-        table = list_runs(Workspace(workspace))
-        return {"runs": table.astype(object).where(table.notna(), None).to_dict("records")}
+        ws = Workspace(workspace)
+        table = list_runs(ws)
+        return {"runs": table.astype(object).where(table.notna(), None).to_dict("records"),
+                "current_analysis_fingerprint": ws.analysis_fingerprint()}
 
     def render(res: dict[str, Any], console: Console) -> None:
         t = Table(title=f"{len(res['runs'])} runs")
-        for col in ("run", "target", "reward", "state", "episode", "balanced acc.", "message"):
+        for col in ("run", "target", "reward", "state", "episode", "balanced acc.", "analysis", "message"):
             t.add_column(col)
         for r in res["runs"]:
+            mark = str(r.get("analysis_label") or "")
             t.add_row(r["run_id"], f"{r['target_kind']} {r['target']}", str(r["reward"]), str(r["state"]),
                       f"{r['episode'] or 0}/{r['episodes'] or '?'}", _fmt(r["balanced_accuracy"], True),
+                      f"[yellow]{mark}[/yellow]" if r.get("analysis") == "earlier" else mark,
                       str(r["message"] or ""))
         console.print(t)
+        if any(r.get("analysis") == "earlier" for r in res["runs"]):
+            console.print("runs made with an earlier analysis: their styles or lines have changed since; re-run them "
+                          "(`laneprint train --style NAME` or `--driver ID`)", highlight=False)
         if any(r["state"] == "interrupted" for r in res["runs"]):
             console.print("interrupted runs: continue one with `laneprint train --resume RUN_ID`", highlight=False)
 

@@ -37,6 +37,7 @@ import torch
 from laneprint.errors import UserError
 from laneprint.locks import FileLock, is_locked
 from laneprint.progress import ProgressFn, report
+from laneprint.provenance import analysis_mark
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.learners.dqn import DQNSettings, DQNTrainer, q_network
 from rl.problem.env import Approach, EnvConfig, approaches_from_decisions, observation_names
@@ -233,6 +234,8 @@ def create_run(workspace: Workspace, target: Target, env_config: EnvConfig, sett
     # a fleet passes these once for all its runs (each costs a git call or a folder scan)
     config.setdefault("code_version", code_version())
     config.setdefault("data_fingerprint", workspace.fingerprint())
+    # the analysis the run's lines and drivers came from (`laneprint.provenance`)
+    config.setdefault("analysis_fingerprint", workspace.analysis_fingerprint())
     atomic_write_json(folder / "config.json", config)
     return folder, config
 
@@ -499,7 +502,8 @@ def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | No
                                                   key=tuple(drivers)).policy(cfg)
     out: dict[str, Any] = {"run_id": run_id, "target": asdict(target), "reward": cfg.reward.name,
                            "drivers": drivers, "typical_driver": typical, "evaluated_at": now_iso(),
-                           "data_fingerprint": workspace.fingerprint()}
+                           "data_fingerprint": workspace.fingerprint(),
+                           "analysis_fingerprint": workspace.analysis_fingerprint()}
     tables = {}
     groups = {"members": drivers}
     if typical is not None and target.kind == "style":
@@ -573,9 +577,11 @@ def read_metrics(path: Path) -> pd.DataFrame:
 def list_runs(workspace: Workspace) -> pd.DataFrame:
     """One row per run folder: id, target, reward, seed, state, progress, times, headline figures."""
     cols = ["run_id", "target_kind", "target", "reward", "lines_source", "seed", "state", "episode", "episodes",
-            "started_at", "updated_at", "message", "recall", "balanced_accuracy", "timing_mae_s"]
+            "started_at", "updated_at", "message", "recall", "balanced_accuracy", "timing_mae_s",
+            "analysis", "analysis_label", "analysis_fingerprint"]
     rows = []
     root = workspace.runs_dir
+    current = workspace.analysis_fingerprint()
     for folder in sorted(root.glob("*")) if root.exists() else []:
         config = _read_json(folder / "config.json")
         if config is None:
@@ -590,8 +596,16 @@ def list_runs(workspace: Workspace) -> pd.DataFrame:
             "started_at": status.get("started_at"), "updated_at": status.get("updated_at"),
             "message": status.get("message"), "recall": agent.get("recall"),
             "balanced_accuracy": agent.get("balanced_accuracy"), "timing_mae_s": agent.get("timing_mae_s"),
+            **run_analysis_mark(config, current),
         })
     return pd.DataFrame(rows, columns=cols)
+
+
+def run_analysis_mark(config: dict[str, Any], current: str | None) -> dict[str, str | None]:
+    """Whether a run was made with the current analysis (`laneprint.provenance.analysis_mark`); a run
+    trained on Table 1's lines (`--lines paper`) still took its drivers from the analysis."""
+    mark = analysis_mark(config.get("analysis_fingerprint"), current)
+    return {k: mark[k] for k in ("analysis", "analysis_label", "analysis_fingerprint")}
 
 
 def load_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
@@ -604,6 +618,7 @@ def load_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
         "run_id": run_id, "folder": folder, "config": config,
         "status": _read_json(folder / "status.json"), "metrics": read_metrics(folder / "metrics.jsonl"),
         "evaluation": _read_json(folder / "evaluation.json"), "has_weights": (folder / "weights.pt").exists(),
+        "analysis_mark": analysis_mark(config.get("analysis_fingerprint"), workspace.analysis_fingerprint()),
     }
     for name in ("eval_states", "eval_changes"):
         path = folder / f"{name}.parquet"

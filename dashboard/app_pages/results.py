@@ -88,6 +88,12 @@ def held_out(ws, run_id: str, run: dict) -> None:
         result = own
     else:
         result = loaders.crossval(root, pick, loaders.crossvals_stamp(ws.root))
+    cv_level, cv_text = views.analysis_notice(result.get("analysis_fingerprint"), loaders.current_analysis(ws.root),
+                                              "cross-validation")
+    if cv_level == "warning":
+        st.warning(cv_text)
+    elif cv_level == "info":
+        st.caption(cv_text)
     differences = views.crossval_differences(result, run_id, cfg)
     if differences:
         st.caption("Not exactly this run's settings: " + "; ".join(differences) + ".")
@@ -132,6 +138,7 @@ def one_run(ws, run_id: str) -> None:
     st.markdown(f"**{run_id}**: {cfg['target']['kind']} **{cfg['target']['name']}**, reward `{cfg.get('reward')}`, "
                 f"lines `{cfg.get('lines_source')}`, seed {cfg.get('seed')}, "
                 f"{(run['status'] or {}).get('episode', '?')} episodes")
+    analysis_banner(ws, cfg)
     never = views.never_learnt(run["metrics"], cfg)
     if never:
         st.warning(never)
@@ -146,6 +153,18 @@ def one_run(ws, run_id: str) -> None:
     right.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="greedy")),
                        key=f"fig11g_{run_id}")
     curves_of(run_id, run)
+
+
+def analysis_banner(ws, cfg: dict) -> None:
+    """Whether the run was made with the current analysis; a re-run offered when it was not."""
+    level, text = views.analysis_notice(cfg.get("analysis_fingerprint"), loaders.current_analysis(ws.root))
+    if level == "ok":
+        st.caption(text)
+        return
+    (st.warning if level == "warning" else st.info)(text, icon=":material/history:")
+    kind, name = cfg.get("target", {}).get("kind"), str(cfg.get("target", {}).get("name"))
+    st.caption(f"Re-run it on the Training page ({kind} {name}), or "
+               f"`{views.cli_hint('train', ws.root, f'--{kind}', name)}`.")
 
 
 @st.fragment
