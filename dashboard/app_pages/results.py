@@ -114,14 +114,31 @@ def downloads(ws, run_id: str, run: dict) -> None:
     c2.download_button("Results (CSV)", data=lambda: views.run_results_csv(run, own), file_name=f"{run_id}.csv",
                        mime="text/csv", key=f"dl_csv_{run_id}", on_click="ignore",
                        help="one row per policy: in-sample figures, held out with 95 % intervals when cross-validated")
-    if run.get("has_weights"):
-        c3.download_button("Policy (ONNX + policy.json, zip)", data=lambda: jobs.policy_zip(ws, run_id),
-                           file_name=f"{run_id}-policy.zip", mime="application/zip", key=f"dl_onnx_{run_id}",
-                           on_click="ignore",
-                           help="`laneprint export RUN_ID --format onnx`: checked against torch with onnxruntime; "
-                                "takes a few seconds the first time")
-    else:
-        c3.caption("No trained weights to export.")
+    policy_download(ws, run_id, run, c3)
+
+
+def policy_download(ws, run_id: str, run: dict, box) -> None:
+    """The ONNX policy: one click when its export is current; else a button that exports it first and says on
+    the page why when that fails (or, without onnx/onnxruntime, what to install instead of a button)."""
+    error_key = f"onnx_error_{run_id}"
+    if not run.get("has_weights"):
+        box.caption("No trained weights to export.")
+    elif hint := jobs.onnx_missing():
+        box.info(f"Policy (ONNX): {hint}.")
+    elif jobs.policy_is_current(ws, run_id):
+        box.download_button("Policy (ONNX + policy.json, zip)", data=lambda: jobs.policy_zip(ws, run_id),
+                            file_name=f"{run_id}-policy.zip", mime="application/zip", key=f"dl_onnx_{run_id}",
+                            on_click="ignore",
+                            help="`laneprint export RUN_ID --format onnx`: checked against torch with onnxruntime")
+    elif box.button("Export the policy (ONNX)", key=f"export_onnx_{run_id}",
+                    help="`laneprint export RUN_ID --format onnx`: writes policy.onnx, policy.json and README.md, "
+                         "checked against torch with onnxruntime (a few seconds); then the zip downloads"):
+        with box, st.spinner("exporting and checking with onnxruntime..."):
+            st.session_state[error_key] = jobs.export_policy(ws, run_id)
+        if st.session_state[error_key] is None:
+            st.rerun()
+    if err := st.session_state.get(error_key):
+        box.error(f"The policy could not be exported: {err}")
 
 
 def report_download(ws) -> None:
