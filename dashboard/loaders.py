@@ -123,6 +123,14 @@ def run(root: str, run_id: str, key: tuple[int, ...]) -> dict[str, Any]:
     return load_run(Workspace(root), run_id)
 
 
+@st.cache_data(show_spinner=False, max_entries=32)
+def personalized(root: str, run_id: str, key: tuple[int, ...]) -> dict[str, Any] | None:
+    """A personalised run's personalize.json (None for other runs)."""
+    from rl.personalize.store import load_personalized
+
+    return load_personalized(Workspace(root), run_id)
+
+
 def crossvals_stamp(root: Path) -> tuple[int, ...]:
     """Modification times of every stored `crossval/*/result.json` (written last, so a finished one counts)."""
     return tuple(sorted(p.stat().st_mtime_ns for p in (Path(root) / "crossval").glob("*/result.json")))

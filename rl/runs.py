@@ -474,6 +474,23 @@ def target_drivers(workspace: Workspace, target: Target) -> tuple[list[str], str
     return typical + rest, (typical[0] if typical else None)
 
 
+def personalized_split(decisions: pd.DataFrame, drivers: list[str], given: list[str]) -> dict[str, Any]:
+    """A personalised run's split of its driver's rows: `given`, the K decisions it was built from (press and
+    not-yet rows), and `scored`, the decisions it did not see, or the K themselves when it saw all of them;
+    `scored_on` says which ("held out: the N decisions not given" or "in-sample: all K decisions given")."""
+    rows = decisions[decisions["driver_id"].astype(str).isin(drivers)]
+    ids = rows["decision_id"].astype(str)
+    given_set = set(given)
+    given_rows, rest = rows[ids.isin(given_set)], rows[~ids.isin(given_set)]
+    n_rest = int(rest.loc[rest["label"] == "change", "decision_id"].nunique())
+    if n_rest:
+        scored, what = rest, f"held out: the {n_rest} decisions not given"
+    else:
+        scored, what = given_rows, f"in-sample: all {len(given)} decisions given"
+    return {"given": given_rows, "scored": scored, "scored_on": what,
+            "counts": {"given": len(given), "held_out": n_rest}}
+
+
 def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | None = None,
                  classifiers: dict | None = None) -> dict[str, Any]:
     """Evaluate a run against the drivers' recorded decisions; writes evaluation.json + tables.
@@ -494,12 +511,18 @@ def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | No
             raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first to evaluate against the drivers")
         decisions = workspace.read_table("analysis", "decisions")
     drivers, typical = target_drivers(workspace, target)
-    # the imitation benchmark, fitted on the same states it is scored on (in-sample, like the agent)
-    member_approaches, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(drivers)])
+    given = [str(d) for d in config.get("decision_ids") or []] if config.get("kind") == "personalized" else []
+    split = personalized_split(decisions, drivers, given) if given else None
+    if split is not None:
+        decisions = split["scored"]  # the agent and its comparators are scored on these rows only
+    # the imitation benchmark: fitted on the states the agent learnt from (in-sample, like the agent), or
+    # for a personalised run on the same K given decisions the agent was built from
+    fit_rows = split["given"] if split is not None else decisions[decisions["driver_id"].astype(str).isin(drivers)]
+    member_approaches, _ = approaches_from_decisions(fit_rows)
     policies = {"agent": agent_policy(net, cfg), "greedy": greedy_policy(cfg)}
     if member_approaches:
         policies["imitation"] = fitted_classifier(member_approaches, cfg, settings.seed, classifiers,
-                                                  key=tuple(drivers)).policy(cfg)
+                                                  key=tuple(drivers) + (("given", *given) if given else ())).policy(cfg)
     out: dict[str, Any] = {"run_id": run_id, "target": asdict(target), "reward": cfg.reward.name,
                            "drivers": drivers, "typical_driver": typical, "evaluated_at": now_iso(),
                            "data_fingerprint": workspace.fingerprint(),
@@ -519,10 +542,20 @@ def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | No
         if group == "members":
             tables = {"eval_states": ev["states"], "eval_changes": ev["changes"]}
     out["summary"] = out.get("summary_typical") or out["summary_members"]
-    out["note"] = ("in-sample figures (the agent and the imitation classifier were fitted on these decisions; "
-                   "`laneprint crossval --run` holds sessions out): the typical driver's decisions first "
-                   "('summary_typical'), then all members'" if "summary_typical" in out else
-                   "in-sample figures on the driver's decisions (`laneprint crossval --run` holds sessions out)")
+    if split is not None:
+        out.update({"scored_on": split["scored_on"], "split": split["counts"],
+                    "note": f"{split['scored_on']}: the agent was built from the driver's first {len(given)} "
+                            "decisions and the imitation classifier fitted on the same ones; greedy follows the "
+                            "style's lines. Scored on the others, which neither saw."
+                    if split["counts"]["held_out"] else
+                    f"{split['scored_on']}: every decision was given, so the figures are in-sample "
+                    "(the agent and the imitation classifier saw all of them)."})
+    else:
+        out["scored_on"] = "in-sample"
+        out["note"] = ("in-sample figures (the agent and the imitation classifier were fitted on these decisions; "
+                       "`laneprint crossval --run` holds sessions out): the typical driver's decisions first "
+                       "('summary_typical'), then all members'" if "summary_typical" in out else
+                       "in-sample figures on the driver's decisions (`laneprint crossval --run` holds sessions out)")
     for name, df in tables.items():
         buf = io.BytesIO()
         df.to_parquet(buf, index=False)

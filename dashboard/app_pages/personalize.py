@@ -98,7 +98,7 @@ def style_section(ws, decisions: pd.DataFrame) -> tuple[str, int] | None:
         st.warning(str(exc))
         return None
     st.metric(f"Style of {driver} from {k} decisions", est.style,
-              f"confidence {100 * est.confidence:.0f} %", delta_color="off")
+              f"confidence {100 * est.confidence:.0f} %", delta_color="off", delta_arrow="off")
     st.plotly_chart(style_figure(est), key="p_style_fig")
     st.caption(f"Clustered on the other {len(drivers) - 1} drivers with the analysis's features; compared on "
                f"{', '.join(est.compared)} (the speeds its presses cover). Confidence: the share of {est.n_bootstrap} "
@@ -121,14 +121,21 @@ def launch(ws, driver: str, k: int, base: str, seed: int, fine_tune: bool = Fals
 
 
 def run_panel(ws, run_id: str, status: dict) -> None:
-    """Progress of one personalisation (base agent, then fine-tuning), and its figures when done."""
-    done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
-    st.progress(min(1.0, done / total) if total else 0.0,
-                text=f"{run_id}: {status.get('state')} — {status.get('message', '')} ({done}/{total or '?'})")
-    if status.get("state") in jobs.ACTIVE_STATES:
+    """Progress of one personalisation (base agent, then fine-tuning) with Cancel while it works; once it
+    has finished, what it made and a link to its figures on the Results page."""
+    state = status.get("state")
+    if state in jobs.ACTIVE_STATES:
+        st.progress(*views.personalize_progress(run_id, status))
         if st.button("Cancel", key=f"p_cancel_{run_id}"):
             jobs.cancel(ws, run_id)
-    elif status.get("log"):
+        return
+    if state == "done":
+        p = loaders.personalized(str(ws.root), run_id, loaders.run_stamp(ws.root, run_id))
+        st.success(views.personalize_done(run_id, status, p))
+        st.markdown(f"[Open {run_id} on the Results page](results?run={run_id})")
+        return
+    st.warning(f"{run_id}: {state} — {status.get('message', '')}")
+    if status.get("log"):
         st.code(status["log"], language=None)
 
 
@@ -154,10 +161,23 @@ def personalised_runs(ws) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def launched_runs(ws) -> None:
+    """The personalisations started from this page: live while under way, then the last one's result."""
+    launched = st.session_state.get("p_launched", [])
+    active = [r for r in launched if jobs.run_status(ws, r).get("state") in jobs.ACTIVE_STATES]
+    if launched:
+        st.subheader("Under way" if active else "Last personalisation")
+        if active:  # polled until one ends, then the page reruns once
+            widgets.live_panels(active, lambda r: jobs.run_status(ws, r), lambda r, status: run_panel(ws, r, status))
+        else:  # drawn once: a finished run in the live panels made the page rerun without end
+            run_panel(ws, launched[-1], jobs.run_status(ws, launched[-1]))
+
+
 def main() -> None:
     st.title("Personalise")
     ws = workspace()
     upload_session(ws)
+    launched_runs(ws)
     tables = loaders.analysis(str(ws.root), loaders.analysis_stamp(ws.root))
     decisions = tables.get("decisions")
     if decisions is None or decisions.empty:
@@ -184,12 +204,6 @@ def main() -> None:
         if st.button("Personalise", type="primary", key="p_start"):
             st.session_state.setdefault("p_launched", []).append(launch(ws, driver, k, base, seed, fine_tune))
             st.rerun()
-    launched = st.session_state.get("p_launched", [])
-    active = [r for r in launched if jobs.run_status(ws, r).get("state") in jobs.ACTIVE_STATES]
-    if launched:
-        st.subheader("Under way" if active else "Last personalisation")
-        widgets.live_panels(active or launched[-1:], lambda r: jobs.run_status(ws, r),
-                            lambda r, status: run_panel(ws, r, status))
     table = personalised_runs(ws)
     if len(table):
         st.subheader("Personalised runs (learning-curve points)")

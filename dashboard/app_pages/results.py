@@ -15,9 +15,10 @@ def evaluated_runs(ws) -> list[str]:
 
 
 def in_sample_tables(ev: dict) -> None:
-    st.subheader("In-sample: agent vs benchmarks vs driver")
-    st.caption("In-sample: scored on the decisions the agent was trained on (and the imitation classifier, "
-               "when present, fitted on); the held-out figures below hold sessions out.")
+    heading, caption = views.evaluation_heading(ev)
+    st.subheader(heading)
+    st.caption(caption)
+    scored = str(ev.get("scored_on") or "in-sample")
     if ev.get("summary_typical"):
         st.caption(f"On the typical driver's decisions ({ev.get('typical_driver')}, "
                    f"{ev.get('n_decisions_typical')} decisions), in-sample:")
@@ -25,7 +26,7 @@ def in_sample_tables(ev: dict) -> None:
     n = len(ev.get("drivers", []))
     whose = "the driver's" if n == 1 else f"all {n} drivers'"
     st.caption(f"On {whose} decisions ({ev.get('n_decisions_members')} decisions, "
-               f"{ev.get('n_states_members')} states), in-sample:")
+               f"{ev.get('n_states_members')} states), {scored}:")
     st.dataframe(views.evaluation_table(ev.get("summary_members") or ev.get("summary")), hide_index=True,
                  width="stretch")
 
@@ -152,9 +153,7 @@ def one_run(ws, run_id: str) -> None:
     run = loaders.run(str(ws.root), run_id, loaders.run_stamp(ws.root, run_id))
     ev = run["evaluation"]
     cfg = run["config"]
-    st.markdown(f"**{run_id}**: {cfg['target']['kind']} **{cfg['target']['name']}**, reward `{cfg.get('reward')}`, "
-                f"lines `{cfg.get('lines_source')}`, seed {cfg.get('seed')}, "
-                f"{(run['status'] or {}).get('episode', '?')} episodes")
+    st.markdown(views.run_header(run_id, cfg, run["status"]))
     analysis_banner(ws, cfg)
     never = views.never_learnt(run["metrics"], cfg)
     if never:
@@ -162,9 +161,10 @@ def one_run(ws, run_id: str) -> None:
     downloads(ws, run_id, run)
     in_sample_tables(ev)
     held_out(ws, run_id, run)
-    st.subheader("Indicators at the decisions against the reference lines (Fig. 10, in-sample)")
+    where = str((ev or {}).get("scored_on") or "in-sample")
+    st.subheader(f"Indicators at the decisions against the reference lines (Fig. 10, {where})")
     st.plotly_chart(indicators_at_decisions(run["eval_changes"], cfg["lines"]), key=f"fig10_{run_id}")
-    st.subheader("Same and opposite decisions as the drivers (Fig. 11, in-sample)")
+    st.subheader(f"Same and opposite decisions as the drivers (Fig. 11, {where})")
     left, right = st.columns(2)
     left.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="agent")), key=f"fig11a_{run_id}")
     right.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="greedy")),
@@ -281,7 +281,8 @@ def main() -> None:
         drives(ws)
         stored_crossvals(ws, show_one=True)
         return
-    one_run(ws, st.selectbox("Run", runs, key="result_run"))
+    wanted = st.query_params.get("run")  # the Personalise page links to its finished run
+    one_run(ws, st.selectbox("Run", runs, key="result_run", index=runs.index(wanted) if wanted in runs else 0))
     compare(ws, runs)
     fleets(ws)
     drives(ws)
