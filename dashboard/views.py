@@ -141,10 +141,16 @@ EVAL_COLUMNS = {
     "timing_mae_s": ("timing MAE [s]", 1.0),
     "timing_bias_s": ("timing bias [s]", 1.0),
     "never_rate": ("never changes [%]", 100.0),
-    "mae_t_f": ("MAE t_f [s]", 1.0),
-    "mae_t_nf": ("MAE t_nf [s]", 1.0),
-    "mae_dv_nb": ("MAE dv_nb [m/s]", 1.0),
+    "medae_t_f": ("median |err| t_f [s]", 1.0),
+    "medae_t_nf": ("median |err| t_nf [s]", 1.0),
+    "medae_dv_nb": ("median |err| dv_nb [m/s]", 1.0),
 }
+
+#: Shown beside every evaluation table: what its robust indicator errors are.
+EVAL_DEFINITION = ("median |err| <indicator>: the median, over the policy's changes, of |the indicator at its change "
+                   "- the reference line at that speed|. A median, because the TTCs t_f and t_nf of slowly closing "
+                   "leaders run to minutes and a few of them would set a mean (the means are `mae_*` in the JSON "
+                   "download). Timing MAE: mean |time of its first change - time of the driver's press|.")
 
 
 def evaluation_table(summary: list[dict[str, Any]] | None) -> pd.DataFrame:

@@ -233,6 +233,7 @@ def _runs(ws: Workspace) -> list[Section]:
         in_sample = ev.get("summary_members") or ev.get("summary")
         sec.p("In-sample: agent vs greedy benchmark vs imitation vs driver (on the decisions it was trained on).")
         sec.table(f"{rid}_in_sample", views.evaluation_table(in_sample))
+        sec.p(views.EVAL_DEFINITION)
         metrics = run["metrics"]
         if metrics is not None and len(metrics) and ("loss" not in metrics or metrics["loss"].isna().all()):
             sec.warn("This agent never updated its network (no loss in any episode): its figures are those of "

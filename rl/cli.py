@@ -88,12 +88,14 @@ def _fmt(x: Any, pct: bool = False) -> str:
 
 def _summary_table(rows: list[dict[str, Any]], title: str) -> Table:
     t = Table(title=title)
-    for col in ("who", "recall", "balanced acc.", "timing MAE [s]", "never", "MAE t_f [s]", "MAE t_nf [s]",
-                "MAE dv_nb [m/s]"):
+    for col in ("who", "recall", "balanced acc.", "timing MAE [s]", "never", "median |err| t_f [s]",
+                "median |err| t_nf [s]", "median |err| dv_nb [m/s]"):
         t.add_column(col)
     for r in rows:
         t.add_row(r["who"], _fmt(r["recall"], True), _fmt(r["balanced_accuracy"], True), _fmt(r["timing_mae_s"]),
-                  _fmt(r["never_rate"], True), _fmt(r["mae_t_f"]), _fmt(r["mae_t_nf"]), _fmt(r["mae_dv_nb"]))
+                  _fmt(r["never_rate"], True), *(_fmt(r.get(f"medae_{k}")) for k in ("t_f", "t_nf", "dv_nb")))
+    t.caption = ("median |err| <indicator>: median |indicator at the policy's change - the reference line at that "
+                 "speed| (robust to minutes-long TTCs; the means are mae_* in --json, every field defined in 'fields')")
     return t
 
 

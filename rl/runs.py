@@ -41,7 +41,7 @@ from laneprint.provenance import analysis_mark
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.learners.dqn import DQNSettings, DQNTrainer, q_network
 from rl.problem.env import Approach, EnvConfig, approaches_from_decisions, observation_names
-from rl.evaluation.evaluate import agent_policy, evaluate_policies, greedy_policy
+from rl.evaluation.evaluate import FIELDS as EVAL_FIELDS, agent_policy, evaluate_policies, greedy_policy
 from rl.baselines.imitation import fitted_classifier
 from rl.problem.rewards import ReferenceLines
 from rl.settings import AutoSettings, LearnerSettings, TreeQSettings, learner_config, stored_learner
@@ -542,6 +542,7 @@ def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | No
         if group == "members":
             tables = {"eval_states": ev["states"], "eval_changes": ev["changes"]}
     out["summary"] = out.get("summary_typical") or out["summary_members"]
+    out["fields"] = EVAL_FIELDS
     if split is not None:
         out.update({"scored_on": split["scored_on"], "split": split["counts"],
                     "note": f"{split['scored_on']}: the agent was built from the driver's first {len(given)} "

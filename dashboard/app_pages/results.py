@@ -29,6 +29,7 @@ def in_sample_tables(ev: dict) -> None:
                f"{ev.get('n_states_members')} states), {scored}:")
     st.dataframe(views.evaluation_table(ev.get("summary_members") or ev.get("summary")), hide_index=True,
                  width="stretch")
+    st.caption(views.EVAL_DEFINITION)
 
 
 def held_out_figures(result: dict, in_sample: list | None, key: str) -> None:

@@ -50,6 +50,7 @@ def test_runs_marks_a_run_made_with_an_earlier_analysis(tmp_path):
     config = json.loads((ws.runs_dir / "r1" / "config.json").read_text())
     evaluation = json.loads((ws.runs_dir / "r1" / "evaluation.json").read_text())
     assert config["analysis_fingerprint"] == ws.analysis_fingerprint() == evaluation["analysis_fingerprint"]
+    assert "median" in evaluation["fields"]["medae_t_f"] and evaluation["summary"][0]["medae_t_f"] is not None
     out = runs_json(tmp_path)
     assert out["runs"][0]["analysis"] == "current" and out["current_analysis_fingerprint"] == ws.analysis_fingerprint()
 
@@ -82,3 +83,16 @@ def test_report_marks_runs_of_an_earlier_analysis(tmp_path):
     assert any("made with an earlier analysis: re-run" in t for t in warned)
     assert any("1 of 1 runs were made with an earlier analysis" in t for t in warned)
     assert provenance(ws)["analysis_fingerprint"] == ws.analysis_fingerprint()
+
+
+def test_indicator_errors_are_medians_robust_to_minutes_long_ttcs():
+    import pandas as pd
+
+    from rl.evaluation.evaluate import FIELDS, _mae
+
+    rows = pd.DataFrame({"t_f_s": [2.0, 3.0, 4.0, 600.0], "t_f_ref": [2.5, 2.5, 2.5, 2.5],
+                         "t_nf_s": [None] * 4, "t_nf_ref": [1.0] * 4, "dv_nb_mps": [1.0] * 4, "dv_nb_ref": [0.0] * 4})
+    out = _mae(rows)
+    assert out["medae_t_f"] == 1.0 and out["mae_t_f"] > 100  # one slow leader sets the mean, not the median
+    assert out["medae_t_nf"] is None and out["medae_dv_nb"] == 1.0
+    assert "median" in FIELDS["medae_t_f"] and "[s]" in FIELDS["medae_t_f"]
