@@ -10,8 +10,8 @@ import pandas as pd
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
-from laneprint.plotting import (clip_to_axis, ema_smooth, envelope_indices, even_indices, sample_rows, symbol_codes,
-                                tail_range)
+from laneprint.plotting import (clip_to_axis, ema_smooth, envelope_indices, even_indices, plateau_judgement,
+                                sample_rows, symbol_codes, tail_range)
 from laneprint.reference import INDICATORS
 
 _UNITS = {"t_f": "t_f [s]", "t_nf": "t_nf [s]", "dv_nb": "dv_nb [m/s]"}
@@ -46,6 +46,7 @@ def training_curves(metrics: pd.DataFrame, smoothing: float = 0.95, max_points: 
         return fig
     m = metrics.sort_values("episode")
     episodes = m["episode"].to_numpy()
+    judged = ""
     for col, key in ((1, "loss"), (2, "mean_step_reward")):
         y = (pd.to_numeric(m[key], errors="coerce") if key in m else pd.Series(np.nan, index=m.index)).to_numpy()
         y = y.astype(float)
@@ -59,12 +60,20 @@ def training_curves(metrics: pd.DataFrame, smoothing: float = 0.95, max_points: 
                                  line={"color": "#08519c", "width": 2}, name=f"{key} (smoothed {smoothing:g})",
                                  showlegend=False), row=1, col=col)
         fig.update_xaxes(title_text=EPISODE_LABEL, row=1, col=col)
+        if key == "mean_step_reward":
+            state, text = plateau_judgement(y)
+            judged = text
+            fig.add_annotation(text=f"<b>{state}</b>", xref="x2 domain", yref="y2 domain", x=0.98, y=0.04,
+                               showarrow=False, font={"size": 12, "color": "#b45309" if state in ("rising", "falling")
+                                                      else "#555"}, xanchor="right", hovertext=text)
         if key == "loss" and not np.isfinite(y).any():
             fig.add_annotation(text=no_loss_note(m, learning_starts), xref="x domain", yref="y domain", x=0.5,
                                y=0.5, showarrow=False, font={"size": 12, "color": "#b45309"}, align="center")
     fig.update_yaxes(title_text=LOSS_LABEL, row=1, col=1)
     fig.update_yaxes(title_text=REWARD_LABEL, row=1, col=2)
-    fig.update_layout(title=f"Training (Fig. 9): per episode (faint), smoothed {smoothing:g} (dark)", height=380)
+    fig.update_layout(title=f"Training (Fig. 9): per episode (faint), smoothed {smoothing:g} (dark)<br>"
+                            f"<sup>reward {judged}</sup>", height=400, margin={"t": 90})
+    fig.layout.meta = {"plateau": judged}
     return fig
 
 
