@@ -2,6 +2,7 @@
 in-sample and held out (cross-validation); two runs compared; a fleet's agents side by side;
 every stored cross-validation."""
 
+import plotly.graph_objects as go
 import streamlit as st
 
 from dashboard import figures, jobs, loaders, views, widgets
@@ -39,7 +40,9 @@ def held_out_figures(result: dict, in_sample: list | None, key: str) -> None:
     if in_sample is not None and not any(r.get("who") == "imitation" for r in in_sample):
         st.caption("This run's in-sample evaluation has no imitation row (evaluated before the imitation "
                    "benchmark existed): `laneprint evaluate RUN_ID` adds it.")
-    st.plotly_chart(figures.heldout_vs_insample(result.get("summary"), in_sample), key=f"cv_bars_{key}")
+    bars = figures.heldout_vs_insample(result.get("summary"), in_sample)
+    st.plotly_chart(bars, key=f"cv_bars_{key}")
+    widgets.figure_downloads(bars, f"held-out-vs-in-sample-{key}", key=f"cv_bars_{key}")
     unscored = views.unscored_table(result)
     if len(unscored):
         st.markdown(f"**Not scored** ({int(unscored['decisions'].sum())} decisions), by reason:")
@@ -164,12 +167,16 @@ def one_run(ws, run_id: str) -> None:
     held_out(ws, run_id, run)
     where = str((ev or {}).get("scored_on") or "in-sample")
     st.subheader(f"Indicators at the decisions against the reference lines (Fig. 10, {where})")
-    st.plotly_chart(indicators_at_decisions(run["eval_changes"], cfg["lines"]), key=f"fig10_{run_id}")
+    fig10 = indicators_at_decisions(run["eval_changes"], cfg["lines"])
+    st.plotly_chart(fig10, key=f"fig10_{run_id}")
+    widgets.figure_downloads(fig10, f"{run_id}-fig10-indicators", key=f"fig10_{run_id}")
     st.subheader(f"Same and opposite decisions as the drivers (Fig. 11, {where})")
     left, right = st.columns(2)
-    left.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="agent")), key=f"fig11a_{run_id}")
+    fig11 = decision_agreement(run["eval_states"], who="agent")
+    left.plotly_chart(figures.compact(go.Figure(fig11)), key=f"fig11a_{run_id}")
     right.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="greedy")),
                        key=f"fig11g_{run_id}")
+    widgets.figure_downloads(fig11, f"{run_id}-fig11-agent", key=f"fig11a_{run_id}")
     curves_of(run_id, run)
 
 
