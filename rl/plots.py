@@ -46,7 +46,11 @@ def training_curves(metrics: pd.DataFrame, smoothing: float = 0.95, max_points: 
         return fig
     m = metrics.sort_values("episode")
     episodes = m["episode"].to_numpy()
-    judged = ""
+    reward = pd.to_numeric(m["mean_step_reward"], errors="coerce") if "mean_step_reward" in m else []
+    state, judged = plateau_judgement(reward)
+    fig.add_annotation(text=f"<b>{state}</b>", xref="x2 domain", yref="y2 domain", x=0.98, y=0.04, showarrow=False,
+                       font={"size": 12, "color": "#b45309" if state in ("rising", "falling") else "#555"},
+                       xanchor="right", hovertext=judged)
     for col, key in ((1, "loss"), (2, "mean_step_reward")):
         y = (pd.to_numeric(m[key], errors="coerce") if key in m else pd.Series(np.nan, index=m.index)).to_numpy()
         y = y.astype(float)
@@ -60,12 +64,6 @@ def training_curves(metrics: pd.DataFrame, smoothing: float = 0.95, max_points: 
                                  line={"color": "#08519c", "width": 2}, name=f"{key} (smoothed {smoothing:g})",
                                  showlegend=False), row=1, col=col)
         fig.update_xaxes(title_text=EPISODE_LABEL, row=1, col=col)
-        if key == "mean_step_reward":
-            state, text = plateau_judgement(y)
-            judged = text
-            fig.add_annotation(text=f"<b>{state}</b>", xref="x2 domain", yref="y2 domain", x=0.98, y=0.04,
-                               showarrow=False, font={"size": 12, "color": "#b45309" if state in ("rising", "falling")
-                                                      else "#555"}, xanchor="right", hovertext=text)
         if key == "loss" and not np.isfinite(y).any():
             fig.add_annotation(text=no_loss_note(m, learning_starts), xref="x domain", yref="y domain", x=0.5,
                                y=0.5, showarrow=False, font={"size": 12, "color": "#b45309"}, align="center")
