@@ -141,7 +141,10 @@ def run_panel(ws, run_id: str, status: dict) -> None:
 
 def personalised_runs(ws) -> pd.DataFrame:
     """Every personalised run: driver, K, base, style and its figures on the decisions after the first K."""
+    from laneprint.provenance import analysis_mark
+
     rows = []
+    current = loaders.current_analysis(ws.root)
     for folder in sorted(ws.runs_dir.glob("*")) if ws.runs_dir.exists() else []:
         try:
             p = json.loads((folder / "personalize.json").read_text())
@@ -154,10 +157,11 @@ def personalised_runs(ws) -> pd.DataFrame:
                      "from": p["base"]["from"], "base": p["base"].get("chosen", p["base"]["from"]),
                      "style": p["style"]["style"],
                      "confidence": round(100 * p["style"]["confidence"]),
-                     "later decisions": later.get("n_decisions"),
+                     "held out: decisions not given": later.get("n_decisions"),
                      "balanced acc. [%]": None if not later else round(100 * later["balanced_accuracy"], 1),
                      "95 % CI": None if lo is None else f"[{100 * lo:.1f}, {100 * hi:.1f}]",
-                     "timing MAE [s]": later.get("timing_mae_s")})
+                     "timing MAE [s]": later.get("timing_mae_s"),
+                     "analysis": analysis_mark(p.get("analysis_fingerprint"), current)["analysis_label"]})
     return pd.DataFrame(rows)
 
 
@@ -182,6 +186,7 @@ def main() -> None:
     decisions = tables.get("decisions")
     if decisions is None or decisions.empty:
         st.info(f"No analysis yet: upload a study (Data page) and run `{views.cli_hint('analyze', ws.root)}`.")
+        runs_table(ws)
         return
     picked = style_section(ws, decisions)
     if picked:
@@ -204,12 +209,17 @@ def main() -> None:
         if st.button("Personalise", type="primary", key="p_start"):
             st.session_state.setdefault("p_launched", []).append(launch(ws, driver, k, base, seed, fine_tune))
             st.rerun()
+    runs_table(ws)
+
+
+def runs_table(ws) -> None:
+    """Every personalised run, with the analysis it was made from."""
     table = personalised_runs(ws)
     if len(table):
         st.subheader("Personalised runs (learning-curve points)")
         st.dataframe(table, hide_index=True, width="stretch", key="p_runs")
-        st.caption("Figures on each driver's decisions after its first K (never seen by the agent); the runs are "
-                   "ordinary runs on the Results page. The benchmark of the whole curve: "
+        st.caption("Held out: figures on each driver's decisions after its first K (not given, never seen by the "
+                   "agent); the runs are ordinary runs on the Results page. The benchmark of the whole curve: "
                    "`python benchmarks/personalize.py -w WORKSPACE`.")
 
 

@@ -33,8 +33,10 @@ def test_a_finished_personalisation_shows_its_result_and_link(empty_ws):
     folder = write_fake_run(ws, "p1")
     atomic_write_json(folder / "config.json", {"run_id": "p1", **CONFIG})
     atomic_write_json(folder / "status.json", STATUS)
-    atomic_write_json(folder / "personalize.json", {"run_id": "p1", "later_decisions": {
-        "n_decisions": 32, "balanced_accuracy": 0.8, "balanced_accuracy_ci": [0.7, 0.9]}})
+    atomic_write_json(folder / "personalize.json", {
+        "run_id": "p1", "driver": "D03", "decisions": 10, "decisions_available": 42, "base": {"from": "blend"},
+        "style": {"style": "Normal", "confidence": 0.9}, "later_decisions": {
+            "n_decisions": 32, "balanced_accuracy": 0.8, "balanced_accuracy_ci": [0.7, 0.9]}})
     at = AppTest.from_file(page_path("personalize"), default_timeout=120)
     at.session_state["p_launched"] = ["p1"]
     at.run()
@@ -42,3 +44,6 @@ def test_a_finished_personalisation_shows_its_result_and_link(empty_ws):
     assert any("p1 done" in s.value and "32 decisions not given" in s.value for s in at.success)
     assert any("results?run=p1" in m.value for m in at.markdown)
     assert not any(b.key == "p_cancel_p1" for b in at.button)
+    table = next(d.value for d in at.dataframe if "analysis" in d.value.columns)
+    assert table.loc[0, "analysis"] == "analysis unknown"  # recorded before runs named their analysis
+    assert table.loc[0, "held out: decisions not given"] == 32
