@@ -34,7 +34,7 @@ from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
 from laneprint.reference import PAPER_TABLE1
 from laneprint.schemas import DECISIONS, REFERENCE_LINES
-from laneprint.workspace import DamagedFile, Workspace
+from laneprint.workspace import DamagedFile, Workspace, analysis_fingerprint
 
 SKIPPED_COLUMNS = ["what", "id", "reason"]
 STYLE_COLUMNS = ["driver_id", "style", "cluster", "confidence", "posterior", "stability", "margin", "is_typical",
@@ -626,7 +626,8 @@ def build_report(tables: dict[str, pd.DataFrame], meta: dict[str, Any]) -> dict[
                            "reference_lines": _records(lines.drop(columns=["scope", "name"]))}
     return {"workspace": meta.get("workspace"), "summary": meta["summary"], "drivers": drivers,
             "styles": style_rep, "skipped": _records(tables["skipped"]), "settings": meta["settings"],
-            "fingerprint": meta.get("data_fingerprint"), "code": meta.get("code")}
+            "fingerprint": meta.get("data_fingerprint"), "analysis_fingerprint": meta.get("analysis_fingerprint"),
+            "code": meta.get("code")}
 
 
 def stored_settings(workspace: Workspace) -> AnalysisSettings:
@@ -657,7 +658,7 @@ def analyze(workspace: Workspace, settings: AnalysisSettings | None = None,
         settings = settings.with_(feature_indicators=tuple(used["indicators"]))
     meta = {"stage": "analysis", "workspace": str(workspace.root), "settings": settings.to_dict(),
             "code": code_version(), "data_fingerprint": workspace.fingerprint(), "n_recordings": n_rec,
-            "summary": headline}
+            "analysis_fingerprint": analysis_fingerprint(tables), "summary": headline}
     workspace.write_tables("analysis", tables, meta,
                            schemas={"decisions": DECISIONS, "reference_lines": REFERENCE_LINES,
                                     "following": FOLLOWING})

@@ -8,7 +8,7 @@ import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
 from indicators.plots import PAPER_INDICATORS, SPEED_LABEL, label_of
-from laneprint.plotting import clip_to_axis, line_formula, spread_labels, tail_range
+from laneprint.plotting import clip_to_axis, line_formula, log_ticks, spread_labels, tail_range
 
 STYLE_COLORS = {"Defensive": "#2ca02c", "Normal": "#1f77b4", "Aggressive": "#d62728", "unassigned": "#999999"}
 _EXTRA_COLORS = ["#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22"]
@@ -244,5 +244,5 @@ def following_headways(following: pd.DataFrame, styles: pd.DataFrame) -> go.Figu
     fig.update_layout(title=f"Time headway kept in steady following, per episode; bar: the {FOLLOW_QUANTILE:.0%} "
                             f"quantile{note}", template="plotly_white", boxmode="overlay",
                       xaxis={"title": "driver", "categoryorder": "array", "categoryarray": order},
-                      yaxis={"title": "time headway [s] (log)", "type": "log"})
+                      yaxis={"title": "time headway [s] (log)", "type": "log", **log_ticks(f["thw_s"])})
     return fig

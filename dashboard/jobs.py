@@ -533,6 +533,42 @@ def cancel_fleet(ws: Workspace, job_id: str) -> bool:
 # --- downloads: a run's policy and the study's report -------------------------------------
 
 
+def onnx_missing() -> str | None:
+    """What to install for the ONNX export when onnx or onnxruntime is missing, else None (found without
+    importing them or torch: the page calls it on every run)."""
+    from importlib.util import find_spec
+
+    if find_spec("onnx") and find_spec("onnxruntime"):
+        return None
+    from rl.deploy.export import ONNX_HINT
+
+    return ONNX_HINT
+
+
+def policy_is_current(ws: Workspace, run_id: str) -> bool:
+    """True when `exports/<run_id>/policy.onnx` exists and is not older than the run's weights."""
+    onnx = ws.root / "exports" / run_id / "policy.onnx"
+    weights = ws.runs_dir / run_id / "weights.pt"
+    return onnx.exists() and not (weights.exists() and onnx.stat().st_mtime < weights.stat().st_mtime)
+
+
+def export_policy(ws: Workspace, run_id: str) -> str | None:
+    """Export the run's policy (`laneprint export RUN_ID`); None when it worked, else why not, in one line
+    (the page shows it: a download that fails must say why on the page, not only in the server's log)."""
+    from laneprint.errors import UserError
+    from rl.deploy.export import export_run
+
+    if (hint := onnx_missing()) is not None:
+        return hint
+    try:
+        export_run(ws, run_id)
+    except UserError as exc:
+        return str(exc)
+    except Exception as exc:  # noqa: BLE001 - shown on the page with its type
+        return f"the export failed: {type(exc).__name__}: {exc}"
+    return None
+
+
 def policy_zip(ws: Workspace, run_id: str) -> bytes:
     """The run's ONNX policy with policy.json and README.md as a zip: `laneprint export`'s folder
     (`exports/<run_id>/`), exported first when it is missing or older than the run's weights."""

@@ -100,8 +100,19 @@ def analysis_meta(root: str, key: tuple[int, ...]) -> dict[str, Any]:
     return Workspace(root).read_meta("analysis")
 
 
+@st.cache_data(show_spinner=False, max_entries=16)
+def analysis_fingerprint(root: str, key: tuple[int, ...]) -> str | None:
+    """`Workspace.analysis_fingerprint()`: what the current analysis decided (None without one)."""
+    return Workspace(root).analysis_fingerprint()
+
+
+def current_analysis(root: Path) -> str | None:
+    """The current analysis's fingerprint, cached until the analysis folder changes."""
+    return analysis_fingerprint(str(root), analysis_stamp(Path(root)))
+
+
 def run_stamp(root: Path, run_id: str) -> tuple[int, ...]:
-    return stamp(root / "runs" / run_id, "status.json", "metrics.jsonl", "evaluation.json")
+    return stamp(root / "runs" / run_id, "config.json", "status.json", "metrics.jsonl", "evaluation.json")
 
 
 @st.cache_data(show_spinner=False, max_entries=32)
@@ -110,6 +121,14 @@ def run(root: str, run_id: str, key: tuple[int, ...]) -> dict[str, Any]:
     from rl.runs import load_run
 
     return load_run(Workspace(root), run_id)
+
+
+@st.cache_data(show_spinner=False, max_entries=32)
+def personalized(root: str, run_id: str, key: tuple[int, ...]) -> dict[str, Any] | None:
+    """A personalised run's personalize.json (None for other runs)."""
+    from rl.personalize.store import load_personalized
+
+    return load_personalized(Workspace(root), run_id)
 
 
 def crossvals_stamp(root: Path) -> tuple[int, ...]:

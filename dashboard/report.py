@@ -188,6 +188,7 @@ def _runs(ws: Workspace) -> list[Section]:
     from dashboard import figures, views
     from rl.evaluation.crossval_store import list_crossvals, load_crossval
     from rl.plots import decision_agreement, indicators_at_decisions, training_curves
+    from laneprint.provenance import analysis_mark
     from rl.runs import list_runs, load_run
 
     runs = list_runs(ws)
@@ -198,7 +199,12 @@ def _runs(ws: Workspace) -> list[Section]:
     if not evaluated:
         overview.p(f"No evaluated run yet: `laneprint train --style NAME --workspace {ws.root}`.")
         return [overview]
-    overview.table("runs", runs[runs["run_id"].isin(evaluated)])
+    shown = runs[runs["run_id"].isin(evaluated)]
+    stale = shown[shown["analysis"] == "earlier"]["run_id"].tolist()
+    if stale:
+        overview.warn(f"{len(stale)} of {len(shown)} runs were made with an earlier analysis (its styles or reference "
+                      f"lines have changed since): re-run them ({', '.join(stale)}). Column `analysis` says which.")
+    overview.table("runs", shown)
     if len(cvs):
         overview.p("Every stored cross-validation (held out by session), balanced accuracy per policy:")
         overview.table("crossvals", views.crossvals_view(cvs))
@@ -213,9 +219,17 @@ def _runs(ws: Workspace) -> list[Section]:
         tgt = cfg.get("target", {})
         sec.p(f"{tgt.get('kind')} {tgt.get('name')}, reward {cfg.get('reward')}, lines {cfg.get('lines_source')}, "
               f"seed {cfg.get('seed')}, {(run['status'] or {}).get('episode', '?')} episodes.")
+        mark = run["analysis_mark"]
+        if mark["analysis"] == "earlier":
+            sec.warn(f"{mark['analysis_label']}: this run was made with analysis {mark['analysis_fingerprint']}, the "
+                     f"current one is {mark['current_analysis_fingerprint']} (styles or reference lines changed). "
+                     f"`laneprint train --{tgt.get('kind')} {tgt.get('name')} --workspace {ws.root}`.")
+        else:
+            sec.p(f"Analysis: {mark['analysis_label']}.")
         in_sample = ev.get("summary_members") or ev.get("summary")
         sec.p("In-sample: agent vs greedy benchmark vs imitation vs driver (on the decisions it was trained on).")
         sec.table(f"{rid}_in_sample", views.evaluation_table(in_sample))
+        sec.p(views.EVAL_DEFINITION)
         metrics = run["metrics"]
         if metrics is not None and len(metrics) and ("loss" not in metrics or metrics["loss"].isna().all()):
             sec.warn("This agent never updated its network (no loss in any episode): its figures are those of "
@@ -226,9 +240,10 @@ def _runs(ws: Workspace) -> list[Section]:
             cv = json.loads(own.read_text())
         elif len(cvs):
             mine = views.default_crossval(cvs, rid, tgt)
-            cv = load_crossval(ws, mine)["result"] if mine else None
+            cv = load_crossval(ws, mine) if mine else None
         if cv:
-            sec.p("Held out (cross-validation): " + views.scored_line(cv) + ".")
+            cv_mark = analysis_mark(cv.get("analysis_fingerprint"), ws.analysis_fingerprint())
+            sec.p("Held out (cross-validation): " + views.scored_line(cv) + f"; {cv_mark['analysis_label']}.")
             sec.table(f"{rid}_held_out", views.crossval_table(cv.get("summary"), in_sample))
             sec.figure(f"{rid}_held_out_vs_in_sample", figures.heldout_vs_insample(cv.get("summary"), in_sample))
         else:
@@ -275,7 +290,8 @@ def provenance(ws: Workspace) -> dict[str, Any]:
     recs = ws.recordings()
     return {"generated_at": datetime.now(timezone.utc).isoformat(timespec="seconds"), "workspace": str(ws.root),
             "code": code_version(), "data_fingerprint": ws.fingerprint(),
-            "analysis_fingerprint": meta.get("data_fingerprint"),
+            "analysis_fingerprint": ws.analysis_fingerprint() if meta else None,
+            "analysis_data_fingerprint": meta.get("data_fingerprint"),
             "analysis_is_current": (meta.get("data_fingerprint") == ws.fingerprint()) if meta else None,
             "analysis_code": meta.get("code"), "analysis_settings": meta.get("settings"),
             "recordings": {str(r["recording_id"]): str(r.get("source_name", "")) for _, r in recs.iterrows()}}

@@ -141,10 +141,16 @@ EVAL_COLUMNS = {
     "timing_mae_s": ("timing MAE [s]", 1.0),
     "timing_bias_s": ("timing bias [s]", 1.0),
     "never_rate": ("never changes [%]", 100.0),
-    "mae_t_f": ("MAE t_f [s]", 1.0),
-    "mae_t_nf": ("MAE t_nf [s]", 1.0),
-    "mae_dv_nb": ("MAE dv_nb [m/s]", 1.0),
+    "medae_t_f": ("median |err| t_f [s]", 1.0),
+    "medae_t_nf": ("median |err| t_nf [s]", 1.0),
+    "medae_dv_nb": ("median |err| dv_nb [m/s]", 1.0),
 }
+
+#: Shown beside every evaluation table: what its robust indicator errors are.
+EVAL_DEFINITION = ("median |err| <indicator>: the median, over the policy's changes, of |the indicator at its change "
+                   "- the reference line at that speed|. A median, because the TTCs t_f and t_nf of slowly closing "
+                   "leaders run to minutes and a few of them would set a mean (the means are `mae_*` in the JSON "
+                   "download). Timing MAE: mean |time of its first change - time of the driver's press|.")
 
 
 def evaluation_table(summary: list[dict[str, Any]] | None) -> pd.DataFrame:
@@ -514,6 +520,85 @@ def never_learnt(metrics: pd.DataFrame | None, config: dict[str, Any]) -> str:
             f"{f'{int(starts):,}' if starts else 'more'} transitions, so its network was never updated and its "
             "figures below are an untrained network's. Train it with more episodes (or fewer learning-start "
             "transitions).")
+
+
+def analysis_notice(recorded: str | None, current: str | None, what: str = "run") -> tuple[str, str]:
+    """(level, text) saying which analysis a result was made from: level 'warning' for a result made
+    with an earlier analysis than the current one ("made with an earlier analysis: re-run"), 'info' for
+    one without a fingerprint ("analysis unknown", made before results recorded it), 'ok' otherwise."""
+    from laneprint.provenance import analysis_mark
+
+    mark = analysis_mark(recorded, current)
+    if mark["analysis"] == "earlier":
+        return "warning", (f"This {what} was {mark['analysis_label']}. It was made with analysis "
+                           f"`{recorded}`; the current analysis is `{current or 'none'}` (its styles or reference "
+                           f"lines differ), so its drivers, typical driver and lines may no longer be the style's.")
+    if mark["analysis"] == "unknown":
+        return "info", (f"This {what}: {mark['analysis_label']} (made before results recorded the analysis they "
+                        "used); re-run it to be sure it matches the current analysis.")
+    return "ok", f"This {what} was {mark['analysis_label']} (`{current}`)."
+
+
+def evaluation_heading(ev: dict[str, Any]) -> tuple[str, str]:
+    """(subheader, caption) of a run's evaluation, naming the decisions it was scored on: in-sample for a
+    trained run; for a personalised run "held out: the N decisions not given" (its imitation row fitted
+    on the same K given decisions), or in-sample when all were given."""
+    scored_on = str(ev.get("scored_on") or "in-sample")
+    if scored_on.startswith("held out"):
+        split = ev.get("split") or {}
+        return (f"Held out: agent vs benchmarks vs driver ({scored_on})",
+                f"{scored_on.capitalize()}: the agent was built from the driver's first {split.get('given', 'K')} "
+                "decisions, the imitation classifier fitted on the same ones, greedy follows the style's lines; "
+                "all are scored on the decisions none of them saw.")
+    if scored_on.startswith("in-sample: all"):
+        return ("In-sample: agent vs benchmarks vs driver",
+                f"{scored_on.capitalize()}: every decision of the driver was given to the personalisation, so "
+                "there are none left to hold out; the imitation classifier is fitted on the same decisions.")
+    return ("In-sample: agent vs benchmarks vs driver",
+            "In-sample: scored on the decisions the agent was trained on (and the imitation classifier, "
+            "when present, fitted on); the held-out figures below hold sessions out.")
+
+
+def personalize_progress(run_id: str, status: dict[str, Any]) -> tuple[float, str]:
+    """(fraction, text) of a personalisation under way: the phase it is in (base agent, fine-tuning,
+    evaluating) with its episodes when it has any, never "(0/?)"."""
+    done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
+    message = status.get("message") or status.get("state") or "starting"
+    count = f" ({done:,}/{total:,} episodes)" if total else ""
+    return (min(1.0, done / total) if total else 0.0), f"{run_id}: {message}{count}"
+
+
+def personalize_done(run_id: str, status: dict[str, Any], p: dict[str, Any] | None) -> str:
+    """What a finished personalisation made, in one line: how, the style, and its figures on the decisions
+    it was not given."""
+    text = f"{run_id} done: {status.get('message') or 'personalised'}."
+    later = (p or {}).get("later_decisions")
+    if later:
+        lo, hi = later.get("balanced_accuracy_ci") or [None, None]
+        ci = f" [{100 * lo:.1f}, {100 * hi:.1f}]" if lo is not None else ""
+        text += (f" Held out (the {later.get('n_decisions')} decisions not given): balanced accuracy "
+                 f"{100 * later['balanced_accuracy']:.1f} %{ci}.")
+    elif p:
+        text += " Every decision was given: no held-out figures."
+    return text
+
+
+def run_header(run_id: str, cfg: dict[str, Any], status: dict[str, Any] | None) -> str:
+    """The Results page's line about a run: target, reward, lines, seed and what was done (episodes trained;
+    for a personalised run, its base and K decisions instead of "0 episodes")."""
+    status = status or {}
+    tgt = cfg.get("target", {})
+    head = (f"**{md_escape(run_id)}**: {tgt.get('kind')} **{md_escape(str(tgt.get('name')))}**, reward `{cfg.get('reward')}`, "
+            f"lines `{cfg.get('lines_source')}`, seed {cfg.get('seed')}, ")
+    if cfg.get("kind") == "personalized":
+        base = cfg.get("base") or {}
+        what = status.get("message") or (f"personalised from the {base.get('chosen') or base.get('from')} agent "
+                                         f"on {cfg.get('decisions')} decisions")
+        episodes = int(status.get("episode") or 0)
+        tuned = f"fine-tuned {plural(episodes, 'episode')}" if episodes else "not fine-tuned"
+        return (head + f"personalised on the first {cfg.get('decisions')} of {cfg.get('decisions_available')} "
+                f"decisions: {what} ({tuned})")
+    return head + f"{status.get('episode', '?')} episodes"
 
 
 def run_results(run: dict[str, Any], crossval: dict[str, Any] | None) -> dict[str, Any]:

@@ -114,3 +114,44 @@ def smoothing_slider(key: str = "smoothing") -> float:
     return float(st.slider("Curve smoothing", min_value=0.0, max_value=0.99, value=0.95, step=0.01, key=key,
                            help="Exponential moving average with debiasing, as TensorBoard draws it; the raw "
                                 "per-episode values stay faint behind the smoothed line."))
+
+
+def figure_downloads(fig, name: str, key: str) -> None:
+    """Under a figure: its data as CSV at once, and SVG, PDF and PNG (300 dpi) in the print template
+    (`laneprint.figure_export`), drawn when asked (kaleido starts a browser: seconds). A drawing that
+    fails, or kaleido missing, says why here on the page."""
+    from laneprint.errors import UserError
+    from laneprint import figure_export as fx
+
+    box = lazy_expander(f"Download this figure ({name}): SVG, PDF, PNG 300 dpi, data as CSV", key=f"fig_dl_open_{key}")
+    if box is None:
+        return
+    with box:
+        made_key = f"fig_dl_{key}"
+        cols = st.columns(4)
+        cols[0].download_button("Data (CSV)", data=fx.figure_csv(fig), file_name=f"{name}.csv", mime="text/csv",
+                                key=f"fig_csv_{key}", on_click="ignore")
+        if (why := fx.kaleido_missing()) is not None:
+            cols[1].info(why)
+            return
+        made = st.session_state.get(made_key)
+        if made is None:
+            if cols[1].button("Make SVG, PDF and PNG", key=f"fig_make_{key}",
+                              help="one journal column wide (page wide for several panels), 9 pt, white"):
+                with st.spinner("drawing with kaleido (a headless Chromium)..."):
+                    try:
+                        st.session_state[made_key] = fx.figure_images(fig)
+                    except UserError as exc:
+                        st.session_state[made_key] = {"error": str(exc)}
+                st.rerun()
+            return
+        if "error" in made:
+            st.error(f"No SVG/PDF/PNG: {made['error']}")
+            if cols[1].button("Try again", key=f"fig_retry_{key}"):
+                del st.session_state[made_key]
+                st.rerun()
+            return
+        mimes = {"svg": "image/svg+xml", "pdf": "application/pdf", "png": "image/png"}
+        for col, fmt in zip(cols[1:], fx.FORMATS):
+            col.download_button(fmt.upper() + (" (300 dpi)" if fmt == "png" else ""), data=made[fmt],
+                                file_name=f"{name}.{fmt}", mime=mimes[fmt], key=f"fig_{fmt}_{key}", on_click="ignore")

@@ -8,7 +8,7 @@ import plotly.graph_objects as go
 
 from indicators.directions import directions
 from indicators.stats import INDICATOR_COLUMNS, LineFit, indicator_points
-from laneprint.plotting import clip_to_axis, line_formula, tail_range
+from laneprint.plotting import clip_to_axis, line_formula, log_ticks, tail_range
 
 #: The paper's three indicators (Li & Liu), always first.
 PAPER_INDICATORS: tuple[str, ...] = ("t_f", "t_nf", "dv_nb")
@@ -283,5 +283,6 @@ def following_vs_speed(following: pd.DataFrame, driver: str) -> go.Figure:
         title = (f"{driver}: time headway kept in steady following, {n} episode{'s' if n != 1 else ''}; "
                  f"line: the {FOLLOW_QUANTILE:.0%} quantile")
     fig.update_layout(title=title, template="plotly_white", showlegend=False,
-                      xaxis={"title": SPEED_LABEL}, yaxis={"title": "time headway gap / v_e [s] (log)", "type": "log"})
+                      xaxis={"title": SPEED_LABEL}, yaxis={"title": "time headway gap / v_e [s] (log)", "type": "log",
+                                                           **log_ticks(mine["thw_s"])})
     return fig

@@ -226,3 +226,51 @@ def line_formula(name: str, a: float, b: float, x: str = "v_e", digits_a: int = 
     """'t_f = 0.850 v_e − 6.92' (signs printed properly, a minus sign for a negative slope too)."""
     slope = f"{'−' if a < 0 else ''}{abs(a):.{digits_a}f}"
     return f"{name} = {slope} {x}{signed(b, digits_b)}"
+
+
+def log_ticks(values: Sequence[float] | np.ndarray, max_ticks: int = 9) -> dict[str, list]:
+    """Tick positions and labels of a log axis over the positive finite `values`, written as the values
+    they stand for ('0.5', '1', '2', '5', '10' s), never as Plotly's minor digits ('9 8 7 6 5' under 1
+    on an axis shorter than a decade): every 1-9 step of each decade within the values' span, thinned
+    to 1-2-5, 1-3 or 1 per decade when there would be more than `max_ticks`. `{}` when there are no values.
+    Give it to `update_yaxes(**log_ticks(y))` (with `type='log'`)."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v) & (v > 0)]
+    if not len(v):
+        return {}
+    lo, hi = float(v.min()), float(v.max())
+    d_lo, d_hi = int(np.floor(np.log10(lo))), int(np.ceil(np.log10(hi)))
+    for steps in (tuple(range(1, 10)), (1, 2, 5), (1, 3), (1,)):
+        ticks = [float(f"{m * 10.0 ** d:.12g}") for d in range(d_lo, d_hi + 1) for m in steps]
+        inside = [t for t in ticks if lo / 1.25 <= t <= hi * 1.25]
+        if len(inside) <= max_ticks:
+            break
+    if len(inside) < 2:  # a narrow span: its ends, rounded
+        inside = sorted({float(f"{lo:.2g}"), float(f"{hi:.2g}")})
+    return {"tickvals": inside, "ticktext": [f"{t:g}" for t in inside], "tickmode": "array"}
+
+
+def plateau_judgement(values: Sequence[float] | np.ndarray, tail: float = 0.1, min_points: int = 40
+                      ) -> tuple[str, str]:
+    """Whether a learning curve has levelled off at its end: ('plateau' | 'rising' | 'falling' | 'short', a
+    sentence). Compares the mean of the last `tail` of the finite values with the mean of the `tail`
+    before it: a difference beyond two standard errors of it and beyond 5 % of the curve's spread
+    (the 5th-95th percentile) is 'rising' or 'falling'; 'short' under `min_points` values."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if len(v) < min_points:
+        return "short", f"too few episodes ({len(v)}) to judge whether the curve has levelled off"
+    w = max(int(len(v) * tail), 5)
+    last, before = v[-w:], v[-2 * w:-w]
+    diff = float(last.mean() - before.mean())
+    se = float(np.sqrt(last.var(ddof=1) / len(last) + before.var(ddof=1) / len(before)))
+    spread = float(np.subtract(*np.percentile(v, [95, 5])))
+    share = f"{round(100 * tail)} %"
+    if abs(diff) <= max(2 * se, 0.05 * spread):
+        return "plateau", (f"levelled off: the last {share} of the episodes average {last.mean():.3g}, within noise "
+                           f"of the {share} before ({before.mean():.3g})")
+    if diff > 0:
+        return "rising", (f"still rising at the end ({before.mean():.3g} → {last.mean():.3g} over the last two "
+                          f"{share} of the episodes): more episodes may help")
+    return "falling", (f"falling at the end ({before.mean():.3g} → {last.mean():.3g} over the last two {share} of "
+                       "the episodes): the last episodes did worse; look at the loss and the exploration rate")

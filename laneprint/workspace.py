@@ -66,6 +66,25 @@ def legacy_content_id(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()[:16]
 
 
+ANALYSIS_FINGERPRINT_TABLES = ("styles", "reference_lines")
+
+
+def analysis_fingerprint(tables: dict[str, pd.DataFrame]) -> str:
+    """What an analysis decided, as 16 hex digits: a hash of the content of its styles (who is in
+    which style, the typical drivers) and its reference lines (what a style's agent is trained
+    against). Two analyses with the same styles and lines have the same fingerprint; a re-analysis
+    that moves a driver or a line has another. Every run, cross-validation, personalisation and
+    report records the fingerprint of the analysis it used (`laneprint.provenance`)."""
+    h = hashlib.sha256()
+    for name in ANALYSIS_FINGERPRINT_TABLES:
+        df = tables.get(name)
+        if df is None:
+            continue
+        df = df.reindex(sorted(df.columns), axis=1)
+        h.update(name.encode() + b"\0" + df.to_csv(index=False, float_format="%.9g").encode())
+    return h.hexdigest()[:16]
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write `data` to `path` so readers see the old file or the new one, never a mix."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -398,6 +417,18 @@ class Workspace:
             for p in self.root.glob("*/*.parquet"):
                 con.execute(f"CREATE VIEW {p.parent.name}_{p.stem} AS SELECT * FROM read_parquet('{p}')")
             return con.execute(sql).df()
+
+    def analysis_fingerprint(self) -> str | None:
+        """The fingerprint of the stored analysis (`analysis_fingerprint` of its styles and reference
+        lines), None when there is no analysis. Read from `analysis/meta.json`, where `analyze` writes
+        it; an analysis saved before it did is hashed from its tables (the same value)."""
+        stored = self.read_meta("analysis").get("analysis_fingerprint")
+        if stored:
+            return str(stored)
+        if not self.has_table("analysis", "styles"):
+            return None
+        tables = {n: self.read_table("analysis", n) for n in ANALYSIS_FINGERPRINT_TABLES if self.has_table("analysis", n)}
+        return analysis_fingerprint(tables)
 
     def fingerprint(self) -> str:
         """A short hash of which recordings are in the workspace (their ids are content hashes)."""

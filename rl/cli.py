@@ -88,12 +88,14 @@ def _fmt(x: Any, pct: bool = False) -> str:
 
 def summary_table(rows: list[dict[str, Any]], title: str) -> Table:
     t = Table(title=title)
-    for col in ("who", "recall", "balanced acc.", "timing MAE [s]", "never", "MAE t_f [s]", "MAE t_nf [s]",
-                "MAE dv_nb [m/s]"):
+    for col in ("who", "recall", "balanced acc.", "timing MAE [s]", "never", "median |err| t_f [s]",
+                "median |err| t_nf [s]", "median |err| dv_nb [m/s]"):
         t.add_column(col)
     for r in rows:
         t.add_row(r["who"], _fmt(r["recall"], True), _fmt(r["balanced_accuracy"], True), _fmt(r["timing_mae_s"]),
-                  _fmt(r["never_rate"], True), _fmt(r["mae_t_f"]), _fmt(r["mae_t_nf"]), _fmt(r["mae_dv_nb"]))
+                  _fmt(r["never_rate"], True), *(_fmt(r.get(f"medae_{k}")) for k in ("t_f", "t_nf", "dv_nb")))
+    t.caption = ("median |err| <indicator>: median |indicator at the policy's change - the reference line at that "
+                 "speed| (robust to minutes-long TTCs; the means are mae_* in --json, every field defined in 'fields')")
     return t
 
 
@@ -435,18 +437,25 @@ def runs_command(
     def work() -> dict[str, Any]:
         from rl.runs import list_runs
 
-        table = list_runs(Workspace(workspace))
-        return {"runs": table.astype(object).where(table.notna(), None).to_dict("records")}
+        ws = Workspace(workspace)
+        table = list_runs(ws)
+        return {"runs": table.astype(object).where(table.notna(), None).to_dict("records"),
+                "current_analysis_fingerprint": ws.analysis_fingerprint()}
 
     def render(res: dict[str, Any], console: Console) -> None:
         t = Table(title=f"{len(res['runs'])} runs")
-        for col in ("run", "target", "reward", "state", "episode", "balanced acc.", "message"):
+        for col in ("run", "target", "reward", "state", "episode", "balanced acc.", "analysis", "message"):
             t.add_column(col)
         for r in res["runs"]:
+            mark = str(r.get("analysis_label") or "")
             t.add_row(r["run_id"], f"{r['target_kind']} {r['target']}", str(r["reward"]), str(r["state"]),
                       f"{r['episode'] or 0}/{r['episodes'] or '?'}", _fmt(r["balanced_accuracy"], True),
+                      f"[yellow]{mark}[/yellow]" if r.get("analysis") == "earlier" else mark,
                       str(r["message"] or ""))
         console.print(t)
+        if any(r.get("analysis") == "earlier" for r in res["runs"]):
+            console.print("runs made with an earlier analysis: their styles or lines have changed since; re-run them "
+                          "(`laneprint train --style NAME` or `--driver ID`)", highlight=False)
         if any(r["state"] == "interrupted" for r in res["runs"]):
             console.print("interrupted runs: continue one with `laneprint train --resume RUN_ID`", highlight=False)
 

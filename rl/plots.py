@@ -10,8 +10,8 @@ import pandas as pd
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
-from laneprint.plotting import (clip_to_axis, ema_smooth, envelope_indices, even_indices, sample_rows, symbol_codes,
-                                tail_range)
+from laneprint.plotting import (clip_to_axis, ema_smooth, envelope_indices, even_indices, plateau_judgement,
+                                sample_rows, symbol_codes, tail_range)
 from laneprint.reference import INDICATORS
 
 _UNITS = {"t_f": "t_f [s]", "t_nf": "t_nf [s]", "dv_nb": "dv_nb [m/s]"}
@@ -46,6 +46,11 @@ def training_curves(metrics: pd.DataFrame, smoothing: float = 0.95, max_points: 
         return fig
     m = metrics.sort_values("episode")
     episodes = m["episode"].to_numpy()
+    reward = pd.to_numeric(m["mean_step_reward"], errors="coerce") if "mean_step_reward" in m else []
+    state, judged = plateau_judgement(reward)
+    fig.add_annotation(text=f"<b>{state}</b>", xref="x2 domain", yref="y2 domain", x=0.98, y=0.04, showarrow=False,
+                       font={"size": 12, "color": "#b45309" if state in ("rising", "falling") else "#555"},
+                       xanchor="right", hovertext=judged)
     for col, key in ((1, "loss"), (2, "mean_step_reward")):
         y = (pd.to_numeric(m[key], errors="coerce") if key in m else pd.Series(np.nan, index=m.index)).to_numpy()
         y = y.astype(float)
@@ -64,7 +69,9 @@ def training_curves(metrics: pd.DataFrame, smoothing: float = 0.95, max_points: 
                                y=0.5, showarrow=False, font={"size": 12, "color": "#b45309"}, align="center")
     fig.update_yaxes(title_text=LOSS_LABEL, row=1, col=1)
     fig.update_yaxes(title_text=REWARD_LABEL, row=1, col=2)
-    fig.update_layout(title=f"Training (Fig. 9): per episode (faint), smoothed {smoothing:g} (dark)", height=380)
+    fig.update_layout(title=f"Training (Fig. 9): per episode (faint), smoothed {smoothing:g} (dark)<br>"
+                            f"<sup>reward {judged}</sup>", height=400, margin={"t": 90})
+    fig.layout.meta = {"plateau": judged}
     return fig
 
 

@@ -37,10 +37,11 @@ import torch
 from laneprint.errors import UserError
 from laneprint.locks import FileLock, is_locked
 from laneprint.progress import ProgressFn, report
+from laneprint.provenance import analysis_mark
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.learners.dqn import DQNSettings, DQNTrainer, q_network
 from rl.problem.env import Approach, EnvConfig, LaneChangeDecisionEnv, approaches_from_decisions, observation_names
-from rl.evaluation.evaluate import agent_policy, evaluate_policies, greedy_policy
+from rl.evaluation.evaluate import FIELDS as EVAL_FIELDS, agent_policy, evaluate_policies, greedy_policy
 from rl.baselines.imitation import fitted_classifier
 from rl.problem.rewards import ReferenceLines
 from rl.settings import AutoSettings, LearnerSettings, TreeQSettings, learner_config, stored_learner
@@ -261,6 +262,8 @@ def create_run(workspace: Workspace, target: Target, env_config: EnvConfig, sett
     # a fleet passes these once for all its runs (each costs a git call or a folder scan)
     config.setdefault("code_version", code_version())
     config.setdefault("data_fingerprint", workspace.fingerprint())
+    # the analysis the run's lines and drivers came from (`laneprint.provenance`)
+    config.setdefault("analysis_fingerprint", workspace.analysis_fingerprint())
     atomic_write_json(folder / "config.json", config)
     return folder, config
 
@@ -499,6 +502,23 @@ def target_drivers(workspace: Workspace, target: Target) -> tuple[list[str], str
     return typical + rest, (typical[0] if typical else None)
 
 
+def personalized_split(decisions: pd.DataFrame, drivers: list[str], given: list[str]) -> dict[str, Any]:
+    """A personalised run's split of its driver's rows: `given`, the K decisions it was built from (press and
+    not-yet rows), and `scored`, the decisions it did not see, or the K themselves when it saw all of them;
+    `scored_on` says which ("held out: the N decisions not given" or "in-sample: all K decisions given")."""
+    rows = decisions[decisions["driver_id"].astype(str).isin(drivers)]
+    ids = rows["decision_id"].astype(str)
+    given_set = set(given)
+    given_rows, rest = rows[ids.isin(given_set)], rows[~ids.isin(given_set)]
+    n_rest = int(rest.loc[rest["label"] == "change", "decision_id"].nunique())
+    if n_rest:
+        scored, what = rest, f"held out: the {n_rest} decisions not given"
+    else:
+        scored, what = given_rows, f"in-sample: all {len(given)} decisions given"
+    return {"given": given_rows, "scored": scored, "scored_on": what,
+            "counts": {"given": len(given), "held_out": n_rest}}
+
+
 def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | None = None,
                  classifiers: dict | None = None) -> dict[str, Any]:
     """Evaluate a run against the drivers' recorded decisions; writes evaluation.json + tables.
@@ -519,15 +539,22 @@ def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | No
             raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first to evaluate against the drivers")
         decisions = workspace.read_table("analysis", "decisions")
     drivers, typical = target_drivers(workspace, target)
-    # the imitation benchmark, fitted on the same states it is scored on (in-sample, like the agent)
-    member_approaches, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(drivers)])
+    given = [str(d) for d in config.get("decision_ids") or []] if config.get("kind") == "personalized" else []
+    split = personalized_split(decisions, drivers, given) if given else None
+    if split is not None:
+        decisions = split["scored"]  # the agent and its comparators are scored on these rows only
+    # the imitation benchmark: fitted on the states the agent learnt from (in-sample, like the agent), or
+    # for a personalised run on the same K given decisions the agent was built from
+    fit_rows = split["given"] if split is not None else decisions[decisions["driver_id"].astype(str).isin(drivers)]
+    member_approaches, _ = approaches_from_decisions(fit_rows)
     policies = {"agent": agent_policy(net, cfg), "greedy": greedy_policy(cfg)}
     if member_approaches:
         policies["imitation"] = fitted_classifier(member_approaches, cfg, settings.seed, classifiers,
-                                                  key=tuple(drivers)).policy(cfg)
+                                                  key=tuple(drivers) + (("given", *given) if given else ())).policy(cfg)
     out: dict[str, Any] = {"run_id": run_id, "target": asdict(target), "reward": cfg.reward.name,
                            "drivers": drivers, "typical_driver": typical, "evaluated_at": now_iso(),
-                           "data_fingerprint": workspace.fingerprint()}
+                           "data_fingerprint": workspace.fingerprint(),
+                           "analysis_fingerprint": workspace.analysis_fingerprint()}
     tables = {}
     groups = {"members": drivers}
     if typical is not None and target.kind == "style":
@@ -543,10 +570,21 @@ def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | No
         if group == "members":
             tables = {"eval_states": ev["states"], "eval_changes": ev["changes"]}
     out["summary"] = out.get("summary_typical") or out["summary_members"]
-    out["note"] = ("in-sample figures (the agent and the imitation classifier were fitted on these decisions; "
-                   "`laneprint crossval --run` holds sessions out): the typical driver's decisions first "
-                   "('summary_typical'), then all members'" if "summary_typical" in out else
-                   "in-sample figures on the driver's decisions (`laneprint crossval --run` holds sessions out)")
+    out["fields"] = EVAL_FIELDS
+    if split is not None:
+        out.update({"scored_on": split["scored_on"], "split": split["counts"],
+                    "note": f"{split['scored_on']}: the agent was built from the driver's first {len(given)} "
+                            "decisions and the imitation classifier fitted on the same ones; greedy follows the "
+                            "style's lines. Scored on the others, which neither saw."
+                    if split["counts"]["held_out"] else
+                    f"{split['scored_on']}: every decision was given, so the figures are in-sample "
+                    "(the agent and the imitation classifier saw all of them)."})
+    else:
+        out["scored_on"] = "in-sample"
+        out["note"] = ("in-sample figures (the agent and the imitation classifier were fitted on these decisions; "
+                       "`laneprint crossval --run` holds sessions out): the typical driver's decisions first "
+                       "('summary_typical'), then all members'" if "summary_typical" in out else
+                       "in-sample figures on the driver's decisions (`laneprint crossval --run` holds sessions out)")
     for name, df in tables.items():
         buf = io.BytesIO()
         df.to_parquet(buf, index=False)
@@ -599,9 +637,11 @@ def read_metrics(path: Path) -> pd.DataFrame:
 def list_runs(workspace: Workspace) -> pd.DataFrame:
     """One row per run folder: id, target, reward, seed, state, progress, times, headline figures."""
     cols = ["run_id", "target_kind", "target", "reward", "lines_source", "seed", "state", "episode", "episodes",
-            "started_at", "updated_at", "message", "recall", "balanced_accuracy", "timing_mae_s"]
+            "started_at", "updated_at", "message", "recall", "balanced_accuracy", "timing_mae_s",
+            "analysis", "analysis_label", "analysis_fingerprint"]
     rows = []
     root = workspace.runs_dir
+    current = workspace.analysis_fingerprint()
     for folder in sorted(root.glob("*")) if root.exists() else []:
         config = _read_json(folder / "config.json")
         if config is None:
@@ -616,8 +656,16 @@ def list_runs(workspace: Workspace) -> pd.DataFrame:
             "started_at": status.get("started_at"), "updated_at": status.get("updated_at"),
             "message": status.get("message"), "recall": agent.get("recall"),
             "balanced_accuracy": agent.get("balanced_accuracy"), "timing_mae_s": agent.get("timing_mae_s"),
+            **run_analysis_mark(config, current),
         })
     return pd.DataFrame(rows, columns=cols)
+
+
+def run_analysis_mark(config: dict[str, Any], current: str | None) -> dict[str, str | None]:
+    """Whether a run was made with the current analysis (`laneprint.provenance.analysis_mark`); a run
+    trained on Table 1's lines (`--lines paper`) still took its drivers from the analysis."""
+    mark = analysis_mark(config.get("analysis_fingerprint"), current)
+    return {k: mark[k] for k in ("analysis", "analysis_label", "analysis_fingerprint")}
 
 
 def load_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
@@ -630,6 +678,7 @@ def load_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
         "run_id": run_id, "folder": folder, "config": config,
         "status": _read_json(folder / "status.json"), "metrics": read_metrics(folder / "metrics.jsonl"),
         "evaluation": _read_json(folder / "evaluation.json"), "has_weights": (folder / "weights.pt").exists(),
+        "analysis_mark": analysis_mark(config.get("analysis_fingerprint"), workspace.analysis_fingerprint()),
     }
     for name in ("eval_states", "eval_changes"):
         path = folder / f"{name}.parquet"

@@ -98,7 +98,7 @@ def style_section(ws, decisions: pd.DataFrame) -> tuple[str, int] | None:
         st.warning(str(exc))
         return None
     st.metric(f"Style of {driver} from {k} decisions", est.style,
-              f"confidence {100 * est.confidence:.0f} %", delta_color="off")
+              f"confidence {100 * est.confidence:.0f} %", delta_color="off", delta_arrow="off")
     st.plotly_chart(style_figure(est), key="p_style_fig")
     st.caption(f"Clustered on the other {len(drivers) - 1} drivers with the analysis's features; compared on "
                f"{', '.join(est.compared)} (the speeds its presses cover). Confidence: the share of {est.n_bootstrap} "
@@ -121,20 +121,30 @@ def launch(ws, driver: str, k: int, base: str, seed: int, fine_tune: bool = Fals
 
 
 def run_panel(ws, run_id: str, status: dict) -> None:
-    """Progress of one personalisation (base agent, then fine-tuning), and its figures when done."""
-    done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
-    st.progress(min(1.0, done / total) if total else 0.0,
-                text=f"{run_id}: {status.get('state')} — {status.get('message', '')} ({done}/{total or '?'})")
-    if status.get("state") in jobs.ACTIVE_STATES:
+    """Progress of one personalisation (base agent, then fine-tuning) with Cancel while it works; once it
+    has finished, what it made and a link to its figures on the Results page."""
+    state = status.get("state")
+    if state in jobs.ACTIVE_STATES:
+        st.progress(*views.personalize_progress(run_id, status))
         if st.button("Cancel", key=f"p_cancel_{run_id}"):
             jobs.cancel(ws, run_id)
-    elif status.get("log"):
+        return
+    if state == "done":
+        p = loaders.personalized(str(ws.root), run_id, loaders.run_stamp(ws.root, run_id))
+        st.success(views.personalize_done(run_id, status, p))
+        st.markdown(f"[Open {run_id} on the Results page](results?run={run_id})")
+        return
+    st.warning(f"{run_id}: {state} — {status.get('message', '')}")
+    if status.get("log"):
         st.code(status["log"], language=None)
 
 
 def personalised_runs(ws) -> pd.DataFrame:
     """Every personalised run: driver, K, base, style and its figures on the decisions after the first K."""
+    from laneprint.provenance import analysis_mark
+
     rows = []
+    current = loaders.current_analysis(ws.root)
     for folder in sorted(ws.runs_dir.glob("*")) if ws.runs_dir.exists() else []:
         try:
             p = json.loads((folder / "personalize.json").read_text())
@@ -147,21 +157,36 @@ def personalised_runs(ws) -> pd.DataFrame:
                      "from": p["base"]["from"], "base": p["base"].get("chosen", p["base"]["from"]),
                      "style": p["style"]["style"],
                      "confidence": round(100 * p["style"]["confidence"]),
-                     "later decisions": later.get("n_decisions"),
+                     "held out: decisions not given": later.get("n_decisions"),
                      "balanced acc. [%]": None if not later else round(100 * later["balanced_accuracy"], 1),
                      "95 % CI": None if lo is None else f"[{100 * lo:.1f}, {100 * hi:.1f}]",
-                     "timing MAE [s]": later.get("timing_mae_s")})
+                     "timing MAE [s]": later.get("timing_mae_s"),
+                     "analysis": analysis_mark(p.get("analysis_fingerprint"), current)["analysis_label"]})
     return pd.DataFrame(rows)
+
+
+def launched_runs(ws) -> None:
+    """The personalisations started from this page: live while under way, then the last one's result."""
+    launched = st.session_state.get("p_launched", [])
+    active = [r for r in launched if jobs.run_status(ws, r).get("state") in jobs.ACTIVE_STATES]
+    if launched:
+        st.subheader("Under way" if active else "Last personalisation")
+        if active:  # polled until one ends, then the page reruns once
+            widgets.live_panels(active, lambda r: jobs.run_status(ws, r), lambda r, status: run_panel(ws, r, status))
+        else:  # drawn once: a finished run in the live panels made the page rerun without end
+            run_panel(ws, launched[-1], jobs.run_status(ws, launched[-1]))
 
 
 def main() -> None:
     st.title("Personalise")
     ws = workspace()
     upload_session(ws)
+    launched_runs(ws)
     tables = loaders.analysis(str(ws.root), loaders.analysis_stamp(ws.root))
     decisions = tables.get("decisions")
     if decisions is None or decisions.empty:
         st.info(f"No analysis yet: upload a study (Data page) and run `{views.cli_hint('analyze', ws.root)}`.")
+        runs_table(ws)
         return
     picked = style_section(ws, decisions)
     if picked:
@@ -184,18 +209,17 @@ def main() -> None:
         if st.button("Personalise", type="primary", key="p_start"):
             st.session_state.setdefault("p_launched", []).append(launch(ws, driver, k, base, seed, fine_tune))
             st.rerun()
-    launched = st.session_state.get("p_launched", [])
-    active = [r for r in launched if jobs.run_status(ws, r).get("state") in jobs.ACTIVE_STATES]
-    if launched:
-        st.subheader("Under way" if active else "Last personalisation")
-        widgets.live_panels(active or launched[-1:], lambda r: jobs.run_status(ws, r),
-                            lambda r, status: run_panel(ws, r, status))
+    runs_table(ws)
+
+
+def runs_table(ws) -> None:
+    """Every personalised run, with the analysis it was made from."""
     table = personalised_runs(ws)
     if len(table):
         st.subheader("Personalised runs (learning-curve points)")
         st.dataframe(table, hide_index=True, width="stretch", key="p_runs")
-        st.caption("Figures on each driver's decisions after its first K (never seen by the agent); the runs are "
-                   "ordinary runs on the Results page. The benchmark of the whole curve: "
+        st.caption("Held out: figures on each driver's decisions after its first K (not given, never seen by the "
+                   "agent); the runs are ordinary runs on the Results page. The benchmark of the whole curve: "
                    "`python benchmarks/personalize.py -w WORKSPACE`.")
 
 

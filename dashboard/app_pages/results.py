@@ -2,6 +2,7 @@
 in-sample and held out (cross-validation); two runs compared; a fleet's agents side by side;
 every stored cross-validation."""
 
+import plotly.graph_objects as go
 import streamlit as st
 
 from dashboard import figures, jobs, loaders, views, widgets
@@ -15,9 +16,10 @@ def evaluated_runs(ws) -> list[str]:
 
 
 def in_sample_tables(ev: dict) -> None:
-    st.subheader("In-sample: agent vs benchmarks vs driver")
-    st.caption("In-sample: scored on the decisions the agent was trained on (and the imitation classifier, "
-               "when present, fitted on); the held-out figures below hold sessions out.")
+    heading, caption = views.evaluation_heading(ev)
+    st.subheader(heading)
+    st.caption(caption)
+    scored = str(ev.get("scored_on") or "in-sample")
     if ev.get("summary_typical"):
         st.caption(f"On the typical driver's decisions ({views.md_escape(ev.get('typical_driver'))}, "
                    f"{ev.get('n_decisions_typical')} decisions), in-sample:")
@@ -25,9 +27,10 @@ def in_sample_tables(ev: dict) -> None:
     n = len(ev.get("drivers", []))
     whose = "the driver's" if n == 1 else f"all {n} drivers'"
     st.caption(f"On {whose} decisions ({ev.get('n_decisions_members')} decisions, "
-               f"{ev.get('n_states_members')} states), in-sample:")
+               f"{ev.get('n_states_members')} states), {scored}:")
     st.dataframe(views.evaluation_table(ev.get("summary_members") or ev.get("summary")), hide_index=True,
                  width="stretch")
+    st.caption(views.EVAL_DEFINITION)
 
 
 def held_out_figures(result: dict, in_sample: list | None, key: str) -> None:
@@ -37,7 +40,9 @@ def held_out_figures(result: dict, in_sample: list | None, key: str) -> None:
     if in_sample is not None and not any(r.get("who") == "imitation" for r in in_sample):
         st.caption("This run's in-sample evaluation has no imitation row (evaluated before the imitation "
                    "benchmark existed): `laneprint evaluate RUN_ID` adds it.")
-    st.plotly_chart(figures.heldout_vs_insample(result.get("summary"), in_sample), key=f"cv_bars_{key}")
+    bars = figures.heldout_vs_insample(result.get("summary"), in_sample)
+    st.plotly_chart(bars, key=f"cv_bars_{key}")
+    widgets.figure_downloads(bars, f"held-out-vs-in-sample-{key}", key=f"cv_bars_{key}")
     unscored = views.unscored_table(result)
     if len(unscored):
         st.markdown(f"**Not scored** ({int(unscored['decisions'].sum())} decisions), by reason:")
@@ -88,6 +93,12 @@ def held_out(ws, run_id: str, run: dict) -> None:
         result = own
     else:
         result = loaders.crossval(root, pick, loaders.crossvals_stamp(ws.root))
+    cv_level, cv_text = views.analysis_notice(result.get("analysis_fingerprint"), loaders.current_analysis(ws.root),
+                                              "cross-validation")
+    if cv_level == "warning":
+        st.warning(cv_text)
+    elif cv_level == "info":
+        st.caption(cv_text)
     differences = views.crossval_differences(result, run_id, cfg)
     if differences:
         st.caption("Not exactly this run's settings: " + "; ".join(differences) + ".")
@@ -108,14 +119,31 @@ def downloads(ws, run_id: str, run: dict) -> None:
     c2.download_button("Results (CSV)", data=lambda: views.run_results_csv(run, own), file_name=f"{run_id}.csv",
                        mime="text/csv", key=f"dl_csv_{run_id}", on_click="ignore",
                        help="one row per policy: in-sample figures, held out with 95 % intervals when cross-validated")
-    if run.get("has_weights"):
-        c3.download_button("Policy (ONNX + policy.json, zip)", data=lambda: jobs.policy_zip(ws, run_id),
-                           file_name=f"{run_id}-policy.zip", mime="application/zip", key=f"dl_onnx_{run_id}",
-                           on_click="ignore",
-                           help="`laneprint export RUN_ID --format onnx`: checked against torch with onnxruntime; "
-                                "takes a few seconds the first time")
-    else:
-        c3.caption("No trained weights to export.")
+    policy_download(ws, run_id, run, c3)
+
+
+def policy_download(ws, run_id: str, run: dict, box) -> None:
+    """The ONNX policy: one click when its export is current; else a button that exports it first and says on
+    the page why when that fails (or, without onnx/onnxruntime, what to install instead of a button)."""
+    error_key = f"onnx_error_{run_id}"
+    if not run.get("has_weights"):
+        box.caption("No trained weights to export.")
+    elif hint := jobs.onnx_missing():
+        box.info(f"Policy (ONNX): {hint}.")
+    elif jobs.policy_is_current(ws, run_id):
+        box.download_button("Policy (ONNX + policy.json, zip)", data=lambda: jobs.policy_zip(ws, run_id),
+                            file_name=f"{run_id}-policy.zip", mime="application/zip", key=f"dl_onnx_{run_id}",
+                            on_click="ignore",
+                            help="`laneprint export RUN_ID --format onnx`: checked against torch with onnxruntime")
+    elif box.button("Export the policy (ONNX)", key=f"export_onnx_{run_id}",
+                    help="`laneprint export RUN_ID --format onnx`: writes policy.onnx, policy.json and README.md, "
+                         "checked against torch with onnxruntime (a few seconds); then the zip downloads"):
+        with box, st.spinner("exporting and checking with onnxruntime..."):
+            st.session_state[error_key] = jobs.export_policy(ws, run_id)
+        if st.session_state[error_key] is None:
+            st.rerun()
+    if err := st.session_state.get(error_key):
+        box.error(f"The policy could not be exported: {err}")
 
 
 def report_download(ws) -> None:
@@ -129,23 +157,39 @@ def one_run(ws, run_id: str) -> None:
     run = loaders.run(str(ws.root), run_id, loaders.run_stamp(ws.root, run_id))
     ev = run["evaluation"]
     cfg = run["config"]
-    st.markdown(f"**{views.md_escape(run_id)}**: {cfg['target']['kind']} **{views.md_escape(cfg['target']['name'])}**, reward `{cfg.get('reward')}`, "
-                f"lines `{cfg.get('lines_source')}`, seed {cfg.get('seed')}, "
-                f"{(run['status'] or {}).get('episode', '?')} episodes")
+    st.markdown(views.run_header(run_id, cfg, run["status"]))
+    analysis_banner(ws, cfg)
     never = views.never_learnt(run["metrics"], cfg)
     if never:
         st.warning(never)
     downloads(ws, run_id, run)
     in_sample_tables(ev)
     held_out(ws, run_id, run)
-    st.subheader("Indicators at the decisions against the reference lines (Fig. 10, in-sample)")
-    st.plotly_chart(indicators_at_decisions(run["eval_changes"], cfg["lines"]), key=f"fig10_{run_id}")
-    st.subheader("Same and opposite decisions as the drivers (Fig. 11, in-sample)")
+    where = str((ev or {}).get("scored_on") or "in-sample")
+    st.subheader(f"Indicators at the decisions against the reference lines (Fig. 10, {where})")
+    fig10 = indicators_at_decisions(run["eval_changes"], cfg["lines"])
+    st.plotly_chart(fig10, key=f"fig10_{run_id}")
+    widgets.figure_downloads(fig10, f"{run_id}-fig10-indicators", key=f"fig10_{run_id}")
+    st.subheader(f"Same and opposite decisions as the drivers (Fig. 11, {where})")
     left, right = st.columns(2)
-    left.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="agent")), key=f"fig11a_{run_id}")
+    fig11 = decision_agreement(run["eval_states"], who="agent")
+    left.plotly_chart(figures.compact(go.Figure(fig11)), key=f"fig11a_{run_id}")
     right.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="greedy")),
                        key=f"fig11g_{run_id}")
+    widgets.figure_downloads(fig11, f"{run_id}-fig11-agent", key=f"fig11a_{run_id}")
     curves_of(run_id, run)
+
+
+def analysis_banner(ws, cfg: dict) -> None:
+    """Whether the run was made with the current analysis; a re-run offered when it was not."""
+    level, text = views.analysis_notice(cfg.get("analysis_fingerprint"), loaders.current_analysis(ws.root))
+    if level == "ok":
+        st.caption(text)
+        return
+    (st.warning if level == "warning" else st.info)(text, icon=":material/history:")
+    kind, name = cfg.get("target", {}).get("kind"), str(cfg.get("target", {}).get("name"))
+    st.caption(f"Re-run it on the Training page ({kind} {name}), or "
+               f"`{views.cli_hint('train', ws.root, f'--{kind}', name)}`.")
 
 
 @st.fragment
@@ -245,7 +289,8 @@ def main() -> None:
         drives(ws)
         stored_crossvals(ws, show_one=True)
         return
-    one_run(ws, st.selectbox("Run", runs, key="result_run"))
+    wanted = st.query_params.get("run")  # the Personalise page links to its finished run
+    one_run(ws, st.selectbox("Run", runs, key="result_run", index=runs.index(wanted) if wanted in runs else 0))
     compare(ws, runs)
     fleets(ws)
     drives(ws)

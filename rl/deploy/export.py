@@ -69,12 +69,24 @@ class _Policy(torch.nn.Module):
         return q, torch.argmax(q, dim=1)
 
 
+#: What to install when onnx or onnxruntime is missing (both are base dependencies of laneprint).
+ONNX_HINT = ("the ONNX export needs onnx and onnxruntime, which `pip install -e .` installs (base dependencies); "
+             "into this environment: pip install 'onnx>=1.17' 'onnxruntime>=1.20'")
+
+
+def onnx_missing() -> str | None:
+    """`ONNX_HINT` when onnx or onnxruntime cannot be imported here, else None (checked without importing them)."""
+    from importlib.util import find_spec
+
+    return None if find_spec("onnx") and find_spec("onnxruntime") else ONNX_HINT
+
+
 def _require_onnx() -> None:
     try:
         import onnx  # noqa: F401
         import onnxruntime  # noqa: F401
     except ImportError:
-        raise UserError("ONNX export needs the onnx extra: pip install -e '.[onnx]'") from None
+        raise UserError(ONNX_HINT) from None
 
 
 def onnx_bytes(net: torch.nn.Module, n_inputs: int, metadata: dict[str, str]) -> bytes:

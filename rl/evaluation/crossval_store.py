@@ -25,6 +25,7 @@ import pandas as pd
 from clustering.pipeline import stored_settings
 from laneprint.errors import UserError
 from laneprint.progress import ProgressFn
+from laneprint.provenance import analysis_mark
 from laneprint.workspace import Workspace, atomic_write_json
 from rl.evaluation.crossval import CrossvalSettings, crossvalidate
 from rl.problem.env import EnvConfig
@@ -65,7 +66,8 @@ def run_crossval(workspace: Workspace, target: Target, env: EnvConfig, dqn: Lear
     states, changes = res.pop("states"), res.pop("changes")
     cv_id = _new_id(target, env.reward.name, settings.seed)
     res = {"crossval_id": cv_id, "target": asdict(target), "run_id": run_id, "lines_source": lines_source,
-           "created_at": now_iso(), "data_fingerprint": workspace.fingerprint(), **res}
+           "created_at": now_iso(), "data_fingerprint": workspace.fingerprint(),
+           "analysis_fingerprint": workspace.analysis_fingerprint(), **res}
     folder = crossval_dir(workspace) / cv_id
     with workspace.staging() as box:  # the whole folder appears at once, or not at all
         for name, df in (("states", states), ("changes", changes)):
@@ -111,6 +113,7 @@ def list_crossvals(workspace: Workspace) -> pd.DataFrame:
     """One row per finished cross-validation: id, target, run, reward, and each policy's balanced accuracy."""
     rows = []
     root = crossval_dir(workspace)
+    current = workspace.analysis_fingerprint()
     for folder in sorted(root.glob("*")) if root.exists() else []:
         try:
             res = json.loads((folder / "result.json").read_text())
@@ -118,7 +121,8 @@ def list_crossvals(workspace: Workspace) -> pd.DataFrame:
             continue
         row = {"crossval_id": folder.name, "target_kind": res["target"]["kind"], "target": res["target"]["name"],
                "run_id": res.get("run_id"), "reward": res["env"]["reward"]["name"], "scenes": res["env"].get("scenes"),
-               "folds": res.get("folds"), "created_at": res.get("created_at")}
+               "folds": res.get("folds"), "created_at": res.get("created_at"),
+               "analysis": analysis_mark(res.get("analysis_fingerprint"), current)["analysis_label"]}
         for r in res.get("summary", []):
             row[f"{r['who']}_balanced_accuracy"] = r["balanced_accuracy"]
         rows.append(row)
@@ -135,4 +139,5 @@ def load_crossval(workspace: Workspace, crossval_id: str) -> dict[str, Any]:
     for name in ("states", "changes"):
         path = folder / f"{name}.parquet"
         res[name] = pd.read_parquet(path) if path.exists() else None
+    res["analysis_mark"] = analysis_mark(res.get("analysis_fingerprint"), workspace.analysis_fingerprint())
     return res

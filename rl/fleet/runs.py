@@ -111,7 +111,8 @@ def create_fleet(workspace: Workspace, targets: list[Target], seeds: list[int], 
     fleet_id = fleet_id or f"{datetime.now(timezone.utc):%Y%m%d-%H%M%S}-fleet-{kinds[0]}s-{len(targets) * len(seeds)}"
     if is_fleet(workspace, fleet_id):
         raise UserError(f"fleet {fleet_id!r} exists already (pass --resume {fleet_id} to continue it)")
-    common = {"fleet_id": fleet_id, "code_version": code_version(), "data_fingerprint": workspace.fingerprint()}
+    common = {"fleet_id": fleet_id, "code_version": code_version(), "data_fingerprint": workspace.fingerprint(),
+              "analysis_fingerprint": workspace.analysis_fingerprint()}
     counts = None
     runs = []
     for target in targets:

@@ -219,7 +219,8 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
         extra = {"run_id": run_id, "driver": str(driver), "decisions": len(used),
                  "decisions_available": config["decisions_available"], "style": est.to_dict(), "base": base,
                  "method": used_ps.method, "fine_tuned": used_ps.method != "none",
-                 "later_decisions": later, "created_at": now_iso()}
+                 "later_decisions": later, "created_at": now_iso(),
+                 "analysis_fingerprint": config.get("analysis_fingerprint")}
         atomic_write_json(folder / "personalize.json", extra)
         evaluate_run(workspace, run_id)
         what = (f"the blend of {sum(v > 0 for v in base['weights'].values())} agents weighted by {len(used)} "

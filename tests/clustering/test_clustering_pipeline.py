@@ -44,6 +44,12 @@ def test_analyze_writes_stage_and_report(workspace, report):
         assert ws.has_table("analysis", name)
     meta = ws.read_meta("analysis")
     assert meta["data_fingerprint"] == ws.fingerprint()
+    # what the analysis decided, as every result records it (issue 48); the same hashed from the stored tables
+    from laneprint.workspace import analysis_fingerprint
+
+    stored = {n: ws.read_table("analysis", n) for n in ("styles", "reference_lines")}
+    assert meta["analysis_fingerprint"] == ws.analysis_fingerprint() == analysis_fingerprint(stored)
+    assert report["analysis_fingerprint"] == meta["analysis_fingerprint"]
     assert meta["settings"]["far_follower_m"] == 100.0 and meta["code"]["version"]
     assert set(report["drivers"]) == {d["driver_id"] for d in study.ground_truth["drivers"]}
     assert report["summary"]["n_presses"] == 6 * 16

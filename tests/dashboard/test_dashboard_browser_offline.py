@@ -203,6 +203,8 @@ def test_results_downloads(heavy_server, browser, tmp_path):
     expect(page.get_by_role("heading", name="Results", exact=True).first).to_be_visible(timeout=60_000)
     settle(page)
     got = {}
+    page.get_by_role("button", name="Export the policy (ONNX)").click()  # exported once, then one click
+    expect(page.get_by_role("button", name="Policy (ONNX + policy.json, zip)")).to_be_visible(timeout=120_000)
     for label in ("Report of the study (HTML)", "Results (CSV)", "Results (JSON)", "Policy (ONNX + policy.json, zip)"):
         with page.expect_download(timeout=120_000) as dl:
             page.get_by_role("button", name=label).click()

@@ -47,13 +47,14 @@ def test_style_summary_and_for_driver():
 
 
 def test_evaluation_table_in_percent_and_compare():
-    summary = [{"who": "agent", "recall": 0.959, "timing_mae_s": 0.25, "mae_t_f": None},
-               {"who": "greedy", "recall": 0.837, "timing_mae_s": 1.5, "mae_t_f": 0.7}]
+    summary = [{"who": "agent", "recall": 0.959, "timing_mae_s": 0.25, "medae_t_f": None},
+               {"who": "greedy", "recall": 0.837, "timing_mae_s": 1.5, "medae_t_f": 0.7}]
     t = views.evaluation_table(summary)
     assert t["policy"].tolist() == ["agent", "greedy"]
     assert t["recall at the presses [%]"].tolist() == [95.9, 83.7]
     assert t["timing MAE [s]"].tolist() == [0.25, 1.5]
-    assert t["MAE t_f [s]"].isna().tolist() == [True, False]
+    assert t["median |err| t_f [s]"].isna().tolist() == [True, False]
+    assert "median" in views.EVAL_DEFINITION and "minutes" in views.EVAL_DEFINITION
     both = views.compare_runs({"r1": t, "r2": t.head(1)})
     assert both["run_id"].tolist() == ["r1", "r1", "r2"] and list(both.columns)[:2] == ["run_id", "policy"]
 

@@ -101,6 +101,18 @@ def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(s
     assert any(r["run_id"] == "p5" and r["state"] == "done" for r in json.loads(runs.stdout)["runs"])
     ev = CliRunner().invoke(app, ["evaluate", "p5", "-w", str(study.root), "--json"])
     assert ev.exit_code == 0, ev.output
+    # scored on the decisions it was not given, its comparators fitted on the same K (issue 48)
+    evaluation = json.loads((folder / "evaluation.json").read_text())
+    assert evaluation["scored_on"] == "held out: the 13 decisions not given"
+    assert evaluation["split"] == {"given": 5, "held_out": 13} and evaluation["n_decisions_members"] == 13
+    assert {r["who"] for r in evaluation["summary"]} >= {"agent", "greedy", "imitation", "driver"}
+    from rl.runs import personalized_split
+
+    split = personalized_split(dec, ["D03"], expected)
+    assert set(split["given"]["decision_id"]) == set(expected)
+    assert not set(split["scored"]["decision_id"]) & set(expected)
+    assert personalized_split(dec, ["D03"], decision_order(dec[dec["driver_id"] == "D03"]))["scored_on"] == \
+        "in-sample: all 18 decisions given"
     if importlib.util.find_spec("onnxruntime"):
         exp = CliRunner().invoke(app, ["export", "p5", "-w", str(study.root), "--json"])
         assert exp.exit_code == 0, exp.output
