@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import copy
 import io
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -97,9 +96,10 @@ def figure_data(fig: go.Figure) -> pd.DataFrame:
     frames = []
     for i, tr in enumerate(fig.data):
         x, y = getattr(tr, "x", None), getattr(tr, "y", None)
-        if x is None and y is None:
+        values = x if x is not None else y
+        if values is None:
             continue
-        n = len(x if x is not None else y)
+        n = len(values)
         xa = "xaxis" + ((getattr(tr, "xaxis", None) or "x")[1:])
         ya = "yaxis" + ((getattr(tr, "yaxis", None) or "y")[1:])
         df = pd.DataFrame({"trace": tr.name or f"trace {i}", "type": tr.type,

@@ -4,7 +4,7 @@ draw (a long curve's envelope, a random sample of a dense cloud) so that pages s
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
@@ -228,7 +228,7 @@ def line_formula(name: str, a: float, b: float, x: str = "v_e", digits_a: int = 
     return f"{name} = {slope} {x}{signed(b, digits_b)}"
 
 
-def log_ticks(values: Sequence[float] | np.ndarray, max_ticks: int = 9) -> dict[str, list]:
+def log_ticks(values: Sequence[float] | np.ndarray, max_ticks: int = 9) -> dict[str, Any]:
     """Tick positions and labels of a log axis over the positive finite `values`, written as the values
     they stand for ('0.5', '1', '2', '5', '10' s), never as Plotly's minor digits ('9 8 7 6 5' under 1
     on an axis shorter than a decade): every 1-9 step of each decade within the values' span, thinned

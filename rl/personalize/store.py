@@ -40,7 +40,7 @@ from clustering.pipeline import stored_settings
 from rl.personalize.style import estimate_style, fit_population
 from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config, replayed_approaches
 from rl.problem.rewards import ReferenceLines
-from rl.runs import RunWriter, Target, create_run, evaluate_run, new_run_id, now_iso
+from rl.runs import RunWriter, Target, create_run, evaluate_run, new_run_id, now_iso, run_dir
 from rl.settings import DQNSettings
 
 KIND = "personalized"
@@ -245,3 +245,11 @@ def personalised_settings(dqn: DQNSettings, ps: PersonalizeSettings, k: int, epi
     if ps.method == "none":  # the base as it is: no episodes
         return replace(finetune_settings(dqn, ps, k), episodes=0)
     return finetune_settings(dqn, ps, k, episodes)
+
+
+def load_personalized(workspace: Workspace, run_id: str) -> dict[str, Any] | None:
+    """A personalised run's personalize.json (None for other runs)."""
+    try:
+        return json.loads((run_dir(workspace, run_id) / "personalize.json").read_text())
+    except (OSError, ValueError):
+        return None
