@@ -52,12 +52,13 @@ def co_association(readings: Sequence[ReadingScore], drivers: list[str]) -> np.n
     return out
 
 
-def consensus_groups(readings: Sequence[ReadingScore], drivers: list[str], k: int) -> np.ndarray:
-    """Group (0 .. k-1, unnamed) of every driver: complete linkage on 1 - co-association, cut at k."""
+def consensus_groups(readings: Sequence[ReadingScore], drivers: list[str], k: int,
+                     method: str = LINKAGE) -> np.ndarray:
+    """Group (0 .. k-1, unnamed) of every driver: `method` linkage on 1 - co-association, cut at k."""
     if len(drivers) <= k:
         return np.arange(len(drivers))
     distance = 1.0 - co_association(readings, drivers)
-    tree = linkage(squareform(distance, checks=False), method=LINKAGE)
+    tree = linkage(squareform(distance, checks=False), method=method)
     return fcluster(tree, k, criterion="maxclust") - 1
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import re
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -14,7 +15,7 @@ import pyarrow.csv as pacsv
 
 from ingest.limits import IngestLimits, check_csv_shape, gunzip, long_line
 from ingest.logformat import CSV_EGO_REQUIRED, CSV_TIME, DEFAULT_LENGTH_M
-from ingest.mapping import Mapping
+from ingest.mapping import Mapping, traffic_regex
 from ingest.rawlog import RawLog, Rejected, first_line
 
 _STRING_COLUMNS = ("driver_id", "session_id", "simulator", "lc_direction")
@@ -25,6 +26,8 @@ _EGO_FLOATS = {  # CSV canonical column -> EGO column (positions scaled with pos
 }
 _POSITIONS = ("ego_x", "ego_y", "ego_length")
 _OPTIONAL_FLOATS = ("ego_y", "ego_length", "steer", "throttle", "brake", "speed_limit_kph")
+#: The traffic pattern's time on one file's header, all columns together [s].
+HEADER_MATCH_S = 2.0
 _CONVERSION = re.compile(r"In CSV column #(\d+): Row #(\d+): CSV conversion error to (\w+)(?:: invalid value '(.*)')?",
                          re.DOTALL)
 PART_MIN_BYTES = 4 << 20  # [bytes] a CSV is parsed in parts side by side from 2 x this size
@@ -74,13 +77,18 @@ def _missing_reason(missing: list[str], mapping: Mapping, names: list[str]) -> s
 
 def _vehicle_columns(names: list[str], known: set[str], mapping: Mapping) -> dict[str, dict[str, str]]:
     """Vehicle id -> canonical field -> file column, in the order the vehicles first appear."""
-    rx = re.compile(mapping.traffic_pattern)
+    rx = traffic_regex(mapping.traffic_pattern)
     tokens = mapping.vehicle_field_by_token
     out: dict[str, dict[str, str]] = {}
+    deadline = time.monotonic() + HEADER_MATCH_S
     for name in names:
         if name in known or name.startswith("ego_"):
             continue
-        m = rx.match(name)
+        try:
+            m = rx.match(name, timeout=max(deadline - time.monotonic(), 1e-3))
+        except TimeoutError:
+            raise Rejected(f"the traffic pattern took over {HEADER_MATCH_S:g} s on this file's column names "
+                           f"(at {name[:24]!r}): simplify [csv.traffic] pattern in the mapping") from None
         if not m or m.group("field") not in tokens:
             continue
         out.setdefault(m.group("id"), {})[tokens[m.group("field")]] = name

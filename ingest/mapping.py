@@ -21,11 +21,12 @@ See `ingest/README.md` for a full example.
 
 from __future__ import annotations
 
-import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import regex
 
 from ingest.logformat import (
     CSV_EGO_OPTIONAL,
@@ -43,6 +44,30 @@ from ingest.mcap_signals import McapSignals, signals_from_dict
 from laneprint.errors import UserError
 
 DEFAULT_TRAFFIC_PATTERN = r"^(?P<id>.+)_(?P<field>x|v|lane|y|length)$"
+#: A traffic pattern that takes longer than this on one probe name is refused before any log is read.
+PATTERN_PROBE_S = 0.25
+#: Column names on which a pattern with nested repetition backtracks for ever (`slow_probe`).
+_PROBES = tuple(c * 48 + end for c in "a1_." for end in ("!", "_x!", "_"))
+
+
+def traffic_regex(pattern: object) -> regex.Pattern:
+    """A mapping's traffic pattern compiled by `regex` (the `re` syntax, plus a time limit on a match)."""
+    if not isinstance(pattern, str):
+        raise UserError("mapping: [csv.traffic] pattern must be text (a regular expression)")
+    try:
+        return regex.compile(pattern)
+    except regex.error as exc:
+        raise UserError(f"mapping: [csv.traffic] pattern is not a valid regex: {exc}") from None
+
+
+def slow_probe(rx: regex.Pattern) -> str | None:
+    """The first probe column name the pattern cannot match or refuse within `PATTERN_PROBE_S` (None: all fast)."""
+    for name in _PROBES:
+        try:
+            rx.match(name, timeout=PATTERN_PROBE_S)
+        except TimeoutError:
+            return name
+    return None
 
 CSV_COLUMNS = (CSV_TIME, *CSV_META, *CSV_EGO_REQUIRED, *CSV_EGO_OPTIONAL)
 MCAP_FIELDS: dict[str, tuple[str, ...]] = {
@@ -148,12 +173,13 @@ def mapping_from_dict(doc: dict[str, Any], source: str = "") -> Mapping:
     traffic = csv.get("traffic", {}) or {}
     _check_keys("csv.traffic", traffic, {"pattern", "fields"})
     pattern = traffic.get("pattern", DEFAULT_TRAFFIC_PATTERN)
-    try:
-        rx = re.compile(pattern)
-    except re.error as exc:
-        raise UserError(f"mapping: [csv.traffic] pattern is not a valid regex: {exc}") from None
+    rx = traffic_regex(pattern)
     if not {"id", "field"} <= set(rx.groupindex):
         raise UserError("mapping: [csv.traffic] pattern needs named groups (?P<id>...) and (?P<field>...)")
+    slow = slow_probe(rx)
+    if slow is not None:
+        raise UserError(f"mapping: [csv.traffic] pattern takes over {PATTERN_PROBE_S} s on a column name like "
+                        f"{slow[:12]!r}...: write it without nested repetition, e.g. {DEFAULT_TRAFFIC_PATTERN!r}")
     tfields = _str_dict("csv.traffic.fields", traffic.get("fields", {}) or {})
     _check_keys("csv.traffic.fields", tfields, CSV_VEHICLE_FIELDS)
 

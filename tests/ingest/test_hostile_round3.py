@@ -270,3 +270,31 @@ def test_a_driver_id_in_markdown_is_shown_as_text(driver_id):
     shown = md_escape(driver_id)
     assert "](" not in shown and "<b>" not in shown and "**" not in shown.replace("\\*", "")
     assert shown.replace("\\", "") == driver_id.replace("\\", "")
+
+
+def test_a_backtracking_traffic_pattern_is_refused_before_any_log(tmp_path):
+    """A pattern with nested repetition ('(a|aa)+') would hang on a long column name: refused in one
+    line when the mapping is read."""
+    from ingest.mapping import load_mapping
+    from laneprint.errors import UserError
+
+    m = tmp_path / "m.toml"
+    m.write_text('[csv.traffic]\npattern = "^(?P<id>(a|aa)+)_(?P<field>x|v|lane)$"\n')
+    t0 = time.perf_counter()
+    with pytest.raises(UserError, match="nested repetition"):
+        load_mapping(m)
+    assert time.perf_counter() - t0 < 5
+
+
+def test_a_pattern_slow_on_one_files_header_refuses_that_file(monkeypatch):
+    """Past the probe, the header's matching has a time limit: that file is refused, not hung."""
+    from ingest import csv_reader
+    from ingest.mapping import Mapping
+    from ingest.rawlog import Rejected
+
+    monkeypatch.setattr(csv_reader, "HEADER_MATCH_S", 0.05)
+    mapping = Mapping(traffic_pattern=r"^(?P<id>(a|aa)+)_(?P<field>x|v|lane)$")
+    t0 = time.perf_counter()
+    with pytest.raises(Rejected, match="traffic pattern took over"):
+        csv_reader._vehicle_columns(["a" * 60 + "!"], set(), mapping)
+    assert time.perf_counter() - t0 < 5

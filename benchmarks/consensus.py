@@ -1,0 +1,116 @@
+"""How many readings vote, and how the drivers are cut: `--features consensus` chosen one world out.
+
+On the zoo of worlds (`benchmarks/zoo.py`, studies cached under `--root`), every study's
+readings are ranked once as `--features separated` ranks them (`clustering.choice.ranked_readings`);
+then each variant of the consensus (the N best readings vote, cut by average or complete
+linkage; N = 1 is `separated` itself) reads the drivers, and its ARI against the study's truth is
+recorded. The leave-one-world-out table gives, for each world, the variant with the best mean ARI
+on the *other* worlds and its ARI on this one. Written to `benchmarks/results/<--out>` with the
+command, commit, date and machine.
+
+Run: .venv/bin/python benchmarks/consensus.py [--worlds highway-2,...] [--seeds 9001 9101 ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from sklearn.metrics import adjusted_rand_score
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import zoo  # noqa: E402
+
+#: variant name -> (voters, linkage); one voter is `separated`
+VARIANTS: dict[str, tuple[int, str]] = {"separated": (1, "complete")} | {
+    f"top{n}-{link}": (n, link) for n in (3, 5, 8, 99) for link in ("average", "complete")}
+
+
+def ranked(world: str, seed: int, root: Path) -> tuple[dict[str, str], list]:
+    """(truth, readings best first) of one cached study."""
+    from clustering import choice as C
+    from clustering.behaviour import driver_behaviour
+    from clustering.pipeline import _n_decisions, indicator_points
+    from indicators.settings import AnalysisSettings
+
+    out, ws = zoo.study(world, seed, root)
+    truth = {d["driver_id"]: d["style"] for d in json.loads((out / "ground_truth.json").read_text())["drivers"]}
+    dec, following, drivers = zoo.decisions_of(ws)
+    settings = AnalysisSettings(features="consensus")
+    drivers = sorted(set(map(str, dec["driver_id"].unique())) | set(drivers))
+    points = indicator_points(dec, settings, following)
+    n_dec = _n_decisions(dec, drivers)
+    behaviour = driver_behaviour(dec, following, drivers, settings.random_state)
+    fit_on = [d for d in drivers if n_dec.get(d, 0) >= settings.min_cluster_decisions]
+    scores, _ = C.ranked_readings(points, drivers, fit_on, n_dec, behaviour, settings)
+    return truth, scores
+
+
+def variant_ari(truth: dict[str, str], scores: list, voters: int, method: str, k: int = 3) -> float:
+    from clustering.consensus import consensus_groups
+
+    if not scores:
+        return float("nan")
+    drivers = sorted(scores[0].labels)
+    if voters == 1:
+        labels = [scores[0].labels[d] for d in drivers]
+    else:
+        labels = list(consensus_groups(scores[:voters], drivers, k, method))
+    keep = [i for i, d in enumerate(drivers) if d in truth]
+    return float(adjusted_rand_score([truth[drivers[i]] for i in keep], [labels[i] for i in keep]))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--worlds", default="all", help="worlds of benchmarks/zoo.py, comma-separated ('all': every one)")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[9001, *range(9101, 9109)])
+    ap.add_argument("--root", type=Path, default=Path("/tmp/laneprint-zoo"), help="where studies are cached")
+    ap.add_argument("--out", default="analysis_consensus_dev.json", help="file name under benchmarks/results/")
+    args = ap.parse_args()
+    worlds = list(zoo.WORLDS) if args.worlds == "all" else args.worlds.split(",")
+    rows = []
+    for world in worlds:
+        for seed in args.seeds:
+            t0 = time.perf_counter()
+            try:
+                truth, scores = ranked(world, seed, args.root)
+            except Exception as exc:  # a study that cannot be generated is reported, the rest go on
+                print(f"  {world} seed {seed}: {exc}", flush=True)
+                continue
+            for name, (n, link) in VARIANTS.items():
+                rows.append({"world": world, "seed": seed, "variant": name, "ari": variant_ari(truth, scores, n, link)})
+            print(f"  {world:<18} seed {seed:5d}  ({time.perf_counter() - t0:.0f} s)", flush=True)
+    df = pd.DataFrame(rows)
+    per = df.groupby(["variant", "world"]).ari.agg(mean_ari="mean", min_ari="min", seeds="count").reset_index()
+    means = per.pivot(index="variant", columns="world", values="mean_ari")
+    lowo = []
+    for world in means.columns:
+        pick = str(means.drop(columns=world).mean(axis=1).idxmax())
+        lowo.append({"world": world, "variant_chosen_elsewhere": pick, "mean_ari": float(means.loc[pick, world]),
+                     "separated_mean_ari": float(means.loc["separated", world])})
+    overall = pd.DataFrame({"mean_over_worlds": means.mean(axis=1), "worst_world": means.min(axis=1)})
+    result = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]), "commit": zoo._commit(),
+              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+              "machine": f"{zoo.platform.node()} {zoo.platform.machine()} {zoo._cores()} cores",
+              "worlds": worlds, "seeds": args.seeds, "variants": {k: list(v) for k, v in VARIANTS.items()},
+              "per_world": per.to_dict("records"), "overall": overall.reset_index().to_dict("records"),
+              "leave_one_world_out": lowo}
+    zoo.RESULTS.mkdir(parents=True, exist_ok=True)
+    (zoo.RESULTS / args.out).write_text(json.dumps(result, indent=1, default=float) + "\n")
+    print("\nmean ARI over worlds (worst world) per variant")
+    for v, r in overall.sort_values("mean_over_worlds", ascending=False).iterrows():
+        print(f"  {v:<18} {r.mean_over_worlds:.2f} ({r.worst_world:.2f})")
+    print("\nleave one world out: the variant best on the other worlds, judged on this one")
+    for r in lowo:
+        print(f"  {r['world']:<18} {r['variant_chosen_elsewhere']:<16} {r['mean_ari']:.2f} "
+              f"(separated {r['separated_mean_ari']:.2f})")
+
+
+if __name__ == "__main__":
+    main()
