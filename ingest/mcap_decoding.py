@@ -40,6 +40,8 @@ from ingest.object_ids import id_array
 from ingest.rawlog import RawLog, Rejected, first_line
 
 # message encoding -> schema encodings it can be decoded with
+#: The first two bytes of a CDR message: its encapsulation (plain or parameter-list CDR, big or little endian).
+CDR_HEADERS = (b"\x00\x00", b"\x00\x01", b"\x00\x02", b"\x00\x03")
 SCHEMA_ENCODINGS: dict[str, tuple[str, ...]] = {"json": ("jsonschema", ""), "cdr": ("ros2msg",),
                                                 "protobuf": ("protobuf",)}
 _MISSING = object()  # a path that does not exist in a message
@@ -257,6 +259,10 @@ def decode_topic(got: Any, topic: str, time_path: str, factories: list[DecoderFa
         fast = fast or getattr(decode, "fast", False)
         type_name = type_name or (schema.name if schema is not None else ch.message_encoding)
         for i, (t, data) in enumerate(zip(got.times.get(cid, []), got.datas.get(cid, []))):
+            if ch.message_encoding == "cdr" and data[:2] not in CDR_HEADERS:
+                looks = " (it looks like JSON)" if data.lstrip()[:1] in (b"{", b"[") else ""
+                raise Rejected(f"message {i} on {topic} (log_time {t} ns) is declared cdr but does not start with a "
+                               f"CDR header{looks}: declare the channel's message_encoding as what it holds")
             try:
                 msgs.append(decode(data))
             except Exception as exc:

@@ -298,3 +298,49 @@ def test_a_pattern_slow_on_one_files_header_refuses_that_file(monkeypatch):
     with pytest.raises(Rejected, match="traffic pattern took over"):
         csv_reader._vehicle_columns(["a" * 60 + "!"], set(), mapping)
     assert time.perf_counter() - t0 < 5
+
+
+def _mcap_with(tmp_path: Path, encoding: str, datas: list[bytes], schema: tuple[str, str, str] | None = None) -> Path:
+    """An MCAP whose ego topic holds `datas` as `encoding` messages (schema: name, encoding, text)."""
+    from mcap.writer import Writer
+
+    path = tmp_path / "odd.mcap"
+    with path.open("wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema(name=schema[0], encoding=schema[1], data=schema[2].encode()) if schema else 0
+        cid = w.register_channel(topic=TOPIC_EGO, message_encoding=encoding, schema_id=sid)
+        for i, d in enumerate(datas):
+            w.add_message(cid, log_time=i * 20_000_000, data=d, publish_time=i * 20_000_000)
+        w.finish()
+    return path
+
+
+def test_json_valid_only_when_messages_are_joined_is_refused():
+    """Two objects in one message and an empty one: joined they read as four rows, alone they are not
+    JSON; the fast reader leaves them to the message-by-message one, which names the bad message."""
+    import pyarrow as pa
+
+    from ingest.mcap_reader import _arrow_table, _decode
+    from ingest.rawlog import Rejected
+
+    ok = b'{"x": 0.0, "v": 20.0, "lane": 0}'
+    datas = [ok, ok + b" " + ok, b"", ok]
+    assert _arrow_table(datas, pa.schema([("x", pa.float64()), ("v", pa.float64())])) is None
+    with pytest.raises(Rejected, match="message 1 on /ego/state .* is not valid JSON"):
+        _decode(TOPIC_EGO, datas, [0, 1, 2, 3])
+    nested = [b'{"vehicles": [{"id": "a", "x": 1.0}, {"id": "b", "x": 2.0}]}'] * 3  # objects in a list: fine
+    assert _arrow_table(nested, pa.schema([("vehicles", pa.list_(pa.struct([("x", pa.float64())])))])) is not None
+
+
+def test_json_declared_cdr_is_refused_not_read_as_numbers(tmp_path):
+    from ingest.limits import IngestLimits
+    from ingest.mcap_decoding import FastRos2DecoderFactory, decode_topic
+    from ingest.mcap_reader import read_mcap_file
+    from ingest.rawlog import Rejected
+
+    schema = ("laneprint/msg/Ego", "ros2msg", "float64 x\nfloat64 v\nint32 lane\n")
+    path = _mcap_with(tmp_path, "cdr", [b'{"x": 0.0, "v": 20.0, "lane": 0}'] * 3, schema)
+    got = read_mcap_file(path.read_bytes(), IngestLimits())
+    with pytest.raises(Rejected, match="declared cdr but does not start with a CDR header .it looks like JSON"):
+        decode_topic(got, TOPIC_EGO, "log_time", [FastRos2DecoderFactory()], "")
