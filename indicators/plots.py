@@ -26,6 +26,11 @@ LABELS = {"t_f": "t_f: TTC to the ego-lane leader [s]", "t_nf": "t_nf: TTC to th
 SHORT_LABELS = {k: f"{k} [{v.rsplit('[', 1)[1]}" for k, v in LABELS.items()}
 SPEED_LABEL = "ego speed v_e [m/s]"
 
+#: Gaps and headways: below 0 the two vehicles overlap lengthwise (bumper to bumper).
+GAP_INDICATORS: tuple[str, ...] = ("gap_f", "gap_nf", "gap_nb", "thw_f", "thw_nb")
+#: What a gap below 0 means, written on the figures that have one.
+OVERLAP_NOTE = "below 0: the vehicles overlap lengthwise (side by side as the ego moves over)"
+
 #: What the Drivers page groups the indicators by; an indicator this analysis lacks is left out.
 INDICATOR_GROUPS: dict[str, tuple[str, ...]] = {
     "The paper's three: times to collision and the follower's closing speed": PAPER_INDICATORS,
@@ -162,6 +167,7 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
     row = fits[(fits["driver_id"].astype(str) == str(driver_id)) & (fits["indicator"] == indicator)] \
         if fits is not None and len(fits) else pd.DataFrame()
     title = f"driver {driver_id}: {indicator} against ego speed"
+    notes = []
     if len(row) and row.iloc[0]["status"] == "ok":
         r = row.iloc[0]
         fit = LineFit.from_row(r, alpha=alpha)
@@ -176,19 +182,34 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
         flag = fit_flag(r)
         fig.add_trace(go.Scatter(x=grid, y=b["mean"], mode="lines", name="OLS line",
                                  line={"color": "#d62728", "dash": "dot" if flag else "solid"}))
-        title += (f" — {line_formula(indicator, float(r['A']), float(r['b']))} [{unit}], v_e in m/s "
-                  f"(R² {r['r2']:.2f}, n {int(r['n'])}, {pct} % bands)")
+        notes.append(f"{line_formula(indicator, float(r['A']), float(r['b']))} [{unit}], v_e in m/s "
+                     f"(R² {r['r2']:.2f}, n {int(r['n'])}, {pct} % bands)")
         if flag:
-            title += f" — flagged: {flag}"
+            notes.append(f"flagged: {flag}")
     elif len(row):
-        title += f" — no fit: {row.iloc[0]['reason']}"
+        notes.append(f"no fit: {row.iloc[0]['reason']}")
     for trace in direction_lines(fits_by_direction, driver_id, indicator, unit):
         fig.add_trace(trace)
-    fig.update_layout(title=title, xaxis_title=SPEED_LABEL, yaxis_title=label_of(indicator),
-                      template="plotly_white")
+    # the details go on lines of their own below the title, so that it is never wider than the plot
+    subtitle = "<br>".join(f"<sup>{n}</sup>" for n in notes)
+    fig.update_layout(title={"text": title + ("<br>" + subtitle if subtitle else "")}, xaxis_title=SPEED_LABEL,
+                      yaxis_title=label_of(indicator), template="plotly_white",
+                      margin={"t": 60 + 18 * len(notes)})
+    mark_overlap(fig, indicator, pd.concat([used["y"], excl["y"]]).astype(float).to_numpy(), yrange)
     if yrange:
         fig.update_yaxes(range=list(yrange))
     return fig
+
+
+def mark_overlap(fig: go.Figure, indicator: str, values: np.ndarray, yrange: tuple[float, float] | None) -> None:
+    """Shade the part of a gap or headway axis below 0 and say what it means (the two vehicles overlap
+    lengthwise), when any of `values` is there."""
+    values = values[np.isfinite(values)]
+    if indicator not in GAP_INDICATORS or not (values < 0).any():
+        return
+    floor = min(float(values.min()), yrange[0] if yrange else 0.0)
+    fig.add_hrect(y0=floor, y1=0, fillcolor="rgba(214,39,40,0.06)", line_width=0, annotation_text=OVERLAP_NOTE,
+                  annotation_position="bottom left", annotation_font={"size": 11, "color": "#a02020"})
 
 
 #: direction -> (colour, marker symbol, what it means) of the presses to each side.

@@ -11,8 +11,10 @@ from tests.support.synthetic_decisions import make_decision_table
 
 @pytest.fixture(scope="module")
 def tables():
+    from indicators.settings import AnalysisSettings
+
     df, _ = make_decision_table(6, 20, seed=2, keep_per_press=1)
-    return analyze_tables(df)
+    return analyze_tables(df, AnalysisSettings(features="ttc"))  # styles read by the study's TTCs, as plotted here
 
 
 def test_indicator_vs_speed(tables):
@@ -83,3 +85,29 @@ def test_cluster_scatter_labels_do_not_overlap():
     labels = [a.text for a in fig.layout.annotations]
     assert 3 <= len(labels) <= 10
     assert set(styles.loc[styles["is_typical"].astype(bool), "driver_id"]) <= set(labels)
+
+
+def test_indicator_vs_speed_title_lines_fit_the_plot(tables):
+    """The title is short; the line's formula and any flag go on lines of their own below it."""
+    import re
+
+    fig = indicator_vs_speed(tables["decisions"], tables["fits"], "D0000", "t_f")
+    lines = [re.sub(r"<[^>]+>", "", part) for part in fig.layout.title.text.split("<br>")]
+    assert len(lines) >= 2 and all(len(line) <= 90 for line in lines), lines
+
+
+def test_negative_gaps_are_explained_as_overlap(tables):
+    import numpy as np
+
+    from indicators.plots import OVERLAP_NOTE, mark_overlap
+
+    fig = go.Figure()
+    mark_overlap(fig, "gap_nb", np.array([12.0, 3.5, -2.0, np.nan]), (-2.5, 14.0))
+    assert [a.text for a in fig.layout.annotations] == [OVERLAP_NOTE]
+    assert fig.layout.shapes[0].y0 == -2.5 and fig.layout.shapes[0].y1 == 0
+    for indicator, values in (("gap_nb", np.array([1.0, 2.0])), ("dv_nb", np.array([-3.0, 2.0]))):
+        fig = go.Figure()
+        mark_overlap(fig, indicator, values, None)  # no gap below 0; a speed difference below 0 is no overlap
+        assert not fig.layout.annotations
+    plain = indicator_vs_speed(tables["decisions"], tables["fits"], "D0000", "t_f")
+    assert OVERLAP_NOTE not in [a.text for a in plain.layout.annotations]
