@@ -371,6 +371,9 @@ def crossval_label(row: pd.Series | dict) -> str:
     parts = [when, f"{row.get('target_kind')} {row.get('target')}",
              f"run {row['run_id']}" if row.get("run_id") else "no run", f"reward {row.get('reward')}",
              f"{row.get('folds')} folds"]
+    analysis = str(row.get("analysis") or "")
+    if analysis and "current" not in analysis:  # made with an earlier analysis, or one not recorded
+        parts.append(analysis)
     return " · ".join(p for p in parts if p)
 
 

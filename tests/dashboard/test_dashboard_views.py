@@ -75,3 +75,12 @@ def test_reasons_markdown_lists_only_what_was_not_ingested():
     rows = pd.DataFrame({"file": ["a.csv", "b_1.csv"], "status": ["ingested", "rejected"],
                          "reason": ["", "bad header"]})
     assert views.reasons_markdown(rows) == "- **b\\_1\\.csv** (rejected): bad header"
+
+
+def test_crossval_picker_says_when_it_was_made_with_another_analysis():
+    from laneprint.provenance import CURRENT, EARLIER, LABELS
+
+    row = {"created_at": "2026-12-06T10:00", "target_kind": "style", "target": "Normal", "run_id": "r1",
+           "reward": "decisions", "folds": 4}
+    assert LABELS[EARLIER] in views.crossval_label({**row, "analysis": LABELS[EARLIER]})
+    assert views.crossval_label({**row, "analysis": LABELS[CURRENT]}) == views.crossval_label(row)
