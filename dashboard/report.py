@@ -158,7 +158,7 @@ def _analysis(ws: Workspace) -> list[Section]:
     if lines is not None and len(lines):
         sty.figure("reference_lines", reference_lines(lines, indicators=views.reference_indicators(lines, chosen)))
         typical = lines[(lines["scope"] == "style") & (lines["kind"] == "typical")
-                        & ((lines["direction"] == "both") if "direction" in lines else True)]
+                        & (lines["direction"] == "both")]
         rows = []
         for r in typical.itertuples():
             paper = PAPER_TABLE1.get(str(r.name), {}).get(str(r.indicator))
