@@ -264,7 +264,8 @@ def configurable(command: str, *sections: Section) -> Callable[[Callable[..., An
             try:
                 call = _resolve(kwargs)
             except UserError as exc:
-                err_console.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
+                text = exc.as_flags() if isinstance(exc, SettingError) else str(exc)
+                err_console.print(f"error: {text}", markup=False, highlight=False, soft_wrap=True)
                 raise typer.Exit(1) from None
             return fn(**call)
 
