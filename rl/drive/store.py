@@ -431,7 +431,8 @@ def plan_drive(workspace: Workspace, run_id: str, settings: DriveSettings, secti
     own = own_traffic(workspace, agent.target)
     family = s.family or (own[0] if own else DEFAULT_FAMILY)
     if family == "sublane":  # the controller reads a lane change under way from the ego leaving its lane centre
-        raise SettingError("a drive is not on sublanes ({0} sublane): give {0} ttc or acceptance", "family")
+        raise SettingError("laneprint drive does not drive on sublanes ({0} sublane): give {0} ttc or acceptance",
+                           "family")
     in_own_traffic = own == (family, s.lanes)
     s = replace(s, family=family,
                 dwell_calibrated=(s.dwell_calibrated if s.dwell_calibrated is not None
