@@ -38,7 +38,7 @@ from clustering.features import driver_features, transform_features
 from clustering.styles import StyleClusterer
 from indicators.settings import AUTO_CANDIDATES, CHOSEN_BY_DATA, INDICATOR_SETS, AnalysisSettings
 from indicators.stats import FEATURE_UNITS, TRAIT_UNITS
-from laneprint.errors import UserError
+from laneprint.errors import SettingError
 
 #: A set whose drivers' features are mostly undefined (imputed) is not a reading of them: not scored.
 MAX_IMPUTED = 0.5
@@ -77,13 +77,13 @@ def resolve_features(spec: str) -> tuple[str, tuple[str, ...]]:
         try:
             return spec, behaviour_params(spec)
         except ValueError as exc:
-            raise UserError(f"--features {spec!r}: {exc}") from None
+            raise SettingError(f"{{0}} {spec!r}: {exc}", "features") from None
     names = tuple(s.strip() for s in spec.split(",") if s.strip())
     unknown = [n for n in names if n not in FEATURE_UNITS]
     if not names or unknown:
-        raise UserError(f"--features {spec!r}: use auto, heldout, behaviour, behaviour:<parameters>, "
-                        f"{', '.join(INDICATOR_SETS)} or a comma-separated list of indicators "
-                        f"({', '.join(FEATURE_UNITS)})")
+        raise SettingError(f"{{0}} {spec!r}: use auto, heldout, behaviour, behaviour:<parameters>, "
+                           f"{', '.join(INDICATOR_SETS)} or a comma-separated list of indicators "
+                           f"({', '.join(FEATURE_UNITS)})", "features")
     return ",".join(names), names
 
 

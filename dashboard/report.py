@@ -29,7 +29,7 @@ from typing import Any
 import pandas as pd
 import plotly.graph_objects as go
 
-from laneprint.errors import UserError
+from laneprint.errors import SettingError, UserError
 from laneprint.workspace import Workspace
 
 #: Per-driver figures are drawn for at most this many drivers (the typical drivers first); every
@@ -158,7 +158,7 @@ def _analysis(ws: Workspace) -> list[Section]:
     if lines is not None and len(lines):
         sty.figure("reference_lines", reference_lines(lines, indicators=views.reference_indicators(lines, chosen)))
         typical = lines[(lines["scope"] == "style") & (lines["kind"] == "typical")
-                        & ((lines["direction"] == "both") if "direction" in lines else True)]
+                        & (lines["direction"] == "both")]
         rows = []
         for r in typical.itertuples():
             paper = PAPER_TABLE1.get(str(r.name), {}).get(str(r.indicator))
@@ -488,9 +488,9 @@ def write_report(ws: Workspace, out: Path | None = None, assets: bool = True, sv
     start = time.perf_counter()
     out = Path(out) if out is not None else ws.root / "report.html"
     if out.exists() and out.is_dir():
-        raise UserError(f"--out {out} is a folder: give a file name such as report.html")
+        raise SettingError(f"{{0}} {out} is a folder: give a file name such as report.html", "out")
     if not out.parent.exists():
-        raise UserError(f"--out {out}: folder {out.parent} does not exist")
+        raise SettingError(f"{{0}} {out}: folder {out.parent} does not exist", "out")
     drawer = SvgDrawer.start() if assets and svg else None  # Chromium starts while the figures are built
     try:
         sections, prov = build_report(ws)

@@ -14,13 +14,13 @@ import re
 import sys
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any, Callable, Iterator, Optional
+from typing import Annotated, Any, Callable, Iterator, Mapping, Optional
 
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from laneprint.errors import UserError
+from laneprint.errors import SettingError, UserError
 from laneprint.progress import ProgressFn
 from laneprint.workspace import DEFAULT_WORKSPACE
 
@@ -61,12 +61,15 @@ DEFAULT_WS = DEFAULT_WORKSPACE
 
 
 def run_command(work: Callable[[], dict[str, Any]], as_json: bool,
-                render: Callable[[dict[str, Any], Console], None]) -> dict[str, Any]:
-    """Run `work`; print its result as JSON or via `render`; exit 1 on a UserError."""
+                render: Callable[[dict[str, Any], Console], None],
+                flags: Optional[Mapping[str, str]] = None) -> dict[str, Any]:
+    """Run `work`; print its result as JSON or via `render`; exit 1 on a UserError (a `SettingError` says
+    the command's flags for the settings it names: `flags[setting]`, else `--setting-name`)."""
     try:
         result = work()
     except UserError as exc:
-        err_console.print(f"error: {visible(str(exc))}", markup=False, highlight=False, soft_wrap=True)
+        text = exc.as_flags(flags) if isinstance(exc, SettingError) else str(exc)
+        err_console.print(f"error: {visible(text)}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(1) from None
     except OSError as exc:
         if exc.errno not in _ENVIRONMENT_ERRNOS:

@@ -31,7 +31,7 @@ from typing import Annotated, Any, Callable, Mapping, Optional
 
 import typer
 
-from laneprint.errors import UserError
+from laneprint.errors import SettingError, UserError
 
 #: A config file larger than this is no settings file.
 MAX_CONFIG_BYTES = 64 * 1024
@@ -214,6 +214,8 @@ def build(sec: Section, table: Mapping[str, Any], given: Mapping[str, Any], wher
     values.update(given)
     try:
         return sec.cls(**values), set(values)
+    except SettingError as exc:  # it names the fields: say their flags
+        raise UserError(exc.as_flags()) from None
     except (TypeError, ValueError) as exc:
         raise UserError(f"bad {sec.table} setting: {exc}") from None
 
@@ -262,7 +264,8 @@ def configurable(command: str, *sections: Section) -> Callable[[Callable[..., An
             try:
                 call = _resolve(kwargs)
             except UserError as exc:
-                err_console.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
+                text = exc.as_flags() if isinstance(exc, SettingError) else str(exc)
+                err_console.print(f"error: {text}", markup=False, highlight=False, soft_wrap=True)
                 raise typer.Exit(1) from None
             return fn(**call)
 

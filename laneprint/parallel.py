@@ -37,7 +37,7 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
-from laneprint.errors import UserError
+from laneprint.errors import SettingError, UserError
 from laneprint.progress import ProgressFn, report
 
 T = TypeVar("T")
@@ -53,7 +53,7 @@ def check_backend(backend: str, ray_address: str | None = None) -> None:
     if backend not in BACKENDS:
         raise UserError(f"unknown backend {backend!r}: choose one of {', '.join(BACKENDS)}")
     if ray_address and backend != "ray":
-        raise UserError("--ray-address joins a Ray cluster: add --backend ray")
+        raise SettingError("{0} joins a Ray cluster: add {1} ray", "ray_address", "backend")
     if backend == "ray":
         _import_ray()
 

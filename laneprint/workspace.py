@@ -195,9 +195,12 @@ class Workspace:
     """A folder holding everything laneprint has ingested, analysed and trained."""
 
     def __init__(self, root: Path | str = DEFAULT_WORKSPACE) -> None:
+        from laneprint.workspace_migrations import check_format
+
         self.root = Path(root).resolve()
         # files the last `recordings()` left out because they cannot be read: path (relative) -> why
         self.damaged: dict[str, str] = {}
+        check_format(self)  # a newer format refused, an older one migrated (`laneprint.workspace_migrations`)
 
     # --- paths -------------------------------------------------------------
 
@@ -217,11 +220,17 @@ class Workspace:
         return self.root / stage
 
     def ensure(self) -> "Workspace":
-        """Create the workspace folders if needed; refuse a path that is a file."""
+        """Create the workspace folders if needed, a new workspace stamped with the current format
+        (`laneprint.workspace_migrations`); refuse a path that is a file."""
+        from laneprint.workspace_migrations import FORMAT_FILE, has_content, stamp
+
         if self.root.exists() and not self.root.is_dir():
             raise UserError(f"workspace {self.root} is a file, not a folder")
+        new = not has_content(self.root)
         for d in (self.recordings_dir, self.rejected_dir, self.runs_dir, self.root / ".tmp"):
             d.mkdir(parents=True, exist_ok=True)
+        if new and not (self.root / FORMAT_FILE).exists():
+            stamp(self.root)
         return self
 
     def check_writable(self) -> "Workspace":
@@ -421,14 +430,9 @@ class Workspace:
     def analysis_fingerprint(self) -> str | None:
         """The fingerprint of the stored analysis (`analysis_fingerprint` of its styles and reference
         lines), None when there is no analysis. Read from `analysis/meta.json`, where `analyze` writes
-        it; an analysis saved before it did is hashed from its tables (the same value)."""
+        it (and the migration to workspace format 1 wrote it for an analysis saved before)."""
         stored = self.read_meta("analysis").get("analysis_fingerprint")
-        if stored:
-            return str(stored)
-        if not self.has_table("analysis", "styles"):
-            return None
-        tables = {n: self.read_table("analysis", n) for n in ANALYSIS_FINGERPRINT_TABLES if self.has_table("analysis", n)}
-        return analysis_fingerprint(tables)
+        return str(stored) if stored and self.has_table("analysis", "styles") else None
 
     def fingerprint(self) -> str:
         """A short hash of which recordings are in the workspace (their ids are content hashes)."""

@@ -34,7 +34,7 @@ from typing import Any
 import pandas as pd
 import torch
 
-from laneprint.errors import UserError
+from laneprint.errors import SettingError, UserError
 from laneprint.locks import FileLock, is_locked
 from laneprint.progress import ProgressFn, report
 from laneprint.provenance import analysis_mark
@@ -96,10 +96,10 @@ def resolve_lines(workspace: Workspace, target: Target, lines: str) -> Reference
     """The reference lines to train on: the analysis's (default) or Table 1 (`lines='paper'`)."""
     if lines == "paper":
         if target.kind != "style":
-            raise UserError("--lines paper needs --style (Table 1 has the three typical drivers only)")
+            raise SettingError("{0} paper needs {1} (Table 1 has the three typical drivers only)", "lines", "style")
         return ReferenceLines.paper(target.name)
     if lines != "analysis":
-        raise UserError(f"unknown --lines {lines!r}: choose 'analysis' or 'paper'")
+        raise SettingError(f"unknown {{0}} {lines!r}: choose 'analysis' or 'paper'", "lines")
     if not workspace.has_table("analysis", "reference_lines"):
         raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first or pass --lines paper")
     table = workspace.read_table("analysis", "reference_lines")
@@ -601,7 +601,7 @@ def recorded_approaches(workspace: Workspace, target: Target) -> list["Approach"
     drivers, _ = target_drivers(workspace, target)
     approaches, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(drivers)])
     if not approaches:
-        raise UserError(f"no recorded approaches for {target.label}: nothing to replay (try --scenes synthetic)")
+        raise SettingError(f"no recorded approaches for {target.label}: nothing to replay (try {{0}} synthetic)", "scenes")
     return approaches
 
 

@@ -49,12 +49,12 @@ def main() -> None:
     """Entry point: the app, with a last guard so a user's mistake never shows a traceback."""
     import sys
 
-    from laneprint.errors import UserError
+    from laneprint.errors import SettingError, UserError
 
     try:
         app()
     except UserError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {exc.as_flags() if isinstance(exc, SettingError) else exc}", file=sys.stderr)
         sys.exit(1)
 
 

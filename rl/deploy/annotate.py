@@ -46,7 +46,7 @@ from indicators.decisions import ego_at, neighbours
 from indicators.settings import AnalysisSettings
 from ingest.logformat import NS_PER_S
 from ingest.writers import ExtraChannel, write_mcap
-from laneprint.errors import UserError
+from laneprint.errors import SettingError, UserError
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace
 from rl.learners.dqn import q_values
@@ -238,9 +238,9 @@ def annotate_recording(workspace: Workspace, run_id: str, recording: str, out: P
     """Write `recording` again to `out` with the run's, the greedy benchmark's and the driver's decisions."""
     out = Path(out)
     if out.suffix != ".mcap":
-        raise UserError(f"--out {out}: give a file name ending in .mcap")
+        raise SettingError(f"{{0}} {out}: give a file name ending in .mcap", "out")
     if out.is_dir():
-        raise UserError(f"--out {out} is a folder: give a file name ending in .mcap")
+        raise SettingError(f"{{0}} {out} is a folder: give a file name ending in .mcap", "out")
     net = load_weights(workspace, run_id)
     config = json.loads((run_dir(workspace, run_id) / "config.json").read_text())
     cfg = EnvConfig.from_dict(config["env"])

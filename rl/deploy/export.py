@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from laneprint.errors import UserError
+from laneprint.errors import SettingError, UserError
 from laneprint.progress import ProgressFn, report
 from laneprint.workspace import Workspace, atomic_write_bytes, atomic_write_json
 from rl.drive.heldback import ACCEPT_INDICATORS, by_side_text, rule_from_analysis
@@ -332,7 +332,7 @@ def export_run(workspace: Workspace, run_id: str, fmt: str = "onnx", out: Path |
                progress: ProgressFn | None = None) -> dict[str, Any]:
     """Export a run's policy (see the module doc); returns a JSON-ready summary with the check."""
     if fmt not in FORMATS:
-        raise UserError(f"unknown --format {fmt!r}: choose one of {', '.join(FORMATS)}")
+        raise SettingError(f"unknown {{0}} {fmt!r}: choose one of {', '.join(FORMATS)}", "format")
     _require_onnx()
     net = load_weights(workspace, run_id)
     config = json.loads((run_dir(workspace, run_id) / "config.json").read_text())
@@ -340,7 +340,7 @@ def export_run(workspace: Workspace, run_id: str, fmt: str = "onnx", out: Path |
     target = Target(**config["target"])
     final = Path(out) if out is not None else workspace.root / "exports" / run_id
     if final.exists() and not final.is_dir():
-        raise UserError(f"--out {final} is a file: give a folder")
+        raise SettingError(f"{{0}} {final} is a file: give a folder", "out")
     report(progress, 0, 3, "exporting")
     n_inputs = len(observation_spec(cfg))
     model = onnx_bytes(net, n_inputs, {"laneprint_run_id": run_id, "observation": ",".join(

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
@@ -11,13 +10,11 @@ from rich.console import Console
 from rich.table import Table
 
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
-from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 from laneprint.options import Section, Settings, configurable
 from rl.drive.heldback import by_side_text
 from rl.drive.settings import DriveSettings
 
-ENGINES = ("sumo",)
 
 
 def _f(x: Any, spec: str = ".2f") -> str:
@@ -42,12 +39,8 @@ def drive_command(
     def work() -> dict[str, Any]:
         from rl.drive.store import drive_run
 
-        st = settings.drive
-        if st.engine not in ENGINES:
-            raise UserError(f"unknown --engine {st.engine!r}; choose one of {', '.join(ENGINES)}")
-        options = {k: v for k, v in asdict(st).items() if k != "engine"}
         with progress_bar(not as_json) as bar:
-            return drive_run(Workspace(workspace), run_id, sections=section, out=out, progress=bar, **options)
+            return drive_run(Workspace(workspace), run_id, settings.drive, sections=section, out=out, progress=bar)
 
     run_command(work, as_json, render)
 

@@ -1,7 +1,9 @@
 """What `laneprint drive` does: the traffic it drives in and the assistant's rule beside the agent.
 
-Every field is an option of `laneprint drive` and a key of the `[drive]` table of `--config`;
-`rl.drive.store.drive_run` checks the combinations.
+Every field is an option of `laneprint drive` and a key of the `[drive]` table of `--config`.
+The settings are checked once, when they are made (`DriveSettings.__post_init__`: the values and their
+combinations, a `SettingError` naming the settings); what needs the workspace (the run, the family of its
+drivers' traffic) is checked when the drive is planned (`rl.drive.store.plan_drive`).
 """
 
 from __future__ import annotations
@@ -9,7 +11,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
+from laneprint.errors import SettingError
 from rl.drive.heldback import DWELL_PERCENTILE
+
+#: The simulators `laneprint drive` drives in.
+ENGINES = ("sumo",)
 
 
 @dataclass(frozen=True)
@@ -67,3 +73,30 @@ class DriveSettings:
     undo_check: bool = True
     """With the held-back rule and no leader within range: a change to the left is requested only if, put in
     that lane as the traffic is, the agent would not want back at once."""
+
+    def __post_init__(self) -> None:
+        from laneprint.simulator.sumo.settings import FAMILIES, LANES
+        from rl.drive.pace import PACE_BY
+
+        if self.engine not in ENGINES:
+            raise SettingError(f"unknown {{0}} {self.engine!r}; choose one of {', '.join(ENGINES)}", "engine")
+        if self.family is not None and self.family not in FAMILIES:
+            raise SettingError(f"unknown {{0}} {self.family!r}; choose one of {', '.join(FAMILIES)}", "family")
+        if self.pace_by not in PACE_BY:
+            raise SettingError(f"unknown {{0}} {self.pace_by!r}; choose one of {', '.join(PACE_BY)}", "pace_by")
+        if self.dwell_draw and self.dwell_calibrated:
+            raise SettingError("{0} and {1}: choose one", "dwell_draw", "dwell_calibrated")
+        if (self.dwell_draw or self.dwell_calibrated) and not (self.held_back and self.dwell):
+            raise SettingError("{0} and {1} set the held-back rule's dwell: not with {2} or {3}", "dwell_draw",
+                               "dwell_calibrated", ("held_back", False), ("dwell", False))
+        if self.lag_draw and self.lag_calibrated:
+            raise SettingError("{0} and {1}: choose one", "lag_draw", "lag_calibrated")
+        if (self.lag_draw or self.lag_calibrated) and not self.held_back:
+            raise SettingError("{0} and {1} set the held-back rule's headways: not with {2}", "lag_draw",
+                               "lag_calibrated", ("held_back", False))
+        if not 0 <= self.dwell_percentile <= 100:
+            raise SettingError(f"{{0}} {self.dwell_percentile:g}: give a percentile from 0 to 100", "dwell_percentile")
+        if self.lanes not in LANES:
+            raise SettingError(f"{{0}} {self.lanes}: a SUMO highway has {' or '.join(map(str, LANES))} lanes", "lanes")
+        if not 0 < self.minutes <= 120:
+            raise SettingError("{0} must be more than 0 and at most 120", "minutes")

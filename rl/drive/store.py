@@ -1,37 +1,44 @@
 """`laneprint drive`'s edges: the run's agent in, MCAP logs and a JSON report out.
 
-`drive_run(workspace, run_id, ...)` loads a trained run (its `EnvConfig` and
-weights, as `laneprint evaluate` does), drives the SUMO sections with it
-(`rl.drive.loop`), writes one LOG_FORMAT v1 MCAP per section (`ingest.writers`, as the
-SUMO study) and summarises: lane changes, SUMO's collision and emergency-braking
-counts, and the indicators at the agent's decisions against its target's
-reference lines. The held-back rule (`rl.drive.heldback`, on unless `held_back=False`) is read
-from the workspace's analysis; the report says how many changes came from it and from the
-agent, and how long the ego was held back. With `sumo_model=True` (the default) the same ego
-vType drives the same sections, traffic and seeds with SUMO's own lane changing (LC2013 with
-the style's parameters): the comparator's lane changes per km and held-back figures are
-reported beside the agent's. With `analyze=True` the study of the workspace plus the drive is
-analysed in a scratch workspace (the user's analysis, which the run was trained
-on, is left alone) and the style it gives the agent is reported.
+`drive_run(workspace, run_id, settings)` is four steps, each a function of its own:
+
+1. `plan_drive`: the trained run (its `EnvConfig` and weights, as `laneprint evaluate` loads them),
+   what the settings leave to the workspace (the family of the drivers' traffic, whether the dwell and
+   the follower's headway are calibrated), the ego's SUMO style and the assistant's held-back rule
+   (`rl.drive.heldback`, read from the workspace's analysis and shaped by the settings in one place,
+   `assistant_rule`). The settings themselves were checked when made (`DriveSettings`).
+2. `simulate`: the SUMO sections driven with the agent (`rl.drive.loop`) and, with `sumo_model`, the same
+   ego vType in the same sections, traffic and seeds with SUMO's own lane changing (LC2013 with the
+   style's parameters), the comparator.
+3. `write_logs`: one LOG_FORMAT v1 MCAP per section (`ingest.writers`, as the SUMO study).
+4. `drive_report`: lane changes, SUMO's collision and emergency-braking counts, the indicators at the
+   agent's decisions against its target's reference lines, how many changes came from the rule and
+   from the agent and how long the ego was held back, the comparator's figures beside the agent's and,
+   with `analyze`, the style an analysis of the study plus the drive (in a scratch workspace; the
+   user's analysis, which the run was trained on, is left alone) gives the agent.
+
+The run's closed-loop calibration (`rl.drive.calibrate`) drives with `simulate` and `write_logs` too.
+Errors name the settings (`SettingError`), which the command line says as its flags.
 """
 
 from __future__ import annotations
 
 import json
 import tempfile
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
 
 from ingest.writers import write_mcap
-from laneprint.errors import UserError
+from laneprint.errors import SettingError, UserError
 from laneprint.progress import ProgressFn
 from laneprint.reference import INDICATORS, SPEED_LIMITS_KPH
 from laneprint.workspace import Workspace, atomic_write_json
 from rl.drive.fidelity import drivers_traffic, fidelity
 from rl.drive.heldback import DWELL_PERCENTILE, HeldBackRule, merge_summaries, rule_from_analysis
+from rl.drive.settings import DriveSettings
 from rl.drive.loop import QFunction, SectionDrive, drive_sections, recordings, sumo_model_sections
 from rl.learners.dqn import q_values
 from rl.problem.env import EnvConfig, observation
@@ -94,12 +101,13 @@ def output_paths(out: Path, session_ids: list[str]) -> list[Path]:
 
 
 def check_sections(sections: Optional[list[float]]) -> tuple[int, ...]:
-    """The sections to drive (`UserError` for a limit the study does not have)."""
+    """The sections to drive (`SettingError` for a limit the study does not have)."""
     if not sections:
         return tuple(SPEED_LIMITS_KPH)
     bad = [s for s in sections if int(round(s)) not in SPEED_LIMITS_KPH]
     if bad:
-        raise UserError(f"--section {bad[0]:g}: the sections are {', '.join(map(str, SPEED_LIMITS_KPH))} km/h")
+        raise SettingError(f"{{0}} {bad[0]:g}: the sections are {', '.join(map(str, SPEED_LIMITS_KPH))} km/h",
+                           "section")
     return tuple(sorted({int(round(s)) for s in sections}))
 
 
@@ -222,25 +230,34 @@ def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig, dwell_p
         return None, f"no held-back rule: {exc}"
 
 
-def calibrated(workspace: Workspace, run_id: str, target: Target, family: str, lanes: int, minutes: float,
-               pace: bool, pace_by: str, undo_check: bool, progress: Optional[ProgressFn]) -> dict[str, Any]:
+def calibrated(workspace: Workspace, agent: Agent, settings: DriveSettings, paced: Optional[dict[str, Any]],
+               progress: Optional[ProgressFn]) -> dict[str, Any]:
     """The run's closed-loop calibration of the dwell and the follower's headway for this traffic and these
-    settings (`rl.drive.calibrate`), made when missing by drives with the default dwell and the floors alone
-    on the calibration seeds."""
+    settings (`rl.drive.calibrate`); made when missing by the calibration's own drives: every section, the
+    analysis's rule with its default dwell and the floors alone (or the headways the calibration gives),
+    no comparator. They are simulated and written as a drive is (`simulate`, `write_logs`), not planned
+    again: no calibration calls itself."""
     from rl.drive.calibrate import calibrate, load_calibration
 
-    setting = {"family": family, "lanes": lanes, "minutes": minutes, "pace": pace, "pace_by": pace_by,
-               "undo_check": undo_check}
-    stored = load_calibration(workspace, run_id, setting)
+    s = settings
+    setting = {"family": s.family, "lanes": s.lanes, "minutes": s.minutes, "pace": s.pace, "pace_by": s.pace_by,
+               "undo_check": s.undo_check}
+    stored = load_calibration(workspace, agent.run_id, setting)
     if stored is not None and "lag_draws" in stored:  # one made before the headway was calibrated: again
         return stored
+    plain = DriveSettings(minutes=s.minutes, lanes=s.lanes, family=s.family, sumo_model=False, pace=s.pace,
+                          pace_by=s.pace_by, undo_check=s.undo_check, dwell_calibrated=False, lag_calibrated=False)
+    rule, note = held_back_rule(workspace, agent.target, agent.cfg)
+    style, why = ego_style(workspace, agent.target)
+    traffic = sumo_traffic(plain, check_sections(None))
 
     def drive(seed: int, out: Path, lag: dict[str, list[float]]) -> dict[str, Any]:
-        return drive_run(workspace, run_id, minutes=minutes, seed=seed, out=out, lanes=lanes, family=family,
-                         sumo_model=False, pace=pace, pace_by=pace_by, undo_check=undo_check,
-                         dwell_calibrated=False, lag_calibrated=False, lag_draws=lag, progress=progress)
+        plan = DrivePlan(agent, replace(plain, seed=seed), traffic, out, f"agent-{agent.run_id}", None, style, why,
+                         assistant_rule(rule, plain, lag_draws=lag, paced=paced), note, paced, None)
+        driven = simulate(plan, progress)
+        return {"decisions": decision_rows(driven.drives), "files": [str(p) for p in write_logs(driven, out)]}
 
-    return calibrate(workspace, run_id, target, drive, setting)
+    return calibrate(workspace, agent.run_id, agent.target, drive, setting)
 
 
 def rule_pace(workspace: Workspace, target: Target, net: Any, cfg: EnvConfig,
@@ -308,149 +325,215 @@ def _never() -> HeldBackRule:
 _NEVER = _never()
 
 
-def drive_run(workspace: Workspace, run_id: str, *, minutes: float = 10.0, seed: int = 0,
-              sections: Optional[list[float]] = None, out: Optional[Path] = None,
-              driver_id: Optional[str] = None, analyze: bool = False, lanes: int = 2,
-              held_back: bool = True, sumo_model: bool = True, dwell: bool = True,
-              dwell_percentile: float = DWELL_PERCENTILE, family: Optional[str] = None,
-              pace: bool = True, pace_by: str = "pooled", undo_check: bool = True, dwell_draw: bool = False,
-              dwell_calibrated: Optional[bool] = None, lag_draw: bool = False,
-              lag_calibrated: Optional[bool] = None, lag_draws: Optional[dict[str, list[float]]] = None,
-              progress: Optional[ProgressFn] = None) -> dict[str, Any]:
-    """Drive the run's agent in SUMO on a road of `lanes` lanes; write the MCAPs; a JSON-ready report.
+@dataclass(frozen=True)
+class Agent:
+    """A trained run's agent: its config.json, target, environment and weights."""
 
-    `family`: the SUMO study family whose traffic and style vTypes the drive uses
-    (`laneprint.simulator.sumo.settings.FAMILIES`); None: that of the study the agent learnt from when
-    its drivers drove a laneprint SUMO study (`rl.drive.fidelity.drivers_traffic`), so that the drive
-    and its drivers are in the same kind of traffic, else the default family.
+    run_id: str
+    config: dict[str, Any]
+    target: Target
+    cfg: EnvConfig
+    net: Any
 
-    `held_back`: the assistant's held-back rule acts beside the agent (False: the pure agent; the rule's
-    figures are still measured). `sumo_model`: also drive SUMO's own model of the style (the comparator).
-    `dwell=False`: the rule without its dwell after a lane change (`HeldBackRule.dwell_s` emptied);
-    `dwell_percentile`: the dwell's percentile of the drivers' times from a change to the next press.
-    `pace=False`: the agent's own changes need only a positive advantage, not its drivers' pace
-    (`HeldBackRule.min_advantage`, `rl.drive.pace`); `pace_by`: that pace read for both sides at once
-    ('pooled') or per side ('side', `rl.drive.pace.PACE_BY`). `undo_check=False`: the agent's changes to
-    the left are requested even when it would want back at once (`HeldBackRule.undo_check`). `dwell_draw`:
-    each lane change draws the next dwell from the drivers' own times (`HeldBackRule.dwell_draws`, seeded by
-    `seed` and the section) instead of their `dwell_percentile`; `dwell_calibrated`: drawn from the run's
-    closed-loop calibration in this traffic (`rl.drive.calibrate`; made first when the run has none), never
-    under the percentile; None (the default): calibrated when the drive is in its drivers' own traffic (the
-    family and lanes of their study) with the rule's dwell on and not drawn, else the percentile. `lag_draw`:
-    the agent's own change to a side needs a follower headway drawn at each lane change from its drivers'
-    presses to that side (`HeldBackRule.lag_draws`); `lag_calibrated`: drawn from the same calibration,
-    so that the agent's headways with the draw are like its drivers'; None (the default): calibrated in
-    its drivers' own traffic with the rule on and not drawn, else the floors alone; `lag_draws`: these
-    headways to draw instead (the calibration's own drives)."""
-    from laneprint.simulator.sumo.backend import check_available
-    from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, FAMILIES, LANES, family_settings
-    from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS
-    from rl.drive.pace import PACE_BY
 
-    if family is not None and family not in FAMILIES:
-        raise UserError(f"unknown --family {family!r}; choose one of {', '.join(FAMILIES)}")
-    if pace_by not in PACE_BY:
-        raise UserError(f"unknown --pace-by {pace_by!r}; choose one of {', '.join(PACE_BY)}")
-    if dwell_draw and dwell_calibrated:
-        raise UserError("--dwell-draw and --dwell-calibrated: choose one")
-    if (dwell_draw or dwell_calibrated) and not (held_back and dwell):
-        raise UserError("--dwell-draw and --dwell-calibrated set the held-back rule's dwell: not with "
-                        "--no-held-back or --no-dwell")
-    if lag_draw and lag_calibrated:
-        raise UserError("--lag-draw and --lag-calibrated: choose one")
-    if (lag_draw or lag_calibrated) and not held_back:
-        raise UserError("--lag-draw and --lag-calibrated set the held-back rule's headways: not with --no-held-back")
-    if not 0 <= dwell_percentile <= 100:
-        raise UserError(f"--dwell-percentile {dwell_percentile:g}: give a percentile from 0 to 100")
-    if lanes not in LANES:
-        raise UserError(f"--lanes {lanes}: a SUMO highway has {' or '.join(map(str, LANES))} lanes")
-    if not 0 < minutes <= 120:
-        raise UserError("--minutes must be more than 0 and at most 120")
+def load_agent(workspace: Workspace, run_id: str) -> Agent:
+    """The run's agent (`UserError` when there is no such run)."""
     config = load_run_config(workspace, run_id)
-    target = Target(**config["target"])
-    cfg = EnvConfig.from_dict(config["env"])
-    own = own_traffic(workspace, target)
-    family = family or (own[0] if own else DEFAULT_FAMILY)
-    if family == "sublane":  # the controller reads a lane change under way from the ego leaving its lane centre
-        raise UserError("laneprint drive does not drive on sublanes (--family sublane): give --family ttc or "
-                        "acceptance")
-    in_own_traffic = own == (family, lanes)
-    if dwell_calibrated is None:
-        dwell_calibrated = in_own_traffic and held_back and dwell and not dwell_draw
-    if lag_calibrated is None:
-        lag_calibrated = in_own_traffic and held_back and not lag_draw
-    style_params = FAMILY_STYLE_PARAMS[family]
-    net = load_weights(workspace, run_id)
-    limits = check_sections(sections)
-    driver_id = driver_id or f"agent-{run_id}"
-    out = Path(out) if out is not None else workspace.root / "drives" / f"{run_id}-s{seed}"
-    if out.suffix != ".mcap" and out.exists() and not out.is_dir():
-        raise UserError(f"--out {out} exists and is not a folder")
-    check_available()
-    style, why = ego_style(workspace, target)
-    settings = family_settings(family, lanes, speed_limits_kph=limits, minutes=minutes)
-    rule, rule_note = held_back_rule(workspace, target, cfg, dwell_percentile, dwell_draw, lag_draw)
-    if rule is not None and not dwell:
-        rule = replace(rule, dwell_s={}, dwell_draws={}, source={**rule.source, "dwell_s": "off (--no-dwell)"})
-    calibration = None
-    if rule is not None and (dwell_calibrated or lag_calibrated):
-        calibration = calibrated(workspace, run_id, target, family, lanes, minutes, pace, pace_by, undo_check,
-                                 progress)
-    if calibration is not None and dwell_calibrated:
+    return Agent(run_id, config, Target(**config["target"]), EnvConfig.from_dict(config["env"]),
+                 load_weights(workspace, run_id))
+
+
+@dataclass(frozen=True)
+class DrivePlan:
+    """A drive made ready to simulate: the agent, the settings with the family and both calibration
+    switches resolved, the SUMO traffic, where the logs go, the ego's style and the assistant's rule."""
+
+    agent: Agent
+    settings: DriveSettings  # family, dwell_calibrated and lag_calibrated resolved
+    traffic: Any  # `laneprint.simulator.sumo.settings.SumoSettings` of the sections driven
+    out: Path
+    driver_id: str
+    own: Optional[tuple[str, int]]  # (family, lanes) of the traffic the target's drivers drove, when known
+    style: str  # the SUMO style whose vType the ego drives with
+    style_reason: str
+    rule: Optional[HeldBackRule]  # the assistant's held-back rule as the settings make it
+    rule_note: str
+    paced: Optional[dict[str, Any]]  # `rl.drive.pace.pace_threshold`'s result, when the rule keeps the pace
+    calibration: Optional[dict[str, Any]]  # the run's closed-loop calibration, when the settings use it
+
+    @property
+    def ego_params(self) -> dict[str, float]:
+        from laneprint.simulator.sumo.styles import FAMILY_STYLE_PARAMS
+
+        return FAMILY_STYLE_PARAMS[str(self.settings.family)][self.style]
+
+
+@dataclass(frozen=True)
+class Driven:
+    """What a drive drove: the agent's sections, their recordings (meta, ego, traffic) and, with the
+    comparator, SUMO's own model's sections."""
+
+    drives: list[SectionDrive]
+    recordings: list[tuple[dict, Any, Any]]
+    model: Optional[list[SectionDrive]]
+
+
+def sumo_traffic(settings: DriveSettings, limits: tuple[int, ...]) -> Any:
+    """The SUMO settings of the drive's family, lanes, sections and minutes."""
+    from laneprint.simulator.sumo.settings import family_settings
+
+    return family_settings(str(settings.family), settings.lanes, speed_limits_kph=limits, minutes=settings.minutes)
+
+
+def assistant_rule(rule: Optional[HeldBackRule], settings: DriveSettings, calibration: Optional[dict[str, Any]] = None,
+                   lag_draws: Optional[dict[str, list[float]]] = None,
+                   paced: Optional[dict[str, Any]] = None) -> Optional[HeldBackRule]:
+    """The analysis's held-back `rule` as the settings make it, every change in one place: without its
+    dwell (`dwell` off), with the dwell drawn from the closed-loop `calibration` (`dwell_calibrated`;
+    never under the rule's floor), with the follower headways `lag_draws` given (a calibration's drive) or
+    calibrated (`lag_calibrated`), without the undo check, and with the pace `paced`; `source` says which."""
+    if rule is None:
+        return None
+    s, source = settings, dict(rule.source)
+    if not s.dwell:
+        rule = replace(rule, dwell_s={}, dwell_draws={})
+        source["dwell_s"] = "off (--no-dwell)"
+    if calibration is not None and s.dwell_calibrated:
         rule = replace(rule, dwell_draws={k: [max(x, rule.dwell_s.get(k, 0.0)) for x in v]
-                                          for k, v in calibration["draws"].items()},
-                       source={**rule.source,
-                               "dwell_s": f"drawn from the closed-loop calibration: {calibration['note']}"})
-    if rule is not None and lag_draws is not None:
-        rule = replace(rule, lag_draws=lag_draws, source={**rule.source, "lag_draws": "given (a calibration drive)"})
-    if calibration is not None and lag_calibrated:
-        rule = replace(rule, lag_draws=calibration["lag_draws"],
-                       source={**rule.source, "lag_draws": f"drawn from the closed-loop calibration: "
-                                                           f"{calibration['note']}"})
-    if rule is not None and not undo_check:
-        rule = replace(rule, undo_check=False, source={**rule.source, "undo_check": "off (--no-undo-check)"})
-    paced = rule_pace(workspace, target, net, cfg, pace_by) if rule is not None and pace else None
-    if paced is not None:
-        rule = rule.with_pace(paced)
-    drives = drive_sections(agent_q(net, cfg), cfg, style_params[style], settings, seed, progress, rule,
-                            use_rule=held_back)
-    lanes_opt = "" if lanes == 2 else f", {lanes} lanes"
-    simulator = f"Eclipse SUMO {drives[0].log.sumo_version} (laneprint drive {run_id}, seed {seed}{lanes_opt})"
-    recs = recordings(drives, driver_id, simulator)
-    paths = output_paths(out, [meta["session_id"] for meta, _, _ in recs])
-    for path, (meta, ego, traffic) in zip(paths, recs):
+                                          for k, v in calibration["draws"].items()})
+        source["dwell_s"] = f"drawn from the closed-loop calibration: {calibration['note']}"
+    if lag_draws is not None:
+        rule = replace(rule, lag_draws=lag_draws)
+        source["lag_draws"] = "given (a calibration drive)"
+    if calibration is not None and s.lag_calibrated:
+        rule = replace(rule, lag_draws=calibration["lag_draws"])
+        source["lag_draws"] = f"drawn from the closed-loop calibration: {calibration['note']}"
+    if not s.undo_check:
+        rule = replace(rule, undo_check=False)
+        source["undo_check"] = "off (--no-undo-check)"
+    rule = replace(rule, source=source)
+    return rule.with_pace(paced) if paced is not None else rule
+
+
+def plan_drive(workspace: Workspace, run_id: str, settings: DriveSettings, sections: Optional[list[float]] = None,
+               out: Optional[Path] = None, progress: Optional[ProgressFn] = None) -> DrivePlan:
+    """The drive of the run's agent that the settings (checked when they were made) ask for, ready to
+    simulate: what needs the workspace is resolved and checked here. The family: the settings', else that
+    of the study the agent learnt from when its drivers drove a laneprint SUMO study
+    (`rl.drive.fidelity.drivers_traffic`), else the default. `dwell_calibrated` and `lag_calibrated` left
+    None: on in the drivers' own traffic (their family and lanes) with the rule on and not drawn. The run's
+    closed-loop calibration is made here when it is wanted and missing (`calibrated`)."""
+    from laneprint.simulator.sumo.backend import check_available
+    from laneprint.simulator.sumo.settings import DEFAULT_FAMILY
+
+    s = settings
+    agent = load_agent(workspace, run_id)
+    own = own_traffic(workspace, agent.target)
+    family = s.family or (own[0] if own else DEFAULT_FAMILY)
+    if family == "sublane":  # the controller reads a lane change under way from the ego leaving its lane centre
+        raise SettingError("laneprint drive does not drive on sublanes ({0} sublane): give {0} ttc or acceptance",
+                           "family")
+    in_own_traffic = own == (family, s.lanes)
+    s = replace(s, family=family,
+                dwell_calibrated=(s.dwell_calibrated if s.dwell_calibrated is not None
+                                  else in_own_traffic and s.held_back and s.dwell and not s.dwell_draw),
+                lag_calibrated=(s.lag_calibrated if s.lag_calibrated is not None
+                                else in_own_traffic and s.held_back and not s.lag_draw))
+    limits = check_sections(sections)
+    out = Path(out) if out is not None else workspace.root / "drives" / f"{run_id}-s{s.seed}"
+    if out.suffix != ".mcap" and out.exists() and not out.is_dir():
+        raise SettingError(f"{{0}} {out} exists and is not a folder", "out")
+    check_available()
+    style, why = ego_style(workspace, agent.target)
+    rule, rule_note = held_back_rule(workspace, agent.target, agent.cfg, s.dwell_percentile, s.dwell_draw, s.lag_draw)
+    paced = rule_pace(workspace, agent.target, agent.net, agent.cfg, s.pace_by) if rule is not None and s.pace else None
+    calibration = None
+    if rule is not None and (s.dwell_calibrated or s.lag_calibrated):
+        calibration = calibrated(workspace, agent, s, paced, progress)
+    return DrivePlan(agent, s, sumo_traffic(s, limits), out, s.driver_id or f"agent-{run_id}", own, style, why,
+                     assistant_rule(rule, s, calibration, paced=paced), rule_note, paced, calibration)
+
+
+def simulate(plan: DrivePlan, progress: Optional[ProgressFn] = None) -> Driven:
+    """Drive the plan's sections in SUMO with the agent (and the rule, when on); with `sumo_model` the
+    same sections, traffic and seeds again with SUMO's own lane changing of the ego's style."""
+    s, agent = plan.settings, plan.agent
+    drives = drive_sections(agent_q(agent.net, agent.cfg), agent.cfg, plan.ego_params, plan.traffic, s.seed, progress,
+                            plan.rule, use_rule=s.held_back)
+    lanes_opt = "" if s.lanes == 2 else f", {s.lanes} lanes"
+    simulator = f"Eclipse SUMO {drives[0].log.sumo_version} (laneprint drive {agent.run_id}, seed {s.seed}{lanes_opt})"
+    model = None
+    if s.sumo_model:
+        model = sumo_model_sections(agent.cfg, plan.ego_params, plan.traffic, s.seed, plan.rule or _NEVER, progress)
+    return Driven(drives, recordings(drives, plan.driver_id, simulator), model)
+
+
+def write_logs(driven: Driven, out: Path) -> list[Path]:
+    """Write one LOG_FORMAT v1 MCAP per driven section (`output_paths`); their paths."""
+    paths = output_paths(out, [meta["session_id"] for meta, _, _ in driven.recordings])
+    for path, (meta, ego, traffic) in zip(paths, driven.recordings):
         path.parent.mkdir(parents=True, exist_ok=True)
         write_mcap(path, meta, ego, traffic)
-    rows = section_rows(drives, paths)
+    return paths
+
+
+def decision_rows(drives: list[SectionDrive]) -> list[dict[str, Any]]:
+    """The agent's change decisions of every section, JSON-ready."""
+    return [{"speed_limit_kph": d.speed_limit_kph, **asdict(x)} for d in drives for x in d.decisions]
+
+
+def drive_report(workspace: Workspace, plan: DrivePlan, driven: Driven, paths: list[Path]) -> dict[str, Any]:
+    """The drive's JSON-ready report: per section and in total, the held-back rule, pace, dwell and
+    headway, the indicators at the agent's decisions against its lines, the drive beside its drivers,
+    SUMO's own model (with the comparator) and the style an analysis gives it (with `analyze`)."""
+    s, agent, rule, calibration, own = plan.settings, plan.agent, plan.rule, plan.calibration, plan.own
+    log = driven.drives[0].log
+    rows = section_rows(driven.drives, paths)
     result: dict[str, Any] = {
-        "run_id": run_id, "target": config["target"], "driver_id": driver_id, "seed": seed, "minutes": minutes,
-        "sumo_version": drives[0].log.sumo_version, "sumo_api": drives[0].log.api,
-        "ego_style": style, "ego_style_reason": why, "decision_every_s": cfg.dt_s, "lanes": lanes, "family": family,
-        "drivers_traffic": ({"family": own[0], "lanes": own[1], "same_as_drive": in_own_traffic} if own else None),
-        "side_input": cfg.observation == "direction",
+        "run_id": agent.run_id, "target": agent.config["target"], "driver_id": plan.driver_id, "seed": s.seed,
+        "minutes": s.minutes, "sumo_version": log.sumo_version, "sumo_api": log.api,
+        "ego_style": plan.style, "ego_style_reason": plan.style_reason, "decision_every_s": agent.cfg.dt_s,
+        "lanes": s.lanes, "family": s.family,
+        "drivers_traffic": ({"family": own[0], "lanes": own[1], "same_as_drive": own == (s.family, s.lanes)}
+                            if own else None),
+        "side_input": agent.cfg.observation == "direction",
         "files": [str(p) for p in paths], "sections": rows, "totals": totals(rows),
-        "held_back": {"on": bool(held_back and rule is not None), "rule": rule.to_dict() if rule else None,
-                      "note": rule_note, "desired_speed": f"section limit x speedFactor "
-                                                          f"{style_params[style].get('speedFactor', 1.0):g} "
-                                                          f"(the {style} vType)"},
-        "pace": paced or {"note": "off (--no-pace)" if rule is not None else "no held-back rule"},
-        "dwell": dwell_mode(rule, held_back, dwell_draw, calibration if dwell_calibrated else None, dwell_percentile),
-        "lag": lag_mode(rule, held_back, lag_draw, lag_calibrated),
+        "held_back": {"on": bool(s.held_back and rule is not None), "rule": rule.to_dict() if rule else None,
+                      "note": plan.rule_note, "desired_speed": f"section limit x speedFactor "
+                                                               f"{plan.ego_params.get('speedFactor', 1.0):g} "
+                                                               f"(the {plan.style} vType)"},
+        "pace": plan.paced or {"note": "off (--no-pace)" if rule is not None else "no held-back rule"},
+        "dwell": dwell_mode(rule, s.held_back, s.dwell_draw, calibration if s.dwell_calibrated else None,
+                            s.dwell_percentile),
+        "lag": lag_mode(rule, s.held_back, s.lag_draw, bool(s.lag_calibrated)),
         "dwell_calibration": ({k: v for k, v in calibration.items() if k not in ("draws", "lag_draws")}
-                              if calibration and dwell_calibrated else None),
+                              if calibration and s.dwell_calibrated else None),
         "lag_calibration": ({k: v for k, v in calibration.items() if k not in ("draws", "lag_draws", "stays")}
-                            if calibration and lag_calibrated else None),
+                            if calibration and s.lag_calibrated else None),
         "changes_by_lane": _sum_counts([r["changes_by_lane"] for r in rows]),
-        "indicators": indicators_vs_lines(drives, cfg.lines),
-        "decisions": [{"speed_limit_kph": d.speed_limit_kph, **asdict(x)} for d in drives for x in d.decisions],
+        "indicators": indicators_vs_lines(driven.drives, agent.cfg.lines),
+        "decisions": decision_rows(driven.drives),
     }
-    result["fidelity"] = drivers_fidelity(workspace, target, recs, seed)
-    if sumo_model:
-        model = sumo_model_sections(cfg, style_params[style], settings, seed, rule or _NEVER, progress)
-        result["sumo_model"] = sumo_model_report(model, result["totals"])
-    if analyze:
-        result["analysis"] = assigned_style(workspace, paths, driver_id)
-        result["analysis"]["target_style"] = target.name if target.kind == "style" else None
-    if out.suffix != ".mcap":
-        atomic_write_json(out / "drive.json", result)
+    result["fidelity"] = drivers_fidelity(workspace, agent.target, driven.recordings, s.seed)
+    if driven.model is not None:
+        result["sumo_model"] = sumo_model_report(driven.model, result["totals"])
+    if s.analyze:
+        result["analysis"] = assigned_style(workspace, paths, plan.driver_id)
+        result["analysis"]["target_style"] = agent.target.name if agent.target.kind == "style" else None
+    return result
+
+
+def drive_run(workspace: Workspace, run_id: str, settings: Optional[DriveSettings] = None, *,
+              sections: Optional[list[float]] = None, out: Optional[Path] = None,
+              progress: Optional[ProgressFn] = None) -> dict[str, Any]:
+    """Drive the run's agent in SUMO as `settings` ask (`DriveSettings`, each field documented there) on
+    the `sections` (speed limits; default all), write the MCAPs to `out` (default
+    WORKSPACE/drives/RUN_ID-sSEED/; a folder also gets the report as drive.json) and return the report:
+    `plan_drive`, `simulate`, `write_logs`, `drive_report`."""
+    plan = plan_drive(workspace, run_id, settings or DriveSettings(), sections, out, progress)
+    driven = simulate(plan, progress)
+    paths = write_logs(driven, plan.out)
+    result = drive_report(workspace, plan, driven, paths)
+    if plan.out.suffix != ".mcap":
+        atomic_write_json(plan.out / "drive.json", result)
     return result

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from laneprint.errors import UserError
+from laneprint.errors import SettingError, UserError
 
 
 def driver_rows(decisions: pd.DataFrame, driver: str) -> pd.DataFrame:
@@ -41,9 +41,9 @@ def first_decisions(rows: pd.DataFrame, k: int | None) -> pd.DataFrame:
     order = decision_order(rows)
     if k is not None:
         if k < 1:
-            raise UserError(f"--decisions must be at least 1, got {k}")
+            raise SettingError(f"{{0}} must be at least 1, got {k}", "decisions")
         if k > len(order):
-            raise UserError(f"--decisions {k}: the driver has {len(order)} decisions")
+            raise SettingError(f"{{0}} {k}: the driver has {len(order)} decisions", "decisions")
         order = order[:k]
     return rows[rows["decision_id"].astype(str).isin(set(order))]
 

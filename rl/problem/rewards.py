@@ -54,7 +54,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import pandas as pd
 
-from laneprint.errors import UserError
+from laneprint.errors import SettingError, UserError
 from laneprint.reference import INDICATORS, PAPER_TABLE1
 from rl.problem.scene import Indicators
 
@@ -98,7 +98,7 @@ class ReferenceLines:
     def from_table(lines: pd.DataFrame, *, style: str | None = None, driver: str | None = None) -> "ReferenceLines":
         """Lines of a style (scope='style', kind='typical') or a driver (scope='driver') from REFERENCE_LINES."""
         if (style is None) == (driver is None):
-            raise UserError("give exactly one of --style or --driver")
+            raise SettingError("give exactly one of {0} or {1}", "style", "driver")
         if "direction" in lines:  # lines of one direction are the analysis's detail; the agents read both
             lines = lines[lines["direction"].astype(str) == "both"]
         if style is not None:

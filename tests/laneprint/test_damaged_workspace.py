@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 import laneprint.workspace as workspace_module
 from clustering.pipeline import analyze
 from indicators.settings import AnalysisSettings
-from indicators.synthetic import catalogue_row
+from tests.support.synthetic_decisions import catalogue_row
 from ingest.pipeline import ingest_paths
 from ingest.writers import write_csv
 from laneprint.app.check import check_workspace
@@ -146,7 +146,7 @@ def test_a_garbage_parquet_is_named_and_left_out_by_ingest_analyze_and_report(da
     result = analyze(ws, AnalysisSettings(n_bootstrap=5))
     skipped = {s["id"]: s["reason"] for s in result["skipped"]}
     assert "damaged" in skipped[f"recordings/{a}/meta.parquet"] and "cannot be read" in skipped[b]
-    from laneprint.report import write_report
+    from dashboard.report import write_report
 
     written = write_report(ws, tmp_path / "r.html", assets=False, svg=False)
     assert Path(written["report"]).exists()

@@ -8,7 +8,7 @@ from laneprint.cli import app
 from laneprint.provenance import analysis_mark
 from laneprint.workspace import Workspace, analysis_fingerprint
 from rl.runs import list_runs
-from rl.testing import FAST_CLI as FAST, analysed_workspace
+from tests.support.rl_workspaces import FAST_CLI as FAST, analysed_workspace
 
 
 def reanalyse(ws: Workspace, change) -> str:

@@ -93,13 +93,13 @@ def _run_one(settings: HighwaySettings, driver: HighwayDriver, limit: float, den
 
 def check_available() -> None:
     """Raise `UserError` with the install hint when highway-env cannot be imported."""
-    from laneprint.errors import UserError
+    from laneprint.errors import SettingError
 
     try:
         import highway_env  # noqa: F401
     except ImportError:
-        raise UserError("--engine highway needs highway-env: pip install -e '.[highway]' "
-                        "(highway-env==1.12.1)") from None
+        raise SettingError("{0} highway needs highway-env: pip install -e '.[highway]' "
+                        "(highway-env==1.12.1)", "engine") from None
 
 
 def simulate_highway_study(settings: Optional[HighwaySettings] = None, seed: int = 0,
