@@ -699,3 +699,22 @@ def drive_label(folder: str, drive: dict[str, Any]) -> str:
             f"{fid['medians_in_iqr']} medians inside" if rate and rate["agent"]["per_km"] is not None
             and rate["drivers"]["per_km"] is not None else "")
     return f"{folder}: run {drive.get('run_id')}, {drive.get('lanes', 2)} lanes, seed {drive.get('seed')}{what}"
+
+
+#: page -> (the page to go to next, what to do there), in the order a study goes through them
+NEXT_STEPS: dict[str, tuple[str, str]] = {
+    "data": ("Styles", "read the drivers' styles ('Run analysis')"),
+    "drivers": ("Styles", "see the styles the drivers fall into and their reference lines"),
+    "styles": ("Training", "train an agent for a style"),
+    "training": ("Results", "compare a finished agent with its drivers and the greedy benchmark, held out"),
+    "results": ("Personalise", "start an agent for one driver from their first decisions"),
+}
+
+
+def next_step(page: str, has_recordings: bool, has_analysis: bool) -> str | None:
+    """The line naming what to do next after `page` ('Next: ... on the Styles page'), None when the page's
+    own step is not done yet (no recordings on Data, no analysis after it)."""
+    if page not in NEXT_STEPS or not has_recordings or (page != "data" and not has_analysis):
+        return None
+    where, what = NEXT_STEPS[page]
+    return f"Next: {what} on the **{where}** page."

@@ -155,3 +155,15 @@ def figure_downloads(fig, name: str, key: str) -> None:
         for col, fmt in zip(cols[1:], fx.FORMATS):
             col.download_button(fmt.upper() + (" (300 dpi)" if fmt == "png" else ""), data=made[fmt],
                                 file_name=f"{name}.{fmt}", mime=mimes[fmt], key=f"fig_{fmt}_{key}", on_click="ignore")
+
+
+def next_step(ws, page: str) -> None:
+    """At the foot of a page: what to do next, once the page's own step is done (`views.next_step`)."""
+    from dashboard import loaders
+
+    has_recordings = not loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root)).empty
+    has_analysis = "styles" in loaders.analysis(str(ws.root), loaders.analysis_stamp(ws.root))
+    line = views.next_step(page, has_recordings, has_analysis)
+    if line:
+        st.divider()
+        st.markdown(line)

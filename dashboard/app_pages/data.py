@@ -86,6 +86,7 @@ def main() -> None:
     ws = workspace()
     upload_section(ws)
     recordings_section(ws)
+    widgets.next_step(ws, "data")
 
 
 main()

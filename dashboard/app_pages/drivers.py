@@ -105,6 +105,7 @@ def main() -> None:
     if len(skipped):
         if box := widgets.lazy_expander(f"Skipped by the analysis ({len(skipped)})", key="skipped_open"):
             box.dataframe(skipped, hide_index=True, width="stretch")
+    widgets.next_step(ws, "drivers")
 
 
 main()

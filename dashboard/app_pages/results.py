@@ -295,6 +295,7 @@ def main() -> None:
     fleets(ws)
     drives(ws)
     stored_crossvals(ws, show_one=False)
+    widgets.next_step(ws, "results")
 
 
 main()

@@ -145,6 +145,7 @@ def main() -> None:
             table.dataframe(lines, hide_index=True, width="stretch")
     if assignment := widgets.lazy_expander("Per-driver style assignment", key="assignment_open"):
         assignment.dataframe(styles, hide_index=True, width="stretch")
+    widgets.next_step(ws, "styles")
 
 
 main()

@@ -240,6 +240,7 @@ def main() -> None:
         crossval_section(ws, rid, status, cv_running)
     else:
         st.caption("No run has finished yet.")
+    widgets.next_step(ws, "training")
 
 
 main()

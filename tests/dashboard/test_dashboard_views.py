@@ -84,3 +84,12 @@ def test_crossval_picker_says_when_it_was_made_with_another_analysis():
            "reward": "decisions", "folds": 4}
     assert LABELS[EARLIER] in views.crossval_label({**row, "analysis": LABELS[EARLIER]})
     assert views.crossval_label({**row, "analysis": LABELS[CURRENT]}) == views.crossval_label(row)
+
+
+def test_each_page_names_the_next_step_once_its_own_is_done():
+    assert views.next_step("data", has_recordings=False, has_analysis=False) is None
+    assert "**Styles** page" in views.next_step("data", has_recordings=True, has_analysis=False)
+    assert views.next_step("styles", has_recordings=True, has_analysis=False) is None
+    assert "**Training** page" in views.next_step("styles", has_recordings=True, has_analysis=True)
+    assert "**Personalise** page" in views.next_step("results", has_recordings=True, has_analysis=True)
+    assert views.next_step("personalize", has_recordings=True, has_analysis=True) is None
