@@ -240,11 +240,14 @@ def main() -> None:
     ap.add_argument("--zoo-root", type=Path, default=Path("/tmp/laneprint-zoo"), help="where studies are cached")
     ap.add_argument("--zoo-methods", default="auto,heldout,behaviour", help="--features values to judge")
     ap.add_argument("--zoo-out", default="analysis_zoo.json", help="file name under benchmarks/results/")
+    ap.add_argument("--zoo-cached-only", action="store_true",
+                    help="judge only the studies already generated under --zoo-root (generate none)")
     args = ap.parse_args()
     if args.zoo:
         from zoo import WORLDS, run as run_zoo
         worlds = list(WORLDS) if args.zoo == "all" else args.zoo.split(",")
-        run_zoo(worlds, args.zoo_seeds, args.zoo_root, tuple(args.zoo_methods.split(",")), args.zoo_out)
+        run_zoo(worlds, args.zoo_seeds, args.zoo_root, tuple(args.zoo_methods.split(",")), args.zoo_out,
+                args.zoo_cached_only)
         return
     if args.workspace:
         shipped(args.workspace)

@@ -94,12 +94,10 @@ def judge(world: str, seed: int, root: Path, methods: tuple[str, ...]) -> list[d
         seconds = time.perf_counter() - t0
         st = st[st["driver_id"].isin(truth)]
         a = float(adjusted_rand_score([truth[d] for d in st["driver_id"]], st["style"]))
-        chosen = ""
         for r in st.itertuples():
             rows.append({"world": world, "seed": seed, "method": method, "driver": r.driver_id, "truth": truth[r.driver_id],
                          "style": r.style, "confidence": float(r.confidence), "presses": int(r.n_decisions),
                          "ari": a, "seconds": seconds, "unsure": str(r.unsure)})
-        del chosen
     return rows
 
 
@@ -131,11 +129,22 @@ def summarise(df: pd.DataFrame) -> dict:
     return {"per_world": per.to_dict("records"), "leave_one_world_out": lowo, "reliability": rel}
 
 
-def run(worlds: list[str], seeds: list[int], root: Path, methods: tuple[str, ...], out_name: str) -> dict:
+def cached(world: str, seed: int, root: Path) -> bool:
+    """Whether the study of `world` and `seed` is generated, ingested and its decisions extracted under `root`."""
+    return (root / f"{world}-{seed}" / "ground_truth.json").exists() and \
+        (root / f"{world}-{seed}.ws" / "zoo_decisions.parquet").exists()
+
+
+def run(worlds: list[str], seeds: list[int], root: Path, methods: tuple[str, ...], out_name: str,
+        cached_only: bool = False) -> dict:
+    """Judge every method on every (world, seed), generating what is not cached (`cached_only`: skip it)."""
     root.mkdir(parents=True, exist_ok=True)
     rows = []
     for world in worlds:
         for seed in seeds:
+            if cached_only and not cached(world, seed, root):
+                print(f"  {world:<18} seed {seed:5d} not generated yet: left out", flush=True)
+                continue
             t0 = time.perf_counter()
             try:
                 rows += judge(world, seed, root, methods)
