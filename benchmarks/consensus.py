@@ -71,11 +71,14 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[9001, *range(9101, 9109)])
     ap.add_argument("--root", type=Path, default=Path("/tmp/laneprint-zoo"), help="where studies are cached")
     ap.add_argument("--out", default="analysis_consensus_dev.json", help="file name under benchmarks/results/")
+    ap.add_argument("--cached-only", action="store_true", help="only the studies already generated under --root")
     args = ap.parse_args()
     worlds = list(zoo.WORLDS) if args.worlds == "all" else args.worlds.split(",")
     rows = []
     for world in worlds:
         for seed in args.seeds:
+            if args.cached_only and not zoo.cached(world, seed, args.root):
+                continue
             t0 = time.perf_counter()
             try:
                 truth, scores = ranked(world, seed, args.root)
