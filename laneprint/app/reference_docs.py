@@ -133,7 +133,8 @@ def _figures_section(figures: dict) -> list[str]:
                 walk(f"{name}.{k}" if name else str(k), sub)
         elif isinstance(v, list) and v and all(isinstance(r, dict) for r in v):
             cols = list(dict.fromkeys(k for r in v for k in r))
-            tables.extend([f"{name}: {len(v)} rows" + (f", the first {MAX_ROWS}" if len(v) > MAX_ROWS else ""), "",
+            tables.extend([f"{name} ({len(v)} row{'s' * (len(v) != 1)}"
+                           + (f", the first {MAX_ROWS} shown)" if len(v) > MAX_ROWS else ")"), "",
                            "| " + " | ".join(map(str, cols)) + " |", "|" + "---|" * len(cols),
                            *("| " + " | ".join(_cell(r.get(c, "")) for c in cols) + " |" for r in v[:MAX_ROWS]),
                            ""])
