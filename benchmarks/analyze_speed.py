@@ -2,7 +2,8 @@
 
 Ingests `sample_logs/` once, copies the workspace for each side, then runs the analysis stage
 (`clustering.pipeline.analyze`, default settings) of each side in its own process, alternating
-which goes first, `--reps` times; prints the median CPU and wall seconds of each and their ratio.
+which goes first, `--reps` times; prints the median CPU and wall seconds of each and their ratio, and
+writes them to `benchmarks/results/<--out>.json` (default `analyze_speed`).
 The revision is checked out with `git worktree` in a temporary folder and removed afterwards.
 
 Run: .venv/bin/python benchmarks/analyze_speed.py --baseline 3451c92 [--reps 5]
@@ -17,6 +18,8 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from results_file import write_result  # beside this file
 
 ROOT = Path(__file__).resolve().parents[1]
 #: One analysis in a fresh process: the code of argv[1], the workspace argv[2]; prints CPU and wall s.
@@ -37,6 +40,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--baseline", required=True, help="git revision to compare with")
     ap.add_argument("--reps", type=int, default=5)
+    ap.add_argument("--out", default="analyze_speed", help="result file name under benchmarks/results/")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="lp-analyze-speed-") as tmp:
         tmp = Path(tmp)
@@ -61,6 +65,9 @@ def main() -> None:
         print(f"| {n} | {c:.2f} | {w:.2f} |")
     here, there = med["this checkout"], med[args.baseline]
     print(f"this checkout / {args.baseline}: CPU {here[0] / there[0]:.2f}, wall {here[1] / there[1]:.2f}")
+    write_result(args.out, {"baseline": args.baseline, "reps": args.reps,
+                            "median": [{"code": n, "cpu_s": c, "wall_s": w} for n, (c, w) in med.items()],
+                            "ratio_cpu": here[0] / there[0], "ratio_wall": here[1] / there[1]})
 
 
 if __name__ == "__main__":

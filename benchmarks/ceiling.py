@@ -15,6 +15,8 @@ observation holds? This script answers the second question on the same folds as
   observation reaches, not a method;
 - `ceiling`: the best of the three optimistic figures; `bar` = greedy + 10 points.
 
+Every row is also written to `benchmarks/results/<--out>.json` (default `ceiling`).
+
 When `ceiling < bar` no policy of this observation can be expected to meet the bar on
 these sessions: the miss is the bar's, not the agent's.
 
@@ -28,6 +30,8 @@ import json
 import sys
 from dataclasses import replace
 from pathlib import Path
+
+from results_file import write_result  # beside this file: imported before the folder leaves the path
 
 # this folder holds scripts named like packages (ingest.py): keep it off the import path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
@@ -130,22 +134,27 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="crossval seeds (fold assignment)")
     ap.add_argument("--styles", nargs="*", help="only these styles (default: every style)")
     ap.add_argument("--json", action="store_true", help="one JSON row per (workspace, style, seed)")
+    ap.add_argument("--out", default="ceiling", help="result file name under benchmarks/results/")
     args = ap.parse_args()
     cols = ["greedy", "imitation", "trees", "logistic", "forest", "ceiling", "bar"]
     if not args.json:
         print(f"{'workspace':28} {'style':11} seed presses " + " ".join(f"{c:>9}" for c in cols) + "  ceiling<bar")
+    rows = []
     for root in args.workspaces:
         ws = Workspace(root)
         for style in args.styles or style_names(ws):
             for seed in args.seeds:
                 r = style_ceiling(ws, style, seed)
                 r["workspace"] = str(root)
+                r["ceiling_below_bar"] = r["ceiling"] < r["bar"]
+                rows.append(r)
                 if args.json:
                     print(json.dumps(r), flush=True)
                     continue
                 print(f"{root.name:28} {style:11} {seed:4} {r['n_presses']:7} "
                       + " ".join(f"{100 * r[c]:9.1f}" for c in cols)
                       + f"  {'yes' if r['ceiling'] < r['bar'] else 'no'}", flush=True)
+    write_result(args.out, {"seeds": args.seeds, "rows": rows})
 
 
 if __name__ == "__main__":

@@ -46,6 +46,9 @@ no collision, for every style:
     python benchmarks/closed_loop.py --out-of-world --lanes 2 3 --drive-seeds 0 1 2 --minutes 3 \
         --seed 0 --workdir DIR          # about 50 minutes on 2 shared cores (README.md, "Out of its world")
 
+Each mode writes its figures to `benchmarks/results/<--out>.json` (default `closed_loop`,
+`closed_loop_sides_<style>`, `closed_loop_out_of_world`) with the command, commit, date and machine.
+
 Agents found in the workspace as `oow-<style>-s<seed>` are reused (remove them to train afresh
 with the current defaults), and so are drives already in --workdir.
 """
@@ -61,6 +64,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from results_file import write_result  # beside this file
 
 ROOT = Path(__file__).resolve().parents[1]
 LAPRINT = [sys.executable, "-m", "laneprint.app.cli"]
@@ -138,7 +143,10 @@ def sides(args: argparse.Namespace) -> None:
             print(f"| agent {flag} | {seed} | {a['changes']} | {a['km']:.1f} | {rate:.2f} | {rate / mean:.2f} | "
                   + " | ".join(f"{a['by_lane'].get(p, 0) / a['km']:.2f}" for p in pairs)
                   + f" | (collisions {d['totals']['collisions']})", flush=True)
-    print(json.dumps({"style": args.style, "drivers_per_km": rates.tolist(), "drives": rows}))
+    doc = {"style": args.style, "drivers_per_km": rates.tolist(), "drives": rows}
+    print(json.dumps(doc))
+    write_result(args.out or f"closed_loop_sides_{args.style.lower()}",
+                 {**doc, "lanes": args.lanes, "training_seed": args.seed, "minutes": args.minutes})
 
 
 def shipped_workspace(args: argparse.Namespace) -> Path:
@@ -185,6 +193,7 @@ def out_of_world(args: argparse.Namespace) -> bool:
           "passed up [s]: agent / SUMO's model | collisions: agent / model | pure agent /km, passed up [s] |")
     print("|---|---|---|---|---|---|---|---|---|", flush=True)
     ok = True
+    rows: list[dict] = []
     pooled_rows: dict[tuple[int, str], list[dict]] = {}
     for lanes in args.lanes:
         for seed in args.drive_seeds:
@@ -207,6 +216,13 @@ def out_of_world(args: argparse.Namespace) -> bool:
                 up, up_model = tot["follow"]["longest_passed_up_s"], model["follow"]["longest_passed_up_s"]
                 met = (ratio is not None and 0.5 <= ratio <= 2.0 and up <= 60.0 and tot["collisions"] == 0)
                 ok &= met
+                rows.append({"lanes": lanes, "drive_seed": seed, "style": style,
+                             "agent_per_km": tot["lane_changes_per_km"], "agent_changes": tot["agent_changes"],
+                             "rule_changes": tot["rule_changes"], "model_per_km": model["lane_changes_per_km"],
+                             "ratio": ratio, "passed_up_s": up, "model_passed_up_s": up_model,
+                             "collisions": tot["collisions"], "model_collisions": model["collisions"],
+                             "pure_per_km": pure["totals"]["lane_changes_per_km"],
+                             "pure_passed_up_s": pure["totals"]["follow"]["longest_passed_up_s"], "met": bool(met)})
                 print(f"| {lanes} | {seed} | {style} | {tot['lane_changes_per_km']:.2f} ({tot['agent_changes']} / "
                       f"{tot['rule_changes']}) | {model['lane_changes_per_km']:.2f} | {fmt(ratio, '.2f')} | "
                       f"{up:.1f} / {up_model:.1f} | {tot['collisions']} / {model['collisions']} | "
@@ -229,6 +245,18 @@ def out_of_world(args: argparse.Namespace) -> bool:
         print(f"{style} agent: reward {cfg['env']['reward']['name']}, observation {cfg['env']['observation']}, "
               f"{cfg['dqn']['episodes']} episodes")
     print("acceptance (ratio 0.5-2, passed up <= 60 s, no collision, every row):", "met" if ok else "NOT met")
+    pooled_figures = []
+    for (lanes, style), ds in pooled_rows.items():
+        km, km_m = sum(d["totals"]["km"] for d in ds), sum(d["sumo_model"]["totals"]["km"] for d in ds)
+        pooled_figures.append({"lanes": lanes, "style": style,
+                               "agent_per_km": sum(d["totals"]["lane_changes"] for d in ds) / km,
+                               "model_per_km": sum(d["sumo_model"]["totals"]["lane_changes"] for d in ds) / km_m,
+                               "longest_passed_up_s": max(d["totals"]["follow"]["longest_passed_up_s"] for d in ds),
+                               "collisions": sum(d["totals"]["collisions"] for d in ds)})
+    write_result(args.out or "closed_loop_out_of_world",
+                 {"training_seed": args.seed, "minutes": args.minutes, "lanes": args.lanes,
+                  "drive_seeds": args.drive_seeds, "pace_by": args.pace_by, "acceptance_met": bool(ok), "rows": rows,
+                  "pooled": pooled_figures if len(args.drive_seeds) > 1 else []})
     return ok
 
 
@@ -277,6 +305,8 @@ def main() -> None:
                     help="default mode: drive without the undo check (drive --no-undo-check)")
     ap.add_argument("--out-of-world", action="store_true",
                     help="the shipped study's agents in SUMO against SUMO's own model of their style")
+    ap.add_argument("--out", default=None, help="result file name under benchmarks/results/ (default: closed_loop, "
+                                                "closed_loop_sides_<style> or closed_loop_out_of_world)")
     args = ap.parse_args()
     if args.dwell_draw + args.dwell_calibrated + args.no_dwell_calibrated > 1:
         ap.error("--dwell-draw, --dwell-calibrated and --no-dwell-calibrated: choose one")
@@ -395,9 +425,14 @@ def closed_loop(args: argparse.Namespace) -> bool:
         print(f"{what}: {sum(c[key] for c in checks)} of 3")
     ok = all(all(v for k, v in c.items() if k != "style") for c in checks)
     print("acceptance:", "met" if ok else "NOT met")
-    print(json.dumps({"seed": args.seed, "family": args.family, "drive_seed": args.drive_seed, "lanes": int(lanes),
-                      "checks": checks,
-                      "fidelity": {s: d["fidelity"] for s, d in drives.items()}}))
+    doc = {"seed": args.seed, "family": args.family, "drive_seed": args.drive_seed, "lanes": int(lanes),
+           "checks": checks, "fidelity": {s: d["fidelity"] for s, d in drives.items()}}
+    print(json.dumps(doc))
+    write_result(args.out or "closed_loop", {
+        **doc, "drivers": args.drivers, "minutes": args.minutes, "acceptance_met": bool(ok),
+        "totals": {s: d["totals"] for s, d in drives.items()},
+        "assigned_style": {s: final["drivers"].get(d["driver_id"], {}).get("style") for s, d in drives.items()},
+        "study_drivers_changed_style": {d: list(v) for d, v in changed.items()}})
     return ok
 
 if __name__ == "__main__":

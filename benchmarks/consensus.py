@@ -17,7 +17,6 @@ import argparse
 import json
 import sys
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 import pandas as pd
@@ -25,6 +24,7 @@ from sklearn.metrics import adjusted_rand_score
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import zoo  # noqa: E402
+from results_file import write_result  # noqa: E402
 
 #: variant name -> (voters, linkage); one voter is `separated`
 VARIANTS: dict[str, tuple[int, str]] = {"separated": (1, "complete")} | {
@@ -97,14 +97,10 @@ def main() -> None:
         lowo.append({"world": world, "variant_chosen_elsewhere": pick, "mean_ari": float(means.loc[pick, world]),
                      "separated_mean_ari": float(means.loc["separated", world])})
     overall = pd.DataFrame({"mean_over_worlds": means.mean(axis=1), "worst_world": means.min(axis=1)})
-    result = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]), "commit": zoo._commit(),
-              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-              "machine": f"{zoo.platform.node()} {zoo.platform.machine()} {zoo._cores()} cores",
-              "worlds": worlds, "seeds": args.seeds, "variants": {k: list(v) for k, v in VARIANTS.items()},
-              "per_world": per.to_dict("records"), "overall": overall.reset_index().to_dict("records"),
-              "leave_one_world_out": lowo}
-    zoo.RESULTS.mkdir(parents=True, exist_ok=True)
-    (zoo.RESULTS / args.out).write_text(json.dumps(result, indent=1, default=float) + "\n")
+    write_result(args.out, {"worlds": worlds, "seeds": args.seeds,
+                            "variants": {k: list(v) for k, v in VARIANTS.items()},
+                            "per_world": per.to_dict("records"), "overall": overall.reset_index().to_dict("records"),
+                            "leave_one_world_out": lowo})
     print("\nmean ARI over worlds (worst world) per variant")
     for v, r in overall.sort_values("mean_over_worlds", ascending=False).iterrows():
         print(f"  {v:<18} {r.mean_over_worlds:.2f} ({r.worst_world:.2f})")

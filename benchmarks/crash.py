@@ -16,7 +16,8 @@ Prints one line per kill and a summary: kills per command, how many hit a live p
 (and how many had finished first), consistent workspaces
 (no `check` problem after the kill, a clean `check` after recovery, the command's own
 postcondition), interrupted trainings resumed, leftovers repaired. Exit 1 if a workspace
-was inconsistent or an interrupted training was not resumed.
+was inconsistent or an interrupted training was not resumed. The summary is written to
+`benchmarks/results/<--result>.json` (default `crash`; `--out` keeps every kill's result).
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ import time
 from collections import Counter
 from dataclasses import asdict
 from pathlib import Path
+
+from results_file import write_result  # beside this file: imported before the folder leaves the path
 
 # benchmarks/ holds scripts named like packages (dashboard.py, ingest.py): keep it off the import path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
@@ -44,6 +47,7 @@ def main() -> int:
     ap.add_argument("--commands", default=",".join(COMMANDS), help=f"comma-separated, of: {', '.join(COMMANDS)}")
     ap.add_argument("--jobs", type=int, default=1, help="kills under way at once (each on its own workspace)")
     ap.add_argument("--out", type=Path, help="write every kill's result here as JSON")
+    ap.add_argument("--result", default="crash", help="the summary's file name under benchmarks/results/")
     args = ap.parse_args()
     names = [n.strip() for n in args.commands.split(",") if n.strip()]
     unknown = [n for n in names if n not in COMMANDS]
@@ -68,6 +72,14 @@ def main() -> int:
     print(f"inconsistent workspaces: {len(bad)}; leftovers repaired: {sum(r.repaired for r in results)} "
           f"(in {sum(r.repaired > 0 for r in results)} kills); interrupted trainings: {interrupted}, "
           f"resumed from their checkpoint: {resumed}; slowest recovery: {max(r.recovery_s for r in results):.1f} s")
+    write_result(args.result, {
+        "kills": len(results), "seed": args.seed, "commands": names, "jobs": args.jobs,
+        "seconds": time.monotonic() - t0, "per_command": {k: {"kills": v, "live": live_by_cmd[k]} for k, v in by_cmd.items()},
+        "live": live, "finished_before_kill": len(results) - live, "redrawn": sum(r.retries for r in results),
+        "kill_moment_median": fractions[len(fractions) // 2] if fractions else None,
+        "inconsistent": len(bad), "repaired": sum(r.repaired for r in results),
+        "interrupted_trainings": interrupted, "resumed": resumed,
+        "slowest_recovery_s": max((r.recovery_s for r in results), default=0.0)})
     if args.out:
         args.out.write_text(json.dumps([asdict(r) | {"live": r.live} for r in results], indent=2))
     return 1 if bad or resumed < interrupted else 0

@@ -14,7 +14,8 @@ If the plain MLP ranks the held-out states worse than the trees even when taught
 the labels directly, the agent's gap to the classifier is its function class,
 not its reward or its training. Prints per classifier the pooled held-out ROC AUC
 (ranking) and balanced accuracy (at the balanced 0.5 threshold), and each side's where
-the target changed lanes to both.
+the target changed lanes to both; writes them to `benchmarks/results/<--out>.json` (default
+`function_class_<style>`).
 
     python benchmarks/function_class.py -w WORKSPACE --style Aggressive [--folds 4] [--seed 0]
 """
@@ -24,6 +25,8 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+
+from results_file import write_result  # beside this file: imported before the folder leaves the path
 
 # benchmarks/ holds scripts named like packages (dashboard.py, ingest.py): keep it off the import path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
@@ -73,6 +76,8 @@ def main() -> int:
     ap.add_argument("--style", required=True)
     ap.add_argument("--folds", type=int, default=4)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default=None, help="result file name under benchmarks/results/ "
+                                                "(default function_class_<style>)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     ws = Workspace(args.workspace)
@@ -101,18 +106,30 @@ def main() -> int:
         print(f"fold {k + 1}: {len(train)} training decisions, {len(test)} held out", flush=True)
     y, side = np.concatenate(labels), np.concatenate(left)
     print(f"\n{args.style}, {len(y)} held-out states ({int(y.sum())} presses), observation '{cfg.observation}':")
+    rows = []
     for name, parts in scores.items():
         s = np.concatenate(parts)
-        line = f"  {name:14s} " + _figures(y, s)
+        row = {"classifier": name, **_figures(y, s)}
+        line = f"  {name:14s} " + _text(row)
         if side.any() and not side.all():  # changes to both sides: each side's figures too
-            line += "   left " + _figures(y[side], s[side]) + "   right " + _figures(y[~side], s[~side])
+            left, right = _figures(y[side], s[side]), _figures(y[~side], s[~side])
+            line += "   left " + _text(left) + "   right " + _text(right)
+            row |= {f"left_{k}": v for k, v in left.items()} | {f"right_{k}": v for k, v in right.items()}
+        rows.append(row)
         print(line)
+    write_result(args.out or f"function_class_{args.style.lower()}",
+                 {"style": args.style, "folds": args.folds, "seed": args.seed, "observation": cfg.observation,
+                  "held_out_states": len(y), "presses": int(y.sum()), "classifiers": rows})
     return 0
 
 
-def _figures(y: np.ndarray, s: np.ndarray) -> str:
+def _figures(y: np.ndarray, s: np.ndarray) -> dict[str, float]:
     ba = 0.5 * ((s[y == 1] > 0).mean() + (s[y == 0] <= 0).mean())
-    return f"ROC AUC {roc_auc_score(y, s):.3f}, balanced accuracy {100 * ba:.1f} %"
+    return {"roc_auc": float(roc_auc_score(y, s)), "balanced_accuracy": float(ba)}
+
+
+def _text(f: dict[str, float]) -> str:
+    return f"ROC AUC {f['roc_auc']:.3f}, balanced accuracy {100 * f['balanced_accuracy']:.1f} %"
 
 
 if __name__ == "__main__":

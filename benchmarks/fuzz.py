@@ -16,7 +16,8 @@ file), then runs it in-process through the ingest pipeline (`_Batch.prepare`, `p
 - partial / bad_output: the workspace holds a half-written or invalid recording.
 
 Prints one row per mutation kind with how each case ended, then the totals and the
-first example of every outcome other than ingested/refused. Exit status 1 when any
+first example of every outcome other than ingested/refused, and writes the counts to
+`benchmarks/results/<--out>.json` (default `fuzz`; not with `--case`). Exit status 1 when any
 case ended in traceback, partial, bad_output, unexpected or refused_unlocated.
 """
 
@@ -30,6 +31,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from results_file import write_result  # beside this file: imported before the folder leaves the path
 
 # this script lives beside benchmarks/ingest.py, named like the `ingest` package: keep its folder off the path
 sys.path = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
@@ -72,6 +75,7 @@ def main() -> int:
     ap.add_argument("--case", type=int, default=None, help="replay one case and print its detail")
     ap.add_argument("--kinds", default="", help="only these mutation kinds (comma separated), same cases otherwise")
     ap.add_argument("--seconds", default="2,8", help="lengths of the seed excerpts [s], comma separated")
+    ap.add_argument("--out", default="fuzz", help="result file name under benchmarks/results/")
     args = ap.parse_args()
 
     t0 = time.perf_counter()
@@ -112,6 +116,14 @@ def main() -> int:
     for key, (case, name, kind, detail) in sorted(examples.items()):
         print(f"\n{key}: case {case} ({kind} of {name}; replay with --seed {args.seed} --case {case})\n"
               f"{detail[-1500:]}")
+    write_result(args.out, {
+        "cases": args.cases, "seed": args.seed, "kinds": args.kinds, "seconds": args.seconds,
+        "seed_files": len(seeds), "tried": tried, "elapsed_s": elapsed, "ms_per_file": elapsed / max(tried, 1) * 1000,
+        "totals": {o: total[o] for o in OUTCOMES}, "bad": sum(total[o] for o in BAD),
+        "per_kind": [{"kind": k, "tried": sum(table[k].values()), **{o: table[k][o] for o in OUTCOMES}}
+                     for k in sorted(table)],
+        "examples": [{"what": key, "case": case, "file": name, "detail": detail[-1500:]}
+                     for key, (case, name, kind, detail) in sorted(examples.items())]})
     return 1 if any(total[o] for o in BAD) else 0
 
 

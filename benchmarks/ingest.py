@@ -12,7 +12,8 @@ CSV.gz and MCAP to a temporary folder, then times (median of several repetitions
   package and `laneprint/workspace.py`, the store, loaded under another name, everything
   else shared), interleaved with ours: before and after in one run.
 
-Goals: our ingest at least half as fast as the floor (ratio >= 0.5); MCAP at least 3x.
+Goals: our ingest at least half as fast as the floor (ratio >= 0.5); MCAP at least 3x. The table is
+written to `benchmarks/results/<--out>.json` (default `ingest`).
 
     .venv/bin/python benchmarks/ingest.py [--reps 5] [--minutes 10] [--vehicles 20] [--baseline c330a54 ...]
                                           [--formats csv,csv.gz,mcap]
@@ -34,6 +35,8 @@ import time
 from pathlib import Path
 
 import sys
+
+from results_file import write_result  # beside this file: imported before the folder leaves the path
 
 # this script is named like the `ingest` package: keep its own folder off the import path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
@@ -149,6 +152,7 @@ def main() -> None:
     ap.add_argument("--baseline", metavar="REV", action="append", default=[],
                     help="also time the ingest (and store) of this git revision (before/after); repeatable")
     ap.add_argument("--formats", default="csv,csv.gz,mcap", help="comma-separated subset of csv,csv.gz,mcap")
+    ap.add_argument("--out", default="ingest", help="result file name under benchmarks/results/")
     args = ap.parse_args()
 
     meta, ego, traffic = make_recording(args.minutes, args.vehicles)
@@ -205,6 +209,12 @@ def main() -> None:
         print("\nvs floor = floor time / this time, from medians of wall-clock time and of CPU time "
               "(all threads; steadier when the machine is busy)")
         print("goals: 'ingest (stored)' >= 0.5 x floor for each format; >= 3 x the json.loads floor for mcap")
+        write_result(args.out, {
+            "minutes": args.minutes, "vehicles": args.vehicles, "reps": args.reps, "samples": n,
+            "traffic_rows": len(traffic), "baselines": args.baseline,
+            "rows": [{"format": fmt, "what": label, "wall_s": secs, "mb_per_s": mbs, "samples_per_s": sps,
+                      "vs_floor_wall": ratio, "cpu_s": cpu, "vs_floor_cpu": cpu_ratio}
+                     for fmt, label, secs, mbs, sps, ratio, cpu, cpu_ratio in rows]})
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

@@ -10,6 +10,8 @@ times (medians, interleaved):
 - `laneprint ingest`'s work (`ingest.pipeline.ingest_paths` into a fresh workspace),
   and with `--baseline REV` the ingest of git revision REV in the same run.
 
+Writes the table to `benchmarks/results/<--out>.json` (default `ingest_stacks`).
+
     python benchmarks/ingest_stacks.py [--reps 3] [--minutes 10] [--vehicles 20] [--baseline REV]
                                          [--files json,ros2,protobuf]
 """
@@ -24,6 +26,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from results_file import write_result  # beside this file: imported before the folder leaves the path
 
 # this folder holds a script named like the `ingest` package: keep it off the import path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
@@ -59,6 +63,7 @@ def main() -> None:
     ap.add_argument("--baseline", metavar="REV",
                     help="also time the ingest (and store) of this git revision (before/after)")
     ap.add_argument("--files", default="json,ros2,protobuf", help="comma-separated subset of json,ros2,protobuf")
+    ap.add_argument("--out", default="ingest_stacks", help="result file name under benchmarks/results/")
     args = ap.parse_args()
     meta, ego, traffic = bench_ingest.make_recording(args.minutes, args.vehicles)
     meta = {**meta, "session_id": "bench"}
@@ -78,6 +83,7 @@ def main() -> None:
         print(f"{len(ego)} samples, {len(traffic)} traffic rows; median of {args.reps} runs\n")
         print(f"{'file':10} {'what':34} {'wall s':>8} {'cpu s':>7} {'samples/s (cpu)':>16} {'floor/this (cpu)':>17}")
         k = [0]
+        rows = []
         for name, (path, _, mapping) in files.items():
             data = path.read_bytes()
 
@@ -97,7 +103,12 @@ def main() -> None:
             times = bench_ingest.interleaved(list(fns.values()), args.reps)
             for label, (wall, cpu) in zip(fns, times):
                 print(f"{name:10} {label:34} {wall:8.2f} {cpu:7.2f} {len(ego) / cpu:16,.0f} {times[0][1] / cpu:17.2f}")
+                rows.append({"file": name, "what": label, "wall_s": wall, "cpu_s": cpu,
+                             "samples_per_cpu_s": len(ego) / cpu, "floor_over_this_cpu": times[0][1] / cpu})
         print("\nsamples/s and the ratio on CPU time (steadier than wall time on a shared machine)")
+        write_result(args.out, {"minutes": args.minutes, "vehicles": args.vehicles, "reps": args.reps,
+                                "samples": len(ego), "traffic_rows": len(traffic), "baseline": args.baseline,
+                                "rows": rows})
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

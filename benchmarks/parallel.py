@@ -11,6 +11,8 @@
 Wall times include the command's own start (a new Python process each time), as a
 user sees them. The ray backend starts a local Ray instance with this machine's cores.
 
+The figures are written to `benchmarks/results/<--out>.json` (default `parallel`).
+
     python benchmarks/parallel.py [--reps 3] [--cv-reps 1] [--episodes 2000] [--style Normal]
 """
 
@@ -26,6 +28,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from results_file import write_result  # beside this file
 
 ROOT = Path(__file__).resolve().parents[1]
 LANEPRINT = [sys.executable, "-m", "laneprint.app.cli"]
@@ -65,10 +69,13 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=2000, help="episodes per fold's agent")
     ap.add_argument("--folds", type=int, default=4)
     ap.add_argument("--style", default="Normal")
+    ap.add_argument("--out", default="parallel", help="result file name under benchmarks/results/")
     a = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="bench-parallel-"))
     logs = str(ROOT / "sample_logs")
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the start")
+    figures: dict = {"reps": a.reps, "cv_reps": a.cv_reps, "episodes": a.episodes, "folds": a.folds, "style": a.style,
+                     "load_average_start": os.getloadavg()[0]}
     try:
         walls: dict[str, list[float]] = {"local": [], "ray": []}
         cats = {}
@@ -79,6 +86,9 @@ def main() -> None:
                 walls[backend].append(wall)
                 cats[backend] = (out["counts"], catalogue(ws))
         same = cats["local"] == cats["ray"]
+        figures["ingest"] = {"files": cats["local"][0]["ingested"], "catalogues_equal": same,
+                             **{f"{b}_median_s": statistics.median(w) for b, w in walls.items()},
+                             **{f"{b}_runs_s": w for b, w in walls.items()}}
         print(f"ingest sample_logs ({cats['local'][0]['ingested']} files): local {fmt(walls['local'])} | "
               f"ray {fmt(walls['ray'])} | catalogues equal: {same}")
 
@@ -94,10 +104,15 @@ def main() -> None:
                 walls[backend].append(wall)
                 summaries[backend] = (out["summary"], out["per_fold"])
         same = summaries["local"] == summaries["ray"]
+        figures["crossval"] = {"summaries_equal": same, **{f"{b}_median_s": statistics.median(w) for b, w in walls.items()},
+                               **{f"{b}_runs_s": w for b, w in walls.items()}}
         print(f"crossval --style {a.style} --folds {a.folds} --episodes {a.episodes}: local {fmt(walls['local'])} | "
               f"ray {fmt(walls['ray'])} | summaries equal: {same}")
-        print(f"local Ray instance start + shut-down alone: {ray_start_s():.1f} s")
+        figures["ray_start_stop_s"] = ray_start_s()
+        print(f"local Ray instance start + shut-down alone: {figures['ray_start_stop_s']:.1f} s")
         print(f"load average {os.getloadavg()[0]:.1f} at the end")
+        figures["load_average_end"] = os.getloadavg()[0]
+        write_result(a.out, figures)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

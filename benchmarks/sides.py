@@ -10,7 +10,8 @@ reads SUMO (`live_scene`): at each press, whether the rule picks the driver's si
 the other side, or keeps; at the not-yet states of the analysis (label 'keep'),
 how often it keeps. In-sample for a run trained on these drivers (with
 `EnvConfig.other_side` it also saw the sides not taken). A diagnostic of issue 19's
-three lanes (rl/README.md), not part of the product.
+three lanes (rl/README.md), not part of the product. The counts are written to
+`benchmarks/results/<--out>.json` (default `sides_<run id>`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ import json
 import sys
 from pathlib import Path
 from typing import Any
+
+from results_file import write_result  # beside this file: imported before the folder leaves the path
 
 # benchmarks/ holds scripts named like packages (dashboard.py, ingest.py): keep it off the import path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
@@ -119,12 +122,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("run_id")
     ap.add_argument("-w", "--workspace", default="workspace")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--out", default=None, help="result file name under benchmarks/results/ (default sides_<run id>)")
     args = ap.parse_args(argv)
     try:
         res = side_choices(Workspace(args.workspace), args.run_id)
     except UserError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    write_result(args.out or f"sides_{args.run_id}", res, argv)
     if args.json:
         print(json.dumps(res, indent=1))
         return 0

@@ -2,7 +2,8 @@
 
 Run: `python benchmarks/simulate.py [--repeats N]`. Prints medians over the repeats
 for generation (10 drivers, 40 recordings, 500 decisions) and for writing the study
-as CSV (gzip) and as MCAP, side by side in one run, plus sizes and samples/s.
+as CSV (gzip) and as MCAP, side by side in one run, plus sizes and samples/s; writes them to
+`benchmarks/results/<--out>.json` (default `simulate`) with the command, commit, date and machine.
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from results_file import write_result  # beside this file (imported before the folder leaves the path)
+
 # benchmarks/ingest.py would shadow the `ingest` package: keep this folder off the import path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
@@ -24,6 +27,7 @@ from laneprint.simulator import StudySettings, simulate_study  # noqa: E402
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", default="simulate", help="result file name under benchmarks/results/")
     args = parser.parse_args()
 
     gen, study = [], None
@@ -34,6 +38,9 @@ def main() -> None:
     assert study is not None
     samples = sum(len(ego) for _, ego, _ in study.recordings)
     rows = sum(len(tr) for _, _, tr in study.recordings)
+    figures = {"repeats": args.repeats, "recordings": len(study.recordings), "ego_samples": samples,
+               "traffic_rows": rows, "generate_median_s": statistics.median(gen),
+               "generate_samples_per_s": samples / statistics.median(gen), "write": []}
     print(f"generate: median {statistics.median(gen):.2f} s over {args.repeats} runs; "
           f"{len(study.recordings)} recordings, {samples} ego samples, {rows} traffic rows, "
           f"{samples / statistics.median(gen):,.0f} samples/s")
@@ -47,7 +54,9 @@ def main() -> None:
                 times.append(time.perf_counter() - t0)
                 size = summary["log_bytes"]
         med = statistics.median(times)
+        figures["write"].append({"format": fmt, "median_s": med, "log_mb": size / 1e6, "samples_per_s": samples / med})
         print(f"write {fmt:5s}: median {med:.2f} s, {size / 1e6:.1f} MB of logs, {samples / med:,.0f} samples/s")
+    write_result(args.out, figures)
 
 
 if __name__ == "__main__":

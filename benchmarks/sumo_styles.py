@@ -8,7 +8,8 @@ For each pair: the ARI of the analysis's styles (`analysis/styles.parquet`) agai
 lead gap (`nf_gap_m`) and lag gap (`nb_gap_m`) at the presses (label 'change' of
 `analysis/decisions.parquet`). It reads those files only; it does not import the
 analysis (the generator knows nothing of it). Used to choose the `acceptance`
-family's styles (SUMO.md).
+family's styles (SUMO.md). The figures are written to `benchmarks/results/<--out>.json` (default
+`sumo_styles`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,8 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+
+from results_file import write_result  # beside this file
 
 GAPS: tuple[str, ...] = ("f_gap_m", "nf_gap_m", "nb_gap_m")
 
@@ -91,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("pairs", nargs="+", help="STUDY:WORKSPACE (the study folder and its analysed workspace)")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--out", default="sumo_styles", help="result file name under benchmarks/results/")
     args = ap.parse_args(argv)
     results = []
     for pair in args.pairs:
@@ -99,6 +103,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: {pair!r} is not STUDY:WORKSPACE of a study and its analysed workspace", file=sys.stderr)
             return 2
         results.append(measure(Path(study), Path(ws)))
+    write_result(args.out, {"mean_ari": float(np.mean([m["ari"] for m in results])), "studies": results}, argv)
     if args.json:
         print(json.dumps(results, indent=1))
     else:

@@ -18,7 +18,8 @@ With no analysis in the workspace, `sample_logs/` is ingested and analysed first
 Take about 20 seeds: the first hit of one seed moves by 10000-30000 steps with
 one press on the policy's decision boundary, so 5 seeds give no stable median.
 Prints per repeat: seconds and env steps to the target, env steps per second, and
-the medians and ratio.
+the medians and ratio; writes the summary and every repeat to `benchmarks/results/<--out>.json`
+(default `train_<style>`).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from rl.problem.env import EnvConfig, LaneChangeDecisionEnv, approaches_from_dec
 from rl.evaluation.evaluate import greedy_policy
 from rl.problem.rewards import CHANGE, ReferenceLines, RewardSettings
 from rl.problem.scene import Scene, observe
+from results_file import write_result  # beside this file
 
 PAPER_RECALL = {"Defensive": 0.959, "Normal": 1.0, "Aggressive": 0.986}
 REPO = Path(__file__).resolve().parents[1]
@@ -175,6 +177,7 @@ def main() -> None:
     ap.add_argument("--sb3-repeats", type=int, default=None, help="SB3 repeats (default: --repeats)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override one of our DQNSettings (repeatable), e.g. --set batch_size=128")
+    ap.add_argument("--out", default=None, help="result file name under benchmarks/results/ (default train_<style>)")
     args = ap.parse_args()
 
     torch.set_num_threads(1)
@@ -237,6 +240,8 @@ def main() -> None:
     if summary["ours_median_s_to_target"] and summary["sb3_median_s_to_target"]:
         summary["speedup_to_target"] = summary["sb3_median_s_to_target"] / summary["ours_median_s_to_target"]
     print(json.dumps(summary, indent=2))
+    write_result(args.out or f"train_{args.style.lower()}", {**summary, "repeats": args.repeats, "episodes": args.episodes,
+                                                             "budget_s": args.budget_s, "ours": ours, "sb3": sb3})
 
 
 if __name__ == "__main__":

@@ -19,18 +19,17 @@ date and machine:
 from __future__ import annotations
 
 import json
-import platform
 import subprocess
 import sys
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 import pandas as pd
 from sklearn.metrics import adjusted_rand_score
 
+from results_file import write_result  # beside this file
+
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
 #: world -> `laneprint simulate` options
 WORLDS: dict[str, list[str]] = {
     "synthetic-2": [],
@@ -157,13 +156,9 @@ def run(worlds: list[str], seeds: list[int], root: Path, methods: tuple[str, ...
                 + f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
     df = pd.DataFrame(rows)
     df["right"] = df["style"] == df["truth"]
-    result = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]), "commit": _commit(),
-              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-              "machine": f"{platform.node()} {platform.machine()} {_cores()} cores",
-              "worlds": worlds, "seeds": seeds, "methods": list(methods), **summarise(df),
+    result = {"worlds": worlds, "seeds": seeds, "methods": list(methods), **summarise(df),
               "drivers": df.to_dict("records")}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / out_name).write_text(json.dumps(result, indent=1, default=float) + "\n")
+    write_result(out_name, result)
     print_tables(result)
     return result
 
@@ -182,15 +177,3 @@ def print_tables(result: dict) -> None:
     for r in result["reliability"]:
         share = "-" if r["share_right"] is None else f"{100 * r['share_right']:.0f} %"
         print(f"  {r['method']:<10} {r['confidence']:<12} {r['drivers']:4d} drivers  right {share}")
-
-
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    except OSError:
-        return ""
-
-
-def _cores() -> int:
-    import os
-    return os.cpu_count() or 0

@@ -1,6 +1,8 @@
 """The command-line and config-file reference pages of the documentation, generated from the app.
 
-`python -m laneprint.app.reference_docs` writes `docs/reference/cli.md` and `docs/reference/config.md`;
+`python -m laneprint.app.reference_docs` writes `docs/reference/cli.md`, `docs/reference/config.md` and
+`docs/reference/results.md` (every `benchmarks/results/*.json`: the zoo's layout as its tables, any other as
+its figures listed and its lists of records as tables);
 a test fails when the committed pages and the app differ, so the reference cannot drift.
 """
 
@@ -88,15 +90,58 @@ def results_page() -> str:
            "methods; judged seeds were generated after.", ""]
     for path in sorted(RESULTS.glob("*.json")):
         d = json.loads(path.read_text(encoding="utf-8"))
+        seeds = d.get("seeds")
+        seeds = ", ".join(map(str, seeds)) if isinstance(seeds, list) else seeds
         out += [f"## {path.stem}", "", f"`python benchmarks/{d.get('command', '?')}`", "",
-                f"commit `{str(d.get('commit', '?'))[:10]}`, {str(d.get('date', '?'))[:10]}, "
-                f"{d.get('machine', '?')}; seeds {', '.join(map(str, d.get('seeds', [])))}", ""]
-        if "per_world" in d:
+                f"commit `{str(d.get('commit') or '?')[:10]}`, {str(d.get('date', '?'))[:10]}, "
+                f"{d.get('machine', '?')}" + (f"; seeds {seeds}" if seeds not in (None, "") else ""), ""]
+        if {"per_world", "leave_one_world_out", "reliability"} <= d.keys():
             out += _zoo_section(d)
         else:
-            scalars = {k: v for k, v in d.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
-            out += [f"- {k}: {v}" for k, v in scalars.items()] + [""]
+            out += _figures_section({k: v for k, v in d.items() if k not in RESULT_KEYS})
     return "\n".join(out)
+
+
+#: What every result file says besides its figures (`benchmarks/results_file.py`), shown in each section's head.
+RESULT_KEYS = ("command", "commit", "date", "machine", "seeds")
+#: Rows of a list of records shown on the page (the file holds all of them).
+MAX_ROWS = 40
+
+
+def _cell(v: object) -> str:
+    """One figure as text: floats to 4 significant digits, lists and tables as short JSON."""
+    import json
+
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, (dict, list)):
+        v = json.dumps(v, separators=(", ", ": "), default=str)
+    text = " ".join(str(v).split()).replace("|", "\\|")
+    return text if len(text) <= 120 else text[:117] + "..."
+
+
+def _figures_section(figures: dict) -> list[str]:
+    """Any other layout: scalars (nested tables by dotted name) as a list, lists of records as tables."""
+    bullets: list[str] = []
+    tables: list[str] = []
+
+    def walk(name: str, v: object) -> None:
+        if isinstance(v, dict) and v:
+            for k, sub in v.items():
+                walk(f"{name}.{k}" if name else str(k), sub)
+        elif isinstance(v, list) and v and all(isinstance(r, dict) for r in v):
+            cols = list(dict.fromkeys(k for r in v for k in r))
+            tables.extend([f"{name} ({len(v)} row{'s' * (len(v) != 1)}"
+                           + (f", the first {MAX_ROWS} shown)" if len(v) > MAX_ROWS else ")"), "",
+                           "| " + " | ".join(map(str, cols)) + " |", "|" + "---|" * len(cols),
+                           *("| " + " | ".join(_cell(r.get(c, "")) for c in cols) + " |" for r in v[:MAX_ROWS]),
+                           ""])
+        else:
+            bullets.append(f"- {name}: {_cell(v)}")
+    walk("", figures)
+    return bullets + [""] * bool(bullets) + tables
 
 
 def pages() -> dict[str, str]:

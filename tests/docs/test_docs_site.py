@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from laneprint.app.reference_docs import pages
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -36,3 +38,27 @@ def test_site_builds_strict(tmp_path):
                          capture_output=True, text=True, timeout=300, env=env)
     assert res.returncode == 0, res.stderr[-3000:]
     assert (tmp_path / "site" / "reference" / "cli" / "index.html").exists()
+
+
+def test_a_benchmarks_result_file_of_any_layout_is_rendered(tmp_path, monkeypatch):
+    """`benchmarks/results_file.write_result`'s files: the common keys in the head, figures listed, records as tables."""
+    import importlib.util
+
+    import laneprint.app.reference_docs as ref
+
+    spec = importlib.util.spec_from_file_location("results_file", ROOT / "benchmarks" / "results_file.py")
+    results_file = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(results_file)
+    monkeypatch.setattr(results_file, "RESULTS", tmp_path)
+    monkeypatch.setattr(ref, "RESULTS", tmp_path)
+    import numpy as np
+
+    results_file.write_result("speed", {"median_s": np.float64(1.23456), "n": np.int64(3), "by": {"csv": {"mb": 2.5}},
+                                        "rows": [{"format": "csv", "what": "a|b"}, {"format": "mcap", "x": None}]},
+                              ["--reps", "1"])
+    page = ref.results_page()
+    assert "## speed" in page and "--reps 1`" in page and results_file.machine() in page
+    assert "- median_s: 1.235" in page and "- n: 3" in page and "- by.csv.mb: 2.5" in page
+    assert "| format | what | x |" in page and "| csv | a\\|b |  |" in page and "| mcap |  | - |" in page
+    with pytest.raises(ValueError, match="commit"):
+        results_file.write_result("bad", {"commit": "x"})
