@@ -4,7 +4,7 @@ import json
 
 from typer.testing import CliRunner
 
-from laneprint.cli import app
+from laneprint.app.cli import app
 from laneprint.provenance import analysis_mark
 from laneprint.workspace import Workspace, analysis_fingerprint
 from rl.runs import list_runs
