@@ -75,3 +75,4 @@ def vote_defensiveness(readings: Sequence[ReadingScore], drivers: list[str], gro
                 score[g] += w * -names.index(r.labels[d]) / max(len(names) - 1, 1)
                 total[g] += w
     return np.divide(score, total, out=np.zeros_like(score), where=total > 0)
+

@@ -14,7 +14,14 @@ from tests.support.synthetic_decisions import make_decision_table
 @pytest.fixture(scope="module")
 def synthetic():
     df, truth = make_decision_table(12, 30, seed=4)
-    return df, truth, analyze_tables(df)
+    return df, truth, analyze_tables(df, AnalysisSettings(features="ttc"))  # indicator features, tested here
+
+
+def test_the_default_consensus_recovers_them_too(synthetic):
+    df, truth, _ = synthetic
+    st = analyze_tables(df, AnalysisSettings(n_bootstrap=0))["styles"]
+    assert (st["style"] == [truth[d] for d in st["driver_id"]]).all()
+    assert st["confidence"].between(0, 1).all()
 
 
 def test_styles_recovered_and_named_by_defensiveness(synthetic):
@@ -74,9 +81,20 @@ def test_style_names():
 @pytest.mark.slow
 def test_choose_k_through_settings(synthetic):
     df, _, _ = synthetic
-    out = analyze_tables(df, AnalysisSettings(choose_k="silhouette", k_range=(2, 5), n_bootstrap=0))
+    out = analyze_tables(df, AnalysisSettings(features="ttc", choose_k="silhouette", k_range=(2, 5), n_bootstrap=0))
     assert len(out["k_scores"]) == 4
     assert out["styles"]["cluster"].max() + 1 == out["k_scores"].loc[out["k_scores"]["score"].idxmax(), "k"]
+
+
+def test_the_consensus_chooses_k_too(synthetic):
+    """`choose_k` with the default features: the consensus at each k, the best separated kept."""
+    df, truth, _ = synthetic
+    out = analyze_tables(df, AnalysisSettings(choose_k="silhouette", k_range=(2, 5), n_bootstrap=0))
+    assert sorted(out["k_scores"]["k"]) == [2, 3, 4, 5]
+    best = int(out["k_scores"].loc[out["k_scores"]["score"].idxmax(), "k"])
+    assert out["styles"]["style"].nunique() == best == 3
+    st = out["styles"]
+    assert adjusted_rand_score([truth[d] for d in st["driver_id"]], st["style"]) == 1.0
 
 
 @pytest.mark.slow
