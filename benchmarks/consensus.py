@@ -27,8 +27,10 @@ import zoo  # noqa: E402
 from results_file import write_result  # noqa: E402
 
 #: variant name -> (voters, linkage); one voter is `separated`
-VARIANTS: dict[str, tuple[int, str]] = {"separated": (1, "complete")} | {
-    f"top{n}-{link}": (n, link) for n in (3, 5, 8, 99) for link in ("average", "complete")}
+#: variant name -> (voters, linkage, vote floor: share of the best reading's score a voter needs)
+VARIANTS: dict[str, tuple[int, str, float]] = {"separated": (1, "complete", 0.0)} | {
+    f"top{n}-{link}": (n, link, 0.0) for n in (3, 5, 8, 99) for link in ("average", "complete")} | {
+    f"top5-complete-floor{f}": (5, "complete", f) for f in (0.3, 0.5)}
 
 
 def ranked(world: str, seed: int, root: Path) -> tuple[dict[str, str], list]:
@@ -51,16 +53,17 @@ def ranked(world: str, seed: int, root: Path) -> tuple[dict[str, str], list]:
     return truth, scores
 
 
-def variant_ari(truth: dict[str, str], scores: list, voters: int, method: str, k: int = 3) -> float:
-    from clustering.consensus import consensus_groups
+def variant_ari(truth: dict[str, str], scores: list, voters: int, method: str, floor: float = 0.0, k: int = 3) -> float:
+    from clustering.consensus import consensus_groups, weight
 
     if not scores:
         return float("nan")
     drivers = sorted(scores[0].labels)
-    if voters == 1:
-        labels = [scores[0].labels[d] for d in drivers]
+    voting = [r for r in scores[:voters] if weight(r) >= floor * weight(scores[0])]
+    if len(voting) == 1:
+        labels = [voting[0].labels[d] for d in drivers]
     else:
-        labels = list(consensus_groups(scores[:voters], drivers, k, method))
+        labels = list(consensus_groups(voting, drivers, k, method))
     keep = [i for i, d in enumerate(drivers) if d in truth]
     return float(adjusted_rand_score([truth[drivers[i]] for i in keep], [labels[i] for i in keep]))
 
@@ -85,8 +88,8 @@ def main() -> None:
             except Exception as exc:  # a study that cannot be generated is reported, the rest go on
                 print(f"  {world} seed {seed}: {exc}", flush=True)
                 continue
-            for name, (n, link) in VARIANTS.items():
-                rows.append({"world": world, "seed": seed, "variant": name, "ari": variant_ari(truth, scores, n, link)})
+            for name, (n, link, floor) in VARIANTS.items():
+                rows.append({"world": world, "seed": seed, "variant": name, "ari": variant_ari(truth, scores, n, link, floor)})
             print(f"  {world:<18} seed {seed:5d}  ({time.perf_counter() - t0:.0f} s)", flush=True)
     df = pd.DataFrame(rows)
     per = df.groupby(["variant", "world"]).ari.agg(mean_ari="mean", min_ari="min", seeds="count").reset_index()

@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 from sklearn.metrics import silhouette_score
 
-from clustering.consensus import CONSENSUS_READINGS, consensus_groups, vote_defensiveness, weight
+from clustering.consensus import consensus_groups, vote_defensiveness, voters, weight
 from clustering.behaviour import BEHAVIOUR, PARAMETERS, VARIABLES, Behaviour, behaviour_params, decision_data, subset
 from clustering.features import driver_features, transform_features
 from clustering.readings import (ReadingScore, candidate_readings, choose_reading, cluster_reading,
@@ -208,24 +208,24 @@ def choose_consensus(points: pd.DataFrame, drivers: list[str], fit_on: list[str]
         scores, _ = ranked_readings(points, drivers, fit_on, n_dec, behaviour, settings.with_(k=k))
         if not scores:
             continue
-        groups = consensus_groups(scores[:CONSENSUS_READINGS], fit_on, k)
-        k_scores[k] = float(np.mean([weight(r) for r in scores[:CONSENSUS_READINGS]]))
+        groups = consensus_groups(voters(scores), fit_on, k)
+        k_scores[k] = float(np.mean([weight(r) for r in voters(scores)]))
         if best is None or k_scores[k] > best[0]:
             best = (k_scores[k], k, scores, groups)
     if best is None:
         return Choice("", (), [], None)
     _, k, scores, groups = best
-    voters = scores[:CONSENSUS_READINGS]
-    params = tuple(dict.fromkeys(p for r in voters if is_behaviour(r.name) for p in r.parameters)) \
+    voting = voters(scores)
+    params = tuple(dict.fromkeys(p for r in voting if is_behaviour(r.name) for p in r.parameters)) \
         or usable_parameters(behaviour, fit_on)
     clf = StyleClusterer(k=k, random_state=settings.random_state, room=list(params))
     clf.fit_partition(behaviour.values.loc[fit_on, list(params)], groups)
     clf.k_scores_ = k_scores if settings.choose_k else {}
     ids = sorted(set(groups.tolist()))
-    votes = vote_defensiveness(voters, fit_on, groups)
+    votes = vote_defensiveness(voting, fit_on, groups)
     clf.order_by(votes[np.asarray(ids)[clf.order_]])  # named as the voters name their members
     labels = {d: clf.names_[i] for d, i in zip(fit_on, clf.labels_)}
-    scores = [replace(r, plausible=i < CONSENSUS_READINGS) for i, r in enumerate(scores)]
+    scores = [replace(r, plausible=i < len(voting)) for i, r in enumerate(scores)]
     sil = float(silhouette_score(clf.transform(behaviour.values.loc[fit_on, list(params)]), clf.labels_)) \
         if 1 < len(set(clf.labels_.tolist())) < len(fit_on) else np.nan
     stab = float(draw_confidence(behaviour, fit_on, clf, clf.labels_, settings.random_state).mean())

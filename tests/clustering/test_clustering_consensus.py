@@ -63,9 +63,18 @@ def test_choose_consensus_names_the_styles_and_reports_its_voters(monkeypatch):
     assert choice.name == C.CONSENSUS and C.reads_behaviour(choice.name)
     chosen = [s for s in choice.scores if s.chosen]
     assert len(chosen) == 1 and chosen[0].name == C.CONSENSUS
-    assert sum(s.plausible for s in choice.scores) == min(K.CONSENSUS_READINGS, len(choice.scores) - 1)
+    assert sum(s.plausible for s in choice.scores) == len(K.voters(choice.scores[1:]))
     labels = chosen[0].labels
     assert {labels[x] for x in ("d0", "d1", "d2")} == {"Defensive"}
     assert {labels[x] for x in ("a0", "a1", "a2")} == {"Aggressive"}
     style, conf, _ = C.assign(choice, b, drivers, n_dec, AnalysisSettings())
     assert (style == pd.Series(labels)).all() and ((conf >= 0) & (conf <= 1)).all()
+
+
+def test_readings_far_below_the_best_do_not_vote():
+    """Three weak readings that agree (parameters the data hardly inform) do not outvote a clear one."""
+    wrong = {**RIGHT, "n0": "Defensive", "n1": "Defensive", "d0": "Normal", "d1": "Normal"}
+    ranked = [reading("clear", RIGHT, 0.8), *(reading(f"weak{i}", wrong, 0.3) for i in range(3))]
+    assert [r.name for r in K.voters(ranked)] == ["clear"]
+    groups = K.consensus_groups(K.voters(ranked), DRIVERS, 3)
+    assert groups[DRIVERS.index("n0")] == groups[DRIVERS.index("n1")] != groups[DRIVERS.index("d0")]

@@ -56,7 +56,7 @@ def test_analyze_writes_stage_and_report(workspace, report):
     skipped = ws.read_table("analysis", "skipped")
     assert ((skipped["what"] == "recording") & (skipped["id"] == "nopress0000000000")).any()
     refs = ws.read_table("analysis", "reference_lines")
-    for _style in report["styles"]:
+    for style in report["styles"]:  # noqa: B007 - read by the query string (@style)
         assert len(refs.query("scope == 'style' and kind == 'typical' and name == @style and direction == 'both'")) == len(INDICATORS)
     assert set(report["styles"]) <= {"Defensive", "Normal", "Aggressive"}
     truth = {d["driver_id"]: d["style"] for d in study.ground_truth["drivers"]}
