@@ -258,7 +258,8 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
 
     head = f"{label}: " if label else ""
     report(progress, 0, len(tasks), f"{head}choosing the learner: dealing the inner folds")
-    targets, members = [], []
+    targets: list[_Target] = []
+    members: list[FleetMember] = []
     for task in tasks:
         s = with_seed(task.settings, task.settings.seed)
         pairs = inner_folds(task.approaches, s.folds, s.seed)
@@ -285,8 +286,7 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
                     done_f: Future = Future()
                     done_f.set_result(_trees_inner(t))
                     t.trees = done_f
-        report(progress, 0, len(members), f"{head}choosing the learner: building the scenes of "
-                                          f"{len(members)} DQNs")
+        report(progress, 0, len(members), f"{head}choosing the learner: building the scenes of {len(members)} DQNs")
         fleet = FleetTrainer(members, threads=members[0].settings.threads)
         n_obs = len(observation_names(tasks[0].cfg))
         hidden = members[0].settings.hidden
@@ -370,12 +370,13 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
             total = sum(d if m in gone else episodes[m] for m, d in enumerate(done))
             trees = sum(len(t.pairs) for t in targets if t.trees is not None and t.trees.done())
             chosen = sum(t.choice is not None for t in targets)
-            report(progress, sum(done), total, f"{head}choosing the learner: training {len(f.agents)} DQNs as one "
-                                               f"batch; trees {trees}/{trees_total} folds; {chosen}/{len(targets)} chosen")
+            report(progress, sum(done), total, f"{head}choosing the learner: training {len(f.agents)} DQNs, trees "
+                                               f"{trees}/{trees_total}" + (f", {chosen}/{len(targets)} chosen"
+                                                                           if len(targets) > 1 else ""))
             return False
 
         fleet.train(on_episode=on_episode, on_finish=on_finish, on_vector_step=on_vector_step)
-        report(progress, 0, len(targets), f"{head}choosing the learner: evaluating the inner folds")
+        report(progress, 0, len(targets), f"{head}choosing the learner: evaluation")
         for t in targets:
             if t.choice is None:
                 decide(t)  # the trees ended after the DQNs
