@@ -181,11 +181,14 @@ class AutoSettings:
     check_from: float = 0.5  # the running inner score is first checked at this share of the inner DQNs' episodes
     # (the policy average starts at `dqn.average_from`; before it the online net's score swings) ...
     check_every: float = 0.05  # ... and then every this share of them
-    trees_beside: bool = True  # fit the trees in a thread beside the DQNs (False: before them)
+    trees_beside: str = "process"  # fit the trees beside the DQNs in a 'process' (the other core) or a
+    # 'thread' (they share the interpreter's lock), or 'no': before them, in this process
 
     def __post_init__(self) -> None:
         if self.reach < 0 or not 0 <= self.check_from <= 1 or not 0 < self.check_every <= 1:
             raise ValueError("auto needs reach >= 0, check_from in [0, 1] and check_every in (0, 1]")
+        if self.trees_beside not in ("process", "thread", "no"):
+            raise ValueError(f"trees_beside must be 'process', 'thread' or 'no', not {self.trees_beside!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return {"dqn": self.dqn.to_dict(), "trees": self.trees.to_dict(), "folds": self.folds,

@@ -49,13 +49,13 @@ def test_the_fleet_chooses_as_the_learners_one_after_another_and_keeps_the_same_
 def test_what_cannot_win_stops_early_and_the_choice_says_so(study):
     approaches, cfg = study
     # reach 0: the first check settles it; the weak trees cannot reach the DQN, which goes on alone
-    auto = AutoSettings(dqn=DQN, trees=WEAK_TREES, margin=0.2, reach=0.0, check_from=0.5, trees_beside=False)
+    auto = AutoSettings(dqn=DQN, trees=WEAK_TREES, margin=0.2, reach=0.0, check_from=0.5, trees_beside="no")
     fitted = choose_and_fit([ChoiceTask(approaches, cfg, auto)])[0]
     assert fitted.choice.learner == "dqn" and "stopped at" in fitted.choice.stopped
     assert fitted.choice.checks and fitted.choice.checks[0]["share"] < 1.0
     assert fitted.settings.episodes == len(fitted.rows) == DQN.episodes  # the target's DQN ran to its end
-    # the trees out of reach (margin -1: they win whatever the DQN scores): every DQN stops, the trees are fitted
-    trees = choose_and_fit([ChoiceTask(approaches, cfg, replace(auto, margin=-1.0))])[0]
+    # the trees out of reach (margin -2: they win whatever the DQN scores): every DQN stops, the trees are fitted
+    trees = choose_and_fit([ChoiceTask(approaches, cfg, replace(auto, margin=-2.0))])[0]
     assert trees.choice.learner == "trees" and "stopped at" in trees.choice.stopped
     assert isinstance(trees.settings, TreeQSettings) and trees.net is not None and trees.dqn_state is None
     # a reach larger than any score can move: nothing stops, as `stop_early=False`
