@@ -75,3 +75,14 @@ def test_reasons_markdown_lists_only_what_was_not_ingested():
     rows = pd.DataFrame({"file": ["a.csv", "b_1.csv"], "status": ["ingested", "rejected"],
                          "reason": ["", "bad header"]})
     assert views.reasons_markdown(rows) == "- **b\\_1\\.csv** (rejected): bad header"
+
+
+def test_a_run_choosing_its_learner_shows_the_phase_and_the_time_left():
+    """`auto`'s choice writes its phase and summed episodes to status.json: the Training page shows them
+    (it read "starting the trainer" for minutes before)."""
+    status = {"state": "running", "episode": 4000, "episodes": 12000, "started_at": "2026-12-08T10:00:00+00:00",
+              "updated_at": "2026-12-08T10:00:30+00:00", "message": "choosing the learner: training 4 DQNs, trees 3/3"}
+    doing = views.run_doing(status)
+    assert "choosing the learner: training 4 DQNs" in doing and "about 60 s left" in doing
+    assert "starting the trainer" in views.run_doing({**status, "episode": 0, "message": "training"})
+    assert views.time_left({**status, "episode": 100}) == ""  # too early to say
