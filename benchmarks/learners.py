@@ -68,7 +68,7 @@ def figures(command: str, res: dict[str, Any]) -> dict[str, Any]:
     if command == "train":
         agent = next((r for r in res.get("evaluation") or [] if r.get("who") == "agent"), {})
         choice = res.get("learner_choice") or {}
-        return {"learner": res.get("learner"), "in_sample_balanced_accuracy": agent.get("balanced_accuracy"),
+        return {"chosen": res.get("learner"), "in_sample_balanced_accuracy": agent.get("balanced_accuracy"),
                 "choice_scores": choice.get("scores"), "choice_stopped": choice.get("stopped", "")}
     agent = next((r for r in res.get("summary") or [] if r.get("who") == "agent"), {})
     return {"learners": [f.get("learner") for f in res.get("per_fold", [])],
@@ -80,6 +80,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     codes = {"this": ROOT, **({"base": Path(args.base).resolve()} if args.base else {})}
     root = Path(tempfile.mkdtemp(prefix="laneprint-learners-"))
     rows: list[dict[str, Any]] = []
+    partial = RESULTS / (Path(args.out).stem + ".partial.json")
+    RESULTS.mkdir(parents=True, exist_ok=True)
     try:
         ws = workspace(root)
         capped = root / "episodes.toml"  # `crossval` takes the DQN's episodes from a config file only
@@ -94,8 +96,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                         if command == "crossval" and args.folds:
                             opts += ["--folds", str(args.folds)]
                         wall, res = laneprint(code, command, *opts)
-                        rows.append({"code": code_name, "command": command, "learner": learner, "repeat": repeat,
-                                     "wall_s": round(wall, 1), **figures(command, res)})
+                        rows.append({**figures(command, res), "code": code_name, "command": command,
+                                     "learner": learner, "repeat": repeat, "wall_s": round(wall, 1)})
+                        partial.write_text(json.dumps(rows, indent=1) + "\n")  # a crash keeps what was timed
                         print(f"  {code_name:<5} {command:<9} {learner:<6} {wall:6.1f} s  "
                               f"{json.dumps(figures(command, res))[:110]}", flush=True)
     finally:
@@ -103,7 +106,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     medians = []
     for code_name in codes:
         for command in args.commands:
-            m = {lr: median(r["wall_s"] for r in rows if (r["code"], r["command"], r["learner"]) == (code_name, command, lr))
+            m = {lr: median([r["wall_s"] for r in rows if (r["code"], r["command"], r["learner"]) == (code_name, command, lr)])
                  for lr in args.learners}
             ratio = round(m["auto"] / m["dqn"], 2) if "auto" in m and "dqn" in m else None
             medians.append({"code": code_name, "command": command, "median_s": m, "auto_over_dqn": ratio})
@@ -117,6 +120,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     out = RESULTS / args.out
     RESULTS.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1) + "\n")
+    partial.unlink(missing_ok=True)
     print("\nmedian wall time [s] per learner; auto / dqn")
     for m in medians:
         print(f"  {m['code']:<5} {m['command']:<9} " + "  ".join(f"{lr} {s:6.1f}" for lr, s in m["median_s"].items())
