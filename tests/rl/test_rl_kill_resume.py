@@ -15,7 +15,7 @@ import pytest
 from typer.testing import CliRunner
 
 from laneprint.app.cli import app
-from rl.testing import FAST_CLI, analysed_workspace
+from tests.support.rl_workspaces import FAST_CLI, analysed_workspace
 
 # learner -> (extra options, the status message at which the process is killed)
 LEARNERS = {
