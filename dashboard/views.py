@@ -624,12 +624,36 @@ def run_results_csv(run: dict[str, Any], crossval: dict[str, Any] | None) -> str
     return table.assign(run_id=run.get("run_id")).to_csv(index=False)
 
 
+#: How a run's status message starts while `--learner auto` chooses its learner (`rl.learners.choice`).
+LEARNER_CHOICE = "choosing the learner"
+
+
+def time_left(status: dict[str, Any]) -> str:
+    """', about N min left' from a status's episodes and its time since `started_at` ('' before a tenth)."""
+    from datetime import datetime
+
+    done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
+    try:
+        elapsed = (datetime.fromisoformat(str(status["updated_at"]))
+                   - datetime.fromisoformat(str(status["started_at"]))).total_seconds()
+    except (KeyError, ValueError, TypeError):
+        return ""
+    if not total or done < 0.1 * total or elapsed <= 0:
+        return ""
+    left = elapsed * (total - done) / done
+    return f", about {left / 60:.0f} min left" if left >= 90 else f", about {left:.0f} s left"
+
+
 def run_doing(status: dict[str, Any]) -> str:
     """What a run is doing beyond its episode count, for its progress text: ': starting the trainer
     (PyTorch) and building its scenes' before the first episode, ': training done, evaluating the
-    agent against greedy, imitation and the drivers' after the last, '' otherwise."""
+    agent against greedy, imitation and the drivers' after the last, the phase and time left while `auto`
+    chooses its learner, '' otherwise."""
     state = status.get("state")
     done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
+    message = str(status.get("message") or "")
+    if state == "running" and message.startswith(LEARNER_CHOICE):  # `auto`: its phase, its episodes summed
+        return f" ({message}{time_left(status)})"
     if state == "starting" or (state == "running" and done == 0):
         return " (starting the trainer: loading PyTorch, building the scenes from the analysis)"
     if state == "running" and total and done >= total:

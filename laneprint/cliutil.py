@@ -18,7 +18,8 @@ from typing import Annotated, Any, Callable, Iterator, Mapping, Optional
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                           TimeRemainingColumn)
 
 from laneprint.errors import SettingError, UserError
 from laneprint.progress import ProgressFn
@@ -97,9 +98,9 @@ def progress_bar(enabled: bool = True) -> Iterator[ProgressFn]:
         yield lambda done, total, message="": None
         return
     bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                   TimeElapsedColumn(), console=err_console, transient=False)
+                   TimeElapsedColumn(), TimeRemainingColumn(), console=err_console, transient=False)
     task = bar.add_task("", total=None)
     with bar:
         def update(done: int, total: int, message: str = "") -> None:
-            bar.update(task, completed=done, total=total, description=visible(message)[:60])
+            bar.update(task, completed=done, total=total, description=visible(message)[:80])
         yield update

@@ -250,6 +250,8 @@ def train_command(
             console.print(f"learner chosen: {c['learner']} (held-out agreement on {c['n_holdout']} of the target's "
                           f"{c['n_train']} approaches over {c.get('folds') or 1} inner folds, mean over the sides: "
                           + ", ".join(f"{k} {100 * v:.1f} %" for k, v in c["scores"].items()) + ")", highlight=False)
+            if c.get("stopped"):
+                console.print(f"stopped early: {c['stopped']}", highlight=False)
         if res.get("warning"):
             console.print(f"[yellow]warning:[/yellow] {res['warning']}", highlight=False)
         if res.get("evaluation"):
@@ -314,6 +316,10 @@ def _render_cv(res: dict[str, Any], console: Console) -> None:
         if r.get("learner") == "auto":
             chosen = [f.get("learner", "?") for f in r.get("per_fold", [])]
             console.print(f"learner chosen per fold (auto): {', '.join(chosen)}", highlight=False)
+            stopped = sum(bool(f.get("learner_stopped")) for f in r.get("per_fold", []))
+            if stopped:
+                console.print(f"chosen before both learners finished (out of reach) in {stopped} of {len(chosen)} "
+                              "folds: per_fold[].learner_stopped", highlight=False)
         console.print(f"stored as crossval/{r['crossval_id']}", highlight=False)
 
 

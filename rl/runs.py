@@ -292,6 +292,8 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
                resume: str | None, episodes: int | None, evaluate: bool,
                progress: ProgressFn | None) -> dict[str, Any]:
     workspace.ensure()
+    chosen_state: dict[str, Any] | None = None  # `auto`'s DQN, trained beside the choice (and its metrics)
+    chosen_rows: list[dict[str, Any]] = []
     if resume:
         folder = run_dir(workspace, resume)
         if not (folder / "config.json").exists():
@@ -309,11 +311,12 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
             atomic_write_json(folder / "config.json", config)
             settings = stored_learner(config)
             if isinstance(settings, AutoSettings):
-                settings, env_config = _choose_learner(workspace, folder, config, target, env_config, settings,
-                                                       progress)
+                settings, env_config, chosen_state, chosen_rows = _choose_learner(
+                    workspace, folder, config, target, env_config, settings, progress)
             if isinstance(settings, TreeQSettings):
                 return _fit_tree_run(workspace, folder, config, target, env_config, settings, evaluate, progress)
             (folder / "checkpoint.pt").unlink(missing_ok=True)
+            (folder / "metrics.jsonl").unlink(missing_ok=True)
         settings = DQNSettings.from_dict(config["dqn"])
         if episodes is not None and episodes != settings.episodes:
             settings = replace(settings, episodes=episodes)
@@ -322,7 +325,8 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
             config.setdefault("resumed_at", []).append(now_iso())
         atomic_write_json(folder / "config.json", config)
         # killed before its first checkpoint: start over with the run's own settings
-        state = torch.load(folder / "checkpoint.pt", weights_only=True) if (folder / "checkpoint.pt").exists() else None
+        state = torch.load(folder / "checkpoint.pt", weights_only=True) if (folder / "checkpoint.pt").exists() \
+            else chosen_state
         old_status = json.loads((folder / "status.json").read_text()) if (folder / "status.json").exists() else {}
         started_at = old_status.get("started_at")
     else:
@@ -332,7 +336,8 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
         run_id = config["run_id"]
         state, started_at = None, None
         if isinstance(settings, AutoSettings):
-            settings, env_config = _choose_learner(workspace, folder, config, target, env_config, settings, progress)
+            settings, env_config, state, chosen_rows = _choose_learner(workspace, folder, config, target, env_config,
+                                                                       settings, progress)
         if isinstance(settings, TreeQSettings):
             return _fit_tree_run(workspace, folder, config, target, env_config, settings, evaluate, progress)
 
@@ -347,11 +352,13 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
         atomic_write_json(folder / "config.json", config)
     if state is not None:
         trainer.load_state_dict(state)
-    resumed_from = trainer.episodes_done
+    resumed_from = 0 if chosen_rows else trainer.episodes_done
     if resume:
         _truncate_metrics(folder / "metrics.jsonl", resumed_from)
     writer = RunWriter(folder, settings.episodes, started_at)
-    writer.status("running", trainer.episodes_done, "resumed" if resume else "training")
+    for row in chosen_rows:  # the DQN `auto` kept was trained while it chose: its episodes are the run's
+        writer.metric(row)
+    writer.status("running", trainer.episodes_done, "resumed" if resume and not chosen_rows else "training")
 
     def checkpoint(t: DQNTrainer) -> None:
         writer.flush()
@@ -409,21 +416,38 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
 
 
 def _choose_learner(workspace: Workspace, folder: Path, config: dict[str, Any], target: Target, env_config: EnvConfig,
-                    settings: AutoSettings, progress: ProgressFn | None) -> tuple[Any, EnvConfig]:
-    """`--learner auto`: choose on an inner split of the target's sessions (`rl.learners.choice`); the run's
-    config then names the chosen learner (its settings and environment) and keeps the choice."""
-    from rl.learners.choice import choose_learner, chosen_settings
+                    settings: AutoSettings, progress: ProgressFn | None
+                    ) -> tuple[Any, EnvConfig, dict[str, Any] | None, list[dict[str, Any]]]:
+    """`--learner auto`: choose across inner folds of the target's sessions (`rl.learners.choice`); the run's
+    config then names the chosen learner (its settings and environment) and keeps the choice.
+
+    Returns (settings, environment, the DQN's trained state and metrics lines when the DQN was chosen: it
+    trained in one batch with the inner folds' DQNs, None and [] for the trees). The run's status follows
+    the choice's phases (inner folds, scenes, training, evaluation) with its summed episodes.
+    """
+    from rl.learners.choice import ChoiceTask, choose_and_fit
     from rl.problem.env import learner_env
 
     writer = RunWriter(folder, 1)
-    writer.status("running", 0, "choosing the learner")
-    writer.close()
-    choice = choose_learner(recorded_approaches(workspace, target), env_config, settings, progress,
-                            f"{target.label}")
-    chosen, env = chosen_settings(settings, choice), learner_env(env_config, choice.learner)
+    writer.status("running", 0, "choosing the learner: reading the target's approaches")
+
+    def phase(done: int, total: int, message: str) -> None:
+        writer.episodes = total
+        writer.status("running", done, message, force=False)
+        report(progress, done, total, f"{target.label}: {message}")
+
+    try:
+        fitted = choose_and_fit([ChoiceTask(recorded_approaches(workspace, target), env_config, settings,
+                                            target.label)], phase, fit_trees=False)[0]
+    finally:
+        writer.close()
+    choice = fitted.choice
+    chosen, env = fitted.settings, learner_env(env_config, choice.learner)
     config.update(learner_config(chosen), env=env.to_dict(), learner_choice=choice.to_dict())
     atomic_write_json(folder / "config.json", config)
-    return chosen, env
+    if choice.learner == "trees":
+        return chosen, env, None, []
+    return chosen, env, fitted.dqn_state, fitted.rows
 
 
 def _fit_tree_run(workspace: Workspace, folder: Path, config: dict[str, Any], target: Target, env_config: EnvConfig,

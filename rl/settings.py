@@ -174,15 +174,33 @@ class AutoSettings:
     margin: float = 0.01  # the trees are taken only when they agree better by more than this (a near-tie keeps
     # the study's DQN: on the shipped study a fold that took the trees by 0.006 lost 4 points held out)
     seed: int = 0  # seeds the inner folds and both learners
+    stop_early: bool = True  # stop the inner DQNs once the choice cannot change (`reach`), and the agent's DQN
+    # once the trees have won
+    reach: float = 0.1  # how far the DQNs' pooled inner score is taken to move over a whole run: with a share
+    # f of their episodes left, a running score s may still end anywhere in s +- reach * f
+    check_from: float = 0.5  # the running inner score is first checked at this share of the inner DQNs' episodes
+    # (the policy average starts at `dqn.average_from`; before it the online net's score swings) ...
+    check_every: float = 0.05  # ... and then every this share of them
+    trees_beside: str = "no"  # 'no': fit the trees' inner folds first, then the DQNs (their exact score stops the
+    # DQNs sooner); 'process' (forked, Linux) or 'thread': beside the DQNs. On the busy 2-core machine neither
+    # beat 'no' (shipped study, Normal: 24-26 s against 24-36 s for either)
+
+    def __post_init__(self) -> None:
+        if self.reach < 0 or not 0 <= self.check_from <= 1 or not 0 < self.check_every <= 1:
+            raise ValueError("auto needs reach >= 0, check_from in [0, 1] and check_every in (0, 1]")
+        if self.trees_beside not in ("process", "thread", "no"):
+            raise ValueError(f"trees_beside must be 'process', 'thread' or 'no', not {self.trees_beside!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return {"dqn": self.dqn.to_dict(), "trees": self.trees.to_dict(), "folds": self.folds,
-                "margin": self.margin, "seed": self.seed}
+                "margin": self.margin, "seed": self.seed, "stop_early": self.stop_early, "reach": self.reach,
+                "check_from": self.check_from, "check_every": self.check_every, "trees_beside": self.trees_beside}
 
     @staticmethod
     def from_dict(d: dict[str, Any]) -> "AutoSettings":
+        extra = {k: d[k] for k in ("stop_early", "reach", "check_from", "check_every", "trees_beside") if k in d}
         return AutoSettings(DQNSettings.from_dict(d["dqn"]), TreeQSettings.from_dict(d["trees"]),
-                            d.get("folds", 3), d.get("margin", 0.0), d.get("seed", 0))
+                            d.get("folds", 3), d.get("margin", 0.0), d.get("seed", 0), **extra)
 
 
 #: A learner's settings: the DQN's, the tree learner's, or both with the choice between them.

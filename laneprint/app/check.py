@@ -346,7 +346,8 @@ def _check_run(ws: Workspace, folder: Path) -> Iterator[Finding | _Leftover]:
     try:
         config = _read_json(folder / "config.json")
         trees = config.get("learner", "dqn") == "trees"  # fitted in one go: its status counts Q functions fitted
-        total = int(config["trees"]["iterations"]) + 1 if trees else int(config["dqn"]["episodes"])
+        dqn = config["auto"]["dqn"] if config.get("learner") == "auto" else config.get("dqn")  # 'auto': killed
+        total = int(config["trees"]["iterations"]) + 1 if trees else int(dqn["episodes"])  # while choosing
     except (OSError, ValueError, KeyError, TypeError) as exc:
         yield Finding("problem", f"{rel}/config.json", f"unreadable ({_first_line(exc)})")
         return

@@ -186,6 +186,24 @@ def _train_agent(approaches: list[Approach], cfg: EnvConfig, dqn: LearnerSetting
     return agent_policy(fit_learner(approaches, cfg, dqn, progress, label), cfg), {"learner": learner_name(dqn)}
 
 
+def fold_agents(jobs: list["FoldJob"], progress: ProgressFn | None) -> None:
+    """`auto`'s agents of every fold at once: the inner folds' DQNs and each fold's own DQN of all outer
+    folds train as one fleet, the trees beside them (`rl.learners.choice.choose_and_fit`); each job's
+    `agent` is set to what `_train_agent` would return (the same choices for the same seeds)."""
+    from rl.evaluation.evaluate import agent_policy
+    from rl.learners.choice import ChoiceTask, choose_and_fit
+
+    auto = [j for j in jobs if isinstance(j.dqn, AutoSettings) and j.agent is None]
+    if not auto:
+        return
+    tasks = [ChoiceTask(j.train, j.env, j.dqn, f"fold {j.fold + 1}/{j.n_folds}") for j in auto]  # type: ignore[arg-type]
+    for job, fitted in zip(auto, choose_and_fit(tasks, progress, label=f"{len(auto)} folds")):
+        c = fitted.choice
+        job.agent = (agent_policy(fitted.net, job.env), {"learner": c.learner, "learner_scores": c.scores,
+                                                         "learner_scores_by_side": c.by_side,
+                                                         **({"learner_stopped": c.stopped} if c.stopped else {})})
+
+
 @dataclass
 class FoldJob:
     """One fold, self-contained: the input of `score_fold` (a task on the chosen backend)."""
@@ -199,6 +217,8 @@ class FoldJob:
     dqn: LearnerSettings  # the learner's settings (DQN or trees), with the fold's seed
     imitation_seed: int
     progress: ProgressFn | None = None  # the agent's episodes; in-process only (local backend)
+    agent: tuple[Any, dict[str, Any]] | None = None  # the fold's agent fitted already (`auto` on the local
+    # backend: every fold's learner choice in one fleet, `fold_agents`), as `_train_agent` returns it
 
 
 def score_fold(job: FoldJob) -> dict[str, Any]:
@@ -207,7 +227,7 @@ def score_fold(job: FoldJob) -> dict[str, Any]:
     Returns `evaluate_policies`'s dict (``states`` and ``changes`` tagged with the fold).
     """
     label = f"fold {job.fold + 1}/{job.n_folds}: agent"
-    agent, learner = _train_agent(job.train, job.env, job.dqn, job.progress, label)
+    agent, learner = job.agent or _train_agent(job.train, job.env, job.dqn, job.progress, label)
     policies = {
         "agent": agent,
         "greedy": greedy_policy(job.env),
@@ -293,6 +313,8 @@ def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: lis
                             settings.seed + k, progress if in_process else None))
     if not jobs:
         raise UserError("no fold could be scored: " + "; ".join(notes))
+    if in_process:
+        fold_agents(jobs, progress)
     evs = run_tasks(score_fold, jobs, backend=backend, ray_address=ray_address,
                     progress=None if in_process else progress, label="held-out folds")
     for job, ev in zip(jobs, evs):

@@ -198,6 +198,11 @@ class FleetTrainer:
         return [a.settings for a in self._all]
 
     @property
+    def episodes_done(self) -> list[int]:
+        """Each member's finished episodes (in member order, finished and dropped agents included)."""
+        return [a.episodes_done for a in self._all]
+
+    @property
     def _all(self) -> list[AgentState]:
         return sorted(self.agents + self._finished, key=lambda a: a.member)
 
@@ -356,6 +361,22 @@ class FleetTrainer:
             a = self.agents[j]
             if on_finish is not None:
                 on_finish(a.member, self.policy_state_dict(j), self.agent_state_dict(j))
+        self._remove(done)
+
+    def drop(self, members: set[int]) -> None:
+        """Stop the training agents of these member indices now, without `on_finish` (their work is not
+        wanted any more: `rl.learners.choice` stops what cannot win); the others go on unchanged."""
+        gone = [j for j, a in enumerate(self.agents) if a.member in members]
+        if gone:
+            self._sync_agents()
+            self._remove(gone)
+
+    def position(self, member: int) -> int | None:
+        """Where member `member` sits in the stack of training agents (None: finished or dropped)."""
+        return next((j for j, a in enumerate(self.agents) if a.member == member), None)
+
+    def _remove(self, done: list[int]) -> None:
+        """Take the agents at stack positions `done` out of the stack."""
         keep_list = [j for j in range(len(self.agents)) if j not in done]
         self._finished += [self.agents[j] for j in done]
         keep = torch.tensor(keep_list, dtype=torch.long)

@@ -9,6 +9,16 @@ accuracies on the presses and not-yet states, so a weak side counts), and fits t
 all of them; the trees must win by more than `AutoSettings.margin` (a near-tie keeps the DQN).
 One split of a quarter of the sessions was too noisy a judge (rl/README.md). Inside `crossval`
 this happens within each fold's training sessions: the held-out fold never takes part in the choice.
+
+`choose_and_fit` makes the choice at about the price of one learner: the inner folds' DQNs and the
+target's own DQN (the one kept when the DQN wins, as `fit_learner` would fit it) train as one
+batched fleet (`rl.fleet.batch.FleetTrainer`, each agent computing what `DQNTrainer` computes up to
+floating-point summation order), for every target at once (a cross-validation's outer folds), while
+the trees are fitted in a thread beside them. With `AutoSettings.stop_early`, from `check_from` of
+the inner DQNs' episodes on, their pooled inner score is read every `check_every`; where the trees'
+score lies beyond that running score +- `reach` x the share of episodes left (beyond the margin for
+the trees, within it for the DQN), the choice cannot change: the inner DQNs stop (and, when the
+trees win, the target's DQN too), and the stored choice says so (`Choice.stopped`).
 """
 
 from __future__ import annotations
@@ -18,13 +28,14 @@ from typing import Any
 
 import numpy as np
 
-from laneprint.progress import ProgressFn
+from laneprint.progress import ProgressFn, report
 from rl.baselines.imitation import labelled_states
 from rl.problem.env import Approach, EnvConfig, learner_env
 from rl.problem.rewards import CHANGE
 from rl.settings import AutoSettings, DQNSettings, TreeQSettings
 
-__all__ = ["Choice", "choose_learner", "chosen_settings", "fit_learner", "inner_folds"]
+__all__ = ["ChoiceTask", "Choice", "Fitted", "choose_and_fit", "choose_learner", "chosen_settings", "fit_learner",
+           "inner_folds"]
 
 
 @dataclass(frozen=True)
@@ -37,10 +48,13 @@ class Choice:
     n_holdout: int  # approaches the candidates were scored on (each once, by a fit without its session)
     folds: int = 0  # inner folds
     by_side: dict[str, dict[str, float]] = field(default_factory=dict)  # each learner's score per side
+    stopped: str = ""  # why the inner DQNs stopped before their episodes ('' : they ran to the end)
+    checks: list[dict[str, float]] = field(default_factory=list)  # the running DQN score at each check
 
     def to_dict(self) -> dict[str, Any]:
         return {"learner": self.learner, "scores": self.scores, "n_train": self.n_train,
-                "n_holdout": self.n_holdout, "folds": self.folds, "by_side": self.by_side}
+                "n_holdout": self.n_holdout, "folds": self.folds, "by_side": self.by_side,
+                "stopped": self.stopped, "checks": self.checks}
 
 
 def session_of(decision_id: str) -> str:
@@ -106,7 +120,6 @@ def fit_learner(approaches: list[Approach], cfg: EnvConfig, settings: DQNSetting
 
         return fit_tree_q(approaches, learner_env(cfg, "trees"), settings, progress, label)
     from rl.learners.dqn import DQNTrainer
-    from laneprint.progress import report
 
     trainer = DQNTrainer(cfg, settings, approaches=approaches)
 
@@ -152,3 +165,314 @@ def chosen_settings(settings: AutoSettings, choice: Choice) -> DQNSettings | Tre
 def with_seed(settings: AutoSettings, seed: int) -> AutoSettings:
     """`settings` with every random choice seeded from `seed` (a crossval fold's)."""
     return replace(settings, seed=seed, dqn=replace(settings.dqn, seed=seed), trees=replace(settings.trees, seed=seed))
+
+
+# --- the choice at about the price of one learner ----------------------------------------------------------
+
+
+@dataclass
+class ChoiceTask:
+    """One target to choose a learner for and fit it on: `choose_learner`'s arguments."""
+
+    approaches: list[Approach]
+    cfg: EnvConfig  # the DQN's environment (the trees read it through `learner_env`)
+    settings: AutoSettings
+    label: str = "agent"
+
+
+@dataclass
+class Fitted:
+    """A task's choice and the chosen learner fitted on all of its approaches."""
+
+    choice: Choice
+    settings: DQNSettings | TreeQSettings  # the chosen learner's, seeded (the DQN's episodes resolved)
+    net: Any = None  # its Q network (None: trees chosen and `fit_trees` off)
+    dqn_state: dict[str, Any] | None = None  # the DQN's complete state, `DQNTrainer.state_dict()`'s format
+    rows: list[dict[str, Any]] = field(default_factory=list)  # the DQN's metrics lines, one per episode
+
+
+class _Stopped(Exception):
+    """Raised inside a tree fit whose learner can no longer change the choice."""
+
+
+@dataclass
+class _Target:
+    """A task's book-keeping while the fleet trains."""
+
+    task: ChoiceTask
+    settings: AutoSettings  # seeded
+    pairs: list[tuple[list[Approach], list[Approach]]]
+    held: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # per pair: the DQN's held-out (states, labels, left)
+    inner: list[int] = field(default_factory=list)  # fleet members of the inner folds' DQNs
+    final: int = -1  # fleet member of the target's DQN
+    changes: dict[int, np.ndarray] = field(default_factory=dict)  # pair -> finished inner DQN's changes
+    trees: list[Any] = field(default_factory=list)  # per pair: future of the trees' (changes, labels, left)
+    stop_trees: Any = None  # threading.Event: the trees' fits stop at their next regression
+    choice: Choice | None = None
+    next_check: float = 0.0
+    running: tuple[float, float, float, dict[int, np.ndarray]] | None = None  # DQN (score, reach, share, changes)
+    seen: tuple[int, ...] = ()  # what `check` last looked at
+    checks: list[dict[str, float]] = field(default_factory=list)
+    fitted: Fitted | None = None
+    trees_net: Any = None  # future of the chosen trees' fit on all approaches
+
+
+def _pooled(parts: list[tuple[np.ndarray, ...]]) -> tuple[float, dict[str, float]]:
+    """(score, by side) of pooled (changes, labels, left) parts, as `choose_learner` scores them."""
+    by_side = side_scores(*(np.concatenate(p) for p in zip(*parts)))
+    return (round(float(np.mean(list(by_side.values()))), 4) if by_side else float("nan")), by_side
+
+
+#: Set in a trees worker process (`_trees_worker`): one event per target, set when its trees cannot win.
+_STOP_EVENTS: list[Any] = []
+
+
+def _trees_worker(events: list[Any]) -> None:
+    """Initialise a trees worker process (`AutoSettings.trees_beside='process'`)."""
+    _STOP_EVENTS[:] = events
+
+
+def _trees_fit(fit: list[Approach], held: list[Approach], cfg: EnvConfig, settings: TreeQSettings,
+               stop: Any) -> tuple[np.ndarray, ...]:
+    """The trees fitted on `fit`: (changes, labels, left) on `held`; `stop` (an event, or an index into
+    `_STOP_EVENTS` in a worker process) ends the fit at its next regression."""
+    from rl.learners.trees import fit_tree_q
+
+    event = _STOP_EVENTS[stop] if isinstance(stop, int) else stop
+
+    def check(done: int, total: int, message: str) -> None:
+        if event is not None and event.is_set():
+            raise _Stopped
+
+    tenv = learner_env(cfg, "trees")
+    return held_out_changes(fit_tree_q(fit, tenv, settings, check), held, tenv)
+
+
+def _bounds(done: dict[int, tuple[np.ndarray, ...]], held: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+            ) -> tuple[tuple[float, dict[str, float]], tuple[float, dict[str, float]]]:
+    """The lowest and highest pooled scores a learner can end with, given its held-out changes of the pairs
+    `done`: every other pair all wrong, or all right (equal once every pair is done)."""
+    worst = [done[i] if i in done else (y == 0, y, left) for i, (_, y, left) in enumerate(held)]
+    best = [done[i] if i in done else (y == 1, y, left) for i, (_, y, left) in enumerate(held)]
+    return _pooled(worst), _pooled(best)
+
+
+def _gain(trees: float, dqn: float) -> float:
+    return float(np.nan_to_num(trees, nan=-1.0) - np.nan_to_num(dqn, nan=-1.0))
+
+
+def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, fit_trees: bool = True,
+                   label: str = "") -> list[Fitted]:
+    """`choose_learner` and `fit_learner` of the chosen learner for every task, the DQNs trained as one fleet.
+
+    Per task: the inner folds' DQNs and the task's own DQN (kept if the DQN wins) are members of one
+    `FleetTrainer` with every other task's; the trees' inner fits run beside them in a thread, fold after
+    fold (`AutoSettings.trees_beside`). The choice is `choose_learner`'s for the same seed (each fleet
+    agent computes what `DQNTrainer` does, up to floating-point summation order) unless `stop_early`
+    stopped a learner that could no longer win: the inner DQNs by their running score +- `reach` x the
+    share of their episodes left, the trees by what their folds still to fit could add at best (all
+    right) or at worst (all wrong). The stored scores are then the ones that settled it (the DQNs'
+    running score, the trees' bound) and `Choice.stopped` says so. `fit_trees`: also fit the trees on all
+    approaches where they win (a run fits them itself, with its own status). `progress` is told the
+    phase: inner folds, scenes, training (episodes summed over the fleet, the trees' folds), evaluation.
+    """
+    import multiprocessing
+    import sys
+    import threading
+    from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
+
+    import torch
+
+    from rl.fleet.batch import FleetMember, FleetTrainer
+    from rl.learners import batched
+    from rl.learners.dqn import q_network
+    from rl.problem.env import observation_names
+
+    head = f"{label}: " if label else ""
+    report(progress, 0, len(tasks), f"{head}choosing the learner: dealing the inner folds")
+    targets: list[_Target] = []
+    members: list[FleetMember] = []
+    for task in tasks:
+        s = with_seed(task.settings, task.settings.seed)
+        pairs = inner_folds(task.approaches, s.folds, s.seed)
+        t = _Target(task, s, pairs, [labelled_states(held, task.cfg) + (np.concatenate([a.scene.left for a in held]),)
+                                     for _, held in pairs], next_check=s.check_from, stop_trees=threading.Event())
+        for fit, _ in pairs:
+            t.inner.append(len(members))
+            members.append(FleetMember(task.cfg, s.dqn, fit))
+        t.final = len(members)
+        members.append(FleetMember(task.cfg, s.dqn, task.approaches))
+        if not pairs:
+            t.choice = Choice("dqn", {}, len(task.approaches), 0)
+        targets.append(t)
+    owner = {m: t for t in targets for m in [*t.inner, t.final]}
+    trees_total = sum(len(t.pairs) for t in targets)
+    beside = tasks[0].settings.trees_beside if trees_total else "no"
+    if beside == "process" and sys.platform != "linux":
+        beside = "thread"  # a forked copy of this process is safe on Linux only
+    pool: Executor
+    if beside == "process":  # the other core, without the interpreter's lock: a forked copy of this process (no
+        # imports to repeat, no main module to run again), before the fleet has run a torch operation
+        ctx = multiprocessing.get_context("fork")
+        events = [ctx.Event() for _ in targets]
+        for t, e in zip(targets, events):
+            t.stop_trees = e
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_trees_worker, initargs=(events,))
+    else:
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="trees")
+    try:
+        for k, t in enumerate(targets):
+            for fit, held in t.pairs:
+                if beside in ("process", "thread"):
+                    stop = k if beside == "process" else t.stop_trees
+                    t.trees.append(pool.submit(_trees_fit, fit, held, t.task.cfg, t.settings.trees, stop))
+                else:
+                    report(progress, sum(len(u.trees) for u in targets), trees_total,
+                           f"{head}choosing the learner: fitting the trees")
+                    done_f: Future = Future()
+                    done_f.set_result(_trees_fit(fit, held, t.task.cfg, t.settings.trees, None))
+                    t.trees.append(done_f)
+        report(progress, 0, len(members), f"{head}choosing the learner: building the scenes of {len(members)} DQNs")
+        fleet = FleetTrainer(members, threads=members[0].settings.threads)
+        n_obs = len(observation_names(tasks[0].cfg))
+        hidden = members[0].settings.hidden
+        episodes = [s.episodes for s in fleet.settings]
+        gone: set[int] = set()  # members stopped before their episodes
+
+        def as_net(sd: dict[str, Any]) -> Any:
+            net = q_network(hidden, n_obs)
+            net.load_state_dict(sd)
+            return net
+
+        def on_finish(member: int, policy: dict[str, Any], state: dict[str, Any]) -> None:
+            t = owner[member]
+            if member == t.final:
+                t.fitted = Fitted(t.choice or Choice("dqn", {}, len(t.task.approaches), 0), fleet.settings[member],
+                                  as_net(policy), state, t.fitted.rows if t.fitted else [])
+                return
+            i = t.inner.index(member)
+            t.changes[i] = held_out_changes(as_net(policy), t.pairs[i][1], t.task.cfg)[0]
+
+        def on_episode(member: int, row: dict[str, Any]) -> None:
+            t = owner[member]
+            if member == t.final:
+                if t.fitted is None:
+                    t.fitted = Fitted(Choice("dqn", {}, 0, 0), fleet.settings[member])
+                t.fitted.rows.append(row)
+
+        def running_changes(member: int, x: np.ndarray) -> np.ndarray:
+            j = fleet.position(member)
+            assert j is not None
+            params = fleet.q_avg if fleet.agents[j].averaging else fleet.q
+            with torch.inference_mode():
+                q = batched.forward([p[j:j + 1] for p in params], torch.as_tensor(x, dtype=torch.float32)[None])[0]
+            return q.argmax(dim=1).numpy() == CHANGE
+
+        def trees_done(t: _Target) -> dict[int, tuple[np.ndarray, ...]]:
+            out = {}
+            for i, f in enumerate(t.trees):
+                if f.done() and not f.cancelled() and not isinstance(f.exception(), _Stopped):
+                    out[i] = f.result()  # raises what the fit raised
+            return out
+
+        def decide(t: _Target, learner: str, dqn: tuple[float, dict[str, float]],
+                   trees: tuple[float, dict[str, float]], stopped: list[str]) -> None:
+            t.choice = Choice(learner, {"dqn": dqn[0], "trees": trees[0]}, len(t.task.approaches),
+                              sum(len(held) for _, held in t.pairs), len(t.pairs), {"dqn": dqn[1], "trees": trees[1]},
+                              f"{learner} chosen: {'; '.join(stopped)}" if stopped else "", t.checks)
+            drop = {m for m in t.inner if fleet.position(m) is not None}
+            if learner == "trees":
+                drop.add(t.final)
+                if fit_trees:
+                    from rl.learners.trees import fit_tree_q
+
+                    t.trees_net = pool.submit(fit_tree_q, t.task.approaches, learner_env(t.task.cfg, "trees"),
+                                              t.settings.trees)
+            t.stop_trees.set()
+            for f in t.trees:
+                f.cancel()
+            gone.update(drop)
+            fleet.drop(drop)
+
+        def check(t: _Target) -> None:
+            """Decide `t` once both learners' inner scores are in, or (`stop_early`) once the one still
+            learning cannot change the choice."""
+            if t.choice is not None:
+                return
+            s = t.settings
+            shares = {m: fleet.agents[j].episodes_done / episodes[m] for m in t.inner
+                      if (j := fleet.position(m)) is not None}
+            if shares and s.stop_early and min(shares.values()) >= t.next_check:  # the DQNs' running score
+                share = min(shares.values())
+                t.next_check = share + s.check_every
+                now = {i: running_changes(m, t.held[i][0]) for i, m in enumerate(t.inner) if m in shares}
+                score = _pooled([({**t.changes, **now}[i], *t.held[i][1:]) for i in range(len(t.pairs))])[0]
+                t.running = (score, s.reach * (1.0 - share), share, now)
+                t.checks.append({"share": round(share, 3), "dqn": score, "reach": round(t.running[1], 4)})
+            tdone = trees_done(t)
+            seen = (len(tdone), len(t.changes), len(t.checks))
+            if seen == t.seen:
+                return
+            t.seen = seen
+            (t_lo, t_lo_side), (t_hi, t_hi_side) = _bounds(tdone, t.held)
+            if len(t.changes) == len(t.pairs):
+                d = d_lo = d_hi = _pooled([(t.changes[i], *t.held[i][1:]) for i in range(len(t.pairs))])
+                dqn_note = ""
+            elif t.running is not None:
+                score, reach, share, now = t.running
+                d = _pooled([({**t.changes, **now}[i], *t.held[i][1:]) for i in range(len(t.pairs))])
+                d_lo, d_hi = (score - reach, d[1]), (score + reach, d[1])
+                dqn_note = (f"the inner DQNs stopped at {100 * share:.0f} % of their episodes (running score "
+                            f"{score:.3f} +- {reach:.3f})")
+            else:
+                return
+            trees_note = "" if len(tdone) == len(t.pairs) else (
+                f"the trees stopped after {len(tdone)}/{len(t.pairs)} folds (score between {t_lo:.3f} and {t_hi:.3f})")
+            complete = not dqn_note and not trees_note
+            if not complete and not s.stop_early:
+                return
+            if _gain(t_lo, d_hi[0]) > s.margin:  # the trees win whatever is left
+                decide(t, "trees", d, (t_lo, t_lo_side), [n for n in (dqn_note, trees_note) if n])
+            elif _gain(t_hi, d_lo[0]) <= s.margin:  # the DQN wins whatever is left
+                decide(t, "dqn", d, (t_hi, t_hi_side), [n for n in (dqn_note, trees_note) if n])
+
+        def on_vector_step(f: FleetTrainer) -> bool:
+            for t in targets:
+                check(t)
+            done = f.episodes_done
+            total = sum(d if m in gone else episodes[m] for m, d in enumerate(done))
+            trees = sum(f.done() for t in targets for f in t.trees)
+            chosen = sum(t.choice is not None for t in targets)
+            report(progress, sum(done), total, f"{head}choosing the learner: training {len(f.agents)} DQNs, trees "
+                                               f"{trees}/{trees_total}" + (f", {chosen}/{len(targets)} chosen"
+                                                                           if len(targets) > 1 else ""))
+            return False
+
+        fleet.train(on_episode=on_episode, on_finish=on_finish, on_vector_step=on_vector_step)
+        for t in targets:  # the trees still fitting: fold by fold, until they settle the choice
+            while t.choice is None:
+                report(progress, sum(f.done() for u in targets for f in u.trees), trees_total,
+                       f"{head}choosing the learner: trees beside")
+                pending = [f for f in t.trees if not f.done()]
+                if pending:
+                    try:
+                        pending[0].result()
+                    except _Stopped:
+                        pass
+                check(t)
+                if not pending and t.choice is None:
+                    raise RuntimeError("the learner choice did not settle")  # pragma: no cover
+        report(progress, 0, len(targets), f"{head}choosing the learner: evaluation")
+        for t in targets:
+            assert t.choice is not None
+            if t.choice.learner == "trees":
+                net = t.trees_net.result() if t.trees_net is not None else None
+                t.fitted = Fitted(t.choice, t.settings.trees, net)
+            else:
+                assert t.fitted is not None
+                t.fitted.choice = t.choice
+    finally:
+        for t in targets:
+            t.stop_trees.set()  # a fit still running ends at its next regression
+        pool.shutdown(wait=True, cancel_futures=True)
+    return [t.fitted for t in targets if t.fitted is not None]

@@ -19,6 +19,8 @@ evaluation, `drive`, `annotate` and the ONNX export read it as they read the DQN
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 from sklearn.ensemble import HistGradientBoostingRegressor
@@ -57,11 +59,32 @@ def fitted_q_data(approaches: list[Approach], cfg: EnvConfig) -> dict[str, np.nd
             "end_keep": np.repeat([v for _, _, v in sides], lengths)}
 
 
-def _regressor(settings: TreeQSettings, seed: int) -> HistGradientBoostingRegressor:
-    return HistGradientBoostingRegressor(max_iter=settings.trees, learning_rate=settings.learning_rate,
-                                         max_leaf_nodes=settings.max_leaf_nodes,
-                                         min_samples_leaf=settings.min_samples_leaf, early_stopping=False,
-                                         random_state=seed)
+class _SharedBins(HistGradientBoostingRegressor):
+    """`HistGradientBoostingRegressor` whose training data is binned once for all the regressions of one
+    fitted Q iteration: they share the states and weights, so they share the bins. With sample weights,
+    scikit-learn bins by one weighted percentile at a time, about three quarters of a fit on a style's
+    states (2,261 states: 8.6 of 11.6 s per inner fold); the bins, and so the trees, are the same. Binning
+    draws from `random_state` only to subsample above `_BinMapper.subsample` rows: there it bins itself."""
+
+    _bins: dict[str, Any] | None = None  # the fitted bin mapper and binned states, set by the first fit
+
+    def _bin_data(self, X: Any, sample_weight: Any, is_training_data: bool) -> Any:
+        shared = self._bins
+        if not is_training_data or shared is None or X.shape[0] > self._bin_mapper.subsample:
+            return super()._bin_data(X, sample_weight, is_training_data)
+        if "binned" not in shared or shared["shape"] != X.shape:
+            shared.update(binned=super()._bin_data(X, sample_weight, is_training_data), mapper=self._bin_mapper,
+                          shape=X.shape)
+        self._bin_mapper = shared["mapper"]
+        return shared["binned"].copy(order="F")
+
+
+def _regressor(settings: TreeQSettings, seed: int, bins: dict[str, Any] | None = None) -> HistGradientBoostingRegressor:
+    model = _SharedBins(max_iter=settings.trees, learning_rate=settings.learning_rate,
+                        max_leaf_nodes=settings.max_leaf_nodes, min_samples_leaf=settings.min_samples_leaf,
+                        early_stopping=False, random_state=seed)
+    model._bins = bins
+    return model
 
 
 def _fit(model: HistGradientBoostingRegressor, x: np.ndarray, y: np.ndarray,
@@ -86,13 +109,14 @@ def fit_tree_q(approaches: list[Approach], cfg: EnvConfig, settings: TreeQSettin
     x, nxt, end = d["obs"], d["next"], d["end"]
     weight = np.where(d["press"], settings.press_weight, 1.0)
     total = settings.iterations + 1
-    q_change = _fit(_regressor(settings, settings.seed), x, d["r_change"], weight)
+    bins: dict[str, Any] = {}  # every regression below fits the same states with the same weights
+    q_change = _fit(_regressor(settings, settings.seed, bins), x, d["r_change"], weight)
     change_x = _predict(q_change, x)
     report(progress, 1, total, label)
     keep_x = np.zeros(len(x))
     for it in range(settings.iterations):  # at least one (`TreeQSettings` checks)
         target = np.where(end, d["end_keep"], settings.gamma * np.maximum(change_x[nxt], keep_x[nxt]))
-        q_keep = _fit(_regressor(settings, settings.seed + 1 + it), x, target, weight)
+        q_keep = _fit(_regressor(settings, settings.seed + 1 + it, bins), x, target, weight)
         keep_x = _predict(q_keep, x)
         report(progress, it + 2, total, label)
     return TreeQNetwork.from_ensembles({CHANGE: q_change, KEEP: q_keep}, x[:1])

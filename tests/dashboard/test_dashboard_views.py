@@ -93,3 +93,13 @@ def test_each_page_names_the_next_step_once_its_own_is_done():
     assert "**Training** page" in views.next_step("styles", has_recordings=True, has_analysis=True)
     assert "**Personalise** page" in views.next_step("results", has_recordings=True, has_analysis=True)
     assert views.next_step("personalize", has_recordings=True, has_analysis=True) is None
+
+def test_a_run_choosing_its_learner_shows_the_phase_and_the_time_left():
+    """`auto`'s choice writes its phase and summed episodes to status.json: the Training page shows them
+    (it read "starting the trainer" for minutes before)."""
+    status = {"state": "running", "episode": 4000, "episodes": 12000, "started_at": "2026-12-08T10:00:00+00:00",
+              "updated_at": "2026-12-08T10:00:30+00:00", "message": "choosing the learner: training 4 DQNs, trees 3/3"}
+    doing = views.run_doing(status)
+    assert "choosing the learner: training 4 DQNs" in doing and "about 60 s left" in doing
+    assert "starting the trainer" in views.run_doing({**status, "episode": 0, "message": "training"})
+    assert views.time_left({**status, "episode": 100}) == ""  # too early to say

@@ -1,0 +1,71 @@
+"""`auto`'s learner choice in one fleet (`rl.learners.choice.choose_and_fit`): the choice of `choose_learner`,
+the chosen DQN of `fit_learner`, and what cannot win stopped early."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from rl.baselines.imitation import labelled_states
+from rl.learners.choice import ChoiceTask, choose_and_fit, choose_learner, chosen_settings, fit_learner
+from rl.problem.env import approaches_from_decisions, formulation_config
+from rl.problem.rewards import ReferenceLines
+from rl.settings import AutoSettings, DQNSettings, TreeQSettings
+from tests.support.rl_workspaces import session_decisions
+
+LINES = ReferenceLines.paper("Normal")
+DQN = DQNSettings(episodes=300, learning_starts=300, episodes_per_approach=0)
+WEAK_TREES = TreeQSettings(trees=1, iterations=1, learning_rate=0.01)  # a Q function that cannot resolve a press
+
+
+@pytest.fixture(scope="module")
+def study():
+    approaches, _ = approaches_from_decisions(session_decisions(LINES, 4, 8))
+    return approaches, formulation_config(LINES)
+
+
+@pytest.mark.slow
+def test_the_fleet_chooses_as_the_learners_one_after_another_and_keeps_the_same_dqn(study):
+    approaches, cfg = study
+    auto = AutoSettings(dqn=DQN, trees=WEAK_TREES, margin=0.2, stop_early=False)
+    choice = choose_learner(approaches, cfg, auto)
+    alone = fit_learner(approaches, cfg, chosen_settings(auto, choice))
+    fitted = choose_and_fit([ChoiceTask(approaches, cfg, auto)])[0]
+    assert fitted.choice.learner == choice.learner == "dqn" and not fitted.choice.stopped
+    for name in ("dqn", "trees"):
+        assert fitted.choice.scores[name] == pytest.approx(choice.scores[name], abs=0.05)
+    x, _ = labelled_states(approaches, cfg)
+    with torch.no_grad():
+        q_alone, q_fleet = alone(torch.as_tensor(x)), fitted.net(torch.as_tensor(x))
+    assert torch.allclose(q_alone, q_fleet, atol=1e-4)  # the same agent, up to summation order
+    assert len(fitted.rows) == fitted.settings.episodes == DQN.episodes  # its metrics, one line per episode
+    assert fitted.dqn_state is not None and fitted.dqn_state["counters"]["episodes_done"] == DQN.episodes
+
+
+@pytest.mark.slow
+def test_what_cannot_win_stops_early_and_the_choice_says_so(study):
+    approaches, cfg = study
+    # reach 0: the first check settles it; the weak trees cannot reach the DQN, which goes on alone
+    auto = AutoSettings(dqn=DQN, trees=WEAK_TREES, margin=0.2, reach=0.0, check_from=0.5, trees_beside="no")
+    fitted = choose_and_fit([ChoiceTask(approaches, cfg, auto)])[0]
+    assert fitted.choice.learner == "dqn" and "stopped at" in fitted.choice.stopped
+    assert fitted.choice.checks and fitted.choice.checks[0]["share"] < 1.0
+    assert fitted.settings.episodes == len(fitted.rows) == DQN.episodes  # the target's DQN ran to its end
+    # the trees out of reach (margin -2: they win whatever the DQN scores): every DQN stops, the trees are fitted
+    trees = choose_and_fit([ChoiceTask(approaches, cfg, replace(auto, margin=-2.0))])[0]
+    assert trees.choice.learner == "trees" and "stopped at" in trees.choice.stopped
+    assert isinstance(trees.settings, TreeQSettings) and trees.net is not None and trees.dqn_state is None
+    # a reach larger than any score can move: nothing stops, as `stop_early=False`
+    full = choose_and_fit([ChoiceTask(approaches, cfg, replace(auto, reach=10.0))])[0]
+    assert not full.choice.stopped and np.isfinite(full.choice.scores["dqn"])
+
+
+def test_old_choice_settings_read_with_the_new_defaults():
+    old = {"dqn": DQNSettings().to_dict(), "trees": TreeQSettings().to_dict(), "folds": 3, "margin": 0.01, "seed": 0}
+    assert AutoSettings.from_dict(old) == AutoSettings()
+    assert AutoSettings.from_dict(AutoSettings(reach=0.3).to_dict()).reach == 0.3
+    with pytest.raises(ValueError):
+        AutoSettings(check_every=0.0)
