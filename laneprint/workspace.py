@@ -45,11 +45,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from laneprint.errors import UserError
-from laneprint.locks import FileLock, lock_fd
+from laneprint.files import (  # noqa: F401 - kept importable from here
+    ANALYSIS_FINGERPRINT_TABLES, TMP_SUFFIX, analysis_fingerprint, atomic_write_bytes, atomic_write_json)
+from laneprint.locks import FileLock
 from laneprint.schemas import EGO, RECORDINGS, REJECTED, TRAFFIC, Schema, validate
 
 DEFAULT_WORKSPACE = Path("workspace")
-TMP_SUFFIX = ".tmp"  # temporary files of atomic_write_bytes: `.<name>.<random>.tmp` beside the target
 
 
 def content_id(data: bytes) -> str:
@@ -64,45 +65,6 @@ def content_id(data: bytes) -> str:
 def legacy_content_id(data: bytes) -> str:
     """The recording id workspaces written before 2026-12-03 gave a file (SHA-256)."""
     return hashlib.sha256(data).hexdigest()[:16]
-
-
-ANALYSIS_FINGERPRINT_TABLES = ("styles", "reference_lines")
-
-
-def analysis_fingerprint(tables: dict[str, pd.DataFrame]) -> str:
-    """What an analysis decided, as 16 hex digits: a hash of the content of its styles (who is in
-    which style, the typical drivers) and its reference lines (what a style's agent is trained
-    against). Two analyses with the same styles and lines have the same fingerprint; a re-analysis
-    that moves a driver or a line has another. Every run, cross-validation, personalisation and
-    report records the fingerprint of the analysis it used (`laneprint.provenance`)."""
-    h = hashlib.sha256()
-    for name in ANALYSIS_FINGERPRINT_TABLES:
-        df = tables.get(name)
-        if df is None:
-            continue
-        df = df.reindex(sorted(df.columns), axis=1)
-        h.update(name.encode() + b"\0" + df.to_csv(index=False, float_format="%.9g").encode())
-    return h.hexdigest()[:16]
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write `data` to `path` so readers see the old file or the new one, never a mix."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TMP_SUFFIX)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            lock_fd(fh.fileno())
-            fh.write(data)
-            fh.flush()
-            os.replace(tmp, path)  # while still locked: an unlocked temp file is always a leftover
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def atomic_write_json(path: Path, obj: Any) -> None:
-    """Write `obj` as indented JSON, atomically."""
-    atomic_write_bytes(path, (json.dumps(obj, indent=2, default=str) + "\n").encode())
 
 
 def _plain_strings(df: pd.DataFrame) -> pd.DataFrame:

@@ -19,12 +19,13 @@ from __future__ import annotations
 import io
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Optional
+from typing import Any, Callable, Optional
 
 from laneprint.errors import UserError
+from laneprint.files import ANALYSIS_FINGERPRINT_TABLES, analysis_fingerprint, atomic_write_bytes, atomic_write_json
 
-if TYPE_CHECKING:
-    from laneprint.workspace import Workspace
+#: A workspace (`laneprint.workspace.Workspace`: not imported here, it opens through these migrations)
+Workspace = Any
 
 #: The format this laneprint writes.
 FORMAT = 1
@@ -52,7 +53,6 @@ def read_format(root: Path) -> Optional[int]:
 
 def stamp(root: Path) -> None:
     """Write the current format into the workspace at `root`."""
-    from laneprint.workspace import atomic_write_json
 
     atomic_write_json(root / FORMAT_FILE, {"format": FORMAT})
 
@@ -88,8 +88,6 @@ def _to_1(ws: "Workspace") -> None:
     """Format 0 -> 1: the reference lines' direction ('both' before directions) and the analysis's fingerprint."""
     import pandas as pd
 
-    from laneprint.workspace import (ANALYSIS_FINGERPRINT_TABLES, analysis_fingerprint, atomic_write_bytes,
-                                     atomic_write_json)
 
     folder = ws.stage_dir("analysis")
     meta_path = folder / "meta.json"

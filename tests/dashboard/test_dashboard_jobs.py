@@ -77,7 +77,7 @@ def test_check_target_says_why_the_trainer_would_refuse(tmp_path):
 
     ws = Workspace(tmp_path).ensure()
     assert check_target(ws, jobs.TrainRequest("style", "Normal", 10, lines="paper")) == ""
-    assert "needs --style" in check_target(ws, jobs.TrainRequest("driver", "D01", 10, lines="paper"))
+    assert "needs style" in check_target(ws, jobs.TrainRequest("driver", "D01", 10, lines="paper"))
     assert "no analysis" in check_target(ws, jobs.TrainRequest("style", "Normal", 10, lines="analysis"))
 
 
