@@ -337,6 +337,8 @@ class Workspace:
         """
         for name, schema in (schemas or {}).items():
             validate(tables[name], schema)
+        if stage == "analysis" and "styles" in tables:  # what the analysis decided, whoever stores it
+            meta = {**meta, "analysis_fingerprint": analysis_fingerprint(tables)}
         final = self.stage_dir(stage)
         with self.staging() as box:
             tmp = box / stage

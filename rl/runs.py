@@ -212,6 +212,10 @@ def _truncate_metrics(path: Path, episodes_done: int) -> None:
     atomic_write_bytes(path, ("\n".join(keep) + ("\n" if keep else "")).encode())
 
 
+class _ChoiceCancelled(Exception):
+    """SIGTERM or SIGINT while the default learner is being chosen."""
+
+
 class _StopFlag:
     """Set by SIGTERM/SIGINT so the loop can checkpoint and exit cleanly."""
 
@@ -436,10 +440,24 @@ def _choose_learner(workspace: Workspace, folder: Path, config: dict[str, Any], 
         writer.status("running", done, message, force=False)
         report(progress, done, total, f"{target.label}: {message}")
 
+    def cancel(signum: int, frame: Any) -> None:  # nothing to checkpoint yet: the choice stops where it is
+        raise _ChoiceCancelled
+
+    handlers = {}
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        try:
+            handlers[sig] = signal.signal(sig, cancel)
+        except ValueError:  # not the main thread: no signal handling
+            pass
     try:
         fitted = choose_and_fit([ChoiceTask(recorded_approaches(workspace, target), env_config, settings,
                                             target.label)], phase, fit_trees=False)[0]
+    except _ChoiceCancelled:
+        writer.status("cancelled", 0, "cancelled while choosing the learner")
+        raise SystemExit(130) from None
     finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
         writer.close()
     choice = fitted.choice
     chosen, env = fitted.settings, learner_env(env_config, choice.learner)

@@ -434,7 +434,8 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5,
     with `lag_draw`, the follower headways the agent's own changes need drawn from its drivers' presses
     (`HeldBackRule.lag_draws`)."""
     lines = workspace.read_table("analysis", "reference_lines")
-    lines = lines[lines["direction"].astype(str) == "both"]
+    if "direction" in lines:  # reference lines stored without directions are every press's
+        lines = lines[lines["direction"].astype(str) == "both"]
     fits = workspace.read_table("analysis", "fits") if workspace.has_table("analysis", "fits") else None
     decisions = workspace.read_table("analysis", "decisions")
     styles = workspace.read_table("analysis", "styles")

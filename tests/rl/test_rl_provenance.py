@@ -70,7 +70,7 @@ def test_runs_marks_a_run_made_with_an_earlier_analysis(tmp_path):
 
 
 def test_report_marks_runs_of_an_earlier_analysis(tmp_path):
-    from laneprint.report import _runs, provenance
+    from dashboard.report import _runs, provenance
 
     ws = analysed_workspace(tmp_path)
     res = CliRunner().invoke(app, ["train", "--style", "Normal", "--episodes", "60", "--run-id", "r1",
