@@ -34,7 +34,7 @@ from laneprint.errors import UserError
 from laneprint.progress import ProgressFn, report
 from laneprint.reference import PAPER_TABLE1
 from laneprint.schemas import DECISIONS, REFERENCE_LINES
-from laneprint.workspace import DamagedFile, Workspace, analysis_fingerprint
+from laneprint.workspace import DamagedFile, Workspace
 
 SKIPPED_COLUMNS = ["what", "id", "reason"]
 STYLE_COLUMNS = ["driver_id", "style", "cluster", "confidence", "posterior", "stability", "margin", "is_typical",
@@ -658,9 +658,9 @@ def analyze(workspace: Workspace, settings: AnalysisSettings | None = None,
         settings = settings.with_(feature_indicators=tuple(used["indicators"]))
     meta = {"stage": "analysis", "workspace": str(workspace.root), "settings": settings.to_dict(),
             "code": code_version(), "data_fingerprint": workspace.fingerprint(), "n_recordings": n_rec,
-            "analysis_fingerprint": analysis_fingerprint(tables), "summary": headline}
-    workspace.write_tables("analysis", tables, meta,
+            "summary": headline}
+    workspace.write_tables("analysis", tables, meta,  # it adds the analysis's fingerprint
                            schemas={"decisions": DECISIONS, "reference_lines": REFERENCE_LINES,
                                     "following": FOLLOWING})
     report(progress, 1, 1, "analysis stored")
-    return build_report(tables, meta)
+    return build_report(tables, workspace.read_meta("analysis"))
