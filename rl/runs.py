@@ -296,8 +296,7 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
                resume: str | None, episodes: int | None, evaluate: bool,
                progress: ProgressFn | None) -> dict[str, Any]:
     workspace.ensure()
-    chosen_state: dict[str, Any] | None = None  # `auto`'s DQN, trained beside the choice (and its metrics)
-    chosen_rows: list[dict[str, Any]] = []
+    chose = False  # `auto` chose its learner in this call (the DQN it kept is checkpoint.pt, its episodes written)
     if resume:
         folder = run_dir(workspace, resume)
         if not (folder / "config.json").exists():
@@ -315,12 +314,11 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
             atomic_write_json(folder / "config.json", config)
             settings = stored_learner(config)
             if isinstance(settings, AutoSettings):
-                settings, env_config, chosen_state, chosen_rows = _choose_learner(
-                    workspace, folder, config, target, env_config, settings, progress)
+                settings, env_config = _choose_learner(workspace, folder, config, target, env_config, settings,
+                                                       progress)
+                chose = True
             if isinstance(settings, TreeQSettings):
                 return _fit_tree_run(workspace, folder, config, target, env_config, settings, evaluate, progress)
-            (folder / "checkpoint.pt").unlink(missing_ok=True)
-            (folder / "metrics.jsonl").unlink(missing_ok=True)
         settings = DQNSettings.from_dict(config["dqn"])
         if episodes is not None and episodes != settings.episodes:
             settings = replace(settings, episodes=episodes)
@@ -330,7 +328,7 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
         atomic_write_json(folder / "config.json", config)
         # killed before its first checkpoint: start over with the run's own settings
         state = torch.load(folder / "checkpoint.pt", weights_only=True) if (folder / "checkpoint.pt").exists() \
-            else chosen_state
+            else None
         old_status = json.loads((folder / "status.json").read_text()) if (folder / "status.json").exists() else {}
         started_at = old_status.get("started_at")
     else:
@@ -340,8 +338,10 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
         run_id = config["run_id"]
         state, started_at = None, None
         if isinstance(settings, AutoSettings):
-            settings, env_config, state, chosen_rows = _choose_learner(workspace, folder, config, target, env_config,
-                                                                       settings, progress)
+            settings, env_config = _choose_learner(workspace, folder, config, target, env_config, settings, progress)
+            chose = True
+            if isinstance(settings, DQNSettings):  # the DQN the choice trained, as `_choose_learner` saved it
+                state = torch.load(folder / "checkpoint.pt", weights_only=True)
         if isinstance(settings, TreeQSettings):
             return _fit_tree_run(workspace, folder, config, target, env_config, settings, evaluate, progress)
 
@@ -356,13 +356,11 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
         atomic_write_json(folder / "config.json", config)
     if state is not None:
         trainer.load_state_dict(state)
-    resumed_from = 0 if chosen_rows else trainer.episodes_done
+    resumed_from = 0 if chose else trainer.episodes_done
     if resume:
-        _truncate_metrics(folder / "metrics.jsonl", resumed_from)
+        _truncate_metrics(folder / "metrics.jsonl", trainer.episodes_done)
     writer = RunWriter(folder, settings.episodes, started_at)
-    for row in chosen_rows:  # the DQN `auto` kept was trained while it chose: its episodes are the run's
-        writer.metric(row)
-    writer.status("running", trainer.episodes_done, "resumed" if resume and not chosen_rows else "training")
+    writer.status("running", trainer.episodes_done, "resumed" if resume and not chose else "training")
 
     def checkpoint(t: DQNTrainer) -> None:
         writer.flush()
@@ -420,14 +418,14 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
 
 
 def _choose_learner(workspace: Workspace, folder: Path, config: dict[str, Any], target: Target, env_config: EnvConfig,
-                    settings: AutoSettings, progress: ProgressFn | None
-                    ) -> tuple[Any, EnvConfig, dict[str, Any] | None, list[dict[str, Any]]]:
+                    settings: AutoSettings, progress: ProgressFn | None) -> tuple[Any, EnvConfig]:
     """`--learner auto`: choose across inner folds of the target's sessions (`rl.learners.choice`); the run's
     config then names the chosen learner (its settings and environment) and keeps the choice.
 
-    Returns (settings, environment, the DQN's trained state and metrics lines when the DQN was chosen: it
-    trained in one batch with the inner folds' DQNs, None and [] for the trees). The run's status follows
-    the choice's phases (inner folds, scenes, training, evaluation) with its summed episodes.
+    Returns (settings, environment). When the DQN is chosen, the one trained in one batch with the inner
+    folds' DQNs is the run's: its metrics lines and its state (`checkpoint.pt`) are written before the
+    config names the DQN, and the run goes on from that checkpoint. The run's status follows the choice's
+    phases (inner folds, scenes, training, evaluation) with its summed episodes.
     """
     from rl.learners.choice import ChoiceTask, choose_and_fit
     from rl.problem.env import learner_env
@@ -461,11 +459,14 @@ def _choose_learner(workspace: Workspace, folder: Path, config: dict[str, Any], 
         writer.close()
     choice = fitted.choice
     chosen, env = fitted.settings, learner_env(env_config, choice.learner)
+    if choice.learner == "dqn":  # its episodes, then its state, before the config names the DQN: a run killed
+        # from then on resumes from the very DQN the choice trained (a `DQNTrainer` trained again from the start
+        # computes it only up to floating-point summation order); killed before, it chooses again
+        atomic_write_bytes(folder / "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in fitted.rows).encode())
+        _save_torch(folder / "checkpoint.pt", fitted.dqn_state)
     config.update(learner_config(chosen), env=env.to_dict(), learner_choice=choice.to_dict())
     atomic_write_json(folder / "config.json", config)
-    if choice.learner == "trees":
-        return chosen, env, None, []
-    return chosen, env, fitted.dqn_state, fitted.rows
+    return chosen, env
 
 
 def _fit_tree_run(workspace: Workspace, folder: Path, config: dict[str, Any], target: Target, env_config: EnvConfig,
