@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from rl.learners import batched
-from rl.learners.dqn import (EpisodeStats, average_due, episode_row, episode_state, epsilon_at, learning_rate_at,
-                    load_episode_state)
+from rl.learners.dqn import (EpisodeStats, average_due, checkpoint_due, episode_row, episode_state, epsilon_at,
+                             learning_rate_at, load_episode_state)
 from rl.problem.env import Approach, EnvConfig, make_vec_env, observation_names, replayed_approaches
 from rl.fleet.envs import stack_envs
 from rl.problem.rewards import KEEP, TERMS
@@ -324,6 +324,7 @@ class FleetTrainer:
         s = a.settings
         st = a.stats
         done = out["terminated"] | out["truncated"]
+        before = a.episodes_done
         for i in np.flatnonzero(done):
             if a.episodes_done >= s.episodes:
                 break
@@ -342,8 +343,8 @@ class FleetTrainer:
                 a.averaging = True
             if a.episodes_done % s.target_update_episodes == 0:
                 self._copy(self.target, self.q, j)
-            if on_checkpoint is not None and s.checkpoint_every and a.episodes_done % s.checkpoint_every == 0:
-                on_checkpoint(a.member, self.agent_state_dict(j))
+        if on_checkpoint is not None and checkpoint_due(s, before, a.episodes_done):  # as `DQNTrainer`: at the
+            on_checkpoint(a.member, self.agent_state_dict(j))  # end of the step, its finished episodes all booked
 
     @staticmethod
     def _copy(dst: list[torch.Tensor], src: list[torch.Tensor], j: int) -> None:

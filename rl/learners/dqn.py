@@ -160,6 +160,12 @@ def average_due(s: DQNSettings, episodes_done: int) -> bool:
     return s.average_tau > 0 and episodes_done >= int(s.average_from * s.episodes)
 
 
+def checkpoint_due(s: DQNSettings, before: int, episodes_done: int) -> bool:
+    """Whether a vector step that took the finished episodes from `before` to `episodes_done` passed a
+    multiple of `checkpoint_every` (the checkpoint is taken at the end of that step)."""
+    return bool(s.checkpoint_every) and episodes_done // s.checkpoint_every > before // s.checkpoint_every
+
+
 def episode_row(episode: int, losses: list[float], stats: EpisodeStats, i: int, eps: float,
                 actions: np.ndarray, out: dict[str, Any], env_steps: int, wall_s: float) -> dict[str, Any]:
     """The metrics line of environment i's finished episode."""
@@ -213,7 +219,8 @@ class DQNTrainer:
     ``trainer.train(on_episode=..., should_stop=...)`` runs until `settings.episodes`
     episodes have finished or `should_stop()` is true. `on_episode(row)` receives one
     metrics dict per finished episode; `on_checkpoint(trainer)` is called every
-    `checkpoint_every` episodes; `on_vector_step(trainer)` after every vector step
+    `checkpoint_every` episodes (at the end of the vector step that reached them: a checkpoint
+    never splits a step); `on_vector_step(trainer)` after every vector step
     (returning True stops training, as an SB3 callback returning False would).
     """
 
@@ -350,6 +357,7 @@ class DQNTrainer:
                     self._losses.append(self._update())
             # 4. book-keeping of finished episodes
             done = out["terminated"] | out["truncated"]
+            before = self.episodes_done
             for i in np.flatnonzero(done):
                 if self.episodes_done >= s.episodes:
                     break
@@ -367,8 +375,10 @@ class DQNTrainer:
                     self._start_average()
                 if self.episodes_done % s.target_update_episodes == 0:
                     self.target.load_state_dict(self.q.state_dict())
-                if on_checkpoint is not None and s.checkpoint_every and self.episodes_done % s.checkpoint_every == 0:
-                    on_checkpoint(self)
+            # a checkpoint once the step's finished episodes are all booked (one taken among them would resume
+            # with the later ones' sums not reset and their count lost: another run than the uninterrupted one)
+            if on_checkpoint is not None and checkpoint_due(s, before, self.episodes_done):
+                on_checkpoint(self)
             self.wall_s = time.perf_counter() - start
             if on_vector_step is not None and on_vector_step(self):
                 break
