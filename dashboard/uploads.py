@@ -99,7 +99,8 @@ def save_upload(name: str, size: int, stream: BinaryIO, uploads_dir: Path, max_b
     staging.mkdir(parents=True, exist_ok=True)
     tmp = staging / uuid.uuid4().hex
     sink = _HashingSink(tmp, max_bytes)
-    stream.seek(0)
+    if stream.seekable():  # an UploadedFile read before; a stream that cannot seek is read from where it is
+        stream.seek(0)
     try:
         with sink:
             shutil.copyfileobj(stream, sink, _CHUNK)  # never the whole upload in memory at once

@@ -81,3 +81,73 @@ def test_upload_larger_than_declared_is_cut_off_and_refused(tmp_path):
     assert lying.path is None and lying.reason.startswith("too large for the browser upload (more than 3 MB)")
     assert not list((tmp_path / ".partial").iterdir())
     assert 0 < Counting.biggest_read <= 1 << 20  # copied in chunks, never read whole
+
+
+#: In a fresh process: a 300 MB upload as the Data page gets it (Streamlit's `UploadedFile`, a BytesIO over
+#: the received bytes) saved by `save_upload`, then 300 MB from a stream that never holds them (a browser that
+#: declared 1 KB) against a 100 MB limit. Prints the peak and current RSS [MB] before and after each.
+UPLOAD_RSS = """
+import io, json, resource, sys
+from pathlib import Path
+from streamlit.runtime.uploaded_file_manager import UploadedFile, UploadedFileRec
+from dashboard.uploads import save_upload
+
+MB = 1 << 20
+peak = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # noqa: E731 (KB on Linux)
+rss = lambda: int(open("/proc/self/statm").read().split()[1]) * resource.getpagesize() / MB  # noqa: E731
+
+
+class Endless(io.RawIOBase):  # `size` bytes made as they are read
+    def __init__(self, size):
+        self.left = size
+
+    def readable(self):
+        return True
+
+    def readinto(self, b):
+        n = min(len(b), self.left)
+        b[:n] = bytes(n)
+        self.left -= n
+        return n
+
+
+out = {}
+updir = Path(sys.argv[1])
+data = b"0123456789abcdef" * (300 * MB // 16)
+f = UploadedFile(UploadedFileRec("id", "big.csv", "text/csv", data), None)
+del data
+before = (peak(), rss())
+s = save_upload(f.name, f.size, f, updir, 1024 * MB)
+out["whole"] = {"saved": s.path is not None and s.path.stat().st_size, "peak": [before[0], peak()],
+                "rss": [before[1], rss()]}
+s.path.unlink()
+del f
+before = (peak(), rss())
+s = save_upload("lie.mcap", 1024, io.BufferedReader(Endless(300 * MB)), updir, 100 * MB)
+out["lying"] = {"reason": s.reason, "written": s.size, "peak": [before[0], peak()], "rss": [before[1], rss()]}
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.slow
+def test_a_300_mb_upload_is_saved_in_chunks_without_another_copy_in_memory(tmp_path):
+    """The issue's 300 MB upload: `save_upload`, which the Data page calls, adds a few MB to the process's
+    peak (the bytes Streamlit received are not copied again), and a stream over the limit is cut off at
+    the limit whatever size was declared, without holding what it read."""
+    import json
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", UPLOAD_RSS, str(tmp_path / "uploads")], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.splitlines()[-1])
+    whole, lying = out["whole"], out["lying"]
+    assert whole["saved"] == 300 << 20
+    assert whole["peak"][0] > 300  # the received bytes themselves, as Streamlit holds them
+    assert whole["peak"][1] - whole["peak"][0] < 32, whole  # saving them: chunks of 1 MB, no copy of the file
+    assert whole["rss"][1] - whole["rss"][0] < 32, whole  # and nothing held afterwards
+    assert lying["reason"].startswith("too large for the browser upload (more than 100 MB)")
+    assert 100 << 20 < lying["written"] <= (100 << 20) + (1 << 20)  # cut off at the limit
+    assert lying["peak"][1] - lying["peak"][0] < 32, lying
+    assert not list((tmp_path / "uploads" / ".partial").iterdir())
