@@ -4,7 +4,7 @@ On the zoo of worlds (`benchmarks/zoo.py`, studies cached under `--root`), every
 readings are ranked once as `--features separated` ranks them (`clustering.choice.ranked_readings`);
 then each variant of the consensus (the N best readings vote, cut by average or complete
 linkage; N = 1 is `separated` itself) reads the drivers, and its ARI against the study's truth is
-recorded. The leave-one-world-out table gives, for each world, the variant with the best mean ARI
+recorded; '<variant>/no-v_free' is the same without the readings of the free speed. The leave-one-world-out table gives, for each world, the variant with the best mean ARI
 on the *other* worlds and its ARI on this one. Written to `benchmarks/results/<--out>` with the
 command, commit, date and machine.
 
@@ -53,6 +53,15 @@ def ranked(world: str, seed: int, root: Path) -> tuple[dict[str, str], list]:
     return truth, scores
 
 
+#: Behaviour parameters a variant can do without: '<variant>/no-<param>' drops every reading of it.
+WITHOUT: tuple[str, ...] = ("v_free",)
+
+
+def without(scores: list, param: str) -> list:
+    """The readings that do not read `param`."""
+    return [r for r in scores if param not in r.parameters]
+
+
 def variant_ari(truth: dict[str, str], scores: list, voters: int, method: str, floor: float = 0.0, k: int = 3) -> float:
     from clustering.consensus import consensus_groups, weight
 
@@ -90,6 +99,9 @@ def main() -> None:
                 continue
             for name, (n, link, floor) in VARIANTS.items():
                 rows.append({"world": world, "seed": seed, "variant": name, "ari": variant_ari(truth, scores, n, link, floor)})
+                for param in WITHOUT:
+                    rows.append({"world": world, "seed": seed, "variant": f"{name}/no-{param}",
+                                 "ari": variant_ari(truth, without(scores, param), n, link, floor)})
             print(f"  {world:<18} seed {seed:5d}  ({time.perf_counter() - t0:.0f} s)", flush=True)
     df = pd.DataFrame(rows)
     per = df.groupby(["variant", "world"]).ari.agg(mean_ari="mean", min_ari="min", seeds="count").reset_index()

@@ -29,7 +29,9 @@ approaches: the states of one approach are not independent).
 
 The **headway kept while following** (`thw_follow`, `indicators.following`) is read beside
 them: the lower quartile of the driver's steady-following headways, its standard error
-bootstrapped over episodes.
+bootstrapped over episodes. So is the **free speed** (`v_free`): the speed the driver drives
+at when nothing holds it back (`indicators.following.free_speed`), as a share of the posted
+limit, the median over its recordings, its standard error bootstrapped over recordings.
 
 Everything here is pure: frames in, frames and small dataclasses out.
 """
@@ -50,11 +52,18 @@ VARIABLES: dict[str, tuple[str, int, float, str, str]] = {
     "thw_f": ("thw_f_s", -1, 0.05, "s", "time headway to its leader at which it wants out"),
     "t_f": ("t_f_s", -1, 0.05, "s", "TTC to its leader at which it wants out"),
 }
+#: Parameters read beside the decision variables: name -> (unit, what it means).
+DRIVE_PARAMETERS: dict[str, tuple[str, str]] = {
+    "thw_follow": ("s", "time headway kept while following a leader"),
+    "v_free": ("x limit", "free speed, as a share of the posted limit"),
+}
 #: The behaviour parameters a driver is read by: the critical value of each decision variable
 #: and the headway kept while following.
-PARAMETERS: tuple[str, ...] = tuple(VARIABLES) + ("thw_follow",)
+PARAMETERS: tuple[str, ...] = tuple(VARIABLES) + tuple(DRIVE_PARAMETERS)
 #: Parameters that measure the room a driver needs (larger = more defensive), for naming styles.
 ROOM_PARAMETERS: tuple[str, ...] = ("thw_nb", "gap_nf", "t_nf", "thw_follow")
+#: Parameters that read larger = bolder (a faster free speed), for naming styles.
+BOLD_PARAMETERS: tuple[str, ...] = ("v_free",)
 #: Prefix of a behaviour reading's name (`laneprint analyze --features behaviour:thw_nb+thw_follow`).
 BEHAVIOUR = "behaviour:"
 #: Standard deviation of the partial-pooling prior of a driver's log critical value.
@@ -65,6 +74,7 @@ _CAP = 1e3
 FOLLOW_QUANTILE = 0.25
 _FOLLOW_BOOT = 200
 _MIN_EPISODES = 3
+_MIN_RECORDINGS = 2
 
 
 def behaviour_params(name: str) -> tuple[str, ...]:
@@ -278,6 +288,39 @@ def following_parameter(following: pd.DataFrame | None, drivers: list[str], seed
     return value, se, count
 
 
+def free_speed_parameter(decisions: pd.DataFrame, drivers: list[str], seed: int = 0
+                         ) -> tuple[pd.Series, pd.Series, pd.Series]:
+    """(log free speed over the posted limit, its bootstrap SE over recordings, recordings) per
+    driver: the median over the driver's recordings. NaN with fewer than `_MIN_RECORDINGS`
+    recordings, and for every driver when a recording has no posted limit."""
+    value = pd.Series(np.nan, index=drivers, dtype=float)
+    se = pd.Series(np.nan, index=drivers, dtype=float)
+    count = pd.Series(0, index=drivers, dtype=int)
+    if "ego_v_free_mps" not in decisions or decisions.empty:
+        return value, se, count  # decisions extracted before the free speed was
+    per_rec = decisions.groupby("recording_id", sort=True).agg(
+        driver_id=("driver_id", "first"), v=("ego_v_free_mps", "first"), limit=("speed_limit_kph", "first"))
+    limit = per_rec["limit"].to_numpy(dtype=float) / 3.6
+    v = per_rec["v"].to_numpy(dtype=float)
+    if not np.all(np.isfinite(limit) & (limit > 0)):
+        return value, se, count
+    with np.errstate(invalid="ignore", divide="ignore"):
+        x = np.log(v / limit)
+    per_rec = per_rec.assign(x=x)[np.isfinite(x)]
+    rng = np.random.default_rng(seed)
+    for drv, grp in per_rec.groupby(per_rec["driver_id"].astype(str)):
+        if drv not in value.index:
+            continue
+        xs = grp["x"].to_numpy(dtype=float)
+        count[drv] = len(xs)
+        if len(xs) < _MIN_RECORDINGS:
+            continue
+        value[drv] = float(np.median(xs))
+        boots = np.median(xs[rng.integers(0, len(xs), (_FOLLOW_BOOT, len(xs)))], axis=1)
+        se[drv] = float(max(np.std(boots), 1e-3))
+    return value, se, count
+
+
 @dataclass(frozen=True)
 class Behaviour:
     """Every driver's behaviour parameters (log units) with standard errors."""
@@ -285,7 +328,8 @@ class Behaviour:
     values: pd.DataFrame  # driver x PARAMETERS, log critical values / log headway
     se: pd.DataFrame  # same shape
     presses: pd.Series  # presses per driver
-    defined: pd.DataFrame  # driver x PARAMETERS: presses (episodes for thw_follow) that inform each
+    defined: pd.DataFrame  # driver x PARAMETERS: presses (episodes for thw_follow, recordings for
+    # v_free) that inform each
     model: GapModel | None
 
     def in_units(self) -> pd.DataFrame:
@@ -317,4 +361,8 @@ def driver_behaviour(decisions: pd.DataFrame, following: pd.DataFrame | None, dr
     values["thw_follow"] = follow
     se["thw_follow"] = follow_se
     defined["thw_follow"] = episodes
+    free, free_se, recordings = free_speed_parameter(decisions, drivers, seed)
+    values["v_free"] = free
+    se["v_free"] = free_se
+    defined["v_free"] = recordings
     return Behaviour(values, se, presses, defined, model)

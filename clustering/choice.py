@@ -264,6 +264,8 @@ def behaviour_columns(params: tuple[str, ...] = PARAMETERS) -> list[str]:
 def column(param: str) -> str:
     if param == "thw_follow":
         return "kept_thw_follow_s"
+    if param == "v_free":
+        return "drive_v_free_share"
     return f"crit_{param}_{'m' if VARIABLES[param][3] == 'm' else 's'}"
 
 
@@ -338,6 +340,7 @@ _WORDS = {
     "thw_f": "wants out when its leader is {v:.2g} s ahead",
     "t_f": "wants out at a TTC to its leader of {v:.2g} s",
     "thw_follow": "follows at {v:.2g} s",
+    "v_free": "drives free at {v:.0%} of the limit",
 }
 
 

@@ -420,13 +420,12 @@ BEHAVIOUR_COLUMNS = ["driver_id", "parameter", "value", "lo", "hi", "se_log", "i
 def behaviour_long(behaviour: Behaviour) -> pd.DataFrame:
     """The `behaviour` table: one row per driver and parameter, the value and its 95 % interval in
     units, the standard error on the log scale, and how many presses (episodes) inform it."""
-    from clustering.behaviour import VARIABLES
+    from clustering.behaviour import DRIVE_PARAMETERS, VARIABLES
     rows = []
     for d in behaviour.values.index:
         for p in PARAMETERS:
             mu, se, n = behaviour.values.loc[d, p], behaviour.se.loc[d, p], int(behaviour.defined.loc[d, p])
-            unit = VARIABLES[p][3] if p in VARIABLES else "s"
-            meaning = VARIABLES[p][4] if p in VARIABLES else "time headway kept while following a leader"
+            unit, meaning = (VARIABLES[p][3], VARIABLES[p][4]) if p in VARIABLES else DRIVE_PARAMETERS[p]
             ok = np.isfinite(mu) and n > 0
             rows.append({"driver_id": d, "parameter": p, "value": float(np.exp(mu)) if ok else np.nan,
                          "lo": float(np.exp(mu - 1.96 * se)) if ok and np.isfinite(se) else np.nan,

@@ -26,7 +26,9 @@ def style_color(style: str, i: int = 0) -> str:
     return STYLE_COLORS.get(style, _EXTRA_COLORS[i % len(_EXTRA_COLORS)])
 
 
-_FEATURE_UNITS = {"s": "s", "m": "m", "mps": "m/s"}
+_FEATURE_UNITS = {"s": "s", "m": "m", "mps": "m/s", "share": "x limit"}
+#: Prefixes of the behaviour parameters' columns, and what each reads.
+_BEHAVIOUR_PREFIXES = {"crit_": "critical value", "kept_": "kept while following", "drive_": "when free"}
 
 
 #: Features that are a level over the whole drive, not a line read at a speed.
@@ -35,9 +37,9 @@ _DRIVE_LEVELS = {"thw_follow": "headway kept in steady following"}
 
 def _feature_label(col: str) -> str:
     # 't_f_at_80kph_s' -> 't_f at 80 km/h [s]', 'gap_f_at_80kph_m' -> 'gap_f at 80 km/h [m]'
-    if col.startswith(("crit_", "kept_")):  # behaviour parameters: 'crit_thw_nb_s' -> 'thw_nb critical value [s]'
+    if col.startswith(tuple(_BEHAVIOUR_PREFIXES)):  # 'crit_thw_nb_s' -> 'thw_nb critical value [s]'
         ind, unit = col.split("_", 1)[1].rsplit("_", 1)
-        what = "kept while following" if col.startswith("kept_") else "critical value"
+        what = _BEHAVIOUR_PREFIXES[col.split("_", 1)[0] + "_"]
         return f"{ind} {what} [{_FEATURE_UNITS.get(unit, unit)}]"
     ind, rest = col.rsplit("_at_", 1)
     kph, unit = rest.split("kph_")
@@ -50,12 +52,12 @@ def feature_columns(styles: pd.DataFrame) -> list[str]:
     """The clustering feature columns of a styles table (`<indicator>_at_<kph>kph_<unit>`), else its
     behaviour parameters (`crit_<indicator>_<unit>`, `kept_thw_follow_s`) with a value for some driver."""
     lines = [c for c in styles.columns if "_at_" in c and "kph_" in c]
-    return lines or [c for c in styles.columns if c.startswith(("crit_", "kept_")) and styles[c].notna().any()]
+    return lines or [c for c in styles.columns if c.startswith(tuple(_BEHAVIOUR_PREFIXES)) and styles[c].notna().any()]
 
 
 def feature_indicator(col: str) -> str:
     """'gap_f_at_80kph_m' -> 'gap_f'; 'crit_thw_nb_s' -> 'thw_nb'."""
-    if col.startswith(("crit_", "kept_")):
+    if col.startswith(tuple(_BEHAVIOUR_PREFIXES)):
         return col.split("_", 1)[1].rsplit("_", 1)[0]
     return col.rsplit("_at_", 1)[0]
 

@@ -25,6 +25,8 @@ from sklearn.metrics import silhouette_score
 from sklearn.mixture import GaussianMixture
 from threadpoolctl import threadpool_limits
 
+from clustering.behaviour import BOLD_PARAMETERS
+
 
 def style_names(k: int) -> list[str]:
     """Names of k clusters ordered from most defensive to most aggressive."""
@@ -193,7 +195,8 @@ class StyleClusterer:
         else:
             room = np.array([c.endswith(("_s", "_m")) for c in self.feature_names_in_])
         cols = room if room.any() else np.ones(len(room), dtype=bool)
-        return Z[:, cols].mean(axis=1)
+        sign = np.array([-1.0 if c in BOLD_PARAMETERS else 1.0 for c in self.feature_names_in_])
+        return (Z * sign)[:, cols].mean(axis=1)
 
     def defensiveness(self, features: pd.DataFrame) -> np.ndarray:
         """Mean standardised time and gap feature of each row (TTCs, headways, gaps in

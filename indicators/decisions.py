@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from indicators.acceptance import DERIVED_COLUMNS, add_acceptance
+from indicators.following import free_speed
 from indicators.settings import AnalysisSettings
 from indicators.stats import fit_reasons
 from laneprint.schemas import DECISIONS, Column, Schema
@@ -337,6 +338,7 @@ def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataF
         "label": np.where(e["k"].to_numpy() == 0, "change", "keep"),
         "speed_limit_kph": _float_or_nan(meta.get("speed_limit_kph")),
         "ego_v_mps": v_e,
+        "ego_v_free_mps": free_speed(ego["ego_v_mps"].to_numpy(dtype=float)),
         "ego_x_m": e["ego_x_m"].to_numpy(dtype=float),
         "ego_lane": e["ego_lane"].to_numpy(dtype=np.int64),
         "target_lane": p["target_lane"].to_numpy(dtype=np.int64),

@@ -68,6 +68,13 @@ def empty_following() -> pd.DataFrame:
                                            else object) for c in FOLLOWING.columns})
 
 
+def free_speed(v: np.ndarray) -> float:
+    """The speed a driver drives at when nothing holds it back: the `FREE_SPEED_QUANTILE`
+    quantile of its speeds over a recording [m/s] (NaN with no speed)."""
+    v = np.asarray(v, dtype=float)
+    return float(np.nanquantile(v, FREE_SPEED_QUANTILE)) if np.isfinite(v).any() else np.nan
+
+
 def steady_states(ego: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSettings) -> pd.DataFrame:
     """The ego's leader every `follow_step_s` of the drive and whether the state is steady
     following: columns t_s, ego_lane, ego_v_mps, f_gap_m, dv_f_mps, f_id, steady."""
@@ -80,7 +87,7 @@ def steady_states(ego: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSe
     v = e["ego_v_mps"].to_numpy(dtype=float)
     gap = cols["f_gap_m"]
     dv = v - cols["f_v_mps"]
-    free = float(np.nanquantile(v, FREE_SPEED_QUANTILE)) if np.isfinite(v).any() else np.nan
+    free = free_speed(v)
     with np.errstate(invalid="ignore"):
         steady = (np.isfinite(gap) & (gap > 0) & (v >= settings.follow_min_speed_mps)
                   & (np.abs(dv) <= settings.follow_dv_mps) & (v < settings.follow_below_free * free))

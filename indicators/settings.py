@@ -132,7 +132,7 @@ class AnalysisSettings:
     readings), 'auto' (the indicator set whose styles are best separated and most
     stable, the study's TTCs unless another is clearly better), 'reliable' (the two behaviour parameters in which the drivers differ most reliably),
     'heldout' (the reading whose styles best predict the drivers' held-out decisions and
-    following headways), 'behaviour' (the drivers' critical gaps and following headway),
+    following headways), 'behaviour' (the drivers' critical gaps, following headway and free speed),
     'behaviour:PARAMS' (e.g. behaviour:thw_nb+thw_follow), an indicator set of
     `INDICATOR_SETS` ('ttc': the study's t_f and t_nf, 'paper': its three, 'headway',
     'acceptance', 'all', 'following'), or a comma-separated list of indicators."""

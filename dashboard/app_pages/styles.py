@@ -36,7 +36,7 @@ def rerun_form(ws, current: dict) -> None:
                                      "sets and the behaviour readings; 'reliable': the two behaviour parameters in "
                                      "which the drivers differ most reliably; 'heldout': the reading whose styles best predict the drivers' "
                                      "held-out decisions and following headways; 'behaviour': the same among the "
-                                     "drivers' critical gaps and following headway only")
+                                     "drivers' critical gaps, following headway and free speed only")
         d1, d2, _ = st.columns([1, 2, 1])
         levels = list(dict.fromkeys([now.acceptance_fit, *FEATURE_FITS]))
         level = d1.selectbox("Gap / headway features", levels, key="acceptance_fit",

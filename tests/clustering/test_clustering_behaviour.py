@@ -135,3 +135,36 @@ def test_separated_reads_the_styles_by_the_parameter_that_separates_them(monkeyp
     assert sum(s.plausible for s in choice.scores) == min(C.PLAUSIBLE_READINGS, len(choice.scores))
     ranked = [s.silhouette * s.stability for s in choice.scores]
     assert ranked == sorted(ranked, reverse=True)
+
+
+def free_speed_decisions(free: dict[str, list[float]], limit_kph: float | None = 100.0) -> pd.DataFrame:
+    """One decision state per recording: the driver's free speed there [m/s] and the posted limit."""
+    return pd.DataFrame([{"driver_id": d, "recording_id": f"{d}-{i}", "session_id": f"{d}_S{i}",
+                          "decision_id": f"{d}-{i}:0", "label": "change", "speed_limit_kph": limit_kph,
+                          "ego_v_free_mps": v} for d, vs in free.items() for i, v in enumerate(vs)])
+
+
+def test_free_speed_is_the_median_share_of_the_limit_over_recordings():
+    limit = 100 / 3.6
+    d = free_speed_decisions({"calm": [0.9 * limit, 0.95 * limit, 0.92 * limit], "fast": [1.1 * limit, 1.2 * limit],
+                              "once": [1.0 * limit]})
+    value, se, recordings = B.free_speed_parameter(d, ["calm", "fast", "once", "absent"])
+    assert np.exp(value["calm"]) == pytest.approx(0.92) and np.exp(value["fast"]) == pytest.approx(np.sqrt(1.1 * 1.2))  # median of logs
+    assert 0 < se["calm"] < 0.1 and recordings.to_dict() == {"calm": 3, "fast": 2, "once": 1, "absent": 0}
+    assert np.isnan(value["once"]) and np.isnan(value["absent"])  # one recording says nothing of a spread
+
+
+def test_free_speed_needs_every_recordings_limit():
+    d = free_speed_decisions({"a": [25.0, 26.0], "b": [30.0, 31.0]}, limit_kph=None)
+    assert B.free_speed_parameter(d, ["a", "b"])[0].isna().all()
+    old = free_speed_decisions({"a": [25.0, 26.0]}).drop(columns="ego_v_free_mps")  # extracted before it existed
+    assert B.free_speed_parameter(old, ["a"])[0].isna().all()
+
+
+def test_faster_free_speed_reads_bolder():
+    from clustering.styles import StyleClusterer
+
+    X = pd.DataFrame({"v_free": np.log([0.9, 0.91, 1.0, 1.01, 1.1, 1.11])}, index=list("abcdef"))
+    clf = StyleClusterer(k=3, random_state=0, room=["v_free"]).fit(X)
+    names = dict(zip(X.index, (clf.names_[i] for i in clf.labels_)))
+    assert names["a"] == names["b"] == "Defensive" and names["e"] == names["f"] == "Aggressive"
