@@ -1,8 +1,9 @@
-"""The command-line and config-file reference pages of the documentation, generated from the app.
+"""The command-line, config-file and environment reference pages of the documentation, generated from the app.
 
-`python -m laneprint.app.reference_docs` writes `docs/reference/cli.md`, `docs/reference/config.md` and
-`docs/reference/results.md` (every `benchmarks/results/*.json`: the zoo's layout as its tables, any other as
-its figures listed and its lists of records as tables);
+`python -m laneprint.app.reference_docs` writes `docs/reference/cli.md`, `docs/reference/config.md`,
+`docs/reference/environment.md` (every `LANEPRINT_*` variable: the workspace's, the ingest limits' from
+`IngestLimits`, the dashboard's) and `docs/reference/results.md` (every `benchmarks/results/*.json`: the
+zoo's layout as its tables, any other as its figures listed and its lists of records as tables);
 a test fails when the committed pages and the app differ, so the reference cannot drift.
 """
 
@@ -16,7 +17,6 @@ import typer
 from laneprint.app.cli import app
 from laneprint.options import config_reference
 
-PAGES = ("cli.md", "config.md", "results.md")
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -55,6 +55,37 @@ def config_page() -> str:
             + config_reference())
 
 
+def environment_variables() -> dict[str, str]:
+    """Every `LANEPRINT_*` environment variable laneprint reads -> what it sets (Markdown)."""
+    from dataclasses import fields
+
+    from dashboard import context
+    from ingest.limits import IngestLimits, env_var
+    from laneprint.options import field_docs
+
+    out = {context.WORKSPACE_ENV: "the workspace of every command when `--workspace` is not given "
+                                  "(default `./workspace`); the dashboard's too"}
+    docs, limits = field_docs(IngestLimits), IngestLimits()
+    for f in fields(IngestLimits):
+        help_ = " ".join(docs.get(f.name, "").replace(f"({env_var(f.name)})", "").split()).replace(" .", ".")
+        out[env_var(f.name)] = f"`laneprint ingest` (and the dashboard's uploads): {help_} Default `{getattr(limits, f.name):g}`."
+    for name, what in ((context.EPISODES_ENV, "episodes pre-filled in the Training form"),
+                       (context.POLL_ENV, "seconds between refreshes of the live views while a job runs"),
+                       (context.MAX_UPLOAD_ENV, "largest upload the Data and Personalize pages accept [MB]")):
+        out[name] = f"the dashboard: {what} ([defaults](../dashboard.md#environment-variables))"
+    return out
+
+
+def environment_page() -> str:
+    rows = ["| `" + name + "` | " + what.replace("|", "\\|") + " |" for name, what in environment_variables().items()]
+    return "\n".join(["# Environment variables", "",
+                      "Generated from the code (`python -m laneprint.app.reference_docs`): every `LANEPRINT_*` "
+                      "variable laneprint reads. A limit of `laneprint ingest` that is not a positive number "
+                      "stops the command with a one-line message; a log beyond a limit is refused with its "
+                      "reason and the variable that raises it.", "",
+                      "| variable | what it sets |", "|---|---|", *rows, ""])
+
+
 def _table(rows: list[dict], cols: list[tuple[str, str, str]]) -> list[str]:
     """Markdown rows of `rows` (dicts): columns (key, header, format: '' plain, '%' percent, 'f' 2 decimals)."""
     def cell(v: object, fmt: str) -> str:
@@ -81,25 +112,82 @@ def _zoo_section(d: dict) -> list[str]:
     return out
 
 
-def results_page() -> str:
-    """Markdown: every result file of `benchmarks/results/`, with the command that reproduces it."""
+#: The results pages: (file, title, what it shows, the result files' names or name prefixes it holds).
+#: A result file no topic claims is shown on the results index itself.
+RESULT_TOPICS: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
+    ("results-styles.md", "Results: styles",
+     "How well `laneprint analyze` reads the drivers' styles: per world and method (the zoo of worlds, "
+     "one world held out), the consensus, SUMO studies and the analysis stage's own checks.",
+     ("analysis", "consensus", "sumo_styles")),
+    ("results-agents.md", "Results: agents",
+     "How well the agents decide like their drivers: per learner, held out by session, personalised "
+     "from a few decisions, against the classifiers' ceiling, in closed loop.",
+     ("learners", "generalization", "personalize", "ceiling", "function_class", "train", "sides", "closed_loop")),
+    ("results-speed.md", "Results: speed",
+     "How long the stages take: a fleet against one agent at a time, the local backend against Ray, "
+     "the analysis, the simulator.",
+     ("fleet", "parallel", "analyze_speed", "simulate")),
+    ("results-ingest.md", "Results: ingest and robustness",
+     "Ingest speed against the floor of reading the bytes, per format and stack; mutated logs (fuzz) and "
+     "commands killed at random moments (crash).",
+     ("ingest", "fuzz", "crash")),
+    ("results-dashboard.md", "Results: dashboard",
+     "Time to a drawn page of each dashboard page: the script run cold and warm, and in a browser.",
+     ("dashboard",)),
+)
+#: Every page `main` writes under docs/reference/.
+PAGES = ("cli.md", "config.md", "environment.md", "results.md", *(t[0] for t in RESULT_TOPICS))
+HEAD = ("Generated from `benchmarks/results/*.json` (`python -m laneprint.app.reference_docs`): each figure "
+        "with the command that reproduces it (run from the repository's root), and the commit, date and "
+        "machine that produced it. Development seeds chose the methods; judged seeds were generated after.")
+
+
+def topic_of(stem: str) -> str | None:
+    """The results page a result file (by its name) belongs on; None: the index."""
+    for page, _, _, names in RESULT_TOPICS:
+        if any(stem == n or stem.startswith(n + "_") for n in names):
+            return page
+    return None
+
+
+def _result_section(path: Path) -> list[str]:
     import json
 
-    out = ["# Results", "", "Generated from `benchmarks/results/*.json` (`python -m laneprint.app.reference_docs`): "
-           "each figure with the command, commit and date that produced it. Development seeds chose the "
-           "methods; judged seeds were generated after.", ""]
-    for path in sorted(RESULTS.glob("*.json")):
-        d = json.loads(path.read_text(encoding="utf-8"))
-        seeds = d.get("seeds")
-        seeds = ", ".join(map(str, seeds)) if isinstance(seeds, list) else seeds
-        out += [f"## {path.stem}", "", f"`python benchmarks/{d.get('command', '?')}`", "",
-                f"commit `{str(d.get('commit') or '?')[:10]}`, {str(d.get('date', '?'))[:10]}, "
-                f"{d.get('machine', '?')}" + (f"; seeds {seeds}" if seeds not in (None, "") else ""), ""]
-        if {"per_world", "leave_one_world_out", "reliability"} <= d.keys():
-            out += _zoo_section(d)
-        else:
-            out += _figures_section({k: v for k, v in d.items() if k not in RESULT_KEYS})
-    return "\n".join(out)
+    d = json.loads(path.read_text(encoding="utf-8"))
+    seeds = d.get("seeds")
+    seeds = ", ".join(map(str, seeds)) if isinstance(seeds, list) else seeds
+    out = [f"## {path.stem}", "", f"`python benchmarks/{d.get('command', '?')}`", "",
+           f"commit `{str(d.get('commit') or '?')[:10]}`, {str(d.get('date', '?'))[:10]}, "
+           f"{d.get('machine', '?')}" + (f"; seeds {seeds}" if seeds not in (None, "") else ""), ""]
+    if {"per_world", "leave_one_world_out", "reliability"} <= d.keys():
+        return out + _zoo_section(d)
+    return out + _figures_section({k: v for k, v in d.items() if k not in RESULT_KEYS})
+
+
+def results_pages() -> dict[str, str]:
+    """Markdown pages: the index (`results.md`: the pages, and any result file no topic claims) and one
+    page per topic of `RESULT_TOPICS`, every result file with the command that reproduces it."""
+    files = sorted(RESULTS.glob("*.json"))
+    pages: dict[str, list[str]] = {page: [f"# {title}", "", what, "", HEAD, ""]
+                                   for page, title, what, _ in RESULT_TOPICS}
+    index = ["# Results", "", HEAD, "", "| page | result files |", "|---|---|"]
+    for page, title, _, _ in RESULT_TOPICS:
+        held = [f.stem for f in files if topic_of(f.stem) == page]
+        index.append(f"| [{title.removeprefix('Results: ')}]({page}) | {', '.join(held) or '-'} |")
+    index.append("")
+    for path in files:
+        topic = topic_of(path.stem)
+        (pages[topic] if topic else index).extend(_result_section(path))
+    for page, _, _, names in RESULT_TOPICS:
+        if len(pages[page]) == 6:
+            pages[page] += ["No result file yet; these benchmarks write one: " + ", ".join(
+                f"`python benchmarks/{n}.py`" for n in names if (ROOT / "benchmarks" / f"{n}.py").exists()) + ".", ""]
+    return {"results.md": "\n".join(index), **{page: "\n".join(lines) for page, lines in pages.items()}}
+
+
+def results_page() -> str:
+    """Every result file of `benchmarks/results/`, the index and the topic pages one after the other."""
+    return "\n".join(results_pages().values())
 
 
 #: What every result file says besides its figures (`benchmarks/results_file.py`), shown in each section's head.
@@ -145,7 +233,9 @@ def _figures_section(figures: dict) -> list[str]:
 
 
 def pages() -> dict[str, str]:
-    return {"cli.md": cli_reference() + "\n", "config.md": config_page() + "\n", "results.md": results_page() + "\n"}
+    return {"cli.md": cli_reference() + "\n", "config.md": config_page() + "\n",
+            "environment.md": environment_page() + "\n",
+            **{name: text + "\n" for name, text in results_pages().items()}}
 
 
 def main(out: Path = ROOT / "docs" / "reference") -> None:
