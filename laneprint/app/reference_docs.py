@@ -52,7 +52,51 @@ def config_page() -> str:
             "value resolves as: the default, then the file, then the command line. One file serves every "
             "command; each reads the tables it knows.\n\n```toml\n[analysis]\nfeatures = \"consensus\"\n\n"
             "[dqn]\nlearning_rate = 0.002\nnum_envs = 8\n\n[train]\nlearner = \"dqn\"\n```\n\n"
-            + config_reference())
+            + config_reference() + "\n" + command_tables())
+
+
+def command_keys(cmd: typer.core.click.Command) -> list[tuple[str, typer.core.click.Parameter]]:  # type: ignore[name-defined]
+    """(key, parameter) of each key a command's own `[command]` table takes: its options by their first long
+    flag (`--run-id` -> `run_id`) and its arguments by name; the settings' options are their tables' keys."""
+    out = []
+    for p in cmd.params:
+        if "__" in p.name or p.name in ("config", "help"):
+            continue
+        longs = [o for o in p.opts if o.startswith("--")]
+        out.append((longs[0][2:].replace("-", "_") if p.param_type_name == "option" and longs else p.name, p))
+    return out
+
+
+def command_tables() -> str:
+    """Markdown: each command's `[command]` table, every key (those `--help` shows and the config-only ones)."""
+    group = typer.main.get_command(app)
+    out = ["## Command tables", "",
+           "A table named after a command sets that command's own options, by the names below (and, as "
+           "`[train] episodes`, a setting the command shows in `--help`). Keys marked *config only* are not "
+           "shown in `--help`; on the command line they are still taken by their flag.", ""]
+    for name, cmd in group.commands.items():  # type: ignore[attr-defined]
+        keys = command_keys(cmd)
+        if not keys:
+            continue
+        out += [f"### [{name}]", "", "| key | flag | default | what it sets |", "|---|---|---|---|"]
+        for key, p in keys:
+            flag = "argument" if p.param_type_name == "argument" else ", ".join(f"`{o}`" for o in [*p.opts, *p.secondary_opts])
+            default = p.default if p.default is not None and not callable(p.default) else None
+            help_ = " ".join((getattr(p, "help", None) or "").split()).replace("|", "\\|")
+            hidden = "*config only*: " if getattr(p, "hidden", False) else ""
+            out.append(f"| `{key}` | {flag} | `{_default(default)}` | {hidden}{help_} |")
+        out.append("")
+    return "\n".join(out)
+
+
+def _default(value: object) -> str:
+    if value is None:
+        return "none"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, (list, tuple)):
+        return ", ".join(map(str, value)) or "none"
+    return str(value)
 
 
 def environment_variables() -> dict[str, str]:

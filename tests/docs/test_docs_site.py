@@ -208,3 +208,26 @@ def test_a_result_file_lands_on_its_topic_page(tmp_path, monkeypatch):
         "results-speed.md"]
     assert "## ingest_stacks" in pages["results-ingest.md"] and "## fleet" not in pages["results.md"]
     assert "`python benchmarks/dashboard.py`" in pages["results-dashboard.md"]  # no file yet: who writes one
+
+
+def test_every_config_key_is_documented():
+    """Every key a `--config` file takes: each settings table's fields and each command table's options."""
+    import dataclasses
+    import typing
+
+    import typer
+
+    from laneprint.app.cli import app
+    from laneprint.app.reference_docs import command_keys
+    from laneprint.options import SECTIONS
+
+    page = (ROOT / "docs" / "reference" / "config.md").read_text(encoding="utf-8")
+    tables = dict(re.findall(r"^## \[(\w+)\]\n(.*?)(?=^##+ |\Z)", page, re.S | re.M))
+    missing = [f"[{t}] {f.name}" for t, cls in SECTIONS.items() for f in dataclasses.fields(cls)
+               if f.init and not dataclasses.is_dataclass(typing.get_type_hints(cls)[f.name])  # a nested table
+               and f"| `{f.name}` |" not in tables.get(t, "")]
+    for name, cmd in typer.main.get_command(app).commands.items():  # type: ignore[attr-defined]
+        keys = [key for key, _ in command_keys(cmd)]
+        section = re.search(rf"^### \[{name}\]\n(.*?)(?=^##+ |\Z)", page, re.S | re.M)
+        missing += [f"[{name}] {k}" for k in keys if not section or f"| `{k}` |" not in section.group(1)]
+    assert tables and not missing, missing
