@@ -150,7 +150,8 @@ def test_the_guides_mappings_load_and_are_the_ones_the_stack_tests_ingest(tmp_pa
 #: Terms the commands use that the glossary must define (its bold entries).
 GLOSSARY_TERMS = ("family", "dwell", "pace", "section", "held-back", "approach", "not-yet state", "typical driver",
                   "decision", "style", "reference lines", "greedy", "in-sample", "held out", "fleet", "workspace",
-                  "learner", "formulation", "reading", "config file")
+                  "learner", "formulation", "reading", "config file", "lag", "undo check", "confidence",
+                  "imitation classifier", "balanced accuracy")
 
 
 def test_the_glossary_defines_every_term_the_commands_use():
