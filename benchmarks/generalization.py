@@ -142,7 +142,7 @@ def held_out_rows(results: list[dict]) -> list[dict]:
     return rows
 
 
-def in_sample_shipped(ws: Path, args: argparse.Namespace, rows: list[dict] | None = None) -> Checks:
+def in_sample_shipped(ws: Path, args: argparse.Namespace, table: list[dict] | None = None) -> Checks:
     print("\n## shipped study: in-sample (`laneprint train --style S`, typical driver)")
     print("| style | recall (study) | balanced acc. agent / greedy / imitation | timing MAE agent / greedy [s] |")
     print("|---|---|---|---|")
@@ -155,8 +155,8 @@ def in_sample_shipped(ws: Path, args: argparse.Namespace, rows: list[dict] | Non
         m = rows.get("imitation", {}).get("balanced_accuracy")
         print(f"| {style} | {pct(a['recall'])} ({pct(STUDY_RECALL[style])}) | {pct(a['balanced_accuracy'])} / "
               f"{pct(g['balanced_accuracy'])} / {pct(m)} | {a['timing_mae_s']:.2f} / {g['timing_mae_s']:.2f} |")
-        if rows is not None:
-            rows.append({"style": style, "recall_agent": a["recall"], "recall_study": STUDY_RECALL[style],
+        if table is not None:
+            table.append({"style": style, "recall_agent": a["recall"], "recall_study": STUDY_RECALL[style],
                          "agent": a["balanced_accuracy"], "greedy": g["balanced_accuracy"], "imitation": m,
                          "timing_mae_agent_s": a["timing_mae_s"], "timing_mae_greedy_s": g["timing_mae_s"]})
         checks += [(f"{style}: in-sample recall >= the study's", a["recall"] >= STUDY_RECALL[style] - 1e-9),
