@@ -68,12 +68,12 @@ def command_keys(cmd: typer.core.click.Command) -> list[tuple[str, typer.core.cl
 
 
 def command_tables() -> str:
-    """Markdown: each command's `[command]` table, every key (those `--help` shows and the config-only ones)."""
+    """Markdown: each command's `[command]` table, every key (those `--help` shows and the ones it leaves out)."""
     group = typer.main.get_command(app)
     out = ["## Command tables", "",
            "A table named after a command sets that command's own options, by the names below (and, as "
-           "`[train] episodes`, a setting the command shows in `--help`). Keys marked *config only* are not "
-           "shown in `--help`; on the command line they are still taken by their flag.", ""]
+           "`[train] episodes`, a setting the command shows in `--help`). Keys marked *not in --help* are "
+           "research settings `--help` leaves out; the command line still takes them by their flag.", ""]
     for name, cmd in group.commands.items():  # type: ignore[attr-defined]
         keys = command_keys(cmd)
         if not keys:
@@ -83,7 +83,7 @@ def command_tables() -> str:
             flag = "argument" if p.param_type_name == "argument" else ", ".join(f"`{o}`" for o in [*p.opts, *p.secondary_opts])
             default = p.default if p.default is not None and not callable(p.default) else None
             help_ = " ".join((getattr(p, "help", None) or "").split()).replace("|", "\\|")
-            hidden = "*config only*: " if getattr(p, "hidden", False) else ""
+            hidden = "*not in --help*: " if getattr(p, "hidden", False) else ""
             out.append(f"| `{key}` | {flag} | `{_default(default)}` | {hidden}{help_} |")
         out.append("")
     return "\n".join(out)
