@@ -21,6 +21,9 @@ Prints:
    (`benchmarks/zoo.py`): ARI per world and method, the leave-one-world-out table and the
    reliability of the stated confidence, written to `benchmarks/results/analysis_zoo.json`.
 
+Sections 1-5 are also written to `benchmarks/results/analysis.json` (`--out NAME`) with the command,
+commit, date and machine.
+
 Run: .venv/bin/python benchmarks/analysis.py [--seeds 20] [--workspace /tmp/ws] [--messy 12]
      [--study /tmp/s200 /tmp/ws200 ...] [--seeds 0 --repeats 0: only what is asked]
 """
@@ -49,6 +52,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # the checkout: the test tools (tests.support)
 
 from tests.support.synthetic_decisions import make_decision_table  # noqa: E402
+from results_file import write_result  # noqa: E402  (beside this file)
 
 
 def coverage(fits: pd.DataFrame, drivers: list[dict]) -> list[dict]:
@@ -78,7 +82,7 @@ def ari(styles: pd.DataFrame, drivers: list[dict]) -> float:
     return float(adjusted_rand_score([truth[d] for d in st["driver_id"]], st["style"]))
 
 
-def shipped(workspace: Path) -> None:
+def shipped(workspace: Path) -> dict:
     gt = json.loads((ROOT / "sample_logs" / "ground_truth.json").read_text())
     ws = Workspace(workspace)
     t0 = time.perf_counter()
@@ -91,14 +95,19 @@ def shipped(workspace: Path) -> None:
     named = dict(zip(styles["driver_id"], styles["style"]))
     truth = {d["driver_id"]: d["style"] for d in gt["drivers"]}
     print(f"style names equal to the true names: {sum(named.get(d) == s for d, s in truth.items())}/{len(truth)}")
-    for r in coverage(fits, gt["drivers"]):
+    cov = coverage(fits, gt["drivers"])
+    for r in cov:
         print(f"  {r['style']:<10} {r['driver_id']} {r['indicator']:<5} "
               f"A {r['A']:.3f} [{r['A_lo']:.3f}, {r['A_hi']:.3f}] true {r['A_true']:.2f} {'in' if r['A_in'] else 'OUT'}   "
               f"b {r['b']:.2f} [{r['b_lo']:.2f}, {r['b_hi']:.2f}] true {r['b_true']:.2f} {'in' if r['b_in'] else 'OUT'}"
               f"   n={r['n']}")
+    return {"analyze_s": dt, "ari": ari(styles, gt["drivers"]),
+            "names_right": sum(named.get(d) == s for d, s in truth.items()), "drivers": len(truth),
+            "typical_lines": [{k: r[k] for k in ("style", "driver_id", "indicator", "A", "A_true", "A_in", "b",
+                                                 "b_true", "b_in", "n")} for r in cov]}
 
 
-def seeds(n_seeds: int) -> None:
+def seeds(n_seeds: int) -> dict:
     print(f"== {n_seeds} simulator seeds (default study settings)")
     aris, cov_rows, extract_times, samples, mism = [], [], [], [], 0
     n_checked = 0
@@ -136,10 +145,16 @@ def seeds(n_seeds: int) -> None:
     print(f"decision extraction: median {np.median(ms):.1f} ms per recording "
           f"(median {int(np.median(samples))} samples at 50 Hz, ~12 presses), "
           f"{np.sum(samples) / np.sum(extract_times) / 1e3:.0f} k samples/s")
+    return {"seeds": n_seeds, "mean_ari": float(np.mean(aris)), "min_ari": float(np.min(aris)),
+            "seeds_ari_1": sum(a == 1.0 for a in aris), "indicators_equal": n_checked - mism, "indicators_checked": n_checked,
+            "ci_coverage_A": float(cov["A_in"].mean()), "ci_coverage_b": float(cov["b_in"].mean()),
+            "extraction_median_ms_per_recording": float(np.median(ms)),
+            "extraction_k_samples_per_s": float(np.sum(samples) / np.sum(extract_times) / 1e3)}
 
 
-def timing(repeats: int) -> None:
+def timing(repeats: int) -> list[dict]:
     print("== analyze_tables timing (decision tables generated in memory, 10 keep states per press)")
+    rows = []
     for n_drivers in (10, 1000):
         df, truth = make_decision_table(n_drivers, 50, seed=0)
         times = []
@@ -150,13 +165,16 @@ def timing(repeats: int) -> None:
         a = adjusted_rand_score([truth[d] for d in out["styles"]["driver_id"]], out["styles"]["style"])
         print(f"  {n_drivers:5d} drivers x 50 decisions ({len(df):,} rows): median {statistics.median(times):.2f} s "
               f"over {len(times)} run(s), ARI {a:.3f}")
+        rows.append({"drivers": n_drivers, "decisions_per_driver": 50, "rows": len(df),
+                     "median_s": statistics.median(times), "runs": len(times), "ari": float(a)})
+    return rows
 
 
 MESSY = dict(share_slowed=0.25, share_no_target_leader=0.45, noise_ttc_s=0.8, noise_dv_mps=2.0,
              sample_rate_hz=10.0, slowed_creep_mps=(0.5, 3.0))
 
 
-def messy(n_seeds: int) -> None:
+def messy(n_seeds: int) -> list[dict]:
     """Harder studies (more decisions behind slow leaders with TTCs of tens of seconds, no
     target-lane leader in 45 %, twice the noise, 10 Hz): ARI per feature-line variant."""
     from dataclasses import replace
@@ -183,6 +201,8 @@ def messy(n_seeds: int) -> None:
             res[name].append(ari(analyze_tables(dec, s)["styles"], study.ground_truth["drivers"]))
     for name, v in res.items():
         print(f"  {name:<32} mean ARI {np.mean(v):.3f}, ARI = 1 in {sum(a == 1.0 for a in v)}/{len(v)}")
+    return [{"variant": name, "mean_ari": float(np.mean(v)), "seeds_ari_1": sum(a == 1.0 for a in v), "seeds": len(v)}
+            for name, v in res.items()]
 
 
 FEATURE_SPECS = ("auto", "ttc", "paper", "headway", "acceptance", "all", "following")
@@ -211,7 +231,7 @@ def study_aris(study: Path, workspace: Path, specs: tuple[str, ...] = FEATURE_SP
     return row
 
 
-def studies(pairs: list[tuple[str, str]], specs: tuple[str, ...] = FEATURE_SPECS) -> None:
+def studies(pairs: list[tuple[str, str]], specs: tuple[str, ...] = FEATURE_SPECS) -> list[dict]:
     print(f"== {len(pairs)} simulated studies: ARI per feature set (--features)")
     rows = []
     for study, workspace in pairs:
@@ -223,6 +243,7 @@ def studies(pairs: list[tuple[str, str]], specs: tuple[str, ...] = FEATURE_SPECS
     for s in specs:
         v = [float(r[s]) for r in rows]
         print(f"  {s:<11} mean ARI {np.mean(v):.3f}, min {np.min(v):.3f}, ARI = 1 in {sum(a == 1.0 for a in v)}/{len(v)}")
+    return rows
 
 
 def main() -> None:
@@ -242,6 +263,7 @@ def main() -> None:
     ap.add_argument("--zoo-out", default="analysis_zoo.json", help="file name under benchmarks/results/")
     ap.add_argument("--zoo-cached-only", action="store_true",
                     help="judge only the studies already generated under --zoo-root (generate none)")
+    ap.add_argument("--out", default="analysis", help="result file name under benchmarks/results/ (sections 1-5)")
     args = ap.parse_args()
     if args.zoo:
         from zoo import WORLDS, run as run_zoo
@@ -249,16 +271,19 @@ def main() -> None:
         run_zoo(worlds, args.zoo_seeds, args.zoo_root, tuple(args.zoo_methods.split(",")), args.zoo_out,
                 args.zoo_cached_only)
         return
+    figures: dict = {}
     if args.workspace:
-        shipped(args.workspace)
+        figures["shipped"] = shipped(args.workspace)
     if args.study:
-        studies(args.study, tuple(args.specs.split(",")))
+        figures["studies"] = studies(args.study, tuple(args.specs.split(",")))
     if args.repeats:
-        timing(args.repeats)
+        figures["timing"] = timing(args.repeats)
     if args.seeds:
-        seeds(args.seeds)
+        figures["simulator_seeds"] = seeds(args.seeds)
     if args.messy:
-        messy(args.messy)
+        figures["messy"] = messy(args.messy)
+    if figures:
+        write_result(args.out, figures)
 
 
 if __name__ == "__main__":

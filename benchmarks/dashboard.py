@@ -30,6 +30,9 @@ pages: what opening any Streamlit + Plotly page costs on this machine.
 `--keep DIR` keeps the workspace for the next run; `--baseline DIR|REV` times the code in
 DIR, or of a git revision (exported with `git archive`), too, its pages visited in turn with this
 checkout's. A small study: `--drivers 12 --fleet 0`.
+
+The medians are written to `benchmarks/results/dashboard.json` (`--out NAME`) with the command, commit,
+date and machine.
 """
 
 from __future__ import annotations
@@ -41,6 +44,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from results_file import write_result  # beside this file: imported before the folder leaves the path
 
 # this file is named like the package it measures: keep its folder off the import path
 sys.path = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
@@ -339,6 +344,7 @@ def main() -> None:
                          "visited in turn with this checkout's: before and after in one run")
     ap.add_argument("--pages", default=",".join(PAGE_NAMES),
                     help="the pages to time, comma-separated (default: all: " + ",".join(PAGE_NAMES) + ")")
+    ap.add_argument("--out", default="dashboard", help="result file name under benchmarks/results/")
     ap.add_argument("--code", type=Path, default=None, help=argparse.SUPPRESS)  # the pages timed (--baseline)
     ap.add_argument("--script-json", action="store_true", help=argparse.SUPPRESS)  # script times as JSON only
     args = ap.parse_args()
@@ -392,10 +398,21 @@ def main() -> None:
             print("\nthis checkout / baseline, browser nav medians: " + ", ".join(
                 f"{p} {browsers[0][p][2]:.2f}/{browsers[1][p][2]:.2f} (x{browsers[1][p][2] / browsers[0][p][2]:.2f})"
                 for p in names) + f", curves {browsers[0]['curves'][0]:.2f}/{browsers[1]['curves'][0]:.2f}")
+        rows = [{"code": label, "page": page, "script_cold_s": script[page][0], "script_warm_s": script[page][1],
+                 **({"browser_cold_s": browser[page][0], "browser_warm_s": browser[page][1],
+                     "browser_nav_s": browser[page][2], "nav_from": NAV_FROM[page]} if browser else {})}
+                for label, script, browser in zip(labels, scripts, browsers) for page in names]
+        figures = {"drivers": args.drivers, "decisions": args.decisions, "fleet": args.fleet, "repeat": args.repeat,
+                   "pages": rows}
+        if browsers[0]:
+            figures["results_curves_s"] = {label: b["curves"][0] for label, b in zip(labels, browsers)}
         if floor:
+            figures["floor_s"] = {"median": statistics.median(floor), "min": min(floor), "max": max(floor),
+                                  "visits": len(floor)}
             print(f"\nfloor: a one-chart Streamlit page (title + a 3-point Plotly chart) opened in a new tab of a "
                   f"new browser context, visited in turn with the pages: median {statistics.median(floor):.3f} s "
                   f"(min {min(floor):.3f}, max {max(floor):.3f}, {len(floor)} visits)")
+        write_result(args.out, figures)
 
 
 if __name__ == "__main__":

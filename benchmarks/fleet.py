@@ -18,7 +18,8 @@ and the vector steps a whole run takes (measured in 2.), and printed as projecte
     python benchmarks/fleet.py --drivers 10 --sample 2 --skip-ray --scaling 5,10   # a quick look
 
 Prints wall times, agents per minute, env steps per second, ratios, and per agent
-whether it meets its target (recall >= 95 %, balanced accuracy >= greedy + 5 points).
+whether it meets its target (recall >= 95 %, balanced accuracy >= greedy + 5 points);
+writes them to `benchmarks/results/fleet.json` (`--out NAME`) with the command, commit, date and machine.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from results_file import write_result  # beside this file
 from laneprint.workspace import Workspace
 from rl.problem.env import formulation_config
 from rl.fleet.batch import FleetMember, FleetTrainer
@@ -162,6 +164,7 @@ def main() -> None:
     ap.add_argument("--skip-ray", action="store_true")
     ap.add_argument("--scaling", default="10,100,1000", help="fleet sizes for the growth figures ('' = skip)")
     ap.add_argument("--scaling-steps", type=int, default=10, help="vector steps timed per size (one shard per core)")
+    ap.add_argument("--out", default="fleet", help="result file name under benchmarks/results/")
     args = ap.parse_args()
     cores = os.cpu_count() or 1
     ws = prepare(args.workdir, args.drivers)
@@ -186,15 +189,21 @@ def main() -> None:
     steps_per_run = vector_steps_per_run(ws, local["runs"])
     local_table = local["table"]
 
+    same = None
     if not args.skip_ray:
         fresh_runs(ws)
         ray = fleet(ws, "ray", 1)
         rows.append(("fleet on local Ray", ray["wall_s"], None, ray["env_steps"], f"{cores} workers x 1 thread"))
         print(f"fleet ray: {n} agents in {ray['wall_s']:.0f} s", flush=True)
-        same = np.allclose(ray["table"]["agent_ba"].to_numpy(float), local_table["agent_ba"].to_numpy(float),
-                           atol=1e-9, equal_nan=True)
+        same = bool(np.allclose(ray["table"]["agent_ba"].to_numpy(float), local_table["agent_ba"].to_numpy(float),
+                                atol=1e-9, equal_nan=True))
         print(f"ray agents' balanced accuracy equal to the local fleet's: {same}")
 
+    figures: dict = {"drivers": n, "sample": len(sample), "cores": cores, "methods": [
+        {"method": name, "wall_s": wall, "agents_per_min": 60 * n / wall, "env_steps_per_s": steps / wall,
+         "speed_up": rows[0][1] / wall, "cpu_s": cpu, "cpu_ratio": rows[0][2] / cpu if cpu else None,
+         "projected": name.startswith("one by one"), "note": note}
+        for name, wall, cpu, steps, note in rows], "ray_balanced_accuracy_equal_to_local": same}
     base = rows[0][1]
     # CPU seconds of this process (all its threads): the work done, whatever else loads the machine
     # (Ray's workers are other processes: not counted)
@@ -214,6 +223,12 @@ def main() -> None:
     diff = (fleet_ba.loc[by_driver.index, "agent_ba"] - by_driver["agent_ba"]).abs()
     print(f"same drivers alone vs in the fleet: max |bal. acc. difference| {diff.max():.4f} "
           f"(one by one met the target {int(by_driver['ok'].sum())} of {len(by_driver)})")
+    figures.update({
+        "fleet_agents_meeting_target": met, "fleet_agents": len(local_table),
+        "max_abs_balanced_accuracy_difference_alone_vs_fleet": float(diff.max()),
+        "one_by_one_meeting_target": int(by_driver["ok"].sum()),
+        "median_balanced_accuracy": {w: float(statistics.median(local_table[f"{w}_ba"]))
+                                     for w in ("agent", "greedy", "imitation")}})
     print(f"median agent bal. acc. {statistics.median(local_table['agent_ba']):.3f}, greedy "
           f"{statistics.median(local_table['greedy_ba']):.3f}, imitation {statistics.median(local_table['imitation_ba']):.3f}")
 
@@ -222,10 +237,15 @@ def main() -> None:
         print(f"\nfleet growth ({args.scaling_steps} vector steps after learning starts, {args.threads or cores} shards "
               f"of one thread; a whole run is ~{steps_per_run:.0f} vector steps):")
         grow = scaling(ws, sizes, args.scaling_steps, args.threads or cores)
+        figures["growth"] = [{"agents": g["agents"], "s_per_vector_step": g["s_per_vector_step"],
+                              "projected_min_per_run": g["s_per_vector_step"] * steps_per_run / 60} for g in grow]
+        figures["vector_steps_per_run"] = steps_per_run
         for g in grow:
             print(f"  {g['agents']:5d} agents: projected {g['s_per_vector_step'] * steps_per_run / 60:.1f} min "
                   f"for a whole run (training only, projected)")
     print(f"\nload average at the end {' '.join(f'{x:.1f}' for x in os.getloadavg())} (1/5/15 min)")
+    figures["load_average_at_end"] = [round(x, 2) for x in os.getloadavg()]
+    write_result(args.out, figures)
 
 
 if __name__ == "__main__":

@@ -12,15 +12,17 @@ synthetic study), through the real command line:
 3. on the shipped study, the in-sample figures of `laneprint train --style S`
    (recall at the typical driver's presses vs the study's, balanced accuracy vs greedy).
 
-Prints a table per study and whether each acceptance line of issue 9 holds; with
-several SUMO seeds (never judge on one), a last table of every seed's margins and
-which checks failed.
+Prints a table per study and whether each acceptance line holds (agent >= greedy + 10
+points and >= imitation - 5, timing error below greedy's, 95 % of decisions scored, styles
+ARI >= 0.9); with several SUMO seeds (never judge on one), a last table of every seed's
+margins and which checks failed. The figures and checks are written to
+`benchmarks/results/generalization.json` (`--out NAME`) with the command, commit, date and machine.
 
 Run: python benchmarks/generalization.py [--sumo-seed 7 [8 ...]] [--jobs 2] [--drivers 9]
      [--episodes 10000] [--learner auto|dqn|trees] [--folds 4] [--seed 0] [--workdir /tmp/lp-generalization]
      [--skip-shipped] [--skip-sumo]
 
-Issue 19's bar per style and direction from stored `crossval --all --json` documents
+The bar per style and direction from stored `crossval --all --json` documents
 (agent >= greedy + 10 points and >= imitation - 5), one column per document:
 
      python benchmarks/generalization.py --direction-table A.json [B.json ...] [--labels a b ...]
@@ -38,6 +40,8 @@ from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from pathlib import Path
 from typing import TextIO
+
+from results_file import write_result  # beside this file
 
 from sklearn.metrics import adjusted_rand_score
 
@@ -123,7 +127,22 @@ def study(name: str, logs: Path, ws: Path, args: argparse.Namespace,
     return checks, res["results"], score
 
 
-def in_sample_shipped(ws: Path, args: argparse.Namespace) -> Checks:
+def held_out_rows(results: list[dict]) -> list[dict]:
+    """Per style: the held-out balanced accuracy of agent / greedy / imitation, the agent's interval,
+    timing errors, recall and the share scored (a crossval --all document's `results`)."""
+    rows = []
+    for res in results:
+        who = {r["who"]: r for r in res["summary"]}
+        a, g, m = who["agent"], who["greedy"], who["imitation"]
+        rows.append({"style": res["target"]["name"], "agent": a["balanced_accuracy"],
+                     "agent_lo": a["balanced_accuracy_ci"][0], "agent_hi": a["balanced_accuracy_ci"][1],
+                     "greedy": g["balanced_accuracy"], "imitation": m["balanced_accuracy"],
+                     "timing_mae_agent_s": a["timing_mae_s"], "timing_mae_greedy_s": g["timing_mae_s"],
+                     "recall_agent": a["recall"], "scored_share": res["scored_share"]})
+    return rows
+
+
+def in_sample_shipped(ws: Path, args: argparse.Namespace, table: list[dict] | None = None) -> Checks:
     print("\n## shipped study: in-sample (`laneprint train --style S`, typical driver)")
     print("| style | recall (study) | balanced acc. agent / greedy / imitation | timing MAE agent / greedy [s] |")
     print("|---|---|---|---|")
@@ -136,6 +155,10 @@ def in_sample_shipped(ws: Path, args: argparse.Namespace) -> Checks:
         m = rows.get("imitation", {}).get("balanced_accuracy")
         print(f"| {style} | {pct(a['recall'])} ({pct(STUDY_RECALL[style])}) | {pct(a['balanced_accuracy'])} / "
               f"{pct(g['balanced_accuracy'])} / {pct(m)} | {a['timing_mae_s']:.2f} / {g['timing_mae_s']:.2f} |")
+        if table is not None:
+            table.append({"style": style, "recall_agent": a["recall"], "recall_study": STUDY_RECALL[style],
+                         "agent": a["balanced_accuracy"], "greedy": g["balanced_accuracy"], "imitation": m,
+                         "timing_mae_agent_s": a["timing_mae_s"], "timing_mae_greedy_s": g["timing_mae_s"]})
         checks += [(f"{style}: in-sample recall >= the study's", a["recall"] >= STUDY_RECALL[style] - 1e-9),
                    (f"{style}: in-sample >= greedy + 5", a["balanced_accuracy"] >= g["balanced_accuracy"] + 0.05)]
     return checks
@@ -210,7 +233,7 @@ def direction_table(paths: list[Path], labels: list[str] | None) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--direction-table", type=Path, nargs="+", help="crossval --all --json documents: issue 19's table")
+    ap.add_argument("--direction-table", type=Path, nargs="+", help="crossval --all --json documents: the bar per style and direction")
     ap.add_argument("--labels", nargs="+", help="--direction-table: a column name per document")
     ap.add_argument("--sumo-seed", type=int, nargs="+", default=[7],
                     help="seed(s) of the SUMO studies (ones nobody tuned on)")
@@ -224,6 +247,7 @@ def main() -> None:
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/lp-generalization"))
     ap.add_argument("--skip-sumo", action="store_true")
     ap.add_argument("--skip-shipped", action="store_true")
+    ap.add_argument("--out", default="generalization", help="result file name under benchmarks/results/")
     args = ap.parse_args()
     if args.direction_table:
         direction_table(args.direction_table, args.labels)
@@ -231,6 +255,8 @@ def main() -> None:
     args.workdir.mkdir(parents=True, exist_ok=True)
     checks: dict[str, Checks] = {}
     runs: dict[int, tuple[Checks, list[dict], float | None]] = {}
+    held_out: list[dict] = []
+    in_sample: list[dict] = []
     if not args.skip_sumo:
         with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
             for seed, (text, c, results, score) in zip(args.sumo_seed,
@@ -238,10 +264,12 @@ def main() -> None:
                 print(text, end="", flush=True)
                 checks[f"SUMO study, seed {seed}"] = c
                 runs[seed] = (c, results, score)
+                held_out += [{"study": f"SUMO seed {seed}", "styles_ari": score, **r} for r in held_out_rows(results)]
     if not args.skip_shipped:
         ws = args.workdir / "ws_shipped"
-        checks["shipped study"], _, _ = study("shipped study", ROOT / "sample_logs", ws, args)
-        checks["shipped in-sample"] = in_sample_shipped(ws, args)
+        checks["shipped study"], results, score = study("shipped study", ROOT / "sample_logs", ws, args)
+        held_out += [{"study": "shipped", "styles_ari": score, **r} for r in held_out_rows(results)]
+        checks["shipped in-sample"] = in_sample_shipped(ws, args, in_sample)
     print("\n## acceptance")
     for name, c in checks.items():
         failed = [n for n, ok in c if not ok]
@@ -249,6 +277,12 @@ def main() -> None:
               + (f" (not: {'; '.join(failed)})" if failed else ""))
     if len(runs) > 1:
         seeds_table(runs)
+    write_result(args.out, {
+        "sumo_seeds": [] if args.skip_sumo else args.sumo_seed, "drivers": args.drivers, "folds": args.folds,
+        "seed": args.seed, "episodes": args.episodes or "train's", "learner": args.learner or "auto",
+        "held_out": held_out, "in_sample_shipped": in_sample,
+        "checks": [{"study": name, "held": sum(ok for _, ok in c), "of": len(c),
+                    "failed": "; ".join(n for n, ok in c if not ok)} for name, c in checks.items()]})
 
 
 if __name__ == "__main__":

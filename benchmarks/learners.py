@@ -25,16 +25,16 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 from statistics import median
 from typing import Any
+
+from results_file import write_result  # beside this file
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -110,16 +110,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                  for lr in args.learners}
             ratio = round(m["auto"] / m["dqn"], 2) if "auto" in m and "dqn" in m else None
             medians.append({"code": code_name, "command": command, "median_s": m, "auto_over_dqn": ratio})
-    result = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]), "commit": _commit(ROOT),
-              **({"base_commit": _commit(codes["base"])} if "base" in codes else {}),
-              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-              "machine": f"{platform.node()} {platform.machine()} {os.cpu_count()} cores",
+    result = {**({"base_commit": _commit(codes["base"])} if "base" in codes else {}),
               "load_average_at_end": [round(x, 2) for x in os.getloadavg()],
               "style": args.style, "seed": args.seed, "episodes": args.episodes or "the study's", "folds": args.folds or "crossval's default",
               "repeats": args.repeats, "medians": medians, "runs": rows}
-    out = RESULTS / args.out
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=1) + "\n")
+    out = write_result(args.out, result)
     partial.unlink(missing_ok=True)
     print("\nmedian wall time [s] per learner; auto / dqn")
     for m in medians:

@@ -1,4 +1,4 @@
-"""A new driver from a few lane changes: the learning curve of personalisation (issue 21).
+"""A new driver from a few lane changes: the learning curve of personalisation.
 
 Leave one driver out: the other drivers are the population; the held-out
 driver's last session(s) are scored; its first K decisions of the earlier
@@ -11,7 +11,9 @@ ceiling). Balanced accuracy, recall and timing error with bootstrap 95 %
 intervals (`rl.evaluation.crossval.bootstrap_scores`, decisions resampled), per K,
 pooled over drivers and per style (the full analysis's); then the issue's
 acceptance lines (for the first variant, then for each other as if it were the
-headline). Writes curve.json, curve.csv and curve.html (Plotly) to --out.
+headline). Writes curve.json, curve.csv and curve.html (Plotly) to --out, and the table, the styles
+assigned and the acceptance lines to `benchmarks/results/personalize.json` (`--result NAME`) with the
+command, commit, date and machine.
 
 Run on an analysed workspace (`laneprint ingest sample_logs -w WS && laneprint analyze -w WS`):
 
@@ -41,6 +43,7 @@ from laneprint.workspace import Workspace  # noqa: E402
 from rl.evaluation.crossval import bootstrap_scores  # noqa: E402
 from rl.personalize.agents import PersonalizeSettings  # noqa: E402
 from personalize_curve import ALL, CurveSettings, driver_curve  # noqa: E402  (beside this file)
+from results_file import write_result  # noqa: E402  (beside this file)
 from clustering.pipeline import stored_settings  # noqa: E402
 from rl.problem.env import formulation_config  # noqa: E402
 from rl.problem.rewards import ReferenceLines  # noqa: E402
@@ -196,6 +199,7 @@ def main() -> None:
     ap.add_argument("--bootstrap", type=int, default=1000)
     ap.add_argument("--jobs", type=int, default=1, help="drivers in parallel processes")
     ap.add_argument("--out", type=Path, default=None, help="folder for curve.json/.csv/.html (default WS/benchmarks)")
+    ap.add_argument("--result", default="personalize", help="result file name under benchmarks/results/")
     a = ap.parse_args()
 
     ws = Workspace(a.workspace)
@@ -274,6 +278,15 @@ def main() -> None:
         "table": tab.replace({np.nan: None}).to_dict("records"), "styles": assigned.to_dict("records"),
         "acceptance": acceptance(tab), "acceptance_variants": {w: acceptance(tab, w) for w in list(variants)[1:]},
         "wall_s": time.perf_counter() - t0}, indent=2, default=str))
+    write_result(a.result, {
+        "drivers_held_out": len(held), "drivers": len(everyone), "k": a.k, "episodes": a.episodes or "the trainer's",
+        "variants": a.variants, "observation": observation, "test_sessions": a.test_sessions, "seed": a.seed,
+        "bootstrap": a.bootstrap, "wall_s": time.perf_counter() - t0,
+        "acceptance": acceptance(tab), "acceptance_variants": {w: acceptance(tab, w) for w in list(variants)[1:]},
+        "style_assigned": [{"k": k, "right": int((g["style"] == g["true_style"]).sum()), "drivers": len(g),
+                            "mean_confidence": float(g["confidence"].mean())}
+                           for k, g in assigned.groupby("k", sort=False)],
+        "table": tab.replace({np.nan: None}).to_dict("records")})
     plot(tab, out / "curve.html", f"personalisation learning curve: {a.workspace.name}, {len(held)} drivers")
     print(f"\nwrote {out}/curve.csv, curve.json, curve.html ({time.perf_counter() - t0:.0f} s)")
 

@@ -1,7 +1,8 @@
 """One result file of a benchmark: `benchmarks/results/<name>.json`, its figures with what produced them.
 
 `write_result(name, figures)` adds the command (this benchmark's file name and arguments), the commit
-(`git rev-parse HEAD`, "" outside a checkout), the UTC date and the machine (node, architecture, cores)
+(`git rev-parse HEAD` when this module was imported, i.e. when the benchmark started: a commit made while
+it ran is not the code that ran; "" outside a checkout), the UTC date and the machine (node, architecture, cores)
 to the figures, and writes them; `python -m laneprint.app.reference_docs` renders every such file on
 the documentation's results page. Standard library only: any benchmark can import it first.
 """
@@ -37,6 +38,10 @@ def machine() -> str:
     return f"{platform.node()} {platform.machine()} {os.cpu_count() or 0} cores"
 
 
+#: The checkout's HEAD when the benchmark started (this module is imported first).
+STARTED_AT = commit()
+
+
 def _plain(value: Any) -> Any:
     """What json cannot write by itself: numpy scalars and arrays, paths, sets."""
     if hasattr(value, "tolist"):  # numpy scalar or array
@@ -58,7 +63,7 @@ def write_result(name: str, figures: dict, argv: list[str] | None = None) -> Pat
     if clash:
         raise ValueError(f"figures may not use the result file's own keys: {', '.join(clash)}")
     args = sys.argv[1:] if argv is None else list(argv)
-    result = {"command": " ".join([Path(sys.argv[0]).name, *map(str, args)]), "commit": commit(),
+    result = {"command": " ".join([Path(sys.argv[0]).name, *map(str, args)]), "commit": STARTED_AT,
               "date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "machine": machine(), **figures}
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / (name if name.endswith(".json") else f"{name}.json")

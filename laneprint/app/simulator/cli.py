@@ -35,7 +35,7 @@ FamilyOpt = Annotated[Optional[str], typer.Option(
     "--family", help="sumo study family: ttc (default; styles differ in the times to collision they accept), "
                      "acceptance (IDM drivers whose styles differ in the gaps and headways they accept; most presses "
                      "have no closing leader) or sublane (SUMO's sublane model SL2015 for every vehicle: lane changes "
-                     "are lateral moves at the driver's own lateral speed). See laneprint/simulator/SUMO.md.")]
+                     "are lateral moves at the driver's own lateral speed). See the documentation, Simulated studies.")]
 LanesOpt = Annotated[Optional[int], typer.Option(
     "--lanes", help="sumo and highway: lanes of the highway, 2 (default) or 3 (lane 0 rightmost; the ego changes "
                     "from every lane, both ways from the middle one).")]
