@@ -258,6 +258,32 @@ def _runs(ws: Workspace) -> list[Section]:
     return out
 
 
+def _drives(ws: Workspace) -> list[Section]:
+    """The closed-loop drives (`laneprint drive`, WORKSPACE/drives/*/drive.json): who made each lane change,
+    per section and in total, and the drive beside its drivers."""
+    from dashboard import views
+
+    found = []
+    for path in sorted((ws.root / "drives").glob("*/drive.json")):
+        try:
+            found.append((path.parent.name, json.loads(path.read_text())))
+        except (OSError, ValueError):
+            continue
+    if not found:
+        return []
+    sec = Section("Closed-loop drives in SUMO")
+    sec.p(views.DRIVE_RULE_NOTE)
+    for name, d in found:
+        sec.p(f"{views.drive_label(name, d)}. {views.drive_made_by_text(d)}")
+        sec.table(f"drive_{name}_made_by", views.drive_made_by_table(d))
+        fid = d.get("fidelity") or {}
+        if "rate" in fid:
+            from rl.plots import drive_fidelity
+
+            sec.figure(f"drive_{name}_fidelity", drive_fidelity(fid))
+    return [sec]
+
+
 def _read_config(ws: Workspace, run_id: str) -> dict[str, Any]:
     try:
         return json.loads((ws.runs_dir / run_id / "config.json").read_text())
@@ -301,7 +327,7 @@ def build_report(ws: Workspace) -> tuple[list[Section], dict[str, Any]]:
     """The report's sections and its provenance; a `UserError` when the workspace has no recordings."""
     if not ws.root.is_dir():
         raise UserError(f"no workspace at {ws.root}")
-    sections = [_study(ws), *_analysis(ws), *_runs(ws)]
+    sections = [_study(ws), *_analysis(ws), *_runs(ws), *_drives(ws)]
     return sections, provenance(ws)
 
 

@@ -725,6 +725,43 @@ def drive_label(folder: str, drive: dict[str, Any]) -> str:
     return f"{folder}: run {drive.get('run_id')}, {drive.get('lanes', 2)} lanes, seed {drive.get('seed')}{what}"
 
 
+#: what the rule of `laneprint drive` is for and when it acts instead of the agent, in a sentence
+DRIVE_RULE_NOTE = ("The rule is the assistant's held-back rule around the agent (docs: Concepts, Closed-loop "
+                   "driving). It is there for a situation the study's presses do not hold: following a slower "
+                   "leader with a free lane beside. It changes lane itself when a slower leader has held the ego "
+                   "back for the target drivers' patience (held back), and completes an overtaking, back into the "
+                   "lane left (return); otherwise it only holds back the agent's own changes into gaps smaller "
+                   "than any its drivers took. `laneprint drive --no-held-back` drives the agent alone.")
+
+
+def drive_made_by_table(drive: dict[str, Any]) -> pd.DataFrame:
+    """Who made each lane change of a drive, per section and in total: the agent, or the rule and which part
+    of it (held back, return); a drive reported before attribution is read from its counts."""
+    from rl.drive.attribution import made_by
+
+    rows = []
+    for r in [*drive.get("sections", []), {**(drive.get("totals") or {}), "speed_limit_kph": None}]:
+        m = made_by(r)
+        n = sum(m.values())
+        rows.append({"section": "total" if r.get("speed_limit_kph") is None else f"{r['speed_limit_kph']:g} km/h",
+                     "lane changes": n, "by the agent": m["agent"], "rule: held back": m["rule_held_back"],
+                     "rule: return": m["rule_return"], "not requested (SUMO)": m["unattributed"],
+                     "agent's share [%]": None if not n else round(100 * m["agent"] / n)})
+    out = pd.DataFrame(rows)
+    if len(out) and not out["not requested (SUMO)"].any():
+        out = out.drop(columns="not requested (SUMO)")
+    return out
+
+
+def drive_made_by_text(drive: dict[str, Any]) -> str:
+    """'Who changed lane: 28 lane changes: the agent 0, the rule 28 (held back 20, return 8); ...' for a drive
+    (its `who_drove` sentence, else one made from its totals)."""
+    from rl.drive.attribution import made_by_text
+
+    who = drive.get("who_drove") or {}
+    return who.get("text") or f"Who changed lane: {made_by_text(drive.get('totals') or {})}."
+
+
 #: page -> (the page to go to next, what to do there), in the order a study goes through them
 NEXT_STEPS: dict[str, tuple[str, str]] = {
     "data": ("Styles", "read the drivers' styles ('Run analysis')"),

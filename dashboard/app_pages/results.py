@@ -257,6 +257,9 @@ def drives(ws) -> None:
                "(shaded), and each indicator's median at the agent's presses inside the drivers' IQR.")
     pick = st.selectbox("Drive", list(found), key="drive_pick", format_func=lambda k: views.drive_label(k, found[k]))
     d = found[pick]
+    st.markdown(f"**{views.drive_made_by_text(d)}**")
+    st.dataframe(views.drive_made_by_table(d), hide_index=True, width="stretch", key="drive_made_by")
+    st.caption(views.DRIVE_RULE_NOTE)
     if "rate" not in d.get("fidelity", {}):
         st.info(d.get("fidelity", {}).get("note", "This drive has no comparison with drivers (driven by an older "
                                                    "laneprint): drive it again."))
