@@ -219,6 +219,7 @@ def _runs(ws: Workspace) -> list[Section]:
         tgt = cfg.get("target", {})
         sec.p(f"{tgt.get('kind')} {tgt.get('name')}, reward {cfg.get('reward')}, lines {cfg.get('lines_source')}, "
               f"seed {cfg.get('seed')}, {(run['status'] or {}).get('episode', '?')} episodes.")
+        sec.p(views.learner_text(cfg))
         mark = run["analysis_mark"]
         if mark["analysis"] == "earlier":
             sec.warn(f"{mark['analysis_label']}: this run was made with analysis {mark['analysis_fingerprint']}, the "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Iterable
 
+import numpy as np
 import pandas as pd
 
 from dashboard.uploads import SavedUpload
@@ -602,6 +603,45 @@ def run_header(run_id: str, cfg: dict[str, Any], status: dict[str, Any] | None) 
         return (head + f"personalised on the first {cfg.get('decisions')} of {cfg.get('decisions_available')} "
                 f"decisions: {what} ({tuned})")
     return head + f"{status.get('episode', '?')} episodes"
+
+
+_LEARNER_NAMES = {"dqn": "DQN", "trees": "trees"}
+
+
+def _percent(x: Any) -> str:
+    """'80.5 %' of a share; 'not scored' when it is missing or NaN (a learner without a side's presses)."""
+    try:
+        return f"{100 * float(x):.1f} %" if np.isfinite(float(x)) else "not scored"
+    except (TypeError, ValueError):
+        return "not scored"
+
+
+def learner_text(cfg: dict[str, Any]) -> str:
+    """Which learner made the run and, for the default `auto`, the scores it was chosen by: 'Learner: DQN,
+    kept by auto (held-out agreement on 120 of the target's 360 approaches over 3 inner folds, mean balanced
+    accuracy over the sides: DQN 80.5 %, trees 77.3 %; the trees are kept only when better by more than 1
+    point)'."""
+    choice = cfg.get("learner_choice")
+    learner = str((choice or {}).get("learner") or cfg.get("learner") or "dqn")
+    name = _LEARNER_NAMES.get(learner, learner)
+    if not choice:
+        return f"Learner: {name} (asked for)."
+    scores = choice.get("scores") or {}
+    margin = (cfg.get("auto") or {}).get("margin")
+    text = (f"Learner: {name}, kept by `auto` (held-out agreement on {choice.get('n_holdout')} of the target's "
+            f"{choice.get('n_train')} approaches over {choice.get('folds') or 1} inner folds, mean balanced accuracy "
+            "over the sides: " + ", ".join(f"{_LEARNER_NAMES.get(k, k)} {_percent(v)}" for k, v in scores.items()))
+    if margin is not None:
+        text += f"; the trees are kept only when better by more than {100 * float(margin):g} points"
+    text += ")."
+    by_side = choice.get("by_side") or {}
+    if by_side:
+        text += " By side: " + "; ".join(
+            f"{_LEARNER_NAMES.get(k, k)} " + ", ".join(f"{side} {_percent(v)}" for side, v in sides.items())
+            for k, sides in by_side.items() if sides) + "."
+    if choice.get("stopped"):
+        text += f" Stopped early: {choice['stopped']}."
+    return text
 
 
 def run_results(run: dict[str, Any], crossval: dict[str, Any] | None) -> dict[str, Any]:

@@ -158,6 +158,7 @@ def one_run(ws, run_id: str) -> None:
     ev = run["evaluation"]
     cfg = run["config"]
     st.markdown(views.run_header(run_id, cfg, run["status"]))
+    st.caption(views.learner_text(cfg))
     analysis_banner(ws, cfg)
     never = views.never_learnt(run["metrics"], cfg)
     if never:
