@@ -564,11 +564,16 @@ def evaluation_heading(ev: dict[str, Any]) -> tuple[str, str]:
 
 
 def personalize_progress(run_id: str, status: dict[str, Any]) -> tuple[float, str]:
-    """(fraction, text) of a personalisation under way: the phase it is in (base agent, fine-tuning,
-    evaluating) with its episodes when it has any, never "(0/?)"."""
+    """(fraction, text) of a personalisation under way: the phase it is in, 'phase 2 of 4' (style, each base
+    agent, fine-tuning, evaluating) with its episodes and the time its phase has left when it has any, never
+    "(0/?)". Before its first phase is written: starting, placing the driver among the styles."""
     done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
-    message = status.get("message") or status.get("state") or "starting"
-    count = f" ({done:,}/{total:,} episodes)" if total else ""
+    if status.get("state") == "starting" or not status.get("message"):
+        return 0.0, f"{run_id}: starting (loading PyTorch, placing the driver among the styles)"
+    message = str(status.get("message"))
+    if status.get("phase") and status.get("phases"):
+        message = f"phase {status['phase']} of {status['phases']}: {message}"
+    count = f" ({done:,}/{total:,} episodes{time_left(status)})" if total > 1 else ""
     return (min(1.0, done / total) if total else 0.0), f"{run_id}: {message}{count}"
 
 
@@ -669,13 +674,15 @@ LEARNER_CHOICE = "choosing the learner"
 
 
 def time_left(status: dict[str, Any]) -> str:
-    """', about N min left' from a status's episodes and its time since `started_at` ('' before a tenth)."""
+    """', about N min left' from a status's episodes and its time since `started_at` ('' before a tenth);
+    a job in phases (a personalisation) counts from its phase's start (`phase_started_at`)."""
     from datetime import datetime
 
     done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
     try:
         elapsed = (datetime.fromisoformat(str(status["updated_at"]))
-                   - datetime.fromisoformat(str(status["started_at"]))).total_seconds()
+                   - datetime.fromisoformat(str(status.get("phase_started_at") or status["started_at"]))
+                   ).total_seconds()
     except (KeyError, ValueError, TypeError):
         return ""
     if not total or done < 0.1 * total or elapsed <= 0:
