@@ -98,7 +98,7 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
     """One driver's presses: the indicator against ego speed, the OLS line, its (1 - alpha)
     confidence band and prediction band. Points left out of the fit are grey, with their reason.
 
-    The y axis is set by the bulk of the used points (`laneprint.plotting.tail_range`: a
+    The y axis is set by the bulk of the points drawn (`laneprint.plotting.tail_range`: a
     TTC of minutes among seconds does not flatten the rest); any point beyond it, used
     or excluded, is drawn at its edge as a triangle (pointing where it is), counted in
     its trace's name, with its true value in the hover. The title names the fit's flag
@@ -125,8 +125,8 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
     fig = go.Figure()
     used = pts[pts["used"].astype(bool)]
     excl = pts[~pts["used"].astype(bool) & np.isfinite(pts["y"].astype(float))]
-    # the axis follows the bulk of the points the fit used (all finite points when none is used)
-    yrange = tail_range(used["y"]) if len(used) else tail_range(excl["y"])
+    # the axis follows the bulk of the points drawn (the fit's and those it left out alike)
+    yrange = tail_range(pd.concat([used["y"], excl["y"]]).astype(float))
     lo, hi = yrange if yrange else (-np.inf, np.inf)
     drawn = clip_to_axis(used["y"], lo, hi)
     inside = (drawn["side"] == "").to_numpy()

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 from laneprint.workspace import Workspace
 
 
@@ -71,3 +73,108 @@ def test_results_page_and_report_show_the_learner_kept(empty_ws):
     assert any("kept by `auto`" in c.value and "DQN 80.5 %, trees 77.3 %" in c.value for c in at.caption)
     sec = next(s for s in _runs(ws) if s.title == "Run auto1")
     assert any(k == "p" and "DQN 80.5 %, trees 77.3 %" in x for k, x in sec.items)
+
+
+# --- every axis set by the bulk, asserted from the figures' JSON on a study with TTCs of minutes --------------
+
+
+def _numbers(v) -> np.ndarray | None:
+    if v is None:
+        return None
+    a = np.asarray(v, dtype=object).ravel()
+    if not len(a) or not all(isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
+                             for x in a):
+        return None
+    return a.astype(float)
+
+
+def axes_of(fig) -> list[tuple[str, np.ndarray, list | None]]:
+    """(axis, its points' true values, its range) of every axis with marker points: a point drawn at an axis's
+    edge carries its true value (customdata for y, the trace's meta 'x' for x); a log axis in log10 units."""
+    found: dict[str, list] = {}
+    for tr in fig.data:
+        if tr.type not in ("scatter", "scattergl") or "markers" not in (tr.mode or ""):
+            continue
+        for letter in "xy":
+            drawn = getattr(tr, letter)
+            vals = _numbers(drawn)
+            true = _numbers(tr.customdata) if letter == "y" else _numbers((tr.meta or {}).get("x")
+                                                                          if isinstance(tr.meta, dict) else None)
+            if true is not None and drawn is not None and len(true) == len(drawn):
+                vals = true
+            if vals is not None:
+                found.setdefault(f"{letter}axis{(getattr(tr, f'{letter}axis') or letter)[1:]}", []).append(vals)
+    out = []
+    for name, parts in found.items():
+        vals = np.concatenate(parts)
+        vals = vals[np.isfinite(vals)]
+        ax = fig.layout[name]
+        if ax.type == "log":
+            vals = np.log10(vals[vals > 0])
+        out.append((name, vals, list(ax.range) if ax.range else None))
+    return out
+
+
+def bad_axes(figures: list[tuple[str, object]]) -> tuple[int, list]:
+    """(axes checked, those whose range covers under 95 % of their points or is set by under 1 % of them)."""
+    from laneprint.plotting import range_set_by_few
+
+    checked, bad = 0, []
+    for name, fig in figures:
+        for axis, vals, rng in axes_of(fig):
+            if len(vals) < 10:
+                continue
+            checked += 1
+            lo, hi = rng if rng else (vals.min(), vals.max())  # no range: Plotly's autorange spans every point
+            cover = float(((vals >= min(lo, hi) - 1e-9) & (vals <= max(lo, hi) + 1e-9)).mean())
+            if cover < 0.95 or range_set_by_few(vals, (lo, hi), share=0.01, pad=0.08 if rng else 0.0):
+                bad.append((name, axis, rng, len(vals), round(cover, 3), np.percentile(vals, [1, 50, 99]).round(2)))
+    return checked, bad
+
+
+def with_ttcs_of_minutes(ws: Workspace, share: float = 0.04) -> None:
+    """`share` of every TTC in the analysis and in the runs' evaluation tables set to 1-10 minutes (a leader
+    that hardly closes), as in the study a new user tried."""
+    import pandas as pd
+
+    from clustering.pipeline import analyze_tables
+
+    rng = np.random.default_rng(1)
+    dec = ws.read_table("analysis", "decisions")
+    for col in ("t_f_s", "t_nf_s"):
+        rows = dec.index[np.isfinite(dec[col])]
+        pick = rng.choice(rows, size=max(2, int(len(rows) * share)), replace=False)
+        dec.loc[pick, col] = rng.uniform(60, 600, len(pick))
+    ws.write_tables("analysis", analyze_tables(dec), ws.read_meta("analysis"))
+    for run in ws.runs_dir.iterdir():
+        for name in ("eval_changes", "eval_states"):
+            path = run / f"{name}.parquet"
+            if path.exists():
+                t = pd.read_parquet(path)
+                for col in ("t_f_s", "t_nf_s"):
+                    if col in t:
+                        rows = np.flatnonzero(np.isfinite(t[col].to_numpy(dtype=float)))
+                        pick = rng.choice(rows, size=max(2, int(len(rows) * share)), replace=False)
+                        t.loc[t.index[pick], col] = rng.uniform(60, 600, len(pick))
+                t.to_parquet(path)
+
+
+def study_figures(ws: Workspace) -> list[tuple[str, object]]:
+    """Every figure the report draws (the pages' own functions) and each run's Figs. 10 and 11 and curves."""
+    from dashboard.report import build_report
+
+    sections, _ = build_report(ws)
+    return [item for sec in sections for kind, item in sec.items if kind == "figure"]
+
+
+def test_every_axis_is_set_by_the_bulk_on_a_study_with_ttcs_of_minutes(sample_ws, tmp_path):
+    import shutil
+
+    for heavier in (False, True):  # the shipped study (t_f to ~3 min), then 4 % of every TTC at 1-10 min
+        ws = Workspace(shutil.copytree(sample_ws.root, tmp_path / f"ws{int(heavier)}"))
+        if heavier:
+            with_ttcs_of_minutes(ws)
+        dec = ws.read_table("analysis", "decisions")
+        assert np.nanmax(dec["t_f_s"]) > 120  # TTCs of minutes
+        checked, bad = bad_axes(study_figures(ws))
+        assert checked >= 15 and not bad, (heavier, bad)
