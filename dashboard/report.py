@@ -335,7 +335,7 @@ def build_report(ws: Workspace) -> tuple[list[Section], dict[str, Any]]:
 _CSS = """body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;
 color:#222}h1{font-size:1.8em}h2{border-bottom:1px solid #ddd;padding-bottom:.2em;margin-top:2em}
 table{border-collapse:collapse;font-size:12px;margin:.5em 0 1em}td,th{border:1px solid #ddd;padding:2px 6px;
-text-align:left}th{background:#f3f3f3}.scroll{max-height:420px;overflow:auto}.warn{background:#fff4e5;
+text-align:left}th{background:#f3f3f3;position:sticky;top:0}.scroll{max-height:420px;overflow:auto}.warn{background:#fff4e5;
 border-left:4px solid #f59e0b;padding:.5em 1em}.fig{margin:1em 0}nav a{margin-right:1em}code{background:#f3f3f3}
 """
 
@@ -362,6 +362,8 @@ def render_html(sections: list[Section], prov: dict[str, Any], title: str = "lan
     """The report as one HTML document: plotly.js inlined once, no reference to any other host."""
     from plotly.offline import get_plotlyjs
 
+    from dashboard.figures import fit_title
+
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
              f"<style>{_CSS}</style><script type='text/javascript'>{get_plotlyjs()}</script></head><body>",
              f"<h1>{html.escape(title)}</h1>",
@@ -384,7 +386,7 @@ def render_html(sections: list[Section], prov: dict[str, Any], title: str = "lan
             elif kind == "table":
                 parts.append(_table_html(item[1]))
             else:
-                parts.append("<div class='fig'>" + item[1].to_html(full_html=False, include_plotlyjs=False,
+                parts.append("<div class='fig'>" + fit_title(item[1]).to_html(full_html=False, include_plotlyjs=False,
                                                                div_id=f"fig-{_safe(item[0])}",
                                                                config={"displaylogo": False,
                                                                        "toImageButtonOptions": {"format": "svg"}})
