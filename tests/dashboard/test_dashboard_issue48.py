@@ -176,5 +176,19 @@ def test_every_axis_is_set_by_the_bulk_on_a_study_with_ttcs_of_minutes(sample_ws
             with_ttcs_of_minutes(ws)
         dec = ws.read_table("analysis", "decisions")
         assert np.nanmax(dec["t_f_s"]) > 120  # TTCs of minutes
-        checked, bad = bad_axes(study_figures(ws))
+        figures = study_figures(ws)
+        checked, bad = bad_axes(figures)
         assert checked >= 15 and not bad, (heavier, bad)
+        # a driver's dozen presses with a TTC of minutes among them: all on a log axis, the bulk not flattened
+        logs = [f for name, f in figures if name.startswith("driver_") and f.layout.yaxis.type == "log"]
+        assert logs and all("log axis" in f.layout.title.text for f in logs)
+
+
+def test_a_log_axis_only_where_covering_the_points_would_flatten_the_bulk():
+    from laneprint.plotting import needs_log_axis
+
+    seconds = np.linspace(2.0, 4.0, 11)
+    assert needs_log_axis(np.r_[seconds, 153.0])  # one of 12: covering 95 % means covering it
+    assert not needs_log_axis(seconds) and not needs_log_axis(np.r_[seconds, -1.0, 153.0])  # negative: no log
+    many = np.r_[np.linspace(2.0, 4.0, 200), 153.0]  # one of 201 may stay off the axis, at its edge
+    assert not needs_log_axis(many)
