@@ -423,7 +423,7 @@ def test_personalisation_reports_its_phases_with_their_own_start(study: Workspac
     messages: list[str] = []
     dqn = DQNSettings(num_envs=8, batch_size=64, learning_starts=100)
     personalize(study, "D01", 4, PersonalizeSettings(base="population", method="finetune"), dqn, episodes=40,
-                base_episodes=60, run_id="phases", progress=lambda d, t, m="": messages.append(m))
+                base_episodes=60, seed=7, run_id="phases", progress=lambda d, t, m="": messages.append(m))  # seed 7: no base to reuse
     phases = [m.split(":")[0] for m in dict.fromkeys(messages)]
     assert phases[0] == "phase 1" and "phase 1/4" in phases and "phase 4/4" in phases
     assert any(m.startswith("phase 2/4: base (population): episode") for m in messages)
