@@ -127,8 +127,9 @@ def cluster_scatter(styles: pd.DataFrame, x: str | None = None, y: str | None = 
     for axis, c in (("xaxis", x), ("yaxis", y)):
         if ranges[c]:
             fig.update_layout({axis: {"range": list(ranges[c])}})
-    off_note = (f" — {n_off} driver{'s' if n_off != 1 else ''} beyond the axes, drawn at the edge (open diamond)"
-                if n_off else "")
+    # on a line of its own: one line of both was wider than the plot of a narrow page (measured in Chromium)
+    off_note = (f"<br><sub>{n_off} driver{'s' if n_off != 1 else ''} beyond the axes, drawn at the edge "
+                "(open diamond)</sub>" if n_off else "")
     fig.update_layout(title="Drivers in feature space (each driver's robust line evaluated at one speed)" + off_note,
                       xaxis_title=_feature_label(x), yaxis_title=_feature_label(y), template="plotly_white")
     return fig

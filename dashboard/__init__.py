@@ -9,7 +9,7 @@ by default, headless, no usage statistics, uploads up to 1024 MB), or
   stages' own functions and plots.
 - `context.py`: the workspace (`--workspace` after `--`, else $LANEPRINT_WORKSPACE)
   and the tunables read from the environment: $LANEPRINT_DASHBOARD_EPISODES (episodes
-  pre-filled in the Training form), $LANEPRINT_DASHBOARD_POLL_S (refresh of the live
+  pre-filled in the Training form, and the Personalise page's base agents'), $LANEPRINT_DASHBOARD_POLL_S (refresh of the live
   training view, default 1 s), $LANEPRINT_DASHBOARD_MAX_UPLOAD_MB (default 1024).
 - `loaders.py`: cached readers keyed on the modification times of the folders they read.
 - `uploads.py`: browser uploads saved under `workspace/uploads/<hash>/<safe name>`.

@@ -13,7 +13,8 @@ from pathlib import Path
 from laneprint.workspace import DEFAULT_WORKSPACE, Workspace
 
 WORKSPACE_ENV = "LANEPRINT_WORKSPACE"
-#: Default episode count in the Training form (tests and demos set a small one).
+#: Default episode count in the Training form and of the Personalise page's base agents (tests and
+#: demos set a small one).
 EPISODES_ENV = "LANEPRINT_DASHBOARD_EPISODES"
 #: Seconds between refreshes of the live training view.
 POLL_ENV = "LANEPRINT_DASHBOARD_POLL_S"

@@ -118,6 +118,30 @@ def runs_curves(metrics: dict[str, pd.DataFrame], column: str, label: str | None
     return fig
 
 
+def fit_title(fig: go.Figure, width_chars: int = 95) -> go.Figure:
+    """A copy of `fig` whose title fits a page-wide figure: a title longer than `width_chars` keeps its first
+    part (up to the first ' — ') as the heading and the rest, wrapped, in smaller lines under it; the top
+    margin grown to hold them. A short title is left as it is."""
+    import re
+    import textwrap
+
+    title = fig.layout.title.text or ""
+    plain = re.sub(r"<[^>]+>", "", title)
+    if len(plain) <= width_chars or "<br>" in title:
+        return fig
+    head, *rest = title.split(" — ")
+    heads = textwrap.wrap(head, width_chars) or [""]
+    lines = [ln for part in rest for ln in textwrap.wrap(part, int(width_chars * 1.3))]
+    text = "<br>".join(heads) + ("<br><span style='font-size:12px'>" + "<br>".join(lines) + "</span>"
+                                 if lines else "")
+    out = go.Figure(fig)
+    top = 40 + 22 * len(heads) + 16 * len(lines)
+    out.update_layout(title=dict(text=text, x=0, xanchor="left", xref="container", y=1, yanchor="top",
+                                 yref="container", pad=dict(t=14, l=8)),
+                      margin=dict(t=max(top, (fig.layout.margin.t or 0))))
+    return out
+
+
 def compact(fig: go.Figure, height: int = 440, width_chars: int = 58) -> go.Figure:
     """Fit a stage's figure into a narrow column: the title's first part as a short heading, the
     rest (parts split at ' — ', wrapped at `width_chars`) in smaller lines under it, the top

@@ -219,6 +219,7 @@ def _runs(ws: Workspace) -> list[Section]:
         tgt = cfg.get("target", {})
         sec.p(f"{tgt.get('kind')} {tgt.get('name')}, reward {cfg.get('reward')}, lines {cfg.get('lines_source')}, "
               f"seed {cfg.get('seed')}, {(run['status'] or {}).get('episode', '?')} episodes.")
+        sec.p(views.learner_text(cfg))
         mark = run["analysis_mark"]
         if mark["analysis"] == "earlier":
             sec.warn(f"{mark['analysis_label']}: this run was made with analysis {mark['analysis_fingerprint']}, the "
@@ -256,6 +257,32 @@ def _runs(ws: Workspace) -> list[Section]:
             "learning_starts")))
         out.append(sec)
     return out
+
+
+def _drives(ws: Workspace) -> list[Section]:
+    """The closed-loop drives (`laneprint drive`, WORKSPACE/drives/*/drive.json): who made each lane change,
+    per section and in total, and the drive beside its drivers."""
+    from dashboard import views
+
+    found = []
+    for path in sorted((ws.root / "drives").glob("*/drive.json")):
+        try:
+            found.append((path.parent.name, json.loads(path.read_text())))
+        except (OSError, ValueError):
+            continue
+    if not found:
+        return []
+    sec = Section("Closed-loop drives in SUMO")
+    sec.p(views.DRIVE_RULE_NOTE)
+    for name, d in found:
+        sec.p(f"{views.drive_label(name, d)}. {views.drive_made_by_text(d)}")
+        sec.table(f"drive_{name}_made_by", views.drive_made_by_table(d))
+        fid = d.get("fidelity") or {}
+        if "rate" in fid:
+            from rl.plots import drive_fidelity
+
+            sec.figure(f"drive_{name}_fidelity", drive_fidelity(fid))
+    return [sec]
 
 
 def _read_config(ws: Workspace, run_id: str) -> dict[str, Any]:
@@ -301,14 +328,14 @@ def build_report(ws: Workspace) -> tuple[list[Section], dict[str, Any]]:
     """The report's sections and its provenance; a `UserError` when the workspace has no recordings."""
     if not ws.root.is_dir():
         raise UserError(f"no workspace at {ws.root}")
-    sections = [_study(ws), *_analysis(ws), *_runs(ws)]
+    sections = [_study(ws), *_analysis(ws), *_runs(ws), *_drives(ws)]
     return sections, provenance(ws)
 
 
 _CSS = """body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;
 color:#222}h1{font-size:1.8em}h2{border-bottom:1px solid #ddd;padding-bottom:.2em;margin-top:2em}
 table{border-collapse:collapse;font-size:12px;margin:.5em 0 1em}td,th{border:1px solid #ddd;padding:2px 6px;
-text-align:left}th{background:#f3f3f3}.scroll{max-height:420px;overflow:auto}.warn{background:#fff4e5;
+text-align:left}th{background:#f3f3f3;position:sticky;top:0}.scroll{max-height:420px;overflow:auto}.warn{background:#fff4e5;
 border-left:4px solid #f59e0b;padding:.5em 1em}.fig{margin:1em 0}nav a{margin-right:1em}code{background:#f3f3f3}
 """
 
@@ -335,6 +362,8 @@ def render_html(sections: list[Section], prov: dict[str, Any], title: str = "lan
     """The report as one HTML document: plotly.js inlined once, no reference to any other host."""
     from plotly.offline import get_plotlyjs
 
+    from dashboard.figures import fit_title
+
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
              f"<style>{_CSS}</style><script type='text/javascript'>{get_plotlyjs()}</script></head><body>",
              f"<h1>{html.escape(title)}</h1>",
@@ -357,7 +386,7 @@ def render_html(sections: list[Section], prov: dict[str, Any], title: str = "lan
             elif kind == "table":
                 parts.append(_table_html(item[1]))
             else:
-                parts.append("<div class='fig'>" + item[1].to_html(full_html=False, include_plotlyjs=False,
+                parts.append("<div class='fig'>" + fit_title(item[1]).to_html(full_html=False, include_plotlyjs=False,
                                                                div_id=f"fig-{_safe(item[0])}",
                                                                config={"displaylogo": False,
                                                                        "toImageButtonOptions": {"format": "svg"}})

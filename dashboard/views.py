@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Iterable
 
+import numpy as np
 import pandas as pd
 
 from dashboard.uploads import SavedUpload
@@ -563,11 +564,16 @@ def evaluation_heading(ev: dict[str, Any]) -> tuple[str, str]:
 
 
 def personalize_progress(run_id: str, status: dict[str, Any]) -> tuple[float, str]:
-    """(fraction, text) of a personalisation under way: the phase it is in (base agent, fine-tuning,
-    evaluating) with its episodes when it has any, never "(0/?)"."""
+    """(fraction, text) of a personalisation under way: the phase it is in, 'phase 2 of 4' (style, each base
+    agent, fine-tuning, evaluating) with its episodes and the time its phase has left when it has any, never
+    "(0/?)". Before its first phase is written: starting, placing the driver among the styles."""
     done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
-    message = status.get("message") or status.get("state") or "starting"
-    count = f" ({done:,}/{total:,} episodes)" if total else ""
+    if status.get("state") == "starting" or not status.get("message"):
+        return 0.0, f"{run_id}: starting (loading PyTorch, placing the driver among the styles)"
+    message = str(status.get("message"))
+    if status.get("phase") and status.get("phases"):
+        message = f"phase {status['phase']} of {status['phases']}: {message}"
+    count = f" ({done:,}/{total:,} episodes{time_left(status)})" if total > 1 else ""
     return (min(1.0, done / total) if total else 0.0), f"{run_id}: {message}{count}"
 
 
@@ -604,6 +610,45 @@ def run_header(run_id: str, cfg: dict[str, Any], status: dict[str, Any] | None) 
     return head + f"{status.get('episode', '?')} episodes"
 
 
+_LEARNER_NAMES = {"dqn": "DQN", "trees": "trees"}
+
+
+def _percent(x: Any) -> str:
+    """'80.5 %' of a share; 'not scored' when it is missing or NaN (a learner without a side's presses)."""
+    try:
+        return f"{100 * float(x):.1f} %" if np.isfinite(float(x)) else "not scored"
+    except (TypeError, ValueError):
+        return "not scored"
+
+
+def learner_text(cfg: dict[str, Any]) -> str:
+    """Which learner made the run and, for the default `auto`, the scores it was chosen by: 'Learner: DQN,
+    kept by auto (held-out agreement on 120 of the target's 360 approaches over 3 inner folds, mean balanced
+    accuracy over the sides: DQN 80.5 %, trees 77.3 %; the trees are kept only when better by more than 1
+    point)'."""
+    choice = cfg.get("learner_choice")
+    learner = str((choice or {}).get("learner") or cfg.get("learner") or "dqn")
+    name = _LEARNER_NAMES.get(learner, learner)
+    if not choice:
+        return f"Learner: {name} (asked for)."
+    scores = choice.get("scores") or {}
+    margin = (cfg.get("auto") or {}).get("margin")
+    text = (f"Learner: {name}, kept by `auto` (held-out agreement on {choice.get('n_holdout')} of the target's "
+            f"{choice.get('n_train')} approaches over {choice.get('folds') or 1} inner folds, mean balanced accuracy "
+            "over the sides: " + ", ".join(f"{_LEARNER_NAMES.get(k, k)} {_percent(v)}" for k, v in scores.items()))
+    if margin is not None:
+        text += f"; the trees are kept only when better by more than {100 * float(margin):g} points"
+    text += ")."
+    by_side = choice.get("by_side") or {}
+    if by_side:
+        text += " By side: " + "; ".join(
+            f"{_LEARNER_NAMES.get(k, k)} " + ", ".join(f"{side} {_percent(v)}" for side, v in sides.items())
+            for k, sides in by_side.items() if sides) + "."
+    if choice.get("stopped"):
+        text += f" Stopped early: {choice['stopped']}."
+    return text
+
+
 def run_results(run: dict[str, Any], crossval: dict[str, Any] | None) -> dict[str, Any]:
     """What a run's results download holds: config, status, in-sample evaluation, its cross-validation."""
     return {"run_id": run.get("run_id"), "config": run.get("config"), "status": run.get("status"),
@@ -629,13 +674,15 @@ LEARNER_CHOICE = "choosing the learner"
 
 
 def time_left(status: dict[str, Any]) -> str:
-    """', about N min left' from a status's episodes and its time since `started_at` ('' before a tenth)."""
+    """', about N min left' from a status's episodes and its time since `started_at` ('' before a tenth);
+    a job in phases (a personalisation) counts from its phase's start (`phase_started_at`)."""
     from datetime import datetime
 
     done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
     try:
         elapsed = (datetime.fromisoformat(str(status["updated_at"]))
-                   - datetime.fromisoformat(str(status["started_at"]))).total_seconds()
+                   - datetime.fromisoformat(str(status.get("phase_started_at") or status["started_at"]))
+                   ).total_seconds()
     except (KeyError, ValueError, TypeError):
         return ""
     if not total or done < 0.1 * total or elapsed <= 0:
@@ -723,6 +770,43 @@ def drive_label(folder: str, drive: dict[str, Any]) -> str:
             f"{fid['medians_in_iqr']} medians inside" if rate and rate["agent"]["per_km"] is not None
             and rate["drivers"]["per_km"] is not None else "")
     return f"{folder}: run {drive.get('run_id')}, {drive.get('lanes', 2)} lanes, seed {drive.get('seed')}{what}"
+
+
+#: what the rule of `laneprint drive` is for and when it acts instead of the agent, in a sentence
+DRIVE_RULE_NOTE = ("The rule is the assistant's held-back rule around the agent (docs: Concepts, Closed-loop "
+                   "driving). It is there for a situation the study's presses do not hold: following a slower "
+                   "leader with a free lane beside. It changes lane itself when a slower leader has held the ego "
+                   "back for the target drivers' patience (held back), and completes an overtaking, back into the "
+                   "lane left (return); otherwise it only holds back the agent's own changes into gaps smaller "
+                   "than any its drivers took. `laneprint drive --no-held-back` drives the agent alone.")
+
+
+def drive_made_by_table(drive: dict[str, Any]) -> pd.DataFrame:
+    """Who made each lane change of a drive, per section and in total: the agent, or the rule and which part
+    of it (held back, return); a drive reported before attribution is read from its counts."""
+    from rl.drive.attribution import made_by
+
+    rows = []
+    for r in [*drive.get("sections", []), {**(drive.get("totals") or {}), "speed_limit_kph": None}]:
+        m = made_by(r)
+        n = sum(m.values())
+        rows.append({"section": "total" if r.get("speed_limit_kph") is None else f"{r['speed_limit_kph']:g} km/h",
+                     "lane changes": n, "by the agent": m["agent"], "rule: held back": m["rule_held_back"],
+                     "rule: return": m["rule_return"], "not requested (SUMO)": m["unattributed"],
+                     "agent's share [%]": None if not n else round(100 * m["agent"] / n)})
+    out = pd.DataFrame(rows)
+    if len(out) and not out["not requested (SUMO)"].any():
+        out = out.drop(columns="not requested (SUMO)")
+    return out
+
+
+def drive_made_by_text(drive: dict[str, Any]) -> str:
+    """'Who changed lane: 28 lane changes: the agent 0, the rule 28 (held back 20, return 8); ...' for a drive
+    (its `who_drove` sentence, else one made from its totals)."""
+    from rl.drive.attribution import made_by_text
+
+    who = drive.get("who_drove") or {}
+    return who.get("text") or f"Who changed lane: {made_by_text(drive.get('totals') or {})}."
 
 
 #: page -> (the page to go to next, what to do there), in the order a study goes through them

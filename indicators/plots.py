@@ -8,7 +8,7 @@ import plotly.graph_objects as go
 
 from indicators.directions import directions
 from indicators.stats import INDICATOR_COLUMNS, LineFit, indicator_points
-from laneprint.plotting import clip_to_axis, line_formula, log_ticks, tail_range
+from laneprint.plotting import clip_to_axis, line_formula, log_ticks, needs_log_axis, tail_range
 
 #: The paper's three indicators (Li & Liu), always first.
 PAPER_INDICATORS: tuple[str, ...] = ("t_f", "t_nf", "dv_nb")
@@ -98,7 +98,7 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
     """One driver's presses: the indicator against ego speed, the OLS line, its (1 - alpha)
     confidence band and prediction band. Points left out of the fit are grey, with their reason.
 
-    The y axis is set by the bulk of the used points (`laneprint.plotting.tail_range`: a
+    The y axis is set by the bulk of the points drawn (`laneprint.plotting.tail_range`: a
     TTC of minutes among seconds does not flatten the rest); any point beyond it, used
     or excluded, is drawn at its edge as a triangle (pointing where it is), counted in
     its trace's name, with its true value in the hover. The title names the fit's flag
@@ -125,8 +125,11 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
     fig = go.Figure()
     used = pts[pts["used"].astype(bool)]
     excl = pts[~pts["used"].astype(bool) & np.isfinite(pts["y"].astype(float))]
-    # the axis follows the bulk of the points the fit used (all finite points when none is used)
-    yrange = tail_range(used["y"]) if len(used) else tail_range(excl["y"])
+    # the axis follows the bulk of the points drawn (the fit's and those it left out alike), covering 95 % of
+    # them; when that would flatten the bulk (a TTC of minutes among a dozen of seconds), a log axis holds all
+    every = pd.concat([used["y"], excl["y"]]).astype(float)
+    log_axis = needs_log_axis(every)
+    yrange = None if log_axis else tail_range(every)
     lo, hi = yrange if yrange else (-np.inf, np.inf)
     drawn = clip_to_axis(used["y"], lo, hi)
     inside = (drawn["side"] == "").to_numpy()
@@ -188,6 +191,8 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
             notes.append(f"flagged: {flag}")
     elif len(row):
         notes.append(f"no fit: {row.iloc[0]['reason']}")
+    if log_axis:
+        notes.append("log axis: a few values far above the rest (a leader that hardly closes)")
     for trace in direction_lines(fits_by_direction, driver_id, indicator, unit):
         fig.add_trace(trace)
     # the details go on lines of their own below the title, so that it is never wider than the plot
@@ -198,6 +203,10 @@ def indicator_vs_speed(decisions: pd.DataFrame, fits: pd.DataFrame, driver_id: s
     mark_overlap(fig, indicator, pd.concat([used["y"], excl["y"]]).astype(float).to_numpy(), yrange)
     if yrange:
         fig.update_yaxes(range=list(yrange))
+    if log_axis:
+        v = every[np.isfinite(every)]
+        fig.update_yaxes(type="log", range=[float(np.log10(v.min() / 1.15)), float(np.log10(v.max() * 1.15))],
+                         **log_ticks(v))
     return fig
 
 

@@ -101,6 +101,12 @@ def progress_bar(enabled: bool = True) -> Iterator[ProgressFn]:
                    TimeElapsedColumn(), TimeRemainingColumn(), console=err_console, transient=False)
     task = bar.add_task("", total=None)
     with bar:
+        last: dict[str, Any] = {"done": 0, "total": None}
+
         def update(done: int, total: int, message: str = "") -> None:
-            bar.update(task, completed=done, total=total, description=visible(message)[:80])
+            if done < last["done"] or total != last["total"]:  # a new phase: its own bar and time estimate
+                bar.reset(task, total=total, completed=done, description=visible(message)[:80])
+            else:
+                bar.update(task, completed=done, total=total, description=visible(message)[:80])
+            last.update(done=done, total=total)
         yield update

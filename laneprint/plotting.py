@@ -84,7 +84,8 @@ def clip_to_axis(values: Sequence[float] | np.ndarray, lo: float, hi: float) -> 
 
 #: Plotly's number of each marker symbol ('-open': + 100). A long per-point list of symbol names costs
 #: Plotly's validator a regex pass per point (0.16 s for Fig. 11's 4000 points); numbers skip it.
-SYMBOL_CODES = {"circle": 0, "square": 1, "diamond": 2, "triangle-up": 5, "triangle-down": 6}
+SYMBOL_CODES = {"circle": 0, "square": 1, "diamond": 2, "triangle-up": 5, "triangle-down": 6, "triangle-left": 7,
+                "triangle-right": 8}
 
 
 def symbol_codes(names: Sequence[str] | np.ndarray) -> list[int]:
@@ -169,16 +170,22 @@ TAIL_SHARE = 0.01
 TAIL_FENCE = 3.0
 
 
+#: At most this share of the points may be off a tail-ranged axis in all (it covers at least 95 % of them).
+COVER_SHARE_OFF = 0.05
+
+
 def tail_range(values: Sequence[float] | np.ndarray, share: float = TAIL_SHARE, fence: float = TAIL_FENCE,
-               pad: float = 0.08) -> tuple[float, float] | None:
+               pad: float = 0.08, cover: bool = True) -> tuple[float, float] | None:
     """An axis [lo, hi] set by the bulk of the finite `values`, not by their tail (None when there are none).
 
     Each end is the nearer of the `share` quantile (so fewer than `share` of the points lie
     beyond it: no end is set by fewer than that share of the points) and the Tukey fence
     `fence` interquartile ranges beyond the quartiles (with 20 points, one TTC of 2500 s
     among values of 5-30 s is 5 % of them, but far beyond the fence). Never narrower than
-    the quartiles; padded by `pad` of the span. Points beyond are the caller's to mark at
-    the edge (`clip_to_axis`) and count.
+    the quartiles, and never leaving more than `COVER_SHARE_OFF` (5 %) of the points off the axis:
+    the farthest from the median stay off, the others bring its ends back (with under 20 points, every
+    point is on it; `cover` False: the fence alone, the bulk's own range). Padded by `pad` of the span. Points beyond are the caller's to mark at the edge
+    (`clip_to_axis`) and count.
     """
     v = np.asarray(values, dtype=float)
     v = np.sort(v[np.isfinite(v)])
@@ -192,9 +199,32 @@ def tail_range(values: Sequence[float] | np.ndarray, share: float = TAIL_SHARE, 
     f_lo, f_hi = (q1 - fence * iqr, q3 + fence * iqr) if iqr > 0 else (-np.inf, np.inf)
     cut_lo = max(min(q_lo, q1), min(f_lo, q1))
     cut_hi = min(max(q_hi, q3), max(f_hi, q3))
+    beyond = np.flatnonzero((v < cut_lo) | (v > cut_hi))
+    allowed = int(np.floor(COVER_SHARE_OFF * n))
+    if cover and len(beyond) > allowed:  # never more than 5 % off the axis: the nearest of those beyond come back on it,
+        # those the fence cut first (the `share` at each end stays off: no end is set by fewer than that)
+        med, kq = float(np.median(v)), max(k, 0)
+        fenced = (beyond >= kq) & (beyond <= n - 1 - kq)
+        order = np.lexsort((np.abs(v[beyond] - med), ~fenced))  # fence-cut first, nearest first
+        back = beyond[order[:len(beyond) - allowed]]
+        cut_lo, cut_hi = min(cut_lo, float(v[back].min())), max(cut_hi, float(v[back].max()))
     lo, hi = float(v[v >= cut_lo][0]), float(v[v <= cut_hi][-1])  # the axis hugs the points it keeps
     span = max(hi - lo, abs(hi) * 0.1, 1e-6)
     return float(lo - pad * span), float(hi + pad * span)
+
+
+def needs_log_axis(values: Sequence[float] | np.ndarray, spread: float = 8.0) -> bool:
+    """Whether positive `values` are best drawn on a log axis: an axis covering 95 % of them (`tail_range`)
+    would be more than `spread` times as tall as their bulk's (a TTC of minutes among a few seconds: with
+    a dozen points, one is more than 5 % of them), so the bulk would sit in the bottom eighth."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if not len(v) or (v <= 0).any():
+        return False
+    covered, bulk = tail_range(v), tail_range(v, cover=False)
+    if covered is None or bulk is None:
+        return False
+    return (covered[1] - covered[0]) > spread * (bulk[1] - bulk[0])
 
 
 def range_set_by_few(values: Sequence[float] | np.ndarray, axis: Sequence[float], share: float = TAIL_SHARE,

@@ -107,10 +107,9 @@ def indicators_at_decisions(changes: pd.DataFrame, lines: dict, who: tuple[str, 
     if changes is None or changes.empty:
         fig.update_layout(title="no evaluation yet")
         return fig
-    v = changes["v_e_mps"].dropna()
-    lo, hi = v_range or ((float(v.min()), float(v.max())) if len(v) else (15.0, 27.0))
-    grid = np.linspace(lo, hi, 20)
     shown = changes[changes["who"].isin(who)]
+    speeds = pd.to_numeric(shown["v_e_mps"], errors="coerce")
+    x_beyond = 0
     drawn = sample_rows(shown, max(1, max_markers // len(INDICATORS)))
     defined = {name: bool(np.isfinite(shown.loc[shown["who"] == name, [_COLS[k] for k in INDICATORS if _COLS[k] in
                                                                         shown]].to_numpy(dtype=float)).any())
@@ -120,6 +119,14 @@ def indicators_at_decisions(changes: pd.DataFrame, lines: dict, who: tuple[str, 
         values = pd.to_numeric(shown.get(_COLS[k]), errors="coerce") if _COLS[k] in shown else pd.Series(dtype=float)
         yrange = tail_range(values)
         n_beyond = int(((values < yrange[0]) | (values > yrange[1])).sum()) if yrange else 0
+        # the speed axis too follows the bulk of the changes drawn in the panel: a lone change far slower than
+        # the rest is drawn at its edge
+        v = speeds[np.isfinite(values.to_numpy(dtype=float))].dropna() if len(values) else speeds.iloc[:0]
+        xrange = None if v_range else tail_range(v)
+        lo, hi = v_range or ((float(v[v >= xrange[0]].min()), float(v[v <= xrange[1]].max())) if xrange
+                             else (15.0, 27.0))
+        grid = np.linspace(lo, hi, 20)
+        x_beyond += int(((v < xrange[0]) | (v > xrange[1])).sum()) if xrange else 0
         for name in who:
             part = drawn[(drawn["who"] == name)]
             part = part[np.isfinite(pd.to_numeric(part.get(_COLS[k]), errors="coerce").to_numpy(dtype=float))] \
@@ -127,18 +134,25 @@ def indicators_at_decisions(changes: pd.DataFrame, lines: dict, who: tuple[str, 
             where = clip_to_axis(part[_COLS[k]] if _COLS[k] in part else [], *(yrange or (-np.inf, np.inf)))
             n_all = int((shown["who"] == name).sum())
             label = f"{name} ({n_all})" + ("" if defined[name] or not n_all else ", none with a defined indicator")
+            wx = clip_to_axis(part["v_e_mps"], *(xrange or (-np.inf, np.inf)))
             symbols = symbol_codes(np.where(where["side"] == "above", "triangle-up-open",
-                                            np.where(where["side"] == "below", "triangle-down-open", "circle")))
-            fig.add_trace(go.Scatter(x=part["v_e_mps"], y=where["y"], mode="markers", name=label,
+                                            np.where(where["side"] == "below", "triangle-down-open",
+                                            np.where(wx["side"] == "above", "triangle-right-open",
+                                            np.where(wx["side"] == "below", "triangle-left-open", "circle")))))
+            fig.add_trace(go.Scatter(x=wx["y"], y=where["y"], mode="markers", name=label,
                                      marker={"color": _COLOURS.get(name), "size": 6, "opacity": 0.7, "symbol": symbols},
-                                     customdata=where["value"], cliponaxis=False,
-                                     hovertemplate=f"{name}<br>v_e %{{x:.2f}} m/s<br>{_UNITS[k]}: "
+                                     customdata=where["value"], cliponaxis=False, text=[f"{x:.2f}" for x in wx["value"]],
+                                     # the true speeds of the changes drawn at the axis's edge (`meta`'s x)
+                                     meta={"x": wx["value"].tolist()} if (wx["side"] != "").any() else None,
+                                     hovertemplate=f"{name}<br>v_e %{{text}} m/s<br>{_UNITS[k]}: "
                                                    "%{customdata:.2f}<extra></extra>",
                                      legendgroup=name, showlegend=col == 1), row=1, col=col)
         a, b = lines[k]
         fig.add_trace(go.Scatter(x=grid, y=a * grid + b, mode="lines", name="reference line",
                                  line={"color": "red"}, legendgroup="ref", showlegend=col == 1), row=1, col=col)
         fig.update_xaxes(title_text="ego speed v_e [m/s]", row=1, col=col)
+        if xrange:
+            fig.update_xaxes(range=list(xrange), row=1, col=col)
         fig.update_yaxes(title_text=_UNITS[k], row=1, col=col)
         if yrange:
             fig.update_yaxes(range=list(yrange), row=1, col=col)
@@ -146,7 +160,9 @@ def indicators_at_decisions(changes: pd.DataFrame, lines: dict, who: tuple[str, 
     for ann, text in zip(fig.layout.annotations, titles):
         ann.text = text
     fig.update_layout(title="Indicators at the lane changes vs the reference lines (Fig. 10)"
-                      + _drawn_note(len(drawn), len(shown), "changes"), height=420)
+                      + _drawn_note(len(drawn), len(shown), "changes")
+                      + (f"<br><sub>{x_beyond} points at speeds off the axis (open ◀▶)</sub>" if x_beyond else ""),
+                      height=420)
     return fig
 
 

@@ -177,6 +177,7 @@ class RunWriter:
         self.episodes = episodes
         self.started_at = started_at or now_iso()
         self._last_status = 0.0
+        self.extra: dict[str, Any] = {}  # written into every status (a personalisation's phase)
         self._metrics = open(folder / "metrics.jsonl", "a", encoding="utf-8")
 
     def status(self, state: str, episode: int, message: str = "", force: bool = True) -> None:
@@ -185,7 +186,7 @@ class RunWriter:
         self._last_status = time.monotonic()
         atomic_write_json(self.folder / "status.json", {
             "state": state, "pid": os.getpid(), "episode": int(episode), "episodes": int(self.episodes),
-            "started_at": self.started_at, "updated_at": now_iso(), "message": message,
+            "started_at": self.started_at, "updated_at": now_iso(), "message": message, **self.extra,
         })
 
     def metric(self, row: dict[str, Any]) -> None:

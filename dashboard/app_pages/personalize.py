@@ -10,7 +10,7 @@ import plotly.graph_objects as go
 import streamlit as st
 
 from dashboard import jobs, loaders, uploads, views, widgets
-from dashboard.context import max_upload_bytes, workspace
+from dashboard.context import EPISODES_ENV, env_int, max_upload_bytes, workspace
 from dashboard.widgets import progress_to
 from laneprint.errors import UserError
 
@@ -113,6 +113,8 @@ def launch(ws, driver: str, k: int, base: str, seed: int, fine_tune: bool = Fals
     cmd = [sys.executable, "-m", "laneprint.app.cli", "personalize", "--driver", driver, "--decisions", str(k),
            "--from", base, "--seed", str(seed), "--run-id", run_id, "--workspace", str(ws.root)] + \
         (["--fine-tune"] if fine_tune else [])
+    if episodes := env_int(EPISODES_ENV, None):  # the demo's (and tests') small count: the base agents' episodes
+        cmd += ["--base-episodes", str(episodes)]
     jobs._spawn(jobs.jobs_dir(ws), run_id, cmd, ws.root,  # the Training page's launcher: runs table, status, log
                 {"run_id": run_id, "request": {"kind": "personalized", "driver": driver, "decisions": k,
                                                "from": base, "fine_tune": fine_tune, "seed": seed,

@@ -158,6 +158,7 @@ def one_run(ws, run_id: str) -> None:
     ev = run["evaluation"]
     cfg = run["config"]
     st.markdown(views.run_header(run_id, cfg, run["status"]))
+    st.caption(views.learner_text(cfg))
     analysis_banner(ws, cfg)
     never = views.never_learnt(run["metrics"], cfg)
     if never:
@@ -257,6 +258,9 @@ def drives(ws) -> None:
                "(shaded), and each indicator's median at the agent's presses inside the drivers' IQR.")
     pick = st.selectbox("Drive", list(found), key="drive_pick", format_func=lambda k: views.drive_label(k, found[k]))
     d = found[pick]
+    st.markdown(f"**{views.drive_made_by_text(d)}**")
+    st.dataframe(views.drive_made_by_table(d), hide_index=True, width="stretch", key="drive_made_by")
+    st.caption(views.DRIVE_RULE_NOTE)
     if "rate" not in d.get("fidelity", {}):
         st.info(d.get("fidelity", {}).get("note", "This drive has no comparison with drivers (driven by an older "
                                                    "laneprint): drive it again."))

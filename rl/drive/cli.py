@@ -7,6 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from laneprint.cliutil import DEFAULT_WS, JsonOpt, WorkspaceOpt, progress_bar, run_command
@@ -14,6 +15,7 @@ from laneprint.workspace import Workspace
 from laneprint.options import Section, Settings, configurable
 from rl.drive.heldback import by_side_text
 from rl.drive.settings import DriveSettings
+from rl.drive.attribution import made_by
 
 
 
@@ -112,6 +114,13 @@ def render_lanes(lanes: dict[str, Any], console: Console) -> None:
         highlight=False, soft_wrap=True)
 
 
+def _by_whom(row: dict[str, Any]) -> str:
+    """'0 / 20 / 8' (agent / rule held back / rule return), with '+ 1 not requested' when SUMO made one."""
+    m = made_by(row)
+    extra = f" + {m['unattributed']} not requested" if m["unattributed"] else ""
+    return f"{m['agent']} / {m['rule_held_back']} / {m['rule_return']}{extra}"
+
+
 def _own_traffic(result: dict[str, Any]) -> str:
     own = result.get("drivers_traffic")
     if not own:
@@ -122,21 +131,29 @@ def _own_traffic(result: dict[str, Any]) -> str:
 
 
 def render(result: dict[str, Any], console: Console) -> None:
-    """The drive's tables: per section, then the indicators at the agent's decisions against its lines."""
+    """Who made the lane changes (first: the agent, or the assistant's rule and which part of it), the drive's
+    tables per section, then the indicators at the agent's decisions against its lines."""
+    who = result.get("who_drove") or {}
+    if who.get("text"):
+        console.print(f"[bold]{escape(who['text'])}[/bold]", highlight=False, soft_wrap=True)
+        console.print("(the rule: the assistant's held-back rule, `laneprint drive --no-held-back` drives without it; "
+                      "'held back': it changed lane after a slower leader held the ego back for its patience, "
+                      "'return': it completed an overtaking, back into the lane left)", highlight=False, soft_wrap=True)
     t = Table(title=f"{result['run_id']} ({result['target']['kind']} {result['target']['name']}) in SUMO "
                     f"{result['sumo_version']}: {result.get('lanes', 2)} lanes, {result.get('family', 'ttc')} traffic"
                     f"{_own_traffic(result)}, "
                     f"{result['minutes']:g} min per section, "
                     f"seed {result['seed']}, "
                     f"ego vType {result['ego_style']}, asked every {result['decision_every_s']:g} s")
-    cols = ("section", "asked", "decided", "lane changes (L/R)", "agent / rule", "per km", "not started",
+    cols = ("section", "asked", "decided", "lane changes (L/R)", "by agent / held back / return", "per km",
+            "not started",
             "collisions", "emergency brakes", "held back", "longest passed up [s]")
     for c in cols:
         t.add_column(c, justify="right")
     for r in result["sections"] + [dict(result["totals"], speed_limit_kph=None)]:
         t.add_row("total" if r["speed_limit_kph"] is None else f"{r['speed_limit_kph']:g} km/h",
                   str(r["decisions_asked"]), str(r["change_decisions"]),
-                  f"{r['lane_changes']} ({r['left']}/{r['right']})", f"{r['agent_changes']} / {r['rule_changes']}",
+                  f"{r['lane_changes']} ({r['left']}/{r['right']})", _by_whom(r),
                   _f(_per_km(r)), str(r["not_started"]), str(r["collisions"]), str(r["emergency_brakes"]),
                   _f(r["follow"]["held_share"], ".0%"), _f(r["follow"]["longest_passed_up_s"], ".1f"))
     console.print(t)

@@ -36,6 +36,7 @@ from laneprint.errors import SettingError, UserError
 from laneprint.progress import ProgressFn
 from laneprint.reference import INDICATORS, SPEED_LIMITS_KPH
 from laneprint.workspace import Workspace, atomic_write_json
+from rl.drive.attribution import MADE_BY, made_by, made_by_counts, who_drove
 from rl.drive.fidelity import drivers_traffic, fidelity
 from rl.drive.heldback import DWELL_PERCENTILE, HeldBackRule, merge_summaries, rule_from_analysis
 from rl.drive.settings import DriveSettings
@@ -151,6 +152,7 @@ def section_row(d: SectionDrive) -> dict[str, Any]:
         "agent_changes": sum(x.source == "agent" for x in started),
         "rule_changes": sum(x.source in ("rule", "return") for x in started),  # returns: an overtaking completed
         "return_changes": sum(x.source == "return" for x in started),
+        "made_by": made_by_counts(d.decisions, made),
         "not_started": sum(not x.started for x in d.decisions),
         "collisions": d.log.n_collisions, "emergency_brakes": d.log.n_emergency_brakes,
         "changes_by_lane": dict(sorted(by_lane.items())), "follow": d.follow,
@@ -169,6 +171,7 @@ _COUNTS = ("decisions_asked", "change_decisions", "lane_changes", "left", "right
 def totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Sums over sections, the distance, lane changes per km and the held-back figures."""
     out: dict[str, Any] = {k: sum(r[k] for r in rows) for k in _COUNTS}
+    out["made_by"] = {k: sum(made_by(r)[k] for r in rows) for k in MADE_BY}
     out["km"] = sum(r["km"] for r in rows)
     out["lane_changes_per_km"] = out["lane_changes"] / out["km"] if out["km"] > 0 else None
     out["follow"] = merge_summaries([r["follow"] for r in rows])
@@ -490,7 +493,9 @@ def drive_report(workspace: Workspace, plan: DrivePlan, driven: Driven, paths: l
     log = driven.drives[0].log
     rows = section_rows(driven.drives, paths)
     result: dict[str, Any] = {
-        "run_id": agent.run_id, "target": agent.config["target"], "driver_id": plan.driver_id, "seed": s.seed,
+        "run_id": agent.run_id, "target": agent.config["target"],
+        "who_drove": {},  # filled below: who made the lane changes comes first in the report
+        "driver_id": plan.driver_id, "seed": s.seed,
         "minutes": s.minutes, "sumo_version": log.sumo_version, "sumo_api": log.api,
         "ego_style": plan.style, "ego_style_reason": plan.style_reason, "decision_every_s": agent.cfg.dt_s,
         "lanes": s.lanes, "family": s.family,
@@ -514,6 +519,7 @@ def drive_report(workspace: Workspace, plan: DrivePlan, driven: Driven, paths: l
         "indicators": indicators_vs_lines(driven.drives, agent.cfg.lines),
         "decisions": decision_rows(driven.drives),
     }
+    result["who_drove"] = who_drove(rows, result["totals"], result["held_back"]["on"])
     result["fidelity"] = drivers_fidelity(workspace, agent.target, driven.recordings, s.seed)
     if driven.model is not None:
         result["sumo_model"] = sumo_model_report(driven.model, result["totals"])

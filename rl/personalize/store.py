@@ -121,7 +121,7 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
     if not others:
         raise UserError(f"{driver} is the only driver in the workspace: nothing to start from "
                         f"(`laneprint train --driver {driver}` trains on its decisions alone)")
-    report(progress, 0, 1, "style from the decisions")
+    report(progress, 0, 1, "phase 1: style from the decisions")
     following = workspace.read_table("analysis", "following") if workspace.has_table("analysis", "following") else None
     pop = fit_population(decisions, others, stored_settings(workspace), following)
     est = estimate_style(pop, own_rows, ps.n_bootstrap, seed, following)
@@ -148,11 +148,20 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
             "decision_ids": used, "base": base, "style_estimate": est.to_dict(), "personalize": ps.to_dict(),
             "method": used_ps.method})
         writer = RunWriter(folder, ft_settings.episodes)
+        cached_bases = {name: _cached_base(workspace, c["key"]) for name, c in cands.items()}
+        tuning = (f"personalising on {len(used)} decisions" if ft_settings.episodes
+                  else "the base agent as it is")
+        phases = Phases(["style from the decisions",
+                         *[f"training the base agent ({n})" for n, b in cached_bases.items() if b is None],
+                         tuning, "evaluating"], writer, progress)
+        phases.done("style from the decisions")
 
         def phase(episodes_total: int, what: str) -> ProgressFn:
-            """Progress to the caller and to status.json (a dashboard follows the run by it)."""
+            """Progress to the caller and to status.json (a dashboard follows the run by it), as phase `what`."""
+            phases.start(what, episodes_total)
+
             def tick(done: int, total: int, message: str = "") -> None:
-                report(progress, done, total, message)
+                report(progress, done, total, phases.label(message or what))
                 writer.episodes = episodes_total
                 writer.status("running", done, what, force=False)
             return tick
@@ -162,12 +171,11 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
             for name, c in cands.items():
                 app, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(c["drivers"])])
                 apps[name], c["n_approaches"] = app, len(app)
-                cached = _cached_base(workspace, c["key"])
+                cached = cached_bases[name]
                 if cached is not None:
                     weights[name], c["reused_from"] = cached
                     continue
                 what = f"training the base agent ({name})"
-                writer.status("running", 0, what)
                 trainer = train_agent(app, env, base_dqn, label=f"base ({name})", progress=phase(
                     base_dqn.resolved_episodes(replayed_approaches(app, env)).episodes, what))
                 weights[name], c["episodes"] = weights_of(trainer), trainer.episodes_done
@@ -200,10 +208,8 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
                 base_w, base_app = weights[chosen], apps[chosen]
             _save(folder / "base_weights.pt", base_w)
             atomic_write_json(folder / "config.json", config)
-            writer.status("running", 0, f"personalising on {len(used)} decisions")
             trainer = personalised_agent(base_w, base_app, own_app, env, net_dqn, used_ps, episodes=episodes,
-                                         progress=phase(ft_settings.episodes, f"personalising on {len(used)} decisions"),
-                                         on_episode=writer.metric)
+                                         progress=phase(ft_settings.episodes, tuning), on_episode=writer.metric)
             writer.episodes = ft_settings.episodes
         except BaseException as exc:
             writer.flush()
@@ -213,8 +219,9 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
         writer.flush()
         _save(folder / "checkpoint.pt", trainer.state_dict())
         _save(folder / "weights.pt", trainer.policy_net.state_dict())
+        phases.start("evaluating", 1)
         writer.status("running", trainer.episodes_done, "evaluating")
-        report(progress, 0, 1, "evaluating")
+        report(progress, 0, 1, phases.label("evaluating"))
         later = later_scores(trainer.policy_net, rows, set(used), env, seed)
         extra = {"run_id": run_id, "driver": str(driver), "decisions": len(used),
                  "decisions_available": config["decisions_available"], "style": est.to_dict(), "base": base,
@@ -231,10 +238,39 @@ def personalize(workspace: Workspace, driver: str, k: int | None = None, ps: Per
             message += (f" (style {est.style} sure: confidence {est.confidence:.2f} >= {ps.min_confidence:g})"
                         if used_ps.method == "none" else
                         f" (style {est.style} unsure: confidence {est.confidence:.2f} < {ps.min_confidence:g})")
+        writer.extra = {}
         writer.status("done", trainer.episodes_done, message)
         writer.close()
     return {**extra, "folder": str(folder), "state": "done", "episodes": trainer.episodes_done,
             "env_steps": trainer.env_steps, "wall_s": round(trainer.wall_s, 2), "message": message}
+
+
+class Phases:
+    """A personalisation's phases in order (the style, each base agent trained, the fine-tuning, the
+    evaluation): which one is under way, written into status.json (`phase`, `phases`, `phase_name`,
+    `phase_started_at`: a dashboard's time estimate is the phase's own) and named in the command line's bar
+    ('phase 2/4: ...')."""
+
+    def __init__(self, names: list[str], writer: RunWriter, progress: ProgressFn | None) -> None:
+        self.names, self.writer, self.progress = names, writer, progress
+        self.index = 0
+
+    def label(self, message: str) -> str:
+        return f"phase {self.index + 1}/{len(self.names)}: {message}"
+
+    def start(self, name: str, episodes: int) -> None:
+        """Phase `name` begins, with `episodes` to go (its status says 0 of them)."""
+        self.index = self.names.index(name) if name in self.names else min(self.index + 1, len(self.names) - 1)
+        self.writer.extra = {"phase": self.index + 1, "phases": len(self.names), "phase_name": name,
+                             "phase_started_at": now_iso()}
+        self.writer.episodes = episodes
+        self.writer.status("running", 0, name)
+        report(self.progress, 0, max(episodes, 1), self.label(name))
+
+    def done(self, name: str) -> None:
+        """Phase `name` is over (the style, estimated before the run's folder existed)."""
+        self.index = self.names.index(name)
+        report(self.progress, 1, 1, self.label(name))
 
 
 def personalised_settings(dqn: DQNSettings, ps: PersonalizeSettings, k: int, episodes: int | None) -> DQNSettings:

@@ -269,12 +269,28 @@ def test_results_page_draws_a_closed_loop_drive_beside_its_drivers(empty_ws):
            "indicators": {"t_f": compare_values(rng.normal(8, 1, 40), rng.normal(8, 1, 90), rng)}}
     folder = empty_ws.root / "drives" / "normal-s1"
     folder.mkdir(parents=True)
-    (folder / "drive.json").write_text(json.dumps({"run_id": "normal", "lanes": 3, "seed": 1, "fidelity": fid}))
+    # one section as `laneprint drive` reports it, the other as a drive reported before lane changes were
+    # attributed one by one (its counts only)
+    sections = [{"speed_limit_kph": 80.0, "lane_changes": 12, "agent_changes": 0, "rule_changes": 12,
+                 "return_changes": 4, "made_by": {"agent": 0, "rule_held_back": 8, "rule_return": 4,
+                                                  "unattributed": 0}},
+                {"speed_limit_kph": 90.0, "lane_changes": 19, "agent_changes": 3, "rule_changes": 16,
+                 "return_changes": 6}]
+    totals = {"lane_changes": 31, "agent_changes": 3, "rule_changes": 28, "return_changes": 10}
+    (folder / "drive.json").write_text(json.dumps({"run_id": "normal", "lanes": 3, "seed": 1, "fidelity": fid,
+                                                   "sections": sections, "totals": totals}))
     at = run_page("results")
     assert any("Closed-loop drives in SUMO (1)" in s.value for s in at.subheader)
     assert "3 lanes, seed 1, 3.10 /km (drivers 3.00)" in at.selectbox(key="drive_pick").options[0]
     (fig,) = [c for c in charts(at) if "beside its drivers" in c["layout"]["title"]["text"]]
     assert len(fig["data"]) == 4
+    # who made each lane change: the agent, or the rule and which part of it, per section and in total
+    assert any("Who changed lane: 31 lane changes: the agent 3, the rule 28 (held back 18, return 10)" in m.value
+               for m in at.markdown)
+    who = next(d.value for d in at.dataframe if "by the agent" in d.value.columns)
+    assert who["section"].tolist() == ["80 km/h", "90 km/h", "total"]
+    assert who["rule: held back"].tolist() == [8, 10, 18] and who["by the agent"].tolist() == [0, 3, 3]
+    assert any("when a slower leader has held the ego back" in c.value for c in at.caption)
 
 
 def test_personalize_page_starts_from_the_cli_default(use_sample):

@@ -47,3 +47,28 @@ def test_a_finished_personalisation_shows_its_result_and_link(empty_ws):
     table = next(d.value for d in at.dataframe if "analysis" in d.value.columns)
     assert table.loc[0, "analysis"] == "analysis unknown"  # recorded before runs named their analysis
     assert table.loc[0, "held out: decisions not given"] == 32
+
+
+def test_progress_names_the_phase_and_the_time_it_has_left():
+    status = {"state": "running", "episode": 300, "episodes": 1200, "message": "training the base agent (Normal)",
+              "phase": 2, "phases": 4, "phase_name": "training the base agent (Normal)",
+              "started_at": "2026-11-22T00:00:00+00:00", "phase_started_at": "2026-11-22T00:02:00+00:00",
+              "updated_at": "2026-11-22T00:03:00+00:00"}
+    frac, text = views.personalize_progress("p1", status)
+    assert frac == 0.25
+    # 60 s for a quarter of this phase (not the 3 min since the run started): about 3 min left
+    assert text == "p1: phase 2 of 4: training the base agent (Normal) (300/1,200 episodes, about 3 min left)"
+    assert "starting" in views.personalize_progress("p1", {"state": "starting"})[1]
+
+
+def test_the_command_lines_bar_starts_afresh_each_phase(monkeypatch):
+    from laneprint import cliutil
+
+    resets = []
+    monkeypatch.setattr(cliutil.Progress, "reset", lambda self, task, **kw: resets.append(kw["total"]))
+    with cliutil.progress_bar() as bar:
+        for done in range(0, 50, 10):
+            bar(done, 50, "phase 2/4: base: episode")
+        bar(0, 40, "phase 3/4: personalised: episode 0")
+        bar(10, 40, "phase 3/4: personalised: episode 10")
+    assert resets == [50, 40]  # once when the first total is known, once when the next phase starts

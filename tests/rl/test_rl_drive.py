@@ -238,6 +238,10 @@ def test_drive_writes_a_log_whose_presses_are_the_agents_lane_changes(trained, t
     assert tot["lane_changes"] > 0, "the agent made no lane change: the test would prove nothing"
     started = sorted(d["press_t_s"] for d in res["decisions"] if d["started"])
     assert len(started) == tot["lane_changes"] == tot["agent_changes"] + tot["rule_changes"]
+    who = res["who_drove"]  # each lane change is the press of the decision that asked for it: none left over
+    assert list(res)[:3] == ["run_id", "target", "who_drove"] and who["total"]["unattributed"] == 0
+    assert sum(who["total"].values()) == tot["lane_changes"] and who["total"]["agent"] == tot["agent_changes"]
+    assert who["total"]["rule_return"] == tot["return_changes"] and who["text"].startswith("Who changed lane")
     model = res["sumo_model"]  # the comparator: SUMO's own lane changing, same sections and seeds
     assert [r["sumo_seed"] for r in model["sections"]] == [r["sumo_seed"] for r in res["sections"]]
     assert model["totals"]["lane_changes_per_km"] is not None and model["totals"]["km"] > 0

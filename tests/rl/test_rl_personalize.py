@@ -402,3 +402,35 @@ def test_a_new_drivers_style_from_the_headway_it_kept_by_its_kth_press() -> None
     assert everything.style != "Defensive"
     with pytest.raises(UserError, match="no defined value of thw_follow"):
         estimate_style(pop, first6, n_bootstrap=0)  # no episodes given
+
+
+def test_personalisation_reports_its_phases_with_their_own_start(study: Workspace, monkeypatch) -> None:
+    """Progress of a personalisation (issue 48, item 2): 'phase i/n' on the command line's bar; status.json
+    carries the phase, the count and the phase's start (the dashboard's time estimate); done clears them."""
+    from rl.learners.dqn import DQNSettings
+    from rl.personalize.settings import PersonalizeSettings
+    from rl.personalize.store import personalize
+    from rl.runs import RunWriter
+
+    written: list[dict] = []
+    original = RunWriter.status
+
+    def record(self, state, episode, message="", force=True):
+        original(self, state, episode, message, force)
+        written.append(json.loads((self.folder / "status.json").read_text()))
+
+    monkeypatch.setattr(RunWriter, "status", record)
+    messages: list[str] = []
+    dqn = DQNSettings(num_envs=8, batch_size=64, learning_starts=100)
+    personalize(study, "D01", 4, PersonalizeSettings(base="population", method="finetune"), dqn, episodes=40,
+                base_episodes=60, seed=7, run_id="phases", progress=lambda d, t, m="": messages.append(m))  # seed 7: no base to reuse
+    phases = [m.split(":")[0] for m in dict.fromkeys(messages)]
+    assert phases[0] == "phase 1" and "phase 1/4" in phases and "phase 4/4" in phases
+    assert any(m.startswith("phase 2/4: base (population): episode") for m in messages)
+    assert any(m.startswith("phase 3/4: personalised: episode") for m in messages)
+    running = [s for s in written if s["state"] == "running"]
+    assert [s["phase"] for s in running] == sorted(s["phase"] for s in running)
+    assert {s["phase_name"] for s in running} == {"training the base agent (population)",
+                                                  "personalising on 4 decisions", "evaluating"}
+    assert all(s["phases"] == 4 and s["phase_started_at"] >= s["started_at"] for s in running)
+    assert written[-1]["state"] == "done" and "phase" not in written[-1]
