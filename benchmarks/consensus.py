@@ -30,7 +30,7 @@ from results_file import write_result  # noqa: E402
 #: variant name -> (voters, linkage, vote floor: share of the best reading's score a voter needs)
 VARIANTS: dict[str, tuple[int, str, float]] = {"separated": (1, "complete", 0.0)} | {
     f"top{n}-{link}": (n, link, 0.0) for n in (3, 5, 8, 99) for link in ("average", "complete")} | {
-    f"top5-complete-floor{f}": (5, "complete", f) for f in (0.3, 0.5)}
+    f"top{n}-complete-floor{f}": (n, "complete", f) for n in (5, 8) for f in (0.3, 0.5)}
 
 
 def ranked(world: str, seed: int, root: Path) -> tuple[dict[str, str], list]:

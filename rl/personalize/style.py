@@ -29,7 +29,7 @@ from clustering.features import driver_features, transform_features
 from clustering.selection import clustering_rows
 from clustering.styles import StyleClusterer
 from indicators.settings import AnalysisSettings
-from indicators.stats import TRAIT_UNITS, indicator_points
+from indicators.stats import FEATURE_UNITS, TRAIT_UNITS, indicator_points
 from laneprint.errors import UserError
 
 #: A feature speed counts as covered when a press was made within this of it [km/h].
@@ -78,6 +78,8 @@ def fit_population(decisions: pd.DataFrame, drivers: list[str], settings: Analys
                    following: pd.DataFrame | None = None) -> Population:
     """Cluster `drivers` (the population) as the analysis would, with its settings (and its
     drives' steady-following episodes, `following`, for the `thw_follow` feature)."""
+    # a new driver's few decisions read indicators; a drive-level parameter (the free speed) is not one
+    settings = settings.with_(feature_indicators=tuple(i for i in settings.feature_indicators if i in FEATURE_UNITS))
     dec = decisions[decisions["driver_id"].astype(str).isin(drivers)]
     if following is not None:
         following = following[following["driver_id"].astype(str).isin(drivers)]
