@@ -120,6 +120,7 @@ def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(s
     assert again.exit_code == 1 and "was personalised" in again.stderr  # a resume would train on all its data
 
 
+@pytest.mark.slow
 def test_a_second_run_with_the_same_base_reuses_it(study: Workspace) -> None:
     a = _run(study, "--driver", "D04", "--decisions", "3", "--from", "fit", "--run-id", "b1", "--json", *TINY)
     b = _run(study, "--driver", "D04", "--decisions", "6", "--from", "fit", "--run-id", "b2", "--json", *TINY)
