@@ -166,9 +166,9 @@ def ranked_readings(points: pd.DataFrame, drivers: list[str], fit_on: list[str],
     for sc in set_scores:
         if sc.presses_read < settings.min_fit_points or not np.isfinite(sc.score):
             continue
-        labels = indicator_labels(points, drivers, n_dec, settings, sc.name)
-        if labels is not None:
-            scores.append(ReadingScore(sc.name, INDICATOR_SETS[sc.name], np.nan, np.nan, np.nan, False, False, labels,
+        read = indicator_labels(points, drivers, n_dec, settings, sc.name)
+        if read is not None:
+            scores.append(ReadingScore(sc.name, INDICATOR_SETS[sc.name], np.nan, np.nan, np.nan, False, False, read,
                                        silhouette=sc.silhouette, stability=sc.stability))
     scores.sort(key=lambda r: -(r.silhouette * np.nan_to_num(r.stability, nan=1.0)))
     return scores, clusterers

@@ -26,7 +26,7 @@ def _fmt(x: Any, spec: str = ".3g") -> str:
     return "-" if x is None else format(x, spec)
 
 
-def _line(f: dict[str, Any]) -> str:
+def _line(f: dict[str, Any] | None) -> str:
     """A fit as 'A/b', with '!' when flagged."""
     if not f or f["status"] != "ok":
         return "-"

@@ -226,9 +226,9 @@ def latest_samples(states: np.ndarray, t_states: np.ndarray, tr: pd.DataFrame, n
         rows = by_vehicle[bounds[c]:bounds[c + 1]]
         i = np.searchsorted(t[rows], q_t_sorted, side="right") - 1  # the last sample at or before (raw times)
         at[:, c] = np.where(i >= 0, rows[np.maximum(i, 0)], -1)
-    at = at.ravel()
-    hit = at >= 0
-    row = np.where(hit, at, 0)
+    at_flat = at.ravel()
+    hit = at_flat >= 0
+    row = np.where(hit, at_flat, 0)
     hit &= (q_t - t[row]) <= tolerance_s
     row = row[hit]
     return pd.DataFrame({"state": q_state[hit], "t_s": q_t[hit], "vehicle_id": q_code[hit], "veh_t_s": t[row],

@@ -7,7 +7,8 @@ overhead of one. Each agent's maths is unchanged: the loss is a sum of per-agent
 losses (so each agent's gradient is its own), Adam is elementwise, and gradient
 clipping, learning rate and masking are per agent. `StackedAdam` keeps torch
 Adam's exact update and converts to and from its state dict, so an agent trained
-in a fleet resumes alone with `DQNTrainer` and the other way round.
+in a fleet resumes alone with `DQNTrainer` and the other way round. `StackedNets` is
+the fleet's arithmetic for `rl.learners.dqn.DQNLoop`, the one training loop.
 """
 
 from __future__ import annotations
@@ -15,10 +16,12 @@ from __future__ import annotations
 import threading
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 
 from rl.learners.dqn import q_network
+from rl.settings import DQNSettings
 
 #: The agent axis of every stacked tensor.
 AGENT_AXIS = 0
@@ -98,7 +101,9 @@ def _per_agent(x: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
 
 def clip_grad_norms(grads: list[torch.Tensor], max_norm: float) -> torch.Tensor:
     """Rescale each agent's gradient to at most `max_norm` (as `clip_grad_norm_` per agent); returns the norms."""
-    sq = sum(g.pow(2).flatten(1).sum(1) for g in grads)
+    sq = grads[0].pow(2).flatten(1).sum(1)
+    for g in grads[1:]:
+        sq = sq + g.pow(2).flatten(1).sum(1)
     norms = sq.sqrt()
     coef = torch.clamp(max_norm / (norms + 1e-6), max=1.0)
     for g in grads:
@@ -189,3 +194,80 @@ def td_losses(params: list[torch.Tensor], target_params: list[torch.Tensor], bat
     if loss == "mse":
         return nn.functional.mse_loss(q, td_target, reduction="none").mean(dim=1)
     return nn.functional.smooth_l1_loss(q, td_target, reduction="none").mean(dim=1)
+
+
+class StackedNets:
+    """K agents' nets and optimisers stacked along the agent axis: a fleet's arithmetic (`rl.learners.dqn.Nets`).
+
+    Each agent's initial weights are `q_network`'s after `torch.manual_seed` of its seed, as
+    `OneNet` draws them; its update is `OneNet`'s up to floating-point summation order.
+    """
+
+    def __init__(self, settings: list[DQNSettings], n_obs: int) -> None:
+        self.hidden, self.n_obs = settings[0].hidden, n_obs
+        self.q = [p.requires_grad_(True) for p in init_params([s.seed for s in settings], self.hidden, n_obs)]
+        self.target = [p.detach().clone() for p in self.q]
+        self.q_avg = [p.detach().clone() for p in self.q]
+        self.adam = StackedAdam(self.q)
+
+    def greedy(self, obs: np.ndarray) -> np.ndarray:
+        with torch.inference_mode():
+            return forward(self.q, torch.from_numpy(obs)).argmax(dim=2).numpy()
+
+    def update(self, batch: tuple[torch.Tensor, ...], learning: np.ndarray, lr: list[float],
+               averaging: np.ndarray, s: DQNSettings) -> np.ndarray:
+        losses = td_losses(self.q, self.target, batch, s.gamma, s.loss, s.double_q)
+        mask = torch.from_numpy(learning)
+        # weight gradients come back as transposed views (`forward` multiplies by W^T): made
+        # contiguous once, clipping and Adam's ~10 elementwise passes over them ran twice as fast
+        grads = [g.contiguous() for g in torch.autograd.grad((losses * mask).sum(), self.q)]
+        if s.max_grad_norm:
+            clip_grad_norms(grads, s.max_grad_norm)
+        self.adam.step(self.q, grads, torch.tensor(lr, dtype=torch.float64), mask)
+        averaged = torch.from_numpy(averaging) & mask
+        if bool(averaged.any()):
+            w = averaged.to(torch.float32) * s.average_tau
+            with torch.no_grad():
+                for p_avg, p in zip(self.q_avg, self.q):
+                    p_avg.lerp_(p, _per_agent(w, p))
+        return losses.detach().numpy()
+
+    @staticmethod
+    def _copy(dst: list[torch.Tensor], src: list[torch.Tensor], j: int) -> None:
+        with torch.no_grad():
+            for d, s in zip(dst, src):
+                d[j].copy_(s[j])
+
+    def copy_target(self, j: int) -> None:
+        self._copy(self.target, self.q, j)
+
+    def start_average(self, j: int) -> None:
+        self._copy(self.q_avg, self.q, j)
+
+    def policy_state_dict(self, j: int, averaging: bool) -> dict[str, torch.Tensor]:
+        return agent_state_dict(self.q_avg if averaging else self.q, j)
+
+    def policy_actions(self, j: int, averaging: bool, x: np.ndarray) -> np.ndarray:
+        params = self.q_avg if averaging else self.q
+        with torch.inference_mode():
+            q = forward([p[j:j + 1] for p in params], torch.as_tensor(x, dtype=torch.float32)[None])[0]
+        return q.argmax(dim=1).numpy()
+
+    def agent_state_dict(self, j: int, lr: float) -> dict[str, Any]:
+        return {"q": agent_state_dict(self.q, j), "target": agent_state_dict(self.target, j),
+                "q_avg": agent_state_dict(self.q_avg, j),
+                "optimizer": self.adam.agent_state_dict(j, lr, self.hidden, self.n_obs)}
+
+    def load_agent(self, j: int, state: dict[str, Any]) -> None:
+        load_agent(self.q, j, state["q"])
+        load_agent(self.target, j, state["target"])
+        load_agent(self.q_avg, j, state["q_avg"])
+        self.adam.load_agent(j, state["optimizer"])
+
+    def select(self, keep: list[int]) -> None:
+        idx = torch.tensor(keep, dtype=torch.long)
+        with torch.no_grad():
+            self.q = [p.requires_grad_(True) for p in select([p.detach() for p in self.q], idx)]
+        self.target = select(self.target, idx)
+        self.q_avg = select(self.q_avg, idx)
+        self.adam.select(idx)

@@ -281,10 +281,7 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
     import threading
     from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
 
-    import torch
-
     from rl.fleet.batch import FleetMember, FleetTrainer
-    from rl.learners import batched
     from rl.learners.dqn import q_network
     from rl.problem.env import observation_names
 
@@ -361,12 +358,7 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
                 t.fitted.rows.append(row)
 
         def running_changes(member: int, x: np.ndarray) -> np.ndarray:
-            j = fleet.position(member)
-            assert j is not None
-            params = fleet.q_avg if fleet.agents[j].averaging else fleet.q
-            with torch.inference_mode():
-                q = batched.forward([p[j:j + 1] for p in params], torch.as_tensor(x, dtype=torch.float32)[None])[0]
-            return q.argmax(dim=1).numpy() == CHANGE
+            return fleet.policy_actions(member, x) == CHANGE
 
         def trees_done(t: _Target) -> dict[int, tuple[np.ndarray, ...]]:
             out = {}

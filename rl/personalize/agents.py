@@ -205,7 +205,9 @@ def blended_network(parts: list[tuple[dict[str, torch.Tensor], float]]) -> dict[
             w, b = torch.block_diag(*ws), torch.cat(bs, 0)
         else:
             w = torch.cat([c * wi for wi, (_, c) in zip(ws, parts)], 1)
-            b = sum(c * bi for bi, (_, c) in zip(bs, parts))
+            b = parts[0][1] * bs[0]  # summed in order, as sum() did from 0
+            for bi, (_, c) in zip(bs[1:], parts[1:]):
+                b = b + c * bi
         out[f"{layer}.weight"], out[f"{layer}.bias"] = w.contiguous(), b.contiguous()
     return out
 

@@ -90,7 +90,7 @@ def fit_population(decisions: pd.DataFrame, drivers: list[str], settings: Analys
     if len(rows) == 0:
         raise UserError("no other driver has clustering features: the population has no styles")
     Xt = transform_features(feats, settings)
-    clf = StyleClusterer(k=settings.k, choose_k=settings.choose_k, k_range=tuple(settings.k_range),
+    clf = StyleClusterer(k=settings.k, choose_k=settings.choose_k, k_range=(settings.k_range[0], settings.k_range[1]),
                          n_init=settings.n_init, random_state=settings.random_state).fit(Xt.loc[rows])
     usable = feats.index[feats.notna().any(axis=1)]
     labels = clf.predict(Xt.loc[usable])

@@ -364,12 +364,14 @@ class LaneChangeDecisionEnv(gym.Env):
         self._replay_i = 0
 
     def _obs(self) -> np.ndarray:
+        assert self._scene is not None, "reset() first"
         return observation(self._scene, self.config)[0]
 
     def _info(self) -> dict[str, Any]:
+        assert self._scene is not None, "reset() first"
         ind = indicators(self._scene, self.config.far_follower_m, self.config.range_m)
         # undefined indicators are None (NaN would make equal infos compare unequal)
-        info = {k: (None if np.isnan(x := float(getattr(ind, k)[0])) else x) for k in ("v_e", "t_f", "t_nf", "dv_nb")}
+        info: dict[str, Any] = {k: (None if np.isnan(x := float(getattr(ind, k)[0])) else x) for k in ("v_e", "t_f", "t_nf", "dv_nb")}
         if self._approach is not None:
             info["decision_id"] = self._approach.decision_id
             info["recorded"] = self._replay_i < len(self._approach)

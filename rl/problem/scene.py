@@ -234,4 +234,5 @@ def acceptance_features(scene: Scene, range_m: float) -> np.ndarray:
 
 def direction_feature(scene: Scene) -> np.ndarray:
     """1 where the target lane is to the left, OBS_FLOOR where it is to the right; shape (n, 1) float32."""
+    assert scene.left is not None  # `Scene.__post_init__` sets it
     return np.where(scene.left, 1.0, OBS_FLOOR).astype(np.float32)[:, None]

@@ -67,6 +67,7 @@ def test_few_presses_give_wide_errors_and_are_pooled():
     assert b.se.loc["few", "thw_nb"] > 2 * b.se.loc["many", "thw_nb"]
 
 
+@pytest.mark.slow
 def test_heldout_choice_prefers_the_parameter_that_tells_styles_apart():
     truth = {f"a{i}": 0.5 * (1 + 0.05 * i) for i in range(3)} | {f"n{i}": 1.2 * (1 + 0.05 * i) for i in range(3)} \
         | {f"d{i}": 2.6 * (1 + 0.05 * i) for i in range(3)}

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from clustering.pipeline import analyze_tables
 from indicators.settings import AnalysisSettings
@@ -64,6 +65,7 @@ def test_no_presses_at_all_still_completes():
     assert (out["skipped"]["what"] == "driver").any()
 
 
+@pytest.mark.slow
 def test_heavy_tailed_ttc_does_not_move_styles():
     df, truth = make_decision_table(9, 40, seed=11, keep_per_press=0)
     fast = AnalysisSettings(n_bootstrap=0)

@@ -86,6 +86,7 @@ def test_choose_k_through_settings(synthetic):
     assert out["styles"]["cluster"].max() + 1 == out["k_scores"].loc[out["k_scores"]["score"].idxmax(), "k"]
 
 
+@pytest.mark.slow
 def test_the_consensus_chooses_k_too(synthetic):
     """`choose_k` with the default features: the consensus at each k, the best separated kept."""
     df, truth, _ = synthetic

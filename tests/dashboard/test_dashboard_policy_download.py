@@ -7,6 +7,7 @@ import shutil
 import zipfile
 
 import numpy as np
+import pytest
 from streamlit.testing.v1 import AppTest
 
 from dashboard import jobs
@@ -30,6 +31,7 @@ def test_onnx_is_a_base_dependency():
     assert jobs.onnx_missing() is None
 
 
+@pytest.mark.slow
 def test_the_exported_zip_runs_in_onnxruntime(sample_ws, tmp_path, monkeypatch):
     import onnxruntime as ort
 

@@ -3,6 +3,7 @@
 import json
 import shutil
 
+import pytest
 from streamlit.testing.v1 import AppTest
 
 from dashboard_support import page_path
@@ -15,6 +16,7 @@ def run_results() -> AppTest:
     return at
 
 
+@pytest.mark.slow
 def test_results_mark_a_run_of_an_earlier_analysis(sample_ws, tmp_path, monkeypatch):
     ws = Workspace(shutil.copytree(sample_ws.root, tmp_path / "ws"))
     monkeypatch.setenv("LANEPRINT_WORKSPACE", str(ws.root))

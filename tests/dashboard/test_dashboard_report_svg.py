@@ -110,6 +110,7 @@ def test_table_html_reads_as_pandas_writes_it():
     assert ("d", "&lt;b&gt;") in cells(_table_html(frame)) and ("d", "0.1235") in cells(_table_html(frame))
 
 
+@pytest.mark.slow
 def test_a_fleet_is_one_section_with_one_figure(sample_ws, tmp_path):
     """A fleet's agents are a table and one figure in the report, not four figures each."""
     import shutil

@@ -30,6 +30,7 @@ def test_readme_and_reference_carry_no_issue_numbers():
     assert len((ROOT / "README.md").read_bytes()) <= 15_000
 
 
+@pytest.mark.slow
 def test_site_builds_strict(tmp_path):
     mkdocs = shutil.which("mkdocs", path=str(Path(sys.executable).parent)) or shutil.which("mkdocs")
     assert mkdocs, "mkdocs is in the test extra"

@@ -90,6 +90,7 @@ def episodes_by_style(truth: dict[str, str], seed: int = 0) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+@pytest.mark.slow
 def test_auto_reads_a_driver_by_the_headway_it_keeps_when_its_presses_mislead():
     from tests.clustering.test_clustering_selection import FRONT_GAP_M, acceptance_table
 

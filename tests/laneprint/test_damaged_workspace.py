@@ -136,6 +136,7 @@ def damaged(study_ws, tmp_path):
     return ws, a, b
 
 
+@pytest.mark.slow
 def test_a_garbage_parquet_is_named_and_left_out_by_ingest_analyze_and_report(damaged, tmp_path):
     ws, a, b = damaged
     assert len(ws.recordings()) == len(list(ws.recordings_dir.iterdir())) - 1
@@ -166,6 +167,7 @@ def test_check_repair_quarantines_the_damaged_and_says_so(damaged):
     assert ws.damaged == {} and len(ws.recordings()) == len(list(ws.recordings_dir.iterdir()))
 
 
+@pytest.mark.slow
 def test_a_damaged_analysis_table_is_one_line_in_the_report_and_quarantined(damaged, tmp_path):
     ws, _, _ = damaged
     check_workspace(ws, repair=True)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from laneprint.app.cli import app
@@ -12,6 +13,7 @@ from laneprint.app.cli import app
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_logs"
 
 
+@pytest.mark.slow
 def test_run_ingests_and_analyzes_sample_logs(tmp_path):
     logs = [str(SAMPLE / "D01_S60.mcap"), str(SAMPLE / "D02_S80.csv.gz")]
     result = CliRunner().invoke(app, ["run", *logs, "--no-train", "-w", str(tmp_path / "ws"), "--json"])

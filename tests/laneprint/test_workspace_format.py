@@ -61,6 +61,7 @@ def test_a_newer_workspace_is_refused(tmp_path):
         Workspace(ws.root)
 
 
+@pytest.mark.slow
 def test_the_command_line_refuses_a_newer_workspace_in_one_line(tmp_path):
     ws = Workspace(tmp_path / "ws").ensure()
     (ws.root / FORMAT_FILE).write_text(json.dumps({"format": FORMAT + 1}))

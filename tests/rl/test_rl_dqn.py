@@ -108,3 +108,34 @@ def test_checkpoint_resume_continues_exactly_and_loads_weights_only():
     assert straight.policy_net is straight.q_avg
     for x, y in zip(straight.q_avg.parameters(), second.q_avg.parameters()):
         assert torch.equal(x, y)
+
+
+def _pinned_run() -> tuple[DQNTrainer, dict]:
+    """A DQN on recorded scenes (the default formulation) with double Q, Huber loss and the averaged policy."""
+    from rl.problem.env import formulation_config
+
+    lines = ReferenceLines.paper("Normal")
+    approaches, _ = approaches_from_decisions(rule_driver_decisions(lines, 30, seed=0, window_s=4.0))
+    cfg = formulation_config(lines, "decisions")
+    s = DQNSettings(episodes=600, seed=7, num_envs=8, batch_size=64, learning_starts=200, episodes_per_approach=0.0,
+                    double_q=True, loss="huber", average_tau=0.02, target_update_episodes=15)
+    t = DQNTrainer(cfg, s, approaches=approaches).train()
+    ev = evaluate_policies({"agent": agent_policy(t.policy_net, cfg)}, approaches, cfg)
+    return t, ev["summary"][0]
+
+
+def test_a_fixed_seed_trains_what_it_trained_before_the_loops_were_one():
+    """Pinned on the two-loop code (issue 46, before `DQNTrainer` became the one loop's single agent):
+    the counts exactly, the weights to float noise, the policy's agreement with the driver. Measured on
+    this project's x86-64 machines with torch's CPU kernels; a machine whose kernels round differently
+    may take another trajectory (then the counts and sums move, and only the agreement should hold)."""
+    t, row = _pinned_run()
+    assert (t.episodes_done, t.env_steps, t.updates, t.averaging) == PINNED["counts"]
+    sums = [round(float(p.detach().double().sum()), 4) for p in t.policy_net.parameters()]
+    assert sums == pytest.approx(PINNED["weight_sums"], abs=2e-3)
+    assert row["balanced_accuracy"] == pytest.approx(PINNED["balanced_accuracy"], abs=0.02)
+
+
+#: Measured on the two-loop code at 59d3cf7 (the policy's weights hashed 21d4c7ee4ef65763 there, and after).
+PINNED: dict = {"counts": (600, 1624, 358, True), "balanced_accuracy": 0.9313,
+                "weight_sums": [-23.8402, -4.3785, -112.1842, -1.0845, -46.0108, -0.4125, 0.2664, -0.0085]}

@@ -7,6 +7,7 @@ import sys
 from dataclasses import replace
 
 import numpy as np
+import pytest
 import torch
 from typer.testing import CliRunner
 
@@ -37,6 +38,7 @@ json.dump({"q": q.tolist(), "action": action.tolist(), "obs": obs.tolist()}, sys
 """.replace("{spec_value}", inspect.getsource(spec_value))
 
 
+@pytest.mark.slow
 def test_export_matches_torch_and_needs_nothing_of_laneprint(trained_run, tmp_path):
     ws, run_id = trained_run
     out = tmp_path / "policy"

@@ -172,7 +172,7 @@ def test_a_fleet_killed_before_its_first_checkpoint_starts_its_metrics_afresh(tm
 
 def test_stacked_environments_step_exactly_as_each_agents_own():
     from rl.problem.env import make_vec_env
-    from rl.fleet.envs import StackedReplayEnvs, stack_envs
+    from rl.problem.stacked import StackedReplayEnvs, stack_envs
 
     members = _members()
 

@@ -120,6 +120,7 @@ def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(s
     assert again.exit_code == 1 and "was personalised" in again.stderr  # a resume would train on all its data
 
 
+@pytest.mark.slow
 def test_a_second_run_with_the_same_base_reuses_it(study: Workspace) -> None:
     a = _run(study, "--driver", "D04", "--decisions", "3", "--from", "fit", "--run-id", "b1", "--json", *TINY)
     b = _run(study, "--driver", "D04", "--decisions", "6", "--from", "fit", "--run-id", "b2", "--json", *TINY)
@@ -183,10 +184,10 @@ def test_fine_tuning_when_unsure_follows_the_styles_confidence() -> None:
 
 @pytest.mark.parametrize("flags, min_conf, requested, tuned", [
     ([], "1.01", "none", False),  # the default: the base as it is, however unsure the style
-    (["--no-fine-tune"], "1.01", "none", False),
+    pytest.param(["--no-fine-tune"], "1.01", "none", False, marks=pytest.mark.slow),  # the default, spelt out
     (["--fine-tune"], "0", "finetune", True),
     (["--fine-tune-unsure"], "1.01", "unsure", True),  # never sure above 1: it fine-tunes
-    (["--fine-tune-unsure"], "0", "unsure", False),  # always sure at 0: the base as it is
+    pytest.param(["--fine-tune-unsure"], "0", "unsure", False, marks=pytest.mark.slow),  # always sure at 0: the base as it is
 ])
 def test_fine_tune_flags_and_the_unsure_rule(study: Workspace, flags: list[str], min_conf: str, requested: str,
                                              tuned: bool) -> None:

@@ -2,6 +2,7 @@
 
 import json
 
+import pytest
 from typer.testing import CliRunner
 
 from laneprint.app.cli import app
@@ -69,6 +70,7 @@ def test_runs_marks_a_run_made_with_an_earlier_analysis(tmp_path):
     assert runs_json(tmp_path)["runs"][0]["analysis_label"] == "analysis unknown"
 
 
+@pytest.mark.slow
 def test_report_marks_runs_of_an_earlier_analysis(tmp_path):
     from dashboard.report import _runs, provenance
 

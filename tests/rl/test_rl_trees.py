@@ -28,6 +28,7 @@ LINES = ReferenceLines.paper("Normal")
 SMALL = TreeQSettings(trees=40, iterations=4, learning_rate=0.2)
 
 
+@pytest.mark.slow
 def test_the_module_predicts_what_the_ensembles_predict():
     rng = np.random.default_rng(0)
     x = rng.random((2000, 6)).astype(np.float32)

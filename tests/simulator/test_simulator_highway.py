@@ -151,6 +151,7 @@ def test_same_seed_same_study_whatever_the_jobs(tiny):
 # --- the command line ----------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_cli_writes_a_study_that_ingest_accepts(cli_study, tmp_path):
     out, summary = cli_study
     sessions = [f"D0{d}_S{v}" for d in (1, 2) for v in (60, 70, 80, 90)]

@@ -76,6 +76,7 @@ def test_drivers_round_robin_typical_first_and_seeded():
 # --- a real run -----------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_cli_writes_the_study(study):
     out, summary = study
     names = sorted(p.name for p in out.iterdir())
@@ -86,6 +87,7 @@ def test_cli_writes_the_study(study):
     assert "Eclipse SUMO" in (out / "README.md").read_text()
 
 
+@pytest.mark.slow
 def test_ground_truth_lists_drivers_styles_and_lane_changes(study):
     gt = json.loads((study[0] / "ground_truth.json").read_text())
     assert gt["engine"] == "sumo" and gt["seed"] == 3 and gt["generator"] == "laneprint.simulator"
@@ -99,11 +101,13 @@ def test_ground_truth_lists_drivers_styles_and_lane_changes(study):
         assert dec["changed"] and dec["lane_flip_t_s"] > dec["press_t_s"]
 
 
+@pytest.mark.slow
 def test_ingest_accepts_every_file(workspace):
     _, res = workspace
     assert res["counts"]["ingested"] == 12 and res["counts"]["rejected"] == 0 and res["counts"]["warning"] == 0
 
 
+@pytest.mark.slow
 def test_presses_come_before_the_lane_flips(study, workspace):
     ws, _ = workspace
     gt = json.loads((study[0] / "ground_truth.json").read_text())
@@ -126,6 +130,7 @@ def test_presses_come_before_the_lane_flips(study, workspace):
     assert n_presses == len(gt["decisions"]) > 0
 
 
+@pytest.mark.slow
 def test_same_seed_same_bytes(study, tmp_path):
     out, summary = study
     again = tmp_path / "again"

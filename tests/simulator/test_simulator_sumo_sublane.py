@@ -63,6 +63,7 @@ def test_sumo_gets_sublanes_and_sl2015_only_for_the_family(tmp_path):
     assert routes_xml(FAMILY_STYLE_PARAMS["ttc"]["Normal"], ttc).count("laneChangeModel") == 1
 
 
+@pytest.mark.slow
 def test_styles_recoverable_from_the_true_parameters():
     """Standardised true parameters of a study's drivers, k-means with k = 3: the styles, exactly."""
     from sklearn.cluster import KMeans

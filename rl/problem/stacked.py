@@ -12,7 +12,8 @@ order, once per step). Other formulations (synthetic scenes, whose reward reads
 each agent's own lines) are stepped agent by agent (`LoopedEnvs`).
 
 The agents' environment objects stay the source of their checkpoints: `scatter()`
-writes the batch's state back into them (`rl.learners.dqn.episode_state` reads them).
+writes the batch's state back into them (`rl.learners.dqn.episode_state` reads them). A single agent (the
+fleet of one, `DQNTrainer`) steps its own environments (`OneAgentEnvs`).
 """
 
 from __future__ import annotations
@@ -45,12 +46,31 @@ class LoopedEnvs:
 
     def step(self, actions: np.ndarray) -> dict[str, Any]:
         outs = [e.step(a) for e, a in zip(self.envs, actions)]
-        res = {key: np.stack([o[key] for o in outs]) for key in STEP_KEYS}
+        res: dict[str, Any] = {key: np.stack([o[key] for o in outs]) for key in STEP_KEYS}
         res["terms"] = {t: np.stack([np.broadcast_to(o["terms"][t], o["reward"].shape) for o in outs]) for t in TERMS}
         return res
 
     def scatter(self, agents: list[int] | None = None) -> None:
         """Nothing to do: the agents' environments are stepped themselves."""
+
+
+class OneAgentEnvs:
+    """One agent's environments with the agent axis added (K = 1): its arrays as (1, n, ...) views.
+
+    The reward terms are passed on as they are (a number or (n,)): they broadcast over (1, n).
+    """
+
+    def __init__(self, env: VecLaneChangeEnv | VecReplayEnv) -> None:
+        self.env = env
+
+    def step(self, actions: np.ndarray) -> dict[str, Any]:
+        out = self.env.step(actions[0])
+        res: dict[str, Any] = {key: out[key][None] for key in STEP_KEYS}
+        res["terms"] = out["terms"]
+        return res
+
+    def scatter(self, agents: list[int] | None = None) -> None:
+        """Nothing to do: the agent's environments are stepped themselves."""
 
 
 class StackedReplayEnvs(VecReplayEnv):
@@ -109,6 +129,8 @@ class StackedReplayEnvs(VecReplayEnv):
             e.scene = self.scene.take(rows)
 
 
-def stack_envs(envs: list[Any]) -> StackedReplayEnvs | LoopedEnvs:
-    """One batch over the agents' environments where they allow it, else a loop over them."""
+def stack_envs(envs: list[Any]) -> StackedReplayEnvs | LoopedEnvs | OneAgentEnvs:
+    """One batch over the agents' environments where they allow it, else a loop over them (one agent's as they are)."""
+    if len(envs) == 1:
+        return OneAgentEnvs(envs[0])
     return StackedReplayEnvs(envs) if StackedReplayEnvs.supports(envs) else LoopedEnvs(envs)
