@@ -232,3 +232,29 @@ def test_every_config_key_is_documented():
         section = re.search(rf"^### \[{name}\]\n(.*?)(?=^##+ |\Z)", page, re.S | re.M)
         missing += [f"[{name}] {k}" for k in keys if not section or f"| `{k}` |" not in section.group(1)]
     assert tables and not missing, missing
+
+
+def test_the_onnx_guides_code_builds_the_observation_the_policy_was_trained_on():
+    """The ONNX how-to's first Python block, run as a vehicle stack would (policy.json's `inputs` and raw
+    measurements), gives laneprint's own observation for every observation layout."""
+    import numpy as np
+
+    from rl.problem.env import EnvConfig, observation, sample_scenes
+    from rl.problem.observation import observation_spec
+    from rl.settings import OBSERVATIONS
+    from tests.support.rl_workspaces import raw_measurements
+
+    guide = (ROOT / "docs" / "howto" / "onnx.md").read_text(encoding="utf-8")
+    code = re.findall(r"```python\n(.*?)```", guide, re.S)[0]
+    names: dict = {}
+    exec(compile(code, "docs/howto/onnx.md", "exec"), names)  # noqa: S102 - the guide's own code
+    for name in OBSERVATIONS:
+        cfg = EnvConfig(observation=name, nb_present_prob=0.5, nb_gap0_m=(-3.0, 200.0))
+        scenes = sample_scenes(np.random.default_rng(5), cfg, 200)
+        scenes.f_present[::7] = False
+        doc = {"inputs": observation_spec(cfg)}
+        raws = raw_measurements(scenes, cfg)
+        for raw, left in zip(raws, scenes.left):
+            raw["target lane side"] = "left" if left else None
+        rebuilt = np.concatenate([names["observation"](doc, raw) for raw in raws])
+        np.testing.assert_allclose(rebuilt, observation(scenes, cfg), atol=1e-6, err_msg=name)
