@@ -258,3 +258,23 @@ def test_the_onnx_guides_code_builds_the_observation_the_policy_was_trained_on()
             raw["target lane side"] = "left" if left else None
         rebuilt = np.concatenate([names["observation"](doc, raw) for raw in raws])
         np.testing.assert_allclose(rebuilt, observation(scenes, cfg), atol=1e-6, err_msg=name)
+
+
+def test_every_dashboard_help_link_opens_a_page_and_anchor_of_the_site_it_serves(tmp_path):
+    """The dashboard's "More:" links (`dashboard.docs_site.LINKS`) against the site as the dashboard builds and
+    serves it (`--no-directory-urls`, one .html file per page): each page is a file, each anchor a heading id."""
+    from dashboard import docs_site
+
+    site = tmp_path / "docs"
+    assert docs_site.build(site=site) is None
+    assert docs_site.built(site) and not docs_site.stale(site)
+    missing = []
+    for key in docs_site.LINKS:
+        file, anchor = docs_site.target(key)
+        page = site / file
+        if not page.is_file():
+            missing.append(f"{key}: {file}")
+        elif anchor and f'id="{anchor}"' not in page.read_text(encoding="utf-8"):
+            missing.append(f"{key}: {file}#{anchor}")
+    assert not missing, missing
+    assert docs_site.url("learners") == "app/static/docs/concepts/agents.html#the-learners"
