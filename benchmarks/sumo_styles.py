@@ -8,7 +8,7 @@ For each pair: the ARI of the analysis's styles (`analysis/styles.parquet`) agai
 lead gap (`nf_gap_m`) and lag gap (`nb_gap_m`) at the presses (label 'change' of
 `analysis/decisions.parquet`). It reads those files only; it does not import the
 analysis (the generator knows nothing of it). Used to choose the `acceptance`
-family's styles (SUMO.md). The figures are written to `benchmarks/results/<--out>.json` (default
+family's styles (docs/history/sumo.md). The figures are written to `benchmarks/results/<--out>.json` (default
 `sumo_styles`).
 """
 

@@ -11,6 +11,8 @@ by default, headless, no usage statistics, uploads up to 1024 MB), or
   and the tunables read from the environment: $LANEPRINT_DASHBOARD_EPISODES (episodes
   pre-filled in the Training form, and the Personalise page's base agents'), $LANEPRINT_DASHBOARD_POLL_S (refresh of the live
   training view, default 1 s), $LANEPRINT_DASHBOARD_MAX_UPLOAD_MB (default 1024).
+- `docs_site.py`: the documentation site built into `static/docs/` and served by Streamlit's static
+  route (`laneprint dashboard` builds it when stale); `more(key)`, the help texts' links to its pages.
 - `loaders.py`: cached readers keyed on the modification times of the folders they read.
 - `uploads.py`: browser uploads saved under `workspace/uploads/<hash>/<safe name>`.
 - `jobs.py`: `laneprint train`, `laneprint train --drivers all | --styles all` (a fleet)

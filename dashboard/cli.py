@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 from typing import Annotated
 
@@ -43,7 +44,18 @@ def streamlit_command(port: int, host: str, workspace: Path) -> list[str]:
             "--server.headless", "true", "--server.port", str(port), "--server.address", host,
             "--server.maxUploadSize", str(MAX_UPLOAD_MB), "--server.fileWatcherType", "none",
             "--browser.gatherUsageStats", "false", "--client.toolbarMode", "viewer",
+            "--server.enableStaticServing", "true",  # the documentation site the help links open (docs_site.py)
             "--", "--workspace", str(workspace)]
+
+
+def _build_docs() -> None:
+    """Build the documentation site the help links open when it is missing or stale (a checkout); one line on
+    stderr when it cannot be built (the links are then left out)."""
+    from dashboard.docs_site import ensure_site
+
+    why = ensure_site()
+    if why:
+        err_console.print(f"note: no help links to the documentation: {why}", markup=False, highlight=False)
 
 
 @configurable("dashboard")
@@ -68,6 +80,7 @@ def dashboard_command(
         sys.stdout.flush()
     else:
         console.print(f"laneprint dashboard on [bold]{url}[/bold] (workspace {ws.root}); Ctrl-C to stop")
+    threading.Thread(target=_build_docs, daemon=True).start()  # the help links' pages, while the server starts
     env = dict(os.environ, LANEPRINT_WORKSPACE=str(ws.root))
     proc = subprocess.Popen(streamlit_command(port, host, ws.root), env=env,
                             stdout=subprocess.DEVNULL if as_json else None)

@@ -7,7 +7,7 @@ from typing import Callable
 
 import streamlit as st
 
-from dashboard import jobs, views
+from dashboard import docs_site, jobs, views
 from dashboard.context import poll_seconds
 from laneprint.progress import ProgressFn
 
@@ -16,6 +16,13 @@ from laneprint.progress import ProgressFn
 #: view that reruns every second then looks greyed out half the time. This style keeps them drawn as they are.
 NO_FADE_CSS = ("<style>[data-stale='true'], .stale-element, [data-testid='stElementContainer'][data-stale] "
                "{opacity: 1 !important; transition: none !important;}</style>")
+
+
+def page_help(key: str) -> None:
+    """A caption under a page's title linking to its page of the documentation site (none while no site is
+    built: `dashboard.docs_site`)."""
+    if link := docs_site.more(key):
+        st.caption(link)
 
 
 def lazy_expander(label: str, key: str):
@@ -46,8 +53,8 @@ def crossval_launcher(ws, run_id: str, run_episodes: int | None) -> str | None:
     c1, c2, c3, c4 = st.columns(4)
     folds = c1.number_input("Folds K", min_value=2, max_value=20, value=4, step=1, key=f"cv_folds_{run_id}")
     split = c2.selectbox("Split", ["session", "section"], key=f"cv_split_{run_id}",
-                         help="'session': each driver's sessions dealt to the folds; 'section': whole speed "
-                              "sections held out")
+                         help=docs_site.with_more("'session': each driver's sessions dealt to the folds; 'section': "
+                                                  "whole speed sections held out", "heldout"))
     episodes = c3.number_input("Episodes per fold's agent", min_value=1, max_value=100_000, step=100,
                                value=int(run_episodes or 10_000), key=f"cv_episodes_{run_id}")
     boot = c4.number_input("Bootstrap resamples", min_value=10, max_value=100_000, value=1000, step=100,

@@ -83,6 +83,7 @@ def recordings_section(ws) -> None:
 
 def main() -> None:
     st.title("Data")
+    widgets.page_help("data")
     ws = workspace()
     upload_section(ws)
     recordings_section(ws)

@@ -4,13 +4,14 @@ analysis fitted one, correlations, fit summaries (pooled and per direction), und
 
 import streamlit as st
 
-from dashboard import figures, loaders, views, widgets
+from dashboard import docs_site, figures, loaders, views, widgets
 from dashboard.context import workspace
 from indicators.plots import correlation_table, following_vs_speed, indicator_vs_speed
 
 
 def main() -> None:
     st.title("Drivers")
+    widgets.page_help("indicators")
     ws = workspace()
     key = loaders.analysis_stamp(ws.root)
     tables = loaders.analysis(str(ws.root), key)
@@ -44,8 +45,9 @@ def main() -> None:
     labels = list(groups)
     default = next((i for i, g in enumerate(labels) if set(groups[g]) & set(chosen) - {"t_f", "t_nf", "dv_nb"}), 0)
     group = st.radio("Indicators", labels, index=default, key="indicator_group", horizontal=True,
-                     help="The paper's three, or what the driver accepts (the acceptance indicators are "
-                          "in the decisions table of analyses made since they exist)") if len(labels) > 1 else labels[0]
+                     help=docs_site.with_more("The paper's three, or what the driver accepts (the acceptance "
+                                              "indicators are in the decisions table of analyses made since "
+                                              "they exist)", "indicators")) if len(labels) > 1 else labels[0]
     inds = groups[group]
     for start in range(0, len(inds), 3):
         cols = st.columns(3)

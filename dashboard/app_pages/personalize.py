@@ -9,7 +9,7 @@ import pandas as pd
 import plotly.graph_objects as go
 import streamlit as st
 
-from dashboard import jobs, loaders, uploads, views, widgets
+from dashboard import docs_site, jobs, loaders, uploads, views, widgets
 from dashboard.context import EPISODES_ENV, env_int, max_upload_bytes, workspace
 from dashboard.widgets import progress_to
 from laneprint.errors import UserError
@@ -181,6 +181,7 @@ def launched_runs(ws) -> None:
 
 def main() -> None:
     st.title("Personalise")
+    widgets.page_help("personal")
     ws = workspace()
     upload_session(ws)
     launched_runs(ws)
@@ -202,7 +203,7 @@ def main() -> None:
                              "confidence is at least 80 %, else the candidate that agrees best with the K "
                              "decisions; 'style': the agent of the style assigned above; 'population': of all "
                              "other drivers; 'auto': the style's when its confidence is at least 80 %, else the "
-                             "population's")
+                             "population's\n\n" + docs_site.more("personal"))
         seed = int(c2.number_input("Seed", min_value=0, value=0, step=1, key="p_seed"))
         fine_tune = st.checkbox("Fine-tune on the K decisions", value=False, key="p_finetune",
                                 help="Off: the base agent as it is (measured better on SUMO studies).")

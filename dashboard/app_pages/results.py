@@ -5,7 +5,7 @@ every stored cross-validation."""
 import plotly.graph_objects as go
 import streamlit as st
 
-from dashboard import figures, jobs, loaders, views, widgets
+from dashboard import docs_site, figures, jobs, loaders, views, widgets
 from dashboard.context import workspace
 from rl.plots import decision_agreement, drive_fidelity, indicators_at_decisions, training_curves
 
@@ -134,10 +134,11 @@ def policy_download(ws, run_id: str, run: dict, box) -> None:
         box.download_button("Policy (ONNX + policy.json, zip)", data=lambda: jobs.policy_zip(ws, run_id),
                             file_name=f"{run_id}-policy.zip", mime="application/zip", key=f"dl_onnx_{run_id}",
                             on_click="ignore",
-                            help="`laneprint export RUN_ID --format onnx`: checked against torch with onnxruntime")
+                            help=docs_site.with_more("`laneprint export RUN_ID --format onnx`: checked against "
+                                                     "torch with onnxruntime", "onnx"))
     elif box.button("Export the policy (ONNX)", key=f"export_onnx_{run_id}",
-                    help="`laneprint export RUN_ID --format onnx`: writes policy.onnx, policy.json and README.md, "
-                         "checked against torch with onnxruntime (a few seconds); then the zip downloads"):
+                    help=docs_site.with_more("`laneprint export RUN_ID --format onnx`: writes policy.onnx, policy.json and README.md, "
+                         "checked against torch with onnxruntime (a few seconds); then the zip downloads", "onnx")):
         with box, st.spinner("exporting and checking with onnxruntime..."):
             st.session_state[error_key] = jobs.export_policy(ws, run_id)
         if st.session_state[error_key] is None:
@@ -150,7 +151,8 @@ def report_download(ws) -> None:
     """The study as one self-contained HTML file (`laneprint report`), built when clicked."""
     st.download_button("Report of the study (HTML)", data=lambda: jobs.report_bytes(ws), file_name="report.html",
                        mime="text/html", key="dl_report", on_click="ignore", type="primary",
-                       help="`laneprint report`: data, fits and flags, styles, every run's figures; opens offline")
+                       help=docs_site.with_more("`laneprint report`: data, fits and flags, styles, every run's "
+                                                "figures; opens offline", "report"))
 
 
 def one_run(ws, run_id: str) -> None:
@@ -260,7 +262,7 @@ def drives(ws) -> None:
     d = found[pick]
     st.markdown(f"**{views.drive_made_by_text(d)}**")
     st.dataframe(views.drive_made_by_table(d), hide_index=True, width="stretch", key="drive_made_by")
-    st.caption(views.DRIVE_RULE_NOTE)
+    st.caption(docs_site.with_more(views.DRIVE_RULE_NOTE, "closed_loop"))
     if "rate" not in d.get("fidelity", {}):
         st.info(d.get("fidelity", {}).get("note", "This drive has no comparison with drivers (driven by an older "
                                                    "laneprint): drive it again."))
@@ -283,6 +285,7 @@ def stored_crossvals(ws, show_one: bool) -> None:
 
 def main() -> None:
     st.title("Results")
+    widgets.page_help("scoring")
     ws = workspace()
     report_download(ws)
     runs = evaluated_runs(ws)

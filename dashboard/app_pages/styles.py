@@ -3,7 +3,7 @@
 import streamlit as st
 
 from clustering.plots import DIRECTION_NAMES, cluster_scatter, following_headways, line_directions, reference_lines
-from dashboard import figures, loaders, views, widgets
+from dashboard import docs_site, figures, loaders, views, widgets
 from dashboard.context import workspace
 from dashboard.widgets import progress_to
 from indicators.settings import FEATURE_FITS, INDICATOR_SETS, AnalysisSettings
@@ -27,7 +27,8 @@ def rerun_form(ws, current: dict) -> None:
         how = c2.selectbox("k chosen by", labels, index=labels.index(chosen), key="choose_k")
         fits = list(dict.fromkeys([now.feature_fit, *FEATURE_FITS]))
         fit = c3.selectbox("Feature line fit", fits, key="feature_fit",
-                           help="How each driver's line is fitted to make the clustering features")
+                           help=docs_site.with_more("How each driver's line is fitted to make the clustering "
+                                                    "features", "readings"))
         sets = list(dict.fromkeys([now.features, *FEATURE_SETS]))
         features = c4.selectbox("Features", sets, key="features",
                                 help="What the styles are read by; 'consensus' (the default): the styles the eight best "
@@ -36,16 +37,18 @@ def rerun_form(ws, current: dict) -> None:
                                      "sets and the behaviour readings; 'reliable': the two behaviour parameters in "
                                      "which the drivers differ most reliably; 'heldout': the reading whose styles best predict the drivers' "
                                      "held-out decisions and following headways; 'behaviour': the same among the "
-                                     "drivers' critical gaps, following headway and free speed only")
+                                     "drivers' critical gaps, following headway and free speed only"
+                                     + "\n\n" + docs_site.more("readings"))
         d1, d2, _ = st.columns([1, 2, 1])
         levels = list(dict.fromkeys([now.acceptance_fit, *FEATURE_FITS]))
         level = d1.selectbox("Gap / headway features", levels, key="acceptance_fit",
                              help="How a driver's gaps, headways and relative speeds are read: 'trimmed' (its "
-                                  "level, a trimmed mean), 'median', or a line")
+                                  "level, a trimmed mean), 'median', or a line\n\n" + docs_site.more("indicators"))
         receding = d2.checkbox("Leave out front gaps to leaders pulling away (> 1 m/s)",
                                value=now.max_receding_mps is not None, key="receding",
-                               help="The driver is not held by a leader running away (as at most returns "
-                                    "to the right); unticked, every front gap and headway is used")
+                               help=docs_site.with_more("The driver is not held by a leader running away (as at "
+                                                        "most returns to the right); unticked, every front gap "
+                                                        "and headway is used", "used_values"))
         go = st.form_submit_button("Run analysis", type="primary")
     if go:
         from clustering.pipeline import analyze
@@ -67,6 +70,7 @@ def rerun_form(ws, current: dict) -> None:
 
 def main() -> None:
     st.title("Styles")
+    widgets.page_help("styles")
     ws = workspace()
     key = loaders.analysis_stamp(ws.root)
     tables = loaders.analysis(str(ws.root), key)
@@ -121,7 +125,7 @@ def main() -> None:
     st.subheader("Members and typical drivers")
     st.caption("What sets each style apart: its members' median critical values (the smallest gap they accept, "
                "how close a leader comes before they want out; estimated from their presses and the states they "
-               "let pass) and the headway they keep while following.")
+               "let pass) and the headway they keep while following. " + docs_site.more("behaviour"))
     st.table(views.style_summary(styles, meta).set_index("style"))
     unsure = views.unsure_drivers(styles)
     st.subheader("Unsure drivers")
@@ -129,16 +133,18 @@ def main() -> None:
         st.caption("Every driver's style is sure: its own presses and every plausible reading agree.")
     else:
         st.caption("Confidence is the share of draws of the driver's own estimates that keep its style, times the "
-                   "share of plausible readings that agree, at most (n + 1) / (n + 2) for n presses.")
+                   "share of plausible readings that agree, at most (n + 1) / (n + 2) for n presses. "
+                   + docs_site.more("confidence"))
         st.table(unsure.set_index("driver"))
     st.subheader("Reference lines per style")
     lines = tables.get("reference_lines")
     if lines is not None:
         sides = line_directions(lines)
         direction = st.radio("Lines fitted on", sides, format_func=DIRECTION_NAMES.get, horizontal=True,
-                             key="ref_direction", help="Overtaking (target lane to the left) and returning (to the "
-                             "right) presses have their own lines where the typical driver's side has enough "
-                             "presses") if len(sides) > 1 else "both"
+                             key="ref_direction", help=docs_site.with_more(
+                                 "Overtaking (target lane to the left) and returning (to the right) presses have "
+                                 "their own lines where the typical driver's side has enough presses",
+                                 "directions")) if len(sides) > 1 else "both"
         st.plotly_chart(reference_lines(lines, indicators=views.reference_indicators(lines, chosen),
                                         direction=direction), key="ref_lines")
         if table := widgets.lazy_expander("Reference lines table", key="ref_lines_open"):

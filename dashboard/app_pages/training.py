@@ -4,7 +4,7 @@ cross-validate a finished run (held-out figures, shown on the Results page)."""
 
 import streamlit as st
 
-from dashboard import jobs, loaders, training, views, widgets
+from dashboard import docs_site, jobs, loaders, training, views, widgets
 from dashboard.context import poll_seconds, workspace
 from rl.fleet import store as fleet_store
 from rl.plots import training_curves
@@ -28,13 +28,15 @@ def launch_form(ws) -> None:
     line_opts = [o for o in ("analysis", "paper")
                  if (o == "analysis" and lines_table is not None) or (o == "paper" and kind == "style")]
     lines = c3.selectbox("Reference lines", line_opts, key="lines",
-                         help="'analysis': lines fitted on this workspace; 'paper': Table 1 of the study")
+                         help=docs_site.with_more("'analysis': lines fitted on this workspace; 'paper': Table 1 "
+                                                  "of the study", "formulations"))
     c4, c5, c6 = st.columns(3)
     learner = c4.selectbox("Learner", training.learners(reward, lines), key="learner",
                            help="'auto': the one of the DQN and the trees that agrees better across inner folds "
                                 "of the target's sessions (a few minutes); 'dqn': the study's DQN; 'trees': "
                                 "fitted Q iteration with boosted trees on the recorded approaches (no episodes, "
-                                "fitted in a minute). The trees fit the decisions reward only")
+                                "fitted in a minute). The trees fit the decisions reward only\n\n"
+                                + docs_site.more("learners"))
     episodes = c5.number_input("Episodes", min_value=1, max_value=100_000, step=100,
                                value=training.default_episodes(), key="episodes", disabled=learner == "trees")
     seed = c6.number_input("Seed", min_value=0, value=0, step=1, key="seed")
@@ -118,8 +120,9 @@ def fleet_form(ws) -> None:
         episodes = c3.number_input("Episodes per agent", min_value=1, max_value=100_000, step=100,
                                    value=training.default_episodes(), key="fleet_episodes")
         backend = c4.selectbox("Backend", ["local", "ray"], key="fleet_backend",
-                               help="'local': all agents batched in one process; 'ray': shards of agents on "
-                                    "Ray workers (a local Ray instance with this machine's cores)")
+                               help=docs_site.with_more("'local': all agents batched in one process; 'ray': "
+                                                        "shards of agents on Ray workers (a local Ray instance "
+                                                        "with this machine's cores)", "ray"))
         submitted = st.form_submit_button("Train fleet", type="primary")
     req = jobs.FleetRequest(kind, int(episodes), int(seeds), backend=backend)
     targets = (training.driver_targets(lines_table, recs) if kind == "drivers"
@@ -179,6 +182,7 @@ def fleets_section(ws) -> None:
 
 def main() -> None:
     st.title("Training")
+    widgets.page_help("agents")
     ws = workspace()
     launch_form(ws)
     smoothing = widgets.smoothing_slider()

@@ -233,3 +233,49 @@ def test_every_config_key_is_documented():
         section = re.search(rf"^### \[{name}\]\n(.*?)(?=^##+ |\Z)", page, re.S | re.M)
         missing += [f"[{name}] {k}" for k in keys if not section or f"| `{k}` |" not in section.group(1)]
     assert tables and not missing, missing
+
+
+def test_the_onnx_guides_code_builds_the_observation_the_policy_was_trained_on():
+    """The ONNX how-to's first Python block, run as a vehicle stack would (policy.json's `inputs` and raw
+    measurements), gives laneprint's own observation for every observation layout."""
+    import numpy as np
+
+    from rl.problem.env import EnvConfig, observation, sample_scenes
+    from rl.problem.observation import observation_spec
+    from rl.settings import OBSERVATIONS
+    from tests.support.rl_workspaces import raw_measurements
+
+    guide = (ROOT / "docs" / "howto" / "onnx.md").read_text(encoding="utf-8")
+    code = re.findall(r"```python\n(.*?)```", guide, re.S)[0]
+    names: dict = {}
+    exec(compile(code, "docs/howto/onnx.md", "exec"), names)  # noqa: S102 - the guide's own code
+    for name in OBSERVATIONS:
+        cfg = EnvConfig(observation=name, nb_present_prob=0.5, nb_gap0_m=(-3.0, 200.0))
+        scenes = sample_scenes(np.random.default_rng(5), cfg, 200)
+        scenes.f_present[::7] = False
+        doc = {"inputs": observation_spec(cfg)}
+        raws = raw_measurements(scenes, cfg)
+        for raw, left in zip(raws, scenes.left):
+            raw["target lane side"] = "left" if left else None
+        rebuilt = np.concatenate([names["observation"](doc, raw) for raw in raws])
+        np.testing.assert_allclose(rebuilt, observation(scenes, cfg), atol=1e-6, err_msg=name)
+
+
+def test_every_dashboard_help_link_opens_a_page_and_anchor_of_the_site_it_serves(tmp_path):
+    """The dashboard's "More:" links (`dashboard.docs_site.LINKS`) against the site as the dashboard builds and
+    serves it (`--no-directory-urls`, one .html file per page): each page is a file, each anchor a heading id."""
+    from dashboard import docs_site
+
+    site = tmp_path / "docs"
+    assert docs_site.build(site=site) is None
+    assert docs_site.built(site) and not docs_site.stale(site)
+    missing = []
+    for key in docs_site.LINKS:
+        file, anchor = docs_site.target(key)
+        page = site / file
+        if not page.is_file():
+            missing.append(f"{key}: {file}")
+        elif anchor and f'id="{anchor}"' not in page.read_text(encoding="utf-8"):
+            missing.append(f"{key}: {file}#{anchor}")
+    assert not missing, missing
+    assert docs_site.url("learners") == "app/static/docs/concepts/agents.html#the-learners"

@@ -1,6 +1,6 @@
 """`laneprint simulate --engine sumo --family acceptance`: styles that differ in the gaps they accept.
 
-The styles' parameters ordered as SUMO.md documents them (fast), and a tiny study
+The styles' parameters ordered as docs/history/sumo.md documents them (fast), and a tiny study
 (3 drivers, 1 minute a section, ~15 s: marked slow) through the real command line,
 ingested. The real run needs Eclipse SUMO (skipped with the install hint otherwise).
 """
@@ -45,7 +45,7 @@ def test_families_default_first_and_settings_per_family():
 
 def test_acceptance_styles_differ_in_what_they_accept_as_documented():
     assert set(D) == set(N) == set(A)
-    # headways and standstill gaps they keep: Defensive longest, Aggressive shortest (SUMO.md's table)
+    # headways and standstill gaps they keep: Defensive longest, Aggressive shortest (docs/history/sumo.md's table)
     assert D["tau"] >= 1.8 * N["tau"] and N["tau"] >= 1.8 * A["tau"]
     assert D["minGap"] > N["minGap"] > A["minGap"]
     # gaps they accept: lcAssertive divides the safe gaps, so larger accepts shorter ones

@@ -119,11 +119,11 @@ class SumoSettings:
 #: behind by cars near the limit, so the ego mostly follows a leader at its own speed and waits for a
 #: gap it accepts before changing left, and returns right when the right lane has room. Its drivers
 #: wait for gaps, so they press about a third as often as the `ttc` family's: 15 minutes a section
-#: give a study about as many presses as the third simulator's study of issue 18 (SUMO.md, "Study
+#: give a study about as many presses as the third simulator's study of issue 18 (docs/history/sumo.md, "Study
 #: length"). `sublane`: SL2015 on sublanes of `lateral_resolution_m` for every vehicle, Krauss for the
 #: ego; the default family's traffic with faster cars from behind every 8-25 s (they are the target
 #: lane's followers the styles accept or wait for); 6 minutes a section give every driver 20 or more
-#: presses (SUMO.md, "The `sublane` family").
+#: presses (docs/history/sumo.md, "The `sublane` family").
 FAMILY_OVERRIDES: dict[str, dict[str, Any]] = {
     "ttc": {},
     "acceptance": {

@@ -1,7 +1,7 @@
 """Driver styles as SUMO vehicle-type parameters, and the study's drivers.
 
 A style is a set of car-following and lane-change parameters, one set per
-study family (`FAMILY_STYLE_PARAMS`; see `laneprint/simulator/SUMO.md` for why
+study family (`FAMILY_STYLE_PARAMS`; see `docs/history/sumo.md` for why
 these values): Krauss + LC2013 for `ttc`, IDM + LC2013 for `acceptance`, Krauss +
 SL2015 for `sublane`. Drivers get styles
 round-robin (D01 Defensive, D02 Normal, D03 Aggressive, D04 Defensive, ...); the
