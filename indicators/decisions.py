@@ -68,6 +68,7 @@ OTHER_SIDE = Schema(
 
 #: Columns added to the DECISIONS contract by this stage.
 EXTRA_COLUMNS: tuple[str, ...] = (
+    "ego_v_free_mps",  # the ego's free speed over its recording [m/s] (`indicators.following.free_speed`)
     "press_index", "lc_direction", "lane_change_t_s", "f_id", "nf_id", "nb_id",
     "t_f_reason", "t_nf_reason", "dv_nb_reason",
 ) + tuple(OTHER_SIDE.names)
@@ -79,7 +80,7 @@ def empty_decisions() -> pd.DataFrame:
     kinds = {c.name: c.kind for c in DECISIONS.columns}
     dtypes = {"float": "float64", "int": "int64", "bool": "bool", "str": "object"}
     cols = {name: pd.Series(dtype=dtypes[kind]) for name, kind in kinds.items()}
-    cols.update({"press_index": pd.Series(dtype="int64"), "lc_direction": pd.Series(dtype="object"),
+    cols.update({"ego_v_free_mps": pd.Series(dtype="float64"), "press_index": pd.Series(dtype="int64"), "lc_direction": pd.Series(dtype="object"),
                  "lane_change_t_s": pd.Series(dtype="float64"), "f_id": pd.Series(dtype="object"),
                  "nf_id": pd.Series(dtype="object"), "nb_id": pd.Series(dtype="object")})
     cols.update({f"{ind}_reason": pd.Series(dtype="object") for ind in ("t_f", "t_nf", "dv_nb")})

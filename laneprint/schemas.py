@@ -164,8 +164,6 @@ DECISIONS = Schema(
         Column("label", "str", "'change' at the press, 'keep' before it"),
         Column("speed_limit_kph", "float", "", nullable=True),
         Column("ego_v_mps", "float", ""),
-        Column("ego_v_free_mps", "float", "the ego's free speed over its recording: the 90th percentile of "
-                                          "its speed [m/s] (`indicators.following.free_speed`)", nullable=True),
         Column("ego_x_m", "float", ""),
         Column("ego_lane", "int", ""),
         Column("target_lane", "int", ""),
