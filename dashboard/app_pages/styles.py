@@ -31,7 +31,7 @@ def rerun_form(ws, current: dict) -> None:
                                                     "features", "readings"))
         sets = list(dict.fromkeys([now.features, *FEATURE_SETS]))
         features = c4.selectbox("Features", sets, key="features",
-                                help="What the styles are read by; 'consensus' (the default): the styles the eight best "
+                                help="What the styles are read by; 'consensus' (the default): the styles the three best "
                                      "separated and most stable readings agree on; 'auto': the indicator set best separated and "
                                      "most stable; 'separated': the best separated and most stable of the indicator "
                                      "sets and the behaviour readings; 'reliable': the two behaviour parameters in "

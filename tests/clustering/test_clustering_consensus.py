@@ -71,13 +71,13 @@ def test_choose_consensus_names_the_styles_and_reports_its_voters(monkeypatch):
     assert (style == pd.Series(labels)).all() and ((conf >= 0) & (conf <= 1)).all()
 
 
-def test_readings_far_below_the_best_do_not_vote(monkeypatch):
-    """Three weak readings that agree (parameters the data hardly inform) do not outvote a clear one;
-    without the floor they would vote."""
+def test_readings_far_below_the_best_do_not_vote_with_a_floor(monkeypatch):
+    """With a vote floor, three weak readings that agree (parameters the data hardly inform) do not
+    outvote a clear one; without it (the default) the `CONSENSUS_READINGS` best vote."""
     wrong = {**RIGHT, "n0": "Defensive", "n1": "Defensive", "d0": "Normal", "d1": "Normal"}
     ranked = [reading("clear", RIGHT, 0.8), *(reading(f"weak{i}", wrong, 0.3) for i in range(3))]
+    assert len(K.voters(ranked)) == min(len(ranked), K.CONSENSUS_READINGS)
+    monkeypatch.setattr(K, "VOTE_FLOOR", 0.5)
     assert [r.name for r in K.voters(ranked)] == ["clear"]
-    monkeypatch.setattr(K, "VOTE_FLOOR", 0.0)
-    assert len(K.voters(ranked)) == 4
     groups = K.consensus_groups(K.voters(ranked), DRIVERS, 3)
     assert groups[DRIVERS.index("n0")] == groups[DRIVERS.index("n1")] != groups[DRIVERS.index("d0")]
