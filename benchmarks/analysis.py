@@ -66,13 +66,24 @@ def coverage(fits: pd.DataFrame, drivers: list[dict]) -> list[dict]:
             A, b = d["lines"][ind]["A"], d["lines"][ind]["b"]
             r = f.loc[(d["driver_id"], ind)] if (d["driver_id"], ind) in f.index else None
             ok = r is not None and r["status"] == "ok"
-            rows.append({"style": d["style"], "driver_id": d["driver_id"], "indicator": ind, "A_true": A, "b_true": b,
-                         "A": r["A"] if ok else np.nan, "A_lo": r["A_lo"] if ok else np.nan,
-                         "A_hi": r["A_hi"] if ok else np.nan, "b": r["b"] if ok else np.nan,
-                         "b_lo": r["b_lo"] if ok else np.nan, "b_hi": r["b_hi"] if ok else np.nan,
-                         "A_in": bool(ok and r["A_lo"] <= A <= r["A_hi"]),
-                         "b_in": bool(ok and r["b_lo"] <= b <= r["b_hi"]),
-                         "n": int(r["n"]) if ok else 0})
+            rows.append(
+                {
+                    "style": d["style"],
+                    "driver_id": d["driver_id"],
+                    "indicator": ind,
+                    "A_true": A,
+                    "b_true": b,
+                    "A": r["A"] if ok else np.nan,
+                    "A_lo": r["A_lo"] if ok else np.nan,
+                    "A_hi": r["A_hi"] if ok else np.nan,
+                    "b": r["b"] if ok else np.nan,
+                    "b_lo": r["b_lo"] if ok else np.nan,
+                    "b_hi": r["b_hi"] if ok else np.nan,
+                    "A_in": bool(ok and r["A_lo"] <= A <= r["A_hi"]),
+                    "b_in": bool(ok and r["b_lo"] <= b <= r["b_hi"]),
+                    "n": int(r["n"]) if ok else 0,
+                }
+            )
     return rows
 
 
@@ -97,14 +108,22 @@ def shipped(workspace: Path) -> dict:
     print(f"style names equal to the true names: {sum(named.get(d) == s for d, s in truth.items())}/{len(truth)}")
     cov = coverage(fits, gt["drivers"])
     for r in cov:
-        print(f"  {r['style']:<10} {r['driver_id']} {r['indicator']:<5} "
-              f"A {r['A']:.3f} [{r['A_lo']:.3f}, {r['A_hi']:.3f}] true {r['A_true']:.2f} {'in' if r['A_in'] else 'OUT'}   "
-              f"b {r['b']:.2f} [{r['b_lo']:.2f}, {r['b_hi']:.2f}] true {r['b_true']:.2f} {'in' if r['b_in'] else 'OUT'}"
-              f"   n={r['n']}")
-    return {"analyze_s": dt, "ari": ari(styles, gt["drivers"]),
-            "names_right": sum(named.get(d) == s for d, s in truth.items()), "drivers": len(truth),
-            "typical_lines": [{k: r[k] for k in ("style", "driver_id", "indicator", "A", "A_true", "A_in", "b",
-                                                 "b_true", "b_in", "n")} for r in cov]}
+        print(
+            f"  {r['style']:<10} {r['driver_id']} {r['indicator']:<5} "
+            f"A {r['A']:.3f} [{r['A_lo']:.3f}, {r['A_hi']:.3f}] true {r['A_true']:.2f} {'in' if r['A_in'] else 'OUT'}   "
+            f"b {r['b']:.2f} [{r['b_lo']:.2f}, {r['b_hi']:.2f}] true {r['b_true']:.2f} {'in' if r['b_in'] else 'OUT'}"
+            f"   n={r['n']}"
+        )
+    return {
+        "analyze_s": dt,
+        "ari": ari(styles, gt["drivers"]),
+        "names_right": sum(named.get(d) == s for d, s in truth.items()),
+        "drivers": len(truth),
+        "typical_lines": [
+            {k: r[k] for k in ("style", "driver_id", "indicator", "A", "A_true", "A_in", "b", "b_true", "b_in", "n")}
+            for r in cov
+        ],
+    }
 
 
 def seeds(n_seeds: int) -> dict:
@@ -135,21 +154,32 @@ def seeds(n_seeds: int) -> dict:
         cov_rows += coverage(out["fits"], study.ground_truth["drivers"])
         print(f"  seed {seed:2d}: ARI {aris[-1]:.3f}", flush=True)
     cov = pd.DataFrame(cov_rows)
-    print(f"mean ARI {np.mean(aris):.3f} (min {np.min(aris):.3f}, ARI = 1 in {sum(a == 1.0 for a in aris)}/{len(aris)} seeds)")
+    print(
+        f"mean ARI {np.mean(aris):.3f} (min {np.min(aris):.3f}, ARI = 1 in {sum(a == 1.0 for a in aris)}/{len(aris)} seeds)"
+    )
     print(f"extracted indicators equal to the simulator's at the presses: {n_checked - mism}/{n_checked}")
     print("true line inside the recovered 95 % CI, typical drivers (share of seeds):")
     tab = cov.groupby(["style", "indicator"])[["A_in", "b_in"]].mean().unstack("indicator")
     print(tab.round(2).to_string())
     print(f"overall: A {cov['A_in'].mean():.3f}, b {cov['b_in'].mean():.3f} (nominal 0.95)")
     ms = np.array(extract_times) * 1000
-    print(f"decision extraction: median {np.median(ms):.1f} ms per recording "
-          f"(median {int(np.median(samples))} samples at 50 Hz, ~12 presses), "
-          f"{np.sum(samples) / np.sum(extract_times) / 1e3:.0f} k samples/s")
-    return {"seeds": n_seeds, "mean_ari": float(np.mean(aris)), "min_ari": float(np.min(aris)),
-            "seeds_ari_1": sum(a == 1.0 for a in aris), "indicators_equal": n_checked - mism, "indicators_checked": n_checked,
-            "ci_coverage_A": float(cov["A_in"].mean()), "ci_coverage_b": float(cov["b_in"].mean()),
-            "extraction_median_ms_per_recording": float(np.median(ms)),
-            "extraction_k_samples_per_s": float(np.sum(samples) / np.sum(extract_times) / 1e3)}
+    print(
+        f"decision extraction: median {np.median(ms):.1f} ms per recording "
+        f"(median {int(np.median(samples))} samples at 50 Hz, ~12 presses), "
+        f"{np.sum(samples) / np.sum(extract_times) / 1e3:.0f} k samples/s"
+    )
+    return {
+        "seeds": n_seeds,
+        "mean_ari": float(np.mean(aris)),
+        "min_ari": float(np.min(aris)),
+        "seeds_ari_1": sum(a == 1.0 for a in aris),
+        "indicators_equal": n_checked - mism,
+        "indicators_checked": n_checked,
+        "ci_coverage_A": float(cov["A_in"].mean()),
+        "ci_coverage_b": float(cov["b_in"].mean()),
+        "extraction_median_ms_per_recording": float(np.median(ms)),
+        "extraction_k_samples_per_s": float(np.sum(samples) / np.sum(extract_times) / 1e3),
+    }
 
 
 def timing(repeats: int) -> list[dict]:
@@ -163,15 +193,31 @@ def timing(repeats: int) -> list[dict]:
             out = analyze_tables(df)
             times.append(time.perf_counter() - t0)
         a = adjusted_rand_score([truth[d] for d in out["styles"]["driver_id"]], out["styles"]["style"])
-        print(f"  {n_drivers:5d} drivers x 50 decisions ({len(df):,} rows): median {statistics.median(times):.2f} s "
-              f"over {len(times)} run(s), ARI {a:.3f}")
-        rows.append({"drivers": n_drivers, "decisions_per_driver": 50, "rows": len(df),
-                     "median_s": statistics.median(times), "runs": len(times), "ari": float(a)})
+        print(
+            f"  {n_drivers:5d} drivers x 50 decisions ({len(df):,} rows): median {statistics.median(times):.2f} s "
+            f"over {len(times)} run(s), ARI {a:.3f}"
+        )
+        rows.append(
+            {
+                "drivers": n_drivers,
+                "decisions_per_driver": 50,
+                "rows": len(df),
+                "median_s": statistics.median(times),
+                "runs": len(times),
+                "ari": float(a),
+            }
+        )
     return rows
 
 
-MESSY = dict(share_slowed=0.25, share_no_target_leader=0.45, noise_ttc_s=0.8, noise_dv_mps=2.0,
-             sample_rate_hz=10.0, slowed_creep_mps=(0.5, 3.0))
+MESSY = dict(
+    share_slowed=0.25,
+    share_no_target_leader=0.45,
+    noise_ttc_s=0.8,
+    noise_dv_mps=2.0,
+    sample_rate_hz=10.0,
+    slowed_creep_mps=(0.5, 3.0),
+)
 
 
 def messy(n_seeds: int) -> list[dict]:
@@ -181,13 +227,15 @@ def messy(n_seeds: int) -> list[dict]:
 
     print(f"== messy studies ({MESSY}), {n_seeds} seeds: ARI per clustering-feature variant")
     base = AnalysisSettings(n_bootstrap=0)
-    variants = {"huber on log TTC (default)": base,
-                "huber, lines extrapolated": base.with_(feature_extrapolate=True),
-                "theilsen on log TTC": base.with_(feature_fit="theilsen"),
-                "median (flat line) of log TTC": base.with_(feature_fit="median"),
-                "ols on log TTC": base.with_(feature_fit="ols"),
-                "ols on raw TTC": base.with_(feature_fit="ols", feature_log=False),
-                "huber, with dv_nb features": base.with_(feature_indicators=("t_f", "t_nf", "dv_nb"))}
+    variants = {
+        "huber on log TTC (default)": base,
+        "huber, lines extrapolated": base.with_(feature_extrapolate=True),
+        "theilsen on log TTC": base.with_(feature_fit="theilsen"),
+        "median (flat line) of log TTC": base.with_(feature_fit="median"),
+        "ols on log TTC": base.with_(feature_fit="ols"),
+        "ols on raw TTC": base.with_(feature_fit="ols", feature_log=False),
+        "huber, with dv_nb features": base.with_(feature_indicators=("t_f", "t_nf", "dv_nb")),
+    }
     res: dict[str, list[float]] = {k: [] for k in variants}
     for seed in range(n_seeds):
         try:
@@ -195,14 +243,18 @@ def messy(n_seeds: int) -> list[dict]:
         except RuntimeError as exc:  # the simulator cannot always place such scenes
             print(f"  seed {seed:2d}: simulator failed ({exc})")
             continue
-        dec = pd.concat([extract_decisions(dict(m, recording_id=m["session_id"]), e, t, base)[0]
-                         for m, e, t in study.recordings], ignore_index=True)
+        dec = pd.concat(
+            [extract_decisions(dict(m, recording_id=m["session_id"]), e, t, base)[0] for m, e, t in study.recordings],
+            ignore_index=True,
+        )
         for name, s in variants.items():
             res[name].append(ari(analyze_tables(dec, s)["styles"], study.ground_truth["drivers"]))
     for name, v in res.items():
         print(f"  {name:<32} mean ARI {np.mean(v):.3f}, ARI = 1 in {sum(a == 1.0 for a in v)}/{len(v)}")
-    return [{"variant": name, "mean_ari": float(np.mean(v)), "seeds_ari_1": sum(a == 1.0 for a in v), "seeds": len(v)}
-            for name, v in res.items()]
+    return [
+        {"variant": name, "mean_ari": float(np.mean(v)), "seeds_ari_1": sum(a == 1.0 for a in v), "seeds": len(v)}
+        for name, v in res.items()
+    ]
 
 
 FEATURE_SPECS = ("auto", "ttc", "paper", "headway", "acceptance", "all", "following")
@@ -237,12 +289,18 @@ def studies(pairs: list[tuple[str, str]], specs: tuple[str, ...] = FEATURE_SPECS
     for study, workspace in pairs:
         rows.append(study_aris(Path(study), Path(workspace), specs))
         r = rows[-1]
-        print(f"  {r['study']:<8} " + "  ".join(f"{s} {r[s]:.3f}" for s in specs)
-              + f"  chose {r['chosen']}  flagged {r['flagged']}  undefined at presses: t_f {100 * r['t_f undefined']:.0f} %"
-              f", t_nf {100 * r['t_nf undefined']:.0f} %", flush=True)
+        print(
+            f"  {r['study']:<8} "
+            + "  ".join(f"{s} {r[s]:.3f}" for s in specs)
+            + f"  chose {r['chosen']}  flagged {r['flagged']}  undefined at presses: t_f {100 * r['t_f undefined']:.0f} %"
+            f", t_nf {100 * r['t_nf undefined']:.0f} %",
+            flush=True,
+        )
     for s in specs:
         v = [float(r[s]) for r in rows]
-        print(f"  {s:<11} mean ARI {np.mean(v):.3f}, min {np.min(v):.3f}, ARI = 1 in {sum(a == 1.0 for a in v)}/{len(v)}")
+        print(
+            f"  {s:<11} mean ARI {np.mean(v):.3f}, min {np.min(v):.3f}, ARI = 1 in {sum(a == 1.0 for a in v)}/{len(v)}"
+        )
     return rows
 
 
@@ -252,24 +310,43 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--messy", type=int, default=0, help="also run this many seeds of harder studies")
     ap.add_argument("--workspace", type=Path, default=None, help="workspace with sample_logs/ ingested")
-    ap.add_argument("--study", nargs=2, action="append", default=[], metavar=("DIR", "WORKSPACE"),
-                    help="a simulated study and the workspace it is ingested in (repeat for more)")
-    ap.add_argument("--specs", default=",".join(FEATURE_SPECS),
-                    help="with --study: the --features values to measure, comma-separated (auto first)")
+    ap.add_argument(
+        "--study",
+        nargs=2,
+        action="append",
+        default=[],
+        metavar=("DIR", "WORKSPACE"),
+        help="a simulated study and the workspace it is ingested in (repeat for more)",
+    )
+    ap.add_argument(
+        "--specs",
+        default=",".join(FEATURE_SPECS),
+        help="with --study: the --features values to measure, comma-separated (auto first)",
+    )
     ap.add_argument("--zoo", default="", help="worlds of benchmarks/zoo.py, comma-separated ('all': every one)")
     ap.add_argument("--zoo-seeds", type=int, nargs="+", default=[9101, 9102, 9103])
     ap.add_argument("--zoo-root", type=Path, default=Path("/tmp/laneprint-zoo"), help="where studies are cached")
     ap.add_argument("--zoo-methods", default="auto,heldout,behaviour", help="--features values to judge")
     ap.add_argument("--zoo-out", default="analysis_zoo.json", help="file name under benchmarks/results/")
-    ap.add_argument("--zoo-cached-only", action="store_true",
-                    help="judge only the studies already generated under --zoo-root (generate none)")
+    ap.add_argument(
+        "--zoo-cached-only",
+        action="store_true",
+        help="judge only the studies already generated under --zoo-root (generate none)",
+    )
     ap.add_argument("--out", default="analysis", help="result file name under benchmarks/results/ (sections 1-5)")
     args = ap.parse_args()
     if args.zoo:
         from zoo import WORLDS, run as run_zoo
+
         worlds = list(WORLDS) if args.zoo == "all" else args.zoo.split(",")
-        run_zoo(worlds, args.zoo_seeds, args.zoo_root, tuple(args.zoo_methods.split(",")), args.zoo_out,
-                args.zoo_cached_only)
+        run_zoo(
+            worlds,
+            args.zoo_seeds,
+            args.zoo_root,
+            tuple(args.zoo_methods.split(",")),
+            args.zoo_out,
+            args.zoo_cached_only,
+        )
         return
     figures: dict = {}
     if args.workspace:

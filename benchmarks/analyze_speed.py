@@ -23,15 +23,22 @@ from results_file import write_result  # beside this file
 
 ROOT = Path(__file__).resolve().parents[1]
 #: One analysis in a fresh process: the code of argv[1], the workspace argv[2]; prints CPU and wall s.
-ONE_RUN = ("import sys, time; sys.path.insert(0, sys.argv[1]); "
-           "from clustering.pipeline import analyze; from laneprint.workspace import Workspace; "
-           "ws = Workspace(sys.argv[2]); c, w = time.process_time(), time.perf_counter(); analyze(ws); "
-           "print(time.process_time() - c, time.perf_counter() - w)")
+ONE_RUN = (
+    "import sys, time; sys.path.insert(0, sys.argv[1]); "
+    "from clustering.pipeline import analyze; from laneprint.workspace import Workspace; "
+    "ws = Workspace(sys.argv[2]); c, w = time.process_time(), time.perf_counter(); analyze(ws); "
+    "print(time.process_time() - c, time.perf_counter() - w)"
+)
 
 
 def run_once(code_root: Path, workspace: Path) -> tuple[float, float]:
-    out = subprocess.run([sys.executable, "-c", ONE_RUN, str(code_root), str(workspace)], cwd=code_root,
-                         capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", ONE_RUN, str(code_root), str(workspace)],
+        cwd=code_root,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     cpu, wall = out.stdout.split()[-2:]
     return float(cpu), float(wall)
 
@@ -48,13 +55,26 @@ def main() -> None:
         subprocess.run(["git", "worktree", "add", "-q", "--detach", str(base), args.baseline], cwd=ROOT, check=True)
         try:
             ws = tmp / "ws"
-            subprocess.run([sys.executable, "-m", "laneprint.app.cli", "ingest", str(ROOT / "sample_logs"), "-w", str(ws),
-                            "--json"], cwd=ROOT, check=True, capture_output=True)
+            subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "laneprint.app.cli",
+                    "ingest",
+                    str(ROOT / "sample_logs"),
+                    "-w",
+                    str(ws),
+                    "--json",
+                ],
+                cwd=ROOT,
+                check=True,
+                capture_output=True,
+            )
             sides = {"this checkout": ROOT, args.baseline: base}
             spaces = {name: shutil.copytree(ws, tmp / f"ws-{i}") for i, name in enumerate(sides)}
             times: dict[str, list[tuple[float, float]]] = {name: [] for name in sides}
             for rep in range(args.reps):
-                for name in (list(sides) if rep % 2 == 0 else list(reversed(sides))):
+                for name in list(sides) if rep % 2 == 0 else list(reversed(sides)):
                     times[name].append(run_once(sides[name], spaces[name]))
         finally:
             subprocess.run(["git", "worktree", "remove", "--force", str(base)], cwd=ROOT, check=False)
@@ -65,9 +85,16 @@ def main() -> None:
         print(f"| {n} | {c:.2f} | {w:.2f} |")
     here, there = med["this checkout"], med[args.baseline]
     print(f"this checkout / {args.baseline}: CPU {here[0] / there[0]:.2f}, wall {here[1] / there[1]:.2f}")
-    write_result(args.out, {"baseline": args.baseline, "reps": args.reps,
-                            "median": [{"code": n, "cpu_s": c, "wall_s": w} for n, (c, w) in med.items()],
-                            "ratio_cpu": here[0] / there[0], "ratio_wall": here[1] / there[1]})
+    write_result(
+        args.out,
+        {
+            "baseline": args.baseline,
+            "reps": args.reps,
+            "median": [{"code": n, "cpu_s": c, "wall_s": w} for n, (c, w) in med.items()],
+            "ratio_cpu": here[0] / there[0],
+            "ratio_wall": here[1] / there[1],
+        },
+    )
 
 
 if __name__ == "__main__":

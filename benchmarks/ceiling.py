@@ -61,12 +61,19 @@ def classifiers(seed: int) -> dict:
     from sklearn.preprocessing import StandardScaler
 
     return {
-        "trees": HistGradientBoostingClassifier(max_iter=200, learning_rate=0.05, max_leaf_nodes=15,
-                                                min_samples_leaf=20, class_weight="balanced",
-                                                early_stopping=False, random_state=seed),
+        "trees": HistGradientBoostingClassifier(
+            max_iter=200,
+            learning_rate=0.05,
+            max_leaf_nodes=15,
+            min_samples_leaf=20,
+            class_weight="balanced",
+            early_stopping=False,
+            random_state=seed,
+        ),
         "logistic": make_pipeline(StandardScaler(), LogisticRegression(class_weight="balanced", max_iter=2000)),
-        "forest": RandomForestClassifier(n_estimators=300, min_samples_leaf=5, class_weight="balanced",
-                                         random_state=seed, n_jobs=1),
+        "forest": RandomForestClassifier(
+            n_estimators=300, min_samples_leaf=5, class_weight="balanced", random_state=seed, n_jobs=1
+        ),
     }
 
 
@@ -89,13 +96,17 @@ def best_threshold_ba(p: np.ndarray, y: np.ndarray) -> float:
 def style_ceiling(ws: Workspace, style: str, seed: int) -> dict:
     """Held-out balanced accuracy of greedy, imitation and the optimistic readers for one style."""
     target = Target("style", style)
-    env: EnvConfig = target_env(ws, target, formulation_config(EnvConfig().lines, None, None, None, "analysis",
-                                                                None), "analysis")
+    env: EnvConfig = target_env(
+        ws, target, formulation_config(EnvConfig().lines, None, None, None, "analysis", None), "analysis"
+    )
     decisions = ws.read_table("analysis", "decisions")
     drivers, typical = target_drivers(ws, target)
     dec = decisions[decisions["driver_id"].astype(str).isin(drivers)]
-    sessions = dec.groupby("recording_id", sort=True).agg(driver_id=("driver_id", "first"),
-                                                         speed_limit_kph=("speed_limit_kph", "first")).reset_index()
+    sessions = (
+        dec.groupby("recording_id", sort=True)
+        .agg(driver_id=("driver_id", "first"), speed_limit_kph=("speed_limit_kph", "first"))
+        .reset_index()
+    )
     fold_of = assign_folds(sessions, CrossvalSettings(seed=seed))
     fold = dec["recording_id"].astype(str).map(fold_of).to_numpy()
     said: dict[str, list[np.ndarray]] = {n: [] for n in ("greedy", "imitation")}
@@ -113,16 +124,20 @@ def style_ceiling(ws: Workspace, style: str, seed: int) -> dict:
         labels.append(yt)
         scene = Scene.concat([a.scene for a in test_app])
         said["greedy"].append(greedy_policy(cfg)(scene) == CHANGE)
-        said["imitation"].append(ImitationClassifier(random_state=seed + k).fit(train_app, cfg).policy(cfg)(scene)
-                                 == CHANGE)
+        said["imitation"].append(
+            ImitationClassifier(random_state=seed + k).fit(train_app, cfg).policy(cfg)(scene) == CHANGE
+        )
         with threadpool_limits(limits=1, user_api="openmp"):
             for name, clf in classifiers(seed + k).items():
                 probs[name].append(clf.fit(X, y).predict_proba(Xt)[:, 1])
     y = np.concatenate(labels)
     out = {"style": style, "seed": seed, "n_presses": int(y.sum()), "n_states": int(len(y))}
     for name in [*said, *probs]:
-        out[name] = (balanced_accuracy(np.concatenate(said[name]), y) if name in said
-                     else best_threshold_ba(np.concatenate(probs[name]), y))
+        out[name] = (
+            balanced_accuracy(np.concatenate(said[name]), y)
+            if name in said
+            else best_threshold_ba(np.concatenate(probs[name]), y)
+        )
     out["ceiling"] = max(out[n] for n in probs)
     out["bar"] = out["greedy"] + 0.10
     return out
@@ -151,9 +166,12 @@ def main() -> None:
                 if args.json:
                     print(json.dumps(r), flush=True)
                     continue
-                print(f"{root.name:28} {style:11} {seed:4} {r['n_presses']:7} "
-                      + " ".join(f"{100 * r[c]:9.1f}" for c in cols)
-                      + f"  {'yes' if r['ceiling'] < r['bar'] else 'no'}", flush=True)
+                print(
+                    f"{root.name:28} {style:11} {seed:4} {r['n_presses']:7} "
+                    + " ".join(f"{100 * r[c]:9.1f}" for c in cols)
+                    + f"  {'yes' if r['ceiling'] < r['bar'] else 'no'}",
+                    flush=True,
+                )
     write_result(args.out, {"seeds": args.seeds, "rows": rows})
 
 

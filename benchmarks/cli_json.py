@@ -11,6 +11,7 @@ two identical runs removed: wall times, dates, absolute paths of the temporary
 workspace, the date-time in the ids, and the versions/fingerprints of the code. A refactoring that changes
 no behaviour gives two equal files (`--compare` exits 0).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -23,8 +24,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 LANEPRINT = [sys.executable, "-m", "laneprint.app.cli"]
-VOLATILE = re.compile(r"(seconds|_s_wall|wall|elapsed|duration|started|finished|_at$|^at$|time_s$|code_version|"
-                      r"git|pid|host|created|updated|modified|version)", re.I)
+VOLATILE = re.compile(
+    r"(seconds|_s_wall|wall|elapsed|duration|started|finished|_at$|^at$|time_s$|code_version|"
+    r"git|pid|host|created|updated|modified|version)",
+    re.I,
+)
 STAMP = re.compile(r"\d{8}-\d{6}(-\d{6})?-")  # the date-time that begins run, fleet and cross-validation ids
 
 
@@ -58,20 +62,56 @@ def snapshot() -> dict[str, object]:
         out["simulate"] = run(["simulate", "--out", f"{tmp}/sim", "--drivers", "3", "--seed", "1"], tmp)
         out["ingest"] = run(["ingest", "sample_logs", *ws], tmp)
         out["analyze"] = run(["analyze", *ws], tmp)
-        out["train"] = run(["train", "--style", "Normal", "--episodes", "300", "--seed", "0", "--run-id", "r1", *ws], tmp)
+        out["train"] = run(
+            ["train", "--style", "Normal", "--episodes", "300", "--seed", "0", "--run-id", "r1", *ws], tmp
+        )
         out["evaluate"] = run(["evaluate", "r1", *ws], tmp)
-        out["crossval"] = run(["crossval", "--style", "Aggressive", "--folds", "2", "--episodes", "150", "--seed", "0",
-                               "--bootstrap", "50", *ws], tmp)
+        out["crossval"] = run(
+            [
+                "crossval",
+                "--style",
+                "Aggressive",
+                "--folds",
+                "2",
+                "--episodes",
+                "150",
+                "--seed",
+                "0",
+                "--bootstrap",
+                "50",
+                *ws,
+            ],
+            tmp,
+        )
         out["export"] = run(["export", "r1", "--out", f"{tmp}/export", *ws], tmp)
-        rec = json.loads(subprocess.run([*LANEPRINT, "runs", "--json", *ws], cwd=ROOT, capture_output=True,
-                                        text=True).stdout or "null")
+        rec = json.loads(
+            subprocess.run([*LANEPRINT, "runs", "--json", *ws], cwd=ROOT, capture_output=True, text=True).stdout
+            or "null"
+        )
         recordings = sorted(p.name for p in Path(f"{tmp}/ws/recordings").iterdir())
         out["annotate"] = run(["annotate", "r1", recordings[0], "--out", f"{tmp}/a.mcap", *ws], tmp)
         out["fleet"] = run(["train", "--styles", "all", "--seeds", "1", "--episodes", "150", "--seed", "0", *ws], tmp)
         try:
             import libsumo  # noqa: F401
-            out["drive"] = run(["drive", "r1", "--engine", "sumo", "--minutes", "0.3", "--seed", "0",
-                                "--section", "80", "--out", f"{tmp}/drive", *ws], tmp)
+
+            out["drive"] = run(
+                [
+                    "drive",
+                    "r1",
+                    "--engine",
+                    "sumo",
+                    "--minutes",
+                    "0.3",
+                    "--seed",
+                    "0",
+                    "--section",
+                    "80",
+                    "--out",
+                    f"{tmp}/drive",
+                    *ws,
+                ],
+                tmp,
+            )
         except ImportError:
             print("  drive skipped (no SUMO)", file=sys.stderr)
         out["runs"] = normalise(rec, tmp)

@@ -29,9 +29,11 @@ from results_file import write_result  # noqa: E402
 
 #: variant name -> (voters, linkage); one voter is `separated`
 #: variant name -> (voters, linkage, vote floor: share of the best reading's score a voter needs)
-VARIANTS: dict[str, tuple[int, str, float]] = {"separated": (1, "complete", 0.0)} | {
-    f"top{n}-{link}": (n, link, 0.0) for n in (3, 5, 8, 99) for link in ("average", "complete")} | {
-    f"top{n}-complete-floor{f}": (n, "complete", f) for n in (5, 8) for f in (0.3, 0.5)}
+VARIANTS: dict[str, tuple[int, str, float]] = (
+    {"separated": (1, "complete", 0.0)}
+    | {f"top{n}-{link}": (n, link, 0.0) for n in (3, 5, 8, 99) for link in ("average", "complete")}
+    | {f"top{n}-complete-floor{f}": (n, "complete", f) for n in (5, 8) for f in (0.3, 0.5)}
+)
 
 
 #: The study shipped in `sample_logs/`: a variant must read it right (ARI 1) to be chosen.
@@ -122,10 +124,18 @@ def main() -> None:
                 print(f"  {world} seed {seed}: {exc}", flush=True)
                 continue
             for name, (n, link, floor) in VARIANTS.items():
-                rows.append({"world": world, "seed": seed, "variant": name, "ari": variant_ari(truth, scores, n, link, floor)})
+                rows.append(
+                    {"world": world, "seed": seed, "variant": name, "ari": variant_ari(truth, scores, n, link, floor)}
+                )
                 for param in WITHOUT:
-                    rows.append({"world": world, "seed": seed, "variant": f"{name}/no-{param}",
-                                 "ari": variant_ari(truth, without(scores, param), n, link, floor)})
+                    rows.append(
+                        {
+                            "world": world,
+                            "seed": seed,
+                            "variant": f"{name}/no-{param}",
+                            "ari": variant_ari(truth, without(scores, param), n, link, floor),
+                        }
+                    )
             print(f"  {world:<18} seed {seed:5d}  ({time.perf_counter() - t0:.0f} s)", flush=True)
     df = pd.DataFrame(rows)
     per = df.groupby(["variant", "world"]).ari.agg(mean_ari="mean", min_ari="min", seeds="count").reset_index()
@@ -134,22 +144,40 @@ def main() -> None:
     lowo = []
     for world in means.columns:
         pick = str(eligible.drop(columns=world).mean(axis=1).idxmax())
-        lowo.append({"world": world, "variant_chosen_elsewhere": pick, "mean_ari": float(means.loc[pick, world]),
-                     "separated_mean_ari": float(means.loc["separated", world])})
-    overall = pd.DataFrame({"mean_over_worlds": means.mean(axis=1), "worst_world": means.min(axis=1),
-                            "shipped_ari": pd.Series(on_shipped)})
-    write_result(args.out, {"worlds": worlds, "seeds": args.seeds,
-                            "variants": {k: list(v) for k, v in VARIANTS.items()},
-                            "per_world": per.to_dict("records"), "overall": overall.reset_index().to_dict("records"),
-                            "leave_one_world_out": lowo})
+        lowo.append(
+            {
+                "world": world,
+                "variant_chosen_elsewhere": pick,
+                "mean_ari": float(means.loc[pick, world]),
+                "separated_mean_ari": float(means.loc["separated", world]),
+            }
+        )
+    overall = pd.DataFrame(
+        {"mean_over_worlds": means.mean(axis=1), "worst_world": means.min(axis=1), "shipped_ari": pd.Series(on_shipped)}
+    )
+    write_result(
+        args.out,
+        {
+            "worlds": worlds,
+            "seeds": args.seeds,
+            "variants": {k: list(v) for k, v in VARIANTS.items()},
+            "per_world": per.to_dict("records"),
+            "overall": overall.reset_index().to_dict("records"),
+            "leave_one_world_out": lowo,
+        },
+    )
     print("\nmean ARI over worlds (worst world; the shipped study) per variant")
     for v, r in overall.sort_values("mean_over_worlds", ascending=False).iterrows():
         print(f"  {v:<18} {r.mean_over_worlds:.3f} ({r.worst_world:.2f}; {r.shipped_ari:.2f})")
-    print("\nleave one world out: the variant best on the other worlds among those that read the shipped study right, "
-          "judged on this one")
+    print(
+        "\nleave one world out: the variant best on the other worlds among those that read the shipped study right, "
+        "judged on this one"
+    )
     for r in lowo:
-        print(f"  {r['world']:<18} {r['variant_chosen_elsewhere']:<16} {r['mean_ari']:.2f} "
-              f"(separated {r['separated_mean_ari']:.2f})")
+        print(
+            f"  {r['world']:<18} {r['variant_chosen_elsewhere']:<16} {r['mean_ari']:.2f} "
+            f"(separated {r['separated_mean_ari']:.2f})"
+        )
 
 
 if __name__ == "__main__":

@@ -63,23 +63,45 @@ def main() -> int:
     interrupted = sum(len(r.interrupted_runs) for r in results)
     resumed = sum(1 for r in results for rid in r.interrupted_runs if rid in r.resumed)
     fractions = sorted(r.work_fraction for r in results if r.live)
-    print(f"\n{len(results)} SIGKILLs in {time.monotonic() - t0:.0f} s: "
-          + ", ".join(f"{k} {v} ({live_by_cmd[k]} live)" for k, v in by_cmd.items()))
-    print(f"live (into a process at work): {live}; finished before their kill: {len(results) - live}; "
-          f"attempts that finished first and were redrawn (not counted as kills): {sum(r.retries for r in results)}"
-          + (f"; kill moments {fractions[0]:.0%}..{fractions[-1]:.0%} of the work, median "
-             f"{fractions[len(fractions) // 2]:.0%}" if fractions else ""))
-    print(f"inconsistent workspaces: {len(bad)}; leftovers repaired: {sum(r.repaired for r in results)} "
-          f"(in {sum(r.repaired > 0 for r in results)} kills); interrupted trainings: {interrupted}, "
-          f"resumed from their checkpoint: {resumed}; slowest recovery: {max(r.recovery_s for r in results):.1f} s")
-    write_result(args.result, {
-        "kills": len(results), "seed": args.seed, "commands": names, "jobs": args.jobs,
-        "seconds": time.monotonic() - t0, "per_command": {k: {"kills": v, "live": live_by_cmd[k]} for k, v in by_cmd.items()},
-        "live": live, "finished_before_kill": len(results) - live, "redrawn": sum(r.retries for r in results),
-        "kill_moment_median": fractions[len(fractions) // 2] if fractions else None,
-        "inconsistent": len(bad), "repaired": sum(r.repaired for r in results),
-        "interrupted_trainings": interrupted, "resumed": resumed,
-        "slowest_recovery_s": max((r.recovery_s for r in results), default=0.0)})
+    print(
+        f"\n{len(results)} SIGKILLs in {time.monotonic() - t0:.0f} s: "
+        + ", ".join(f"{k} {v} ({live_by_cmd[k]} live)" for k, v in by_cmd.items())
+    )
+    print(
+        f"live (into a process at work): {live}; finished before their kill: {len(results) - live}; "
+        f"attempts that finished first and were redrawn (not counted as kills): {sum(r.retries for r in results)}"
+        + (
+            f"; kill moments {fractions[0]:.0%}..{fractions[-1]:.0%} of the work, median "
+            f"{fractions[len(fractions) // 2]:.0%}"
+            if fractions
+            else ""
+        )
+    )
+    print(
+        f"inconsistent workspaces: {len(bad)}; leftovers repaired: {sum(r.repaired for r in results)} "
+        f"(in {sum(r.repaired > 0 for r in results)} kills); interrupted trainings: {interrupted}, "
+        f"resumed from their checkpoint: {resumed}; slowest recovery: {max(r.recovery_s for r in results):.1f} s"
+    )
+    write_result(
+        args.result,
+        {
+            "kills": len(results),
+            "seed": args.seed,
+            "commands": names,
+            "jobs": args.jobs,
+            "seconds": time.monotonic() - t0,
+            "per_command": {k: {"kills": v, "live": live_by_cmd[k]} for k, v in by_cmd.items()},
+            "live": live,
+            "finished_before_kill": len(results) - live,
+            "redrawn": sum(r.retries for r in results),
+            "kill_moment_median": fractions[len(fractions) // 2] if fractions else None,
+            "inconsistent": len(bad),
+            "repaired": sum(r.repaired for r in results),
+            "interrupted_trainings": interrupted,
+            "resumed": resumed,
+            "slowest_recovery_s": max((r.recovery_s for r in results), default=0.0),
+        },
+    )
     if args.out:
         args.out.write_text(json.dumps([asdict(r) | {"live": r.live} for r in results], indent=2))
     return 1 if bad or resumed < interrupted else 0

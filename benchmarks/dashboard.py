@@ -66,12 +66,28 @@ def build(root: Path, n_drivers: int, n_decisions: int) -> Workspace:
     ws = Workspace(root).ensure()
     for i in range(n_drivers):
         meta, ego, traffic = make_recording(
-            60.0, 20.0, 20.0 + (i % 7), [(0, 0), (30.0, 1)], presses=[(25.0, 0.5, "left")],
+            60.0,
+            20.0,
+            20.0 + (i % 7),
+            [(0, 0), (30.0, 1)],
+            presses=[(25.0, 0.5, "left")],
             vehicles=[("lead", 80.0, 17.0, 0, 4.5), ("nb", -40.0, 19.0, 1, 4.5)],
-            recording_id=f"{i:016x}", driver_id=f"D{i:04d}")
-        meta.update(simulator="bench", source_name=f"r{i}.csv", source_path=f"/b/r{i}.csv", format="csv",
-                    n_samples=len(ego), duration_s=60.0, n_presses=1, n_vehicles=2, status="ok",
-                    warnings="", ingested_at="2026-01-01T00:00:00+00:00")
+            recording_id=f"{i:016x}",
+            driver_id=f"D{i:04d}",
+        )
+        meta.update(
+            simulator="bench",
+            source_name=f"r{i}.csv",
+            source_path=f"/b/r{i}.csv",
+            format="csv",
+            n_samples=len(ego),
+            duration_s=60.0,
+            n_presses=1,
+            n_vehicles=2,
+            status="ok",
+            warnings="",
+            ingested_at="2026-01-01T00:00:00+00:00",
+        )
         ws.write_recording(meta, ego, traffic)
     decisions, _ = make_decision_table(n_drivers, n_decisions, seed=0)
     ws.write_tables("analysis", analyze_tables(decisions), {"settings": {}})
@@ -107,31 +123,59 @@ def build_fleet(ws: Workspace, n_agents: int, template: str = "bench-0", fleet_i
         run_id = f"{fleet_id}-{driver.lower()}-s0"
         dst = ws.runs_dir / run_id
         shutil.copytree(src, dst)
-        atomic_write_json(dst / "config.json", {**config, "run_id": run_id, "fleet_id": fleet_id,
-                                                "target": {"kind": "driver", "name": driver}})
+        atomic_write_json(
+            dst / "config.json",
+            {**config, "run_id": run_id, "fleet_id": fleet_id, "target": {"kind": "driver", "name": driver}},
+        )
         greedy = float(rng.uniform(0.55, 0.7))
-        figures = {"agent": (float(rng.uniform(0.9, 1.0)), greedy + float(rng.uniform(0.0, 0.3))),
-                   "greedy": (1.0, greedy), "imitation": (float(rng.uniform(0.6, 0.9)), float(rng.uniform(0.6, 0.9)))}
-        summary = [{**row, "recall": figures[row["who"]][0], "balanced_accuracy": figures[row["who"]][1]}
-                   if row.get("who") in figures else row for row in evaluation["summary"]]
-        atomic_write_json(dst / "evaluation.json", {**evaluation, "run_id": run_id, "summary": summary,
-                                                    "summary_members": summary, "drivers": [driver]})
+        figures = {
+            "agent": (float(rng.uniform(0.9, 1.0)), greedy + float(rng.uniform(0.0, 0.3))),
+            "greedy": (1.0, greedy),
+            "imitation": (float(rng.uniform(0.6, 0.9)), float(rng.uniform(0.6, 0.9))),
+        }
+        summary = [
+            {**row, "recall": figures[row["who"]][0], "balanced_accuracy": figures[row["who"]][1]}
+            if row.get("who") in figures
+            else row
+            for row in evaluation["summary"]
+        ]
+        atomic_write_json(
+            dst / "evaluation.json",
+            {**evaluation, "run_id": run_id, "summary": summary, "summary_members": summary, "drivers": [driver]},
+        )
         atomic_write_json(dst / "status.json", {**status, "pid": None})
         runs.append(run_id)
     now = "2026-11-30T12:00:00+00:00"
-    atomic_write_json(ws.root / "fleets" / fleet_id / "fleet.json", {
-        "fleet_id": fleet_id, "created_at": now, "targets": [{"kind": "driver", "name": d} for d in drivers],
-        "seeds": [0], "runs": runs, "backend": "local", "state": "done", "pid": None, "updated_at": now,
-        "message": "done"})
-    atomic_write_json(ws.root / "dashboard" / "fleet_jobs" / f"{fleet_id}.json", {
-        "job_id": fleet_id, "pid": None, "fleet_id": fleet_id, "launched_at": now, "request": {}})
+    atomic_write_json(
+        ws.root / "fleets" / fleet_id / "fleet.json",
+        {
+            "fleet_id": fleet_id,
+            "created_at": now,
+            "targets": [{"kind": "driver", "name": d} for d in drivers],
+            "seeds": [0],
+            "runs": runs,
+            "backend": "local",
+            "state": "done",
+            "pid": None,
+            "updated_at": now,
+            "message": "done",
+        },
+    )
+    atomic_write_json(
+        ws.root / "dashboard" / "fleet_jobs" / f"{fleet_id}.json",
+        {"job_id": fleet_id, "pid": None, "fleet_id": fleet_id, "launched_at": now, "request": {}},
+    )
 
 
 PAGE_NAMES = ("data", "drivers", "styles", "training", "results")
 #: (url path, title, has a Plotly chart) of each page
-BROWSER_PAGES = {"data": ("", "Data", True), "drivers": ("drivers", "Drivers", True),
-                 "styles": ("styles", "Styles", True), "training": ("training", "Training", False),
-                 "results": ("results", "Results", True)}
+BROWSER_PAGES = {
+    "data": ("", "Data", True),
+    "drivers": ("drivers", "Drivers", True),
+    "styles": ("styles", "Styles", True),
+    "training": ("training", "Training", False),
+    "results": ("results", "Results", True),
+}
 
 
 def render(page: str, cold: bool, pages: Path = PAGES) -> float:
@@ -146,25 +190,50 @@ def render(page: str, cold: bool, pages: Path = PAGES) -> float:
     return dt
 
 
-def script_times(repeat: int, pages: Path = PAGES, names: tuple[str, ...] = PAGE_NAMES
-                 ) -> dict[str, tuple[float, float]]:
+def script_times(
+    repeat: int, pages: Path = PAGES, names: tuple[str, ...] = PAGE_NAMES
+) -> dict[str, tuple[float, float]]:
     """(cold, warm) median seconds of each page's script run (AppTest); pages not in `names`: NaN."""
     for page in names:
         render(page, cold=True, pages=pages)  # imports and first compile out of the way
-    return {page: (statistics.median(render(page, cold=True, pages=pages) for _ in range(repeat)),
-                   statistics.median(render(page, cold=False, pages=pages) for _ in range(repeat)))
-            if page in names else (float("nan"), float("nan")) for page in PAGE_NAMES}
+    return {
+        page: (
+            statistics.median(render(page, cold=True, pages=pages) for _ in range(repeat)),
+            statistics.median(render(page, cold=False, pages=pages) for _ in range(repeat)),
+        )
+        if page in names
+        else (float("nan"), float("nan"))
+        for page in PAGE_NAMES
+    }
 
 
-def baseline_script_times(code: Path, ws: Workspace, repeat: int, names: tuple[str, ...] = PAGE_NAMES
-                          ) -> dict[str, tuple[float, float]]:
+def baseline_script_times(
+    code: Path, ws: Workspace, repeat: int, names: tuple[str, ...] = PAGE_NAMES
+) -> dict[str, tuple[float, float]]:
     """`script_times` of the code in `code` (its packages first on the path), in a child process."""
     import json
     import subprocess
 
-    out = subprocess.run([sys.executable, __file__, "--keep", str(ws.root), "--repeat", str(repeat),
-                          "--script-json", "--code", str(code), "--pages", ",".join(names)],
-                         check=True, capture_output=True, text=True, cwd=code, env=dict(os.environ, PYTHONPATH=str(code)))
+    out = subprocess.run(
+        [
+            sys.executable,
+            __file__,
+            "--keep",
+            str(ws.root),
+            "--repeat",
+            str(repeat),
+            "--script-json",
+            "--code",
+            str(code),
+            "--pages",
+            ",".join(names),
+        ],
+        check=True,
+        capture_output=True,
+        text=True,
+        cwd=code,
+        env=dict(os.environ, PYTHONPATH=str(code)),
+    )
     return {k: tuple(v) for k, v in json.loads(out.stdout.strip().splitlines()[-1]).items()}
 
 
@@ -180,8 +249,14 @@ def serve(code: Path, ws: Workspace):
         port = sock.getsockname()[1]
     cmd = streamlit_command(port, "127.0.0.1", ws.root)
     cmd[cmd.index("run") + 1] = str(code / "dashboard" / "app.py")
-    proc = subprocess.Popen(cmd, cwd=code, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
-                            env=dict(os.environ, LANEPRINT_WORKSPACE=str(ws.root), PYTHONPATH=str(code)))
+    proc = subprocess.Popen(
+        cmd,
+        cwd=code,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+        env=dict(os.environ, LANEPRINT_WORKSPACE=str(ws.root), PYTHONPATH=str(code)),
+    )
     return proc, f"http://127.0.0.1:{port}"
 
 
@@ -206,8 +281,9 @@ def serve_floor(folder: Path, ws: Workspace):
         port = sock.getsockname()[1]
     cmd = streamlit_command(port, "127.0.0.1", ws.root)
     cmd[cmd.index("run") + 1] = str(folder / "floor.py")
-    proc = subprocess.Popen(cmd, cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        cmd, cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
     return proc, f"http://127.0.0.1:{port}"
 
 
@@ -217,8 +293,9 @@ NAV_FROM = {"data": "drivers", "drivers": "data", "styles": "data", "training": 
 CURVES = "Training curves (Fig. 9)"
 
 
-def browser_times(ws: Workspace, repeat: int, codes: list[Path], floor: list[float] | None = None,
-                  names: tuple[str, ...] = PAGE_NAMES) -> list[dict[str, tuple[float, ...]]]:
+def browser_times(
+    ws: Workspace, repeat: int, codes: list[Path], floor: list[float] | None = None, names: tuple[str, ...] = PAGE_NAMES
+) -> list[dict[str, tuple[float, ...]]]:
     """Per code folder: (cold, warm, nav) median seconds to a drawn page in headless Chromium, the
     folders' servers visited in turn (the same load on each); and for 'results curves' the time from
     the click on the Results page's "Training curves" expander to its chart drawn."""
@@ -241,8 +318,16 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path], floor: list[flo
                     break
                 except OSError:
                     time.sleep(0.1)
-        args = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+        args = [
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+        ]
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=args)
 
@@ -252,7 +337,8 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path], floor: list[flo
                 if chart:
                     expect(page.locator(".js-plotly-plot").first).to_be_visible(timeout=120_000)
                 expect(page.locator('[data-testid="stApp"][data-test-script-state="notRunning"]')).to_be_attached(
-                    timeout=120_000)
+                    timeout=120_000
+                )
                 return time.perf_counter() - t0
 
             def visit(url: str, name: str) -> tuple[float, float]:
@@ -273,8 +359,7 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path], floor: list[flo
                 if name == "results" and page.get_by_text(CURVES).count():
                     t0 = time.perf_counter()
                     page.get_by_text(CURVES).first.click()
-                    expect(page.locator('[class*="st-key-fig9_"] .js-plotly-plot').first).to_be_visible(
-                        timeout=120_000)
+                    expect(page.locator('[class*="st-key-fig9_"] .js-plotly-plot').first).to_be_visible(timeout=120_000)
                     curves = drawn(page, name, t0)
                 ctx.close()
                 return opened, nav, curves
@@ -285,8 +370,11 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path], floor: list[flo
             for name in names:
                 for _ in range(repeat):
                     for (_, url), t in zip(servers, times):
-                        for sub in ("recordings", "analysis", *(str(p.relative_to(ws.root))
-                                                                for p in ws.root.glob("fleets/*/fleet.json"))):
+                        for sub in (
+                            "recordings",
+                            "analysis",
+                            *(str(p.relative_to(ws.root)) for p in ws.root.glob("fleets/*/fleet.json")),
+                        ):
                             os.utime(ws.root / sub)  # new cache keys: the loaders read again
                         cold, _, _ = visit(url, name)
                         warm, nav, curves = visit(url, name)
@@ -308,8 +396,10 @@ def browser_times(ws: Workspace, repeat: int, codes: list[Path], floor: list[flo
             proc.wait()
         if floor_dir:
             shutil.rmtree(floor_dir, ignore_errors=True)
-    return [{name: tuple(statistics.median(v) if v else float("nan") for v in series) for name, series in t.items()}
-            for t in times]
+    return [
+        {name: tuple(statistics.median(v) if v else float("nan") for v in series) for name, series in t.items()}
+        for t in times
+    ]
 
 
 def checkout(rev: str) -> Path:
@@ -335,15 +425,26 @@ def main() -> None:
     ap.add_argument("--fleet", type=int, default=100, help="agents in the synthesized fleet (0: none)")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--browser", action="store_true", help="also time the pages in headless Chromium")
-    ap.add_argument("--keep", type=Path, default=None,
-                    help="build the workspace in this folder and keep it; reuse it when it is there already "
-                         "(the same workspace before and after a change)")
-    ap.add_argument("--baseline", default=None, metavar="DIR|REV",
-                    help="also time the dashboard of the code in this folder, or of this git revision of the "
-                         "repository (e.g. HEAD~3; exported with `git archive` to a temporary folder), its pages "
-                         "visited in turn with this checkout's: before and after in one run")
-    ap.add_argument("--pages", default=",".join(PAGE_NAMES),
-                    help="the pages to time, comma-separated (default: all: " + ",".join(PAGE_NAMES) + ")")
+    ap.add_argument(
+        "--keep",
+        type=Path,
+        default=None,
+        help="build the workspace in this folder and keep it; reuse it when it is there already "
+        "(the same workspace before and after a change)",
+    )
+    ap.add_argument(
+        "--baseline",
+        default=None,
+        metavar="DIR|REV",
+        help="also time the dashboard of the code in this folder, or of this git revision of the "
+        "repository (e.g. HEAD~3; exported with `git archive` to a temporary folder), its pages "
+        "visited in turn with this checkout's: before and after in one run",
+    )
+    ap.add_argument(
+        "--pages",
+        default=",".join(PAGE_NAMES),
+        help="the pages to time, comma-separated (default: all: " + ",".join(PAGE_NAMES) + ")",
+    )
     ap.add_argument("--out", default="dashboard", help="result file name under benchmarks/results/")
     ap.add_argument("--code", type=Path, default=None, help=argparse.SUPPRESS)  # the pages timed (--baseline)
     ap.add_argument("--script-json", action="store_true", help=argparse.SUPPRESS)  # script times as JSON only
@@ -367,9 +468,11 @@ def main() -> None:
         if args.script_json:
             print(json.dumps(script_times(args.repeat, pages, names)))
             return
-        print(f"workspace: {args.drivers} drivers x {args.decisions} decisions, "
-              f"{len(ws.read_table('analysis', 'decisions'))} decision rows, a fleet of {args.fleet} agents "
-              f"({len(list(ws.runs_dir.iterdir()))} runs in all), built in {time.perf_counter() - t0:.1f} s")
+        print(
+            f"workspace: {args.drivers} drivers x {args.decisions} decisions, "
+            f"{len(ws.read_table('analysis', 'decisions'))} decision rows, a fleet of {args.fleet} agents "
+            f"({len(list(ws.runs_dir.iterdir()))} runs in all), built in {time.perf_counter() - t0:.1f} s"
+        )
         if args.baseline:
             args.baseline = (Path(args.baseline) if Path(args.baseline).is_dir() else checkout(args.baseline)).resolve()
         codes = [PAGES.parents[1]] + ([args.baseline] if args.baseline else [])
@@ -378,8 +481,7 @@ def main() -> None:
         if args.baseline:
             scripts.append(baseline_script_times(args.baseline.resolve(), ws, args.repeat, names))
         floor: list[float] = []
-        browsers = (browser_times(ws, args.repeat, codes, floor, names) if args.browser
-                    else [None] * len(codes))
+        browsers = browser_times(ws, args.repeat, codes, floor, names) if args.browser else [None] * len(codes)
         for name, script, browser in zip(labels, scripts, browsers):
             print(f"\n{name}: medians of {args.repeat} [s]")
             head = f"{'page':<10} {'script cold':>11} {'script warm':>11}"
@@ -389,29 +491,63 @@ def main() -> None:
             for page in names:
                 line = f"{page:<10} {script[page][0]:>11.3f} {script[page][1]:>11.3f}"
                 if browser:
-                    line += (f" {browser[page][0]:>12.3f} {browser[page][1]:>12.3f} {browser[page][2]:>11.3f}"
-                             f"  ({NAV_FROM[page]})")
+                    line += (
+                        f" {browser[page][0]:>12.3f} {browser[page][1]:>12.3f} {browser[page][2]:>11.3f}"
+                        f"  ({NAV_FROM[page]})"
+                    )
                 print(line)
             if browser:
                 print(f"results: '{CURVES}' opened (click to drawn chart): {browser['curves'][0]:.3f}")
         if args.baseline and browsers[0]:
-            print("\nthis checkout / baseline, browser nav medians: " + ", ".join(
-                f"{p} {browsers[0][p][2]:.2f}/{browsers[1][p][2]:.2f} (x{browsers[1][p][2] / browsers[0][p][2]:.2f})"
-                for p in names) + f", curves {browsers[0]['curves'][0]:.2f}/{browsers[1]['curves'][0]:.2f}")
-        rows = [{"code": label, "page": page, "script_cold_s": script[page][0], "script_warm_s": script[page][1],
-                 **({"browser_cold_s": browser[page][0], "browser_warm_s": browser[page][1],
-                     "browser_nav_s": browser[page][2], "nav_from": NAV_FROM[page]} if browser else {})}
-                for label, script, browser in zip(labels, scripts, browsers) for page in names]
-        figures = {"drivers": args.drivers, "decisions": args.decisions, "fleet": args.fleet, "repeat": args.repeat,
-                   "pages": rows}
+            print(
+                "\nthis checkout / baseline, browser nav medians: "
+                + ", ".join(
+                    f"{p} {browsers[0][p][2]:.2f}/{browsers[1][p][2]:.2f} (x{browsers[1][p][2] / browsers[0][p][2]:.2f})"
+                    for p in names
+                )
+                + f", curves {browsers[0]['curves'][0]:.2f}/{browsers[1]['curves'][0]:.2f}"
+            )
+        rows = [
+            {
+                "code": label,
+                "page": page,
+                "script_cold_s": script[page][0],
+                "script_warm_s": script[page][1],
+                **(
+                    {
+                        "browser_cold_s": browser[page][0],
+                        "browser_warm_s": browser[page][1],
+                        "browser_nav_s": browser[page][2],
+                        "nav_from": NAV_FROM[page],
+                    }
+                    if browser
+                    else {}
+                ),
+            }
+            for label, script, browser in zip(labels, scripts, browsers)
+            for page in names
+        ]
+        figures = {
+            "drivers": args.drivers,
+            "decisions": args.decisions,
+            "fleet": args.fleet,
+            "repeat": args.repeat,
+            "pages": rows,
+        }
         if browsers[0]:
             figures["results_curves_s"] = {label: b["curves"][0] for label, b in zip(labels, browsers)}
         if floor:
-            figures["floor_s"] = {"median": statistics.median(floor), "min": min(floor), "max": max(floor),
-                                  "visits": len(floor)}
-            print(f"\nfloor: a one-chart Streamlit page (title + a 3-point Plotly chart) opened in a new tab of a "
-                  f"new browser context, visited in turn with the pages: median {statistics.median(floor):.3f} s "
-                  f"(min {min(floor):.3f}, max {max(floor):.3f}, {len(floor)} visits)")
+            figures["floor_s"] = {
+                "median": statistics.median(floor),
+                "min": min(floor),
+                "max": max(floor),
+                "visits": len(floor),
+            }
+            print(
+                f"\nfloor: a one-chart Streamlit page (title + a 3-point Plotly chart) opened in a new tab of a "
+                f"new browser context, visited in turn with the pages: median {statistics.median(floor):.3f} s "
+                f"(min {min(floor):.3f}, max {max(floor):.3f}, {len(floor)} visits)"
+            )
         write_result(args.out, figures)
 
 

@@ -90,7 +90,12 @@ def one_by_one(ws: Workspace, drivers: list[str]) -> dict:
         res = train_run(ws, target, env, DQNSettings(seed=0))
         steps += res["env_steps"]
         results.append({"driver": d, **dict(zip(("ok", "recall", "agent_ba", "greedy_ba"), meets(res["evaluation"])))})
-    return {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - cpu, "env_steps": steps, "agents": results}
+    return {
+        "wall_s": time.perf_counter() - t,
+        "cpu_s": time.process_time() - cpu,
+        "env_steps": steps,
+        "agents": results,
+    }
 
 
 def fleet(ws: Workspace, backend: str, threads: int | None) -> dict:
@@ -99,11 +104,22 @@ def fleet(ws: Workspace, backend: str, threads: int | None) -> dict:
     record = create_fleet(ws, targets, [0], DQNSettings(), backend=backend)
     res = train_fleet(ws, record["fleet_id"], backend=backend, threads=threads)
     wall, cpu = time.perf_counter() - t, time.process_time() - cpu
-    table = fleet_table(ws, record["fleet_id"]).rename(columns={
-        "agent_balanced_accuracy": "agent_ba", "greedy_balanced_accuracy": "greedy_ba",
-        "imitation_balanced_accuracy": "imitation_ba", "agent_recall": "recall"})
+    table = fleet_table(ws, record["fleet_id"]).rename(
+        columns={
+            "agent_balanced_accuracy": "agent_ba",
+            "greedy_balanced_accuracy": "greedy_ba",
+            "imitation_balanced_accuracy": "imitation_ba",
+            "agent_recall": "recall",
+        }
+    )
     steps = sum(s.get("env_steps", 0) for s in res["summaries"])
-    return {"wall_s": wall, "cpu_s": cpu if backend == "local" else None, "env_steps": steps, "table": table, "runs": res["runs"]}
+    return {
+        "wall_s": wall,
+        "cpu_s": cpu if backend == "local" else None,
+        "env_steps": steps,
+        "table": table,
+        "runs": res["runs"],
+    }
 
 
 def vector_steps_per_run(ws: Workspace, run_ids: list[str]) -> float:
@@ -126,8 +142,10 @@ def scaling(ws: Workspace, sizes: list[int], steps: int, shards: int) -> list[di
     base_members, _ = _load_members(ws, record["runs"])
     out = []
     for k in sizes:
-        members = [FleetMember(m.env_config, replace(m.settings, seed=i // len(base_members)), m.approaches)
-                   for i, m in zip(range(k), (base_members * (k // len(base_members) + 1)))]
+        members = [
+            FleetMember(m.env_config, replace(m.settings, seed=i // len(base_members)), m.approaches)
+            for i, m in zip(range(k), (base_members * (k // len(base_members) + 1)))
+        ]
         parts = [members[i::shards] for i in range(min(shards, k))]
         s = members[0].settings
         warm = int(np.ceil(s.learning_starts / s.num_envs)) + 2
@@ -150,8 +168,10 @@ def scaling(ws: Workspace, sizes: list[int], steps: int, shards: int) -> list[di
             w.join()
         per_step = max(per_shard)
         out.append({"agents": k, "s_per_vector_step": per_step})
-        print(f"  {k:5d} agents ({len(parts)} shards of <= {len(parts[0])}): {per_step * 1000:.1f} ms per vector step",
-              flush=True)
+        print(
+            f"  {k:5d} agents ({len(parts)} shards of <= {len(parts[0])}): {per_step * 1000:.1f} ms per vector step",
+            flush=True,
+        )
     return out
 
 
@@ -170,21 +190,38 @@ def main() -> None:
     ws = prepare(args.workdir, args.drivers)
     drivers = sorted(fleet_targets(ws, drivers="all"), key=lambda t: t.name)
     n = len(drivers)
-    print(f"{n} drivers, one agent each (seed 0, default settings), {cores} cores; "
-          f"load average {' '.join(f'{x:.1f}' for x in os.getloadavg())} (1/5/15 min)\n")
+    print(
+        f"{n} drivers, one agent each (seed 0, default settings), {cores} cores; "
+        f"load average {' '.join(f'{x:.1f}' for x in os.getloadavg())} (1/5/15 min)\n"
+    )
 
     rows = []
     fresh_runs(ws)
     sample = [t.name for t in drivers[: args.sample]]
     obo = one_by_one(ws, sample)
     scale = n / len(sample)
-    rows.append(("one by one (today's trainer)", obo["wall_s"] * scale, obo["cpu_s"] * scale, obo["env_steps"] * scale,
-                 f"{len(sample)} timed, x{scale:g}"))
+    rows.append(
+        (
+            "one by one (today's trainer)",
+            obo["wall_s"] * scale,
+            obo["cpu_s"] * scale,
+            obo["env_steps"] * scale,
+            f"{len(sample)} timed, x{scale:g}",
+        )
+    )
     print(f"one by one: {len(sample)} agents in {obo['wall_s']:.0f} s", flush=True)
 
     fresh_runs(ws)
     local = fleet(ws, "local", args.threads)
-    rows.append(("batched fleet (local)", local["wall_s"], local["cpu_s"], local["env_steps"], f"{args.threads or cores} threads"))
+    rows.append(
+        (
+            "batched fleet (local)",
+            local["wall_s"],
+            local["cpu_s"],
+            local["env_steps"],
+            f"{args.threads or cores} threads",
+        )
+    )
     print(f"fleet local: {n} agents in {local['wall_s']:.0f} s", flush=True)
     steps_per_run = vector_steps_per_run(ws, local["runs"])
     local_table = local["table"]
@@ -195,54 +232,104 @@ def main() -> None:
         ray = fleet(ws, "ray", 1)
         rows.append(("fleet on local Ray", ray["wall_s"], None, ray["env_steps"], f"{cores} workers x 1 thread"))
         print(f"fleet ray: {n} agents in {ray['wall_s']:.0f} s", flush=True)
-        same = bool(np.allclose(ray["table"]["agent_ba"].to_numpy(float), local_table["agent_ba"].to_numpy(float),
-                                atol=1e-9, equal_nan=True))
+        same = bool(
+            np.allclose(
+                ray["table"]["agent_ba"].to_numpy(float),
+                local_table["agent_ba"].to_numpy(float),
+                atol=1e-9,
+                equal_nan=True,
+            )
+        )
         print(f"ray agents' balanced accuracy equal to the local fleet's: {same}")
 
-    figures: dict = {"drivers": n, "sample": len(sample), "cores": cores, "methods": [
-        {"method": name, "wall_s": wall, "agents_per_min": 60 * n / wall, "env_steps_per_s": steps / wall,
-         "speed_up": rows[0][1] / wall, "cpu_s": cpu, "cpu_ratio": rows[0][2] / cpu if cpu else None,
-         "projected": name.startswith("one by one"), "note": note}
-        for name, wall, cpu, steps, note in rows], "ray_balanced_accuracy_equal_to_local": same}
+    figures: dict = {
+        "drivers": n,
+        "sample": len(sample),
+        "cores": cores,
+        "methods": [
+            {
+                "method": name,
+                "wall_s": wall,
+                "agents_per_min": 60 * n / wall,
+                "env_steps_per_s": steps / wall,
+                "speed_up": rows[0][1] / wall,
+                "cpu_s": cpu,
+                "cpu_ratio": rows[0][2] / cpu if cpu else None,
+                "projected": name.startswith("one by one"),
+                "note": note,
+            }
+            for name, wall, cpu, steps, note in rows
+        ],
+        "ray_balanced_accuracy_equal_to_local": same,
+    }
     base = rows[0][1]
     # CPU seconds of this process (all its threads): the work done, whatever else loads the machine
     # (Ray's workers are other processes: not counted)
     base_cpu = rows[0][2]
-    print(f"\n{'method':32s} {'wall [s]':>9s} {'agents/min':>11s} {'env steps/s':>12s} {'speed-up':>9s} "
-          f"{'CPU [s]':>8s} {'CPU ratio':>9s}  note")
+    print(
+        f"\n{'method':32s} {'wall [s]':>9s} {'agents/min':>11s} {'env steps/s':>12s} {'speed-up':>9s} "
+        f"{'CPU [s]':>8s} {'CPU ratio':>9s}  note"
+    )
     for name, wall, cpu, steps, note in rows:
         cpu_cols = f"{cpu:8.0f} {base_cpu / cpu:8.1f}x" if cpu else f"{'-':>8s} {'-':>9s}"
-        print(f"{name:32s} {wall:9.0f} {60 * n / wall:11.1f} {steps / wall:12.0f} {base / wall:8.1f}x {cpu_cols}  {note}")
+        print(
+            f"{name:32s} {wall:9.0f} {60 * n / wall:11.1f} {steps / wall:12.0f} {base / wall:8.1f}x {cpu_cols}  {note}"
+        )
 
     met = int(local_table["meets_target"].sum())
-    print(f"\nfleet agents meeting the target (recall >= 95 %, bal. acc. >= greedy + 5 points): {met} of {len(local_table)}")
+    print(
+        f"\nfleet agents meeting the target (recall >= 95 %, bal. acc. >= greedy + 5 points): {met} of {len(local_table)}"
+    )
     worst = local_table.assign(margin=local_table["agent_ba"] - local_table["greedy_ba"]).sort_values("margin").head(5)
-    print("closest to missing:\n" + worst[["run_id", "recall", "agent_ba", "greedy_ba", "margin"]].to_string(index=False))
+    print(
+        "closest to missing:\n" + worst[["run_id", "recall", "agent_ba", "greedy_ba", "margin"]].to_string(index=False)
+    )
     by_driver = pd.DataFrame(obo["agents"]).set_index("driver")
-    fleet_ba = local_table.assign(driver=[r.rsplit("-", 2)[-2].upper() for r in local_table["run_id"]]).set_index("driver")
+    fleet_ba = local_table.assign(driver=[r.rsplit("-", 2)[-2].upper() for r in local_table["run_id"]]).set_index(
+        "driver"
+    )
     diff = (fleet_ba.loc[by_driver.index, "agent_ba"] - by_driver["agent_ba"]).abs()
-    print(f"same drivers alone vs in the fleet: max |bal. acc. difference| {diff.max():.4f} "
-          f"(one by one met the target {int(by_driver['ok'].sum())} of {len(by_driver)})")
-    figures.update({
-        "fleet_agents_meeting_target": met, "fleet_agents": len(local_table),
-        "max_abs_balanced_accuracy_difference_alone_vs_fleet": float(diff.max()),
-        "one_by_one_meeting_target": int(by_driver["ok"].sum()),
-        "median_balanced_accuracy": {w: float(statistics.median(local_table[f"{w}_ba"]))
-                                     for w in ("agent", "greedy", "imitation")}})
-    print(f"median agent bal. acc. {statistics.median(local_table['agent_ba']):.3f}, greedy "
-          f"{statistics.median(local_table['greedy_ba']):.3f}, imitation {statistics.median(local_table['imitation_ba']):.3f}")
+    print(
+        f"same drivers alone vs in the fleet: max |bal. acc. difference| {diff.max():.4f} "
+        f"(one by one met the target {int(by_driver['ok'].sum())} of {len(by_driver)})"
+    )
+    figures.update(
+        {
+            "fleet_agents_meeting_target": met,
+            "fleet_agents": len(local_table),
+            "max_abs_balanced_accuracy_difference_alone_vs_fleet": float(diff.max()),
+            "one_by_one_meeting_target": int(by_driver["ok"].sum()),
+            "median_balanced_accuracy": {
+                w: float(statistics.median(local_table[f"{w}_ba"])) for w in ("agent", "greedy", "imitation")
+            },
+        }
+    )
+    print(
+        f"median agent bal. acc. {statistics.median(local_table['agent_ba']):.3f}, greedy "
+        f"{statistics.median(local_table['greedy_ba']):.3f}, imitation {statistics.median(local_table['imitation_ba']):.3f}"
+    )
 
     sizes = [int(x) for x in args.scaling.split(",") if x.strip()]
     if sizes:
-        print(f"\nfleet growth ({args.scaling_steps} vector steps after learning starts, {args.threads or cores} shards "
-              f"of one thread; a whole run is ~{steps_per_run:.0f} vector steps):")
+        print(
+            f"\nfleet growth ({args.scaling_steps} vector steps after learning starts, {args.threads or cores} shards "
+            f"of one thread; a whole run is ~{steps_per_run:.0f} vector steps):"
+        )
         grow = scaling(ws, sizes, args.scaling_steps, args.threads or cores)
-        figures["growth"] = [{"agents": g["agents"], "s_per_vector_step": g["s_per_vector_step"],
-                              "projected_min_per_run": g["s_per_vector_step"] * steps_per_run / 60} for g in grow]
+        figures["growth"] = [
+            {
+                "agents": g["agents"],
+                "s_per_vector_step": g["s_per_vector_step"],
+                "projected_min_per_run": g["s_per_vector_step"] * steps_per_run / 60,
+            }
+            for g in grow
+        ]
         figures["vector_steps_per_run"] = steps_per_run
         for g in grow:
-            print(f"  {g['agents']:5d} agents: projected {g['s_per_vector_step'] * steps_per_run / 60:.1f} min "
-                  f"for a whole run (training only, projected)")
+            print(
+                f"  {g['agents']:5d} agents: projected {g['s_per_vector_step'] * steps_per_run / 60:.1f} min "
+                f"for a whole run (training only, projected)"
+            )
     print(f"\nload average at the end {' '.join(f'{x:.1f}' for x in os.getloadavg())} (1/5/15 min)")
     figures["load_average_at_end"] = [round(x, 2) for x in os.getloadavg()]
     write_result(args.out, figures)

@@ -49,8 +49,7 @@ def piecewise(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return np.clip((x[:, :, None] - lo) / width, 0.0, 1.0).reshape(len(x), -1).astype(np.float32)
 
 
-def mlp_scores(x_train: np.ndarray, y_train: np.ndarray, x_test: np.ndarray, seed: int,
-               epochs: int = 60) -> np.ndarray:
+def mlp_scores(x_train: np.ndarray, y_train: np.ndarray, x_test: np.ndarray, seed: int, epochs: int = 60) -> np.ndarray:
     """Logits of the agent-shaped MLP trained on the labels (classes balanced)."""
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
@@ -61,7 +60,7 @@ def mlp_scores(x_train: np.ndarray, y_train: np.ndarray, x_test: np.ndarray, see
     for _ in range(epochs):
         order = torch.randperm(len(yt), generator=gen)
         for i in range(0, len(yt), 256):
-            b = order[i:i + 256]
+            b = order[i : i + 256]
             loss = torch.nn.functional.binary_cross_entropy_with_logits(net(xt[b]).squeeze(1), yt[b], weight=weight[b])
             opt.zero_grad()
             loss.backward()
@@ -76,8 +75,9 @@ def main() -> int:
     ap.add_argument("--style", required=True)
     ap.add_argument("--folds", type=int, default=4)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", default=None, help="result file name under benchmarks/results/ "
-                                                "(default function_class_<style>)")
+    ap.add_argument(
+        "--out", default=None, help="result file name under benchmarks/results/ (default function_class_<style>)"
+    )
     args = ap.parse_args()
     torch.set_num_threads(1)
     ws = Workspace(args.workspace)
@@ -85,8 +85,11 @@ def main() -> int:
     dec = ws.read_table("analysis", "decisions")
     dec = dec[dec["driver_id"].astype(str).isin(drivers)]
     cfg: EnvConfig = formulation_config(EnvConfig().lines)  # the default observation; lines play no part here
-    sessions = dec.groupby("recording_id", sort=True).agg(driver_id=("driver_id", "first"),
-                                                         speed_limit_kph=("speed_limit_kph", "first")).reset_index()
+    sessions = (
+        dec.groupby("recording_id", sort=True)
+        .agg(driver_id=("driver_id", "first"), speed_limit_kph=("speed_limit_kph", "first"))
+        .reset_index()
+    )
     fold_of = assign_folds(sessions, CrossvalSettings(folds=args.folds, seed=args.seed))
     fold = dec["recording_id"].astype(str).map(fold_of).to_numpy()
     scores: dict[str, list[np.ndarray]] = {"trees": [], "mlp": [], "mlp-piecewise": []}
@@ -117,9 +120,18 @@ def main() -> int:
             row |= {f"left_{k}": v for k, v in left.items()} | {f"right_{k}": v for k, v in right.items()}
         rows.append(row)
         print(line)
-    write_result(args.out or f"function_class_{args.style.lower()}",
-                 {"style": args.style, "folds": args.folds, "seed": args.seed, "observation": cfg.observation,
-                  "held_out_states": len(y), "presses": int(y.sum()), "classifiers": rows})
+    write_result(
+        args.out or f"function_class_{args.style.lower()}",
+        {
+            "style": args.style,
+            "folds": args.folds,
+            "seed": args.seed,
+            "observation": cfg.observation,
+            "held_out_states": len(y),
+            "presses": int(y.sum()),
+            "classifiers": rows,
+        },
+    )
     return 0
 
 

@@ -49,8 +49,9 @@ def log_fmt(name: str) -> str:
     return "mcap" if name.endswith(".mcap") else "csv.gz" if name.endswith(".gz") else "csv"
 
 
-def run_case(seeds: dict[str, bytes], seed: int, case: int, tmp: Path,
-             only: set[str] | None = None) -> tuple[str, str, str, str] | None:
+def run_case(
+    seeds: dict[str, bytes], seed: int, case: int, tmp: Path, only: set[str] | None = None
+) -> tuple[str, str, str, str] | None:
     """(seed file, kind, outcome, detail) of one case; None when its kind is not in `only`."""
     rng = random.Random(f"{seed}:{case}")
     name = rng.choice(sorted(seeds))
@@ -105,8 +106,10 @@ def main() -> int:
         shutil.rmtree(tmp, ignore_errors=True)
 
     tried = sum(sum(c.values()) for c in table.values())
-    print(f"\n{tried} mutated files (of cases 0-{args.cases - 1}) from {len(seeds)} seed files (seed {args.seed}) "
-          f"in {elapsed:.0f} s ({elapsed / max(tried, 1) * 1000:.0f} ms per file; seed files {t1 - t0:.0f} s)\n")
+    print(
+        f"\n{tried} mutated files (of cases 0-{args.cases - 1}) from {len(seeds)} seed files (seed {args.seed}) "
+        f"in {elapsed:.0f} s ({elapsed / max(tried, 1) * 1000:.0f} ms per file; seed files {t1 - t0:.0f} s)\n"
+    )
     print(f"{'kind':20}{'tried':>7}" + "".join(f"{o:>18}" for o in OUTCOMES))
     total: collections.Counter = collections.Counter()
     for kind in sorted(table):
@@ -114,16 +117,32 @@ def main() -> int:
         print(f"{kind:20}{sum(table[kind].values()):7d}" + "".join(f"{table[kind][o]:18d}" for o in OUTCOMES))
     print(f"{'all':20}{sum(total.values()):7d}" + "".join(f"{total[o]:18d}" for o in OUTCOMES))
     for key, (case, name, kind, detail) in sorted(examples.items()):
-        print(f"\n{key}: case {case} ({kind} of {name}; replay with --seed {args.seed} --case {case})\n"
-              f"{detail[-1500:]}")
-    write_result(args.out, {
-        "cases": args.cases, "seed": args.seed, "kinds": args.kinds, "seconds": args.seconds,
-        "seed_files": len(seeds), "tried": tried, "elapsed_s": elapsed, "ms_per_file": elapsed / max(tried, 1) * 1000,
-        "totals": {o: total[o] for o in OUTCOMES}, "bad": sum(total[o] for o in BAD),
-        "per_kind": [{"kind": k, "tried": sum(table[k].values()), **{o: table[k][o] for o in OUTCOMES}}
-                     for k in sorted(table)],
-        "examples": [{"what": key, "case": case, "file": name, "detail": detail[-1500:]}
-                     for key, (case, name, kind, detail) in sorted(examples.items())]})
+        print(
+            f"\n{key}: case {case} ({kind} of {name}; replay with --seed {args.seed} --case {case})\n{detail[-1500:]}"
+        )
+    write_result(
+        args.out,
+        {
+            "cases": args.cases,
+            "seed": args.seed,
+            "kinds": args.kinds,
+            "seconds": args.seconds,
+            "seed_files": len(seeds),
+            "tried": tried,
+            "elapsed_s": elapsed,
+            "ms_per_file": elapsed / max(tried, 1) * 1000,
+            "totals": {o: total[o] for o in OUTCOMES},
+            "bad": sum(total[o] for o in BAD),
+            "per_kind": [
+                {"kind": k, "tried": sum(table[k].values()), **{o: table[k][o] for o in OUTCOMES}}
+                for k in sorted(table)
+            ],
+            "examples": [
+                {"what": key, "case": case, "file": name, "detail": detail[-1500:]}
+                for key, (case, name, kind, detail) in sorted(examples.items())
+            ],
+        },
+    )
     return 1 if any(total[o] for o in BAD) else 0
 
 

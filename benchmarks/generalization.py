@@ -87,8 +87,10 @@ def held_out_table(name: str, results: list[dict], out: TextIO) -> Checks:
     """Print one study's held-out table to `out`; returns the acceptance checks, named."""
     say = partial(print, file=out)
     say(f"\n## {name}: held out by session")
-    say("| style | agent bal. acc. [95 % CI] | greedy | imitation | agent - greedy | agent - imitation "
-        "| timing MAE agent / greedy [s] | recall agent | scored |")
+    say(
+        "| style | agent bal. acc. [95 % CI] | greedy | imitation | agent - greedy | agent - imitation "
+        "| timing MAE agent / greedy [s] | recall agent | scored |"
+    )
     say("|---|---|---|---|---|---|---|---|---|")
     checks = []
     for res in results:
@@ -98,19 +100,25 @@ def held_out_table(name: str, results: list[dict], out: TextIO) -> Checks:
         d_g = a["balanced_accuracy"] - g["balanced_accuracy"]
         d_m = a["balanced_accuracy"] - m["balanced_accuracy"]
         ta, tg = a["timing_mae_s"], g["timing_mae_s"]
-        say(f"| {res['target']['name']} | {pct(a['balanced_accuracy'])} [{pct(lo)}, {pct(hi)}] "
+        say(
+            f"| {res['target']['name']} | {pct(a['balanced_accuracy'])} [{pct(lo)}, {pct(hi)}] "
             f"| {pct(g['balanced_accuracy'])} | {pct(m['balanced_accuracy'])} | {100 * d_g:+.1f} | {100 * d_m:+.1f} "
             f"| {ta if ta is None else round(ta, 2)} / {tg if tg is None else round(tg, 2)} | {pct(a['recall'])} "
-            f"| {res['n_decisions_scored']}/{res['n_decisions_total']} |")
+            f"| {res['n_decisions_scored']}/{res['n_decisions_total']} |"
+        )
         style = res["target"]["name"]
-        checks += [(f"{style}: agent >= greedy + 10", d_g >= 0.10), (f"{style}: agent >= imitation - 5", d_m >= -0.05),
-                   (f"{style}: timing error below greedy's", ta is not None and tg is not None and ta < tg),
-                   (f"{style}: 95 % scored", res["scored_share"] >= 0.95)]
+        checks += [
+            (f"{style}: agent >= greedy + 10", d_g >= 0.10),
+            (f"{style}: agent >= imitation - 5", d_m >= -0.05),
+            (f"{style}: timing error below greedy's", ta is not None and tg is not None and ta < tg),
+            (f"{style}: 95 % scored", res["scored_share"] >= 0.95),
+        ]
     return checks
 
 
-def study(name: str, logs: Path, ws: Path, args: argparse.Namespace,
-          out: TextIO = sys.stdout) -> tuple[Checks, list[dict], float | None]:
+def study(
+    name: str, logs: Path, ws: Path, args: argparse.Namespace, out: TextIO = sys.stdout
+) -> tuple[Checks, list[dict], float | None]:
     say = partial(print, file=out)
     t0 = time.perf_counter()
     if not (ws / "analysis" / "styles.parquet").exists():
@@ -134,11 +142,20 @@ def held_out_rows(results: list[dict]) -> list[dict]:
     for res in results:
         who = {r["who"]: r for r in res["summary"]}
         a, g, m = who["agent"], who["greedy"], who["imitation"]
-        rows.append({"style": res["target"]["name"], "agent": a["balanced_accuracy"],
-                     "agent_lo": a["balanced_accuracy_ci"][0], "agent_hi": a["balanced_accuracy_ci"][1],
-                     "greedy": g["balanced_accuracy"], "imitation": m["balanced_accuracy"],
-                     "timing_mae_agent_s": a["timing_mae_s"], "timing_mae_greedy_s": g["timing_mae_s"],
-                     "recall_agent": a["recall"], "scored_share": res["scored_share"]})
+        rows.append(
+            {
+                "style": res["target"]["name"],
+                "agent": a["balanced_accuracy"],
+                "agent_lo": a["balanced_accuracy_ci"][0],
+                "agent_hi": a["balanced_accuracy_ci"][1],
+                "greedy": g["balanced_accuracy"],
+                "imitation": m["balanced_accuracy"],
+                "timing_mae_agent_s": a["timing_mae_s"],
+                "timing_mae_greedy_s": g["timing_mae_s"],
+                "recall_agent": a["recall"],
+                "scored_share": res["scored_share"],
+            }
+        )
     return rows
 
 
@@ -153,14 +170,27 @@ def in_sample_shipped(ws: Path, args: argparse.Namespace, table: list[dict] | No
         rows = {r["who"]: r for r in run["evaluation"]}
         a, g = rows["agent"], rows["greedy"]
         m = rows.get("imitation", {}).get("balanced_accuracy")
-        print(f"| {style} | {pct(a['recall'])} ({pct(STUDY_RECALL[style])}) | {pct(a['balanced_accuracy'])} / "
-              f"{pct(g['balanced_accuracy'])} / {pct(m)} | {a['timing_mae_s']:.2f} / {g['timing_mae_s']:.2f} |")
+        print(
+            f"| {style} | {pct(a['recall'])} ({pct(STUDY_RECALL[style])}) | {pct(a['balanced_accuracy'])} / "
+            f"{pct(g['balanced_accuracy'])} / {pct(m)} | {a['timing_mae_s']:.2f} / {g['timing_mae_s']:.2f} |"
+        )
         if table is not None:
-            table.append({"style": style, "recall_agent": a["recall"], "recall_study": STUDY_RECALL[style],
-                         "agent": a["balanced_accuracy"], "greedy": g["balanced_accuracy"], "imitation": m,
-                         "timing_mae_agent_s": a["timing_mae_s"], "timing_mae_greedy_s": g["timing_mae_s"]})
-        checks += [(f"{style}: in-sample recall >= the study's", a["recall"] >= STUDY_RECALL[style] - 1e-9),
-                   (f"{style}: in-sample >= greedy + 5", a["balanced_accuracy"] >= g["balanced_accuracy"] + 0.05)]
+            table.append(
+                {
+                    "style": style,
+                    "recall_agent": a["recall"],
+                    "recall_study": STUDY_RECALL[style],
+                    "agent": a["balanced_accuracy"],
+                    "greedy": g["balanced_accuracy"],
+                    "imitation": m,
+                    "timing_mae_agent_s": a["timing_mae_s"],
+                    "timing_mae_greedy_s": g["timing_mae_s"],
+                }
+            )
+        checks += [
+            (f"{style}: in-sample recall >= the study's", a["recall"] >= STUDY_RECALL[style] - 1e-9),
+            (f"{style}: in-sample >= greedy + 5", a["balanced_accuracy"] >= g["balanced_accuracy"] + 0.05),
+        ]
     return checks
 
 
@@ -170,8 +200,9 @@ def sumo_study(seed: int, args: argparse.Namespace) -> tuple[str, Checks, list[d
     out = io.StringIO()  # studies run in threads: each writes its own printout
     if not (logs / "ground_truth.json").exists():
         cli("simulate", "--engine", "sumo", "--out", str(logs), "--drivers", str(args.drivers), "--seed", str(seed))
-    checks, results, score = study(f"SUMO study, seed {seed}", logs,
-                                   args.workdir / f"ws_sumo{args.drivers}_s{seed}", args, out)
+    checks, results, score = study(
+        f"SUMO study, seed {seed}", logs, args.workdir / f"ws_sumo{args.drivers}_s{seed}", args, out
+    )
     return out.getvalue(), checks, results, score
 
 
@@ -189,10 +220,15 @@ def seeds_table(runs: dict[int, tuple[Checks, list[dict], float | None]]) -> Non
                 cells.append("-")
                 continue
             rows = {r["who"]: r["balanced_accuracy"] for r in res["summary"]}
-            cells.append(f"{100 * (rows['agent'] - rows['greedy']):+.1f} / {100 * (rows['agent'] - rows['imitation']):+.1f}")
+            cells.append(
+                f"{100 * (rows['agent'] - rows['greedy']):+.1f} / {100 * (rows['agent'] - rows['imitation']):+.1f}"
+            )
         failed = [n for n, ok in checks if not ok]
-        print(f"| {seed} | {score if score is None else round(score, 2)} | " + " | ".join(cells)
-              + f" | {'; '.join(failed) or 'none'} |")
+        print(
+            f"| {seed} | {score if score is None else round(score, 2)} | "
+            + " | ".join(cells)
+            + f" | {'; '.join(failed) or 'none'} |"
+        )
     held = sum(all(ok for _, ok in c) for c, _, _ in runs.values())
     print(f"\nevery check holds on {held} of {len(runs)} SUMO seeds")
 
@@ -202,7 +238,9 @@ def direction_table(paths: list[Path], labels: list[str] | None) -> None:
     documents; then how many (style, direction) cells meet agent >= greedy + 10 and >= imitation - 5."""
     docs = [json.loads(p.read_text()) for p in paths]
     labels = labels or [p.stem for p in paths]
-    print("| style | direction | " + " | ".join(f"{lab}: agent [95 % CI] / greedy / imitation" for lab in labels) + " |")
+    print(
+        "| style | direction | " + " | ".join(f"{lab}: agent [95 % CI] / greedy / imitation" for lab in labels) + " |"
+    )
     print("|---|---|" + "---|" * len(docs))
     met = {lab: [] for lab in labels}
     styles = [r["target"]["name"] for r in docs[0]["results"]]
@@ -211,8 +249,11 @@ def direction_table(paths: list[Path], labels: list[str] | None) -> None:
             cells = []
             for lab, doc in zip(labels, docs):
                 res = next(r for r in doc["results"] if r["target"]["name"] == style)
-                rows = res["summary"] if direction == "pooled" else [
-                    r for r in res["summary_by_direction"] if r["direction"] == direction]
+                rows = (
+                    res["summary"]
+                    if direction == "pooled"
+                    else [r for r in res["summary_by_direction"] if r["direction"] == direction]
+                )
                 ba = {r["who"]: r for r in rows}
                 if "agent" not in ba:
                     cells.append("-")
@@ -222,26 +263,40 @@ def direction_table(paths: list[Path], labels: list[str] | None) -> None:
                 ok = a >= g + 10 and a >= i - 5
                 if direction != "pooled":
                     met[lab].append((f"{style} {direction}", ok))
-                cells.append(f"{'**' if ok else ''}{a:.1f}{'**' if ok else ''} [{lo:.1f}, {hi:.1f}] / {g:.1f} / {i:.1f}")
+                cells.append(
+                    f"{'**' if ok else ''}{a:.1f}{'**' if ok else ''} [{lo:.1f}, {hi:.1f}] / {g:.1f} / {i:.1f}"
+                )
             print(f"| {style} | {direction} | " + " | ".join(cells) + " |")
     print("\n(bold: agent >= greedy + 10 and >= imitation - 5)")
     for lab, checks in met.items():
         failed = [n for n, ok in checks if not ok]
-        print(f"- {lab}: {sum(ok for _, ok in checks)} of {len(checks)} style x direction cells meet the bar"
-              + (f" (not: {'; '.join(failed)})" if failed else ""))
+        print(
+            f"- {lab}: {sum(ok for _, ok in checks)} of {len(checks)} style x direction cells meet the bar"
+            + (f" (not: {'; '.join(failed)})" if failed else "")
+        )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--direction-table", type=Path, nargs="+", help="crossval --all --json documents: the bar per style and direction")
+    ap.add_argument(
+        "--direction-table",
+        type=Path,
+        nargs="+",
+        help="crossval --all --json documents: the bar per style and direction",
+    )
     ap.add_argument("--labels", nargs="+", help="--direction-table: a column name per document")
-    ap.add_argument("--sumo-seed", type=int, nargs="+", default=[7],
-                    help="seed(s) of the SUMO studies (ones nobody tuned on)")
+    ap.add_argument(
+        "--sumo-seed", type=int, nargs="+", default=[7], help="seed(s) of the SUMO studies (ones nobody tuned on)"
+    )
     ap.add_argument("--jobs", type=int, default=1, help="SUMO studies run at once (each is one process)")
     ap.add_argument("--drivers", type=int, default=9)
     ap.add_argument("--episodes", type=int, default=None, help="episodes per agent (default: train's)")
-    ap.add_argument("--learner", choices=("auto", "dqn", "trees"), default=None,
-                    help="who learns the agents (train/crossval --learner; default: theirs)")
+    ap.add_argument(
+        "--learner",
+        choices=("auto", "dqn", "trees"),
+        default=None,
+        help="who learns the agents (train/crossval --learner; default: theirs)",
+    )
     ap.add_argument("--folds", type=int, default=4)
     ap.add_argument("--seed", type=int, default=0, help="seed of folds, agents, classifier, bootstrap")
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/lp-generalization"))
@@ -259,8 +314,9 @@ def main() -> None:
     in_sample: list[dict] = []
     if not args.skip_sumo:
         with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-            for seed, (text, c, results, score) in zip(args.sumo_seed,
-                                                       pool.map(lambda s: sumo_study(s, args), args.sumo_seed)):
+            for seed, (text, c, results, score) in zip(
+                args.sumo_seed, pool.map(lambda s: sumo_study(s, args), args.sumo_seed)
+            ):
                 print(text, end="", flush=True)
                 checks[f"SUMO study, seed {seed}"] = c
                 runs[seed] = (c, results, score)
@@ -273,16 +329,34 @@ def main() -> None:
     print("\n## acceptance")
     for name, c in checks.items():
         failed = [n for n, ok in c if not ok]
-        print(f"- {name}: {sum(ok for _, ok in c)} of {len(c)} checks hold"
-              + (f" (not: {'; '.join(failed)})" if failed else ""))
+        print(
+            f"- {name}: {sum(ok for _, ok in c)} of {len(c)} checks hold"
+            + (f" (not: {'; '.join(failed)})" if failed else "")
+        )
     if len(runs) > 1:
         seeds_table(runs)
-    write_result(args.out, {
-        "sumo_seeds": [] if args.skip_sumo else args.sumo_seed, "drivers": args.drivers, "folds": args.folds,
-        "seed": args.seed, "episodes": args.episodes or "train's", "learner": args.learner or "auto",
-        "held_out": held_out, "in_sample_shipped": in_sample,
-        "checks": [{"study": name, "held": sum(ok for _, ok in c), "of": len(c),
-                    "failed": "; ".join(n for n, ok in c if not ok)} for name, c in checks.items()]})
+    write_result(
+        args.out,
+        {
+            "sumo_seeds": [] if args.skip_sumo else args.sumo_seed,
+            "drivers": args.drivers,
+            "folds": args.folds,
+            "seed": args.seed,
+            "episodes": args.episodes or "train's",
+            "learner": args.learner or "auto",
+            "held_out": held_out,
+            "in_sample_shipped": in_sample,
+            "checks": [
+                {
+                    "study": name,
+                    "held": sum(ok for _, ok in c),
+                    "of": len(c),
+                    "failed": "; ".join(n for n, ok in c if not ok),
+                }
+                for name, c in checks.items()
+            ],
+        },
+    )
 
 
 if __name__ == "__main__":

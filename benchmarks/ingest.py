@@ -64,25 +64,37 @@ def make_recording(minutes: float, n_vehicles: int, hz: int = 50, seed: int = 0)
     lane = ((t // 40) % 2).astype(np.int64)
     button = np.zeros(n, dtype=bool)
     for s in np.flatnonzero(np.diff(lane) != 0):
-        button[max(s - 100, 0):max(s - 90, 1)] = True
-    ego = pd.DataFrame({
-        "t_s": t, "ego_x_m": x, "ego_y_m": lane * 3.5, "ego_v_mps": v, "ego_lane": lane, "ego_length_m": 4.5,
-        "steer_rad": rng.normal(0, 0.01, n), "throttle": rng.uniform(0, 0.5, n), "brake": np.zeros(n),
-        "lc_button": button, "lc_direction": None,
-    })
+        button[max(s - 100, 0) : max(s - 90, 1)] = True
+    ego = pd.DataFrame(
+        {
+            "t_s": t,
+            "ego_x_m": x,
+            "ego_y_m": lane * 3.5,
+            "ego_v_mps": v,
+            "ego_lane": lane,
+            "ego_length_m": 4.5,
+            "steer_rad": rng.normal(0, 0.01, n),
+            "throttle": rng.uniform(0, 0.5, n),
+            "brake": np.zeros(n),
+            "lc_button": button,
+            "lc_direction": None,
+        }
+    )
     vv = rng.uniform(15, 30, n_vehicles)
     x0 = rng.uniform(-300, 300, n_vehicles)
     vlane = rng.integers(0, 2, n_vehicles)
     ids = np.array([f"v{k}" for k in range(n_vehicles)], dtype=object)
-    traffic = pd.DataFrame({
-        "t_s": np.repeat(t, n_vehicles),
-        "vehicle_id": np.tile(ids, n),
-        "x_m": (x0[None, :] + vv[None, :] * t[:, None]).ravel(),
-        "y_m": np.tile(vlane * 3.5, n),
-        "v_mps": np.tile(vv, n),
-        "lane": np.tile(vlane, n),
-        "length_m": np.tile(rng.uniform(4, 5, n_vehicles), n),
-    })
+    traffic = pd.DataFrame(
+        {
+            "t_s": np.repeat(t, n_vehicles),
+            "vehicle_id": np.tile(ids, n),
+            "x_m": (x0[None, :] + vv[None, :] * t[:, None]).ravel(),
+            "y_m": np.tile(vlane * 3.5, n),
+            "v_mps": np.tile(vv, n),
+            "lane": np.tile(vlane, n),
+            "length_m": np.tile(rng.uniform(4, 5, n_vehicles), n),
+        }
+    )
     meta = {"driver_id": "B01", "session_id": None, "speed_limit_kph": 80, "simulator": "benchmark"}
     return meta, ego, traffic
 
@@ -99,7 +111,7 @@ def interleaved(fns, reps: int) -> list[tuple[float, float]]:
     cpu: list[list[float]] = [[] for _ in fns]
     for r in range(reps):
         # forwards, then backwards: no function always runs right after the same one
-        for i in (range(len(fns)) if r % 2 == 0 else reversed(range(len(fns)))):
+        for i in range(len(fns)) if r % 2 == 0 else reversed(range(len(fns))):
             fn = fns[i]
             t0, c0 = time.perf_counter(), time.process_time()
             fn()
@@ -130,15 +142,20 @@ def load_baseline(rev: str, into: Path):
     `ingest_<rev>` and its `laneprint/workspace.py` (the store) as that package's `_workspace`."""
     repo = Path(__file__).resolve().parent.parent
     name = f"ingest_{rev.replace('-', '_').replace('.', '_')}"
-    tar = subprocess.run(["git", "-C", str(repo), "archive", rev, "ingest", "laneprint/workspace.py"],
-                         capture_output=True, check=True).stdout
+    tar = subprocess.run(
+        ["git", "-C", str(repo), "archive", rev, "ingest", "laneprint/workspace.py"], capture_output=True, check=True
+    ).stdout
     with tarfile.open(fileobj=io.BytesIO(tar)) as tf:
         tf.extractall(into, filter="data")
     (into / "ingest").rename(into / name)
     (into / "laneprint" / "workspace.py").rename(into / name / "_workspace.py")
     for f in (into / name).rglob("*.py"):
-        f.write_text(f.read_text().replace("from ingest.", f"from {name}.").replace("import ingest.", f"import {name}.")
-                     .replace("from laneprint.workspace import", f"from {name}._workspace import"))
+        f.write_text(
+            f.read_text()
+            .replace("from ingest.", f"from {name}.")
+            .replace("import ingest.", f"import {name}.")
+            .replace("from laneprint.workspace import", f"from {name}._workspace import")
+        )
     sys.path.insert(0, str(into))
     pipeline, store = importlib.import_module(f"{name}.pipeline"), importlib.import_module(f"{name}._workspace")
     return pipeline.ingest_paths, store.Workspace
@@ -149,8 +166,13 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=5)
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--vehicles", type=int, default=20)
-    ap.add_argument("--baseline", metavar="REV", action="append", default=[],
-                    help="also time the ingest (and store) of this git revision (before/after); repeatable")
+    ap.add_argument(
+        "--baseline",
+        metavar="REV",
+        action="append",
+        default=[],
+        help="also time the ingest (and store) of this git revision (before/after); repeatable",
+    )
     ap.add_argument("--formats", default="csv,csv.gz,mcap", help="comma-separated subset of csv,csv.gz,mcap")
     ap.add_argument("--out", default="ingest", help="result file name under benchmarks/results/")
     args = ap.parse_args()
@@ -165,8 +187,10 @@ def main() -> None:
             t0 = time.perf_counter()
             (write_mcap if fmt == "mcap" else write_csv)(path, meta, ego, traffic)
             print(f"wrote {path.name}: {path.stat().st_size / 1e6:.1f} MB in {time.perf_counter() - t0:.2f} s")
-        print(f"{n} samples ({args.minutes:g} min at 50 Hz), {args.vehicles} vehicles, "
-              f"{len(traffic)} traffic rows; median of {args.reps} runs\n")
+        print(
+            f"{n} samples ({args.minutes:g} min at 50 Hz), {args.vehicles} vehicles, "
+            f"{len(traffic)} traffic rows; median of {args.reps} runs\n"
+        )
 
         rows = []
         for fmt, path in files.items():
@@ -202,19 +226,41 @@ def main() -> None:
             floor_name = "pyarrow.csv.read_csv" if fmt != "mcap" else "mcap iter + json.loads"
             for label, (secs, cpu) in zip([floor_name + " (floor)"] + labels, times):
                 rows.append((fmt, label, secs, mb / secs, n / secs, times[0][0] / secs, cpu, times[0][1] / cpu))
-        print(f"{'format':7} {'what':38} {'wall s':>8} {'MB/s':>8} {'samples/s':>11} {'vs floor':>9}"
-              f" {'cpu s':>7} {'vs floor':>9}")
+        print(
+            f"{'format':7} {'what':38} {'wall s':>8} {'MB/s':>8} {'samples/s':>11} {'vs floor':>9}"
+            f" {'cpu s':>7} {'vs floor':>9}"
+        )
         for fmt, label, secs, mbs, sps, ratio, cpu, cpu_ratio in rows:
             print(f"{fmt:7} {label:38} {secs:8.3f} {mbs:8.1f} {sps:11,.0f} {ratio:9.2f} {cpu:7.3f} {cpu_ratio:9.2f}")
-        print("\nvs floor = floor time / this time, from medians of wall-clock time and of CPU time "
-              "(all threads; steadier when the machine is busy)")
+        print(
+            "\nvs floor = floor time / this time, from medians of wall-clock time and of CPU time "
+            "(all threads; steadier when the machine is busy)"
+        )
         print("goals: 'ingest (stored)' >= 0.5 x floor for each format; >= 3 x the json.loads floor for mcap")
-        write_result(args.out, {
-            "minutes": args.minutes, "vehicles": args.vehicles, "reps": args.reps, "samples": n,
-            "traffic_rows": len(traffic), "baselines": args.baseline,
-            "rows": [{"format": fmt, "what": label, "wall_s": secs, "mb_per_s": mbs, "samples_per_s": sps,
-                      "vs_floor_wall": ratio, "cpu_s": cpu, "vs_floor_cpu": cpu_ratio}
-                     for fmt, label, secs, mbs, sps, ratio, cpu, cpu_ratio in rows]})
+        write_result(
+            args.out,
+            {
+                "minutes": args.minutes,
+                "vehicles": args.vehicles,
+                "reps": args.reps,
+                "samples": n,
+                "traffic_rows": len(traffic),
+                "baselines": args.baseline,
+                "rows": [
+                    {
+                        "format": fmt,
+                        "what": label,
+                        "wall_s": secs,
+                        "mb_per_s": mbs,
+                        "samples_per_s": sps,
+                        "vs_floor_wall": ratio,
+                        "cpu_s": cpu,
+                        "vs_floor_cpu": cpu_ratio,
+                    }
+                    for fmt, label, secs, mbs, sps, ratio, cpu, cpu_ratio in rows
+                ],
+            },
+        )
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

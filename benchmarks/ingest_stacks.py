@@ -60,8 +60,9 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--vehicles", type=int, default=20)
-    ap.add_argument("--baseline", metavar="REV",
-                    help="also time the ingest (and store) of this git revision (before/after)")
+    ap.add_argument(
+        "--baseline", metavar="REV", help="also time the ingest (and store) of this git revision (before/after)"
+    )
     ap.add_argument("--files", default="json,ros2,protobuf", help="comma-separated subset of json,ros2,protobuf")
     ap.add_argument("--out", default="ingest_stacks", help="result file name under benchmarks/results/")
     args = ap.parse_args()
@@ -72,9 +73,11 @@ def main() -> None:
     try:
         (tmp / "ros2.toml").write_text(ROS2_MAPPING)
         (tmp / "protobuf.toml").write_text(PROTOBUF_MAPPING)
-        files = {"json (v1)": (tmp / "v1.mcap", write_mcap, None),
-                 "ros2 cdr": (tmp / "ros2.mcap", write_ros2, tmp / "ros2.toml"),
-                 "protobuf": (tmp / "protobuf.mcap", write_protobuf, tmp / "protobuf.toml")}
+        files = {
+            "json (v1)": (tmp / "v1.mcap", write_mcap, None),
+            "ros2 cdr": (tmp / "ros2.mcap", write_ros2, tmp / "ros2.toml"),
+            "protobuf": (tmp / "protobuf.mcap", write_protobuf, tmp / "protobuf.toml"),
+        }
         files = {name: f for name, f in files.items() if name.split()[0] in args.files.split(",")}
         for path, write, _ in files.values():
             t0 = time.perf_counter()
@@ -103,12 +106,29 @@ def main() -> None:
             times = bench_ingest.interleaved(list(fns.values()), args.reps)
             for label, (wall, cpu) in zip(fns, times):
                 print(f"{name:10} {label:34} {wall:8.2f} {cpu:7.2f} {len(ego) / cpu:16,.0f} {times[0][1] / cpu:17.2f}")
-                rows.append({"file": name, "what": label, "wall_s": wall, "cpu_s": cpu,
-                             "samples_per_cpu_s": len(ego) / cpu, "floor_over_this_cpu": times[0][1] / cpu})
+                rows.append(
+                    {
+                        "file": name,
+                        "what": label,
+                        "wall_s": wall,
+                        "cpu_s": cpu,
+                        "samples_per_cpu_s": len(ego) / cpu,
+                        "floor_over_this_cpu": times[0][1] / cpu,
+                    }
+                )
         print("\nsamples/s and the ratio on CPU time (steadier than wall time on a shared machine)")
-        write_result(args.out, {"minutes": args.minutes, "vehicles": args.vehicles, "reps": args.reps,
-                                "samples": len(ego), "traffic_rows": len(traffic), "baseline": args.baseline,
-                                "rows": rows})
+        write_result(
+            args.out,
+            {
+                "minutes": args.minutes,
+                "vehicles": args.vehicles,
+                "reps": args.reps,
+                "samples": len(ego),
+                "traffic_rows": len(traffic),
+                "baseline": args.baseline,
+                "rows": rows,
+            },
+        )
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

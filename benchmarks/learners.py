@@ -46,8 +46,14 @@ def laneprint(code: Path, *args: str, timeout: float = 3600) -> tuple[float, dic
     """(wall seconds, its --json output) of `python -m laneprint.app.cli ARGS` with `code` first on the path."""
     env = {**os.environ, "PYTHONPATH": str(code)}
     t0 = time.perf_counter()
-    out = subprocess.run([sys.executable, "-m", "laneprint.app.cli", *args, "--json"], cwd=code, env=env,
-                         capture_output=True, text=True, timeout=timeout)
+    out = subprocess.run(
+        [sys.executable, "-m", "laneprint.app.cli", *args, "--json"],
+        cwd=code,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
     wall = time.perf_counter() - t0
     if out.returncode:
         raise RuntimeError(f"laneprint {' '.join(args)} failed ({out.returncode}):\n{out.stderr[-2000:]}")
@@ -68,12 +74,18 @@ def figures(command: str, res: dict[str, Any]) -> dict[str, Any]:
     if command == "train":
         agent = next((r for r in res.get("evaluation") or [] if r.get("who") == "agent"), {})
         choice = res.get("learner_choice") or {}
-        return {"chosen": res.get("learner"), "in_sample_balanced_accuracy": agent.get("balanced_accuracy"),
-                "choice_scores": choice.get("scores"), "choice_stopped": choice.get("stopped", "")}
+        return {
+            "chosen": res.get("learner"),
+            "in_sample_balanced_accuracy": agent.get("balanced_accuracy"),
+            "choice_scores": choice.get("scores"),
+            "choice_stopped": choice.get("stopped", ""),
+        }
     agent = next((r for r in res.get("summary") or [] if r.get("who") == "agent"), {})
-    return {"learners": [f.get("learner") for f in res.get("per_fold", [])],
-            "held_out_balanced_accuracy": agent.get("balanced_accuracy"),
-            "stopped": [f.get("learner_stopped", "") for f in res.get("per_fold", [])]}
+    return {
+        "learners": [f.get("learner") for f in res.get("per_fold", [])],
+        "held_out_balanced_accuracy": agent.get("balanced_accuracy"),
+        "stopped": [f.get("learner_stopped", "") for f in res.get("per_fold", [])],
+    }
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -96,30 +108,55 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                         if command == "crossval" and args.folds:
                             opts += ["--folds", str(args.folds)]
                         wall, res = laneprint(code, command, *opts)
-                        rows.append({**figures(command, res), "code": code_name, "command": command,
-                                     "learner": learner, "repeat": repeat, "wall_s": round(wall, 1)})
+                        rows.append(
+                            {
+                                **figures(command, res),
+                                "code": code_name,
+                                "command": command,
+                                "learner": learner,
+                                "repeat": repeat,
+                                "wall_s": round(wall, 1),
+                            }
+                        )
                         partial.write_text(json.dumps(rows, indent=1) + "\n")  # a crash keeps what was timed
-                        print(f"  {code_name:<5} {command:<9} {learner:<6} {wall:6.1f} s  "
-                              f"{json.dumps(figures(command, res))[:110]}", flush=True)
+                        print(
+                            f"  {code_name:<5} {command:<9} {learner:<6} {wall:6.1f} s  "
+                            f"{json.dumps(figures(command, res))[:110]}",
+                            flush=True,
+                        )
     finally:
         shutil.rmtree(root, ignore_errors=True)
     medians = []
     for code_name in codes:
         for command in args.commands:
-            m = {lr: median([r["wall_s"] for r in rows if (r["code"], r["command"], r["learner"]) == (code_name, command, lr)])
-                 for lr in args.learners}
+            m = {
+                lr: median(
+                    [r["wall_s"] for r in rows if (r["code"], r["command"], r["learner"]) == (code_name, command, lr)]
+                )
+                for lr in args.learners
+            }
             ratio = round(m["auto"] / m["dqn"], 2) if "auto" in m and "dqn" in m else None
             medians.append({"code": code_name, "command": command, "median_s": m, "auto_over_dqn": ratio})
-    result = {**({"base_commit": _commit(codes["base"])} if "base" in codes else {}),
-              "load_average_at_end": [round(x, 2) for x in os.getloadavg()],
-              "style": args.style, "seed": args.seed, "episodes": args.episodes or "the study's", "folds": args.folds or "crossval's default",
-              "repeats": args.repeats, "medians": medians, "runs": rows}
+    result = {
+        **({"base_commit": _commit(codes["base"])} if "base" in codes else {}),
+        "load_average_at_end": [round(x, 2) for x in os.getloadavg()],
+        "style": args.style,
+        "seed": args.seed,
+        "episodes": args.episodes or "the study's",
+        "folds": args.folds or "crossval's default",
+        "repeats": args.repeats,
+        "medians": medians,
+        "runs": rows,
+    }
     out = write_result(args.out, result)
     partial.unlink(missing_ok=True)
     print("\nmedian wall time [s] per learner; auto / dqn")
     for m in medians:
-        print(f"  {m['code']:<5} {m['command']:<9} " + "  ".join(f"{lr} {s:6.1f}" for lr, s in m["median_s"].items())
-              + (f"   auto/dqn {m['auto_over_dqn']:.2f}" if m["auto_over_dqn"] else ""))
+        print(
+            f"  {m['code']:<5} {m['command']:<9} "
+            + "  ".join(f"{lr} {s:6.1f}" for lr, s in m["median_s"].items())
+            + (f"   auto/dqn {m['auto_over_dqn']:.2f}" if m["auto_over_dqn"] else "")
+        )
     print(f"written to {out}")
     return result
 

@@ -46,10 +46,15 @@ def timed(args: list[str]) -> tuple[float, dict]:
 
 
 def ray_start_s() -> float:
-    code = ("import time, os; t = time.perf_counter(); from laneprint.parallel import backend_session\n"
-            "with backend_session('ray'): pass\nprint(time.perf_counter() - t)")
-    return float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                                cwd=ROOT).stdout.split()[-1])
+    code = (
+        "import time, os; t = time.perf_counter(); from laneprint.parallel import backend_session\n"
+        "with backend_session('ray'): pass\nprint(time.perf_counter() - t)"
+    )
+    return float(
+        subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+        ).stdout.split()[-1]
+    )
 
 
 def catalogue(ws: Path) -> list[dict]:
@@ -74,8 +79,14 @@ def main() -> None:
     tmp = Path(tempfile.mkdtemp(prefix="bench-parallel-"))
     logs = str(ROOT / "sample_logs")
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the start")
-    figures: dict = {"reps": a.reps, "cv_reps": a.cv_reps, "episodes": a.episodes, "folds": a.folds, "style": a.style,
-                     "load_average_start": os.getloadavg()[0]}
+    figures: dict = {
+        "reps": a.reps,
+        "cv_reps": a.cv_reps,
+        "episodes": a.episodes,
+        "folds": a.folds,
+        "style": a.style,
+        "load_average_start": os.getloadavg()[0],
+    }
     try:
         walls: dict[str, list[float]] = {"local": [], "ray": []}
         cats = {}
@@ -86,11 +97,16 @@ def main() -> None:
                 walls[backend].append(wall)
                 cats[backend] = (out["counts"], catalogue(ws))
         same = cats["local"] == cats["ray"]
-        figures["ingest"] = {"files": cats["local"][0]["ingested"], "catalogues_equal": same,
-                             **{f"{b}_median_s": statistics.median(w) for b, w in walls.items()},
-                             **{f"{b}_runs_s": w for b, w in walls.items()}}
-        print(f"ingest sample_logs ({cats['local'][0]['ingested']} files): local {fmt(walls['local'])} | "
-              f"ray {fmt(walls['ray'])} | catalogues equal: {same}")
+        figures["ingest"] = {
+            "files": cats["local"][0]["ingested"],
+            "catalogues_equal": same,
+            **{f"{b}_median_s": statistics.median(w) for b, w in walls.items()},
+            **{f"{b}_runs_s": w for b, w in walls.items()},
+        }
+        print(
+            f"ingest sample_logs ({cats['local'][0]['ingested']} files): local {fmt(walls['local'])} | "
+            f"ray {fmt(walls['ray'])} | catalogues equal: {same}"
+        )
 
         ws = tmp / "study"
         timed(["ingest", logs, "-w", str(ws)])
@@ -104,10 +120,15 @@ def main() -> None:
                 walls[backend].append(wall)
                 summaries[backend] = (out["summary"], out["per_fold"])
         same = summaries["local"] == summaries["ray"]
-        figures["crossval"] = {"summaries_equal": same, **{f"{b}_median_s": statistics.median(w) for b, w in walls.items()},
-                               **{f"{b}_runs_s": w for b, w in walls.items()}}
-        print(f"crossval --style {a.style} --folds {a.folds} --episodes {a.episodes}: local {fmt(walls['local'])} | "
-              f"ray {fmt(walls['ray'])} | summaries equal: {same}")
+        figures["crossval"] = {
+            "summaries_equal": same,
+            **{f"{b}_median_s": statistics.median(w) for b, w in walls.items()},
+            **{f"{b}_runs_s": w for b, w in walls.items()},
+        }
+        print(
+            f"crossval --style {a.style} --folds {a.folds} --episodes {a.episodes}: local {fmt(walls['local'])} | "
+            f"ray {fmt(walls['ray'])} | summaries equal: {same}"
+        )
         figures["ray_start_stop_s"] = ray_start_s()
         print(f"local Ray instance start + shut-down alone: {figures['ray_start_stop_s']:.1f} s")
         print(f"load average {os.getloadavg()[0]:.1f} at the end")

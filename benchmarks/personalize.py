@@ -74,8 +74,9 @@ def parse_variants(spec: str) -> dict[str, PersonalizeSettings]:
                 raise SystemExit(f"--variants: no setting {key!r} (settings: {', '.join(fields)})")
             extra[key] = {"int": int, "float": float}.get(str(fields[key]), str)(value)
         label = f"{method}/{base or 'population'}" + "".join(f" {o}" for o in opts.split(";") if o)
-        out["personalised" if i == 0 else f"personalised[{label}]"] = \
-            PersonalizeSettings(method=method, base=base or "population", **extra)
+        out["personalised" if i == 0 else f"personalised[{label}]"] = PersonalizeSettings(
+            method=method, base=base or "population", **extra
+        )
     return out
 
 
@@ -88,15 +89,22 @@ def one_driver(args: tuple) -> dict[str, Any]:
     env = formulation_config(ReferenceLines.paper("Normal"), "decisions", observation=obs)
     dqn = DQNSettings(seed=seed, **({"episodes": episodes} if episodes else {}))
     t0 = time.perf_counter()
-    res = driver_curve(decisions, driver, others, env, dqn,
-                       CurveSettings(ks=ks, test_sessions=test_sessions, seed=seed, variants=variants),
-                       stored_settings(ws))
+    res = driver_curve(
+        decisions,
+        driver,
+        others,
+        env,
+        dqn,
+        CurveSettings(ks=ks, test_sessions=test_sessions, seed=seed, variants=variants),
+        stored_settings(ws),
+    )
     res["wall_s"] = time.perf_counter() - t0
     return res
 
 
-def scores(states: pd.DataFrame, changes: pd.DataFrame, policies: list[str], n_boot: int,
-           seed: int) -> list[dict[str, Any]]:
+def scores(
+    states: pd.DataFrame, changes: pd.DataFrame, policies: list[str], n_boot: int, seed: int
+) -> list[dict[str, Any]]:
     """bootstrap_scores of every policy present in `states` (each its own seeded resamples)."""
     out = []
     for who in policies:
@@ -117,12 +125,21 @@ def table(results: pd.DataFrame, policies: list[str], n_boot: int, seed: int, gr
     for k in dict.fromkeys(states["k"]):
         s, c = states[states["k"] == k], changes[changes["k"] == k]
         for r in scores(s, c, policies, n_boot, seed):
-            rows.append({"group": group, "k": k, "policy": r["who"], "n_decisions": r["n_decisions"],
-                         "balanced_accuracy": r["balanced_accuracy"], "ba_lo": r["balanced_accuracy_ci"][0],
-                         "ba_hi": r["balanced_accuracy_ci"][1], "recall": r["recall"],
-                         "timing_mae_s": r["timing_mae_s"],
-                         "timing_lo": (r["timing_mae_ci"] or [None, None])[0],
-                         "timing_hi": (r["timing_mae_ci"] or [None, None])[1]})
+            rows.append(
+                {
+                    "group": group,
+                    "k": k,
+                    "policy": r["who"],
+                    "n_decisions": r["n_decisions"],
+                    "balanced_accuracy": r["balanced_accuracy"],
+                    "ba_lo": r["balanced_accuracy_ci"][0],
+                    "ba_hi": r["balanced_accuracy_ci"][1],
+                    "recall": r["recall"],
+                    "timing_mae_s": r["timing_mae_s"],
+                    "timing_lo": (r["timing_mae_ci"] or [None, None])[0],
+                    "timing_hi": (r["timing_mae_ci"] or [None, None])[1],
+                }
+            )
     ceiling = [r for r in rows if r["policy"] == "ceiling"]
     if ceiling:  # the driver's own full-data agent does not depend on K: shown at every K
         for k in dict.fromkeys(states["k"]):
@@ -143,13 +160,14 @@ def acceptance(tab: pd.DataFrame, who: str = "personalised") -> list[str]:
         rivals = g.loc[[r for r in RIVALS if r in g.index]]
         best = rivals["balanced_accuracy"].idxmax()
         ok = p["balanced_accuracy"] >= rivals.loc[best, "ba_lo"]
-        lines.append(f"K={k}: {who} {100 * p['balanced_accuracy']:.1f} vs best other {best} "
-                     f"{100 * rivals.loc[best, 'balanced_accuracy']:.1f} [{100 * rivals.loc[best, 'ba_lo']:.1f}, "
-                     f"{100 * rivals.loc[best, 'ba_hi']:.1f}]: {'holds' if ok else 'FAILS'}")
+        lines.append(
+            f"K={k}: {who} {100 * p['balanced_accuracy']:.1f} vs best other {best} "
+            f"{100 * rivals.loc[best, 'balanced_accuracy']:.1f} [{100 * rivals.loc[best, 'ba_lo']:.1f}, "
+            f"{100 * rivals.loc[best, 'ba_hi']:.1f}]: {'holds' if ok else 'FAILS'}"
+        )
         if k == "10" and "ceiling" in g.index:
             gap = 100 * (g.loc["ceiling", "balanced_accuracy"] - p["balanced_accuracy"])
-            lines.append(f"K=10: ceiling - {who} = {gap:+.1f} points (at most 3): "
-                         f"{'holds' if gap <= 3 else 'FAILS'}")
+            lines.append(f"K=10: ceiling - {who} = {gap:+.1f} points (at most 3): {'holds' if gap <= 3 else 'FAILS'}")
     return lines
 
 
@@ -157,10 +175,15 @@ def print_table(tab: pd.DataFrame, title: str) -> None:
     print(f"\n{title}")
     print(f"{'K':>4}  {'policy':<34} {'n':>4}  {'balanced acc. [95 % CI]':<24} {'recall':>7}  timing MAE [s] [95 % CI]")
     for r in tab.itertuples():
-        timing = "-" if r.timing_mae_s is None or pd.isna(r.timing_mae_s) else \
-            f"{r.timing_mae_s:.2f} [{r.timing_lo:.2f}, {r.timing_hi:.2f}]"
-        print(f"{r.k:>4}  {r.policy:<34} {r.n_decisions:>4}  {100 * r.balanced_accuracy:5.1f} "
-              f"[{100 * r.ba_lo:5.1f}, {100 * r.ba_hi:5.1f}]    {100 * r.recall:6.1f}  {timing}")
+        timing = (
+            "-"
+            if r.timing_mae_s is None or pd.isna(r.timing_mae_s)
+            else f"{r.timing_mae_s:.2f} [{r.timing_lo:.2f}, {r.timing_hi:.2f}]"
+        )
+        print(
+            f"{r.k:>4}  {r.policy:<34} {r.n_decisions:>4}  {100 * r.balanced_accuracy:5.1f} "
+            f"[{100 * r.ba_lo:5.1f}, {100 * r.ba_hi:5.1f}]    {100 * r.recall:6.1f}  {timing}"
+        )
 
 
 def plot(tab: pd.DataFrame, path: Path, title: str) -> None:
@@ -172,13 +195,27 @@ def plot(tab: pd.DataFrame, path: Path, title: str) -> None:
     fig = go.Figure()
     for who, g in pooled.groupby("policy", sort=False):
         g = g.set_index("k").reindex(order).dropna(subset=["balanced_accuracy"])
-        fig.add_trace(go.Scatter(
-            x=list(g.index), y=100 * g["balanced_accuracy"], mode="lines+markers", name=who,
-            line={"dash": "dash"} if who == "ceiling" else None,
-            error_y={"type": "data", "symmetric": False, "array": 100 * (g["ba_hi"] - g["balanced_accuracy"]),
-                     "arrayminus": 100 * (g["balanced_accuracy"] - g["ba_lo"])}))
-    fig.update_layout(title=title, xaxis_title="decisions of the new driver (K)",
-                      yaxis_title="held-out balanced accuracy [%] (95 % CI)", template="plotly_white")
+        fig.add_trace(
+            go.Scatter(
+                x=list(g.index),
+                y=100 * g["balanced_accuracy"],
+                mode="lines+markers",
+                name=who,
+                line={"dash": "dash"} if who == "ceiling" else None,
+                error_y={
+                    "type": "data",
+                    "symmetric": False,
+                    "array": 100 * (g["ba_hi"] - g["balanced_accuracy"]),
+                    "arrayminus": 100 * (g["balanced_accuracy"] - g["ba_lo"]),
+                },
+            )
+        )
+    fig.update_layout(
+        title=title,
+        xaxis_title="decisions of the new driver (K)",
+        yaxis_title="held-out balanced accuracy [%] (95 % CI)",
+        template="plotly_white",
+    )
     fig.write_html(path, include_plotlyjs=True)  # opens offline
 
 
@@ -188,12 +225,19 @@ def main() -> None:
     ap.add_argument("--drivers", default="all", help="'all', N (the first N) or ID,ID,... held out in turn")
     ap.add_argument("--k", default="5,10,20,all", help="decisions shown, comma-separated ('all': every earlier one)")
     ap.add_argument("--episodes", type=int, default=None, help="cap on every agent's episodes (default: the trainer's)")
-    ap.add_argument("--variants", default="none:blend",
-                    help="personalised agents, METHOD:BASE[:NAME=VALUE;...],... (the first is 'personalised'; "
-                         "default: laneprint personalize's, the blend of the candidates as it is; 'none:fit' the "
-                         "previous default)")
-    ap.add_argument("--observation", default=None, choices=OBSERVATIONS,
-                    help="what every agent and classifier sees (default: the 'decisions' reward's own)")
+    ap.add_argument(
+        "--variants",
+        default="none:blend",
+        help="personalised agents, METHOD:BASE[:NAME=VALUE;...],... (the first is 'personalised'; "
+        "default: laneprint personalize's, the blend of the candidates as it is; 'none:fit' the "
+        "previous default)",
+    )
+    ap.add_argument(
+        "--observation",
+        default=None,
+        choices=OBSERVATIONS,
+        help="what every agent and classifier sees (default: the 'decisions' reward's own)",
+    )
     ap.add_argument("--test-sessions", type=int, default=1, help="the driver's last sessions, held out")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--bootstrap", type=int, default=1000)
@@ -211,16 +255,31 @@ def main() -> None:
     if a.drivers == "all":
         held = everyone
     elif a.drivers.isdigit():
-        held = everyone[:int(a.drivers)]
+        held = everyone[: int(a.drivers)]
     else:
         held = a.drivers.split(",")
     ks = tuple(ALL if k == "all" else int(k) for k in a.k.split(","))
     variants = parse_variants(a.variants)
-    jobs = [(str(a.workspace), d, [o for o in everyone if o != d], a.episodes, a.seed, ks, variants,
-             a.test_sessions, a.observation) for d in held]
+    jobs = [
+        (
+            str(a.workspace),
+            d,
+            [o for o in everyone if o != d],
+            a.episodes,
+            a.seed,
+            ks,
+            variants,
+            a.test_sessions,
+            a.observation,
+        )
+        for d in held
+    ]
     observation = resolve_formulation("decisions", None, a.observation)[2]
-    print(f"personalise: {len(held)} held-out driver(s) of {len(everyone)}, K = {a.k}, episodes cap "
-          f"{a.episodes or 'default'}, variants {a.variants}, observation {observation}, seed {a.seed}", flush=True)
+    print(
+        f"personalise: {len(held)} held-out driver(s) of {len(everyone)}, K = {a.k}, episodes cap "
+        f"{a.episodes or 'default'}, variants {a.variants}, observation {observation}, seed {a.seed}",
+        flush=True,
+    )
     t0 = time.perf_counter()
     results = []
     if a.jobs > 1:
@@ -253,11 +312,24 @@ def main() -> None:
     tab = pd.concat(tabs, ignore_index=True)
     order = {p: i for i, p in enumerate(policies)}
     korder = {k: i for i, k in enumerate(dict.fromkeys(states["k"]))}
-    tab = tab.sort_values(["group", "k", "policy"], key=lambda s: s.map(order) if s.name == "policy" else
-                          s.map(korder) if s.name == "k" else s.map(lambda g: (g != "pooled", g)), kind="stable")
+    tab = tab.sort_values(
+        ["group", "k", "policy"],
+        key=lambda s: (
+            s.map(order)
+            if s.name == "policy"
+            else s.map(korder)
+            if s.name == "k"
+            else s.map(lambda g: (g != "pooled", g))
+        ),
+        kind="stable",
+    )
     for group, g in tab.groupby("group", sort=False):
-        print_table(g, f"{group}: held out the last {a.test_sessions} session(s) of {len(held)} driver(s)"
-                    if group == "pooled" else f"style {group} (the full analysis's)")
+        print_table(
+            g,
+            f"{group}: held out the last {a.test_sessions} session(s) of {len(held)} driver(s)"
+            if group == "pooled"
+            else f"style {group} (the full analysis's)",
+        )
     print("\nstyle assigned from the K decisions (right / all, mean confidence):")
     for k, g in assigned.groupby("k", sort=False):
         print(f"  K={k}: {(g['style'] == g['true_style']).sum()} / {len(g)}, confidence {g['confidence'].mean():.2f}")
@@ -273,20 +345,49 @@ def main() -> None:
     tab.to_csv(out / "curve.csv", index=False)
     states.to_pickle(out / "states.pkl")  # every policy's held-out states, per driver and K (for per-driver looks)
     changes.to_pickle(out / "changes.pkl")
-    (out / "curve.json").write_text(json.dumps({
-        "args": {k: str(v) for k, v in vars(a).items()}, "drivers": held, "observation": observation,
-        "table": tab.replace({np.nan: None}).to_dict("records"), "styles": assigned.to_dict("records"),
-        "acceptance": acceptance(tab), "acceptance_variants": {w: acceptance(tab, w) for w in list(variants)[1:]},
-        "wall_s": time.perf_counter() - t0}, indent=2, default=str))
-    write_result(a.result, {
-        "drivers_held_out": len(held), "drivers": len(everyone), "k": a.k, "episodes": a.episodes or "the trainer's",
-        "variants": a.variants, "observation": observation, "test_sessions": a.test_sessions, "seed": a.seed,
-        "bootstrap": a.bootstrap, "wall_s": time.perf_counter() - t0,
-        "acceptance": acceptance(tab), "acceptance_variants": {w: acceptance(tab, w) for w in list(variants)[1:]},
-        "style_assigned": [{"k": k, "right": int((g["style"] == g["true_style"]).sum()), "drivers": len(g),
-                            "mean_confidence": float(g["confidence"].mean())}
-                           for k, g in assigned.groupby("k", sort=False)],
-        "table": tab.replace({np.nan: None}).to_dict("records")})
+    (out / "curve.json").write_text(
+        json.dumps(
+            {
+                "args": {k: str(v) for k, v in vars(a).items()},
+                "drivers": held,
+                "observation": observation,
+                "table": tab.replace({np.nan: None}).to_dict("records"),
+                "styles": assigned.to_dict("records"),
+                "acceptance": acceptance(tab),
+                "acceptance_variants": {w: acceptance(tab, w) for w in list(variants)[1:]},
+                "wall_s": time.perf_counter() - t0,
+            },
+            indent=2,
+            default=str,
+        )
+    )
+    write_result(
+        a.result,
+        {
+            "drivers_held_out": len(held),
+            "drivers": len(everyone),
+            "k": a.k,
+            "episodes": a.episodes or "the trainer's",
+            "variants": a.variants,
+            "observation": observation,
+            "test_sessions": a.test_sessions,
+            "seed": a.seed,
+            "bootstrap": a.bootstrap,
+            "wall_s": time.perf_counter() - t0,
+            "acceptance": acceptance(tab),
+            "acceptance_variants": {w: acceptance(tab, w) for w in list(variants)[1:]},
+            "style_assigned": [
+                {
+                    "k": k,
+                    "right": int((g["style"] == g["true_style"]).sum()),
+                    "drivers": len(g),
+                    "mean_confidence": float(g["confidence"].mean()),
+                }
+                for k, g in assigned.groupby("k", sort=False)
+            ],
+            "table": tab.replace({np.nan: None}).to_dict("records"),
+        },
+    )
     plot(tab, out / "curve.html", f"personalisation learning curve: {a.workspace.name}, {len(held)} drivers")
     print(f"\nwrote {out}/curve.csv, curve.json, curve.html ({time.perf_counter() - t0:.0f} s)")
 

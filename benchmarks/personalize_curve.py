@@ -28,8 +28,19 @@ from indicators.settings import AnalysisSettings
 from laneprint.progress import ProgressFn
 from rl.baselines.imitation import ImitationClassifier
 from rl.evaluation.evaluate import agent_policy, evaluate_policies
-from rl.personalize.agents import (PersonalizeSettings, advantage_scale, agreement, base_seed, best_fit, blend,
-                                   blend_weights, personalised_agent, policy_of, train_agent, weights_of)
+from rl.personalize.agents import (
+    PersonalizeSettings,
+    advantage_scale,
+    agreement,
+    base_seed,
+    best_fit,
+    blend,
+    blend_weights,
+    personalised_agent,
+    policy_of,
+    train_agent,
+    weights_of,
+)
 from rl.personalize.split import driver_rows, first_decisions, holdout_split
 from rl.personalize.style import estimate_style, fit_population
 from rl.problem.env import EnvConfig, approaches_from_decisions
@@ -53,9 +64,16 @@ def _k_label(k: int) -> str:
     return "all" if k == ALL else str(k)
 
 
-def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: EnvConfig, dqn: DQNSettings,
-                 settings: CurveSettings, analysis: AnalysisSettings,
-                 progress: ProgressFn | None = None) -> dict[str, Any]:
+def driver_curve(
+    decisions: pd.DataFrame,
+    driver: str,
+    others: list[str],
+    env: EnvConfig,
+    dqn: DQNSettings,
+    settings: CurveSettings,
+    analysis: AnalysisSettings,
+    progress: ProgressFn | None = None,
+) -> dict[str, Any]:
     """Every policy's held-out states and changes for one driver at every K (tagged ``driver``, ``k``),
     and one row per K with the style assigned and its confidence."""
     rows = driver_rows(decisions, driver)
@@ -91,8 +109,11 @@ def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: E
         style_agent(est.style)
         fits = {}
         if need_all:
-            fits = {f"style:{s}": agreement(policy_of(style_agent(s)[0], env, dqn), own_app)
-                    for s in pop.members if pop.members[s]}
+            fits = {
+                f"style:{s}": agreement(policy_of(style_agent(s)[0], env, dqn), own_app)
+                for s in pop.members
+                if pop.members[s]
+            }
             fits["population"] = agreement(policy_of(agents["population"][0], env, dqn), own_app)
         fit_key = best_fit(fits, {f"style:{s}": v for s, v in est.bootstrap.items()}) if fits else style_key
         policies, blends = {}, {}
@@ -124,17 +145,30 @@ def driver_curve(decisions: pd.DataFrame, driver: str, others: list[str], env: E
         if k == ALL:
             policies["ceiling"] = policies["scratch"]
         policies["imitation_k"] = ImitationClassifier(random_state=settings.seed).fit(own_app, env).policy(env)
-        policies["imitation_pop_k"] = ImitationClassifier(random_state=settings.seed).fit(pop_app + own_app,
-                                                                                          env).policy(env)
+        policies["imitation_pop_k"] = (
+            ImitationClassifier(random_state=settings.seed).fit(pop_app + own_app, env).policy(env)
+        )
         ev = evaluate_policies(policies, test_app, env, skipped)
         for frame, out in ((ev["states"], states), (ev["changes"], changes)):
             frame.insert(0, "k", _k_label(k))
             frame.insert(0, "driver", driver)
             out.append(frame)
-        style_rows.append({"driver": driver, "k": _k_label(k), "n_decisions": len(own_app), "style": est.style,
-                           "confidence": est.confidence, "posterior": est.posterior[est.style],
-                           "fit_base": fit_key if fits else None, **{f"fit[{b}]": v for b, v in fits.items()},
-                           **blends})
-    return {"states": pd.concat(states, ignore_index=True), "changes": pd.concat(changes, ignore_index=True),
-            "styles": pd.DataFrame(style_rows), "n_test_decisions": len(test_app)}
-
+        style_rows.append(
+            {
+                "driver": driver,
+                "k": _k_label(k),
+                "n_decisions": len(own_app),
+                "style": est.style,
+                "confidence": est.confidence,
+                "posterior": est.posterior[est.style],
+                "fit_base": fit_key if fits else None,
+                **{f"fit[{b}]": v for b, v in fits.items()},
+                **blends,
+            }
+        )
+    return {
+        "states": pd.concat(states, ignore_index=True),
+        "changes": pd.concat(changes, ignore_index=True),
+        "styles": pd.DataFrame(style_rows),
+        "n_test_decisions": len(test_app),
+    }

@@ -63,8 +63,13 @@ def write_result(name: str, figures: dict, argv: list[str] | None = None) -> Pat
     if clash:
         raise ValueError(f"figures may not use the result file's own keys: {', '.join(clash)}")
     args = sys.argv[1:] if argv is None else list(argv)
-    result = {"command": " ".join([Path(sys.argv[0]).name, *map(str, args)]), "commit": STARTED_AT,
-              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "machine": machine(), **figures}
+    result = {
+        "command": " ".join([Path(sys.argv[0]).name, *map(str, args)]),
+        "commit": STARTED_AT,
+        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "machine": machine(),
+        **figures,
+    }
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / (name if name.endswith(".json") else f"{name}.json")
     path.write_text(json.dumps(result, indent=1, default=_plain) + "\n", encoding="utf-8")

@@ -69,12 +69,15 @@ def side_choices(workspace: Workspace, run_id: str) -> dict[str, Any]:
             t, e = round(float(times[k]), 6), ego.iloc[k]
             me = VehicleState(float(e["ego_x_m"]), float(e["ego_v_mps"]), int(r.ego_lane), float(e["ego_length_m"]))
             g = by_t.get(t, traffic.iloc[:0])
-            others = {str(v.vehicle_id): VehicleState(float(v.x_m), float(v.v_mps), int(v.lane), float(v.length_m))
-                      for v in g.itertuples()}
+            others = {
+                str(v.vehicle_id): VehicleState(float(v.x_m), float(v.v_mps), int(v.lane), float(v.length_m))
+                for v in g.itertuples()
+            }
             adv = dict(zip(lanes, advantages(q(Scene.concat([live_scene(me, others, k)[0] for k in lanes])))))
             own = "left" if r.target_lane > r.ego_lane else "right"
-            rows.append({"label": r.label, "own": own, "adv_left": float(adv[lanes[0]]),
-                         "adv_right": float(adv[lanes[1]])})
+            rows.append(
+                {"label": r.label, "own": own, "adv_left": float(adv[lanes[0]]), "adv_right": float(adv[lanes[1]])}
+            )
     df = pd.DataFrame(rows, columns=["label", "own", "adv_left", "adv_right"])
     out: dict[str, Any] = {"run_id": run_id, "drivers": sorted(drivers)}
     for rule in RULES:
@@ -107,12 +110,19 @@ def _tally(df: pd.DataFrame, pick: np.ndarray) -> dict[str, Any]:
     change = (df["label"] == "change").to_numpy()
     for side in ("left", "right"):
         m = change & (df["own"] == side).to_numpy()
-        out["presses"][side] = {"n": int(m.sum()), "same_side": int((pick[m] == side).sum()),
-                                "other_side": int(((pick[m] != side) & (pick[m] != "keep")).sum()),
-                                "keep": int((pick[m] == "keep").sum())}
+        out["presses"][side] = {
+            "n": int(m.sum()),
+            "same_side": int((pick[m] == side).sum()),
+            "other_side": int(((pick[m] != side) & (pick[m] != "keep")).sum()),
+            "keep": int((pick[m] == "keep").sum()),
+        }
     k = (df["label"] == "keep").to_numpy()
-    out["keep_states"] = {"n": int(k.sum()), "keep": int((pick[k] == "keep").sum()),
-                          "left": int((pick[k] == "left").sum()), "right": int((pick[k] == "right").sum())}
+    out["keep_states"] = {
+        "n": int(k.sum()),
+        "keep": int((pick[k] == "keep").sum()),
+        "left": int((pick[k] == "left").sum()),
+        "right": int((pick[k] == "right").sum()),
+    }
     return out
 
 
@@ -137,11 +147,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rule {rule}{' (the closed loop)' if rule == RULES[0] else ''}:")
         for side, r in res[rule]["presses"].items():
             share = r["same_side"] / r["n"] if r["n"] else np.nan
-            print(f"  {side:>5} presses from a middle lane: {r['n']:>4}; same side {r['same_side']} ({share:.0%}), "
-                  f"other side {r['other_side']}, keeps {r['keep']}")
+            print(
+                f"  {side:>5} presses from a middle lane: {r['n']:>4}; same side {r['same_side']} ({share:.0%}), "
+                f"other side {r['other_side']}, keeps {r['keep']}"
+            )
         k = res[rule]["keep_states"]
-        print(f"  not-yet states in a middle lane: {k['n']}; keeps {k['keep']} "
-              f"({k['keep'] / max(k['n'], 1):.0%}), left {k['left']}, right {k['right']}")
+        print(
+            f"  not-yet states in a middle lane: {k['n']}; keeps {k['keep']} "
+            f"({k['keep'] / max(k['n'], 1):.0%}), left {k['left']}, right {k['right']}"
+        )
     return 0
 
 

@@ -38,12 +38,20 @@ def main() -> None:
     assert study is not None
     samples = sum(len(ego) for _, ego, _ in study.recordings)
     rows = sum(len(tr) for _, _, tr in study.recordings)
-    figures = {"repeats": args.repeats, "recordings": len(study.recordings), "ego_samples": samples,
-               "traffic_rows": rows, "generate_median_s": statistics.median(gen),
-               "generate_samples_per_s": samples / statistics.median(gen), "write": []}
-    print(f"generate: median {statistics.median(gen):.2f} s over {args.repeats} runs; "
-          f"{len(study.recordings)} recordings, {samples} ego samples, {rows} traffic rows, "
-          f"{samples / statistics.median(gen):,.0f} samples/s")
+    figures = {
+        "repeats": args.repeats,
+        "recordings": len(study.recordings),
+        "ego_samples": samples,
+        "traffic_rows": rows,
+        "generate_median_s": statistics.median(gen),
+        "generate_samples_per_s": samples / statistics.median(gen),
+        "write": [],
+    }
+    print(
+        f"generate: median {statistics.median(gen):.2f} s over {args.repeats} runs; "
+        f"{len(study.recordings)} recordings, {samples} ego samples, {rows} traffic rows, "
+        f"{samples / statistics.median(gen):,.0f} samples/s"
+    )
 
     for fmt in ("csv", "mcap", "mixed"):
         times, size = [], 0

@@ -48,13 +48,18 @@ def measure(study: Path, workspace: Path) -> dict[str, Any]:
     ids = sorted(truth)
     presses = pd.read_parquet(workspace / "analysis" / "decisions.parquet").query("label == 'change'").copy()
     presses["true_style"] = presses["driver_id"].map(truth)
-    per_driver = presses.groupby("driver_id").agg(
-        style=("true_style", "first"), presses=("label", "size"),
-        **{g: (g, _median) for g in GAPS}).reset_index()
-    per_style = {s: {g: _median(grp[g]) for g in GAPS} | {"presses": int(len(grp))}
-                 for s, grp in presses.groupby("true_style")}
+    per_driver = (
+        presses.groupby("driver_id")
+        .agg(style=("true_style", "first"), presses=("label", "size"), **{g: (g, _median) for g in GAPS})
+        .reset_index()
+    )
+    per_style = {
+        s: {g: _median(grp[g]) for g in GAPS} | {"presses": int(len(grp))} for s, grp in presses.groupby("true_style")
+    }
     return {
-        "study": str(study), "seed": gt["seed"], "family": gt.get("family", "ttc"),
+        "study": str(study),
+        "seed": gt["seed"],
+        "family": gt.get("family", "ttc"),
         "ari": round(adjusted_rand([truth[d] for d in ids], [str(found.get(d, "?")) for d in ids]), 3),
         "found": {d: str(found.get(d, "?")) for d in ids},
         "presses": int(len(presses)),
@@ -78,14 +83,18 @@ def overlap_free(per_driver: list[dict[str, Any]], column: str) -> bool:
 
 def render(m: dict[str, Any]) -> str:
     """A few lines for one study."""
-    lines = [f"seed {m['seed']} ({m['family']}): ARI {m['ari']:.3f}, {m['presses']} presses, t_f undefined "
-             f"{m['t_f_undefined']:.0%}, t_nf undefined {m['t_nf_undefined']:.0%}; separated by "
-             + ", ".join(f"{g} {'yes' if overlap_free(m['per_driver'], g) else 'no'}" for g in GAPS)]
+    lines = [
+        f"seed {m['seed']} ({m['family']}): ARI {m['ari']:.3f}, {m['presses']} presses, t_f undefined "
+        f"{m['t_f_undefined']:.0%}, t_nf undefined {m['t_nf_undefined']:.0%}; separated by "
+        + ", ".join(f"{g} {'yes' if overlap_free(m['per_driver'], g) else 'no'}" for g in GAPS)
+    ]
     for s, v in m["per_style"].items():
         lines.append(f"  {s:<10} presses {v['presses']:>4}  median " + "  ".join(f"{g} {v[g]}" for g in GAPS))
     for r in m["per_driver"]:
-        lines.append(f"    {r['driver_id']} {r['style']:<10} -> {m['found'][r['driver_id']]:<10} {r['presses']:>3} "
-                     + "  ".join(f"{g} {r[g]}" for g in GAPS))
+        lines.append(
+            f"    {r['driver_id']} {r['style']:<10} -> {m['found'][r['driver_id']]:<10} {r['presses']:>3} "
+            + "  ".join(f"{g} {r[g]}" for g in GAPS)
+        )
     return "\n".join(lines)
 
 

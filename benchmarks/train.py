@@ -51,8 +51,9 @@ def ensure_analysis(ws: Workspace) -> None:
     if ws.has_table("analysis", "decisions"):
         return
     exe = [sys.executable, "-m", "laneprint.app.cli"]
-    subprocess.run(exe + ["ingest", str(REPO / "sample_logs"), "-w", str(ws.root), "--json"], check=True,
-                   stdout=subprocess.DEVNULL)
+    subprocess.run(
+        exe + ["ingest", str(REPO / "sample_logs"), "-w", str(ws.root), "--json"], check=True, stdout=subprocess.DEVNULL
+    )
     subprocess.run(exe + ["analyze", "-w", str(ws.root), "--json"], check=True, stdout=subprocess.DEVNULL)
 
 
@@ -87,8 +88,9 @@ class Scorer:
         return ok, s
 
 
-def run_ours(cfg: EnvConfig, settings: DQNSettings, scorer: Scorer, check_every: int, budget_s: float,
-             stop_at_hit: bool = False) -> dict:
+def run_ours(
+    cfg: EnvConfig, settings: DQNSettings, scorer: Scorer, check_every: int, budget_s: float, stop_at_hit: bool = False
+) -> dict:
     trainer = DQNTrainer(cfg, settings)
     state = {"next": check_every, "eval_s": 0.0, "hit": None, "last": None, "lengths": []}
     t0 = time.perf_counter()
@@ -102,29 +104,62 @@ def run_ours(cfg: EnvConfig, settings: DQNSettings, scorer: Scorer, check_every:
         state["eval_s"] += time.perf_counter() - e0
         state["last"] = s
         if ok and state["hit"] is None:
-            state["hit"] = {"wall_s": time.perf_counter() - t0 - state["eval_s"], "env_steps": t.env_steps,
-                            "episodes": t.episodes_done, **s}
+            state["hit"] = {
+                "wall_s": time.perf_counter() - t0 - state["eval_s"],
+                "env_steps": t.env_steps,
+                "episodes": t.episodes_done,
+                **s,
+            }
             return stop_at_hit
         return time.perf_counter() - t0 - state["eval_s"] > budget_s
 
     trainer.train(on_episode=lambda r: state["lengths"].append(r["length"]), on_vector_step=on_step)
     wall = time.perf_counter() - t0 - state["eval_s"]
-    return {"hit": state["hit"], "last": state["last"], "wall_s": wall, "episodes": trainer.episodes_done,
-            "env_steps": trainer.env_steps,
-            "steps_per_s": trainer.env_steps / wall, "mean_episode_length": float(np.mean(state["lengths"] or [1]))}
+    return {
+        "hit": state["hit"],
+        "last": state["last"],
+        "wall_s": wall,
+        "episodes": trainer.episodes_done,
+        "env_steps": trainer.env_steps,
+        "steps_per_s": trainer.env_steps / wall,
+        "mean_episode_length": float(np.mean(state["lengths"] or [1])),
+    }
 
 
-def run_sb3(cfg: EnvConfig, scorer: Scorer, seed: int, total_steps: int, exploration_fraction: float,
-            target_update_steps: int, check_every: int, budget_s: float) -> dict:
+def run_sb3(
+    cfg: EnvConfig,
+    scorer: Scorer,
+    seed: int,
+    total_steps: int,
+    exploration_fraction: float,
+    target_update_steps: int,
+    check_every: int,
+    budget_s: float,
+) -> dict:
     from stable_baselines3 import DQN
     from stable_baselines3.common.callbacks import BaseCallback
 
     torch.set_num_threads(1)
     env = LaneChangeDecisionEnv(cfg)
-    model = DQN("MlpPolicy", env, learning_rate=0.005, buffer_size=10000, learning_starts=2000, batch_size=32,
-                gamma=0.98, train_freq=1, gradient_steps=1, target_update_interval=target_update_steps,
-                exploration_initial_eps=0.8, exploration_final_eps=0.1, exploration_fraction=exploration_fraction,
-                policy_kwargs={"net_arch": [128, 128, 128]}, seed=seed, device="cpu", verbose=0)
+    model = DQN(
+        "MlpPolicy",
+        env,
+        learning_rate=0.005,
+        buffer_size=10000,
+        learning_starts=2000,
+        batch_size=32,
+        gamma=0.98,
+        train_freq=1,
+        gradient_steps=1,
+        target_update_interval=target_update_steps,
+        exploration_initial_eps=0.8,
+        exploration_final_eps=0.1,
+        exploration_fraction=exploration_fraction,
+        policy_kwargs={"net_arch": [128, 128, 128]},
+        seed=seed,
+        device="cpu",
+        verbose=0,
+    )
     state = {"eval_s": 0.0, "hit": None, "last": None}
 
     class Check(BaseCallback):
@@ -148,9 +183,16 @@ def run_sb3(cfg: EnvConfig, scorer: Scorer, seed: int, total_steps: int, explora
     t0 = time.perf_counter()
     model.learn(total_timesteps=total_steps, callback=cb)
     wall = time.perf_counter() - t0 - state["eval_s"]
-    return {"hit": state["hit"], "last": state["last"], "wall_s": wall, "env_steps": model.num_timesteps,
-            "steps_per_s": model.num_timesteps / wall, "target_update_steps": target_update_steps,
-            "exploration_fraction": exploration_fraction, "total_timesteps": total_steps}
+    return {
+        "hit": state["hit"],
+        "last": state["last"],
+        "wall_s": wall,
+        "env_steps": model.num_timesteps,
+        "steps_per_s": model.num_timesteps / wall,
+        "target_update_steps": target_update_steps,
+        "exploration_fraction": exploration_fraction,
+        "total_timesteps": total_steps,
+    }
 
 
 def parse_overrides(items: list[str]) -> dict:
@@ -175,8 +217,13 @@ def main() -> None:
     ap.add_argument("--check-every", type=int, default=2000, help="env steps between accuracy checks")
     ap.add_argument("--budget-s", type=float, default=240.0, help="give up after this much training time")
     ap.add_argument("--sb3-repeats", type=int, default=None, help="SB3 repeats (default: --repeats)")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="override one of our DQNSettings (repeatable), e.g. --set batch_size=128")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override one of our DQNSettings (repeatable), e.g. --set batch_size=128",
+    )
     ap.add_argument("--out", default=None, help="result file name under benchmarks/results/ (default train_<style>)")
     args = ap.parse_args()
 
@@ -186,17 +233,24 @@ def main() -> None:
     lines = ReferenceLines.from_table(ws.read_table("analysis", "reference_lines"), style=args.style)
     cfg = EnvConfig(lines=lines, reward=RewardSettings(name="timing"))
     scorer = Scorer(ws, args.style, cfg)
-    print(f"style {args.style}, typical driver {scorer.typical}: target recall >= {scorer.target_recall:.3f}, "
-          f"balanced accuracy >= {scorer.target_bacc:.3f} (greedy {scorer.greedy['balanced_accuracy']:.3f})",
-          flush=True)
+    print(
+        f"style {args.style}, typical driver {scorer.typical}: target recall >= {scorer.target_recall:.3f}, "
+        f"balanced accuracy >= {scorer.target_bacc:.3f} (greedy {scorer.greedy['balanced_accuracy']:.3f})",
+        flush=True,
+    )
     overrides = parse_overrides(args.set)
     n_ours, n_sb3 = args.repeats, args.sb3_repeats if args.sb3_repeats is not None else args.repeats
     ours, sb3 = [], []
     sched: dict[str, float] = {}
 
     def one_ours(seed: int) -> None:  # the full run (all episodes), noting when the target is first met
-        r = run_ours(cfg, DQNSettings(**{"episodes": args.episodes, "checkpoint_every": 0, **overrides, "seed": seed}),
-                     scorer, args.check_every, args.budget_s)
+        r = run_ours(
+            cfg,
+            DQNSettings(**{"episodes": args.episodes, "checkpoint_every": 0, **overrides, "seed": seed}),
+            scorer,
+            args.check_every,
+            args.budget_s,
+        )
         ours.append(r)
         print(f"ours  seed {seed}: {json.dumps(r)}", flush=True)
         if not sched:  # SB3's schedules from our first full run (episode length and steps vary < 1 % by seed)
@@ -206,8 +260,16 @@ def main() -> None:
             sched["target_update"] = max(1, round(20 * r["mean_episode_length"]))
 
     def one_sb3(seed: int) -> None:
-        r = run_sb3(cfg, scorer, seed, sched["total"], sched["schedule"] / sched["total"], sched["target_update"],
-                    args.check_every, args.budget_s)
+        r = run_sb3(
+            cfg,
+            scorer,
+            seed,
+            sched["total"],
+            sched["schedule"] / sched["total"],
+            sched["target_update"],
+            args.check_every,
+            args.budget_s,
+        )
         sb3.append(r)
         print(f"sb3   seed {seed}: {json.dumps(r)}", flush=True)
 
@@ -221,17 +283,24 @@ def main() -> None:
     def med(rows: list[dict], key: str) -> float | None:
         vals = [r["hit"][key] if r["hit"] else None for r in rows]
         if any(v is None for v in vals):  # a miss counts as the whole budget (a lower bound on its time)
-            vals = [v if v is not None else (r["wall_s"] if key == "wall_s" else r["env_steps"])
-                    for v, r in zip(vals, rows)]
+            vals = [
+                v if v is not None else (r["wall_s"] if key == "wall_s" else r["env_steps"]) for v, r in zip(vals, rows)
+            ]
         return statistics.median(vals) if vals else None
 
     summary = {
-        "style": args.style, "typical_driver": scorer.typical, "ours_overrides": overrides,
-        "check_every": args.check_every, "target_recall": scorer.target_recall,
+        "style": args.style,
+        "typical_driver": scorer.typical,
+        "ours_overrides": overrides,
+        "check_every": args.check_every,
+        "target_recall": scorer.target_recall,
         "target_balanced_accuracy": scorer.target_bacc,
-        "ours_hits": sum(r["hit"] is not None for r in ours), "sb3_hits": sum(r["hit"] is not None for r in sb3),
-        "ours_median_s_to_target": med(ours, "wall_s"), "sb3_median_s_to_target": med(sb3, "wall_s"),
-        "ours_median_steps_to_target": med(ours, "env_steps"), "sb3_median_steps_to_target": med(sb3, "env_steps"),
+        "ours_hits": sum(r["hit"] is not None for r in ours),
+        "sb3_hits": sum(r["hit"] is not None for r in sb3),
+        "ours_median_s_to_target": med(ours, "wall_s"),
+        "sb3_median_s_to_target": med(sb3, "wall_s"),
+        "ours_median_steps_to_target": med(ours, "env_steps"),
+        "sb3_median_steps_to_target": med(sb3, "env_steps"),
         "ours_median_steps_per_s": statistics.median(r["steps_per_s"] for r in ours),
         "ours_median_s_full_run": statistics.median(r["wall_s"] for r in ours),
         "ours_final": [r["last"] for r in ours],
@@ -240,8 +309,17 @@ def main() -> None:
     if summary["ours_median_s_to_target"] and summary["sb3_median_s_to_target"]:
         summary["speedup_to_target"] = summary["sb3_median_s_to_target"] / summary["ours_median_s_to_target"]
     print(json.dumps(summary, indent=2))
-    write_result(args.out or f"train_{args.style.lower()}", {**summary, "repeats": args.repeats, "episodes": args.episodes,
-                                                             "budget_s": args.budget_s, "ours": ours, "sb3": sb3})
+    write_result(
+        args.out or f"train_{args.style.lower()}",
+        {
+            **summary,
+            "repeats": args.repeats,
+            "episodes": args.episodes,
+            "budget_s": args.budget_s,
+            "ours": ours,
+            "sb3": sb3,
+        },
+    )
 
 
 if __name__ == "__main__":

@@ -63,10 +63,12 @@ def study(world: str, seed: int, root: Path) -> tuple[Path, Path]:
 
 def with_free_speed(dec: pd.DataFrame, workspace) -> pd.DataFrame:
     """`dec` with the column `ego_v_free_mps` as the extraction now writes it, read from the recordings."""
-    from indicators.following import free_speed
+    from indicators.speed import free_speed
 
-    free = {str(meta["recording_id"]): free_speed(ego["ego_v_mps"].to_numpy(dtype=float))
-            for meta, ego, _ in workspace.iter_recordings()}
+    free = {
+        str(meta["recording_id"]): free_speed(ego["ego_v_mps"].to_numpy(dtype=float))
+        for meta, ego, _ in workspace.iter_recordings()
+    }
     pos = dec.columns.get_loc("ego_v_mps") + 1
     dec = dec.copy()
     dec.insert(pos, "ego_v_free_mps", dec["recording_id"].astype(str).map(free).astype(float))
@@ -110,19 +112,40 @@ def judge(world: str, seed: int, root: Path, methods: tuple[str, ...]) -> list[d
         st = st[st["driver_id"].isin(truth)]
         a = float(adjusted_rand_score([truth[d] for d in st["driver_id"]], st["style"]))
         for r in st.itertuples():
-            rows.append({"world": world, "seed": seed, "method": method, "driver": r.driver_id, "truth": truth[r.driver_id],
-                         "style": r.style, "confidence": float(r.confidence), "presses": int(r.n_decisions),
-                         "ari": a, "seconds": seconds, "unsure": str(r.unsure)})
+            rows.append(
+                {
+                    "world": world,
+                    "seed": seed,
+                    "method": method,
+                    "driver": r.driver_id,
+                    "truth": truth[r.driver_id],
+                    "style": r.style,
+                    "confidence": float(r.confidence),
+                    "presses": int(r.n_decisions),
+                    "ari": a,
+                    "seconds": seconds,
+                    "unsure": str(r.unsure),
+                }
+            )
     return rows
 
 
 def summarise(df: pd.DataFrame) -> dict:
     """Per world and method, leave-one-world-out, and reliability tables (JSON-ready)."""
-    studies = df.groupby(["world", "method", "seed"]).agg(ari=("ari", "first"),
-                                                          named=("right", "mean"), seconds=("seconds", "first"))
-    per = studies.groupby(["world", "method"]).agg(mean_ari=("ari", "mean"), min_ari=("ari", "min"),
-                                                   names_right=("named", "mean"), seeds=("ari", "size"),
-                                                   median_seconds=("seconds", "median")).reset_index()
+    studies = df.groupby(["world", "method", "seed"]).agg(
+        ari=("ari", "first"), named=("right", "mean"), seconds=("seconds", "first")
+    )
+    per = (
+        studies.groupby(["world", "method"])
+        .agg(
+            mean_ari=("ari", "mean"),
+            min_ari=("ari", "min"),
+            names_right=("named", "mean"),
+            seeds=("ari", "size"),
+            median_seconds=("seconds", "median"),
+        )
+        .reset_index()
+    )
     lowo = []
     for world in sorted(per["world"].unique()):
         others = per[per["world"] != world].groupby("method")["mean_ari"].mean()
@@ -130,28 +153,49 @@ def summarise(df: pd.DataFrame) -> dict:
             continue
         pick = str(others.idxmax())
         here = per[(per["world"] == world) & (per["method"] == pick)].iloc[0]
-        lowo.append({"world": world, "method_chosen_elsewhere": pick, "mean_ari": float(here["mean_ari"]),
-                     "min_ari": float(here["min_ari"]), "names_right": float(here["names_right"])})
+        lowo.append(
+            {
+                "world": world,
+                "method_chosen_elsewhere": pick,
+                "mean_ari": float(here["mean_ari"]),
+                "min_ari": float(here["min_ari"]),
+                "names_right": float(here["names_right"]),
+            }
+        )
     rel = []
     for method, g in df.groupby("method"):
         bins = pd.cut(g["confidence"], BINS, right=False)
         for interval, h in g.groupby(bins, observed=True):
-            rel.append({"method": method, "confidence": f"[{interval.left:.1f}, {min(interval.right, 1.0):.1f})",
-                        "drivers": int(len(h)), "share_right": float(h["right"].mean())})
+            rel.append(
+                {
+                    "method": method,
+                    "confidence": f"[{interval.left:.1f}, {min(interval.right, 1.0):.1f})",
+                    "drivers": int(len(h)),
+                    "share_right": float(h["right"].mean()),
+                }
+            )
         hi = g[g["confidence"] >= 0.9]
-        rel.append({"method": method, "confidence": ">= 0.9", "drivers": int(len(hi)),
-                    "share_right": float(hi["right"].mean()) if len(hi) else None})
+        rel.append(
+            {
+                "method": method,
+                "confidence": ">= 0.9",
+                "drivers": int(len(hi)),
+                "share_right": float(hi["right"].mean()) if len(hi) else None,
+            }
+        )
     return {"per_world": per.to_dict("records"), "leave_one_world_out": lowo, "reliability": rel}
 
 
 def cached(world: str, seed: int, root: Path) -> bool:
     """Whether the study of `world` and `seed` is generated, ingested and its decisions extracted under `root`."""
-    return (root / f"{world}-{seed}" / "ground_truth.json").exists() and \
-        (root / f"{world}-{seed}.ws" / "zoo_decisions.parquet").exists()
+    return (root / f"{world}-{seed}" / "ground_truth.json").exists() and (
+        root / f"{world}-{seed}.ws" / "zoo_decisions.parquet"
+    ).exists()
 
 
-def run(worlds: list[str], seeds: list[int], root: Path, methods: tuple[str, ...], out_name: str,
-        cached_only: bool = False) -> dict:
+def run(
+    worlds: list[str], seeds: list[int], root: Path, methods: tuple[str, ...], out_name: str, cached_only: bool = False
+) -> dict:
     """Judge every method on every (world, seed), generating what is not cached (`cached_only`: skip it)."""
     root.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -167,13 +211,21 @@ def run(worlds: list[str], seeds: list[int], root: Path, methods: tuple[str, ...
                 print(f"  {world} seed {seed}: generation failed ({exc})", flush=True)
                 continue
             last = [r for r in rows if r["world"] == world and r["seed"] == seed]
-            print(f"  {world:<18} seed {seed:5d} " + "  ".join(
-                f"{m} {next(r['ari'] for r in last if r['method'] == m):.2f}" for m in methods)
-                + f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
+            print(
+                f"  {world:<18} seed {seed:5d} "
+                + "  ".join(f"{m} {next(r['ari'] for r in last if r['method'] == m):.2f}" for m in methods)
+                + f"  ({time.perf_counter() - t0:.0f} s)",
+                flush=True,
+            )
     df = pd.DataFrame(rows)
     df["right"] = df["style"] == df["truth"]
-    result = {"worlds": worlds, "seeds": seeds, "methods": list(methods), **summarise(df),
-              "drivers": df.to_dict("records")}
+    result = {
+        "worlds": worlds,
+        "seeds": seeds,
+        "methods": list(methods),
+        **summarise(df),
+        "drivers": df.to_dict("records"),
+    }
     write_result(out_name, result)
     print_tables(result)
     return result
@@ -183,12 +235,18 @@ def print_tables(result: dict) -> None:
     per = pd.DataFrame(result["per_world"])
     print("\nmean ARI (min) per world and method; share of drivers named right")
     for world, g in per.groupby("world"):
-        print(f"  {world:<18} " + "  ".join(f"{r.method} {r.mean_ari:.2f} ({r.min_ari:.2f}) {100 * r.names_right:.0f} %"
-                                             for r in g.itertuples()))
+        print(
+            f"  {world:<18} "
+            + "  ".join(
+                f"{r.method} {r.mean_ari:.2f} ({r.min_ari:.2f}) {100 * r.names_right:.0f} %" for r in g.itertuples()
+            )
+        )
     print("\nleave one world out: the method best on the other worlds, judged on this one")
     for r in result["leave_one_world_out"]:
-        print(f"  {r['world']:<18} {r['method_chosen_elsewhere']:<10} mean ARI {r['mean_ari']:.2f}, "
-              f"min {r['min_ari']:.2f}, names right {100 * r['names_right']:.0f} %")
+        print(
+            f"  {r['world']:<18} {r['method_chosen_elsewhere']:<10} mean ARI {r['mean_ari']:.2f}, "
+            f"min {r['min_ari']:.2f}, names right {100 * r['names_right']:.0f} %"
+        )
     print("\nreliability: stated confidence against the share of drivers right (pooled over the zoo)")
     for r in result["reliability"]:
         share = "-" if r["share_right"] is None else f"{100 * r['share_right']:.0f} %"

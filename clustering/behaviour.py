@@ -30,7 +30,7 @@ approaches: the states of one approach are not independent).
 The **headway kept while following** (`thw_follow`, `indicators.following`) is read beside
 them: the lower quartile of the driver's steady-following headways, its standard error
 bootstrapped over episodes. So is the **free speed** (`v_free`): the speed the driver drives
-at when nothing holds it back (`indicators.following.free_speed`), as a share of the posted
+at when nothing holds it back (`indicators.speed.free_speed`), as a share of the posted
 limit, the median over its recordings, its standard error bootstrapped over recordings.
 
 Everything here is pure: frames in, frames and small dataclasses out.
@@ -79,11 +79,13 @@ _MIN_RECORDINGS = 2
 
 def behaviour_params(name: str) -> tuple[str, ...]:
     """('thw_nb', 'thw_follow') of 'behaviour:thw_nb+thw_follow'; ValueError for an unknown parameter."""
-    params = tuple(p for p in name[len(BEHAVIOUR):].split("+") if p)
+    params = tuple(p for p in name[len(BEHAVIOUR) :].split("+") if p)
     unknown = [p for p in params if p not in PARAMETERS]
     if not params or unknown:
-        raise ValueError(f"unknown behaviour parameter(s) {', '.join(unknown) or '(none)'}: "
-                         f"use {', '.join(PARAMETERS)} joined by '+'")
+        raise ValueError(
+            f"unknown behaviour parameter(s) {', '.join(unknown) or '(none)'}: "
+            f"use {', '.join(PARAMETERS)} joined by '+'"
+        )
     return params
 
 
@@ -109,17 +111,21 @@ def decision_data(decisions: pd.DataFrame, variables: tuple[str, ...] = tuple(VA
             x = d[col].to_numpy(dtype=float)
             with np.errstate(invalid="ignore", divide="ignore"):
                 z[:, j] = np.where(np.isfinite(x), np.log(np.clip(x, floor, _CAP)), np.nan)
-    return DecisionData(z=z, y=(d["label"] == "change").to_numpy(dtype=float),
-                        driver=d["driver_id"].astype(str).to_numpy(dtype=object),
-                        session=d["session_id"].astype(str).to_numpy(dtype=object),
-                        approach=d["decision_id"].astype(str).to_numpy(dtype=object),
-                        variables=tuple(variables))
+    return DecisionData(
+        z=z,
+        y=(d["label"] == "change").to_numpy(dtype=float),
+        driver=d["driver_id"].astype(str).to_numpy(dtype=object),
+        session=d["session_id"].astype(str).to_numpy(dtype=object),
+        approach=d["decision_id"].astype(str).to_numpy(dtype=object),
+        variables=tuple(variables),
+    )
 
 
 def subset(data: DecisionData, mask: np.ndarray) -> DecisionData:
     """The states of `data` where `mask` holds."""
-    return DecisionData(data.z[mask], data.y[mask], data.driver[mask], data.session[mask], data.approach[mask],
-                        data.variables)
+    return DecisionData(
+        data.z[mask], data.y[mask], data.driver[mask], data.session[mask], data.approach[mask], data.variables
+    )
 
 
 @dataclass(frozen=True)
@@ -152,16 +158,18 @@ def _signs(variables: tuple[str, ...]) -> np.ndarray:
     return np.array([VARIABLES[v][1] for v in variables], dtype=float)
 
 
-def _product(z: np.ndarray, mu: np.ndarray, sigma: np.ndarray, variables: tuple[str, ...]
-             ) -> tuple[np.ndarray, np.ndarray]:
+def _product(
+    z: np.ndarray, mu: np.ndarray, sigma: np.ndarray, variables: tuple[str, ...]
+) -> tuple[np.ndarray, np.ndarray]:
     """(prod_j Phi(u_ij), u) with u = s (z - mu) / sigma; undefined entries contribute 1."""
     u = _signs(variables) * (z - mu) / sigma
     logF = np.where(np.isnan(u), 0.0, special.log_ndtr(np.nan_to_num(u)))
     return np.exp(logF.sum(axis=1)), u
 
 
-def fit_gap_model(data: DecisionData, groups: np.ndarray, prior_sd: float = PRIOR_SD,
-                  start: GapModel | None = None) -> GapModel:
+def fit_gap_model(
+    data: DecisionData, groups: np.ndarray, prior_sd: float = PRIOR_SD, start: GapModel | None = None
+) -> GapModel:
     """Fit one row of critical values per distinct value of `groups` (one per state), with shared
     spreads, hazard and lapse, by penalised maximum likelihood; from `start`'s estimates where it
     has the group (a fit on more data of the same drivers converges in far fewer steps)."""
@@ -174,9 +182,9 @@ def fit_gap_model(data: DecisionData, groups: np.ndarray, prior_sd: float = PRIO
     y = data.y
 
     def unpack(theta: np.ndarray):
-        mu = theta[:G * J].reshape(G, J)
-        m = theta[G * J:G * J + J]
-        log_sigma = theta[G * J + J:G * J + 2 * J]
+        mu = theta[: G * J].reshape(G, J)
+        m = theta[G * J : G * J + J]
+        log_sigma = theta[G * J + J : G * J + 2 * J]
         a_h, a_l = theta[-2], theta[-1]
         return mu, m, log_sigma, a_h, a_l
 
@@ -191,15 +199,15 @@ def fit_gap_model(data: DecisionData, groups: np.ndarray, prior_sd: float = PRIO
         P = np.exp(logF.sum(axis=1))
         p = np.clip(lam + (h - lam) * P, 1e-12, 1 - 1e-12)
         ll = np.sum(y * np.log(p) + (1 - y) * np.log1p(-p))
-        pen = np.sum((mu - m) ** 2) / (2 * prior_sd ** 2)
+        pen = np.sum((mu - m) ** 2) / (2 * prior_sd**2)
         w = y / p - (1 - y) / (1 - p)  # dLL/dp
         # dP/du = P * phi(u) / Phi(u)
-        ratio = np.where(defined, np.exp(-0.5 * u0 ** 2 - 0.5 * np.log(2 * np.pi) - logF), 0.0)
+        ratio = np.where(defined, np.exp(-0.5 * u0**2 - 0.5 * np.log(2 * np.pi) - logF), 0.0)
         dll_du = (w * (h - lam) * P)[:, None] * ratio
         d_mu = np.zeros((G, J))
         np.add.at(d_mu, g, dll_du * (-s / sigma))
-        d_mu -= (mu - m) / prior_sd ** 2
-        d_m = ((mu - m) / prior_sd ** 2).sum(axis=0)
+        d_mu -= (mu - m) / prior_sd**2
+        d_m = ((mu - m) / prior_sd**2).sum(axis=0)
         d_logsig = (dll_du * -u0).sum(axis=0)
         dp_dh = P + (1 - P) * special.expit(a_l)  # lam = h * e(a_l)
         d_ah = np.sum(w * dp_dh) * h * (1 - h)
@@ -213,11 +221,16 @@ def fit_gap_model(data: DecisionData, groups: np.ndarray, prior_sd: float = PRIO
         known = {name: i for i, name in enumerate(start.groups)}
         mu0 = np.array([start.mu[known[n]] if n in known else start.m for n in names]).reshape(G, J)
         h0 = min(max(start.hazard, 1e-3), 1 - 1e-3)
-        theta0 = np.concatenate([mu0.ravel(), start.m, np.log(np.clip(start.sigma, 0.05, 5.0)),
-                                 [special.logit(h0), special.logit(min(max(start.lapse / h0, 1e-4), 1 - 1e-4))]])
+        theta0 = np.concatenate(
+            [
+                mu0.ravel(),
+                start.m,
+                np.log(np.clip(start.sigma, 0.05, 5.0)),
+                [special.logit(h0), special.logit(min(max(start.lapse / h0, 1e-4), 1 - 1e-4))],
+            ]
+        )
     bounds = [(None, None)] * (G * J + J) + [(np.log(0.05), np.log(5.0))] * J + [(-6, 6), (-8, 4)]
-    res = optimize.minimize(objective, theta0, jac=True, method="L-BFGS-B", bounds=bounds,
-                            options={"maxiter": 500})
+    res = optimize.minimize(objective, theta0, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": 500})
     mu, m, log_sigma, a_h, a_l = unpack(res.x)
     sigma = np.exp(log_sigma)
     h = float(special.expit(a_h))
@@ -228,8 +241,9 @@ def fit_gap_model(data: DecisionData, groups: np.ndarray, prior_sd: float = PRIO
     return GapModel(tuple(names), mu, se, sigma, m, h, lam, data.variables, presses, n_def)
 
 
-def _robust_se(data: DecisionData, g: np.ndarray, G: int, mu: np.ndarray, sigma: np.ndarray, h: float,
-               lam: float, prior_sd: float) -> np.ndarray:
+def _robust_se(
+    data: DecisionData, g: np.ndarray, G: int, mu: np.ndarray, sigma: np.ndarray, h: float, lam: float, prior_sd: float
+) -> np.ndarray:
     """Cluster-robust standard errors of each group's log critical values (the other parameters
     held at their estimates): A^-1 B A^-1 with A the Fisher information plus the prior's
     precision, B the outer products of the scores summed per approach."""
@@ -241,7 +255,7 @@ def _robust_se(data: DecisionData, g: np.ndarray, G: int, mu: np.ndarray, sigma:
     logF = np.where(defined, special.log_ndtr(u0), 0.0)
     P = np.exp(logF.sum(axis=1))
     p = np.clip(lam + (h - lam) * P, 1e-9, 1 - 1e-9)
-    ratio = np.where(defined, np.exp(-0.5 * u0 ** 2 - 0.5 * np.log(2 * np.pi) - logF), 0.0)
+    ratio = np.where(defined, np.exp(-0.5 * u0**2 - 0.5 * np.log(2 * np.pi) - logF), 0.0)
     dp_dmu = ((h - lam) * P)[:, None] * ratio * (-s / sigma)  # (n, J)
     score = ((data.y - p) / (p * (1 - p)))[:, None] * dp_dmu
     fisher_w = 1.0 / (p * (1 - p))
@@ -251,7 +265,7 @@ def _robust_se(data: DecisionData, g: np.ndarray, G: int, mu: np.ndarray, sigma:
         if not rows.any():
             continue
         D = dp_dmu[rows]
-        A = (D * fisher_w[rows, None]).T @ D + np.eye(J) / prior_sd ** 2
+        A = (D * fisher_w[rows, None]).T @ D + np.eye(J) / prior_sd**2
         sc = pd.DataFrame(score[rows]).groupby(data.approach[rows]).sum().to_numpy()
         B = sc.T @ sc
         try:
@@ -264,8 +278,9 @@ def _robust_se(data: DecisionData, g: np.ndarray, G: int, mu: np.ndarray, sigma:
     return se
 
 
-def following_parameter(following: pd.DataFrame | None, drivers: list[str], seed: int = 0
-                        ) -> tuple[pd.Series, pd.Series, pd.Series]:
+def following_parameter(
+    following: pd.DataFrame | None, drivers: list[str], seed: int = 0
+) -> tuple[pd.Series, pd.Series, pd.Series]:
     """(log headway kept while following, its bootstrap SE, episodes) per driver; NaN with fewer
     than `_MIN_EPISODES` episodes."""
     value = pd.Series(np.nan, index=drivers, dtype=float)
@@ -288,8 +303,9 @@ def following_parameter(following: pd.DataFrame | None, drivers: list[str], seed
     return value, se, count
 
 
-def free_speed_parameter(decisions: pd.DataFrame, drivers: list[str], seed: int = 0
-                         ) -> tuple[pd.Series, pd.Series, pd.Series]:
+def free_speed_parameter(
+    decisions: pd.DataFrame, drivers: list[str], seed: int = 0
+) -> tuple[pd.Series, pd.Series, pd.Series]:
     """(log free speed over the posted limit, its bootstrap SE over recordings, recordings) per
     driver: the median over the driver's recordings. NaN with fewer than `_MIN_RECORDINGS`
     recordings, and for every driver when a recording has no posted limit."""
@@ -299,7 +315,8 @@ def free_speed_parameter(decisions: pd.DataFrame, drivers: list[str], seed: int 
     if "ego_v_free_mps" not in decisions or decisions.empty:
         return value, se, count  # decisions extracted before the free speed was
     per_rec = decisions.groupby("recording_id", sort=True).agg(
-        driver_id=("driver_id", "first"), v=("ego_v_free_mps", "first"), limit=("speed_limit_kph", "first"))
+        driver_id=("driver_id", "first"), v=("ego_v_free_mps", "first"), limit=("speed_limit_kph", "first")
+    )
     limit = per_rec["limit"].to_numpy(dtype=float) / 3.6
     v = per_rec["v"].to_numpy(dtype=float)
     if not np.all(np.isfinite(limit) & (limit > 0)):
@@ -337,8 +354,9 @@ class Behaviour:
         return np.exp(self.values)
 
 
-def driver_behaviour(decisions: pd.DataFrame, following: pd.DataFrame | None, drivers: list[str],
-                     seed: int = 0) -> Behaviour:
+def driver_behaviour(
+    decisions: pd.DataFrame, following: pd.DataFrame | None, drivers: list[str], seed: int = 0
+) -> Behaviour:
     """Each driver's critical values (`fit_gap_model` with one group per driver) and the headway
     it keeps while following."""
     cols = list(PARAMETERS)

@@ -29,8 +29,16 @@ from sklearn.metrics import silhouette_score
 from clustering.consensus import consensus_groups, vote_defensiveness, voters, weight
 from clustering.behaviour import BEHAVIOUR, PARAMETERS, VARIABLES, Behaviour, behaviour_params, decision_data, subset
 from clustering.features import driver_features, transform_features
-from clustering.readings import (ReadingScore, candidate_readings, choose_reading, cluster_reading,
-                                 draw_confidence, most_reliable, parameter_reliability, usable_parameters)
+from clustering.readings import (
+    ReadingScore,
+    candidate_readings,
+    choose_reading,
+    cluster_reading,
+    draw_confidence,
+    most_reliable,
+    parameter_reliability,
+    usable_parameters,
+)
 from clustering.selection import MAX_IMPUTED, choose_features, clustering_rows
 from clustering.styles import StyleClusterer
 from indicators.settings import AUTO_CANDIDATES, INDICATOR_SETS, AnalysisSettings
@@ -72,23 +80,34 @@ class Choice:
     clusterer: StyleClusterer | None  # the chosen behaviour reading's (None for an indicator reading)
 
 
-def indicator_labels(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings,
-                     name: str) -> dict[str, str] | None:
+def indicator_labels(
+    points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings, name: str
+) -> dict[str, str] | None:
     """Styles of the drivers that place the centres, read by indicator set `name` (None: not readable)."""
     s = settings.with_(feature_indicators=INDICATOR_SETS[name])
     feats, _ = driver_features(points, drivers, s)
     rows = clustering_rows(feats, n_dec, s)
     if len(rows) <= s.k or float(feats.loc[rows].isna().to_numpy().mean()) > MAX_IMPUTED:
         return None
-    clf = StyleClusterer(k=s.k, n_init=s.n_init, random_state=s.random_state).fit(transform_features(feats, s).loc[rows])
+    clf = StyleClusterer(k=s.k, n_init=s.n_init, random_state=s.random_state).fit(
+        transform_features(feats, s).loc[rows]
+    )
     return {str(d): clf.names_[i] for d, i in zip(rows, clf.labels_)}
 
 
-def choose(decisions: pd.DataFrame, following: pd.DataFrame | None, points: pd.DataFrame, drivers: list[str],
-           n_dec: pd.Series, behaviour: Behaviour, settings: AnalysisSettings) -> Choice:
+def choose(
+    decisions: pd.DataFrame,
+    following: pd.DataFrame | None,
+    points: pd.DataFrame,
+    drivers: list[str],
+    n_dec: pd.Series,
+    behaviour: Behaviour,
+    settings: AnalysisSettings,
+) -> Choice:
     """The reading of `settings.features` (chosen on held-out behaviour for 'auto' / 'behaviour')."""
-    fit_on = [d for d in drivers if n_dec.get(d, 0) >= settings.min_cluster_decisions] or \
-        [d for d in drivers if n_dec.get(d, 0) > 0]
+    fit_on = [d for d in drivers if n_dec.get(d, 0) >= settings.min_cluster_decisions] or [
+        d for d in drivers if n_dec.get(d, 0) > 0
+    ]
     spec = settings.features
     if spec == RELIABLE:
         return choose_reliable(behaviour, fit_on, settings)
@@ -110,8 +129,9 @@ def choose(decisions: pd.DataFrame, following: pd.DataFrame | None, points: pd.D
         readings, extra = {spec: behaviour_params(spec)}, {}
     else:
         raise ValueError(f"{spec!r} is not a held-out choice")
-    best, scores, clusterers = choose_reading(behaviour, data, fit_on, settings.k, settings.n_init,
-                                              settings.random_state, readings, following, extra)
+    best, scores, clusterers = choose_reading(
+        behaviour, data, fit_on, settings.k, settings.n_init, settings.random_state, readings, following, extra
+    )
     if not best:
         return Choice("", (), [], None)
     chosen = next(s for s in scores if s.name == best)
@@ -133,14 +153,20 @@ def choose_reliable(behaviour: Behaviour, fit_on: list[str], settings: AnalysisS
         clf = cluster_reading(behaviour, ps, fit_on, settings.k, settings.n_init, settings.random_state)
         labels = {d: clf.names_[i] for d, i in zip(fit_on, clf.labels_)}
         clusterers[n] = clf
-        scores.append(ReadingScore(n, ps, np.nan, np.nan, np.nan, True, n == name, labels,
-                                   float(min(rel[p] for p in ps))))
+        scores.append(
+            ReadingScore(n, ps, np.nan, np.nan, np.nan, True, n == name, labels, float(min(rel[p] for p in ps)))
+        )
     return Choice(name, params, scores, clusterers[name])
 
 
-def ranked_readings(points: pd.DataFrame, drivers: list[str], fit_on: list[str], n_dec: pd.Series,
-                    behaviour: Behaviour, settings: AnalysisSettings
-                    ) -> tuple[list[ReadingScore], dict[str, StyleClusterer]]:
+def ranked_readings(
+    points: pd.DataFrame,
+    drivers: list[str],
+    fit_on: list[str],
+    n_dec: pd.Series,
+    behaviour: Behaviour,
+    settings: AnalysisSettings,
+) -> tuple[list[ReadingScore], dict[str, StyleClusterer]]:
     """Every reading, best separated and most stable first: the indicator sets 'auto' weighs (those
     that read the decisions) and the behaviour readings of up to `MAX_READING_SIZE` parameters,
     each scored by silhouette x stability (stability: the share of draws of each driver's
@@ -160,22 +186,43 @@ def ranked_readings(points: pd.DataFrame, drivers: list[str], fit_on: list[str],
             stab = float(draw_confidence(behaviour, fit_on, clf, clf.labels_, settings.random_state).mean())
             labels = {d: clf.names_[i] for d, i in zip(fit_on, clf.labels_)}
             clusterers[BEHAVIOUR + n] = clf
-            scores.append(ReadingScore(BEHAVIOUR + n, ps, np.nan, np.nan, np.nan, False, False, labels,
-                                       silhouette=sil, stability=stab))
+            scores.append(
+                ReadingScore(
+                    BEHAVIOUR + n, ps, np.nan, np.nan, np.nan, False, False, labels, silhouette=sil, stability=stab
+                )
+            )
     _, set_scores = choose_features(points, drivers, n_dec, settings)
     for sc in set_scores:
         if sc.presses_read < settings.min_fit_points or not np.isfinite(sc.score):
             continue
         read = indicator_labels(points, drivers, n_dec, settings, sc.name)
         if read is not None:
-            scores.append(ReadingScore(sc.name, INDICATOR_SETS[sc.name], np.nan, np.nan, np.nan, False, False, read,
-                                       silhouette=sc.silhouette, stability=sc.stability))
+            scores.append(
+                ReadingScore(
+                    sc.name,
+                    INDICATOR_SETS[sc.name],
+                    np.nan,
+                    np.nan,
+                    np.nan,
+                    False,
+                    False,
+                    read,
+                    silhouette=sc.silhouette,
+                    stability=sc.stability,
+                )
+            )
     scores.sort(key=lambda r: -(r.silhouette * np.nan_to_num(r.stability, nan=1.0)))
     return scores, clusterers
 
 
-def choose_separated(points: pd.DataFrame, drivers: list[str], fit_on: list[str], n_dec: pd.Series,
-                     behaviour: Behaviour, settings: AnalysisSettings) -> Choice:
+def choose_separated(
+    points: pd.DataFrame,
+    drivers: list[str],
+    fit_on: list[str],
+    n_dec: pd.Series,
+    behaviour: Behaviour,
+    settings: AnalysisSettings,
+) -> Choice:
     """The best separated and most stable reading (`ranked_readings`); the `PLAUSIBLE_READINGS`
     best are plausible."""
     scores, clusterers = ranked_readings(points, drivers, fit_on, n_dec, behaviour, settings)
@@ -186,8 +233,14 @@ def choose_separated(points: pd.DataFrame, drivers: list[str], fit_on: list[str]
     return Choice(best.name, best.parameters, scores, clusterers.get(best.name))
 
 
-def choose_consensus(points: pd.DataFrame, drivers: list[str], fit_on: list[str], n_dec: pd.Series,
-                     behaviour: Behaviour, settings: AnalysisSettings) -> Choice:
+def choose_consensus(
+    points: pd.DataFrame,
+    drivers: list[str],
+    fit_on: list[str],
+    n_dec: pd.Series,
+    behaviour: Behaviour,
+    settings: AnalysisSettings,
+) -> Choice:
     """The styles the `CONSENSUS_READINGS` best separated readings agree on (`clustering.consensus`).
 
     The voters are the plausible readings. The styles' centres sit in the space of the behaviour
@@ -216,8 +269,9 @@ def choose_consensus(points: pd.DataFrame, drivers: list[str], fit_on: list[str]
         return Choice("", (), [], None)
     _, k, scores, groups = best
     voting = voters(scores)
-    params = tuple(dict.fromkeys(p for r in voting if is_behaviour(r.name) for p in r.parameters)) \
-        or usable_parameters(behaviour, fit_on)
+    params = tuple(dict.fromkeys(p for r in voting if is_behaviour(r.name) for p in r.parameters)) or usable_parameters(
+        behaviour, fit_on
+    )
     clf = StyleClusterer(k=k, random_state=settings.random_state, room=list(params))
     clf.fit_partition(behaviour.values.loc[fit_on, list(params)], groups)
     clf.k_scores_ = k_scores if settings.choose_k else {}
@@ -226,16 +280,21 @@ def choose_consensus(points: pd.DataFrame, drivers: list[str], fit_on: list[str]
     clf.order_by(votes[np.asarray(ids)[clf.order_]])  # named as the voters name their members
     labels = {d: clf.names_[i] for d, i in zip(fit_on, clf.labels_)}
     scores = [replace(r, plausible=i < len(voting)) for i, r in enumerate(scores)]
-    sil = float(silhouette_score(clf.transform(behaviour.values.loc[fit_on, list(params)]), clf.labels_)) \
-        if 1 < len(set(clf.labels_.tolist())) < len(fit_on) else np.nan
+    sil = (
+        float(silhouette_score(clf.transform(behaviour.values.loc[fit_on, list(params)]), clf.labels_))
+        if 1 < len(set(clf.labels_.tolist())) < len(fit_on)
+        else np.nan
+    )
     stab = float(draw_confidence(behaviour, fit_on, clf, clf.labels_, settings.random_state).mean())
-    chosen = ReadingScore(CONSENSUS, params, np.nan, np.nan, np.nan, False, True, labels,
-                          silhouette=sil, stability=stab)
+    chosen = ReadingScore(
+        CONSENSUS, params, np.nan, np.nan, np.nan, False, True, labels, silhouette=sil, stability=stab
+    )
     return Choice(CONSENSUS, params, [chosen, *scores], clf)
 
 
-def silhouette_alternatives(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings,
-                            feature_sets: pd.DataFrame) -> Choice:
+def silhouette_alternatives(
+    points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings, feature_sets: pd.DataFrame
+) -> Choice:
     """The indicator sets 'auto' could as well have chosen (a score within `auto_margin` of the
     chosen set's) as a `Choice`, so that a driver they read otherwise is reported unsure."""
     scored = feature_sets[np.isfinite(feature_sets["score"].astype(float))]
@@ -251,8 +310,11 @@ def silhouette_alternatives(points: pd.DataFrame, drivers: list[str], n_dec: pd.
         labels = indicator_labels(points, drivers, n_dec, settings, r.name) if plausible else None
         if plausible and labels is None:
             continue
-        scores.append(ReadingScore(r.name, INDICATOR_SETS[r.name], np.nan, np.nan, np.nan, plausible, bool(r.chosen),
-                                   labels or {}))
+        scores.append(
+            ReadingScore(
+                r.name, INDICATOR_SETS[r.name], np.nan, np.nan, np.nan, plausible, bool(r.chosen), labels or {}
+            )
+        )
     return Choice(str(chosen["name"]), INDICATOR_SETS.get(str(chosen["name"]), ()), scores, None)
 
 
@@ -269,8 +331,9 @@ def column(param: str) -> str:
     return f"crit_{param}_{'m' if VARIABLES[param][3] == 'm' else 's'}"
 
 
-def assign(choice: Choice, behaviour: Behaviour, drivers: list[str], n_dec: pd.Series,
-           settings: AnalysisSettings) -> tuple[pd.Series, pd.Series, pd.Series]:
+def assign(
+    choice: Choice, behaviour: Behaviour, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings
+) -> tuple[pd.Series, pd.Series, pd.Series]:
     """(style, data confidence, defensiveness) of every driver under a chosen behaviour reading
     ('unassigned' / 0 for drivers with no presses)."""
     clf = choice.clusterer
@@ -284,8 +347,9 @@ def assign(choice: Choice, behaviour: Behaviour, drivers: list[str], n_dec: pd.S
     labels = clf.predict(X)
     chosen = next((s for s in choice.scores if s.chosen), None)
     if chosen is not None:  # drivers that placed the centres keep the style the choice gave them
-        labels = np.array([clf.names_.index(chosen.labels[d]) if d in chosen.labels else lab
-                           for d, lab in zip(rows, labels)])
+        labels = np.array(
+            [clf.names_.index(chosen.labels[d]) if d in chosen.labels else lab for d, lab in zip(rows, labels)]
+        )
     style[rows] = [clf.names_[i] for i in labels]
     conf[rows] = draw_confidence(behaviour, rows, clf, labels, settings.random_state)
     defn[rows] = clf.defensiveness(X)
@@ -316,8 +380,15 @@ def succession(n_presses: int) -> float:
     return (n_presses + 1) / (n_presses + 2)
 
 
-def unsure_reasons(d: str, n_presses: int, data_conf: float, agreement: float, others: list[str],
-                   behaviour: Behaviour, params: tuple[str, ...]) -> str:
+def unsure_reasons(
+    d: str,
+    n_presses: int,
+    data_conf: float,
+    agreement: float,
+    others: list[str],
+    behaviour: Behaviour,
+    params: tuple[str, ...],
+) -> str:
     """Why driver `d`'s style is not sure, in one line ('' when it is)."""
     why = []
     if n_presses < FEW_PRESSES:
@@ -325,8 +396,10 @@ def unsure_reasons(d: str, n_presses: int, data_conf: float, agreement: float, o
     if data_conf < 0.9 and params and d in behaviour.se.index:
         wide = [p for p in params if np.isfinite(behaviour.se.loc[d, p]) and behaviour.se.loc[d, p] > 0.3]
         what = ", ".join(f"{p} x/÷ {np.exp(behaviour.se.loc[d, p]):.1f}" for p in wide)
-        why.append(f"its own estimates leave it in its style in {100 * data_conf:.0f} % of draws"
-                   + (f" ({what})" if what else ""))
+        why.append(
+            f"its own estimates leave it in its style in {100 * data_conf:.0f} % of draws"
+            + (f" ({what})" if what else "")
+        )
     if agreement < 1.0 and others:
         shown = "; ".join(others[:3]) + (f"; {len(others) - 3} more" if len(others) > 3 else "")
         why.append(f"readings as plausible disagree: {shown}")

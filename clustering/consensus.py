@@ -66,8 +66,7 @@ def co_association(readings: Sequence[ReadingScore], drivers: list[str]) -> np.n
     return out
 
 
-def consensus_groups(readings: Sequence[ReadingScore], drivers: list[str], k: int,
-                     method: str = LINKAGE) -> np.ndarray:
+def consensus_groups(readings: Sequence[ReadingScore], drivers: list[str], k: int, method: str = LINKAGE) -> np.ndarray:
     """Group (0 .. k-1, unnamed) of every driver: `method` linkage on 1 - co-association, cut at k."""
     if len(drivers) <= k:
         return np.arange(len(drivers))
@@ -89,4 +88,3 @@ def vote_defensiveness(readings: Sequence[ReadingScore], drivers: list[str], gro
                 score[g] += w * -names.index(r.labels[d]) / max(len(names) - 1, 1)
                 total[g] += w
     return np.divide(score, total, out=np.zeros_like(score), where=total > 0)
-

@@ -82,8 +82,9 @@ def lines_by_row(V: np.ndarray, Y: np.ndarray, method: str) -> tuple[np.ndarray,
             z = np.abs(r) / scale[:, None]
             w = np.where(z <= _HUBER_T, 1.0, _HUBER_T / np.maximum(z, 1e-300)) * W1
             A_new, b_new = _wls(V0, Y0, w)
-            done = (np.all(np.abs(A_new - A) <= 1e-10 * (1 + np.abs(A)))
-                    and np.all(np.abs(b_new - b) <= 1e-10 * (1 + np.abs(b))))
+            done = np.all(np.abs(A_new - A) <= 1e-10 * (1 + np.abs(A))) and np.all(
+                np.abs(b_new - b) <= 1e-10 * (1 + np.abs(b))
+            )
             A, b = A_new, b_new
             if done:
                 break
@@ -162,8 +163,9 @@ def feature_speeds(speeds_mps: np.ndarray, v: np.ndarray, settings: AnalysisSett
     return np.clip(speeds_mps, np.min(v), np.max(v))
 
 
-def group_values(v: np.ndarray, y: np.ndarray, indicator: str, settings: AnalysisSettings,
-                 speeds_mps: np.ndarray) -> tuple[np.ndarray, str]:
+def group_values(
+    v: np.ndarray, y: np.ndarray, indicator: str, settings: AnalysisSettings, speeds_mps: np.ndarray
+) -> tuple[np.ndarray, str]:
     """Feature values of one driver/indicator at `speeds_mps`, in the clustering space
     (log seconds for TTCs when `feature_log`), and a note when not from a line."""
     yt = to_space(y, indicator, settings)
@@ -192,12 +194,13 @@ def to_units(values: np.ndarray, settings: AnalysisSettings) -> np.ndarray:
         n = len(settings.feature_speeds_kph)
         for ii, ind in enumerate(settings.feature_indicators):
             if FEATURE_UNITS[ind] in _LOG_FLOOR:
-                out[:, ii * n:(ii + 1) * n] = np.exp(out[:, ii * n:(ii + 1) * n])
+                out[:, ii * n : (ii + 1) * n] = np.exp(out[:, ii * n : (ii + 1) * n])
     return out
 
 
-def driver_features(points: pd.DataFrame, drivers: list[str],
-                    settings: AnalysisSettings | None = None) -> tuple[pd.DataFrame, dict[str, list[str]]]:
+def driver_features(
+    points: pd.DataFrame, drivers: list[str], settings: AnalysisSettings | None = None
+) -> tuple[pd.DataFrame, dict[str, list[str]]]:
     """Feature table (index driver_id, indicators' units) and per driver the notes on
     features not from a line. `points` is `indicators.stats.indicator_points(decisions)`."""
     settings = settings or AnalysisSettings()
@@ -214,24 +217,25 @@ def driver_features(points: pd.DataFrame, drivers: list[str],
             vals, note = group_values(g.v, g.y, g.indicator, settings, speeds)
             if note:
                 notes[g.driver_id].append(note)
-            values[di, ii * n:(ii + 1) * n] = vals
+            values[di, ii * n : (ii + 1) * n] = vals
             continue
         lines.append((di, ii, g.v, to_space(g.y, g.indicator, settings), fit_method(g.indicator, settings)))
     # all lines of one fit method in one vectorised fit, rows padded with NaN to the longest
     for method in sorted({c[4] for c in lines}):
         same = [c for c in lines if c[4] == method]
         for start in range(0, len(same), 4096):
-            chunk = same[start:start + 4096]
+            chunk = same[start : start + 4096]
             width = max(len(c[2]) for c in chunk)
             V = np.full((len(chunk), width), np.nan)
             Y = np.full((len(chunk), width), np.nan)
             for r, (_, _, v, y, _) in enumerate(chunk):
-                V[r, :len(v)], Y[r, :len(y)] = v, y
+                V[r, : len(v)], Y[r, : len(y)] = v, y
             A, b = lines_by_row(V, Y, method)
             for r, (di, ii, v, _, _) in enumerate(chunk):
-                values[di, ii * n:(ii + 1) * n] = A[r] * feature_speeds(speeds, v, settings) + b[r]
-    feats = pd.DataFrame(to_units(values, settings), index=pd.Index(drivers, name="driver_id"),
-                         columns=feature_names(settings))
+                values[di, ii * n : (ii + 1) * n] = A[r] * feature_speeds(speeds, v, settings) + b[r]
+    feats = pd.DataFrame(
+        to_units(values, settings), index=pd.Index(drivers, name="driver_id"), columns=feature_names(settings)
+    )
     return feats, notes
 
 

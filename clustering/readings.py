@@ -24,8 +24,7 @@ from itertools import combinations
 import numpy as np
 import pandas as pd
 
-from clustering.behaviour import (PARAMETERS, Behaviour, DecisionData, GapModel, fit_gap_model,
-                                  subset)
+from clustering.behaviour import PARAMETERS, Behaviour, DecisionData, GapModel, fit_gap_model, subset
 from clustering.styles import StyleClusterer
 
 #: Held-out folds of each driver's sessions.
@@ -77,8 +76,9 @@ def session_folds(driver: np.ndarray, session: np.ndarray, n_folds: int = FOLDS)
     return fold
 
 
-def following_heldout(following: pd.DataFrame | None, labels: dict[str, str], drivers: list[str],
-                      n_folds: int = FOLDS) -> tuple[np.ndarray, np.ndarray]:
+def following_heldout(
+    following: pd.DataFrame | None, labels: dict[str, str], drivers: list[str], n_folds: int = FOLDS
+) -> tuple[np.ndarray, np.ndarray]:
     """Held-out log-likelihood of every steady-following episode's log headway under its driver's
     style (a normal with the style's mean and the pooled spread, both from the other folds), and
     the episodes' session ids (the unit of the paired comparison). One entry per episode of
@@ -152,15 +152,26 @@ def heldout_loglik(data: DecisionData, labels: dict[str, str], fm: FoldModels) -
         ll = np.full(len(of), np.nan)
         ok = of >= 0
         if ok.any():
-            pooled = GapModel(tuple(drivers), mu, mu, model.sigma, model.m, model.hazard, model.lapse,
-                              model.variables, model.n_presses, model.n_defined)
+            pooled = GapModel(
+                tuple(drivers),
+                mu,
+                mu,
+                model.sigma,
+                model.m,
+                model.hazard,
+                model.lapse,
+                model.variables,
+                model.n_presses,
+                model.n_defined,
+            )
             ll[ok] = pooled.log_likelihood(subset(subset(data, test), ok), of[ok])
         out[np.flatnonzero(test)] = ll
     return out
 
 
-def cluster_reading(behaviour: Behaviour, params: tuple[str, ...], fit_on: list[str], k: int, n_init: int,
-                    random_state: int) -> StyleClusterer:
+def cluster_reading(
+    behaviour: Behaviour, params: tuple[str, ...], fit_on: list[str], k: int, n_init: int, random_state: int
+) -> StyleClusterer:
     """Styles of the drivers `fit_on` read by `params` (k-means on robustly standardised log values),
     named by the centres' mean standardised value (every parameter reads larger = more cautious:
     larger gaps accepted, a leader left further away, a longer headway kept)."""
@@ -199,11 +210,17 @@ def most_reliable(behaviour: Behaviour, drivers: list[str], size: int) -> tuple[
     return tuple(ranked[:size])
 
 
-def choose_reading(behaviour: Behaviour, data: DecisionData, fit_on: list[str], k: int, n_init: int = 20,
-                   random_state: int = 0, candidates: dict[str, tuple[str, ...]] | None = None,
-                   following: pd.DataFrame | None = None,
-                   extra: dict[str, tuple[tuple[str, ...], dict[str, str]]] | None = None
-                   ) -> tuple[str, list[ReadingScore], dict[str, StyleClusterer]]:
+def choose_reading(
+    behaviour: Behaviour,
+    data: DecisionData,
+    fit_on: list[str],
+    k: int,
+    n_init: int = 20,
+    random_state: int = 0,
+    candidates: dict[str, tuple[str, ...]] | None = None,
+    following: pd.DataFrame | None = None,
+    extra: dict[str, tuple[tuple[str, ...], dict[str, str]]] | None = None,
+) -> tuple[str, list[ReadingScore], dict[str, StyleClusterer]]:
     """The reading whose styles best predict held-out behaviour (decisions and, with `following`,
     the headways kept while following), every candidate's score, and the fitted clusterer of each.
 
@@ -243,14 +260,30 @@ def choose_reading(behaviour: Behaviour, data: DecisionData, fit_on: list[str], 
         diff = pd.Series(scored[best][0][both] - ll[both]).groupby(approach).sum()
         se = float(np.sqrt(len(diff)) * diff.std(ddof=1)) if len(diff) > 1 else 0.0
         plausible = name == best or (totals[best] - totals[name]) <= NOISE_SE * se
-        out.append(ReadingScore(name, candidates[name], totals[name], totals[name] / max(int(both.sum()), 1), se,
-                                bool(plausible), name == best, labels))
+        out.append(
+            ReadingScore(
+                name,
+                candidates[name],
+                totals[name],
+                totals[name] / max(int(both.sum()), 1),
+                se,
+                bool(plausible),
+                name == best,
+                labels,
+            )
+        )
     out.sort(key=lambda r: -r.heldout_ll)
     return best, out, clusterers
 
 
-def draw_confidence(behaviour: Behaviour, drivers: list[str], clf: StyleClusterer, labels: np.ndarray,
-                    random_state: int = 0, draws: int = CONFIDENCE_DRAWS) -> np.ndarray:
+def draw_confidence(
+    behaviour: Behaviour,
+    drivers: list[str],
+    clf: StyleClusterer,
+    labels: np.ndarray,
+    random_state: int = 0,
+    draws: int = CONFIDENCE_DRAWS,
+) -> np.ndarray:
     """Share of draws of each driver's parameters (normal around the estimate, its standard error)
     that the clusterer assigns to the driver's own style."""
     rng = np.random.default_rng(random_state)

@@ -74,6 +74,7 @@ def resolve_features(spec: str) -> tuple[str, tuple[str, ...]]:
         return spec, ()
     if spec.startswith("behaviour:"):
         from clustering.behaviour import behaviour_params
+
         try:
             return spec, behaviour_params(spec)
         except ValueError as exc:
@@ -81,9 +82,12 @@ def resolve_features(spec: str) -> tuple[str, tuple[str, ...]]:
     names = tuple(s.strip() for s in spec.split(",") if s.strip())
     unknown = [n for n in names if n not in FEATURE_UNITS]
     if not names or unknown:
-        raise SettingError(f"{{0}} {spec!r}: use auto, heldout, behaviour, behaviour:<parameters>, "
-                           f"{', '.join(INDICATOR_SETS)} or a comma-separated list of indicators "
-                           f"({', '.join(FEATURE_UNITS)})", "features")
+        raise SettingError(
+            f"{{0}} {spec!r}: use auto, heldout, behaviour, behaviour:<parameters>, "
+            f"{', '.join(INDICATOR_SETS)} or a comma-separated list of indicators "
+            f"({', '.join(FEATURE_UNITS)})",
+            "features",
+        )
     return ",".join(names), names
 
 
@@ -99,14 +103,28 @@ def clustering_rows(feats: pd.DataFrame, n_dec: pd.Series, settings: AnalysisSet
 def presses_read(points: pd.DataFrame, drivers: list[str], indicators: tuple[str, ...]) -> float:
     """At how many presses the median driver has a defined value of the sparsest of `indicators`
     (indicators not read at presses, thw_follow, do not count; inf when none is)."""
-    counts = [float(points[(points["indicator"] == ind) & points["used"]].groupby("driver_id").size()
-                    .reindex(drivers, fill_value=0).median())
-              for ind in indicators if ind not in TRAIT_UNITS]
+    counts = [
+        float(
+            points[(points["indicator"] == ind) & points["used"]]
+            .groupby("driver_id")
+            .size()
+            .reindex(drivers, fill_value=0)
+            .median()
+        )
+        for ind in indicators
+        if ind not in TRAIT_UNITS
+    ]
     return min(counts, default=np.inf)
 
 
-def score_feature_set(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings,
-                      name: str, indicators: tuple[str, ...]) -> FeatureSetScore:
+def score_feature_set(
+    points: pd.DataFrame,
+    drivers: list[str],
+    n_dec: pd.Series,
+    settings: AnalysisSettings,
+    name: str,
+    indicators: tuple[str, ...],
+) -> FeatureSetScore:
     """Cluster the drivers on `indicators` and measure separation and stability."""
     s = settings.with_(feature_indicators=tuple(indicators))
     feats, _ = driver_features(points, drivers, s)
@@ -116,8 +134,9 @@ def score_feature_set(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series
     if len(rows) < 2 or imputed > MAX_IMPUTED:
         return FeatureSetScore(name, tuple(indicators), len(rows), np.nan, np.nan, -np.inf, imputed, read)
     Xt = transform_features(feats, s).loc[rows]
-    clf = StyleClusterer(k=s.k, choose_k=s.choose_k, k_range=s.k_range, n_init=s.n_init,
-                         random_state=s.random_state).fit(Xt)
+    clf = StyleClusterer(
+        k=s.k, choose_k=s.choose_k, k_range=s.k_range, n_init=s.n_init, random_state=s.random_state
+    ).fit(Xt)
     labels = clf.labels_
     n_labels = len(set(labels.tolist()))
     sil = float(silhouette_score(clf.transform(Xt), labels)) if 2 <= n_labels <= len(rows) - 1 else 0.0
@@ -128,16 +147,28 @@ def score_feature_set(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series
     return FeatureSetScore(name, tuple(indicators), clf.k_, sil, stab, sil * stab, imputed, read)
 
 
-def choose_features(points: pd.DataFrame, drivers: list[str], n_dec: pd.Series, settings: AnalysisSettings,
-                    candidates: tuple[str, ...] = AUTO_CANDIDATES) -> tuple[str, list[FeatureSetScore]]:
+def choose_features(
+    points: pd.DataFrame,
+    drivers: list[str],
+    n_dec: pd.Series,
+    settings: AnalysisSettings,
+    candidates: tuple[str, ...] = AUTO_CANDIDATES,
+) -> tuple[str, list[FeatureSetScore]]:
     """The candidate set with the best score among those that read the decisions (`presses_read` at
     least `min_fit_points`; all of them when none does), and every candidate's score (in
     `candidates` order)."""
     scores = [score_feature_set(points, drivers, n_dec, settings, c, INDICATOR_SETS[c]) for c in candidates]
-    eligible = ([i for i, sc in enumerate(scores) if sc.presses_read >= settings.min_fit_points]
-                or list(range(len(scores))))
+    eligible = [i for i, sc in enumerate(scores) if sc.presses_read >= settings.min_fit_points] or list(
+        range(len(scores))
+    )
     best = max(eligible, key=lambda i: (scores[i].score, -i))
     first = scores[0].score
-    if best and 0 in eligible and np.isfinite(first) and first > 0 and scores[best].score < settings.auto_margin * first:
+    if (
+        best
+        and 0 in eligible
+        and np.isfinite(first)
+        and first > 0
+        and scores[best].score < settings.auto_margin * first
+    ):
         best = 0  # not clearly better than the study's own reading: keep it
     return scores[best].name, scores

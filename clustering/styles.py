@@ -56,9 +56,16 @@ class StyleClusterer:
         which the styles are ordered and named; None: every feature whose name ends in `_s` or `_m`.
     """
 
-    def __init__(self, k: int = 3, choose_k: str | None = None, k_range: tuple[int, int] = (2, 6),
-                 n_init: int = 50, random_state: int = 0, bic_variance_floor: float = 0.05,
-                 room: list[str] | None = None) -> None:
+    def __init__(
+        self,
+        k: int = 3,
+        choose_k: str | None = None,
+        k_range: tuple[int, int] = (2, 6),
+        n_init: int = 50,
+        random_state: int = 0,
+        bic_variance_floor: float = 0.05,
+        room: list[str] | None = None,
+    ) -> None:
         self.k = k
         self.room = room
         self.choose_k = choose_k
@@ -91,8 +98,13 @@ class StyleClusterer:
                 scores[k] = float(silhouette_score(Z, labels)) if len(set(labels)) > 1 else -1.0
             elif self.choose_k == "bic":
                 with threadpool_limits(1):
-                    gm = GaussianMixture(k, covariance_type="diag", n_init=5, random_state=self.random_state,
-                                         reg_covar=self.bic_variance_floor).fit(Z)
+                    gm = GaussianMixture(
+                        k,
+                        covariance_type="diag",
+                        n_init=5,
+                        random_state=self.random_state,
+                        reg_covar=self.bic_variance_floor,
+                    ).fit(Z)
                 scores[k] = float(gm.bic(Z))
             else:
                 raise ValueError(f"unknown choose_k {self.choose_k!r}: use 'silhouette' or 'bic'")
@@ -158,9 +170,9 @@ class StyleClusterer:
         # eigenvalues rather than the number of columns (which would make it overconfident).
         resid = Z - centres[labels]
         eig = np.clip(np.linalg.eigvalsh(resid.T @ resid / max(len(Z), 1)), 0, None)
-        p_eff = float(eig.sum() ** 2 / (eig ** 2).sum()) if (eig ** 2).sum() > 0 else 1.0
+        p_eff = float(eig.sum() ** 2 / (eig**2).sum()) if (eig**2).sum() > 0 else 1.0
         self.effective_dims_ = p_eff
-        inertia = float((resid ** 2).sum())
+        inertia = float((resid**2).sum())
         self.sigma2_ = max(inertia / max(Z.shape[0] * p_eff, 1e-9), 1e-6)
         self.labels_, self.confidence_, self.margin_ = self._assign(Z)
         return self

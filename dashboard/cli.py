@@ -40,12 +40,33 @@ def allowed_hosts(host: str) -> list[str]:
 def streamlit_command(port: int, host: str, workspace: Path) -> list[str]:
     """The `streamlit run` command line serving the app (headless, no usage statistics, own hosts only)."""
     hosts = [arg for name in allowed_hosts(host) for arg in ("--server.allowedHosts", name)]
-    return [sys.executable, "-m", "streamlit", "run", str(APP), *hosts,
-            "--server.headless", "true", "--server.port", str(port), "--server.address", host,
-            "--server.maxUploadSize", str(MAX_UPLOAD_MB), "--server.fileWatcherType", "none",
-            "--browser.gatherUsageStats", "false", "--client.toolbarMode", "viewer",
-            "--server.enableStaticServing", "true",  # the documentation site the help links open (docs_site.py)
-            "--", "--workspace", str(workspace)]
+    return [
+        sys.executable,
+        "-m",
+        "streamlit",
+        "run",
+        str(APP),
+        *hosts,
+        "--server.headless",
+        "true",
+        "--server.port",
+        str(port),
+        "--server.address",
+        host,
+        "--server.maxUploadSize",
+        str(MAX_UPLOAD_MB),
+        "--server.fileWatcherType",
+        "none",
+        "--browser.gatherUsageStats",
+        "false",
+        "--client.toolbarMode",
+        "viewer",
+        "--server.enableStaticServing",
+        "true",  # the documentation site the help links open (docs_site.py)
+        "--",
+        "--workspace",
+        str(workspace),
+    ]
 
 
 def _build_docs() -> None:
@@ -62,8 +83,9 @@ def _build_docs() -> None:
 def dashboard_command(
     workspace: WorkspaceOpt = DEFAULT_WS,
     port: Annotated[int, typer.Option("--port", "-p", help="TCP port to serve on.")] = 8501,
-    host: Annotated[str, typer.Option("--host", help="Address to listen on (127.0.0.1: this machine only).")]
-    = "127.0.0.1",
+    host: Annotated[
+        str, typer.Option("--host", help="Address to listen on (127.0.0.1: this machine only).")
+    ] = "127.0.0.1",
     as_json: JsonOpt = False,
 ) -> None:
     """Serve the dashboard until interrupted; prints the URL to open."""
@@ -82,8 +104,9 @@ def dashboard_command(
         console.print(f"laneprint dashboard on [bold]{url}[/bold] (workspace {ws.root}); Ctrl-C to stop")
     threading.Thread(target=_build_docs, daemon=True).start()  # the help links' pages, while the server starts
     env = dict(os.environ, LANEPRINT_WORKSPACE=str(ws.root))
-    proc = subprocess.Popen(streamlit_command(port, host, ws.root), env=env,
-                            stdout=subprocess.DEVNULL if as_json else None)
+    proc = subprocess.Popen(
+        streamlit_command(port, host, ws.root), env=env, stdout=subprocess.DEVNULL if as_json else None
+    )
     signal.signal(signal.SIGTERM, lambda *_: proc.terminate())  # stop the server with us
     try:
         code = proc.wait()

@@ -39,8 +39,7 @@ LINKS: dict[str, tuple[str, str]] = {
     "used_values": ("concepts/indicators#which-values-the-statistics-use", "Which values the statistics use"),
     "styles": ("concepts/styles", "How laneprint reads styles"),
     "readings": ("concepts/styles#choosing-a-reading-by-what-styles-are-for", "Readings of the styles"),
-    "behaviour": ("concepts/styles#behaviour-parameters-what-a-driver-needs-before-it-goes",
-                  "Behaviour parameters"),
+    "behaviour": ("concepts/styles#behaviour-parameters-what-a-driver-needs-before-it-goes", "Behaviour parameters"),
     "confidence": ("concepts/styles#confidence-and-why-a-driver-is-unsure", "Confidence"),
     "formulations": ("concepts/formulations", "Formulations of the decision"),
     "agents": ("concepts/agents", "Agents and learners"),
@@ -115,8 +114,14 @@ def build(site: Path | None = None, root: Path | None = None, timeout_s: float =
     tmp = site.with_name(f".{site.name}.tmp-{uuid.uuid4().hex[:8]}")
     env = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}
     try:
-        res = subprocess.run([sys.executable, "-m", "mkdocs", "build", "-q", "--no-directory-urls", "-d", str(tmp)],
-                             cwd=root, capture_output=True, text=True, timeout=timeout_s, env=env)
+        res = subprocess.run(
+            [sys.executable, "-m", "mkdocs", "build", "-q", "--no-directory-urls", "-d", str(tmp)],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=timeout_s,
+            env=env,
+        )
         if res.returncode or not built(tmp):
             return f"mkdocs build failed: {(res.stderr or res.stdout).strip()[-500:]}"
         old = site.with_name(f".{site.name}.old-{uuid.uuid4().hex[:8]}")

@@ -69,24 +69,28 @@ def _thin(df: pd.DataFrame, max_points: int = MAX_POINTS) -> pd.DataFrame:
 
 def recording_timeline(ego: pd.DataFrame, traffic: pd.DataFrame, title: str = "") -> go.Figure:
     """Ego speed, lane and gaps to the ego-lane leader/follower over time, presses marked."""
-    fig = make_subplots(rows=3, cols=1, shared_xaxes=True, vertical_spacing=0.05,
-                        row_heights=[0.4, 0.2, 0.4])
+    fig = make_subplots(rows=3, cols=1, shared_xaxes=True, vertical_spacing=0.05, row_heights=[0.4, 0.2, 0.4])
     e = _thin(ego)
     fig.add_trace(go.Scatter(x=e["t_s"], y=e["ego_v_mps"], name="ego speed", mode="lines"), row=1, col=1)
-    fig.add_trace(go.Scatter(x=e["t_s"], y=e["ego_lane"], name="ego lane", mode="lines",
-                             line_shape="hv"), row=2, col=1)
+    fig.add_trace(go.Scatter(x=e["t_s"], y=e["ego_lane"], name="ego lane", mode="lines", line_shape="hv"), row=2, col=1)
     gaps = _thin(lane_gaps(ego, traffic))
-    fig.add_trace(go.Scatter(x=gaps["t_s"], y=gaps["lead_gap_m"], name="gap to leader", mode="lines"),
-                  row=3, col=1)
-    fig.add_trace(go.Scatter(x=gaps["t_s"], y=gaps["follow_gap_m"], name="gap to follower", mode="lines"),
-                  row=3, col=1)
+    fig.add_trace(go.Scatter(x=gaps["t_s"], y=gaps["lead_gap_m"], name="gap to leader", mode="lines"), row=3, col=1)
+    fig.add_trace(go.Scatter(x=gaps["t_s"], y=gaps["follow_gap_m"], name="gap to follower", mode="lines"), row=3, col=1)
     presses = press_times(ego)
     if len(presses):
-        fig.add_trace(go.Scatter(
-            x=presses["t_s"], y=presses["ego_v_mps"], mode="markers", name="button press",
-            marker=dict(symbol="triangle-down", size=11, color="crimson"),
-            text=[f"press {i + 1} {d}".strip() for i, d in enumerate(presses["direction"])],
-            hovertemplate="%{text}<br>t = %{x:.2f} s<br>v = %{y:.2f} m/s<extra></extra>"), row=1, col=1)
+        fig.add_trace(
+            go.Scatter(
+                x=presses["t_s"],
+                y=presses["ego_v_mps"],
+                mode="markers",
+                name="button press",
+                marker=dict(symbol="triangle-down", size=11, color="crimson"),
+                text=[f"press {i + 1} {d}".strip() for i, d in enumerate(presses["direction"])],
+                hovertemplate="%{text}<br>t = %{x:.2f} s<br>v = %{y:.2f} m/s<extra></extra>",
+            ),
+            row=1,
+            col=1,
+        )
         for t in presses["t_s"]:
             for row in (1, 2, 3):
                 fig.add_vline(x=float(t), line=dict(color="crimson", width=1, dash="dot"), row=row, col=1)
@@ -94,13 +98,19 @@ def recording_timeline(ego: pd.DataFrame, traffic: pd.DataFrame, title: str = ""
     fig.update_yaxes(title_text="lane [index, 0 = right]", dtick=1, row=2, col=1)
     fig.update_yaxes(title_text="gap in ego lane [m]", row=3, col=1)
     fig.update_xaxes(title_text="time [s]", row=3, col=1)
-    fig.update_layout(title=title or None, height=640, margin=dict(t=40 if title else 20),
-                      legend=dict(orientation="h", y=-0.12))
+    fig.update_layout(
+        title=title or None, height=640, margin=dict(t=40 if title else 20), legend=dict(orientation="h", y=-0.12)
+    )
     return fig
 
 
-def runs_curves(metrics: dict[str, pd.DataFrame], column: str, label: str | None = None, smoothing: float = 0.95,
-                max_points: int = MAX_CURVE_POINTS) -> go.Figure:
+def runs_curves(
+    metrics: dict[str, pd.DataFrame],
+    column: str,
+    label: str | None = None,
+    smoothing: float = 0.95,
+    max_points: int = MAX_CURVE_POINTS,
+) -> go.Figure:
     """One metric per episode for several runs on one plot, smoothed as TensorBoard does (run comparison);
     each smoothed curve (computed on every episode) is drawn at `max_points` points at most, as a line
     through the episodes that have a value (a run's loss is empty until learning starts and on episodes
@@ -111,10 +121,15 @@ def runs_curves(metrics: dict[str, pd.DataFrame], column: str, label: str | None
             y = ema_smooth(df[column], smoothing)
             ok = np.flatnonzero(np.isfinite(y))
             thin = ok[even_indices(len(ok), max_points)]
-            fig.add_trace(go.Scatter(x=df["episode"].to_numpy()[thin], y=y[thin], mode="lines", name=run_id,
-                                     connectgaps=True))
-    fig.update_layout(xaxis_title=EPISODE_LABEL, yaxis_title=label or CURVE_LABELS.get(column, column), height=360,
-                      legend=dict(orientation="h", y=-0.25))
+            fig.add_trace(
+                go.Scatter(x=df["episode"].to_numpy()[thin], y=y[thin], mode="lines", name=run_id, connectgaps=True)
+            )
+    fig.update_layout(
+        xaxis_title=EPISODE_LABEL,
+        yaxis_title=label or CURVE_LABELS.get(column, column),
+        height=360,
+        legend=dict(orientation="h", y=-0.25),
+    )
     return fig
 
 
@@ -132,13 +147,15 @@ def fit_title(fig: go.Figure, width_chars: int = 95) -> go.Figure:
     head, *rest = title.split(" — ")
     heads = textwrap.wrap(head, width_chars) or [""]
     lines = [ln for part in rest for ln in textwrap.wrap(part, int(width_chars * 1.3))]
-    text = "<br>".join(heads) + ("<br><span style='font-size:12px'>" + "<br>".join(lines) + "</span>"
-                                 if lines else "")
+    text = "<br>".join(heads) + ("<br><span style='font-size:12px'>" + "<br>".join(lines) + "</span>" if lines else "")
     out = go.Figure(fig)
     top = 40 + 22 * len(heads) + 16 * len(lines)
-    out.update_layout(title=dict(text=text, x=0, xanchor="left", xref="container", y=1, yanchor="top",
-                                 yref="container", pad=dict(t=14, l=8)),
-                      margin=dict(t=max(top, (fig.layout.margin.t or 0))))
+    out.update_layout(
+        title=dict(
+            text=text, x=0, xanchor="left", xref="container", y=1, yanchor="top", yref="container", pad=dict(t=14, l=8)
+        ),
+        margin=dict(t=max(top, (fig.layout.margin.t or 0))),
+    )
     return out
 
 
@@ -167,11 +184,22 @@ def compact(fig: go.Figure, height: int = 440, width_chars: int = 58) -> go.Figu
     # its height (a legend Plotly fits by itself shrinks the plot until the legend covers the axis title)
     bottom = 70 + 22 * legend_entries(fig)
     plot_px = height - 90
-    fig.update_layout(title=dict(text=text, font=dict(size=13), x=0, xanchor="left", xref="container",
-                                 y=1, yanchor="top", yref="container", pad=dict(t=18, l=8)),
-                      legend=dict(orientation="v", yanchor="top", y=-60 / plot_px, x=0, font=dict(size=11),
-                                  tracegroupgap=0),
-                      height=plot_px + top + bottom, margin=dict(l=10, r=10, t=top, b=bottom))
+    fig.update_layout(
+        title=dict(
+            text=text,
+            font=dict(size=13),
+            x=0,
+            xanchor="left",
+            xref="container",
+            y=1,
+            yanchor="top",
+            yref="container",
+            pad=dict(t=18, l=8),
+        ),
+        legend=dict(orientation="v", yanchor="top", y=-60 / plot_px, x=0, font=dict(size=11), tracegroupgap=0),
+        height=plot_px + top + bottom,
+        margin=dict(l=10, r=10, t=top, b=bottom),
+    )
     return fig
 
 
@@ -194,8 +222,13 @@ def bare_table(fig: go.Figure, n_rows: int) -> go.Figure:
 def k_scores(scores: pd.DataFrame, method: str) -> go.Figure:
     """The score of each k tried when k was chosen automatically; the chosen one marked."""
     fig = go.Figure(go.Scatter(x=scores["k"], y=scores["score"], mode="lines+markers", name=method))
-    fig.update_layout(xaxis_title="number of styles k [-]", yaxis_title=f"{method} score [-]", height=300,
-                      xaxis=dict(dtick=1), margin=dict(t=20))
+    fig.update_layout(
+        xaxis_title="number of styles k [-]",
+        yaxis_title=f"{method} score [-]",
+        height=300,
+        xaxis=dict(dtick=1),
+        margin=dict(t=20),
+    )
     return fig
 
 
@@ -219,8 +252,9 @@ def _error_bars(rows: list[dict | None], key: str, ci_key: str, scale: float) ->
     return dict(type="data", symmetric=False, array=plus, arrayminus=minus, thickness=1.5, width=6)
 
 
-def heldout_vs_insample(held_out: list[dict] | None, in_sample: list[dict] | None = None,
-                        policies: tuple[str, ...] = POLICIES) -> go.Figure:
+def heldout_vs_insample(
+    held_out: list[dict] | None, in_sample: list[dict] | None = None, policies: tuple[str, ...] = POLICIES
+) -> go.Figure:
     """Balanced accuracy and timing error per policy: in-sample bars next to held-out bars with 95 % intervals.
 
     `held_out`: a cross-validation's `summary` (one dict per policy with
@@ -230,28 +264,53 @@ def heldout_vs_insample(held_out: list[dict] | None, in_sample: list[dict] | Non
     """
     held, ins = _by_policy(held_out), _by_policy(in_sample)
     names = [p for p in policies if p in held or p in ins]
-    fig = make_subplots(rows=1, cols=2, horizontal_spacing=0.12,
-                        subplot_titles=("balanced accuracy (higher is better)", "timing error (lower is better)"))
-    panels = ((1, "balanced_accuracy", "balanced_accuracy_ci", 100.0, "%{y:.1f} %"),
-              (2, "timing_mae_s", "timing_mae_ci", 1.0, "%{y:.2f} s"))
+    fig = make_subplots(
+        rows=1,
+        cols=2,
+        horizontal_spacing=0.12,
+        subplot_titles=("balanced accuracy (higher is better)", "timing error (lower is better)"),
+    )
+    panels = (
+        (1, "balanced_accuracy", "balanced_accuracy_ci", 100.0, "%{y:.1f} %"),
+        (2, "timing_mae_s", "timing_mae_ci", 1.0, "%{y:.2f} s"),
+    )
     for col, key, ci_key, scale, fmt in panels:
         if in_sample is not None:
-            fig.add_trace(go.Bar(
-                x=names, y=[_scaled(ins.get(p), key, scale) for p in names], name="in-sample",
-                marker_color=IN_SAMPLE_COLOUR, legendgroup="in", showlegend=col == 1,
-                hovertemplate=f"%{{x}} in-sample: {fmt}<extra></extra>"), row=1, col=col)
+            fig.add_trace(
+                go.Bar(
+                    x=names,
+                    y=[_scaled(ins.get(p), key, scale) for p in names],
+                    name="in-sample",
+                    marker_color=IN_SAMPLE_COLOUR,
+                    legendgroup="in",
+                    showlegend=col == 1,
+                    hovertemplate=f"%{{x}} in-sample: {fmt}<extra></extra>",
+                ),
+                row=1,
+                col=col,
+            )
         rows = [held.get(p) for p in names]
-        fig.add_trace(go.Bar(
-            x=names, y=[_scaled(r, key, scale) for r in rows], name="held out (95 % interval)",
-            marker_color=HELD_OUT_COLOUR, legendgroup="out", showlegend=col == 1,
-            error_y=_error_bars(rows, key, ci_key, scale),
-            hovertemplate=f"%{{x}} held out: {fmt}<extra></extra>"), row=1, col=col)
+        fig.add_trace(
+            go.Bar(
+                x=names,
+                y=[_scaled(r, key, scale) for r in rows],
+                name="held out (95 % interval)",
+                marker_color=HELD_OUT_COLOUR,
+                legendgroup="out",
+                showlegend=col == 1,
+                error_y=_error_bars(rows, key, ci_key, scale),
+                hovertemplate=f"%{{x}} held out: {fmt}<extra></extra>",
+            ),
+            row=1,
+            col=col,
+        )
     fig.update_yaxes(title_text="balanced accuracy [%]", range=[0, 105], row=1, col=1)
     fig.update_yaxes(title_text="timing MAE [s]", rangemode="tozero", row=1, col=2)
     fig.update_xaxes(title_text="policy", row=1, col=1)
     fig.update_xaxes(title_text="policy", row=1, col=2)
-    fig.update_layout(barmode="group", height=380, margin=dict(t=40),
-                      legend=dict(orientation="h", yanchor="top", y=-0.22, x=0))
+    fig.update_layout(
+        barmode="group", height=380, margin=dict(t=40), legend=dict(orientation="h", yanchor="top", y=-0.22, x=0)
+    )
     return fig
 
 
@@ -264,14 +323,25 @@ def crossval_folds(per_fold: list[dict] | None, policies: tuple[str, ...] = POLI
         for p in policies:
             col = f"{p}_balanced_accuracy"
             if col in df:
-                fig.add_trace(go.Scatter(
-                    x=df["fold"] + 1, y=pd.to_numeric(df[col], errors="coerce") * 100.0, mode="lines+markers",
-                    name=p, marker=dict(color=POLICY_COLOURS.get(p), size=9), line=dict(width=1),
-                    customdata=df.get("n_decisions"),
-                    hovertemplate=f"{p}, fold %{{x}}: %{{y:.1f}} % (%{{customdata}} decisions)<extra></extra>"))
-    fig.update_layout(xaxis=dict(title="held-out fold [-]", dtick=1), height=320, margin=dict(t=20),
-                      yaxis=dict(title="balanced accuracy [%]", range=[0, 105]),
-                      legend=dict(orientation="h", yanchor="top", y=-0.25, x=0))
+                fig.add_trace(
+                    go.Scatter(
+                        x=df["fold"] + 1,
+                        y=pd.to_numeric(df[col], errors="coerce") * 100.0,
+                        mode="lines+markers",
+                        name=p,
+                        marker=dict(color=POLICY_COLOURS.get(p), size=9),
+                        line=dict(width=1),
+                        customdata=df.get("n_decisions"),
+                        hovertemplate=f"{p}, fold %{{x}}: %{{y:.1f}} % (%{{customdata}} decisions)<extra></extra>",
+                    )
+                )
+    fig.update_layout(
+        xaxis=dict(title="held-out fold [-]", dtick=1),
+        height=320,
+        margin=dict(t=20),
+        yaxis=dict(title="balanced accuracy [%]", range=[0, 105]),
+        legend=dict(orientation="h", yanchor="top", y=-0.25, x=0),
+    )
     return fig
 
 
@@ -289,26 +359,38 @@ def fleet_agreement(table: pd.DataFrame, policies: tuple[str, ...] = POLICIES) -
         return fig
     cols = [f"{p}_balanced_accuracy" for p in policies]
     per = done.groupby("target", sort=False).agg(
-        **{c: (c, "mean") for c in cols}, seeds=("seed", "count"),
-        meets=("meets_target", lambda s: bool((s == True).all())))  # noqa: E712
+        **{c: (c, "mean") for c in cols},
+        seeds=("seed", "count"),
+        meets=("meets_target", lambda s: bool((s == True).all())),  # noqa: E712
+    )
     per = per.sort_values("agent_balanced_accuracy")
     names = per.index.astype(str)
     for p, c in zip(policies, cols):
         if per[c].notna().any():
             open_ = p == "agent"
-            fig.add_trace(go.Scatter(
-                x=per[c] * 100.0, y=names, mode="markers", name="agent (open: misses its target)" if open_ else p,
-                marker=dict(color=POLICY_COLOURS.get(p), symbol=[
-                    FLEET_SYMBOLS[p] + ("" if not open_ or m else "-open") for m in per["meets"]], size=9,
-                    line=dict(width=1.5, color=POLICY_COLOURS.get(p))),
-                customdata=np.c_[per["seeds"]],
-                hovertemplate=f"%{{y}}: {p} %{{x:.1f}} % (mean of %{{customdata[0]}} seeds)<extra></extra>"))
+            fig.add_trace(
+                go.Scatter(
+                    x=per[c] * 100.0,
+                    y=names,
+                    mode="markers",
+                    name="agent (open: misses its target)" if open_ else p,
+                    marker=dict(
+                        color=POLICY_COLOURS.get(p),
+                        symbol=[FLEET_SYMBOLS[p] + ("" if not open_ or m else "-open") for m in per["meets"]],
+                        size=9,
+                        line=dict(width=1.5, color=POLICY_COLOURS.get(p)),
+                    ),
+                    customdata=np.c_[per["seeds"]],
+                    hovertemplate=f"%{{y}}: {p} %{{x:.1f}} % (mean of %{{customdata[0]}} seeds)<extra></extra>",
+                )
+            )
     height = int(min(3000, max(320, 16 * len(per) + 140)))
-    fig.update_layout(xaxis=dict(title="balanced accuracy on the target's decisions [%] (in-sample)",
-                                 side="top"),
-                      yaxis=dict(title="target, by agent BA", type="category", tickfont=dict(size=10),
-                                 range=[-0.6, len(per) - 0.4]),
-                      height=height, margin=dict(t=100, b=20),
-                      # above the x axis drawn on top (its ticks and title take ~55 px)
-                      legend=dict(orientation="h", yanchor="bottom", y=1.0 + 58 / (height - 120), x=0))
+    fig.update_layout(
+        xaxis=dict(title="balanced accuracy on the target's decisions [%] (in-sample)", side="top"),
+        yaxis=dict(title="target, by agent BA", type="category", tickfont=dict(size=10), range=[-0.6, len(per) - 0.4]),
+        height=height,
+        margin=dict(t=100, b=20),
+        # above the x axis drawn on top (its ticks and title take ~55 px)
+        legend=dict(orientation="h", yanchor="bottom", y=1.0 + 58 / (height - 120), x=0),
+    )
     return fig

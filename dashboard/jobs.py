@@ -70,9 +70,22 @@ def train_command(req: TrainRequest, workspace: Path, run_id: str) -> list[str]:
     """The `laneprint train` command line for `req` (run with this interpreter)."""
     if req.target not in ("style", "driver"):
         raise ValueError(f"target must be 'style' or 'driver', not {req.target!r}")
-    cmd = [sys.executable, "-m", "laneprint.app.cli", "train", f"--{req.target}", req.name,
-           "--episodes", str(int(req.episodes)), "--seed", str(int(req.seed)),
-           "--run-id", run_id, "--workspace", str(workspace)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "laneprint.app.cli",
+        "train",
+        f"--{req.target}",
+        req.name,
+        "--episodes",
+        str(int(req.episodes)),
+        "--seed",
+        str(int(req.seed)),
+        "--run-id",
+        run_id,
+        "--workspace",
+        str(workspace),
+    ]
     if req.reward:
         cmd += ["--reward", req.reward]
     if req.lines:
@@ -91,8 +104,10 @@ def identical_active_run(ws: Workspace, req: TrainRequest) -> str:
         if job.get("request") == json.loads(json.dumps(want)):
             rid = job.get("run_id") or path.stem
             if run_status(ws, rid).get("state") in ACTIVE_STATES:
-                return (f"run {rid} with the same target, episodes, seed and settings is already under way "
-                        "(change the seed to train a second agent)")
+                return (
+                    f"run {rid} with the same target, episodes, seed and settings is already under way "
+                    "(change the seed to train a second agent)"
+                )
     return ""
 
 
@@ -108,18 +123,31 @@ def launch(ws: Workspace, req: TrainRequest, run_id: str | None = None) -> str:
     return run_id
 
 
-def _spawn(folder: Path, job_id: str, cmd: list[str], cwd: Path, record: dict[str, Any],
-           env: dict[str, str] | None = None) -> int:
+def _spawn(
+    folder: Path, job_id: str, cmd: list[str], cwd: Path, record: dict[str, Any], env: dict[str, str] | None = None
+) -> int:
     """Start `cmd` in its own session, output to `folder/<job_id>.log`; record it in `<job_id>.json`."""
     folder.mkdir(parents=True, exist_ok=True)
     with open(folder / f"{job_id}.log", "wb") as log:
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                start_new_session=True, cwd=cwd, env=env)
+        proc = subprocess.Popen(
+            cmd,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
+            cwd=cwd,
+            env=env,
+        )
     _CHILDREN[proc.pid] = proc
-    atomic_write_json(folder / f"{job_id}.json", {
-        **record, "pid": proc.pid, "command": cmd,
-        "launched_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-    })
+    atomic_write_json(
+        folder / f"{job_id}.json",
+        {
+            **record,
+            "pid": proc.pid,
+            "command": cmd,
+            "launched_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        },
+    )
     return proc.pid
 
 
@@ -186,18 +214,31 @@ def run_status(ws: Workspace, run_id: str) -> dict[str, Any]:
     status = mark_interrupted(ws.runs_dir / run_id, read_json(ws.runs_dir / run_id / "status.json"))
     if status is None:
         if job and pid_alive(job.get("pid")):
-            return {"state": "starting", "pid": job.get("pid"), "episode": 0,
-                    "episodes": job.get("request", {}).get("episodes"), "message": "starting"}
+            return {
+                "state": "starting",
+                "pid": job.get("pid"),
+                "episode": 0,
+                "episodes": job.get("request", {}).get("episodes"),
+                "message": "starting",
+            }
         state = run_state(ws.runs_dir / run_id, None)  # a run folder: 'starting', or 'interrupted' (killed)
         if state == "interrupted":
-            return {"state": state, "episode": 0, "episodes": job.get("request", {}).get("episodes"),
-                    "message": f"interrupted before its first status; resume with `laneprint train --resume {run_id}`",
-                    "log": log_tail(ws, run_id)}
+            return {
+                "state": state,
+                "episode": 0,
+                "episodes": job.get("request", {}).get("episodes"),
+                "message": f"interrupted before its first status; resume with `laneprint train --resume {run_id}`",
+                "log": log_tail(ws, run_id),
+            }
         if job:
-            return {"state": "failed", "pid": job.get("pid"), "episode": 0,
-                    "episodes": job.get("request", {}).get("episodes"),
-                    "message": "the training process ended before writing its status",
-                    "log": log_tail(ws, run_id)}
+            return {
+                "state": "failed",
+                "pid": job.get("pid"),
+                "episode": 0,
+                "episodes": job.get("request", {}).get("episodes"),
+                "message": "the training process ended before writing its status",
+                "log": log_tail(ws, run_id),
+            }
         return {"state": state or "unknown", "message": "no status.json"}
     status = dict(status)
     state = run_state(ws.runs_dir / run_id, status)
@@ -206,8 +247,10 @@ def run_status(ws: Workspace, run_id: str) -> dict[str, Any]:
         status = dict(read_json(ws.runs_dir / run_id / "status.json") or status)
         state = run_state(ws.runs_dir / run_id, status)
     if state == "interrupted":
-        status["message"] = (f"interrupted at episode {status.get('episode', 0)} (the process died); "
-                             f"resume with `laneprint train --resume {run_id}`")
+        status["message"] = (
+            f"interrupted at episode {status.get('episode', 0)} (the process died); "
+            f"resume with `laneprint train --resume {run_id}`"
+        )
         status["log"] = log_tail(ws, run_id)
     status["state"] = state
     return status
@@ -261,9 +304,17 @@ def runs_table(ws: Workspace) -> pd.DataFrame:
         if rid in known:
             continue
         req = (read_json(jobs_dir(ws) / f"{rid}.json") or {}).get("request", {})
-        extra.append({"run_id": rid, "target_kind": req.get("target"), "target": req.get("name"),
-                      "reward": req.get("reward"), "lines_source": req.get("lines"), "seed": req.get("seed"),
-                      **{k: v for k, v in run_status(ws, rid).items() if k in table.columns}})
+        extra.append(
+            {
+                "run_id": rid,
+                "target_kind": req.get("target"),
+                "target": req.get("name"),
+                "reward": req.get("reward"),
+                "lines_source": req.get("lines"),
+                "seed": req.get("seed"),
+                **{k: v for k, v in run_status(ws, rid).items() if k in table.columns},
+            }
+        )
     if extra:
         table = pd.concat([table, pd.DataFrame(extra, columns=table.columns)], ignore_index=True)
     if len(table):
@@ -297,17 +348,29 @@ class CrossvalRequest:
 
 def crossval_command(req: CrossvalRequest, workspace: Path) -> list[str]:
     """The `laneprint crossval --run` command line for `req` (run with this interpreter)."""
-    cmd = [sys.executable, "-m", "laneprint.app.cli", "crossval", "--run", req.run_id,
-           "--folds", str(int(req.folds)), "--split", req.split, "--seed", str(int(req.seed)),
-           "--bootstrap", str(int(req.bootstrap))]
+    cmd = [
+        sys.executable,
+        "-m",
+        "laneprint.app.cli",
+        "crossval",
+        "--run",
+        req.run_id,
+        "--folds",
+        str(int(req.folds)),
+        "--split",
+        req.split,
+        "--seed",
+        str(int(req.seed)),
+        "--bootstrap",
+        str(int(req.bootstrap)),
+    ]
     if req.episodes is not None:
         cmd += ["--episodes", str(int(req.episodes))]
     return cmd + ["--workspace", str(workspace)]
 
 
 #: Rich draws its progress bar into a file only when told it is a terminal; no colours, a fixed width.
-CROSSVAL_ENV = {"TTY_COMPATIBLE": "1", "TTY_INTERACTIVE": "1", "NO_COLOR": "1", "COLUMNS": "120",
-                "TERM": "xterm"}
+CROSSVAL_ENV = {"TTY_COMPATIBLE": "1", "TTY_INTERACTIVE": "1", "NO_COLOR": "1", "COLUMNS": "120", "TERM": "xterm"}
 
 
 def crossval_jobs_dir(ws: Workspace) -> Path:
@@ -323,8 +386,14 @@ def new_crossval_job_id(run_id: str) -> str:
 def launch_crossval(ws: Workspace, req: CrossvalRequest) -> str:
     """Start `laneprint crossval --run` for `req` in the background; returns its job id at once."""
     job_id = new_crossval_job_id(req.run_id)
-    _spawn(crossval_jobs_dir(ws), job_id, crossval_command(req, ws.root), ws.root,
-           {"job_id": job_id, "run_id": req.run_id, "request": asdict(req)}, env={**os.environ, **CROSSVAL_ENV})
+    _spawn(
+        crossval_jobs_dir(ws),
+        job_id,
+        crossval_command(req, ws.root),
+        ws.root,
+        {"job_id": job_id, "run_id": req.run_id, "request": asdict(req)},
+        env={**os.environ, **CROSSVAL_ENV},
+    )
     return job_id
 
 
@@ -349,8 +418,14 @@ def crossval_progress(log: str) -> dict[str, Any]:
         fold, folds, done = int(m.group(1)), int(m.group(2)), int(m.group(4))
         total = int(m.group(5)) if m.group(5) != "?" else 0
         within = min(1.0, done / total) if total else 0.0
-        out.update(fold=fold, folds=folds, step=m.group(3).strip(), done=done, total=total,
-                   fraction=min(1.0, (fold - 1 + within) / folds) if folds else 0.0)
+        out.update(
+            fold=fold,
+            folds=folds,
+            step=m.group(3).strip(),
+            done=done,
+            total=total,
+            fraction=min(1.0, (fold - 1 + within) / folds) if folds else 0.0,
+        )
     stored = _STORED.findall(text)
     if stored:
         out["crossval_id"] = stored[-1]
@@ -377,19 +452,31 @@ def crossval_status(ws: Workspace, job_id: str) -> dict[str, Any]:
     if job is None:
         return {"job_id": job_id, "state": "unknown", "message": "no such cross-validation job"}
     prog = crossval_progress(_file_tail(folder / f"{job_id}.log", 16_000))
-    out = {"job_id": job_id, "run_id": job.get("run_id"), "pid": job.get("pid"),
-           "launched_at": job.get("launched_at"), "request": job.get("request", {}), **prog}
+    out = {
+        "job_id": job_id,
+        "run_id": job.get("run_id"),
+        "pid": job.get("pid"),
+        "launched_at": job.get("launched_at"),
+        "request": job.get("request", {}),
+        **prog,
+    }
     out.setdefault("fraction", 0.0)
     if pid_alive(job.get("pid")):
         if "fold" not in prog:
             out.update(state="starting", message="reading the run and the analysis")
         elif prog["total"] and prog["done"] >= prog["total"]:
-            out.update(state="running", fraction=min(out["fraction"], 0.99),
-                       message=f"fold {prog['fold']}/{prog['folds']}: agent trained; fitting the imitation "
-                               "classifier and scoring the held-out sessions")
+            out.update(
+                state="running",
+                fraction=min(out["fraction"], 0.99),
+                message=f"fold {prog['fold']}/{prog['folds']}: agent trained; fitting the imitation "
+                "classifier and scoring the held-out sessions",
+            )
         else:
-            out.update(state="running", message=f"fold {prog['fold']}/{prog['folds']}: training the "
-                                                f"{prog['step']}, episode {prog['done']}/{prog['total'] or '?'}")
+            out.update(
+                state="running",
+                message=f"fold {prog['fold']}/{prog['folds']}: training the "
+                f"{prog['step']}, episode {prog['done']}/{prog['total'] or '?'}",
+            )
         return out
     cv_id = prog.get("crossval_id")
     if cv_id and (ws.root / "crossval" / cv_id / "result.json").exists():
@@ -397,8 +484,11 @@ def crossval_status(ws: Workspace, job_id: str) -> dict[str, Any]:
     elif job.get("cancelled_at"):
         out.update(state="cancelled", message=f"cancelled at {job['cancelled_at']}")
     else:
-        out.update(state="failed", message=prog.get("error") or "the process ended without storing a result",
-                   log=crossval_log_tail(ws, job_id))
+        out.update(
+            state="failed",
+            message=prog.get("error") or "the process ended without storing a result",
+            log=crossval_log_tail(ws, job_id),
+        )
     return out
 
 
@@ -456,8 +546,18 @@ def fleet_command(req: FleetRequest, workspace: Path) -> list[str]:
         raise ValueError(f"kind must be 'drivers' or 'styles', not {req.kind!r}")
     if req.backend not in ("local", "ray"):
         raise ValueError(f"backend must be 'local' or 'ray', not {req.backend!r}")
-    cmd = [sys.executable, "-m", "laneprint.app.cli", "train", f"--{req.kind}", ",".join(req.names) or "all",
-           "--seeds", str(int(req.seeds)), "--episodes", str(int(req.episodes))]
+    cmd = [
+        sys.executable,
+        "-m",
+        "laneprint.app.cli",
+        "train",
+        f"--{req.kind}",
+        ",".join(req.names) or "all",
+        "--seeds",
+        str(int(req.seeds)),
+        "--episodes",
+        str(int(req.episodes)),
+    ]
     if req.backend != "local":  # the trainer's default; older trainers know no --backend
         cmd += ["--backend", req.backend]
     return cmd + ["--workspace", str(workspace)]
@@ -471,8 +571,14 @@ def launch_fleet(ws: Workspace, req: FleetRequest) -> str:
     """Start a fleet's training in the background; returns its job id at once (the fleet's own id
     is known once the trainer writes `fleets/<id>/fleet.json` with this process's pid)."""
     job_id = f"fleet-{req.kind}-{datetime.now(timezone.utc):%Y%m%d-%H%M%S}-{uuid.uuid4().hex[:4]}"
-    _spawn(fleet_jobs_dir(ws), job_id, fleet_command(req, ws.root), ws.root,
-           {"job_id": job_id, "request": asdict(req)}, env={**os.environ, **CROSSVAL_ENV})
+    _spawn(
+        fleet_jobs_dir(ws),
+        job_id,
+        fleet_command(req, ws.root),
+        ws.root,
+        {"job_id": job_id, "request": asdict(req)},
+        env={**os.environ, **CROSSVAL_ENV},
+    )
     return job_id
 
 
@@ -493,8 +599,13 @@ def fleet_job_status(ws: Workspace, job_id: str) -> dict[str, Any]:
     job = read_json(path)
     if job is None:
         return {"job_id": job_id, "state": "unknown", "message": "no such fleet job"}
-    out = {"job_id": job_id, "pid": job.get("pid"), "request": job.get("request", {}),
-           "launched_at": job.get("launched_at"), "fleet_id": job.get("fleet_id")}
+    out = {
+        "job_id": job_id,
+        "pid": job.get("pid"),
+        "request": job.get("request", {}),
+        "launched_at": job.get("launched_at"),
+        "fleet_id": job.get("fleet_id"),
+    }
     if out["fleet_id"] is None:
         out["fleet_id"] = fleet_of_pid(ws, job.get("pid"))
         if out["fleet_id"]:
@@ -509,8 +620,12 @@ def fleet_job_status(ws: Workspace, job_id: str) -> dict[str, Any]:
         return out
     if alive:
         return {**out, "state": "starting", "message": "reading the analysis and setting up the agents"}
-    return {**out, "state": "failed", "message": "the trainer ended before writing its fleet.json",
-            "log": terminal_log_tail(fleet_jobs_dir(ws) / f"{job_id}.log")}
+    return {
+        **out,
+        "state": "failed",
+        "message": "the trainer ended before writing its fleet.json",
+        "log": terminal_log_tail(fleet_jobs_dir(ws) / f"{job_id}.log"),
+    }
 
 
 def active_fleet_jobs(ws: Workspace) -> list[str]:

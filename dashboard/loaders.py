@@ -19,8 +19,18 @@ from laneprint.workspace import Workspace
 from rl.settings import decision_counts
 
 #: The analysis tables the pages read; one an older analysis lacks is simply absent from `analysis()`.
-ANALYSIS_TABLES = ("decisions", "correlations", "fits", "fits_by_direction", "styles", "reference_lines", "skipped",
-                   "k_scores", "feature_sets", "following")
+ANALYSIS_TABLES = (
+    "decisions",
+    "correlations",
+    "fits",
+    "fits_by_direction",
+    "styles",
+    "reference_lines",
+    "skipped",
+    "k_scores",
+    "feature_sets",
+    "following",
+)
 
 
 def stamp(root: Path, *parts: str) -> tuple[int, ...]:
@@ -86,8 +96,11 @@ def training_inputs(root: str, key: tuple[int, ...]) -> dict[str, pd.DataFrame]:
     exist) and `decision_counts` (driver_id -> states, presses: what a learning check needs), not the
     whole decisions table (55,000 rows at 100 drivers, copied out of the cache on every run)."""
     ws = Workspace(root)
-    out = {name: ws.read_table("analysis", name) for name in ("reference_lines", "styles")
-           if ws.has_table("analysis", name)}
+    out = {
+        name: ws.read_table("analysis", name)
+        for name in ("reference_lines", "styles")
+        if ws.has_table("analysis", name)
+    }
     if ws.has_table("analysis", "decisions"):
         dec = ws.read_table("analysis", "decisions")
         out["decision_counts"] = decision_counts(dec)

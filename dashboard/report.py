@@ -72,15 +72,36 @@ def _study(ws: Workspace) -> Section:
     sec = Section("The study")
     recs = ws.recordings()
     if recs.empty:
-        raise UserError(f"no recordings in workspace {ws.root}: run `laneprint ingest PATH --workspace {ws.root}` first")
+        raise UserError(
+            f"no recordings in workspace {ws.root}: run `laneprint ingest PATH --workspace {ws.root}` first"
+        )
     n_drivers = recs["driver_id"].nunique()
     presses = int(pd.to_numeric(recs.get("n_presses"), errors="coerce").sum()) if "n_presses" in recs else 0
-    sec.p(f"{views.plural(len(recs), 'recording')} of {views.plural(n_drivers, 'driver')}, "
-          f"{views.plural(presses, 'button press', 'button presses')}.")
-    cols = [c for c in ("driver_id", "session_id", "speed_limit_kph", "format", "n_samples", "duration_s",
-                        "n_presses", "n_vehicles", "status", "warnings", "source_name", "recording_id") if c in recs]
-    sec.table("recordings", recs[cols].rename(columns={"speed_limit_kph": "speed limit [km/h]",
-                                                       "duration_s": "duration [s]"}))
+    sec.p(
+        f"{views.plural(len(recs), 'recording')} of {views.plural(n_drivers, 'driver')}, "
+        f"{views.plural(presses, 'button press', 'button presses')}."
+    )
+    cols = [
+        c
+        for c in (
+            "driver_id",
+            "session_id",
+            "speed_limit_kph",
+            "format",
+            "n_samples",
+            "duration_s",
+            "n_presses",
+            "n_vehicles",
+            "status",
+            "warnings",
+            "source_name",
+            "recording_id",
+        )
+        if c in recs
+    ]
+    sec.table(
+        "recordings", recs[cols].rename(columns={"speed_limit_kph": "speed limit [km/h]", "duration_s": "duration [s]"})
+    )
     rej = ws.rejected()
     if len(rej):
         sec.p(f"{views.plural(len(rej), 'file')} refused by the ingest, with the reason:")
@@ -99,32 +120,53 @@ def _analysis(ws: Workspace) -> list[Section]:
     if not ws.has_table("analysis", "decisions"):
         return [Section("Analysis").p(f"No analysis yet: `laneprint analyze --workspace {ws.root}`.")]
     meta = ws.read_meta("analysis")
-    t = {n: ws.read_table("analysis", n) for n in ("decisions", "correlations", "fits", "fits_by_direction", "styles",
-                                                   "reference_lines", "skipped", "following") if ws.has_table("analysis", n)}
+    t = {
+        n: ws.read_table("analysis", n)
+        for n in (
+            "decisions",
+            "correlations",
+            "fits",
+            "fits_by_direction",
+            "styles",
+            "reference_lines",
+            "skipped",
+            "following",
+        )
+        if ws.has_table("analysis", n)
+    }
     summary = meta.get("summary") or {}
     dec = t["decisions"]
     ind = Section("Indicators, correlations and per-driver fits")
-    ind.p(f"{views.plural(int((dec['label'] == 'change').sum()), 'press', 'presses')} and "
-          f"{views.plural(int((dec['label'] == 'keep').sum()), 'not-yet state')} in the decisions table."
-          + (f" By direction: {by_side}." if (by_side := views.presses_by_direction_text(meta)) else ""))
+    ind.p(
+        f"{views.plural(int((dec['label'] == 'change').sum()), 'press', 'presses')} and "
+        f"{views.plural(int((dec['label'] == 'keep').sum()), 'not-yet state')} in the decisions table."
+        + (f" By direction: {by_side}." if (by_side := views.presses_by_direction_text(meta)) else "")
+    )
     share = summary.get("share_significant") or {}
     if share:
-        ind.p("Drivers with a significant linear correlation with ego speed: " + ", ".join(
-            f"{k} {v:.0%}" for k, v in share.items() if v is not None) + " (the study reports 80 %).")
+        ind.p(
+            "Drivers with a significant linear correlation with ego speed: "
+            + ", ".join(f"{k} {v:.0%}" for k, v in share.items() if v is not None)
+            + " (the study reports 80 %)."
+        )
     if "correlations" in t:
         ind.table("correlations", t["correlations"])
     fits = t.get("fits")
     if fits is not None:
         flagged = views.flagged_fits(fits)
         if len(flagged):
-            ind.warn(f"{views.plural(len(flagged), 'per-driver line')} flagged (they mean little): " + "; ".join(
-                f"{r.driver_id} {r.indicator}: {r.flag}" for r in flagged.itertuples()))
+            ind.warn(
+                f"{views.plural(len(flagged), 'per-driver line')} flagged (they mean little): "
+                + "; ".join(f"{r.driver_id} {r.indicator}: {r.flag}" for r in flagged.itertuples())
+            )
         summary = views.fit_summary(fits)
         ind.table("fits", summary.assign(driver_id=fits["driver_id"].to_numpy())[["driver_id", *summary.columns]])
     side_fits = t.get("fits_by_direction")
     if side_fits is not None and len(side_fits):
-        ind.p("The same fits on the presses to each side (left: overtaking, right: returning); a side with too "
-              "few presses has no line, and the pooled line stands for it:")
+        ind.p(
+            "The same fits on the presses to each side (left: overtaking, right: returning); a side with too "
+            "few presses has no line, and the pooled line stands for it:"
+        )
         ind.table("fits_by_direction", views.direction_fit_summary(side_fits, keep=("driver_id",)))
     styles = t.get("styles")
     sty = Section("Styles and reference lines")
@@ -132,9 +174,11 @@ def _analysis(ws: Workspace) -> list[Section]:
         sty.warn(w)
     chosen = views.chosen_indicators(meta)
     feats = summary.get("features") or {}
-    sty.p(f"Styles read by {', '.join(chosen)}" + (f" (feature set {feats.get('chosen')}, requested "
-                                                      f"{feats.get('requested')})" if feats else "")
-          + f", each driver's line read at {views.speeds_text(meta)}.")
+    sty.p(
+        f"Styles read by {', '.join(chosen)}"
+        + (f" (feature set {feats.get('chosen')}, requested {feats.get('requested')})" if feats else "")
+        + f", each driver's line read at {views.speeds_text(meta)}."
+    )
     cands = views.feature_candidates(meta)
     if len(cands):
         sty.table("feature_sets", cands)
@@ -142,9 +186,11 @@ def _analysis(ws: Workspace) -> list[Section]:
         sty.table("style_summary", views.style_summary(styles, meta))
         unsure = views.unsure_drivers(styles)
         if len(unsure):
-            sty.p("Drivers whose style is not sure, and why (confidence: the share of draws of the driver's own "
-                  "estimates that keep its style, times the share of plausible readings that agree, at most "
-                  "(n + 1) / (n + 2) for n presses):")
+            sty.p(
+                "Drivers whose style is not sure, and why (confidence: the share of draws of the driver's own "
+                "estimates that keep its style, times the share of plausible readings that agree, at most "
+                "(n + 1) / (n + 2) for n presses):"
+            )
             sty.table("unsure_drivers", unsure)
         try:
             sty.figure("drivers_in_feature_space", cluster_scatter(styles, indicators=chosen))
@@ -157,14 +203,22 @@ def _analysis(ws: Workspace) -> list[Section]:
     lines = t.get("reference_lines")
     if lines is not None and len(lines):
         sty.figure("reference_lines", reference_lines(lines, indicators=views.reference_indicators(lines, chosen)))
-        typical = lines[(lines["scope"] == "style") & (lines["kind"] == "typical")
-                        & (lines["direction"] == "both")]
+        typical = lines[(lines["scope"] == "style") & (lines["kind"] == "typical") & (lines["direction"] == "both")]
         rows = []
         for r in typical.itertuples():
             paper = PAPER_TABLE1.get(str(r.name), {}).get(str(r.indicator))
-            rows.append({"style": r.name, "indicator": r.indicator, "A": r.A, "b": r.b,
-                         "A (Table 1)": paper[0] if paper else None, "b (Table 1)": paper[1] if paper else None,
-                         "fit": getattr(r, "fit", ""), "source": getattr(r, "source", "")})
+            rows.append(
+                {
+                    "style": r.name,
+                    "indicator": r.indicator,
+                    "A": r.A,
+                    "b": r.b,
+                    "A (Table 1)": paper[0] if paper else None,
+                    "b (Table 1)": paper[1] if paper else None,
+                    "fit": getattr(r, "fit", ""),
+                    "source": getattr(r, "source", ""),
+                }
+            )
         sty.p("The typical drivers' lines against Table 1 of the study (I = A v_e + b, v_e in m/s):")
         sty.table("reference_lines_vs_table1", pd.DataFrame(rows))
         sty.table("reference_lines", lines)
@@ -173,8 +227,10 @@ def _analysis(ws: Workspace) -> list[Section]:
         drv = Section("Typical drivers' indicators against speed")
         deciding = set(dec["driver_id"].astype(str).unique())
         shown = [d for d in order if d in deciding][:MAX_DRIVER_FIGURES]
-        drv.p(f"{views.plural(len(shown), 'driver')} drawn (typical drivers first); every driver's fits are "
-              "in the fits table above. Axes follow the bulk of the points; values beyond are drawn at the edge.")
+        drv.p(
+            f"{views.plural(len(shown), 'driver')} drawn (typical drivers first); every driver's fits are "
+            "in the fits table above. Axes follow the bulk of the points; values beyond are drawn at the edge."
+        )
         groups = views.indicator_groups_of(dec, fits)
         inds = [i for g in groups.values() for i in g if i in dict.fromkeys(["t_f", "t_nf", "dv_nb", *chosen])]
         for d in shown:
@@ -202,8 +258,10 @@ def _runs(ws: Workspace) -> list[Section]:
     shown = runs[runs["run_id"].isin(evaluated)]
     stale = shown[shown["analysis"] == "earlier"]["run_id"].tolist()
     if stale:
-        overview.warn(f"{len(stale)} of {len(shown)} runs were made with an earlier analysis (its styles or reference "
-                      f"lines have changed since): re-run them ({', '.join(stale)}). Column `analysis` says which.")
+        overview.warn(
+            f"{len(stale)} of {len(shown)} runs were made with an earlier analysis (its styles or reference "
+            f"lines have changed since): re-run them ({', '.join(stale)}). Column `analysis` says which."
+        )
     overview.table("runs", shown)
     if len(cvs):
         overview.p("Every stored cross-validation (held out by session), balanced accuracy per policy:")
@@ -217,14 +275,18 @@ def _runs(ws: Workspace) -> list[Section]:
         cfg, ev = run["config"], run["evaluation"] or {}
         sec = Section(f"Run {rid}")
         tgt = cfg.get("target", {})
-        sec.p(f"{tgt.get('kind')} {tgt.get('name')}, reward {cfg.get('reward')}, lines {cfg.get('lines_source')}, "
-              f"seed {cfg.get('seed')}, {(run['status'] or {}).get('episode', '?')} episodes.")
+        sec.p(
+            f"{tgt.get('kind')} {tgt.get('name')}, reward {cfg.get('reward')}, lines {cfg.get('lines_source')}, "
+            f"seed {cfg.get('seed')}, {(run['status'] or {}).get('episode', '?')} episodes."
+        )
         sec.p(views.learner_text(cfg))
         mark = run["analysis_mark"]
         if mark["analysis"] == "earlier":
-            sec.warn(f"{mark['analysis_label']}: this run was made with analysis {mark['analysis_fingerprint']}, the "
-                     f"current one is {mark['current_analysis_fingerprint']} (styles or reference lines changed). "
-                     f"`laneprint train --{tgt.get('kind')} {tgt.get('name')} --workspace {ws.root}`.")
+            sec.warn(
+                f"{mark['analysis_label']}: this run was made with analysis {mark['analysis_fingerprint']}, the "
+                f"current one is {mark['current_analysis_fingerprint']} (styles or reference lines changed). "
+                f"`laneprint train --{tgt.get('kind')} {tgt.get('name')} --workspace {ws.root}`."
+            )
         else:
             sec.p(f"Analysis: {mark['analysis_label']}.")
         in_sample = ev.get("summary_members") or ev.get("summary")
@@ -233,8 +295,10 @@ def _runs(ws: Workspace) -> list[Section]:
         sec.p(views.EVAL_DEFINITION)
         metrics = run["metrics"]
         if metrics is not None and len(metrics) and ("loss" not in metrics or metrics["loss"].isna().all()):
-            sec.warn("This agent never updated its network (no loss in any episode): its figures are those of "
-                     "an untrained network.")
+            sec.warn(
+                "This agent never updated its network (no loss in any episode): its figures are those of "
+                "an untrained network."
+            )
         cv = None
         own = ws.runs_dir / rid / "crossval.json"
         if own.exists():
@@ -253,8 +317,9 @@ def _runs(ws: Workspace) -> list[Section]:
             sec.figure(f"{rid}_fig10", indicators_at_decisions(run["eval_changes"], cfg["lines"]))
         sec.figure(f"{rid}_fig11_agent", decision_agreement(run["eval_states"], who="agent"))
         sec.figure(f"{rid}_fig11_greedy", decision_agreement(run["eval_states"], who="greedy"))
-        sec.figure(f"{rid}_fig9", training_curves(metrics, learning_starts=(cfg.get("dqn") or {}).get(
-            "learning_starts")))
+        sec.figure(
+            f"{rid}_fig9", training_curves(metrics, learning_starts=(cfg.get("dqn") or {}).get("learning_starts"))
+        )
         out.append(sec)
     return out
 
@@ -301,11 +366,15 @@ def _fleet(ws: Workspace, fleet_id: str) -> Section:
 
     table = fleet_table(ws, fleet_id)
     sec = Section(f"Fleet {fleet_id}")
-    sec.p(f"{views.plural(len(table), 'agent')} trained together, each on its own target. " + views.fleet_headline(table))
+    sec.p(
+        f"{views.plural(len(table), 'agent')} trained together, each on its own target. " + views.fleet_headline(table)
+    )
     sec.table(f"fleet_{fleet_id}", views.fleet_view(table))
     sec.figure(f"fleet_{fleet_id}_agreement", figures.fleet_agreement(table))
-    sec.p("Each agent's training curves and Figs. 10-11 are on the dashboard's Results page (Runs); runs trained "
-          "alone have them here.")
+    sec.p(
+        "Each agent's training curves and Figs. 10-11 are on the dashboard's Results page (Runs); runs trained "
+        "alone have them here."
+    )
     return sec
 
 
@@ -315,13 +384,18 @@ def provenance(ws: Workspace) -> dict[str, Any]:
 
     meta = ws.read_meta("analysis") if ws.has_table("analysis", "decisions") else {}
     recs = ws.recordings()
-    return {"generated_at": datetime.now(timezone.utc).isoformat(timespec="seconds"), "workspace": str(ws.root),
-            "code": code_version(), "data_fingerprint": ws.fingerprint(),
-            "analysis_fingerprint": ws.analysis_fingerprint() if meta else None,
-            "analysis_data_fingerprint": meta.get("data_fingerprint"),
-            "analysis_is_current": (meta.get("data_fingerprint") == ws.fingerprint()) if meta else None,
-            "analysis_code": meta.get("code"), "analysis_settings": meta.get("settings"),
-            "recordings": {str(r["recording_id"]): str(r.get("source_name", "")) for _, r in recs.iterrows()}}
+    return {
+        "generated_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "workspace": str(ws.root),
+        "code": code_version(),
+        "data_fingerprint": ws.fingerprint(),
+        "analysis_fingerprint": ws.analysis_fingerprint() if meta else None,
+        "analysis_data_fingerprint": meta.get("data_fingerprint"),
+        "analysis_is_current": (meta.get("data_fingerprint") == ws.fingerprint()) if meta else None,
+        "analysis_code": meta.get("code"),
+        "analysis_settings": meta.get("settings"),
+        "recordings": {str(r["recording_id"]): str(r.get("source_name", "")) for _, r in recs.iterrows()},
+    }
 
 
 def build_report(ws: Workspace) -> tuple[list[Section], dict[str, Any]]:
@@ -357,25 +431,31 @@ def _table_html(frame: pd.DataFrame) -> str:
     return f'<div class="scroll"><table class="dataframe"><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>'
 
 
-
 def render_html(sections: list[Section], prov: dict[str, Any], title: str = "laneprint report") -> str:
     """The report as one HTML document: plotly.js inlined once, no reference to any other host."""
     from plotly.offline import get_plotlyjs
 
     from dashboard.figures import fit_title
 
-    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
-             f"<style>{_CSS}</style><script type='text/javascript'>{get_plotlyjs()}</script></head><body>",
-             f"<h1>{html.escape(title)}</h1>",
-             f"<p>Workspace <code>{html.escape(prov['workspace'])}</code>, generated {prov['generated_at']} by "
-             f"laneprint {html.escape(str((prov.get('code') or {}).get('version')))} (commit "
-             f"{html.escape(str((prov.get('code') or {}).get('git_commit')))}); data fingerprint "
-             f"<code>{prov['data_fingerprint']}</code>.</p>"]
+    parts = [
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
+        f"<style>{_CSS}</style><script type='text/javascript'>{get_plotlyjs()}</script></head><body>",
+        f"<h1>{html.escape(title)}</h1>",
+        f"<p>Workspace <code>{html.escape(prov['workspace'])}</code>, generated {prov['generated_at']} by "
+        f"laneprint {html.escape(str((prov.get('code') or {}).get('version')))} (commit "
+        f"{html.escape(str((prov.get('code') or {}).get('git_commit')))}); data fingerprint "
+        f"<code>{prov['data_fingerprint']}</code>.</p>",
+    ]
     if prov.get("analysis_is_current") is False:
-        parts.append("<p class='warn'>Recordings were added or removed since the analysis ran: its tables describe "
-                     "an older set of recordings.</p>")
-    parts.append("<nav>" + "".join(f"<a href='#s{i}'>{html.escape(s.title)}</a>" for i, s in enumerate(sections))
-                 + "<a href='#provenance'>Provenance</a></nav>")
+        parts.append(
+            "<p class='warn'>Recordings were added or removed since the analysis ran: its tables describe "
+            "an older set of recordings.</p>"
+        )
+    parts.append(
+        "<nav>"
+        + "".join(f"<a href='#s{i}'>{html.escape(s.title)}</a>" for i, s in enumerate(sections))
+        + "<a href='#provenance'>Provenance</a></nav>"
+    )
     for i, sec in enumerate(sections):
         parts.append(f"<h2 id='s{i}'>{html.escape(sec.title)}</h2>")
         for kind, item in sec.items:
@@ -386,18 +466,27 @@ def render_html(sections: list[Section], prov: dict[str, Any], title: str = "lan
             elif kind == "table":
                 parts.append(_table_html(item[1]))
             else:
-                parts.append("<div class='fig'>" + fit_title(item[1]).to_html(full_html=False, include_plotlyjs=False,
-                                                               div_id=f"fig-{_safe(item[0])}",
-                                                               config={"displaylogo": False,
-                                                                       "toImageButtonOptions": {"format": "svg"}})
-                             + "</div>")
-    parts.append("<h2 id='provenance'>Provenance</h2><pre>" + html.escape(json.dumps(prov, indent=2, default=str))
-                 + "</pre></body></html>")
+                parts.append(
+                    "<div class='fig'>"
+                    + fit_title(item[1]).to_html(
+                        full_html=False,
+                        include_plotlyjs=False,
+                        div_id=f"fig-{_safe(item[0])}",
+                        config={"displaylogo": False, "toImageButtonOptions": {"format": "svg"}},
+                    )
+                    + "</div>"
+                )
+    parts.append(
+        "<h2 id='provenance'>Provenance</h2><pre>"
+        + html.escape(json.dumps(prov, indent=2, default=str))
+        + "</pre></body></html>"
+    )
     return "".join(parts)
 
 
-def write_assets(sections: list[Section], folder: Path, svg: bool = True,
-                 drawer: "SvgDrawer | None" = None) -> dict[str, Any]:
+def write_assets(
+    sections: list[Section], folder: Path, svg: bool = True, drawer: "SvgDrawer | None" = None
+) -> dict[str, Any]:
     """Every table as CSV and every figure as Plotly JSON under `folder`; with `svg` and `kaleido`
     installed (the `report` extra), every figure as SVG too, all drawn in one headless Chrome session
     (kaleido starts the browser once per call: 10-15 s). `svg_note` says why there is no SVG, if so."""
@@ -489,8 +578,12 @@ class SvgDrawer:
         """Write each figure as SVG to its path (plotly's default size, 700 x 500)."""
         import plotly.io as pio
 
-        size = {"format": "svg", "width": pio.defaults.default_width, "height": pio.defaults.default_height,
-                "scale": pio.defaults.default_scale}
+        size = {
+            "format": "svg",
+            "width": pio.defaults.default_width,
+            "height": pio.defaults.default_height,
+            "scale": pio.defaults.default_scale,
+        }
         self._jobs.put([{"fig": f.to_plotly_json(), "path": p, "opts": dict(size)} for f, p in figures])
         self._done.result(timeout=timeout_s)
 
@@ -531,6 +624,13 @@ def write_report(ws: Workspace, out: Path | None = None, assets: bool = True, sv
             drawer.close()
     n_fig = sum(1 for s in sections for k, _ in s.items if k == "figure")
     n_tab = sum(1 for s in sections for k, _ in s.items if k == "table")
-    return {"report": str(out), "bytes": len(text.encode()), "figures": n_fig, "tables": n_tab,
-            "assets": str(out.with_name(out.stem + "_files")) if assets else None, "written": written,
-            "sections": [s.title for s in sections], "seconds": round(time.perf_counter() - start, 2)}
+    return {
+        "report": str(out),
+        "bytes": len(text.encode()),
+        "figures": n_fig,
+        "tables": n_tab,
+        "assets": str(out.with_name(out.stem + "_files")) if assets else None,
+        "written": written,
+        "sections": [s.title for s in sections],
+        "seconds": round(time.perf_counter() - start, 2),
+    }

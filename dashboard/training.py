@@ -33,13 +33,21 @@ def defaults_note() -> str:
     from rl.settings import DQNSettings
 
     d = DQNSettings()
-    lr = (f"the learning rate falls linearly from {d.learning_rate:g} to {d.learning_rate_end:g} over the run"
-          if d.learning_rate_end is not None else f"constant learning rate {d.learning_rate:g}")
+    lr = (
+        f"the learning rate falls linearly from {d.learning_rate:g} to {d.learning_rate_end:g} over the run"
+        if d.learning_rate_end is not None
+        else f"constant learning rate {d.learning_rate:g}"
+    )
     updates = "one minibatch" if d.gradient_steps == 1 else f"{d.gradient_steps} minibatches"
-    policy = (f"; from {d.average_from:.0%} of the episodes on, the policy is an average of the weights"
-              if d.average_tau > 0 else "")
-    return (f"Table 2 of the study, stepped as {d.num_envs} environments at once with {updates} of "
-            f"{d.batch_size} per step (1 environment and minibatch 32 is the study's own loop); {lr}{policy}.")
+    policy = (
+        f"; from {d.average_from:.0%} of the episodes on, the policy is an average of the weights"
+        if d.average_tau > 0
+        else ""
+    )
+    return (
+        f"Table 2 of the study, stepped as {d.num_envs} environments at once with {updates} of "
+        f"{d.batch_size} per step (1 environment and minibatch 32 is the study's own loop); {lr}{policy}."
+    )
 
 
 def rewards() -> list[str]:
@@ -112,8 +120,9 @@ def driver_targets(reference_lines: pd.DataFrame | None, recordings: pd.DataFram
     return sorted(recordings["driver_id"].astype(str).unique()) if len(recordings) else []
 
 
-def learning_check(ws, req, values: dict[str, Any] | None = None,
-                   tables: dict[str, pd.DataFrame] | None = None) -> tuple[str, str]:
+def learning_check(
+    ws, req, values: dict[str, Any] | None = None, tables: dict[str, pd.DataFrame] | None = None
+) -> tuple[str, str]:
     """('refuse' | 'warn' | '', why) for a training request, as `laneprint train` checks it before a run
     (`rl.settings.learning_check`): refused when its episodes are too few for learning to begin at the
     form's settings (the replay memory must hold `learning_starts` transitions before the first update),
@@ -125,8 +134,9 @@ def learning_check(ws, req, values: dict[str, Any] | None = None,
     from rl.settings import learning_check as check_settings
 
     if tables is None:
-        tables = {name: ws.read_table("analysis", name) for name in ("decisions", "styles")
-                  if ws.has_table("analysis", name)}
+        tables = {
+            name: ws.read_table("analysis", name) for name in ("decisions", "styles") if ws.has_table("analysis", name)
+        }
     counts = tables.get("decision_counts")
     if counts is None and tables.get("decisions") is not None:
         counts = decision_counts(tables["decisions"])
@@ -134,10 +144,14 @@ def learning_check(ws, req, values: dict[str, Any] | None = None,
     env = formulation_config(EnvConfig().lines, req.reward, None, None, req.lines or "analysis")
     steps, source = approach_steps(env, states, presses)
     try:
-        settings = DQNSettings(episodes=int(req.episodes), episodes_per_approach=0.0,
-                               **{k: v for k, v in (values or {}).items() if k in FORM_SETTINGS})
+        settings = DQNSettings(
+            episodes=int(req.episodes),
+            episodes_per_approach=0.0,
+            **{k: v for k, v in (values or {}).items() if k in FORM_SETTINGS},
+        )
     except (TypeError, ValueError):
         return "", ""
-    check = check_settings(settings, steps, source, episodes_name="the Episodes field",
-                           starts_name="'learning starts' (Hyperparameters)")
+    check = check_settings(
+        settings, steps, source, episodes_name="the Episodes field", starts_name="'learning starts' (Hyperparameters)"
+    )
     return {"never": "refuse", "late": "warn"}.get(check.verdict, ""), check.message[:1].upper() + check.message[1:]

@@ -34,8 +34,8 @@ def safe_filename(name: str) -> str:
     base = unicodedata.normalize("NFC", re.split(r"[\\/]", name or "")[-1])
     suffix = next((s for s in sorted(LOG_SUFFIXES, key=len, reverse=True) if base.lower().endswith(s)), "")
     stem = _UNSAFE.sub("_", base[: len(base) - len(suffix)]).lstrip(".")
-    stem = stem[-(120 - len(suffix)):] if len(stem) + len(suffix) > 120 else stem
-    return (stem if stem.strip("._-") else "upload") + base[len(base) - len(suffix):]
+    stem = stem[-(120 - len(suffix)) :] if len(stem) + len(suffix) > 120 else stem
+    return (stem if stem.strip("._-") else "upload") + base[len(base) - len(suffix) :]
 
 
 def has_log_suffix(name: str) -> bool:
@@ -91,9 +91,13 @@ def save_upload(name: str, size: int, stream: BinaryIO, uploads_dir: Path, max_b
         return SavedUpload(name, size, reason="empty file (0 bytes): nothing to ingest")
     if size > max_bytes:
         return SavedUpload(
-            name, size,
-            reason=(f"too large for the browser upload ({size / 2**20:.0f} MB > {max_bytes / 2**20:.0f} MB): "
-                    f"ingest it from the command line with `laneprint ingest PATH`"))
+            name,
+            size,
+            reason=(
+                f"too large for the browser upload ({size / 2**20:.0f} MB > {max_bytes / 2**20:.0f} MB): "
+                f"ingest it from the command line with `laneprint ingest PATH`"
+            ),
+        )
     uploads_dir = uploads_dir.resolve()
     staging = uploads_dir / ".partial"
     staging.mkdir(parents=True, exist_ok=True)
@@ -106,9 +110,14 @@ def save_upload(name: str, size: int, stream: BinaryIO, uploads_dir: Path, max_b
             shutil.copyfileobj(stream, sink, _CHUNK)  # never the whole upload in memory at once
     except _TooLarge:
         tmp.unlink(missing_ok=True)
-        return SavedUpload(name, sink.written, reason=(
-            f"too large for the browser upload (more than {max_bytes / 2**20:.0f} MB): "
-            f"ingest it from the command line with `laneprint ingest PATH`"))
+        return SavedUpload(
+            name,
+            sink.written,
+            reason=(
+                f"too large for the browser upload (more than {max_bytes / 2**20:.0f} MB): "
+                f"ingest it from the command line with `laneprint ingest PATH`"
+            ),
+        )
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

@@ -10,8 +10,20 @@ import pandas as pd
 from dashboard.uploads import SavedUpload
 
 UPLOAD_COLUMNS = ["file", "status", "reason", "recording_id", "driver_id"]
-RECORDING_COLUMNS = ["recording_id", "driver_id", "session_id", "speed_limit_kph", "format", "n_samples",
-                     "duration_s", "n_presses", "n_vehicles", "status", "warnings", "source_name"]
+RECORDING_COLUMNS = [
+    "recording_id",
+    "driver_id",
+    "session_id",
+    "speed_limit_kph",
+    "format",
+    "n_samples",
+    "duration_s",
+    "n_presses",
+    "n_vehicles",
+    "status",
+    "warnings",
+    "source_name",
+]
 
 
 def _file_entries(report: dict[str, Any]) -> list[dict[str, Any]]:
@@ -32,13 +44,19 @@ def upload_rows(saved: Iterable[SavedUpload], report: dict[str, Any] | None) -> 
     rows = []
     for s in saved:
         if s.path is None:
-            rows.append({"file": s.name, "status": "refused", "reason": s.reason, "recording_id": "",
-                         "driver_id": ""})
+            rows.append({"file": s.name, "status": "refused", "reason": s.reason, "recording_id": "", "driver_id": ""})
             continue
         e = by_path.get(str(s.path)) or by_path.get(s.path.name) or {}
         reason = "; ".join(([e["reason"]] if e.get("reason") else []) + list(e.get("warnings") or []))
-        rows.append({"file": s.name, "status": e.get("status", "unknown"), "reason": reason,
-                     "recording_id": e.get("recording_id") or "", "driver_id": e.get("driver_id") or ""})
+        rows.append(
+            {
+                "file": s.name,
+                "status": e.get("status", "unknown"),
+                "reason": reason,
+                "recording_id": e.get("recording_id") or "",
+                "driver_id": e.get("driver_id") or "",
+            }
+        )
     return pd.DataFrame(rows, columns=UPLOAD_COLUMNS)
 
 
@@ -57,8 +75,13 @@ def reasons_markdown(results: pd.DataFrame) -> str:
 
 
 #: Catalogue columns renamed for display: units in brackets, as on the plots.
-RECORDING_LABELS = {"speed_limit_kph": "speed limit [km/h]", "duration_s": "duration [s]",
-                    "n_samples": "samples", "n_presses": "presses", "n_vehicles": "traffic vehicles"}
+RECORDING_LABELS = {
+    "speed_limit_kph": "speed limit [km/h]",
+    "duration_s": "duration [s]",
+    "n_samples": "samples",
+    "n_presses": "presses",
+    "n_vehicles": "traffic vehicles",
+}
 
 
 def recordings_view(recs: pd.DataFrame) -> pd.DataFrame:
@@ -116,9 +139,15 @@ def style_summary(styles: pd.DataFrame, meta: dict[str, Any] | None = None) -> p
     for style, g in styles.groupby("style", sort=False):
         flag = next((c for c in ("is_typical", "typical") if c in g), None)
         typical = g.loc[g[flag].astype(bool), "driver_id"].tolist() if flag else []
-        rows.append({"style": style, "drivers": len(g), "typical driver": ", ".join(map(str, typical)),
-                     "members": ", ".join(sorted(map(str, g["driver_id"]))),
-                     "what sets it apart": str(words.get(str(style), ""))})
+        rows.append(
+            {
+                "style": style,
+                "drivers": len(g),
+                "typical driver": ", ".join(map(str, typical)),
+                "members": ", ".join(sorted(map(str, g["driver_id"]))),
+                "what sets it apart": str(words.get(str(style), "")),
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -129,9 +158,15 @@ def unsure_drivers(styles: pd.DataFrame) -> pd.DataFrame:
     if styles is None or "unsure" not in styles:
         return pd.DataFrame(columns=cols)
     g = styles[styles["unsure"].fillna("").astype(str) != ""]
-    return pd.DataFrame({"driver": g["driver_id"].astype(str), "style": g["style"].astype(str),
-                         "confidence [-]": g["confidence"].astype(float).round(2),
-                         "why unsure": g["unsure"].astype(str)}, columns=cols).reset_index(drop=True)
+    return pd.DataFrame(
+        {
+            "driver": g["driver_id"].astype(str),
+            "style": g["style"].astype(str),
+            "confidence [-]": g["confidence"].astype(float).round(2),
+            "why unsure": g["unsure"].astype(str),
+        },
+        columns=cols,
+    ).reset_index(drop=True)
 
 
 #: evaluation summary column -> (shown name, scale); shares are shown in percent.
@@ -148,10 +183,12 @@ EVAL_COLUMNS = {
 }
 
 #: Shown beside every evaluation table: what its robust indicator errors are.
-EVAL_DEFINITION = ("median |err| <indicator>: the median, over the policy's changes, of |the indicator at its change "
-                   "- the reference line at that speed|. A median, because the TTCs t_f and t_nf of slowly closing "
-                   "leaders run to minutes and a few of them would set a mean (the means are `mae_*` in the JSON "
-                   "download). Timing MAE: mean |time of its first change - time of the driver's press|.")
+EVAL_DEFINITION = (
+    "median |err| <indicator>: the median, over the policy's changes, of |the indicator at its change "
+    "- the reference line at that speed|. A median, because the TTCs t_f and t_nf of slowly closing "
+    "leaders run to minutes and a few of them would set a mean (the means are `mae_*` in the JSON "
+    "download). Timing MAE: mean |time of its first change - time of the driver's press|."
+)
 
 
 def evaluation_table(summary: list[dict[str, Any]] | None) -> pd.DataFrame:
@@ -175,8 +212,23 @@ def compare_runs(tables: dict[str, pd.DataFrame]) -> pd.DataFrame:
     return out[["run_id", *[c for c in out.columns if c != "run_id"]]]
 
 
-FIT_SUMMARY_COLUMNS = ["indicator", "unit", "flag", "status", "A", "A_lo", "A_hi", "b", "b_lo", "b_hi", "r2", "n",
-                       "v_min", "v_max", "reason"]
+FIT_SUMMARY_COLUMNS = [
+    "indicator",
+    "unit",
+    "flag",
+    "status",
+    "A",
+    "A_lo",
+    "A_hi",
+    "b",
+    "b_lo",
+    "b_hi",
+    "r2",
+    "n",
+    "v_min",
+    "v_max",
+    "reason",
+]
 
 
 def fit_summary(fits: pd.DataFrame) -> pd.DataFrame:
@@ -228,16 +280,35 @@ def feature_candidates(meta: dict[str, Any]) -> pd.DataFrame:
     rows = []
     for c in feats.get("candidates") or []:
         inds = c.get("indicators")
-        rows.append({"feature set": c.get("name"), "indicators": ", ".join(inds) if isinstance(inds, list) else inds,
-                     "k": c.get("k"), "silhouette [-]": c.get("silhouette"), "stability [-]": c.get("stability"),
-                     "score [-]": c.get("score"),
-                     "presses read per driver": c.get("presses_read"),
-                     "held-out log-likelihood [-]": c.get("heldout_ll"),
-                     "reliability [-]": c.get("reliability"),
-                     "chosen": c.get("name") == feats.get("chosen")})
-    out = pd.DataFrame(rows, columns=["feature set", "indicators", "k", "silhouette [-]", "stability [-]",
-                                      "score [-]", "presses read per driver", "held-out log-likelihood [-]",
-                                      "reliability [-]", "chosen"])
+        rows.append(
+            {
+                "feature set": c.get("name"),
+                "indicators": ", ".join(inds) if isinstance(inds, list) else inds,
+                "k": c.get("k"),
+                "silhouette [-]": c.get("silhouette"),
+                "stability [-]": c.get("stability"),
+                "score [-]": c.get("score"),
+                "presses read per driver": c.get("presses_read"),
+                "held-out log-likelihood [-]": c.get("heldout_ll"),
+                "reliability [-]": c.get("reliability"),
+                "chosen": c.get("name") == feats.get("chosen"),
+            }
+        )
+    out = pd.DataFrame(
+        rows,
+        columns=[
+            "feature set",
+            "indicators",
+            "k",
+            "silhouette [-]",
+            "stability [-]",
+            "score [-]",
+            "presses read per driver",
+            "held-out log-likelihood [-]",
+            "reliability [-]",
+            "chosen",
+        ],
+    )
     out["held-out log-likelihood [-]"] = pd.to_numeric(out["held-out log-likelihood [-]"], errors="coerce").round(1)
     out["presses read per driver"] = pd.to_numeric(out["presses read per driver"], errors="coerce")
     for c in ("silhouette [-]", "stability [-]", "score [-]", "reliability [-]"):
@@ -300,8 +371,9 @@ def _interval(row: dict | None, key: str, scale: float, digits: int) -> str:
     return f"{float(ci[0]) * scale:.{digits}f} – {float(ci[1]) * scale:.{digits}f}"
 
 
-def crossval_table(held_out: list[dict[str, Any]] | None,
-                   in_sample: list[dict[str, Any]] | None = None) -> pd.DataFrame:
+def crossval_table(
+    held_out: list[dict[str, Any]] | None, in_sample: list[dict[str, Any]] | None = None
+) -> pd.DataFrame:
     """Agent, greedy and imitation side by side: each figure in-sample (a run's evaluation, when
     given), then held out with its 95 % interval, then the held-out decisions scored.
 
@@ -320,8 +392,9 @@ def crossval_table(held_out: list[dict[str, Any]] | None,
                 row[f"{name} in-sample [{unit}]"] = _number(ins.get(who), key, scale)
             row[f"{name} held out [{unit}]"] = _number(held.get(who), key, scale)
             if ci_key:
-                row[f"{name} held out 95 % interval [{unit}]"] = _interval(held.get(who), ci_key, scale,
-                                                                           1 if unit == "%" else 2)
+                row[f"{name} held out 95 % interval [{unit}]"] = _interval(
+                    held.get(who), ci_key, scale, 1 if unit == "%" else 2
+                )
         row["decisions held out"] = (held.get(who) or {}).get("n_decisions")
         rows.append(row)
     return pd.DataFrame(rows)
@@ -333,10 +406,11 @@ def unscored_table(result: dict[str, Any]) -> pd.DataFrame:
         from rl.problem.env import SKIP_REASONS
     except ImportError:  # pragma: no cover - the RL stage is part of the package
         SKIP_REASONS = {}
-    items = sorted(((str(k), int(v)) for k, v in (result.get("unscored") or {}).items() if v),
-                   key=lambda kv: -kv[1])
-    return pd.DataFrame([{"reason": k, "meaning": SKIP_REASONS.get(k, ""), "decisions": v} for k, v in items],
-                        columns=["reason", "meaning", "decisions"])
+    items = sorted(((str(k), int(v)) for k, v in (result.get("unscored") or {}).items() if v), key=lambda kv: -kv[1])
+    return pd.DataFrame(
+        [{"reason": k, "meaning": SKIP_REASONS.get(k, ""), "decisions": v} for k, v in items],
+        columns=["reason", "meaning", "decisions"],
+    )
 
 
 def scored_line(result: dict[str, Any]) -> str:
@@ -344,9 +418,11 @@ def scored_line(result: dict[str, Any]) -> str:
     total, scored = result.get("n_decisions_total"), result.get("n_decisions_scored")
     settings = result.get("settings") or {}
     share = f" ({scored / total:.0%})" if total and scored is not None else ""
-    return (f"{scored if scored is not None else '?'} of {total if total is not None else '?'} decisions scored"
-            f"{share}, {result.get('folds', '?')} folds by {settings.get('split', '?')}, "
-            f"seed {settings.get('seed', '?')}, {settings.get('n_bootstrap', '?')} bootstrap resamples")
+    return (
+        f"{scored if scored is not None else '?'} of {total if total is not None else '?'} decisions scored"
+        f"{share}, {result.get('folds', '?')} folds by {settings.get('split', '?')}, "
+        f"seed {settings.get('seed', '?')}, {settings.get('n_bootstrap', '?')} bootstrap resamples"
+    )
 
 
 def crossvals_view(table: pd.DataFrame) -> pd.DataFrame:
@@ -361,17 +437,22 @@ def crossvals_view(table: pd.DataFrame) -> pd.DataFrame:
         col = f"{who}_balanced_accuracy"
         if col in out:
             out = out.rename(columns={col: f"{who} balanced accuracy [%]"})
-            out[f"{who} balanced accuracy [%]"] = (pd.to_numeric(out[f"{who} balanced accuracy [%]"],
-                                                                 errors="coerce") * 100).round(1)
+            out[f"{who} balanced accuracy [%]"] = (
+                pd.to_numeric(out[f"{who} balanced accuracy [%]"], errors="coerce") * 100
+            ).round(1)
     return out
 
 
 def crossval_label(row: pd.Series | dict) -> str:
     """'2026-11-30 14:10 · style Normal · run n1 · reward decisions · 4 folds' for a picker."""
     when = str(row.get("created_at") or "")[:16].replace("T", " ")
-    parts = [when, f"{row.get('target_kind')} {row.get('target')}",
-             f"run {row['run_id']}" if row.get("run_id") else "no run", f"reward {row.get('reward')}",
-             f"{row.get('folds')} folds"]
+    parts = [
+        when,
+        f"{row.get('target_kind')} {row.get('target')}",
+        f"run {row['run_id']}" if row.get("run_id") else "no run",
+        f"reward {row.get('reward')}",
+        f"{row.get('folds')} folds",
+    ]
     analysis = str(row.get("analysis") or "")
     if analysis and "current" not in analysis:  # made with an earlier analysis, or one not recorded
         parts.append(analysis)
@@ -389,8 +470,10 @@ def default_crossval(table: pd.DataFrame, run_id: str, target: dict[str, Any], o
     mine = view[view["run_id"].astype(str) == str(run_id)]
     if len(mine):
         return str(mine["crossval_id"].iloc[0])
-    same = view[(view["target_kind"].astype(str) == str(target.get("kind")))
-                & (view["target"].astype(str) == str(target.get("name")))]
+    same = view[
+        (view["target_kind"].astype(str) == str(target.get("kind")))
+        & (view["target"].astype(str) == str(target.get("name")))
+    ]
     return str(same["crossval_id"].iloc[0]) if len(same) else None
 
 
@@ -399,8 +482,7 @@ def crossval_differences(result: dict[str, Any], run_id: str, config: dict[str, 
     other scenes, observation or reward, fewer or more training episodes per fold."""
     out = []
     if result.get("run_id") != run_id:
-        out.append(f"it is of {'run ' + str(result['run_id']) if result.get('run_id') else 'no run'}, "
-                   f"not of {run_id}")
+        out.append(f"it is of {'run ' + str(result['run_id']) if result.get('run_id') else 'no run'}, not of {run_id}")
     tgt, run_tgt = result.get("target") or {}, config.get("target") or {}
     if (tgt.get("kind"), tgt.get("name")) != (run_tgt.get("kind"), run_tgt.get("name")):
         out.append(f"its target is {tgt.get('kind')} {tgt.get('name')}")
@@ -430,13 +512,19 @@ def command_text(cmd: list[str]) -> str:
 
 #: A fleet table's columns as the pages show them -> (label, scale).
 FLEET_COLUMNS = {
-    "target": ("target", None), "seed": ("seed", None), "state": ("state", None),
-    "agent_balanced_accuracy": ("agent BA [%]", 100.0), "greedy_balanced_accuracy": ("greedy BA [%]", 100.0),
+    "target": ("target", None),
+    "seed": ("seed", None),
+    "state": ("state", None),
+    "agent_balanced_accuracy": ("agent BA [%]", 100.0),
+    "greedy_balanced_accuracy": ("greedy BA [%]", 100.0),
     "imitation_balanced_accuracy": ("imitation BA [%]", 100.0),
     "agent_minus_greedy": ("agent - greedy BA [points]", 100.0),
-    "agent_recall": ("agent recall [%]", 100.0), "greedy_recall": ("greedy recall [%]", 100.0),
-    "imitation_recall": ("imitation recall [%]", 100.0), "meets_target": ("meets target", None),
-    "timing_mae_s": ("agent timing MAE [s]", 1.0), "run_id": ("run_id", None),
+    "agent_recall": ("agent recall [%]", 100.0),
+    "greedy_recall": ("greedy recall [%]", 100.0),
+    "imitation_recall": ("imitation recall [%]", 100.0),
+    "meets_target": ("meets target", None),
+    "timing_mae_s": ("agent timing MAE [s]", 1.0),
+    "run_id": ("run_id", None),
 }
 
 
@@ -453,8 +541,10 @@ def fleet_view(table: pd.DataFrame) -> pd.DataFrame:
 def fleet_label(row: pd.Series | dict) -> str:
     """'<fleet_id>: 100 drivers x 1 seed, 40/100 done (running)'."""
     seeds = int(row.get("n_seeds") or 0)
-    return (f"{row['fleet_id']}: {row.get('targets')} x {seeds} seed{'s' if seeds != 1 else ''}, "
-            f"{int(row.get('n_done') or 0)}/{int(row.get('n_runs') or 0)} done ({row.get('state')})")
+    return (
+        f"{row['fleet_id']}: {row.get('targets')} x {seeds} seed{'s' if seeds != 1 else ''}, "
+        f"{int(row.get('n_done') or 0)}/{int(row.get('n_runs') or 0)} done ({row.get('state')})"
+    )
 
 
 def fleet_headline(table: pd.DataFrame) -> str:
@@ -463,10 +553,15 @@ def fleet_headline(table: pd.DataFrame) -> str:
     if evaluated.empty:
         return "No agent evaluated yet."
     meets = int((evaluated["meets_target"] == True).sum())  # noqa: E712 (None: not evaluated)
-    medians = ", ".join(f"{who} {100 * evaluated[f'{who}_balanced_accuracy'].median():.1f} %"
-                        for who in ("agent", "greedy", "imitation") if evaluated[f"{who}_balanced_accuracy"].notna().any())
-    return (f"{meets} of {len(evaluated)} evaluated agents meet their target (recall >= 95 %, balanced accuracy "
-            f">= greedy + 5 points); median balanced accuracy (in-sample): {medians}.")
+    medians = ", ".join(
+        f"{who} {100 * evaluated[f'{who}_balanced_accuracy'].median():.1f} %"
+        for who in ("agent", "greedy", "imitation")
+        if evaluated[f"{who}_balanced_accuracy"].notna().any()
+    )
+    return (
+        f"{meets} of {len(evaluated)} evaluated agents meet their target (recall >= 95 %, balanced accuracy "
+        f">= greedy + 5 points); median balanced accuracy (in-sample): {medians}."
+    )
 
 
 def speeds_text(meta: dict[str, Any]) -> str:
@@ -503,27 +598,32 @@ def progress_text(names: dict[str, str]):
     def text(done: int, total: int, message: str) -> str:
         m = pattern.match(message or "")
         if m:
-            return (f"reading decisions: recording {done + 1} of {total} "
-                    f"({names.get(m.group(1), m.group(1)[:8])})")
+            return f"reading decisions: recording {done + 1} of {total} ({names.get(m.group(1), m.group(1)[:8])})"
         if message == "fits and styles":
             return "fitting each driver's lines, choosing the features and clustering the styles"
         return message
+
     return text
 
 
 def never_learnt(metrics: pd.DataFrame | None, config: dict[str, Any]) -> str:
     """A warning when a run never updated its network (no loss in any episode: learning had not begun),
     '' otherwise."""
-    if metrics is None or metrics.empty or ("loss" in metrics and pd.to_numeric(metrics["loss"],
-                                                                                  errors="coerce").notna().any()):
+    if (
+        metrics is None
+        or metrics.empty
+        or ("loss" in metrics and pd.to_numeric(metrics["loss"], errors="coerce").notna().any())
+    ):
         return ""
     starts = (config.get("dqn") or {}).get("learning_starts")
     steps = pd.to_numeric(metrics.get("env_steps"), errors="coerce").max() if "env_steps" in metrics else None
     took = f" it took {int(steps):,} transitions in {len(metrics):,} episodes," if steps == steps and steps else ""
-    return (f"This agent never learnt:{took} and learning starts after "
-            f"{f'{int(starts):,}' if starts else 'more'} transitions, so its network was never updated and its "
-            "figures below are an untrained network's. Train it with more episodes (or fewer learning-start "
-            "transitions).")
+    return (
+        f"This agent never learnt:{took} and learning starts after "
+        f"{f'{int(starts):,}' if starts else 'more'} transitions, so its network was never updated and its "
+        "figures below are an untrained network's. Train it with more episodes (or fewer learning-start "
+        "transitions)."
+    )
 
 
 def analysis_notice(recorded: str | None, current: str | None, what: str = "run") -> tuple[str, str]:
@@ -534,12 +634,16 @@ def analysis_notice(recorded: str | None, current: str | None, what: str = "run"
 
     mark = analysis_mark(recorded, current)
     if mark["analysis"] == "earlier":
-        return "warning", (f"This {what} was {mark['analysis_label']}. It was made with analysis "
-                           f"`{recorded}`; the current analysis is `{current or 'none'}` (its styles or reference "
-                           f"lines differ), so its drivers, typical driver and lines may no longer be the style's.")
+        return "warning", (
+            f"This {what} was {mark['analysis_label']}. It was made with analysis "
+            f"`{recorded}`; the current analysis is `{current or 'none'}` (its styles or reference "
+            f"lines differ), so its drivers, typical driver and lines may no longer be the style's."
+        )
     if mark["analysis"] == "unknown":
-        return "info", (f"This {what}: {mark['analysis_label']} (made before results recorded the analysis they "
-                        "used); re-run it to be sure it matches the current analysis.")
+        return "info", (
+            f"This {what}: {mark['analysis_label']} (made before results recorded the analysis they "
+            "used); re-run it to be sure it matches the current analysis."
+        )
     return "ok", f"This {what} was {mark['analysis_label']} (`{current}`)."
 
 
@@ -550,17 +654,23 @@ def evaluation_heading(ev: dict[str, Any]) -> tuple[str, str]:
     scored_on = str(ev.get("scored_on") or "in-sample")
     if scored_on.startswith("held out"):
         split = ev.get("split") or {}
-        return (f"Held out: agent vs benchmarks vs driver ({scored_on})",
-                f"{scored_on.capitalize()}: the agent was built from the driver's first {split.get('given', 'K')} "
-                "decisions, the imitation classifier fitted on the same ones, greedy follows the style's lines; "
-                "all are scored on the decisions none of them saw.")
+        return (
+            f"Held out: agent vs benchmarks vs driver ({scored_on})",
+            f"{scored_on.capitalize()}: the agent was built from the driver's first {split.get('given', 'K')} "
+            "decisions, the imitation classifier fitted on the same ones, greedy follows the style's lines; "
+            "all are scored on the decisions none of them saw.",
+        )
     if scored_on.startswith("in-sample: all"):
-        return ("In-sample: agent vs benchmarks vs driver",
-                f"{scored_on.capitalize()}: every decision of the driver was given to the personalisation, so "
-                "there are none left to hold out; the imitation classifier is fitted on the same decisions.")
-    return ("In-sample: agent vs benchmarks vs driver",
-            "In-sample: scored on the decisions the agent was trained on (and the imitation classifier, "
-            "when present, fitted on); the held-out figures below hold sessions out.")
+        return (
+            "In-sample: agent vs benchmarks vs driver",
+            f"{scored_on.capitalize()}: every decision of the driver was given to the personalisation, so "
+            "there are none left to hold out; the imitation classifier is fitted on the same decisions.",
+        )
+    return (
+        "In-sample: agent vs benchmarks vs driver",
+        "In-sample: scored on the decisions the agent was trained on (and the imitation classifier, "
+        "when present, fitted on); the held-out figures below hold sessions out.",
+    )
 
 
 def personalize_progress(run_id: str, status: dict[str, Any]) -> tuple[float, str]:
@@ -585,8 +695,10 @@ def personalize_done(run_id: str, status: dict[str, Any], p: dict[str, Any] | No
     if later:
         lo, hi = later.get("balanced_accuracy_ci") or [None, None]
         ci = f" [{100 * lo:.1f}, {100 * hi:.1f}]" if lo is not None else ""
-        text += (f" Held out (the {later.get('n_decisions')} decisions not given): balanced accuracy "
-                 f"{100 * later['balanced_accuracy']:.1f} %{ci}.")
+        text += (
+            f" Held out (the {later.get('n_decisions')} decisions not given): balanced accuracy "
+            f"{100 * later['balanced_accuracy']:.1f} %{ci}."
+        )
     elif p:
         text += " Every decision was given: no held-out figures."
     return text
@@ -597,16 +709,21 @@ def run_header(run_id: str, cfg: dict[str, Any], status: dict[str, Any] | None) 
     for a personalised run, its base and K decisions instead of "0 episodes")."""
     status = status or {}
     tgt = cfg.get("target", {})
-    head = (f"**{md_escape(run_id)}**: {tgt.get('kind')} **{md_escape(str(tgt.get('name')))}**, reward `{cfg.get('reward')}`, "
-            f"lines `{cfg.get('lines_source')}`, seed {cfg.get('seed')}, ")
+    head = (
+        f"**{md_escape(run_id)}**: {tgt.get('kind')} **{md_escape(str(tgt.get('name')))}**, reward `{cfg.get('reward')}`, "
+        f"lines `{cfg.get('lines_source')}`, seed {cfg.get('seed')}, "
+    )
     if cfg.get("kind") == "personalized":
         base = cfg.get("base") or {}
-        what = status.get("message") or (f"personalised from the {base.get('chosen') or base.get('from')} agent "
-                                         f"on {cfg.get('decisions')} decisions")
+        what = status.get("message") or (
+            f"personalised from the {base.get('chosen') or base.get('from')} agent on {cfg.get('decisions')} decisions"
+        )
         episodes = int(status.get("episode") or 0)
         tuned = f"fine-tuned {plural(episodes, 'episode')}" if episodes else "not fine-tuned"
-        return (head + f"personalised on the first {cfg.get('decisions')} of {cfg.get('decisions_available')} "
-                f"decisions: {what} ({tuned})")
+        return (
+            head + f"personalised on the first {cfg.get('decisions')} of {cfg.get('decisions_available')} "
+            f"decisions: {what} ({tuned})"
+        )
     return head + f"{status.get('episode', '?')} episodes"
 
 
@@ -633,17 +750,25 @@ def learner_text(cfg: dict[str, Any]) -> str:
         return f"Learner: {name} (asked for)."
     scores = choice.get("scores") or {}
     margin = (cfg.get("auto") or {}).get("margin")
-    text = (f"Learner: {name}, kept by `auto` (held-out agreement on {choice.get('n_holdout')} of the target's "
-            f"{choice.get('n_train')} approaches over {choice.get('folds') or 1} inner folds, mean balanced accuracy "
-            "over the sides: " + ", ".join(f"{_LEARNER_NAMES.get(k, k)} {_percent(v)}" for k, v in scores.items()))
+    text = (
+        f"Learner: {name}, kept by `auto` (held-out agreement on {choice.get('n_holdout')} of the target's "
+        f"{choice.get('n_train')} approaches over {choice.get('folds') or 1} inner folds, mean balanced accuracy "
+        "over the sides: " + ", ".join(f"{_LEARNER_NAMES.get(k, k)} {_percent(v)}" for k, v in scores.items())
+    )
     if margin is not None:
         text += f"; the trees are kept only when better by more than {100 * float(margin):g} points"
     text += ")."
     by_side = choice.get("by_side") or {}
     if by_side:
-        text += " By side: " + "; ".join(
-            f"{_LEARNER_NAMES.get(k, k)} " + ", ".join(f"{side} {_percent(v)}" for side, v in sides.items())
-            for k, sides in by_side.items() if sides) + "."
+        text += (
+            " By side: "
+            + "; ".join(
+                f"{_LEARNER_NAMES.get(k, k)} " + ", ".join(f"{side} {_percent(v)}" for side, v in sides.items())
+                for k, sides in by_side.items()
+                if sides
+            )
+            + "."
+        )
     if choice.get("stopped"):
         text += f" Stopped early: {choice['stopped']}."
     return text
@@ -651,8 +776,13 @@ def learner_text(cfg: dict[str, Any]) -> str:
 
 def run_results(run: dict[str, Any], crossval: dict[str, Any] | None) -> dict[str, Any]:
     """What a run's results download holds: config, status, in-sample evaluation, its cross-validation."""
-    return {"run_id": run.get("run_id"), "config": run.get("config"), "status": run.get("status"),
-            "evaluation": run.get("evaluation"), "crossval": crossval}
+    return {
+        "run_id": run.get("run_id"),
+        "config": run.get("config"),
+        "status": run.get("status"),
+        "evaluation": run.get("evaluation"),
+        "crossval": crossval,
+    }
 
 
 def run_results_json(run: dict[str, Any], crossval: dict[str, Any] | None) -> str:
@@ -680,9 +810,10 @@ def time_left(status: dict[str, Any]) -> str:
 
     done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
     try:
-        elapsed = (datetime.fromisoformat(str(status["updated_at"]))
-                   - datetime.fromisoformat(str(status.get("phase_started_at") or status["started_at"]))
-                   ).total_seconds()
+        elapsed = (
+            datetime.fromisoformat(str(status["updated_at"]))
+            - datetime.fromisoformat(str(status.get("phase_started_at") or status["started_at"]))
+        ).total_seconds()
     except (KeyError, ValueError, TypeError):
         return ""
     if not total or done < 0.1 * total or elapsed <= 0:
@@ -712,8 +843,19 @@ def run_doing(status: dict[str, Any]) -> str:
 
 # --- directions (overtaking to the left, returning to the right) ----------------------------
 
-DIRECTION_FIT_COLUMNS = ["indicator", "direction", "unit", "n", "A", "b", "r2", "pearson_r", "significant", "flag",
-                         "reason"]
+DIRECTION_FIT_COLUMNS = [
+    "indicator",
+    "direction",
+    "unit",
+    "n",
+    "A",
+    "b",
+    "r2",
+    "pearson_r",
+    "significant",
+    "flag",
+    "reason",
+]
 
 
 def direction_fit_summary(fits_by_direction: pd.DataFrame | None, keep: tuple[str, ...] = ()) -> pd.DataFrame:
@@ -738,8 +880,11 @@ def direction_fit_summary(fits_by_direction: pd.DataFrame | None, keep: tuple[st
     # the analysis' order of indicators (the paper's three first), left before right
     rank = {ind: i for i, ind in enumerate(dict.fromkeys(out["indicator"]))}
     order = {"indicator": rank, "direction": {"left": 0, "right": 1}}
-    out = out.sort_values([*keep, "indicator", "direction"], kind="stable",
-                          key=lambda s: s.map(order[s.name]) if s.name in order else s.astype(str))
+    out = out.sort_values(
+        [*keep, "indicator", "direction"],
+        kind="stable",
+        key=lambda s: s.map(order[s.name]) if s.name in order else s.astype(str),
+    )
     return out.reset_index(drop=True).round(3)
 
 
@@ -766,19 +911,24 @@ def drive_label(folder: str, drive: dict[str, Any]) -> str:
     """'normal-s1: run R, 3 lanes, seed 1, 2.9 /km (drivers 3.0), 8 of 8 medians inside' for the drive picker."""
     fid = drive.get("fidelity") or {}
     rate = fid.get("rate")
-    what = (f", {rate['agent']['per_km']:.2f} /km (drivers {rate['drivers']['per_km']:.2f}), "
-            f"{fid['medians_in_iqr']} medians inside" if rate and rate["agent"]["per_km"] is not None
-            and rate["drivers"]["per_km"] is not None else "")
+    what = (
+        f", {rate['agent']['per_km']:.2f} /km (drivers {rate['drivers']['per_km']:.2f}), "
+        f"{fid['medians_in_iqr']} medians inside"
+        if rate and rate["agent"]["per_km"] is not None and rate["drivers"]["per_km"] is not None
+        else ""
+    )
     return f"{folder}: run {drive.get('run_id')}, {drive.get('lanes', 2)} lanes, seed {drive.get('seed')}{what}"
 
 
 #: what the rule of `laneprint drive` is for and when it acts instead of the agent, in a sentence
-DRIVE_RULE_NOTE = ("The rule is the assistant's held-back rule around the agent (docs: Concepts, Closed-loop "
-                   "driving). It is there for a situation the study's presses do not hold: following a slower "
-                   "leader with a free lane beside. It changes lane itself when a slower leader has held the ego "
-                   "back for the target drivers' patience (held back), and completes an overtaking, back into the "
-                   "lane left (return); otherwise it only holds back the agent's own changes into gaps smaller "
-                   "than any its drivers took. `laneprint drive --no-held-back` drives the agent alone.")
+DRIVE_RULE_NOTE = (
+    "The rule is the assistant's held-back rule around the agent (docs: Concepts, Closed-loop "
+    "driving). It is there for a situation the study's presses do not hold: following a slower "
+    "leader with a free lane beside. It changes lane itself when a slower leader has held the ego "
+    "back for the target drivers' patience (held back), and completes an overtaking, back into the "
+    "lane left (return); otherwise it only holds back the agent's own changes into gaps smaller "
+    "than any its drivers took. `laneprint drive --no-held-back` drives the agent alone."
+)
 
 
 def drive_made_by_table(drive: dict[str, Any]) -> pd.DataFrame:
@@ -790,10 +940,17 @@ def drive_made_by_table(drive: dict[str, Any]) -> pd.DataFrame:
     for r in [*drive.get("sections", []), {**(drive.get("totals") or {}), "speed_limit_kph": None}]:
         m = made_by(r)
         n = sum(m.values())
-        rows.append({"section": "total" if r.get("speed_limit_kph") is None else f"{r['speed_limit_kph']:g} km/h",
-                     "lane changes": n, "by the agent": m["agent"], "rule: held back": m["rule_held_back"],
-                     "rule: return": m["rule_return"], "not requested (SUMO)": m["unattributed"],
-                     "agent's share [%]": None if not n else round(100 * m["agent"] / n)})
+        rows.append(
+            {
+                "section": "total" if r.get("speed_limit_kph") is None else f"{r['speed_limit_kph']:g} km/h",
+                "lane changes": n,
+                "by the agent": m["agent"],
+                "rule: held back": m["rule_held_back"],
+                "rule: return": m["rule_return"],
+                "not requested (SUMO)": m["unattributed"],
+                "agent's share [%]": None if not n else round(100 * m["agent"] / n),
+            }
+        )
     out = pd.DataFrame(rows)
     if len(out) and not out["not requested (SUMO)"].any():
         out = out.drop(columns="not requested (SUMO)")

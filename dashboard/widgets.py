@@ -14,8 +14,10 @@ from laneprint.progress import ProgressFn
 
 #: Streamlit draws the elements of a rerunning script or fragment faded until they are sent again; a live
 #: view that reruns every second then looks greyed out half the time. This style keeps them drawn as they are.
-NO_FADE_CSS = ("<style>[data-stale='true'], .stale-element, [data-testid='stElementContainer'][data-stale] "
-               "{opacity: 1 !important; transition: none !important;}</style>")
+NO_FADE_CSS = (
+    "<style>[data-stale='true'], .stale-element, [data-testid='stElementContainer'][data-stale] "
+    "{opacity: 1 !important; transition: none !important;}</style>"
+)
 
 
 def page_help(key: str) -> None:
@@ -52,21 +54,41 @@ def crossval_launcher(ws, run_id: str, run_episodes: int | None) -> str | None:
     busy = jobs.active_crossvals(ws, run_id)
     c1, c2, c3, c4 = st.columns(4)
     folds = c1.number_input("Folds K", min_value=2, max_value=20, value=4, step=1, key=f"cv_folds_{run_id}")
-    split = c2.selectbox("Split", ["session", "section"], key=f"cv_split_{run_id}",
-                         help=docs_site.with_more("'session': each driver's sessions dealt to the folds; 'section': "
-                                                  "whole speed sections held out", "heldout"))
-    episodes = c3.number_input("Episodes per fold's agent", min_value=1, max_value=100_000, step=100,
-                               value=int(run_episodes or 10_000), key=f"cv_episodes_{run_id}")
-    boot = c4.number_input("Bootstrap resamples", min_value=10, max_value=100_000, value=1000, step=100,
-                           key=f"cv_bootstrap_{run_id}")
-    req = jobs.CrossvalRequest(run_id, int(folds), str(split), 0,
-                               None if run_episodes and int(episodes) == int(run_episodes) else int(episodes),
-                               int(boot))
-    st.caption(f"Trains one agent per fold (about {int(folds)} times this run's training), fits the imitation "
-               f"classifier per fold and scores all three on the sessions each never saw: "
-               f"`{views.command_text(jobs.crossval_command(req, ws.root))}`")
-    clicked = st.button("Cross-validate", key=f"cv_start_{run_id}", disabled=bool(busy),
-                        help="one at a time per run" if busy else None)
+    split = c2.selectbox(
+        "Split",
+        ["session", "section"],
+        key=f"cv_split_{run_id}",
+        help=docs_site.with_more(
+            "'session': each driver's sessions dealt to the folds; 'section': whole speed sections held out", "heldout"
+        ),
+    )
+    episodes = c3.number_input(
+        "Episodes per fold's agent",
+        min_value=1,
+        max_value=100_000,
+        step=100,
+        value=int(run_episodes or 10_000),
+        key=f"cv_episodes_{run_id}",
+    )
+    boot = c4.number_input(
+        "Bootstrap resamples", min_value=10, max_value=100_000, value=1000, step=100, key=f"cv_bootstrap_{run_id}"
+    )
+    req = jobs.CrossvalRequest(
+        run_id,
+        int(folds),
+        str(split),
+        0,
+        None if run_episodes and int(episodes) == int(run_episodes) else int(episodes),
+        int(boot),
+    )
+    st.caption(
+        f"Trains one agent per fold (about {int(folds)} times this run's training), fits the imitation "
+        f"classifier per fold and scores all three on the sessions each never saw: "
+        f"`{views.command_text(jobs.crossval_command(req, ws.root))}`"
+    )
+    clicked = st.button(
+        "Cross-validate", key=f"cv_start_{run_id}", disabled=bool(busy), help="one at a time per run" if busy else None
+    )
     if not clicked:
         return None
     job_id = jobs.launch_crossval(ws, req)
@@ -78,14 +100,15 @@ def crossval_launcher(ws, run_id: str, run_episodes: int | None) -> str | None:
 def crossval_panel(ws, job_id: str, status: dict) -> None:
     """Progress of one cross-validation job, with Cancel while it works and the log when it failed."""
     state = status.get("state")
-    st.progress(float(status.get("fraction") or 0.0),
-                text=f"cross-validation of {status.get('run_id')}: {state} — {status.get('message', '')}")
+    st.progress(
+        float(status.get("fraction") or 0.0),
+        text=f"cross-validation of {status.get('run_id')}: {state} — {status.get('message', '')}",
+    )
     if state in jobs.ACTIVE_STATES:
         if st.button("Cancel", key=f"cv_cancel_{job_id}"):
             jobs.cancel_crossval(ws, job_id)
     elif state == "done":
-        st.caption(f"Stored as `crossval/{status.get('crossval_id')}`: the held-out figures are on the "
-                   "Results page.")
+        st.caption(f"Stored as `crossval/{status.get('crossval_id')}`: the held-out figures are on the Results page.")
     elif status.get("log"):
         st.code(status["log"], language=None)
 
@@ -118,9 +141,18 @@ def live_crossvals(ws, run_id: str | None = None) -> list[str]:
 
 def smoothing_slider(key: str = "smoothing") -> float:
     """The training curves' smoothing weight (TensorBoard's slider: 0 = raw, 0.99 = very smooth)."""
-    return float(st.slider("Curve smoothing", min_value=0.0, max_value=0.99, value=0.95, step=0.01, key=key,
-                           help="Exponential moving average with debiasing, as TensorBoard draws it; the raw "
-                                "per-episode values stay faint behind the smoothed line."))
+    return float(
+        st.slider(
+            "Curve smoothing",
+            min_value=0.0,
+            max_value=0.99,
+            value=0.95,
+            step=0.01,
+            key=key,
+            help="Exponential moving average with debiasing, as TensorBoard draws it; the raw "
+            "per-episode values stay faint behind the smoothed line.",
+        )
+    )
 
 
 def figure_downloads(fig, name: str, key: str) -> None:
@@ -136,15 +168,24 @@ def figure_downloads(fig, name: str, key: str) -> None:
     with box:
         made_key = f"fig_dl_{key}"
         cols = st.columns(4)
-        cols[0].download_button("Data (CSV)", data=fx.figure_csv(fig), file_name=f"{name}.csv", mime="text/csv",
-                                key=f"fig_csv_{key}", on_click="ignore")
+        cols[0].download_button(
+            "Data (CSV)",
+            data=fx.figure_csv(fig),
+            file_name=f"{name}.csv",
+            mime="text/csv",
+            key=f"fig_csv_{key}",
+            on_click="ignore",
+        )
         if (why := fx.kaleido_missing()) is not None:
             cols[1].info(why)
             return
         made = st.session_state.get(made_key)
         if made is None:
-            if cols[1].button("Make SVG, PDF and PNG", key=f"fig_make_{key}",
-                              help="one journal column wide (page wide for several panels), 9 pt, white"):
+            if cols[1].button(
+                "Make SVG, PDF and PNG",
+                key=f"fig_make_{key}",
+                help="one journal column wide (page wide for several panels), 9 pt, white",
+            ):
                 with st.spinner("drawing with kaleido (a headless Chromium)..."):
                     try:
                         st.session_state[made_key] = fx.figure_images(fig)
@@ -160,8 +201,14 @@ def figure_downloads(fig, name: str, key: str) -> None:
             return
         mimes = {"svg": "image/svg+xml", "pdf": "application/pdf", "png": "image/png"}
         for col, fmt in zip(cols[1:], fx.FORMATS):
-            col.download_button(fmt.upper() + (" (300 dpi)" if fmt == "png" else ""), data=made[fmt],
-                                file_name=f"{name}.{fmt}", mime=mimes[fmt], key=f"fig_{fmt}_{key}", on_click="ignore")
+            col.download_button(
+                fmt.upper() + (" (300 dpi)" if fmt == "png" else ""),
+                data=made[fmt],
+                file_name=f"{name}.{fmt}",
+                mime=mimes[fmt],
+                key=f"fig_{fmt}_{key}",
+                on_click="ignore",
+            )
 
 
 def next_step(ws, page: str) -> None:

@@ -42,7 +42,8 @@ ACCEPTANCE_COLUMNS: dict[str, tuple[str, str, str]] = {
     "thw_nb": ("thw_nb_s", "thw_nb_status", "s"),
 }
 DERIVED_COLUMNS: tuple[str, ...] = ("thw_f_s", "dv_f_mps", "dv_nf_mps", "thw_nb_s") + tuple(
-    status for _, status, _ in ACCEPTANCE_COLUMNS.values())
+    status for _, status, _ in ACCEPTANCE_COLUMNS.values()
+)
 
 
 def _status(present: np.ndarray, *rules: tuple[np.ndarray, str]) -> np.ndarray:

@@ -38,8 +38,8 @@ import numpy as np
 import pandas as pd
 
 from indicators.acceptance import DERIVED_COLUMNS, add_acceptance
-from indicators.following import free_speed
 from indicators.settings import AnalysisSettings
+from indicators.speed import free_speed
 from indicators.stats import fit_reasons
 from laneprint.schemas import DECISIONS, Column, Schema
 
@@ -51,8 +51,11 @@ OTHER_SIDE = Schema(
     "In a lane with neighbours on both sides, the neighbouring lane opposite the target lane and "
     "its nearest vehicles ahead and behind, read as C_nf / C_nb are.",
     (
-        Column("other_lane", "int", "the ego lane's other neighbour (2 * ego_lane - target_lane); "
-                                    "-1 where the ego lane has none"),
+        Column(
+            "other_lane",
+            "int",
+            "the ego lane's other neighbour (2 * ego_lane - target_lane); -1 where the ego lane has none",
+        ),
         Column("other_nf_present", "bool", "a leader in the other lane"),
         Column("other_nf_x_m", "float", "[m]", nullable=True),
         Column("other_nf_v_mps", "float", "[m/s]", nullable=True),
@@ -68,9 +71,16 @@ OTHER_SIDE = Schema(
 
 #: Columns added to the DECISIONS contract by this stage.
 EXTRA_COLUMNS: tuple[str, ...] = (
-    "ego_v_free_mps",  # the ego's free speed over its recording [m/s] (`indicators.following.free_speed`)
-    "press_index", "lc_direction", "lane_change_t_s", "f_id", "nf_id", "nb_id",
-    "t_f_reason", "t_nf_reason", "dv_nb_reason",
+    "ego_v_free_mps",  # the ego's free speed over its recording [m/s] (`indicators.speed.free_speed`)
+    "press_index",
+    "lc_direction",
+    "lane_change_t_s",
+    "f_id",
+    "nf_id",
+    "nb_id",
+    "t_f_reason",
+    "t_nf_reason",
+    "dv_nb_reason",
 ) + tuple(OTHER_SIDE.names)
 COLUMNS: list[str] = DECISIONS.names + list(EXTRA_COLUMNS) + list(DERIVED_COLUMNS)
 
@@ -80,9 +90,17 @@ def empty_decisions() -> pd.DataFrame:
     kinds = {c.name: c.kind for c in DECISIONS.columns}
     dtypes = {"float": "float64", "int": "int64", "bool": "bool", "str": "object"}
     cols = {name: pd.Series(dtype=dtypes[kind]) for name, kind in kinds.items()}
-    cols.update({"ego_v_free_mps": pd.Series(dtype="float64"), "press_index": pd.Series(dtype="int64"), "lc_direction": pd.Series(dtype="object"),
-                 "lane_change_t_s": pd.Series(dtype="float64"), "f_id": pd.Series(dtype="object"),
-                 "nf_id": pd.Series(dtype="object"), "nb_id": pd.Series(dtype="object")})
+    cols.update(
+        {
+            "ego_v_free_mps": pd.Series(dtype="float64"),
+            "press_index": pd.Series(dtype="int64"),
+            "lc_direction": pd.Series(dtype="object"),
+            "lane_change_t_s": pd.Series(dtype="float64"),
+            "f_id": pd.Series(dtype="object"),
+            "nf_id": pd.Series(dtype="object"),
+            "nb_id": pd.Series(dtype="object"),
+        }
+    )
     cols.update({f"{ind}_reason": pd.Series(dtype="object") for ind in ("t_f", "t_nf", "dv_nb")})
     cols.update({c.name: pd.Series(dtype=dtypes[c.kind]) for c in OTHER_SIDE.columns})
     cols.update({c: pd.Series(dtype="object" if c.endswith("_status") else "float64") for c in DERIVED_COLUMNS})
@@ -93,8 +111,9 @@ def _skip(what: str, id_: str, reason: str) -> dict[str, str]:
     return {"what": what, "id": id_, "reason": reason}
 
 
-def _lane_change_ends(ego: pd.DataFrame, t: np.ndarray, lane_events: np.ndarray,
-                      settings: AnalysisSettings) -> np.ndarray:
+def _lane_change_ends(
+    ego: pd.DataFrame, t: np.ndarray, lane_events: np.ndarray, settings: AnalysisSettings
+) -> np.ndarray:
     """Time each lane change ends: the first sample after the lane flip whose lateral speed is
     below `settled_lateral_mps` (when ego_y is logged), else the flip + `settle_s`."""
     fallback = t[lane_events] + settings.settle_s if len(lane_events) else np.array([])
@@ -143,25 +162,46 @@ def find_presses(ego: pd.DataFrame, settings: AnalysisSettings) -> tuple[pd.Data
         # the last lane change before the press bounds the approach
         k_before = np.searchsorted(lane_events, p, side="right") - 1
         last_lc = settled[k_before] if k_before >= 0 else -np.inf
-        row = {"press_index": i, "sample": int(p), "press_t_s": t_press, "ego_lane": int(lane[p]),
-               "lc_direction": d, "last_lane_change_t_s": last_lc,
-               "prev_press_t_s": t[press_idx[i - 1]] if i > 0 else -np.inf}
+        row = {
+            "press_index": i,
+            "sample": int(p),
+            "press_t_s": t_press,
+            "ego_lane": int(lane[p]),
+            "lc_direction": d,
+            "last_lane_change_t_s": last_lc,
+            "prev_press_t_s": t[press_idx[i - 1]] if i > 0 else -np.inf,
+        }
         if changed:
             j = lane_events[k]
             row.update(target_lane=int(lane[j]), cancelled=False, lane_change_t_s=t[j])
         elif d is not None:
-            row.update(target_lane=int(lane[p]) + (1 if d == "left" else -1), cancelled=True,
-                       lane_change_t_s=np.nan)
+            row.update(target_lane=int(lane[p]) + (1 if d == "left" else -1), cancelled=True, lane_change_t_s=np.nan)
         else:
-            skipped.append(("press", i, f"no lane change within {settings.lane_change_lookahead_s:g} s "
-                                        "of the press and no lc_direction recorded: target lane unknown"))
+            skipped.append(
+                (
+                    "press",
+                    i,
+                    f"no lane change within {settings.lane_change_lookahead_s:g} s "
+                    "of the press and no lc_direction recorded: target lane unknown",
+                )
+            )
             continue
         if row["target_lane"] < 0:
             skipped.append(("press", i, "target lane would be right of lane 0 (lc_direction 'right' in lane 0)"))
             continue
         rows.append(row)
-    cols = ["press_index", "sample", "press_t_s", "ego_lane", "lc_direction", "last_lane_change_t_s",
-            "prev_press_t_s", "target_lane", "cancelled", "lane_change_t_s"]
+    cols = [
+        "press_index",
+        "sample",
+        "press_t_s",
+        "ego_lane",
+        "lc_direction",
+        "last_lane_change_t_s",
+        "prev_press_t_s",
+        "target_lane",
+        "cancelled",
+        "lane_change_t_s",
+    ]
     skipped_rows = [_skip("decision", str(idx), reason) for _, idx, reason in skipped]
     return pd.DataFrame(rows, columns=cols), skipped_rows
 
@@ -169,12 +209,14 @@ def find_presses(ego: pd.DataFrame, settings: AnalysisSettings) -> tuple[pd.Data
 def _state_times(presses: pd.DataFrame, t0: float, settings: AnalysisSettings) -> pd.DataFrame:
     """The press itself plus keep states every step_s back over the approach."""
     press_t = presses["press_t_s"].to_numpy()
-    start = np.maximum.reduce([
-        np.full(len(presses), t0),
-        press_t - settings.max_approach_s,
-        presses["last_lane_change_t_s"].to_numpy(),
-        presses["prev_press_t_s"].to_numpy() + 1e-6,  # after (not at) the previous press
-    ])
+    start = np.maximum.reduce(
+        [
+            np.full(len(presses), t0),
+            press_t - settings.max_approach_s,
+            presses["last_lane_change_t_s"].to_numpy(),
+            presses["prev_press_t_s"].to_numpy() + 1e-6,  # after (not at) the previous press
+        ]
+    )
     n_keep = np.floor((press_t - start) / settings.step_s + 1e-9).astype(int)
     n_keep = np.clip(n_keep, 0, None)
     # states: k = 0 (the press) .. n_keep (earliest keep state)
@@ -196,15 +238,21 @@ def _nearest(cands: pd.DataFrame, key: str, ascending: bool) -> pd.DataFrame:
 def ego_at(states: pd.DataFrame, ego: pd.DataFrame) -> pd.DataFrame:
     """`states` (columns `state`, `t_s`, ...) joined with the ego's latest sample at or before
     each state's time, its position carried forward to that time with its speed; in `state` order."""
-    e = pd.merge_asof(states.sort_values("t_s"), ego.rename(columns={"t_s": "ego_t_s"}),
-                      left_on="t_s", right_on="ego_t_s", direction="backward")
+    e = pd.merge_asof(
+        states.sort_values("t_s"),
+        ego.rename(columns={"t_s": "ego_t_s"}),
+        left_on="t_s",
+        right_on="ego_t_s",
+        direction="backward",
+    )
     e = e.sort_values("state").reset_index(drop=True)
     e["ego_x_m"] = e["ego_x_m"] + e["ego_v_mps"] * (e["t_s"] - e["ego_t_s"])
     return e
 
 
-def latest_samples(states: np.ndarray, t_states: np.ndarray, tr: pd.DataFrame, n_vehicles: int,
-                   tolerance_s: float) -> pd.DataFrame:
+def latest_samples(
+    states: np.ndarray, t_states: np.ndarray, tr: pd.DataFrame, n_vehicles: int, tolerance_s: float
+) -> pd.DataFrame:
     """Every (state, vehicle) pair with that vehicle's latest sample at or before the state's time
     and at most `tolerance_s` old: columns state, t_s, vehicle_id, veh_t_s and `tr`'s x_m, v_mps,
     lane, length_m; pairs in time order of the states (stable), vehicles in code order.
@@ -224,7 +272,7 @@ def latest_samples(states: np.ndarray, t_states: np.ndarray, tr: pd.DataFrame, n
     bounds = np.searchsorted(code[by_vehicle], np.arange(n_vehicles + 1))
     at = np.full((len(states), n_vehicles), -1, dtype=np.int64)  # row of tr per (state in time order, vehicle)
     for c in range(n_vehicles):
-        rows = by_vehicle[bounds[c]:bounds[c + 1]]
+        rows = by_vehicle[bounds[c] : bounds[c + 1]]
         i = np.searchsorted(t[rows], q_t_sorted, side="right") - 1  # the last sample at or before (raw times)
         at[:, c] = np.where(i >= 0, rows[np.maximum(i, 0)], -1)
     at_flat = at.ravel()
@@ -232,21 +280,32 @@ def latest_samples(states: np.ndarray, t_states: np.ndarray, tr: pd.DataFrame, n
     row = np.where(hit, at_flat, 0)
     hit &= (q_t - t[row]) <= tolerance_s
     row = row[hit]
-    return pd.DataFrame({"state": q_state[hit], "t_s": q_t[hit], "vehicle_id": q_code[hit], "veh_t_s": t[row],
-                         "x_m": tr["x_m"].to_numpy(dtype=float)[row], "v_mps": tr["v_mps"].to_numpy(dtype=float)[row],
-                         "lane": tr["lane"].to_numpy(dtype=np.int64)[row],
-                         "length_m": tr["length_m"].to_numpy(dtype=float)[row]})
+    return pd.DataFrame(
+        {
+            "state": q_state[hit],
+            "t_s": q_t[hit],
+            "vehicle_id": q_code[hit],
+            "veh_t_s": t[row],
+            "x_m": tr["x_m"].to_numpy(dtype=float)[row],
+            "v_mps": tr["v_mps"].to_numpy(dtype=float)[row],
+            "lane": tr["lane"].to_numpy(dtype=np.int64)[row],
+            "length_m": tr["length_m"].to_numpy(dtype=float)[row],
+        }
+    )
 
 
-def neighbours(e: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSettings,
-               only_leader: bool = False) -> dict[str, np.ndarray]:
+def neighbours(
+    e: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSettings, only_leader: bool = False
+) -> dict[str, np.ndarray]:
     """`C_f`, `C_nf`, `C_nb` at each state of `e` (an `ego_at` frame with `state` = 0..n-1 and a
     `target_lane` column): ``<role>_x_m``, ``<role>_v_mps``, ``<role>_gap_m`` (NaN when absent)
     and ``<role>_id`` (None), read as the module doc says. With an `other_lane` column also the
     roles ``other_nf`` / ``other_nb``, the same reading of that lane (absent where it is -1).
     `only_leader`: `C_f` alone (no `target_lane` needed)."""
     n = len(e)
-    roles = ("f",) if only_leader else ("f", "nf", "nb") + (("other_nf", "other_nb") if "other_lane" in e.columns else ())
+    roles = (
+        ("f",) if only_leader else ("f", "nf", "nb") + (("other_nf", "other_nb") if "other_lane" in e.columns else ())
+    )
     cols: dict[str, Any] = {}
     for role in roles:
         cols[f"{role}_x_m"] = np.full(n, np.nan)
@@ -264,15 +323,22 @@ def neighbours(e: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSetting
         sub = traffic[near]
         # merge on integer codes: ids may come as any string dtype (object, arrow, python)
         codes, vids = pd.factorize(sub["vehicle_id"])
-        tr = pd.DataFrame({"t_s": t_tr[near], "x_m": sub["x_m"].to_numpy(dtype=float),
-                           "v_mps": sub["v_mps"].to_numpy(dtype=float), "lane": sub["lane"].to_numpy(dtype=np.int64),
-                           "length_m": sub["length_m"].to_numpy(dtype=float),
-                           "vehicle_id": codes.astype(np.int64)})
+        tr = pd.DataFrame(
+            {
+                "t_s": t_tr[near],
+                "x_m": sub["x_m"].to_numpy(dtype=float),
+                "v_mps": sub["v_mps"].to_numpy(dtype=float),
+                "lane": sub["lane"].to_numpy(dtype=np.int64),
+                "length_m": sub["length_m"].to_numpy(dtype=float),
+                "vehicle_id": codes.astype(np.int64),
+            }
+        )
         if len(tr) > 1 and np.any(np.diff(tr["t_s"].to_numpy()) < 0):
             tr = tr.sort_values("t_s", kind="mergesort")
         vid_names = np.asarray([str(v) for v in vids], dtype=object)
-        m = latest_samples(e["state"].to_numpy(), e["t_s"].to_numpy(dtype=float), tr, len(vids),
-                           settings.traffic_tolerance_s)
+        m = latest_samples(
+            e["state"].to_numpy(), e["t_s"].to_numpy(dtype=float), tr, len(vids), settings.traffic_tolerance_s
+        )
         m["x_m"] = m["x_m"] + m["v_mps"] * (m["t_s"] - m["veh_t_s"])
         st = m["state"].to_numpy()
         m["dx"] = m["x_m"].to_numpy() - e["ego_x_m"].to_numpy()[st]
@@ -280,9 +346,12 @@ def neighbours(e: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSetting
         lane_v = m["lane"].to_numpy()
         picks = {"f": _nearest(m[(lane_v == e["ego_lane"].to_numpy()[st]) & (m["dx"].to_numpy() > 0)], "dx", True)}
         if not only_leader:
-            picks["nf"] = _nearest(m[(lane_v == e["target_lane"].to_numpy()[st]) & (m["dx"].to_numpy() > 0)], "dx", True)
-            picks["nb"] = _nearest(m[(lane_v == e["target_lane"].to_numpy()[st]) & (m["dx"].to_numpy() <= 0)], "dx",
-                                   False)
+            picks["nf"] = _nearest(
+                m[(lane_v == e["target_lane"].to_numpy()[st]) & (m["dx"].to_numpy() > 0)], "dx", True
+            )
+            picks["nb"] = _nearest(
+                m[(lane_v == e["target_lane"].to_numpy()[st]) & (m["dx"].to_numpy() <= 0)], "dx", False
+            )
         if "other_lane" in e.columns and not only_leader:  # -1 matches no vehicle's lane
             other = lane_v == e["other_lane"].to_numpy()[st]
             picks["other_nf"] = _nearest(m[other & (m["dx"].to_numpy() > 0)], "dx", True)
@@ -296,8 +365,9 @@ def neighbours(e: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSetting
     return cols
 
 
-def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame,
-                      settings: AnalysisSettings | None = None) -> tuple[pd.DataFrame, list[dict[str, str]]]:
+def extract_decisions(
+    meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSettings | None = None
+) -> tuple[pd.DataFrame, list[dict[str, str]]]:
     """Decision points of one recording (DECISIONS columns + extras) and what was skipped.
 
     `meta` is the recording's RECORDINGS row (driver_id, recording_id, session_id,
@@ -329,22 +399,24 @@ def extract_decisions(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataF
     cols = neighbours(e, traffic, settings)
 
     v_e = e["ego_v_mps"].to_numpy(dtype=float)
-    out = pd.DataFrame({
-        "driver_id": str(meta.get("driver_id", "")),
-        "recording_id": rid,
-        "session_id": str(meta.get("session_id", "")),
-        "decision_id": [f"{rid}:{i}" for i in p["press_index"]],
-        "t_s": e["t_s"].to_numpy(dtype=float),
-        "press_t_s": p["press_t_s"].to_numpy(dtype=float),
-        "label": np.where(e["k"].to_numpy() == 0, "change", "keep"),
-        "speed_limit_kph": _float_or_nan(meta.get("speed_limit_kph")),
-        "ego_v_mps": v_e,
-        "ego_v_free_mps": free_speed(ego["ego_v_mps"].to_numpy(dtype=float)),
-        "ego_x_m": e["ego_x_m"].to_numpy(dtype=float),
-        "ego_lane": e["ego_lane"].to_numpy(dtype=np.int64),
-        "target_lane": p["target_lane"].to_numpy(dtype=np.int64),
-        "cancelled": p["cancelled"].to_numpy(dtype=bool),
-    })
+    out = pd.DataFrame(
+        {
+            "driver_id": str(meta.get("driver_id", "")),
+            "recording_id": rid,
+            "session_id": str(meta.get("session_id", "")),
+            "decision_id": [f"{rid}:{i}" for i in p["press_index"]],
+            "t_s": e["t_s"].to_numpy(dtype=float),
+            "press_t_s": p["press_t_s"].to_numpy(dtype=float),
+            "label": np.where(e["k"].to_numpy() == 0, "change", "keep"),
+            "speed_limit_kph": _float_or_nan(meta.get("speed_limit_kph")),
+            "ego_v_mps": v_e,
+            "ego_v_free_mps": free_speed(ego["ego_v_mps"].to_numpy(dtype=float)),
+            "ego_x_m": e["ego_x_m"].to_numpy(dtype=float),
+            "ego_lane": e["ego_lane"].to_numpy(dtype=np.int64),
+            "target_lane": p["target_lane"].to_numpy(dtype=np.int64),
+            "cancelled": p["cancelled"].to_numpy(dtype=bool),
+        }
+    )
     for role in ("f", "nf"):
         present = ~np.isnan(cols[f"{role}_x_m"])
         closing = v_e - cols[f"{role}_v_mps"]

@@ -33,8 +33,9 @@ def press_counts(decisions: pd.DataFrame) -> dict[str, int]:
     return {d: int((side == d).sum()) for d in DIRECTIONS}
 
 
-def fits_by_direction(decisions: pd.DataFrame, settings: AnalysisSettings, drivers: list[str],
-                      indicators: tuple[str, ...]) -> pd.DataFrame:
+def fits_by_direction(
+    decisions: pd.DataFrame, settings: AnalysisSettings, drivers: list[str], indicators: tuple[str, ...]
+) -> pd.DataFrame:
     """`fit_lines` rows (plus pearson_r, pearson_p, significant) per driver, indicator and direction.
 
     A side with too few presses for a fit keeps its row, status 'skipped', and a reason
@@ -47,8 +48,11 @@ def fits_by_direction(decisions: pd.DataFrame, settings: AnalysisSettings, drive
         points = indicator_points(sub, settings)
         fits = fit_lines(sub, settings, points, drivers, indicators)
         corr = correlate(sub, settings, points, drivers, indicators)
-        fits = fits.merge(corr[["driver_id", "indicator", "pearson_r", "pearson_p", "significant"]],
-                          on=["driver_id", "indicator"], how="left")
+        fits = fits.merge(
+            corr[["driver_id", "indicator", "pearson_r", "pearson_p", "significant"]],
+            on=["driver_id", "indicator"],
+            how="left",
+        )
         skipped = fits["status"] != "ok"
         fits.loc[skipped, "reason"] = fits.loc[skipped, "reason"].astype(str) + f" to the {d}: the pooled line stands"
         fits.insert(2, "direction", d)

@@ -10,7 +10,7 @@ Every `follow_step_s` the ego's leader `C_f` is read as at the decision states
 (`indicators.decisions.neighbours`). A state is **steady following** when a leader
 drives ahead in the ego lane, the ego is not slower than `follow_min_speed_mps`, the
 gap is positive, |v_e - v_f| <= `follow_dv_mps`, and the ego is held back: slower than
-`follow_below_free` times its free speed (`FREE_SPEED_QUANTILE` of its speed over the
+`follow_below_free` times its free speed (`indicators.speed.free_speed`: a quantile of its speed over the
 recording). A car ahead that happens to drive at the ego's own desired speed, however
 far, is not followed: without that rule a sporty driver who seldom settles behind
 anyone is read by such cars, at 3-5 s. Consecutive steady states behind
@@ -33,12 +33,11 @@ import numpy as np
 import pandas as pd
 
 from indicators.settings import AnalysisSettings
+from indicators.speed import free_speed
 from laneprint.schemas import Column, Schema
 
 #: The quantile of a driver's episode headways read as the headway it keeps.
 FOLLOW_QUANTILE = 0.25
-#: The quantile of the ego's speed over a recording taken as its free speed there.
-FREE_SPEED_QUANTILE = 0.9
 
 FOLLOWING = Schema(
     "following",
@@ -64,15 +63,12 @@ COLUMNS = [c.name for c in FOLLOWING.columns]
 
 def empty_following() -> pd.DataFrame:
     """A following table with no episodes (the right columns and dtypes)."""
-    return pd.DataFrame({c.name: pd.Series(dtype="int64" if c.kind == "int" else "float64" if c.kind == "float"
-                                           else object) for c in FOLLOWING.columns})
-
-
-def free_speed(v: np.ndarray) -> float:
-    """The speed a driver drives at when nothing holds it back: the `FREE_SPEED_QUANTILE`
-    quantile of its speeds over a recording [m/s] (NaN with no speed)."""
-    v = np.asarray(v, dtype=float)
-    return float(np.nanquantile(v, FREE_SPEED_QUANTILE)) if np.isfinite(v).any() else np.nan
+    return pd.DataFrame(
+        {
+            c.name: pd.Series(dtype="int64" if c.kind == "int" else "float64" if c.kind == "float" else object)
+            for c in FOLLOWING.columns
+        }
+    )
 
 
 def steady_states(ego: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSettings) -> pd.DataFrame:
@@ -89,14 +85,29 @@ def steady_states(ego: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSe
     dv = v - cols["f_v_mps"]
     free = free_speed(v)
     with np.errstate(invalid="ignore"):
-        steady = (np.isfinite(gap) & (gap > 0) & (v >= settings.follow_min_speed_mps)
-                  & (np.abs(dv) <= settings.follow_dv_mps) & (v < settings.follow_below_free * free))
-    return pd.DataFrame({"t_s": t, "ego_lane": e["ego_lane"].to_numpy(dtype=np.int64), "ego_v_mps": v,
-                         "f_gap_m": gap, "dv_f_mps": dv, "f_id": cols["f_id"], "steady": steady})
+        steady = (
+            np.isfinite(gap)
+            & (gap > 0)
+            & (v >= settings.follow_min_speed_mps)
+            & (np.abs(dv) <= settings.follow_dv_mps)
+            & (v < settings.follow_below_free * free)
+        )
+    return pd.DataFrame(
+        {
+            "t_s": t,
+            "ego_lane": e["ego_lane"].to_numpy(dtype=np.int64),
+            "ego_v_mps": v,
+            "f_gap_m": gap,
+            "dv_f_mps": dv,
+            "f_id": cols["f_id"],
+            "steady": steady,
+        }
+    )
 
 
-def following_episodes(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame,
-                       settings: AnalysisSettings | None = None) -> pd.DataFrame:
+def following_episodes(
+    meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame, settings: AnalysisSettings | None = None
+) -> pd.DataFrame:
     """Steady-following episodes of one recording (`FOLLOWING` columns), as the module doc says."""
     settings = settings or AnalysisSettings()
     if len(ego) < 2 or len(traffic) == 0:
@@ -121,12 +132,22 @@ def following_episodes(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.Data
         return [float(np.median(x[a:b])) for a, b in zip(starts, stops)]
 
     rid = str(meta.get("recording_id", ""))
-    ep = pd.DataFrame({
-        "driver_id": str(meta.get("driver_id", "")), "recording_id": rid,
-        "session_id": str(meta.get("session_id", "")), "episode_id": [f"{rid}:f{i}" for i in range(len(starts))],
-        "t_start_s": t[starts], "duration_s": t[stops - 1] - t[starts] + settings.follow_step_s,
-        "ego_lane": lane[starts].astype(np.int64), "f_id": [str(x) for x in lead[starts]],
-        "ego_v_mps": median(v), "f_gap_m": median(gap), "dv_f_mps": median(dv), "thw_s": median(thw)})
+    ep = pd.DataFrame(
+        {
+            "driver_id": str(meta.get("driver_id", "")),
+            "recording_id": rid,
+            "session_id": str(meta.get("session_id", "")),
+            "episode_id": [f"{rid}:f{i}" for i in range(len(starts))],
+            "t_start_s": t[starts],
+            "duration_s": t[stops - 1] - t[starts] + settings.follow_step_s,
+            "ego_lane": lane[starts].astype(np.int64),
+            "f_id": [str(x) for x in lead[starts]],
+            "ego_v_mps": median(v),
+            "f_gap_m": median(gap),
+            "dv_f_mps": median(dv),
+            "thw_s": median(thw),
+        }
+    )
     return ep[COLUMNS]
 
 
@@ -134,9 +155,18 @@ def following_levels(following: pd.DataFrame) -> pd.DataFrame:
     """Per driver: its number of episodes and its `thw_follow` level [s] (the `FOLLOW_QUANTILE`
     quantile of its episodes' headways, on the log scale as the clustering reads it)."""
     if following is None or following.empty:
-        return pd.DataFrame({"driver_id": pd.Series(dtype=object), "episodes": pd.Series(dtype="int64"),
-                             "thw_follow_s": pd.Series(dtype=float)})
+        return pd.DataFrame(
+            {
+                "driver_id": pd.Series(dtype=object),
+                "episodes": pd.Series(dtype="int64"),
+                "thw_follow_s": pd.Series(dtype=float),
+            }
+        )
     g = following.assign(log_thw=np.log(following["thw_s"].astype(float).clip(lower=0.05))).groupby(
-        following["driver_id"].astype(str))["log_thw"]
-    return pd.DataFrame({"episodes": g.size(), "thw_follow_s": np.exp(g.quantile(FOLLOW_QUANTILE))}
-                        ).rename_axis("driver_id").reset_index()
+        following["driver_id"].astype(str)
+    )["log_thw"]
+    return (
+        pd.DataFrame({"episodes": g.size(), "thw_follow_s": np.exp(g.quantile(FOLLOW_QUANTILE))})
+        .rename_axis("driver_id")
+        .reset_index()
+    )

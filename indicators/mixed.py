@@ -32,8 +32,13 @@ def mixed_fits(groups: list, alpha: float = 0.05) -> dict[str, dict[str, float]]
     usable = [g for g in groups if len(g.v) >= MIN_MIXED_POINTS]
     if len(usable) < 2:
         return None
-    df = pd.DataFrame({"driver": np.concatenate([[g.driver_id] * len(g.v) for g in usable]),
-                       "v": np.concatenate([g.v for g in usable]), "y": np.concatenate([g.y for g in usable])})
+    df = pd.DataFrame(
+        {
+            "driver": np.concatenate([[g.driver_id] * len(g.v) for g in usable]),
+            "v": np.concatenate([g.v for g in usable]),
+            "y": np.concatenate([g.y for g in usable]),
+        }
+    )
     v0 = float(df["v"].mean())
     df["vc"] = df["v"] - v0
     with warnings.catch_warnings():
@@ -63,14 +68,24 @@ def mixed_fits(groups: list, alpha: float = 0.05) -> dict[str, dict[str, float]]
         b0, A = fe[0] + u[0], fe[1] + u[1]
         b = b0 - A * v0
         A_se = float(np.sqrt(max(cov[1, 1], 0.0)))
-        var_b = cov[0, 0] + v0 ** 2 * cov[1, 1] - 2 * v0 * cov[0, 1]
+        var_b = cov[0, 0] + v0**2 * cov[1, 1] - 2 * v0 * cov[0, 1]
         b_se = float(np.sqrt(max(var_b, 0.0)))
         pred = A * g.v + b
         ss_tot = float(((g.y - g.y.mean()) ** 2).sum())
         r2 = 1 - float(((g.y - pred) ** 2).sum()) / ss_tot if ss_tot > 0 else 0.0
-        out[g.driver_id] = {"A": float(A), "b": float(b), "A_se": A_se, "b_se": b_se,
-                            "A_lo": float(A - z * A_se), "A_hi": float(A + z * A_se),
-                            "b_lo": float(b - z * b_se), "b_hi": float(b + z * b_se), "r2": float(r2),
-                            "n": int(len(g.v)), "cov_Ab": float(cov[1, 0] - v0 * cov[1, 1]),
-                            "resid_sd": float(np.sqrt(sigma2)), "df_resid": int(max(len(g.v) - 2, 0))}
+        out[g.driver_id] = {
+            "A": float(A),
+            "b": float(b),
+            "A_se": A_se,
+            "b_se": b_se,
+            "A_lo": float(A - z * A_se),
+            "A_hi": float(A + z * A_se),
+            "b_lo": float(b - z * b_se),
+            "b_hi": float(b + z * b_se),
+            "r2": float(r2),
+            "n": int(len(g.v)),
+            "cov_Ab": float(cov[1, 0] - v0 * cov[1, 1]),
+            "resid_sd": float(np.sqrt(sigma2)),
+            "df_resid": int(max(len(g.v) - 2, 0)),
+        }
     return out

@@ -42,10 +42,40 @@ TRAIT_UNITS: dict[str, str] = {"thw_follow": "s"}
 #: Everything a clustering feature can be made of, with its unit.
 FEATURE_UNITS: dict[str, str] = {**{k: v[2] for k, v in INDICATOR_COLUMNS.items()}, **TRAIT_UNITS}
 
-CORRELATION_COLUMNS = ["driver_id", "indicator", "n", "pearson_r", "pearson_p", "spearman_rho",
-                       "spearman_p", "significant", "reason"]
-FIT_COLUMNS = ["driver_id", "indicator", "A", "b", "A_se", "b_se", "A_lo", "A_hi", "b_lo", "b_hi", "r2", "n",
-               "status", "reason", "cov_Ab", "resid_sd", "df_resid", "v_min", "v_max", "flag", "level"]
+CORRELATION_COLUMNS = [
+    "driver_id",
+    "indicator",
+    "n",
+    "pearson_r",
+    "pearson_p",
+    "spearman_rho",
+    "spearman_p",
+    "significant",
+    "reason",
+]
+FIT_COLUMNS = [
+    "driver_id",
+    "indicator",
+    "A",
+    "b",
+    "A_se",
+    "b_se",
+    "A_lo",
+    "A_hi",
+    "b_lo",
+    "b_hi",
+    "r2",
+    "n",
+    "status",
+    "reason",
+    "cov_Ab",
+    "resid_sd",
+    "df_resid",
+    "v_min",
+    "v_max",
+    "flag",
+    "level",
+]
 
 
 @dataclass(frozen=True)
@@ -71,18 +101,37 @@ class LineFit:
         """Mean line, (1 - alpha) confidence band of the mean and prediction band at speeds `v`."""
         v = np.asarray(v, dtype=float)
         mean = self.A * v + self.b
-        var_mean = (v ** 2) * self.A_se ** 2 + self.b_se ** 2 + 2 * v * self.cov_Ab
+        var_mean = (v**2) * self.A_se**2 + self.b_se**2 + 2 * v * self.cov_Ab
         var_mean = np.maximum(var_mean, 0.0)
         q = sstats.t.ppf(1 - self.alpha / 2, max(self.df_resid, 1))
         ci = q * np.sqrt(var_mean)
-        pi = q * np.sqrt(var_mean + self.resid_sd ** 2)
+        pi = q * np.sqrt(var_mean + self.resid_sd**2)
         return {"mean": mean, "ci_lo": mean - ci, "ci_hi": mean + ci, "pi_lo": mean - pi, "pi_hi": mean + pi}
 
     @classmethod
     def from_row(cls, row: pd.Series | dict, alpha: float = 0.05) -> "LineFit":
         """Rebuild from a row of the fits table (status 'ok')."""
-        return cls(**{k: row[k] for k in ("A", "b", "A_se", "b_se", "A_lo", "A_hi", "b_lo", "b_hi", "r2", "n",
-                                           "cov_Ab", "resid_sd", "df_resid")}, alpha=alpha)
+        return cls(
+            **{
+                k: row[k]
+                for k in (
+                    "A",
+                    "b",
+                    "A_se",
+                    "b_se",
+                    "A_lo",
+                    "A_hi",
+                    "b_lo",
+                    "b_hi",
+                    "r2",
+                    "n",
+                    "cov_Ab",
+                    "resid_sd",
+                    "df_resid",
+                )
+            },
+            alpha=alpha,
+        )
 
 
 def fit_line(v: np.ndarray, y: np.ndarray, alpha: float = 0.05) -> LineFit:
@@ -95,10 +144,22 @@ def fit_line(v: np.ndarray, y: np.ndarray, alpha: float = 0.05) -> LineFit:
     res = sm.OLS(y, X).fit()
     ci = res.conf_int(alpha)
     cov = res.cov_params()
-    return LineFit(A=float(res.params[1]), b=float(res.params[0]), A_se=float(res.bse[1]), b_se=float(res.bse[0]),
-                   A_lo=float(ci[1, 0]), A_hi=float(ci[1, 1]), b_lo=float(ci[0, 0]), b_hi=float(ci[0, 1]),
-                   r2=float(res.rsquared), n=int(res.nobs), cov_Ab=float(cov[0, 1]),
-                   resid_sd=float(np.sqrt(res.scale)), df_resid=int(res.df_resid), alpha=alpha)
+    return LineFit(
+        A=float(res.params[1]),
+        b=float(res.params[0]),
+        A_se=float(res.bse[1]),
+        b_se=float(res.bse[0]),
+        A_lo=float(ci[1, 0]),
+        A_hi=float(ci[1, 1]),
+        b_lo=float(ci[0, 0]),
+        b_hi=float(ci[0, 1]),
+        r2=float(res.rsquared),
+        n=int(res.nobs),
+        cov_Ab=float(cov[0, 1]),
+        resid_sd=float(np.sqrt(res.scale)),
+        df_resid=int(res.df_resid),
+        alpha=alpha,
+    )
 
 
 def fit_reasons(decisions: pd.DataFrame, settings: AnalysisSettings | None = None) -> dict[str, np.ndarray]:
@@ -122,7 +183,11 @@ def fit_reasons(decisions: pd.DataFrame, settings: AnalysisSettings | None = Non
         reason[(reason == "") & ~np.isfinite(y)] = "undefined"
         if ind in ("t_f", "t_nf"):
             role = ind[2:]
-            other = decisions[f"{role}_v_mps"].to_numpy(dtype=float) if f"{role}_v_mps" in decisions else np.full(len(y), np.nan)
+            other = (
+                decisions[f"{role}_v_mps"].to_numpy(dtype=float)
+                if f"{role}_v_mps" in decisions
+                else np.full(len(y), np.nan)
+            )
             with np.errstate(invalid="ignore"):
                 slow = (reason == "") & ((v_e - other) < settings.min_closing_mps)
             reason[slow] = "following"
@@ -134,8 +199,9 @@ def fit_reasons(decisions: pd.DataFrame, settings: AnalysisSettings | None = Non
     return out
 
 
-def indicator_points(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
-                     following: pd.DataFrame | None = None) -> pd.DataFrame:
+def indicator_points(
+    decisions: pd.DataFrame, settings: AnalysisSettings | None = None, following: pd.DataFrame | None = None
+) -> pd.DataFrame:
     """Long table of the presses' indicator values: driver_id, decision_id, indicator, v, y, status, used.
 
     `status` is the reason a value is not used ('' when used: see `fit_reasons`);
@@ -155,9 +221,19 @@ def indicator_points(decisions: pd.DataFrame, settings: AnalysisSettings | None 
     parts = []
     for ind, (col, _, _) in INDICATOR_COLUMNS.items():
         why = reasons[ind]
-        parts.append(pd.DataFrame({"driver_id": drivers, "decision_id": dec_ids, "indicator": ind, "v": v,
-                                   "y": d[col].to_numpy(dtype=float), "status": np.where(why == "", "ok", why),
-                                   "used": why == ""}))
+        parts.append(
+            pd.DataFrame(
+                {
+                    "driver_id": drivers,
+                    "decision_id": dec_ids,
+                    "indicator": ind,
+                    "v": v,
+                    "y": d[col].to_numpy(dtype=float),
+                    "status": np.where(why == "", "ok", why),
+                    "used": why == "",
+                }
+            )
+        )
     if following is not None and len(following):
         parts.append(following_points(following))
     return pd.concat(parts, ignore_index=True)
@@ -168,11 +244,17 @@ def following_points(following: pd.DataFrame) -> pd.DataFrame:
     (indicator 'thw_follow', one point per episode, `decision_id` = the episode)."""
     if following is None or following.empty:
         return pd.DataFrame(columns=["driver_id", "decision_id", "indicator", "v", "y", "status", "used"])
-    return pd.DataFrame({"driver_id": following["driver_id"].astype(str).to_numpy(dtype=object),
-                         "decision_id": following["episode_id"].astype(str).to_numpy(dtype=object),
-                         "indicator": "thw_follow",
-                         "v": following["ego_v_mps"].to_numpy(dtype=float),
-                         "y": following["thw_s"].to_numpy(dtype=float), "status": "ok", "used": True})
+    return pd.DataFrame(
+        {
+            "driver_id": following["driver_id"].astype(str).to_numpy(dtype=object),
+            "decision_id": following["episode_id"].astype(str).to_numpy(dtype=object),
+            "indicator": "thw_follow",
+            "v": following["ego_v_mps"].to_numpy(dtype=float),
+            "y": following["thw_s"].to_numpy(dtype=float),
+            "status": "ok",
+            "used": True,
+        }
+    )
 
 
 @dataclass(frozen=True)
@@ -181,8 +263,8 @@ class Group:
 
     driver_id: str
     indicator: str
-    v: np.ndarray        # speeds of the usable points [m/s]
-    y: np.ndarray        # indicator values of the usable points
+    v: np.ndarray  # speeds of the usable points [m/s]
+    y: np.ndarray  # indicator values of the usable points
     statuses: np.ndarray  # status of every press (usable or not)
 
 
@@ -251,9 +333,13 @@ def ranks(x: np.ndarray) -> np.ndarray:
     return sstats.rankdata(x)
 
 
-def correlate(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
-              points: pd.DataFrame | None = None, drivers: list[str] | None = None,
-              indicators: tuple[str, ...] = INDICATORS) -> pd.DataFrame:
+def correlate(
+    decisions: pd.DataFrame,
+    settings: AnalysisSettings | None = None,
+    points: pd.DataFrame | None = None,
+    drivers: list[str] | None = None,
+    indicators: tuple[str, ...] = INDICATORS,
+) -> pd.DataFrame:
     """Pearson and Spearman correlation of each indicator with ego speed, per driver.
 
     `significant` = Pearson p < alpha (a linear correlation, as the study counts).
@@ -263,9 +349,17 @@ def correlate(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
     rows = []
     for g in iter_groups(points, drivers if drivers is not None else _drivers(decisions), indicators):
         reason = _why_not(g, settings)
-        row = {"driver_id": g.driver_id, "indicator": g.indicator, "n": int(len(g.v)), "pearson_r": np.nan,
-               "pearson_p": np.nan, "spearman_rho": np.nan, "spearman_p": np.nan, "significant": False,
-               "reason": reason}
+        row = {
+            "driver_id": g.driver_id,
+            "indicator": g.indicator,
+            "n": int(len(g.v)),
+            "pearson_r": np.nan,
+            "pearson_p": np.nan,
+            "spearman_rho": np.nan,
+            "spearman_p": np.nan,
+            "significant": False,
+            "reason": reason,
+        }
         if not reason:
             v, y = g.v, g.y
             if np.ptp(y) == 0:
@@ -273,15 +367,20 @@ def correlate(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
             else:
                 r, p = pearson(v, y)
                 rho, p_rho = pearson(ranks(v), ranks(y))
-                row.update(pearson_r=r, pearson_p=p, spearman_rho=rho, spearman_p=p_rho,
-                           significant=bool(p < settings.alpha))
+                row.update(
+                    pearson_r=r, pearson_p=p, spearman_rho=rho, spearman_p=p_rho, significant=bool(p < settings.alpha)
+                )
         rows.append(row)
     return pd.DataFrame(rows, columns=CORRELATION_COLUMNS)
 
 
-def fit_lines(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
-              points: pd.DataFrame | None = None, drivers: list[str] | None = None,
-              indicators: tuple[str, ...] = INDICATORS) -> pd.DataFrame:
+def fit_lines(
+    decisions: pd.DataFrame,
+    settings: AnalysisSettings | None = None,
+    points: pd.DataFrame | None = None,
+    drivers: list[str] | None = None,
+    indicators: tuple[str, ...] = INDICATORS,
+) -> pd.DataFrame:
     """`I = A * v_e + b` per driver and indicator, with SEs, CIs, R², n; 'skipped' rows say why.
 
     `settings.driver_lines`: 'ols' (each driver's own OLS line, the study's way) or 'mixed' (the
@@ -297,14 +396,23 @@ def fit_lines(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
     mixed: dict[str, dict | None] = {}
     if settings.driver_lines == "mixed":
         for ind in indicators:
-            mixed[ind] = mixed_fits([g for g in groups if g.indicator == ind and len(g.v) >= MIN_MIXED_POINTS],
-                                    settings.alpha)
+            mixed[ind] = mixed_fits(
+                [g for g in groups if g.indicator == ind and len(g.v) >= MIN_MIXED_POINTS], settings.alpha
+            )
     rows = []
     for g in groups:
         reason = _why_not(g, settings)
         row = {c: np.nan for c in FIT_COLUMNS}
-        row.update(driver_id=g.driver_id, indicator=g.indicator, n=int(len(g.v)), status="skipped", reason=reason,
-                   df_resid=0, flag="", level=float(np.median(g.y)) if len(g.y) else np.nan)
+        row.update(
+            driver_id=g.driver_id,
+            indicator=g.indicator,
+            n=int(len(g.v)),
+            status="skipped",
+            reason=reason,
+            df_resid=0,
+            flag="",
+            level=float(np.median(g.y)) if len(g.y) else np.nan,
+        )
         pooled = (mixed.get(g.indicator) or {}).get(g.driver_id)
         if pooled is not None:
             row.update(v_min=float(g.v.min()), v_max=float(g.v.max()), **pooled)
@@ -312,8 +420,26 @@ def fit_lines(decisions: pd.DataFrame, settings: AnalysisSettings | None = None,
         elif not reason:
             row.update(v_min=float(g.v.min()), v_max=float(g.v.max()))
             fit = fit_line(g.v, g.y, settings.alpha)
-            row.update({k: getattr(fit, k) for k in ("A", "b", "A_se", "b_se", "A_lo", "A_hi", "b_lo", "b_hi",
-                                                      "r2", "n", "cov_Ab", "resid_sd", "df_resid")})
+            row.update(
+                {
+                    k: getattr(fit, k)
+                    for k in (
+                        "A",
+                        "b",
+                        "A_se",
+                        "b_se",
+                        "A_lo",
+                        "A_hi",
+                        "b_lo",
+                        "b_hi",
+                        "r2",
+                        "n",
+                        "cov_Ab",
+                        "resid_sd",
+                        "df_resid",
+                    )
+                }
+            )
             row.update(status="ok", reason="", flag=fit_flag(fit, settings))
         rows.append(row)
     out = pd.DataFrame(rows, columns=FIT_COLUMNS)
@@ -334,14 +460,20 @@ def fit_flag(fit: LineFit, settings: AnalysisSettings) -> str:
     return "; ".join(why)
 
 
-def fit_pooled(points: pd.DataFrame, drivers: list[str], indicator: str,
-               settings: AnalysisSettings | None = None) -> tuple[LineFit | None, str]:
+def fit_pooled(
+    points: pd.DataFrame, drivers: list[str], indicator: str, settings: AnalysisSettings | None = None
+) -> tuple[LineFit | None, str]:
     """One OLS line over the presses of several drivers (a style's pooled line), or (None, reason)."""
     settings = settings or AnalysisSettings()
     sel = points[(points["indicator"] == indicator) & points["driver_id"].isin(drivers)]
     used = sel["used"].to_numpy(dtype=bool)
-    g = Group("+".join(drivers), indicator, sel["v"].to_numpy(dtype=float)[used],
-              sel["y"].to_numpy(dtype=float)[used], sel["status"].to_numpy(dtype=object))
+    g = Group(
+        "+".join(drivers),
+        indicator,
+        sel["v"].to_numpy(dtype=float)[used],
+        sel["y"].to_numpy(dtype=float)[used],
+        sel["status"].to_numpy(dtype=object),
+    )
     reason = _why_not(g, settings)
     if reason:
         return None, reason

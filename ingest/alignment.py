@@ -1,4 +1,5 @@
 """Message streams on the sample clock: what both MCAP readers (JSON, and decoded ROS 2 / protobuf) share."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -11,8 +12,9 @@ def asof(sample_times: np.ndarray, times: np.ndarray) -> np.ndarray:
     return np.searchsorted(times, sample_times, side="right") - 1
 
 
-def place_presses(ego_times: np.ndarray, stimes: np.ndarray, states: np.ndarray,
-                  dirs: list[Any], warnings: list[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
+def place_presses(
+    ego_times: np.ndarray, stimes: np.ndarray, states: np.ndarray, dirs: list[Any], warnings: list[str] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Button state on the ego samples (state of the last message), each press on >= 1 sample.
 
     `stimes`, `states`, `dirs`: the button messages in time order (ns, as `ego_times`); returns
@@ -37,6 +39,8 @@ def place_presses(ego_times: np.ndarray, stimes: np.ndarray, states: np.ndarray,
             late.append(k)
     if late and warnings is not None:
         after = (float(stimes[late[0]]) - float(ego_times[-1])) / 1e9
-        warnings.append(f"{len(late)} lane-change press(es) after the last ego sample (the first {after:.3g} s after "
-                        f"it): no sample to put them on, not kept")
+        warnings.append(
+            f"{len(late)} lane-change press(es) after the last ego sample (the first {after:.3g} s after "
+            f"it): no sample to put them on, not kept"
+        )
     return pressed, direction

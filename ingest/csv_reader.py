@@ -20,16 +20,22 @@ from ingest.rawlog import RawLog, Rejected, first_line
 
 _STRING_COLUMNS = ("driver_id", "session_id", "simulator", "lc_direction")
 _EGO_FLOATS = {  # CSV canonical column -> EGO column (positions scaled with position_scale)
-    "ego_x": "ego_x_m", "ego_y": "ego_y_m", "ego_length": "ego_length_m",
-    "ego_v": "ego_v_mps", "ego_lane": "ego_lane",
-    "steer": "steer_rad", "throttle": "throttle", "brake": "brake",
+    "ego_x": "ego_x_m",
+    "ego_y": "ego_y_m",
+    "ego_length": "ego_length_m",
+    "ego_v": "ego_v_mps",
+    "ego_lane": "ego_lane",
+    "steer": "steer_rad",
+    "throttle": "throttle",
+    "brake": "brake",
 }
 _POSITIONS = ("ego_x", "ego_y", "ego_length")
 _OPTIONAL_FLOATS = ("ego_y", "ego_length", "steer", "throttle", "brake", "speed_limit_kph")
 #: The traffic pattern's time on one file's header, all columns together [s].
 HEADER_MATCH_S = 2.0
-_CONVERSION = re.compile(r"In CSV column #(\d+): Row #(\d+): CSV conversion error to (\w+)(?:: invalid value '(.*)')?",
-                         re.DOTALL)
+_CONVERSION = re.compile(
+    r"In CSV column #(\d+): Row #(\d+): CSV conversion error to (\w+)(?:: invalid value '(.*)')?", re.DOTALL
+)
 PART_MIN_BYTES = 4 << 20  # [bytes] a CSV is parsed in parts side by side from 2 x this size
 
 
@@ -67,12 +73,16 @@ def _missing_reason(missing: list[str], mapping: Mapping, names: list[str]) -> s
     if len(names) == 1:
         for sep, label in ((";", ";"), ("\t", "\\t"), ("|", "|")):
             if sep in names[0] and sep != mapping.csv_delimiter:
-                return (f"the header has one column only ({names[0][:40]!r}...): the file looks {label}-separated; "
-                        f'set delimiter = "{label}" under [csv] {mapping.hint()}')
+                return (
+                    f"the header has one column only ({names[0][:40]!r}...): the file looks {label}-separated; "
+                    f'set delimiter = "{label}" under [csv] {mapping.hint()}'
+                )
     parts = [f"{c}" + (f" (looked for {mapping.column(c)!r})" if mapping.column(c) != c else "") for c in missing]
     example = missing[0]
-    return (f"missing required column(s) {', '.join(parts)}: name your column with "
-            f'{example} = "<your column>" under [csv.columns] {mapping.hint()}')
+    return (
+        f"missing required column(s) {', '.join(parts)}: name your column with "
+        f'{example} = "<your column>" under [csv.columns] {mapping.hint()}'
+    )
 
 
 def _vehicle_columns(names: list[str], known: set[str], mapping: Mapping) -> dict[str, dict[str, str]]:
@@ -87,8 +97,10 @@ def _vehicle_columns(names: list[str], known: set[str], mapping: Mapping) -> dic
         try:
             m = rx.match(name, timeout=max(deadline - time.monotonic(), 1e-3))
         except TimeoutError:
-            raise Rejected(f"the traffic pattern took over {HEADER_MATCH_S:g} s on this file's column names "
-                           f"(at {name[:24]!r}): simplify [csv.traffic] pattern in the mapping") from None
+            raise Rejected(
+                f"the traffic pattern took over {HEADER_MATCH_S:g} s on this file's column names "
+                f"(at {name[:24]!r}): simplify [csv.traffic] pattern in the mapping"
+            ) from None
         if not m or m.group("field") not in tokens:
             continue
         out.setdefault(m.group("id"), {})[tokens[m.group("field")]] = name
@@ -96,8 +108,10 @@ def _vehicle_columns(names: list[str], known: set[str], mapping: Mapping) -> dic
         lacking = [f for f in ("x", "v", "lane") if f not in cols]
         if lacking:
             have = ", ".join(sorted(cols.values()))
-            raise Rejected(f"traffic vehicle {vid!r} has {have} but no {'/'.join(lacking)} column(s): "
-                           f"every vehicle needs x, v and lane ([csv.traffic] in a --mapping file sets the pattern)")
+            raise Rejected(
+                f"traffic vehicle {vid!r} has {have} but no {'/'.join(lacking)} column(s): "
+                f"every vehicle needs x, v and lane ([csv.traffic] in a --mapping file sets the pattern)"
+            )
     return out
 
 
@@ -111,8 +125,13 @@ def _const(table: pa.Table, column: str, label: str) -> str | float | None:
     return values[0]
 
 
-def _parse(data: bytes, names: list[str], parse_options: pacsv.ParseOptions,
-           convert_options: pacsv.ConvertOptions, block_size: int = 1 << 20) -> pa.Table:
+def _parse(
+    data: bytes,
+    names: list[str],
+    parse_options: pacsv.ParseOptions,
+    convert_options: pacsv.ConvertOptions,
+    block_size: int = 1 << 20,
+) -> pa.Table:
     """pyarrow's CSV reader over `data`; a large file is cut into parts parsed side by side.
 
     On these wide logs pyarrow's own multi-threaded reader costs ~15 % more CPU than its
@@ -135,9 +154,13 @@ def _parse(data: bytes, names: list[str], parse_options: pacsv.ParseOptions,
     headless = pacsv.ReadOptions(use_threads=False, column_names=names, block_size=block_size)
 
     def read(i: int | None) -> pa.Table:
-        piece = data if i is None else memoryview(data)[0 if i == 0 else cuts[i]:cuts[i + 1]]
-        return pacsv.read_csv(pa.BufferReader(piece), read_options=with_header if not i else headless,
-                              parse_options=parse_options, convert_options=convert_options)
+        piece = data if i is None else memoryview(data)[0 if i == 0 else cuts[i] : cuts[i + 1]]
+        return pacsv.read_csv(
+            pa.BufferReader(piece),
+            read_options=with_header if not i else headless,
+            parse_options=parse_options,
+            convert_options=convert_options,
+        )
 
     if len(cuts) == 2:  # a small file, or nothing to cut at
         return read(None)
@@ -151,19 +174,33 @@ def _parse(data: bytes, names: list[str], parse_options: pacsv.ParseOptions,
         return read(None)
 
 
-def _parse_typed(data: bytes, names: list[str], types: dict[str, pa.DataType], optional: set[str],
-                 vehicle_columns: set[str], mapping: Mapping,
-                 limits: IngestLimits) -> tuple[pa.Table, dict[str, pa.ChunkedArray], list[str]]:
+def _parse_typed(
+    data: bytes,
+    names: list[str],
+    types: dict[str, pa.DataType],
+    optional: set[str],
+    vehicle_columns: set[str],
+    mapping: Mapping,
+    limits: IngestLimits,
+) -> tuple[pa.Table, dict[str, pa.ChunkedArray], list[str]]:
     """Parse with the given column types; a text cell in an optional column empties that cell
     (with a warning), in a required one refuses the file naming the column and the line.
     Returns the table, the mask of emptied cells per column, and the warnings."""
     as_text: list[str] = []
     while True:
-        convert = pacsv.ConvertOptions(column_types={k: (pa.string() if k in as_text else v) for k, v in types.items()},
-                                       include_columns=list(types), strings_can_be_null=True)
+        convert = pacsv.ConvertOptions(
+            column_types={k: (pa.string() if k in as_text else v) for k, v in types.items()},
+            include_columns=list(types),
+            strings_can_be_null=True,
+        )
         try:
-            table = _parse(data, names, pacsv.ParseOptions(delimiter=mapping.csv_delimiter), convert,
-                           block_size=limits.max_line_bytes)
+            table = _parse(
+                data,
+                names,
+                pacsv.ParseOptions(delimiter=mapping.csv_delimiter),
+                convert,
+                block_size=limits.max_line_bytes,
+            )
             break
         except (pa.ArrowInvalid, pa.ArrowTypeError, UnicodeDecodeError) as exc:
             m = _CONVERSION.match(str(exc))
@@ -174,11 +211,14 @@ def _parse_typed(data: bytes, names: list[str], types: dict[str, pa.DataType], o
                 as_text.append(column)
                 continue
             if m.group(4) is None:
-                raise Rejected(f"column {column!r} line {m.group(2)}: the value is not UTF-8 text; "
-                               f"save the file as UTF-8") from None
+                raise Rejected(
+                    f"column {column!r} line {m.group(2)}: the value is not UTF-8 text; save the file as UTF-8"
+                ) from None
             what = "0/1 or true/false" if types[column] == pa.bool_() else "a number"
-            raise Rejected(f"column {column!r} line {m.group(2)}: {first_line(m.group(4), 40)!r} is not {what}; "
-                           f"correct that value or remove the line") from None
+            raise Rejected(
+                f"column {column!r} line {m.group(2)}: {first_line(m.group(4), 40)!r} is not {what}; "
+                f"correct that value or remove the line"
+            ) from None
     warnings: list[str] = []
     coerced: dict[str, pa.ChunkedArray] = {}
     for column in as_text:
@@ -187,9 +227,11 @@ def _parse_typed(data: bytes, names: list[str], types: dict[str, pa.DataType], o
         bad = pc.and_(pc.is_valid(text), pc.is_null(numbers))
         coerced[column] = bad
         first = int(pc.index(bad, True).as_py())
-        warnings.append(f"column {column!r}: {pc.sum(bad).as_py()} value(s) are not numbers (first "
-                        f"{first_line(text[first].as_py(), 40)!r} at line {first + 2}); "
-                        + ("the vehicle is left out of those samples" if column in vehicle_columns else "left empty"))
+        warnings.append(
+            f"column {column!r}: {pc.sum(bad).as_py()} value(s) are not numbers (first "
+            f"{first_line(text[first].as_py(), 40)!r} at line {first + 2}); "
+            + ("the vehicle is left out of those samples" if column in vehicle_columns else "left empty")
+        )
         table = table.set_column(table.schema.get_field_index(column), column, numbers)
     return table, coerced, warnings
 
@@ -206,8 +248,9 @@ def _parse_failure(data: bytes, names: list[str], exc: Exception, mapping: Mappi
     return _ragged_line(data, len(names), mapping.csv_delimiter) or first_line(exc)
 
 
-def _blank_absent_vehicles(table: pa.Table, vehicles: dict[str, dict[str, str]],
-                           coerced: dict[str, pa.ChunkedArray]) -> pa.Table:
+def _blank_absent_vehicles(
+    table: pa.Table, vehicles: dict[str, dict[str, str]], coerced: dict[str, pa.ChunkedArray]
+) -> pa.Table:
     """A traffic vehicle whose v or lane cell was not a number is absent at that sample: its x is emptied too."""
     for cols in vehicles.values():
         gone = [coerced[cols[f]] for f in ("v", "lane") if cols[f] in coerced]
@@ -233,8 +276,9 @@ def read_csv_log(data: bytes, fmt: str, mapping: Mapping, limits: IngestLimits |
     if missing:
         raise Rejected(_missing_reason(missing, mapping, names))
 
-    canonical_present = {c: col(c) for c in (*_STRING_COLUMNS, "speed_limit_kph", "lc_button", *_EGO_FLOATS, CSV_TIME)
-                         if col(c) in names}
+    canonical_present = {
+        c: col(c) for c in (*_STRING_COLUMNS, "speed_limit_kph", "lc_button", *_EGO_FLOATS, CSV_TIME) if col(c) in names
+    }
     known = set(canonical_present.values())
     vehicles = _vehicle_columns(names, known, mapping)
 
@@ -290,10 +334,19 @@ def read_csv_log(data: bytes, fmt: str, mapping: Mapping, limits: IngestLimits |
     t0 = t_abs[0] if n else 0.0
     traffic, n_vehicles, grid = _long_traffic(table, vehicles, t_abs - t0, mapping)
     return RawLog(
-        format=fmt, meta=meta, t_abs_s=t_abs, t_s=t_abs - t0, ego=ego, traffic=traffic,
-        locate=lambda i: f"line {i + 2}", time_name=col(CSV_TIME),
+        format=fmt,
+        meta=meta,
+        t_abs_s=t_abs,
+        t_s=t_abs - t0,
+        ego=ego,
+        traffic=traffic,
+        locate=lambda i: f"line {i + 2}",
+        time_name=col(CSV_TIME),
         names={"ego_x_m": col("ego_x"), "ego_v_mps": col("ego_v"), "ego_lane": col("ego_lane")},
-        has_button=has_button, warnings=warnings, n_vehicles=n_vehicles, vehicle_grid=grid,
+        has_button=has_button,
+        warnings=warnings,
+        n_vehicles=n_vehicles,
+        vehicle_grid=grid,
     )
 
 
@@ -306,7 +359,7 @@ def _grid(table: pa.Table, names: list[str | None], n: int) -> np.ndarray:
             continue
         i = 0
         for chunk in table.column(name).chunks:
-            out[j, i:i + len(chunk)] = chunk.to_numpy(zero_copy_only=False)
+            out[j, i : i + len(chunk)] = chunk.to_numpy(zero_copy_only=False)
             i += len(chunk)
     return np.ascontiguousarray(out.T)
 
@@ -324,8 +377,9 @@ def _tiled(ids: list[str], n: int) -> pa.Array:
     return pa.StringArray.from_buffers(n * len(ids), pa.py_buffer(offsets), pa.py_buffer(block * n))
 
 
-def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.ndarray,
-                  mapping: Mapping) -> tuple[dict[str, np.ndarray], int, int]:
+def _long_traffic(
+    table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.ndarray, mapping: Mapping
+) -> tuple[dict[str, np.ndarray], int, int]:
     """Wide `<id>_<field>` columns -> long-form arrays, one row per vehicle present per sample,
     the number of vehicles present at least once, and k when the rows are the k vehicles in the
     same order at every sample (`RawLog.vehicle_grid`; 0 otherwise).
@@ -339,8 +393,19 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
     k = len(ids)
     if not ids or n == 0:
         empty = np.zeros(0)
-        return {"t_s": empty, "vehicle_id": pa.array([], pa.string()), "x_m": empty, "y_m": empty,
-                "v_mps": empty, "lane": empty, "length_m": empty}, 0, 0
+        return (
+            {
+                "t_s": empty,
+                "vehicle_id": pa.array([], pa.string()),
+                "x_m": empty,
+                "y_m": empty,
+                "v_mps": empty,
+                "lane": empty,
+                "length_m": empty,
+            },
+            0,
+            0,
+        )
 
     x = _grid(table, [vehicles[vid]["x"] for vid in ids], n)
     present = ~np.isnan(x)
@@ -367,8 +432,13 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
         return vals
 
     out = {"t_s": t_long}
-    fields = {"x_m": ("x", mapping.position_scale), "v_mps": ("v", mapping.speed_scale), "lane": ("lane", 1.0),
-              "y_m": ("y", mapping.position_scale), "length_m": ("length", mapping.position_scale)}
+    fields = {
+        "x_m": ("x", mapping.position_scale),
+        "v_mps": ("v", mapping.speed_scale),
+        "lane": ("lane", 1.0),
+        "y_m": ("y", mapping.position_scale),
+        "length_m": ("length", mapping.position_scale),
+    }
     # the grids are numpy copies and transposes, which release the GIL: two at a time
     with ThreadPoolExecutor(1) as pool:
         later = {key: pool.submit(field, *fields[key]) for key in ("v_mps", "y_m")}
@@ -381,8 +451,10 @@ def _long_traffic(table: pa.Table, vehicles: dict[str, dict[str, str]], t: np.nd
             i = int(np.argmax(bad))
             vid = ids[codes[i]]
             row = int(np.nonzero(present)[0][i])
-            raise Rejected(f"traffic vehicle {vid!r}: {vehicles[vid][fld]} is empty at line {row + 2} "
-                           f"while {vehicles[vid]['x']} is given (a present vehicle needs x, v and lane)")
+            raise Rejected(
+                f"traffic vehicle {vid!r}: {vehicles[vid][fld]} is empty at line {row + 2} "
+                f"while {vehicles[vid]['x']} is given (a present vehicle needs x, v and lane)"
+            )
     gaps = np.isnan(out["length_m"])
     if gaps.any():
         out["length_m"][gaps] = DEFAULT_LENGTH_M

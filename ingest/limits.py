@@ -79,8 +79,10 @@ def _mb(n: float) -> str:
 def check_file_size(size: int, limits: IngestLimits) -> None:
     """`Rejected` when a file is larger than `max_file_mb`, before it is read."""
     if size > limits.max_file_mb * MB:
-        raise Rejected(f"file too large: {_mb(size)} > the {limits.max_file_mb:g} MB limit; split the recording "
-                       f"or raise {env_var('max_file_mb')}")
+        raise Rejected(
+            f"file too large: {_mb(size)} > the {limits.max_file_mb:g} MB limit; split the recording "
+            f"or raise {env_var('max_file_mb')}"
+        )
 
 
 def gunzip(data: bytes, limits: IngestLimits) -> bytes:
@@ -103,24 +105,32 @@ def gunzip(data: bytes, limits: IngestLimits) -> bytes:
                 buf = d.unconsumed_tail
                 used = len(data) - len(d.unused_data if d.eof else buf)  # input bytes consumed so far
                 if len(out) > cap:
-                    raise Rejected(f"gzip inflates beyond the {limits.max_inflated_mb:g} MB limit (more than "
-                                   f"{_mb(len(out))} from the first {_mb(used)}); raise {env_var('max_inflated_mb')} "
-                                   f"if the file is genuine")
+                    raise Rejected(
+                        f"gzip inflates beyond the {limits.max_inflated_mb:g} MB limit (more than "
+                        f"{_mb(len(out))} from the first {_mb(used)}); raise {env_var('max_inflated_mb')} "
+                        f"if the file is genuine"
+                    )
                 if len(out) > RATIO_FLOOR_BYTES and len(out) > limits.max_inflate_ratio * max(used, 1):
-                    raise Rejected(f"gzip bomb: {_mb(len(out))} inflated from the first {used} bytes "
-                                   f"({len(out) / max(used, 1):.0f}x, limit {limits.max_inflate_ratio:g}x); raise "
-                                   f"{env_var('max_inflate_ratio')} if the file is genuine")
+                    raise Rejected(
+                        f"gzip bomb: {_mb(len(out))} inflated from the first {used} bytes "
+                        f"({len(out) / max(used, 1):.0f}x, limit {limits.max_inflate_ratio:g}x); raise "
+                        f"{env_var('max_inflate_ratio')} if the file is genuine"
+                    )
                 if d.eof or not buf:
                     break
             if not d.eof:
-                raise Rejected(f"truncated gzip: the compressed stream ends early at byte {len(data)} "
-                               f"({len(out)} bytes decompressed)")
+                raise Rejected(
+                    f"truncated gzip: the compressed stream ends early at byte {len(data)} "
+                    f"({len(out)} bytes decompressed)"
+                )
             rest = d.unused_data
             if not rest.strip(b"\x00"):  # padding after the last member is allowed
                 return bytes(out)
             if rest[:2] != b"\x1f\x8b":
-                raise Rejected(f"corrupt gzip data: {len(rest)} bytes of garbage after the compressed stream "
-                               f"at byte {len(data) - len(rest)}")
+                raise Rejected(
+                    f"corrupt gzip data: {len(rest)} bytes of garbage after the compressed stream "
+                    f"at byte {len(data) - len(rest)}"
+                )
             pos = len(data) - len(rest)
     except zlib.error as exc:
         raise Rejected(f"corrupt gzip data in the member starting at byte {pos}: {first_line(exc)}") from None
@@ -133,13 +143,17 @@ def check_csv_shape(data: bytes, delimiter: str, limits: IngestLimits) -> None:
     """
     end = data.find(b"\n", 0, limits.max_line_bytes + 1)
     if end < 0 and len(data) > limits.max_line_bytes:
-        raise Rejected(f"malformed CSV: the header (line 1) is longer than the {limits.max_line_kb:g} KB line limit; "
-                       f"is this a CSV log? (raise {env_var('max_line_kb')} if it is)")
+        raise Rejected(
+            f"malformed CSV: the header (line 1) is longer than the {limits.max_line_kb:g} KB line limit; "
+            f"is this a CSV log? (raise {env_var('max_line_kb')} if it is)"
+        )
     header = data[: end if end >= 0 else len(data)]
     n = header.count(delimiter.encode()) + 1
     if n > limits.max_columns:
-        raise Rejected(f"malformed CSV: the header has {n} columns, more than the {limits.max_columns} limit "
-                       f"(raise {env_var('max_columns')} if they are genuine)")
+        raise Rejected(
+            f"malformed CSV: the header has {n} columns, more than the {limits.max_columns} limit "
+            f"(raise {env_var('max_columns')} if they are genuine)"
+        )
 
 
 def long_line(data: bytes, limits: IngestLimits) -> str | None:
@@ -149,8 +163,10 @@ def long_line(data: bytes, limits: IngestLimits) -> str | None:
         end = data.find(b"\n", start, start + limits.max_line_bytes + 1)
         if end < 0:
             if len(data) - start > limits.max_line_bytes:
-                return (f"line {line} (from byte {start}) is longer than the {limits.max_line_kb:g} KB line limit "
-                        f"(raise {env_var('max_line_kb')} if it is genuine)")
+                return (
+                    f"line {line} (from byte {start}) is longer than the {limits.max_line_kb:g} KB line limit "
+                    f"(raise {env_var('max_line_kb')} if it is genuine)"
+                )
             return None
         start, line = end + 1, line + 1
     return None
@@ -161,9 +177,9 @@ def _check_zstd_frame(data: bytes, body: int, length: int, size: int, pos: int) 
     decompressor would allocate what the frame claims)."""
     try:
         (clen,) = struct.unpack_from("<I", data, body + 28)
-        compression = bytes(data[body + 32:body + 32 + clen])
+        compression = bytes(data[body + 32 : body + 32 + clen])
         frame = body + 32 + clen + 8
-        if compression != b"zstd" or frame + 6 > body + length or data[frame:frame + 4] != b"\x28\xb5\x2f\xfd":
+        if compression != b"zstd" or frame + 6 > body + length or data[frame : frame + 4] != b"\x28\xb5\x2f\xfd":
             return
         fhd = data[frame + 4]
         single, fcs_flag, did = (fhd >> 5) & 1, fhd >> 6, fhd & 3
@@ -171,12 +187,13 @@ def _check_zstd_frame(data: bytes, body: int, length: int, size: int, pos: int) 
         fcs_len = (1 if single else 0, 2, 4, 8)[fcs_flag]
         if not fcs_len or at + fcs_len > len(data):
             return
-        claimed = int.from_bytes(data[at:at + fcs_len], "little") + (256 if fcs_len == 2 else 0)
+        claimed = int.from_bytes(data[at : at + fcs_len], "little") + (256 if fcs_len == 2 else 0)
     except struct.error:
         return
     if claimed > size:
-        raise Rejected(f"corrupt MCAP: the chunk at byte {pos} says {size} bytes uncompressed but its zstd frame "
-                       f"claims {claimed}")
+        raise Rejected(
+            f"corrupt MCAP: the chunk at byte {pos} says {size} bytes uncompressed but its zstd frame claims {claimed}"
+        )
 
 
 def check_mcap_records(data: bytes, limits: IngestLimits, heads: list[tuple[int, int, int]] | None = None) -> None:
@@ -190,28 +207,39 @@ def check_mcap_records(data: bytes, limits: IngestLimits, heads: list[tuple[int,
     n = len(data)
     total = 0
     record_cap = limits.max_record_mb * MB
-    for op, pos, length in (top_records(data) if heads is None else heads):
+    for op, pos, length in top_records(data) if heads is None else heads:
         body = pos + 9
         if length > n - body:
             if not data.endswith(_MCAP_MAGIC):
-                raise Rejected(f"truncated MCAP: stream ended inside a record at byte {pos} of {n} "
-                               f"(try `mcap recover`)")
-            raise Rejected(f"corrupt MCAP: the record at byte {pos} (opcode 0x{op:02x}) claims {length} bytes, "
-                           f"past the end of the file ({n} bytes)")
+                raise Rejected(
+                    f"truncated MCAP: stream ended inside a record at byte {pos} of {n} (try `mcap recover`)"
+                )
+            raise Rejected(
+                f"corrupt MCAP: the record at byte {pos} (opcode 0x{op:02x}) claims {length} bytes, "
+                f"past the end of the file ({n} bytes)"
+            )
         if length > record_cap:
-            raise Rejected(f"MCAP record at byte {pos} is {_mb(length)}, more than the {limits.max_record_mb:g} MB "
-                           f"record limit (raise {env_var('max_record_mb')})")
+            raise Rejected(
+                f"MCAP record at byte {pos} is {_mb(length)}, more than the {limits.max_record_mb:g} MB "
+                f"record limit (raise {env_var('max_record_mb')})"
+            )
         if op == _OP_CHUNK and length >= 24:
             size = struct.unpack_from("<Q", data, body + 16)[0]
             if size > record_cap:
-                raise Rejected(f"MCAP chunk at byte {pos} claims {_mb(size)} uncompressed, more than the "
-                               f"{limits.max_record_mb:g} MB record limit (raise {env_var('max_record_mb')})")
+                raise Rejected(
+                    f"MCAP chunk at byte {pos} claims {_mb(size)} uncompressed, more than the "
+                    f"{limits.max_record_mb:g} MB record limit (raise {env_var('max_record_mb')})"
+                )
             if size > RATIO_FLOOR_BYTES and size > limits.max_inflate_ratio * length:
-                raise Rejected(f"MCAP chunk at byte {pos} claims {_mb(size)} uncompressed from {length} bytes "
-                               f"({size / length:.0f}x, limit {limits.max_inflate_ratio:g}x): a forged size or a "
-                               f"decompression bomb (raise {env_var('max_inflate_ratio')} if genuine)")
+                raise Rejected(
+                    f"MCAP chunk at byte {pos} claims {_mb(size)} uncompressed from {length} bytes "
+                    f"({size / length:.0f}x, limit {limits.max_inflate_ratio:g}x): a forged size or a "
+                    f"decompression bomb (raise {env_var('max_inflate_ratio')} if genuine)"
+                )
             _check_zstd_frame(data, body, length, size, pos)
             total += size
             if total > limits.max_inflated_mb * MB:
-                raise Rejected(f"MCAP chunks hold more than the {limits.max_inflated_mb:g} MB limit uncompressed "
-                               f"(reached at the chunk at byte {pos}; raise {env_var('max_inflated_mb')})")
+                raise Rejected(
+                    f"MCAP chunks hold more than the {limits.max_inflated_mb:g} MB limit uncompressed "
+                    f"(reached at the chunk at byte {pos}; raise {env_var('max_inflated_mb')})"
+                )

@@ -69,6 +69,7 @@ def slow_probe(rx: regex.Pattern) -> str | None:
             return name
     return None
 
+
 CSV_COLUMNS = (CSV_TIME, *CSV_META, *CSV_EGO_REQUIRED, *CSV_EGO_OPTIONAL)
 MCAP_FIELDS: dict[str, tuple[str, ...]] = {
     TOPIC_EGO: ("x", "y", "v", "lane", "length"),
@@ -136,8 +137,9 @@ def _check_keys(section: str, got: dict[str, Any], allowed: tuple[str, ...] | se
         raise UserError(f"mapping: [{section}] must be a table of names, not {type(got).__name__} {str(got)[:40]!r}")
     unknown = sorted(set(map(str, got)) - set(allowed))
     if unknown:
-        raise UserError(f"mapping: unknown key(s) {', '.join(unknown)} in [{section}] "
-                        f"(known: {', '.join(sorted(allowed))})")
+        raise UserError(
+            f"mapping: unknown key(s) {', '.join(unknown)} in [{section}] (known: {', '.join(sorted(allowed))})"
+        )
 
 
 def _str_dict(section: str, value: Any) -> dict[str, str]:
@@ -166,8 +168,8 @@ def mapping_from_dict(doc: dict[str, Any], source: str = "") -> Mapping:
     csv = doc.get("csv", {}) or {}
     _check_keys("csv", csv, {"columns", "traffic", "delimiter"})
     delimiter = csv.get("delimiter", ",")
-    if not isinstance(delimiter, str) or len(delimiter) != 1 or delimiter in "\"\r\n":
-        raise UserError("mapping: [csv] delimiter must be one character, e.g. \";\" or \"\\t\"")
+    if not isinstance(delimiter, str) or len(delimiter) != 1 or delimiter in '"\r\n':
+        raise UserError('mapping: [csv] delimiter must be one character, e.g. ";" or "\\t"')
     columns = _str_dict("csv.columns", csv.get("columns", {}) or {})
     _check_keys("csv.columns", columns, CSV_COLUMNS)
     traffic = csv.get("traffic", {}) or {}
@@ -178,8 +180,10 @@ def mapping_from_dict(doc: dict[str, Any], source: str = "") -> Mapping:
         raise UserError("mapping: [csv.traffic] pattern needs named groups (?P<id>...) and (?P<field>...)")
     slow = slow_probe(rx)
     if slow is not None:
-        raise UserError(f"mapping: [csv.traffic] pattern takes over {PATTERN_PROBE_S} s on a column name like "
-                        f"{slow[:12]!r}...: write it without nested repetition, e.g. {DEFAULT_TRAFFIC_PATTERN!r}")
+        raise UserError(
+            f"mapping: [csv.traffic] pattern takes over {PATTERN_PROBE_S} s on a column name like "
+            f"{slow[:12]!r}...: write it without nested repetition, e.g. {DEFAULT_TRAFFIC_PATTERN!r}"
+        )
     tfields = _str_dict("csv.traffic.fields", traffic.get("fields", {}) or {})
     _check_keys("csv.traffic.fields", tfields, CSV_VEHICLE_FIELDS)
 
@@ -187,8 +191,10 @@ def mapping_from_dict(doc: dict[str, Any], source: str = "") -> Mapping:
     _check_keys("mcap", mcap, {"topics", "fields", "metadata_name", "metadata_keys", "signals"})
     signals = signals_from_dict(mcap["signals"]) if "signals" in mcap else None
     if signals is not None and ("topics" in mcap or "fields" in mcap):
-        raise UserError("mapping: [mcap.signals] names every topic and field itself; "
-                        "drop [mcap.topics] / [mcap.fields] (they are for v1-shaped JSON messages)")
+        raise UserError(
+            "mapping: [mcap.signals] names every topic and field itself; "
+            "drop [mcap.topics] / [mcap.fields] (they are for v1-shaped JSON messages)"
+        )
     topics = _str_dict("mcap.topics", mcap.get("topics", {}) or {})
     _check_keys("mcap.topics", topics, tuple(MCAP_FIELDS))
     fields: dict[str, dict[str, str]] = {}
@@ -209,13 +215,20 @@ def mapping_from_dict(doc: dict[str, Any], source: str = "") -> Mapping:
     if problem:
         raise UserError(f"mapping: [metadata] {problem}")
     return Mapping(
-        csv_columns=columns, csv_delimiter=delimiter, traffic_pattern=pattern, traffic_fields=tfields,
-        mcap_topics=topics, mcap_fields=fields, mcap_signals=signals,
-        metadata_name=str(mcap.get("metadata_name", METADATA_NAME)), metadata_keys=meta_keys,
+        csv_columns=columns,
+        csv_delimiter=delimiter,
+        traffic_pattern=pattern,
+        traffic_fields=tfields,
+        mcap_topics=topics,
+        mcap_fields=fields,
+        mcap_signals=signals,
+        metadata_name=str(mcap.get("metadata_name", METADATA_NAME)),
+        metadata_keys=meta_keys,
         speed_scale=_scale(units, "speed", _SPEED_UNITS),
         position_scale=_scale(units, "position", _POSITION_UNITS),
         time_scale=_scale(units, "time", _TIME_UNITS),
-        defaults=defaults, source=source,
+        defaults=defaults,
+        source=source,
     )
 
 

@@ -42,8 +42,11 @@ from ingest.rawlog import RawLog, Rejected, first_line
 # message encoding -> schema encodings it can be decoded with
 #: The first two bytes of a CDR message: its encapsulation (plain or parameter-list CDR, big or little endian).
 CDR_HEADERS = (b"\x00\x00", b"\x00\x01", b"\x00\x02", b"\x00\x03")
-SCHEMA_ENCODINGS: dict[str, tuple[str, ...]] = {"json": ("jsonschema", ""), "cdr": ("ros2msg",),
-                                                "protobuf": ("protobuf",)}
+SCHEMA_ENCODINGS: dict[str, tuple[str, ...]] = {
+    "json": ("jsonschema", ""),
+    "cdr": ("ros2msg",),
+    "protobuf": ("protobuf",),
+}
 _MISSING = object()  # a path that does not exist in a message
 
 
@@ -90,6 +93,7 @@ class FastRos2DecoderFactory(DecoderFactory):
                 return fast(data, typename)
             except Exception:  # noqa: BLE001 - mcap_ros2 decodes it or names what is wrong, as before
                 return slow(data)
+
         decode.fast = True  # type: ignore[attr-defined]
         return decode
 
@@ -116,19 +120,24 @@ class Decoded:
         return _plain(values) if self.fast else values
 
 
-def _decoder(topic: str, channel: Channel, schema: Schema | None,
-             factories: list[DecoderFactory]) -> Callable[[bytes], Any]:
+def _decoder(
+    topic: str, channel: Channel, schema: Schema | None, factories: list[DecoderFactory]
+) -> Callable[[bytes], Any]:
     """The decoder of a channel; `Rejected` when its encodings disagree or its schema is unreadable."""
     enc = channel.message_encoding
     if enc not in SCHEMA_ENCODINGS:
-        raise Rejected(f"unsupported message encoding {enc!r} on topic {topic}: laneprint decodes json, "
-                       f"cdr (ROS 2, ros2msg schemas) and protobuf messages")
+        raise Rejected(
+            f"unsupported message encoding {enc!r} on topic {topic}: laneprint decodes json, "
+            f"cdr (ROS 2, ros2msg schemas) and protobuf messages"
+        )
     schema_enc = schema.encoding if schema is not None else ""
     if schema_enc not in SCHEMA_ENCODINGS[enc]:
         want = " or ".join(repr(s) for s in SCHEMA_ENCODINGS[enc] if s)
         has = f"schema encoding {schema_enc!r} ({schema.name})" if schema is not None else "no schema"
-        raise Rejected(f"topic {topic}: message encoding {enc!r} does not match its {has}; {enc} messages "
-                       f"need a {want} schema (the recorder wrote an inconsistent channel)")
+        raise Rejected(
+            f"topic {topic}: message encoding {enc!r} does not match its {has}; {enc} messages "
+            f"need a {want} schema (the recorder wrote an inconsistent channel)"
+        )
     try:
         for factory in factories:
             decode = factory.decoder_for(enc, schema)
@@ -136,8 +145,9 @@ def _decoder(topic: str, channel: Channel, schema: Schema | None,
                 return decode
     except Exception as exc:
         assert schema is not None
-        raise Rejected(f"topic {topic}: cannot read its {schema_enc} schema {schema.name!r} for {enc} "
-                       f"messages ({first_line(exc)})") from None
+        raise Rejected(
+            f"topic {topic}: cannot read its {schema_enc} schema {schema.name!r} for {enc} messages ({first_line(exc)})"
+        ) from None
     raise Rejected(f"topic {topic}: no decoder for message encoding {enc!r}")  # pragma: no cover
 
 
@@ -187,8 +197,9 @@ def _type_name(value: Any) -> str:
     return f"a {type(value).__name__}"
 
 
-def _no_field(dec: Decoded, path: str, sample: Any, prefix: str = "", fix: str = "fix the path under [mcap.signals]"
-              ) -> Rejected:
+def _no_field(
+    dec: Decoded, path: str, sample: Any, prefix: str = "", fix: str = "fix the path under [mcap.signals]"
+) -> Rejected:
     """The reason for a path absent from every message: where it stops and what is there."""
     at = sample
     done: list[str] = []
@@ -205,8 +216,9 @@ def _no_field(dec: Decoded, path: str, sample: Any, prefix: str = "", fix: str =
         there = f"fields {place}: {', '.join(names)}"
     else:
         there = f"{prefix + where or 'the message'} is {_type_name(at)}"
-    return Rejected(f"topic {dec.topic}: no field {prefix + path!r} in its {dec.type_name} messages ({there}); "
-                    f"{fix} {dec.hint}")
+    return Rejected(
+        f"topic {dec.topic}: no field {prefix + path!r} in its {dec.type_name} messages ({there}); {fix} {dec.hint}"
+    )
 
 
 def _numbers(dec: Decoded, path: str, values: list[Any], scale: float = 1.0) -> np.ndarray:
@@ -221,8 +233,10 @@ def _numbers(dec: Decoded, path: str, values: list[Any], scale: float = 1.0) -> 
             if v is _MISSING or v is None:
                 continue
             if not isinstance(v, (int, float, np.number)):
-                raise Rejected(f"topic {dec.topic}: field {path!r} holds {_type_name(v)}, not a number "
-                               f"(message {i}); name a numeric field under [mcap.signals] {dec.hint}") from None
+                raise Rejected(
+                    f"topic {dec.topic}: field {path!r} holds {_type_name(v)}, not a number "
+                    f"(message {i}); name a numeric field under [mcap.signals] {dec.hint}"
+                ) from None
             out[i] = v
     return out * scale if scale != 1.0 else out
 
@@ -261,13 +275,17 @@ def decode_topic(got: Any, topic: str, time_path: str, factories: list[DecoderFa
         for i, (t, data) in enumerate(zip(got.times.get(cid, []), got.datas.get(cid, []))):
             if ch.message_encoding == "cdr" and data[:2] not in CDR_HEADERS:
                 looks = " (it looks like JSON)" if data.lstrip()[:1] in (b"{", b"[") else ""
-                raise Rejected(f"message {i} on {topic} (log_time {t} ns) is declared cdr but does not start with a "
-                               f"CDR header{looks}: declare the channel's message_encoding as what it holds")
+                raise Rejected(
+                    f"message {i} on {topic} (log_time {t} ns) is declared cdr but does not start with a "
+                    f"CDR header{looks}: declare the channel's message_encoding as what it holds"
+                )
             try:
                 msgs.append(decode(data))
             except Exception as exc:
-                raise Rejected(f"message {i} on {topic} (log_time {t} ns) does not decode as "
-                               f"{ch.message_encoding} {type_name}: {first_line(exc)}") from None
+                raise Rejected(
+                    f"message {i} on {topic} (log_time {t} ns) does not decode as "
+                    f"{ch.message_encoding} {type_name}: {first_line(exc)}"
+                ) from None
             times.append(t)
     dec = Decoded(topic, np.asarray(times, dtype=np.int64), msgs, type_name, hint, fast)
     if time_path != LOG_TIME and msgs:
@@ -276,10 +294,17 @@ def decode_topic(got: Any, topic: str, time_path: str, factories: list[DecoderFa
         if None in stamps:
             i = stamps.index(None)
             if _resolve(msgs[i], parts) is _MISSING:
-                raise _no_field(dec, time_path, msgs[i], fix="every topic read needs the stamp of time = "
-                                f"{time_path!r}; else use time = \"log_time\" under [mcap.signals]")
-            raise Rejected(f"topic {topic}: time = {time_path!r} is not a stamp in message {i} (expected sec/nanosec, "
-                           f"seconds/nanos or a number); use time = \"log_time\" under [mcap.signals]")
+                raise _no_field(
+                    dec,
+                    time_path,
+                    msgs[i],
+                    fix="every topic read needs the stamp of time = "
+                    f'{time_path!r}; else use time = "log_time" under [mcap.signals]',
+                )
+            raise Rejected(
+                f"topic {topic}: time = {time_path!r} is not a stamp in message {i} (expected sec/nanosec, "
+                f'seconds/nanos or a number); use time = "log_time" under [mcap.signals]'
+            )
         dec.times = np.asarray(stamps, dtype=np.int64)
     order = np.argsort(dec.times, kind="stable")
     if np.any(order[1:] < order[:-1]):
@@ -336,8 +361,9 @@ def _directions(values: list[Any], sig: Signal) -> np.ndarray:
     return out
 
 
-def _button(reader: _SignalReader, signals: McapSignals,
-            warnings: list[str] | None = None) -> tuple[np.ndarray, np.ndarray, bool]:
+def _button(
+    reader: _SignalReader, signals: McapSignals, warnings: list[str] | None = None
+) -> tuple[np.ndarray, np.ndarray, bool]:
     """(lc_button, lc_direction) on the ego samples, and whether the file logs the button."""
     n = len(reader.base.times)
     btn = signals.ego.get("lc_button")
@@ -366,13 +392,16 @@ def _ids(values: list[Any]) -> pa.Array:
     return id_array([None if v is _MISSING else v for v in values])
 
 
-def _traffic(decoded: dict[str, Decoded | None], signals: McapSignals, t0: int, mapping: Mapping,
-             known: str) -> dict[str, Any]:
+def _traffic(
+    decoded: dict[str, Decoded | None], signals: McapSignals, t0: int, mapping: Mapping, known: str
+) -> dict[str, Any]:
     ts = signals.traffic
     dec = decoded[ts.topic]
     if dec is None:
-        raise Rejected(f"missing required topic {ts.topic} (traffic); topics in the file: {known}; "
-                       f"name it with topic = \"<your topic>\" under [mcap.signals.traffic] {mapping.hint()}")
+        raise Rejected(
+            f"missing required topic {ts.topic} (traffic); topics in the file: {known}; "
+            f'name it with topic = "<your topic>" under [mcap.signals.traffic] {mapping.hint()}'
+        )
     lists = _values(dec.msgs, ts.list)
     if ts.explicit and lists and all(v is _MISSING for v in lists):
         raise _no_field(dec, ts.list, dec.msgs[0], fix="fix list under [mcap.signals.traffic]")
@@ -382,8 +411,10 @@ def _traffic(decoded: dict[str, Decoded | None], signals: McapSignals, t0: int, 
         if objects is _MISSING or objects is None:
             continue
         if isinstance(objects, (str, bytes, dict)) or not isinstance(objects, (Sequence, array.array)):
-            raise Rejected(f"topic {ts.topic}: list = {ts.list!r} holds {_type_name(objects)}, not a list of "
-                           f"objects (message {i}); fix it under [mcap.signals.traffic] {mapping.hint()}")
+            raise Rejected(
+                f"topic {ts.topic}: list = {ts.list!r} holds {_type_name(objects)}, not a list of "
+                f"objects (message {i}); fix it under [mcap.signals.traffic] {mapping.hint()}"
+            )
         rows.extend([i] * len(objects))
         objs.extend(objects)
     values: dict[str, list[Any]] = {}
@@ -397,8 +428,10 @@ def _traffic(decoded: dict[str, Decoded | None], signals: McapSignals, t0: int, 
     out: dict[str, Any] = {
         "t_s": (dec.times[row_idx] - t0) / NS_PER_S if len(row_idx) else np.zeros(0),
         "vehicle_id": _ids(dec.plain(values["id"])),
-        "x_m": num("x", mapping.position_scale), "y_m": num("y", mapping.position_scale),
-        "v_mps": num("v", mapping.speed_scale), "lane": num("lane"),
+        "x_m": num("x", mapping.position_scale),
+        "y_m": num("y", mapping.position_scale),
+        "v_mps": num("v", mapping.speed_scale),
+        "lane": num("lane"),
         "length_m": num("length", mapping.position_scale),
     }
     out["length_m"] = np.where(np.isnan(out["length_m"]), DEFAULT_LENGTH_M, out["length_m"])
@@ -410,9 +443,11 @@ def _traffic(decoded: dict[str, Decoded | None], signals: McapSignals, t0: int, 
         if np.any(bad):
             k = int(np.argmax(bad))
             field = ts.fields.get(name) or ts.fields.get("y", name)  # lanes from y: y is missing
-            raise Rejected(f"topic {ts.topic}: an object without {field!r} in message {row_idx[k]} "
-                           f"(time {dec.times[row_idx[k]]} ns); fix {name} under [mcap.signals.traffic] "
-                           f"{mapping.hint()}")
+            raise Rejected(
+                f"topic {ts.topic}: an object without {field!r} in message {row_idx[k]} "
+                f"(time {dec.times[row_idx[k]]} ns); fix {name} under [mcap.signals.traffic] "
+                f"{mapping.hint()}"
+            )
     return out
 
 
@@ -454,8 +489,9 @@ def gc_paused() -> Iterator[None]:
             gc.enable()
 
 
-def _read_decoded(got: Any, mapping: Mapping, meta: dict[str, Any], warnings: list[str],
-                  ros2: DecoderFactory) -> RawLog:
+def _read_decoded(
+    got: Any, mapping: Mapping, meta: dict[str, Any], warnings: list[str], ros2: DecoderFactory
+) -> RawLog:
     signals = mapping.mcap_signals or signals_from_v1(mapping.topic, mapping.msg_field)
     factories: list[DecoderFactory] = [ros2, ProtobufDecoderFactory(), JsonDecoderFactory()]
     decoded = {t: decode_topic(got, t, signals.time, factories, mapping.hint()) for t in signals.topics()}
@@ -463,8 +499,10 @@ def _read_decoded(got: Any, mapping: Mapping, meta: dict[str, Any], warnings: li
     for name in ("ego_x", "ego_v", "ego_lane"):
         sig = signals.ego.get(name, signals.ego.get("ego_y"))  # ego_lane may come from ego_y (lane_from_y)
         if decoded[sig.topic] is None:
-            raise Rejected(f"missing required topic {sig.topic} ({name}); topics in the file: {known}; name it with "
-                           f'{name} = {{ topic = "<your topic>", path = "..." }} under [mcap.signals] {mapping.hint()}')
+            raise Rejected(
+                f"missing required topic {sig.topic} ({name}); topics in the file: {known}; name it with "
+                f'{name} = {{ topic = "<your topic>", path = "..." }} under [mcap.signals] {mapping.hint()}'
+            )
     base = decoded[signals.ego["ego_x"].topic]
     assert base is not None
     if not len(base.times):
@@ -474,23 +512,42 @@ def _read_decoded(got: Any, mapping: Mapping, meta: dict[str, Any], warnings: li
             warnings.append(f"topic {sig.topic} ({name}) is not in the file; {name} not logged")
     reader = _SignalReader(decoded, base)
     p, v = mapping.position_scale, mapping.speed_scale
-    ego = {key: reader.numbers(signals.ego.get(name), scale) for key, name, scale in (
-        ("ego_x_m", "ego_x", p), ("ego_y_m", "ego_y", p), ("ego_v_mps", "ego_v", v), ("ego_lane", "ego_lane", 1.0),
-        ("ego_length_m", "ego_length", p), ("steer_rad", "steer", 1.0), ("throttle", "throttle", 1.0),
-        ("brake", "brake", 1.0))}
+    ego = {
+        key: reader.numbers(signals.ego.get(name), scale)
+        for key, name, scale in (
+            ("ego_x_m", "ego_x", p),
+            ("ego_y_m", "ego_y", p),
+            ("ego_v_mps", "ego_v", v),
+            ("ego_lane", "ego_lane", 1.0),
+            ("ego_length_m", "ego_length", p),
+            ("steer_rad", "steer", 1.0),
+            ("throttle", "throttle", 1.0),
+            ("brake", "brake", 1.0),
+        )
+    }
     ego["ego_length_m"] = np.where(np.isnan(ego["ego_length_m"]), DEFAULT_LENGTH_M, ego["ego_length_m"])
     if "ego_lane" not in signals.ego:
         ego["ego_lane"] = signals.lane_from_y.lanes(ego["ego_y_m"])
     ego["lc_button"], ego["lc_direction"], has_button = _button(reader, signals, warnings)
     t0 = int(base.times[0])
     clock = "log_time" if signals.time == LOG_TIME else signals.time
-    where = {k: f"{signals.ego[n].topic}.{signals.ego[n].path}"
-             for k, n in (("ego_x_m", "ego_x"), ("ego_v_mps", "ego_v"), ("ego_lane", "ego_lane")) if n in signals.ego}
+    where = {
+        k: f"{signals.ego[n].topic}.{signals.ego[n].path}"
+        for k, n in (("ego_x_m", "ego_x"), ("ego_v_mps", "ego_v"), ("ego_lane", "ego_lane"))
+        if n in signals.ego
+    }
     if "ego_lane" not in signals.ego:
         where["ego_lane"] = f"lane_from_y of {signals.ego['ego_y'].topic}.{signals.ego['ego_y'].path}"
     return RawLog(
-        format="mcap", meta=meta, t_abs_s=base.times / NS_PER_S, t_s=(base.times - t0) / NS_PER_S, ego=ego,
+        format="mcap",
+        meta=meta,
+        t_abs_s=base.times / NS_PER_S,
+        t_s=(base.times - t0) / NS_PER_S,
+        ego=ego,
         traffic=_traffic(decoded, signals, t0, mapping, known),
         locate=lambda i: f"message {i} of {base.topic} ({clock} {int(base.times[i])} ns)",
-        time_name=f"{base.topic} {clock}", names=where, has_button=has_button, warnings=warnings,
+        time_name=f"{base.topic} {clock}",
+        names=where,
+        has_button=has_button,
+        warnings=warnings,
     )

@@ -54,6 +54,7 @@ def _getter(path: str) -> Callable[[dict], Any]:
                 return None
             m = m.get(p)
         return m
+
     return get
 
 
@@ -66,8 +67,9 @@ def _decode(topic: str, datas: list[bytes], times: list[int]) -> list[Any]:
             try:
                 json.loads(d)
             except (ValueError, UnicodeDecodeError) as exc:
-                raise Rejected(f"message {i} on {topic} (log_time {times[i]} ns) is not valid JSON: "
-                               f"{first_line(exc)}") from None
+                raise Rejected(
+                    f"message {i} on {topic} (log_time {times[i]} ns) is not valid JSON: {first_line(exc)}"
+                ) from None
         raise Rejected(f"messages on {topic} are not valid JSON") from None
 
 
@@ -93,16 +95,24 @@ def _arrow_table(datas: list[bytes], schema: pa.Schema) -> pa.Table | None:
     parse = pajson.ParseOptions(explicit_schema=schema, unexpected_field_behavior="ignore")
 
     def read(i: int) -> pa.Table | None:
-        piece = datas[bounds[i]:bounds[i + 1]]
+        piece = datas[bounds[i] : bounds[i + 1]]
         blob = b"\n".join(piece)
         # one object per message: no newline inside a message, and no message that holds two objects
         # or part of one (JSON that is only valid once messages are joined goes to the slow path, which refuses it)
-        if blob.count(b"\n") != len(piece) - 1 or len(_OBJECT_SEAM.findall(blob)) != len(piece) - 1 \
-                or _BLANK_MESSAGE.search(blob) or blob.lstrip()[:1] != b"{" or blob.rstrip()[-1:] != b"}":
+        if (
+            blob.count(b"\n") != len(piece) - 1
+            or len(_OBJECT_SEAM.findall(blob)) != len(piece) - 1
+            or _BLANK_MESSAGE.search(blob)
+            or blob.lstrip()[:1] != b"{"
+            or blob.rstrip()[-1:] != b"}"
+        ):
             return None
         try:
-            table = pajson.read_json(io.BytesIO(blob), parse_options=parse, read_options=pajson.ReadOptions(
-                use_threads=False, block_size=max(1 << 20, 2 * max(map(len, piece)))))
+            table = pajson.read_json(
+                io.BytesIO(blob),
+                parse_options=parse,
+                read_options=pajson.ReadOptions(use_threads=False, block_size=max(1 << 20, 2 * max(map(len, piece)))),
+            )
         except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
             return None
         return table if table.num_rows == len(piece) else None
@@ -125,8 +135,9 @@ def _floats(values: list[Any], scale: float = 1.0) -> np.ndarray:
     try:
         a = np.array(values, dtype=float)
     except (TypeError, ValueError):
-        a = np.array([v if isinstance(v, (int, float)) and not isinstance(v, bool) else None
-                      for v in values], dtype=float)
+        a = np.array(
+            [v if isinstance(v, (int, float)) and not isinstance(v, bool) else None for v in values], dtype=float
+        )
     return a * scale if scale != 1.0 else a
 
 
@@ -157,9 +168,11 @@ def read_collected(got: Collected, mapping: Mapping, warnings: list[str] | None 
     read_topics = {mapping.topic(t) for t in (TOPIC_EGO, TOPIC_TRAFFIC, TOPIC_CONTROLS, TOPIC_BUTTON)}
     if mapping.topic(TOPIC_EGO) not in by_topic:  # a stack's own layout: its reason should point at [mcap.signals]
         read_topics = set(by_topic)
-    if mapping.mcap_signals is not None or any(got.channels[cid].message_encoding != "json"
-                                               for t in read_topics for cid in by_topic.get(t, [])):
+    if mapping.mcap_signals is not None or any(
+        got.channels[cid].message_encoding != "json" for t in read_topics for cid in by_topic.get(t, [])
+    ):
         from ingest.mcap_decoding import read_decoded_mcap  # loads the ROS 2 / protobuf decoders only when needed
+
         return read_decoded_mcap(got, mapping, meta, warnings)
 
     def messages(canonical: str, required: bool) -> tuple[list[int], list[bytes]] | None:
@@ -171,7 +184,9 @@ def read_collected(got: Collected, mapping: Mapping, warnings: list[str] | None 
             known = ", ".join(sorted(by_topic)) or "none"
             hint = f'"{canonical}" = "<your topic>" under [mcap.topics] {mapping.hint()}'
             looked = f" (looked for {topic})" if topic != canonical else ""
-            raise Rejected(f"missing required topic {canonical}{looked}; topics in the file: {known}; map it with {hint}")
+            raise Rejected(
+                f"missing required topic {canonical}{looked}; topics in the file: {known}; map it with {hint}"
+            )
         times: list[int] = []
         datas: list[bytes] = []
         for cid in cids:
@@ -194,15 +209,20 @@ def read_collected(got: Collected, mapping: Mapping, warnings: list[str] | None 
     t_abs = ego_times / NS_PER_S
 
     f = lambda fld: mapping.msg_field(TOPIC_EGO, fld)  # noqa: E731
-    ego_fields = (("x", "ego_x_m", mapping.position_scale), ("y", "ego_y_m", mapping.position_scale),
-                  ("v", "ego_v_mps", mapping.speed_scale), ("lane", "ego_lane", 1.0),
-                  ("length", "ego_length_m", mapping.position_scale))
+    ego_fields = (
+        ("x", "ego_x_m", mapping.position_scale),
+        ("y", "ego_y_m", mapping.position_scale),
+        ("v", "ego_v_mps", mapping.speed_scale),
+        ("lane", "ego_lane", 1.0),
+        ("length", "ego_length_m", mapping.position_scale),
+    )
     table = None
     columns = float_columns(ego_raw[1], [f(fld) for fld, _, _ in ego_fields])
     if columns is None and all("." not in f(fld) for fld, _, _ in ego_fields):
         table = _arrow_table(ego_raw[1], pa.schema([(f(fld), pa.float64()) for fld, _, _ in ego_fields]))
-    ego_msgs = None if columns is not None or table is not None else _decode(
-        mapping.topic(TOPIC_EGO), ego_raw[1], ego_raw[0])
+    ego_msgs = (
+        None if columns is not None or table is not None else _decode(mapping.topic(TOPIC_EGO), ego_raw[1], ego_raw[0])
+    )
     ego: dict[str, np.ndarray] = {}
     for fld, key, scale in ego_fields:
         if columns is not None:
@@ -215,8 +235,10 @@ def read_collected(got: Collected, mapping: Mapping, warnings: list[str] | None 
         if not sorted_already:
             vals = vals[order]
         if fld in ("x", "v", "lane") and np.isnan(vals).all():
-            raise Rejected(f"field {f(fld)!r} is absent from every {mapping.topic(TOPIC_EGO)} message: "
-                           f'map it with {fld} = "<your field>" under [mcap.fields."{TOPIC_EGO}"] {mapping.hint()}')
+            raise Rejected(
+                f"field {f(fld)!r} is absent from every {mapping.topic(TOPIC_EGO)} message: "
+                f'map it with {fld} = "<your field>" under [mcap.fields."{TOPIC_EGO}"] {mapping.hint()}'
+            )
         ego[key] = vals
     ego["ego_length_m"] = np.where(np.isnan(ego["ego_length_m"]), DEFAULT_LENGTH_M, ego["ego_length_m"])
 
@@ -227,20 +249,31 @@ def read_collected(got: Collected, mapping: Mapping, warnings: list[str] | None 
 
     topic_ego = mapping.topic(TOPIC_EGO)
     return RawLog(
-        format="mcap", meta=meta, t_abs_s=t_abs, t_s=t_s, ego=ego, traffic=traffic,
+        format="mcap",
+        meta=meta,
+        t_abs_s=t_abs,
+        t_s=t_s,
+        ego=ego,
+        traffic=traffic,
         locate=lambda i: f"message {i} of {topic_ego} (log_time {int(ego_times[i])} ns)",
         time_name=f"{topic_ego} log_time",
-        names={"ego_x_m": f"{topic_ego}.{f('x')}", "ego_v_mps": f"{topic_ego}.{f('v')}",
-               "ego_lane": f"{topic_ego}.{f('lane')}"},
-        has_button=button is not None, warnings=warnings,
+        names={
+            "ego_x_m": f"{topic_ego}.{f('x')}",
+            "ego_v_mps": f"{topic_ego}.{f('v')}",
+            "ego_lane": f"{topic_ego}.{f('lane')}",
+        },
+        has_button=button is not None,
+        warnings=warnings,
     )
 
 
 def _session_meta(metadata: dict[str, dict[str, str]], mapping: Mapping) -> tuple[dict[str, Any], list[str]]:
     """The session keys of the file's Metadata record, and warnings about them."""
     meta_rec = metadata.get(mapping.metadata_name, {})
-    meta: dict[str, Any] = {k: meta_rec.get(mapping.meta_key(k)) or None
-                            for k in ("driver_id", "session_id", "simulator", "speed_limit_kph")}
+    meta: dict[str, Any] = {
+        k: meta_rec.get(mapping.meta_key(k)) or None
+        for k in ("driver_id", "session_id", "simulator", "speed_limit_kph")
+    }
     warnings: list[str] = []
     if meta["speed_limit_kph"] is not None:
         try:
@@ -257,8 +290,9 @@ def _decoded_in_time_order(raw: tuple[list[int], list[bytes]], topic: str) -> tu
     return times, np.argsort(times, kind="stable"), _decode(topic, raw[1], raw[0])
 
 
-def _controls(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | None,
-              ego_times: np.ndarray, mapping: Mapping) -> None:
+def _controls(
+    ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | None, ego_times: np.ndarray, mapping: Mapping
+) -> None:
     n = len(ego_times)
     for key in ("steer_rad", "throttle", "brake"):
         ego[key] = np.full(n, np.nan)
@@ -279,8 +313,13 @@ def _controls(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | N
         ego[key][valid] = columns[name][order][idx[valid]]
 
 
-def _button(ego: dict[str, np.ndarray], raw: tuple[list[int], list[bytes]] | None,
-            ego_times: np.ndarray, mapping: Mapping, warnings: list[str] | None = None) -> None:
+def _button(
+    ego: dict[str, np.ndarray],
+    raw: tuple[list[int], list[bytes]] | None,
+    ego_times: np.ndarray,
+    mapping: Mapping,
+    warnings: list[str] | None = None,
+) -> None:
     """Button state on the ego samples (state of the last message), each press on >= 1 sample."""
     if raw is None or not raw[0]:
         n = len(ego_times)
@@ -312,8 +351,12 @@ def _traffic_arrow(datas: list[bytes], names: dict[str, str], mapping: Mapping) 
         return np.concatenate([_column_floats(f.field(names[key]), scale) for f in flats])
 
     return {
-        "rows": np.concatenate([pc.list_parent_indices(c).to_numpy(zero_copy_only=False).astype(np.int64) + s
-                                for c, s in zip(chunks, starts)]),
+        "rows": np.concatenate(
+            [
+                pc.list_parent_indices(c).to_numpy(zero_copy_only=False).astype(np.int64) + s
+                for c, s in zip(chunks, starts)
+            ]
+        ),
         "vehicle_id": pa.concat_arrays([f.field(names["id"]) for f in flats]),
         "x_m": floats("x", mapping.position_scale),
         "y_m": floats("y", mapping.position_scale),
@@ -323,8 +366,9 @@ def _traffic_arrow(datas: list[bytes], names: dict[str, str], mapping: Mapping) 
     }
 
 
-def _traffic_python(topic: str, datas: list[bytes], times: list[int], names: dict[str, str],
-                    mapping: Mapping) -> dict[str, Any]:
+def _traffic_python(
+    topic: str, datas: list[bytes], times: list[int], names: dict[str, str], mapping: Mapping
+) -> dict[str, Any]:
     """Traffic columns by msgspec (`jsondecode`) and a loop (any message shape the mapping can name)."""
     msgs = _decode(topic, datas, times)
     rows: list[int] = []
@@ -372,13 +416,14 @@ def _traffic(raw: tuple[list[int], list[bytes]], t0: int, mapping: Mapping) -> d
     out: dict[str, Any] = {"t_s": t_msg[row_idx] if len(row_idx) else np.zeros(0), **cols}
     out["length_m"] = np.where(np.isnan(out["length_m"]), DEFAULT_LENGTH_M, out["length_m"])
     for key, name in (("vehicle_id", "id"), ("x_m", "x"), ("v_mps", "v"), ("lane", "lane")):
-        bad = (out[key].is_null().to_numpy(zero_copy_only=False) if key == "vehicle_id"
-               else np.isnan(out[key]))
+        bad = out[key].is_null().to_numpy(zero_copy_only=False) if key == "vehicle_id" else np.isnan(out[key])
         if np.any(bad):
             k = int(np.argmax(bad))
-            raise Rejected(f"{topic}: a vehicle without {names[name]!r} in message {row_idx[k]} "
-                           f"(log_time {times[row_idx[k]]} ns); map the field under [mcap.fields.\"{TOPIC_TRAFFIC}\"] "
-                           f"{mapping.hint()}")
+            raise Rejected(
+                f"{topic}: a vehicle without {names[name]!r} in message {row_idx[k]} "
+                f'(log_time {times[row_idx[k]]} ns); map the field under [mcap.fields."{TOPIC_TRAFFIC}"] '
+                f"{mapping.hint()}"
+            )
     if len(row_idx) and np.any(np.diff(out["t_s"]) < 0):
         order = np.argsort(out["t_s"], kind="stable")
         out = {k: (v.take(pa.array(order)) if isinstance(v, pa.Array) else v[order]) for k, v in out.items()}

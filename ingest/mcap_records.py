@@ -64,9 +64,14 @@ class Collected:
         summary repeats each channel as it was: the same record again is fine)."""
         known = self.channels.get(ch.id)
         if known is not None and (known.topic, known.message_encoding, known.schema_id) != (
-                ch.topic, ch.message_encoding, ch.schema_id):
-            raise Rejected(f"corrupt MCAP: channel id {ch.id} is declared twice, as {known.topic!r} and as "
-                           f"{ch.topic!r}: its messages cannot be told apart; write each channel with its own id")
+            ch.topic,
+            ch.message_encoding,
+            ch.schema_id,
+        ):
+            raise Rejected(
+                f"corrupt MCAP: channel id {ch.id} is declared twice, as {known.topic!r} and as "
+                f"{ch.topic!r}: its messages cannot be told apart; write each channel with its own id"
+            )
         self.channels[ch.id] = ch
 
     def take(self, rec: Any) -> None:
@@ -91,9 +96,11 @@ def _inflate(compression: str, raw: memoryview, size: int) -> bytes:
         return bytes(raw)
     if compression == "zstd":
         import zstandard
+
         return zstandard.ZstdDecompressor().decompress(raw, max_output_size=size)
     if compression == "lz4":
         import lz4.frame
+
         return lz4.frame.LZ4FrameDecompressor().decompress(raw, max_length=size)  # no larger than it claims
     raise Unreadable(f"compression {compression!r}")
 
@@ -131,7 +138,7 @@ def _walk(buf: bytes, pos: int, stop: int, got: Collected, msgs: _Messages) -> N
             if lists is None:
                 lists = by_channel[cid] = ([], [])
             lists[0].append(log_time)
-            lists[1].append(buf[body + _MSG_FIXED:end])
+            lists[1].append(buf[body + _MSG_FIXED : end])
         elif op == _OP_CHANNEL:
             got.take(_parse(Channel, buf, body, end))
         elif op == _OP_SCHEMA:
@@ -139,8 +146,7 @@ def _walk(buf: bytes, pos: int, stop: int, got: Collected, msgs: _Messages) -> N
         pos = end
 
 
-def _index_entries(data: bytes, indexes: list[tuple[int, int]]
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def _index_entries(data: bytes, indexes: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(channel id, log time, offset) of every entry of a chunk's Message Index records
     (`indexes`: their (body offset, length) in `data`); None when one does not fit its record
     (an index is only a shortcut: the chunk is then walked)."""
@@ -165,8 +171,9 @@ def _gather_u64(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(buf[at[:, None] + np.arange(8)]).view("<u8").ravel()
 
 
-def _walk_indexed(inner: bytes, entries: tuple[np.ndarray, np.ndarray, np.ndarray] | None, got: Collected,
-                  msgs: _Messages) -> bool:
+def _walk_indexed(
+    inner: bytes, entries: tuple[np.ndarray, np.ndarray, np.ndarray] | None, got: Collected, msgs: _Messages
+) -> bool:
     """Cut a chunk's messages at the offsets its Message Index records give, checked against the
     chunk's own bytes (each offset a message record on that channel at that log time, the records
     in order without overlap); the bytes between them (channels, schemas) are walked. False, with
@@ -183,9 +190,15 @@ def _walk_indexed(inner: bytes, entries: tuple[np.ndarray, np.ndarray, np.ndarra
     lengths = _gather_u64(buf, at + 1)
     ends = at + 9 + lengths.astype(np.int64)
     rec_cid = buf[at + 9].astype(np.int64) | (buf[at + 10].astype(np.int64) << 8)
-    if (buf[at] != _OP_MESSAGE).any() or (lengths < _MSG_FIXED).any() or (lengths > size).any() \
-            or ends[-1] > size or (ends[:-1] > at[1:]).any() or (rec_cid != cids).any() \
-            or (_gather_u64(buf, at + 15) != times).any():
+    if (
+        (buf[at] != _OP_MESSAGE).any()
+        or (lengths < _MSG_FIXED).any()
+        or (lengths > size).any()
+        or ends[-1] > size
+        or (ends[:-1] > at[1:]).any()
+        or (rec_cid != cids).any()
+        or (_gather_u64(buf, at + 15) != times).any()
+    ):
         return False
     between = Collected()
     gap_starts = np.concatenate(([0], ends))
@@ -207,7 +220,7 @@ def _walk_indexed(inner: bytes, entries: tuple[np.ndarray, np.ndarray, np.ndarra
         if lists is None:
             lists = msgs.by_channel[cid] = ([], [])
         lists[0].extend([time_list[i] for i in rows])
-        lists[1].extend([inner[starts[i]:end_list[i]] for i in rows])
+        lists[1].extend([inner[starts[i] : end_list[i]] for i in rows])
     return True
 
 
@@ -248,16 +261,16 @@ def read_records(data: bytes, heads: list[tuple[int, int, int]] | None = None) -
         if op == _OP_CHUNK:
             _, _, size, _, clen = _CHUNK_HEAD.unpack_from(data, body)
             at = body + _CHUNK_HEAD.size
-            compression = str(data[at:at + clen], "utf-8")
+            compression = str(data[at : at + clen], "utf-8")
             (rlen,) = struct.unpack_from("<Q", data, at + clen)
             start = at + clen + 8
             if start + rlen > end:
                 raise Unreadable("chunk records past the chunk")
-            inner = _inflate(compression, memoryview(data)[start:start + rlen], size)  # no copy of the input
+            inner = _inflate(compression, memoryview(data)[start : start + rlen], size)  # no copy of the input
             if len(inner) != size:
                 raise Unreadable("chunk size")
             indexes = []
-            for op2, pos2, length2 in heads[k + 1:-1]:  # the chunk's Message Index records follow it
+            for op2, pos2, length2 in heads[k + 1 : -1]:  # the chunk's Message Index records follow it
                 if op2 != _OP_MESSAGE_INDEX:
                     break
                 indexes.append((pos2 + 9, length2))
@@ -278,7 +291,7 @@ def read_stream(data: bytes) -> Collected:
     last_end = len(MAGIC)
     try:
         for rec in StreamReader(bio, emit_chunks=True).records:
-            for inner in (breakup_chunk(rec) if isinstance(rec, Chunk) else (rec,)):
+            for inner in breakup_chunk(rec) if isinstance(rec, Chunk) else (rec,):
                 got.take(inner)
             last_end = bio.tell()
     except Rejected:
@@ -286,11 +299,14 @@ def read_stream(data: bytes) -> Collected:
     except Exception as exc:
         truncated = not data.endswith(MAGIC)
         if truncated and last_end >= len(data):
-            raise Rejected(f"truncated MCAP: the file ends after the last complete record (byte {last_end}) "
-                           f"without a footer; the recorder did not finish it (try `mcap recover`)") from None
+            raise Rejected(
+                f"truncated MCAP: the file ends after the last complete record (byte {last_end}) "
+                f"without a footer; the recorder did not finish it (try `mcap recover`)"
+            ) from None
         if truncated:
-            raise Rejected(f"truncated MCAP: stream ended inside a record at byte {last_end} of {len(data)} "
-                           f"(try `mcap recover`)") from None
+            raise Rejected(
+                f"truncated MCAP: stream ended inside a record at byte {last_end} of {len(data)} (try `mcap recover`)"
+            ) from None
         raise Rejected(f"corrupt MCAP: unreadable record at byte {last_end} ({first_line(exc)})") from None
     return got
 
@@ -301,8 +317,9 @@ def _check_channels(got: Collected) -> None:
     if unknown:
         n = sum(len(got.times[c]) for c in unknown)
         ids = ", ".join(map(str, unknown[:5])) + (" ..." if len(unknown) > 5 else "")
-        raise Rejected(f"corrupt MCAP: {n} message(s) on channel id(s) {ids}, which no Channel record in the "
-                       f"file defines")
+        raise Rejected(
+            f"corrupt MCAP: {n} message(s) on channel id(s) {ids}, which no Channel record in the file defines"
+        )
 
 
 def collect(data: bytes, heads: list[tuple[int, int, int]] | None = None) -> Collected:

@@ -106,8 +106,7 @@ def _neighbour_lanes(lanes: np.ndarray, border: np.ndarray, codes: np.ndarray) -
     nxt = np.minimum.accumulate(np.where(known, idx, n)[::-1])[::-1]
     ok_prev = (prev >= 0) & (codes[np.clip(prev, 0, n - 1)] == codes)
     ok_next = (nxt < n) & (codes[np.clip(nxt, 0, n - 1)] == codes)
-    return np.where(ok_prev, lanes[np.clip(prev, 0, n - 1)],
-                    np.where(ok_next, lanes[np.clip(nxt, 0, n - 1)], -np.inf))
+    return np.where(ok_prev, lanes[np.clip(prev, 0, n - 1)], np.where(ok_next, lanes[np.clip(nxt, 0, n - 1)], -np.inf))
 
 
 @dataclass(frozen=True)
@@ -133,23 +132,27 @@ def _check_keys(section: str, got: dict[str, Any], allowed: tuple[str, ...]) -> 
 
 def _path(section: str, key: str, value: Any) -> str:
     if not isinstance(value, str) or not value or any(not p for p in value.split(".")):
-        raise UserError(f"mapping: [{section}] {key} must be a field path like \"twist.twist.linear.x\", got {value!r}")
+        raise UserError(f'mapping: [{section}] {key} must be a field path like "twist.twist.linear.x", got {value!r}')
     return value
 
 
 def _signal(name: str, value: Any) -> Signal:
     section = "mcap.signals"
     if not isinstance(value, dict):
-        raise UserError(f'mapping: [mcap.signals] {name} must be a table, e.g. {name} = {{ topic = "/odom", '
-                        f'path = "pose.pose.position.x" }}')
+        raise UserError(
+            f'mapping: [mcap.signals] {name} must be a table, e.g. {name} = {{ topic = "/odom", '
+            f'path = "pose.pose.position.x" }}'
+        )
     allowed = ("topic", "path", "left", "right") if name == "lc_direction" else ("topic", "path")
     _check_keys(f"mcap.signals.{name}", value, allowed)
     if not isinstance(value.get("topic"), str) or not value["topic"]:
-        raise UserError(f"mapping: [{section}] {name} needs topic = \"<topic in your file>\"")
+        raise UserError(f'mapping: [{section}] {name} needs topic = "<topic in your file>"')
     values = {k: value[k] for k in ("left", "right") if k in value}
     if any(not isinstance(v, (str, int, float)) for v in values.values()):
-        raise UserError(f"mapping: [{section}] {name}: left / right must be the value the field holds "
-                        f"for that direction (a number or a string)")
+        raise UserError(
+            f"mapping: [{section}] {name}: left / right must be the value the field holds "
+            f"for that direction (a number or a string)"
+        )
     return Signal(topic=value["topic"], path=_path(f"{section}.{name}", "path", value.get("path")), values=values)
 
 
@@ -184,11 +187,16 @@ def signals_from_dict(doc: dict[str, Any]) -> McapSignals:
 
 
 def _lane_from_y(value: Any) -> LaneFromY:
-    ok = isinstance(value, dict) and set(value) <= {"width_m", "lane0_y_m"} and all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) for v in value.values())
+    ok = (
+        isinstance(value, dict)
+        and set(value) <= {"width_m", "lane0_y_m"}
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value.values())
+    )
     if not ok or not value.get("width_m", 0) > 0:
-        raise UserError("mapping: [mcap.signals] lane_from_y must be { width_m = <lane width, m, > 0>, "
-                        "lane0_y_m = <y of the centre of lane 0, m; default 0> }")
+        raise UserError(
+            "mapping: [mcap.signals] lane_from_y must be { width_m = <lane width, m, > 0>, "
+            "lane0_y_m = <y of the centre of lane 0, m; default 0> }"
+        )
     return LaneFromY(width_m=float(value["width_m"]), lane0_y_m=float(value.get("lane0_y_m", 0.0)))
 
 
@@ -198,15 +206,21 @@ def signals_from_v1(topic: Any, msg_field: Any) -> McapSignals:
     `topic(canonical)` and `msg_field(canonical_topic, field)` are the mapping's own
     look-ups. Optional signals absent from the messages are simply not logged.
     """
+
     def sig(canonical_topic: str, fld: str, required: bool) -> Signal:
         return Signal(topic(canonical_topic), msg_field(canonical_topic, fld), explicit=required)
 
     ego = {
-        "ego_x": sig(TOPIC_EGO, "x", True), "ego_v": sig(TOPIC_EGO, "v", True), "ego_lane": sig(TOPIC_EGO, "lane", True),
-        "ego_y": sig(TOPIC_EGO, "y", False), "ego_length": sig(TOPIC_EGO, "length", False),
-        "steer": sig(TOPIC_CONTROLS, "steer", False), "throttle": sig(TOPIC_CONTROLS, "throttle", False),
+        "ego_x": sig(TOPIC_EGO, "x", True),
+        "ego_v": sig(TOPIC_EGO, "v", True),
+        "ego_lane": sig(TOPIC_EGO, "lane", True),
+        "ego_y": sig(TOPIC_EGO, "y", False),
+        "ego_length": sig(TOPIC_EGO, "length", False),
+        "steer": sig(TOPIC_CONTROLS, "steer", False),
+        "throttle": sig(TOPIC_CONTROLS, "throttle", False),
         "brake": sig(TOPIC_CONTROLS, "brake", False),
-        "lc_button": sig(TOPIC_BUTTON, "pressed", False), "lc_direction": sig(TOPIC_BUTTON, "direction", False),
+        "lc_button": sig(TOPIC_BUTTON, "pressed", False),
+        "lc_direction": sig(TOPIC_BUTTON, "direction", False),
     }
     fields = {k: msg_field(TOPIC_TRAFFIC, k) for k in ("id", "x", "v", "lane", "y", "length")}
     traffic = TrafficSignals(topic(TOPIC_TRAFFIC), msg_field(TOPIC_TRAFFIC, "vehicles"), fields, explicit=False)

@@ -25,8 +25,11 @@ def _bytes_of(value: Any) -> bytes | None:
         return value.tobytes()
     if isinstance(value, np.ndarray) and value.dtype in (np.uint8, np.int8):
         return value.tobytes()
-    if isinstance(value, (list, tuple)) and value and all(
-            isinstance(b, int) and not isinstance(b, bool) and 0 <= b <= 255 for b in value):
+    if (
+        isinstance(value, (list, tuple))
+        and value
+        and all(isinstance(b, int) and not isinstance(b, bool) and 0 <= b <= 255 for b in value)
+    ):
         return bytes(value)
     return None
 

@@ -80,8 +80,12 @@ class IngestReport:
         return [f for f in self.files if f.status in ("ingested", "warning")]
 
     def to_dict(self) -> dict[str, Any]:
-        return {"workspace": self.workspace, "counts": self.counts, "files": [asdict(f) for f in self.files],
-                "notes": self.notes}
+        return {
+            "workspace": self.workspace,
+            "counts": self.counts,
+            "files": [asdict(f) for f in self.files],
+            "notes": self.notes,
+        }
 
 
 def log_format(path: Path) -> str | None:
@@ -126,8 +130,13 @@ def discover(paths: list[Path]) -> list[tuple[Path, str | None]]:
                     continue
                 real = f.resolve()
                 if not real.is_relative_to(inside):  # a link out of the folder: not followed without a word
-                    out.append((f, f"a symbolic link out of {p.name or p} (to {real}): not followed; "
-                                   f"name that file itself to ingest it"))
+                    out.append(
+                        (
+                            f,
+                            f"a symbolic link out of {p.name or p} (to {real}): not followed; "
+                            f"name that file itself to ingest it",
+                        )
+                    )
                     continue
                 bag = next((b for b in f.parents if b in bags), None)
                 if bag is not None:  # a part of a split bag: the bag is one log, listed once
@@ -137,15 +146,17 @@ def discover(paths: list[Path]) -> list[tuple[Path, str | None]]:
                     continue
                 out.append((f, None if log_format(f) else "skip: not a log file"))
         elif p.is_file():
-            out.append((p, None if log_format(p) else
-                        f"not a log file: expected a .csv, .csv.gz or .mcap name (got {p.name})"))
+            out.append(
+                (p, None if log_format(p) else f"not a log file: expected a .csv, .csv.gz or .mcap name (got {p.name})")
+            )
         else:
             out.append((p, "no such file or folder"))
     return out
 
 
-def read_log(data: bytes, fmt: str, mapping: Mapping, limits: IngestLimits | None = None,
-             bag: BagInfo | None = None) -> RawLog:
+def read_log(
+    data: bytes, fmt: str, mapping: Mapping, limits: IngestLimits | None = None, bag: BagInfo | None = None
+) -> RawLog:
     """Parse the bytes of one log within `limits`; `Rejected` with a reason when they cannot be read.
 
     `bag`: the bytes are the parts of a split rosbag2 folder, one after the other (`bag.sizes`).
@@ -253,16 +264,21 @@ class _Batch:
         self.driver = driver
         cat = ws.recordings()
         self.sessions: dict[tuple[str, str], tuple[str, str]] = {
-            (str(r.driver_id), str(r.session_id)): (str(r.recording_id), str(r.source_name))
-            for r in cat.itertuples()
+            (str(r.driver_id), str(r.session_id)): (str(r.recording_id), str(r.source_name)) for r in cat.itertuples()
         }
 
     def reject(self, path: Path, fmt: str, rid: str, reason: str) -> FileResult:
         try:
-            self.ws.record_rejected({
-                "content_hash": rid, "source_name": path.name, "source_path": str(path.resolve()),
-                "format": fmt, "reason": reason, "rejected_at": _now(),
-            })
+            self.ws.record_rejected(
+                {
+                    "content_hash": rid,
+                    "source_name": path.name,
+                    "source_path": str(path.resolve()),
+                    "format": fmt,
+                    "reason": reason,
+                    "rejected_at": _now(),
+                }
+            )
         except OSError:  # the workspace cannot be written (full, read-only): the report says why all the same
             pass
         return FileResult(str(path), "rejected", fmt, recording_id=rid, reason=reason)
@@ -271,9 +287,14 @@ class _Batch:
         """The result of a file whose recording could not be written (a full disk, a read-only folder):
         nothing of it is left in the workspace (writes are staged and renamed into place)."""
         where = f" ({Path(exc.filename).name})" if getattr(exc, "filename", None) else ""
-        return self.reject(path, log_format(path) or "", rid, f"not stored: the workspace cannot be written: "
-                                                            f"{exc.strerror or exc}{where}; free space or fix "
-                                                            f"the permissions and ingest it again")
+        return self.reject(
+            path,
+            log_format(path) or "",
+            rid,
+            f"not stored: the workspace cannot be written: "
+            f"{exc.strerror or exc}{where}; free space or fix "
+            f"the permissions and ingest it again",
+        )
 
     def prepare(self, path: Path) -> FileResult | tuple[ParseJob, str]:
         """Read a file's bytes: its `ParseJob` and content hash, or its result when it needs no parsing."""
@@ -305,8 +326,9 @@ class _Batch:
 
     @staticmethod
     def same_bytes(path: Path, fmt: str, rid: str) -> FileResult:
-        return FileResult(str(path), "duplicate", fmt, recording_id=rid,
-                          reason=f"same bytes already ingested as recording {rid}")
+        return FileResult(
+            str(path), "duplicate", fmt, recording_id=rid, reason=f"same bytes already ingested as recording {rid}"
+        )
 
     def store(self, path: Path, rid: str, parsed: Parsed) -> FileResult:
         """Keep a parsed file: reject it, call it a duplicate (bytes or session), or write its recording."""
@@ -317,19 +339,31 @@ class _Batch:
             return self.reject(path, fmt, rid, parsed.reason)
         rec = parsed.rec
         driver_id, session_id = rec.meta["driver_id"], rec.meta["session_id"]
-        result = FileResult(str(path), "warning" if rec.warnings else "ingested", fmt, rid, driver_id,
-                            session_id, len(rec.ego), rec.n_presses, warnings=rec.warnings)
+        result = FileResult(
+            str(path),
+            "warning" if rec.warnings else "ingested",
+            fmt,
+            rid,
+            driver_id,
+            session_id,
+            len(rec.ego),
+            rec.n_presses,
+            warnings=rec.warnings,
+        )
         earlier = self.sessions.get((driver_id, session_id))
         if earlier and earlier[0] != rid:
             result.status = "duplicate"
-            result.reason = (f"driver {driver_id} session {session_id} is already in the workspace as recording "
-                             f"{earlier[0]} ({earlier[1]})")
+            result.reason = (
+                f"driver {driver_id} session {session_id} is already in the workspace as recording "
+                f"{earlier[0]} ({earlier[1]})"
+            )
             return result
         with _claim_session(self.ws, driver_id, session_id, rid) as holder:
             if holder:
                 result.status = "duplicate"
-                result.reason = (f"driver {driver_id} session {session_id} is already in the workspace as "
-                                 f"recording {holder}")
+                result.reason = (
+                    f"driver {driver_id} session {session_id} is already in the workspace as recording {holder}"
+                )
                 return result
             return self._store(path, fmt, rid, rec, result)
 
@@ -337,12 +371,20 @@ class _Batch:
         """Write the claimed recording; `result` updated (or a rejection when it does not fit)."""
         driver_id, session_id = result.driver_id, result.session_id
         meta = {
-            "recording_id": rid, "driver_id": driver_id, "session_id": session_id,
-            "speed_limit_kph": rec.meta["speed_limit_kph"], "simulator": rec.meta["simulator"],
-            "source_name": path.name, "source_path": str(path.resolve()), "format": fmt,
-            "n_samples": len(rec.ego), "duration_s": float(rec.ego["t_s"].iloc[-1] - rec.ego["t_s"].iloc[0]),
-            "n_presses": rec.n_presses, "n_vehicles": rec.n_vehicles,
-            "status": "warning" if rec.warnings else "ok", "warnings": "; ".join(rec.warnings),
+            "recording_id": rid,
+            "driver_id": driver_id,
+            "session_id": session_id,
+            "speed_limit_kph": rec.meta["speed_limit_kph"],
+            "simulator": rec.meta["simulator"],
+            "source_name": path.name,
+            "source_path": str(path.resolve()),
+            "format": fmt,
+            "n_samples": len(rec.ego),
+            "duration_s": float(rec.ego["t_s"].iloc[-1] - rec.ego["t_s"].iloc[0]),
+            "n_presses": rec.n_presses,
+            "n_vehicles": rec.n_vehicles,
+            "status": "warning" if rec.warnings else "ok",
+            "warnings": "; ".join(rec.warnings),
             "ingested_at": _now(),
         }
         try:
@@ -369,9 +411,16 @@ def check_paths(paths: list[Path]) -> list[Path]:
     return paths
 
 
-def ingest_paths(paths: list[Path], workspace: Workspace, driver_id: str | None = None,
-                 mapping: Path | None = None, progress: ProgressFn | None = None, backend: str = "local",
-                 ray_address: str | None = None, limits: IngestLimits | None = None) -> IngestReport:
+def ingest_paths(
+    paths: list[Path],
+    workspace: Workspace,
+    driver_id: str | None = None,
+    mapping: Path | None = None,
+    progress: ProgressFn | None = None,
+    backend: str = "local",
+    ray_address: str | None = None,
+    limits: IngestLimits | None = None,
+) -> IngestReport:
     """Ingest every log under `paths` into `workspace`; a report with one result per file.
 
     Files are read and validated by `parse_log` on `backend` (`laneprint.parallel`:

@@ -57,7 +57,7 @@ def speed_limit_problem(value: Any) -> str | None:
     if math.isnan(kph):
         return None  # an empty limit as the tables store it
     if not math.isfinite(kph):
-        return (f"speed limit {kph} km/h is not a finite number (for a road without a limit leave it empty)")
+        return f"speed limit {kph} km/h is not a finite number (for a road without a limit leave it empty)"
     if kph <= 0 or kph > MAX_SPEED_LIMIT_KPH:
         return f"speed limit {kph:g} km/h is not a road's (0-{MAX_SPEED_LIMIT_KPH:g} km/h, or empty when unknown)"
     return None
@@ -67,8 +67,10 @@ def check_samples(raw: RawLog) -> None:
     """`Rejected` for a recording with fewer than `MIN_SAMPLES` samples."""
     n = len(raw.t_s)
     if 0 < n < MIN_SAMPLES:
-        raise Rejected(f"one sample only (at {raw.locate(0)}): a recording needs at least {MIN_SAMPLES} "
-                       f"samples to measure anything")
+        raise Rejected(
+            f"one sample only (at {raw.locate(0)}): a recording needs at least {MIN_SAMPLES} "
+            f"samples to measure anything"
+        )
 
 
 def check_static_ego(raw: RawLog, label: str) -> None:
@@ -83,9 +85,11 @@ def check_static_ego(raw: RawLog, label: str) -> None:
     moved = float(np.sum(np.abs(np.diff(x))))
     if moved >= STATIC_FRACTION * by_speed:
         return
-    raise Rejected(f"{label} moves {moved:.3g} m in {t[-1] - t[0]:.4g} s while the ego speed adds up to "
-                   f"{by_speed:.4g} m (median {float(np.median(np.abs(v))):.3g} m/s): a position that does not "
-                   f"follow the speed (a frozen or wrong position signal); fix it before ingesting")
+    raise Rejected(
+        f"{label} moves {moved:.3g} m in {t[-1] - t[0]:.4g} s while the ego speed adds up to "
+        f"{by_speed:.4g} m (median {float(np.median(np.abs(v))):.3g} m/s): a position that does not "
+        f"follow the speed (a frozen or wrong position signal); fix it before ingesting"
+    )
 
 
 def check_press_rate(raw: RawLog, pressed: np.ndarray, warnings: list[str]) -> None:
@@ -102,14 +106,20 @@ def check_press_rate(raw: RawLog, pressed: np.ndarray, warnings: list[str]) -> N
     duration = float(t[-1] - t[0])
     rate = len(starts) / duration if duration > 0 else math.inf
     label = raw.names.get("lc_button", "the lane-change button")
-    if (fast >= 3 and fast > len(starts) / 2) or (len(starts) >= MIN_PRESSES_FOR_RATE and rate > MAX_MEAN_PRESS_RATE_HZ):
-        raise Rejected(f"{label} is pressed {len(starts)} times in {duration:.4g} s ({rate:.3g} a second; "
-                       f"{fast} presses less than {MIN_PRESS_INTERVAL_S:g} s after the one before): faster than a "
-                       f"person presses, a toggling or noisy signal; check which signal is the button")
+    if (fast >= 3 and fast > len(starts) / 2) or (
+        len(starts) >= MIN_PRESSES_FOR_RATE and rate > MAX_MEAN_PRESS_RATE_HZ
+    ):
+        raise Rejected(
+            f"{label} is pressed {len(starts)} times in {duration:.4g} s ({rate:.3g} a second; "
+            f"{fast} presses less than {MIN_PRESS_INTERVAL_S:g} s after the one before): faster than a "
+            f"person presses, a toggling or noisy signal; check which signal is the button"
+        )
     if fast:
         k = int(np.flatnonzero(gaps < MIN_PRESS_INTERVAL_S)[0]) + 1
-        warnings.append(f"{fast} lane-change press(es) less than {MIN_PRESS_INTERVAL_S:g} s after the one before "
-                        f"(first at t={t[starts[k]]:.3f} s): a bouncing button? kept as presses")
+        warnings.append(
+            f"{fast} lane-change press(es) less than {MIN_PRESS_INTERVAL_S:g} s after the one before "
+            f"(first at t={t[starts[k]]:.3f} s): a bouncing button? kept as presses"
+        )
 
 
 def ego_overlaps(raw: RawLog, warnings: list[str]) -> None:
@@ -142,12 +152,13 @@ def ego_overlaps(raw: RawLog, warnings: list[str]) -> None:
     if len(copies):
         drop = np.isin(idx, copies)
         ids = ", ".join(repr(str(names[int(c)].as_py())) for c in copies[:3]) + (" ..." if len(copies) > 3 else "")
-        warnings.append(f"traffic vehicle(s) {ids} overlap the ego (same lane, gap <= 0 m) at "
-                        f"{int(over[copies].sum())} of {int(total[copies].sum())} samples: the ego listed among its "
-                        f"own traffic; dropped")
+        warnings.append(
+            f"traffic vehicle(s) {ids} overlap the ego (same lane, gap <= 0 m) at "
+            f"{int(over[copies].sum())} of {int(total[copies].sum())} samples: the ego listed among its "
+            f"own traffic; dropped"
+        )
         keep = ~drop
-        raw.traffic = {k: (pa.array(a).filter(pa.array(keep)) if k == "vehicle_id" else a[keep])
-                       for k, a in tr.items()}
+        raw.traffic = {k: (pa.array(a).filter(pa.array(keep)) if k == "vehicle_id" else a[keep]) for k, a in tr.items()}
         raw.n_vehicles = None
         raw.vehicle_grid = 0
         overlap = overlap[keep]
@@ -156,6 +167,8 @@ def ego_overlaps(raw: RawLog, warnings: list[str]) -> None:
     if overlap.any():
         first = int(np.argmax(overlap))
         vehicles = len(np.unique(idx[overlap]))
-        warnings.append(f"traffic vehicle {str(names[int(idx[first])].as_py())!r} overlaps the ego (same lane, gap "
-                        f"<= 0 m) at t={tr['t_s'][first]:.3f} s ({int(overlap.sum())} sample(s) of {vehicles} "
-                        f"vehicle(s)): a collision or wrong positions; kept")
+        warnings.append(
+            f"traffic vehicle {str(names[int(idx[first])].as_py())!r} overlaps the ego (same lane, gap "
+            f"<= 0 m) at t={tr['t_s'][first]:.3f} s ({int(overlap.sum())} sample(s) of {vehicles} "
+            f"vehicle(s)): a collision or wrong positions; kept"
+        )

@@ -60,5 +60,7 @@ def check_lfs_pointer(data: bytes) -> None:
     fields = dict(line.split(" ", 1) for line in data.decode("utf-8", "replace").splitlines() if " " in line)
     size = fields.get("size", "").strip()
     real = f" of {int(size):,} bytes" if size.isdigit() else ""
-    raise Rejected(f"a Git LFS pointer, not the log itself (the real file{real} was not fetched): "
-                   f"fetch it with `git lfs pull` in the repository it came from")
+    raise Rejected(
+        f"a Git LFS pointer, not the log itself (the real file{real} was not fetched): "
+        f"fetch it with `git lfs pull` in the repository it came from"
+    )

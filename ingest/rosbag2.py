@@ -73,11 +73,15 @@ def read_bag_info(folder: Path) -> BagInfo:
         raise Rejected(f"{METADATA} has no {_KEY} section")
     storage = info.get("storage_identifier", "mcap")
     if storage != "mcap":
-        raise Rejected(f"rosbag2 storage {storage!r}: laneprint reads MCAP storage; convert the bag with "
-                       f"`ros2 bag convert` to storage_id mcap")
+        raise Rejected(
+            f"rosbag2 storage {storage!r}: laneprint reads MCAP storage; convert the bag with "
+            f"`ros2 bag convert` to storage_id mcap"
+        )
     if info.get("compression_mode") in ("file", "FILE", "message", "MESSAGE"):
-        raise Rejected(f"rosbag2 compression_mode {info['compression_mode']!r} ({info.get('compression_format')}): "
-                       f"decompress the bag first (`ros2 bag convert` without compression)")
+        raise Rejected(
+            f"rosbag2 compression_mode {info['compression_mode']!r} ({info.get('compression_format')}): "
+            f"decompress the bag first (`ros2 bag convert` without compression)"
+        )
     files = info.get("relative_file_paths")
     if not isinstance(files, list) or not files or not all(isinstance(f, str) for f in files):
         found = [p.name for p in folder.glob("*.mcap")]
@@ -87,9 +91,12 @@ def read_bag_info(folder: Path) -> BagInfo:
     twice = next((f for i, f in enumerate(files) if Path(f).name in {Path(g).name for g in files[:i]}), None)
     if twice is not None:
         raise Rejected(f"{METADATA} lists the part {Path(twice).name} more than once; list each part once")
-    return BagInfo(tuple(Path(f).name for f in files),
-                   _int(_nested(info, "starting_time", "nanoseconds_since_epoch")),
-                   _int(_nested(info, "duration", "nanoseconds")), _int(info.get("message_count")))
+    return BagInfo(
+        tuple(Path(f).name for f in files),
+        _int(_nested(info, "starting_time", "nanoseconds_since_epoch")),
+        _int(_nested(info, "duration", "nanoseconds")),
+        _int(info.get("message_count")),
+    )
 
 
 def bag_parts(folder: Path) -> tuple[BagInfo, list[Path]]:
@@ -98,8 +105,10 @@ def bag_parts(folder: Path) -> tuple[BagInfo, list[Path]]:
     paths = [folder / name for name in info.files]
     missing = [p.name for p in paths if not p.is_file()]
     if missing:
-        raise Rejected(f"split rosbag2: {', '.join(missing)} listed in {METADATA} is missing from the folder "
-                       f"({len(paths) - len(missing)} of {len(paths)} parts present); fetch or copy every part")
+        raise Rejected(
+            f"split rosbag2: {', '.join(missing)} listed in {METADATA} is missing from the folder "
+            f"({len(paths) - len(missing)} of {len(paths)} parts present); fetch or copy every part"
+        )
     return info, paths
 
 
@@ -111,8 +120,9 @@ def merge_parts(parts: list[Collected]) -> Collected:
         for sid, schema in got.schemas.items():
             out.schemas[base | sid] = replace(schema, id=base | sid)
         for cid, ch in got.channels.items():
-            out.channels[base | cid] = replace(ch, id=base | cid,
-                                               schema_id=(base | ch.schema_id) if ch.schema_id else 0)
+            out.channels[base | cid] = replace(
+                ch, id=base | cid, schema_id=(base | ch.schema_id) if ch.schema_id else 0
+            )
         for cid in got.times:
             out.times[base | cid] = got.times[cid]
             out.datas[base | cid] = got.datas[cid]
@@ -126,8 +136,9 @@ def bag_warnings(info: BagInfo, got: Collected, n_files: int) -> list[str]:
     warnings: list[str] = []
     n = sum(len(t) for t in got.times.values())
     if info.message_count is not None and info.message_count != n:
-        warnings.append(f"{METADATA} counts {info.message_count} messages, the {n_files} part(s) hold {n}: "
-                        f"a part may be cut short")
+        warnings.append(
+            f"{METADATA} counts {info.message_count} messages, the {n_files} part(s) hold {n}: a part may be cut short"
+        )
     if info.start_ns is not None and info.duration_ns is not None:
         lo, hi = info.start_ns, info.start_ns + info.duration_ns
         outside = sum(sum(1 for t in times if t < lo or t > hi) for times in got.times.values())
@@ -149,7 +160,7 @@ def read_split_bag(data: bytes, info: BagInfo, mapping: Mapping, limits: IngestL
     parts: list[Collected] = []
     at = 0
     for name, size in zip(info.files, info.sizes):
-        parts.append(_read_part(name, data[at:at + size], limits))
+        parts.append(_read_part(name, data[at : at + size], limits))
         at += size
     got = merge_parts(parts)
     return read_collected(got, mapping, bag_warnings(info, got, len(parts)))

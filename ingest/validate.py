@@ -19,8 +19,7 @@ import pyarrow as pa
 from ingest.mapping import Mapping
 from ingest.plausible import check_press_rate, check_samples, check_static_ego, ego_overlaps, speed_limit_problem
 from ingest.rawlog import RawLog, Rejected
-from ingest.values import (check_ego_jumps, check_ego_values, check_sample_rate, check_traffic_values,
-                           signal_label)
+from ingest.values import check_ego_jumps, check_ego_values, check_sample_rate, check_traffic_values, signal_label
 from laneprint.schemas import EGO, TRAFFIC, SchemaError
 
 KMH_MEDIAN_MPS = 45.0  # [m/s] a median ego speed above this (162 km/h) is taken for km/h
@@ -60,18 +59,24 @@ def _check_time(raw: RawLog) -> None:
         raise Rejected(f"time {raw.time_name!r} is empty at {raw.locate(i)}")
     if np.isinf(t).any() or np.isinf(raw.t_s).any():
         i = int(np.argmax(np.isinf(t) | np.isinf(raw.t_s)))
-        raise Rejected(f"time {raw.time_name!r} at {raw.locate(i)}: {t[i]} is not a finite number; "
-                       f"fix or cut that sample before ingesting")
+        raise Rejected(
+            f"time {raw.time_name!r} at {raw.locate(i)}: {t[i]} is not a finite number; "
+            f"fix or cut that sample before ingesting"
+        )
     dt = np.diff(t)
     bad = np.flatnonzero(dt <= 0)
     if len(bad):
         i = int(bad[0])
         more = f" ({len(bad) - 1} more)" if len(bad) > 1 else ""
         if dt[i] == 0:
-            raise Rejected(f"duplicated time {raw.time_name}={t[i]:.6g} s at {raw.locate(i)} and {raw.locate(i + 1)}"
-                           f"{more}: each sample needs its own time")
-        raise Rejected(f"time not strictly increasing at {raw.locate(i + 1)}: {raw.time_name}={t[i + 1]:.6g} s "
-                       f"after {t[i]:.6g} s{more}; sort the samples by time")
+            raise Rejected(
+                f"duplicated time {raw.time_name}={t[i]:.6g} s at {raw.locate(i)} and {raw.locate(i + 1)}"
+                f"{more}: each sample needs its own time"
+            )
+        raise Rejected(
+            f"time not strictly increasing at {raw.locate(i + 1)}: {raw.time_name}={t[i + 1]:.6g} s "
+            f"after {t[i]:.6g} s{more}; sort the samples by time"
+        )
 
 
 def _check_gaps(raw: RawLog) -> None:
@@ -84,19 +89,25 @@ def _check_gaps(raw: RawLog) -> None:
         s, e = int(starts[0]), int(stops[0])
         name = raw.names.get(key, key)
         more = f" (and {len(starts) - 1} more gap(s), {int(nan.sum())} empty values in all)" if len(starts) > 1 else ""
-        span = (f"at {raw.locate(s)} (t={raw.t_s[s]:.3f} s)" if s == e else
-                f"from {raw.locate(s)} to {raw.locate(e)} (t={raw.t_s[s]:.3f}-{raw.t_s[e]:.3f} s)")
+        span = (
+            f"at {raw.locate(s)} (t={raw.t_s[s]:.3f} s)"
+            if s == e
+            else f"from {raw.locate(s)} to {raw.locate(e)} (t={raw.t_s[s]:.3f}-{raw.t_s[e]:.3f} s)"
+        )
         empty = "empty value(s)" if raw.format != "mcap" else "empty or non-numeric value(s)"
-        raise Rejected(f"gap in required signal {name}: {e - s + 1} {empty} {span}{more}; "
-                       f"fill or cut the gap before ingesting")
+        raise Rejected(
+            f"gap in required signal {name}: {e - s + 1} {empty} {span}{more}; fill or cut the gap before ingesting"
+        )
 
 
 def _check_kmh(raw: RawLog, mapping: Mapping) -> None:
     v = raw.ego["ego_v_mps"]
     med = float(np.median(v))
     if med > KMH_MEDIAN_MPS:
-        raise Rejected(f"ego speed looks like km/h, not m/s (median {med:.1f}, i.e. {med * 3.6:.0f} km/h if it "
-                       f"were m/s): set speed = \"km/h\" under [units] {mapping.hint()}")
+        raise Rejected(
+            f"ego speed looks like km/h, not m/s (median {med:.1f}, i.e. {med * 3.6:.0f} km/h if it "
+            f'were m/s): set speed = "km/h" under [units] {mapping.hint()}'
+        )
 
 
 def _unit_warnings(raw: RawLog) -> list[str]:
@@ -115,9 +126,11 @@ def _unit_warnings(raw: RawLog) -> list[str]:
     ratio = logged / observed
     if 0.5 <= ratio <= 2.0:
         return []
-    return [f"ego speed (median {logged:.3g}) is {ratio:.3g}x the rate at which {raw.names.get('ego_x_m', 'ego_x')} "
-            f"changes ({observed:.3g} per {raw.time_name} unit): check the units ([units] speed/position/time "
-            f"in a --mapping file)"]
+    return [
+        f"ego speed (median {logged:.3g}) is {ratio:.3g}x the rate at which {raw.names.get('ego_x_m', 'ego_x')} "
+        f"changes ({observed:.3g} per {raw.time_name} unit): check the units ([units] speed/position/time "
+        f"in a --mapping file)"
+    ]
 
 
 def _directions(pressed: np.ndarray, raw_dirs: np.ndarray, warnings: list[str]) -> tuple[np.ndarray, int]:
@@ -170,8 +183,10 @@ def resolve_driver(file_id: Any, default: Any, override: str | None, warnings: l
         return override
     if default not in (None, ""):
         return str(default)
-    raise Rejected("no driver id: the file has no driver_id (CSV column or MCAP session metadata); "
-                   "give one with --driver ID or a driver_id default under [metadata] in a --mapping file")
+    raise Rejected(
+        "no driver id: the file has no driver_id (CSV column or MCAP session metadata); "
+        "give one with --driver ID or a driver_id default under [metadata] in a --mapping file"
+    )
 
 
 def _strings(values: Any) -> pd.Series:
@@ -185,15 +200,23 @@ def traffic_frame(raw: RawLog) -> pd.DataFrame:
     tr = raw.traffic
     with np.errstate(invalid="ignore"):  # lanes out of 0..MAX_LANE (NaN too) are dropped by the checks
         lanes = tr["lane"].astype(np.int64)
-    return pd.DataFrame({
-        "t_s": tr["t_s"], "vehicle_id": _strings(tr["vehicle_id"]),
-        "x_m": tr["x_m"], "y_m": tr["y_m"], "v_mps": tr["v_mps"],
-        "lane": lanes, "length_m": tr["length_m"],
-    }, copy=False)[TRAFFIC.names]  # no consolidation copy: each column stays its own block
+    return pd.DataFrame(
+        {
+            "t_s": tr["t_s"],
+            "vehicle_id": _strings(tr["vehicle_id"]),
+            "x_m": tr["x_m"],
+            "y_m": tr["y_m"],
+            "v_mps": tr["v_mps"],
+            "lane": lanes,
+            "length_m": tr["length_m"],
+        },
+        copy=False,
+    )[TRAFFIC.names]  # no consolidation copy: each column stays its own block
 
 
-def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: str | None,
-                 traffic: pd.DataFrame | None = None) -> Canonical:
+def canonicalise(
+    raw: RawLog, mapping: Mapping, session_default: str, driver: str | None, traffic: pd.DataFrame | None = None
+) -> Canonical:
     """Check `raw` and build the EGO / TRAFFIC tables; `Rejected` on the first problem.
     `traffic`: `traffic_frame(raw)` when the caller has built it already (the checks build it anew
     when they drop samples: then the result's `traffic` is not that frame)."""
@@ -228,17 +251,30 @@ def canonicalise(raw: RawLog, mapping: Mapping, session_default: str, driver: st
     check_press_rate(raw, pressed, warnings)
     directions, n_presses = _directions(pressed, e["lc_direction"], warnings)
     if n_presses == 0:
-        warnings.append("no lane-change button presses: the recording holds no decisions"
-                        + ("" if raw.has_button else " (no lc_button signal in the file)"))
+        warnings.append(
+            "no lane-change button presses: the recording holds no decisions"
+            + ("" if raw.has_button else " (no lc_button signal in the file)")
+        )
     length = np.where(np.isnan(e["ego_length_m"]), 4.5, e["ego_length_m"])
-    ego = pd.DataFrame({
-        "t_s": raw.t_s, "ego_x_m": e["ego_x_m"], "ego_y_m": e["ego_y_m"], "ego_v_mps": e["ego_v_mps"],
-        "ego_lane": e["ego_lane"].astype(np.int64), "ego_length_m": length,
-        "steer_rad": e["steer_rad"], "throttle": e["throttle"], "brake": e["brake"],
-        "lc_button": pressed, "lc_direction": pd.Series(directions, dtype=object),
-    }, copy=False)
+    ego = pd.DataFrame(
+        {
+            "t_s": raw.t_s,
+            "ego_x_m": e["ego_x_m"],
+            "ego_y_m": e["ego_y_m"],
+            "ego_v_mps": e["ego_v_mps"],
+            "ego_lane": e["ego_lane"].astype(np.int64),
+            "ego_length_m": length,
+            "steer_rad": e["steer_rad"],
+            "throttle": e["throttle"],
+            "brake": e["brake"],
+            "lc_button": pressed,
+            "lc_direction": pd.Series(directions, dtype=object),
+        },
+        copy=False,
+    )
     if traffic is None or raw.traffic is not traffic_read:  # the checks dropped samples
         traffic = traffic_frame(raw)
     n_vehicles = raw.n_vehicles if raw.n_vehicles is not None else int(traffic["vehicle_id"].nunique())
-    return Canonical(meta=meta, ego=ego[EGO.names], traffic=traffic,
-                     n_presses=n_presses, warnings=warnings, n_vehicles=n_vehicles)
+    return Canonical(
+        meta=meta, ego=ego[EGO.names], traffic=traffic, n_presses=n_presses, warnings=warnings, n_vehicles=n_vehicles
+    )

@@ -66,17 +66,24 @@ BOUNDS: dict[str, Bounds] = {
     "brake": Bounds(0.0, 1.0, "", "a pedal position 0-1"),
 }
 TRAFFIC_BOUNDS: dict[str, Bounds] = {
-    "x_m": BOUNDS["ego_x_m"], "v_mps": BOUNDS["ego_v_mps"], "lane": BOUNDS["ego_lane"],
-    "y_m": BOUNDS["ego_y_m"], "length_m": BOUNDS["ego_length_m"],
+    "x_m": BOUNDS["ego_x_m"],
+    "v_mps": BOUNDS["ego_v_mps"],
+    "lane": BOUNDS["ego_lane"],
+    "y_m": BOUNDS["ego_y_m"],
+    "length_m": BOUNDS["ego_length_m"],
 }
 EGO_REQUIRED = ("ego_x_m", "ego_v_mps", "ego_lane")
 EGO_OPTIONAL = ("ego_y_m", "ego_length_m", "steer_rad", "throttle", "brake")
 # EGO column -> (CSV canonical column, MCAP topic, MCAP field): how a signal is named in the file
 _SOURCES = {
-    "ego_x_m": ("ego_x", TOPIC_EGO, "x"), "ego_y_m": ("ego_y", TOPIC_EGO, "y"),
-    "ego_v_mps": ("ego_v", TOPIC_EGO, "v"), "ego_lane": ("ego_lane", TOPIC_EGO, "lane"),
-    "ego_length_m": ("ego_length", TOPIC_EGO, "length"), "steer_rad": ("steer", TOPIC_CONTROLS, "steer"),
-    "throttle": ("throttle", TOPIC_CONTROLS, "throttle"), "brake": ("brake", TOPIC_CONTROLS, "brake"),
+    "ego_x_m": ("ego_x", TOPIC_EGO, "x"),
+    "ego_y_m": ("ego_y", TOPIC_EGO, "y"),
+    "ego_v_mps": ("ego_v", TOPIC_EGO, "v"),
+    "ego_lane": ("ego_lane", TOPIC_EGO, "lane"),
+    "ego_length_m": ("ego_length", TOPIC_EGO, "length"),
+    "steer_rad": ("steer", TOPIC_CONTROLS, "steer"),
+    "throttle": ("throttle", TOPIC_CONTROLS, "throttle"),
+    "brake": ("brake", TOPIC_CONTROLS, "brake"),
 }
 _TRAFFIC_FIELDS = {"x_m": "x", "v_mps": "v", "lane": "lane", "y_m": "y", "length_m": "length"}
 
@@ -94,8 +101,9 @@ _SCHEMA_BOUNDS: dict[str, dict[str, Bounds]] = {}  # schema name -> its columns'
 
 def _schema(name: str, bounds: dict[str, Bounds], columns: tuple[str, ...]) -> pdr.DataFrameSchema:
     _SCHEMA_BOUNDS[name] = {c: bounds[c] for c in columns}
-    return pdr.DataFrameSchema({c: pdr.Column(float, _checks(bounds[c]), nullable=True) for c in columns},
-                               name=name, strict=False)
+    return pdr.DataFrameSchema(
+        {c: pdr.Column(float, _checks(bounds[c]), nullable=True) for c in columns}, name=name, strict=False
+    )
 
 
 EGO_REQUIRED_SCHEMA = _schema("ego signals", BOUNDS, EGO_REQUIRED)
@@ -194,10 +202,15 @@ def check_ego_values(raw: RawLog, mapping: Mapping) -> list[str]:
         more = f"; {count} such value(s) in {label}" if count > 1 else ""
         others = [f"{signal_label(raw, k, mapping)} ({c})" for _, k, c in problems if k != key]
         also = f"; also impossible values in {', '.join(others)}" if others else ""
-        units = (f" (if the file is in km/h or mph, set speed under [units] {mapping.hint()})"
-                 if key == "ego_v_mps" and np.isfinite(value) and value > MAX_SPEED_MPS else "")
-        raise Rejected(f"{label} at {raw.locate(i)} (t={raw.t_s[i]:.3f} s): {describe(value, BOUNDS[key])}"
-                       f"{more}{also}; fix or cut those samples before ingesting{units}")
+        units = (
+            f" (if the file is in km/h or mph, set speed under [units] {mapping.hint()})"
+            if key == "ego_v_mps" and np.isfinite(value) and value > MAX_SPEED_MPS
+            else ""
+        )
+        raise Rejected(
+            f"{label} at {raw.locate(i)} (t={raw.t_s[i]:.3f} s): {describe(value, BOUNDS[key])}"
+            f"{more}{also}; fix or cut those samples before ingesting{units}"
+        )
     opt = pd.DataFrame({k: raw.ego[k] for k in EGO_OPTIONAL}, copy=False)
     warnings = []
     for key, rows in failures(opt, EGO_OPTIONAL_SCHEMA).items():
@@ -206,8 +219,10 @@ def check_ego_values(raw: RawLog, mapping: Mapping) -> list[str]:
         raw.ego[key] = raw.ego[key].copy()
         raw.ego[key][rows] = np.nan
         fallback = "4.5 m is used there" if key == "ego_length_m" else "left empty"
-        warnings.append(f"{signal_label(raw, key, mapping)}: {len(rows)} of {len(opt)} value(s) impossible "
-                        f"(first {describe(value, BOUNDS[key])} at {raw.locate(i)}); {fallback}")
+        warnings.append(
+            f"{signal_label(raw, key, mapping)}: {len(rows)} of {len(opt)} value(s) impossible "
+            f"(first {describe(value, BOUNDS[key])} at {raw.locate(i)}); {fallback}"
+        )
     return warnings
 
 
@@ -218,19 +233,26 @@ def check_sample_rate(raw: RawLog, mapping: Mapping) -> None:
     big = np.flatnonzero(steps > MAX_STEP_S)
     if len(big):
         i = int(big[0])
-        raise Rejected(f"time {raw.time_name!r} jumps {steps[i]:.4g} s at {raw.locate(i + 1)} (from "
-                       f"{raw.t_abs_s[i]:.6g} to {raw.t_abs_s[i + 1]:.6g} s), more than {MAX_STEP_S:g} s between two "
-                       f"samples; fix or cut the sample with the broken time before ingesting")
+        raise Rejected(
+            f"time {raw.time_name!r} jumps {steps[i]:.4g} s at {raw.locate(i + 1)} (from "
+            f"{raw.t_abs_s[i]:.6g} to {raw.t_abs_s[i + 1]:.6g} s), more than {MAX_STEP_S:g} s between two "
+            f"samples; fix or cut the sample with the broken time before ingesting"
+        )
     if len(raw.t_abs_s) < 3:
         return
     step = float(np.median(steps))
     rate = 1.0 / step if step > 0 else math.inf
     if MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
         return
-    hint = (f'set time = "ms" (or "us", "ns") under [units] {mapping.hint()}' if rate < MIN_RATE_HZ else
-            f'set time = "s" or the right time_scale under [units] {mapping.hint()}')
-    raise Rejected(f"sample rate {rate:.3g} Hz (median step {step:.6g} s of {raw.time_name}) is outside "
-                   f"{MIN_RATE_HZ:g}-{MAX_RATE_HZ:g} Hz; if {raw.time_name} is not in seconds, {hint}")
+    hint = (
+        f'set time = "ms" (or "us", "ns") under [units] {mapping.hint()}'
+        if rate < MIN_RATE_HZ
+        else f'set time = "s" or the right time_scale under [units] {mapping.hint()}'
+    )
+    raise Rejected(
+        f"sample rate {rate:.3g} Hz (median step {step:.6g} s of {raw.time_name}) is outside "
+        f"{MIN_RATE_HZ:g}-{MAX_RATE_HZ:g} Hz; if {raw.time_name} is not in seconds, {hint}"
+    )
 
 
 def _allowed_step(v0: np.ndarray, v1: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -259,10 +281,15 @@ def check_ego_jumps(raw: RawLog, mapping: Mapping) -> None:
     k = int(jumps[0])
     label = signal_label(raw, "ego_x_m", mapping)
     more = f"; {len(jumps)} such jumps" if len(jumps) > 1 else ""
-    units = (f"; every other step is too long: check the position, speed and time units under [units] "
-             f"{mapping.hint()}" if len(jumps) > len(dx) / 2 else "; fix or cut those samples before ingesting")
-    raise Rejected(f"{label} jumps {dx[k]:.4g} m in {dt[k]:.4g} s at {raw.locate(k + 1)} (t={t[k + 1]:.3f} s), "
-                   f"further than its speed ({max(abs(v[k]), abs(v[k + 1])):.3g} m/s) allows{more}{units}")
+    units = (
+        f"; every other step is too long: check the position, speed and time units under [units] {mapping.hint()}"
+        if len(jumps) > len(dx) / 2
+        else "; fix or cut those samples before ingesting"
+    )
+    raise Rejected(
+        f"{label} jumps {dx[k]:.4g} m in {dt[k]:.4g} s at {raw.locate(k + 1)} (t={t[k + 1]:.3f} s), "
+        f"further than its speed ({max(abs(v[k]), abs(v[k + 1])):.3g} m/s) allows{more}{units}"
+    )
 
 
 def _traffic_label(raw: RawLog, mapping: Mapping, key: str) -> str:
@@ -287,13 +314,16 @@ def check_traffic_values(raw: RawLog, mapping: Mapping) -> list[str]:
         i = int(np.argmax(drop))
         key = next(k for k in TRAFFIC_BOUNDS if k in bad and i in bad[k])
         dropped_ids = pa.array(ids).filter(pa.array(drop)).unique()
-        warnings.append(f"traffic: dropped {int(drop.sum())} of {n} vehicle sample(s) of {len(dropped_ids)} "
-                        f"vehicle(s) with impossible values (first: vehicle {_vid(ids, i)!r} "
-                        f"{_traffic_label(raw, mapping, key)} {describe(float(tr[key][i]), TRAFFIC_BOUNDS[key])} "
-                        f"at t={tr['t_s'][i]:.3f} s)")
+        warnings.append(
+            f"traffic: dropped {int(drop.sum())} of {n} vehicle sample(s) of {len(dropped_ids)} "
+            f"vehicle(s) with impossible values (first: vehicle {_vid(ids, i)!r} "
+            f"{_traffic_label(raw, mapping, key)} {describe(float(tr[key][i]), TRAFFIC_BOUNDS[key])} "
+            f"at t={tr['t_s'][i]:.3f} s)"
+        )
         keep = ~drop
-        raw.traffic = tr = {k: (pa.array(a).filter(pa.array(keep)) if k == "vehicle_id" else a[keep])
-                            for k, a in tr.items()}
+        raw.traffic = tr = {
+            k: (pa.array(a).filter(pa.array(keep)) if k == "vehicle_id" else a[keep]) for k, a in tr.items()
+        }
         raw.n_vehicles = None
     known = raw.vehicle_grid if not bad else 0  # dropping rows may break the reader's grid
     k = known or _vehicle_grid(pa.array(tr["vehicle_id"]), len(tr["t_s"]))
@@ -356,6 +386,8 @@ def _traffic_jumps(tr: dict[str, Any], k: int | None = None) -> list[str]:
         i = int(jumps[0])
         count, vehicles = len(jumps), len(np.unique(c[jumps]))
         t0, t1, x0, x1, vid = t[i], t[i + 1], x[i], x[i + 1], _vid(tr["vehicle_id"], int(order[i + 1]))
-    return [f"traffic vehicle {vid!r} jumps {abs(x1 - x0):.4g} m in {t1 - t0:.4g} s at "
-            f"t={t1:.3f} s, further than its speed allows ({count} such jump(s) in "
-            f"{vehicles} vehicle(s)); kept"]
+    return [
+        f"traffic vehicle {vid!r} jumps {abs(x1 - x0):.4g} m in {t1 - t0:.4g} s at "
+        f"t={t1:.3f} s, further than its speed allows ({count} such jump(s) in "
+        f"{vehicles} vehicle(s)); kept"
+    ]

@@ -50,6 +50,7 @@ _UNSAFE_CSV_CHARS = (",", '"', "\n", "\r")
 
 # --- shared helpers -----------------------------------------------------------
 
+
 def _present(value: Any) -> bool:
     if value is None:
         return False
@@ -111,6 +112,7 @@ def _replace_into(tmp: Path, path: Path) -> None:
 
 
 # --- CSV -------------------------------------------------------------------------
+
 
 def _wide_traffic(t: np.ndarray, traffic: pd.DataFrame) -> list[tuple[str, pa.Array]]:
     """Long-form traffic -> `<id>_x/_v/_lane/_y/_length` columns, empty where absent."""
@@ -200,7 +202,7 @@ def write_csv(path: Path, meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.D
     tmp = _tmp_path(path)
     gz = path.name.endswith(".gz")
     try:
-        with (pa.CompressedOutputStream(str(tmp), "gzip") if gz else pa.OSFile(str(tmp), "wb")) as out:
+        with pa.CompressedOutputStream(str(tmp), "gzip") if gz else pa.OSFile(str(tmp), "wb") as out:
             out.write(header)
             pacsv.write_csv(table, out, opts)
     except BaseException:
@@ -213,30 +215,53 @@ def write_csv(path: Path, meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.D
 
 _NUM = {"type": "number"}
 _SCHEMAS = {
-    TOPIC_EGO: ("laneprint.EgoState", {
-        "type": "object",
-        "properties": {"x": _NUM, "y": _NUM, "v": _NUM, "lane": {"type": "integer"}, "length": _NUM},
-        "required": ["x", "v", "lane"],
-    }),
-    TOPIC_TRAFFIC: ("laneprint.TrafficVehicles", {
-        "type": "object",
-        "properties": {"vehicles": {"type": "array", "items": {
+    TOPIC_EGO: (
+        "laneprint.EgoState",
+        {
             "type": "object",
-            "properties": {"id": {"type": "string"}, "x": _NUM, "y": _NUM, "v": _NUM,
-                           "lane": {"type": "integer"}, "length": _NUM},
-            "required": ["id", "x", "v", "lane"],
-        }}},
-        "required": ["vehicles"],
-    }),
-    TOPIC_CONTROLS: ("laneprint.DriverControls", {
-        "type": "object",
-        "properties": {"steer": _NUM, "throttle": _NUM, "brake": _NUM},
-    }),
-    TOPIC_BUTTON: ("laneprint.LaneChangeButton", {
-        "type": "object",
-        "properties": {"pressed": {"type": "boolean"}, "direction": {"enum": ["left", "right"]}},
-        "required": ["pressed"],
-    }),
+            "properties": {"x": _NUM, "y": _NUM, "v": _NUM, "lane": {"type": "integer"}, "length": _NUM},
+            "required": ["x", "v", "lane"],
+        },
+    ),
+    TOPIC_TRAFFIC: (
+        "laneprint.TrafficVehicles",
+        {
+            "type": "object",
+            "properties": {
+                "vehicles": {
+                    "type": "array",
+                    "items": {
+                        "type": "object",
+                        "properties": {
+                            "id": {"type": "string"},
+                            "x": _NUM,
+                            "y": _NUM,
+                            "v": _NUM,
+                            "lane": {"type": "integer"},
+                            "length": _NUM,
+                        },
+                        "required": ["id", "x", "v", "lane"],
+                    },
+                }
+            },
+            "required": ["vehicles"],
+        },
+    ),
+    TOPIC_CONTROLS: (
+        "laneprint.DriverControls",
+        {
+            "type": "object",
+            "properties": {"steer": _NUM, "throttle": _NUM, "brake": _NUM},
+        },
+    ),
+    TOPIC_BUTTON: (
+        "laneprint.LaneChangeButton",
+        {
+            "type": "object",
+            "properties": {"pressed": {"type": "boolean"}, "direction": {"enum": ["left", "right"]}},
+            "required": ["pressed"],
+        },
+    ),
 }
 
 
@@ -257,8 +282,7 @@ def _ego_messages(ego: pd.DataFrame) -> list[bytes]:
     v = _floats(ego, "ego_v_mps", _POS_DECIMALS).tolist()
     lane = pd.to_numeric(ego["ego_lane"]).to_numpy(dtype=np.int64).tolist()
     y = _pylist(_floats(ego, "ego_y_m", _POS_DECIMALS)) if "ego_y_m" in ego else [None] * len(ego)
-    length = (_pylist(_floats(ego, "ego_length_m", _POS_DECIMALS)) if "ego_length_m" in ego
-              else [None] * len(ego))
+    length = _pylist(_floats(ego, "ego_length_m", _POS_DECIMALS)) if "ego_length_m" in ego else [None] * len(ego)
     out = []
     for xi, yi, vi, li, ln in zip(x, y, v, lane, length):
         msg: dict[str, Any] = {"x": xi, "v": vi, "lane": li}
@@ -292,12 +316,13 @@ def _traffic_messages(t: np.ndarray, traffic: pd.DataFrame) -> list[bytes]:
         if length[j] is not None:
             d["length"] = length[j]
         vehicles.append(d)
-    return [_dumps({"vehicles": vehicles[bounds[i]:bounds[i + 1]]}) for i in range(n)]
+    return [_dumps({"vehicles": vehicles[bounds[i] : bounds[i + 1]]}) for i in range(n)]
 
 
 def _control_messages(ego: pd.DataFrame) -> list[bytes] | None:
-    fields = [(k, c) for k, c in (("steer", "steer_rad"), ("throttle", "throttle"), ("brake", "brake"))
-              if _has_values(ego, c)]
+    fields = [
+        (k, c) for k, c in (("steer", "steer_rad"), ("throttle", "throttle"), ("brake", "brake")) if _has_values(ego, c)
+    ]
     if not fields:
         return None
     cols = [(k, _pylist(_floats(ego, c, _INPUT_DECIMALS))) for k, c in fields]
@@ -363,8 +388,14 @@ def _extra_queue(w: Writer, extra: Sequence[ExtraChannel]) -> _ExtraQueue:
     return _ExtraQueue(w, items)
 
 
-def write_mcap(path: Path, meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame,
-               extra: Sequence[ExtraChannel] = (), extra_metadata: dict[str, dict[str, str]] | None = None) -> None:
+def write_mcap(
+    path: Path,
+    meta: dict[str, Any],
+    ego: pd.DataFrame,
+    traffic: pd.DataFrame,
+    extra: Sequence[ExtraChannel] = (),
+    extra_metadata: dict[str, dict[str, str]] | None = None,
+) -> None:
     """Write one recording as an MCAP log (chunked, zstd, indexed, with summary).
 
     `extra` channels are interleaved with the samples in log-time order;
@@ -392,8 +423,13 @@ def write_mcap(path: Path, meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.
                 name, schema = _SCHEMAS[topic]
                 sid = w.register_schema(name=name, encoding="jsonschema", data=json.dumps(schema).encode())
                 channels[topic] = w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
-            w.add_metadata(METADATA_NAME, {k: (str(int(v)) if k == "speed_limit_kph" and float(v).is_integer()
-                                               else str(v)) for k, v in _meta_items(meta)})
+            w.add_metadata(
+                METADATA_NAME,
+                {
+                    k: (str(int(v)) if k == "speed_limit_kph" and float(v).is_integer() else str(v))
+                    for k, v in _meta_items(meta)
+                },
+            )
             for name, values in (extra_metadata or {}).items():
                 w.add_metadata(name, values)
             pending = _extra_queue(w, extra)

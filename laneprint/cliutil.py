@@ -18,8 +18,7 @@ from typing import Annotated, Any, Callable, Iterator, Mapping, Optional
 
 import typer
 from rich.console import Console
-from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                           TimeRemainingColumn)
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from laneprint.errors import SettingError, UserError
 from laneprint.progress import ProgressFn
@@ -29,12 +28,22 @@ WorkspaceOpt = Annotated[
     Path, typer.Option("--workspace", "-w", help="Workspace folder.", envvar="LANEPRINT_WORKSPACE")
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON document instead of the summary.")]
-BackendOpt = Annotated[str, typer.Option(
-    "--backend", help="Where the work runs: 'local' (this process) or 'ray' (Ray workers; pip install -e '.[ray]').")]
-RayAddressOpt = Annotated[Optional[str], typer.Option(
-    "--ray-address", metavar="ADDR", hidden=True,
-    help="With --backend ray: join this Ray cluster (host:port or 'auto'); default: start a local Ray instance "
-         "with this machine's cores.")]
+BackendOpt = Annotated[
+    str,
+    typer.Option(
+        "--backend", help="Where the work runs: 'local' (this process) or 'ray' (Ray workers; pip install -e '.[ray]')."
+    ),
+]
+RayAddressOpt = Annotated[
+    Optional[str],
+    typer.Option(
+        "--ray-address",
+        metavar="ADDR",
+        hidden=True,
+        help="With --backend ray: join this Ray cluster (host:port or 'auto'); default: start a local Ray instance "
+        "with this machine's cores.",
+    ),
+]
 
 #: C0 controls but tab and newline, DEL and C1: bytes that a terminal obeys as commands
 _CONTROLS = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
@@ -61,9 +70,12 @@ err_console = Console(stderr=True)
 DEFAULT_WS = DEFAULT_WORKSPACE
 
 
-def run_command(work: Callable[[], dict[str, Any]], as_json: bool,
-                render: Callable[[dict[str, Any], Console], None],
-                flags: Optional[Mapping[str, str]] = None) -> dict[str, Any]:
+def run_command(
+    work: Callable[[], dict[str, Any]],
+    as_json: bool,
+    render: Callable[[dict[str, Any], Console], None],
+    flags: Optional[Mapping[str, str]] = None,
+) -> dict[str, Any]:
     """Run `work`; print its result as JSON or via `render`; exit 1 on a UserError (a `SettingError` says
     the command's flags for the settings it names: `flags[setting]`, else `--setting-name`)."""
     try:
@@ -76,8 +88,12 @@ def run_command(work: Callable[[], dict[str, Any]], as_json: bool,
         if exc.errno not in _ENVIRONMENT_ERRNOS:
             raise
         where = f": {exc.filename}" if exc.filename else ""
-        err_console.print(f"error: {exc.strerror or exc}{visible(where)} (a read-only folder or a full disk?)",
-                          markup=False, highlight=False, soft_wrap=True)
+        err_console.print(
+            f"error: {exc.strerror or exc}{visible(where)} (a read-only folder or a full disk?)",
+            markup=False,
+            highlight=False,
+            soft_wrap=True,
+        )
         raise typer.Exit(1) from None
     except KeyboardInterrupt:
         err_console.print("interrupted", markup=False)
@@ -97,8 +113,15 @@ def progress_bar(enabled: bool = True) -> Iterator[ProgressFn]:
     if not enabled:
         yield lambda done, total, message="": None
         return
-    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                   TimeElapsedColumn(), TimeRemainingColumn(), console=err_console, transient=False)
+    bar = Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=err_console,
+        transient=False,
+    )
     task = bar.add_task("", total=None)
     with bar:
         last: dict[str, Any] = {"done": 0, "total": None}
@@ -109,4 +132,5 @@ def progress_bar(enabled: bool = True) -> Iterator[ProgressFn]:
             else:
                 bar.update(task, completed=done, total=total, description=visible(message)[:80])
             last.update(done=done, total=total)
+
         yield update

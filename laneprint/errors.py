@@ -36,7 +36,9 @@ class SettingError(UserError):
     def as_flags(self, flags: Optional[Mapping[str, str]] = None) -> str:
         """The message with command-line flags for the settings: `flags[name]`, else `--name-with-dashes`;
         a setting named with False as its `--no-` flag."""
+
         def say(name: str, value: Optional[bool]) -> str:
             flag = (flags or {}).get(name) or "--" + name.replace("_", "-")
             return f"--no-{flag[2:]}" if value is False else flag
+
         return self.text(say)

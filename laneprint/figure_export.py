@@ -31,8 +31,7 @@ def kaleido_missing() -> str | None:
     from importlib.util import find_spec
 
     if find_spec("kaleido") is None:
-        return ("SVG, PDF and PNG need kaleido (and a Chrome or Chromium on this machine): "
-                "pip install -e '.[report]'")
+        return "SVG, PDF and PNG need kaleido (and a Chrome or Chromium on this machine): pip install -e '.[report]'"
     return None
 
 
@@ -51,19 +50,29 @@ def publication_figure(fig: go.Figure, width_px: int | None = None, height_px: i
     panels = _subplot_columns(out)
     width = width_px or (PAGE_PX if panels > 1 else COLUMN_PX)
     height = height_px or (int(width * 0.42) if panels > 1 else int(width * 0.8))
-    out.update_layout(template="simple_white", font=FONT, width=width, height=height,
-                      margin={"l": 48, "r": 12, "t": 24, "b": 44}, paper_bgcolor="white", plot_bgcolor="white",
-                      legend={"orientation": "h", "yanchor": "top", "y": -0.22, "x": 0, "font": {"size": 8}},
-                      title={"text": ""})
-    out.update_xaxes(showline=True, linecolor="black", linewidth=0.8, ticks="outside", mirror=False,
-                     title_font={"size": 9})
-    out.update_yaxes(showline=True, linecolor="black", linewidth=0.8, ticks="outside", mirror=False,
-                     title_font={"size": 9})
+    out.update_layout(
+        template="simple_white",
+        font=FONT,
+        width=width,
+        height=height,
+        margin={"l": 48, "r": 12, "t": 24, "b": 44},
+        paper_bgcolor="white",
+        plot_bgcolor="white",
+        legend={"orientation": "h", "yanchor": "top", "y": -0.22, "x": 0, "font": {"size": 8}},
+        title={"text": ""},
+    )
+    out.update_xaxes(
+        showline=True, linecolor="black", linewidth=0.8, ticks="outside", mirror=False, title_font={"size": 9}
+    )
+    out.update_yaxes(
+        showline=True, linecolor="black", linewidth=0.8, ticks="outside", mirror=False, title_font={"size": 9}
+    )
     return out
 
 
-def figure_images(fig: go.Figure, formats: tuple[str, ...] = FORMATS, width_px: int | None = None,
-                  height_px: int | None = None) -> dict[str, bytes]:
+def figure_images(
+    fig: go.Figure, formats: tuple[str, ...] = FORMATS, width_px: int | None = None, height_px: int | None = None
+) -> dict[str, bytes]:
     """`fig` in the print template as bytes per format ('svg', 'pdf', 'png' at `PNG_DPI`), drawn in one
     kaleido session. A `UserError` saying why when kaleido or a browser is missing or the drawing fails."""
     if (why := kaleido_missing()) is not None:
@@ -78,8 +87,10 @@ def figure_images(fig: go.Figure, formats: tuple[str, ...] = FORMATS, width_px: 
             out[fmt] = pio.to_image(pub, format=fmt, width=pub.layout.width, height=pub.layout.height, scale=scale)
     except Exception as exc:  # noqa: BLE001 - kaleido finds no Chrome/Chromium, or it fails to start
         first = (str(exc).splitlines() or [""])[0][:300]
-        raise UserError(f"the figure could not be drawn as {fmt.upper()}: {type(exc).__name__}: {first} "
-                        "(kaleido needs Chrome or Chromium: `kaleido_get_chrome`, or apt-get install chromium)") from None
+        raise UserError(
+            f"the figure could not be drawn as {fmt.upper()}: {type(exc).__name__}: {first} "
+            "(kaleido needs Chrome or Chromium: `kaleido_get_chrome`, or apt-get install chromium)"
+        ) from None
     return out
 
 
@@ -102,17 +113,27 @@ def figure_data(fig: go.Figure) -> pd.DataFrame:
         n = len(values)
         xa = "xaxis" + ((getattr(tr, "xaxis", None) or "x")[1:])
         ya = "yaxis" + ((getattr(tr, "yaxis", None) or "y")[1:])
-        df = pd.DataFrame({"trace": tr.name or f"trace {i}", "type": tr.type,
-                           "x_axis": _axis_title(fig, xa), "x": list(x) if x is not None else [None] * n,
-                           "y_axis": _axis_title(fig, ya), "y": list(y) if y is not None else [None] * n})
+        df = pd.DataFrame(
+            {
+                "trace": tr.name or f"trace {i}",
+                "type": tr.type,
+                "x_axis": _axis_title(fig, xa),
+                "x": list(x) if x is not None else [None] * n,
+                "y_axis": _axis_title(fig, ya),
+                "y": list(y) if y is not None else [None] * n,
+            }
+        )
         custom = getattr(tr, "customdata", None)
         if custom is not None:
             arr = np.asarray(custom, dtype=object)
             if arr.ndim == 1 and len(arr) == n:
                 df["value"] = arr
         frames.append(df)
-    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(
-        columns=["trace", "type", "x_axis", "x", "y_axis", "y"])
+    return (
+        pd.concat(frames, ignore_index=True)
+        if frames
+        else pd.DataFrame(columns=["trace", "type", "x_axis", "x", "y_axis", "y"])
+    )
 
 
 def figure_csv(fig: go.Figure) -> str:

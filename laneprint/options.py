@@ -91,8 +91,11 @@ def field_docs(cls: type) -> dict[str, str]:
             if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)):
                 continue
             nxt = body[i + 1] if i + 1 < len(body) else None
-            if isinstance(nxt, ast.Expr) and isinstance(getattr(nxt, "value", None), ast.Constant) \
-                    and isinstance(nxt.value.value, str):
+            if (
+                isinstance(nxt, ast.Expr)
+                and isinstance(getattr(nxt, "value", None), ast.Constant)
+                and isinstance(nxt.value.value, str)
+            ):
                 docs[node.target.id] = " ".join(inspect.cleandoc(nxt.value.value).split())
                 continue
             parts = [comments[n] for n in range(node.lineno, (node.end_lineno or node.lineno) + 1) if n in comments]
@@ -119,8 +122,7 @@ def _flag(name: str) -> str:
 
 def _own_flags(param: inspect.Parameter) -> tuple[str, list[str]]:
     """(config key, flags) of a command's own parameter."""
-    info = next((m for m in typing.get_args(param.annotation)[1:]
-                 if isinstance(m, typer.models.ParameterInfo)), None)
+    info = next((m for m in typing.get_args(param.annotation)[1:] if isinstance(m, typer.models.ParameterInfo)), None)
     decls = [d for decl in (getattr(info, "param_decls", None) or ()) for d in decl.split("/")]
     flags = [d.strip() for d in decls if d.strip().startswith("--")] or [_flag(param.name)]
     if isinstance(info, typer.models.ArgumentInfo):
@@ -141,8 +143,9 @@ def _field_option(sec: Section, f: dataclasses.Field, typ: type, doc: str) -> An
         decls = [f"{flags[0]}/--no-{flags[0][2:]}", *flags[1:]]
     else:
         decls = flags
-    return Annotated[Optional[typ], typer.Option(*decls, help=help_, hidden=f.name not in sec.visible,
-                                                 show_default=False)]
+    return Annotated[
+        Optional[typ], typer.Option(*decls, help=help_, hidden=f.name not in sec.visible, show_default=False)
+    ]
 
 
 def read_tables(path: Path) -> dict[str, dict[str, Any]]:
@@ -158,12 +161,16 @@ def read_tables(path: Path) -> dict[str, dict[str, Any]]:
         raise UserError(f"--config {path}: not valid TOML ({exc})") from None
     loose = [k for k, v in data.items() if not isinstance(v, dict)]
     if loose:
-        raise UserError(f"--config {path}: {loose[0]} is outside any table; put settings under their table, "
-                        f"e.g. [analysis] or [train] (tables: {', '.join(sorted(known_tables()))})")
+        raise UserError(
+            f"--config {path}: {loose[0]} is outside any table; put settings under their table, "
+            f"e.g. [analysis] or [train] (tables: {', '.join(sorted(known_tables()))})"
+        )
     unknown = [t for t in data if t not in known_tables()]
     if unknown:
-        raise UserError(f"--config {path}: unknown table [{unknown[0]}]{_suggest(unknown[0], known_tables())}; "
-                        f"tables: {', '.join(sorted(known_tables()))}")
+        raise UserError(
+            f"--config {path}: unknown table [{unknown[0]}]{_suggest(unknown[0], known_tables())}; "
+            f"tables: {', '.join(sorted(known_tables()))}"
+        )
     return data
 
 
@@ -226,10 +233,10 @@ def configurable(command: str, *sections: Section) -> Callable[[Callable[..., An
     The function may take `settings` (a `Settings`); its own options also read the file's
     `[command]` table, where a value counts unless the option was given on the command line.
     """
+
     def decorate(fn: Callable[..., Any]) -> Callable[..., Any]:
         sig = inspect.signature(fn, eval_str=True)
-        own = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in sig.parameters.values()
-               if p.name != "settings"]
+        own = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in sig.parameters.values() if p.name != "settings"]
         keys = {p.name: _own_flags(p)[0] for p in own}
         taken = {flag for p in own for flag in _own_flags(p)[1]}
         extra, generated = [], {}
@@ -244,17 +251,38 @@ def configurable(command: str, *sections: Section) -> Callable[[Callable[..., An
                 taken |= flags
                 name = f"{sec.table}__{f.name}"
                 generated[name] = (sec.table, f.name)
-                extra.append(inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=None,
-                                               annotation=_field_option(sec, f, typ, docs.get(f.name, ""))))
+                extra.append(
+                    inspect.Parameter(
+                        name,
+                        inspect.Parameter.KEYWORD_ONLY,
+                        default=None,
+                        annotation=_field_option(sec, f, typ, docs.get(f.name, "")),
+                    )
+                )
         COMMANDS.add(command)
         by_field = {field: (table, field) for table, field in generated.values()}  # `[command]` keys of sections
-        config = inspect.Parameter("config", inspect.Parameter.KEYWORD_ONLY, default=None, annotation=Annotated[
-            Optional[Path], typer.Option("--config", metavar="FILE.toml", help=(
-                "Settings from a TOML file: tables " + ", ".join(f"[{s.table}]" for s in sections)
-                + (" and " if sections else "") + f"[{command}] (this command's options by name); "
-                "options given here take precedence."))])
-        own_types = {p.name: typing.get_args(p.annotation)[0] if typing.get_args(p.annotation) else p.annotation
-                     for p in own}
+        config = inspect.Parameter(
+            "config",
+            inspect.Parameter.KEYWORD_ONLY,
+            default=None,
+            annotation=Annotated[
+                Optional[Path],
+                typer.Option(
+                    "--config",
+                    metavar="FILE.toml",
+                    help=(
+                        "Settings from a TOML file: tables "
+                        + ", ".join(f"[{s.table}]" for s in sections)
+                        + (" and " if sections else "")
+                        + f"[{command}] (this command's options by name); "
+                        "options given here take precedence."
+                    ),
+                ),
+            ],
+        )
+        own_types = {
+            p.name: typing.get_args(p.annotation)[0] if typing.get_args(p.annotation) else p.annotation for p in own
+        }
         takes_settings = "settings" in sig.parameters
 
         @functools.wraps(fn)
@@ -295,10 +323,15 @@ def configurable(command: str, *sections: Section) -> Callable[[Callable[..., An
                     call[name] = coerce(f"{where} [{command}]", key, value, own_types[name])
             values, given = {}, {}
             for sec in sections:
-                cli = {field: kwargs[name] for name, (table, field) in generated.items()
-                       if table == sec.table and kwargs.get(name) is not None}
-                table = {**{k: v for k, v in tables.get(sec.table, {}).items()
-                            if sec.table != command or k not in by_key}, **from_command.get(sec.table, {})}
+                cli = {
+                    field: kwargs[name]
+                    for name, (table, field) in generated.items()
+                    if table == sec.table and kwargs.get(name) is not None
+                }
+                table = {
+                    **{k: v for k, v in tables.get(sec.table, {}).items() if sec.table != command or k not in by_key},
+                    **from_command.get(sec.table, {}),
+                }
                 values[sec.table], given[sec.table] = build(sec, table, cli, where)
             if takes_settings:
                 call["settings"] = Settings(values, given)
@@ -319,13 +352,17 @@ def config_reference() -> str:
     for table in sorted(SECTIONS):
         cls = SECTIONS[table]
         hints, docs = typing.get_type_hints(cls), field_docs(cls)
-        out.append(f"## [{table}]\n\n{inspect.getdoc(cls) or ''}\n\n| key | type | default | what it sets |\n"
-                   "|---|---|---|---|")
+        out.append(
+            f"## [{table}]\n\n{inspect.getdoc(cls) or ''}\n\n| key | type | default | what it sets |\n|---|---|---|---|"
+        )
         for f in dataclasses.fields(cls):
             if not f.init or dataclasses.is_dataclass(hints[f.name]):
                 continue
-            default = f.default if f.default is not dataclasses.MISSING else (
-                f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
+            default = (
+                f.default
+                if f.default is not dataclasses.MISSING
+                else (f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
+            )
             typ = getattr(_scalar(hints[f.name]), "__name__", None) or "list"
             text = docs.get(f.name, "").replace("|", "\\|")
             out.append(f"| `{f.name}` | {typ} | `{_default_text(default)}` | {text} |")

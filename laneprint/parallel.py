@@ -75,12 +75,16 @@ def _check_reachable(address: str) -> None:
     try:
         socket.create_connection((host.strip("[]") or "127.0.0.1", int(port)), timeout=CONNECT_TIMEOUT_S).close()
     except OSError as exc:
-        raise UserError(f"cannot join the Ray cluster at {address}: {exc.strerror or exc} "
-                        "(is `ray start --head` running there?)") from None
+        raise UserError(
+            f"cannot join the Ray cluster at {address}: {exc.strerror or exc} (is `ray start --head` running there?)"
+        ) from None
 
 
 def _start_ray(ray: Any, ray_address: str | None, num_cpus: int | None) -> None:
-    quiet = {"logging_level": logging.ERROR, "log_to_driver": False}  # a worker's failure still comes back as its exception
+    quiet = {
+        "logging_level": logging.ERROR,
+        "log_to_driver": False,
+    }  # a worker's failure still comes back as its exception
     try:
         if ray_address:
             _check_reachable(ray_address)
@@ -90,14 +94,18 @@ def _start_ray(ray: Any, ray_address: str | None, num_cpus: int | None) -> None:
     except (ConnectionError, RuntimeError, ValueError, TimeoutError) as exc:
         if not ray_address:
             raise UserError(f"cannot start a local Ray instance: {_line(exc)}") from None
-        auth = "" if os.environ.get("RAY_AUTH_MODE") else (
-            " (a cluster started with `ray start` asks for its token: set RAY_AUTH_MODE=token)")
+        auth = (
+            ""
+            if os.environ.get("RAY_AUTH_MODE")
+            else (" (a cluster started with `ray start` asks for its token: set RAY_AUTH_MODE=token)")
+        )
         raise UserError(f"cannot join the Ray cluster at {ray_address}: {_line(exc)}{auth}") from None
 
 
 @contextmanager
-def backend_session(backend: str = "local", ray_address: str | None = None,
-                    num_cpus: int | None = None) -> Iterator[None]:
+def backend_session(
+    backend: str = "local", ray_address: str | None = None, num_cpus: int | None = None
+) -> Iterator[None]:
     """Keep one Ray instance up across several `run_tasks` calls (a no-op for ``local``).
 
     Joins `ray_address` or starts a local instance when Ray is not running yet, and
@@ -118,8 +126,16 @@ def backend_session(backend: str = "local", ray_address: str | None = None,
         ray.shutdown()
 
 
-def run_tasks(fn: Callable[[T], R], items: Iterable[T], *, backend: str = "local", ray_address: str | None = None,
-              num_cpus: int | None = None, progress: ProgressFn | None = None, label: str = "") -> list[R]:
+def run_tasks(
+    fn: Callable[[T], R],
+    items: Iterable[T],
+    *,
+    backend: str = "local",
+    ray_address: str | None = None,
+    num_cpus: int | None = None,
+    progress: ProgressFn | None = None,
+    label: str = "",
+) -> list[R]:
     """``[fn(item) for item in items]`` on `backend`, in item order, reporting each finished task.
 
     :param fn: a module-level function of one item (run on Ray's workers with ``ray``)
@@ -135,13 +151,32 @@ def run_tasks(fn: Callable[[T], R], items: Iterable[T], *, backend: str = "local
     if not items:
         check_backend(backend, ray_address)
         return []  # no Ray instance started for nothing
-    return list(iter_tasks(fn, items, backend=backend, ray_address=ray_address, num_cpus=num_cpus,
-                           progress=progress, label=label, total=len(items)))
+    return list(
+        iter_tasks(
+            fn,
+            items,
+            backend=backend,
+            ray_address=ray_address,
+            num_cpus=num_cpus,
+            progress=progress,
+            label=label,
+            total=len(items),
+        )
+    )
 
 
-def iter_tasks(fn: Callable[[T], R], items: Iterable[T], *, backend: str = "local", ray_address: str | None = None,
-               num_cpus: int | None = None, progress: ProgressFn | None = None, label: str = "",
-               total: int | None = None, in_flight: int | None = None) -> Iterator[R]:
+def iter_tasks(
+    fn: Callable[[T], R],
+    items: Iterable[T],
+    *,
+    backend: str = "local",
+    ray_address: str | None = None,
+    num_cpus: int | None = None,
+    progress: ProgressFn | None = None,
+    label: str = "",
+    total: int | None = None,
+    in_flight: int | None = None,
+) -> Iterator[R]:
     """`run_tasks` as a stream: results in item order, each as soon as it and those before it are done.
 
     Items are taken from `items` lazily and at most `in_flight` tasks (default: twice
@@ -164,8 +199,9 @@ def iter_tasks(fn: Callable[[T], R], items: Iterable[T], *, backend: str = "loca
         yield from _ray_stream(fn, items, progress, label, total, in_flight)
 
 
-def _ray_stream(fn: Callable[[T], R], items: Iterable[T], progress: ProgressFn | None, label: str, total: int,
-                in_flight: int | None) -> Iterator[R]:
+def _ray_stream(
+    fn: Callable[[T], R], items: Iterable[T], progress: ProgressFn | None, label: str, total: int, in_flight: int | None
+) -> Iterator[R]:
     import ray
 
     limit = in_flight or max(2, 2 * int(ray.cluster_resources().get("CPU", 1)))
@@ -209,8 +245,10 @@ def _get(ray: Any, ref: Any) -> Any:
         if isinstance(cause, UserError):
             raise UserError(str(cause)) from None
         if isinstance(cause, ModuleNotFoundError):
-            raise UserError(f"a Ray worker cannot import {cause.name!r}: install laneprint (the same version) "
-                            "on every machine of the cluster") from None
+            raise UserError(
+                f"a Ray worker cannot import {cause.name!r}: install laneprint (the same version) "
+                "on every machine of the cluster"
+            ) from None
         raise
     except ray.exceptions.RayError as exc:  # a worker or node died, out of memory, ...
         raise UserError(f"a Ray task failed: {_line(exc)}") from None

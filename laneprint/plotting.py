@@ -63,7 +63,9 @@ def sample_rows(df: pd.DataFrame, max_rows: int, seed: int = 0) -> pd.DataFrame:
     return df.iloc[np.sort(rng.choice(len(df), size=max_rows, replace=False))]
 
 
-def axis_range(values: Sequence[float] | np.ndarray, pad: float = 0.08, min_span: float = 1e-6) -> tuple[float, float] | None:
+def axis_range(
+    values: Sequence[float] | np.ndarray, pad: float = 0.08, min_span: float = 1e-6
+) -> tuple[float, float] | None:
     """[lo, hi] around the finite `values`, padded by `pad` of their span (None when there are none)."""
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v)]
@@ -84,8 +86,15 @@ def clip_to_axis(values: Sequence[float] | np.ndarray, lo: float, hi: float) -> 
 
 #: Plotly's number of each marker symbol ('-open': + 100). A long per-point list of symbol names costs
 #: Plotly's validator a regex pass per point (0.16 s for Fig. 11's 4000 points); numbers skip it.
-SYMBOL_CODES = {"circle": 0, "square": 1, "diamond": 2, "triangle-up": 5, "triangle-down": 6, "triangle-left": 7,
-                "triangle-right": 8}
+SYMBOL_CODES = {
+    "circle": 0,
+    "square": 1,
+    "diamond": 2,
+    "triangle-up": 5,
+    "triangle-down": 6,
+    "triangle-left": 7,
+    "triangle-right": 8,
+}
 
 
 def symbol_codes(names: Sequence[str] | np.ndarray) -> list[int]:
@@ -111,9 +120,17 @@ def _apart(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
     return a[1] <= b[0] or a[0] >= b[1] or a[3] <= b[2] or a[2] >= b[3]
 
 
-def spread_labels(x: Sequence[float], y: Sequence[float], texts: Sequence[str], priority: Sequence[float] | None = None,
-                  max_labels: int = 12, char_width: float = 0.014, height: float = 0.05,
-                  marker: float = 0.015, priority_gap: float = 0.08) -> np.ndarray:
+def spread_labels(
+    x: Sequence[float],
+    y: Sequence[float],
+    texts: Sequence[str],
+    priority: Sequence[float] | None = None,
+    max_labels: int = 12,
+    char_width: float = 0.014,
+    height: float = 0.05,
+    marker: float = 0.015,
+    priority_gap: float = 0.08,
+) -> np.ndarray:
     """Where to write each point's text so that no two labels overlap: 'top', 'bottom',
     'right', 'left' or '' (no label).
 
@@ -151,8 +168,13 @@ def spread_labels(x: Sequence[float], y: Sequence[float], texts: Sequence[str], 
             if not all(_apart(box, b) for b in boxes):
                 continue
             fallback = fallback or (side, box)
-            hit = (~near & (ux > box[0] - marker) & (ux < box[1] + marker)
-                   & (uy > box[2] - marker) & (uy < box[3] + marker))
+            hit = (
+                ~near
+                & (ux > box[0] - marker)
+                & (ux < box[1] + marker)
+                & (uy > box[2] - marker)
+                & (uy < box[3] + marker)
+            )
             if not hit.any():
                 where[i] = side
                 boxes.append(box)
@@ -174,8 +196,13 @@ TAIL_FENCE = 3.0
 COVER_SHARE_OFF = 0.05
 
 
-def tail_range(values: Sequence[float] | np.ndarray, share: float = TAIL_SHARE, fence: float = TAIL_FENCE,
-               pad: float = 0.08, cover: bool = True) -> tuple[float, float] | None:
+def tail_range(
+    values: Sequence[float] | np.ndarray,
+    share: float = TAIL_SHARE,
+    fence: float = TAIL_FENCE,
+    pad: float = 0.08,
+    cover: bool = True,
+) -> tuple[float, float] | None:
     """An axis [lo, hi] set by the bulk of the finite `values`, not by their tail (None when there are none).
 
     Each end is the nearer of the `share` quantile (so fewer than `share` of the points lie
@@ -201,12 +228,14 @@ def tail_range(values: Sequence[float] | np.ndarray, share: float = TAIL_SHARE, 
     cut_hi = min(max(q_hi, q3), max(f_hi, q3))
     beyond = np.flatnonzero((v < cut_lo) | (v > cut_hi))
     allowed = int(np.floor(COVER_SHARE_OFF * n))
-    if cover and len(beyond) > allowed:  # never more than 5 % off the axis: the nearest of those beyond come back on it,
+    if (
+        cover and len(beyond) > allowed
+    ):  # never more than 5 % off the axis: the nearest of those beyond come back on it,
         # those the fence cut first (the `share` at each end stays off: no end is set by fewer than that)
         med, kq = float(np.median(v)), max(k, 0)
         fenced = (beyond >= kq) & (beyond <= n - 1 - kq)
         order = np.lexsort((np.abs(v[beyond] - med), ~fenced))  # fence-cut first, nearest first
-        back = beyond[order[:len(beyond) - allowed]]
+        back = beyond[order[: len(beyond) - allowed]]
         cut_lo, cut_hi = min(cut_lo, float(v[back].min())), max(cut_hi, float(v[back].max()))
     lo, hi = float(v[v >= cut_lo][0]), float(v[v <= cut_hi][-1])  # the axis hugs the points it keeps
     span = max(hi - lo, abs(hi) * 0.1, 1e-6)
@@ -227,8 +256,9 @@ def needs_log_axis(values: Sequence[float] | np.ndarray, spread: float = 8.0) ->
     return (covered[1] - covered[0]) > spread * (bulk[1] - bulk[0])
 
 
-def range_set_by_few(values: Sequence[float] | np.ndarray, axis: Sequence[float], share: float = TAIL_SHARE,
-                     pad: float = 0.08) -> bool:
+def range_set_by_few(
+    values: Sequence[float] | np.ndarray, axis: Sequence[float], share: float = TAIL_SHARE, pad: float = 0.08
+) -> bool:
     """True when an axis `[lo, hi]` (padded by `pad` of its data span) reaches out to points that are fewer
     than `share` of `values`: without them, its data span would end nearer. The check the issue asks of
     every TTC and gap axis; used by the tests."""
@@ -271,7 +301,7 @@ def log_ticks(values: Sequence[float] | np.ndarray, max_ticks: int = 9) -> dict[
     lo, hi = float(v.min()), float(v.max())
     d_lo, d_hi = int(np.floor(np.log10(lo))), int(np.ceil(np.log10(hi)))
     for steps in (tuple(range(1, 10)), (1, 2, 5), (1, 3), (1,)):
-        ticks = [float(f"{m * 10.0 ** d:.12g}") for d in range(d_lo, d_hi + 1) for m in steps]
+        ticks = [float(f"{m * 10.0**d:.12g}") for d in range(d_lo, d_hi + 1) for m in steps]
         inside = [t for t in ticks if lo / 1.25 <= t <= hi * 1.25]
         if len(inside) <= max_ticks:
             break
@@ -280,8 +310,7 @@ def log_ticks(values: Sequence[float] | np.ndarray, max_ticks: int = 9) -> dict[
     return {"tickvals": inside, "ticktext": [f"{t:g}" for t in inside], "tickmode": "array"}
 
 
-def plateau_judgement(values: Sequence[float] | np.ndarray, tail: float = 0.1, min_points: int = 40
-                      ) -> tuple[str, str]:
+def plateau_judgement(values: Sequence[float] | np.ndarray, tail: float = 0.1, min_points: int = 40) -> tuple[str, str]:
     """Whether a learning curve has levelled off at its end: ('plateau' | 'rising' | 'falling' | 'short', a
     sentence). Compares the mean of the last `tail` of the finite values with the mean of the `tail`
     before it: a difference beyond two standard errors of it and beyond 5 % of the curve's spread
@@ -291,16 +320,22 @@ def plateau_judgement(values: Sequence[float] | np.ndarray, tail: float = 0.1, m
     if len(v) < min_points:
         return "short", f"too few episodes ({len(v)}) to judge whether the curve has levelled off"
     w = max(int(len(v) * tail), 5)
-    last, before = v[-w:], v[-2 * w:-w]
+    last, before = v[-w:], v[-2 * w : -w]
     diff = float(last.mean() - before.mean())
     se = float(np.sqrt(last.var(ddof=1) / len(last) + before.var(ddof=1) / len(before)))
     spread = float(np.subtract(*np.percentile(v, [95, 5])))
     share = f"{round(100 * tail)} %"
     if abs(diff) <= max(2 * se, 0.05 * spread):
-        return "plateau", (f"levelled off: the last {share} of the episodes average {last.mean():.3g}, within noise "
-                           f"of the {share} before ({before.mean():.3g})")
+        return "plateau", (
+            f"levelled off: the last {share} of the episodes average {last.mean():.3g}, within noise "
+            f"of the {share} before ({before.mean():.3g})"
+        )
     if diff > 0:
-        return "rising", (f"still rising at the end ({before.mean():.3g} → {last.mean():.3g} over the last two "
-                          f"{share} of the episodes): more episodes may help")
-    return "falling", (f"falling at the end ({before.mean():.3g} → {last.mean():.3g} over the last two {share} of "
-                       "the episodes): the last episodes did worse; look at the loss and the exploration rate")
+        return "rising", (
+            f"still rising at the end ({before.mean():.3g} → {last.mean():.3g} over the last two "
+            f"{share} of the episodes): more episodes may help"
+        )
+    return "falling", (
+        f"falling at the end ({before.mean():.3g} → {last.mean():.3g} over the last two {share} of "
+        "the episodes): the last episodes did worse; look at the loss and the exploration rate"
+    )

@@ -33,8 +33,12 @@ def analysis_mark(recorded: str | None, current: str | None) -> dict[str, Any]:
         state = CURRENT
     else:
         state = EARLIER
-    return {"analysis": state, "analysis_label": LABELS[state], "analysis_fingerprint": recorded or None,
-            "current_analysis_fingerprint": current}
+    return {
+        "analysis": state,
+        "analysis_label": LABELS[state],
+        "analysis_fingerprint": recorded or None,
+        "current_analysis_fingerprint": current,
+    }
 
 
 def stale(mark: dict[str, Any]) -> bool:

@@ -196,8 +196,12 @@ REFERENCE_LINES = Schema(
         Column("scope", "str", "'style' or 'driver'"),
         Column("name", "str", "style name (Defensive/Normal/Aggressive) or driver id"),
         Column("kind", "str", "'typical' (the style's typical driver), 'pooled' (all members), 'driver', or 'paper'"),
-        Column("indicator", "str", "'t_f', 't_nf', 'dv_nb' (the study's, which the agents read) or an "
-                                   "indicator of what drivers accept (gap_f, thw_f, dv_f, gap_nf, dv_nf, gap_nb, thw_nb)"),
+        Column(
+            "indicator",
+            "str",
+            "'t_f', 't_nf', 'dv_nb' (the study's, which the agents read) or an "
+            "indicator of what drivers accept (gap_f, thw_f, dv_f, gap_nf, dv_nf, gap_nb, thw_nb)",
+        ),
         Column("A", "float", "slope [indicator unit per m/s]; 0 for a level (column 'fit' = 'level')"),
         Column("b", "float", "intercept [s] for times, [m] for gaps, [m/s] for relative speeds"),
         Column("A_lo", "float", "95 % CI", nullable=True),

@@ -46,7 +46,12 @@ import pyarrow.parquet as pq
 
 from laneprint.errors import UserError
 from laneprint.files import (  # noqa: F401 - kept importable from here
-    ANALYSIS_FINGERPRINT_TABLES, TMP_SUFFIX, analysis_fingerprint, atomic_write_bytes, atomic_write_json)
+    ANALYSIS_FINGERPRINT_TABLES,
+    TMP_SUFFIX,
+    analysis_fingerprint,
+    atomic_write_bytes,
+    atomic_write_json,
+)
 from laneprint.locks import FileLock
 from laneprint.schemas import EGO, RECORDINGS, REJECTED, TRAFFIC, Schema, validate
 
@@ -107,10 +112,20 @@ def _write_parquet(df: pd.DataFrame, path: Path | pa.NativeFile, schema: Schema)
     min/max statistics (recordings are read whole: they serve no query, and cost ~15 % of the write);
     data pages of version 2 (a quarter less time than version 1). pyarrow, pandas and DuckDB read it."""
     table = _to_arrow(df, schema)
-    encodings = {f.name: "BYTE_STREAM_SPLIT" if pa.types.is_floating(f.type) else "DELTA_BINARY_PACKED"
-                 for f in table.schema if pa.types.is_floating(f.type) or pa.types.is_integer(f.type)}
-    pq.write_table(table, path, use_dictionary=False, column_encoding=encodings or None, compression="lz4",
-                   write_statistics=False, data_page_version="2.0")
+    encodings = {
+        f.name: "BYTE_STREAM_SPLIT" if pa.types.is_floating(f.type) else "DELTA_BINARY_PACKED"
+        for f in table.schema
+        if pa.types.is_floating(f.type) or pa.types.is_integer(f.type)
+    }
+    pq.write_table(
+        table,
+        path,
+        use_dictionary=False,
+        column_encoding=encodings or None,
+        compression="lz4",
+        write_statistics=False,
+        data_page_version="2.0",
+    )
 
 
 def encode_traffic(traffic: pd.DataFrame) -> bytes:
@@ -235,8 +250,13 @@ class Workspace:
     def has_recording(self, recording_id: str) -> bool:
         return (self.recordings_dir / recording_id / "meta.parquet").exists()
 
-    def write_recording(self, meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame,
-                        encoded_traffic: Callable[[], bytes | None] | None = None) -> bool:
+    def write_recording(
+        self,
+        meta: dict[str, Any],
+        ego: pd.DataFrame,
+        traffic: pd.DataFrame,
+        encoded_traffic: Callable[[], bytes | None] | None = None,
+    ) -> bool:
         """Store one recording atomically. Returns False if it was already there.
 
         `encoded_traffic`: gives `encode_traffic(traffic)` when the caller has it (or is encoding it), or
@@ -298,11 +318,16 @@ class Workspace:
             raise UserError(f"no recording {recording_id!r} in workspace {self.root}")
         try:
             meta = {k: None if pd.isna(v) else v for k, v in pd.read_parquet(d / "meta.parquet").iloc[0].items()}
-            return meta, _plain_strings(pd.read_parquet(d / "ego.parquet")), _plain_strings(
-                pd.read_parquet(d / "traffic.parquet"))
+            return (
+                meta,
+                _plain_strings(pd.read_parquet(d / "ego.parquet")),
+                _plain_strings(pd.read_parquet(d / "traffic.parquet")),
+            )
         except (OSError, ValueError, IndexError) as exc:
-            raise DamagedFile(f"recording {recording_id} cannot be read, a file of it is damaged "
-                              f"({_first_line(exc)}); `laneprint check` names it") from None
+            raise DamagedFile(
+                f"recording {recording_id} cannot be read, a file of it is damaged "
+                f"({_first_line(exc)}); `laneprint check` names it"
+            ) from None
 
     def iter_recordings(self) -> Iterator[tuple[dict[str, Any], pd.DataFrame, pd.DataFrame]]:
         """Yield (meta, ego, traffic) for every stored recording, in catalogue order."""
@@ -329,8 +354,13 @@ class Workspace:
 
     # --- stage results -------------------------------------------------------
 
-    def write_tables(self, stage: str, tables: dict[str, pd.DataFrame], meta: dict[str, Any],
-                     schemas: dict[str, Schema] | None = None) -> Path:
+    def write_tables(
+        self,
+        stage: str,
+        tables: dict[str, pd.DataFrame],
+        meta: dict[str, Any],
+        schemas: dict[str, Schema] | None = None,
+    ) -> Path:
         """Replace a stage's result folder with `tables` (+ `meta.json`) in one swap.
 
         Tables named in `schemas` are validated first; nothing is written if any fails.
@@ -368,12 +398,16 @@ class Workspace:
         """Read one result table; a clear error if the stage has not run."""
         path = self.stage_dir(stage) / f"{name}.parquet"
         if not path.exists():
-            raise UserError(f"no {stage} table {name!r} in {self.root}: run `laneprint {stage if stage != 'analysis' else 'analyze'}` first")
+            raise UserError(
+                f"no {stage} table {name!r} in {self.root}: run `laneprint {stage if stage != 'analysis' else 'analyze'}` first"
+            )
         try:
             return pd.read_parquet(path)
         except (OSError, ValueError) as exc:
-            raise DamagedFile(f"{stage} table {path.relative_to(self.root)} is damaged ({_first_line(exc)}): "
-                              f"run `laneprint {stage if stage != 'analysis' else 'analyze'}` again") from None
+            raise DamagedFile(
+                f"{stage} table {path.relative_to(self.root)} is damaged ({_first_line(exc)}): "
+                f"run `laneprint {stage if stage != 'analysis' else 'analyze'}` again"
+            ) from None
 
     def read_meta(self, stage: str) -> dict[str, Any]:
         path = self.stage_dir(stage) / "meta.json"

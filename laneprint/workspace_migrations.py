@@ -44,8 +44,9 @@ def read_format(root: Path) -> Optional[int]:
     except (FileNotFoundError, NotADirectoryError):  # no stamp, or no folder (a file: `ensure` says so)
         return None
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise UserError(f"{path} is not a laneprint workspace stamp ({exc}): put {{\"format\": {FORMAT}}} in it, "
-                        "or remove it") from None
+        raise UserError(
+            f'{path} is not a laneprint workspace stamp ({exc}): put {{"format": {FORMAT}}} in it, or remove it'
+        ) from None
     if not isinstance(fmt, int) or isinstance(fmt, bool):
         raise UserError(f"{path}: format must be a whole number, not {fmt!r}")
     return fmt
@@ -68,8 +69,10 @@ def check_format(ws: "Workspace") -> None:
     if fmt == FORMAT:
         return
     if fmt is not None and fmt > FORMAT:
-        raise NewerWorkspace(f"workspace {ws.root} was written by a newer laneprint (format {fmt}; this one reads "
-                             f"formats up to {FORMAT}): upgrade laneprint to use it")
+        raise NewerWorkspace(
+            f"workspace {ws.root} was written by a newer laneprint (format {fmt}; this one reads "
+            f"formats up to {FORMAT}): upgrade laneprint to use it"
+        )
     if fmt is None and not has_content(ws.root):
         return
     try:
@@ -80,22 +83,26 @@ def check_format(ws: "Workspace") -> None:
             if fmt < FORMAT:
                 stamp(ws.root)
     except OSError as exc:
-        raise UserError(f"workspace {ws.root} is of an older format ({fmt or 0}) and must be migrated to format "
-                        f"{FORMAT}, which needs writing to it: {exc.strerror or exc}") from None
+        raise UserError(
+            f"workspace {ws.root} is of an older format ({fmt or 0}) and must be migrated to format "
+            f"{FORMAT}, which needs writing to it: {exc.strerror or exc}"
+        ) from None
 
 
 def _to_1(ws: "Workspace") -> None:
     """Format 0 -> 1: the reference lines' direction ('both' before directions) and the analysis's fingerprint."""
     import pandas as pd
 
-
     folder = ws.stage_dir("analysis")
     meta_path = folder / "meta.json"
     if (folder / "styles.parquet").exists():  # first: the fingerprint runs recorded is that of the tables as they were
         meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
         if not meta.get("analysis_fingerprint"):
-            tables = {n: pd.read_parquet(folder / f"{n}.parquet") for n in ANALYSIS_FINGERPRINT_TABLES
-                      if (folder / f"{n}.parquet").exists()}
+            tables = {
+                n: pd.read_parquet(folder / f"{n}.parquet")
+                for n in ANALYSIS_FINGERPRINT_TABLES
+                if (folder / f"{n}.parquet").exists()
+            }
             atomic_write_json(meta_path, {**meta, "analysis_fingerprint": analysis_fingerprint(tables)})
     lines = folder / "reference_lines.parquet"
     if lines.exists():

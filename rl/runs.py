@@ -83,10 +83,17 @@ def code_version() -> dict[str, Any]:
     commit, dirty = None, None
     try:
         here = Path(__file__).resolve().parent
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True,
-                                timeout=5).stdout.strip() or None
-        dirty = bool(subprocess.run(["git", "status", "--porcelain", "--", "rl"], cwd=here.parent,
-                                    capture_output=True, text=True, timeout=5).stdout.strip())
+        commit = (
+            subprocess.run(
+                ["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5
+            ).stdout.strip()
+            or None
+        )
+        dirty = bool(
+            subprocess.run(
+                ["git", "status", "--porcelain", "--", "rl"], cwd=here.parent, capture_output=True, text=True, timeout=5
+            ).stdout.strip()
+        )
     except (OSError, subprocess.SubprocessError):
         pass
     return {"laneprint": pkg, "git_commit": commit, "rl_dirty": dirty, "torch": torch.__version__}
@@ -143,9 +150,14 @@ def mark_interrupted(folder: Path, status: dict[str, Any] | None) -> dict[str, A
         current = _read_json(folder / "status.json")
         if not current or current.get("state") != "running":
             return current or status
-        current = dict(current, state="interrupted", message=(
-            f"interrupted at episode {current.get('episode', 0)} (its process died); "
-            f"resume it with `laneprint train --resume {folder.name}`"))
+        current = dict(
+            current,
+            state="interrupted",
+            message=(
+                f"interrupted at episode {current.get('episode', 0)} (its process died); "
+                f"resume it with `laneprint train --resume {folder.name}`"
+            ),
+        )
         try:
             atomic_write_json(folder / "status.json", current)
         except OSError:
@@ -184,10 +196,19 @@ class RunWriter:
         if not force and time.monotonic() - self._last_status < 0.5:
             return
         self._last_status = time.monotonic()
-        atomic_write_json(self.folder / "status.json", {
-            "state": state, "pid": os.getpid(), "episode": int(episode), "episodes": int(self.episodes),
-            "started_at": self.started_at, "updated_at": now_iso(), "message": message, **self.extra,
-        })
+        atomic_write_json(
+            self.folder / "status.json",
+            {
+                "state": state,
+                "pid": os.getpid(),
+                "episode": int(episode),
+                "episodes": int(self.episodes),
+                "started_at": self.started_at,
+                "updated_at": now_iso(),
+                "message": message,
+                **self.extra,
+            },
+        )
 
     def metric(self, row: dict[str, Any]) -> None:
         self._metrics.write(json.dumps(row) + "\n")
@@ -243,9 +264,17 @@ class _StopFlag:
         return self.signal is not None
 
 
-def create_run(workspace: Workspace, target: Target, env_config: EnvConfig, settings: LearnerSettings, *,
-               run_id: str | None = None, lines_source: str = "analysis",
-               extra: dict[str, Any] | None = None, held: ExitStack | None = None) -> tuple[Path, dict[str, Any]]:
+def create_run(
+    workspace: Workspace,
+    target: Target,
+    env_config: EnvConfig,
+    settings: LearnerSettings,
+    *,
+    run_id: str | None = None,
+    lines_source: str = "analysis",
+    extra: dict[str, Any] | None = None,
+    held: ExitStack | None = None,
+) -> tuple[Path, dict[str, Any]]:
     """Make a new run folder with its config.json; returns (folder, config). With `held`, the
     run's lock is taken (before config.json appears) and released when `held` closes."""
     run_id = run_id or new_run_id(target, env_config.reward.name, settings.seed)
@@ -260,9 +289,16 @@ def create_run(workspace: Workspace, target: Target, env_config: EnvConfig, sett
         if (folder / "config.json").exists():  # created by a concurrent `train --run-id` meanwhile
             raise UserError(f"run {run_id!r} exists already (pass --resume {run_id} to continue it)")
     config = {
-        "run_id": run_id, "target": asdict(target), "reward": env_config.reward.name,
-        "lines_source": lines_source, "lines": env_config.lines.to_dict(), "seed": settings.seed,
-        "env": env_config.to_dict(), **learner_config(settings), "created_at": now_iso(), **(extra or {}),
+        "run_id": run_id,
+        "target": asdict(target),
+        "reward": env_config.reward.name,
+        "lines_source": lines_source,
+        "lines": env_config.lines.to_dict(),
+        "seed": settings.seed,
+        "env": env_config.to_dict(),
+        **learner_config(settings),
+        "created_at": now_iso(),
+        **(extra or {}),
     }
     # a fleet passes these once for all its runs (each costs a git call or a folder scan)
     config.setdefault("code_version", code_version())
@@ -273,10 +309,19 @@ def create_run(workspace: Workspace, target: Target, env_config: EnvConfig, sett
     return folder, config
 
 
-def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig | None,
-              settings: LearnerSettings | None, *, run_id: str | None = None, lines_source: str = "analysis",
-              resume: str | None = None, episodes: int | None = None, evaluate: bool = True,
-              progress: ProgressFn | None = None) -> dict[str, Any]:
+def train_run(
+    workspace: Workspace,
+    target: Target | None,
+    env_config: EnvConfig | None,
+    settings: LearnerSettings | None,
+    *,
+    run_id: str | None = None,
+    lines_source: str = "analysis",
+    resume: str | None = None,
+    episodes: int | None = None,
+    evaluate: bool = True,
+    progress: ProgressFn | None = None,
+) -> dict[str, Any]:
     """Train (or resume) one run in the workspace; returns a JSON-ready summary.
 
     `episodes` on a resume changes the run's total (its epsilon schedule follows); a
@@ -287,15 +332,35 @@ def train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig
     On SIGTERM/SIGINT the run saves a checkpoint and ends with state 'cancelled'.
     """
     with ExitStack() as held:
-        return _train_run(workspace, target, env_config, settings, held, run_id=run_id,
-                          lines_source=lines_source, resume=resume, episodes=episodes, evaluate=evaluate,
-                          progress=progress)
+        return _train_run(
+            workspace,
+            target,
+            env_config,
+            settings,
+            held,
+            run_id=run_id,
+            lines_source=lines_source,
+            resume=resume,
+            episodes=episodes,
+            evaluate=evaluate,
+            progress=progress,
+        )
 
 
-def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfig | None,
-               settings: LearnerSettings | None, held: ExitStack, *, run_id: str | None, lines_source: str,
-               resume: str | None, episodes: int | None, evaluate: bool,
-               progress: ProgressFn | None) -> dict[str, Any]:
+def _train_run(
+    workspace: Workspace,
+    target: Target | None,
+    env_config: EnvConfig | None,
+    settings: LearnerSettings | None,
+    held: ExitStack,
+    *,
+    run_id: str | None,
+    lines_source: str,
+    resume: str | None,
+    episodes: int | None,
+    evaluate: bool,
+    progress: ProgressFn | None,
+) -> dict[str, Any]:
     workspace.ensure()
     chose = False  # `auto` chose its learner in this call (the DQN it kept is checkpoint.pt, its episodes written)
     if resume:
@@ -315,8 +380,9 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
             atomic_write_json(folder / "config.json", config)
             settings = stored_learner(config)
             if isinstance(settings, AutoSettings):
-                settings, env_config = _choose_learner(workspace, folder, config, target, env_config, settings,
-                                                       progress)
+                settings, env_config = _choose_learner(
+                    workspace, folder, config, target, env_config, settings, progress
+                )
                 chose = True
             if isinstance(settings, TreeQSettings):
                 return _fit_tree_run(workspace, folder, config, target, env_config, settings, evaluate, progress)
@@ -328,14 +394,14 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
             config.setdefault("resumed_at", []).append(now_iso())
         atomic_write_json(folder / "config.json", config)
         # killed before its first checkpoint: start over with the run's own settings
-        state = torch.load(folder / "checkpoint.pt", weights_only=True) if (folder / "checkpoint.pt").exists() \
-            else None
+        state = torch.load(folder / "checkpoint.pt", weights_only=True) if (folder / "checkpoint.pt").exists() else None
         old_status = json.loads((folder / "status.json").read_text()) if (folder / "status.json").exists() else {}
         started_at = old_status.get("started_at")
     else:
         assert target is not None and env_config is not None and settings is not None
-        folder, config = create_run(workspace, target, env_config, settings, run_id=run_id,
-                                    lines_source=lines_source, held=held)
+        folder, config = create_run(
+            workspace, target, env_config, settings, run_id=run_id, lines_source=lines_source, held=held
+        )
         run_id = config["run_id"]
         state, started_at = None, None
         if isinstance(settings, AutoSettings):
@@ -380,8 +446,9 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
     message = ""
     try:
         with _StopFlag() as stop:
-            trainer.train(on_episode=on_episode, should_stop=stop, on_checkpoint=checkpoint,
-                          on_vector_step=on_vector_step)
+            trainer.train(
+                on_episode=on_episode, should_stop=stop, on_checkpoint=checkpoint, on_vector_step=on_vector_step
+            )
         if stop.signal is not None:
             final, message = "cancelled", f"stopped by signal {signal.Signals(stop.signal).name}"
     except Exception as exc:
@@ -392,20 +459,33 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
         raise
     checkpoint(trainer)
     _save_torch(folder / "weights.pt", trainer.policy_net.state_dict())
-    writer.status(final if final != "done" else "running", trainer.episodes_done,
-                  message or ("evaluating" if evaluate else "done"))
-    result: dict[str, Any] = {"run_id": run_id, "folder": str(folder), "state": final, "learner": "dqn",
-                              "episodes": trainer.episodes_done, "env_steps": trainer.env_steps,
-                              "wall_s": round(trainer.wall_s, 2), "target": target.label,
-                              "reward": env_config.reward.name, "message": message}
+    writer.status(
+        final if final != "done" else "running",
+        trainer.episodes_done,
+        message or ("evaluating" if evaluate else "done"),
+    )
+    result: dict[str, Any] = {
+        "run_id": run_id,
+        "folder": str(folder),
+        "state": final,
+        "learner": "dqn",
+        "episodes": trainer.episodes_done,
+        "env_steps": trainer.env_steps,
+        "wall_s": round(trainer.wall_s, 2),
+        "target": target.label,
+        "reward": env_config.reward.name,
+        "message": message,
+    }
     if resume:
         result["resumed_from_episode"] = resumed_from
     if config.get("learner_choice"):
         result["learner_choice"] = config["learner_choice"]
     if trainer.env_steps < settings.learning_starts:  # the replay memory never filled: no update was made
-        result["warning"] = (f"the agent never learnt: {trainer.env_steps:,} transitions in {trainer.episodes_done:,} "
-                             f"episodes, and learning starts after {settings.learning_starts:,}; train more episodes "
-                             "(or lower --learning-starts)")
+        result["warning"] = (
+            f"the agent never learnt: {trainer.env_steps:,} transitions in {trainer.episodes_done:,} "
+            f"episodes, and learning starts after {settings.learning_starts:,}; train more episodes "
+            "(or lower --learning-starts)"
+        )
     if final == "done" and evaluate:
         try:
             ev = evaluate_run(workspace, run_id)
@@ -418,8 +498,15 @@ def _train_run(workspace: Workspace, target: Target | None, env_config: EnvConfi
     return result
 
 
-def _choose_learner(workspace: Workspace, folder: Path, config: dict[str, Any], target: Target, env_config: EnvConfig,
-                    settings: AutoSettings, progress: ProgressFn | None) -> tuple[Any, EnvConfig]:
+def _choose_learner(
+    workspace: Workspace,
+    folder: Path,
+    config: dict[str, Any],
+    target: Target,
+    env_config: EnvConfig,
+    settings: AutoSettings,
+    progress: ProgressFn | None,
+) -> tuple[Any, EnvConfig]:
     """`--learner auto`: choose across inner folds of the target's sessions (`rl.learners.choice`); the run's
     config then names the chosen learner (its settings and environment) and keeps the choice.
 
@@ -449,8 +536,11 @@ def _choose_learner(workspace: Workspace, folder: Path, config: dict[str, Any], 
         except ValueError:  # not the main thread: no signal handling
             pass
     try:
-        fitted = choose_and_fit([ChoiceTask(recorded_approaches(workspace, target), env_config, settings,
-                                            target.label)], phase, fit_trees=False)[0]
+        fitted = choose_and_fit(
+            [ChoiceTask(recorded_approaches(workspace, target), env_config, settings, target.label)],
+            phase,
+            fit_trees=False,
+        )[0]
     except _ChoiceCancelled:
         writer.status("cancelled", 0, "cancelled while choosing the learner")
         raise SystemExit(130) from None
@@ -470,8 +560,16 @@ def _choose_learner(workspace: Workspace, folder: Path, config: dict[str, Any], 
     return chosen, env
 
 
-def _fit_tree_run(workspace: Workspace, folder: Path, config: dict[str, Any], target: Target, env_config: EnvConfig,
-                  settings: TreeQSettings, evaluate: bool, progress: ProgressFn | None) -> dict[str, Any]:
+def _fit_tree_run(
+    workspace: Workspace,
+    folder: Path,
+    config: dict[str, Any],
+    target: Target,
+    env_config: EnvConfig,
+    settings: TreeQSettings,
+    evaluate: bool,
+    progress: ProgressFn | None,
+) -> dict[str, Any]:
     """`train_run` with the tree learner: fitted Q iteration on the target's recorded approaches, in one go
     (its status counts fitted Q functions instead of episodes; a killed fit is 'interrupted', fit it again)."""
     from rl.learners.trees import fit_tree_q
@@ -495,9 +593,18 @@ def _fit_tree_run(workspace: Workspace, folder: Path, config: dict[str, Any], ta
         writer.close()
         raise
     _save_torch(folder / "weights.pt", net.state_dict())
-    result: dict[str, Any] = {"run_id": config["run_id"], "folder": str(folder), "state": "done", "learner": "trees",
-                              "episodes": 0, "env_steps": 0, "wall_s": round(time.perf_counter() - t0, 2),
-                              "target": target.label, "reward": env_config.reward.name, "message": ""}
+    result: dict[str, Any] = {
+        "run_id": config["run_id"],
+        "folder": str(folder),
+        "state": "done",
+        "learner": "trees",
+        "episodes": 0,
+        "env_steps": 0,
+        "wall_s": round(time.perf_counter() - t0, 2),
+        "target": target.label,
+        "reward": env_config.reward.name,
+        "message": "",
+    }
     if config.get("learner_choice"):
         result["learner_choice"] = config["learner_choice"]
     if evaluate:
@@ -559,12 +666,17 @@ def personalized_split(decisions: pd.DataFrame, drivers: list[str], given: list[
         scored, what = rest, f"held out: the {n_rest} decisions not given"
     else:
         scored, what = given_rows, f"in-sample: all {len(given)} decisions given"
-    return {"given": given_rows, "scored": scored, "scored_on": what,
-            "counts": {"given": len(given), "held_out": n_rest}}
+    return {
+        "given": given_rows,
+        "scored": scored,
+        "scored_on": what,
+        "counts": {"given": len(given), "held_out": n_rest},
+    }
 
 
-def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | None = None,
-                 classifiers: dict | None = None) -> dict[str, Any]:
+def evaluate_run(
+    workspace: Workspace, run_id: str, decisions: pd.DataFrame | None = None, classifiers: dict | None = None
+) -> dict[str, Any]:
     """Evaluate a run against the drivers' recorded decisions; writes evaluation.json + tables.
 
     A fleet evaluates all its agents on one copy of the analysis `decisions` table and
@@ -580,7 +692,9 @@ def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | No
     net = _load_q(folder, settings, cfg)
     if decisions is None:
         if not workspace.has_table("analysis", "decisions"):
-            raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first to evaluate against the drivers")
+            raise UserError(
+                f"no analysis in {workspace.root}: run `laneprint analyze` first to evaluate against the drivers"
+            )
         decisions = workspace.read_table("analysis", "decisions")
     drivers, typical = target_drivers(workspace, target)
     given = [str(d) for d in config.get("decision_ids") or []] if config.get("kind") == "personalized" else []
@@ -593,12 +707,23 @@ def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | No
     member_approaches, _ = approaches_from_decisions(fit_rows)
     policies = {"agent": agent_policy(net, cfg), "greedy": greedy_policy(cfg)}
     if member_approaches:
-        policies["imitation"] = fitted_classifier(member_approaches, cfg, settings.seed, classifiers,
-                                                  key=tuple(drivers) + (("given", *given) if given else ())).policy(cfg)
-    out: dict[str, Any] = {"run_id": run_id, "target": asdict(target), "reward": cfg.reward.name,
-                           "drivers": drivers, "typical_driver": typical, "evaluated_at": now_iso(),
-                           "data_fingerprint": workspace.fingerprint(),
-                           "analysis_fingerprint": workspace.analysis_fingerprint()}
+        policies["imitation"] = fitted_classifier(
+            member_approaches,
+            cfg,
+            settings.seed,
+            classifiers,
+            key=tuple(drivers) + (("given", *given) if given else ()),
+        ).policy(cfg)
+    out: dict[str, Any] = {
+        "run_id": run_id,
+        "target": asdict(target),
+        "reward": cfg.reward.name,
+        "drivers": drivers,
+        "typical_driver": typical,
+        "evaluated_at": now_iso(),
+        "data_fingerprint": workspace.fingerprint(),
+        "analysis_fingerprint": workspace.analysis_fingerprint(),
+    }
     tables = {}
     groups = {"members": drivers}
     if typical is not None and target.kind == "style":
@@ -616,19 +741,27 @@ def evaluate_run(workspace: Workspace, run_id: str, decisions: pd.DataFrame | No
     out["summary"] = out.get("summary_typical") or out["summary_members"]
     out["fields"] = EVAL_FIELDS
     if split is not None:
-        out.update({"scored_on": split["scored_on"], "split": split["counts"],
-                    "note": f"{split['scored_on']}: the agent was built from the driver's first {len(given)} "
-                            "decisions and the imitation classifier fitted on the same ones; greedy follows the "
-                            "style's lines. Scored on the others, which neither saw."
-                    if split["counts"]["held_out"] else
-                    f"{split['scored_on']}: every decision was given, so the figures are in-sample "
-                    "(the agent and the imitation classifier saw all of them)."})
+        out.update(
+            {
+                "scored_on": split["scored_on"],
+                "split": split["counts"],
+                "note": f"{split['scored_on']}: the agent was built from the driver's first {len(given)} "
+                "decisions and the imitation classifier fitted on the same ones; greedy follows the "
+                "style's lines. Scored on the others, which neither saw."
+                if split["counts"]["held_out"]
+                else f"{split['scored_on']}: every decision was given, so the figures are in-sample "
+                "(the agent and the imitation classifier saw all of them).",
+            }
+        )
     else:
         out["scored_on"] = "in-sample"
-        out["note"] = ("in-sample figures (the agent and the imitation classifier were fitted on these decisions; "
-                       "`laneprint crossval --run` holds sessions out): the typical driver's decisions first "
-                       "('summary_typical'), then all members'" if "summary_typical" in out else
-                       "in-sample figures on the driver's decisions (`laneprint crossval --run` holds sessions out)")
+        out["note"] = (
+            "in-sample figures (the agent and the imitation classifier were fitted on these decisions; "
+            "`laneprint crossval --run` holds sessions out): the typical driver's decisions first "
+            "('summary_typical'), then all members'"
+            if "summary_typical" in out
+            else "in-sample figures on the driver's decisions (`laneprint crossval --run` holds sessions out)"
+        )
     for name, df in tables.items():
         buf = io.BytesIO()
         df.to_parquet(buf, index=False)
@@ -645,15 +778,18 @@ def recorded_approaches(workspace: Workspace, target: Target) -> list["Approach"
     drivers, _ = target_drivers(workspace, target)
     approaches, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(drivers)])
     if not approaches:
-        raise SettingError(f"no recorded approaches for {target.label}: nothing to replay (try {{0}} synthetic)", "scenes")
+        raise SettingError(
+            f"no recorded approaches for {target.label}: nothing to replay (try {{0}} synthetic)", "scenes"
+        )
     return approaches
 
 
 def replay_env(workspace: Workspace, target: Target, config: EnvConfig | None = None) -> "LaneChangeDecisionEnv":
     """The environment in replay mode over the recorded approaches of a driver or a style's members."""
     approaches = recorded_approaches(workspace, target)
-    return LaneChangeDecisionEnv(config or EnvConfig(lines=resolve_lines(workspace, target, "analysis")),
-                                 approaches=approaches)
+    return LaneChangeDecisionEnv(
+        config or EnvConfig(lines=resolve_lines(workspace, target, "analysis")), approaches=approaches
+    )
 
 
 # --- for the dashboard ----------------------------------------------------------------
@@ -680,9 +816,26 @@ def read_metrics(path: Path) -> pd.DataFrame:
 
 def list_runs(workspace: Workspace) -> pd.DataFrame:
     """One row per run folder: id, target, reward, seed, state, progress, times, headline figures."""
-    cols = ["run_id", "target_kind", "target", "reward", "lines_source", "seed", "state", "episode", "episodes",
-            "started_at", "updated_at", "message", "recall", "balanced_accuracy", "timing_mae_s",
-            "analysis", "analysis_label", "analysis_fingerprint"]
+    cols = [
+        "run_id",
+        "target_kind",
+        "target",
+        "reward",
+        "lines_source",
+        "seed",
+        "state",
+        "episode",
+        "episodes",
+        "started_at",
+        "updated_at",
+        "message",
+        "recall",
+        "balanced_accuracy",
+        "timing_mae_s",
+        "analysis",
+        "analysis_label",
+        "analysis_fingerprint",
+    ]
     rows = []
     root = workspace.runs_dir
     current = workspace.analysis_fingerprint()
@@ -693,15 +846,26 @@ def list_runs(workspace: Workspace) -> pd.DataFrame:
         status = mark_interrupted(folder, _read_json(folder / "status.json")) or {}
         ev = _read_json(folder / "evaluation.json") or {}
         agent = next((r for r in ev.get("summary", []) if r.get("who") == "agent"), {})
-        rows.append({
-            "run_id": folder.name, "target_kind": config["target"]["kind"], "target": config["target"]["name"],
-            "reward": config.get("reward"), "lines_source": config.get("lines_source"), "seed": config.get("seed"),
-            "state": run_state(folder, status), "episode": status.get("episode"), "episodes": status.get("episodes"),
-            "started_at": status.get("started_at"), "updated_at": status.get("updated_at"),
-            "message": status.get("message"), "recall": agent.get("recall"),
-            "balanced_accuracy": agent.get("balanced_accuracy"), "timing_mae_s": agent.get("timing_mae_s"),
-            **run_analysis_mark(config, current),
-        })
+        rows.append(
+            {
+                "run_id": folder.name,
+                "target_kind": config["target"]["kind"],
+                "target": config["target"]["name"],
+                "reward": config.get("reward"),
+                "lines_source": config.get("lines_source"),
+                "seed": config.get("seed"),
+                "state": run_state(folder, status),
+                "episode": status.get("episode"),
+                "episodes": status.get("episodes"),
+                "started_at": status.get("started_at"),
+                "updated_at": status.get("updated_at"),
+                "message": status.get("message"),
+                "recall": agent.get("recall"),
+                "balanced_accuracy": agent.get("balanced_accuracy"),
+                "timing_mae_s": agent.get("timing_mae_s"),
+                **run_analysis_mark(config, current),
+            }
+        )
     return pd.DataFrame(rows, columns=cols)
 
 
@@ -719,9 +883,13 @@ def load_run(workspace: Workspace, run_id: str) -> dict[str, Any]:
     if config is None:
         raise UserError(f"no run {run_id!r} in {workspace.root}")
     out: dict[str, Any] = {
-        "run_id": run_id, "folder": folder, "config": config,
-        "status": _read_json(folder / "status.json"), "metrics": read_metrics(folder / "metrics.jsonl"),
-        "evaluation": _read_json(folder / "evaluation.json"), "has_weights": (folder / "weights.pt").exists(),
+        "run_id": run_id,
+        "folder": folder,
+        "config": config,
+        "status": _read_json(folder / "status.json"),
+        "metrics": read_metrics(folder / "metrics.jsonl"),
+        "evaluation": _read_json(folder / "evaluation.json"),
+        "has_weights": (folder / "weights.pt").exists(),
         "analysis_mark": analysis_mark(config.get("analysis_fingerprint"), workspace.analysis_fingerprint()),
     }
     for name in ("eval_states", "eval_changes"):

@@ -25,8 +25,9 @@ FORMULATIONS: dict[str, tuple[str, str]] = {
 }
 
 
-def resolve_formulation(reward: str | None, scenes: str | None, observation: str | None,
-                        lines: str = "analysis") -> tuple[str, str, str]:
+def resolve_formulation(
+    reward: str | None, scenes: str | None, observation: str | None, lines: str = "analysis"
+) -> tuple[str, str, str]:
     """(reward, scenes, observation) with the defaults filled in.
 
     Table 1's lines (`lines='paper'`) need no data, so the default reward there is
@@ -76,11 +77,16 @@ class DQNSettings:
     def __post_init__(self) -> None:
         shares = ("eps_start", "eps_end", "exploration_fraction", "gamma", "average_tau", "average_from")
         bad = [f"{k} must be in [0, 1]" for k in shares if not 0.0 <= getattr(self, k) <= 1.0]
-        bad += [f"{k} must be at least 1" for k in ("buffer_size", "batch_size", "num_envs",
-                                                    "gradient_steps", "target_update_episodes", "threads")
-                if getattr(self, k) < 1]
-        bad += [f"{k} must be at least 0" for k in ("episodes", "episodes_per_approach", "learning_starts", "max_grad_norm",
-                                                    "checkpoint_every") if getattr(self, k) < 0]
+        bad += [
+            f"{k} must be at least 1"
+            for k in ("buffer_size", "batch_size", "num_envs", "gradient_steps", "target_update_episodes", "threads")
+            if getattr(self, k) < 1
+        ]
+        bad += [
+            f"{k} must be at least 0"
+            for k in ("episodes", "episodes_per_approach", "learning_starts", "max_grad_norm", "checkpoint_every")
+            if getattr(self, k) < 0
+        ]
         if self.learning_rate <= 0 or (self.learning_rate_end is not None and self.learning_rate_end < 0):
             bad.append("learning_rate must be above 0 and learning_rate_end at least 0")
         if self.loss not in ("mse", "huber"):
@@ -192,15 +198,30 @@ class AutoSettings:
             raise ValueError(f"trees_beside must be 'process', 'thread' or 'no', not {self.trees_beside!r}")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"dqn": self.dqn.to_dict(), "trees": self.trees.to_dict(), "folds": self.folds,
-                "margin": self.margin, "seed": self.seed, "stop_early": self.stop_early, "reach": self.reach,
-                "check_from": self.check_from, "check_every": self.check_every, "trees_beside": self.trees_beside}
+        return {
+            "dqn": self.dqn.to_dict(),
+            "trees": self.trees.to_dict(),
+            "folds": self.folds,
+            "margin": self.margin,
+            "seed": self.seed,
+            "stop_early": self.stop_early,
+            "reach": self.reach,
+            "check_from": self.check_from,
+            "check_every": self.check_every,
+            "trees_beside": self.trees_beside,
+        }
 
     @staticmethod
     def from_dict(d: dict[str, Any]) -> "AutoSettings":
         extra = {k: d[k] for k in ("stop_early", "reach", "check_from", "check_every", "trees_beside") if k in d}
-        return AutoSettings(DQNSettings.from_dict(d["dqn"]), TreeQSettings.from_dict(d["trees"]),
-                            d.get("folds", 3), d.get("margin", 0.0), d.get("seed", 0), **extra)
+        return AutoSettings(
+            DQNSettings.from_dict(d["dqn"]),
+            TreeQSettings.from_dict(d["trees"]),
+            d.get("folds", 3),
+            d.get("margin", 0.0),
+            d.get("seed", 0),
+            **extra,
+        )
 
 
 #: A learner's settings: the DQN's, the tree learner's, or both with the choice between them.
@@ -269,8 +290,9 @@ def target_counts(counts: Any, styles: Any, kind: str, name: str) -> tuple[int, 
         return 0, 0
     drivers = [str(name)]
     if kind == "style" and styles is not None:
-        drivers = styles.loc[styles["style"].astype(str).str.lower() == str(name).lower(),
-                             "driver_id"].astype(str).tolist()
+        drivers = (
+            styles.loc[styles["style"].astype(str).str.lower() == str(name).lower(), "driver_id"].astype(str).tolist()
+        )
     mine = counts.reindex(drivers).fillna(0).sum()
     return int(mine["states"]), int(mine["presses"])
 
@@ -305,8 +327,13 @@ class LearningCheck:
     """One sentence for the user ('' when the verdict is '')."""
 
 
-def learning_check(settings: DQNSettings, steps: float | None, source: str = "",
-                   episodes_name: str = "--episodes", starts_name: str = "--learning-starts") -> LearningCheck:
+def learning_check(
+    settings: DQNSettings,
+    steps: float | None,
+    source: str = "",
+    episodes_name: str = "--episodes",
+    starts_name: str = "--learning-starts",
+) -> LearningCheck:
     """Check `settings` against episodes of about `steps` steps (`approach_steps`; None: no check).
 
     `episodes_name`, `starts_name`: how the message names the two settings (the command line's
@@ -321,14 +348,26 @@ def learning_check(settings: DQNSettings, steps: float | None, source: str = "",
     needed = _fewest_episodes(settings, steps, starts)
     where = f"episodes of up to {steps:.0f} steps in {source}, most ended early by exploration"
     if expected < starts:
-        return LearningCheck("never", expected, needed, (
-            f"{episodes:,} episodes make at most about {expected:,.0f} transitions ({where}), but learning "
-            f"starts after {starts:,}: the agent would learn nothing. Use at least about {needed:,} episodes "
-            f"({episodes_name}), or lower {starts_name}."))
-    return LearningCheck("late", expected, needed, (
-        f"learning would begin only near the end: at most about {expected:,.0f} transitions in {episodes:,} "
-        f"episodes ({where}) against {starts:,} before the first update; more episodes ({episodes_name}) "
-        f"or a lower {starts_name} give it time to learn."))
+        return LearningCheck(
+            "never",
+            expected,
+            needed,
+            (
+                f"{episodes:,} episodes make at most about {expected:,.0f} transitions ({where}), but learning "
+                f"starts after {starts:,}: the agent would learn nothing. Use at least about {needed:,} episodes "
+                f"({episodes_name}), or lower {starts_name}."
+            ),
+        )
+    return LearningCheck(
+        "late",
+        expected,
+        needed,
+        (
+            f"learning would begin only near the end: at most about {expected:,.0f} transitions in {episodes:,} "
+            f"episodes ({where}) against {starts:,} before the first update; more episodes ({episodes_name}) "
+            f"or a lower {starts_name} give it time to learn."
+        ),
+    )
 
 
 def _fewest_episodes(settings: DQNSettings, steps: float, transitions: float) -> int:

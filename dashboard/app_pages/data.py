@@ -21,8 +21,9 @@ def ingest_uploads(ws, files, driver_id: str) -> None:
     if paths:
         bar = st.progress(0.0, text="Ingesting...")
         try:
-            report = ingest_paths(paths, ws, driver_id=driver_id.strip() or None,
-                                  progress=progress_to(bar, "Ingesting...")).to_dict()
+            report = ingest_paths(
+                paths, ws, driver_id=driver_id.strip() or None, progress=progress_to(bar, "Ingesting...")
+            ).to_dict()
         except UserError as exc:  # nothing could be done at all (e.g. a bad workspace): say why
             report = {"files": [{"source": str(p), "status": "rejected", "reason": str(exc)} for p in paths]}
         bar.empty()
@@ -36,10 +37,8 @@ def ingest_uploads(ws, files, driver_id: str) -> None:
 def upload_section(ws) -> None:
     st.subheader("Upload logs")
     gen = st.session_state.get("uploader_gen", 0)
-    files = st.file_uploader("MCAP or CSV logs (several at once)", accept_multiple_files=True,
-                             key=f"uploads_{gen}")
-    driver_id = st.text_input("Driver id for files that do not name one", key="driver_id",
-                              placeholder="e.g. D11")
+    files = st.file_uploader("MCAP or CSV logs (several at once)", accept_multiple_files=True, key=f"uploads_{gen}")
+    driver_id = st.text_input("Driver id for files that do not name one", key="driver_id", placeholder="e.g. D11")
     if st.button(f"Ingest {len(files or [])} file(s)", key="ingest", disabled=not files, type="primary"):
         ingest_uploads(ws, files, driver_id)
         st.rerun()
@@ -76,8 +75,10 @@ def recordings_section(ws) -> None:
     labels = {views.recording_label(r): r["recording_id"] for _, r in recs.iterrows()}
     choice = st.selectbox("Recording", list(labels), key="recording")
     meta, ego, traffic = loaders.recording(root, labels[choice])
-    st.caption(f"{meta['n_samples']} samples over {meta['duration_s']:.1f} s, {meta['n_presses']} button "
-               f"presses, {meta['n_vehicles']} traffic vehicles; format {meta['format']}")
+    st.caption(
+        f"{meta['n_samples']} samples over {meta['duration_s']:.1f} s, {meta['n_presses']} button "
+        f"presses, {meta['n_vehicles']} traffic vehicles; format {meta['format']}"
+    )
     st.plotly_chart(figures.recording_timeline(ego, traffic), key="timeline")
 
 

@@ -53,10 +53,20 @@ def upload_session(ws) -> None:
 def style_figure(est) -> go.Figure:
     """The bootstrap share and the posterior of every style."""
     names = list(est.bootstrap)
-    fig = go.Figure([go.Bar(name="bootstrap over the decisions", x=names, y=[100 * est.bootstrap[n] for n in names]),
-                     go.Bar(name="clusterer's posterior", x=names, y=[100 * est.posterior[n] for n in names])])
-    fig.update_layout(barmode="group", yaxis_title="%", yaxis_range=[0, 100], height=300,
-                      margin={"t": 30, "b": 30}, template="plotly_white")
+    fig = go.Figure(
+        [
+            go.Bar(name="bootstrap over the decisions", x=names, y=[100 * est.bootstrap[n] for n in names]),
+            go.Bar(name="clusterer's posterior", x=names, y=[100 * est.posterior[n] for n in names]),
+        ]
+    )
+    fig.update_layout(
+        barmode="group",
+        yaxis_title="%",
+        yaxis_range=[0, 100],
+        height=300,
+        margin={"t": 30, "b": 30},
+        template="plotly_white",
+    )
     return fig
 
 
@@ -73,8 +83,9 @@ def style_estimate(root: str, stamp: tuple[int, ...], driver: str, k: int):
     decisions, following = tables["decisions"], tables.get("following")
     others = [d for d in sorted(decisions["driver_id"].astype(str).unique()) if d != driver]
     pop = fit_population(decisions, others, stored_settings(Workspace(root)), following)
-    return estimate_style(pop, first_decisions(driver_rows(decisions, driver), k), n_bootstrap=200, seed=0,
-                          following=following)
+    return estimate_style(
+        pop, first_decisions(driver_rows(decisions, driver), k), n_bootstrap=200, seed=0, following=following
+    )
 
 
 def style_section(ws, decisions: pd.DataFrame) -> tuple[str, int] | None:
@@ -97,12 +108,19 @@ def style_section(ws, decisions: pd.DataFrame) -> tuple[str, int] | None:
     except UserError as exc:
         st.warning(str(exc))
         return None
-    st.metric(f"Style of {driver} from {k} decisions", est.style,
-              f"confidence {100 * est.confidence:.0f} %", delta_color="off", delta_arrow="off")
+    st.metric(
+        f"Style of {driver} from {k} decisions",
+        est.style,
+        f"confidence {100 * est.confidence:.0f} %",
+        delta_color="off",
+        delta_arrow="off",
+    )
     st.plotly_chart(style_figure(est), key="p_style_fig")
-    st.caption(f"Clustered on the other {len(drivers) - 1} drivers with the analysis's features; compared on "
-               f"{', '.join(est.compared)} (the speeds its presses cover). Confidence: the share of {est.n_bootstrap} "
-               "resamples of its decisions that give this style.")
+    st.caption(
+        f"Clustered on the other {len(drivers) - 1} drivers with the analysis's features; compared on "
+        f"{', '.join(est.compared)} (the speeds its presses cover). Confidence: the share of {est.n_bootstrap} "
+        "resamples of its decisions that give this style."
+    )
     return driver, k
 
 
@@ -110,15 +128,44 @@ def launch(ws, driver: str, k: int, base: str, seed: int, fine_tune: bool = Fals
     """Start `laneprint personalize` in the background (a run like the Training page's); returns the run id."""
     slug = "".join(c if c.isalnum() else "-" for c in driver.lower())
     run_id = f"{datetime.now(timezone.utc):%Y%m%d-%H%M%S}-{slug}-personalized-k{k}-s{seed}"
-    cmd = [sys.executable, "-m", "laneprint.app.cli", "personalize", "--driver", driver, "--decisions", str(k),
-           "--from", base, "--seed", str(seed), "--run-id", run_id, "--workspace", str(ws.root)] + \
-        (["--fine-tune"] if fine_tune else [])
+    cmd = [
+        sys.executable,
+        "-m",
+        "laneprint.app.cli",
+        "personalize",
+        "--driver",
+        driver,
+        "--decisions",
+        str(k),
+        "--from",
+        base,
+        "--seed",
+        str(seed),
+        "--run-id",
+        run_id,
+        "--workspace",
+        str(ws.root),
+    ] + (["--fine-tune"] if fine_tune else [])
     if episodes := env_int(EPISODES_ENV, None):  # the demo's (and tests') small count: the base agents' episodes
         cmd += ["--base-episodes", str(episodes)]
-    jobs._spawn(jobs.jobs_dir(ws), run_id, cmd, ws.root,  # the Training page's launcher: runs table, status, log
-                {"run_id": run_id, "request": {"kind": "personalized", "driver": driver, "decisions": k,
-                                               "from": base, "fine_tune": fine_tune, "seed": seed,
-                                               "episodes": None}})
+    jobs._spawn(
+        jobs.jobs_dir(ws),
+        run_id,
+        cmd,
+        ws.root,  # the Training page's launcher: runs table, status, log
+        {
+            "run_id": run_id,
+            "request": {
+                "kind": "personalized",
+                "driver": driver,
+                "decisions": k,
+                "from": base,
+                "fine_tune": fine_tune,
+                "seed": seed,
+                "episodes": None,
+            },
+        },
+    )
     return run_id
 
 
@@ -155,15 +202,23 @@ def personalised_runs(ws) -> pd.DataFrame:
             continue
         later = p.get("later_decisions") or {}
         lo, hi = later.get("balanced_accuracy_ci") or [None, None]
-        rows.append({"run": p["run_id"], "driver": p["driver"], "K": p["decisions"], "of": p["decisions_available"],
-                     "from": p["base"]["from"], "base": p["base"].get("chosen", p["base"]["from"]),
-                     "style": p["style"]["style"],
-                     "confidence": round(100 * p["style"]["confidence"]),
-                     "held out: decisions not given": later.get("n_decisions"),
-                     "balanced acc. [%]": None if not later else round(100 * later["balanced_accuracy"], 1),
-                     "95 % CI": None if lo is None else f"[{100 * lo:.1f}, {100 * hi:.1f}]",
-                     "timing MAE [s]": later.get("timing_mae_s"),
-                     "analysis": analysis_mark(p.get("analysis_fingerprint"), current)["analysis_label"]})
+        rows.append(
+            {
+                "run": p["run_id"],
+                "driver": p["driver"],
+                "K": p["decisions"],
+                "of": p["decisions_available"],
+                "from": p["base"]["from"],
+                "base": p["base"].get("chosen", p["base"]["from"]),
+                "style": p["style"]["style"],
+                "confidence": round(100 * p["style"]["confidence"]),
+                "held out: decisions not given": later.get("n_decisions"),
+                "balanced acc. [%]": None if not later else round(100 * later["balanced_accuracy"], 1),
+                "95 % CI": None if lo is None else f"[{100 * lo:.1f}, {100 * hi:.1f}]",
+                "timing MAE [s]": later.get("timing_mae_s"),
+                "analysis": analysis_mark(p.get("analysis_fingerprint"), current)["analysis_label"],
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -195,20 +250,30 @@ def main() -> None:
     if picked:
         driver, k = picked
         c1, c2 = st.columns(2)
-        base = c1.radio("Start from", ["blend", "fit", "style", "population", "auto"], horizontal=True,
-                        key="p_base",
-                        help="'blend' (the default): every style's agent and the population's at once, weighted by "
-                             "the style's bootstrap shares and their agreement with the K decisions (measured best "
-                             "held out, rl/README.md); 'fit': the agent of the style assigned above when its "
-                             "confidence is at least 80 %, else the candidate that agrees best with the K "
-                             "decisions; 'style': the agent of the style assigned above; 'population': of all "
-                             "other drivers; 'auto': the style's when its confidence is at least 80 %, else the "
-                             "population's\n\n" + docs_site.more("personal"))
+        base = c1.radio(
+            "Start from",
+            ["blend", "fit", "style", "population", "auto"],
+            horizontal=True,
+            key="p_base",
+            help="'blend' (the default): every style's agent and the population's at once, weighted by "
+            "the style's bootstrap shares and their agreement with the K decisions (measured best "
+            "held out, rl/README.md); 'fit': the agent of the style assigned above when its "
+            "confidence is at least 80 %, else the candidate that agrees best with the K "
+            "decisions; 'style': the agent of the style assigned above; 'population': of all "
+            "other drivers; 'auto': the style's when its confidence is at least 80 %, else the "
+            "population's\n\n" + docs_site.more("personal"),
+        )
         seed = int(c2.number_input("Seed", min_value=0, value=0, step=1, key="p_seed"))
-        fine_tune = st.checkbox("Fine-tune on the K decisions", value=False, key="p_finetune",
-                                help="Off: the base agent as it is (measured better on SUMO studies).")
-        st.caption(f"`laneprint personalize --driver {driver} --decisions {k} --from {base}"
-                   f"{' --fine-tune' if fine_tune else ''} --seed {seed} -w {ws.root}`")
+        fine_tune = st.checkbox(
+            "Fine-tune on the K decisions",
+            value=False,
+            key="p_finetune",
+            help="Off: the base agent as it is (measured better on SUMO studies).",
+        )
+        st.caption(
+            f"`laneprint personalize --driver {driver} --decisions {k} --from {base}"
+            f"{' --fine-tune' if fine_tune else ''} --seed {seed} -w {ws.root}`"
+        )
         if st.button("Personalise", type="primary", key="p_start"):
             st.session_state.setdefault("p_launched", []).append(launch(ws, driver, k, base, seed, fine_tune))
             st.rerun()
@@ -221,9 +286,11 @@ def runs_table(ws) -> None:
     if len(table):
         st.subheader("Personalised runs (learning-curve points)")
         st.dataframe(table, hide_index=True, width="stretch", key="p_runs")
-        st.caption("Held out: figures on each driver's decisions after its first K (not given, never seen by the "
-                   "agent); the runs are ordinary runs on the Results page. The benchmark of the whole curve: "
-                   "`python benchmarks/personalize.py -w WORKSPACE`.")
+        st.caption(
+            "Held out: figures on each driver's decisions after its first K (not given, never seen by the "
+            "agent); the runs are ordinary runs on the Results page. The benchmark of the whole curve: "
+            "`python benchmarks/personalize.py -w WORKSPACE`."
+        )
 
 
 main()

@@ -11,8 +11,11 @@ from rl.plots import decision_agreement, drive_fidelity, indicators_at_decisions
 
 
 def evaluated_runs(ws) -> list[str]:
-    return [rid for rid in jobs.run_ids(ws) if (ws.runs_dir / rid / "evaluation.json").exists()
-            and (ws.runs_dir / rid / "config.json").exists()]
+    return [
+        rid
+        for rid in jobs.run_ids(ws)
+        if (ws.runs_dir / rid / "evaluation.json").exists() and (ws.runs_dir / rid / "config.json").exists()
+    ]
 
 
 def in_sample_tables(ev: dict) -> None:
@@ -21,15 +24,20 @@ def in_sample_tables(ev: dict) -> None:
     st.caption(caption)
     scored = str(ev.get("scored_on") or "in-sample")
     if ev.get("summary_typical"):
-        st.caption(f"On the typical driver's decisions ({views.md_escape(ev.get('typical_driver'))}, "
-                   f"{ev.get('n_decisions_typical')} decisions), in-sample:")
+        st.caption(
+            f"On the typical driver's decisions ({views.md_escape(ev.get('typical_driver'))}, "
+            f"{ev.get('n_decisions_typical')} decisions), in-sample:"
+        )
         st.dataframe(views.evaluation_table(ev["summary_typical"]), hide_index=True, width="stretch")
     n = len(ev.get("drivers", []))
     whose = "the driver's" if n == 1 else f"all {n} drivers'"
-    st.caption(f"On {whose} decisions ({ev.get('n_decisions_members')} decisions, "
-               f"{ev.get('n_states_members')} states), {scored}:")
-    st.dataframe(views.evaluation_table(ev.get("summary_members") or ev.get("summary")), hide_index=True,
-                 width="stretch")
+    st.caption(
+        f"On {whose} decisions ({ev.get('n_decisions_members')} decisions, "
+        f"{ev.get('n_states_members')} states), {scored}:"
+    )
+    st.dataframe(
+        views.evaluation_table(ev.get("summary_members") or ev.get("summary")), hide_index=True, width="stretch"
+    )
     st.caption(views.EVAL_DEFINITION)
 
 
@@ -38,8 +46,10 @@ def held_out_figures(result: dict, in_sample: list | None, key: str) -> None:
     st.caption(views.scored_line(result))
     st.dataframe(views.crossval_table(result.get("summary"), in_sample), hide_index=True, width="stretch")
     if in_sample is not None and not any(r.get("who") == "imitation" for r in in_sample):
-        st.caption("This run's in-sample evaluation has no imitation row (evaluated before the imitation "
-                   "benchmark existed): `laneprint evaluate RUN_ID` adds it.")
+        st.caption(
+            "This run's in-sample evaluation has no imitation row (evaluated before the imitation "
+            "benchmark existed): `laneprint evaluate RUN_ID` adds it."
+        )
     bars = figures.heldout_vs_insample(result.get("summary"), in_sample)
     st.plotly_chart(bars, key=f"cv_bars_{key}")
     widgets.figure_downloads(bars, f"held-out-vs-in-sample-{key}", key=f"cv_bars_{key}")
@@ -67,34 +77,47 @@ def held_out(ws, run_id: str, run: dict) -> None:
     view = views.crossvals_view(table)
     labels = {r["crossval_id"]: views.crossval_label(r) for r in view.to_dict("records")}
     if own and own.get("crossval_id") not in labels:  # its folder is gone; runs/<id>/crossval.json remains
-        labels = {own["crossval_id"]: views.crossval_label(
-            {**own, "target_kind": own["target"]["kind"], "target": own["target"]["name"],
-             "reward": own["env"]["reward"]["name"]}), **labels}
+        labels = {
+            own["crossval_id"]: views.crossval_label(
+                {
+                    **own,
+                    "target_kind": own["target"]["kind"],
+                    "target": own["target"]["name"],
+                    "reward": own["env"]["reward"]["name"],
+                }
+            ),
+            **labels,
+        }
     ids = list(labels)
     default = views.default_crossval(table, run_id, cfg.get("target", {}), (own or {}).get("crossval_id"))
     if own and default is None:
         default = own.get("crossval_id")
     if default is None:
-        how = ("one is under way (above); or run" if running else "start one below, or run")
-        st.info(f"No cross-validation of this run (or of {cfg['target']['kind']} {cfg['target']['name']}) yet: "
-                f"{how} `laneprint crossval --run {run_id} -w {ws.root}`.")
+        how = "one is under way (above); or run" if running else "start one below, or run"
+        st.info(
+            f"No cross-validation of this run (or of {cfg['target']['kind']} {cfg['target']['name']}) yet: "
+            f"{how} `laneprint crossval --run {run_id} -w {ws.root}`."
+        )
         if not running:
             widgets.crossval_launcher(ws, run_id, (cfg.get("dqn") or {}).get("episodes"))
         if not ids:
             return
-        pick = st.selectbox("Or show a stored cross-validation", ids, index=None, format_func=labels.get,
-                            key=f"cv_pick_{run_id}")
+        pick = st.selectbox(
+            "Or show a stored cross-validation", ids, index=None, format_func=labels.get, key=f"cv_pick_{run_id}"
+        )
         if pick is None:
             return
     else:
-        pick = st.selectbox("Held-out figures from", ids, index=ids.index(default), format_func=labels.get,
-                            key=f"cv_pick_{run_id}")
+        pick = st.selectbox(
+            "Held-out figures from", ids, index=ids.index(default), format_func=labels.get, key=f"cv_pick_{run_id}"
+        )
     if own and pick == own.get("crossval_id"):
         result = own
     else:
         result = loaders.crossval(root, pick, loaders.crossvals_stamp(ws.root))
-    cv_level, cv_text = views.analysis_notice(result.get("analysis_fingerprint"), loaders.current_analysis(ws.root),
-                                              "cross-validation")
+    cv_level, cv_text = views.analysis_notice(
+        result.get("analysis_fingerprint"), loaders.current_analysis(ws.root), "cross-validation"
+    )
     if cv_level == "warning":
         st.warning(cv_text)
     elif cv_level == "info":
@@ -113,12 +136,25 @@ def downloads(ws, run_id: str, run: dict) -> None:
     """The run's results (JSON, CSV) and its trained policy (ONNX with policy.json), built when clicked."""
     own = loaders.run_crossval(str(ws.root), run_id, loaders.run_crossval_stamp(ws.root, run_id))
     c1, c2, c3 = st.columns(3)
-    c1.download_button("Results (JSON)", data=lambda: views.run_results_json(run, own), file_name=f"{run_id}.json",
-                       mime="application/json", key=f"dl_json_{run_id}", on_click="ignore", icon=None,
-                       help="config, status, in-sample evaluation and the run's cross-validation")
-    c2.download_button("Results (CSV)", data=lambda: views.run_results_csv(run, own), file_name=f"{run_id}.csv",
-                       mime="text/csv", key=f"dl_csv_{run_id}", on_click="ignore",
-                       help="one row per policy: in-sample figures, held out with 95 % intervals when cross-validated")
+    c1.download_button(
+        "Results (JSON)",
+        data=lambda: views.run_results_json(run, own),
+        file_name=f"{run_id}.json",
+        mime="application/json",
+        key=f"dl_json_{run_id}",
+        on_click="ignore",
+        icon=None,
+        help="config, status, in-sample evaluation and the run's cross-validation",
+    )
+    c2.download_button(
+        "Results (CSV)",
+        data=lambda: views.run_results_csv(run, own),
+        file_name=f"{run_id}.csv",
+        mime="text/csv",
+        key=f"dl_csv_{run_id}",
+        on_click="ignore",
+        help="one row per policy: in-sample figures, held out with 95 % intervals when cross-validated",
+    )
     policy_download(ws, run_id, run, c3)
 
 
@@ -131,14 +167,26 @@ def policy_download(ws, run_id: str, run: dict, box) -> None:
     elif hint := jobs.onnx_missing():
         box.info(f"Policy (ONNX): {hint}.")
     elif jobs.policy_is_current(ws, run_id):
-        box.download_button("Policy (ONNX + policy.json, zip)", data=lambda: jobs.policy_zip(ws, run_id),
-                            file_name=f"{run_id}-policy.zip", mime="application/zip", key=f"dl_onnx_{run_id}",
-                            on_click="ignore",
-                            help=docs_site.with_more("`laneprint export RUN_ID --format onnx`: checked against "
-                                                     "torch with onnxruntime", "onnx"))
-    elif box.button("Export the policy (ONNX)", key=f"export_onnx_{run_id}",
-                    help=docs_site.with_more("`laneprint export RUN_ID --format onnx`: writes policy.onnx, policy.json and README.md, "
-                         "checked against torch with onnxruntime (a few seconds); then the zip downloads", "onnx")):
+        box.download_button(
+            "Policy (ONNX + policy.json, zip)",
+            data=lambda: jobs.policy_zip(ws, run_id),
+            file_name=f"{run_id}-policy.zip",
+            mime="application/zip",
+            key=f"dl_onnx_{run_id}",
+            on_click="ignore",
+            help=docs_site.with_more(
+                "`laneprint export RUN_ID --format onnx`: checked against torch with onnxruntime", "onnx"
+            ),
+        )
+    elif box.button(
+        "Export the policy (ONNX)",
+        key=f"export_onnx_{run_id}",
+        help=docs_site.with_more(
+            "`laneprint export RUN_ID --format onnx`: writes policy.onnx, policy.json and README.md, "
+            "checked against torch with onnxruntime (a few seconds); then the zip downloads",
+            "onnx",
+        ),
+    ):
         with box, st.spinner("exporting and checking with onnxruntime..."):
             st.session_state[error_key] = jobs.export_policy(ws, run_id)
         if st.session_state[error_key] is None:
@@ -149,10 +197,18 @@ def policy_download(ws, run_id: str, run: dict, box) -> None:
 
 def report_download(ws) -> None:
     """The study as one self-contained HTML file (`laneprint report`), built when clicked."""
-    st.download_button("Report of the study (HTML)", data=lambda: jobs.report_bytes(ws), file_name="report.html",
-                       mime="text/html", key="dl_report", on_click="ignore", type="primary",
-                       help=docs_site.with_more("`laneprint report`: data, fits and flags, styles, every run's "
-                                                "figures; opens offline", "report"))
+    st.download_button(
+        "Report of the study (HTML)",
+        data=lambda: jobs.report_bytes(ws),
+        file_name="report.html",
+        mime="text/html",
+        key="dl_report",
+        on_click="ignore",
+        type="primary",
+        help=docs_site.with_more(
+            "`laneprint report`: data, fits and flags, styles, every run's figures; opens offline", "report"
+        ),
+    )
 
 
 def one_run(ws, run_id: str) -> None:
@@ -177,8 +233,7 @@ def one_run(ws, run_id: str) -> None:
     left, right = st.columns(2)
     fig11 = decision_agreement(run["eval_states"], who="agent")
     left.plotly_chart(figures.compact(go.Figure(fig11)), key=f"fig11a_{run_id}")
-    right.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="greedy")),
-                       key=f"fig11g_{run_id}")
+    right.plotly_chart(figures.compact(decision_agreement(run["eval_states"], who="greedy")), key=f"fig11g_{run_id}")
     widgets.figure_downloads(fig11, f"{run_id}-fig11-agent", key=f"fig11a_{run_id}")
     curves_of(run_id, run)
 
@@ -191,8 +246,9 @@ def analysis_banner(ws, cfg: dict) -> None:
         return
     (st.warning if level == "warning" else st.info)(text, icon=":material/history:")
     kind, name = cfg.get("target", {}).get("kind"), str(cfg.get("target", {}).get("name"))
-    st.caption(f"Re-run it on the Training page ({kind} {name}), or "
-               f"`{views.cli_hint('train', ws.root, f'--{kind}', name)}`.")
+    st.caption(
+        f"Re-run it on the Training page ({kind} {name}), or `{views.cli_hint('train', ws.root, f'--{kind}', name)}`."
+    )
 
 
 @st.fragment
@@ -202,8 +258,12 @@ def curves_of(run_id: str, run: dict) -> None:
     if curves := widgets.lazy_expander("Training curves (Fig. 9)", key=f"fig9_open_{run_id}"):
         with curves:
             smoothing = widgets.smoothing_slider(key=f"smoothing_{run_id}")
-            st.plotly_chart(training_curves(run["metrics"], smoothing, learning_starts=(
-                run["config"].get("dqn") or {}).get("learning_starts")), key=f"fig9_{run_id}")
+            st.plotly_chart(
+                training_curves(
+                    run["metrics"], smoothing, learning_starts=(run["config"].get("dqn") or {}).get("learning_starts")
+                ),
+                key=f"fig9_{run_id}",
+            )
 
 
 def compare(ws, runs: list[str]) -> None:
@@ -216,8 +276,13 @@ def compare(ws, runs: list[str]) -> None:
     b = c2.selectbox("Run B", runs, index=1, key="cmp_b")
     picked = list(dict.fromkeys([a, b]))
     loaded = {rid: loaders.run(str(ws.root), rid, loaders.run_stamp(ws.root, rid)) for rid in picked}
-    st.dataframe(views.compare_runs({rid: views.evaluation_table((r["evaluation"] or {}).get("summary"))
-                                     for rid, r in loaded.items()}), hide_index=True, width="stretch")
+    st.dataframe(
+        views.compare_runs(
+            {rid: views.evaluation_table((r["evaluation"] or {}).get("summary")) for rid, r in loaded.items()}
+        ),
+        hide_index=True,
+        width="stretch",
+    )
     compare_curves({rid: r["metrics"] for rid, r in loaded.items()})
 
 
@@ -255,17 +320,22 @@ def drives(ws) -> None:
     if not found:
         return
     st.subheader(f"Closed-loop drives in SUMO ({len(found)})")
-    st.caption("`laneprint drive RUN_ID --engine sumo` writes here (WORKSPACE/drives/); each drive beside the "
-               "target's drivers, read from the logs the same way: lane changes per km within +-20 % is the goal "
-               "(shaded), and each indicator's median at the agent's presses inside the drivers' IQR.")
+    st.caption(
+        "`laneprint drive RUN_ID --engine sumo` writes here (WORKSPACE/drives/); each drive beside the "
+        "target's drivers, read from the logs the same way: lane changes per km within +-20 % is the goal "
+        "(shaded), and each indicator's median at the agent's presses inside the drivers' IQR."
+    )
     pick = st.selectbox("Drive", list(found), key="drive_pick", format_func=lambda k: views.drive_label(k, found[k]))
     d = found[pick]
     st.markdown(f"**{views.drive_made_by_text(d)}**")
     st.dataframe(views.drive_made_by_table(d), hide_index=True, width="stretch", key="drive_made_by")
     st.caption(docs_site.with_more(views.DRIVE_RULE_NOTE, "closed_loop"))
     if "rate" not in d.get("fidelity", {}):
-        st.info(d.get("fidelity", {}).get("note", "This drive has no comparison with drivers (driven by an older "
-                                                   "laneprint): drive it again."))
+        st.info(
+            d.get("fidelity", {}).get(
+                "note", "This drive has no comparison with drivers (driven by an older laneprint): drive it again."
+            )
+        )
         return
     st.plotly_chart(drive_fidelity(d["fidelity"]), key="drive_fidelity")
 
@@ -290,8 +360,10 @@ def main() -> None:
     report_download(ws)
     runs = evaluated_runs(ws)
     if not runs:
-        st.info("No evaluated runs yet: start one on the Training page (runs are evaluated when they "
-                "finish), or run `laneprint evaluate RUN_ID`.")
+        st.info(
+            "No evaluated runs yet: start one on the Training page (runs are evaluated when they "
+            "finish), or run `laneprint evaluate RUN_ID`."
+        )
         fleets(ws)
         drives(ws)
         stored_crossvals(ws, show_one=True)

@@ -20,25 +20,42 @@ def launch_form(ws) -> None:
     recs = loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root))
     lines_table = tables.get("reference_lines")
     kind = st.radio("Imitate", ["style", "driver"], horizontal=True, key="target_kind")
-    names = (training.style_targets(lines_table) if kind == "style"
-             else training.driver_targets(lines_table, recs))
+    names = training.style_targets(lines_table) if kind == "style" else training.driver_targets(lines_table, recs)
     c1, c2, c3 = st.columns(3)
     name = c1.selectbox(kind.capitalize(), names, key="target_name")
     reward = c2.selectbox("Reward", training.rewards(), key="reward")
-    line_opts = [o for o in ("analysis", "paper")
-                 if (o == "analysis" and lines_table is not None) or (o == "paper" and kind == "style")]
-    lines = c3.selectbox("Reference lines", line_opts, key="lines",
-                         help=docs_site.with_more("'analysis': lines fitted on this workspace; 'paper': Table 1 "
-                                                  "of the study", "formulations"))
+    line_opts = [
+        o
+        for o in ("analysis", "paper")
+        if (o == "analysis" and lines_table is not None) or (o == "paper" and kind == "style")
+    ]
+    lines = c3.selectbox(
+        "Reference lines",
+        line_opts,
+        key="lines",
+        help=docs_site.with_more(
+            "'analysis': lines fitted on this workspace; 'paper': Table 1 of the study", "formulations"
+        ),
+    )
     c4, c5, c6 = st.columns(3)
-    learner = c4.selectbox("Learner", training.learners(reward, lines), key="learner",
-                           help="'auto': the one of the DQN and the trees that agrees better across inner folds "
-                                "of the target's sessions (a few minutes); 'dqn': the study's DQN; 'trees': "
-                                "fitted Q iteration with boosted trees on the recorded approaches (no episodes, "
-                                "fitted in a minute). The trees fit the decisions reward only\n\n"
-                                + docs_site.more("learners"))
-    episodes = c5.number_input("Episodes", min_value=1, max_value=100_000, step=100,
-                               value=training.default_episodes(), key="episodes", disabled=learner == "trees")
+    learner = c4.selectbox(
+        "Learner",
+        training.learners(reward, lines),
+        key="learner",
+        help="'auto': the one of the DQN and the trees that agrees better across inner folds "
+        "of the target's sessions (a few minutes); 'dqn': the study's DQN; 'trees': "
+        "fitted Q iteration with boosted trees on the recorded approaches (no episodes, "
+        "fitted in a minute). The trees fit the decisions reward only\n\n" + docs_site.more("learners"),
+    )
+    episodes = c5.number_input(
+        "Episodes",
+        min_value=1,
+        max_value=100_000,
+        step=100,
+        value=training.default_episodes(),
+        key="episodes",
+        disabled=learner == "trees",
+    )
     seed = c6.number_input("Seed", min_value=0, value=0, step=1, key="seed")
     values = {}
     with st.expander("Hyperparameters (the trainer's defaults, from Table 2 of the study)"):
@@ -47,16 +64,23 @@ def launch_form(ws) -> None:
         for i, (field, default) in enumerate(training.hyperparameters().items()):
             label = training.FORM_SETTINGS[field][0]
             values[field] = cols[i % 3].number_input(
-                label, value=default, key=f"hp_{field}",
+                label,
+                value=default,
+                key=f"hp_{field}",
                 format="%g" if isinstance(default, float) else "%d",
-                step=None if isinstance(default, float) else 1)
+                step=None if isinstance(default, float) else 1,
+            )
     options = {"--learner": learner} | (training.changed_options(values) if learner != "trees" else {})
     req = jobs.TrainRequest(kind, str(name), int(episodes), int(seed), reward, lines, options) if name else None
     verdict, why = training.learning_check(ws, req, values, tables) if req and learner != "trees" else ("", "")
     if verdict:
         (st.warning if verdict == "refuse" else st.info)(why)
-    submitted = st.button("Start training", type="primary", key="start_training",
-                          disabled=not (names and line_opts) or verdict == "refuse")
+    submitted = st.button(
+        "Start training",
+        type="primary",
+        key="start_training",
+        disabled=not (names and line_opts) or verdict == "refuse",
+    )
     if not (names and line_opts):
         st.info("Nothing to train for yet: ingest logs (Data page) and run the analysis (Styles page).")
     if submitted and req:
@@ -74,14 +98,15 @@ def run_panel(ws, run_id: str, status: dict, smoothing: float = 0.95, live: bool
     drawn once their expander is opened (a 2,000-point chart was half of this page's drawing time)."""
     done, total = int(status.get("episode") or 0), int(status.get("episodes") or 0)
     frac = min(1.0, done / total) if total else 0.0
-    st.progress(frac, text=f"{run_id}: {status.get('state')} — episode {done}/{total or '?'}"
-                           + views.run_doing(status))
+    st.progress(frac, text=f"{run_id}: {status.get('state')} — episode {done}/{total or '?'}" + views.run_doing(status))
     box = st.container() if live else widgets.lazy_expander("Training curves (Fig. 9)", key="finished_curves_open")
     metrics = read_metrics(ws.runs_dir / run_id / "metrics.jsonl") if box is not None else ()
     if len(metrics):
         config = jobs.read_json(ws.runs_dir / run_id / "config.json") or {}
-        box.plotly_chart(training_curves(metrics, smoothing, learning_starts=(config.get("dqn") or {}).get(
-            "learning_starts")), key=f"curves_{run_id}")
+        box.plotly_chart(
+            training_curves(metrics, smoothing, learning_starts=(config.get("dqn") or {}).get("learning_starts")),
+            key=f"curves_{run_id}",
+        )
     if status.get("state") in jobs.ACTIVE_STATES:
         if st.button("Cancel", key=f"cancel_{run_id}"):
             jobs.cancel(ws, run_id)
@@ -97,8 +122,10 @@ def crossval_section(ws, run_id: str, status: dict, running: list[str]) -> None:
     st.markdown(f"**Cross-validate {run_id}** (held-out figures of agent, greedy and imitation)")
     config = jobs.read_json(ws.runs_dir / run_id / "config.json")
     if status.get("state") in jobs.ACTIVE_STATES or not config:
-        st.caption("A run can be cross-validated once its training has ended (it takes the run's target and "
-                   "settings from its config.json).")
+        st.caption(
+            "A run can be cross-validated once its training has ended (it takes the run's target and "
+            "settings from its config.json)."
+        )
         return
     launched = jobs.crossval_job_ids(ws, run_id)
     if launched and launched[0] in running:
@@ -117,23 +144,38 @@ def fleet_form(ws) -> None:
         c1, c2, c3, c4 = st.columns(4)
         kind = c1.radio("An agent for every", ["drivers", "styles"], horizontal=True, key="fleet_kind")
         seeds = c2.number_input("Seeds per target", min_value=1, max_value=20, value=1, step=1, key="fleet_seeds")
-        episodes = c3.number_input("Episodes per agent", min_value=1, max_value=100_000, step=100,
-                                   value=training.default_episodes(), key="fleet_episodes")
-        backend = c4.selectbox("Backend", ["local", "ray"], key="fleet_backend",
-                               help=docs_site.with_more("'local': all agents batched in one process; 'ray': "
-                                                        "shards of agents on Ray workers (a local Ray instance "
-                                                        "with this machine's cores)", "ray"))
+        episodes = c3.number_input(
+            "Episodes per agent",
+            min_value=1,
+            max_value=100_000,
+            step=100,
+            value=training.default_episodes(),
+            key="fleet_episodes",
+        )
+        backend = c4.selectbox(
+            "Backend",
+            ["local", "ray"],
+            key="fleet_backend",
+            help=docs_site.with_more(
+                "'local': all agents batched in one process; 'ray': "
+                "shards of agents on Ray workers (a local Ray instance "
+                "with this machine's cores)",
+                "ray",
+            ),
+        )
         submitted = st.form_submit_button("Train fleet", type="primary")
     req = jobs.FleetRequest(kind, int(episodes), int(seeds), backend=backend)
-    targets = (training.driver_targets(lines_table, recs) if kind == "drivers"
-               else training.style_targets(lines_table))
-    st.caption(f"{len(targets)} {kind} x {int(seeds)} seed(s) = {len(targets) * int(seeds)} agents, trained together "
-               f"and each evaluated as it finishes: `{views.command_text(jobs.fleet_command(req, ws.root))}`")
+    targets = training.driver_targets(lines_table, recs) if kind == "drivers" else training.style_targets(lines_table)
+    st.caption(
+        f"{len(targets)} {kind} x {int(seeds)} seed(s) = {len(targets) * int(seeds)} agents, trained together "
+        f"and each evaluated as it finishes: `{views.command_text(jobs.fleet_command(req, ws.root))}`"
+    )
     if not submitted:
         return
     if kind == "drivers" and (lines_table is None or not (lines_table.get("scope") == "driver").any()):
-        st.warning("Not started: a fleet of drivers needs each driver's reference lines: run the analysis "
-                   "(Styles page) first.")
+        st.warning(
+            "Not started: a fleet of drivers needs each driver's reference lines: run the analysis (Styles page) first."
+        )
         return
     job_id = jobs.launch_fleet(ws, req)
     st.session_state.setdefault("fleets_launched", []).append(job_id)
@@ -150,15 +192,26 @@ def fleet_panel(ws, job_id: str, status: dict) -> None:
         table = loaders.fleet_table(str(ws.root), fleet_id, loaders.fleets_stamp(ws.root))
         p = fleet_store.fleet_progress(table)
         frac = min(1.0, p["episode"] / p["episodes"]) if p["episodes"] else 0.0
-        st.progress(frac, text=f"fleet {fleet_id}: {state} — {p['n_done']}/{p['n_runs']} agents done, "
-                               f"{p['episode']}/{p['episodes'] or '?'} episodes; {p['n_meeting_target']} of "
-                               f"{p['n_evaluated']} evaluated meet their target")
+        st.progress(
+            frac,
+            text=f"fleet {fleet_id}: {state} — {p['n_done']}/{p['n_runs']} agents done, "
+            f"{p['episode']}/{p['episodes'] or '?'} episodes; {p['n_meeting_target']} of "
+            f"{p['n_evaluated']} evaluated meet their target",
+        )
         # a fleet under way shows its agents as they finish; a finished one once asked (Results has it in full)
-        box = (st.container() if state in jobs.ACTIVE_STATES
-               else widgets.lazy_expander(f"Agents of fleet {fleet_id} ({len(table)})", key=f"fleet_agents_open_{job_id}"))
+        box = (
+            st.container()
+            if state in jobs.ACTIVE_STATES
+            else widgets.lazy_expander(f"Agents of fleet {fleet_id} ({len(table)})", key=f"fleet_agents_open_{job_id}")
+        )
         if box is not None:
-            box.dataframe(views.fleet_view(table), hide_index=True, width="stretch",
-                          height=min(420, 38 + 35 * len(table)), key=f"fleet_table_{job_id}")
+            box.dataframe(
+                views.fleet_view(table),
+                hide_index=True,
+                width="stretch",
+                height=min(420, 38 + 35 * len(table)),
+                key=f"fleet_table_{job_id}",
+            )
     if state in jobs.ACTIVE_STATES:
         if st.button("Cancel fleet", key=f"fleet_cancel_{job_id}"):
             jobs.cancel_fleet(ws, job_id)
@@ -188,8 +241,11 @@ def main() -> None:
     smoothing = widgets.smoothing_slider()
 
     # a fleet's agents are followed in its own panel (below), not one by one
-    active = [rid for rid in jobs.run_ids(ws) if jobs.run_status(ws, rid).get("state") in jobs.ACTIVE_STATES
-              and not jobs.in_fleet(ws, rid)]
+    active = [
+        rid
+        for rid in jobs.run_ids(ws)
+        if jobs.run_status(ws, rid).get("state") in jobs.ACTIVE_STATES and not jobs.in_fleet(ws, rid)
+    ]
 
     listed: dict[str, object] = {}  # the runs table the live view drew, reused below in the same run
 

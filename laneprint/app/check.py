@@ -31,12 +31,23 @@ import pyarrow.parquet as pq
 
 from laneprint.errors import UserError
 from laneprint.locks import is_locked
-from laneprint.schemas import DECISIONS, EGO, RECORDINGS, REFERENCE_LINES, REJECTED, TRAFFIC, Schema, SchemaError, validate
+from laneprint.schemas import (
+    DECISIONS,
+    EGO,
+    RECORDINGS,
+    REFERENCE_LINES,
+    REJECTED,
+    TRAFFIC,
+    Schema,
+    SchemaError,
+    validate,
+)
 from laneprint.workspace import TMP_SUFFIX, Workspace, content_id, legacy_content_id
 
 #: tables of a stage folder that have a schema (the others are checked for being readable)
 STAGE_SCHEMAS: dict[tuple[str, str], Schema] = {
-    ("analysis", "decisions"): DECISIONS, ("analysis", "reference_lines"): REFERENCE_LINES,
+    ("analysis", "decisions"): DECISIONS,
+    ("analysis", "reference_lines"): REFERENCE_LINES,
 }
 RECORDING_FILES: dict[str, Schema] = {"meta.parquet": RECORDINGS, "ego.parquet": EGO, "traffic.parquet": TRAFFIC}
 # a temporary file or folder exists a moment before its writer locks it: one younger than this
@@ -69,6 +80,7 @@ QUARANTINE = "quarantine"  # damaged recordings and tables are moved here by --r
 def _quarantiner(ws: Workspace, path: Path) -> Callable[[], None]:
     """Move `path` (a recording folder, a table) to `quarantine/` under its relative path, beside any
     earlier one of the same name, so the rest of the workspace reads again."""
+
     def move() -> None:
         target = ws.root / QUARANTINE / _rel(ws, path)
         k = 1
@@ -77,6 +89,7 @@ def _quarantiner(ws: Workspace, path: Path) -> Callable[[], None]:
             k += 1
         target.parent.mkdir(parents=True, exist_ok=True)
         os.rename(path, target)
+
     return move
 
 
@@ -110,8 +123,8 @@ def _remover(path: Path) -> Callable[[], None]:
                 raise errors[0] if errors else OSError(f"{path} is still there")
         else:
             path.unlink(missing_ok=True)
-    return remove
 
+    return remove
 
 
 def _read_json(path: Path) -> Any:
@@ -138,8 +151,9 @@ def _temp_leftovers(ws: Workspace) -> Iterator[_Leftover | Finding]:
         if tmp_root in p.parents or not p.is_file():
             continue
         if _unheld(p):
-            yield _Leftover(Finding("leftover", _rel(ws, p), "temporary file of an interrupted atomic write"),
-                            _remover(p))
+            yield _Leftover(
+                Finding("leftover", _rel(ws, p), "temporary file of an interrupted atomic write"), _remover(p)
+            )
         else:
             yield Finding("note", _rel(ws, p), "being written by a live process")
 
@@ -157,8 +171,12 @@ def _claim_leftovers(ws: Workspace) -> Iterator[_Leftover]:
         except OSError:
             continue
         if not ws.has_recording(rid):
-            yield _Leftover(Finding("leftover", _rel(ws, p), f"claim of an ingest that died before storing {rid or 'its recording'}"),
-                            _remover(p))
+            yield _Leftover(
+                Finding(
+                    "leftover", _rel(ws, p), f"claim of an ingest that died before storing {rid or 'its recording'}"
+                ),
+                _remover(p),
+            )
 
 
 # --- recordings and rejections ------------------------------------------------------------------
@@ -182,9 +200,15 @@ def _check_recording(ws: Workspace, folder: Path) -> Iterator[Finding | _Leftove
         try:
             frames[name] = _read_whole(path, schema)
         except (OSError, ValueError, SchemaError) as exc:
-            yield _Leftover(Finding("problem", f"{rel}/{name}", f"unreadable or off-schema ({_first_line(exc)}); "
-                                                                f"the recording can be set aside in {QUARANTINE}/"),
-                            _quarantiner(ws, folder), verb=f"moved to {QUARANTINE}/")
+            yield _Leftover(
+                Finding(
+                    "problem",
+                    f"{rel}/{name}",
+                    f"unreadable or off-schema ({_first_line(exc)}); the recording can be set aside in {QUARANTINE}/",
+                ),
+                _quarantiner(ws, folder),
+                verb=f"moved to {QUARANTINE}/",
+            )
             return
     meta = frames.get("meta.parquet")
     if meta is None:
@@ -197,7 +221,9 @@ def _check_recording(ws: Workspace, folder: Path) -> Iterator[Finding | _Leftove
         yield Finding("problem", rel, f"meta says recording {row['recording_id']}, folder is {folder.name}")
     ego = frames.get("ego.parquet")
     if ego is not None and int(row["n_samples"]) != len(ego):
-        yield Finding("problem", f"{rel}/ego.parquet", f"{len(ego)} samples, the catalogue says {int(row['n_samples'])}")
+        yield Finding(
+            "problem", f"{rel}/ego.parquet", f"{len(ego)} samples, the catalogue says {int(row['n_samples'])}"
+        )
     source = Path(str(row["source_path"]))
     if source.is_file():
         data = source.read_bytes()
@@ -231,8 +257,11 @@ def _check_recordings(ws: Workspace) -> Iterator[Finding | _Leftover]:
             continue
         key = (str(meta["driver_id"]), str(meta["session_id"]))
         if key in sessions:
-            yield Finding("problem", _rel(ws, folder), f"driver {key[0]} session {key[1]} is stored twice "
-                                                      f"(also as recording {sessions[key]})")
+            yield Finding(
+                "problem",
+                _rel(ws, folder),
+                f"driver {key[0]} session {key[1]} is stored twice (also as recording {sessions[key]})",
+            )
         sessions[key] = folder.name
     try:
         cat = ws.recordings()
@@ -254,9 +283,15 @@ def _check_recordings(ws: Workspace) -> Iterator[Finding | _Leftover]:
             yield Finding("problem", _rel(ws, p), f"unreadable rejection record ({_first_line(exc)})")
             continue
         if row.get("content_hash") and row["content_hash"] in stored:
-            yield _Leftover(Finding("leftover", _rel(ws, p), f"rejection of content since ingested as recording "
-                                                             f"{row['content_hash']} (an ingest stopped before forgetting it)"),
-                            _remover(p))
+            yield _Leftover(
+                Finding(
+                    "leftover",
+                    _rel(ws, p),
+                    f"rejection of content since ingested as recording "
+                    f"{row['content_hash']} (an ingest stopped before forgetting it)",
+                ),
+                _remover(p),
+            )
 
 
 # --- stage tables and cross-validations -----------------------------------------------------
@@ -274,9 +309,15 @@ def _check_stage(ws: Workspace, folder: Path) -> Iterator[Finding | _Leftover]:
             if schema is not None:
                 validate(df, schema)
         except (OSError, ValueError, SchemaError) as exc:
-            yield _Leftover(Finding("problem", _rel(ws, path), f"unreadable or off-schema ({_first_line(exc)}); "
-                                                               f"it can be set aside in {QUARANTINE}/"),
-                            _quarantiner(ws, path), verb=f"moved to {QUARANTINE}/")
+            yield _Leftover(
+                Finding(
+                    "problem",
+                    _rel(ws, path),
+                    f"unreadable or off-schema ({_first_line(exc)}); it can be set aside in {QUARANTINE}/",
+                ),
+                _quarantiner(ws, path),
+                verb=f"moved to {QUARANTINE}/",
+            )
 
 
 def _check_crossvals(ws: Workspace) -> Iterator[Finding | _Leftover]:
@@ -285,8 +326,9 @@ def _check_crossvals(ws: Workspace) -> Iterator[Finding | _Leftover]:
         if folder.name.startswith("."):
             continue
         if not (folder / "result.json").exists():
-            yield _Leftover(Finding("leftover", _rel(ws, folder), "unfinished cross-validation (no result.json)"),
-                            _remover(folder))
+            yield _Leftover(
+                Finding("leftover", _rel(ws, folder), "unfinished cross-validation (no result.json)"), _remover(folder)
+            )
             continue
         try:
             _read_json(folder / "result.json")
@@ -340,8 +382,9 @@ def _check_run(ws: Workspace, folder: Path) -> Iterator[Finding | _Leftover]:
         if others:
             yield Finding("problem", rel, f"no config.json but {len(others)} other file(s)")
         else:
-            yield _Leftover(Finding("leftover", rel, "empty run folder of a training that died at its start"),
-                            _remover(folder))
+            yield _Leftover(
+                Finding("leftover", rel, "empty run folder of a training that died at its start"), _remover(folder)
+            )
         return
     try:
         config = _read_json(folder / "config.json")
@@ -372,21 +415,31 @@ def _check_run(ws: Workspace, folder: Path) -> Iterator[Finding | _Leftover]:
         else:
             ckpt_episode = _checkpoint_episode(ckpt)
             if ckpt_episode is not None and ckpt_episode > (max(episodes) if episodes else 0):
-                yield Finding("problem", f"{rel}/metrics.jsonl",
-                              f"ends at episode {max(episodes) if episodes else 0}, the checkpoint is at {ckpt_episode}")
+                yield Finding(
+                    "problem",
+                    f"{rel}/metrics.jsonl",
+                    f"ends at episode {max(episodes) if episodes else 0}, the checkpoint is at {ckpt_episode}",
+                )
     if (folder / "weights.pt").exists():
         _, err = _torch_file(folder / "weights.pt")
         if err:
             yield Finding("problem", f"{rel}/weights.pt", f"unreadable ({err})")
     if state == "interrupted" and trees:
-        yield Finding("note", rel, f"tree fit interrupted: `laneprint train --resume {folder.name}` fits it again "
-                                   f"with the run's settings")
+        yield Finding(
+            "note",
+            rel,
+            f"tree fit interrupted: `laneprint train --resume {folder.name}` fits it again with the run's settings",
+        )
         return
     if state == "interrupted":
         frm = f"its checkpoint at episode {ckpt_episode}" if ckpt_episode is not None else "the start (no checkpoint)"
         tail = f"; {bad} half-written metrics line(s), dropped on resume" if bad else ""
-        yield Finding("note", rel, f"training interrupted at episode {status.get('episode', 0)}: "
-                                   f"`laneprint train --resume {folder.name}` continues from {frm}{tail}")
+        yield Finding(
+            "note",
+            rel,
+            f"training interrupted at episode {status.get('episode', 0)}: "
+            f"`laneprint train --resume {folder.name}` continues from {frm}{tail}",
+        )
         return
     if bad:
         yield Finding("problem", f"{rel}/metrics.jsonl", f"{bad} line(s) that are not whole JSON")
@@ -394,8 +447,12 @@ def _check_run(ws: Workspace, folder: Path) -> Iterator[Finding | _Leftover]:
         if not (folder / "weights.pt").exists():
             yield Finding("problem", rel, "state done but no weights.pt")
         if int(status.get("episode", -1)) != total or (episodes and max(episodes) != total):
-            yield Finding("problem", rel, f"state done at episode {status.get('episode')} "
-                                          f"(metrics to {max(episodes) if episodes else 0}) of {total}")
+            yield Finding(
+                "problem",
+                rel,
+                f"state done at episode {status.get('episode')} "
+                f"(metrics to {max(episodes) if episodes else 0}) of {total}",
+            )
 
 
 def _check_runs(ws: Workspace) -> Iterator[Finding | _Leftover]:
@@ -418,8 +475,12 @@ def check_workspace(ws: Workspace, repair: bool = False) -> dict[str, Any]:
     if not ws.root.is_dir():
         raise UserError(f"no workspace at {ws.root}")
     parts: list[Iterator[Finding | _Leftover]] = [
-        _temp_leftovers(ws), _claim_leftovers(ws), _check_recordings(ws),
-        *(_check_stage(ws, f) for f in _stage_folders(ws)), _check_crossvals(ws), _check_runs(ws),
+        _temp_leftovers(ws),
+        _claim_leftovers(ws),
+        _check_recordings(ws),
+        *(_check_stage(ws, f) for f in _stage_folders(ws)),
+        _check_crossvals(ws),
+        _check_runs(ws),
     ]
     findings: list[Finding] = []
     repaired: list[str] = []
@@ -430,8 +491,14 @@ def check_workspace(ws: Workspace, repair: bool = False) -> dict[str, Any]:
                     try:
                         item.remove()
                     except OSError as exc:  # said as it is: not removed, and why
-                        findings.append(Finding("problem", item.finding.path, f"{item.finding.message}; could not be "
-                                                f"{item.verb.split(' ')[0]}: {exc.strerror or exc}"))
+                        findings.append(
+                            Finding(
+                                "problem",
+                                item.finding.path,
+                                f"{item.finding.message}; could not be "
+                                f"{item.verb.split(' ')[0]}: {exc.strerror or exc}",
+                            )
+                        )
                         continue
                     repaired.append(f"{item.verb} {item.finding.path} ({item.finding.message})")
                     continue
@@ -439,8 +506,11 @@ def check_workspace(ws: Workspace, repair: bool = False) -> dict[str, Any]:
             findings.append(item)
     counts = {k: sum(f.kind == k for f in findings) for k in ("problem", "leftover", "note")}
     return {
-        "workspace": str(ws.root), "ok": counts["problem"] + counts["leftover"] == 0, "counts": counts,
-        "findings": [asdict(f) for f in findings], "repaired": repaired,
+        "workspace": str(ws.root),
+        "ok": counts["problem"] + counts["leftover"] == 0,
+        "counts": counts,
+        "findings": [asdict(f) for f in findings],
+        "repaired": repaired,
         "n_recordings": sum(1 for _ in ws.recordings_dir.glob("*/meta.parquet")) if ws.recordings_dir.is_dir() else 0,
         "n_runs": sum(1 for p in ws.runs_dir.glob("*/config.json")) if ws.runs_dir.is_dir() else 0,
         "exit_code": 0 if counts["problem"] + counts["leftover"] == 0 else 1,

@@ -19,14 +19,20 @@ def _render(res: dict[str, Any], console: Console) -> None:
         console.print(f"repaired: {line}", highlight=False, markup=False, soft_wrap=True)
     c = res["counts"]
     verdict = "ok" if res["ok"] else "NOT OK"
-    console.print(f"{verdict}: {res['n_recordings']} recordings, {res['n_runs']} runs checked; {c['problem']} "
-                  f"problem(s), {c['leftover']} leftover(s){' (run with --repair to remove them)' if c['leftover'] else ''}, "
-                  f"{len(res['repaired'])} repaired, {c['note']} note(s)", highlight=False, markup=False)
+    console.print(
+        f"{verdict}: {res['n_recordings']} recordings, {res['n_runs']} runs checked; {c['problem']} "
+        f"problem(s), {c['leftover']} leftover(s){' (run with --repair to remove them)' if c['leftover'] else ''}, "
+        f"{len(res['repaired'])} repaired, {c['note']} note(s)",
+        highlight=False,
+        markup=False,
+    )
 
 
 @configurable("check")
 def check_command(
-    repair: Annotated[bool, typer.Option("--repair", help="Remove leftovers of interrupted writes (nothing else).")] = False,
+    repair: Annotated[
+        bool, typer.Option("--repair", help="Remove leftovers of interrupted writes (nothing else).")
+    ] = False,
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,
 ) -> None:

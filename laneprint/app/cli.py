@@ -16,7 +16,15 @@ from ingest.cli import ingest_command
 from laneprint.app.simulator.cli import simulate_command
 from laneprint.app.pipeline_cli import run_command_cli
 from laneprint.app.report_cli import report_command
-from rl.cli import annotate_command, crossval_command, evaluate_command, export_command, personalize_command, runs_command, train_command
+from rl.cli import (
+    annotate_command,
+    crossval_command,
+    evaluate_command,
+    export_command,
+    personalize_command,
+    runs_command,
+    train_command,
+)
 from rl.drive.cli import drive_command
 
 app = typer.Typer(
@@ -28,19 +36,35 @@ app = typer.Typer(
     rich_markup_mode=None,  # help texts are plain: "[ray]" and "[dqn]" are words, not markup
 )
 
-app.command("simulate", help="Generate a driver-in-the-loop study (CSV and MCAP logs): synthetic, Eclipse SUMO with --engine sumo, or highway-env with --engine highway.")(simulate_command)
+app.command(
+    "simulate",
+    help="Generate a driver-in-the-loop study (CSV and MCAP logs): synthetic, Eclipse SUMO with --engine sumo, or highway-env with --engine highway.",
+)(simulate_command)
 app.command("ingest", help="Read, validate and store simulator logs in the workspace.")(ingest_command)
 app.command("analyze", help="Indicators at decisions, per-driver fits and driving styles.")(analyze_command)
-app.command("train", help="Train an agent for a style or a driver (learner: --learner), or a fleet of them (--drivers/--styles).")(train_command)
-app.command("personalize", help="An agent for one driver from its first K decisions, starting from the other drivers' agent.")(personalize_command)
+app.command(
+    "train",
+    help="Train an agent for a style or a driver (learner: --learner), or a fleet of them (--drivers/--styles).",
+)(train_command)
+app.command(
+    "personalize", help="An agent for one driver from its first K decisions, starting from the other drivers' agent."
+)(personalize_command)
 app.command("evaluate", help="Evaluate a trained run against the drivers' decisions.")(evaluate_command)
 app.command("crossval", help="Held-out figures: agent vs greedy vs imitation, by session folds.")(crossval_command)
-app.command("export", help="Export a trained run's policy as ONNX, documented and checked with onnxruntime.")(export_command)
-app.command("annotate", help="Write a recording again as MCAP with the agent's, greedy's and driver's decisions.")(annotate_command)
-app.command("drive", help="Let a trained agent make the ego's lane changes in SUMO traffic; MCAP logs of the drive.")(drive_command)
+app.command("export", help="Export a trained run's policy as ONNX, documented and checked with onnxruntime.")(
+    export_command
+)
+app.command("annotate", help="Write a recording again as MCAP with the agent's, greedy's and driver's decisions.")(
+    annotate_command
+)
+app.command("drive", help="Let a trained agent make the ego's lane changes in SUMO traffic; MCAP logs of the drive.")(
+    drive_command
+)
 app.command("runs", help="List the training runs and their state (interrupted: killed, resumable).")(runs_command)
 app.command("check", help="Verify the workspace; --repair removes leftovers of interrupted writes.")(check_command)
-app.command("report", help="The study in one self-contained HTML file (figures, tables as CSV beside it).")(report_command)
+app.command("report", help="The study in one self-contained HTML file (figures, tables as CSV beside it).")(
+    report_command
+)
 app.command("dashboard", help="Serve the Streamlit dashboard.")(dashboard_command)
 app.command("run", help="Everything end to end: ingest PATHs, analyze, and train/evaluate the styles.")(run_command_cli)
 

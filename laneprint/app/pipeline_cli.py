@@ -21,9 +21,18 @@ from laneprint.options import Section, Settings, configurable
 from rl.settings import DQNSettings
 
 
-def run_pipeline(paths: list[Path], workspace: Path, driver: str | None, mapping: Path | None,
-                 train: bool, episodes: int | None, seed: int, show_progress: bool,
-                 analysis_settings: Any = None, dqn_settings: Any = None) -> dict[str, Any]:
+def run_pipeline(
+    paths: list[Path],
+    workspace: Path,
+    driver: str | None,
+    mapping: Path | None,
+    train: bool,
+    episodes: int | None,
+    seed: int,
+    show_progress: bool,
+    analysis_settings: Any = None,
+    dqn_settings: Any = None,
+) -> dict[str, Any]:
     """Ingest -> analyze -> train and evaluate one agent per style; a JSON-ready report (settings: the
     `[analysis]` and `[dqn]` tables of a config file, seeded by `seed`)."""
     from dataclasses import replace
@@ -35,8 +44,10 @@ def run_pipeline(paths: list[Path], workspace: Path, driver: str | None, mapping
     ingest = ingest_result(paths, driver, mapping, workspace, show_progress)
     ws = Workspace(workspace)
     if ws.recordings().empty:
-        raise UserError(f"no recordings could be stored from {', '.join(map(str, paths))}; see the reasons above "
-                        "(`laneprint ingest --json` lists them)")
+        raise UserError(
+            f"no recordings could be stored from {', '.join(map(str, paths))}; see the reasons above "
+            "(`laneprint ingest --json` lists them)"
+        )
     with progress_bar(show_progress) as progress:
         analysis = analyze(ws, replace(analysis_settings or AnalysisSettings(), random_state=seed), progress)
     runs = []
@@ -46,11 +57,18 @@ def run_pipeline(paths: list[Path], workspace: Path, driver: str | None, mapping
 
         overrides = {"seed": seed} | ({"episodes": episodes, "episodes_per_approach": 0.0} if episodes else {})
         targets = [Target("style", style) for style in analysis["styles"]]
-        fleet = create_fleet(ws, targets, [seed], replace(dqn_settings or DQNSettings(), **overrides))  # the styles' agents, batched
+        fleet = create_fleet(
+            ws, targets, [seed], replace(dqn_settings or DQNSettings(), **overrides)
+        )  # the styles' agents, batched
         with progress_bar(show_progress) as progress:
             runs = train_fleet(ws, fleet["fleet_id"], progress=progress)["summaries"]
-    return {"workspace": str(ws.root), "ingest": ingest, "analysis": analysis, "runs": runs,
-            "dashboard": f"{_laneprint_exe()} dashboard --workspace {ws.root}"}
+    return {
+        "workspace": str(ws.root),
+        "ingest": ingest,
+        "analysis": analysis,
+        "runs": runs,
+        "dashboard": f"{_laneprint_exe()} dashboard --workspace {ws.root}",
+    }
 
 
 def _laneprint_exe() -> str:
@@ -74,8 +92,11 @@ def render_run(result: dict[str, Any], console: Console) -> None:
         from rl.cli import summary_table
 
         for run in result["runs"]:
-            console.print(f"run {run['run_id']}: {run['state']}, {run.get('target', '')}, reward "
-                          f"{run.get('reward', '')}, {run.get('episodes', '?')} episodes", highlight=False)
+            console.print(
+                f"run {run['run_id']}: {run['state']}, {run.get('target', '')}, reward "
+                f"{run.get('reward', '')}, {run.get('episodes', '?')} episodes",
+                highlight=False,
+            )
             if run.get("evaluation"):
                 console.print(summary_table(run["evaluation"], f"{run['target']} against its typical driver"))
     console.print(f"open the dashboard: {result['dashboard']}", markup=False, highlight=False)
@@ -86,13 +107,22 @@ def run_command_cli(
     settings: Settings,
     paths: Annotated[list[Path], typer.Argument(help="Log files or folders (e.g. sample_logs).")],
     driver: Annotated[Optional[str], typer.Option("--driver", help="Driver id for files that carry none.")] = None,
-    mapping: Annotated[Optional[Path], typer.Option("--mapping", help="Name/unit mapping file (docs: your own study).")] = None,
+    mapping: Annotated[
+        Optional[Path], typer.Option("--mapping", help="Name/unit mapping file (docs: your own study).")
+    ] = None,
     train: Annotated[bool, typer.Option("--train/--no-train", help="Train and evaluate one agent per style.")] = True,
-    episodes: Annotated[Optional[int], typer.Option("--episodes", help="Training episodes per agent (default: the trainer's).")] = None,
+    episodes: Annotated[
+        Optional[int], typer.Option("--episodes", help="Training episodes per agent (default: the trainer's).")
+    ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the clustering and the training.")] = 0,
     workspace: WorkspaceOpt = DEFAULT_WS,
     as_json: JsonOpt = False,
 ) -> None:
     """Ingest PATHs, analyze, and train/evaluate one agent per style."""
-    run_command(lambda: run_pipeline(paths, workspace, driver, mapping, train, episodes, seed, not as_json,
-                                     settings.analysis, settings.dqn), as_json, render_run)
+    run_command(
+        lambda: run_pipeline(
+            paths, workspace, driver, mapping, train, episodes, seed, not as_json, settings.analysis, settings.dqn
+        ),
+        as_json,
+        render_run,
+    )

@@ -19,12 +19,24 @@ from laneprint.workspace import Workspace
 @configurable("report")
 def report_command(
     workspace: WorkspaceOpt = DEFAULT_WS,
-    out: Annotated[Path | None, typer.Option(
-        "--out", "-o", help="The HTML file to write (default <workspace>/report.html); tables (CSV) and figures "
-                            "(Plotly JSON; SVG with the report extra, kaleido) go to <name>_files/ beside it.")] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            "--out",
+            "-o",
+            help="The HTML file to write (default <workspace>/report.html); tables (CSV) and figures "
+            "(Plotly JSON; SVG with the report extra, kaleido) go to <name>_files/ beside it.",
+        ),
+    ] = None,
     no_assets: Annotated[bool, typer.Option("--no-assets", help="Only the HTML file.")] = False,
-    no_svg: Annotated[bool, typer.Option("--no-svg", help="No SVG of the figures (kaleido takes 10-15 s to start "
-                                                          "its browser, and more for hundreds of figures).")] = False,
+    no_svg: Annotated[
+        bool,
+        typer.Option(
+            "--no-svg",
+            help="No SVG of the figures (kaleido takes 10-15 s to start "
+            "its browser, and more for hundreds of figures).",
+        ),
+    ] = False,
     as_json: JsonOpt = False,
 ) -> None:
     """The study in one self-contained HTML file: data, fits and flags, styles, every run's figures."""
@@ -40,8 +52,11 @@ def report_command(
         sys.stdout.write(json.dumps(result) + "\n")
         return
     written = result.get("written") or {}
-    console.print(f"report written to [bold]{result['report']}[/bold] ({result['bytes'] / 1e6:.1f} MB, "
-                  f"{result['figures']} figures, {result['tables']} tables, {result['seconds']} s)"
-                  + (f"; tables and figures in {result['assets']}" if result["assets"] else "")
-                  + (f" ({len(written['svg'])} figures as SVG)" if written.get("svg") else "")
-                  + (f"; {written['svg_note']}" if written.get("svg_note") else ""), highlight=False)
+    console.print(
+        f"report written to [bold]{result['report']}[/bold] ({result['bytes'] / 1e6:.1f} MB, "
+        f"{result['figures']} figures, {result['tables']} tables, {result['seconds']} s)"
+        + (f"; tables and figures in {result['assets']}" if result["assets"] else "")
+        + (f" ({len(written['svg'])} figures as SVG)" if written.get("svg") else "")
+        + (f"; {written['svg_note']}" if written.get("svg_note") else ""),
+        highlight=False,
+    )

@@ -77,8 +77,16 @@ def make_drivers(settings: StudySettings, rng: np.random.Generator) -> list[Driv
             lines = {}
             for k, sd in zip(INDICATORS, settings.driver_shift_sd):
                 a0, b0 = table[k]
-                a = a0 * (1.0 + float(np.clip(rng.normal(0.0, settings.driver_slope_rel_sd),
-                                              -2 * settings.driver_slope_rel_sd, 2 * settings.driver_slope_rel_sd)))
+                a = a0 * (
+                    1.0
+                    + float(
+                        np.clip(
+                            rng.normal(0.0, settings.driver_slope_rel_sd),
+                            -2 * settings.driver_slope_rel_sd,
+                            2 * settings.driver_slope_rel_sd,
+                        )
+                    )
+                )
                 shift = float(np.clip(rng.normal(0.0, sd), -2 * sd, 2 * sd))
                 b = a0 * v_mid + b0 + shift - a * v_mid
                 lines[k] = (round(a, 4), round(b, 4))

@@ -48,8 +48,12 @@ def render_readme(study: Study, fmt: str, files: list[dict[str, Any]]) -> str:
         f"({', '.join(str(v) for v in s.speed_limits_kph)} km/h) = {n_rec} recordings, "
         f"{len(study.decisions)} button presses, {hours:.2f} h of driving at {s.sample_rate_hz:g} Hz.",
         f"- Format `{fmt}`: {n_mcap} MCAP files and {n_csv} CSV files"
-        + (" (odd-numbered drivers as MCAP, even-numbered as gzipped CSV; each session appears once)"
-           if fmt == "mixed" else "") + f", {log_mb:.1f} MB of logs.",
+        + (
+            " (odd-numbered drivers as MCAP, even-numbered as gzipped CSV; each session appears once)"
+            if fmt == "mixed"
+            else ""
+        )
+        + f", {log_mb:.1f} MB of logs.",
         "- File names are the session ids: `D03_S80` is driver D03 in the 80 km/h section.",
         "- `ground_truth.json`: the settings and seed, every driver's style, whether it is the",
         "  style's typical driver, its true lines, and per decision: session, press time",
@@ -85,7 +89,7 @@ def render_readme(study: Study, fmt: str, files: list[dict[str, Any]]) -> str:
         "   front car `C_f`, at a cruise speed drawn per decision from Uniform(limit - "
         f"{s.speed_band_kph:g}, limit + {s.speed_band_kph:g}) km/h (changes between decisions at "
         f"{s.speed_change_mps2:g} m/s^2).",
-        "   Its time to collision shrinks second by second: these are the recorded \"not yet\"",
+        '   Its time to collision shrinks second by second: these are the recorded "not yet"',
         "   states. The target-lane follower `C_nb` is usually still beside or ahead of the ego",
         "   early in the approach: the ego overtakes it, which is how the gap opens.",
         "2. **Press**: the driver presses the lane-change button "

@@ -35,7 +35,9 @@ from laneprint.simulator.drivers import Driver
 
 _MIN_SPACING_M = 2.0  # [m] bumper-to-bumper distance kept between traffic cars of one lane
 _MAX_TRIES = 400
-_Car = tuple[str, int, float, float, float]  # role, lane, v [m/s], dx from the ego's centre at the press [m], length [m]
+_Car = tuple[
+    str, int, float, float, float
+]  # role, lane, v [m/s], dx from the ego's centre at the press [m], length [m]
 
 
 @dataclass
@@ -73,8 +75,15 @@ def _ramp(v_from: float, v_to: float, rate: float, hz: float) -> np.ndarray:
 class RecordingBuilder:
     """Appends episodes to one recording; `finish()` returns the frames."""
 
-    def __init__(self, settings: StudySettings, rng: np.random.Generator, driver: Driver,
-                 speed_limit_kph: float, session_id: str, simulator: str) -> None:
+    def __init__(
+        self,
+        settings: StudySettings,
+        rng: np.random.Generator,
+        driver: Driver,
+        speed_limit_kph: float,
+        session_id: str,
+        simulator: str,
+    ) -> None:
         self.s = settings
         self.rng = rng
         self.driver = driver
@@ -129,8 +138,19 @@ class RecordingBuilder:
             return hi
         return float(self.rng.uniform(lo, hi))
 
-    def _place_cars(self, case: str, v: float, t_f: float, t_nf: float, dv_nb: float, slowed_leader_v: float | None,
-                    from_lane: int, to_lane: int, t_app: float, t_cut: float) -> list[_Car]:
+    def _place_cars(
+        self,
+        case: str,
+        v: float,
+        t_f: float,
+        t_nf: float,
+        dv_nb: float,
+        slowed_leader_v: float | None,
+        from_lane: int,
+        to_lane: int,
+        t_app: float,
+        t_cut: float,
+    ) -> list[_Car]:
         """The episode's cars as (role, lane, v, dx from the ego's centre at the press, length).
 
         Redrawn until no two cars of a lane touch between `t_app` before and `t_cut` after the press.
@@ -146,8 +166,9 @@ class RecordingBuilder:
                 vf = slowed_leader_v
                 gap_f = _u(rng, s.slowed_headway_s) * v
             else:
-                vf = self._speed_between(max(s.traffic_v_min_mps, v - (range_gap - (le + lf) / 2) / t_f),
-                                         min(s.traffic_v_max_mps, v - 0.5))
+                vf = self._speed_between(
+                    max(s.traffic_v_min_mps, v - (range_gap - (le + lf) / 2) / t_f), min(s.traffic_v_max_mps, v - 0.5)
+                )
                 gap_f = t_f * (v - vf)
             cars.append(("f", from_lane, vf, gap_f + (le + lf) / 2, lf))
             if has_nf:
@@ -225,8 +246,9 @@ class RecordingBuilder:
             n_man = 0
             n_cut = n_hold + int(round(_u(rng, (0.3, 0.6)) * hz))
 
-        cars = self._place_cars(case, v, t_f, t_nf, dv_nb, v_f if case == CASE_SLOWED else None,
-                                from_lane, to_lane, p / hz, n_cut / hz)
+        cars = self._place_cars(
+            case, v, t_f, t_nf, dv_nb, v_f if case == CASE_SLOWED else None, from_lane, to_lane, p / hz, n_cut / hz
+        )
 
         # ego arrays for the whole episode
         after_v: list[np.ndarray] = [np.full(n_man, v)]
@@ -252,9 +274,9 @@ class RecordingBuilder:
             y_loc[tau > d] = y1
             lane_loc[tau >= d / 2.0] = to_lane
         button = np.zeros(n_loc, dtype=bool)
-        button[p:p + n_hold] = True
+        button[p : p + n_hold] = True
         dirs = np.full(n_loc, None, dtype=object)
-        dirs[p:p + n_hold] = direction
+        dirs[p : p + n_hold] = direction
 
         # traffic rows
         t0 = self.n
@@ -271,15 +293,17 @@ class RecordingBuilder:
             m = int(inside.sum())
             if m == 0:
                 continue
-            self.traffic_parts.append({
-                "t_s": t_window[inside],
-                "vehicle_id": np.full(m, veh.vid, dtype=object),
-                "x_m": xs[inside],
-                "y_m": np.full(m, self._lane_y(lane)),
-                "v_mps": np.full(m, veh.v),
-                "lane": np.full(m, lane, dtype=np.int64),
-                "length_m": np.full(m, veh.length),
-            })
+            self.traffic_parts.append(
+                {
+                    "t_s": t_window[inside],
+                    "vehicle_id": np.full(m, veh.vid, dtype=object),
+                    "x_m": xs[inside],
+                    "y_m": np.full(m, self._lane_y(lane)),
+                    "v_mps": np.full(m, veh.v),
+                    "lane": np.full(m, lane, dtype=np.int64),
+                    "length_m": np.full(m, veh.length),
+                }
+            )
 
         # ground truth of this decision, computed as LOG_FORMAT defines the indicators
         f, nb = roles["f"], roles["nb"]
@@ -292,36 +316,38 @@ class RecordingBuilder:
             gap_nf_real = (nf.x_press - x_e_press) - (nf.length + le) / 2
             t_nf_real = gap_nf_real / (v - nf.v)
         gap_nb_real = (x_e_press - nb.x_press) - (nb.length + le) / 2
-        self.decisions.append({
-            "session_id": self.session_id,
-            "driver_id": self.driver.driver_id,
-            "index": len(self.decisions),
-            "press_t_s": t_press,
-            "case": case,
-            "direction": direction,
-            "from_lane": from_lane,
-            "target_lane": to_lane,
-            "changed": changed,
-            "speed_limit_kph": self.limit,
-            "v_e_mps": v,
-            "t_f_s": t_f_real,
-            "t_f_status": "ok" if t_f_real is not None else "not_closing",
-            "t_nf_s": t_nf_real,
-            "t_nf_status": "ok" if nf is not None else "absent",
-            "dv_nb_mps": v - nb.v,
-            "dv_nb_status": "far" if gap_nb_real > s.far_follower_m else "ok",
-            "from_preference": {
-                "t_f": case != CASE_SLOWED,
-                "t_nf": nf is not None,
-                "dv_nb": case != CASE_FAR_FOLLOWER,
-            },
-            "line": line,
-            "gaps_m": {"f": gap_f_real, "nf": gap_nf_real, "nb": gap_nb_real},
-            "vehicles": {r: veh.vid for r, veh in roles.items()},
-            "episode_start_t_s": t0 / hz,
-            "episode_end_t_s": (t0 + n_loc - 1) / hz,
-            "lane_change_end_t_s": (t0 + p + n_man) / hz if changed else None,
-        })
+        self.decisions.append(
+            {
+                "session_id": self.session_id,
+                "driver_id": self.driver.driver_id,
+                "index": len(self.decisions),
+                "press_t_s": t_press,
+                "case": case,
+                "direction": direction,
+                "from_lane": from_lane,
+                "target_lane": to_lane,
+                "changed": changed,
+                "speed_limit_kph": self.limit,
+                "v_e_mps": v,
+                "t_f_s": t_f_real,
+                "t_f_status": "ok" if t_f_real is not None else "not_closing",
+                "t_nf_s": t_nf_real,
+                "t_nf_status": "ok" if nf is not None else "absent",
+                "dv_nb_mps": v - nb.v,
+                "dv_nb_status": "far" if gap_nb_real > s.far_follower_m else "ok",
+                "from_preference": {
+                    "t_f": case != CASE_SLOWED,
+                    "t_nf": nf is not None,
+                    "dv_nb": case != CASE_FAR_FOLLOWER,
+                },
+                "line": line,
+                "gaps_m": {"f": gap_f_real, "nf": gap_nf_real, "nb": gap_nb_real},
+                "vehicles": {r: veh.vid for r, veh in roles.items()},
+                "episode_start_t_s": t0 / hz,
+                "episode_end_t_s": (t0 + n_loc - 1) / hz,
+                "lane_change_end_t_s": (t0 + p + n_man) / hz if changed else None,
+            }
+        )
 
         self.v_parts.append(v_loc)
         self.x_parts.append(x_loc)
@@ -352,28 +378,36 @@ class RecordingBuilder:
         throttle = np.clip(0.12 + 0.008 * v + 0.15 * a + self.rng.normal(0.0, s.throttle_noise, n), 0.0, 1.0)
         throttle[braking] = 0.0
         brake = np.where(braking, np.clip(-a / 8.0, 0.0, 1.0), 0.0)
-        ego = pd.DataFrame({
-            "t_s": t,
-            "ego_x_m": x,
-            "ego_y_m": y,
-            "ego_v_mps": v,
-            "ego_lane": np.concatenate(self.lane_parts),
-            "ego_length_m": np.full(n, s.ego_length_m),
-            "steer_rad": steer,
-            "throttle": throttle,
-            "brake": brake,
-            "lc_button": np.concatenate(self.button_parts),
-            "lc_direction": np.concatenate(self.dir_parts),
-        })
+        ego = pd.DataFrame(
+            {
+                "t_s": t,
+                "ego_x_m": x,
+                "ego_y_m": y,
+                "ego_v_mps": v,
+                "ego_lane": np.concatenate(self.lane_parts),
+                "ego_length_m": np.full(n, s.ego_length_m),
+                "steer_rad": steer,
+                "throttle": throttle,
+                "brake": brake,
+                "lc_button": np.concatenate(self.button_parts),
+                "lc_direction": np.concatenate(self.dir_parts),
+            }
+        )
         if self.traffic_parts:
-            traffic = pd.DataFrame({k: np.concatenate([p[k] for p in self.traffic_parts])
-                                    for k in self.traffic_parts[0]})
+            traffic = pd.DataFrame(
+                {k: np.concatenate([p[k] for p in self.traffic_parts]) for k in self.traffic_parts[0]}
+            )
             traffic = traffic.sort_values(["t_s", "vehicle_id"], kind="stable").reset_index(drop=True)
         else:
-            traffic = pd.DataFrame({"t_s": [], "vehicle_id": [], "x_m": [], "y_m": [], "v_mps": [],
-                                    "lane": [], "length_m": []})
-        meta = {"driver_id": self.driver.driver_id, "session_id": self.session_id,
-                "speed_limit_kph": self.limit, "simulator": self.simulator}
+            traffic = pd.DataFrame(
+                {"t_s": [], "vehicle_id": [], "x_m": [], "y_m": [], "v_mps": [], "lane": [], "length_m": []}
+            )
+        meta = {
+            "driver_id": self.driver.driver_id,
+            "session_id": self.session_id,
+            "speed_limit_kph": self.limit,
+            "simulator": self.simulator,
+        }
         return RecordingResult(meta, ego, traffic, self.decisions)
 
 

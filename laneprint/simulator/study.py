@@ -54,8 +54,9 @@ def decisions_frame(ground_truth: dict[str, Any]) -> pd.DataFrame:
     Adds each decision's driver `style` and `typical` flag.
     """
     df = pd.json_normalize(ground_truth["decisions"], sep=".")
-    drivers = pd.DataFrame([{"driver_id": d["driver_id"], "style": d["style"], "typical": d["typical"]}
-                            for d in ground_truth["drivers"]])
+    drivers = pd.DataFrame(
+        [{"driver_id": d["driver_id"], "style": d["style"], "typical": d["typical"]} for d in ground_truth["drivers"]]
+    )
     return df.merge(drivers, on="driver_id", how="left")
 
 
@@ -83,13 +84,14 @@ def case_plan(settings: StudySettings, rng: np.random.Generator) -> list[list[st
     per = [per[i] for i in rng.permutation(k)]
     out, start = [], 0
     for m in per:
-        out.append(cases[start:start + m])
+        out.append(cases[start : start + m])
         start += m
     return out
 
 
-def simulate_study(settings: Optional[StudySettings] = None, seed: int = 0,
-                   progress: Optional[ProgressFn] = None) -> Study:
+def simulate_study(
+    settings: Optional[StudySettings] = None, seed: int = 0, progress: Optional[ProgressFn] = None
+) -> Study:
     """Generate every recording of the study and its ground truth."""
     settings = settings or StudySettings()
     rng = np.random.default_rng(seed)
@@ -110,9 +112,17 @@ def simulate_study(settings: Optional[StudySettings] = None, seed: int = 0,
             rec = builder.finish()
             recordings.append((rec.meta, rec.ego, rec.traffic))
             decisions.extend(rec.decisions)
-            sessions.append({"session_id": sid, "driver_id": driver.driver_id, "speed_limit_kph": float(limit),
-                             "n_samples": len(rec.ego), "duration_s": float(rec.ego["t_s"].iloc[-1]),
-                             "n_decisions": len(rec.decisions), "n_vehicles": int(rec.traffic["vehicle_id"].nunique())})
+            sessions.append(
+                {
+                    "session_id": sid,
+                    "driver_id": driver.driver_id,
+                    "speed_limit_kph": float(limit),
+                    "n_samples": len(rec.ego),
+                    "duration_s": float(rec.ego["t_s"].iloc[-1]),
+                    "n_decisions": len(rec.decisions),
+                    "n_vehicles": int(rec.traffic["vehicle_id"].nunique()),
+                }
+            )
     report(progress, total, total, "simulated")
     ground_truth = {
         "generator": GENERATOR,

@@ -2,8 +2,11 @@
 
 from laneprint.lazy import lazy_exports
 
-__getattr__, __dir__, __all__ = lazy_exports(__name__, {
-    "greedy_actions": "rl.baselines.greedy",
-    "ImitationClassifier": "rl.baselines.imitation",
-    "fitted_classifier": "rl.baselines.imitation",
-})
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "greedy_actions": "rl.baselines.greedy",
+        "ImitationClassifier": "rl.baselines.imitation",
+        "fitted_classifier": "rl.baselines.imitation",
+    },
+)

@@ -13,8 +13,9 @@ from rl.problem.rewards import CHANGE, KEEP, ReferenceLines, RewardSettings, act
 from rl.problem.scene import Indicators
 
 
-def greedy_actions(ind: Indicators, lines: ReferenceLines, settings: RewardSettings | None = None,
-                   dt: float = 0.1) -> np.ndarray:
+def greedy_actions(
+    ind: Indicators, lines: ReferenceLines, settings: RewardSettings | None = None, dt: float = 0.1
+) -> np.ndarray:
     """Greedy action per scene: 0 (change) where its immediate reward is larger, else 1 (keep).
 
     `settings` defaults to the paper's reward (the study's benchmark); ties keep.

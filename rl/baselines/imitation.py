@@ -34,8 +34,9 @@ def labelled_states(approaches: list[Approach], cfg: EnvConfig) -> tuple[np.ndar
 _BINNING_SUBSAMPLE = 200_000
 
 
-def fitted_classifier(approaches: list[Approach], cfg: EnvConfig, seed: int, cache: dict | None = None,
-                      key: tuple = ()) -> "ImitationClassifier":
+def fitted_classifier(
+    approaches: list[Approach], cfg: EnvConfig, seed: int, cache: dict | None = None, key: tuple = ()
+) -> "ImitationClassifier":
     """`ImitationClassifier(random_state=seed).fit(approaches, cfg)`, taken from `cache` when
     the same data (`key` names it, e.g. the drivers) and observation were fitted before.
 
@@ -47,8 +48,14 @@ def fitted_classifier(approaches: list[Approach], cfg: EnvConfig, seed: int, cac
     if cache is None:
         return ImitationClassifier(random_state=seed).fit(approaches, cfg)
     n_states = sum(len(a) for a in approaches)
-    full_key = (key, cfg.observation, cfg.range_m, cfg.v_max_mps, cfg.far_follower_m,
-                seed if n_states > _BINNING_SUBSAMPLE else None)
+    full_key = (
+        key,
+        cfg.observation,
+        cfg.range_m,
+        cfg.v_max_mps,
+        cfg.far_follower_m,
+        seed if n_states > _BINNING_SUBSAMPLE else None,
+    )
     if full_key not in cache:
         cache[full_key] = ImitationClassifier(random_state=seed).fit(approaches, cfg)
     return cache[full_key]
@@ -81,8 +88,12 @@ class ImitationClassifier:
         from sklearn.ensemble import HistGradientBoostingClassifier
 
         return HistGradientBoostingClassifier(
-            max_iter=self.max_iter, learning_rate=self.learning_rate, max_leaf_nodes=self.max_leaf_nodes,
-            min_samples_leaf=self.min_samples_leaf, class_weight="balanced", early_stopping=False,
+            max_iter=self.max_iter,
+            learning_rate=self.learning_rate,
+            max_leaf_nodes=self.max_leaf_nodes,
+            min_samples_leaf=self.min_samples_leaf,
+            class_weight="balanced",
+            early_stopping=False,
             random_state=self.random_state,
         ).fit(X, y)
 
@@ -95,6 +106,7 @@ class ImitationClassifier:
 
     def policy(self, cfg: EnvConfig):
         """The classifier as an evaluation policy: Scene -> 0 (change) / 1 (keep)."""
+
         def act(scene: Scene) -> np.ndarray:
             p = self.press_probability(observation(scene, cfg))
             return np.where(p > self.threshold, CHANGE, KEEP)

@@ -2,7 +2,10 @@
 
 from laneprint.lazy import lazy_exports
 
-__getattr__, __dir__, __all__ = lazy_exports(__name__, {
-    "export_run": "rl.deploy.export",
-    "annotate_recording": "rl.deploy.annotate",
-})
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "export_run": "rl.deploy.export",
+        "annotate_recording": "rl.deploy.annotate",
+    },
+)

@@ -70,24 +70,65 @@ DECISIONS = ("change", "keep", "none")
 
 _NUM, _INT = {"type": "number"}, {"type": "integer"}
 _STEP = {"t_s": _NUM, "step": _INT}
-_DECIDER = {"status": {"type": "string", "enum": list(STATUS)},
-            "decision": {"type": "string", "enum": list(DECISIONS)}, "action": {"type": "integer", "enum": [0, 1]}}
+_DECIDER = {
+    "status": {"type": "string", "enum": list(STATUS)},
+    "decision": {"type": "string", "enum": list(DECISIONS)},
+    "action": {"type": "integer", "enum": [0, 1]},
+}
 SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
-    TOPIC_AGENT: ("laneprint.AgentDecision", {"type": "object", "properties": {
-        **_STEP, **_DECIDER, "q_change": _NUM, "q_keep": _NUM, "q_margin": _NUM},
-        "required": ["t_s", "step", "status", "decision"]}),
-    TOPIC_GREEDY: ("laneprint.GreedyDecision", {"type": "object", "properties": {
-        **_STEP, **_DECIDER, "r_change": _NUM, "r_keep": _NUM},
-        "required": ["t_s", "step", "status", "decision"]}),
-    TOPIC_DRIVER: ("laneprint.DriverDecision", {"type": "object", "properties": {
-        **_STEP, "decision": {"type": "string", "enum": ["change", "keep"]}, "button": {"type": "boolean"},
-        "press_t_s": _NUM, "direction": {"type": "string", "enum": ["left", "right"]}},
-        "required": ["t_s", "step", "decision", "button"]}),
-    TOPIC_SCENE: ("laneprint.DecisionScene", {"type": "object", "properties": {
-        **_STEP, "status": {"type": "string", "enum": list(STATUS)}, "ego_lane": _INT, "target_lane": _INT,
-        "ego_v_mps": _NUM, "f_id": {"type": "string"}, "nf_id": {"type": "string"}, "nb_id": {"type": "string"},
-        "t_f": _NUM, "t_nf": _NUM, "dv_nb": _NUM, "t_f_line": _NUM, "t_nf_line": _NUM, "dv_nb_line": _NUM},
-        "required": ["t_s", "step", "status", "ego_lane"]}),
+    TOPIC_AGENT: (
+        "laneprint.AgentDecision",
+        {
+            "type": "object",
+            "properties": {**_STEP, **_DECIDER, "q_change": _NUM, "q_keep": _NUM, "q_margin": _NUM},
+            "required": ["t_s", "step", "status", "decision"],
+        },
+    ),
+    TOPIC_GREEDY: (
+        "laneprint.GreedyDecision",
+        {
+            "type": "object",
+            "properties": {**_STEP, **_DECIDER, "r_change": _NUM, "r_keep": _NUM},
+            "required": ["t_s", "step", "status", "decision"],
+        },
+    ),
+    TOPIC_DRIVER: (
+        "laneprint.DriverDecision",
+        {
+            "type": "object",
+            "properties": {
+                **_STEP,
+                "decision": {"type": "string", "enum": ["change", "keep"]},
+                "button": {"type": "boolean"},
+                "press_t_s": _NUM,
+                "direction": {"type": "string", "enum": ["left", "right"]},
+            },
+            "required": ["t_s", "step", "decision", "button"],
+        },
+    ),
+    TOPIC_SCENE: (
+        "laneprint.DecisionScene",
+        {
+            "type": "object",
+            "properties": {
+                **_STEP,
+                "status": {"type": "string", "enum": list(STATUS)},
+                "ego_lane": _INT,
+                "target_lane": _INT,
+                "ego_v_mps": _NUM,
+                "f_id": {"type": "string"},
+                "nf_id": {"type": "string"},
+                "nb_id": {"type": "string"},
+                "t_f": _NUM,
+                "t_nf": _NUM,
+                "dv_nb": _NUM,
+                "t_f_line": _NUM,
+                "t_nf_line": _NUM,
+                "dv_nb_line": _NUM,
+            },
+            "required": ["t_s", "step", "status", "ego_lane"],
+        },
+    ),
 }
 
 
@@ -96,8 +137,13 @@ def target_lanes(ego_lane: np.ndarray, top_lane: int) -> np.ndarray:
     return np.where(ego_lane + 1 <= top_lane, ego_lane + 1, ego_lane - 1)
 
 
-def decision_steps(ego: pd.DataFrame, traffic: pd.DataFrame, cfg: EnvConfig,
-                   settings: AnalysisSettings | None = None, side: int | None = None) -> tuple[pd.DataFrame, Scene]:
+def decision_steps(
+    ego: pd.DataFrame,
+    traffic: pd.DataFrame,
+    cfg: EnvConfig,
+    settings: AnalysisSettings | None = None,
+    side: int | None = None,
+) -> tuple[pd.DataFrame, Scene]:
     """One row per agent step (t_s, ego_lane, target_lane, status, neighbour ids) and its scenes.
 
     `side`: None asks about the lane `target_lanes` picks; +1 / -1 about the lane to the left / right
@@ -124,10 +170,20 @@ def decision_steps(ego: pd.DataFrame, traffic: pd.DataFrame, cfg: EnvConfig,
     scene = scenes_from_decisions(rows, float(ego["ego_length_m"].iloc[0]))
     leader = seen(scene, cfg.range_m)[0]
     status = np.where(e["target_lane"] < 0, "no_target_lane", np.where(leader, "ok", "no_leader"))
-    steps = pd.DataFrame({"step": np.arange(len(grid)), "t_s": grid, "ego_lane": e["ego_lane"].astype(np.int64),
-                          "target_lane": e["target_lane"].astype(np.int64), "ego_v_mps": e["ego_v_mps"],
-                          "status": status, "button": e["lc_button"].astype(bool).to_numpy(),
-                          "f_id": cols["f_id"], "nf_id": cols["nf_id"], "nb_id": cols["nb_id"]})
+    steps = pd.DataFrame(
+        {
+            "step": np.arange(len(grid)),
+            "t_s": grid,
+            "ego_lane": e["ego_lane"].astype(np.int64),
+            "target_lane": e["target_lane"].astype(np.int64),
+            "ego_v_mps": e["ego_v_mps"],
+            "status": status,
+            "button": e["lc_button"].astype(bool).to_numpy(),
+            "f_id": cols["f_id"],
+            "nf_id": cols["nf_id"],
+            "nb_id": cols["nb_id"],
+        }
+    )
     return steps, scene
 
 
@@ -185,24 +241,65 @@ def messages(steps: pd.DataFrame, dec: pd.DataFrame, presses: pd.DataFrame) -> d
     for i, (s, d) in enumerate(zip(steps.itertuples(index=False), dec.itertuples(index=False))):
         base = {"t_s": round(float(s.t_s), 6), "step": int(s.step)}
         agent = int(d.agent_action)
-        out[TOPIC_AGENT].append(_compact({**base, "status": s.status, "decision": _word(agent),
-                                          "action": agent if agent >= 0 else None, "q_change": _num(d.q_change),
-                                          "q_keep": _num(d.q_keep), "q_margin": _num(d.q_change - d.q_keep)}))
+        out[TOPIC_AGENT].append(
+            _compact(
+                {
+                    **base,
+                    "status": s.status,
+                    "decision": _word(agent),
+                    "action": agent if agent >= 0 else None,
+                    "q_change": _num(d.q_change),
+                    "q_keep": _num(d.q_keep),
+                    "q_margin": _num(d.q_change - d.q_keep),
+                }
+            )
+        )
         greedy = int(d.greedy_action)
-        out[TOPIC_GREEDY].append(_compact({**base, "status": s.status, "decision": _word(greedy),
-                                           "action": greedy if greedy >= 0 else None,
-                                           "r_change": _num(d.r_change), "r_keep": _num(d.r_keep)}))
+        out[TOPIC_GREEDY].append(
+            _compact(
+                {
+                    **base,
+                    "status": s.status,
+                    "decision": _word(greedy),
+                    "action": greedy if greedy >= 0 else None,
+                    "r_change": _num(d.r_change),
+                    "r_keep": _num(d.r_keep),
+                }
+            )
+        )
         press = pressed.loc[i] if i in pressed.index else None
         direction = press["direction"] if press is not None and press["direction"] in ("left", "right") else None
-        out[TOPIC_DRIVER].append(_compact({**base, "decision": "change" if press is not None else "keep",
-                                           "button": bool(s.button), "direction": direction,
-                                           "press_t_s": None if press is None else round(float(press["press_t_s"]), 6)}))
-        out[TOPIC_SCENE].append(_compact({
-            **base, "status": s.status, "ego_lane": int(s.ego_lane),
-            "target_lane": int(s.target_lane) if s.target_lane >= 0 else None, "ego_v_mps": _num(s.ego_v_mps),
-            "f_id": s.f_id, "nf_id": s.nf_id, "nb_id": s.nb_id, "t_f": _num(d.t_f), "t_nf": _num(d.t_nf),
-            "dv_nb": _num(d.dv_nb), "t_f_line": _num(d.t_f_line), "t_nf_line": _num(d.t_nf_line),
-            "dv_nb_line": _num(d.dv_nb_line)}))
+        out[TOPIC_DRIVER].append(
+            _compact(
+                {
+                    **base,
+                    "decision": "change" if press is not None else "keep",
+                    "button": bool(s.button),
+                    "direction": direction,
+                    "press_t_s": None if press is None else round(float(press["press_t_s"]), 6),
+                }
+            )
+        )
+        out[TOPIC_SCENE].append(
+            _compact(
+                {
+                    **base,
+                    "status": s.status,
+                    "ego_lane": int(s.ego_lane),
+                    "target_lane": int(s.target_lane) if s.target_lane >= 0 else None,
+                    "ego_v_mps": _num(s.ego_v_mps),
+                    "f_id": s.f_id,
+                    "nf_id": s.nf_id,
+                    "nb_id": s.nb_id,
+                    "t_f": _num(d.t_f),
+                    "t_nf": _num(d.t_nf),
+                    "dv_nb": _num(d.dv_nb),
+                    "t_f_line": _num(d.t_f_line),
+                    "t_nf_line": _num(d.t_nf_line),
+                    "dv_nb_line": _num(d.dv_nb_line),
+                }
+            )
+        )
     return out
 
 
@@ -211,7 +308,8 @@ def summarise(steps: pd.DataFrame, dec: pd.DataFrame, presses: pd.DataFrame) -> 
     ok = steps["status"] == "ok"
     at_press = dec.loc[presses["step"].to_numpy()]
     return {
-        "steps": int(len(steps)), "steps_by_status": {k: int((steps["status"] == k).sum()) for k in STATUS},
+        "steps": int(len(steps)),
+        "steps_by_status": {k: int((steps["status"] == k).sum()) for k in STATUS},
         "agent_change_steps": int((dec["agent_action"] == CHANGE).sum()),
         "greedy_change_steps": int((dec["greedy_action"] == CHANGE).sum()),
         "presses": int(len(presses)),
@@ -233,8 +331,9 @@ def resolve_recording(workspace: Workspace, key: str) -> str:
     raise UserError(f"no recording {key!r} in {workspace.root} (ids and sessions: `laneprint ingest` lists them)")
 
 
-def annotate_recording(workspace: Workspace, run_id: str, recording: str, out: Path,
-                       progress: ProgressFn | None = None) -> dict[str, Any]:
+def annotate_recording(
+    workspace: Workspace, run_id: str, recording: str, out: Path, progress: ProgressFn | None = None
+) -> dict[str, Any]:
     """Write `recording` again to `out` with the run's, the greedy benchmark's and the driver's decisions."""
     out = Path(out)
     if out.suffix != ".mcap":
@@ -256,13 +355,26 @@ def annotate_recording(workspace: Workspace, run_id: str, recording: str, out: P
     msgs = messages(steps, dec, presses)
     stamps = np.round(steps["t_s"].to_numpy() * NS_PER_S).astype(np.int64).tolist()
     extra = [ExtraChannel(topic, name, schema, stamps, msgs[topic]) for topic, (name, schema) in SCHEMAS.items()]
-    info = {"run_id": run_id, "recording_id": rid, "target": f"{config['target']['kind']} {config['target']['name']}",
-            "reward": str(config.get("reward")), "dt_s": f"{cfg.dt_s:g}", "topics": ",".join(SCHEMAS),
-            "target_lane_rule": "lane + 1 when the recording has it, else lane - 1",
-            "undefined_rule": "; ".join(f"{k}: {v}" for k, v in STATUS.items() if k != "ok")}
+    info = {
+        "run_id": run_id,
+        "recording_id": rid,
+        "target": f"{config['target']['kind']} {config['target']['name']}",
+        "reward": str(config.get("reward")),
+        "dt_s": f"{cfg.dt_s:g}",
+        "topics": ",".join(SCHEMAS),
+        "target_lane_rule": "lane + 1 when the recording has it, else lane - 1",
+        "undefined_rule": "; ".join(f"{k}: {v}" for k, v in STATUS.items() if k != "ok"),
+    }
     report(progress, 2, 3, "writing")
     out.parent.mkdir(parents=True, exist_ok=True)
     write_mcap(out, meta, ego, traffic, extra=extra, extra_metadata={METADATA_NAME: info})
     report(progress, 3, 3, "done")
-    return {"run_id": run_id, "recording_id": rid, "session_id": str(meta.get("session_id")), "out": str(out.resolve()),
-            "dt_s": cfg.dt_s, "topics": list(SCHEMAS), **summarise(steps, dec, presses)}
+    return {
+        "run_id": run_id,
+        "recording_id": rid,
+        "session_id": str(meta.get("session_id")),
+        "out": str(out.resolve()),
+        "dt_s": cfg.dt_s,
+        "topics": list(SCHEMAS),
+        **summarise(steps, dec, presses),
+    }

@@ -70,8 +70,10 @@ class _Policy(torch.nn.Module):
 
 
 #: What to install when onnx or onnxruntime is missing (both are base dependencies of laneprint).
-ONNX_HINT = ("the ONNX export needs onnx and onnxruntime, which `pip install -e .` installs (base dependencies); "
-             "into this environment: pip install 'onnx>=1.17' 'onnxruntime>=1.20'")
+ONNX_HINT = (
+    "the ONNX export needs onnx and onnxruntime, which `pip install -e .` installs (base dependencies); "
+    "into this environment: pip install 'onnx>=1.17' 'onnxruntime>=1.20'"
+)
 
 
 def onnx_missing() -> str | None:
@@ -96,9 +98,16 @@ def onnx_bytes(net: torch.nn.Module, n_inputs: int, metadata: dict[str, str]) ->
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation notice
-        torch.onnx.export(_Policy(net).eval(), (torch.zeros(1, n_inputs),), buf, input_names=[INPUT],
-                          output_names=list(OUTPUTS), opset_version=OPSET, dynamo=False,
-                          dynamic_axes={INPUT: {0: "batch"}, OUTPUTS[0]: {0: "batch"}, OUTPUTS[1]: {0: "batch"}})
+        torch.onnx.export(
+            _Policy(net).eval(),
+            (torch.zeros(1, n_inputs),),
+            buf,
+            input_names=[INPUT],
+            output_names=list(OUTPUTS),
+            opset_version=OPSET,
+            dynamo=False,
+            dynamic_axes={INPUT: {0: "batch"}, OUTPUTS[0]: {0: "batch"}, OUTPUTS[1]: {0: "batch"}},
+        )
     model = onnx.load_from_string(buf.getvalue())
     for k, v in metadata.items():
         model.metadata_props.add(key=k, value=v)
@@ -115,9 +124,12 @@ def compare(model: bytes, net: torch.nn.Module, obs: np.ndarray) -> dict[str, An
     with torch.no_grad():
         q_torch = net(torch.as_tensor(obs, dtype=torch.float32)).numpy()
     diff = float(np.abs(q_ort - q_torch).max()) if len(obs) else 0.0
-    return {"n_states": int(len(obs)), "max_abs_diff": diff,
-            "actions_agree": int((a_ort == q_torch.argmax(axis=1)).sum()),
-            "q_range": [float(q_torch.min()), float(q_torch.max())] if len(obs) else None}
+    return {
+        "n_states": int(len(obs)),
+        "max_abs_diff": diff,
+        "actions_agree": int((a_ort == q_torch.argmax(axis=1)).sum()),
+        "q_range": [float(q_torch.min()), float(q_torch.max())] if len(obs) else None,
+    }
 
 
 def check_states(workspace: Workspace, target: Target, cfg: EnvConfig, seed: int) -> dict[str, np.ndarray]:
@@ -162,11 +174,13 @@ HELD_BACK_HOW = (
     "within range_m, the policy's own change to the left is requested only if it would not undo it at once: "
     "build the observation as if the ego were already in the target lane (same position and speed; the "
     "leader there becomes its leader, the lane it would leave becomes the target lane) and run the policy; "
-    "if q_change - q_keep there reaches what a change to the right needs, keep.")
+    "if q_change - q_keep there reaches what a change to the right needs, keep."
+)
 
 
-def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig,
-                   net: torch.nn.Module | None = None) -> dict[str, Any]:
+def held_back_rule(
+    workspace: Workspace, target: Target, cfg: EnvConfig, net: torch.nn.Module | None = None
+) -> dict[str, Any]:
     """The held-back rule of the run's target for policy.json: its numbers and how to apply it (with
     `net`, the policy's pace, `rl.drive.pace`, as `drive` applies it)."""
     try:
@@ -179,27 +193,68 @@ def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig,
         drivers = None
     if drivers:
         rule = rule.with_pace(pace_threshold(workspace, drivers, net, cfg))
-    return {"available": True, "how": HELD_BACK_HOW, "units": {"patience_s": "s", "slower_mps": "m/s",
-            "gap_nf": "m", "gap_nb": "m", "thw_nb": "s", "far_follower_m": "m", "t_nf_floor_s": "s", "dv_nb_floor_mps": "m/s", "dwell_s": "s", "lag_draws": "s",
-            "min_advantage": "Q units", "v_lo": "m/s", "v_hi": "m/s"},
-            "desired_speed": "the driver's set speed; `laneprint drive` uses the section's limit x the ego "
-                             "vType's SUMO speedFactor", "range_m": cfg.range_m, **rule.to_dict()}
-
-
-def _describe(config: dict[str, Any], cfg: EnvConfig, checks: dict[str, Any],
-              held_back: dict[str, Any] | None = None) -> dict[str, Any]:
     return {
-        "format": "onnx", "opset": OPSET, "file": "policy.onnx",
+        "available": True,
+        "how": HELD_BACK_HOW,
+        "units": {
+            "patience_s": "s",
+            "slower_mps": "m/s",
+            "gap_nf": "m",
+            "gap_nb": "m",
+            "thw_nb": "s",
+            "far_follower_m": "m",
+            "t_nf_floor_s": "s",
+            "dv_nb_floor_mps": "m/s",
+            "dwell_s": "s",
+            "lag_draws": "s",
+            "min_advantage": "Q units",
+            "v_lo": "m/s",
+            "v_hi": "m/s",
+        },
+        "desired_speed": "the driver's set speed; `laneprint drive` uses the section's limit x the ego "
+        "vType's SUMO speedFactor",
+        "range_m": cfg.range_m,
+        **rule.to_dict(),
+    }
+
+
+def _describe(
+    config: dict[str, Any], cfg: EnvConfig, checks: dict[str, Any], held_back: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    return {
+        "format": "onnx",
+        "opset": OPSET,
+        "file": "policy.onnx",
         "input": {"name": INPUT, "dtype": "float32", "shape": ["batch", len(observation_spec(cfg))]},
-        "outputs": {"q_values": "float32 (batch, 2): Q of each action", "action": "int64 (batch,): argmax of "
-                    "q_values, ties to 0"},
-        "inputs": observation_spec(cfg), "constants": constants(cfg), "roles": ROLES,
+        "outputs": {
+            "q_values": "float32 (batch, 2): Q of each action",
+            "action": "int64 (batch,): argmax of q_values, ties to 0",
+        },
+        "inputs": observation_spec(cfg),
+        "constants": constants(cfg),
+        "roles": ROLES,
         "target_lane": "the lane the ego would change to (the adjacent lane the decision is about)",
         "actions": {str(k): v for k, v in ACTIONS.items()},
-        "run": {k: config.get(k) for k in ("run_id", "target", "reward", "lines_source", "lines", "seed",
-                                           "data_fingerprint", "code_version", "created_at")}
-               | {"observation": cfg.observation, "scenes": cfg.scenes, "learner": config.get("learner", "dqn"),
-                  "episodes": (config.get("dqn") or {}).get("episodes")},
+        "run": {
+            k: config.get(k)
+            for k in (
+                "run_id",
+                "target",
+                "reward",
+                "lines_source",
+                "lines",
+                "seed",
+                "data_fingerprint",
+                "code_version",
+                "created_at",
+            )
+        }
+        | {
+            "observation": cfg.observation,
+            "scenes": cfg.scenes,
+            "learner": config.get("learner", "dqn"),
+            "episodes": (config.get("dqn") or {}).get("episodes"),
+        },
         "check": checks,
         "held_back_rule": held_back or {"available": False, "why": "not computed"},
     }
@@ -215,27 +270,31 @@ def _learned(run: dict[str, Any]) -> str:
 def _readme(doc: dict[str, Any]) -> str:
     run = doc["run"]
     rows = "\n".join(
-        f"| {s['index']} | `{s['name']}` | {s['quantity']} | {s['unit']} | {_formula(s)} | "
-        f"{_undefined(s)} |" for s in doc["inputs"])
-    checks = "\n".join(f"- {name}: {c['n_states']} states, max |Q_onnxruntime - Q_torch| = {c['max_abs_diff']:.2e}"
-                       f", greedy actions agree on {c['actions_agree']}" for name, c in doc["check"]["sets"].items())
+        f"| {s['index']} | `{s['name']}` | {s['quantity']} | {s['unit']} | {_formula(s)} | {_undefined(s)} |"
+        for s in doc["inputs"]
+    )
+    checks = "\n".join(
+        f"- {name}: {c['n_states']} states, max |Q_onnxruntime - Q_torch| = {c['max_abs_diff']:.2e}"
+        f", greedy actions agree on {c['actions_agree']}"
+        for name, c in doc["check"]["sets"].items()
+    )
     lines = run["lines"] or {}
-    return f"""# Lane-change policy `{run['run_id']}` (ONNX)
+    return f"""# Lane-change policy `{run["run_id"]}` (ONNX)
 
-Trained by laneprint for {run['target']['kind']} **{run['target']['name']}**, reward `{run['reward']}`,
-observation `{run['observation']}`, scenes `{run['scenes']}`, {_learned(run)}, seed {run['seed']};
-reference lines ({run['lines_source']}: {lines.get('source', '')}): t_f = {lines.get('t_f')},
-t_nf = {lines.get('t_nf')}, dv_nb = {lines.get('dv_nb')} (A, b of `I = A v_e + b`). Data fingerprint
-`{run['data_fingerprint']}`, code {(run.get('code_version') or {}).get('git_commit')}.
+Trained by laneprint for {run["target"]["kind"]} **{run["target"]["name"]}**, reward `{run["reward"]}`,
+observation `{run["observation"]}`, scenes `{run["scenes"]}`, {_learned(run)}, seed {run["seed"]};
+reference lines ({run["lines_source"]}: {lines.get("source", "")}): t_f = {lines.get("t_f")},
+t_nf = {lines.get("t_nf")}, dv_nb = {lines.get("dv_nb")} (A, b of `I = A v_e + b`). Data fingerprint
+`{run["data_fingerprint"]}`, code {(run.get("code_version") or {}).get("git_commit")}.
 
 ## Use
 
-Every `{doc['constants']['dt_s']}` s, build the observation below from the ego and the three
+Every `{doc["constants"]["dt_s"]}` s, build the observation below from the ego and the three
 vehicles around it, run `policy.onnx`, and act on `action`:
-{chr(10).join(f'- `{k}`: {v}' for k, v in doc['actions'].items())}
+{chr(10).join(f"- `{k}`: {v}" for k, v in doc["actions"].items())}
 
 The agent decides when to leave a slower leader: ask it while the ego has a leader in its lane
-within {doc['constants']['range_m']:g} m and an adjacent lane (`laneprint annotate` asks it only then).
+within {doc["constants"]["range_m"]:g} m and an adjacent lane (`laneprint annotate` asks it only then).
 
 ```python
 import json, numpy as np, onnxruntime as ort
@@ -247,8 +306,8 @@ q_values, action = sess.run(["q_values", "action"], {{"observation": obs}})
 
 ## Inputs (`observation`, float32, in this order)
 
-The vehicles: {'; '.join(f'{k}: {v}' for k, v in doc['roles'].items())}. The target lane is
-{doc['target_lane']}. Every value is clipped to [{doc['constants']['obs_floor']}, 1] after scaling.
+The vehicles: {"; ".join(f"{k}: {v}" for k, v in doc["roles"].items())}. The target lane is
+{doc["target_lane"]}. Every value is clipped to [{doc["constants"]["obs_floor"]}, 1] after scaling.
 
 | # | name | raw quantity | unit | value | when undefined |
 |---|---|---|---|---|---|
@@ -256,9 +315,9 @@ The vehicles: {'; '.join(f'{k}: {v}' for k, v in doc['roles'].items())}. The tar
 
 `policy.json` holds the same table as data (`inputs`: transform, scale, offset, cap, clip).
 
-{_held_back_text(doc['held_back_rule'])}
+{_held_back_text(doc["held_back_rule"])}
 
-## Check (tolerance {doc['check']['tolerance']} on Q)
+## Check (tolerance {doc["check"]["tolerance"]} on Q)
 
 {checks}
 """
@@ -271,7 +330,9 @@ def _held_back_text(rule: dict[str, Any]) -> str:
     rows = "\n".join(
         f"| `{k}` | {rule[k]['A']:.4g} | {rule[k]['b']:.4g} | {rule[k]['v_lo']:.3g}-"
         f"{'inf' if rule[k]['v_hi'] is None else format(rule[k]['v_hi'], '.3g')} | {rule[k]['floor']:.3g} | "
-        f"{rule['units'][k]} | {rule['source'].get(k, '')} |" for k in ACCEPT_INDICATORS)
+        f"{rule['units'][k]} | {rule['source'].get(k, '')} |"
+        for k in ACCEPT_INDICATORS
+    )
     return f"""## Held-back rule (apply beside the policy)
 
 The policy learnt when drivers press while closing in on a leader; a leader the ego has caught up
@@ -279,16 +340,16 @@ with and follows at its speed is not such a scene, so the policy alone may follo
 assistant therefore also applies this rule (`laneprint drive` does by default;
 `policy.json` `held_back_rule`):
 
-{rule['how']}
+{rule["how"]}
 
-- patience_s = **{rule['patience_s']:g} s** ({rule['source'].get('patience_s', '')})
-- t_nf_floor_s = {rule['t_nf_floor_s']:.3g} s ({rule['source'].get('t_nf_floor_s', '')})
-- dv_nb_floor_mps = {_num(rule.get('dv_nb_floor_mps'), ' m/s')} ({rule['source'].get('dv_nb_floor_mps', '')})
-- dwell_s = {', '.join(f"{k} {v:.3g} s" for k, v in rule.get('dwell_s', {}).items()) or 'none'} ({rule['source'].get('dwell_s', '')})
-- min_advantage = {by_side_text(rule.get('min_advantage_by_side') or {}) or format(rule.get('min_advantage', 0.0), 'g')} ({rule['source'].get('min_advantage', 'the policy as trained')})
-- undo_check = {str(rule.get('undo_check', False)).lower()} ({rule['source'].get('undo_check', "with no leader, no change to the left the policy would at once undo")})
-- slower_mps = {rule['slower_mps']:g} m/s, far_follower_m = {rule['far_follower_m']:g} m,
-  range_m = {rule['range_m']:g} m; desired speed: {rule['desired_speed']}
+- patience_s = **{rule["patience_s"]:g} s** ({rule["source"].get("patience_s", "")})
+- t_nf_floor_s = {rule["t_nf_floor_s"]:.3g} s ({rule["source"].get("t_nf_floor_s", "")})
+- dv_nb_floor_mps = {_num(rule.get("dv_nb_floor_mps"), " m/s")} ({rule["source"].get("dv_nb_floor_mps", "")})
+- dwell_s = {", ".join(f"{k} {v:.3g} s" for k, v in rule.get("dwell_s", {}).items()) or "none"} ({rule["source"].get("dwell_s", "")})
+- min_advantage = {by_side_text(rule.get("min_advantage_by_side") or {}) or format(rule.get("min_advantage", 0.0), "g")} ({rule["source"].get("min_advantage", "the policy as trained")})
+- undo_check = {str(rule.get("undo_check", False)).lower()} ({rule["source"].get("undo_check", "with no leader, no change to the left the policy would at once undo")})
+- slower_mps = {rule["slower_mps"]:g} m/s, far_follower_m = {rule["far_follower_m"]:g} m,
+  range_m = {rule["range_m"]:g} m; desired speed: {rule["desired_speed"]}
 
 | threshold | A | b | v_e range [m/s] | floor | unit | from |
 |---|---|---|---|---|---|---|
@@ -328,8 +389,9 @@ def _swap_in(tmp: Path, final: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
-def export_run(workspace: Workspace, run_id: str, fmt: str = "onnx", out: Path | None = None,
-               progress: ProgressFn | None = None) -> dict[str, Any]:
+def export_run(
+    workspace: Workspace, run_id: str, fmt: str = "onnx", out: Path | None = None, progress: ProgressFn | None = None
+) -> dict[str, Any]:
     """Export a run's policy (see the module doc); returns a JSON-ready summary with the check."""
     if fmt not in FORMATS:
         raise SettingError(f"unknown {{0}} {fmt!r}: choose one of {', '.join(FORMATS)}", "format")
@@ -343,17 +405,32 @@ def export_run(workspace: Workspace, run_id: str, fmt: str = "onnx", out: Path |
         raise SettingError(f"{{0}} {final} is a file: give a folder", "out")
     report(progress, 0, 3, "exporting")
     n_inputs = len(observation_spec(cfg))
-    model = onnx_bytes(net, n_inputs, {"laneprint_run_id": run_id, "observation": ",".join(
-        s["name"] for s in observation_spec(cfg)), "documentation": "policy.json"})
+    model = onnx_bytes(
+        net,
+        n_inputs,
+        {
+            "laneprint_run_id": run_id,
+            "observation": ",".join(s["name"] for s in observation_spec(cfg)),
+            "documentation": "policy.json",
+        },
+    )
     report(progress, 1, 3, "checking with onnxruntime")
-    sets = {name: compare(model, net, obs) for name, obs in
-            check_states(workspace, target, cfg, int(config.get("seed", 0))).items()}
+    sets = {
+        name: compare(model, net, obs)
+        for name, obs in check_states(workspace, target, cfg, int(config.get("seed", 0))).items()
+    }
     worst = max(c["max_abs_diff"] for c in sets.values())
-    checks = {"tolerance": TOLERANCE, "max_abs_diff": worst, "passed": worst <= TOLERANCE, "sets": sets,
-              "how": "onnxruntime (CPUExecutionProvider) vs torch on the same float32 observations"}
+    checks = {
+        "tolerance": TOLERANCE,
+        "max_abs_diff": worst,
+        "passed": worst <= TOLERANCE,
+        "sets": sets,
+        "how": "onnxruntime (CPUExecutionProvider) vs torch on the same float32 observations",
+    }
     if not checks["passed"]:
-        raise UserError(f"ONNX check failed: max |Q_onnxruntime - Q_torch| = {worst:.3g} > {TOLERANCE:g}; "
-                        "nothing written")
+        raise UserError(
+            f"ONNX check failed: max |Q_onnxruntime - Q_torch| = {worst:.3g} > {TOLERANCE:g}; nothing written"
+        )
     doc = _describe(config, cfg, checks, held_back_rule(workspace, target, cfg, net))
     report(progress, 2, 3, "writing")
     final.parent.mkdir(parents=True, exist_ok=True)
@@ -370,6 +447,11 @@ def export_run(workspace: Workspace, run_id: str, fmt: str = "onnx", out: Path |
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     report(progress, 3, 3, "done")
-    return {"run_id": run_id, "format": fmt, "folder": str(final.resolve()),
-            "files": ["policy.onnx", "policy.json", "README.md"], "inputs": [s["name"] for s in doc["inputs"]],
-            "check": checks}
+    return {
+        "run_id": run_id,
+        "format": fmt,
+        "folder": str(final.resolve()),
+        "files": ["policy.onnx", "policy.json", "README.md"],
+        "inputs": [s["name"] for s in doc["inputs"]],
+        "check": checks,
+    }

@@ -2,7 +2,10 @@
 
 from laneprint.lazy import lazy_exports
 
-__getattr__, __dir__, __all__ = lazy_exports(__name__, {
-    "drive_sections": "rl.drive.loop",
-    "drive_run": "rl.drive.store",
-})
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "drive_sections": "rl.drive.loop",
+        "drive_run": "rl.drive.store",
+    },
+)

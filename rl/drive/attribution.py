@@ -46,16 +46,22 @@ def made_by(row: dict[str, Any]) -> dict[str, int]:
     if isinstance(row.get("made_by"), dict):
         return {k: int(row["made_by"].get(k, 0)) for k in MADE_BY}
     agent, rule, back = (int(row.get(k) or 0) for k in ("agent_changes", "rule_changes", "return_changes"))
-    return {"agent": agent, "rule_held_back": rule - back, "rule_return": back,
-            "unattributed": max(0, int(row.get("lane_changes") or 0) - agent - rule)}
+    return {
+        "agent": agent,
+        "rule_held_back": rule - back,
+        "rule_return": back,
+        "unattributed": max(0, int(row.get("lane_changes") or 0) - agent - rule),
+    }
 
 
 def made_by_text(row: dict[str, Any]) -> str:
     """'28 lane changes: the agent 0, the rule 28 (held back 20, return 8)' for a section or the total."""
     m = made_by(row)
     rule = m["rule_held_back"] + m["rule_return"]
-    text = (f"{sum(m.values())} lane change{'' if sum(m.values()) == 1 else 's'}: the agent {m['agent']}, "
-            f"the rule {rule} (held back {m['rule_held_back']}, return {m['rule_return']})")
+    text = (
+        f"{sum(m.values())} lane change{'' if sum(m.values()) == 1 else 's'}: the agent {m['agent']}, "
+        f"the rule {rule} (held back {m['rule_held_back']}, return {m['rule_return']})"
+    )
     return text + (f", not requested {m['unattributed']}" if m["unattributed"] else "")
 
 
@@ -73,6 +79,10 @@ def who_drove(rows: list[dict[str, Any]], total: dict[str, Any], rule_on: bool) 
         verdict = "no lane change was the agent's: the assistant's rule made them all"
     else:
         verdict = f"the agent made {share:.0%} of the lane changes, the assistant's rule the rest"
-    return {"total": m, "agent_share": share, "rule_on": rule_on,
-            "sections": {f"{r['speed_limit_kph']:g}": made_by(r) for r in rows},
-            "text": f"Who changed lane: {made_by_text(total)}; {verdict}."}
+    return {
+        "total": m,
+        "agent_share": share,
+        "rule_on": rule_on,
+        "sections": {f"{r['speed_limit_kph']:g}": made_by(r) for r in rows},
+        "text": f"Who changed lane: {made_by_text(total)}; {verdict}.",
+    }

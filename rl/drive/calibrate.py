@@ -77,7 +77,9 @@ def _ecdf(x: list[float], grid: np.ndarray) -> np.ndarray:
     return np.searchsorted(np.sort(np.asarray(x, dtype=float)), grid, side="right") / len(x)
 
 
-def deconvolved_dwell(drivers: list[float], agent: list[float], n: int = QUANTILES, step: float = GRID_S) -> list[float]:
+def deconvolved_dwell(
+    drivers: list[float], agent: list[float], n: int = QUANTILES, step: float = GRID_S
+) -> list[float]:
     """`n` quantiles of the dwell X whose max with the agent's own stays (`agent`, driven with the floor
     dwell) is distributed like the drivers' stays (`drivers`): F_X = F_D / F_W, the largest non-decreasing
     function with F_X F_W <= F_D, read on a grid of `step`."""
@@ -118,13 +120,21 @@ def calibrated_headways(drivers: dict[str, list[float]], agent: dict[str, list[f
     (`HeldBackRule.lag_draws`): X with max(X, agent's) distributed like the drivers'. Within their spread
     waiting for a draw only costs lane changes (study 723's Aggressive agent, median 0.77 s against its
     drivers' 1.13 and lower quartile 0.56: rate 0.84 of theirs without the draw, 0.77 with it)."""
-    return {side: deconvolved_dwell(d, agent[side], step=LAG_GRID_S) for side, d in drivers.items()
-            if len(agent.get(side, [])) >= MIN_HEADWAYS and np.median(agent[side]) < np.percentile(d, 25)}
+    return {
+        side: deconvolved_dwell(d, agent[side], step=LAG_GRID_S)
+        for side, d in drivers.items()
+        if len(agent.get(side, [])) >= MIN_HEADWAYS and np.median(agent[side]) < np.percentile(d, 25)
+    }
 
 
-def calibrate(workspace: Workspace, run_id: str, target: Target,
-              drive: Callable[[int, Path, dict[str, list[float]]], dict[str, Any]],
-              setting: dict[str, Any], seeds: tuple[int, ...] = CALIBRATION_SEEDS) -> dict[str, Any]:
+def calibrate(
+    workspace: Workspace,
+    run_id: str,
+    target: Target,
+    drive: Callable[[int, Path, dict[str, list[float]]], dict[str, Any]],
+    setting: dict[str, Any],
+    seeds: tuple[int, ...] = CALIBRATION_SEEDS,
+) -> dict[str, Any]:
     """Calibrate the follower's headway, then the dwell (see the module doc) with `drive(seed, out, lag)`,
     a drive of the run with the default dwell and the headways `lag` to draw (`HeldBackRule.lag_draws`;
     empty: the floors alone) that returns its report, in the traffic and drive settings `setting`
@@ -140,8 +150,10 @@ def calibrate(workspace: Workspace, run_id: str, target: Target,
             for seed in seeds:
                 report = drive(seed, Path(tmp) / f"s{seed}", lag)
                 decisions += report["decisions"]
-                egos += [canonicalise(read_log(Path(f).read_bytes(), "mcap", IDENTITY), IDENTITY, "x", None).ego
-                         for f in report["files"]]
+                egos += [
+                    canonicalise(read_log(Path(f).read_bytes(), "mcap", IDENTITY), IDENTITY, "x", None).ego
+                    for f in report["files"]
+                ]
         return egos, decisions
 
     drivers, _ = target_drivers(workspace, target)
@@ -157,20 +169,34 @@ def calibrate(workspace: Workspace, run_id: str, target: Target,
     mine = stays_by_kind(egos)
     kinds = [k for k in theirs if len(theirs[k]) >= MIN_STAYS and len(mine.get(k, [])) >= MIN_STAYS]
     result = {
-        **setting, "seeds": list(seeds),
+        **setting,
+        "seeds": list(seeds),
         "draws": {k: deconvolved_dwell(theirs[k], mine[k]) for k in kinds},
-        "stays": {k: {"drivers": len(theirs[k]), "drivers_median_s": float(np.median(theirs[k])),
-                      "agent": len(mine[k]), "agent_median_s": float(np.median(mine[k]))} for k in kinds},
+        "stays": {
+            k: {
+                "drivers": len(theirs[k]),
+                "drivers_median_s": float(np.median(theirs[k])),
+                "agent": len(mine[k]),
+                "agent_median_s": float(np.median(mine[k])),
+            }
+            for k in kinds
+        },
         "lag_draws": lag,
-        "headways": {side: {"drivers": len(their_headways[side]),
-                            "drivers_median_s": float(np.median(their_headways[side])),
-                            "agent": len(my_headways.get(side, [])),
-                            "agent_median_s": float(np.median(my_headways[side])) if my_headways.get(side) else None}
-                     for side in their_headways},
-        "note": (f"calibrated on drive seeds {', '.join(map(str, seeds))} ({calibration_key(setting)}) against "
-                 f"{len(their_egos)} recordings of {', '.join(drivers)}; kinds with fewer than {MIN_STAYS} stays of "
-                 f"either keep the floor, sides with fewer than {MIN_HEADWAYS} of the agent's changes in front of a "
-                 f"near follower (or too few of the drivers' presses) the floors alone"),
+        "headways": {
+            side: {
+                "drivers": len(their_headways[side]),
+                "drivers_median_s": float(np.median(their_headways[side])),
+                "agent": len(my_headways.get(side, [])),
+                "agent_median_s": float(np.median(my_headways[side])) if my_headways.get(side) else None,
+            }
+            for side in their_headways
+        },
+        "note": (
+            f"calibrated on drive seeds {', '.join(map(str, seeds))} ({calibration_key(setting)}) against "
+            f"{len(their_egos)} recordings of {', '.join(drivers)}; kinds with fewer than {MIN_STAYS} stays of "
+            f"either keep the floor, sides with fewer than {MIN_HEADWAYS} of the agent's changes in front of a "
+            f"near follower (or too few of the drivers' presses) the floors alone"
+        ),
     }
     path = run_dir(workspace, run_id) / CALIBRATION_FILE
     stored = json.loads(path.read_text()) if path.exists() else {}

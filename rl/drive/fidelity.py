@@ -62,8 +62,12 @@ def driven_km(ego: pd.DataFrame) -> float:
 def lane_changes(ego: pd.DataFrame) -> dict[str, float]:
     """Lane changes, to the left (to a higher lane) and right, and km driven of one ego log."""
     pairs = [(tuple(map(int, k.split(">"))), n) for k, n in lane_change_pairs(ego).items()]
-    return {"changes": sum(n for _, n in pairs), "left": sum(n for (a, b), n in pairs if b > a),
-            "right": sum(n for (a, b), n in pairs if b < a), "km": driven_km(ego)}
+    return {
+        "changes": sum(n for _, n in pairs),
+        "left": sum(n for (a, b), n in pairs if b > a),
+        "right": sum(n for (a, b), n in pairs if b < a),
+        "km": driven_km(ego),
+    }
 
 
 def lane_seconds(ego: pd.DataFrame) -> dict[int, float]:
@@ -86,8 +90,10 @@ def lane_use(egos: Iterable[pd.DataFrame]) -> dict[str, dict[str, float]]:
             pairs[k] = pairs.get(k, 0) + n
         km += driven_km(ego)
     total = sum(seconds.values())
-    return {"time_share": {str(k): v / total for k, v in sorted(seconds.items())} if total > 0 else {},
-            "pairs_per_km": {k: n / km for k, n in sorted(pairs.items())} if km > 0 else {}}
+    return {
+        "time_share": {str(k): v / total for k, v in sorted(seconds.items())} if total > 0 else {},
+        "pairs_per_km": {k: n / km for k, n in sorted(pairs.items())} if km > 0 else {},
+    }
 
 
 def driver_egos(workspace: Workspace, drivers: Iterable[str]) -> Iterator[tuple[str, pd.DataFrame]]:
@@ -96,8 +102,10 @@ def driver_egos(workspace: Workspace, drivers: Iterable[str]) -> Iterator[tuple[
     cat = workspace.recordings()
     for rid, did in zip(cat["recording_id"], cat["driver_id"].astype(str)):
         if did in want:
-            yield did, pd.read_parquet(workspace.recordings_dir / rid / "ego.parquet",
-                                       columns=["t_s", "ego_lane", "ego_x_m"])
+            yield (
+                did,
+                pd.read_parquet(workspace.recordings_dir / rid / "ego.parquet", columns=["t_s", "ego_lane", "ego_x_m"]),
+            )
 
 
 def drivers_traffic(workspace: Workspace, drivers: Iterable[str]) -> Optional[tuple[str, int]]:
@@ -118,8 +126,10 @@ def driver_rates(egos: Iterable[tuple[str, pd.DataFrame]]) -> pd.DataFrame:
         acc = rows.setdefault(did, {"changes": 0, "left": 0, "right": 0, "km": 0.0})
         for k, v in one.items():
             acc[k] += v
-    return pd.DataFrame([{"driver_id": d, **v} for d, v in sorted(rows.items())],
-                        columns=["driver_id", "changes", "left", "right", "km"])
+    return pd.DataFrame(
+        [{"driver_id": d, **v} for d, v in sorted(rows.items())],
+        columns=["driver_id", "changes", "left", "right", "km"],
+    )
 
 
 def press_values(decisions: pd.DataFrame) -> dict[str, np.ndarray]:
@@ -138,8 +148,9 @@ def press_values(decisions: pd.DataFrame) -> dict[str, np.ndarray]:
     return out
 
 
-def drive_decisions(recordings: list[tuple[dict, pd.DataFrame, pd.DataFrame]],
-                    settings: Optional[AnalysisSettings] = None) -> pd.DataFrame:
+def drive_decisions(
+    recordings: list[tuple[dict, pd.DataFrame, pd.DataFrame]], settings: Optional[AnalysisSettings] = None
+) -> pd.DataFrame:
     """The drive's decisions read as the analysis reads a study's recordings."""
     settings = settings or AnalysisSettings()
     parts = []
@@ -160,8 +171,9 @@ def poisson_interval(count: int, exposure: float, alpha: float = ALPHA) -> tuple
     return float(lo / exposure), float(hi / exposure)
 
 
-def median_interval(x: np.ndarray, rng: np.random.Generator, n_boot: int = N_BOOT,
-                    alpha: float = ALPHA) -> tuple[Optional[float], Optional[float]]:
+def median_interval(
+    x: np.ndarray, rng: np.random.Generator, n_boot: int = N_BOOT, alpha: float = ALPHA
+) -> tuple[Optional[float], Optional[float]]:
     """Percentile bootstrap interval of the median (None with fewer than 2 values)."""
     if len(x) < 2:
         return None, None
@@ -172,16 +184,28 @@ def median_interval(x: np.ndarray, rng: np.random.Generator, n_boot: int = N_BOO
 def compare_values(agent: np.ndarray, drivers: np.ndarray, rng: np.random.Generator) -> dict[str, Any]:
     """Median, interval and quartiles of each side, distances, and whether the agent's median lies
     inside the drivers' interquartile range (None when either side has no value)."""
+
     def side(x: np.ndarray) -> dict[str, Any]:
         if not len(x):
             return {"n": 0, "median": None, "median_ci": [None, None], "q1": None, "q3": None}
         q1, med, q3 = np.quantile(x, [0.25, 0.5, 0.75])
-        return {"n": int(len(x)), "median": float(med), "median_ci": list(median_interval(x, rng)),
-                "q1": float(q1), "q3": float(q3)}
+        return {
+            "n": int(len(x)),
+            "median": float(med),
+            "median_ci": list(median_interval(x, rng)),
+            "q1": float(q1),
+            "q3": float(q3),
+        }
 
     a, d = side(agent), side(drivers)
-    out: dict[str, Any] = {"agent": a, "drivers": d, "wasserstein": None, "ks": None, "ks_p": None,
-                           "median_in_iqr": None}
+    out: dict[str, Any] = {
+        "agent": a,
+        "drivers": d,
+        "wasserstein": None,
+        "ks": None,
+        "ks_p": None,
+        "median_in_iqr": None,
+    }
     if len(agent) and len(drivers):
         out["wasserstein"] = float(stats.wasserstein_distance(agent, drivers))
         ks = stats.ks_2samp(agent, drivers)
@@ -198,20 +222,34 @@ def rate_comparison(agent: dict[str, float], drivers: pd.DataFrame) -> dict[str,
     per_driver = (drivers["changes"] / drivers["km"]).replace([np.inf], np.nan).dropna()
     ratio = a_rate / d_rate if a_rate is not None and d_rate else None
     return {
-        "agent": {"changes": int(agent["changes"]), "km": agent["km"], "per_km": a_rate,
-                  "per_km_ci": list(poisson_interval(int(agent["changes"]), agent["km"])),
-                  "left_share": agent["left"] / agent["changes"] if agent["changes"] else None},
-        "drivers": {"n": int(len(drivers)), "changes": d_changes, "km": d_km, "per_km": d_rate,
-                    "per_km_ci": list(poisson_interval(d_changes, d_km)),
-                    "per_km_range": [float(per_driver.min()), float(per_driver.max())] if len(per_driver) else None,
-                    "left_share": float(drivers["left"].sum()) / d_changes if d_changes else None},
+        "agent": {
+            "changes": int(agent["changes"]),
+            "km": agent["km"],
+            "per_km": a_rate,
+            "per_km_ci": list(poisson_interval(int(agent["changes"]), agent["km"])),
+            "left_share": agent["left"] / agent["changes"] if agent["changes"] else None,
+        },
+        "drivers": {
+            "n": int(len(drivers)),
+            "changes": d_changes,
+            "km": d_km,
+            "per_km": d_rate,
+            "per_km_ci": list(poisson_interval(d_changes, d_km)),
+            "per_km_range": [float(per_driver.min()), float(per_driver.max())] if len(per_driver) else None,
+            "left_share": float(drivers["left"].sum()) / d_changes if d_changes else None,
+        },
         "ratio": ratio,
         "within_tolerance": None if ratio is None else bool(abs(ratio - 1.0) <= RATE_TOLERANCE),
     }
 
 
-def fidelity(workspace: Workspace, drivers: list[str], recordings: list[tuple[dict, pd.DataFrame, pd.DataFrame]],
-             settings: Optional[AnalysisSettings] = None, seed: int = 0) -> dict[str, Any]:
+def fidelity(
+    workspace: Workspace,
+    drivers: list[str],
+    recordings: list[tuple[dict, pd.DataFrame, pd.DataFrame]],
+    settings: Optional[AnalysisSettings] = None,
+    seed: int = 0,
+) -> dict[str, Any]:
     """The drive (`recordings`, as `rl.drive.loop.recordings` gives them) beside `drivers`' own logs and presses."""
     rng = np.random.default_rng(seed)
     agent = {"changes": 0, "left": 0, "right": 0, "km": 0.0}
@@ -219,8 +257,11 @@ def fidelity(workspace: Workspace, drivers: list[str], recordings: list[tuple[di
         for k, v in lane_changes(ego).items():
             agent[k] += v
     their_egos = list(driver_egos(workspace, drivers))
-    out: dict[str, Any] = {"drivers": list(drivers), "tolerance": RATE_TOLERANCE,
-                           "rate": rate_comparison(agent, driver_rates(their_egos))}
+    out: dict[str, Any] = {
+        "drivers": list(drivers),
+        "tolerance": RATE_TOLERANCE,
+        "rate": rate_comparison(agent, driver_rates(their_egos)),
+    }
     theirs = workspace.read_table("analysis", "decisions")
     theirs = theirs[theirs["driver_id"].astype(str).isin(set(drivers))]
     mine = drive_decisions(recordings, settings)
@@ -230,7 +271,9 @@ def fidelity(workspace: Workspace, drivers: list[str], recordings: list[tuple[di
     out["agent_presses"] = int((mine["label"].astype(str) == "change").sum()) if len(mine) else 0
     inside = [v["median_in_iqr"] for v in out["indicators"].values() if v["median_in_iqr"] is not None]
     out["medians_in_iqr"] = f"{sum(inside)} of {len(inside)}"
-    out["lanes"] = {"agent": lane_use(ego for _, ego, _ in recordings),
-                    "drivers": lane_use(ego for _, ego in their_egos)}
+    out["lanes"] = {
+        "agent": lane_use(ego for _, ego, _ in recordings),
+        "drivers": lane_use(ego for _, ego in their_egos),
+    }
     out["met"] = bool(out["rate"]["within_tolerance"]) and bool(inside) and all(inside)
     return out

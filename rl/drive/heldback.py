@@ -136,8 +136,9 @@ class HeldBackRule:
     # the one drawn for that side at the ego's last lane change (`draw_lag`, `lag_accepted`)
     lag_draws: dict[str, list[float]] = field(default_factory=dict)
 
-    def dwell_ok(self, last_side: Optional[str], since_s: float, side: str,
-                 drawn: Optional[dict[str, float]] = None) -> bool:
+    def dwell_ok(
+        self, last_side: Optional[str], since_s: float, side: str, drawn: Optional[dict[str, float]] = None
+    ) -> bool:
         """Whether a change to `side` may be requested `since_s` after the last lane change (to `last_side`);
         `drawn`: the dwells drawn at that change (`draw_dwell`), where they replace `dwell_s`."""
         if last_side is None:
@@ -148,8 +149,7 @@ class HeldBackRule:
     def draw_dwell(self, last_side: str, rng: np.random.Generator) -> dict[str, float]:
         """At a lane change to `last_side`: one dwell per kind that starts there, each drawn from that kind's
         `dwell_draws` (empty when there are none)."""
-        return {k: float(rng.choice(v)) for k, v in sorted(self.dwell_draws.items())
-                if k.startswith(f"{last_side}>")}
+        return {k: float(rng.choice(v)) for k, v in sorted(self.dwell_draws.items()) if k.startswith(f"{last_side}>")}
 
     def draw_lag(self, rng: np.random.Generator) -> dict[str, float]:
         """One follower headway [s] per side that the agent's own changes to it need until the next lane
@@ -162,9 +162,12 @@ class HeldBackRule:
 
     def with_pace(self, pace: dict[str, Any]) -> "HeldBackRule":
         """This rule with the pace `rl.drive.pace.pace_threshold` found (one threshold, or one per side)."""
-        return replace(self, min_advantage=pace["min_advantage"],
-                       min_advantage_by_side=dict(pace.get("min_advantage_by_side", {})),
-                       source={**self.source, "min_advantage": pace["note"]})
+        return replace(
+            self,
+            min_advantage=pace["min_advantage"],
+            min_advantage_by_side=dict(pace.get("min_advantage_by_side", {})),
+            source={**self.source, "min_advantage": pace["note"]},
+        )
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -335,8 +338,9 @@ def lag_headways(decisions: pd.DataFrame, far_follower_m: float = FAR_FOLLOWER_M
         return {}
     pooled = sorted(p["thw_nb_s"].astype(float).tolist())
     by_side = {side: sorted(g["thw_nb_s"].astype(float).tolist()) for side, g in p.groupby("lc_direction")}
-    return {side: (by_side[side] if len(by_side.get(side, [])) >= MIN_LAG_PRESSES else pooled)
-            for side in ("left", "right")}
+    return {
+        side: (by_side[side] if len(by_side.get(side, [])) >= MIN_LAG_PRESSES else pooled) for side in ("left", "right")
+    }
 
 
 def dwell_times(decisions: pd.DataFrame) -> dict[str, list[float]]:
@@ -371,8 +375,9 @@ def dwell_from(decisions: pd.DataFrame, percentile: float = DWELL_PERCENTILE) ->
     return dwell, f"percentile {percentile:g} of the time from a lane change to the next press ({counts})"
 
 
-def _line(lines: pd.DataFrame, fits: Optional[pd.DataFrame], ind: str, typical: Optional[str],
-          presses: pd.DataFrame) -> tuple[Line, str]:
+def _line(
+    lines: pd.DataFrame, fits: Optional[pd.DataFrame], ind: str, typical: Optional[str], presses: pd.DataFrame
+) -> tuple[Line, str]:
     row = lines[lines["indicator"] == ind]
     if row.empty:
         raise KeyError(ind)
@@ -418,16 +423,25 @@ def patience_from(decisions: pd.DataFrame, step_s: float = 0.5) -> tuple[float, 
     times = following_before_press(decisions[decisions["press_index"].notna()], step_s)
     followed = times[times > 0]
     if len(followed) < MIN_FOLLOWED:
-        return DEFAULT_PATIENCE_S, (f"default {DEFAULT_PATIENCE_S:g} s: {len(followed)} of {len(times)} presses came "
-                                    f"after following (fewer than {MIN_FOLLOWED})")
-    return float(np.median(followed)), (f"median following time before the {len(followed)} of {len(times)} "
-                                        f"presses that came after following (range {followed.min():g}-"
-                                        f"{followed.max():g} s)")
+        return DEFAULT_PATIENCE_S, (
+            f"default {DEFAULT_PATIENCE_S:g} s: {len(followed)} of {len(times)} presses came "
+            f"after following (fewer than {MIN_FOLLOWED})"
+        )
+    return float(np.median(followed)), (
+        f"median following time before the {len(followed)} of {len(times)} "
+        f"presses that came after following (range {followed.min():g}-"
+        f"{followed.max():g} s)"
+    )
 
 
-def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5,
-                       dwell_percentile: float = DWELL_PERCENTILE, dwell_draw: bool = False,
-                       lag_draw: bool = False) -> HeldBackRule:
+def rule_from_analysis(
+    workspace: Any,
+    target: Any,
+    step_s: float = 0.5,
+    dwell_percentile: float = DWELL_PERCENTILE,
+    dwell_draw: bool = False,
+    lag_draw: bool = False,
+) -> HeldBackRule:
     """The rule of a run's target from the workspace's analysis (`ValueError` when the analysis lacks
     the acceptance lines: analyse again with a current laneprint); its dwell at `dwell_percentile`, or
     with `dwell_draw` drawn at each change from the drivers' own times (`HeldBackRule.dwell_draws`);
@@ -444,8 +458,11 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5,
         drivers = members["driver_id"].astype(str).tolist()
         typ = members.loc[members["is_typical"].astype(bool), "driver_id"].astype(str).tolist()
         typical = typ[0] if typ else None
-        sel = lines[(lines["scope"] == "style") & (lines["name"].astype(str).str.lower() == target.name.lower())
-                    & (lines["kind"] == "typical")]
+        sel = lines[
+            (lines["scope"] == "style")
+            & (lines["name"].astype(str).str.lower() == target.name.lower())
+            & (lines["kind"] == "typical")
+        ]
     else:
         drivers, typical = [str(target.name)], str(target.name)
         sel = lines[(lines["scope"] == "driver") & (lines["name"].astype(str) == str(target.name))]
@@ -462,34 +479,50 @@ def rule_from_analysis(workspace: Any, target: Any, step_s: float = 0.5,
     try:
         got = {ind: _line(sel, fits, ind, typical, typ_presses) for ind in ACCEPT_INDICATORS}
     except KeyError as exc:
-        raise ValueError(f"the analysis has no {exc.args[0]} line for {target.label}: run `laneprint analyze` "
-                         "again (acceptance indicators)") from None
+        raise ValueError(
+            f"the analysis has no {exc.args[0]} line for {target.label}: run `laneprint analyze` "
+            "again (acceptance indicators)"
+        ) from None
     mine = decisions[decisions["driver_id"].astype(str).isin(drivers)]
     patience, why = patience_from(mine, step_s)
     dwell, dwell_why = dwell_from(mine, dwell_percentile)
-    draws = ({k: v for k, v in dwell_times(mine).items() if len(v) >= MIN_DWELL_PAIRS} if dwell_draw else {})
+    draws = {k: v for k, v in dwell_times(mine).items() if len(v) >= MIN_DWELL_PAIRS} if dwell_draw else {}
     lag = lag_headways(mine) if lag_draw else {}
-    lag_why = ("the floors alone" if not lag_draw else
-               f"drawn at each lane change from the follower headways at {target.label}'s presses with a follower "
-               f"within {FAR_FOLLOWER_M:g} m ({', '.join(f'{k} {len(v)}' for k, v in lag.items())})" if lag else
-               f"none: fewer than {MIN_LAG_PRESSES} presses of {target.label} with a follower within "
-               f"{FAR_FOLLOWER_M:g} m")
+    lag_why = (
+        "the floors alone"
+        if not lag_draw
+        else f"drawn at each lane change from the follower headways at {target.label}'s presses with a follower "
+        f"within {FAR_FOLLOWER_M:g} m ({', '.join(f'{k} {len(v)}' for k, v in lag.items())})"
+        if lag
+        else f"none: fewer than {MIN_LAG_PRESSES} presses of {target.label} with a follower within {FAR_FOLLOWER_M:g} m"
+    )
     if draws:
-        dwell_why = (f"drawn at each lane change from the drivers' times from a change to the next press "
-                     f"({', '.join(f'{k} {len(v)}' for k, v in draws.items())}); where none, {dwell_why}")
-    source = {k: v[1] for k, v in got.items()} | {"patience_s": f"{why}, {target.label}",
-                                                  "slower_mps": "the analysis's min_closing_mps (1 m/s)",
-                                                  "t_nf_floor_s": f"percentile {FLOOR_PERCENTILE:g} of t_nf at "
-                                                                  f"{len(t_nf)} presses of {typical}",
-                                                  "dv_nb_floor_mps": f"percentile {FLOOR_PERCENTILE:g} of dv_nb at "
-                                                                     f"{len(dv_nb)} presses of {typical}, at most 0",
-                                                  "dwell_s": f"{dwell_why}, {target.label}",
-                                                  "lag_draws": lag_why,
-                                                  "undo_check": "on: with no leader, no change to the left the agent "
-                                                                "would at once undo (README, 'Driving like its drivers')"}
-    return HeldBackRule(patience, got["gap_nf"][0], got["gap_nb"][0], got["thw_nb"][0], t_nf_floor_s=t_nf_floor,
-                        dv_nb_floor_mps=dv_nb_floor, dwell_s=dwell, source=source, dwell_draws=draws,
-                        lag_draws=lag)
+        dwell_why = (
+            f"drawn at each lane change from the drivers' times from a change to the next press "
+            f"({', '.join(f'{k} {len(v)}' for k, v in draws.items())}); where none, {dwell_why}"
+        )
+    source = {k: v[1] for k, v in got.items()} | {
+        "patience_s": f"{why}, {target.label}",
+        "slower_mps": "the analysis's min_closing_mps (1 m/s)",
+        "t_nf_floor_s": f"percentile {FLOOR_PERCENTILE:g} of t_nf at {len(t_nf)} presses of {typical}",
+        "dv_nb_floor_mps": f"percentile {FLOOR_PERCENTILE:g} of dv_nb at {len(dv_nb)} presses of {typical}, at most 0",
+        "dwell_s": f"{dwell_why}, {target.label}",
+        "lag_draws": lag_why,
+        "undo_check": "on: with no leader, no change to the left the agent "
+        "would at once undo (README, 'Driving like its drivers')",
+    }
+    return HeldBackRule(
+        patience,
+        got["gap_nf"][0],
+        got["gap_nb"][0],
+        got["thw_nb"][0],
+        t_nf_floor_s=t_nf_floor,
+        dv_nb_floor_mps=dv_nb_floor,
+        dwell_s=dwell,
+        source=source,
+        dwell_draws=draws,
+        lag_draws=lag,
+    )
 
 
 # --- measured in the closed loop ---------------------------------------------------------------
@@ -518,8 +551,16 @@ class FollowStats:
     _gap_s: float = 0.0
     _fast_s: float = 0.0
 
-    def record(self, held: bool, held_for_s: float, gap_ok: bool, fast_ok: bool, t_f_defined: bool,
-               adv: Optional[float] = None, t_f_above_line: bool = False) -> None:
+    def record(
+        self,
+        held: bool,
+        held_for_s: float,
+        gap_ok: bool,
+        fast_ok: bool,
+        t_f_defined: bool,
+        adv: Optional[float] = None,
+        t_f_above_line: bool = False,
+    ) -> None:
         self.n_steps += 1
         if adv is not None:
             (self.adv_held if held else self.adv_free).append(float(adv))
@@ -543,21 +584,38 @@ class FollowStats:
         def q(xs: list[float]) -> Optional[list[float]]:
             return [float(v) for v in np.percentile(xs, [10, 50, 90])] if xs else None
 
-        return {"decision_steps": self.n_steps, "held_steps": self.n_held,
-                "held_share": self.n_held / self.n_steps if self.n_steps else None,
-                "held_tf_undefined_steps": self.n_held_tf_undefined,
-                "held_tf_above_line_steps": self.n_held_tf_above_line,
-                "longest_held_s": self.longest_held_s, "longest_passed_up_s": self.longest_passed_up_s,
-                "longest_passed_up_faster_s": self.longest_passed_up_faster_s,
-                "advantage_held_p10_p50_p90": q(self.adv_held), "advantage_free_p10_p50_p90": q(self.adv_free),
-                "advantage_held_nonneg": sum(a >= 0 for a in self.adv_held)}
+        return {
+            "decision_steps": self.n_steps,
+            "held_steps": self.n_held,
+            "held_share": self.n_held / self.n_steps if self.n_steps else None,
+            "held_tf_undefined_steps": self.n_held_tf_undefined,
+            "held_tf_above_line_steps": self.n_held_tf_above_line,
+            "longest_held_s": self.longest_held_s,
+            "longest_passed_up_s": self.longest_passed_up_s,
+            "longest_passed_up_faster_s": self.longest_passed_up_faster_s,
+            "advantage_held_p10_p50_p90": q(self.adv_held),
+            "advantage_free_p10_p50_p90": q(self.adv_free),
+            "advantage_held_nonneg": sum(a >= 0 for a in self.adv_held),
+        }
 
 
 def merge_summaries(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Totals over sections of `FollowStats.summary` rows (longest: the largest; advantages dropped)."""
-    out: dict[str, Any] = {k: sum(r.get(k, 0) for r in rows) for k in
-                           ("decision_steps", "held_steps", "held_tf_undefined_steps", "held_tf_above_line_steps",
-                            "advantage_held_nonneg", "vetoed", "gated", "lagged", "dwelled", "undone")}
+    out: dict[str, Any] = {
+        k: sum(r.get(k, 0) for r in rows)
+        for k in (
+            "decision_steps",
+            "held_steps",
+            "held_tf_undefined_steps",
+            "held_tf_above_line_steps",
+            "advantage_held_nonneg",
+            "vetoed",
+            "gated",
+            "lagged",
+            "dwelled",
+            "undone",
+        )
+    }
     out["held_share"] = out["held_steps"] / out["decision_steps"] if out["decision_steps"] else None
     for k in ("longest_held_s", "longest_passed_up_s", "longest_passed_up_faster_s"):
         out[k] = max((r[k] for r in rows), default=0.0)

@@ -55,8 +55,20 @@ from laneprint.simulator.sumo.scenario import build_network, write_routes
 from laneprint.simulator.sumo.section import EGO_ID, SectionLog, run_section
 from laneprint.simulator.sumo.settings import SumoSettings
 from laneprint.simulator.sumo.traffic import VehicleState
-from rl.drive.heldback import (FollowStats, HeldBackClock, HeldBackRule, LeftBehind, Line, above_floors, accepts,
-                               faster, held_back, holding_limit, lag_accepted, rule_target)
+from rl.drive.heldback import (
+    FollowStats,
+    HeldBackClock,
+    HeldBackRule,
+    LeftBehind,
+    Line,
+    above_floors,
+    accepts,
+    faster,
+    held_back,
+    holding_limit,
+    lag_accepted,
+    rule_target,
+)
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
 from rl.problem.scene import Scene, gaps, indicators, seen
@@ -122,10 +134,14 @@ def in_lane(st: VehicleState, lane: int) -> bool:
 def live_scene(ego: VehicleState, others: dict[str, VehicleState], target: int) -> tuple[Scene, dict[str, Any]]:
     """The decision scene of the ego (the analysis's reading of a log) and the ids of f, nf, nb; a vehicle
     changing into the target lane counts as in it (`in_lane`)."""
+
     def nearest(lane: int, ahead: bool) -> Optional[tuple[str, VehicleState]]:
-        cands = [(vid, st) for vid, st in others.items()
-                 if (st.lane == lane if lane == ego.lane else in_lane(st, lane))
-                 and ((st.x - ego.x > 0) if ahead else (st.x - ego.x <= 0))]
+        cands = [
+            (vid, st)
+            for vid, st in others.items()
+            if (st.lane == lane if lane == ego.lane else in_lane(st, lane))
+            and ((st.x - ego.x > 0) if ahead else (st.x - ego.x <= 0))
+        ]
         if not cands:
             return None
         return min(cands, key=lambda c: abs(c[1].x - ego.x))
@@ -168,8 +184,7 @@ class Watch:
     lanes and how long the ego has been held back (`FollowStats`). SUMO's own lane changing stays on:
     the comparator of the agent, SUMO's model of the same style in the same traffic."""
 
-    def __init__(self, cfg: EnvConfig, step_s: float, n_lanes: int, rule: HeldBackRule,
-                 desired_mps: float) -> None:
+    def __init__(self, cfg: EnvConfig, step_s: float, n_lanes: int, rule: HeldBackRule, desired_mps: float) -> None:
         self.cfg = cfg
         self.every = max(1, int(round(cfg.dt_s / step_s)))
         self.n_lanes = n_lanes
@@ -183,8 +198,9 @@ class Watch:
     def start(self, api: Any) -> None:
         pass
 
-    def look(self, t: float, ego: VehicleState, lateral_m: float, others: dict[str, VehicleState]
-             ) -> Optional[tuple[dict[int, tuple[Scene, dict[str, Any]]], bool, float]]:
+    def look(
+        self, t: float, ego: VehicleState, lateral_m: float, others: dict[str, VehicleState]
+    ) -> Optional[tuple[dict[int, tuple[Scene, dict[str, Any]]], bool, float]]:
         """(scene and ids per neighbouring lane, held back, for how long) at a decision step, else None."""
         self._steps += 1
         if self._steps % self.every:
@@ -201,8 +217,9 @@ class Watch:
         held = held_back(first, self.desired_mps, self.rule.slower_mps, self.cfg.range_m)
         return asked, held, self.clock.update(t, held)
 
-    def record(self, asked: dict[int, tuple[Scene, dict[str, Any]]], held: bool, held_for: float,
-               adv: Optional[float] = None) -> None:
+    def record(
+        self, asked: dict[int, tuple[Scene, dict[str, Any]]], held: bool, held_for: float, adv: Optional[float] = None
+    ) -> None:
         scenes = [sc for sc, _ in asked.values()]
         gap = [bool(accepts(self.rule, sc, self.cfg.range_m)[0]) for sc in scenes]
         fast = [g and bool(faster(self.rule, sc, self.cfg.range_m)[0]) for g, sc in zip(gap, scenes)]
@@ -210,8 +227,7 @@ class Watch:
         above = bool(ind.t_f_ok[0]) and float(ind.t_f[0]) > float(self.cfg.lines.at(ind.v_e[0])["t_f"])
         self.stats.record(held, held_for, any(gap), any(fast), bool(ind.t_f_ok[0]), adv, above)
 
-    def step(self, api: Any, t: float, ego: VehicleState, lateral_m: float,
-             others: dict[str, VehicleState]) -> None:
+    def step(self, api: Any, t: float, ego: VehicleState, lateral_m: float, others: dict[str, VehicleState]) -> None:
         seen_now = self.look(t, ego, lateral_m, others)
         if seen_now is not None:
             self.n_asked += 1
@@ -222,9 +238,17 @@ class AgentControl(Watch):
     """The `EgoControl` of `run_section`: asks the agent (`q`) every `dt_s` and requests its changes;
     with `use_rule`, the held-back rule asks for a change the agent does not make (`rl.drive.heldback`)."""
 
-    def __init__(self, q: QFunction, cfg: EnvConfig, step_s: float, n_lanes: int = N_LANES,
-                 rule: Optional[HeldBackRule] = None, desired_mps: float = 0.0, use_rule: bool = False,
-                 dwell_rng: Optional[np.random.Generator] = None) -> None:
+    def __init__(
+        self,
+        q: QFunction,
+        cfg: EnvConfig,
+        step_s: float,
+        n_lanes: int = N_LANES,
+        rule: Optional[HeldBackRule] = None,
+        desired_mps: float = 0.0,
+        use_rule: bool = False,
+        dwell_rng: Optional[np.random.Generator] = None,
+    ) -> None:
         never = Line(0.0, np.inf)  # no rule given: desired speed 0, never held back
         super().__init__(cfg, step_s, n_lanes, rule or HeldBackRule(np.inf, never, never, never), desired_mps)
         self.q = q
@@ -246,8 +270,7 @@ class AgentControl(Watch):
     def start(self, api: Any) -> None:
         api.vehicle.setLaneChangeMode(EGO_ID, REQUEST_MODE)
 
-    def step(self, api: Any, t: float, ego: VehicleState, lateral_m: float,
-             others: dict[str, VehicleState]) -> None:
+    def step(self, api: Any, t: float, ego: VehicleState, lateral_m: float, others: dict[str, VehicleState]) -> None:
         if self._lane_now is not None and ego.lane != self._lane_now:
             self.last_change = (t, _side(self._lane_now, ego.lane))
             self.drawn = self.rule.draw_dwell(self.last_change[1], self.dwell_rng)
@@ -274,8 +297,11 @@ class AgentControl(Watch):
         wanted = adv
         if self.use_rule and self.rule.undo_check and not self.has_leader(asked):
             # back from a lane to the left is a change to the right: it needs what one to the right needs
-            undone = {k for k, a in adv.items()
-                      if k > ego.lane and a >= need[k] and self.would_undo(ego, others, k, self.rule.needs("right"))}
+            undone = {
+                k
+                for k, a in adv.items()
+                if k > ego.lane and a >= need[k] and self.would_undo(ego, others, k, self.rule.needs("right"))
+            }
             if undone:
                 self.n_undone += 1
                 wanted = {k: a for k, a in adv.items() if k not in undone}
@@ -284,12 +310,23 @@ class AgentControl(Watch):
             return
         scene, ids = asked[target]
         ind = indicators(scene, self.cfg.far_follower_m, self.cfg.range_m)
-        self.decisions.append(Decision(t, ego.lane, target, ego.v, _defined(ind.t_f, ind.t_f_ok),
-                                       _defined(ind.t_nf, ind.t_nf_ok), _defined(ind.dv_nb, ind.dv_nb_ok), ids,
-                                       advantages={_side(ego.lane, k): float(a) for k, a in all_adv.items()},
-                                       source=source, too_soon=[_side(ego.lane, k) for k in all_adv if k not in adv],
-                                       undone=[_side(ego.lane, k) for k in adv if k not in wanted],
-                                       thw_nb_s=follower_headway(scene, self.cfg.far_follower_m, self.cfg.range_m)))
+        self.decisions.append(
+            Decision(
+                t,
+                ego.lane,
+                target,
+                ego.v,
+                _defined(ind.t_f, ind.t_f_ok),
+                _defined(ind.t_nf, ind.t_nf_ok),
+                _defined(ind.dv_nb, ind.dv_nb_ok),
+                ids,
+                advantages={_side(ego.lane, k): float(a) for k, a in all_adv.items()},
+                source=source,
+                too_soon=[_side(ego.lane, k) for k in all_adv if k not in adv],
+                undone=[_side(ego.lane, k) for k in adv if k not in wanted],
+                thw_nb_s=follower_headway(scene, self.cfg.far_follower_m, self.cfg.range_m),
+            )
+        )
         if self.use_rule and target > ego.lane and ids.get("f") is not None:
             self.overtakings.append(LeftBehind(ego.lane, str(ids["f"])))  # followed until complete
         api.vehicle.changeLane(EGO_ID, target, self.cfg.dt_s)
@@ -320,8 +357,15 @@ class AgentControl(Watch):
         last = self.overtakings[-1] if self.overtakings else None
         return last if last is not None and last.lane == self.lane - 1 else None
 
-    def assist(self, agent: Optional[int], asked: dict[int, tuple[Scene, dict[str, Any]]], held: bool,
-               held_for: float, ego: VehicleState, others: dict[str, VehicleState]) -> tuple[Optional[int], str]:
+    def assist(
+        self,
+        agent: Optional[int],
+        asked: dict[int, tuple[Scene, dict[str, Any]]],
+        held: bool,
+        held_for: float,
+        ego: VehicleState,
+        others: dict[str, VehicleState],
+    ) -> tuple[Optional[int], str]:
         """(lane to request or None, who asks): the agent's choice unless it returns behind the leader an
         overtaking left (vetoed), takes a gap below the target's floors (gated) or cuts in front of a
         follower closer in time than the headway drawn for that side at the last change (lagged); else the overtaking's
@@ -371,8 +415,7 @@ def match_presses(decisions: list[Decision], changes: list[dict[str, Any]], wind
     """Mark each decision whose lane change started within `window_s` after it (in place)."""
     starts = sorted((c["press_t_s"], c["target_lane"]) for c in changes)
     for d in decisions:
-        hit = next((t for t, lane in starts if d.t_s < t <= d.t_s + window_s + 1e-9 and lane == d.target_lane),
-                   None)
+        hit = next((t for t, lane in starts if d.t_s < t <= d.t_s + window_s + 1e-9 and lane == d.target_lane), None)
         d.started, d.press_t_s = hit is not None, hit
 
 
@@ -403,8 +446,15 @@ def desired_speed(limit_kph: float, ego_params: dict[str, float]) -> float:
 ControlFactory = Callable[[float, float], Watch]
 
 
-def run_sections(make: ControlFactory, cfg: EnvConfig, ego_params: dict[str, float], settings: SumoSettings,
-                 seed: int, progress: Optional[ProgressFn] = None, label: str = "SUMO section") -> list[SectionDrive]:
+def run_sections(
+    make: ControlFactory,
+    cfg: EnvConfig,
+    ego_params: dict[str, float],
+    settings: SumoSettings,
+    seed: int,
+    progress: Optional[ProgressFn] = None,
+    label: str = "SUMO section",
+) -> list[SectionDrive]:
     """Drive every section of `settings` (its `n_lanes`) with the control `make` gives; one after the other.
     The traffic and SUMO's seed of section j depend on `seed` and j only (`drive_seed`)."""
     out = []
@@ -422,35 +472,90 @@ def run_sections(make: ControlFactory, cfg: EnvConfig, ego_params: dict[str, flo
             log = run_section(settings, net, routes, float(limit), sumo_seed, rng, folder, control)
             decisions = getattr(control, "decisions", [])
             match_presses(decisions, log.lane_changes, cfg.dt_s)
-            out.append(SectionDrive(float(limit), log, control.n_asked, decisions,
-                                    {**control.stats.summary(), "vetoed": getattr(control, "n_vetoed", 0),
-                                     "gated": getattr(control, "n_gated", 0),
-                                     "lagged": getattr(control, "n_lagged", 0),
-                                     "dwelled": getattr(control, "n_dwelled", 0),
-                                     "undone": getattr(control, "n_undone", 0)}, desired))
+            out.append(
+                SectionDrive(
+                    float(limit),
+                    log,
+                    control.n_asked,
+                    decisions,
+                    {
+                        **control.stats.summary(),
+                        "vetoed": getattr(control, "n_vetoed", 0),
+                        "gated": getattr(control, "n_gated", 0),
+                        "lagged": getattr(control, "n_lagged", 0),
+                        "dwelled": getattr(control, "n_dwelled", 0),
+                        "undone": getattr(control, "n_undone", 0),
+                    },
+                    desired,
+                )
+            )
     report(progress, len(limits), len(limits), "driven")
     return out
 
 
-def drive_sections(q: QFunction, cfg: EnvConfig, ego_params: dict[str, float], settings: SumoSettings,
-                   seed: int, progress: Optional[ProgressFn] = None, rule: Optional[HeldBackRule] = None,
-                   use_rule: bool = True) -> list[SectionDrive]:
+def drive_sections(
+    q: QFunction,
+    cfg: EnvConfig,
+    ego_params: dict[str, float],
+    settings: SumoSettings,
+    seed: int,
+    progress: Optional[ProgressFn] = None,
+    rule: Optional[HeldBackRule] = None,
+    use_rule: bool = True,
+) -> list[SectionDrive]:
     """Drive every section with the agent `q` (and, with `rule` and `use_rule`, the held-back rule); a
     rule's drawn dwells come from a generator seeded by `seed` and the section's limit."""
-    return run_sections(lambda limit, desired: AgentControl(
-        q, cfg, settings.step_s, settings.n_lanes, rule, desired, use_rule,
-        np.random.default_rng([seed, int(round(limit))])), cfg, ego_params, settings, seed, progress)
+    return run_sections(
+        lambda limit, desired: AgentControl(
+            q,
+            cfg,
+            settings.step_s,
+            settings.n_lanes,
+            rule,
+            desired,
+            use_rule,
+            np.random.default_rng([seed, int(round(limit))]),
+        ),
+        cfg,
+        ego_params,
+        settings,
+        seed,
+        progress,
+    )
 
 
-def sumo_model_sections(cfg: EnvConfig, ego_params: dict[str, float], settings: SumoSettings, seed: int,
-                        rule: HeldBackRule, progress: Optional[ProgressFn] = None) -> list[SectionDrive]:
+def sumo_model_sections(
+    cfg: EnvConfig,
+    ego_params: dict[str, float],
+    settings: SumoSettings,
+    seed: int,
+    rule: HeldBackRule,
+    progress: Optional[ProgressFn] = None,
+) -> list[SectionDrive]:
     """The comparator: the same ego vType, sections, traffic seeds and SUMO seeds, SUMO's LC2013 deciding."""
-    return run_sections(lambda _, desired: Watch(cfg, settings.step_s, settings.n_lanes, rule, desired), cfg,
-                        ego_params, settings, seed, progress, "SUMO's model, section")
+    return run_sections(
+        lambda _, desired: Watch(cfg, settings.step_s, settings.n_lanes, rule, desired),
+        cfg,
+        ego_params,
+        settings,
+        seed,
+        progress,
+        "SUMO's model, section",
+    )
 
 
 def recordings(drives: list[SectionDrive], driver_id: str, simulator: str) -> list[tuple[dict, Any, Any]]:
     """(meta, ego, traffic) of each driven section, as the study's recordings."""
-    return [({"driver_id": driver_id, "session_id": session_id(driver_id, d.speed_limit_kph),
-              "speed_limit_kph": d.speed_limit_kph, "simulator": simulator}, d.log.ego, d.log.traffic)
-            for d in drives]
+    return [
+        (
+            {
+                "driver_id": driver_id,
+                "session_id": session_id(driver_id, d.speed_limit_kph),
+                "speed_limit_kph": d.speed_limit_kph,
+                "simulator": simulator,
+            },
+            d.log.ego,
+            d.log.traffic,
+        )
+        for d in drives
+    ]

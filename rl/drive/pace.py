@@ -51,8 +51,9 @@ PACE_BY: tuple[str, ...] = ("pooled", "side")
 SIDES: dict[str, int] = {"left": 1, "right": -1}  # side -> lane offset (lane 0 is the rightmost)
 
 
-def side_advantages(ego: pd.DataFrame, traffic: pd.DataFrame, net: torch.nn.Module,
-                    cfg: EnvConfig) -> dict[str, np.ndarray]:
+def side_advantages(
+    ego: pd.DataFrame, traffic: pd.DataFrame, net: torch.nn.Module, cfg: EnvConfig
+) -> dict[str, np.ndarray]:
     """Per agent step of a recording and per side: Q(change) - Q(keep) of the lane on that side (-inf: none)."""
     out = {}
     for name, side in SIDES.items():
@@ -88,8 +89,9 @@ def lowest_threshold(advantages: list[np.ndarray], presses: int) -> tuple[float,
     return (min(ok) if ok else float(GRID[-1])), counts
 
 
-def pace_threshold(workspace: Workspace, drivers: list[str], net: torch.nn.Module, cfg: EnvConfig,
-                   by: str = "pooled") -> dict[str, Any]:
+def pace_threshold(
+    workspace: Workspace, drivers: list[str], net: torch.nn.Module, cfg: EnvConfig, by: str = "pooled"
+) -> dict[str, Any]:
     """The threshold for `drivers` (see the module doc) with the figures it rests on: `min_advantage`
     (one for both sides) and, by side, `min_advantage_by_side` ('left', 'right'). By side needs every
     press's side (`lc_direction`); where one is missing the threshold is pooled, and the note says so."""
@@ -111,27 +113,45 @@ def pace_threshold(workspace: Workspace, drivers: list[str], net: torch.nn.Modul
         x = ego["ego_x_m"].to_numpy(dtype=float)
         km += float(np.nanmax(x) - np.nanmin(x)) / 1000.0
     if not adv or sum(presses.values()) == 0 or km <= 0:
-        return {"min_advantage": 0.0, "by": "pooled",
-                "note": "no recording with presses of the target's drivers: the agent as trained",
-                "recordings": len(adv), "presses": sum(presses.values()), "km": km}
+        return {
+            "min_advantage": 0.0,
+            "by": "pooled",
+            "note": "no recording with presses of the target's drivers: the agent as trained",
+            "recordings": len(adv),
+            "presses": sum(presses.values()),
+            "km": km,
+        }
     out = thresholds(adv, presses, km, by)
     out["note"] = f"replayed along {len(adv)} recordings of {', '.join(drivers)}: {out['note']}"
     return out
 
 
-def thresholds(adv: list[dict[str, np.ndarray]], presses: dict[str, int], km: float,
-               by: str = "pooled") -> dict[str, Any]:
+def thresholds(
+    adv: list[dict[str, np.ndarray]], presses: dict[str, int], km: float, by: str = "pooled"
+) -> dict[str, Any]:
     """The pace from each recording's advantages by side (`side_advantages`) and the presses to each side
     ('left', 'right', 'unknown') over `km`: `min_advantage` pooled and, `by` side, `min_advantage_by_side`."""
     total = sum(presses.values())
     tau, counts = lowest_threshold([np.maximum(a["left"], a["right"]) for a in adv], total)
     out: dict[str, Any] = {
-        "min_advantage": tau, "by": "pooled", "recordings": len(adv), "km": round(km, 2), "presses": total,
-        "presses_per_km": total / km, "onsets_per_km_at_0": counts[0.0] / km, "onsets_per_km": counts[tau] / km}
-    note = (f"the agent starts wanting a change {counts[0.0] / km:.2f} times per km as trained, "
-            f"{counts[tau] / km:.2f} with an advantage of at least {tau:g}; they pressed {total / km:.2f} times per km"
-            + ("" if tau > 0 or counts[0.0] <= total else
-               f" (more onsets than presses, {counts[0.0]} against {total}, but not beyond chance)"))
+        "min_advantage": tau,
+        "by": "pooled",
+        "recordings": len(adv),
+        "km": round(km, 2),
+        "presses": total,
+        "presses_per_km": total / km,
+        "onsets_per_km_at_0": counts[0.0] / km,
+        "onsets_per_km": counts[tau] / km,
+    }
+    note = (
+        f"the agent starts wanting a change {counts[0.0] / km:.2f} times per km as trained, "
+        f"{counts[tau] / km:.2f} with an advantage of at least {tau:g}; they pressed {total / km:.2f} times per km"
+        + (
+            ""
+            if tau > 0 or counts[0.0] <= total
+            else f" (more onsets than presses, {counts[0.0]} against {total}, but not beyond chance)"
+        )
+    )
     if by == "side" and presses.get("unknown"):
         note += f"; pooled: {presses['unknown']} of the presses have no side (lc_direction)"
     elif by == "side":
@@ -139,8 +159,10 @@ def thresholds(adv: list[dict[str, np.ndarray]], presses: dict[str, int], km: fl
         for side in SIDES:
             t_side, c_side = lowest_threshold([a[side] for a in adv], presses[side])
             out["min_advantage_by_side"][side] = t_side
-            parts.append(f"to the {side} {c_side[0.0] / km:.2f} as trained, {c_side[t_side] / km:.2f} with at least "
-                         f"{t_side:g}, against {presses[side] / km:.2f} presses")
+            parts.append(
+                f"to the {side} {c_side[0.0] / km:.2f} as trained, {c_side[t_side] / km:.2f} with at least "
+                f"{t_side:g}, against {presses[side] / km:.2f} presses"
+            )
         note = "by side, onsets per km " + "; ".join(parts)
     out["note"] = note
     return out

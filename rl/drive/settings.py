@@ -87,13 +87,22 @@ class DriveSettings:
         if self.dwell_draw and self.dwell_calibrated:
             raise SettingError("{0} and {1}: choose one", "dwell_draw", "dwell_calibrated")
         if (self.dwell_draw or self.dwell_calibrated) and not (self.held_back and self.dwell):
-            raise SettingError("{0} and {1} set the held-back rule's dwell: not with {2} or {3}", "dwell_draw",
-                               "dwell_calibrated", ("held_back", False), ("dwell", False))
+            raise SettingError(
+                "{0} and {1} set the held-back rule's dwell: not with {2} or {3}",
+                "dwell_draw",
+                "dwell_calibrated",
+                ("held_back", False),
+                ("dwell", False),
+            )
         if self.lag_draw and self.lag_calibrated:
             raise SettingError("{0} and {1}: choose one", "lag_draw", "lag_calibrated")
         if (self.lag_draw or self.lag_calibrated) and not self.held_back:
-            raise SettingError("{0} and {1} set the held-back rule's headways: not with {2}", "lag_draw",
-                               "lag_calibrated", ("held_back", False))
+            raise SettingError(
+                "{0} and {1} set the held-back rule's headways: not with {2}",
+                "lag_draw",
+                "lag_calibrated",
+                ("held_back", False),
+            )
         if not 0 <= self.dwell_percentile <= 100:
             raise SettingError(f"{{0}} {self.dwell_percentile:g}: give a percentile from 0 to 100", "dwell_percentile")
         if self.lanes not in LANES:

@@ -107,8 +107,9 @@ def check_sections(sections: Optional[list[float]]) -> tuple[int, ...]:
         return tuple(SPEED_LIMITS_KPH)
     bad = [s for s in sections if int(round(s)) not in SPEED_LIMITS_KPH]
     if bad:
-        raise SettingError(f"{{0}} {bad[0]:g}: the sections are {', '.join(map(str, SPEED_LIMITS_KPH))} km/h",
-                           "section")
+        raise SettingError(
+            f"{{0}} {bad[0]:g}: the sections are {', '.join(map(str, SPEED_LIMITS_KPH))} km/h", "section"
+        )
     return tuple(sorted({int(round(s)) for s in sections}))
 
 
@@ -125,8 +126,13 @@ def indicators_vs_lines(drives: list[SectionDrive], lines: ReferenceLines) -> di
             continue
         x = np.array([a for a, _ in vals])
         ref = lines.at(np.array([v for _, v in vals]))[ind]
-        out[ind] = {"n": len(x), "median": float(np.median(x)), "line_median": float(np.median(ref)),
-                    "mae": float(np.mean(np.abs(x - ref))), "bias": float(np.mean(x - ref))}
+        out[ind] = {
+            "n": len(x),
+            "median": float(np.median(x)),
+            "line_median": float(np.median(ref)),
+            "mae": float(np.mean(np.abs(x - ref))),
+            "bias": float(np.mean(x - ref)),
+        }
     return out
 
 
@@ -145,17 +151,25 @@ def section_row(d: SectionDrive) -> dict[str, Any]:
         by_lane[key] = by_lane.get(key, 0) + 1
     started = [x for x in d.decisions if x.started]
     return {
-        "speed_limit_kph": d.speed_limit_kph, "sumo_seed": d.log.sumo_seed,
-        "duration_s": float(d.log.ego["t_s"].iloc[-1]), "km": driven_km(d), "desired_mps": d.desired_mps,
-        "decisions_asked": d.n_asked, "change_decisions": len(d.decisions), "lane_changes": len(made),
-        "left": sum(c["direction"] == "left" for c in made), "right": sum(c["direction"] == "right" for c in made),
+        "speed_limit_kph": d.speed_limit_kph,
+        "sumo_seed": d.log.sumo_seed,
+        "duration_s": float(d.log.ego["t_s"].iloc[-1]),
+        "km": driven_km(d),
+        "desired_mps": d.desired_mps,
+        "decisions_asked": d.n_asked,
+        "change_decisions": len(d.decisions),
+        "lane_changes": len(made),
+        "left": sum(c["direction"] == "left" for c in made),
+        "right": sum(c["direction"] == "right" for c in made),
         "agent_changes": sum(x.source == "agent" for x in started),
         "rule_changes": sum(x.source in ("rule", "return") for x in started),  # returns: an overtaking completed
         "return_changes": sum(x.source == "return" for x in started),
         "made_by": made_by_counts(d.decisions, made),
         "not_started": sum(not x.started for x in d.decisions),
-        "collisions": d.log.n_collisions, "emergency_brakes": d.log.n_emergency_brakes,
-        "changes_by_lane": dict(sorted(by_lane.items())), "follow": d.follow,
+        "collisions": d.log.n_collisions,
+        "emergency_brakes": d.log.n_emergency_brakes,
+        "changes_by_lane": dict(sorted(by_lane.items())),
+        "follow": d.follow,
     }
 
 
@@ -164,8 +178,19 @@ def section_rows(drives: list[SectionDrive], paths: list[Path]) -> list[dict[str
     return [{**section_row(d), "file": str(path)} for d, path in zip(drives, paths)]
 
 
-_COUNTS = ("decisions_asked", "change_decisions", "lane_changes", "left", "right", "agent_changes", "rule_changes",
-           "return_changes", "not_started", "collisions", "emergency_brakes")
+_COUNTS = (
+    "decisions_asked",
+    "change_decisions",
+    "lane_changes",
+    "left",
+    "right",
+    "agent_changes",
+    "rule_changes",
+    "return_changes",
+    "not_started",
+    "collisions",
+    "emergency_brakes",
+)
 
 
 def totals(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -184,10 +209,13 @@ def sumo_model_report(drives: list[SectionDrive], agent_totals: dict[str, Any]) 
     rows = [section_row(d) for d in drives]
     tot = totals(rows)
     model, agent = tot["lane_changes_per_km"], agent_totals["lane_changes_per_km"]
-    return {"what": "the same ego vType with SUMO's own lane changing (LC2013, the style's parameters), "
-                    "same sections, traffic seeds and SUMO seeds",
-            "sections": rows, "totals": tot,
-            "rate_ratio": (agent / model) if model and agent is not None else None}
+    return {
+        "what": "the same ego vType with SUMO's own lane changing (LC2013, the style's parameters), "
+        "same sections, traffic seeds and SUMO seeds",
+        "sections": rows,
+        "totals": tot,
+        "rate_ratio": (agent / model) if model and agent is not None else None,
+    }
 
 
 def _sum_counts(counts: list[dict[str, int]]) -> dict[str, int]:
@@ -218,23 +246,39 @@ def assigned_style(workspace: Workspace, files: list[Path], driver_id: str) -> d
         styles = scratch.read_table("analysis", "styles")
     styles["driver_id"] = styles["driver_id"].astype(str)
     row = styles[styles["driver_id"] == driver_id]
-    return {"driver_id": driver_id, "style": str(row["style"].iloc[0]) if len(row) else None,
-            "confidence": float(row["confidence"].iloc[0]) if len(row) and "confidence" in row else None,
-            "styles": dict(zip(styles["driver_id"], styles["style"].astype(str)))}
+    return {
+        "driver_id": driver_id,
+        "style": str(row["style"].iloc[0]) if len(row) else None,
+        "confidence": float(row["confidence"].iloc[0]) if len(row) and "confidence" in row else None,
+        "styles": dict(zip(styles["driver_id"], styles["style"].astype(str))),
+    }
 
 
-def held_back_rule(workspace: Workspace, target: Target, cfg: EnvConfig, dwell_percentile: float = DWELL_PERCENTILE,
-                   dwell_draw: bool = False, lag_draw: bool = False) -> tuple[Optional[HeldBackRule], str]:
+def held_back_rule(
+    workspace: Workspace,
+    target: Target,
+    cfg: EnvConfig,
+    dwell_percentile: float = DWELL_PERCENTILE,
+    dwell_draw: bool = False,
+    lag_draw: bool = False,
+) -> tuple[Optional[HeldBackRule], str]:
     """(the rule of the run's target from the analysis, a note); None with why when the analysis lacks it."""
     try:
-        return (rule_from_analysis(workspace, target, cfg.dt_s, dwell_percentile, dwell_draw, lag_draw),
-                "from the workspace's analysis")
+        return (
+            rule_from_analysis(workspace, target, cfg.dt_s, dwell_percentile, dwell_draw, lag_draw),
+            "from the workspace's analysis",
+        )
     except (ValueError, KeyError, UserError, FileNotFoundError) as exc:
         return None, f"no held-back rule: {exc}"
 
 
-def calibrated(workspace: Workspace, agent: Agent, settings: DriveSettings, paced: Optional[dict[str, Any]],
-               progress: Optional[ProgressFn]) -> dict[str, Any]:
+def calibrated(
+    workspace: Workspace,
+    agent: Agent,
+    settings: DriveSettings,
+    paced: Optional[dict[str, Any]],
+    progress: Optional[ProgressFn],
+) -> dict[str, Any]:
     """The run's closed-loop calibration of the dwell and the follower's headway for this traffic and these
     settings (`rl.drive.calibrate`); made when missing by the calibration's own drives: every section, the
     analysis's rule with its default dwell and the floors alone (or the headways the calibration gives),
@@ -243,28 +287,56 @@ def calibrated(workspace: Workspace, agent: Agent, settings: DriveSettings, pace
     from rl.drive.calibrate import calibrate, load_calibration
 
     s = settings
-    setting = {"family": s.family, "lanes": s.lanes, "minutes": s.minutes, "pace": s.pace, "pace_by": s.pace_by,
-               "undo_check": s.undo_check}
+    setting = {
+        "family": s.family,
+        "lanes": s.lanes,
+        "minutes": s.minutes,
+        "pace": s.pace,
+        "pace_by": s.pace_by,
+        "undo_check": s.undo_check,
+    }
     stored = load_calibration(workspace, agent.run_id, setting)
     if stored is not None and "lag_draws" in stored:  # one made before the headway was calibrated: again
         return stored
-    plain = DriveSettings(minutes=s.minutes, lanes=s.lanes, family=s.family, sumo_model=False, pace=s.pace,
-                          pace_by=s.pace_by, undo_check=s.undo_check, dwell_calibrated=False, lag_calibrated=False)
+    plain = DriveSettings(
+        minutes=s.minutes,
+        lanes=s.lanes,
+        family=s.family,
+        sumo_model=False,
+        pace=s.pace,
+        pace_by=s.pace_by,
+        undo_check=s.undo_check,
+        dwell_calibrated=False,
+        lag_calibrated=False,
+    )
     rule, note = held_back_rule(workspace, agent.target, agent.cfg)
     style, why = ego_style(workspace, agent.target)
     traffic = sumo_traffic(plain, check_sections(None))
 
     def drive(seed: int, out: Path, lag: dict[str, list[float]]) -> dict[str, Any]:
-        plan = DrivePlan(agent, replace(plain, seed=seed), traffic, out, f"agent-{agent.run_id}", None, style, why,
-                         assistant_rule(rule, plain, lag_draws=lag, paced=paced), note, paced, None)
+        plan = DrivePlan(
+            agent,
+            replace(plain, seed=seed),
+            traffic,
+            out,
+            f"agent-{agent.run_id}",
+            None,
+            style,
+            why,
+            assistant_rule(rule, plain, lag_draws=lag, paced=paced),
+            note,
+            paced,
+            None,
+        )
         driven = simulate(plan, progress)
         return {"decisions": decision_rows(driven.drives), "files": [str(p) for p in write_logs(driven, out)]}
 
     return calibrate(workspace, agent.run_id, agent.target, drive, setting)
 
 
-def rule_pace(workspace: Workspace, target: Target, net: Any, cfg: EnvConfig,
-              by: str = "pooled") -> Optional[dict[str, Any]]:
+def rule_pace(
+    workspace: Workspace, target: Target, net: Any, cfg: EnvConfig, by: str = "pooled"
+) -> Optional[dict[str, Any]]:
     """The advantage the agent's own changes need to keep its drivers' pace (`rl.drive.pace`, by side or
     pooled); None when the target's drivers are not known."""
     from rl.drive.pace import pace_threshold
@@ -276,8 +348,9 @@ def rule_pace(workspace: Workspace, target: Target, net: Any, cfg: EnvConfig,
     return pace_threshold(workspace, drivers, net, cfg, by)
 
 
-def drivers_fidelity(workspace: Workspace, target: Target, recs: list[tuple[dict, Any, Any]],
-                     seed: int) -> dict[str, Any]:
+def drivers_fidelity(
+    workspace: Workspace, target: Target, recs: list[tuple[dict, Any, Any]], seed: int
+) -> dict[str, Any]:
     """The drive beside the target drivers' recordings and presses (`rl.drive.fidelity`); with `note`
     and no figures when the workspace has no analysis of them."""
     from clustering.pipeline import stored_settings
@@ -291,8 +364,9 @@ def drivers_fidelity(workspace: Workspace, target: Target, recs: list[tuple[dict
     return fidelity(workspace, drivers, recs, stored_settings(workspace), seed)
 
 
-def dwell_mode(rule: Optional[HeldBackRule], held_back: bool, drawn: bool, calibration: Optional[dict],
-               percentile: float) -> str:
+def dwell_mode(
+    rule: Optional[HeldBackRule], held_back: bool, drawn: bool, calibration: Optional[dict], percentile: float
+) -> str:
     """Which wait after a lane change the drive had, in words."""
     if rule is None or not held_back:
         return "none (no held-back rule)"
@@ -342,8 +416,9 @@ class Agent:
 def load_agent(workspace: Workspace, run_id: str) -> Agent:
     """The run's agent (`UserError` when there is no such run)."""
     config = load_run_config(workspace, run_id)
-    return Agent(run_id, config, Target(**config["target"]), EnvConfig.from_dict(config["env"]),
-                 load_weights(workspace, run_id))
+    return Agent(
+        run_id, config, Target(**config["target"]), EnvConfig.from_dict(config["env"]), load_weights(workspace, run_id)
+    )
 
 
 @dataclass(frozen=True)
@@ -388,9 +463,13 @@ def sumo_traffic(settings: DriveSettings, limits: tuple[int, ...]) -> Any:
     return family_settings(str(settings.family), settings.lanes, speed_limits_kph=limits, minutes=settings.minutes)
 
 
-def assistant_rule(rule: Optional[HeldBackRule], settings: DriveSettings, calibration: Optional[dict[str, Any]] = None,
-                   lag_draws: Optional[dict[str, list[float]]] = None,
-                   paced: Optional[dict[str, Any]] = None) -> Optional[HeldBackRule]:
+def assistant_rule(
+    rule: Optional[HeldBackRule],
+    settings: DriveSettings,
+    calibration: Optional[dict[str, Any]] = None,
+    lag_draws: Optional[dict[str, list[float]]] = None,
+    paced: Optional[dict[str, Any]] = None,
+) -> Optional[HeldBackRule]:
     """The analysis's held-back `rule` as the settings make it, every change in one place: without its
     dwell (`dwell` off), with the dwell drawn from the closed-loop `calibration` (`dwell_calibrated`;
     never under the rule's floor), with the follower headways `lag_draws` given (a calibration's drive) or
@@ -402,8 +481,10 @@ def assistant_rule(rule: Optional[HeldBackRule], settings: DriveSettings, calibr
         rule = replace(rule, dwell_s={}, dwell_draws={})
         source["dwell_s"] = "off (--no-dwell)"
     if calibration is not None and s.dwell_calibrated:
-        rule = replace(rule, dwell_draws={k: [max(x, rule.dwell_s.get(k, 0.0)) for x in v]
-                                          for k, v in calibration["draws"].items()})
+        rule = replace(
+            rule,
+            dwell_draws={k: [max(x, rule.dwell_s.get(k, 0.0)) for x in v] for k, v in calibration["draws"].items()},
+        )
         source["dwell_s"] = f"drawn from the closed-loop calibration: {calibration['note']}"
     if lag_draws is not None:
         rule = replace(rule, lag_draws=lag_draws)
@@ -418,8 +499,14 @@ def assistant_rule(rule: Optional[HeldBackRule], settings: DriveSettings, calibr
     return rule.with_pace(paced) if paced is not None else rule
 
 
-def plan_drive(workspace: Workspace, run_id: str, settings: DriveSettings, sections: Optional[list[float]] = None,
-               out: Optional[Path] = None, progress: Optional[ProgressFn] = None) -> DrivePlan:
+def plan_drive(
+    workspace: Workspace,
+    run_id: str,
+    settings: DriveSettings,
+    sections: Optional[list[float]] = None,
+    out: Optional[Path] = None,
+    progress: Optional[ProgressFn] = None,
+) -> DrivePlan:
     """The drive of the run's agent that the settings (checked when they were made) ask for, ready to
     simulate: what needs the workspace is resolved and checked here. The family: the settings', else that
     of the study the agent learnt from when its drivers drove a laneprint SUMO study
@@ -434,14 +521,22 @@ def plan_drive(workspace: Workspace, run_id: str, settings: DriveSettings, secti
     own = own_traffic(workspace, agent.target)
     family = s.family or (own[0] if own else DEFAULT_FAMILY)
     if family == "sublane":  # the controller reads a lane change under way from the ego leaving its lane centre
-        raise SettingError("laneprint drive does not drive on sublanes ({0} sublane): give {0} ttc or acceptance",
-                           "family")
+        raise SettingError(
+            "laneprint drive does not drive on sublanes ({0} sublane): give {0} ttc or acceptance", "family"
+        )
     in_own_traffic = own == (family, s.lanes)
-    s = replace(s, family=family,
-                dwell_calibrated=(s.dwell_calibrated if s.dwell_calibrated is not None
-                                  else in_own_traffic and s.held_back and s.dwell and not s.dwell_draw),
-                lag_calibrated=(s.lag_calibrated if s.lag_calibrated is not None
-                                else in_own_traffic and s.held_back and not s.lag_draw))
+    s = replace(
+        s,
+        family=family,
+        dwell_calibrated=(
+            s.dwell_calibrated
+            if s.dwell_calibrated is not None
+            else in_own_traffic and s.held_back and s.dwell and not s.dwell_draw
+        ),
+        lag_calibrated=(
+            s.lag_calibrated if s.lag_calibrated is not None else in_own_traffic and s.held_back and not s.lag_draw
+        ),
+    )
     limits = check_sections(sections)
     out = Path(out) if out is not None else workspace.root / "drives" / f"{run_id}-s{s.seed}"
     if out.suffix != ".mcap" and out.exists() and not out.is_dir():
@@ -453,16 +548,36 @@ def plan_drive(workspace: Workspace, run_id: str, settings: DriveSettings, secti
     calibration = None
     if rule is not None and (s.dwell_calibrated or s.lag_calibrated):
         calibration = calibrated(workspace, agent, s, paced, progress)
-    return DrivePlan(agent, s, sumo_traffic(s, limits), out, s.driver_id or f"agent-{run_id}", own, style, why,
-                     assistant_rule(rule, s, calibration, paced=paced), rule_note, paced, calibration)
+    return DrivePlan(
+        agent,
+        s,
+        sumo_traffic(s, limits),
+        out,
+        s.driver_id or f"agent-{run_id}",
+        own,
+        style,
+        why,
+        assistant_rule(rule, s, calibration, paced=paced),
+        rule_note,
+        paced,
+        calibration,
+    )
 
 
 def simulate(plan: DrivePlan, progress: Optional[ProgressFn] = None) -> Driven:
     """Drive the plan's sections in SUMO with the agent (and the rule, when on); with `sumo_model` the
     same sections, traffic and seeds again with SUMO's own lane changing of the ego's style."""
     s, agent = plan.settings, plan.agent
-    drives = drive_sections(agent_q(agent.net, agent.cfg), agent.cfg, plan.ego_params, plan.traffic, s.seed, progress,
-                            plan.rule, use_rule=s.held_back)
+    drives = drive_sections(
+        agent_q(agent.net, agent.cfg),
+        agent.cfg,
+        plan.ego_params,
+        plan.traffic,
+        s.seed,
+        progress,
+        plan.rule,
+        use_rule=s.held_back,
+    )
     lanes_opt = "" if s.lanes == 2 else f", {s.lanes} lanes"
     simulator = f"Eclipse SUMO {drives[0].log.sumo_version} (laneprint drive {agent.run_id}, seed {s.seed}{lanes_opt})"
     model = None
@@ -493,28 +608,49 @@ def drive_report(workspace: Workspace, plan: DrivePlan, driven: Driven, paths: l
     log = driven.drives[0].log
     rows = section_rows(driven.drives, paths)
     result: dict[str, Any] = {
-        "run_id": agent.run_id, "target": agent.config["target"],
+        "run_id": agent.run_id,
+        "target": agent.config["target"],
         "who_drove": {},  # filled below: who made the lane changes comes first in the report
-        "driver_id": plan.driver_id, "seed": s.seed,
-        "minutes": s.minutes, "sumo_version": log.sumo_version, "sumo_api": log.api,
-        "ego_style": plan.style, "ego_style_reason": plan.style_reason, "decision_every_s": agent.cfg.dt_s,
-        "lanes": s.lanes, "family": s.family,
-        "drivers_traffic": ({"family": own[0], "lanes": own[1], "same_as_drive": own == (s.family, s.lanes)}
-                            if own else None),
+        "driver_id": plan.driver_id,
+        "seed": s.seed,
+        "minutes": s.minutes,
+        "sumo_version": log.sumo_version,
+        "sumo_api": log.api,
+        "ego_style": plan.style,
+        "ego_style_reason": plan.style_reason,
+        "decision_every_s": agent.cfg.dt_s,
+        "lanes": s.lanes,
+        "family": s.family,
+        "drivers_traffic": (
+            {"family": own[0], "lanes": own[1], "same_as_drive": own == (s.family, s.lanes)} if own else None
+        ),
         "side_input": agent.cfg.observation == "direction",
-        "files": [str(p) for p in paths], "sections": rows, "totals": totals(rows),
-        "held_back": {"on": bool(s.held_back and rule is not None), "rule": rule.to_dict() if rule else None,
-                      "note": plan.rule_note, "desired_speed": f"section limit x speedFactor "
-                                                               f"{plan.ego_params.get('speedFactor', 1.0):g} "
-                                                               f"(the {plan.style} vType)"},
+        "files": [str(p) for p in paths],
+        "sections": rows,
+        "totals": totals(rows),
+        "held_back": {
+            "on": bool(s.held_back and rule is not None),
+            "rule": rule.to_dict() if rule else None,
+            "note": plan.rule_note,
+            "desired_speed": f"section limit x speedFactor "
+            f"{plan.ego_params.get('speedFactor', 1.0):g} "
+            f"(the {plan.style} vType)",
+        },
         "pace": plan.paced or {"note": "off (--no-pace)" if rule is not None else "no held-back rule"},
-        "dwell": dwell_mode(rule, s.held_back, s.dwell_draw, calibration if s.dwell_calibrated else None,
-                            s.dwell_percentile),
+        "dwell": dwell_mode(
+            rule, s.held_back, s.dwell_draw, calibration if s.dwell_calibrated else None, s.dwell_percentile
+        ),
         "lag": lag_mode(rule, s.held_back, s.lag_draw, bool(s.lag_calibrated)),
-        "dwell_calibration": ({k: v for k, v in calibration.items() if k not in ("draws", "lag_draws")}
-                              if calibration and s.dwell_calibrated else None),
-        "lag_calibration": ({k: v for k, v in calibration.items() if k not in ("draws", "lag_draws", "stays")}
-                            if calibration and s.lag_calibrated else None),
+        "dwell_calibration": (
+            {k: v for k, v in calibration.items() if k not in ("draws", "lag_draws")}
+            if calibration and s.dwell_calibrated
+            else None
+        ),
+        "lag_calibration": (
+            {k: v for k, v in calibration.items() if k not in ("draws", "lag_draws", "stays")}
+            if calibration and s.lag_calibrated
+            else None
+        ),
         "changes_by_lane": _sum_counts([r["changes_by_lane"] for r in rows]),
         "indicators": indicators_vs_lines(driven.drives, agent.cfg.lines),
         "decisions": decision_rows(driven.drives),
@@ -529,9 +665,15 @@ def drive_report(workspace: Workspace, plan: DrivePlan, driven: Driven, paths: l
     return result
 
 
-def drive_run(workspace: Workspace, run_id: str, settings: Optional[DriveSettings] = None, *,
-              sections: Optional[list[float]] = None, out: Optional[Path] = None,
-              progress: Optional[ProgressFn] = None) -> dict[str, Any]:
+def drive_run(
+    workspace: Workspace,
+    run_id: str,
+    settings: Optional[DriveSettings] = None,
+    *,
+    sections: Optional[list[float]] = None,
+    out: Optional[Path] = None,
+    progress: Optional[ProgressFn] = None,
+) -> dict[str, Any]:
     """Drive the run's agent in SUMO as `settings` ask (`DriveSettings`, each field documented there) on
     the `sections` (speed limits; default all), write the MCAPs to `out` (default
     WORKSPACE/drives/RUN_ID-sSEED/; a folder also gets the report as drive.json) and return the report:

@@ -47,8 +47,6 @@ from rl.settings import AutoSettings, LearnerSettings, learner_config, learner_n
 POLICIES: tuple[str, ...] = ("agent", "greedy", "imitation")
 
 
-
-
 def assign_folds(sessions: pd.DataFrame, settings: CrossvalSettings) -> dict[str, int]:
     """recording_id -> fold, from a frame of recording_id, driver_id, speed_limit_kph."""
     rng = np.random.default_rng(settings.seed)
@@ -102,8 +100,9 @@ def _session_folds(sessions: pd.DataFrame, k: int, rng: np.random.Generator) -> 
     return out
 
 
-def fold_lines(train: pd.DataFrame, line_drivers: list[str], fallback: ReferenceLines,
-               analysis: AnalysisSettings) -> tuple[ReferenceLines, list[str]]:
+def fold_lines(
+    train: pd.DataFrame, line_drivers: list[str], fallback: ReferenceLines, analysis: AnalysisSettings
+) -> tuple[ReferenceLines, list[str]]:
     """Reference lines refitted on the training folds' presses of `line_drivers` (pooled when several).
 
     An indicator that cannot be fitted (too few defined presses) keeps the full
@@ -134,15 +133,20 @@ def _decision_counts(states: pd.DataFrame, action_col: str) -> pd.DataFrame:
     """Per decision: press said change (0/1), not-yet states, not-yet states said keep."""
     said_change = states[action_col].to_numpy() == 0
     is_press = (states["label"] == "change").to_numpy()
-    df = pd.DataFrame({"decision_id": states["decision_id"].to_numpy(),
-                       "press_ok": (said_change & is_press).astype(float),
-                       "n_keep": (~is_press).astype(float),
-                       "keep_ok": (~said_change & ~is_press).astype(float)})
+    df = pd.DataFrame(
+        {
+            "decision_id": states["decision_id"].to_numpy(),
+            "press_ok": (said_change & is_press).astype(float),
+            "n_keep": (~is_press).astype(float),
+            "keep_ok": (~said_change & ~is_press).astype(float),
+        }
+    )
     return df.groupby("decision_id", sort=True).sum()
 
 
-def bootstrap_scores(states: pd.DataFrame, changes: pd.DataFrame, who: str, n_boot: int,
-                     rng: np.random.Generator) -> dict[str, Any]:
+def bootstrap_scores(
+    states: pd.DataFrame, changes: pd.DataFrame, who: str, n_boot: int, rng: np.random.Generator
+) -> dict[str, Any]:
     """Balanced accuracy, recall, specificity and timing of one policy with bootstrap 95 % intervals."""
     counts = _decision_counts(states, f"action_{who}")
     ch = changes[changes["who"] == who].set_index("decision_id").reindex(counts.index)
@@ -163,16 +167,23 @@ def bootstrap_scores(states: pd.DataFrame, changes: pd.DataFrame, who: str, n_bo
     with warnings.catch_warnings():  # a policy that never changes has no timing in some resamples
         warnings.simplefilter("ignore", RuntimeWarning)
         lo, hi = np.nanpercentile(boots, [2.5, 97.5], axis=0)
-    return {"who": who, "balanced_accuracy": float(ba), "balanced_accuracy_ci": [float(lo[0]), float(hi[0])],
-            "recall": float(rec), "specificity": float(spec),
-            "timing_mae_s": None if np.isnan(mae) else float(mae),
-            "timing_mae_ci": None if np.isnan(mae) else [float(lo[3]), float(hi[3])],
-            "never_rate": float(np.mean(~np.isfinite(ch["change_t_s"].to_numpy(dtype=float)))) if n else None,
-            "n_decisions": int(n), "n_states": int(len(states))}
+    return {
+        "who": who,
+        "balanced_accuracy": float(ba),
+        "balanced_accuracy_ci": [float(lo[0]), float(hi[0])],
+        "recall": float(rec),
+        "specificity": float(spec),
+        "timing_mae_s": None if np.isnan(mae) else float(mae),
+        "timing_mae_ci": None if np.isnan(mae) else [float(lo[3]), float(hi[3])],
+        "never_rate": float(np.mean(~np.isfinite(ch["change_t_s"].to_numpy(dtype=float)))) if n else None,
+        "n_decisions": int(n),
+        "n_states": int(len(states)),
+    }
 
 
-def _train_agent(approaches: list[Approach], cfg: EnvConfig, dqn: LearnerSettings, progress: ProgressFn | None,
-                 label: str) -> tuple[Any, dict[str, Any]]:
+def _train_agent(
+    approaches: list[Approach], cfg: EnvConfig, dqn: LearnerSettings, progress: ProgressFn | None, label: str
+) -> tuple[Any, dict[str, Any]]:
     """(the fold's agent as a policy, which learner made it: ``{"learner": ...}`` and, for 'auto', the
     inner scores it chose by)."""
     from rl.evaluation.evaluate import agent_policy
@@ -181,8 +192,11 @@ def _train_agent(approaches: list[Approach], cfg: EnvConfig, dqn: LearnerSetting
     if isinstance(dqn, AutoSettings):
         choice = choose_learner(approaches, cfg, dqn, progress, label)
         net = fit_learner(approaches, cfg, chosen_settings(dqn, choice), progress, f"{label}: {choice.learner}")
-        return agent_policy(net, cfg), {"learner": choice.learner, "learner_scores": choice.scores,
-                                        "learner_scores_by_side": choice.by_side}
+        return agent_policy(net, cfg), {
+            "learner": choice.learner,
+            "learner_scores": choice.scores,
+            "learner_scores_by_side": choice.by_side,
+        }
     return agent_policy(fit_learner(approaches, cfg, dqn, progress, label), cfg), {"learner": learner_name(dqn)}
 
 
@@ -199,9 +213,15 @@ def fold_agents(jobs: list["FoldJob"], progress: ProgressFn | None) -> None:
     tasks = [ChoiceTask(j.train, j.env, j.dqn, f"fold {j.fold + 1}/{j.n_folds}") for j in auto]  # type: ignore[arg-type]
     for job, fitted in zip(auto, choose_and_fit(tasks, progress, label=f"{len(auto)} folds")):
         c = fitted.choice
-        job.agent = (agent_policy(fitted.net, job.env), {"learner": c.learner, "learner_scores": c.scores,
-                                                         "learner_scores_by_side": c.by_side,
-                                                         **({"learner_stopped": c.stopped} if c.stopped else {})})
+        job.agent = (
+            agent_policy(fitted.net, job.env),
+            {
+                "learner": c.learner,
+                "learner_scores": c.scores,
+                "learner_scores_by_side": c.by_side,
+                **({"learner_stopped": c.stopped} if c.stopped else {}),
+            },
+        )
 
 
 @dataclass
@@ -248,8 +268,9 @@ def decision_directions(decisions: pd.DataFrame) -> pd.Series:
     return pd.Series(side, index=presses["decision_id"].to_numpy())
 
 
-def summary_by_direction(decisions: pd.DataFrame, states: pd.DataFrame, changes: pd.DataFrame,
-                         settings: CrossvalSettings) -> list[dict[str, Any]]:
+def summary_by_direction(
+    decisions: pd.DataFrame, states: pd.DataFrame, changes: pd.DataFrame, settings: CrossvalSettings
+) -> list[dict[str, Any]]:
     """`bootstrap_scores` of every policy on the left and on the right decisions alone (rows carry
     `direction`); a direction without scored decisions has no rows. Its own seeded generator,
     so the pooled summary's intervals do not move."""
@@ -262,15 +283,25 @@ def summary_by_direction(decisions: pd.DataFrame, states: pd.DataFrame, changes:
         if st.empty:
             continue
         ch = changes[changes["decision_id"].isin(ids)]
-        rows += [{"direction": direction, **bootstrap_scores(st, ch, who, settings.n_bootstrap, rng)}
-                 for who in POLICIES]
+        rows += [
+            {"direction": direction, **bootstrap_scores(st, ch, who, settings.n_bootstrap, rng)} for who in POLICIES
+        ]
     return rows
 
 
-def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: list[str], env: EnvConfig,
-                  dqn: LearnerSettings, settings: CrossvalSettings, analysis: AnalysisSettings | None = None,
-                  refit_lines: bool = True, progress: ProgressFn | None = None, backend: str = "local",
-                  ray_address: str | None = None) -> dict[str, Any]:
+def crossvalidate(
+    decisions: pd.DataFrame,
+    drivers: list[str],
+    line_drivers: list[str],
+    env: EnvConfig,
+    dqn: LearnerSettings,
+    settings: CrossvalSettings,
+    analysis: AnalysisSettings | None = None,
+    refit_lines: bool = True,
+    progress: ProgressFn | None = None,
+    backend: str = "local",
+    ray_address: str | None = None,
+) -> dict[str, Any]:
     """Held-out figures of agent, greedy and imitation on `drivers`' decisions (see the module doc).
 
     `line_drivers`: whose presses the reference lines are refitted on (the typical
@@ -284,8 +315,11 @@ def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: lis
     dec = decisions[decisions["driver_id"].astype(str).isin(drivers)]
     if dec.empty:
         raise UserError(f"no decisions of {', '.join(drivers)} in the analysis")
-    sessions = dec.groupby("recording_id", sort=True).agg(driver_id=("driver_id", "first"),
-                                                         speed_limit_kph=("speed_limit_kph", "first")).reset_index()
+    sessions = (
+        dec.groupby("recording_id", sort=True)
+        .agg(driver_id=("driver_id", "first"), speed_limit_kph=("speed_limit_kph", "first"))
+        .reset_index()
+    )
     if len(sessions) < settings.folds and settings.split == "session":
         raise UserError(f"{len(sessions)} session(s) cannot make {settings.folds} folds: pass a smaller --folds")
     fold_of = assign_folds(sessions, settings)
@@ -309,19 +343,44 @@ def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: lis
             lines, line_notes = fold_lines(train, line_drivers, env.lines, analysis)
             cfg = replace(env, lines=lines)
             notes += [f"fold {k}: {n}" for n in line_notes]
-        jobs.append(FoldJob(k, n_folds, train_app, test_app, skipped, cfg, replace(dqn, seed=dqn.seed + k),
-                            settings.seed + k, progress if in_process else None))
+        jobs.append(
+            FoldJob(
+                k,
+                n_folds,
+                train_app,
+                test_app,
+                skipped,
+                cfg,
+                replace(dqn, seed=dqn.seed + k),
+                settings.seed + k,
+                progress if in_process else None,
+            )
+        )
     if not jobs:
         raise UserError("no fold could be scored: " + "; ".join(notes))
     if in_process:
         fold_agents(jobs, progress)
-    evs = run_tasks(score_fold, jobs, backend=backend, ray_address=ray_address,
-                    progress=None if in_process else progress, label="held-out folds")
+    evs = run_tasks(
+        score_fold,
+        jobs,
+        backend=backend,
+        ray_address=ray_address,
+        progress=None if in_process else progress,
+        label="held-out folds",
+    )
     for job, ev in zip(jobs, evs):
         held_out = dec.loc[fold == job.fold, "recording_id"].astype(str)
-        per_fold.append({"fold": job.fold, "sessions": sorted(held_out.unique()), "n_train_decisions": len(job.train), "n_decisions": ev["n_decisions"],
-                         "lines": job.env.lines.to_dict(), **ev.get("learner", {}),
-                         **{f"{r['who']}_balanced_accuracy": r["balanced_accuracy"] for r in ev["summary"]}})
+        per_fold.append(
+            {
+                "fold": job.fold,
+                "sessions": sorted(held_out.unique()),
+                "n_train_decisions": len(job.train),
+                "n_decisions": ev["n_decisions"],
+                "lines": job.env.lines.to_dict(),
+                **ev.get("learner", {}),
+                **{f"{r['who']}_balanced_accuracy": r["balanced_accuracy"] for r in ev["summary"]},
+            }
+        )
     states = pd.concat([ev["states"] for ev in evs], ignore_index=True)
     changes = pd.concat([ev["changes"] for ev in evs], ignore_index=True)
     summary = [bootstrap_scores(states, changes, who, settings.n_bootstrap, rng) for who in POLICIES]
@@ -329,11 +388,20 @@ def crossvalidate(decisions: pd.DataFrame, drivers: list[str], line_drivers: lis
     n_total = int(dec["decision_id"].nunique())
     n_scored = int(states["decision_id"].nunique())
     return {
-        "drivers": drivers, "line_drivers": line_drivers, "folds": n_folds, "settings": asdict(settings),
-        "env": env.to_dict(), **learner_config(dqn), "summary": summary, "summary_by_direction": by_direction,
+        "drivers": drivers,
+        "line_drivers": line_drivers,
+        "folds": n_folds,
+        "settings": asdict(settings),
+        "env": env.to_dict(),
+        **learner_config(dqn),
+        "summary": summary,
+        "summary_by_direction": by_direction,
         "per_fold": per_fold,
-        "n_decisions_total": n_total, "n_decisions_scored": n_scored,
+        "n_decisions_total": n_total,
+        "n_decisions_scored": n_scored,
         "scored_share": n_scored / n_total if n_total else None,
-        "unscored": {k: v for k, v in unscored.items() if v}, "notes": notes,
-        "states": states, "changes": changes,
+        "unscored": {k: v for k, v in unscored.items() if v},
+        "notes": notes,
+        "states": states,
+        "changes": changes,
     }

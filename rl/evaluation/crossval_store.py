@@ -47,10 +47,18 @@ def style_names(workspace: Workspace) -> list[str]:
     return list(dict.fromkeys(st["style"].astype(str)))
 
 
-def run_crossval(workspace: Workspace, target: Target, env: EnvConfig, dqn: LearnerSettings,
-                 settings: CrossvalSettings, lines_source: str = "analysis", run_id: str | None = None,
-                 progress: ProgressFn | None = None, backend: str = "local",
-                 ray_address: str | None = None) -> dict[str, Any]:
+def run_crossval(
+    workspace: Workspace,
+    target: Target,
+    env: EnvConfig,
+    dqn: LearnerSettings,
+    settings: CrossvalSettings,
+    lines_source: str = "analysis",
+    run_id: str | None = None,
+    progress: ProgressFn | None = None,
+    backend: str = "local",
+    ray_address: str | None = None,
+) -> dict[str, Any]:
     """Cross-validate one target (its folds on `backend`) and store the result; returns its JSON-ready summary."""
     if not workspace.has_table("analysis", "decisions"):
         raise UserError(f"no analysis in {workspace.root}: run `laneprint analyze` first")
@@ -60,14 +68,31 @@ def run_crossval(workspace: Workspace, target: Target, env: EnvConfig, dqn: Lear
         line_drivers = [typical] if typical else drivers
     else:
         line_drivers = drivers
-    res = crossvalidate(decisions, drivers, line_drivers, env, dqn, settings, stored_settings(workspace),
-                        refit_lines=lines_source == "analysis", progress=progress, backend=backend,
-                        ray_address=ray_address)
+    res = crossvalidate(
+        decisions,
+        drivers,
+        line_drivers,
+        env,
+        dqn,
+        settings,
+        stored_settings(workspace),
+        refit_lines=lines_source == "analysis",
+        progress=progress,
+        backend=backend,
+        ray_address=ray_address,
+    )
     states, changes = res.pop("states"), res.pop("changes")
     cv_id = _new_id(target, env.reward.name, settings.seed)
-    res = {"crossval_id": cv_id, "target": asdict(target), "run_id": run_id, "lines_source": lines_source,
-           "created_at": now_iso(), "data_fingerprint": workspace.fingerprint(),
-           "analysis_fingerprint": workspace.analysis_fingerprint(), **res}
+    res = {
+        "crossval_id": cv_id,
+        "target": asdict(target),
+        "run_id": run_id,
+        "lines_source": lines_source,
+        "created_at": now_iso(),
+        "data_fingerprint": workspace.fingerprint(),
+        "analysis_fingerprint": workspace.analysis_fingerprint(),
+        **res,
+    }
     folder = crossval_dir(workspace) / cv_id
     with workspace.staging() as box:  # the whole folder appears at once, or not at all
         for name, df in (("states", states), ("changes", changes)):
@@ -80,9 +105,15 @@ def run_crossval(workspace: Workspace, target: Target, env: EnvConfig, dqn: Lear
     return res
 
 
-def crossval_run(workspace: Workspace, run_id: str, settings: CrossvalSettings, episodes: int | None = None,
-                 progress: ProgressFn | None = None, backend: str = "local",
-                 ray_address: str | None = None) -> dict[str, Any]:
+def crossval_run(
+    workspace: Workspace,
+    run_id: str,
+    settings: CrossvalSettings,
+    episodes: int | None = None,
+    progress: ProgressFn | None = None,
+    backend: str = "local",
+    ray_address: str | None = None,
+) -> dict[str, Any]:
     """Cross-validate with a trained run's target and settings (its reward, scenes, trainer)."""
     folder = run_dir(workspace, run_id)
     try:
@@ -93,9 +124,18 @@ def crossval_run(workspace: Workspace, run_id: str, settings: CrossvalSettings, 
     dqn = stored_learner(config)
     if episodes is not None and isinstance(dqn, DQNSettings):
         dqn = replace(dqn, episodes=episodes)
-    return run_crossval(workspace, Target(**config["target"]), env, dqn, settings,
-                        config.get("lines_source", "analysis"), run_id=run_id, progress=progress, backend=backend,
-                        ray_address=ray_address)
+    return run_crossval(
+        workspace,
+        Target(**config["target"]),
+        env,
+        dqn,
+        settings,
+        config.get("lines_source", "analysis"),
+        run_id=run_id,
+        progress=progress,
+        backend=backend,
+        ray_address=ray_address,
+    )
 
 
 def target_env(workspace: Workspace, target: Target, env: EnvConfig, lines_source: str) -> EnvConfig:
@@ -119,10 +159,17 @@ def list_crossvals(workspace: Workspace) -> pd.DataFrame:
             res = json.loads((folder / "result.json").read_text())
         except (OSError, ValueError):
             continue
-        row = {"crossval_id": folder.name, "target_kind": res["target"]["kind"], "target": res["target"]["name"],
-               "run_id": res.get("run_id"), "reward": res["env"]["reward"]["name"], "scenes": res["env"].get("scenes"),
-               "folds": res.get("folds"), "created_at": res.get("created_at"),
-               "analysis": analysis_mark(res.get("analysis_fingerprint"), current)["analysis_label"]}
+        row = {
+            "crossval_id": folder.name,
+            "target_kind": res["target"]["kind"],
+            "target": res["target"]["name"],
+            "run_id": res.get("run_id"),
+            "reward": res["env"]["reward"]["name"],
+            "scenes": res["env"].get("scenes"),
+            "folds": res.get("folds"),
+            "created_at": res.get("created_at"),
+            "analysis": analysis_mark(res.get("analysis_fingerprint"), current)["analysis_label"],
+        }
         for r in res.get("summary", []):
             row[f"{r['who']}_balanced_accuracy"] = r["balanced_accuracy"]
         rows.append(row)

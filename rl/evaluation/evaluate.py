@@ -77,7 +77,7 @@ def replay_changes(policy: Policy, approaches: list[Approach], cfg: EnvConfig) -
     recorded = np.zeros(len(approaches), bool)
     at_change: list[Scene | None] = [None] * len(approaches)
     for j, a in enumerate(approaches):
-        hits = np.flatnonzero(acts[bounds[j]:bounds[j + 1]] == CHANGE)
+        hits = np.flatnonzero(acts[bounds[j] : bounds[j + 1]] == CHANGE)
         if len(hits):
             change_t[j] = a.t_s[hits[0]]
             recorded[j] = True
@@ -100,13 +100,15 @@ def replay_changes(policy: Policy, approaches: list[Approach], cfg: EnvConfig) -
                 change_t[j] = approaches[j].press_t_s + k * cfg.dt_s
                 at_change[j] = scene.take(slice(i, i + 1))
             alive[idx[hit]] = False
-    rows = pd.DataFrame({
-        "decision_id": [a.decision_id for a in approaches],
-        "driver_id": [a.driver_id for a in approaches],
-        "press_t_s": [a.press_t_s for a in approaches],
-        "change_t_s": change_t,
-        "recorded": recorded,
-    })
+    rows = pd.DataFrame(
+        {
+            "decision_id": [a.decision_id for a in approaches],
+            "driver_id": [a.driver_id for a in approaches],
+            "press_t_s": [a.press_t_s for a in approaches],
+            "change_t_s": change_t,
+            "recorded": recorded,
+        }
+    )
     changed = [s for s in at_change if s is not None]
     ind = _indicator_frame(Scene.concat(changed), cfg) if changed else None
     cols = ["v_e_mps", "t_f_s", "t_nf_s", "dv_nb_mps", "t_f_ref", "t_nf_ref", "dv_nb_ref"]
@@ -125,15 +127,20 @@ FIELDS = {
     "specificity": "share of the not-yet states before a press at which the policy keeps its lane",
     "balanced_accuracy": "mean of recall and specificity",
     "timing_mae_s": "mean |time of the policy's first change - time of the driver's press| [s], over the "
-                    "decisions where it changed",
+    "decisions where it changed",
     "timing_bias_s": "mean (time of the policy's first change - time of the press) [s]; negative: earlier",
     "never_rate": "share of the decisions where the policy never changed",
-    **{f"medae_{k}": f"median |{k} at the policy's change - the reference line's {k} at that speed| [{u}], over "
-                     "the changes where it is defined; a median because TTCs of slowly closing leaders run to "
-                     "minutes and a few of them would set a mean" for k, u in (("t_f", "s"), ("t_nf", "s"),
-                                                                              ("dv_nb", "m/s"))},
-    **{f"mae_{k}": f"mean |{k} at the change - the reference line's {k}| [{u}] (dominated by minutes-long TTCs; "
-                   f"see medae_{k})" for k, u in (("t_f", "s"), ("t_nf", "s"), ("dv_nb", "m/s"))},
+    **{
+        f"medae_{k}": f"median |{k} at the policy's change - the reference line's {k} at that speed| [{u}], over "
+        "the changes where it is defined; a median because TTCs of slowly closing leaders run to "
+        "minutes and a few of them would set a mean"
+        for k, u in (("t_f", "s"), ("t_nf", "s"), ("dv_nb", "m/s"))
+    },
+    **{
+        f"mae_{k}": f"mean |{k} at the change - the reference line's {k}| [{u}] (dominated by minutes-long TTCs; "
+        f"see medae_{k})"
+        for k, u in (("t_f", "s"), ("t_nf", "s"), ("dv_nb", "m/s"))
+    },
 }
 
 
@@ -161,8 +168,9 @@ def state_table(approaches: list[Approach], cfg: EnvConfig) -> pd.DataFrame:
     return df
 
 
-def evaluate_policies(policies: dict[str, Policy], approaches: list[Approach], cfg: EnvConfig,
-                      skipped: dict[str, int] | None = None) -> dict:
+def evaluate_policies(
+    policies: dict[str, Policy], approaches: list[Approach], cfg: EnvConfig, skipped: dict[str, int] | None = None
+) -> dict:
     """Side-by-side figures for each policy and for the driver.
 
     Returns {"summary": [one dict per policy + 'driver'], "states": DataFrame with an
@@ -183,16 +191,18 @@ def evaluate_policies(policies: dict[str, Policy], approaches: list[Approach], c
         rows.insert(0, "who", name)
         changes.append(rows)
         err = rows["timing_error_s"].dropna()
-        summary.append({
-            "who": name,
-            "recall": recall,
-            "specificity": spec,
-            "balanced_accuracy": None if recall is None or spec is None else (recall + spec) / 2,
-            "timing_mae_s": float(err.abs().mean()) if len(err) else None,
-            "timing_bias_s": float(err.mean()) if len(err) else None,
-            "never_rate": float(rows["change_t_s"].isna().mean()) if len(rows) else None,
-            **_mae(rows),
-        })
+        summary.append(
+            {
+                "who": name,
+                "recall": recall,
+                "specificity": spec,
+                "balanced_accuracy": None if recall is None or spec is None else (recall + spec) / 2,
+                "timing_mae_s": float(err.abs().mean()) if len(err) else None,
+                "timing_bias_s": float(err.mean()) if len(err) else None,
+                "never_rate": float(rows["change_t_s"].isna().mean()) if len(rows) else None,
+                **_mae(rows),
+            }
+        )
     # the driver: changes exactly at the presses
     if approaches:
         press = Scene.concat([a.scene.take(slice(-1, None)) for a in approaches])
@@ -205,8 +215,18 @@ def evaluate_policies(policies: dict[str, Policy], approaches: list[Approach], c
         drv["timing_error_s"] = 0.0
         drv.insert(0, "who", "driver")
         changes.append(drv)
-        summary.append({"who": "driver", "recall": 1.0, "specificity": 1.0, "balanced_accuracy": 1.0,
-                        "timing_mae_s": 0.0, "timing_bias_s": 0.0, "never_rate": 0.0, **_mae(drv)})
+        summary.append(
+            {
+                "who": "driver",
+                "recall": 1.0,
+                "specificity": 1.0,
+                "balanced_accuracy": 1.0,
+                "timing_mae_s": 0.0,
+                "timing_bias_s": 0.0,
+                "never_rate": 0.0,
+                **_mae(drv),
+            }
+        )
     return {
         "summary": summary,
         "states": states,

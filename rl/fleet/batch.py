@@ -28,8 +28,18 @@ from rl.settings import DQNSettings
 __all__ = ["FleetMember", "FleetTrainer", "SHARED_SETTINGS", "check_compatible"]
 
 #: Settings that must be equal across a fleet (they fix tensor shapes or the shared update).
-SHARED_SETTINGS = ("hidden", "num_envs", "batch_size", "gradient_steps", "buffer_size", "loss", "double_q",
-                   "gamma", "max_grad_norm", "average_tau")
+SHARED_SETTINGS = (
+    "hidden",
+    "num_envs",
+    "batch_size",
+    "gradient_steps",
+    "buffer_size",
+    "loss",
+    "double_q",
+    "gamma",
+    "max_grad_norm",
+    "average_tau",
+)
 
 
 def check_compatible(members: list[FleetMember]) -> None:
@@ -39,7 +49,9 @@ def check_compatible(members: list[FleetMember]) -> None:
     for m in members[1:]:
         for name in SHARED_SETTINGS:
             if getattr(m.settings, name) != getattr(first, name):
-                raise ValueError(f"a fleet's agents must share {name!r}: {getattr(m.settings, name)} vs {getattr(first, name)}")
+                raise ValueError(
+                    f"a fleet's agents must share {name!r}: {getattr(m.settings, name)} vs {getattr(first, name)}"
+                )
         if len(observation_names(m.env_config)) != n_obs:
             raise ValueError("a fleet's agents must share the observation")
 
@@ -54,8 +66,9 @@ class FleetTrainer(DQNLoop):
     True stops training.
     """
 
-    def __init__(self, members: list[FleetMember], threads: int = 1,
-                 states: list[dict[str, Any] | None] | None = None) -> None:
+    def __init__(
+        self, members: list[FleetMember], threads: int = 1, states: list[dict[str, Any] | None] | None = None
+    ) -> None:
         if members:
             check_compatible(members)
         super().__init__(members, StackedNets, threads, states)
@@ -74,11 +87,14 @@ class FleetTrainer(DQNLoop):
     def _all(self) -> list[Any]:
         return sorted(self.agents + self._finished, key=lambda a: a.member)
 
-    def train(self, on_episode: Callable[[int, dict], None] | None = None,
-              on_checkpoint: Callable[[int, dict], None] | None = None,
-              on_finish: Callable[[int, dict, dict], None] | None = None,
-              should_stop: Callable[[], bool] | None = None,
-              on_vector_step: Callable[[FleetTrainer], bool] | None = None) -> FleetTrainer:
+    def train(
+        self,
+        on_episode: Callable[[int, dict], None] | None = None,
+        on_checkpoint: Callable[[int, dict], None] | None = None,
+        on_finish: Callable[[int, dict, dict], None] | None = None,
+        should_stop: Callable[[], bool] | None = None,
+        on_vector_step: Callable[[FleetTrainer], bool] | None = None,
+    ) -> FleetTrainer:
         """Run until every agent has its episodes or `should_stop()` (see the class doc)."""
 
         def checkpoint(j: int) -> None:
@@ -89,7 +105,11 @@ class FleetTrainer(DQNLoop):
             assert on_finish is not None
             on_finish(self.agents[j].member, self.policy_state_dict(j), self.agent_state_dict(j))
 
-        self.run(on_episode=on_episode, on_checkpoint=checkpoint if on_checkpoint is not None else None,
-                 on_finish=finish if on_finish is not None else None, should_stop=should_stop,
-                 on_vector_step=None if on_vector_step is None else lambda: on_vector_step(self))
+        self.run(
+            on_episode=on_episode,
+            on_checkpoint=checkpoint if on_checkpoint is not None else None,
+            on_finish=finish if on_finish is not None else None,
+            should_stop=should_stop,
+            on_vector_step=None if on_vector_step is None else lambda: on_vector_step(self),
+        )
         return self

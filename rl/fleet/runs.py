@@ -37,8 +37,20 @@ from laneprint.workspace import Workspace, atomic_write_json
 from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config, replayed_approaches
 from rl.fleet.batch import FleetMember, FleetTrainer
 from rl.fleet.store import fleet_dir, fleet_table
-from rl.runs import (Target, target_drivers, _save_torch, _StopFlag, _truncate_metrics, code_version, create_run,
-                     evaluate_run, lock_run, now_iso, resolve_lines, run_dir)
+from rl.runs import (
+    Target,
+    target_drivers,
+    _save_torch,
+    _StopFlag,
+    _truncate_metrics,
+    code_version,
+    create_run,
+    evaluate_run,
+    lock_run,
+    now_iso,
+    resolve_lines,
+    run_dir,
+)
 from rl.settings import DQNSettings
 
 FLEET_STATES = ("running", "done", "failed", "cancelled")
@@ -82,7 +94,9 @@ def fleet_targets(workspace: Workspace, drivers: str | None = None, styles: str 
     names = known if wanted.strip().lower() == "all" else [n.strip() for n in wanted.split(",") if n.strip()]
     unknown = [n for n in names if n.lower() not in {k.lower() for k in known}]
     if unknown or not names:
-        raise UserError(f"unknown {kind}(s) {', '.join(unknown) or '(none given)'}: the analysis has {', '.join(known)}")
+        raise UserError(
+            f"unknown {kind}(s) {', '.join(unknown) or '(none given)'}: the analysis has {', '.join(known)}"
+        )
     canonical = {k.lower(): k for k in known}
     return [Target(kind, canonical[n.lower()]) for n in dict.fromkeys(names)]
 
@@ -91,8 +105,11 @@ def _approach_counts(workspace: Workspace, targets: list[Target], env: EnvConfig
     """Replayed approaches per target (what `resolved_episodes` scales with: `replayed_approaches`)."""
     decisions = workspace.read_table("analysis", "decisions")
     approaches, _ = approaches_from_decisions(decisions)
-    per_driver = pd.Series([a.driver_id for a in approaches for _ in range(replayed_approaches([a], env))]
-                           ).value_counts().to_dict()
+    per_driver = (
+        pd.Series([a.driver_id for a in approaches for _ in range(replayed_approaches([a], env))])
+        .value_counts()
+        .to_dict()
+    )
     out = {}
     for t in targets:
         drivers, _ = target_drivers(workspace, t)
@@ -100,24 +117,39 @@ def _approach_counts(workspace: Workspace, targets: list[Target], env: EnvConfig
     return out
 
 
-def create_fleet(workspace: Workspace, targets: list[Target], seeds: list[int], base: DQNSettings, *,
-                 reward: str | None = None, scenes: str | None = None, observation: str | None = None,
-                 other_side: bool | None = None, lines_source: str = "analysis", dt_s: float | None = None,
-                 backend: str = "local",
-                 fleet_id: str | None = None) -> dict[str, Any]:
+def create_fleet(
+    workspace: Workspace,
+    targets: list[Target],
+    seeds: list[int],
+    base: DQNSettings,
+    *,
+    reward: str | None = None,
+    scenes: str | None = None,
+    observation: str | None = None,
+    other_side: bool | None = None,
+    lines_source: str = "analysis",
+    dt_s: float | None = None,
+    backend: str = "local",
+    fleet_id: str | None = None,
+) -> dict[str, Any]:
     """Write fleet.json and one run folder per (target, seed); returns the fleet record."""
     workspace.ensure()
     kinds = sorted({t.kind for t in targets})
     fleet_id = fleet_id or f"{datetime.now(timezone.utc):%Y%m%d-%H%M%S}-fleet-{kinds[0]}s-{len(targets) * len(seeds)}"
     if is_fleet(workspace, fleet_id):
         raise UserError(f"fleet {fleet_id!r} exists already (pass --resume {fleet_id} to continue it)")
-    common = {"fleet_id": fleet_id, "code_version": code_version(), "data_fingerprint": workspace.fingerprint(),
-              "analysis_fingerprint": workspace.analysis_fingerprint()}
+    common = {
+        "fleet_id": fleet_id,
+        "code_version": code_version(),
+        "data_fingerprint": workspace.fingerprint(),
+        "analysis_fingerprint": workspace.analysis_fingerprint(),
+    }
     counts = None
     runs = []
     for target in targets:
-        env = formulation_config(resolve_lines(workspace, target, lines_source), reward, scenes, observation,
-                                 lines_source, other_side)
+        env = formulation_config(
+            resolve_lines(workspace, target, lines_source), reward, scenes, observation, lines_source, other_side
+        )
         if dt_s is not None:
             env = replace(env, dt_s=dt_s)
         if env.scenes == "recorded" and counts is None:
@@ -126,14 +158,24 @@ def create_fleet(workspace: Workspace, targets: list[Target], seeds: list[int], 
             settings = replace(base, seed=seed)
             if env.scenes == "recorded":
                 if not counts.get(target):
-                    raise UserError(f"no recorded approaches for {target.label}: nothing to replay (try --scenes synthetic)")
+                    raise UserError(
+                        f"no recorded approaches for {target.label}: nothing to replay (try --scenes synthetic)"
+                    )
                 settings = settings.resolved_episodes(counts[target])
             run_id = f"{fleet_id}-{_slug(target.name)}-s{seed}"
             create_run(workspace, target, env, settings, run_id=run_id, lines_source=lines_source, extra=common)
             runs.append(run_id)
-    fleet = {"fleet_id": fleet_id, "created_at": now_iso(), "targets": [{"kind": t.kind, "name": t.name} for t in targets],
-             "seeds": list(seeds), "runs": runs, "backend": backend, "state": "running", "pid": os.getpid(),
-             "message": ""}
+    fleet = {
+        "fleet_id": fleet_id,
+        "created_at": now_iso(),
+        "targets": [{"kind": t.kind, "name": t.name} for t in targets],
+        "seeds": list(seeds),
+        "runs": runs,
+        "backend": backend,
+        "state": "running",
+        "pid": os.getpid(),
+        "message": "",
+    }
     _write_fleet(workspace, fleet)
     return fleet
 
@@ -164,11 +206,18 @@ class _ShardWriter:
             self.pending[i] = []
 
     def status(self, i: int, state: str, message: str) -> None:
-        atomic_write_json(self.folders[i] / "status.json", {
-            "state": state, "pid": os.getpid(), "episode": int(self.done_episodes[i]),
-            "episodes": int(self.episodes[i]), "started_at": self.started_at, "updated_at": now_iso(),
-            "message": message,
-        })
+        atomic_write_json(
+            self.folders[i] / "status.json",
+            {
+                "state": state,
+                "pid": os.getpid(),
+                "episode": int(self.done_episodes[i]),
+                "episodes": int(self.episodes[i]),
+                "started_at": self.started_at,
+                "updated_at": now_iso(),
+                "message": message,
+            },
+        )
 
     def periodic(self, active: list[int], force: bool = False) -> None:
         """Flush metrics and write 'running' statuses of the active runs, every few seconds."""
@@ -216,8 +265,14 @@ def _is_done(workspace: Workspace, run_id: str) -> bool:
     return status.get("state") == "done" and (folder / "weights.pt").exists()
 
 
-def train_shard(workspace_root: str, run_ids: list[str], threads: int = 1, evaluate: bool = True,
-                progress: ProgressFn | None = None, stop: _StopFlag | None = None) -> list[dict[str, Any]]:
+def train_shard(
+    workspace_root: str,
+    run_ids: list[str],
+    threads: int = 1,
+    evaluate: bool = True,
+    progress: ProgressFn | None = None,
+    stop: _StopFlag | None = None,
+) -> list[dict[str, Any]]:
     """Train the fleet runs `run_ids` (those not done) together; returns one summary per run.
 
     Runs that have a checkpoint continue from it. On SIGTERM/SIGINT (caught here,
@@ -235,16 +290,27 @@ def train_shard(workspace_root: str, run_ids: list[str], threads: int = 1, evalu
         return summaries + _train_locked(workspace, todo, threads, evaluate, progress, stop)
 
 
-def _train_locked(workspace: Workspace, todo: list[str], threads: int, evaluate: bool,
-                  progress: ProgressFn | None, stop: _StopFlag | None) -> list[dict[str, Any]]:
+def _train_locked(
+    workspace: Workspace,
+    todo: list[str],
+    threads: int,
+    evaluate: bool,
+    progress: ProgressFn | None,
+    stop: _StopFlag | None,
+) -> list[dict[str, Any]]:
     """`train_shard`'s work on the runs `todo`, whose locks are held."""
     members, states = _load_members(workspace, todo)
-    decisions = workspace.read_table("analysis", "decisions") \
-        if evaluate and workspace.has_table("analysis", "decisions") else None
+    decisions = (
+        workspace.read_table("analysis", "decisions")
+        if evaluate and workspace.has_table("analysis", "decisions")
+        else None
+    )
     classifiers: dict = {}  # one imitation classifier per driver set, shared by its seeds
     for rid, state in zip(todo, states):  # drop metrics written after the checkpoint (all, without one)
-        _truncate_metrics(run_dir(workspace, rid) / "metrics.jsonl",
-                          int(state["counters"]["episodes_done"]) if state is not None else 0)
+        _truncate_metrics(
+            run_dir(workspace, rid) / "metrics.jsonl",
+            int(state["counters"]["episodes_done"]) if state is not None else 0,
+        )
     fleet = FleetTrainer(members, threads=threads, states=states)
     episodes = [s.episodes for s in fleet.settings]
     writer = _ShardWriter(workspace, todo, episodes)
@@ -261,9 +327,15 @@ def _train_locked(workspace: Workspace, todo: list[str], threads: int, evaluate:
         checkpoint(i, state)
         _save_torch(writer.folders[i] / "weights.pt", policy)
         config = json.loads((writer.folders[i] / "config.json").read_text())
-        summary: dict[str, Any] = {"run_id": todo[i], "state": "done", "target": Target(**config["target"]).label,
-                                   "reward": config["reward"], "episodes": int(state["counters"]["episodes_done"]),
-                                   "env_steps": int(state["counters"]["env_steps"]), "wall_s": round(fleet.wall_s, 2)}
+        summary: dict[str, Any] = {
+            "run_id": todo[i],
+            "state": "done",
+            "target": Target(**config["target"]).label,
+            "reward": config["reward"],
+            "episodes": int(state["counters"]["episodes_done"]),
+            "env_steps": int(state["counters"]["env_steps"]),
+            "wall_s": round(fleet.wall_s, 2),
+        }
         if evaluate:
             writer.status(i, "running", "evaluating")
             try:
@@ -276,14 +348,18 @@ def _train_locked(workspace: Workspace, todo: list[str], threads: int, evaluate:
 
     def tick(f: FleetTrainer) -> bool:
         writer.periodic([a.member for a in f.agents])
-        report(progress, sum(writer.done_episodes), sum(episodes),
-               f"fleet: {len(results)}/{len(todo)} agents done")
+        report(progress, sum(writer.done_episodes), sum(episodes), f"fleet: {len(results)}/{len(todo)} agents done")
         return False
 
     try:
-        with (nullcontext(stop) if stop is not None else _StopFlag()) as stop:
-            fleet.train(on_episode=writer.metric, on_checkpoint=checkpoint, on_finish=finish,
-                        should_stop=stop, on_vector_step=tick)
+        with nullcontext(stop) if stop is not None else _StopFlag() as stop:
+            fleet.train(
+                on_episode=writer.metric,
+                on_checkpoint=checkpoint,
+                on_finish=finish,
+                should_stop=stop,
+                on_vector_step=tick,
+            )
     except Exception as exc:
         for a in fleet.agents:
             writer.flush(a.member)
@@ -294,8 +370,12 @@ def _train_locked(workspace: Workspace, todo: list[str], threads: int, evaluate:
         for j, a in enumerate(fleet.agents):
             checkpoint(a.member, fleet.agent_state_dict(j))
             writer.status(a.member, "cancelled", message)
-            results[a.member] = {"run_id": todo[a.member], "state": "cancelled", "episodes": a.episodes_done,
-                                 "message": message}
+            results[a.member] = {
+                "run_id": todo[a.member],
+                "state": "cancelled",
+                "episodes": a.episodes_done,
+                "message": message,
+            }
     report(progress, sum(writer.done_episodes), sum(episodes), f"fleet: {len(todo)} agents")
     return [results[i] for i in sorted(results)]
 
@@ -309,8 +389,9 @@ def shard_runs(run_ids: list[str], n_shards: int) -> list[list[str]]:
     return [run_ids[i::n] for i in range(n)]
 
 
-def _fleet_progress(workspace: Workspace, run_ids: list[str], progress: ProgressFn | None,
-                    stop: threading.Event) -> None:
+def _fleet_progress(
+    workspace: Workspace, run_ids: list[str], progress: ProgressFn | None, stop: threading.Event
+) -> None:
     """Report summed episodes from the runs' status files until `stop` (for remote workers)."""
     while not stop.wait(1.0):
         done = total = finished = 0
@@ -326,9 +407,16 @@ def _fleet_progress(workspace: Workspace, run_ids: list[str], progress: Progress
             report(progress, done, total, f"fleet: {finished}/{len(run_ids)} agents done")
 
 
-def train_fleet(workspace: Workspace, fleet_id: str, *, backend: str = "local", ray_address: str | None = None,
-                threads: int | None = None, evaluate: bool = True,
-                progress: ProgressFn | None = None) -> dict[str, Any]:
+def train_fleet(
+    workspace: Workspace,
+    fleet_id: str,
+    *,
+    backend: str = "local",
+    ray_address: str | None = None,
+    threads: int | None = None,
+    evaluate: bool = True,
+    progress: ProgressFn | None = None,
+) -> dict[str, Any]:
     """Train (or resume) every run of a fleet; returns the fleet record with per-run summaries."""
     from laneprint.parallel import check_backend
 
@@ -343,8 +431,15 @@ def train_fleet(workspace: Workspace, fleet_id: str, *, backend: str = "local", 
         lock.release()
 
 
-def _train_fleet(workspace: Workspace, fleet: dict[str, Any], backend: str, ray_address: str | None,
-                 threads: int | None, evaluate: bool, progress: ProgressFn | None) -> dict[str, Any]:
+def _train_fleet(
+    workspace: Workspace,
+    fleet: dict[str, Any],
+    backend: str,
+    ray_address: str | None,
+    threads: int | None,
+    evaluate: bool,
+    progress: ProgressFn | None,
+) -> dict[str, Any]:
     fleet.update(state="running", pid=os.getpid(), backend=backend, message="training")
     fleet.setdefault("started_at", now_iso())
     _write_fleet(workspace, fleet)
@@ -362,29 +457,40 @@ def _train_fleet(workspace: Workspace, fleet: dict[str, Any], backend: str, ray_
                 watcher = threading.Thread(target=_fleet_progress, args=(workspace, runs, progress, stop), daemon=True)
                 watcher.start()
                 try:
-                    parts = run_tasks(_train_shard_task, [(str(workspace.root), s, 1, evaluate) for s in shards],
-                                      backend="ray", ray_address=ray_address)
+                    parts = run_tasks(
+                        _train_shard_task,
+                        [(str(workspace.root), s, 1, evaluate) for s in shards],
+                        backend="ray",
+                        ray_address=ray_address,
+                    )
                 finally:
                     stop.set()
             summaries = [x for part in parts for x in part]
         else:
             raise UserError(f"unknown --backend {backend!r}: choose 'local' or 'ray'")
     except BaseException as exc:
-        fleet.update(state="failed" if isinstance(exc, Exception) else "cancelled",
-                     message=f"{type(exc).__name__}: {exc}")
+        fleet.update(
+            state="failed" if isinstance(exc, Exception) else "cancelled", message=f"{type(exc).__name__}: {exc}"
+        )
         _write_fleet(workspace, fleet)
         raise
     states = {s["state"] for s in summaries}
-    fleet.update(state="cancelled" if "cancelled" in states else "done",
-                 message=f"{sum(s['state'] == 'done' for s in summaries)} of {len(runs)} agents done")
+    fleet.update(
+        state="cancelled" if "cancelled" in states else "done",
+        message=f"{sum(s['state'] == 'done' for s in summaries)} of {len(runs)} agents done",
+    )
     _write_fleet(workspace, fleet)
     by_id = {s["run_id"]: s for s in summaries}
-    return {**fleet, "summaries": [by_id.get(r, {"run_id": r, "state": "missing"}) for r in runs],
-            "agents": fleet_table(workspace, fleet["fleet_id"]).to_dict("records")}
+    return {
+        **fleet,
+        "summaries": [by_id.get(r, {"run_id": r, "state": "missing"}) for r in runs],
+        "agents": fleet_table(workspace, fleet["fleet_id"]).to_dict("records"),
+    }
 
 
-def _train_local(workspace: Workspace, runs: list[str], threads: int, evaluate: bool,
-                 progress: ProgressFn | None) -> list[dict[str, Any]]:
+def _train_local(
+    workspace: Workspace, runs: list[str], threads: int, evaluate: bool, progress: ProgressFn | None
+) -> list[dict[str, Any]]:
     """The fleet in this process: one shard per thread, each a `FleetTrainer` with one torch thread.
 
     Shards in Python threads rather than one stack on several torch threads: torch
@@ -406,6 +512,7 @@ def _train_local(workspace: Workspace, runs: list[str], threads: int, evaluate: 
             with lock:
                 done[i], totals[i] = d, t
                 report(progress, sum(done), sum(totals), f"fleet: {len(runs)} agents in {len(shards)} shards")
+
         return update
 
     def work(i: int, stop: _StopFlag) -> None:

@@ -37,11 +37,25 @@ TARGET_RECALL = 0.95
 #: ... and its balanced accuracy beats the greedy benchmark's by at least this (fraction).
 TARGET_BA_MARGIN = 0.05
 
-FLEETS_COLUMNS = ["fleet_id", "created_at", "targets", "n_targets", "n_seeds", "n_runs", "n_done",
-                  "n_evaluated", "state", "backend", "updated_at", "message"]
-TABLE_COLUMNS = (["run_id", "target_kind", "target", "seed", "state", "episode", "episodes"]
-                 + [f"{who}_{m}" for m in ("balanced_accuracy", "recall") for who in POLICIES]
-                 + ["agent_minus_greedy", "meets_target", "timing_mae_s"])
+FLEETS_COLUMNS = [
+    "fleet_id",
+    "created_at",
+    "targets",
+    "n_targets",
+    "n_seeds",
+    "n_runs",
+    "n_done",
+    "n_evaluated",
+    "state",
+    "backend",
+    "updated_at",
+    "message",
+]
+TABLE_COLUMNS = (
+    ["run_id", "target_kind", "target", "seed", "state", "episode", "episodes"]
+    + [f"{who}_{m}" for m in ("balanced_accuracy", "recall") for who in POLICIES]
+    + ["agent_minus_greedy", "meets_target", "timing_mae_s"]
+)
 
 
 def fleet_dir(workspace: Workspace) -> Path:
@@ -74,8 +88,9 @@ def targets_summary(targets: list[dict[str, Any]]) -> str:
     parts = []
     for kind, names in kinds.items():
         plural = kind + ("s" if len(names) != 1 else "")
-        parts.append(f"{plural} {', '.join(names)}" if len(kinds) == 1 and len(names) <= 3
-                     else f"{len(names)} {plural}")
+        parts.append(
+            f"{plural} {', '.join(names)}" if len(kinds) == 1 and len(names) <= 3 else f"{len(names)} {plural}"
+        )
     return ", ".join(parts) or "no targets"
 
 
@@ -90,8 +105,11 @@ def load_fleet(workspace: Workspace, fleet_id: str) -> dict[str, Any]:
 
 def _run_files(workspace: Workspace, run_id: str) -> tuple[dict | None, dict | None, dict | None]:
     folder = workspace.runs_dir / run_id
-    return (_read_json(folder / "config.json"), _read_json(folder / "status.json"),
-            _read_json(folder / "evaluation.json"))
+    return (
+        _read_json(folder / "config.json"),
+        _read_json(folder / "status.json"),
+        _read_json(folder / "evaluation.json"),
+    )
 
 
 def _run_state(config: dict | None, status: dict | None, fleet_alive: bool) -> str:
@@ -136,8 +154,11 @@ def fleet_table(workspace: Workspace, fleet_id: str) -> pd.DataFrame:
         target = (config or {}).get("target") or {}
         by = _summary_rows(evaluation)
         row: dict[str, Any] = {
-            "run_id": str(run_id), "target_kind": target.get("kind"), "target": target.get("name"),
-            "seed": (config or {}).get("seed"), "state": _run_state(config, status, alive),
+            "run_id": str(run_id),
+            "target_kind": target.get("kind"),
+            "target": target.get("name"),
+            "seed": (config or {}).get("seed"),
+            "state": _run_state(config, status, alive),
             "episode": (status or {}).get("episode", 0),
             "episodes": (status or {}).get("episodes", ((config or {}).get("dqn") or {}).get("episodes")),
         }
@@ -145,8 +166,11 @@ def fleet_table(workspace: Workspace, fleet_id: str) -> pd.DataFrame:
             for who in POLICIES:
                 row[f"{who}_{m}"] = _number(by.get(who), m)
         row["agent_minus_greedy"] = row["agent_balanced_accuracy"] - row["greedy_balanced_accuracy"]
-        row["meets_target"] = (meets_target(row["agent_recall"], row["agent_balanced_accuracy"],
-                                            row["greedy_balanced_accuracy"]) if "agent" in by else None)
+        row["meets_target"] = (
+            meets_target(row["agent_recall"], row["agent_balanced_accuracy"], row["greedy_balanced_accuracy"])
+            if "agent" in by
+            else None
+        )
         row["timing_mae_s"] = _number(by.get("agent"), "timing_mae_s")
         rows.append(row)
     table = pd.DataFrame(rows, columns=TABLE_COLUMNS)
@@ -157,10 +181,14 @@ def fleet_table(workspace: Workspace, fleet_id: str) -> pd.DataFrame:
 
 def fleet_progress(table: pd.DataFrame) -> dict[str, int]:
     """Agents finished (done, evaluated) and episodes summed over the runs' status.json."""
-    return {"n_runs": len(table), "n_done": int((table["state"] == "done").sum()),
-            "n_evaluated": int(table["agent_balanced_accuracy"].notna().sum()),
-            "n_meeting_target": int((table["meets_target"] == True).sum()),  # noqa: E712 (None: not yet)
-            "episode": int(table["episode"].sum()), "episodes": int(table["episodes"].sum())}
+    return {
+        "n_runs": len(table),
+        "n_done": int((table["state"] == "done").sum()),
+        "n_evaluated": int(table["agent_balanced_accuracy"].notna().sum()),
+        "n_meeting_target": int((table["meets_target"] == True).sum()),  # noqa: E712 (None: not yet)
+        "episode": int(table["episode"].sum()),
+        "episodes": int(table["episodes"].sum()),
+    }
 
 
 def fleet_ids(workspace: Workspace) -> list[str]:
@@ -184,14 +212,25 @@ def list_fleets(workspace: Workspace) -> pd.DataFrame:
         done = evaluated = 0
         for run_id in fleet.get("runs") or []:
             folder = workspace.runs_dir / str(run_id)
-            done += ((_read_json(folder / "status.json") or {}).get("state") == "done")
+            done += (_read_json(folder / "status.json") or {}).get("state") == "done"
             evaluated += (folder / "evaluation.json").exists()
         targets = fleet.get("targets") or []
-        rows.append({"fleet_id": fid, "created_at": fleet.get("created_at"), "targets": targets_summary(targets),
-                     "n_targets": len(targets), "n_seeds": len(fleet.get("seeds") or []),
-                     "n_runs": fleet["n_runs"], "n_done": done, "n_evaluated": evaluated,
-                     "state": fleet["state_read"], "backend": fleet.get("backend"),
-                     "updated_at": fleet.get("updated_at"), "message": fleet.get("message")})
+        rows.append(
+            {
+                "fleet_id": fid,
+                "created_at": fleet.get("created_at"),
+                "targets": targets_summary(targets),
+                "n_targets": len(targets),
+                "n_seeds": len(fleet.get("seeds") or []),
+                "n_runs": fleet["n_runs"],
+                "n_done": done,
+                "n_evaluated": evaluated,
+                "state": fleet["state_read"],
+                "backend": fleet.get("backend"),
+                "updated_at": fleet.get("updated_at"),
+                "message": fleet.get("message"),
+            }
+        )
     return pd.DataFrame(rows, columns=FLEETS_COLUMNS)
 
 

@@ -2,10 +2,13 @@
 
 from laneprint.lazy import lazy_exports
 
-__getattr__, __dir__, __all__ = lazy_exports(__name__, {
-    "DQNTrainer": "rl.learners.dqn",
-    "q_network": "rl.learners.dqn",
-    "q_values": "rl.learners.dqn",
-    "DQNLoop": "rl.learners.dqn",
-    "StackedAdam": "rl.learners.batched",
-})
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "DQNTrainer": "rl.learners.dqn",
+        "q_network": "rl.learners.dqn",
+        "q_values": "rl.learners.dqn",
+        "DQNLoop": "rl.learners.dqn",
+        "StackedAdam": "rl.learners.batched",
+    },
+)

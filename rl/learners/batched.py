@@ -115,8 +115,9 @@ class StackedAdam:
     """torch Adam's update (default betas and eps, no weight decay) for stacked parameters,
     with a learning rate and an on/off mask per agent."""
 
-    def __init__(self, params: list[torch.Tensor], betas: tuple[float, float] = (0.9, 0.999),
-                 eps: float = 1e-8) -> None:
+    def __init__(
+        self, params: list[torch.Tensor], betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8
+    ) -> None:
         self.betas, self.eps = betas, eps
         k = params[0].shape[0]
         self.exp_avg = [torch.zeros_like(p) for p in params]
@@ -124,18 +125,19 @@ class StackedAdam:
         self.steps = torch.zeros(k, dtype=torch.float64)
 
     @torch.no_grad()
-    def step(self, params: list[torch.Tensor], grads: list[torch.Tensor], lr: torch.Tensor,
-             mask: torch.Tensor) -> None:
+    def step(self, params: list[torch.Tensor], grads: list[torch.Tensor], lr: torch.Tensor, mask: torch.Tensor) -> None:
         """One Adam step for the agents where `mask` (K,) is true, at their learning rates `lr` (K,)."""
         b1, b2 = self.betas
         on = mask.to(torch.float64)
         self.steps += on
         steps = self.steps.clamp(min=1.0)
-        bc1 = 1.0 - b1 ** steps
-        bc2_sqrt = (1.0 - b2 ** steps).sqrt()
+        bc1 = 1.0 - b1**steps
+        bc2_sqrt = (1.0 - b2**steps).sqrt()
         step_size = (lr.to(torch.float64) / bc1 * on).to(torch.float32)
         w1 = ((1.0 - b1) * on).to(torch.float32)
-        keep2 = torch.where(mask, torch.tensor(b2, dtype=torch.float64), torch.tensor(1.0, dtype=torch.float64)).to(torch.float32)
+        keep2 = torch.where(mask, torch.tensor(b2, dtype=torch.float64), torch.tensor(1.0, dtype=torch.float64)).to(
+            torch.float32
+        )
         w2 = ((1.0 - b2) * on).to(torch.float32)
         bc2_sqrt = bc2_sqrt.to(torch.float32)
         for p, g, m, v in zip(params, grads, self.exp_avg, self.exp_avg_sq):
@@ -178,8 +180,14 @@ class StackedAdam:
             self.steps[k] = float(s["step"])
 
 
-def td_losses(params: list[torch.Tensor], target_params: list[torch.Tensor], batch: tuple[torch.Tensor, ...],
-              gamma: float, loss: str, double_q: bool) -> torch.Tensor:
+def td_losses(
+    params: list[torch.Tensor],
+    target_params: list[torch.Tensor],
+    batch: tuple[torch.Tensor, ...],
+    gamma: float,
+    loss: str,
+    double_q: bool,
+) -> torch.Tensor:
     """Per-agent TD losses (K,) of eq. 5 on a stacked batch, as `DQNTrainer._update` computes them."""
     obs, actions, rewards, next_obs, terminated = batch
     with torch.no_grad():
@@ -214,8 +222,14 @@ class StackedNets:
         with torch.inference_mode():
             return forward(self.q, torch.from_numpy(obs)).argmax(dim=2).numpy()
 
-    def update(self, batch: tuple[torch.Tensor, ...], learning: np.ndarray, lr: list[float],
-               averaging: np.ndarray, s: DQNSettings) -> np.ndarray:
+    def update(
+        self,
+        batch: tuple[torch.Tensor, ...],
+        learning: np.ndarray,
+        lr: list[float],
+        averaging: np.ndarray,
+        s: DQNSettings,
+    ) -> np.ndarray:
         losses = td_losses(self.q, self.target, batch, s.gamma, s.loss, s.double_q)
         mask = torch.from_numpy(learning)
         # weight gradients come back as transposed views (`forward` multiplies by W^T): made
@@ -250,13 +264,16 @@ class StackedNets:
     def policy_actions(self, j: int, averaging: bool, x: np.ndarray) -> np.ndarray:
         params = self.q_avg if averaging else self.q
         with torch.inference_mode():
-            q = forward([p[j:j + 1] for p in params], torch.as_tensor(x, dtype=torch.float32)[None])[0]
+            q = forward([p[j : j + 1] for p in params], torch.as_tensor(x, dtype=torch.float32)[None])[0]
         return q.argmax(dim=1).numpy()
 
     def agent_state_dict(self, j: int, lr: float) -> dict[str, Any]:
-        return {"q": agent_state_dict(self.q, j), "target": agent_state_dict(self.target, j),
-                "q_avg": agent_state_dict(self.q_avg, j),
-                "optimizer": self.adam.agent_state_dict(j, lr, self.hidden, self.n_obs)}
+        return {
+            "q": agent_state_dict(self.q, j),
+            "target": agent_state_dict(self.target, j),
+            "q_avg": agent_state_dict(self.q_avg, j),
+            "optimizer": self.adam.agent_state_dict(j, lr, self.hidden, self.n_obs),
+        }
 
     def load_agent(self, j: int, state: dict[str, Any]) -> None:
         load_agent(self.q, j, state["q"])

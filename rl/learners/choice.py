@@ -34,8 +34,16 @@ from rl.problem.env import Approach, EnvConfig, learner_env
 from rl.problem.rewards import CHANGE
 from rl.settings import AutoSettings, DQNSettings, TreeQSettings
 
-__all__ = ["ChoiceTask", "Choice", "Fitted", "choose_and_fit", "choose_learner", "chosen_settings", "fit_learner",
-           "inner_folds"]
+__all__ = [
+    "ChoiceTask",
+    "Choice",
+    "Fitted",
+    "choose_and_fit",
+    "choose_learner",
+    "chosen_settings",
+    "fit_learner",
+    "inner_folds",
+]
 
 
 @dataclass(frozen=True)
@@ -52,9 +60,16 @@ class Choice:
     checks: list[dict[str, float]] = field(default_factory=list)  # the running DQN score at each check
 
     def to_dict(self) -> dict[str, Any]:
-        return {"learner": self.learner, "scores": self.scores, "n_train": self.n_train,
-                "n_holdout": self.n_holdout, "folds": self.folds, "by_side": self.by_side,
-                "stopped": self.stopped, "checks": self.checks}
+        return {
+            "learner": self.learner,
+            "scores": self.scores,
+            "n_train": self.n_train,
+            "n_holdout": self.n_holdout,
+            "folds": self.folds,
+            "by_side": self.by_side,
+            "stopped": self.stopped,
+            "checks": self.checks,
+        }
 
 
 def session_of(decision_id: str) -> str:
@@ -112,8 +127,13 @@ def held_out_changes(net: Any, approaches: list[Approach], cfg: EnvConfig) -> tu
     return greedy_actions(net, x) == CHANGE, y, left
 
 
-def fit_learner(approaches: list[Approach], cfg: EnvConfig, settings: DQNSettings | TreeQSettings,
-                progress: ProgressFn | None = None, label: str = "agent") -> Any:
+def fit_learner(
+    approaches: list[Approach],
+    cfg: EnvConfig,
+    settings: DQNSettings | TreeQSettings,
+    progress: ProgressFn | None = None,
+    label: str = "agent",
+) -> Any:
     """The Q network of `settings`' learner fitted on `approaches` (`cfg` as that learner reads it)."""
     if isinstance(settings, TreeQSettings):
         from rl.learners.trees import fit_tree_q
@@ -131,8 +151,13 @@ def fit_learner(approaches: list[Approach], cfg: EnvConfig, settings: DQNSetting
     return trainer.policy_net
 
 
-def choose_learner(approaches: list[Approach], cfg: EnvConfig, settings: AutoSettings,
-                   progress: ProgressFn | None = None, label: str = "agent") -> Choice:
+def choose_learner(
+    approaches: list[Approach],
+    cfg: EnvConfig,
+    settings: AutoSettings,
+    progress: ProgressFn | None = None,
+    label: str = "agent",
+) -> Choice:
     """Which learner to fit on `approaches`: both fitted and scored across inner folds of the sessions.
 
     Each learner's held-out changes from every inner fold are pooled and scored once, so every
@@ -152,8 +177,14 @@ def choose_learner(approaches: list[Approach], cfg: EnvConfig, settings: AutoSet
         by_side[name] = side_scores(*(np.concatenate(parts) for parts in zip(*pooled)))
         scores[name] = round(float(np.mean(list(by_side[name].values()))), 4) if by_side[name] else float("nan")
     gain = np.nan_to_num(scores["trees"], nan=-1.0) - np.nan_to_num(scores["dqn"], nan=-1.0)
-    return Choice("trees" if gain > settings.margin else "dqn", scores, len(approaches),
-                  sum(len(held) for _, held in pairs), len(pairs), by_side)
+    return Choice(
+        "trees" if gain > settings.margin else "dqn",
+        scores,
+        len(approaches),
+        sum(len(held) for _, held in pairs),
+        len(pairs),
+        by_side,
+    )
 
 
 def chosen_settings(settings: AutoSettings, choice: Choice) -> DQNSettings | TreeQSettings:
@@ -232,8 +263,9 @@ def _trees_worker(events: list[Any]) -> None:
     _STOP_EVENTS[:] = events
 
 
-def _trees_fit(fit: list[Approach], held: list[Approach], cfg: EnvConfig, settings: TreeQSettings,
-               stop: Any) -> tuple[np.ndarray, ...]:
+def _trees_fit(
+    fit: list[Approach], held: list[Approach], cfg: EnvConfig, settings: TreeQSettings, stop: Any
+) -> tuple[np.ndarray, ...]:
     """The trees fitted on `fit`: (changes, labels, left) on `held`; `stop` (an event, or an index into
     `_STOP_EVENTS` in a worker process) ends the fit at its next regression."""
     from rl.learners.trees import fit_tree_q
@@ -248,8 +280,9 @@ def _trees_fit(fit: list[Approach], held: list[Approach], cfg: EnvConfig, settin
     return held_out_changes(fit_tree_q(fit, tenv, settings, check), held, tenv)
 
 
-def _bounds(done: dict[int, tuple[np.ndarray, ...]], held: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
-            ) -> tuple[tuple[float, dict[str, float]], tuple[float, dict[str, float]]]:
+def _bounds(
+    done: dict[int, tuple[np.ndarray, ...]], held: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+) -> tuple[tuple[float, dict[str, float]], tuple[float, dict[str, float]]]:
     """The lowest and highest pooled scores a learner can end with, given its held-out changes of the pairs
     `done`: every other pair all wrong, or all right (equal once every pair is done)."""
     worst = [done[i] if i in done else (y == 0, y, left) for i, (_, y, left) in enumerate(held)]
@@ -261,8 +294,9 @@ def _gain(trees: float, dqn: float) -> float:
     return float(np.nan_to_num(trees, nan=-1.0) - np.nan_to_num(dqn, nan=-1.0))
 
 
-def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, fit_trees: bool = True,
-                   label: str = "") -> list[Fitted]:
+def choose_and_fit(
+    tasks: list[ChoiceTask], progress: ProgressFn | None = None, fit_trees: bool = True, label: str = ""
+) -> list[Fitted]:
     """`choose_learner` and `fit_learner` of the chosen learner for every task, the DQNs trained as one fleet.
 
     Per task: the inner folds' DQNs and the task's own DQN (kept if the DQN wins) are members of one
@@ -292,8 +326,14 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
     for task in tasks:
         s = with_seed(task.settings, task.settings.seed)
         pairs = inner_folds(task.approaches, s.folds, s.seed)
-        t = _Target(task, s, pairs, [labelled_states(held, task.cfg) + (np.concatenate([a.scene.left for a in held]),)
-                                     for _, held in pairs], next_check=s.check_from, stop_trees=threading.Event())
+        t = _Target(
+            task,
+            s,
+            pairs,
+            [labelled_states(held, task.cfg) + (np.concatenate([a.scene.left for a in held]),) for _, held in pairs],
+            next_check=s.check_from,
+            stop_trees=threading.Event(),
+        )
         for fit, _ in pairs:
             t.inner.append(len(members))
             members.append(FleetMember(task.cfg, s.dqn, fit))
@@ -324,8 +364,12 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
                     stop = k if beside == "process" else t.stop_trees
                     t.trees.append(pool.submit(_trees_fit, fit, held, t.task.cfg, t.settings.trees, stop))
                 else:
-                    report(progress, sum(len(u.trees) for u in targets), trees_total,
-                           f"{head}choosing the learner: fitting the trees")
+                    report(
+                        progress,
+                        sum(len(u.trees) for u in targets),
+                        trees_total,
+                        f"{head}choosing the learner: fitting the trees",
+                    )
                     done_f: Future = Future()
                     done_f.set_result(_trees_fit(fit, held, t.task.cfg, t.settings.trees, None))
                     t.trees.append(done_f)
@@ -344,8 +388,13 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
         def on_finish(member: int, policy: dict[str, Any], state: dict[str, Any]) -> None:
             t = owner[member]
             if member == t.final:
-                t.fitted = Fitted(t.choice or Choice("dqn", {}, len(t.task.approaches), 0), fleet.settings[member],
-                                  as_net(policy), state, t.fitted.rows if t.fitted else [])
+                t.fitted = Fitted(
+                    t.choice or Choice("dqn", {}, len(t.task.approaches), 0),
+                    fleet.settings[member],
+                    as_net(policy),
+                    state,
+                    t.fitted.rows if t.fitted else [],
+                )
                 return
             i = t.inner.index(member)
             t.changes[i] = held_out_changes(as_net(policy), t.pairs[i][1], t.task.cfg)[0]
@@ -367,19 +416,32 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
                     out[i] = f.result()  # raises what the fit raised
             return out
 
-        def decide(t: _Target, learner: str, dqn: tuple[float, dict[str, float]],
-                   trees: tuple[float, dict[str, float]], stopped: list[str]) -> None:
-            t.choice = Choice(learner, {"dqn": dqn[0], "trees": trees[0]}, len(t.task.approaches),
-                              sum(len(held) for _, held in t.pairs), len(t.pairs), {"dqn": dqn[1], "trees": trees[1]},
-                              f"{learner} chosen: {'; '.join(stopped)}" if stopped else "", t.checks)
+        def decide(
+            t: _Target,
+            learner: str,
+            dqn: tuple[float, dict[str, float]],
+            trees: tuple[float, dict[str, float]],
+            stopped: list[str],
+        ) -> None:
+            t.choice = Choice(
+                learner,
+                {"dqn": dqn[0], "trees": trees[0]},
+                len(t.task.approaches),
+                sum(len(held) for _, held in t.pairs),
+                len(t.pairs),
+                {"dqn": dqn[1], "trees": trees[1]},
+                f"{learner} chosen: {'; '.join(stopped)}" if stopped else "",
+                t.checks,
+            )
             drop = {m for m in t.inner if fleet.position(m) is not None}
             if learner == "trees":
                 drop.add(t.final)
                 if fit_trees:
                     from rl.learners.trees import fit_tree_q
 
-                    t.trees_net = pool.submit(fit_tree_q, t.task.approaches, learner_env(t.task.cfg, "trees"),
-                                              t.settings.trees)
+                    t.trees_net = pool.submit(
+                        fit_tree_q, t.task.approaches, learner_env(t.task.cfg, "trees"), t.settings.trees
+                    )
             t.stop_trees.set()
             for f in t.trees:
                 f.cancel()
@@ -392,8 +454,9 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
             if t.choice is not None:
                 return
             s = t.settings
-            shares = {m: fleet.agents[j].episodes_done / episodes[m] for m in t.inner
-                      if (j := fleet.position(m)) is not None}
+            shares = {
+                m: fleet.agents[j].episodes_done / episodes[m] for m in t.inner if (j := fleet.position(m)) is not None
+            }
             if shares and s.stop_early and min(shares.values()) >= t.next_check:  # the DQNs' running score
                 share = min(shares.values())
                 t.next_check = share + s.check_every
@@ -414,12 +477,19 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
                 score, reach, share, now = t.running
                 d = _pooled([({**t.changes, **now}[i], *t.held[i][1:]) for i in range(len(t.pairs))])
                 d_lo, d_hi = (score - reach, d[1]), (score + reach, d[1])
-                dqn_note = (f"the inner DQNs stopped at {100 * share:.0f} % of their episodes (running score "
-                            f"{score:.3f} +- {reach:.3f})")
+                dqn_note = (
+                    f"the inner DQNs stopped at {100 * share:.0f} % of their episodes (running score "
+                    f"{score:.3f} +- {reach:.3f})"
+                )
             else:
                 return
-            trees_note = "" if len(tdone) == len(t.pairs) else (
-                f"the trees stopped after {len(tdone)}/{len(t.pairs)} folds (score between {t_lo:.3f} and {t_hi:.3f})")
+            trees_note = (
+                ""
+                if len(tdone) == len(t.pairs)
+                else (
+                    f"the trees stopped after {len(tdone)}/{len(t.pairs)} folds (score between {t_lo:.3f} and {t_hi:.3f})"
+                )
+            )
             complete = not dqn_note and not trees_note
             if not complete and not s.stop_early:
                 return
@@ -435,16 +505,24 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
             total = sum(d if m in gone else episodes[m] for m, d in enumerate(done))
             trees = sum(f.done() for t in targets for f in t.trees)
             chosen = sum(t.choice is not None for t in targets)
-            report(progress, sum(done), total, f"{head}choosing the learner: training {len(f.agents)} DQNs, trees "
-                                               f"{trees}/{trees_total}" + (f", {chosen}/{len(targets)} chosen"
-                                                                           if len(targets) > 1 else ""))
+            report(
+                progress,
+                sum(done),
+                total,
+                f"{head}choosing the learner: training {len(f.agents)} DQNs, trees "
+                f"{trees}/{trees_total}" + (f", {chosen}/{len(targets)} chosen" if len(targets) > 1 else ""),
+            )
             return False
 
         fleet.train(on_episode=on_episode, on_finish=on_finish, on_vector_step=on_vector_step)
         for t in targets:  # the trees still fitting: fold by fold, until they settle the choice
             while t.choice is None:
-                report(progress, sum(f.done() for u in targets for f in u.trees), trees_total,
-                       f"{head}choosing the learner: trees beside")
+                report(
+                    progress,
+                    sum(f.done() for u in targets for f in u.trees),
+                    trees_total,
+                    f"{head}choosing the learner: trees beside",
+                )
                 pending = [f for f in t.trees if not f.done()]
                 if pending:
                     try:

@@ -128,8 +128,17 @@ def average_due(s: DQNSettings, episodes_done: int) -> bool:
     return s.average_tau > 0 and episodes_done >= int(s.average_from * s.episodes)
 
 
-def episode_row(episode: int, losses: list[float], stats: EpisodeStats, i: int, eps: float,
-                actions: np.ndarray, out: dict[str, Any], env_steps: int, wall_s: float) -> dict[str, Any]:
+def episode_row(
+    episode: int,
+    losses: list[float],
+    stats: EpisodeStats,
+    i: int,
+    eps: float,
+    actions: np.ndarray,
+    out: dict[str, Any],
+    env_steps: int,
+    wall_s: float,
+) -> dict[str, Any]:
     """The metrics line of environment i's finished episode."""
     length = int(stats.length[i])
     return {
@@ -161,8 +170,11 @@ def episode_state(envs: Any, obs: np.ndarray, stats: EpisodeStats, rng: np.rando
         "env_steps_in_episode": torch.from_numpy(env_state["steps"]),
         "env_replay": {k: torch.from_numpy(env_state[k]) for k in ("index", "late") if k in env_state},
         "obs": torch.from_numpy(obs.copy()),
-        "stats": {"ret": torch.from_numpy(stats.ret.copy()), "length": torch.from_numpy(stats.length.copy()),
-                  **{f"term_{k}": torch.from_numpy(v.copy()) for k, v in stats.terms.items()}},
+        "stats": {
+            "ret": torch.from_numpy(stats.ret.copy()),
+            "length": torch.from_numpy(stats.length.copy()),
+            **{f"term_{k}": torch.from_numpy(v.copy()) for k, v in stats.terms.items()},
+        },
         "rng": json.dumps(rng.bit_generator.state),
         "env_rng": json.dumps(envs.rng.bit_generator.state),
     }
@@ -170,16 +182,19 @@ def episode_state(envs: Any, obs: np.ndarray, stats: EpisodeStats, rng: np.rando
 
 def load_episode_state(state: dict[str, Any], envs: Any, stats: EpisodeStats, rng: np.random.Generator) -> np.ndarray:
     """Restore `episode_state` into `envs`, `stats` and `rng`; returns the observations."""
-    envs.load_state_dict({"scene": {k: v.numpy() for k, v in state["env_scene"].items()},
-                          "steps": state["env_steps_in_episode"].numpy(),
-                          **{k: v.numpy() for k, v in state.get("env_replay", {}).items()}})
+    envs.load_state_dict(
+        {
+            "scene": {k: v.numpy() for k, v in state["env_scene"].items()},
+            "steps": state["env_steps_in_episode"].numpy(),
+            **{k: v.numpy() for k, v in state.get("env_replay", {}).items()},
+        }
+    )
     st = state["stats"]
     stats.ret, stats.length = st["ret"].numpy().copy(), st["length"].numpy().copy()
     stats.terms = {k: st[f"term_{k}"].numpy().copy() if f"term_{k}" in st else np.zeros(stats.n) for k in TERMS}
     rng.bit_generator.state = json.loads(state["rng"])
     envs.rng.bit_generator.state = json.loads(state["env_rng"])
     return state["obs"].numpy().copy()
-
 
 
 # --- the agents: what each one keeps for itself ----------------------------------------------------------
@@ -248,8 +263,9 @@ class StackedReplay:
         """Transitions held by each memory (K,)."""
         return np.where(self.full, self.size, self.pos)
 
-    def add(self, obs: np.ndarray, next_obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
-            terminated: np.ndarray) -> None:
+    def add(
+        self, obs: np.ndarray, next_obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray, terminated: np.ndarray
+    ) -> None:
         """Add n transitions (K, n, ...) to every memory, each at its own write position."""
         n = actions.shape[1]
         idx = (self.pos[:, None] + np.arange(n)) % self.size
@@ -262,9 +278,13 @@ class StackedReplay:
     def sample(self, idx: np.ndarray) -> tuple[torch.Tensor, ...]:
         """The transitions idx (K, B) of each memory, as tensors (K, B, ...)."""
         rows = np.arange(idx.shape[0])[:, None]
-        return (torch.from_numpy(self.obs[rows, idx]), torch.from_numpy(self.actions[rows, idx]),
-                torch.from_numpy(self.rewards[rows, idx]), torch.from_numpy(self.next_obs[rows, idx]),
-                torch.from_numpy(self.terminated[rows, idx]))
+        return (
+            torch.from_numpy(self.obs[rows, idx]),
+            torch.from_numpy(self.actions[rows, idx]),
+            torch.from_numpy(self.rewards[rows, idx]),
+            torch.from_numpy(self.next_obs[rows, idx]),
+            torch.from_numpy(self.terminated[rows, idx]),
+        )
 
     def select(self, keep: np.ndarray) -> None:
         for name in ("obs", "next_obs", "actions", "rewards", "terminated", "pos", "full"):
@@ -273,11 +293,15 @@ class StackedReplay:
     def agent_state_dict(self, j: int) -> dict[str, Any]:
         """Memory j as a checkpoint's "buffer": its filled part, write position and whether it wrapped."""
         n = self.filled(j)
-        return {"obs": torch.from_numpy(self.obs[j, :n].copy()), "next_obs": torch.from_numpy(self.next_obs[j, :n].copy()),
-                "actions": torch.from_numpy(self.actions[j, :n].copy()),
-                "rewards": torch.from_numpy(self.rewards[j, :n].copy()),
-                "terminated": torch.from_numpy(self.terminated[j, :n].copy()),
-                "pos": int(self.pos[j]), "full": bool(self.full[j])}
+        return {
+            "obs": torch.from_numpy(self.obs[j, :n].copy()),
+            "next_obs": torch.from_numpy(self.next_obs[j, :n].copy()),
+            "actions": torch.from_numpy(self.actions[j, :n].copy()),
+            "rewards": torch.from_numpy(self.rewards[j, :n].copy()),
+            "terminated": torch.from_numpy(self.terminated[j, :n].copy()),
+            "pos": int(self.pos[j]),
+            "full": bool(self.full[j]),
+        }
 
     def load_agent(self, j: int, s: dict[str, Any]) -> None:
         n = len(s["actions"])
@@ -302,8 +326,14 @@ class Nets(Protocol):
         """argmax_a Q(obs, a) of each agent's online net for observations (K, n, obs): (K, n)."""
         ...
 
-    def update(self, batch: tuple[torch.Tensor, ...], learning: np.ndarray, lr: list[float],
-               averaging: np.ndarray, s: DQNSettings) -> np.ndarray:
+    def update(
+        self,
+        batch: tuple[torch.Tensor, ...],
+        learning: np.ndarray,
+        lr: list[float],
+        averaging: np.ndarray,
+        s: DQNSettings,
+    ) -> np.ndarray:
         """One TD update of the agents where `learning` (K,), on `batch` (K, B, ...); returns the losses (K,)."""
         ...
 
@@ -360,8 +390,14 @@ class OneNet:
         with torch.no_grad():
             return mlp_forward(self._params, torch.from_numpy(obs[0])).argmax(dim=1).numpy()[None]
 
-    def update(self, batch: tuple[torch.Tensor, ...], learning: np.ndarray, lr: list[float],
-               averaging: np.ndarray, s: DQNSettings) -> np.ndarray:
+    def update(
+        self,
+        batch: tuple[torch.Tensor, ...],
+        learning: np.ndarray,
+        lr: list[float],
+        averaging: np.ndarray,
+        s: DQNSettings,
+    ) -> np.ndarray:
         obs, actions, rewards, next_obs, terminated = (x[0] for x in batch)
         for group in self.optimizer.param_groups:
             group["lr"] = lr[0]
@@ -404,8 +440,12 @@ class OneNet:
         return greedy_actions(self.policy(averaging), x)
 
     def agent_state_dict(self, j: int, lr: float) -> dict[str, Any]:
-        return {"q": self.q.state_dict(), "target": self.target.state_dict(), "q_avg": self.q_avg.state_dict(),
-                "optimizer": self.optimizer.state_dict()}
+        return {
+            "q": self.q.state_dict(),
+            "target": self.target.state_dict(),
+            "q_avg": self.q_avg.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+        }
 
     def load_agent(self, j: int, state: dict[str, Any]) -> None:
         self.q.load_state_dict(state["q"])
@@ -442,9 +482,14 @@ class DQNLoop:
     _length: np.ndarray
     _terms: dict[str, np.ndarray]
 
-    def __init__(self, members: list[FleetMember], nets: Callable[[list[DQNSettings], int], Nets],
-                 threads: int, states: list[dict[str, Any] | None] | None = None,
-                 drop_finished: bool = True) -> None:
+    def __init__(
+        self,
+        members: list[FleetMember],
+        nets: Callable[[list[DQNSettings], int], Nets],
+        threads: int,
+        states: list[dict[str, Any] | None] | None = None,
+        drop_finished: bool = True,
+    ) -> None:
         if not members:
             raise ValueError("a fleet needs at least one agent")
         self.members = members
@@ -459,8 +504,9 @@ class DQNLoop:
             if m.env_config.scenes == "recorded":
                 s = s.resolved_episodes(replayed_approaches(m.approaches, m.env_config) if m.approaches else 0)
             envs = make_vec_env(m.env_config, s.num_envs, np.random.default_rng([s.seed, 1]), m.approaches)
-            self.agents.append(AgentState(i, s, envs, np.random.default_rng(s.seed), EpisodeStats(s.num_envs),
-                                          envs.observe()))
+            self.agents.append(
+                AgentState(i, s, envs, np.random.default_rng(s.seed), EpisodeStats(s.num_envs), envs.observe())
+            )
         self.nets = nets([a.settings for a in self.agents], self.n_obs)
         self.buffer = StackedReplay(len(members), members[0].settings.buffer_size, self.n_obs)
         self.env_steps = 0
@@ -470,11 +516,14 @@ class DQNLoop:
             if state is not None:
                 self.load_agent_state(j, state)
 
-    def run(self, on_episode: Callable[[int, dict], None] | None = None,
-            on_checkpoint: Callable[[int], None] | None = None,
-            on_finish: Callable[[int], None] | None = None,
-            should_stop: Callable[[], bool] | None = None,
-            on_vector_step: Callable[[], bool] | None = None) -> None:
+    def run(
+        self,
+        on_episode: Callable[[int, dict], None] | None = None,
+        on_checkpoint: Callable[[int], None] | None = None,
+        on_finish: Callable[[int], None] | None = None,
+        should_stop: Callable[[], bool] | None = None,
+        on_vector_step: Callable[[], bool] | None = None,
+    ) -> None:
         """Train until every agent has its episodes, `should_stop()` or `on_vector_step()` (see the class doc)."""
         torch.set_num_threads(self.threads)
         # Adam's second moments of rarely active weights decay into denormal floats, which
@@ -494,8 +543,9 @@ class DQNLoop:
         finally:
             torch.set_flush_denormal(False)
 
-    def _vector_step(self, start: float, on_episode: Callable[[int, dict], None] | None,
-                     on_checkpoint: Callable[[int], None] | None) -> None:
+    def _vector_step(
+        self, start: float, on_episode: Callable[[int, dict], None] | None, on_checkpoint: Callable[[int], None] | None
+    ) -> None:
         s0 = self.agents[0].settings  # the settings every agent shares (`rl.fleet.batch.SHARED_SETTINGS`)
         n = s0.num_envs
         starts = np.array([a.settings.learning_starts for a in self.agents])
@@ -534,22 +584,42 @@ class DQNLoop:
         wall = time.perf_counter() - start
         done = out["terminated"] | out["truncated"]
         for j in np.flatnonzero(done.any(axis=1)).tolist():
-            self._episodes(j, {k: out[k][j] for k in ("terminated", "truncated", "reached_leader")},
-                           actions[j], epsilons[j], wall, on_episode, on_checkpoint)
+            self._episodes(
+                j,
+                {k: out[k][j] for k in ("terminated", "truncated", "reached_leader")},
+                actions[j],
+                epsilons[j],
+                wall,
+                on_episode,
+                on_checkpoint,
+            )
 
     def _update(self, learning: np.ndarray, s0: DQNSettings) -> None:
         idx = np.zeros((len(self.agents), s0.batch_size), np.int64)
         for j in np.flatnonzero(learning).tolist():  # each agent draws its batch from its own generator
             idx[j] = self.agents[j].rng.integers(0, self.buffer.filled(j), s0.batch_size)
-        losses = self.nets.update(self.buffer.sample(idx), learning, [a.learning_rate() for a in self.agents],
-                                  np.array([a.averaging for a in self.agents]), s0)
+        losses = self.nets.update(
+            self.buffer.sample(idx),
+            learning,
+            [a.learning_rate() for a in self.agents],
+            np.array([a.averaging for a in self.agents]),
+            s0,
+        )
         for j in np.flatnonzero(learning).tolist():
             a = self.agents[j]
             a.updates += 1
             a.losses.append(float(losses[j]))
 
-    def _episodes(self, j: int, out: dict[str, np.ndarray], actions: np.ndarray, eps: float, wall: float,
-                  on_episode: Callable[[int, dict], None] | None, on_checkpoint: Callable[[int], None] | None) -> None:
+    def _episodes(
+        self,
+        j: int,
+        out: dict[str, np.ndarray],
+        actions: np.ndarray,
+        eps: float,
+        wall: float,
+        on_episode: Callable[[int, dict], None] | None,
+        on_checkpoint: Callable[[int], None] | None,
+    ) -> None:
         a = self.agents[j]
         s, st = a.settings, a.stats
         before = a.episodes_done
@@ -559,8 +629,9 @@ class DQNLoop:
             a.episodes_done += 1
             a.wall_s = wall
             if on_episode is not None:
-                on_episode(a.member, episode_row(a.episodes_done, a.losses, st, i, eps, actions, out,
-                                                 a.env_steps, wall))
+                on_episode(
+                    a.member, episode_row(a.episodes_done, a.losses, st, i, eps, actions, out, a.env_steps, wall)
+                )
                 a.losses = []
             st.ret[i] = 0.0
             st.length[i] = 0
@@ -659,8 +730,13 @@ class DQNLoop:
             "buffer": self.buffer.agent_state_dict(j),
             **episode_state(a.envs, a.obs, a.stats, a.rng),
             "torch_rng": torch.get_rng_state(),
-            "counters": {"episodes_done": a.episodes_done, "env_steps": a.env_steps, "updates": a.updates,
-                         "wall_s": a.wall_s, "averaging": a.averaging},
+            "counters": {
+                "episodes_done": a.episodes_done,
+                "env_steps": a.env_steps,
+                "updates": a.updates,
+                "wall_s": a.wall_s,
+                "averaging": a.averaging,
+            },
             "losses": list(a.losses),
             "settings": json.dumps(a.settings.to_dict()),
         }
@@ -693,8 +769,9 @@ class DQNTrainer:
     (returning True stops training, as an SB3 callback returning False would).
     """
 
-    def __init__(self, env_config: EnvConfig, settings: DQNSettings | None = None,
-                 approaches: list[Approach] | None = None) -> None:
+    def __init__(
+        self, env_config: EnvConfig, settings: DQNSettings | None = None, approaches: list[Approach] | None = None
+    ) -> None:
         self.env_config = env_config
         s = settings or DQNSettings()
         self.loop = DQNLoop([FleetMember(env_config, s, approaches)], OneNet, threads=s.threads, drop_finished=False)
@@ -743,15 +820,20 @@ class DQNTrainer:
     def learning_rate(self) -> float:
         return self.agent.learning_rate()
 
-    def train(self, on_episode: Callable[[dict], None] | None = None,
-              should_stop: Callable[[], bool] | None = None,
-              on_checkpoint: Callable[["DQNTrainer"], None] | None = None,
-              on_vector_step: Callable[["DQNTrainer"], bool] | None = None) -> "DQNTrainer":
+    def train(
+        self,
+        on_episode: Callable[[dict], None] | None = None,
+        should_stop: Callable[[], bool] | None = None,
+        on_checkpoint: Callable[["DQNTrainer"], None] | None = None,
+        on_vector_step: Callable[["DQNTrainer"], bool] | None = None,
+    ) -> "DQNTrainer":
         """Run the training loop (see the class doc). Returns self."""
-        self.loop.run(on_episode=None if on_episode is None else lambda _, row: on_episode(row),
-                      on_checkpoint=None if on_checkpoint is None else lambda _: on_checkpoint(self),
-                      should_stop=should_stop,
-                      on_vector_step=None if on_vector_step is None else lambda: on_vector_step(self))
+        self.loop.run(
+            on_episode=None if on_episode is None else lambda _, row: on_episode(row),
+            on_checkpoint=None if on_checkpoint is None else lambda _: on_checkpoint(self),
+            should_stop=should_stop,
+            on_vector_step=None if on_vector_step is None else lambda: on_vector_step(self),
+        )
         return self
 
     def state_dict(self) -> dict[str, Any]:

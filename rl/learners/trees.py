@@ -35,6 +35,7 @@ from rl.settings import TreeQSettings, trees_fit
 
 __all__ = ["TreeQNetwork", "fit_tree_q", "fitted_q_data"]
 
+
 def fitted_q_data(approaches: list[Approach], cfg: EnvConfig) -> dict[str, np.ndarray]:
     """The recorded transitions as arrays, one row per state: `obs`, `r_change` (TO CHANGE's
     reward), `press` (the driver's press), `next` (the next state's row; its own at an approach's
@@ -53,10 +54,14 @@ def fitted_q_data(approaches: list[Approach], cfg: EnvConfig) -> dict[str, np.nd
     end[np.cumsum(lengths) - 1] = True
     rows = np.arange(len(end))
     t_rel = np.concatenate([t for _, t, _ in sides])
-    return {"obs": np.concatenate([observation(s, cfg) for s, _, _ in sides]).astype(np.float32),
-            "r_change": press_reward(t_rel, reward), "press": t_rel == 0.0,
-            "next": np.where(end, rows, rows + 1), "end": end,
-            "end_keep": np.repeat([v for _, _, v in sides], lengths)}
+    return {
+        "obs": np.concatenate([observation(s, cfg) for s, _, _ in sides]).astype(np.float32),
+        "r_change": press_reward(t_rel, reward),
+        "press": t_rel == 0.0,
+        "next": np.where(end, rows, rows + 1),
+        "end": end,
+        "end_keep": np.repeat([v for _, _, v in sides], lengths),
+    }
 
 
 class _SharedBins(HistGradientBoostingRegressor):
@@ -73,22 +78,29 @@ class _SharedBins(HistGradientBoostingRegressor):
         if not is_training_data or shared is None or X.shape[0] > self._bin_mapper.subsample:
             return super()._bin_data(X, sample_weight, is_training_data)
         if "binned" not in shared or shared["shape"] != X.shape:
-            shared.update(binned=super()._bin_data(X, sample_weight, is_training_data), mapper=self._bin_mapper,
-                          shape=X.shape)
+            shared.update(
+                binned=super()._bin_data(X, sample_weight, is_training_data), mapper=self._bin_mapper, shape=X.shape
+            )
         self._bin_mapper = shared["mapper"]
         return shared["binned"].copy(order="F")
 
 
 def _regressor(settings: TreeQSettings, seed: int, bins: dict[str, Any] | None = None) -> HistGradientBoostingRegressor:
-    model = _SharedBins(max_iter=settings.trees, learning_rate=settings.learning_rate,
-                        max_leaf_nodes=settings.max_leaf_nodes, min_samples_leaf=settings.min_samples_leaf,
-                        early_stopping=False, random_state=seed)
+    model = _SharedBins(
+        max_iter=settings.trees,
+        learning_rate=settings.learning_rate,
+        max_leaf_nodes=settings.max_leaf_nodes,
+        min_samples_leaf=settings.min_samples_leaf,
+        early_stopping=False,
+        random_state=seed,
+    )
     model._bins = bins
     return model
 
 
-def _fit(model: HistGradientBoostingRegressor, x: np.ndarray, y: np.ndarray,
-         weight: np.ndarray) -> HistGradientBoostingRegressor:
+def _fit(
+    model: HistGradientBoostingRegressor, x: np.ndarray, y: np.ndarray, weight: np.ndarray
+) -> HistGradientBoostingRegressor:
     # one OpenMP thread, as the imitation classifier (a busy machine's spinning thread team cost 10x)
     with threadpool_limits(limits=1, user_api="openmp"):
         return model.fit(x, y, sample_weight=weight)
@@ -99,12 +111,19 @@ def _predict(model: HistGradientBoostingRegressor, x: np.ndarray) -> np.ndarray:
         return model.predict(x)
 
 
-def fit_tree_q(approaches: list[Approach], cfg: EnvConfig, settings: TreeQSettings,
-               progress: ProgressFn | None = None, label: str = "tree Q") -> "TreeQNetwork":
+def fit_tree_q(
+    approaches: list[Approach],
+    cfg: EnvConfig,
+    settings: TreeQSettings,
+    progress: ProgressFn | None = None,
+    label: str = "tree Q",
+) -> "TreeQNetwork":
     """Fitted Q iteration on `approaches` (the `decisions` reward); the Q function as a torch module."""
     if not trees_fit(cfg.reward.name, cfg.scenes):
-        raise UserError("the tree learner fits the 'decisions' reward on recorded scenes: "
-                        "leave out --reward/--scenes or use --learner dqn")
+        raise UserError(
+            "the tree learner fits the 'decisions' reward on recorded scenes: "
+            "leave out --reward/--scenes or use --learner dqn"
+        )
     d = fitted_q_data(approaches, cfg)
     x, nxt, end = d["obs"], d["next"], d["end"]
     weight = np.where(d["press"], settings.press_weight, 1.0)
@@ -131,11 +150,28 @@ class TreeQNetwork(nn.Module):
     `torch.onnx.export` writes it as Gather and Where operators.
     """
 
-    def __init__(self, feature: torch.Tensor, threshold: torch.Tensor, left: torch.Tensor, right: torch.Tensor,
-                 value: torch.Tensor, missing_left: torch.Tensor, base: torch.Tensor, depth: torch.Tensor) -> None:
+    def __init__(
+        self,
+        feature: torch.Tensor,
+        threshold: torch.Tensor,
+        left: torch.Tensor,
+        right: torch.Tensor,
+        value: torch.Tensor,
+        missing_left: torch.Tensor,
+        base: torch.Tensor,
+        depth: torch.Tensor,
+    ) -> None:
         super().__init__()
-        for name, t in (("feature", feature), ("threshold", threshold), ("left", left), ("right", right),
-                        ("value", value), ("missing_left", missing_left), ("base", base), ("depth", depth)):
+        for name, t in (
+            ("feature", feature),
+            ("threshold", threshold),
+            ("left", left),
+            ("right", right),
+            ("value", value),
+            ("missing_left", missing_left),
+            ("base", base),
+            ("depth", depth),
+        ):
             self.register_buffer(name, t)
         self.n_actions = int(base.shape[0])
         self.n_levels = int(depth.item())
@@ -143,8 +179,9 @@ class TreeQNetwork(nn.Module):
     @staticmethod
     def from_state_dict(state: dict[str, torch.Tensor]) -> "TreeQNetwork":
         """The module saved by `state_dict()` (a run's `weights.pt`)."""
-        return TreeQNetwork(**{k: state[k] for k in ("feature", "threshold", "left", "right", "value",
-                                                       "missing_left", "base", "depth")})
+        return TreeQNetwork(
+            **{k: state[k] for k in ("feature", "threshold", "left", "right", "value", "missing_left", "base", "depth")}
+        )
 
     @staticmethod
     def from_ensembles(models: dict[int, HistGradientBoostingRegressor], x0: np.ndarray) -> "TreeQNetwork":
@@ -179,20 +216,31 @@ class TreeQNetwork(nn.Module):
                 right[i, :k] = np.where(leaf, own, nodes["right"])
                 value[i, :k] = np.where(leaf, nodes["value"], 0.0)
                 depth = max(depth, int(nodes["depth"].max()))
-        net = TreeQNetwork(torch.from_numpy(feature), torch.from_numpy(threshold), torch.from_numpy(left),
-                           torch.from_numpy(right), torch.from_numpy(value), torch.from_numpy(missing_left),
-                           torch.zeros(n_actions), torch.tensor(depth))
+        net = TreeQNetwork(
+            torch.from_numpy(feature),
+            torch.from_numpy(threshold),
+            torch.from_numpy(left),
+            torch.from_numpy(right),
+            torch.from_numpy(value),
+            torch.from_numpy(missing_left),
+            torch.zeros(n_actions),
+            torch.tensor(depth),
+        )
         with torch.no_grad():
             sums = net.forward(torch.as_tensor(x0, dtype=torch.float32))[0]
-        net.base.copy_(torch.tensor([float(_predict(models[a], x0)[0]) - float(sums[a]) if a in models else 0.0
-                                     for a in range(n_actions)]))
+        net.base.copy_(
+            torch.tensor(
+                [float(_predict(models[a], x0)[0]) - float(sums[a]) if a in models else 0.0 for a in range(n_actions)]
+            )
+        )
         return net
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         n_trees, width = self.feature.shape
         offset = torch.arange(n_trees) * width
-        f, thr, lft, rgt, val, miss = (t.reshape(-1) for t in (self.feature, self.threshold, self.left,
-                                                                self.right, self.value, self.missing_left))
+        f, thr, lft, rgt, val, miss = (
+            t.reshape(-1) for t in (self.feature, self.threshold, self.left, self.right, self.value, self.missing_left)
+        )
         node = offset.unsqueeze(0).expand(x.shape[0], n_trees)
         for _ in range(self.n_levels):
             xv = x.gather(1, f[node])

@@ -42,9 +42,15 @@ def mixed(base: list[Approach], own: list[Approach], share: float) -> list[Appro
     return list(base) + list(own) * reps
 
 
-def train_agent(approaches: list[Approach], env: EnvConfig, dqn: DQNSettings,
-                init: dict[str, torch.Tensor] | None = None, progress: ProgressFn | None = None,
-                label: str = "agent", on_episode: Any = None) -> DQNTrainer:
+def train_agent(
+    approaches: list[Approach],
+    env: EnvConfig,
+    dqn: DQNSettings,
+    init: dict[str, torch.Tensor] | None = None,
+    progress: ProgressFn | None = None,
+    label: str = "agent",
+    on_episode: Any = None,
+) -> DQNTrainer:
     """A DQN trained on `approaches` (recorded scenes), from `init`'s weights when given."""
     if not approaches:
         raise UserError(f"{label}: no recorded approaches to train on")
@@ -63,31 +69,54 @@ def train_agent(approaches: list[Approach], env: EnvConfig, dqn: DQNSettings,
 
 def finetune_settings(dqn: DQNSettings, ps: PersonalizeSettings, k: int, episodes: int | None = None) -> DQNSettings:
     """The trainer's settings for fine-tuning on `k` decisions (`episodes` overrides the rule)."""
-    return replace(dqn, episodes=episodes or ps.finetune_episodes(k), episodes_per_approach=0.0,
-                   learning_rate=ps.learning_rate, learning_rate_end=ps.learning_rate / 10,
-                   eps_start=ps.eps_start, learning_starts=ps.learning_starts)
+    return replace(
+        dqn,
+        episodes=episodes or ps.finetune_episodes(k),
+        episodes_per_approach=0.0,
+        learning_rate=ps.learning_rate,
+        learning_rate_end=ps.learning_rate / 10,
+        eps_start=ps.eps_start,
+        learning_starts=ps.learning_starts,
+    )
 
 
-def personalised_agent(base_weights: dict[str, torch.Tensor] | None, base: list[Approach], own: list[Approach],
-                       env: EnvConfig, dqn: DQNSettings, ps: PersonalizeSettings, episodes: int | None = None,
-                       progress: ProgressFn | None = None, on_episode: Any = None) -> DQNTrainer:
+def personalised_agent(
+    base_weights: dict[str, torch.Tensor] | None,
+    base: list[Approach],
+    own: list[Approach],
+    env: EnvConfig,
+    dqn: DQNSettings,
+    ps: PersonalizeSettings,
+    episodes: int | None = None,
+    progress: ProgressFn | None = None,
+    on_episode: Any = None,
+) -> DQNTrainer:
     """The driver's agent from the base (weights and approaches) and its own approaches, by `ps.method`
     ('unsure' must be resolved first: `PersonalizeSettings.resolved`)."""
     if ps.method == "unsure":
         raise ValueError("method 'unsure' depends on the style's confidence: resolve it first")
     if ps.method == "mix":
         data = mixed(base, own, ps.driver_share)
-        settings = replace(dqn, episodes=episodes or dqn.episodes,
-                           episodes_per_approach=0.0 if episodes else dqn.episodes_per_approach)
+        settings = replace(
+            dqn, episodes=episodes or dqn.episodes, episodes_per_approach=0.0 if episodes else dqn.episodes_per_approach
+        )
         return train_agent(data, env, settings, None, progress, "personalised (mix)", on_episode)
     if base_weights is None:
         raise UserError("fine-tuning needs the base agent's weights")
     if ps.method == "none":  # the base as it is (a trainer of no episodes, so it saves as any run)
-        return train_agent(own, env, replace(dqn, episodes=0, episodes_per_approach=0.0), base_weights, progress,
-                           "personalised (base as is)", on_episode)
+        return train_agent(
+            own,
+            env,
+            replace(dqn, episodes=0, episodes_per_approach=0.0),
+            base_weights,
+            progress,
+            "personalised (base as is)",
+            on_episode,
+        )
     data = own if ps.method == "own" else mixed(base, own, ps.driver_share)
-    return train_agent(data, env, finetune_settings(dqn, ps, len(own), episodes), base_weights, progress,
-                       "personalised", on_episode)
+    return train_agent(
+        data, env, finetune_settings(dqn, ps, len(own), episodes), base_weights, progress, "personalised", on_episode
+    )
 
 
 def agreement(policy: Policy, approaches: list[Approach]) -> float:
@@ -147,8 +176,9 @@ def base_seed(seed: int) -> int:
 # --- the blend: every candidate's advantage, weighted -------------------------------------------------------------
 
 
-def advantages(weights: dict[str, torch.Tensor], env: EnvConfig, dqn: DQNSettings,
-               approaches: list[Approach]) -> np.ndarray:
+def advantages(
+    weights: dict[str, torch.Tensor], env: EnvConfig, dqn: DQNSettings, approaches: list[Approach]
+) -> np.ndarray:
     """Q(change) - Q(keep) of a Q network with `weights` on every recorded state of `approaches`."""
     from rl.learners.dqn import q_values
     from rl.problem.env import observation
@@ -157,8 +187,9 @@ def advantages(weights: dict[str, torch.Tensor], env: EnvConfig, dqn: DQNSetting
     return q[:, CHANGE] - q[:, KEEP]
 
 
-def advantage_scale(weights: dict[str, torch.Tensor], env: EnvConfig, dqn: DQNSettings,
-                    approaches: list[Approach]) -> float:
+def advantage_scale(
+    weights: dict[str, torch.Tensor], env: EnvConfig, dqn: DQNSettings, approaches: list[Approach]
+) -> float:
     """The spread (std) of an agent's advantage on the states of `approaches` (the population's in a blend:
     one set of states for every candidate), so that no candidate dominates a blend by the scale of its Q values."""
     a = advantages(weights, env, dqn, approaches)
@@ -212,8 +243,9 @@ def blended_network(parts: list[tuple[dict[str, torch.Tensor], float]]) -> dict[
     return out
 
 
-def blend(nets: dict[str, dict[str, torch.Tensor]], weights: dict[str, float],
-          scales: dict[str, float], dqn: DQNSettings) -> tuple[dict[str, torch.Tensor], DQNSettings]:
+def blend(
+    nets: dict[str, dict[str, torch.Tensor]], weights: dict[str, float], scales: dict[str, float], dqn: DQNSettings
+) -> tuple[dict[str, torch.Tensor], DQNSettings]:
     """The blended network (`blended_network` of the candidates of nonzero weight, coefficients weight / scale)
     and `dqn` with its hidden widths."""
     used = [n for n in nets if weights.get(n, 0.0) > 0]

@@ -74,8 +74,9 @@ def episodes_by(following: pd.DataFrame | None, rows: pd.DataFrame) -> pd.DataFr
         return f[ends <= by]
 
 
-def fit_population(decisions: pd.DataFrame, drivers: list[str], settings: AnalysisSettings,
-                   following: pd.DataFrame | None = None) -> Population:
+def fit_population(
+    decisions: pd.DataFrame, drivers: list[str], settings: AnalysisSettings, following: pd.DataFrame | None = None
+) -> Population:
     """Cluster `drivers` (the population) as the analysis would, with its settings (and its
     drives' steady-following episodes, `following`, for the `thw_follow` feature)."""
     # a new driver's few decisions read indicators; a drive-level parameter (the free speed) is not one
@@ -90,8 +91,13 @@ def fit_population(decisions: pd.DataFrame, drivers: list[str], settings: Analys
     if len(rows) == 0:
         raise UserError("no other driver has clustering features: the population has no styles")
     Xt = transform_features(feats, settings)
-    clf = StyleClusterer(k=settings.k, choose_k=settings.choose_k, k_range=(settings.k_range[0], settings.k_range[1]),
-                         n_init=settings.n_init, random_state=settings.random_state).fit(Xt.loc[rows])
+    clf = StyleClusterer(
+        k=settings.k,
+        choose_k=settings.choose_k,
+        k_range=(settings.k_range[0], settings.k_range[1]),
+        n_init=settings.n_init,
+        random_state=settings.random_state,
+    ).fit(Xt.loc[rows])
     usable = feats.index[feats.notna().any(axis=1)]
     labels = clf.predict(Xt.loc[usable])
     members = {name: [str(d) for d, lab in zip(usable, labels) if lab == i] for i, name in enumerate(clf.names_)}
@@ -123,14 +129,16 @@ def _posteriors(pop: Population, Xt: pd.DataFrame, cols: list[int]) -> np.ndarra
     return post / post.sum(axis=1, keepdims=True)
 
 
-def estimate_style(pop: Population, rows: pd.DataFrame, n_bootstrap: int = 200, seed: int = 0,
-                   following: pd.DataFrame | None = None) -> StyleEstimate:
+def estimate_style(
+    pop: Population, rows: pd.DataFrame, n_bootstrap: int = 200, seed: int = 0, following: pd.DataFrame | None = None
+) -> StyleEstimate:
     """The style of the driver whose decisions are `rows` (press and not-yet rows of K decisions);
     `following`: the analysis's episodes (only the driver's, up to its K-th press, are used)."""
     settings = pop.settings
     episodes = episodes_by(following, rows)
-    points = indicator_points(rows.assign(driver_id="new"), settings,
-                              None if episodes is None else episodes.assign(driver_id="new"))
+    points = indicator_points(
+        rows.assign(driver_id="new"), settings, None if episodes is None else episodes.assign(driver_id="new")
+    )
     is_press = ~points["indicator"].isin(list(TRAIT_UNITS))  # the rest are following episodes
     dec_ids = np.array(sorted(points.loc[is_press, "decision_id"].unique()), dtype=object)
     ep_ids = np.array(sorted(points.loc[~is_press, "decision_id"].unique()), dtype=object)
@@ -138,8 +146,11 @@ def estimate_style(pop: Population, rows: pd.DataFrame, n_bootstrap: int = 200, 
         raise UserError("no presses among the decisions given: no style can be assigned")
     feats, _ = driver_features(points, ["new"], settings)
     if feats.isna().all(axis=None):
-        raise UserError("the decisions given have no defined value of "
-                        + "/".join(settings.feature_indicators) + ": no style can be assigned")
+        raise UserError(
+            "the decisions given have no defined value of "
+            + "/".join(settings.feature_indicators)
+            + ": no style can be assigned"
+        )
     press_v = points[is_press].drop_duplicates("decision_id")["v"].to_numpy(dtype=float)
     cols = _compared_columns(pop, press_v)
     names = pop.clusterer.names_
@@ -161,7 +172,12 @@ def estimate_style(pop: Population, rows: pd.DataFrame, n_bootstrap: int = 200, 
         picks = _posteriors(pop, transform_features(bfeats, settings), cols).argmax(axis=1)
         counts = np.bincount(picks, minlength=len(names)) / n_bootstrap
         shares = {n: float(c) for n, c in zip(names, counts)}
-    return StyleEstimate(style=style, confidence=shares[style] if n_bootstrap > 0 else float(post.max()),
-                         posterior={n: float(p) for n, p in zip(names, post)}, bootstrap=shares,
-                         n_decisions=len(dec_ids), n_bootstrap=n_bootstrap,
-                         compared=[pop.clusterer.feature_names_in_[c] for c in cols])
+    return StyleEstimate(
+        style=style,
+        confidence=shares[style] if n_bootstrap > 0 else float(post.max()),
+        posterior={n: float(p) for n, p in zip(names, post)},
+        bootstrap=shares,
+        n_decisions=len(dec_ids),
+        n_bootstrap=n_bootstrap,
+        compared=[pop.clusterer.feature_names_in_[c] for c in cols],
+    )

@@ -59,11 +59,20 @@ from laneprint.errors import UserError
 from laneprint.reference import FAR_FOLLOWER_M
 from rl.problem.rewards import CHANGE, TERMS, ReferenceLines, RewardSettings, decisions_step_reward, step_reward
 from rl.settings import OBSERVATIONS, SCENES, TREES_PRESS_SCALE_S, resolve_formulation
-from rl.problem.scene import (ACCEPTANCE_FEATURES, DIRECTION_FEATURE, INDICATOR_FEATURES, OBS_NAMES, Scene,
-                              acceptance_features, direction_feature, indicator_features, indicators, observe)
+from rl.problem.scene import (
+    ACCEPTANCE_FEATURES,
+    DIRECTION_FEATURE,
+    INDICATOR_FEATURES,
+    OBS_NAMES,
+    Scene,
+    acceptance_features,
+    direction_feature,
+    indicator_features,
+    indicators,
+    observe,
+)
 
 ENV_ID = "laneprint/LaneChangeDecision-v0"
-
 
 
 @dataclass(frozen=True)
@@ -103,8 +112,10 @@ class EnvConfig:
         if self.observation not in OBSERVATIONS:
             raise UserError(f"unknown observation {self.observation!r}: choose one of {', '.join(OBSERVATIONS)}")
         if self.reward.name == "decisions" and self.scenes != "recorded":
-            raise UserError("the 'decisions' reward is paid by the driver's recorded presses: it needs "
-                            "recorded scenes (--scenes recorded)")
+            raise UserError(
+                "the 'decisions' reward is paid by the driver's recorded presses: it needs "
+                "recorded scenes (--scenes recorded)"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -148,9 +159,14 @@ def observation(scene: Scene, cfg: EnvConfig) -> np.ndarray:
     return obs
 
 
-def formulation_config(lines: ReferenceLines, reward: str | None = None, scenes: str | None = None,
-                       observation: str | None = None, lines_source: str = "analysis",
-                       other_side: bool | None = None) -> EnvConfig:
+def formulation_config(
+    lines: ReferenceLines,
+    reward: str | None = None,
+    scenes: str | None = None,
+    observation: str | None = None,
+    lines_source: str = "analysis",
+    other_side: bool | None = None,
+) -> EnvConfig:
     """An `EnvConfig` for `lines`, the unnamed settings filled by `rl.settings.resolve_formulation`
     (`other_side` None: `EnvConfig`'s default), as the DQN fits it (`learner_env` for the trees')."""
     name, scn, obs = resolve_formulation(reward, scenes, observation, lines_source)
@@ -192,15 +208,26 @@ def sample_scenes(rng: np.random.Generator, cfg: EnvConfig, n: int) -> Scene:
     x_nf = x_e + hl_nf + np.maximum(t_nf0 * (v_e - v_nf), 1.0)
     x_nb = x_e - hl_nb - u(*cfg.nb_gap0_m, n)
     return Scene(
-        v_e=v_e, x_e=x_e,
-        f_present=np.ones(n, bool), v_f=v_f, x_f=x_f, hl_f=hl_f,
-        nf_present=rng.random(n) < cfg.nf_present_prob, v_nf=v_nf, x_nf=x_nf, hl_nf=hl_nf,
-        nb_present=rng.random(n) < cfg.nb_present_prob, v_nb=v_nb, x_nb=x_nb, hl_nb=hl_nb,
+        v_e=v_e,
+        x_e=x_e,
+        f_present=np.ones(n, bool),
+        v_f=v_f,
+        x_f=x_f,
+        hl_f=hl_f,
+        nf_present=rng.random(n) < cfg.nf_present_prob,
+        v_nf=v_nf,
+        x_nf=x_nf,
+        hl_nf=hl_nf,
+        nb_present=rng.random(n) < cfg.nb_present_prob,
+        v_nb=v_nb,
+        x_nb=x_nb,
+        hl_nb=hl_nb,
     )
 
 
-def transition(scene: Scene, actions: np.ndarray, cfg: EnvConfig,
-               t_from_press_s: np.ndarray | None = None) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, np.ndarray]:
+def transition(
+    scene: Scene, actions: np.ndarray, cfg: EnvConfig, t_from_press_s: np.ndarray | None = None
+) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, np.ndarray]:
     """Apply `actions` to a batch of scenes (in place).
 
     Returns (reward, named terms, terminated, reached_leader). The reward is that of
@@ -246,11 +273,12 @@ class Approach:
 #: Why a recorded decision is not replayed (see `approaches_from_decisions`).
 SKIP_REASONS = {
     "no_closing_leader": "no closing ego-lane leader at the press (t_f undefined); scored unless "
-                         "include_following=False (the study's rule)",
+    "include_following=False (the study's rule)",
     "following": "the ego was following its leader at the press (closing speed below the analysis's "
-                 "min_closing_mps, t_f_reason 'following'); scored unless include_following=False",
+    "min_closing_mps, t_f_reason 'following'); scored unless include_following=False",
     "no_press": "no 'change' row for the decision (its press was dropped by the analysis)",
 }
+
 
 def scenes_from_decisions(rows: pd.DataFrame, vehicle_length_m: float = 4.5, other: bool = False) -> Scene:
     """Scenes of DECISIONS rows (one per row); absent vehicles flagged, gaps kept exact.
@@ -258,6 +286,7 @@ def scenes_from_decisions(rows: pd.DataFrame, vehicle_length_m: float = 4.5, oth
     ``other=True``: the scenes asking about the other side of the ego lane (`other_lane`,
     `other_nf_*` / `other_nb_*`, `indicators.decisions.OTHER_SIDE`) instead of the target lane.
     """
+
     def col(name: str) -> np.ndarray:
         return rows[name].to_numpy(dtype=float, na_value=np.nan)
 
@@ -269,17 +298,23 @@ def scenes_from_decisions(rows: pd.DataFrame, vehicle_length_m: float = 4.5, oth
         x, v, gap = col(f"{prefix}{role}_x_m"), col(f"{prefix}{role}_v_mps"), col(f"{prefix}{role}_gap_m")
         dist = (x - x_e) if ahead else (x_e - x)
         hl = np.where(present & np.isfinite(gap) & np.isfinite(dist), dist - gap, vehicle_length_m)
-        return {f"{role}_present": present, f"v_{role}": np.where(present, v, v_e),
-                f"x_{role}": np.where(present, x, x_e), f"hl_{role}": hl}
+        return {
+            f"{role}_present": present,
+            f"v_{role}": np.where(present, v, v_e),
+            f"x_{role}": np.where(present, x, x_e),
+            f"hl_{role}": hl,
+        }
 
     prefix, lane = ("other_", "other_lane") if other else ("", "target_lane")
     left = (rows[lane].to_numpy() > rows["ego_lane"].to_numpy()) if lane in rows else None
-    return Scene(v_e=v_e, x_e=x_e, **part("f", True), **part("nf", True, prefix), **part("nb", False, prefix),
-                 left=left)
+    return Scene(
+        v_e=v_e, x_e=x_e, **part("f", True), **part("nf", True, prefix), **part("nb", False, prefix), left=left
+    )
 
 
-def approaches_from_decisions(decisions: pd.DataFrame, vehicle_length_m: float = 4.5,
-                              include_following: bool = True) -> tuple[list[Approach], dict[str, int]]:
+def approaches_from_decisions(
+    decisions: pd.DataFrame, vehicle_length_m: float = 4.5, include_following: bool = True
+) -> tuple[list[Approach], dict[str, int]]:
     """Recorded approaches from a DECISIONS table, and how many were skipped, by reason.
 
     Every decision with a press row is replayed, including presses made while
@@ -346,8 +381,9 @@ class LaneChangeDecisionEnv(gym.Env):
 
     metadata = {"render_modes": []}
 
-    def __init__(self, config: EnvConfig | None = None, approaches: list[Approach] | None = None,
-                 **overrides: Any) -> None:
+    def __init__(
+        self, config: EnvConfig | None = None, approaches: list[Approach] | None = None, **overrides: Any
+    ) -> None:
         cfg = config or default_config()
         self.config = replace(cfg, **overrides) if overrides else cfg
         self.approaches = approaches
@@ -356,8 +392,9 @@ class LaneChangeDecisionEnv(gym.Env):
         if approaches is None and self.config.scenes == "recorded":
             raise ValueError("recorded scenes need approaches (see approaches_from_decisions)")
         self.action_space = gym.spaces.Discrete(2)
-        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(len(observation_names(self.config)),),
-                                                dtype=np.float32)
+        self.observation_space = gym.spaces.Box(
+            0.0, 1.0, shape=(len(observation_names(self.config)),), dtype=np.float32
+        )
         self._scene: Scene | None = None
         self._steps = 0
         self._approach: Approach | None = None
@@ -371,7 +408,9 @@ class LaneChangeDecisionEnv(gym.Env):
         assert self._scene is not None, "reset() first"
         ind = indicators(self._scene, self.config.far_follower_m, self.config.range_m)
         # undefined indicators are None (NaN would make equal infos compare unequal)
-        info: dict[str, Any] = {k: (None if np.isnan(x := float(getattr(ind, k)[0])) else x) for k in ("v_e", "t_f", "t_nf", "dv_nb")}
+        info: dict[str, Any] = {
+            k: (None if np.isnan(x := float(getattr(ind, k)[0])) else x) for k in ("v_e", "t_f", "t_nf", "dv_nb")
+        }
         if self._approach is not None:
             info["decision_id"] = self._approach.decision_id
             info["recorded"] = self._replay_i < len(self._approach)
@@ -418,8 +457,11 @@ class LaneChangeDecisionEnv(gym.Env):
             late = float(self._t_from_press()[0]) > self.config.replay_late_s
         truncated = bool((self._steps >= self.config.max_steps or late) and not terminated[0])
         info = self._info()
-        info.update(terms={k: float(terms[k][0]) for k in TERMS}, changed=bool(act[0] == CHANGE),
-                    reached_leader=bool(reached[0]))
+        info.update(
+            terms={k: float(terms[k][0]) for k in TERMS},
+            changed=bool(act[0] == CHANGE),
+            reached_leader=bool(reached[0]),
+        )
         return self._obs(), float(reward[0]), bool(terminated[0]), truncated, info
 
 
@@ -454,8 +496,15 @@ class VecLaneChangeEnv:
             self.scene.put(idx, sample_scenes(self.rng, self.config, len(idx)))
             self.steps[idx] = 0
             obs = self.observe()
-        return {"obs": obs, "final_obs": final_obs, "reward": reward, "terms": terms,
-                "terminated": terminated, "truncated": truncated, "reached_leader": reached}
+        return {
+            "obs": obs,
+            "final_obs": final_obs,
+            "reward": reward,
+            "terms": terms,
+            "terminated": terminated,
+            "truncated": truncated,
+            "reached_leader": reached,
+        }
 
     def state_dict(self) -> dict[str, Any]:
         return {"scene": {k: v.copy() for k, v in self.scene.as_arrays().items()}, "steps": self.steps.copy()}
@@ -488,8 +537,7 @@ class VecReplayEnv:
     episode (truncated) instead of running on.
     """
 
-    def __init__(self, config: EnvConfig, approaches: list[Approach], num_envs: int,
-                 rng: np.random.Generator) -> None:
+    def __init__(self, config: EnvConfig, approaches: list[Approach], num_envs: int, rng: np.random.Generator) -> None:
         if not approaches:
             raise UserError("no recorded approaches to replay for this target")
         self.config = config
@@ -500,8 +548,9 @@ class VecReplayEnv:
         lengths = np.array([len(a) for a in approaches] + [len(o) for o in others])
         starts = np.r_[0, np.cumsum(lengths)[:-1]]
         self.last = np.repeat(starts + lengths - 1, lengths)  # index of the press of each state's approach
-        self.t_rel = np.concatenate([a.t_s - a.press_t_s for a in approaches] + [np.full(len(o), -NO_PRESS_S)
-                                                                                for o in others])
+        self.t_rel = np.concatenate(
+            [a.t_s - a.press_t_s for a in approaches] + [np.full(len(o), -NO_PRESS_S) for o in others]
+        )
         self.no_press = np.repeat(np.arange(len(lengths)) >= len(approaches), lengths)  # states of sides not taken
         self.index = self.rng.integers(len(self.t_rel), size=num_envs)  # current recorded state, or its press
         self.late = np.zeros(num_envs)  # time run on past the press [s] (0 while recorded)
@@ -543,12 +592,23 @@ class VecReplayEnv:
             self.steps[idx] = 0
             self.scene.put(idx, self.states.take(self.index[idx]))
             obs = self.observe()
-        return {"obs": obs, "final_obs": final_obs, "reward": reward, "terms": terms,
-                "terminated": terminated, "truncated": truncated, "reached_leader": reached}
+        return {
+            "obs": obs,
+            "final_obs": final_obs,
+            "reward": reward,
+            "terms": terms,
+            "terminated": terminated,
+            "truncated": truncated,
+            "reached_leader": reached,
+        }
 
     def state_dict(self) -> dict[str, Any]:
-        return {"scene": {k: v.copy() for k, v in self.scene.as_arrays().items()}, "steps": self.steps.copy(),
-                "index": self.index.copy(), "late": self.late.copy()}
+        return {
+            "scene": {k: v.copy() for k, v in self.scene.as_arrays().items()},
+            "steps": self.steps.copy(),
+            "index": self.index.copy(),
+            "late": self.late.copy(),
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.scene = Scene(**{k: np.asarray(v).copy() for k, v in state["scene"].items()})
@@ -558,8 +618,9 @@ class VecReplayEnv:
             self.late = np.asarray(state["late"]).copy()
 
 
-def make_vec_env(config: EnvConfig, num_envs: int, rng: np.random.Generator,
-                 approaches: list[Approach] | None = None) -> "VecLaneChangeEnv | VecReplayEnv":
+def make_vec_env(
+    config: EnvConfig, num_envs: int, rng: np.random.Generator, approaches: list[Approach] | None = None
+) -> "VecLaneChangeEnv | VecReplayEnv":
     """The trainer's vectorised environment for `config.scenes`."""
     if config.scenes == "recorded":
         if approaches is None:
@@ -568,10 +629,12 @@ def make_vec_env(config: EnvConfig, num_envs: int, rng: np.random.Generator,
     return VecLaneChangeEnv(config, num_envs, rng)
 
 
-
 def register() -> None:
     """Register the environment with gymnasium (idempotent)."""
     if ENV_ID not in gym.registry:
-        gym.register(id=ENV_ID, entry_point="rl.problem.env:LaneChangeDecisionEnv",
-                     max_episode_steps=None, disable_env_checker=False)
-
+        gym.register(
+            id=ENV_ID,
+            entry_point="rl.problem.env:LaneChangeDecisionEnv",
+            max_episode_steps=None,
+            disable_env_checker=False,
+        )

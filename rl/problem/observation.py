@@ -41,8 +41,14 @@ ROLES: dict[str, str] = {
 
 
 def _speed(name: str, who: str, cfg: EnvConfig) -> dict[str, Any]:
-    spec = {"name": name, "quantity": f"speed of {who}", "unit": "m/s", "transform": "linear",
-            "scale": 1.0 / cfg.v_max_mps, "offset": 0.0}
+    spec = {
+        "name": name,
+        "quantity": f"speed of {who}",
+        "unit": "m/s",
+        "transform": "linear",
+        "scale": 1.0 / cfg.v_max_mps,
+        "offset": 0.0,
+    }
     if name != "v_e":
         spec["when_undefined"] = {"same_as": "v_e", "why": f"{who} absent: shown moving at the ego's speed"}
     return spec
@@ -50,22 +56,38 @@ def _speed(name: str, who: str, cfg: EnvConfig) -> dict[str, Any]:
 
 def _position(name: str, who: str, edge: float, cfg: EnvConfig) -> dict[str, Any]:
     side = "front" if edge == 1.0 else "rear"
-    return {"name": name, "quantity": f"position of {who}'s centre minus the ego's centre along the road "
-                                      "(negative behind)", "unit": "m", "transform": "linear",
-            "scale": 1.0 / (2.0 * cfg.range_m), "offset": 0.5,
-            "when_undefined": {"value": edge, "why": f"{who} absent: shown at the {side} edge of the range"}}
+    return {
+        "name": name,
+        "quantity": f"position of {who}'s centre minus the ego's centre along the road (negative behind)",
+        "unit": "m",
+        "transform": "linear",
+        "scale": 1.0 / (2.0 * cfg.range_m),
+        "offset": 0.5,
+        "when_undefined": {"value": edge, "why": f"{who} absent: shown at the {side} edge of the range"},
+    }
 
 
 def _ttc(name: str, who: str) -> dict[str, Any]:
-    return {"name": name, "quantity": f"time to collision with {who}: max(gap, 0) / (v_e - v_{who[2:]}), "
-                                      "defined when it is seen and the ego is faster", "unit": "s",
-            "transform": "log1p_capped", "cap": TTC_CAP_S,
-            "when_undefined": {"value": 1.0, "why": "absent or not closing: read as the cap"}}
+    return {
+        "name": name,
+        "quantity": f"time to collision with {who}: max(gap, 0) / (v_e - v_{who[2:]}), "
+        "defined when it is seen and the ego is faster",
+        "unit": "s",
+        "transform": "log1p_capped",
+        "cap": TTC_CAP_S,
+        "when_undefined": {"value": 1.0, "why": "absent or not closing: read as the cap"},
+    }
 
 
 def _log_gap(name: str, quantity: str, unit: str, cap: float, who: str, also: str = "") -> dict[str, Any]:
-    return {"name": name, "quantity": quantity, "unit": unit, "transform": "log1p_capped", "cap": cap,
-            "when_undefined": {"value": 1.0, "why": f"{who} absent{also}: read as the cap (nothing within range)"}}
+    return {
+        "name": name,
+        "quantity": quantity,
+        "unit": unit,
+        "transform": "log1p_capped",
+        "cap": cap,
+        "when_undefined": {"value": 1.0, "why": f"{who} absent{also}: read as the cap (nothing within range)"},
+    }
 
 
 _STOPPED = f" or {{}} < {MIN_SPEED_MPS:g} m/s"
@@ -78,8 +100,14 @@ def _acceptance(cfg: EnvConfig) -> list[dict[str, Any]]:
         _log_gap("thw_f", "time headway to C_f: gap_f / v_e", "s", HEADWAY_CAP_S, "C_f", _STOPPED.format("v_e")),
         _log_gap("gap_nf", "gap to C_nf, the lead gap in the target lane", "m", r, "C_nf"),
         _log_gap("gap_nb", "gap to C_nb, the lag gap in the target lane", "m", r, "C_nb"),
-        _log_gap("thw_nb", "time headway of C_nb to the ego: gap_nb / v_nb", "s", HEADWAY_CAP_S, "C_nb",
-                 _STOPPED.format("v_nb")),
+        _log_gap(
+            "thw_nb",
+            "time headway of C_nb to the ego: gap_nb / v_nb",
+            "s",
+            HEADWAY_CAP_S,
+            "C_nb",
+            _STOPPED.format("v_nb"),
+        ),
     ]
 
 
@@ -87,30 +115,56 @@ def observation_spec(cfg: EnvConfig) -> list[dict[str, Any]]:
     """One dict per input of `rl.problem.env.observation(scene, cfg)`, in order (see the module doc)."""
     specs: list[dict[str, Any]] = [
         _speed("v_e", "the ego", cfg),
-        {"name": "x_e", "quantity": "the ego's own position (always the middle of the range)", "unit": "-",
-         "transform": "constant", "value": 0.5},
-        _speed("v_f", "C_f", cfg), _position("x_f", "C_f", 1.0, cfg),
-        _speed("v_nf", "C_nf", cfg), _position("x_nf", "C_nf", 1.0, cfg),
-        _speed("v_nb", "C_nb", cfg), _position("x_nb", "C_nb", 0.0, cfg),
+        {
+            "name": "x_e",
+            "quantity": "the ego's own position (always the middle of the range)",
+            "unit": "-",
+            "transform": "constant",
+            "value": 0.5,
+        },
+        _speed("v_f", "C_f", cfg),
+        _position("x_f", "C_f", 1.0, cfg),
+        _speed("v_nf", "C_nf", cfg),
+        _position("x_nf", "C_nf", 1.0, cfg),
+        _speed("v_nb", "C_nb", cfg),
+        _position("x_nb", "C_nb", 0.0, cfg),
     ]
     if cfg.observation in ("indicators", "direction", "acceptance"):
         specs += [
-            _ttc("t_f", "C_f"), _ttc("t_nf", "C_nf"),
-            {"name": "dv_nb", "quantity": "v_e - v_nb, defined when C_nb is seen within "
-                                          f"{cfg.far_follower_m:g} m (gap)", "unit": "m/s",
-             "transform": "linear", "scale": 1.0 / (2.0 * DV_RANGE_MPS), "offset": 0.5,
-             "when_undefined": {"value": 0.5, "why": "no follower within reach: no relative speed"}},
+            _ttc("t_f", "C_f"),
+            _ttc("t_nf", "C_nf"),
+            {
+                "name": "dv_nb",
+                "quantity": f"v_e - v_nb, defined when C_nb is seen within {cfg.far_follower_m:g} m (gap)",
+                "unit": "m/s",
+                "transform": "linear",
+                "scale": 1.0 / (2.0 * DV_RANGE_MPS),
+                "offset": 0.5,
+                "when_undefined": {"value": 0.5, "why": "no follower within reach: no relative speed"},
+            },
             {"name": "t_f_ok", "quantity": "1 when t_f is defined", "unit": "-", "transform": "flag", "of": "t_f"},
             {"name": "t_nf_ok", "quantity": "1 when t_nf is defined", "unit": "-", "transform": "flag", "of": "t_nf"},
-            {"name": "dv_nb_ok", "quantity": "1 when dv_nb is defined", "unit": "-", "transform": "flag",
-             "of": "dv_nb"},
+            {
+                "name": "dv_nb_ok",
+                "quantity": "1 when dv_nb is defined",
+                "unit": "-",
+                "transform": "flag",
+                "of": "dv_nb",
+            },
         ]
     if cfg.observation == "acceptance":
         specs += _acceptance(cfg)
     if cfg.observation == "direction":
-        specs.append({"name": DIRECTION_FEATURE, "quantity": "the side of the target lane: 1 to the left "
-                      "(overtaking), the floor to the right (returning)", "unit": "-", "transform": "flag",
-                      "of": "target lane side"})
+        specs.append(
+            {
+                "name": DIRECTION_FEATURE,
+                "quantity": "the side of the target lane: 1 to the left "
+                "(overtaking), the floor to the right (returning)",
+                "unit": "-",
+                "transform": "flag",
+                "of": "target lane side",
+            }
+        )
     for i, s in enumerate(specs):
         s["index"] = i
         s["clip"] = [OBS_FLOOR, 1.0]
@@ -120,6 +174,13 @@ def observation_spec(cfg: EnvConfig) -> list[dict[str, Any]]:
 
 def constants(cfg: EnvConfig) -> dict[str, float]:
     """The numbers the observation is built with."""
-    return {"range_m": cfg.range_m, "v_max_mps": cfg.v_max_mps, "far_follower_m": cfg.far_follower_m,
-            "ttc_cap_s": TTC_CAP_S, "headway_cap_s": HEADWAY_CAP_S, "dv_range_mps": DV_RANGE_MPS,
-            "obs_floor": OBS_FLOOR, "dt_s": cfg.dt_s}
+    return {
+        "range_m": cfg.range_m,
+        "v_max_mps": cfg.v_max_mps,
+        "far_follower_m": cfg.far_follower_m,
+        "ttc_cap_s": TTC_CAP_S,
+        "headway_cap_s": HEADWAY_CAP_S,
+        "dv_range_mps": DV_RANGE_MPS,
+        "obs_floor": OBS_FLOOR,
+        "dt_s": cfg.dt_s,
+    }

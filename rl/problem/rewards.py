@@ -102,8 +102,11 @@ class ReferenceLines:
         if "direction" in lines:  # lines of one direction are the analysis's detail; the agents read both
             lines = lines[lines["direction"].astype(str) == "both"]
         if style is not None:
-            sel = lines[(lines["scope"] == "style") & (lines["name"].str.lower() == style.lower())
-                        & (lines["kind"] == "typical")]
+            sel = lines[
+                (lines["scope"] == "style")
+                & (lines["name"].str.lower() == style.lower())
+                & (lines["kind"] == "typical")
+            ]
             what = f"style {style!r}"
         else:
             sel = lines[(lines["scope"] == "driver") & (lines["name"].astype(str) == str(driver))]
@@ -131,7 +134,9 @@ class RewardSettings:
     undefined_score: float = 1.0  # change score of an undefined t_nf or dv_nb: no objection [0-1]
     undefined_t_f_score: float = 0.0  # change score of an undefined t_f: no leader to pass, no reason [0-1]
     change_baseline: float = 2.6  # timing: subtracted from the closeness sum on a change [0-3]
-    pass_penalty: float | None = None  # cost of keeping: timing, when a change would pay (0.5); decisions, at/after the press (1.0) [1]
+    pass_penalty: float | None = (
+        None  # cost of keeping: timing, when a change would pay (0.5); decisions, at/after the press (1.0) [1]
+    )
     late_penalty_per_s: float = 0.0  # timing: keep reward once past the reference t_f, negated [1/s]
     press_scale_s: float = 2.0  # decisions: a change's reward falls by 1 per this many s off the press [s]
 
@@ -178,8 +183,9 @@ def press_reward(t_from_press_s: np.ndarray, settings: RewardSettings) -> np.nda
     return np.maximum(1.0 - np.abs(t_from_press_s) / settings.press_scale_s, -1.0)
 
 
-def decisions_step_reward(t_from_press_s: np.ndarray, actions: np.ndarray,
-                          settings: RewardSettings) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def decisions_step_reward(
+    t_from_press_s: np.ndarray, actions: np.ndarray, settings: RewardSettings
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Reward of the actions taken under `decisions` (0 on a keep) and its named terms."""
     is_change = np.asarray(actions) == CHANGE
     t = np.asarray(t_from_press_s, float)
@@ -190,8 +196,9 @@ def decisions_step_reward(t_from_press_s: np.ndarray, actions: np.ndarray,
     return terms["press"] + terms["pass"], terms
 
 
-def action_terms(ind: Indicators, lines: ReferenceLines, settings: RewardSettings,
-                 dt: float) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+def action_terms(
+    ind: Indicators, lines: ReferenceLines, settings: RewardSettings, dt: float
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Named reward terms of TO CHANGE and of NOT TO CHANGE for every scene."""
     c = change_scores(ind, lines, settings)
     zero = np.zeros_like(ind.v_e, dtype=float)
@@ -203,22 +210,29 @@ def action_terms(ind: Indicators, lines: ReferenceLines, settings: RewardSetting
     else:
         change["base"] = np.full_like(zero, -settings.change_baseline)
         acceptable = sum(c.values()) > settings.change_baseline
-        keep = {"r_f": zero, "r_nf": zero, "r_nb": zero, "base": zero,
-                "pass": np.where(acceptable, -settings.pass_penalty, 0.0),
-                "late": np.where(past_reference(ind, lines), -settings.late_penalty_per_s * dt, 0.0),
-                "press": zero}
+        keep = {
+            "r_f": zero,
+            "r_nf": zero,
+            "r_nb": zero,
+            "base": zero,
+            "pass": np.where(acceptable, -settings.pass_penalty, 0.0),
+            "late": np.where(past_reference(ind, lines), -settings.late_penalty_per_s * dt, 0.0),
+            "press": zero,
+        }
     return change, keep
 
 
-def action_rewards(ind: Indicators, lines: ReferenceLines, settings: RewardSettings,
-                   dt: float) -> tuple[np.ndarray, np.ndarray]:
+def action_rewards(
+    ind: Indicators, lines: ReferenceLines, settings: RewardSettings, dt: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Total reward of TO CHANGE and of NOT TO CHANGE for every scene."""
     change, keep = action_terms(ind, lines, settings, dt)
     return sum(change.values()), sum(keep.values())
 
 
-def step_reward(ind: Indicators, actions: np.ndarray, lines: ReferenceLines, settings: RewardSettings,
-                dt: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def step_reward(
+    ind: Indicators, actions: np.ndarray, lines: ReferenceLines, settings: RewardSettings, dt: float
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Reward of the actions taken (0 = change, 1 = keep) and its named terms."""
     change, keep = action_terms(ind, lines, settings, dt)
     is_change = np.asarray(actions) == CHANGE

@@ -110,6 +110,7 @@ def _ttc(present: np.ndarray, gap: np.ndarray, closing_speed: np.ndarray) -> tup
 
 def seen(scene: Scene, range_m: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Presence of f, nf, nb within `range_m` of the ego (the study's logs hold no farther vehicle)."""
+
     def one(present: np.ndarray, x: np.ndarray) -> np.ndarray:
         return present & (np.abs(np.where(present, x, scene.x_e) - scene.x_e) <= range_m)
 
@@ -126,8 +127,13 @@ def gaps(scene: Scene, range_m: float = np.inf) -> dict[str, np.ndarray]:
     with np.errstate(divide="ignore", invalid="ignore"):
         thw_f = np.where(scene.v_e >= MIN_SPEED_MPS, gap_f / scene.v_e, np.nan)
         thw_nb = np.where(scene.v_nb >= MIN_SPEED_MPS, gap_nb / scene.v_nb, np.nan)
-    return {"gap_f": gap_f, "thw_f": thw_f, "gap_nf": np.where(nf, scene.x_nf - scene.x_e - scene.hl_nf, np.nan),
-            "gap_nb": gap_nb, "thw_nb": thw_nb}
+    return {
+        "gap_f": gap_f,
+        "thw_f": thw_f,
+        "gap_nf": np.where(nf, scene.x_nf - scene.x_e - scene.hl_nf, np.nan),
+        "gap_nb": gap_nb,
+        "thw_nb": thw_nb,
+    }
 
 
 def indicators(scene: Scene, far_follower_m: float = FAR_FOLLOWER_M, range_m: float = np.inf) -> Indicators:
@@ -156,6 +162,7 @@ def observe(scene: Scene, range_m: float, v_max_mps: float) -> np.ndarray:
     a vehicle farther than ``range_m`` is shown as absent (as the study's logs,
     which hold a vehicle only within their scene range).
     """
+
     def pos(x: np.ndarray) -> np.ndarray:
         return (x - scene.x_e + range_m) / (2.0 * range_m)
 
@@ -199,8 +206,14 @@ def indicator_features(scene: Scene, far_follower_m: float, range_m: float) -> n
         return np.log1p(np.where(ok, np.minimum(t, TTC_CAP_S), TTC_CAP_S)) / np.log1p(TTC_CAP_S)
 
     dv = np.where(ind.dv_nb_ok, (ind.dv_nb + DV_RANGE_MPS) / (2 * DV_RANGE_MPS), 0.5)
-    cols = [ttc(ind.t_f, ind.t_f_ok), ttc(ind.t_nf, ind.t_nf_ok), dv,
-            ind.t_f_ok.astype(float), ind.t_nf_ok.astype(float), ind.dv_nb_ok.astype(float)]
+    cols = [
+        ttc(ind.t_f, ind.t_f_ok),
+        ttc(ind.t_nf, ind.t_nf_ok),
+        dv,
+        ind.t_f_ok.astype(float),
+        ind.t_nf_ok.astype(float),
+        ind.dv_nb_ok.astype(float),
+    ]
     return np.clip(np.stack(cols, axis=1), OBS_FLOOR, 1.0).astype(np.float32)
 
 
@@ -226,8 +239,7 @@ def acceptance_features(scene: Scene, range_m: float) -> np.ndarray:
     information, but a small network learns a ratio such as gap / v_e slowly from few presses.
     """
     g = gaps(scene, range_m)
-    caps = {"gap_f": range_m, "thw_f": HEADWAY_CAP_S, "gap_nf": range_m, "gap_nb": range_m,
-            "thw_nb": HEADWAY_CAP_S}
+    caps = {"gap_f": range_m, "thw_f": HEADWAY_CAP_S, "gap_nf": range_m, "gap_nb": range_m, "thw_nb": HEADWAY_CAP_S}
     cols = [_log_capped(g[name], caps[name]) for name in ACCEPTANCE_FEATURES]
     return np.clip(np.stack(cols, axis=1), OBS_FLOOR, 1.0).astype(np.float32)
 

@@ -105,7 +105,8 @@ class StackedReplayEnvs(VecReplayEnv):
             return False
         first = envs[0].config
         return first.reward.name == "decisions" and all(
-            replace(e.config, lines=first.lines) == first and e.num_envs == envs[0].num_envs for e in envs)
+            replace(e.config, lines=first.lines) == first and e.num_envs == envs[0].num_envs for e in envs
+        )
 
     def _draw_starts(self, idx: np.ndarray) -> np.ndarray:
         agent = idx // self.n

@@ -23,8 +23,15 @@ def gap_world(critical: dict[str, float], approaches: int = 40, seed: int = 0) -
             for _k in range(40):
                 thw = float(np.exp(rng.normal(np.log(1.5), 0.8)))
                 press = thw > crit * np.exp(rng.normal(0, 0.15))
-                rows.append({"driver_id": drv, "session_id": session, "decision_id": f"{drv}:{a}",
-                             "label": "change" if press else "keep", "thw_nb_s": thw})
+                rows.append(
+                    {
+                        "driver_id": drv,
+                        "session_id": session,
+                        "decision_id": f"{drv}:{a}",
+                        "label": "change" if press else "keep",
+                        "thw_nb_s": thw,
+                    }
+                )
                 if press:
                     break
     return pd.DataFrame(rows)
@@ -69,16 +76,20 @@ def test_few_presses_give_wide_errors_and_are_pooled():
 
 @pytest.mark.slow
 def test_heldout_choice_prefers_the_parameter_that_tells_styles_apart():
-    truth = {f"a{i}": 0.5 * (1 + 0.05 * i) for i in range(3)} | {f"n{i}": 1.2 * (1 + 0.05 * i) for i in range(3)} \
+    truth = (
+        {f"a{i}": 0.5 * (1 + 0.05 * i) for i in range(3)}
+        | {f"n{i}": 1.2 * (1 + 0.05 * i) for i in range(3)}
         | {f"d{i}": 2.6 * (1 + 0.05 * i) for i in range(3)}
+    )
     d = gap_world(truth, approaches=24, seed=3)
     # a second variable that says nothing about the drivers: the leader's headway, pure noise
     d["thw_f_s"] = np.exp(np.random.default_rng(4).normal(0, 0.5, len(d)))
     drivers = sorted(truth)
     b = B.driver_behaviour(d, None, drivers)
     data = B.decision_data(d)
-    best, scores, _ = R.choose_reading(b, data, drivers, 3, n_init=5,
-                                       candidates={"thw_nb": ("thw_nb",), "thw_f": ("thw_f",)})
+    best, scores, _ = R.choose_reading(
+        b, data, drivers, 3, n_init=5, candidates={"thw_nb": ("thw_nb",), "thw_f": ("thw_f",)}
+    )
     assert best == "thw_nb"
     chosen = next(s for s in scores if s.chosen)
     assert {chosen.labels[x] for x in ("d0", "d1", "d2")} == {"Defensive"}
@@ -105,8 +116,11 @@ def test_behaviour_params_parse_and_refuse():
 
 
 def _three_styles_with_a_noise_variable(seed: int = 3):
-    truth = {f"a{i}": 0.5 * (1 + 0.05 * i) for i in range(3)} | {f"n{i}": 1.2 * (1 + 0.05 * i) for i in range(3)} \
+    truth = (
+        {f"a{i}": 0.5 * (1 + 0.05 * i) for i in range(3)}
+        | {f"n{i}": 1.2 * (1 + 0.05 * i) for i in range(3)}
         | {f"d{i}": 2.6 * (1 + 0.05 * i) for i in range(3)}
+    )
     d = gap_world(truth, approaches=24, seed=seed)
     d["thw_f_s"] = np.exp(np.random.default_rng(4).normal(0, 0.5, len(d)))  # says nothing about the drivers
     drivers = sorted(truth)
@@ -140,17 +154,32 @@ def test_separated_reads_the_styles_by_the_parameter_that_separates_them(monkeyp
 
 def free_speed_decisions(free: dict[str, list[float]], limit_kph: float | None = 100.0) -> pd.DataFrame:
     """One decision state per recording: the driver's free speed there [m/s] and the posted limit."""
-    return pd.DataFrame([{"driver_id": d, "recording_id": f"{d}-{i}", "session_id": f"{d}_S{i}",
-                          "decision_id": f"{d}-{i}:0", "label": "change", "speed_limit_kph": limit_kph,
-                          "ego_v_free_mps": v} for d, vs in free.items() for i, v in enumerate(vs)])
+    return pd.DataFrame(
+        [
+            {
+                "driver_id": d,
+                "recording_id": f"{d}-{i}",
+                "session_id": f"{d}_S{i}",
+                "decision_id": f"{d}-{i}:0",
+                "label": "change",
+                "speed_limit_kph": limit_kph,
+                "ego_v_free_mps": v,
+            }
+            for d, vs in free.items()
+            for i, v in enumerate(vs)
+        ]
+    )
 
 
 def test_free_speed_is_the_median_share_of_the_limit_over_recordings():
     limit = 100 / 3.6
-    d = free_speed_decisions({"calm": [0.9 * limit, 0.95 * limit, 0.92 * limit], "fast": [1.1 * limit, 1.2 * limit],
-                              "once": [1.0 * limit]})
+    d = free_speed_decisions(
+        {"calm": [0.9 * limit, 0.95 * limit, 0.92 * limit], "fast": [1.1 * limit, 1.2 * limit], "once": [1.0 * limit]}
+    )
     value, se, recordings = B.free_speed_parameter(d, ["calm", "fast", "once", "absent"])
-    assert np.exp(value["calm"]) == pytest.approx(0.92) and np.exp(value["fast"]) == pytest.approx(np.sqrt(1.1 * 1.2))  # median of logs
+    assert np.exp(value["calm"]) == pytest.approx(0.92) and np.exp(value["fast"]) == pytest.approx(
+        np.sqrt(1.1 * 1.2)
+    )  # median of logs
     assert 0 < se["calm"] < 0.1 and recordings.to_dict() == {"calm": 3, "fast": 2, "once": 1, "absent": 0}
     assert np.isnan(value["once"]) and np.isnan(value["absent"])  # one recording says nothing of a spread
 

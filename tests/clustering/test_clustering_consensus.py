@@ -16,8 +16,9 @@ RIGHT = {"d0": "Defensive", "d1": "Defensive", "n0": "Normal", "n1": "Normal", "
 
 
 def reading(name: str, labels: dict[str, str], silhouette: float) -> ReadingScore:
-    return ReadingScore(name, (name,), np.nan, np.nan, np.nan, False, False, labels, silhouette=silhouette,
-                        stability=1.0)
+    return ReadingScore(
+        name, (name,), np.nan, np.nan, np.nan, False, False, labels, silhouette=silhouette, stability=1.0
+    )
 
 
 def test_co_association_weighs_each_reading_by_its_score():
@@ -58,8 +59,9 @@ def test_choose_consensus_names_the_styles_and_reports_its_voters(monkeypatch):
     _, drivers, b = _three_styles_with_a_noise_variable()
     monkeypatch.setattr(C, "choose_features", lambda *a, **k: ("", []))  # no indicator set in this world
     n_dec = pd.Series(24, index=drivers)
-    choice = C.choose_consensus(pd.DataFrame(), drivers, drivers, n_dec, b,
-                                AnalysisSettings(features="consensus", n_init=5))
+    choice = C.choose_consensus(
+        pd.DataFrame(), drivers, drivers, n_dec, b, AnalysisSettings(features="consensus", n_init=5)
+    )
     assert choice.name == C.CONSENSUS and C.reads_behaviour(choice.name)
     chosen = [s for s in choice.scores if s.chosen]
     assert len(chosen) == 1 and chosen[0].name == C.CONSENSUS

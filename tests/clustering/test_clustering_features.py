@@ -27,8 +27,17 @@ def test_huber_and_theilsen_match_statsmodels_and_scipy():
 
 def test_features_are_line_values_in_seconds():
     v = np.array([16.0, 18.0, 20.0, 22.0, 24.0, 26.0])
-    pts = pd.DataFrame({"driver_id": "D1", "decision_id": [f"d{i}" for i in range(6)], "indicator": "t_f",
-                        "v": v, "y": np.exp(0.1 * v), "status": "ok", "used": True})
+    pts = pd.DataFrame(
+        {
+            "driver_id": "D1",
+            "decision_id": [f"d{i}" for i in range(6)],
+            "indicator": "t_f",
+            "v": v,
+            "y": np.exp(0.1 * v),
+            "status": "ok",
+            "used": True,
+        }
+    )
     feats, notes = driver_features(pts, ["D1"], AnalysisSettings())
     assert feats.loc["D1", "t_f_at_70kph_s"] == pytest.approx(np.exp(0.1 * 70 / 3.6))
     assert np.isnan(feats.loc["D1", "t_nf_at_80kph_s"])
@@ -38,8 +47,17 @@ def test_features_are_line_values_in_seconds():
 def test_lines_are_not_extrapolated_beyond_the_drivers_speeds():
     """7 presses at 68-86 km/h: the 60 km/h feature is the line at 68 km/h, not a guess below it."""
     v = np.linspace(19.0, 24.0, 7)
-    pts = pd.DataFrame({"driver_id": "D1", "decision_id": [f"d{i}" for i in range(7)], "indicator": "t_f",
-                        "v": v, "y": np.exp(0.3 * v), "status": "ok", "used": True})
+    pts = pd.DataFrame(
+        {
+            "driver_id": "D1",
+            "decision_id": [f"d{i}" for i in range(7)],
+            "indicator": "t_f",
+            "v": v,
+            "y": np.exp(0.3 * v),
+            "status": "ok",
+            "used": True,
+        }
+    )
     feats, _ = driver_features(pts, ["D1"], AnalysisSettings())
     assert feats.loc["D1", "t_f_at_60kph_s"] == pytest.approx(np.exp(0.3 * 19.0))
     assert feats.loc["D1", "t_f_at_90kph_s"] == pytest.approx(np.exp(0.3 * 24.0))
@@ -64,7 +82,7 @@ def test_trimmed_level_matches_scipy_and_shrugs_off_a_stray_press():
     rows = [rng.lognormal(3.5, 0.3, n) for n in (1, 2, 4, 5, 9, 23)]
     Y = np.full((len(rows), 23), np.nan)
     for r, y in enumerate(rows):
-        Y[r, :len(y)] = y
+        Y[r, : len(y)] = y
     A, b = lines_by_row(np.full_like(Y, 20.0), Y, "trimmed")
     assert (A == 0).all()
     assert b == pytest.approx([stats.trim_mean(y, 0.2) for y in rows])

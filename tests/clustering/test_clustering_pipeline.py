@@ -27,8 +27,9 @@ def workspace(tmp_path_factory):
     for meta, ego, traffic in study.recordings:
         ws.write_recording(catalogue_row(meta, ego, traffic), ego, traffic)
     # a recording without any press
-    meta, ego, traffic = make_recording(10, 10, 20.0, [(0, 0)], vehicles=[("A", 60, 15, 0, 4.5)],
-                                        recording_id="nopress0000000000", driver_id="D01")
+    meta, ego, traffic = make_recording(
+        10, 10, 20.0, [(0, 0)], vehicles=[("A", 60, 15, 0, 4.5)], recording_id="nopress0000000000", driver_id="D01"
+    )
     ws.write_recording(catalogue_row(meta, ego, traffic), ego, traffic)
     return ws, study
 
@@ -57,7 +58,9 @@ def test_analyze_writes_stage_and_report(workspace, report):
     assert ((skipped["what"] == "recording") & (skipped["id"] == "nopress0000000000")).any()
     refs = ws.read_table("analysis", "reference_lines")
     for style in report["styles"]:  # noqa: B007 - read by the query string (@style)
-        assert len(refs.query("scope == 'style' and kind == 'typical' and name == @style and direction == 'both'")) == len(INDICATORS)
+        assert len(
+            refs.query("scope == 'style' and kind == 'typical' and name == @style and direction == 'both'")
+        ) == len(INDICATORS)
     assert set(report["styles"]) <= {"Defensive", "Normal", "Aggressive"}
     truth = {d["driver_id"]: d["style"] for d in study.ground_truth["drivers"]}
     assert {d: info["style"] for d, info in report["drivers"].items()} == truth
@@ -67,8 +70,20 @@ def test_analyze_writes_stage_and_report(workspace, report):
 @pytest.mark.slow
 def test_cli_json(workspace):
     ws, _ = workspace
-    res = CliRunner().invoke(app, ["analyze", "-w", str(ws.root), "--json", "--far-follower-m", "120",
-                                   "--choose-k", "silhouette", "--extrapolate-features"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "analyze",
+            "-w",
+            str(ws.root),
+            "--json",
+            "--far-follower-m",
+            "120",
+            "--choose-k",
+            "silhouette",
+            "--extrapolate-features",
+        ],
+    )
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
     assert doc["settings"]["far_follower_m"] == 120.0 and doc["settings"]["choose_k"] == "silhouette"
@@ -97,8 +112,9 @@ def test_cli_errors_are_one_line(tmp_path):
 
 def test_workspace_without_any_press_completes(tmp_path):
     ws = Workspace(tmp_path / "ws").ensure()
-    meta, ego, traffic = make_recording(10, 10, 20.0, [(0, 0)], vehicles=[("A", 60, 15, 0, 4.5)],
-                                        recording_id="nopress", driver_id="D07")
+    meta, ego, traffic = make_recording(
+        10, 10, 20.0, [(0, 0)], vehicles=[("A", 60, 15, 0, 4.5)], recording_id="nopress", driver_id="D07"
+    )
     ws.write_recording(catalogue_row(meta, ego, traffic), ego, traffic)
     report = analyze(ws)
     assert report["drivers"]["D07"]["style"] == "unassigned"
@@ -127,7 +143,8 @@ def test_a_recording_whose_following_cannot_be_read_keeps_its_decisions(workspac
     decisions, skipped, n_rec, following = pipeline.extract_all(ws, AnalysisSettings())
     assert len(decisions) == len(full)  # every recording's decisions, the broken one's too
     assert [s["reason"] for s in skipped if s["id"] == calls[0]] == [
-        "steady-following extraction failed: ValueError: a broken traffic table"]
+        "steady-following extraction failed: ValueError: a broken traffic table"
+    ]
     assert calls[0] not in set(following["recording_id"]) and n_rec == len(calls)
 
 

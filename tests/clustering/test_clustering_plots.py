@@ -73,13 +73,13 @@ def test_excluded_ttcs_far_off_do_not_stretch_the_axis(tables):
     allowed = int(0.05 * n)  # at least 95 % of the points on the axis (issue 48): the farthest stay off
     if allowed < 2:  # covering the 120 s one would flatten the rest: every point on a log axis instead
         assert fig.layout.yaxis.type == "log" and "log axis" in fig.layout.title.text
-        assert 10 ** hi >= 350 and 10 ** lo <= min(used.y)
+        assert 10**hi >= 350 and 10**lo <= min(used.y)
         assert not any(t.name.startswith(("excluded, off", "used, off")) for t in fig.data)
         return
     assert lo <= min(used.y) and max(used.y) <= hi and (hi < 100 if allowed >= 2 else hi < 400)
     off = next(t for t in fig.data if t.name.startswith("excluded, off the axis"))
     assert off.name == f"excluded, off the axis ({min(allowed, 2)})"
-    assert list(off.y) == [hi] * min(allowed, 2) and sorted(off.customdata) == [120.0, 350.0][2 - min(allowed, 2):]
+    assert list(off.y) == [hi] * min(allowed, 2) and sorted(off.customdata) == [120.0, 350.0][2 - min(allowed, 2) :]
     assert list(off.marker.symbol) == ["triangle-up"] * min(allowed, 2)
 
 

@@ -17,8 +17,9 @@ def awkward_table() -> pd.DataFrame:
     # FLAT: a section with no speed spread (all presses at 70 km/h)
     flat = df[df["driver_id"] == "D0001"].assign(driver_id="FLAT", ego_v_mps=70 / 3.6)
     # NONF: no target-lane leader at any press (t_nf undefined for the whole driver)
-    nonf = df[df["driver_id"] == "D0002"].assign(driver_id="NONF", t_nf_s=np.nan, nf_present=False,
-                                                  t_nf_status="absent")
+    nonf = df[df["driver_id"] == "D0002"].assign(
+        driver_id="NONF", t_nf_s=np.nan, nf_present=False, t_nf_status="absent"
+    )
     # KEEPONLY: states but no press
     keep_only = df[(df["driver_id"] == "D0003") & ~presses].assign(driver_id="KEEPONLY")
     return pd.concat([df, one, flat, nonf, keep_only], ignore_index=True)
@@ -40,7 +41,9 @@ def test_awkward_drivers_complete_with_reasons():
     assert ("driver", "KEEPONLY") in why
     # every press value left out of a fit is listed with its reason
     values = skipped[skipped["what"] == "value"]
-    assert ((values["id"] == "r0002:0:t_nf") & (values["reason"] == "t_nf undefined: no leader in the target lane")).any()
+    assert (
+        (values["id"] == "r0002:0:t_nf") & (values["reason"] == "t_nf undefined: no leader in the target lane")
+    ).any()
 
     st = out["styles"].set_index("driver_id")
     # every driver with any feature gets a style and says how

@@ -33,18 +33,43 @@ def acceptance_table(n_drivers: int = 9, n_presses: int = 40, seed: int = 0) -> 
         closing = rng.random(n_presses) < 0.2  # a closing leader at a fifth of the presses, slowly:
         ttc = np.exp(rng.uniform(np.log(8.0), np.log(300.0), n_presses))  # TTCs alike for every style
         dv = np.where(closing, f_gap / ttc, rng.uniform(-2.0, 0.0, n_presses))
-        rows.append(pd.DataFrame({
-            "driver_id": did, "recording_id": f"r{d}", "session_id": f"r{d}",
-            "decision_id": [f"r{d}:{i}" for i in range(n_presses)], "t_s": np.arange(n_presses) * 60.0,
-            "press_t_s": np.arange(n_presses) * 60.0, "label": "change", "speed_limit_kph": 80.0, "ego_v_mps": v,
-            "ego_x_m": 0.0, "ego_lane": 0, "target_lane": 1, "cancelled": False,
-            "f_present": True, "f_x_m": np.nan, "f_v_mps": v - dv, "f_gap_m": f_gap,
-            "t_f_s": np.where(dv > 0, f_gap / np.maximum(dv, 1e-9), np.nan),
-            "t_f_status": np.where(dv > 0, "ok", "not_closing"),
-            "nf_present": False, "nf_x_m": np.nan, "nf_v_mps": np.nan, "nf_gap_m": np.nan, "t_nf_s": np.nan,
-            "t_nf_status": "absent", "nb_present": True, "nb_x_m": np.nan, "nb_v_mps": v - rng.uniform(-3, 3, n_presses),
-            "nb_gap_m": nb_gap, "dv_nb_mps": rng.uniform(-3, 3, n_presses), "dv_nb_status": "ok",
-        }))
+        rows.append(
+            pd.DataFrame(
+                {
+                    "driver_id": did,
+                    "recording_id": f"r{d}",
+                    "session_id": f"r{d}",
+                    "decision_id": [f"r{d}:{i}" for i in range(n_presses)],
+                    "t_s": np.arange(n_presses) * 60.0,
+                    "press_t_s": np.arange(n_presses) * 60.0,
+                    "label": "change",
+                    "speed_limit_kph": 80.0,
+                    "ego_v_mps": v,
+                    "ego_x_m": 0.0,
+                    "ego_lane": 0,
+                    "target_lane": 1,
+                    "cancelled": False,
+                    "f_present": True,
+                    "f_x_m": np.nan,
+                    "f_v_mps": v - dv,
+                    "f_gap_m": f_gap,
+                    "t_f_s": np.where(dv > 0, f_gap / np.maximum(dv, 1e-9), np.nan),
+                    "t_f_status": np.where(dv > 0, "ok", "not_closing"),
+                    "nf_present": False,
+                    "nf_x_m": np.nan,
+                    "nf_v_mps": np.nan,
+                    "nf_gap_m": np.nan,
+                    "t_nf_s": np.nan,
+                    "t_nf_status": "absent",
+                    "nb_present": True,
+                    "nb_x_m": np.nan,
+                    "nb_v_mps": v - rng.uniform(-3, 3, n_presses),
+                    "nb_gap_m": nb_gap,
+                    "dv_nb_mps": rng.uniform(-3, 3, n_presses),
+                    "dv_nb_status": "ok",
+                }
+            )
+        )
     return pd.concat(rows, ignore_index=True), truth
 
 
@@ -84,12 +109,19 @@ def test_auto_leaves_out_a_set_read_at_fewer_presses_than_a_fit_takes(monkeypatc
     def fake(read_ttc):
         scores = {"ttc": (0.496, read_ttc), "following": (0.507, 9.0), "acceptance": (0.15, 9.0), "all": (0.27, 2.0)}
         return lambda points, drivers, n_dec, settings, name, inds: FeatureSetScore(
-            name, tuple(inds), 3, scores[name][0], 1.0, scores[name][0], 0.0, scores[name][1])
+            name, tuple(inds), 3, scores[name][0], 1.0, scores[name][0], 0.0, scores[name][1]
+        )
 
     monkeypatch.setattr(selection, "score_feature_set", fake(2.0))
-    assert selection.choose_features(pd.DataFrame(), [], pd.Series(dtype=float), AnalysisSettings(features="auto"))[0] == "following"
+    assert (
+        selection.choose_features(pd.DataFrame(), [], pd.Series(dtype=float), AnalysisSettings(features="auto"))[0]
+        == "following"
+    )
     monkeypatch.setattr(selection, "score_feature_set", fake(44.0))  # read at every press: the margin keeps it
-    assert selection.choose_features(pd.DataFrame(), [], pd.Series(dtype=float), AnalysisSettings(features="auto"))[0] == "ttc"
+    assert (
+        selection.choose_features(pd.DataFrame(), [], pd.Series(dtype=float), AnalysisSettings(features="auto"))[0]
+        == "ttc"
+    )
 
 
 def test_presses_read_per_driver_is_measured_and_shown(tmp_path):
@@ -100,11 +132,35 @@ def test_presses_read_per_driver_is_measured_and_shown(tmp_path):
     from rich.console import Console
 
     console = Console(record=True, width=200)
-    render_features({"requested": "auto", "chosen": "following", "indicators": ["gap_f"], "candidates": [
-        {"name": "ttc", "chosen": False, "silhouette": 0.5, "stability": 1.0, "score": 0.5, "imputed": 0.0,
-         "presses_read": 2.0},
-        {"name": "following", "chosen": True, "silhouette": 0.5, "stability": 1.0, "score": 0.5, "imputed": 0.0,
-         "presses_read": 9.0}]}, console, min_points=5)
+    render_features(
+        {
+            "requested": "auto",
+            "chosen": "following",
+            "indicators": ["gap_f"],
+            "candidates": [
+                {
+                    "name": "ttc",
+                    "chosen": False,
+                    "silhouette": 0.5,
+                    "stability": 1.0,
+                    "score": 0.5,
+                    "imputed": 0.0,
+                    "presses_read": 2.0,
+                },
+                {
+                    "name": "following",
+                    "chosen": True,
+                    "silhouette": 0.5,
+                    "stability": 1.0,
+                    "score": 0.5,
+                    "imputed": 0.0,
+                    "presses_read": 9.0,
+                },
+            ],
+        },
+        console,
+        min_points=5,
+    )
     text = console.export_text()
     assert "read at 2 presses per driver (under 5: auto leaves it out)" in text
     assert "read at 9 presses per driver\n" in text
@@ -162,8 +218,9 @@ def test_analyze_reports_the_choice_on_the_command_line(tmp_path):
     from tests.support.synthetic_decisions import catalogue_row, make_recording
 
     ws = Workspace(tmp_path / "ws").ensure()
-    meta, ego, traffic = make_recording(20, 10, 25.0, [(0, 0), (6.0, 1)], presses=[(5.0, 0.3, "left")],
-                                        vehicles=[("L", 40.0, 20.0, 0, 4.5)])
+    meta, ego, traffic = make_recording(
+        20, 10, 25.0, [(0, 0), (6.0, 1)], presses=[(5.0, 0.3, "left")], vehicles=[("L", 40.0, 20.0, 0, 4.5)]
+    )
     ws.write_recording(catalogue_row(meta, ego, traffic), ego, traffic)
     res = CliRunner().invoke(app, ["analyze", "--workspace", str(ws.root), "--json", "--features", "auto"])
     assert res.exit_code == 0, res.output

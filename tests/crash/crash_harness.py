@@ -63,8 +63,11 @@ def _held_back_stored(ws: Path, ctx: Context) -> list[str]:
     """Every held-back log is a recording, stored once (by content hash)."""
     from laneprint.workspace import content_id
 
-    missing = [p.name for p in sorted(ctx.logs.iterdir())
-               if not (ws / "recordings" / content_id(p.read_bytes()) / "meta.parquet").exists()]
+    missing = [
+        p.name
+        for p in sorted(ctx.logs.iterdir())
+        if not (ws / "recordings" / content_id(p.read_bytes()) / "meta.parquet").exists()
+    ]
     return [f"held-back log {m} not stored" for m in missing]
 
 
@@ -102,19 +105,42 @@ def _resume_fleets(ws: Path) -> list[list[str]]:
 COMMANDS: dict[str, Command] = {
     "ingest": Command(lambda c: ["ingest", str(c.logs)], _held_back_stored),
     "analyze": Command(lambda c: ["analyze"], _analysis_current),
-    "train": Command(lambda c: ["train", "--driver", c.driver, "--episodes", "1000", "--checkpoint-every", "100",
-                                "--run-id", f"crash-{c.tag}"], _runs_complete, trains=True),
-    "crossval": Command(lambda c: ["crossval", "--driver", c.driver, "--episodes", "10", "--folds", "2",
-                                   "--bootstrap", "10"], _crossval_stored),
-    "fleet": Command(lambda c: ["train", "--drivers", "all", "--episodes", "1000", "--checkpoint-every", "100"],
-                     _runs_complete, trains=True, resume=_resume_fleets),
+    "train": Command(
+        lambda c: [
+            "train",
+            "--driver",
+            c.driver,
+            "--episodes",
+            "1000",
+            "--checkpoint-every",
+            "100",
+            "--run-id",
+            f"crash-{c.tag}",
+        ],
+        _runs_complete,
+        trains=True,
+    ),
+    "crossval": Command(
+        lambda c: ["crossval", "--driver", c.driver, "--episodes", "10", "--folds", "2", "--bootstrap", "10"],
+        _crossval_stored,
+    ),
+    "fleet": Command(
+        lambda c: ["train", "--drivers", "all", "--episodes", "1000", "--checkpoint-every", "100"],
+        _runs_complete,
+        trains=True,
+        resume=_resume_fleets,
+    ),
 }
 
 
 def laneprint(args: list[str], ws: Path, timeout: float | None = None) -> subprocess.CompletedProcess:
     """Run `laneprint ARGS -w WS --json` to the end (as the user would, in a subprocess)."""
-    return subprocess.run([sys.executable, "-m", "laneprint.app.cli", *args, "-w", str(ws), "--json"],
-                          capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "laneprint.app.cli", *args, "-w", str(ws), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 def _json(proc: subprocess.CompletedProcess) -> dict[str, Any]:
@@ -175,8 +201,13 @@ def cpu_seconds(pid: int) -> float | None:
     return (int(fields[11]) + int(fields[12])) / _TICK  # utime, stime (fields 14 and 15 of stat)
 
 
-def run_until(argv: list[str], at_cpu_s: float, ws: Path | None = None,
-              after: Callable[[Path], bool] | None = None, poll_s: float = 0.02) -> Attempt:
+def run_until(
+    argv: list[str],
+    at_cpu_s: float,
+    ws: Path | None = None,
+    after: Callable[[Path], bool] | None = None,
+    poll_s: float = 0.02,
+) -> Attempt:
     """Start `argv` and SIGKILL it once it has used `at_cpu_s` CPU seconds and `after(ws)` holds
     (no kill when `at_cpu_s` is infinite); where /proc cannot tell CPU time, wall time stands in."""
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -224,8 +255,9 @@ def plan_kill(rng: np.random.Generator, startup_s: float, work_s: float) -> tupl
     return f, startup_s + f * max(work_s - startup_s, 0.0)
 
 
-def kill_live(start: Callable[[float], Attempt], rng: np.random.Generator, startup_s: float,
-              work_s: float) -> tuple[Attempt, float, float, int]:
+def kill_live(
+    start: Callable[[float], Attempt], rng: np.random.Generator, startup_s: float, work_s: float
+) -> tuple[Attempt, float, float, int]:
     """Start a command (`start(at_cpu_s)`, each time afresh) until one attempt is killed while live,
     at most `RETRIES` + 1 times: an attempt that finished first is a fresh measurement of its work,
     the next moment is drawn from it. Returns the last attempt, its drawn fraction, the work
@@ -257,9 +289,17 @@ def _checkpoint_episode(path: Path) -> int:
     return int(torch.load(path, weights_only=True)["counters"]["episodes_done"]) if path.exists() else 0
 
 
-def kill_once(name: str, base: Path, ctx: Context, at_cpu_s: float, ws: Path, timeout_s: float,
-              cmd: Command | None = None, after: Callable[[Path], bool] | None = None,
-              attempt: Attempt | None = None) -> KillResult:
+def kill_once(
+    name: str,
+    base: Path,
+    ctx: Context,
+    at_cpu_s: float,
+    ws: Path,
+    timeout_s: float,
+    cmd: Command | None = None,
+    after: Callable[[Path], bool] | None = None,
+    attempt: Attempt | None = None,
+) -> KillResult:
     """Copy `base` to `ws`, kill command `name` (or `cmd`) once it has used `at_cpu_s` CPU seconds (and
     `after(ws)` holds), then check, repair, recover, check again. With `attempt`, the command has
     already been started and killed on `ws` (see `run_kills`)."""
@@ -272,8 +312,9 @@ def kill_once(name: str, base: Path, ctx: Context, at_cpu_s: float, ws: Path, ti
     first = laneprint(["check", "--repair"], ws, timeout=timeout_s)
     report = _json(first)
     res.repaired = len(report.get("repaired", []))
-    res.problems += [f"after the kill: {f['path']}: {f['message']}" for f in report.get("findings", [])
-                     if f["kind"] == "problem"]
+    res.problems += [
+        f"after the kill: {f['path']}: {f['message']}" for f in report.get("findings", []) if f["kind"] == "problem"
+    ]
     if first.returncode != 0 and not res.problems:
         res.problems.append(f"check --repair exit {first.returncode}: {first.stderr.strip()[-200:]}")
 
@@ -304,7 +345,9 @@ def kill_once(name: str, base: Path, ctx: Context, at_cpu_s: float, ws: Path, ti
                 continue
             res.resumed[rid] = int(_json(out).get("resumed_from_episode", -1))
             if res.resumed[rid] != expected:
-                res.problems.append(f"run {rid} resumed from episode {res.resumed[rid]}, its checkpoint is at {expected}")
+                res.problems.append(
+                    f"run {rid} resumed from episode {res.resumed[rid]}, its checkpoint is at {expected}"
+                )
         if not res.resumed and not own:  # a new tag: a command that had finished keeps its run
             out = laneprint(cmd.args(Context(ctx.logs, ctx.driver, ctx.tag + "-again")), ws, timeout=timeout_s)
             if out.returncode != 0:
@@ -317,8 +360,9 @@ def kill_once(name: str, base: Path, ctx: Context, at_cpu_s: float, ws: Path, ti
     from laneprint.workspace import Workspace
 
     final = check_workspace(Workspace(ws))  # what `laneprint check` runs, in this process (saves a start-up)
-    res.problems += [f"after recovery: {f['kind']} {f['path']}: {f['message']}" for f in final["findings"]
-                     if f["kind"] != "note"]
+    res.problems += [
+        f"after recovery: {f['kind']} {f['path']}: {f['message']}" for f in final["findings"] if f["kind"] != "note"
+    ]
     res.problems += cmd.verify(ws, ctx)
     return res
 
@@ -328,7 +372,9 @@ def prepare(scratch: Path, seed: int, drivers: int = 3, held_back: int = 2) -> t
     held-back logs, under `scratch`."""
     study, logs, base = scratch / "study", scratch / "held_back", scratch / "base"
     for args in (["simulate", "--out", str(study), "--drivers", str(drivers), "--seed", str(seed)],):
-        out = subprocess.run([sys.executable, "-m", "laneprint.app.cli", *args, "--json"], capture_output=True, text=True)
+        out = subprocess.run(
+            [sys.executable, "-m", "laneprint.app.cli", *args, "--json"], capture_output=True, text=True
+        )
         if out.returncode != 0:
             raise RuntimeError(out.stderr[-300:])
     files = sorted(p for p in study.iterdir() if p.name.endswith((".mcap", ".csv.gz", ".csv")))
@@ -342,8 +388,9 @@ def prepare(scratch: Path, seed: int, drivers: int = 3, held_back: int = 2) -> t
     return base, Context(logs, "D01", "")
 
 
-def run_kills(names: list[str], kills: int, seed: int, scratch: Path, jobs: int = 1,
-              log: Callable[[str], None] = print) -> list[KillResult]:
+def run_kills(
+    names: list[str], kills: int, seed: int, scratch: Path, jobs: int = 1, log: Callable[[str], None] = print
+) -> list[KillResult]:
     """`kills` kills spread evenly over `names` (order and moments drawn from `seed`), `jobs` at a time
     (each on its own copy of the workspace)."""
     from concurrent.futures import ThreadPoolExecutor
@@ -369,12 +416,14 @@ def run_kills(names: list[str], kills: int, seed: int, scratch: Path, jobs: int 
         res = kill_once(name, base, kctx, attempt.cpu_s, ws, timeout, attempt=attempt)
         res.work_fraction, res.retries = round(fraction, 3), retry
         shutil.rmtree(ws, ignore_errors=True)
-        log(f"[{i + 1}/{kills}] {res.command} killed at {res.work_fraction:.0%} of its work "
+        log(
+            f"[{i + 1}/{kills}] {res.command} killed at {res.work_fraction:.0%} of its work "
             f"({res.cpu_s} CPU s, {res.delay_s} s)"
             f"{' (had finished: NOT a live kill)' if res.finished_before_kill else ''}"
             f"{f' after {retry} early finish(es)' if retry else ''}: repaired {res.repaired}, "
             f"resumed {res.resumed or '-'}, recovery {res.recovery_s} s, "
-            f"{'consistent' if res.consistent else 'INCONSISTENT: ' + '; '.join(res.problems)}")
+            f"{'consistent' if res.consistent else 'INCONSISTENT: ' + '; '.join(res.problems)}"
+        )
         return res
 
     with ThreadPoolExecutor(max(1, jobs)) as pool:

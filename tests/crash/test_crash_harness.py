@@ -12,8 +12,16 @@ import numpy as np
 import pytest
 
 from ingest.pipeline import ingest_paths
-from crash_harness import (Command, Context, _held_back_stored, _runs_complete, kill_live, kill_once,
-                                     plan_kill, run_until)
+from crash_harness import (
+    Command,
+    Context,
+    _held_back_stored,
+    _runs_complete,
+    kill_live,
+    kill_once,
+    plan_kill,
+    run_until,
+)
 from laneprint.workspace import Workspace
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_logs"
@@ -64,11 +72,35 @@ def base(tmp_path) -> tuple[Path, Context]:
 @pytest.mark.slow
 def test_a_training_killed_after_a_checkpoint_is_interrupted_then_resumed(base, tmp_path):
     # 10000 episodes: 3000 could all run (about 2 s of CPU) before the poll saw the first checkpoint
-    train = Command(lambda c: ["train", "--style", "Normal", "--lines", "paper", "--scenes", "synthetic",
-                               "--episodes", "10000", "--checkpoint-every", "5", "--no-evaluate", "--run-id", "r"],
-                    _runs_complete, trains=True)
-    res = kill_once("train", *base, at_cpu_s=0.0, ws=tmp_path / "ws", timeout_s=120, cmd=train,
-                    after=lambda ws: (ws / "runs" / "r" / "checkpoint.pt").exists())
+    train = Command(
+        lambda c: [
+            "train",
+            "--style",
+            "Normal",
+            "--lines",
+            "paper",
+            "--scenes",
+            "synthetic",
+            "--episodes",
+            "10000",
+            "--checkpoint-every",
+            "5",
+            "--no-evaluate",
+            "--run-id",
+            "r",
+        ],
+        _runs_complete,
+        trains=True,
+    )
+    res = kill_once(
+        "train",
+        *base,
+        at_cpu_s=0.0,
+        ws=tmp_path / "ws",
+        timeout_s=120,
+        cmd=train,
+        after=lambda ws: (ws / "runs" / "r" / "checkpoint.pt").exists(),
+    )
     assert not res.finished_before_kill
     assert res.problems == []
     assert res.interrupted_runs == ["r"]  # by `laneprint runs` and the dashboard alike (else a problem)
@@ -78,7 +110,14 @@ def test_a_training_killed_after_a_checkpoint_is_interrupted_then_resumed(base, 
 @pytest.mark.slow
 def test_an_ingest_killed_while_writing_a_recording(base, tmp_path):
     ingest = Command(lambda c: ["ingest", str(c.logs)], _held_back_stored)
-    res = kill_once("ingest", *base, at_cpu_s=0.0, ws=tmp_path / "ws", timeout_s=120, cmd=ingest,
-                    after=lambda ws: any((ws / ".tmp").glob("*/*.parquet")))
+    res = kill_once(
+        "ingest",
+        *base,
+        at_cpu_s=0.0,
+        ws=tmp_path / "ws",
+        timeout_s=120,
+        cmd=ingest,
+        after=lambda ws: any((ws / ".tmp").glob("*/*.parquet")),
+    )
     assert res.problems == []
     assert res.finished_before_kill or res.repaired >= 1  # its staging folder, removed by check --repair

@@ -54,12 +54,23 @@ def server(browser, sample_ws, tmp_path_factory):
     ws = Workspace(shutil.copytree(sample_ws.root, tmp_path_factory.mktemp("browser") / "ws"))
     port = free_port()
     url = f"http://127.0.0.1:{port}"
-    env = dict(os.environ, LANEPRINT_WORKSPACE=str(ws.root), LANEPRINT_DASHBOARD_EPISODES="3000",
-               LANEPRINT_DASHBOARD_POLL_S="0.5")
+    env = dict(
+        os.environ,
+        LANEPRINT_WORKSPACE=str(ws.root),
+        LANEPRINT_DASHBOARD_EPISODES="3000",
+        LANEPRINT_DASHBOARD_POLL_S="0.5",
+    )
     log_path = tmp_path_factory.mktemp("streamlit") / "server.log"
     with open(log_path, "w+") as log:
-        proc = subprocess.Popen(streamlit_command(port, "127.0.0.1", ws.root), cwd=ROOT, env=env, stdout=log,
-                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
+        proc = subprocess.Popen(
+            streamlit_command(port, "127.0.0.1", ws.root),
+            cwd=ROOT,
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
+        )
         try:
             wait_healthy(url, proc)
             yield url, ws

@@ -15,8 +15,7 @@ ERRORS = '[data-testid="stException"], [data-testid="stAlertContentError"]'
 def settle(page) -> None:
     """Wait until the script run is over (elements are drawn faded during a run)."""
     page.wait_for_timeout(300)
-    expect(page.locator('[data-testid="stApp"][data-test-script-state="notRunning"]')).to_be_attached(
-        timeout=60_000)
+    expect(page.locator('[data-testid="stApp"][data-test-script-state="notRunning"]')).to_be_attached(timeout=60_000)
 
 
 def no_errors(page) -> None:
@@ -36,19 +35,23 @@ def open_page(page, url: str, path: str, title: str) -> None:
 
 def test_every_page_renders(server, page):
     url, _ws = server
-    for path, title, expect_chart in [("", "Data", True), ("drivers", "Drivers", True),
-                                      ("styles", "Styles", True), ("training", "Training", False),
-                                      ("results", "Results", True)]:
+    for path, title, expect_chart in [
+        ("", "Data", True),
+        ("drivers", "Drivers", True),
+        ("styles", "Styles", True),
+        ("training", "Training", False),
+        ("results", "Results", True),
+    ]:
         open_page(page, url, path, title)
         if expect_chart:
-            expect(page.locator('[data-testid="stPlotlyChart"] .js-plotly-plot').first).to_be_visible(
-                timeout=30_000)
+            expect(page.locator('[data-testid="stPlotlyChart"] .js-plotly-plot').first).to_be_visible(timeout=30_000)
             settle(page)
         no_errors(page)
         shot(page, f"page_{title.lower()}")
         if title == "Data":  # the recording viewer alone, below the fold of the page shot
             page.locator('[data-testid="stPlotlyChart"]').first.screenshot(
-                path=str(SHOT_DIR / "data_recording_viewer.png"), animations="disabled")
+                path=str(SHOT_DIR / "data_recording_viewer.png"), animations="disabled"
+            )
 
 
 def test_styles_say_what_sets_them_apart_and_who_is_unsure(server, page):
@@ -126,12 +129,19 @@ def test_fleet_views(server, page):
     url, ws = server
     write_fake_fleet(ws, "browser-fleet", list(SAMPLE_DRIVERS), seeds=(0, 1))
     jobs.fleet_jobs_dir(ws).mkdir(parents=True, exist_ok=True)
-    (jobs.fleet_jobs_dir(ws) / "browser-fleet.json").write_text(json.dumps(
-        {"job_id": "browser-fleet", "pid": None, "fleet_id": "browser-fleet", "request": {},
-         "launched_at": "2026-11-30T10:00:00+00:00"}))
+    (jobs.fleet_jobs_dir(ws) / "browser-fleet.json").write_text(
+        json.dumps(
+            {
+                "job_id": "browser-fleet",
+                "pid": None,
+                "fleet_id": "browser-fleet",
+                "request": {},
+                "launched_at": "2026-11-30T10:00:00+00:00",
+            }
+        )
+    )
     open_page(page, url, "training", "Training")
-    expect(page.get_by_text(re.compile(r"fleet browser-fleet: done — 12/12 agents done"))).to_be_visible(
-        timeout=30_000)
+    expect(page.get_by_text(re.compile(r"fleet browser-fleet: done — 12/12 agents done"))).to_be_visible(timeout=30_000)
     no_errors(page)
     open_page(page, url, "results", "Results")
     heading = page.get_by_role("heading", name="Fleets (1)")

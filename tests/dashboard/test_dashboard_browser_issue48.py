@@ -33,22 +33,39 @@ from laneprint.workspace import Workspace, analysis_fingerprint
 pytestmark = [pytest.mark.browser, pytest.mark.slow]  # one server and one page; about two minutes in all
 
 ERRORS = '[data-testid="stException"], [data-testid="stAlertContentError"]'
-AUTO_CHOICE = {"learner": "dqn", "scores": {"dqn": 0.805, "trees": 0.773}, "n_train": 120, "n_holdout": 120,
-               "folds": 3, "by_side": {}, "stopped": "", "checks": []}
-DRIVE_ROW = {"speed_limit_kph": 80.0, "lane_changes": 28, "agent_changes": 0, "rule_changes": 28,
-             "return_changes": 8, "made_by": {"agent": 0, "rule_held_back": 20, "rule_return": 8, "unattributed": 0}}
+AUTO_CHOICE = {
+    "learner": "dqn",
+    "scores": {"dqn": 0.805, "trees": 0.773},
+    "n_train": 120,
+    "n_holdout": 120,
+    "folds": 3,
+    "by_side": {},
+    "stopped": "",
+    "checks": [],
+}
+DRIVE_ROW = {
+    "speed_limit_kph": 80.0,
+    "lane_changes": 28,
+    "agent_changes": 0,
+    "rule_changes": 28,
+    "return_changes": 8,
+    "made_by": {"agent": 0, "rule_held_back": 20, "rule_return": 8, "unattributed": 0},
+}
 
 
 def restyle(ws: Workspace) -> None:
     """A re-analysis that moves one driver to another style (the analysis's fingerprint changes)."""
-    tables = {n: ws.read_table("analysis", n) for n in ("decisions", "reference_lines", "styles", "correlations",
-                                                        "fits", "skipped")}
+    tables = {
+        n: ws.read_table("analysis", n)
+        for n in ("decisions", "reference_lines", "styles", "correlations", "fits", "skipped")
+    }
     styles = tables["styles"]
     names = sorted(set(styles.loc[styles["cluster"] >= 0, "style"]))
     i = styles.index[styles["cluster"] >= 0][0]
     styles.loc[i, "style"] = next(n for n in names if n != styles.loc[i, "style"])
-    ws.write_tables("analysis", tables, {**ws.read_meta("analysis"),
-                                         "analysis_fingerprint": analysis_fingerprint(tables)})
+    ws.write_tables(
+        "analysis", tables, {**ws.read_meta("analysis"), "analysis_fingerprint": analysis_fingerprint(tables)}
+    )
 
 
 def prepare(ws: Workspace) -> None:
@@ -59,11 +76,22 @@ def prepare(ws: Workspace) -> None:
     path.write_text(json.dumps({**cfg, "auto": {"margin": 0.01, "folds": 3}, "learner_choice": AUTO_CHOICE}))
     folder = ws.root / "drives" / "Normal-seed0-s0"
     folder.mkdir(parents=True)
-    (folder / "drive.json").write_text(json.dumps({
-        "run_id": "Normal-seed0", "lanes": 2, "seed": 0, "sections": [DRIVE_ROW], "totals": DRIVE_ROW,
-        "who_drove": {"text": "Who changed lane: 28 lane changes: the agent 0, the rule 28 (held back 20, return 8); "
-                              "no lane change was the agent's: the assistant's rule made them all."},
-        "fidelity": {"note": "no comparison with the drivers: a hand-made drive"}}))
+    (folder / "drive.json").write_text(
+        json.dumps(
+            {
+                "run_id": "Normal-seed0",
+                "lanes": 2,
+                "seed": 0,
+                "sections": [DRIVE_ROW],
+                "totals": DRIVE_ROW,
+                "who_drove": {
+                    "text": "Who changed lane: 28 lane changes: the agent 0, the rule 28 (held back 20, return 8); "
+                    "no lane change was the agent's: the assistant's rule made them all."
+                },
+                "fidelity": {"note": "no comparison with the drivers: a hand-made drive"},
+            }
+        )
+    )
 
 
 @pytest.fixture(scope="module")
@@ -74,11 +102,21 @@ def study(browser, sample_ws, tmp_path_factory):
     prepare(ws)
     port = free_port()
     url = f"http://127.0.0.1:{port}"
-    env = dict(os.environ, LANEPRINT_WORKSPACE=str(ws.root), LANEPRINT_DASHBOARD_EPISODES="300",
-               LANEPRINT_DASHBOARD_POLL_S="0.5")
-    proc = subprocess.Popen(streamlit_command(port, "127.0.0.1", ws.root), cwd=ROOT, env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
-                            start_new_session=True)
+    env = dict(
+        os.environ,
+        LANEPRINT_WORKSPACE=str(ws.root),
+        LANEPRINT_DASHBOARD_EPISODES="300",
+        LANEPRINT_DASHBOARD_POLL_S="0.5",
+    )
+    proc = subprocess.Popen(
+        streamlit_command(port, "127.0.0.1", ws.root),
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        stdin=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     ctx = browser.new_context(viewport={"width": 1400, "height": 1000}, accept_downloads=True)
     try:
         wait_healthy(url, proc)
@@ -220,7 +258,8 @@ def test_3_a_personalised_run_is_scored_on_the_decisions_not_given(study):
     run_id = shared["personalised"]
     page.goto(f"{url}/results?run={run_id}")
     expect(page.get_by_role("heading", name=re.compile(r"held out: the \d+ decisions not given")).first).to_be_visible(
-        timeout=60_000)
+        timeout=60_000
+    )
     settle(page)
     expect(page.get_by_text("the imitation classifier fitted on the same ones", exact=False)).to_be_visible()
     ev = json.loads((ws.runs_dir / run_id / "evaluation.json").read_text())
@@ -254,8 +293,13 @@ def test_4_the_onnx_policy_runs_in_onnxruntime(study, tmp_path):
 def test_5_numbers_defined_titles_whole_tables_not_cut(study, tmp_path):
     url, ws, page, _ = study
     counted = {}
-    for path, title in (("", "Data"), ("drivers", "Drivers"), ("styles", "Styles"), ("results", "Results"),
-                        ("personalize", "Personalise")):
+    for path, title in (
+        ("", "Data"),
+        ("drivers", "Drivers"),
+        ("styles", "Styles"),
+        ("results", "Results"),
+        ("personalize", "Personalise"),
+    ):
         open_page(page, url, path, title)
         if path != "personalize":
             expect(page.locator(".js-plotly-plot").first).to_be_visible(timeout=60_000)
@@ -308,8 +352,14 @@ def test_7_a_drive_says_who_made_its_lane_changes(study):
     url, ws, page, _ = study
     open_page(page, url, "results", "Results")
     draw_all(page)
-    expect(page.get_by_text(re.compile(r"Who changed lane: 28 lane changes: the agent 0, the rule 28 "
-                                       r"\(held back 20, return 8\)")).first).to_be_visible(timeout=30_000)
+    expect(
+        page.get_by_text(
+            re.compile(
+                r"Who changed lane: 28 lane changes: the agent 0, the rule 28 "
+                r"\(held back 20, return 8\)"
+            )
+        ).first
+    ).to_be_visible(timeout=30_000)
     expect(page.get_by_text("when a slower leader has held the ego back", exact=False).first).to_be_visible()
     html = report_of(study)
     assert "Closed-loop drives in SUMO" in html and "the agent 0, the rule 28 (held back 20, return 8)" in html
@@ -319,8 +369,9 @@ def test_7_a_drive_says_who_made_its_lane_changes(study):
 def test_8_the_learner_kept_and_the_next_step(study):
     url, ws, page, _ = study
     open_page(page, url, "results?run=Normal-seed0", "Results")
-    expect(page.get_by_text(re.compile(r"Learner: DQN, kept by auto .*DQN 80\.5 %, trees 77\.3 %")).first
-           ).to_be_visible(timeout=30_000)
+    expect(
+        page.get_by_text(re.compile(r"Learner: DQN, kept by auto .*DQN 80\.5 %, trees 77\.3 %")).first
+    ).to_be_visible(timeout=30_000)
     assert "DQN 80.5 %, trees 77.3 %" in report_of(study)
     open_page(page, url, "", "Data")
     expect(page.get_by_text(re.compile(r"Next: .*Styles")).first).to_be_visible(timeout=30_000)

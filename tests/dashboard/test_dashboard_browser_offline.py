@@ -54,9 +54,15 @@ def heavy_server(browser, sample_ws, tmp_path_factory):
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     env = dict(os.environ, LANEPRINT_WORKSPACE=str(ws.root), LANEPRINT_DASHBOARD_EPISODES="300")
-    proc = subprocess.Popen(streamlit_command(port, "127.0.0.1", ws.root), cwd=ROOT, env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        streamlit_command(port, "127.0.0.1", ws.root),
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        stdin=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     try:
         wait_healthy(url, proc)
         yield url, ws
@@ -78,8 +84,13 @@ def record_requests(page) -> list[str]:
 
 
 def outside(urls: list[str]) -> list[str]:
-    return [u for u in urls if u.startswith("console: ") or urlparse(u).hostname not in (None, "127.0.0.1", "localhost")
-            and not u.startswith(("data:", "blob:"))]
+    return [
+        u
+        for u in urls
+        if u.startswith("console: ")
+        or urlparse(u).hostname not in (None, "127.0.0.1", "localhost")
+        and not u.startswith(("data:", "blob:"))
+    ]
 
 
 #: Every y and x axis of every Plotly figure on the page: its title, range and the values drawn on it.
@@ -133,8 +144,13 @@ def test_heavy_tails_drawn_readable_and_offline(heavy_server, browser):
     page = ctx.new_page()
     seen = record_requests(page)
     counts = {}
-    for path, title in (("drivers", "Drivers"), ("styles", "Styles"), ("results", "Results"), ("", "Data"),
-                        ("training", "Training")):
+    for path, title in (
+        ("drivers", "Drivers"),
+        ("styles", "Styles"),
+        ("results", "Results"),
+        ("", "Data"),
+        ("training", "Training"),
+    ):
         page.goto(f"{url}/{path}")
         expect(page.get_by_role("heading", name=title, exact=True).first).to_be_visible(timeout=60_000)
         settle(page)
@@ -148,7 +164,8 @@ def test_heavy_tails_drawn_readable_and_offline(heavy_server, browser):
             for i, b in enumerate(page.evaluate(BOXES_JS)[:3]):
                 assert b["title"] and b["plot"] and b["title"]["b"] <= b["plot"]["t"] - 4, (i, b)
                 assert b["ytitle"]["r"] <= b["plot"]["l"] and not (
-                    b["ytitle"]["t"] < b["title"]["b"] and b["ytitle"]["r"] > b["title"]["l"]), (i, b)
+                    b["ytitle"]["t"] < b["title"]["b"] and b["ytitle"]["r"] > b["title"]["l"]
+                ), (i, b)
             SHOT_DIR.mkdir(parents=True, exist_ok=True)
             page.screenshot(path=str(SHOT_DIR / "heavy_drivers.png"))
         if path == "results":
@@ -183,8 +200,23 @@ def test_enter_in_episodes_starts_nothing(heavy_server, browser):
 
 def test_report_opens_offline_with_every_figure(sample_ws, browser, tmp_path):
     out = tmp_path / "report.html"
-    res = subprocess.run([sys.executable, "-m", "laneprint.app.cli", "report", "--workspace", str(sample_ws.root),
-                          "--out", str(out), "--json", "--no-assets"], capture_output=True, text=True, timeout=300)
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "laneprint.app.cli",
+            "report",
+            "--workspace",
+            str(sample_ws.root),
+            "--out",
+            str(out),
+            "--json",
+            "--no-assets",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert res.returncode == 0, res.stderr
     n = json.loads(res.stdout)["figures"]
     ctx = browser.new_context(viewport={"width": 1300, "height": 900})

@@ -15,11 +15,11 @@ def test_streamlit_command_is_local_headless_and_private(tmp_path):
     cmd = streamlit_command(8999, "127.0.0.1", tmp_path)
     assert cmd[:4] == [sys.executable, "-m", "streamlit", "run"] and cmd[4].endswith("dashboard/app.py")
     args = cmd[5:]
-    pairs = dict(zip(args[:args.index("--")][::2], args[:args.index("--")][1::2]))
+    pairs = dict(zip(args[: args.index("--")][::2], args[: args.index("--")][1::2]))
     assert pairs["--server.address"] == "127.0.0.1" and pairs["--server.port"] == "8999"
     assert pairs["--server.headless"] == "true" and pairs["--browser.gatherUsageStats"] == "false"
     assert pairs["--server.maxUploadSize"] == str(MAX_UPLOAD_MB)
-    assert args[args.index("--") + 1:] == ["--workspace", str(tmp_path)]
+    assert args[args.index("--") + 1 :] == ["--workspace", str(tmp_path)]
 
 
 def test_bad_port_is_one_line_exit_1(tmp_path):
@@ -31,8 +31,11 @@ def test_bad_port_is_one_line_exit_1(tmp_path):
 def test_only_the_dashboard_imports_streamlit():
     mine = {ROOT / "benchmarks" / "dashboard.py"}
     offenders = []
-    paths = [p for top in ("laneprint", "ingest", "indicators", "clustering", "rl", "tests", "benchmarks")
-             for p in (ROOT / top).rglob("*.py")]
+    paths = [
+        p
+        for top in ("laneprint", "ingest", "indicators", "clustering", "rl", "tests", "benchmarks")
+        for p in (ROOT / top).rglob("*.py")
+    ]
     assert len(paths) > 20
     for path in paths:
         rel = path.relative_to(ROOT)
@@ -48,9 +51,13 @@ def websocket_status(port: int, host_header: str) -> int:
     import socket
 
     with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
-        sock.sendall((f"GET /_stcore/stream HTTP/1.1\r\nHost: {host_header}\r\nConnection: Upgrade\r\n"
-                      "Upgrade: websocket\r\nSec-WebSocket-Version: 13\r\n"
-                      "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n").encode())
+        sock.sendall(
+            (
+                f"GET /_stcore/stream HTTP/1.1\r\nHost: {host_header}\r\nConnection: Upgrade\r\n"
+                "Upgrade: websocket\r\nSec-WebSocket-Version: 13\r\n"
+                "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n"
+            ).encode()
+        )
         return int(sock.recv(64).split()[1])
 
 
@@ -68,9 +75,13 @@ def test_laneprint_dashboard_serves_and_stops(tmp_path):
     from dashboard_support import free_port, wait_healthy
 
     port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "laneprint.app.cli", "dashboard", "--port", str(port),
-                             "-w", str(tmp_path / "ws")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, start_new_session=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "laneprint.app.cli", "dashboard", "--port", str(port), "-w", str(tmp_path / "ws")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
     try:
         wait_healthy(f"http://127.0.0.1:{port}", proc)
         # DNS rebinding: a page whose name resolves here is another origin, refused at the WebSocket

@@ -29,8 +29,12 @@ IN_SAMPLE = [  # a run evaluation's summary rows: no intervals, and (older runs)
 def test_heldout_bars_beside_in_sample_with_interval_error_bars():
     fig = figures.heldout_vs_insample(crossval_result()["summary"], IN_SAMPLE)
     names = [(t.name, t.xaxis) for t in fig.data]
-    assert names == [("in-sample", "x"), ("held out (95 % interval)", "x"),
-                     ("in-sample", "x2"), ("held out (95 % interval)", "x2")]
+    assert names == [
+        ("in-sample", "x"),
+        ("held out (95 % interval)", "x"),
+        ("in-sample", "x2"),
+        ("held out (95 % interval)", "x2"),
+    ]
     ins_ba, held_ba, ins_mae, held_mae = fig.data
     assert list(held_ba.x) == ["agent", "greedy", "imitation"]  # the driver is the reference, not a bar
     assert list(held_ba.y) == pytest.approx([80.0, 60.0, 85.0])
@@ -60,8 +64,11 @@ def test_per_fold_figure_in_percent():
 def test_crossval_table_puts_in_sample_next_to_held_out():
     t = views.crossval_table(crossval_result()["summary"], IN_SAMPLE).set_index("policy")
     assert t.index.tolist() == ["agent", "greedy", "imitation"]
-    assert list(t.columns[:3]) == ["balanced accuracy in-sample [%]", "balanced accuracy held out [%]",
-                                   "balanced accuracy held out 95 % interval [%]"]
+    assert list(t.columns[:3]) == [
+        "balanced accuracy in-sample [%]",
+        "balanced accuracy held out [%]",
+        "balanced accuracy held out 95 % interval [%]",
+    ]
     assert t.loc["agent", "balanced accuracy in-sample [%]"] == 90.0
     assert t.loc["agent", "balanced accuracy held out [%]"] == 80.0
     assert t.loc["agent", "balanced accuracy held out 95 % interval [%]"] == "75.0 – 90.0"
@@ -87,9 +94,20 @@ def test_which_crossval_is_shown_beside_a_run():
     assert views.default_crossval(pd.DataFrame(), "r", normal) is None  # list_crossvals of an empty workspace
 
     def table(*results):
-        return pd.DataFrame([{"crossval_id": r["crossval_id"], "target_kind": r["target"]["kind"],
-                              "target": r["target"]["name"], "run_id": r["run_id"], "reward": "timing",
-                              "folds": 2, "created_at": r["crossval_id"][:15]} for r in results])
+        return pd.DataFrame(
+            [
+                {
+                    "crossval_id": r["crossval_id"],
+                    "target_kind": r["target"]["kind"],
+                    "target": r["target"]["name"],
+                    "run_id": r["run_id"],
+                    "reward": "timing",
+                    "folds": 2,
+                    "created_at": r["crossval_id"][:15],
+                }
+                for r in results
+            ]
+        )
 
     old_of_run = crossval_result("r", "20260101-000000-a")
     newer_same_target = crossval_result(None, "20260201-000000-b")
@@ -100,12 +118,20 @@ def test_which_crossval_is_shown_beside_a_run():
     assert views.default_crossval(t, "q", normal) == "20260201-000000-b"  # newest of the same target
     assert views.default_crossval(t, "q", {"kind": "driver", "name": "D09"}) is None
     assert views.crossvals_view(t)["crossval_id"].tolist()[0] == "20260301-000000-c"  # newest first
-    diff = views.crossval_differences(newer_same_target, "q", {"target": normal, "dqn": {"episodes": 3000},
-                                                               "env": {"scenes": "recorded",
-                                                                       "observation": "positions",
-                                                                       "reward": {"name": "timing"}}})
-    assert diff == ["it is of no run, not of q", "scenes `random` (the run: `recorded`)",
-                    "its agents trained 30 episodes per fold (the run: 3000)"]
+    diff = views.crossval_differences(
+        newer_same_target,
+        "q",
+        {
+            "target": normal,
+            "dqn": {"episodes": 3000},
+            "env": {"scenes": "recorded", "observation": "positions", "reward": {"name": "timing"}},
+        },
+    )
+    assert diff == [
+        "it is of no run, not of q",
+        "scenes `random` (the run: `recorded`)",
+        "its agents trained 30 episodes per fold (the run: 3000)",
+    ]
 
 
 # --- the `laneprint crossval --run` job ----------------------------------------------------
@@ -113,9 +139,26 @@ def test_which_crossval_is_shown_beside_a_run():
 
 def test_crossval_command_line(tmp_path):
     cmd = jobs.crossval_command(jobs.CrossvalRequest("Normal-seed0", folds=3, episodes=500, bootstrap=200), tmp_path)
-    assert cmd == [sys.executable, "-m", "laneprint.app.cli", "crossval", "--run", "Normal-seed0", "--folds", "3",
-                   "--split", "session", "--seed", "0", "--bootstrap", "200", "--episodes", "500",
-                   "--workspace", str(tmp_path)]
+    assert cmd == [
+        sys.executable,
+        "-m",
+        "laneprint.app.cli",
+        "crossval",
+        "--run",
+        "Normal-seed0",
+        "--folds",
+        "3",
+        "--split",
+        "session",
+        "--seed",
+        "0",
+        "--bootstrap",
+        "200",
+        "--episodes",
+        "500",
+        "--workspace",
+        str(tmp_path),
+    ]
     same = jobs.crossval_command(jobs.CrossvalRequest("r", split="section"), tmp_path)
     assert "--episodes" not in same and same[same.index("--split") + 1] == "section"  # the run's own episodes
     assert views.command_text(same).startswith("laneprint crossval --run r --folds 4")
@@ -125,8 +168,9 @@ BAR = "\x1b[?25l\rfold {k}/4: agent \x1b[38;5;237m━━━━━━━━━━
 
 
 def test_progress_read_from_the_bar_in_the_log():
-    log = "\r ━━━          0/? 0:00:00" + "".join(BAR.format(k=k, d=d, t=1000) for k, d in
-                                                     [(1, 500), (1, 1000), (2, 250)])
+    log = "\r ━━━          0/? 0:00:00" + "".join(
+        BAR.format(k=k, d=d, t=1000) for k, d in [(1, 500), (1, 1000), (2, 250)]
+    )
     p = jobs.crossval_progress(log)
     assert (p["fold"], p["folds"], p["step"], p["done"], p["total"]) == (2, 4, "agent", 250, 1000)
     assert p["fraction"] == pytest.approx((1 + 0.25) / 4)
@@ -134,15 +178,19 @@ def test_progress_read_from_the_bar_in_the_log():
     assert jobs.crossval_progress(log + "fold 3/4: agent ━━  12/10")["fold"] == 2  # a half-written redraw
     done = jobs.crossval_progress(log + "\n┃ who ┃\nstored as crossval/20261130-x-normal\n")
     assert done["crossval_id"] == "20261130-x-normal"
-    assert jobs.crossval_progress("\r ━━ 0/? 0:00:00\nerror: no run 'nope' in /w\n")["error"] == \
-        "error: no run 'nope' in /w"
+    assert (
+        jobs.crossval_progress("\r ━━ 0/? 0:00:00\nerror: no run 'nope' in /w\n")["error"]
+        == "error: no run 'nope' in /w"
+    )
 
 
 def _job(ws, job_id, log, pid=None, **extra):
     d = jobs.crossval_jobs_dir(ws)
     d.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(d / f"{job_id}.json", {"job_id": job_id, "run_id": "r", "pid": pid,
-                                             "launched_at": f"2026-11-30T12:00:0{job_id[-1]}+00:00", **extra})
+    atomic_write_json(
+        d / f"{job_id}.json",
+        {"job_id": job_id, "run_id": "r", "pid": pid, "launched_at": f"2026-11-30T12:00:0{job_id[-1]}+00:00", **extra},
+    )
     (d / f"{job_id}.log").write_text(log)
 
 
@@ -194,9 +242,11 @@ def test_running_crossval_shows_progress_and_cancels(tmp_path):
 def test_launch_runs_the_command_in_the_background_with_a_drawn_bar(tmp_path, monkeypatch):
     """The launcher's wiring (own session, log, job record, terminal env) with a stand-in for the command."""
     ws = Workspace(tmp_path).ensure()
-    script = ("import os, sys\nassert os.environ['TTY_COMPATIBLE'] == '1'\n"
-              "sys.stderr.write('\\rfold 1/2: agent ━━  5/10 0:00:01\\n')\nprint('error: stand-in ends')\n"
-              "sys.exit(1)")
+    script = (
+        "import os, sys\nassert os.environ['TTY_COMPATIBLE'] == '1'\n"
+        "sys.stderr.write('\\rfold 1/2: agent ━━  5/10 0:00:01\\n')\nprint('error: stand-in ends')\n"
+        "sys.exit(1)"
+    )
     monkeypatch.setattr(jobs, "crossval_command", lambda req, root: [sys.executable, "-c", script, "laneprint"])
     job_id = jobs.launch_crossval(ws, jobs.CrossvalRequest("my run/1"))
     assert job_id.startswith("my_run_1-cv-")
@@ -242,14 +292,14 @@ def test_results_page_held_out_beside_in_sample(copy_ws):
     table = frame_with(at, "balanced accuracy held out [%]").set_index("policy")
     assert table.index.tolist() == ["agent", "greedy", "imitation"]
     assert table["balanced accuracy held out [%]"].tolist() == [80.0, 60.0, 85.0]
-    assert table.loc["agent", "balanced accuracy in-sample [%]"] == \
-        pytest.approx(100 * in_sample["agent"]["balanced_accuracy"], abs=0.01)
+    assert table.loc["agent", "balanced accuracy in-sample [%]"] == pytest.approx(
+        100 * in_sample["agent"]["balanced_accuracy"], abs=0.01
+    )
     assert table.loc["greedy", "balanced accuracy held out 95 % interval [%]"] == "55.0 – 62.0"
     unscored = frame_with(at, "reason")
     assert dict(zip(unscored["reason"], unscored["decisions"])) == {"no_press": 7, "following": 3}
     assert any(c.value.startswith("40 of 50 decisions scored") for c in at.caption)
-    bars = next(json.loads(c.proto.spec) for c in at.get("plotly_chart")
-                if "held out (95 % interval)" in c.proto.spec)
+    bars = next(json.loads(c.proto.spec) for c in at.get("plotly_chart") if "held out (95 % interval)" in c.proto.spec)
     held = [t for t in bars["data"] if t["name"] == "held out (95 % interval)"][0]
     assert held["error_y"]["array"] == pytest.approx([10.0, 2.0, 3.0])
     assert "in-sample" in [t["name"] for t in bars["data"]]
@@ -277,8 +327,10 @@ def test_training_page_launches_crossval_of_a_finished_run(copy_ws, monkeypatch)
 
     def fake_spawn(folder, job_id, cmd, cwd, record, env=None):
         spawned.append((cmd, env))
-        atomic_write_json(folder / f"{job_id}.json", {**record, "pid": None, "command": cmd,
-                                                      "launched_at": "2026-11-30T12:00:00+00:00"})
+        atomic_write_json(
+            folder / f"{job_id}.json",
+            {**record, "pid": None, "command": cmd, "launched_at": "2026-11-30T12:00:00+00:00"},
+        )
         return 0
 
     monkeypatch.setattr(jobs, "_spawn", fake_spawn)
@@ -288,9 +340,25 @@ def test_training_page_launches_crossval_of_a_finished_run(copy_ws, monkeypatch)
     at.number_input(key="cv_episodes_Normal-seed1").set_value(40)
     at.button(key="cv_start_Normal-seed1").click().run()
     assert not at.exception, [e.value for e in at.exception]
-    (cmd, env), = spawned
-    assert cmd[2:] == ["laneprint.app.cli", "crossval", "--run", "Normal-seed1", "--folds", "2", "--split", "session",
-                       "--seed", "0", "--bootstrap", "1000", "--episodes", "40", "--workspace", str(copy_ws.root)]
+    ((cmd, env),) = spawned
+    assert cmd[2:] == [
+        "laneprint.app.cli",
+        "crossval",
+        "--run",
+        "Normal-seed1",
+        "--folds",
+        "2",
+        "--split",
+        "session",
+        "--seed",
+        "0",
+        "--bootstrap",
+        "1000",
+        "--episodes",
+        "40",
+        "--workspace",
+        str(copy_ws.root),
+    ]
     assert env["TTY_COMPATIBLE"] == "1"
     assert len(at.session_state["crossval_launched"]) == 1
     # the stand-in process never ran: the job shows as failed, with the button back

@@ -24,8 +24,9 @@ def two_sided(n_left: int = 30, n_right: int = 3) -> pd.DataFrame:
     dec.loc[right, ["ego_lane", "target_lane"]] = [1, 0]
     v = dec.loc[press, "ego_v_mps"]
     rng = np.random.default_rng(0)
-    dec.loc[press, "t_f_s"] = np.where(dec.loc[press].index.isin(right), 0.3 * v - 1, 0.2 * v + 1) \
-        + rng.normal(0, 0.05, len(press))
+    dec.loc[press, "t_f_s"] = np.where(dec.loc[press].index.isin(right), 0.3 * v - 1, 0.2 * v + 1) + rng.normal(
+        0, 0.05, len(press)
+    )
     return dec
 
 
@@ -84,9 +85,13 @@ def test_an_analysis_without_lanes_or_side_fits_draws_as_before():
 
 def test_reference_lines_per_direction():
     base = {"scope": "style", "indicator": "t_f", "A": 0.1, "b": 1.0, "source": "s", "fit": "ols", "flag": ""}
-    refs = pd.DataFrame([{**base, "name": "Normal", "kind": "typical", "direction": "both"},
-                         {**base, "name": "Normal", "kind": "typical", "direction": "left", "A": 0.3},
-                         {**base, "name": "Normal", "kind": "paper", "direction": "both", "fit": "paper"}])
+    refs = pd.DataFrame(
+        [
+            {**base, "name": "Normal", "kind": "typical", "direction": "both"},
+            {**base, "name": "Normal", "kind": "typical", "direction": "left", "A": 0.3},
+            {**base, "name": "Normal", "kind": "paper", "direction": "both", "fit": "paper"},
+        ]
+    )
     assert line_directions(refs) == ["both", "left"]
     assert line_directions(refs.drop(columns="direction")) == ["both"]
     pooled = reference_lines(refs, indicators=["t_f"])
@@ -105,6 +110,7 @@ def test_presses_by_direction_text():
 
 
 # --- the pages (AppTest) ----------------------------------------------------------------------
+
 
 def _run(name: str):
     from streamlit.testing.v1 import AppTest
@@ -147,7 +153,8 @@ def test_an_older_analysis_without_directions_still_draws(sample_ws, tmp_path, m
     (ws.root / "analysis" / "fits_by_direction.parquet").unlink()
     refs = ws.read_table("analysis", "reference_lines")
     refs[refs["direction"] == "both"].drop(columns=["direction"]).to_parquet(
-        ws.root / "analysis" / "reference_lines.parquet")
+        ws.root / "analysis" / "reference_lines.parquet"
+    )
     monkeypatch.setenv("LANEPRINT_WORKSPACE", str(ws.root))
     at = _run("drivers")
     assert not any("direction" in d.value.columns for d in at.dataframe)
@@ -168,8 +175,11 @@ def test_drivers_page_draws_directions_in_the_browser(server, page):
     expect(page.get_by_role("heading", name="Fits per direction")).to_be_visible(timeout=60_000)
     # Plotly draws the figures one by one: wait for what is asserted on (the three indicator figures, each
     # with its legend entry for the presses to the left), not for the first figure drawn
-    page.wait_for_function("""() => [...document.querySelectorAll('.legendtext')]
-        .filter(e => e.textContent.toLowerCase().includes('to the left')).length >= 3""", timeout=60_000)
+    page.wait_for_function(
+        """() => [...document.querySelectorAll('.legendtext')]
+        .filter(e => e.textContent.toLowerCase().includes('to the left')).length >= 3""",
+        timeout=60_000,
+    )
     drawn = page.evaluate("""() => [...document.querySelectorAll('.js-plotly-plot')].filter(g => g._fullData)
         .map(g => g._fullData.filter(t => t.visible !== false).map(t => [t.name, (t.line || {}).dash || '']))""")
     names = [name for fig in drawn for name, _ in fig]

@@ -42,6 +42,6 @@ def test_the_site_is_rebuilt_when_a_source_is_newer(tmp_path):
 def test_the_server_serves_the_static_folder_next_to_the_app(tmp_path):
     cmd = streamlit_command(8999, "127.0.0.1", tmp_path)
     assert cmd[:4] == [sys.executable, "-m", "streamlit", "run"]
-    args = cmd[5:cmd.index("--")]
+    args = cmd[5 : cmd.index("--")]
     assert dict(zip(args[::2], args[1::2]))["--server.enableStaticServing"] == "true"
     assert docs_site.STATIC.parent / "app.py" == docs_site.Path(cmd[4])  # Streamlit's static/ is next to the script

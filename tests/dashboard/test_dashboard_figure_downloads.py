@@ -20,8 +20,15 @@ def _changes() -> pd.DataFrame:
     rows = []
     for i in range(30):
         for who in ("agent", "driver"):
-            rows.append({"who": who, "v_e_mps": 18 + i * 0.2, "t_f_s": 3 + (i % 5) + (400 if i == 0 else 0),
-                         "t_nf_s": 2 + i % 3, "dv_nb_mps": -1 + i % 4})
+            rows.append(
+                {
+                    "who": who,
+                    "v_e_mps": 18 + i * 0.2,
+                    "t_f_s": 3 + (i % 5) + (400 if i == 0 else 0),
+                    "t_nf_s": 2 + i % 3,
+                    "dv_nb_mps": -1 + i % 4,
+                }
+            )
     return pd.DataFrame(rows)
 
 
@@ -30,7 +37,7 @@ def pdf_is_well_formed(data: bytes) -> bool:
     if not data.startswith(b"%PDF-") or b"%%EOF" not in data[-1024:]:
         return False
     offset = int(re.findall(rb"startxref\s+(\d+)", data)[-1])
-    return data[offset:offset + 4] == b"xref" or re.match(rb"\d+ \d+ obj", data[offset:offset + 20]) is not None
+    return data[offset : offset + 4] == b"xref" or re.match(rb"\d+ \d+ obj", data[offset : offset + 20]) is not None
 
 
 def test_figure_data_as_csv_with_units():
@@ -46,6 +53,7 @@ def test_print_template_fits_a_column():
     pub = fx.publication_figure(fig)
     assert pub.layout.width == fx.PAGE_PX and pub.layout.font.size == 9 and not pub.layout.title.text
     import plotly.graph_objects as go
+
     assert fx.publication_figure(go.Figure(go.Scatter(x=[1], y=[1]))).layout.width == fx.COLUMN_PX
 
 

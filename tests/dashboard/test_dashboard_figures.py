@@ -7,10 +7,26 @@ from dashboard import figures
 
 def scene():
     t = np.arange(0, 1.0, 0.5)
-    ego = pd.DataFrame({"t_s": t, "ego_x_m": 20.0 * t, "ego_v_mps": 20.0, "ego_lane": [0, 0],
-                        "ego_length_m": 4.5, "lc_button": [False, True], "lc_direction": [None, "left"]})
-    traffic = pd.DataFrame({"t_s": [0.0, 0.0, 0.0, 0.5], "vehicle_id": ["a", "b", "c", "a"],
-                            "x_m": [30.0, -20.0, 10.0, 35.0], "lane": [0, 0, 1, 0], "length_m": [4.5, 5.5, 4.5, 4.5]})
+    ego = pd.DataFrame(
+        {
+            "t_s": t,
+            "ego_x_m": 20.0 * t,
+            "ego_v_mps": 20.0,
+            "ego_lane": [0, 0],
+            "ego_length_m": 4.5,
+            "lc_button": [False, True],
+            "lc_direction": [None, "left"],
+        }
+    )
+    traffic = pd.DataFrame(
+        {
+            "t_s": [0.0, 0.0, 0.0, 0.5],
+            "vehicle_id": ["a", "b", "c", "a"],
+            "x_m": [30.0, -20.0, 10.0, 35.0],
+            "lane": [0, 0, 1, 0],
+            "length_m": [4.5, 5.5, 4.5, 4.5],
+        }
+    )
     return ego, traffic
 
 

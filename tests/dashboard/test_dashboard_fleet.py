@@ -35,8 +35,18 @@ def test_fleet_command_line(tmp_path):
     assert cmd[:4] == [sys.executable, "-m", "laneprint.app.cli", "train"]
     assert cmd[4:] == ["--drivers", "all", "--seeds", "3", "--episodes", "400", "--workspace", str(tmp_path)]
     cmd = jobs.fleet_command(jobs.FleetRequest("styles", 10, names=("Normal", "Defensive"), backend="ray"), tmp_path)
-    assert cmd[4:] == ["--styles", "Normal,Defensive", "--seeds", "1", "--episodes", "10", "--backend", "ray",
-                       "--workspace", str(tmp_path)]
+    assert cmd[4:] == [
+        "--styles",
+        "Normal,Defensive",
+        "--seeds",
+        "1",
+        "--episodes",
+        "10",
+        "--backend",
+        "ray",
+        "--workspace",
+        str(tmp_path),
+    ]
     with pytest.raises(ValueError):
         jobs.fleet_command(jobs.FleetRequest("driver", 10), tmp_path)
 
@@ -88,8 +98,11 @@ def test_a_launched_fleet_is_found_by_its_pid_and_cancelled(tmp_path, monkeypatc
 
 def test_a_fleet_that_dies_before_its_fleet_json_fails_with_its_output(tmp_path, monkeypatch):
     ws = Workspace(tmp_path / "ws").ensure()
-    monkeypatch.setattr(jobs, "fleet_command", lambda req, root: [
-        sys.executable, "-c", "import sys; sys.exit('error: no such option: --drivers')"])
+    monkeypatch.setattr(
+        jobs,
+        "fleet_command",
+        lambda req, root: [sys.executable, "-c", "import sys; sys.exit('error: no such option: --drivers')"],
+    )
     job_id = jobs.launch_fleet(ws, jobs.FleetRequest("drivers", 10))
     deadline = time.monotonic() + 20
     while time.monotonic() < deadline and jobs.fleet_job_status(ws, job_id)["state"] == "starting":
@@ -117,14 +130,17 @@ def test_training_page_launches_a_fleet(copy_ws):
 
 
 def test_training_page_follows_a_running_fleet(copy_ws):
-    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)", "laneprint-fake-fleet"],
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import time; time.sleep(60)", "laneprint-fake-fleet"], start_new_session=True
+    )
     try:
-        runs = write_fake_fleet(copy_ws, "live", ["D01", "D02", "D03", "D04"], state="running", pid=proc.pid,
-                                evaluated=3)
+        runs = write_fake_fleet(
+            copy_ws, "live", ["D01", "D02", "D03", "D04"], state="running", pid=proc.pid, evaluated=3
+        )
         jobs.fleet_jobs_dir(copy_ws).mkdir(parents=True)
-        (jobs.fleet_jobs_dir(copy_ws) / "j1.json").write_text(json.dumps(
-            {"job_id": "j1", "pid": proc.pid, "request": {}, "launched_at": "2026-11-30T10:00:00+00:00"}))
+        (jobs.fleet_jobs_dir(copy_ws) / "j1.json").write_text(
+            json.dumps({"job_id": "j1", "pid": proc.pid, "request": {}, "launched_at": "2026-11-30T10:00:00+00:00"})
+        )
         at = run_page("training")
         bar = next(p for p in at.get("progress") if "fleet live" in p.proto.text)
         assert "3/4 agents done, 160/200 episodes; 2 of 3 evaluated meet their target" in bar.proto.text
@@ -150,8 +166,11 @@ def test_results_page_fleet_view(copy_ws):
     assert agents["agent - greedy BA [points]"].max() == pytest.approx(32.0)
     assert any("10 of 12 evaluated agents meet their target" in c.value for c in at.caption)
     specs = [json.loads(c.proto.spec) for c in at.get("plotly_chart")]
-    fig = next(f for f in specs if "balanced accuracy on the target" in
-               f["layout"].get("xaxis", {}).get("title", {}).get("text", ""))
+    fig = next(
+        f
+        for f in specs
+        if "balanced accuracy on the target" in f["layout"].get("xaxis", {}).get("title", {}).get("text", "")
+    )
     assert [t["name"] for t in fig["data"]] == ["agent (open: misses its target)", "greedy", "imitation"]
     assert list(fig["data"][0]["y"]) == drivers  # sorted by the agent's balanced accuracy
     assert fig["data"][0]["marker"]["symbol"][:2] == ["circle-open", "circle"]  # D01's agent misses the target

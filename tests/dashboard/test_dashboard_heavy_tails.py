@@ -74,9 +74,15 @@ def test_run_figures_tails_legend_and_headline():
 
     rng = np.random.default_rng(2)
     n = 400
-    changes = pd.DataFrame({"who": np.repeat(["agent", "greedy", "driver"], [40, 160, 200]),
-                            "v_e_mps": rng.uniform(15, 27, n), "t_f_s": heavy(n, 3), "t_nf_s": heavy(n, 4),
-                            "dv_nb_mps": rng.normal(size=n)})
+    changes = pd.DataFrame(
+        {
+            "who": np.repeat(["agent", "greedy", "driver"], [40, 160, 200]),
+            "v_e_mps": rng.uniform(15, 27, n),
+            "t_f_s": heavy(n, 3),
+            "t_nf_s": heavy(n, 4),
+            "dv_nb_mps": rng.normal(size=n),
+        }
+    )
     changes.loc[changes["who"] == "agent", ["t_f_s", "t_nf_s", "dv_nb_mps"]] = np.nan
     fig = indicators_at_decisions(changes, {"t_f": [0.4, -3.0], "t_nf": [0.2, 0.4], "dv_nb": [1.0, -9.0]})
     for axis, col in (("yaxis", "t_f_s"), ("yaxis2", "t_nf_s")):
@@ -86,8 +92,14 @@ def test_run_figures_tails_legend_and_headline():
     assert "agent (40), none with a defined indicator" in legend and "greedy (160)" in legend
     assert "off the axis" in fig.layout.annotations[0].text
 
-    states = pd.DataFrame({"v_e_mps": rng.uniform(15, 27, 1000), "t_f_s": heavy(1000, 5),
-                           "label": np.where(np.arange(1000) < 40, "change", "keep"), "action_agent": 1})
+    states = pd.DataFrame(
+        {
+            "v_e_mps": rng.uniform(15, 27, 1000),
+            "t_f_s": heavy(1000, 5),
+            "label": np.where(np.arange(1000) < 40, "change", "keep"),
+            "action_agent": 1,
+        }
+    )
     fig11 = decision_agreement(states, who="agent")  # never changes: 96 % 'the same'
     title = fig11.layout.title.text
     assert title.startswith("Decisions of the agent vs the drivers (Fig. 11) — balanced accuracy 50.0%")
@@ -102,10 +114,19 @@ def test_cluster_scatter_heavy_feature():
 
     n = 120
     rng = np.random.default_rng(6)
-    styles = pd.DataFrame({"driver_id": [f"D{i:03d}" for i in range(n)], "style": "Normal", "cluster": 0,
-                           "confidence": 1.0, "n_decisions": 30, "is_typical": np.arange(n) == 0,
-                           "t_f_at_80kph_s": heavy(n, 7), "t_nf_at_80kph_s": rng.uniform(1, 9, n),
-                           "gap_f_at_80kph_m": rng.uniform(10, 60, n)})
+    styles = pd.DataFrame(
+        {
+            "driver_id": [f"D{i:03d}" for i in range(n)],
+            "style": "Normal",
+            "cluster": 0,
+            "confidence": 1.0,
+            "n_decisions": 30,
+            "is_typical": np.arange(n) == 0,
+            "t_f_at_80kph_s": heavy(n, 7),
+            "t_nf_at_80kph_s": rng.uniform(1, 9, n),
+            "gap_f_at_80kph_m": rng.uniform(10, 60, n),
+        }
+    )
     fig = cluster_scatter(styles)
     assert fig.layout.xaxis.range[1] < 100 and not range_set_by_few(styles["t_f_at_80kph_s"], fig.layout.xaxis.range)
     assert "3 drivers beyond the axes" in fig.layout.title.text
@@ -116,8 +137,9 @@ def test_cluster_scatter_heavy_feature():
 def test_runs_curves_join_the_episodes_without_loss():
     loss = np.full(2000, np.nan)
     loss[::5] = 1.0
-    fig = figures.runs_curves({"long": pd.DataFrame({"episode": np.arange(1, 2001), "loss": loss})}, "loss",
-                              smoothing=0.0)
+    fig = figures.runs_curves(
+        {"long": pd.DataFrame({"episode": np.arange(1, 2001), "loss": loss})}, "loss", smoothing=0.0
+    )
     assert not np.isnan(np.asarray(fig.data[0].y, dtype=float)).any() and len(fig.data[0].y) == 400
     assert fig.layout.yaxis.title.text == "loss [reward²]" and fig.layout.xaxis.title.text == "episode [-]"
 
@@ -125,8 +147,9 @@ def test_runs_curves_join_the_episodes_without_loss():
 def test_training_curves_say_why_there_is_no_loss():
     from rl.plots import training_curves
 
-    m = pd.DataFrame({"episode": np.arange(1, 301), "loss": np.nan, "mean_step_reward": 0.1,
-                      "env_steps": np.arange(1, 301) * 5})
+    m = pd.DataFrame(
+        {"episode": np.arange(1, 301), "loss": np.nan, "mean_step_reward": 0.1, "env_steps": np.arange(1, 301) * 5}
+    )
     fig = training_curves(m, learning_starts=2000)
     note = fig.layout.annotations[-1].text
     assert "learning starts after 2,000 transitions" in note and "1,500" in note
@@ -151,8 +174,22 @@ def test_plural_and_hints():
 @pytest.mark.slow
 def test_report_command(sample_ws, tmp_path):
     out = tmp_path / "study.html"
-    res = subprocess.run([sys.executable, "-m", "laneprint.app.cli", "report", "--workspace", str(sample_ws.root),
-                          "--out", str(out), "--json"], capture_output=True, text=True, timeout=300)
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "laneprint.app.cli",
+            "report",
+            "--workspace",
+            str(sample_ws.root),
+            "--out",
+            str(out),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert res.returncode == 0, res.stderr
     info = json.loads(res.stdout)
     text = out.read_text()
@@ -160,6 +197,10 @@ def test_report_command(sample_ws, tmp_path):
     assert "<script src=" not in text and "cdn." not in text.split("</script>", 1)[1]  # nothing fetched
     assert (tmp_path / "study_files" / "fits.csv").exists() and (tmp_path / "study_files" / "recordings.csv").exists()
     assert (tmp_path / "study_files" / "headway_kept_in_steady_following.json").exists()  # the drive-long reading
-    bad = subprocess.run([sys.executable, "-m", "laneprint.app.cli", "report", "--workspace", str(tmp_path / "none")],
-                         capture_output=True, text=True, timeout=120)
+    bad = subprocess.run(
+        [sys.executable, "-m", "laneprint.app.cli", "report", "--workspace", str(tmp_path / "none")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert bad.returncode == 1 and bad.stderr.startswith("error: no workspace") and "Traceback" not in bad.stderr

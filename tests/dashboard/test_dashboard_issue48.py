@@ -11,11 +11,25 @@ from laneprint.workspace import Workspace
 
 
 def _drive(ws: Workspace, name: str = "normal-s0") -> dict:
-    row = {"speed_limit_kph": 80.0, "lane_changes": 28, "agent_changes": 0, "rule_changes": 28,
-           "return_changes": 8, "made_by": {"agent": 0, "rule_held_back": 20, "rule_return": 8, "unattributed": 0}}
-    drive = {"run_id": "normal", "lanes": 2, "seed": 0, "sections": [row], "totals": dict(row),
-             "who_drove": {"text": "Who changed lane: 28 lane changes: the agent 0, the rule 28 (held back 20, "
-                                   "return 8); no lane change was the agent's: the assistant's rule made them all."}}
+    row = {
+        "speed_limit_kph": 80.0,
+        "lane_changes": 28,
+        "agent_changes": 0,
+        "rule_changes": 28,
+        "return_changes": 8,
+        "made_by": {"agent": 0, "rule_held_back": 20, "rule_return": 8, "unattributed": 0},
+    }
+    drive = {
+        "run_id": "normal",
+        "lanes": 2,
+        "seed": 0,
+        "sections": [row],
+        "totals": dict(row),
+        "who_drove": {
+            "text": "Who changed lane: 28 lane changes: the agent 0, the rule 28 (held back 20, "
+            "return 8); no lane change was the agent's: the assistant's rule made them all."
+        },
+    }
     folder = ws.root / "drives" / name
     folder.mkdir(parents=True)
     (folder / "drive.json").write_text(json.dumps(drive))
@@ -32,19 +46,30 @@ def test_report_says_who_made_each_lane_change_of_a_drive(tmp_path):
     texts = [x for k, x in sec.items if k == "p"]
     assert any("held back" in t and "acts" not in t and "return" in t for t in texts)
     assert any("the agent 0, the rule 28 (held back 20, return 8)" in t for t in texts)
-    (name, table), = [x for k, x in sec.items if k == "table"]
+    ((name, table),) = [x for k, x in sec.items if k == "table"]
     assert name == "drive_normal-s0_made_by" and table["rule: held back"].tolist() == [20, 20]
 
 
-CHOICE_CONFIG = {"run_id": "auto1", "target": {"kind": "style", "name": "Normal"}, "reward": "timing",
-                 "lines_source": "analysis", "seed": 0, "learner": "dqn",
-                 "auto": {"margin": 0.01, "folds": 3},
-                 "lines": {"t_f": [0.3, -1.0], "t_nf": [0.3, -1.5], "dv_nb": [0.1, -1.0]},
-                 "learner_choice": {"learner": "dqn", "scores": {"dqn": 0.805, "trees": 0.773}, "n_train": 360,
-                                    "n_holdout": 360, "folds": 3,
-                                    "by_side": {"dqn": {"left": 0.82, "right": 0.79},
-                                                "trees": {"left": 0.8, "right": float("nan")}},
-                                    "stopped": "", "checks": []}}
+CHOICE_CONFIG = {
+    "run_id": "auto1",
+    "target": {"kind": "style", "name": "Normal"},
+    "reward": "timing",
+    "lines_source": "analysis",
+    "seed": 0,
+    "learner": "dqn",
+    "auto": {"margin": 0.01, "folds": 3},
+    "lines": {"t_f": [0.3, -1.0], "t_nf": [0.3, -1.5], "dv_nb": [0.1, -1.0]},
+    "learner_choice": {
+        "learner": "dqn",
+        "scores": {"dqn": 0.805, "trees": 0.773},
+        "n_train": 360,
+        "n_holdout": 360,
+        "folds": 3,
+        "by_side": {"dqn": {"left": 0.82, "right": 0.79}, "trees": {"left": 0.8, "right": float("nan")}},
+        "stopped": "",
+        "checks": [],
+    },
+}
 
 
 def test_learner_text_names_the_learner_kept_and_its_scores():
@@ -82,8 +107,9 @@ def _numbers(v) -> np.ndarray | None:
     if v is None:
         return None
     a = np.asarray(v, dtype=object).ravel()
-    if not len(a) or not all(isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
-                             for x in a):
+    if not len(a) or not all(
+        isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_)) for x in a
+    ):
         return None
     return a.astype(float)
 
@@ -98,8 +124,11 @@ def axes_of(fig) -> list[tuple[str, np.ndarray, list | None]]:
         for letter in "xy":
             drawn = getattr(tr, letter)
             vals = _numbers(drawn)
-            true = _numbers(tr.customdata) if letter == "y" else _numbers((tr.meta or {}).get("x")
-                                                                          if isinstance(tr.meta, dict) else None)
+            true = (
+                _numbers(tr.customdata)
+                if letter == "y"
+                else _numbers((tr.meta or {}).get("x") if isinstance(tr.meta, dict) else None)
+            )
             if true is not None and drawn is not None and len(true) == len(drawn):
                 vals = true
             if vals is not None:

@@ -11,8 +11,22 @@ def test_train_command_line(tmp_path):
     req = jobs.TrainRequest("driver", "D03", 40, seed=7, reward="timing", lines="paper")
     cmd = jobs.train_command(req, tmp_path, "r1")
     assert cmd[:4] == [sys.executable, "-m", "laneprint.app.cli", "train"]
-    assert cmd[4:] == ["--driver", "D03", "--episodes", "40", "--seed", "7", "--run-id", "r1",
-                       "--workspace", str(tmp_path), "--reward", "timing", "--lines", "paper"]
+    assert cmd[4:] == [
+        "--driver",
+        "D03",
+        "--episodes",
+        "40",
+        "--seed",
+        "7",
+        "--run-id",
+        "r1",
+        "--workspace",
+        str(tmp_path),
+        "--reward",
+        "timing",
+        "--lines",
+        "paper",
+    ]
     rid = jobs.new_run_id(jobs.TrainRequest("style", "Very Normal/..", 1))
     assert rid.startswith("Very_Normal___-") and "/" not in rid
 
@@ -41,10 +55,16 @@ def test_status_of_dead_and_unknown_runs(tmp_path):
 def test_cancel_sends_sigterm_to_a_running_run(tmp_path):
     ws = Workspace(tmp_path).ensure()
     write_fake_run(ws, "r", state="running")
-    code = ("import signal, sys, time\nfrom laneprint.locks import FileLock\nFileLock(sys.argv[2]).acquire()\n"
-            "signal.signal(signal.SIGTERM, lambda *a: sys.exit(42))\nprint('ready', flush=True)\ntime.sleep(30)")
-    proc = subprocess.Popen([sys.executable, "-c", code, "laneprint-fake-trainer", str(ws.runs_dir / "r" / "run.lock")],
-                            start_new_session=True, stdout=subprocess.PIPE, text=True)
+    code = (
+        "import signal, sys, time\nfrom laneprint.locks import FileLock\nFileLock(sys.argv[2]).acquire()\n"
+        "signal.signal(signal.SIGTERM, lambda *a: sys.exit(42))\nprint('ready', flush=True)\ntime.sleep(30)"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, "laneprint-fake-trainer", str(ws.runs_dir / "r" / "run.lock")],
+        start_new_session=True,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert proc.stdout.readline().strip() == "ready"  # holds the run's lock, handler installed
         write_fake_run(ws, "r", state="running", pid=proc.pid)

@@ -101,8 +101,10 @@ def test_results_page_compares_two_runs(use_sample):
 def test_training_page_defaults_from_table2(use_sample):
     at = run_page("training")
     assert at.number_input(key="episodes").value >= 1
-    assert at.selectbox(key="target_name").options == ["Defensive", "Normal", "Aggressive"] or \
-        len(at.selectbox(key="target_name").options) >= 2
+    assert (
+        at.selectbox(key="target_name").options == ["Defensive", "Normal", "Aggressive"]
+        or len(at.selectbox(key="target_name").options) >= 2
+    )
     assert at.dataframe[0].value["run_id"].tolist() == ["Normal-seed1", "Normal-seed0"]  # newest first
     assert at.number_input(key="hp_learning_rate").value == 0.005 and at.number_input(key="hp_gamma").value == 0.98
 
@@ -110,13 +112,15 @@ def test_training_page_defaults_from_table2(use_sample):
 def test_upload_ingests_and_refuses_with_reasons(empty_ws, tmp_path):
     at = run_page("data")
     good = log_bytes(tmp_path, driver_id=None)
-    at.file_uploader[0].set_value([
-        ("drive one.csv", good, "text/csv"),
-        ("../../../escape.csv", log_bytes(tmp_path, driver_id="D05", seed=1), "text/csv"),
-        ("empty.csv", b"", "text/csv"),
-        ("notes.txt", b"hello", "text/plain"),
-        ("garbage.mcap", b"not an mcap file at all", "application/octet-stream"),
-    ]).run()
+    at.file_uploader[0].set_value(
+        [
+            ("drive one.csv", good, "text/csv"),
+            ("../../../escape.csv", log_bytes(tmp_path, driver_id="D05", seed=1), "text/csv"),
+            ("empty.csv", b"", "text/csv"),
+            ("notes.txt", b"hello", "text/plain"),
+            ("garbage.mcap", b"not an mcap file at all", "application/octet-stream"),
+        ]
+    ).run()
     at.text_input(key="driver_id").set_value("D11").run()
     at.button(key="ingest").click().run()
     assert not at.exception, [e.value for e in at.exception]
@@ -264,29 +268,42 @@ def test_results_page_draws_a_closed_loop_drive_beside_its_drivers(empty_ws):
 
     rng = np.random.default_rng(0)
     drivers = pd.DataFrame({"driver_id": ["a"], "changes": [30], "left": [15], "right": [15], "km": [10.0]})
-    fid = {"tolerance": 0.2, "medians_in_iqr": "1 of 1", "drivers": ["a"],
-           "rate": rate_comparison({"changes": 31, "left": 15, "right": 16, "km": 10.0}, drivers),
-           "indicators": {"t_f": compare_values(rng.normal(8, 1, 40), rng.normal(8, 1, 90), rng)}}
+    fid = {
+        "tolerance": 0.2,
+        "medians_in_iqr": "1 of 1",
+        "drivers": ["a"],
+        "rate": rate_comparison({"changes": 31, "left": 15, "right": 16, "km": 10.0}, drivers),
+        "indicators": {"t_f": compare_values(rng.normal(8, 1, 40), rng.normal(8, 1, 90), rng)},
+    }
     folder = empty_ws.root / "drives" / "normal-s1"
     folder.mkdir(parents=True)
     # one section as `laneprint drive` reports it, the other as a drive reported before lane changes were
     # attributed one by one (its counts only)
-    sections = [{"speed_limit_kph": 80.0, "lane_changes": 12, "agent_changes": 0, "rule_changes": 12,
-                 "return_changes": 4, "made_by": {"agent": 0, "rule_held_back": 8, "rule_return": 4,
-                                                  "unattributed": 0}},
-                {"speed_limit_kph": 90.0, "lane_changes": 19, "agent_changes": 3, "rule_changes": 16,
-                 "return_changes": 6}]
+    sections = [
+        {
+            "speed_limit_kph": 80.0,
+            "lane_changes": 12,
+            "agent_changes": 0,
+            "rule_changes": 12,
+            "return_changes": 4,
+            "made_by": {"agent": 0, "rule_held_back": 8, "rule_return": 4, "unattributed": 0},
+        },
+        {"speed_limit_kph": 90.0, "lane_changes": 19, "agent_changes": 3, "rule_changes": 16, "return_changes": 6},
+    ]
     totals = {"lane_changes": 31, "agent_changes": 3, "rule_changes": 28, "return_changes": 10}
-    (folder / "drive.json").write_text(json.dumps({"run_id": "normal", "lanes": 3, "seed": 1, "fidelity": fid,
-                                                   "sections": sections, "totals": totals}))
+    (folder / "drive.json").write_text(
+        json.dumps({"run_id": "normal", "lanes": 3, "seed": 1, "fidelity": fid, "sections": sections, "totals": totals})
+    )
     at = run_page("results")
     assert any("Closed-loop drives in SUMO (1)" in s.value for s in at.subheader)
     assert "3 lanes, seed 1, 3.10 /km (drivers 3.00)" in at.selectbox(key="drive_pick").options[0]
     (fig,) = [c for c in charts(at) if "beside its drivers" in c["layout"]["title"]["text"]]
     assert len(fig["data"]) == 4
     # who made each lane change: the agent, or the rule and which part of it, per section and in total
-    assert any("Who changed lane: 31 lane changes: the agent 3, the rule 28 (held back 18, return 10)" in m.value
-               for m in at.markdown)
+    assert any(
+        "Who changed lane: 31 lane changes: the agent 3, the rule 28 (held back 18, return 10)" in m.value
+        for m in at.markdown
+    )
     who = next(d.value for d in at.dataframe if "by the agent" in d.value.columns)
     assert who["section"].tolist() == ["80 km/h", "90 km/h", "total"]
     assert who["rule: held back"].tolist() == [8, 10, 18] and who["by the agent"].tolist() == [0, 3, 3]

@@ -25,13 +25,17 @@ def test_results_mark_a_run_of_an_earlier_analysis(sample_ws, tmp_path, monkeypa
     assert not any("earlier analysis" in w.value for w in at.warning)
 
     # a re-analysis that moves a driver to another style
-    tables = {n: ws.read_table("analysis", n) for n in ("decisions", "reference_lines", "styles", "correlations",
-                                                        "fits", "skipped")}
+    tables = {
+        n: ws.read_table("analysis", n)
+        for n in ("decisions", "reference_lines", "styles", "correlations", "fits", "skipped")
+    }
     styles = tables["styles"]
     names = sorted(set(styles.loc[styles["cluster"] >= 0, "style"]))
     i = styles.index[styles["cluster"] >= 0][0]
     styles.loc[i, "style"] = next(n for n in names if n != styles.loc[i, "style"])
-    ws.write_tables("analysis", tables, {**ws.read_meta("analysis"), "analysis_fingerprint": analysis_fingerprint(tables)})
+    ws.write_tables(
+        "analysis", tables, {**ws.read_meta("analysis"), "analysis_fingerprint": analysis_fingerprint(tables)}
+    )
     at = run_results()
     warned = [w.value for w in at.warning if "made with an earlier analysis: re-run" in w.value]
     assert warned, [w.value for w in at.warning]

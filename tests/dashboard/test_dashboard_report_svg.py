@@ -13,8 +13,16 @@ from dashboard.report import Section, write_assets
 def sections() -> list[Section]:
     fig = go.Figure(go.Scatter(x=[1, 2, 3], y=[2, 1, 3], name="presses"))
     fig.update_layout(title="t_f against ego speed")
-    return [Section("Study", [("table", ("fits", pd.DataFrame({"A": [0.1]}))), ("figure", ("driver D01 t_f", fig)),
-                              ("figure", ("styles", go.Figure(go.Bar(x=["a"], y=[1]))))])]
+    return [
+        Section(
+            "Study",
+            [
+                ("table", ("fits", pd.DataFrame({"A": [0.1]}))),
+                ("figure", ("driver D01 t_f", fig)),
+                ("figure", ("styles", go.Figure(go.Bar(x=["a"], y=[1])))),
+            ],
+        )
+    ]
 
 
 @pytest.mark.slow
@@ -53,8 +61,10 @@ def _svg_threads():
 
 
 def _fake_build(seen):
-    return lambda ws: (seen.append(bool(_svg_threads())) or (sections(), {"workspace": "w", "generated_at": "now",
-                                                                          "data_fingerprint": "f"}))
+    return lambda ws: (
+        seen.append(bool(_svg_threads()))
+        or (sections(), {"workspace": "w", "generated_at": "now", "data_fingerprint": "f"})
+    )
 
 
 @pytest.mark.slow
@@ -103,8 +113,15 @@ def test_table_html_reads_as_pandas_writes_it():
     def cells(text):
         return re.findall(r"<t([hd])(?:\s[^>]*)?>(.*?)</t\1>", text, flags=re.S)
 
-    frame = pd.DataFrame({"driver": ["D01", "<b>"], "A": [0.123456, float("nan")], "n": [3, 4],
-                          "flag": [None, "R² < 0.1"], "ok": [True, False]})
+    frame = pd.DataFrame(
+        {
+            "driver": ["D01", "<b>"],
+            "A": [0.123456, float("nan")],
+            "n": [3, 4],
+            "flag": [None, "R² < 0.1"],
+            "ok": [True, False],
+        }
+    )
     theirs = frame.to_html(index=False, na_rep="", float_format=lambda x: f"{x:.4g}", border=0, escape=True)
     assert cells(_table_html(frame)) == cells(theirs)
     assert ("d", "&lt;b&gt;") in cells(_table_html(frame)) and ("d", "0.1235") in cells(_table_html(frame))

@@ -5,17 +5,20 @@ import pytest
 from dashboard.uploads import has_log_suffix, safe_filename, save_upload
 
 
-@pytest.mark.parametrize("name, expected", [
-    ("rec.csv", "rec.csv"),
-    ("../../x.csv", "x.csv"),
-    ("..\\..\\evil.mcap", "evil.mcap"),
-    ("/etc/passwd", "passwd"),
-    (".hidden.csv", "hidden.csv"),
-    ("a b;rm -rf.csv.gz", "a_b_rm_-rf.csv.gz"),
-    ("", "upload"),
-    ("..", "upload"),
-    ("../", "upload"),
-])
+@pytest.mark.parametrize(
+    "name, expected",
+    [
+        ("rec.csv", "rec.csv"),
+        ("../../x.csv", "x.csv"),
+        ("..\\..\\evil.mcap", "evil.mcap"),
+        ("/etc/passwd", "passwd"),
+        (".hidden.csv", "hidden.csv"),
+        ("a b;rm -rf.csv.gz", "a_b_rm_-rf.csv.gz"),
+        ("", "upload"),
+        ("..", "upload"),
+        ("../", "upload"),
+    ],
+)
 def test_safe_filename(name, expected):
     assert safe_filename(name) == expected
 
@@ -32,7 +35,12 @@ def test_names_in_other_scripts_stay_apart_and_a_bare_suffix_stays_a_log():
 
 def test_has_log_suffix():
     assert [has_log_suffix(n) for n in ("a.CSV", "a.csv.gz", "b.mcap", "c.txt", "d.gz")] == [
-        True, True, True, False, False]
+        True,
+        True,
+        True,
+        False,
+        False,
+    ]
 
 
 def test_traversal_name_stays_inside(tmp_path):
@@ -138,8 +146,9 @@ def test_a_300_mb_upload_is_saved_in_chunks_without_another_copy_in_memory(tmp_p
     import subprocess
     import sys
 
-    proc = subprocess.run([sys.executable, "-c", UPLOAD_RSS, str(tmp_path / "uploads")], capture_output=True,
-                          text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-c", UPLOAD_RSS, str(tmp_path / "uploads")], capture_output=True, text=True, timeout=300
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = json.loads(proc.stdout.splitlines()[-1])
     whole, lying = out["whole"], out["lying"]

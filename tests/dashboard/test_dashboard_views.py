@@ -7,11 +7,23 @@ from dashboard.uploads import SavedUpload
 
 
 def test_upload_rows_joins_report_by_path():
-    saved = [SavedUpload("a.csv", 3, Path("/w/uploads/h1/a.csv")), SavedUpload("e.csv", 0, None, "empty file"),
-             SavedUpload("b.mcap", 5, Path("/w/uploads/h2/b.mcap"))]
-    report = {"files": [
-        {"path": "/w/uploads/h1/a.csv", "status": "ingested", "reason": "", "recording_id": "r1", "driver_id": "D1"},
-        {"path": "/w/uploads/h2/b.mcap", "status": "rejected", "reason": "no /ego/state topic"}]}
+    saved = [
+        SavedUpload("a.csv", 3, Path("/w/uploads/h1/a.csv")),
+        SavedUpload("e.csv", 0, None, "empty file"),
+        SavedUpload("b.mcap", 5, Path("/w/uploads/h2/b.mcap")),
+    ]
+    report = {
+        "files": [
+            {
+                "path": "/w/uploads/h1/a.csv",
+                "status": "ingested",
+                "reason": "",
+                "recording_id": "r1",
+                "driver_id": "D1",
+            },
+            {"path": "/w/uploads/h2/b.mcap", "status": "rejected", "reason": "no /ego/state topic"},
+        ]
+    }
     rows = views.upload_rows(saved, report)
     assert rows["status"].tolist() == ["ingested", "refused", "rejected"]
     assert rows["reason"].tolist() == ["", "empty file", "no /ego/state topic"]
@@ -19,36 +31,57 @@ def test_upload_rows_joins_report_by_path():
 
 
 def test_undefined_decisions_lists_only_presses_with_a_reason():
-    dec = pd.DataFrame({
-        "driver_id": ["D1", "D1", "D1", "D2"], "label": ["change", "change", "keep", "change"],
-        "session_id": "s", "t_s": [1.0, 2.0, 0.5, 3.0], "ego_v_mps": 20.0,
-        "t_f_status": ["ok", "not_closing", "absent", "absent"], "t_nf_status": ["ok", "ok", "ok", "ok"],
-        "dv_nb_status": ["ok", "ok", "ok", "ok"]})
+    dec = pd.DataFrame(
+        {
+            "driver_id": ["D1", "D1", "D1", "D2"],
+            "label": ["change", "change", "keep", "change"],
+            "session_id": "s",
+            "t_s": [1.0, 2.0, 0.5, 3.0],
+            "ego_v_mps": 20.0,
+            "t_f_status": ["ok", "not_closing", "absent", "absent"],
+            "t_nf_status": ["ok", "ok", "ok", "ok"],
+            "dv_nb_status": ["ok", "ok", "ok", "ok"],
+        }
+    )
     bad = views.undefined_decisions(dec, "D1")
     assert bad["t_s"].tolist() == [2.0] and bad["t_f_status"].tolist() == ["not_closing"]
 
 
 def test_style_summary_and_for_driver():
-    styles = pd.DataFrame({"driver_id": ["D1", "D2", "D3"], "style": ["Normal", "Normal", "Aggressive"],
-                           "is_typical": [False, True, True]})
+    styles = pd.DataFrame(
+        {
+            "driver_id": ["D1", "D2", "D3"],
+            "style": ["Normal", "Normal", "Aggressive"],
+            "is_typical": [False, True, True],
+        }
+    )
     meta = {"summary": {"style_descriptions": {"Normal": "follows at 1.5 s"}}}
     s = views.style_summary(styles, meta)
     assert s.to_dict("records") == [
-        {"style": "Normal", "drivers": 2, "typical driver": "D2", "members": "D1, D2",
-         "what sets it apart": "follows at 1.5 s"},
-        {"style": "Aggressive", "drivers": 1, "typical driver": "D3", "members": "D3", "what sets it apart": ""}]
+        {
+            "style": "Normal",
+            "drivers": 2,
+            "typical driver": "D2",
+            "members": "D1, D2",
+            "what sets it apart": "follows at 1.5 s",
+        },
+        {"style": "Aggressive", "drivers": 1, "typical driver": "D3", "members": "D3", "what sets it apart": ""},
+    ]
     styles["confidence"] = [0.97, 0.5, 0.8]
     styles["unsure"] = ["", "only 3 presses", "*readings* disagree"]
     unsure = views.unsure_drivers(styles)
     assert unsure["driver"].tolist() == ["D2", "D3"] and unsure["why unsure"].tolist()[1] == "*readings* disagree"
-    skipped = pd.DataFrame({"what": ["driver", "indicator", "indicator"], "id": ["D1", "D1:t_nf", "D10:t_f"],
-                            "reason": ["a", "b", "c"]})
+    skipped = pd.DataFrame(
+        {"what": ["driver", "indicator", "indicator"], "id": ["D1", "D1:t_nf", "D10:t_f"], "reason": ["a", "b", "c"]}
+    )
     assert views.for_driver(skipped, "D1")["reason"].tolist() == ["a", "b"]
 
 
 def test_evaluation_table_in_percent_and_compare():
-    summary = [{"who": "agent", "recall": 0.959, "timing_mae_s": 0.25, "medae_t_f": None},
-               {"who": "greedy", "recall": 0.837, "timing_mae_s": 1.5, "medae_t_f": 0.7}]
+    summary = [
+        {"who": "agent", "recall": 0.959, "timing_mae_s": 0.25, "medae_t_f": None},
+        {"who": "greedy", "recall": 0.837, "timing_mae_s": 1.5, "medae_t_f": 0.7},
+    ]
     t = views.evaluation_table(summary)
     assert t["policy"].tolist() == ["agent", "greedy"]
     assert t["recall at the presses [%]"].tolist() == [95.9, 83.7]
@@ -72,16 +105,23 @@ def test_analysis_settings_round_trip_from_meta():
 
 
 def test_reasons_markdown_lists_only_what_was_not_ingested():
-    rows = pd.DataFrame({"file": ["a.csv", "b_1.csv"], "status": ["ingested", "rejected"],
-                         "reason": ["", "bad header"]})
+    rows = pd.DataFrame(
+        {"file": ["a.csv", "b_1.csv"], "status": ["ingested", "rejected"], "reason": ["", "bad header"]}
+    )
     assert views.reasons_markdown(rows) == "- **b\\_1\\.csv** (rejected): bad header"
 
 
 def test_crossval_picker_says_when_it_was_made_with_another_analysis():
     from laneprint.provenance import CURRENT, EARLIER, LABELS
 
-    row = {"created_at": "2026-12-06T10:00", "target_kind": "style", "target": "Normal", "run_id": "r1",
-           "reward": "decisions", "folds": 4}
+    row = {
+        "created_at": "2026-12-06T10:00",
+        "target_kind": "style",
+        "target": "Normal",
+        "run_id": "r1",
+        "reward": "decisions",
+        "folds": 4,
+    }
     assert LABELS[EARLIER] in views.crossval_label({**row, "analysis": LABELS[EARLIER]})
     assert views.crossval_label({**row, "analysis": LABELS[CURRENT]}) == views.crossval_label(row)
 
@@ -94,11 +134,18 @@ def test_each_page_names_the_next_step_once_its_own_is_done():
     assert "**Personalise** page" in views.next_step("results", has_recordings=True, has_analysis=True)
     assert views.next_step("personalize", has_recordings=True, has_analysis=True) is None
 
+
 def test_a_run_choosing_its_learner_shows_the_phase_and_the_time_left():
     """`auto`'s choice writes its phase and summed episodes to status.json: the Training page shows them
     (it read "starting the trainer" for minutes before)."""
-    status = {"state": "running", "episode": 4000, "episodes": 12000, "started_at": "2026-12-08T10:00:00+00:00",
-              "updated_at": "2026-12-08T10:00:30+00:00", "message": "choosing the learner: training 4 DQNs, trees 3/3"}
+    status = {
+        "state": "running",
+        "episode": 4000,
+        "episodes": 12000,
+        "started_at": "2026-12-08T10:00:00+00:00",
+        "updated_at": "2026-12-08T10:00:30+00:00",
+        "message": "choosing the learner: training 4 DQNs, trees 3/3",
+    }
     doing = views.run_doing(status)
     assert "choosing the learner: training 4 DQNs" in doing and "about 60 s left" in doing
     assert "starting the trainer" in views.run_doing({**status, "episode": 0, "message": "training"})

@@ -35,8 +35,14 @@ def test_site_builds_strict(tmp_path):
     mkdocs = shutil.which("mkdocs", path=str(Path(sys.executable).parent)) or shutil.which("mkdocs")
     assert mkdocs, "mkdocs is in the test extra"
     env = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}
-    res = subprocess.run([mkdocs, "build", "--strict", "-q", "-d", str(tmp_path / "site")], cwd=ROOT,
-                         capture_output=True, text=True, timeout=300, env=env)
+    res = subprocess.run(
+        [mkdocs, "build", "--strict", "-q", "-d", str(tmp_path / "site")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
     assert res.returncode == 0, res.stderr[-3000:]
     assert (tmp_path / "site" / "reference" / "cli" / "index.html").exists()
 
@@ -54,9 +60,16 @@ def test_a_benchmarks_result_file_of_any_layout_is_rendered(tmp_path, monkeypatc
     monkeypatch.setattr(ref, "RESULTS", tmp_path)
     import numpy as np
 
-    results_file.write_result("speed", {"median_s": np.float64(1.23456), "n": np.int64(3), "by": {"csv": {"mb": 2.5}},
-                                        "rows": [{"format": "csv", "what": "a|b"}, {"format": "mcap", "x": None}]},
-                              ["--reps", "1"])
+    results_file.write_result(
+        "speed",
+        {
+            "median_s": np.float64(1.23456),
+            "n": np.int64(3),
+            "by": {"csv": {"mb": 2.5}},
+            "rows": [{"format": "csv", "what": "a|b"}, {"format": "mcap", "x": None}],
+        },
+        ["--reps", "1"],
+    )
     page = ref.results_page()
     assert "## speed" in page and "--reps 1`" in page and results_file.machine() in page
     assert "- median_s: 1.235" in page and "- n: 3" in page and "- by.csv.mb: 2.5" in page
@@ -101,12 +114,16 @@ UNDATED = re.compile(
     r"\bissues? #?\d+|(?<![\w/.-])#\d{2,}\b|\b(19|20)\d\d-[01]\d(-[0-3]\d)?\b"
     r"|\b(jan|feb|mar|apr|may|jun|jul|aug|sep|sept|oct|nov|dec)[a-z]*\.? [0-3]?\d(st|nd|rd|th)?\b(,? \d{4})?"
     r"|\b[0-3]?\d (january|february|march|april|may|june|july|august|september|october|november|december)\b",
-    re.I)
+    re.I,
+)
 
 
 def test_no_issue_numbers_and_no_dates_in_the_readme_the_site_or_the_help():
-    found = [(where, m.group(0)) for where, text in {**_user_documents(), **_help_texts()}.items()
-             for m in UNDATED.finditer(text)]
+    found = [
+        (where, m.group(0))
+        for where, text in {**_user_documents(), **_help_texts()}.items()
+        for m in UNDATED.finditer(text)
+    ]
     assert not found, found
     assert UNDATED.search("see issue 12") and UNDATED.search("measured 2026-01-31") and UNDATED.search("on March 3")
 
@@ -149,10 +166,33 @@ def test_the_guides_mappings_load_and_are_the_ones_the_stack_tests_ingest(tmp_pa
 
 
 #: Terms the commands use that the glossary must define (its bold entries).
-GLOSSARY_TERMS = ("family", "dwell", "pace", "section", "held-back", "approach", "not-yet state", "typical driver",
-                  "decision", "style", "reference lines", "greedy", "in-sample", "held out", "fleet", "workspace",
-                  "learner", "formulation", "reading", "config file", "lag", "undo check", "confidence",
-                  "imitation classifier", "balanced accuracy")
+GLOSSARY_TERMS = (
+    "family",
+    "dwell",
+    "pace",
+    "section",
+    "held-back",
+    "approach",
+    "not-yet state",
+    "typical driver",
+    "decision",
+    "style",
+    "reference lines",
+    "greedy",
+    "in-sample",
+    "held out",
+    "fleet",
+    "workspace",
+    "learner",
+    "formulation",
+    "reading",
+    "config file",
+    "lag",
+    "undo check",
+    "confidence",
+    "imitation classifier",
+    "balanced accuracy",
+)
 
 
 def test_the_glossary_defines_every_term_the_commands_use():
@@ -189,8 +229,11 @@ def test_the_command_reference_lists_exactly_the_visible_options():
     group = typer.main.get_command(app)
     assert set(sections) == set(group.commands)  # type: ignore[attr-defined]
     for name, cmd in group.commands.items():  # type: ignore[attr-defined]
-        shown = {p.opts[0] for p in cmd.params if p.param_type_name == "option" and p.name != "help"
-                 and not getattr(p, "hidden", False)}
+        shown = {
+            p.opts[0]
+            for p in cmd.params
+            if p.param_type_name == "option" and p.name != "help" and not getattr(p, "hidden", False)
+        }
         rows = set(re.findall(r"^\| `(--?[\w-]+)`", sections[name], re.M))
         assert rows == shown, (name, rows ^ shown)
 
@@ -201,13 +244,16 @@ def test_a_result_file_lands_on_its_topic_page(tmp_path, monkeypatch):
     import laneprint.app.reference_docs as ref
 
     monkeypatch.setattr(ref, "RESULTS", tmp_path)
-    (tmp_path / "fleet.json").write_text(json.dumps({"command": "fleet.py --drivers 10", "commit": "abc",
-                                                     "date": "d", "machine": "m", "agents": 10}))
+    (tmp_path / "fleet.json").write_text(
+        json.dumps({"command": "fleet.py --drivers 10", "commit": "abc", "date": "d", "machine": "m", "agents": 10})
+    )
     (tmp_path / "ingest_stacks.json").write_text(json.dumps({"command": "ingest_stacks.py", "rows": []}))
     pages = ref.results_pages()
     assert set(pages) == {"results.md", *(t[0] for t in ref.RESULT_TOPICS)}
-    assert "## fleet" in pages["results-speed.md"] and "`python benchmarks/fleet.py --drivers 10`" in pages[
-        "results-speed.md"]
+    assert (
+        "## fleet" in pages["results-speed.md"]
+        and "`python benchmarks/fleet.py --drivers 10`" in pages["results-speed.md"]
+    )
     assert "## ingest_stacks" in pages["results-ingest.md"] and "## fleet" not in pages["results.md"]
     assert "`python benchmarks/dashboard.py`" in pages["results-dashboard.md"]  # no file yet: who writes one
 
@@ -225,9 +271,14 @@ def test_every_config_key_is_documented():
 
     page = (ROOT / "docs" / "reference" / "config.md").read_text(encoding="utf-8")
     tables = dict(re.findall(r"^## \[(\w+)\]\n(.*?)(?=^##+ |\Z)", page, re.S | re.M))
-    missing = [f"[{t}] {f.name}" for t, cls in SECTIONS.items() for f in dataclasses.fields(cls)
-               if f.init and not dataclasses.is_dataclass(typing.get_type_hints(cls)[f.name])  # a nested table
-               and f"| `{f.name}` |" not in tables.get(t, "")]
+    missing = [
+        f"[{t}] {f.name}"
+        for t, cls in SECTIONS.items()
+        for f in dataclasses.fields(cls)
+        if f.init
+        and not dataclasses.is_dataclass(typing.get_type_hints(cls)[f.name])  # a nested table
+        and f"| `{f.name}` |" not in tables.get(t, "")
+    ]
     for name, cmd in typer.main.get_command(app).commands.items():  # type: ignore[attr-defined]
         keys = [key for key, _ in command_keys(cmd)]
         section = re.search(rf"^### \[{name}\]\n(.*?)(?=^##+ |\Z)", page, re.S | re.M)

@@ -11,8 +11,15 @@ from tests.support.synthetic_decisions import make_recording
 
 
 def scene(**cols) -> pd.DataFrame:
-    base = {"ego_v_mps": [20.0], "f_gap_m": [np.nan], "f_v_mps": [np.nan], "nf_gap_m": [np.nan],
-            "nf_v_mps": [np.nan], "nb_gap_m": [np.nan], "nb_v_mps": [np.nan]}
+    base = {
+        "ego_v_mps": [20.0],
+        "f_gap_m": [np.nan],
+        "f_v_mps": [np.nan],
+        "nf_gap_m": [np.nan],
+        "nf_v_mps": [np.nan],
+        "nb_gap_m": [np.nan],
+        "nb_v_mps": [np.nan],
+    }
     base.update({k: [v] for k, v in cols.items()})
     return pd.DataFrame(base)
 
@@ -20,10 +27,10 @@ def scene(**cols) -> pd.DataFrame:
 def test_headways_and_relative_speeds_by_hand():
     d = add_acceptance(scene(f_gap_m=30.0, f_v_mps=15.0, nf_gap_m=50.0, nf_v_mps=22.0, nb_gap_m=24.0, nb_v_mps=24.0))
     row = d.iloc[0]
-    assert row["thw_f_s"] == pytest.approx(1.5)       # 30 m / 20 m/s
-    assert row["dv_f_mps"] == pytest.approx(5.0)      # closing in on the leader
-    assert row["dv_nf_mps"] == pytest.approx(-2.0)    # the target-lane leader pulls away
-    assert row["thw_nb_s"] == pytest.approx(1.0)      # the follower needs 24 m / 24 m/s to reach the ego
+    assert row["thw_f_s"] == pytest.approx(1.5)  # 30 m / 20 m/s
+    assert row["dv_f_mps"] == pytest.approx(5.0)  # closing in on the leader
+    assert row["dv_nf_mps"] == pytest.approx(-2.0)  # the target-lane leader pulls away
+    assert row["thw_nb_s"] == pytest.approx(1.0)  # the follower needs 24 m / 24 m/s to reach the ego
     assert all(row[f"{i}_status"] == "ok" for i in ("gap_f", "thw_f", "dv_f", "gap_nf", "dv_nf", "gap_nb", "thw_nb"))
 
 
@@ -40,8 +47,14 @@ def test_undefined_values_are_nan_with_a_reason_never_a_sentinel():
 
 def test_extracted_decisions_carry_the_acceptance_indicators():
     # ego at 25 m/s; leader 40 m ahead (centres) at 25 m/s: not closing, so t_f is undefined
-    meta, ego, traffic = make_recording(10, 10, 25.0, [(0, 0), (6.0, 1)], presses=[(5.0, 0.3, "left")],
-                                        vehicles=[("L", 40.0, 25.0, 0, 4.5), ("B", -30.0, 24.0, 1, 4.5)])
+    meta, ego, traffic = make_recording(
+        10,
+        10,
+        25.0,
+        [(0, 0), (6.0, 1)],
+        presses=[(5.0, 0.3, "left")],
+        vehicles=[("L", 40.0, 25.0, 0, 4.5), ("B", -30.0, 24.0, 1, 4.5)],
+    )
     dec, _ = extract_decisions(meta, ego, traffic, AnalysisSettings())
     press = dec[dec["label"] == "change"].iloc[0]
     assert press["t_f_status"] == "not_closing" and np.isnan(press["t_f_s"])

@@ -12,13 +12,24 @@ from laneprint.schemas import DECISIONS, validate
 # ego at 20 m/s from x = 0, length 4.5; lane 0 until the flip at t = 7.0, then lane 1.
 # A: lane 0 leader, 15 m/s. B: lane 1 leader, 18 m/s, 5 m long. C: lane 1 follower, 25 m/s.
 # D: lane 1, far behind. E: lane 1, far ahead and faster (never the nearest leader).
-VEHICLES = [("A", 60, 15, 0, 4.5), ("B", 150, 18, 1, 5.0), ("C", -40, 25, 1, 4.5),
-            ("D", -200, 20, 1, 4.5), ("E", 300, 30, 1, 4.5)]
+VEHICLES = [
+    ("A", 60, 15, 0, 4.5),
+    ("B", 150, 18, 1, 5.0),
+    ("C", -40, 25, 1, 4.5),
+    ("D", -200, 20, 1, 4.5),
+    ("E", 300, 30, 1, 4.5),
+]
 
 
 def scene(**kw):
-    args = dict(duration_s=10, hz=10, ego_v=20.0, lanes=[(0, 0), (7.0, 1)],
-                presses=[(5.0, 0.5, None), (9.0, 0.3, "right")], vehicles=VEHICLES)
+    args = dict(
+        duration_s=10,
+        hz=10,
+        ego_v=20.0,
+        lanes=[(0, 0), (7.0, 1)],
+        presses=[(5.0, 0.5, None), (9.0, 0.3, "right")],
+        vehicles=VEHICLES,
+    )
     args.update(kw)
     return make_recording(**args)
 
@@ -163,8 +174,9 @@ def test_other_side_of_a_middle_lane():
     # three lanes: the ego in lane 1 presses left (to lane 2) at t = 5; lane 0 is the side not taken.
     # G: lane 0 leader, 18 m/s, 5 m long; H: lane 0 follower, 22 m/s; I: lane 2 leader (the target's).
     vehicles = [("A", 60, 15, 1, 4.5), ("G", 100, 18, 0, 5.0), ("H", -30, 22, 0, 4.5), ("I", 200, 25, 2, 4.5)]
-    meta, ego, traffic = make_recording(duration_s=10, hz=10, ego_v=20.0, lanes=[(0, 1), (7.0, 2)],
-                                        presses=[(5.0, 0.5, "left")], vehicles=vehicles)
+    meta, ego, traffic = make_recording(
+        duration_s=10, hz=10, ego_v=20.0, lanes=[(0, 1), (7.0, 2)], presses=[(5.0, 0.5, "left")], vehicles=vehicles
+    )
     dec, _ = extract_decisions(meta, ego, traffic)
     assert list(dec.columns) == COLUMNS
     assert (dec["other_lane"] == 0).all()
@@ -195,17 +207,36 @@ def test_latest_samples_are_merge_asofs(seed):
     rng = np.random.default_rng(seed)
     n_veh, n_rows = 5, 200
     t = np.round(np.sort(rng.uniform(0, 20, n_rows)), 1)  # rounded: equal times within and across vehicles
-    tr = pd.DataFrame({"t_s": t, "vehicle_id": rng.integers(0, n_veh, n_rows).astype(np.int64),
-                       "x_m": rng.normal(0, 50, n_rows), "v_mps": rng.uniform(10, 30, n_rows),
-                       "lane": rng.integers(0, 3, n_rows).astype(np.int64), "length_m": rng.uniform(4, 15, n_rows)})
+    tr = pd.DataFrame(
+        {
+            "t_s": t,
+            "vehicle_id": rng.integers(0, n_veh, n_rows).astype(np.int64),
+            "x_m": rng.normal(0, 50, n_rows),
+            "v_mps": rng.uniform(10, 30, n_rows),
+            "lane": rng.integers(0, 3, n_rows).astype(np.int64),
+            "length_m": rng.uniform(4, 15, n_rows),
+        }
+    )
     t_states = rng.permutation(np.round(np.arange(0, 21, 0.5) + rng.normal(0, 1e-9, 42), 9))
     states = np.arange(len(t_states))
     got = latest_samples(states, t_states, tr, n_veh, 0.5)
-    left = pd.DataFrame({"state": np.repeat(states, n_veh), "t_s": np.repeat(t_states, n_veh),
-                         "vehicle_id": np.tile(np.arange(n_veh, dtype=np.int64), len(states))}
-                        ).sort_values("t_s", kind="mergesort")
-    want = pd.merge_asof(left, tr.rename(columns={"t_s": "veh_t_s"}), left_on="t_s", right_on="veh_t_s",
-                         by="vehicle_id", direction="backward", tolerance=0.5).dropna(subset=["veh_t_s"])
+    left = pd.DataFrame(
+        {
+            "state": np.repeat(states, n_veh),
+            "t_s": np.repeat(t_states, n_veh),
+            "vehicle_id": np.tile(np.arange(n_veh, dtype=np.int64), len(states)),
+        }
+    ).sort_values("t_s", kind="mergesort")
+    want = pd.merge_asof(
+        left,
+        tr.rename(columns={"t_s": "veh_t_s"}),
+        left_on="t_s",
+        right_on="veh_t_s",
+        by="vehicle_id",
+        direction="backward",
+        tolerance=0.5,
+    ).dropna(subset=["veh_t_s"])
     assert len(got) > 0
-    pd.testing.assert_frame_equal(got.reset_index(drop=True), want[got.columns].reset_index(drop=True),
-                                  check_dtype=False)
+    pd.testing.assert_frame_equal(
+        got.reset_index(drop=True), want[got.columns].reset_index(drop=True), check_dtype=False
+    )

@@ -26,9 +26,17 @@ def scene():
     # D drives beside the ego in lane 1 (never a leader). From t = 30 s the ego drives at its free
     # speed, 30 m/s: at 25 m/s it is held back.
     meta, ego, traffic = make_recording(
-        duration_s=40, hz=10, ego_v=25.0, lanes=[(0, 0)],
-        vehicles=[("A", 54.5, 25.0, 0, 4.5), ("B", 14.5, 25.0, 0, 4.5), ("C", 230.0, 20.0, 0, 4.5),
-                  ("D", 5.0, 25.0, 1, 4.5)])
+        duration_s=40,
+        hz=10,
+        ego_v=25.0,
+        lanes=[(0, 0)],
+        vehicles=[
+            ("A", 54.5, 25.0, 0, 4.5),
+            ("B", 14.5, 25.0, 0, 4.5),
+            ("C", 230.0, 20.0, 0, 4.5),
+            ("D", 5.0, 25.0, 1, 4.5),
+        ],
+    )
     traffic = during(during(during(traffic, "A", 0, 20), "B", 20, 21), "C", 21, 41)
     ego.loc[ego["t_s"] >= 30, "ego_v_mps"] = 30.0
     return meta, ego, traffic
@@ -67,16 +75,20 @@ def test_a_car_ahead_at_the_egos_own_free_speed_is_not_followed():
 
 def test_no_traffic_gives_an_empty_table_with_the_columns():
     meta, ego, _ = scene()
-    ep = following_episodes(meta, ego, pd.DataFrame(columns=["t_s", "vehicle_id", "x_m", "v_mps", "lane",
-                                                             "length_m"]))
+    ep = following_episodes(meta, ego, pd.DataFrame(columns=["t_s", "vehicle_id", "x_m", "v_mps", "lane", "length_m"]))
     assert ep.empty and list(ep.columns) == COLUMNS
 
 
 def test_the_level_is_the_low_quantile_so_far_leaders_do_not_pull_it():
-    eps = pd.DataFrame({"driver_id": "D1", "episode_id": [f"e{i}" for i in range(5)], "ego_v_mps": 25.0,
-                        "thw_s": [1.0, 2.0, 3.0, 4.0, 100.0]})
-    feats, notes = driver_features(following_points(eps), ["D1"],
-                                   AnalysisSettings(feature_indicators=("thw_follow",)))
+    eps = pd.DataFrame(
+        {
+            "driver_id": "D1",
+            "episode_id": [f"e{i}" for i in range(5)],
+            "ego_v_mps": 25.0,
+            "thw_s": [1.0, 2.0, 3.0, 4.0, 100.0],
+        }
+    )
+    feats, notes = driver_features(following_points(eps), ["D1"], AnalysisSettings(feature_indicators=("thw_follow",)))
     assert feats.to_numpy().ravel() == pytest.approx(2.0)  # the 25th percentile on the log scale
     assert notes == {"D1": []}
 
@@ -85,8 +97,16 @@ def episodes_by_style(truth: dict[str, str], seed: int = 0) -> pd.DataFrame:
     """Twelve steady-following episodes per driver around its style's headway."""
     keep_s = {"Defensive": 3.0, "Normal": 1.8, "Aggressive": 1.0}
     rng = np.random.default_rng(seed)
-    rows = [{"driver_id": d, "episode_id": f"{d}:f{i}", "ego_v_mps": rng.uniform(17, 25),
-             "thw_s": keep_s[s] * np.exp(rng.normal(0, 0.1))} for d, s in truth.items() for i in range(12)]
+    rows = [
+        {
+            "driver_id": d,
+            "episode_id": f"{d}:f{i}",
+            "ego_v_mps": rng.uniform(17, 25),
+            "thw_s": keep_s[s] * np.exp(rng.normal(0, 0.1)),
+        }
+        for d, s in truth.items()
+        for i in range(12)
+    ]
     return pd.DataFrame(rows)
 
 

@@ -43,10 +43,14 @@ def test_config_table_checks_keys_and_types(tmp_path):
     s, given = build(sec, read_tables(good)["analysis"], {}, "here")
     assert (s.driver_lines, s.k, s.alpha, s.feature_speeds_kph) == ("mixed", 4, 1.0, (60, 90))
     assert given == {"driver_lines", "k", "alpha", "feature_speeds_kph"}
-    for text, why in [("[analysis]\nnope = 1\n", "has no setting 'nope'"), ('[analysis]\nk = "three"\n', "k must be int"),
-                      ("[analysis]\nk = [\n", "not valid TOML"),
-                      ("[analysis]\nfit_cancelled = 1\n", "fit_cancelled must be bool"),
-                      ("k = 3\n", "outside any table"), ("[analysys]\nk = 3\n", "did you mean analysis")]:
+    for text, why in [
+        ("[analysis]\nnope = 1\n", "has no setting 'nope'"),
+        ('[analysis]\nk = "three"\n', "k must be int"),
+        ("[analysis]\nk = [\n", "not valid TOML"),
+        ("[analysis]\nfit_cancelled = 1\n", "fit_cancelled must be bool"),
+        ("k = 3\n", "outside any table"),
+        ("[analysys]\nk = 3\n", "did you mean analysis"),
+    ]:
         bad = tmp_path / "b.toml"
         bad.write_text(text)
         with pytest.raises(UserError, match=why):

@@ -14,15 +14,23 @@ def table(driver: str, v, t_f, t_nf=None, dv_nb=None, f_v=None) -> pd.DataFrame:
     t_nf = np.full(n, np.nan) if t_nf is None else np.asarray(t_nf, float)
     dv_nb = np.full(n, np.nan) if dv_nb is None else np.asarray(dv_nb, float)
     t_f = np.asarray(t_f, float)
-    return pd.DataFrame({
-        "driver_id": driver, "decision_id": [f"{driver}:{i}" for i in range(n)], "label": "change",
-        "cancelled": False, "ego_v_mps": np.asarray(v, float),
-        "t_f_s": t_f, "t_f_status": np.where(np.isnan(t_f), "absent", "ok"),
-        "t_nf_s": t_nf, "t_nf_status": np.where(np.isnan(t_nf), "absent", "ok"),
-        "dv_nb_mps": dv_nb, "dv_nb_status": np.where(np.isnan(dv_nb), "absent", "ok"),
-        "f_v_mps": np.full(n, 0.0) if f_v is None else np.asarray(f_v, float),
-        "nf_v_mps": 0.0,
-    })
+    return pd.DataFrame(
+        {
+            "driver_id": driver,
+            "decision_id": [f"{driver}:{i}" for i in range(n)],
+            "label": "change",
+            "cancelled": False,
+            "ego_v_mps": np.asarray(v, float),
+            "t_f_s": t_f,
+            "t_f_status": np.where(np.isnan(t_f), "absent", "ok"),
+            "t_nf_s": t_nf,
+            "t_nf_status": np.where(np.isnan(t_nf), "absent", "ok"),
+            "dv_nb_mps": dv_nb,
+            "dv_nb_status": np.where(np.isnan(dv_nb), "absent", "ok"),
+            "f_v_mps": np.full(n, 0.0) if f_v is None else np.asarray(f_v, float),
+            "nf_v_mps": 0.0,
+        }
+    )
 
 
 V = np.array([16.0, 18.0, 20.0, 22.0, 24.0, 26.0])
@@ -60,8 +68,10 @@ def test_ols_matches_hand_formulas_and_bands_contain_line():
     mid = fit.bands(np.array([v.mean()]))
     assert (mid["ci_hi"] - mid["mean"])[0] == pytest.approx(q * np.sqrt(s2 / 40))
     # round trip through a fits-table row
-    row = {k: getattr(fit, k) for k in ("A", "b", "A_se", "b_se", "A_lo", "A_hi", "b_lo", "b_hi", "r2", "n",
-                                        "cov_Ab", "resid_sd", "df_resid")}
+    row = {
+        k: getattr(fit, k)
+        for k in ("A", "b", "A_se", "b_se", "A_lo", "A_hi", "b_lo", "b_hi", "r2", "n", "cov_Ab", "resid_sd", "df_resid")
+    }
     assert LineFit.from_row(row) == fit
 
 
@@ -85,7 +95,9 @@ def test_skipped_fits_say_why():
     flat = table("FLAT", np.full(6, 20.0) + np.linspace(0, 0.3, 6), 0.3 * V)
     none = table("NONE", V, np.full(6, np.nan))
     df = pd.concat([few, flat, none], ignore_index=True)
-    fits = fit_lines(df, AnalysisSettings(min_fit_points=5, min_speed_spread_mps=1.0)).set_index(["driver_id", "indicator"])
+    fits = fit_lines(df, AnalysisSettings(min_fit_points=5, min_speed_spread_mps=1.0)).set_index(
+        ["driver_id", "indicator"]
+    )
     assert fits.loc[("FEW", "t_f"), "status"] == "skipped"
     assert fits.loc[("FEW", "t_f"), "reason"] == "too few defined values: 3 < 5"
     assert fits.loc[("FLAT", "t_f"), "reason"] == "no speed spread: 0.30 m/s < 1 m/s"

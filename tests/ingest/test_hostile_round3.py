@@ -66,9 +66,22 @@ def ingest_one(path: Path, ws_root: Path, **kwargs):
 
 def _ego_copy(meta, ego, traffic):
     """The ego listed among its own traffic, 1 m ahead at its own speed."""
-    copy = pd.DataFrame({"t_s": ego["t_s"], "vehicle_id": "me", "x_m": ego["ego_x_m"] + 1.0, "y_m": ego["ego_y_m"],
-                         "v_mps": ego["ego_v_mps"], "lane": ego["ego_lane"], "length_m": 4.5})
-    return meta, ego, pd.concat([traffic, copy], ignore_index=True).sort_values(["t_s", "vehicle_id"], ignore_index=True)
+    copy = pd.DataFrame(
+        {
+            "t_s": ego["t_s"],
+            "vehicle_id": "me",
+            "x_m": ego["ego_x_m"] + 1.0,
+            "y_m": ego["ego_y_m"],
+            "v_mps": ego["ego_v_mps"],
+            "lane": ego["ego_lane"],
+            "length_m": 4.5,
+        }
+    )
+    return (
+        meta,
+        ego,
+        pd.concat([traffic, copy], ignore_index=True).sort_values(["t_s", "vehicle_id"], ignore_index=True),
+    )
 
 
 def _static_ego(meta, ego, traffic):
@@ -99,6 +112,7 @@ def _one_sample(meta, ego, traffic):
 def _limit(value):
     def change(meta, ego, traffic):
         return dict(meta, speed_limit_kph=value), ego, traffic
+
     return change
 
 
@@ -160,13 +174,33 @@ def test_a_plain_recording_has_no_plausibility_warning(tmp_path):
 def _collision(meta, ego, traffic):
     """Vehicle 'z' drives 40 m ahead in the next lane, then 2 m ahead of the ego in its lane for 0.2 s."""
     hit = ego[(ego["t_s"] >= 2.0) & (ego["t_s"] < 2.2)]
-    crash = pd.DataFrame({"t_s": hit["t_s"], "vehicle_id": "z", "x_m": hit["ego_x_m"] + 2.0, "y_m": hit["ego_y_m"],
-                          "v_mps": hit["ego_v_mps"], "lane": hit["ego_lane"], "length_m": 4.5})
-    before = pd.DataFrame({"t_s": ego["t_s"][ego["t_s"] < 2.0], "vehicle_id": "z",
-                           "x_m": ego["ego_x_m"][ego["t_s"] < 2.0] + 40.0, "y_m": 0.0,
-                           "v_mps": ego["ego_v_mps"][ego["t_s"] < 2.0], "lane": 2, "length_m": 4.5})
-    return meta, ego, pd.concat([traffic, before, crash], ignore_index=True).sort_values(["t_s", "vehicle_id"],
-                                                                                        ignore_index=True)
+    crash = pd.DataFrame(
+        {
+            "t_s": hit["t_s"],
+            "vehicle_id": "z",
+            "x_m": hit["ego_x_m"] + 2.0,
+            "y_m": hit["ego_y_m"],
+            "v_mps": hit["ego_v_mps"],
+            "lane": hit["ego_lane"],
+            "length_m": 4.5,
+        }
+    )
+    before = pd.DataFrame(
+        {
+            "t_s": ego["t_s"][ego["t_s"] < 2.0],
+            "vehicle_id": "z",
+            "x_m": ego["ego_x_m"][ego["t_s"] < 2.0] + 40.0,
+            "y_m": 0.0,
+            "v_mps": ego["ego_v_mps"][ego["t_s"] < 2.0],
+            "lane": 2,
+            "length_m": 4.5,
+        }
+    )
+    return (
+        meta,
+        ego,
+        pd.concat([traffic, before, crash], ignore_index=True).sort_values(["t_s", "vehicle_id"], ignore_index=True),
+    )
 
 
 def test_a_collision_is_kept_with_a_warning(tmp_path):
@@ -213,7 +247,9 @@ def _samples(n: int = 60, button: int | None = 3, press_after_ns: int | None = N
         recs.append(("message", 1, None, ts, json.dumps({"x": 100 + 2.5 * i, "v": 25.0, "lane": 0}).encode()))
         recs.append(("message", 2, None, ts, b'{"vehicles":[]}'))
         if button is not None and i in (10, 11, 30, 31):
-            recs.append(("message", button, None, ts, json.dumps({"pressed": i in (10, 30), "direction": "left"}).encode()))
+            recs.append(
+                ("message", button, None, ts, json.dumps({"pressed": i in (10, 30), "direction": "left"}).encode())
+            )
     if press_after_ns is not None:
         last = 1_000_000_000 + (n - 1) * 100_000_000
         recs.append(("message", button, None, last + press_after_ns, b'{"pressed":true,"direction":"left"}'))
@@ -237,23 +273,26 @@ def test_mcap_channel_declared_twice_the_same_way_is_read(tmp_path):
 
 
 def test_a_press_after_the_last_sample_is_warned_not_dropped_silently(tmp_path):
-    _raw_mcap(tmp_path / "late.mcap", HEAD + _samples(press_after_ns=500_000_000),
-              {"driver_id": "D1", "session_id": "s1"})
+    _raw_mcap(
+        tmp_path / "late.mcap", HEAD + _samples(press_after_ns=500_000_000), {"driver_id": "D1", "session_id": "s1"}
+    )
     res = ingest_one(tmp_path / "late.mcap", tmp_path / "ws")
     assert res.status == "warning" and res.n_presses == 2
     assert any("after the last ego sample" in w and "0.5 s" in w for w in res.warnings), res.warnings
 
 
-@pytest.mark.parametrize("limit, why", [("inf", "not a finite number"), ("-80", "not a road's"),
-                                        ("1e9", "not a road's")])
+@pytest.mark.parametrize(
+    "limit, why", [("inf", "not a finite number"), ("-80", "not a road's"), ("1e9", "not a road's")]
+)
 def test_mcap_metadata_speed_limit_impossible(tmp_path, limit, why):
     _raw_mcap(tmp_path / "l.mcap", HEAD + _samples(), {"driver_id": "D1", "session_id": "s1", "speed_limit_kph": limit})
     res = ingest_one(tmp_path / "l.mcap", tmp_path / "ws")
     assert res.status == "rejected" and why in res.reason, res.reason
 
 
-@pytest.mark.parametrize("value, why", [('"fast"', "not a number"), ("-80", "not a road's"), ("inf", "finite"),
-                                        ("true", "not a number")])
+@pytest.mark.parametrize(
+    "value, why", [('"fast"', "not a number"), ("-80", "not a road's"), ("inf", "finite"), ("true", "not a number")]
+)
 def test_mapping_default_speed_limit_is_checked_before_any_log(tmp_path, value, why):
     from ingest.mapping import load_mapping
     from laneprint.errors import UserError
@@ -288,8 +327,9 @@ def test_a_symlink_out_of_the_input_folder_is_refused_with_its_target(tmp_path):
     assert ingest_paths([logs / "link.csv"], Workspace(tmp_path / "ws")).files[0].status == "ingested"
 
 
-@pytest.mark.parametrize("driver_id", ["![x](http://127.0.0.1:9/img.png)", "[click](javascript:alert(1))",
-                                       "**bold** <b>x</b>", "`code` $x$"])
+@pytest.mark.parametrize(
+    "driver_id", ["![x](http://127.0.0.1:9/img.png)", "[click](javascript:alert(1))", "**bold** <b>x</b>", "`code` $x$"]
+)
 def test_a_driver_id_in_markdown_is_shown_as_text(driver_id):
     from dashboard.views import md_escape
 
@@ -429,22 +469,33 @@ def _suite_files(root: Path) -> list[list[str]]:
         log(f"case{i:02d}", change(*make_recording()), fmt)
     log("plain", make_recording(), "mcap")
     log("collision", _collision(*make_recording()), "csv")
-    raw = {"twice": HEAD + [("channel", 3, "/other/topic", 0, b"")] + _samples(), "same": HEAD + [HEAD[2]] + _samples(),
-           "late": HEAD + _samples(press_after_ns=500_000_000)}
+    raw = {
+        "twice": HEAD + [("channel", 3, "/other/topic", 0, b"")] + _samples(),
+        "same": HEAD + [HEAD[2]] + _samples(),
+        "late": HEAD + _samples(press_after_ns=500_000_000),
+    }
     for name, records in raw.items():
         _raw_mcap(root / f"{name}.mcap", records, {"driver_id": "D1", "session_id": "s1"})
         items.append(["log", str(root / f"{name}.mcap")])
     for k, limit in enumerate(("inf", "-80", "1e9")):
-        _raw_mcap(root / f"limit{k}.mcap", HEAD + _samples(),
-                  {"driver_id": "D1", "session_id": "s1", "speed_limit_kph": limit})
+        _raw_mcap(
+            root / f"limit{k}.mcap",
+            HEAD + _samples(),
+            {"driver_id": "D1", "session_id": "s1", "speed_limit_kph": limit},
+        )
         items.append(["log", str(root / f"limit{k}.mcap")])
     links = root / "links"
     links.mkdir()
     (links / "link.csv").symlink_to(root / "case00.csv")
     items.append(["log", str(links)])
-    for name, text in (("aliases", "rosbag2_bagfile_information:\n  x: 1\n" + LAUGHS),
-                       ("listed-twice", "rosbag2_bagfile_information:\n  storage_identifier: mcap\n"
-                                        "  relative_file_paths:\n" + "    - bag_0.mcap\n" * 100)):
+    for name, text in (
+        ("aliases", "rosbag2_bagfile_information:\n  x: 1\n" + LAUGHS),
+        (
+            "listed-twice",
+            "rosbag2_bagfile_information:\n  storage_identifier: mcap\n"
+            "  relative_file_paths:\n" + "    - bag_0.mcap\n" * 100,
+        ),
+    ):
         (root / name).mkdir()
         (root / name / "metadata.yaml").write_text(text)
         items.append(["log", str(root / name)])
@@ -467,8 +518,9 @@ def test_each_file_of_the_suite_takes_under_5_s_and_600_mb_in_a_fresh_process(tm
     import sys
 
     items = _suite_files(tmp_path / "files")
-    proc = subprocess.run([sys.executable, "-c", MEASURE, json.dumps(items)], capture_output=True, text=True,
-                          timeout=600)
+    proc = subprocess.run(
+        [sys.executable, "-c", MEASURE, json.dumps(items)], capture_output=True, text=True, timeout=600
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = json.loads(proc.stdout.splitlines()[-1])
     assert len(out) == len(items) - 1 >= 35

@@ -14,7 +14,9 @@ from laneprint.errors import UserError
 
 LAUGHS = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
     f"{chr(98 + i)}: &{chr(98 + i)} [*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, "
-    f"*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}]\n" for i in range(9))
+    f"*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}]\n"
+    for i in range(9)
+)
 
 
 def test_yaml_mapping_with_nested_aliases_is_refused_at_once(tmp_path):
@@ -35,7 +37,8 @@ def test_bag_metadata_with_aliases_is_refused(tmp_path):
 def test_bag_part_listed_twice_is_refused(tmp_path):
     (tmp_path / "metadata.yaml").write_text(
         "rosbag2_bagfile_information:\n  storage_identifier: mcap\n  relative_file_paths:\n"
-        + "    - bag_0.mcap\n" * 100)
+        + "    - bag_0.mcap\n" * 100
+    )
     with pytest.raises(Rejected, match="more than once"):
         read_bag_info(tmp_path)
 
@@ -64,15 +67,18 @@ def test_driver_ids_are_one_form_bounded_and_printable():
         resolve_driver(None, None, "y" * 65, [])
 
 
-@pytest.mark.parametrize("text, why", [
-    ("csv = 5\n", "[csv] must be a table"),
-    ("csv = [1, 2]\n", "[csv] must be a table"),
-    ("units = [1]\n", "[units] must be a table"),
-    ('[csv]\ntraffic = "x"\n', "[csv.traffic] must be a table"),
-    ("[units]\nspeed_scale = nan\n", "positive finite number"),
-    ("[units]\nspeed_scale = inf\n", "positive finite number"),
-    ("[units]\nspeed_scale = true\n", "positive finite number"),
-])
+@pytest.mark.parametrize(
+    "text, why",
+    [
+        ("csv = 5\n", "[csv] must be a table"),
+        ("csv = [1, 2]\n", "[csv] must be a table"),
+        ("units = [1]\n", "[units] must be a table"),
+        ('[csv]\ntraffic = "x"\n', "[csv.traffic] must be a table"),
+        ("[units]\nspeed_scale = nan\n", "positive finite number"),
+        ("[units]\nspeed_scale = inf\n", "positive finite number"),
+        ("[units]\nspeed_scale = true\n", "positive finite number"),
+    ],
+)
 def test_mappings_of_the_wrong_type_are_one_line(tmp_path, text, why):
     path = tmp_path / "m.toml"
     path.write_text(text)

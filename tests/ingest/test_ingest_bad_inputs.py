@@ -51,6 +51,7 @@ def test_truncated_mcap(tmp_path, recording):
         write_mcap(tmp_path / "full.mcap", dict(recording[0], session_id="t"), *recording[1:])
         data = (tmp_path / "full.mcap").read_bytes()
         p.write_bytes(data[: len(data) // 2])
+
     _, res = _batch(tmp_path, recording, "cut.mcap", bad)
     assert res.status == "rejected"
     assert res.reason.startswith("truncated MCAP: stream ended inside a record at byte ")
@@ -79,10 +80,13 @@ def test_unknown_message_encoding(tmp_path, recording):
             w.register_channel("/traffic/vehicles", "json", 0)
             w.add_message(ego, 0, b"\x08\x01", 0)
             w.finish()
+
     _, res = _batch(tmp_path, recording, "flat.mcap", bad)
     assert res.status == "rejected"
-    assert res.reason.startswith("unsupported message encoding 'flatbuffer' on topic /ego/state: laneprint decodes "
-                                 "json, cdr (ROS 2, ros2msg schemas) and protobuf messages")
+    assert res.reason.startswith(
+        "unsupported message encoding 'flatbuffer' on topic /ego/state: laneprint decodes "
+        "json, cdr (ROS 2, ros2msg schemas) and protobuf messages"
+    )
 
 
 def test_missing_required_column_names_the_mapping_key(tmp_path, recording):
@@ -91,8 +95,10 @@ def test_missing_required_column_names_the_mapping_key(tmp_path, recording):
     header[header.index("ego_v")] = "speed"
     _, res = _batch(tmp_path, recording, "nov.csv", lambda p: _write_lines(p, [",".join(header)] + lines[1:]))
     assert res.status == "rejected"
-    assert res.reason == ('missing required column(s) ego_v: name your column with ego_v = "<your column>" '
-                          "under [csv.columns] in a --mapping file")
+    assert res.reason == (
+        'missing required column(s) ego_v: name your column with ego_v = "<your column>" '
+        "under [csv.columns] in a --mapping file"
+    )
 
 
 def test_missing_required_topic(tmp_path, recording):
@@ -103,10 +109,13 @@ def test_missing_required_topic(tmp_path, recording):
             ego = w.register_channel("/ego/state", "json", 0)
             w.add_message(ego, 0, b'{"x":1,"v":20,"lane":0}', 0)
             w.finish()
+
     _, res = _batch(tmp_path, recording, "notraffic.mcap", bad)
     assert res.status == "rejected"
-    assert res.reason.startswith("missing required topic /traffic/vehicles; topics in the file: /ego/state; "
-                                 'map it with "/traffic/vehicles" = "<your topic>" under [mcap.topics]')
+    assert res.reason.startswith(
+        "missing required topic /traffic/vehicles; topics in the file: /ego/state; "
+        'map it with "/traffic/vehicles" = "<your topic>" under [mcap.topics]'
+    )
 
 
 def test_time_not_increasing(tmp_path, recording):
@@ -129,18 +138,21 @@ def test_gap_in_required_signal(tmp_path, recording):
     meta, ego, traffic = recording
     holed = ego.copy()
     holed.loc[50:59, "ego_v_mps"] = np.nan
-    _, res = _batch(tmp_path, recording, "gap.csv",
-                    lambda p: write_csv(p, dict(meta, session_id="gap"), holed, traffic))
+    _, res = _batch(
+        tmp_path, recording, "gap.csv", lambda p: write_csv(p, dict(meta, session_id="gap"), holed, traffic)
+    )
     assert res.status == "rejected"
-    assert res.reason.startswith("gap in required signal ego_v: 10 empty value(s) from line 52 to line 61 "
-                                 "(t=1.000-1.180 s)")
+    assert res.reason.startswith(
+        "gap in required signal ego_v: 10 empty value(s) from line 52 to line 61 (t=1.000-1.180 s)"
+    )
 
 
 def test_speeds_in_kmh(tmp_path, recording):
     meta, ego, traffic = recording
     kmh = ego.assign(ego_v_mps=ego["ego_v_mps"] * 3.6)
-    _, res = _batch(tmp_path, recording, "kmh.mcap",
-                    lambda p: write_mcap(p, dict(meta, session_id="kmh"), kmh, traffic))
+    _, res = _batch(
+        tmp_path, recording, "kmh.mcap", lambda p: write_mcap(p, dict(meta, session_id="kmh"), kmh, traffic)
+    )
     assert res.status == "rejected"
     assert res.reason.startswith("ego speed looks like km/h, not m/s (median 90.")
     assert 'set speed = "km/h" under [units]' in res.reason
@@ -187,8 +199,9 @@ def test_not_gzip_and_binary_csv(tmp_path, recording):
 def test_no_button_presses_is_kept_with_a_warning(tmp_path, recording):
     meta, ego, traffic = recording
     calm = ego.assign(lc_button=False, lc_direction=None)
-    good, res = _batch(tmp_path, recording, "calm.mcap",
-                       lambda p: write_mcap(p, dict(meta, session_id="calm"), calm, traffic))
+    good, res = _batch(
+        tmp_path, recording, "calm.mcap", lambda p: write_mcap(p, dict(meta, session_id="calm"), calm, traffic)
+    )
     assert res.status == "warning" and res.n_presses == 0
     assert res.warnings == ["no lane-change button presses: the recording holds no decisions"]
     row = Workspace(tmp_path / "ws").recordings().set_index("session_id").loc["calm"]
@@ -218,8 +231,18 @@ def test_unindexed_mcap_is_read_by_streaming(tmp_path, recording):
         session = dict(next(iter(make_reader(fh).iter_metadata())).metadata, session_id="flat")
 
     def bad(p):  # the same messages without chunks, index or summary
-        _copy_mcap(src, p, session, use_chunking=False, index_types=IndexType.NONE, repeat_channels=False,
-                   repeat_schemas=False, use_statistics=False, use_summary_offsets=False)
+        _copy_mcap(
+            src,
+            p,
+            session,
+            use_chunking=False,
+            index_types=IndexType.NONE,
+            repeat_channels=False,
+            repeat_schemas=False,
+            use_statistics=False,
+            use_summary_offsets=False,
+        )
+
     _, res = _batch(tmp_path, recording, "flat.mcap", bad)
     assert (res.status, res.session_id, res.n_samples, res.n_presses) == ("ingested", "flat", 200, 2)
 
@@ -234,6 +257,7 @@ def test_mcap_ending_without_footer_at_a_record_boundary(tmp_path, recording):
             ch = w.register_channel("/ego/state", "json", 0)
             w.add_message(ch, 0, b'{"x":1,"v":20,"lane":0}', 0)
         # no finish(): the recorder died
+
     _, res = _batch(tmp_path, recording, "unfinished.mcap", bad)
     assert res.status == "rejected"
     assert res.reason.startswith("truncated MCAP: the file ends after the last complete record (byte ")
@@ -249,8 +273,10 @@ def test_explicit_non_log_path_is_rejected_folder_extras_are_skipped(tmp_path, r
     report = ingest_paths([logs, logs / "README.md", tmp_path / "missing.csv"], ws)
     assert report.counts == {"ingested": 1, "warning": 0, "duplicate": 0, "rejected": 2, "skipped": 2}
     rejected = {os.path.basename(f.source): f.reason for f in report.files if f.status == "rejected"}
-    assert rejected == {"README.md": "not a log file: expected a .csv, .csv.gz or .mcap name (got README.md)",
-                        "missing.csv": "no such file or folder"}
+    assert rejected == {
+        "README.md": "not a log file: expected a .csv, .csv.gz or .mcap name (got README.md)",
+        "missing.csv": "no such file or folder",
+    }
 
 
 def test_nothing_exists_is_a_user_error(tmp_path):
@@ -266,9 +292,13 @@ def test_gzipped_csv_with_traffic_value_missing(tmp_path, recording):
     row = lines[5].split(",")
     row[header.index("a_v")] = ""
     lines[5] = ",".join(row)
-    _, res = _batch(tmp_path, recording, "hole.csv.gz",
-                    lambda p: p.write_bytes(gzip.compress(("\n".join(lines) + "\n").encode())))
-    assert res.reason == "traffic vehicle 'a': a_v is empty at line 6 while a_x is given (a present vehicle needs x, v and lane)"
+    _, res = _batch(
+        tmp_path, recording, "hole.csv.gz", lambda p: p.write_bytes(gzip.compress(("\n".join(lines) + "\n").encode()))
+    )
+    assert (
+        res.reason
+        == "traffic vehicle 'a': a_v is empty at line 6 while a_x is given (a present vehicle needs x, v and lane)"
+    )
 
 
 def test_mcap_traffic_lane_out_of_range_and_vehicle_without_id(tmp_path, recording):
@@ -277,9 +307,11 @@ def test_mcap_traffic_lane_out_of_range_and_vehicle_without_id(tmp_path, recordi
     _, res = _batch(tmp_path, recording, "lane.mcap", lambda p: write_mcap(p, dict(meta, session_id="l"), ego, odd))
     n_b = int((traffic["vehicle_id"] == "b").sum())
     assert res.status == "warning"  # a traffic vehicle is optional: its impossible samples are dropped
-    assert res.warnings[0] == (f"traffic: dropped {n_b} of {len(traffic)} vehicle sample(s) of 1 vehicle(s) with "
-                               f"impossible values (first: vehicle 'b' field 'lane' 42 is outside the road "
-                               f"(lanes 0..20) at t=1.000 s)")
+    assert res.warnings[0] == (
+        f"traffic: dropped {n_b} of {len(traffic)} vehicle sample(s) of 1 vehicle(s) with "
+        f"impossible values (first: vehicle 'b' field 'lane' 42 is outside the road "
+        f"(lanes 0..20) at t=1.000 s)"
+    )
     stored = Workspace(tmp_path / "ws").load_recording(res.recording_id)[2]
     assert set(stored["vehicle_id"]) == {"a", "c12"}
 
@@ -294,6 +326,7 @@ def test_mcap_traffic_lane_out_of_range_and_vehicle_without_id(tmp_path, recordi
                 w.add_message(e, i * 10**8, b'{"x":1,"v":20,"lane":0}', 0)
                 w.add_message(tr, i * 10**8, b'{"vehicles":[{"x":5,"v":20,"lane":1}]}', 0)
             w.finish()
+
     (tmp_path / "two").mkdir()
     _, res = _batch(tmp_path / "two", recording, "noid.mcap", no_id)
     assert res.reason.startswith("/traffic/vehicles: a vehicle without 'id' in message 0 (log_time 0 ns)")
@@ -309,6 +342,7 @@ def test_mcap_invalid_json_names_the_message(tmp_path, recording):
             w.add_message(e, 0, b'{"x":1,"v":20,"lane":0}', 0)
             w.add_message(e, 10**8, b'{"x":1,"v":20,', 0)
             w.finish()
+
     _, res = _batch(tmp_path, recording, "badjson.mcap", bad)
     assert res.reason.startswith("message 1 on /ego/state (log_time 100000000 ns) is not valid JSON")
 
@@ -341,8 +375,8 @@ def test_mcap_metadata_without_metadata_index_is_still_found(tmp_path, recording
     write_mcap(src, meta, ego, traffic)
 
     def rewrite(p):
-        _copy_mcap(src, p, {"driver_id": "D33", "session_id": "noidx"},
-                   index_types=IndexType.CHUNK | IndexType.MESSAGE)
+        _copy_mcap(src, p, {"driver_id": "D33", "session_id": "noidx"}, index_types=IndexType.CHUNK | IndexType.MESSAGE)
+
     _, res = _batch(tmp_path, recording, "noidx.mcap", rewrite)
     assert (res.status, res.driver_id, res.session_id) == ("ingested", "D33", "noidx")
 
@@ -350,11 +384,16 @@ def test_mcap_metadata_without_metadata_index_is_still_found(tmp_path, recording
 def test_time_in_milliseconds_is_refused_by_its_sample_rate(tmp_path, recording):
     meta, ego, traffic = recording
     ms = ego.assign(t_s=ego["t_s"] * 1000)
-    _, res = _batch(tmp_path, recording, "ms.csv",
-                    lambda p: write_csv(p, dict(meta, session_id="ms"), ms, traffic.assign(t_s=traffic["t_s"] * 1000)))
+    _, res = _batch(
+        tmp_path,
+        recording,
+        "ms.csv",
+        lambda p: write_csv(p, dict(meta, session_id="ms"), ms, traffic.assign(t_s=traffic["t_s"] * 1000)),
+    )
     assert res.status == "rejected"
-    assert res.reason.startswith("sample rate 0.05 Hz (median step 20 s of t) is outside 1-1000 Hz; "
-                                 "if t is not in seconds, set time = \"ms\"")
+    assert res.reason.startswith(
+        'sample rate 0.05 Hz (median step 20 s of t) is outside 1-1000 Hz; if t is not in seconds, set time = "ms"'
+    )
 
 
 def test_positions_in_feet_warn_about_units(tmp_path, recording):

@@ -91,8 +91,12 @@ def test_two_ingests_at_once_store_each_session_once(tmp_path, recording):
         paths += [logs / f"s{k}.csv", logs / f"s{k}.mcap"]
     ws = tmp_path / "ws"
     procs = [
-        subprocess.Popen([sys.executable, "-c", _WORKER, str(ws), json.dumps([str(p) for p in order])],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        subprocess.Popen(
+            [sys.executable, "-c", _WORKER, str(ws), json.dumps([str(p) for p in order])],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         for order in (paths, paths[::-1])
     ]
     outs = [p.communicate(timeout=120) for p in procs]

@@ -29,8 +29,12 @@ def _fmt(name: str) -> str:
 
 
 @pytest.mark.slow
-@settings(max_examples=40, derandomize=True, deadline=None,
-          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@settings(
+    max_examples=40,
+    derandomize=True,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 @given(data=st.data())
 def test_a_mutated_log_is_ingested_whole_or_refused_with_a_located_reason(seeds, tmp_path, data):
     name = data.draw(st.sampled_from(sorted(seeds)), label="seed file")

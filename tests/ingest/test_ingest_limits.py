@@ -27,8 +27,10 @@ def _ingest_one(path, ws_root, limits=None):
 
 # Runs the command in a grandchild and prints its peak RSS: a child forked straight from this
 # (large) test process counts the parent's pages copied before exec in its own peak.
-_MEASURE = ("import resource, subprocess, sys; r = subprocess.run(sys.argv[1:]); "
-            "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); sys.exit(r.returncode)")
+_MEASURE = (
+    "import resource, subprocess, sys; r = subprocess.run(sys.argv[1:]); "
+    "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); sys.exit(r.returncode)"
+)
 
 
 def _peak_rss_mb(args: list[str]) -> tuple[int, str, float]:
@@ -78,7 +80,8 @@ def test_gzip_bomb_is_refused_within_a_second_in_little_memory(tmp_path):
     small.write_bytes(gzip.compress(b"t," + b"0" * (1 << 20), 9))
     assert small.stat().st_size < 1100
     assert _ingest_one(small, tmp_path / "ws").reason.startswith(
-        "malformed CSV: the header (line 1) is longer than the 1024 KB line limit")
+        "malformed CSV: the header (line 1) is longer than the 1024 KB line limit"
+    )
 
 
 @pytest.mark.slow
@@ -106,7 +109,7 @@ def test_zstd_frame_claiming_more_than_its_chunk_is_refused(tmp_path, recording)
     assert fhd >> 6 != 0, "the writer's frames carry their content size"
     at = frame + 5 + (0 if (fhd >> 5) & 1 else 1) + (0, 1, 2, 4)[fhd & 3]
     width = (1, 2, 4, 8)[fhd >> 6]
-    data[at:at + width] = (256 ** width - 1).to_bytes(width, "little")
+    data[at : at + width] = (256**width - 1).to_bytes(width, "little")
     (tmp_path / "frame.mcap").write_bytes(bytes(data))
     res = _ingest_one(tmp_path / "frame.mcap", tmp_path / "ws")
     assert res.reason.startswith("corrupt MCAP: the chunk at byte ") and "zstd frame claims" in res.reason
@@ -117,11 +120,13 @@ def test_wide_header_long_line_and_large_file_limits(tmp_path, recording):
     wide.write_bytes(b",".join(b"c%d" % i for i in range(30_000)) + b"\n")
     assert _ingest_one(wide, tmp_path / "ws").reason == (
         "malformed CSV: the header has 30000 columns, more than the 20000 limit (raise LANEPRINT_MAX_COLUMNS "
-        "if they are genuine)")
+        "if they are genuine)"
+    )
     long = tmp_path / "long.csv"
     long.write_bytes(HEADER + b"0,D1,0,20,0\n" + b"0.02,D1,0," + b"9" * (2 << 20) + b",0\n")
     assert _ingest_one(long, tmp_path / "ws").reason.startswith(
-        "malformed CSV: line 3 (from byte 45) is longer than the 1024 KB line limit")
+        "malformed CSV: line 3 (from byte 45) is longer than the 1024 KB line limit"
+    )
     good = tmp_path / "good.csv"
     write_csv(good, *recording)
     limits = IngestLimits(max_file_mb=0.01)
@@ -130,7 +135,8 @@ def test_wide_header_long_line_and_large_file_limits(tmp_path, recording):
 
 def test_limits_from_the_environment():
     assert IngestLimits.from_env({"LANEPRINT_MAX_COLUMNS": "50", "LANEPRINT_MAX_FILE_MB": "1.5"}) == IngestLimits(
-        max_columns=50, max_file_mb=1.5)
+        max_columns=50, max_file_mb=1.5
+    )
     with pytest.raises(UserError, match="LANEPRINT_MAX_LINE_KB='lots' is not a positive number"):
         IngestLimits.from_env({"LANEPRINT_MAX_LINE_KB": "lots"})
 
@@ -154,10 +160,14 @@ def test_cli_with_a_bad_limit_is_one_error_line(tmp_path, recording):
     from laneprint.app.cli import app
 
     write_csv(tmp_path / "r.csv", *recording)
-    out = CliRunner().invoke(app, ["ingest", str(tmp_path / "r.csv"), "-w", str(tmp_path / "ws")],
-                             env={"LANEPRINT_MAX_COLUMNS": "many"})
+    out = CliRunner().invoke(
+        app, ["ingest", str(tmp_path / "r.csv"), "-w", str(tmp_path / "ws")], env={"LANEPRINT_MAX_COLUMNS": "many"}
+    )
     assert out.exit_code == 1
     assert out.output.strip() == "error: LANEPRINT_MAX_COLUMNS='many' is not a positive number"
-    ok = CliRunner().invoke(app, ["ingest", str(tmp_path / "r.csv"), "-w", str(tmp_path / "ws"), "--json"],
-                            env={"LANEPRINT_MAX_COLUMNS": "5"})
+    ok = CliRunner().invoke(
+        app,
+        ["ingest", str(tmp_path / "r.csv"), "-w", str(tmp_path / "ws"), "--json"],
+        env={"LANEPRINT_MAX_COLUMNS": "5"},
+    )
     assert json.loads(ok.output)["files"][0]["reason"].startswith("malformed CSV: the header has ")

@@ -13,7 +13,7 @@ from ingest.pipeline import ingest_paths
 from laneprint.errors import UserError
 from laneprint.workspace import Workspace
 
-CSV_MAPPING = r'''
+CSV_MAPPING = r"""
 [csv.columns]
 t = "Time_ms"
 ego_x = "EgoPosX"
@@ -35,9 +35,9 @@ time = "ms"
 [metadata]
 speed_limit_kph = 70
 simulator = "rig B"
-'''
+"""
 
-CSV_MAPPING_YAML = r'''
+CSV_MAPPING_YAML = r"""
 csv:
   columns: {t: Time_ms, ego_x: EgoPosX, ego_v: EgoSpeed, ego_lane: EgoLane, driver_id: Subject, lc_button: Blinker}
   traffic:
@@ -45,7 +45,7 @@ csv:
     fields: {x: pos, v: speed}
 units: {speed: km/h, time: ms}
 metadata: {speed_limit_kph: 70, simulator: rig B}
-'''
+"""
 
 OTHER_CSV = """Time_ms,Subject,EgoPosX,EgoSpeed,EgoLane,Blinker,veh3.pos,veh3.speed,veh3.lane,notes
 1000,P1,10.0,72.0,0,0,50.0,36.0,1,x
@@ -67,7 +67,12 @@ def test_csv_with_other_names_and_units(tmp_path, name, text):
     res = ingest_paths([tmp_path / "other.csv"], ws, mapping=tmp_path / name).files[0]
     assert res.status == "ingested", res.reason
     meta, ego, traffic = ws.load_recording(res.recording_id)
-    assert (meta["driver_id"], meta["speed_limit_kph"], meta["simulator"], meta["n_presses"]) == ("P1", 70.0, "rig B", 1)
+    assert (meta["driver_id"], meta["speed_limit_kph"], meta["simulator"], meta["n_presses"]) == (
+        "P1",
+        70.0,
+        "rig B",
+        1,
+    )
     np.testing.assert_allclose(ego["t_s"], [0.0, 0.1, 0.2, 0.3])
     np.testing.assert_allclose(ego["ego_v_mps"], [20.0] * 4)
     assert ego["ego_lane"].tolist() == [0, 0, 0, 1]
@@ -77,7 +82,7 @@ def test_csv_with_other_names_and_units(tmp_path, name, text):
     assert ws.rejected().empty  # the earlier rejection of the same bytes is forgotten
 
 
-MCAP_MAPPING = '''
+MCAP_MAPPING = """
 [mcap]
 metadata_name = "info"
 [mcap.metadata_keys]
@@ -96,7 +101,7 @@ id = "track_id"
 x = "px"
 [mcap.fields."/driver/lane_change_button"]
 pressed = "active"
-'''
+"""
 
 
 def test_mcap_with_other_topics_and_fields(tmp_path):
@@ -111,7 +116,9 @@ def test_mcap_with_other_topics_and_fields(tmp_path):
         for i in range(5):
             t = 5_000_000_000 + i * 20_000_000
             w.add_message(ego, t, json.dumps({"pos": {"x": 1.0 + 0.4 * i}, "speed": 20, "lane_index": 0}).encode(), t)
-            w.add_message(obj, t, json.dumps({"objects": [{"track_id": 7, "px": 30.5, "v": 18.0, "lane": 1}]}).encode(), t)
+            w.add_message(
+                obj, t, json.dumps({"objects": [{"track_id": 7, "px": 30.5, "v": 18.0, "lane": 1}]}).encode(), t
+            )
         w.add_message(hmi, 5_040_000_000, b'{"active": true}', 0)
         w.add_message(hmi, 5_060_000_000, b'{"active": false}', 0)
         w.finish()
@@ -127,12 +134,15 @@ def test_mcap_with_other_topics_and_fields(tmp_path):
     np.testing.assert_allclose(traffic["t_s"], [0, 0.02, 0.04, 0.06, 0.08])
 
 
-@pytest.mark.parametrize("text, message", [
-    ('[csv.columns]\nego_speed = "v"\n', "unknown key(s) ego_speed in [csv.columns]"),
-    ('[units]\nspeed = "knots"\n', "[units] speed = 'knots' is not one of"),
-    ('[csv.traffic]\npattern = "(?P<id>.+)"\n', "needs named groups"),
-    ("[csv\n", "invalid TOML"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ('[csv.columns]\nego_speed = "v"\n', "unknown key(s) ego_speed in [csv.columns]"),
+        ('[units]\nspeed = "knots"\n', "[units] speed = 'knots' is not one of"),
+        ('[csv.traffic]\npattern = "(?P<id>.+)"\n', "needs named groups"),
+        ("[csv\n", "invalid TOML"),
+    ],
+)
 def test_bad_mapping_is_one_user_error(tmp_path, text, message):
     (tmp_path / "bad.toml").write_text(text)
     with pytest.raises(UserError) as err:
@@ -141,7 +151,9 @@ def test_bad_mapping_is_one_user_error(tmp_path, text, message):
 
 
 def test_semicolon_csv_gets_a_hint_then_reads_with_a_delimiter(tmp_path):
-    (tmp_path / "semi.csv").write_text("\ufefft;driver_id;ego_x;ego_v;ego_lane;lc_button\r\n0;D1;1;20;0;0\r\n0.1;D1;3;20;0;1\r\n")
+    (tmp_path / "semi.csv").write_text(
+        "\ufefft;driver_id;ego_x;ego_v;ego_lane;lc_button\r\n0;D1;1;20;0;0\r\n0.1;D1;3;20;0;1\r\n"
+    )
     ws = Workspace(tmp_path / "ws")
     res = ingest_paths([tmp_path / "semi.csv"], ws).files[0]
     assert res.status == "rejected"

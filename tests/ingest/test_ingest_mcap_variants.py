@@ -22,8 +22,13 @@ from laneprint.app.cli import app
 from laneprint.workspace import Workspace
 
 CONFORMANCE = Path(__file__).parent / "data" / "mcap_conformance.tar.gz"
-NO_SUMMARY = dict(repeat_channels=False, repeat_schemas=False, use_statistics=False, index_types=IndexType.NONE,
-                  use_summary_offsets=False)
+NO_SUMMARY = dict(
+    repeat_channels=False,
+    repeat_schemas=False,
+    use_statistics=False,
+    index_types=IndexType.NONE,
+    use_summary_offsets=False,
+)
 VARIANTS: dict[str, dict] = {
     "default": {},
     "no_repeat_channels": dict(repeat_channels=False),
@@ -129,7 +134,7 @@ def test_chunks_cut_at_their_message_index_read_as_the_walk_does(variants, name,
 def test_a_message_index_that_lies_sends_its_chunk_to_the_walk(variants, monkeypatch):
     data = bytearray((variants / "default.mcap").read_bytes())
     op, pos, length = next(h for h in top_records(bytes(data)) if h[0] == 0x07 and h[2] > 6 + 16)
-    data[pos + 9 + 6 + 8:pos + 9 + 6 + 16] = (7).to_bytes(8, "little")  # its first offset, into a record
+    data[pos + 9 + 6 + 8 : pos + 9 + 6 + 16] = (7).to_bytes(8, "little")  # its first offset, into a record
     used = []
     real = mcap_records._walk_indexed
     monkeypatch.setattr(mcap_records, "_walk_indexed", lambda *a: used.append(real(*a)) or used[-1])
@@ -142,7 +147,7 @@ def test_a_message_index_that_lies_sends_its_chunk_to_the_walk(variants, monkeyp
 def test_a_message_index_that_does_not_fit_its_record_is_skipped_not_fatal(variants, monkeypatch):
     data = bytearray((variants / "default.mcap").read_bytes())
     op, pos, length = next(h for h in top_records(bytes(data)) if h[0] == 0x07 and h[2] > 6 + 16)
-    data[pos + 9 + 2:pos + 9 + 6] = (length + 16).to_bytes(4, "little")  # entries past the record's end
+    data[pos + 9 + 2 : pos + 9 + 6] = (length + 16).to_bytes(4, "little")  # entries past the record's end
     got = read_records(bytes(data))  # the chunk is walked instead: no refusal, nothing lost
     assert (got.times, got.datas) == (lambda w: (w.times, w.datas))(_walked_only(bytes(data), monkeypatch))
     assert sum(map(len, got.times.values())) == 605
@@ -160,7 +165,7 @@ def test_messages_on_a_channel_no_record_defines_are_refused_naming_the_id(tmp_p
     at = data.index(b"\x04", 8 + 9 + 8)  # the Channel record after the Header
     (length,) = __import__("struct").unpack_from("<Q", data, at + 1)
     path = tmp_path / "orphans.mcap"
-    path.write_bytes(data[:at] + data[at + 9 + length:])
+    path.write_bytes(data[:at] + data[at + 9 + length :])
     (res,) = ingest_paths([path], Workspace(tmp_path / "ws")).files
     assert res.status == "rejected"
     assert res.reason == "corrupt MCAP: 3 message(s) on channel id(s) 1, which no Channel record in the file defines"
@@ -177,8 +182,14 @@ def conformance(tmp_path_factory) -> Path:
 
 
 # messages and Metadata records each conformance input holds (the generator's inputs)
-CONFORMANCE_CONTENT = {"NoData": (0, 0), "OneAttachment": (0, 0), "OneMetadata": (0, 1), "OneMessage": (1, 0),
-                       "OneSchemalessMessage": (1, 0), "TenMessages": (10, 0)}
+CONFORMANCE_CONTENT = {
+    "NoData": (0, 0),
+    "OneAttachment": (0, 0),
+    "OneMetadata": (0, 1),
+    "OneMessage": (1, 0),
+    "OneSchemalessMessage": (1, 0),
+    "TenMessages": (10, 0),
+}
 
 
 def test_every_conformance_file_is_read_by_the_fast_walk(conformance):
@@ -199,5 +210,6 @@ def test_cli_refuses_conformance_files_for_their_topics_not_as_corrupt(conforman
     assert out.exit_code == 0, out.output
     reasons = [f["reason"] for f in json.loads(out.stdout)["files"]]
     assert len(reasons) == 154
-    assert all(r.startswith("missing required topic /ego/state") and "topics in the file: example" in r
-               for r in reasons), {r for r in reasons if not r.startswith("missing")}
+    assert all(
+        r.startswith("missing required topic /ego/state") and "topics in the file: example" in r for r in reasons
+    ), {r for r in reasons if not r.startswith("missing")}

@@ -28,28 +28,36 @@ def ingest_cli(ws, paths, mapping=None) -> list[dict]:
 
 # ---- Git LFS pointers ------------------------------------------------------------------------------
 
+
 def test_lfs_pointer_is_refused_with_the_fetch_hint_and_the_batch_goes_on(tmp_path, recording):
     logs = tmp_path / "logs"
     logs.mkdir()
     write_csv(logs / "good.csv", *recording)
-    pointer = ("version https://git-lfs.github.com/spec/v1\n"
-               "oid sha256:358413d53e6fb2753efb3eac682bc9d776bb2afb1de5e395817efd8f16303fbc\nsize 20344\n")
+    pointer = (
+        "version https://git-lfs.github.com/spec/v1\n"
+        "oid sha256:358413d53e6fb2753efb3eac682bc9d776bb2afb1de5e395817efd8f16303fbc\nsize 20344\n"
+    )
     for name in ("drive.mcap", "drive.csv.gz", "drive.csv"):
         (logs / name).write_text(pointer)
     reports = {r["source"].rsplit("/", 1)[-1]: r for r in ingest_cli(tmp_path / "ws", [logs])}
     assert reports["good.csv"]["status"] == "ingested"
     for name in ("drive.mcap", "drive.csv.gz", "drive.csv"):
         assert reports[name]["status"] == "rejected"
-        assert reports[name]["reason"] == ("a Git LFS pointer, not the log itself (the real file of 20,344 bytes "
-                                           "was not fetched): fetch it with `git lfs pull` in the repository it "
-                                           "came from")
+        assert reports[name]["reason"] == (
+            "a Git LFS pointer, not the log itself (the real file of 20,344 bytes "
+            "was not fetched): fetch it with `git lfs pull` in the repository it "
+            "came from"
+        )
 
 
 # ---- ROS 2 UUIDs as object ids ---------------------------------------------------------------------
 
-UUID_MSGDEF = ("sim_msgs/Object[] objects\n" + "=" * 80 + "\nMSG: sim_msgs/Object\n"
-               "unique_identifier_msgs/UUID object_id\nfloat64 x\nfloat64 v\nuint8 lane\n"
-               + "=" * 80 + "\nMSG: unique_identifier_msgs/UUID\nuint8[16] uuid\n")
+UUID_MSGDEF = (
+    "sim_msgs/Object[] objects\n" + "=" * 80 + "\nMSG: sim_msgs/Object\n"
+    "unique_identifier_msgs/UUID object_id\nfloat64 x\nfloat64 v\nuint8 lane\n"
+    + "=" * 80
+    + "\nMSG: unique_identifier_msgs/UUID\nuint8[16] uuid\n"
+)
 UUID_MAPPING = """\
 [mcap.signals]
 ego_x = {{ topic = "/ego", path = "x" }}
@@ -81,12 +89,26 @@ def write_uuid_bag(path, recording) -> None:
         w.add_metadata("session", {k: str(v) for k, v in meta.items()})
         for row in ego.itertuples():
             t = round(row.t_s * 1e9)
-            w.write_message("/ego", ego_schema, {"x": row.ego_x_m, "v": row.ego_v_mps, "lane": int(row.ego_lane),
-                                                 "pressed": bool(row.lc_button)}, log_time=t)
+            w.write_message(
+                "/ego",
+                ego_schema,
+                {"x": row.ego_x_m, "v": row.ego_v_mps, "lane": int(row.ego_lane), "pressed": bool(row.lc_button)},
+                log_time=t,
+            )
             cars = by_t.get(row.t_s)
-            w.write_message("/objects", objects, {"objects": [] if cars is None else [
-                {"object_id": {"uuid": list(uuid(c.vehicle_id))}, "x": c.x_m, "v": c.v_mps, "lane": int(c.lane)}
-                for c in cars.itertuples()]}, log_time=t)
+            w.write_message(
+                "/objects",
+                objects,
+                {
+                    "objects": []
+                    if cars is None
+                    else [
+                        {"object_id": {"uuid": list(uuid(c.vehicle_id))}, "x": c.x_m, "v": c.v_mps, "lane": int(c.lane)}
+                        for c in cars.itertuples()
+                    ]
+                },
+                log_time=t,
+            )
         w.finish()
 
 
@@ -102,21 +124,32 @@ def test_ros2_uuid_object_ids_are_stored_as_hex(tmp_path, recording, path):
     assert (traffic["vehicle_id"] == "61000000000000000000000000000000").sum() == 125  # "a", 2.5 s at 50 Hz
 
 
-@pytest.mark.parametrize("value, text", [
-    ("car7", "car7"), (7, "7"), (7.0, "7"), (7.5, "7.5"), (None, None),
-    (b"V001" + bytes(12), "56303031000000000000000000000000"), ([1, 2, 255], "0102ff"),
-    (SimpleNamespace(uuid=b"\x0a\x0b"), "0a0b"),
-    (SimpleNamespace(data="car7"), "car7"), (SimpleNamespace(data=7), "7"),  # std_msgs/String, UInt32
-    ({"uuid": [97, 0, 255]}, "6100ff"), ({"id": "car7"}, "car7"),  # JSON objects of one field
-])
+@pytest.mark.parametrize(
+    "value, text",
+    [
+        ("car7", "car7"),
+        (7, "7"),
+        (7.0, "7"),
+        (7.5, "7.5"),
+        (None, None),
+        (b"V001" + bytes(12), "56303031000000000000000000000000"),
+        ([1, 2, 255], "0102ff"),
+        (SimpleNamespace(uuid=b"\x0a\x0b"), "0a0b"),
+        (SimpleNamespace(data="car7"), "car7"),
+        (SimpleNamespace(data=7), "7"),  # std_msgs/String, UInt32
+        ({"uuid": [97, 0, 255]}, "6100ff"),
+        ({"id": "car7"}, "car7"),  # JSON objects of one field
+    ],
+)
 def test_object_id_text_is_canonical(value, text):
     if isinstance(value, SimpleNamespace):  # a decoded ROS 2 message of one field: one slot
-        (field, inner), = vars(value).items()
+        ((field, inner),) = vars(value).items()
         value = type("Msg", (SimpleNamespace,), {"__slots__": [field]})(**{field: inner})
     assert id_text(value) == text
 
 
 # ---- lanes from y on a border ----------------------------------------------------------------------
+
 
 def border_recording() -> tuple[dict, pd.DataFrame, pd.DataFrame]:
     """The ego and car "a" cross a lane border (3.5 m lanes) with one sample exactly on it (y = 1.75);
@@ -125,19 +158,49 @@ def border_recording() -> tuple[dict, pd.DataFrame, pd.DataFrame]:
     t = np.arange(n) / hz
     k = np.arange(n)
     ego_y = np.round(np.clip((k - 50) * 0.07, 0.0, 3.5), 3)  # left change from t=1 s; y = 1.75 at k = 75
-    ego = pd.DataFrame({
-        "t_s": t, "ego_x_m": 100 + 25.0 * t, "ego_y_m": ego_y, "ego_v_mps": 25.0,
-        "ego_lane": (ego_y > 1.75).astype(np.int64), "ego_length_m": 4.5, "steer_rad": 0.0, "throttle": 0.3,
-        "brake": 0.0, "lc_button": (k >= 40) & (k < 45), "lc_direction": [("left" if i == 40 else None) for i in k],
-    })
+    ego = pd.DataFrame(
+        {
+            "t_s": t,
+            "ego_x_m": 100 + 25.0 * t,
+            "ego_y_m": ego_y,
+            "ego_v_mps": 25.0,
+            "ego_lane": (ego_y > 1.75).astype(np.int64),
+            "ego_length_m": 4.5,
+            "steer_rad": 0.0,
+            "throttle": 0.3,
+            "brake": 0.0,
+            "lc_button": (k >= 40) & (k < 45),
+            "lc_direction": [("left" if i == 40 else None) for i in k],
+        }
+    )
     a_y = np.round(np.clip(3.5 - (k - 100) * 0.07, 0.0, 3.5), 3)  # right change from t=2 s; y = 1.75 at k = 125
     b_y = np.where(k < 10, 1.75, 3.5)
-    traffic = pd.concat([
-        pd.DataFrame({"t_s": t, "vehicle_id": "a", "x_m": 150 + 22.0 * t, "y_m": a_y, "v_mps": 22.0,
-                      "lane": (a_y >= 1.75).astype(np.int64), "length_m": 4.5}),
-        pd.DataFrame({"t_s": t, "vehicle_id": "b", "x_m": 60 + 27.0 * t, "y_m": b_y, "v_mps": 27.0,
-                      "lane": 1, "length_m": 4.5}),
-    ]).sort_values(["t_s", "vehicle_id"], ignore_index=True)
+    traffic = pd.concat(
+        [
+            pd.DataFrame(
+                {
+                    "t_s": t,
+                    "vehicle_id": "a",
+                    "x_m": 150 + 22.0 * t,
+                    "y_m": a_y,
+                    "v_mps": 22.0,
+                    "lane": (a_y >= 1.75).astype(np.int64),
+                    "length_m": 4.5,
+                }
+            ),
+            pd.DataFrame(
+                {
+                    "t_s": t,
+                    "vehicle_id": "b",
+                    "x_m": 60 + 27.0 * t,
+                    "y_m": b_y,
+                    "v_mps": 27.0,
+                    "lane": 1,
+                    "length_m": 4.5,
+                }
+            ),
+        ]
+    ).sort_values(["t_s", "vehicle_id"], ignore_index=True)
     meta = {"driver_id": "D07", "session_id": "border", "speed_limit_kph": 80, "simulator": "test rig"}
     return meta, ego, traffic
 

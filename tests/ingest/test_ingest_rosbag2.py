@@ -53,8 +53,9 @@ def write_split_bag(folder: Path, recording, cuts_s=(1.3, 2.6)) -> list[str]:
         ids = {}
         for topic in topics:
             schema, channel = next((s, c) for s, c, _ in msgs if c.topic == topic)
-            ids[topic] = w.register_channel(topic, channel.message_encoding,
-                                            w.register_schema(schema.name, schema.encoding, schema.data))
+            ids[topic] = w.register_channel(
+                topic, channel.message_encoding, w.register_schema(schema.name, schema.encoding, schema.data)
+            )
         if k == 0:
             for md in session:
                 w.add_metadata(md.name, md.metadata)
@@ -62,9 +63,14 @@ def write_split_bag(folder: Path, recording, cuts_s=(1.3, 2.6)) -> list[str]:
             w.add_message(ids[channel.topic], m.log_time, m.data, m.publish_time)
         w.finish()
     times = [m.log_time for _, _, m in msgs]
-    (folder / "metadata.yaml").write_text(METADATA.format(
-        duration=max(times) - min(times), start=min(times), count=len(msgs),
-        files="".join(f"    - {n}\n" for n in names)))
+    (folder / "metadata.yaml").write_text(
+        METADATA.format(
+            duration=max(times) - min(times),
+            start=min(times),
+            count=len(msgs),
+            files="".join(f"    - {n}\n" for n in names),
+        )
+    )
     whole.unlink()
     return names
 
@@ -81,7 +87,12 @@ def test_split_bag_folder_is_one_recording_equal_to_the_single_file(tmp_path, re
     write_mcap(tmp_path / "single" / "whole.mcap", *recording)
     (bag,) = ingest_cli(tmp_path / "ws", tmp_path / "bag")
     assert (bag["status"], bag["format"], bag["n_samples"], bag["n_presses"], bag["warnings"]) == (
-        "ingested", "mcap", 200, 2, []), bag["reason"]
+        "ingested",
+        "mcap",
+        200,
+        2,
+        [],
+    ), bag["reason"]
     assert Path(bag["source"]) == tmp_path / "bag" and bag["session_id"] == "D07_s80_01"
     (single,) = ingest_cli(tmp_path / "ws1", tmp_path / "single" / "whole.mcap")
     got = Workspace(tmp_path / "ws").load_recording(bag["recording_id"])
@@ -96,7 +107,9 @@ def test_a_folder_holding_a_bag_lists_the_bag_once(tmp_path, recording):
     write_mcap(tmp_path / "logs" / "other.mcap", dict(meta, session_id="other"), ego, traffic)
     reports = ingest_cli(tmp_path / "ws", tmp_path / "logs")
     assert [(Path(r["source"]).name, r["status"], r["session_id"]) for r in reports] == [
-        ("rosbag2_2026_01_01", "ingested", "rosbag2_2026_01_01"), ("other.mcap", "ingested", "other")]
+        ("rosbag2_2026_01_01", "ingested", "rosbag2_2026_01_01"),
+        ("other.mcap", "ingested", "other"),
+    ]
 
 
 def test_a_missing_part_is_refused_naming_it(tmp_path, recording):
@@ -104,8 +117,10 @@ def test_a_missing_part_is_refused_naming_it(tmp_path, recording):
     (tmp_path / "bag" / "drive_1.mcap").unlink()
     (bag,) = ingest_cli(tmp_path / "ws", tmp_path / "bag")
     assert bag["status"] == "rejected"
-    assert bag["reason"] == ("split rosbag2: drive_1.mcap listed in metadata.yaml is missing from the folder "
-                             "(2 of 3 parts present); fetch or copy every part")
+    assert bag["reason"] == (
+        "split rosbag2: drive_1.mcap listed in metadata.yaml is missing from the folder "
+        "(2 of 3 parts present); fetch or copy every part"
+    )
 
 
 def test_a_part_cut_short_is_named_and_a_wrong_count_warns(tmp_path, recording):
@@ -128,10 +143,13 @@ def test_parts_in_number_order_when_metadata_lists_none(tmp_path):
     assert read_bag_info(tmp_path).files == ("b_0.mcap", "b_1.mcap", "b_2.mcap", "b_10.mcap")
 
 
-@pytest.mark.parametrize("line, reason", [
-    ("storage_identifier: sqlite3", "rosbag2 storage 'sqlite3': laneprint reads MCAP storage"),
-    ("compression_mode: file", "rosbag2 compression_mode 'file'"),
-])
+@pytest.mark.parametrize(
+    "line, reason",
+    [
+        ("storage_identifier: sqlite3", "rosbag2 storage 'sqlite3': laneprint reads MCAP storage"),
+        ("compression_mode: file", "rosbag2 compression_mode 'file'"),
+    ],
+)
 def test_bags_laneprint_cannot_read_say_so(tmp_path, line, reason):
     (tmp_path / "bag").mkdir()
     (tmp_path / "bag" / "metadata.yaml").write_text(f"rosbag2_bagfile_information:\n  {line}\n")

@@ -44,8 +44,16 @@ def test_canonical_tables_convert_as_from_pandas(tmp_path, fmt, recording):
 def test_odd_frames_convert_as_from_pandas(tmp_path):
     frames = [
         pd.DataFrame({"a": np.array([], dtype=float), "s": pd.Series([], dtype=object)}),
-        pd.DataFrame({"a": [np.nan, np.nan], "b": [1.0, np.inf], "i": [1, 2], "f": [True, False],
-                      "s": pd.Series([None, "x"], dtype=object), "z": np.array([1.5, 2.5], dtype=np.float32)}),
+        pd.DataFrame(
+            {
+                "a": [np.nan, np.nan],
+                "b": [1.0, np.inf],
+                "i": [1, 2],
+                "f": [True, False],
+                "s": pd.Series([None, "x"], dtype=object),
+                "z": np.array([1.5, 2.5], dtype=np.float32),
+            }
+        ),
     ]
     schema = Schema("odd", "", (Column("s", "str", "", nullable=True),))
     for df in frames:
@@ -54,4 +62,3 @@ def test_odd_frames_convert_as_from_pandas(tmp_path):
     _write_parquet(frames[1], tmp_path / "t.parquet", schema)
     back = pq.read_table(tmp_path / "t.parquet")
     assert back.column("a").null_count == 2 and back.column("s").to_pylist() == [None, "x"]
-

@@ -40,16 +40,18 @@ def _csv_cell(path, recording, column, line, value):
 def test_infinite_ego_speed_in_the_middle_is_refused(tmp_path, recording):
     res, _ = _ingest(tmp_path, "inf.csv", lambda p: _csv_cell(p, recording, "ego_v", 102, "inf"))
     assert res.status == "rejected"
-    assert res.reason == ("column 'ego_v' at line 102 (t=2.000 s): inf is not a finite number; "
-                          "fix or cut those samples before ingesting")
+    assert res.reason == (
+        "column 'ego_v' at line 102 (t=2.000 s): inf is not a finite number; fix or cut those samples before ingesting"
+    )
 
 
 def test_infinite_ego_speed_in_an_mcap_names_topic_field_and_message(tmp_path, recording):
     meta, ego, traffic = recording
     bad = ego.assign(ego_v_mps=ego["ego_v_mps"].where(ego.index != 100, np.inf))
     res, _ = _ingest(tmp_path, "inf.mcap", lambda p: write_mcap(p, meta, bad, traffic))
-    assert res.reason.startswith("/ego/state.v at message 100 of /ego/state (log_time 2000000000 ns) "
-                                 "(t=2.000 s): inf is not a finite number")
+    assert res.reason.startswith(
+        "/ego/state.v at message 100 of /ego/state (log_time 2000000000 ns) (t=2.000 s): inf is not a finite number"
+    )
 
 
 def test_text_in_a_required_column_names_the_column_and_line(tmp_path, recording):
@@ -68,8 +70,9 @@ def test_text_in_an_optional_column_is_emptied_with_a_warning(tmp_path, recordin
 def test_text_in_a_traffic_column_drops_that_vehicle_sample(tmp_path, recording):
     res, ws = _ingest(tmp_path, "tv.csv", lambda p: _csv_cell(p, recording, "a_v", 5, "fast"))
     assert res.status == "warning"
-    assert res.warnings[0] == ("column 'a_v': 1 value(s) are not numbers (first 'fast' at line 5); "
-                               "the vehicle is left out of those samples")
+    assert res.warnings[0] == (
+        "column 'a_v': 1 value(s) are not numbers (first 'fast' at line 5); the vehicle is left out of those samples"
+    )
     traffic = ws.load_recording(res.recording_id)[2]
     a = traffic[traffic["vehicle_id"] == "a"]
     assert len(a) == int((recording[2]["vehicle_id"] == "a").sum()) - 1
@@ -78,8 +81,10 @@ def test_text_in_a_traffic_column_drops_that_vehicle_sample(tmp_path, recording)
 
 def test_impossible_optional_values_are_emptied_and_traffic_samples_dropped(tmp_path, recording):
     meta, ego, traffic = recording
-    ego = ego.assign(ego_length_m=ego["ego_length_m"].where(ego.index != 7, -4.0),
-                     throttle=ego["throttle"].where(ego.index < 150, 35.0))
+    ego = ego.assign(
+        ego_length_m=ego["ego_length_m"].where(ego.index != 7, -4.0),
+        throttle=ego["throttle"].where(ego.index < 150, 35.0),
+    )
     traffic = traffic.assign(v_mps=traffic["v_mps"].where(traffic.index != 3, np.inf))
     res, ws = _ingest(tmp_path, "odd.csv", lambda p: write_csv(p, meta, ego, traffic))
     assert res.status == "warning"
@@ -100,8 +105,10 @@ def test_ego_jump_lane_outside_the_road_and_sample_rate_are_refused(tmp_path, re
     meta, ego, traffic = recording
     jump = ego.assign(ego_x_m=ego["ego_x_m"].where(ego.index != 60, 5000.0))
     res, _ = _ingest(tmp_path, "jump.csv", lambda p: write_csv(p, meta, jump, traffic))
-    assert res.reason.startswith("column 'ego_x' jumps 4870 m in 0.02 s at line 62 (t=1.200 s), further than "
-                                 "its speed (25.1 m/s) allows; 2 such jumps; fix or cut those samples")
+    assert res.reason.startswith(
+        "column 'ego_x' jumps 4870 m in 0.02 s at line 62 (t=1.200 s), further than "
+        "its speed (25.1 m/s) allows; 2 such jumps; fix or cut those samples"
+    )
     lane = ego.assign(ego_lane=ego["ego_lane"].where(ego.index != 30, 25))
     res, _ = _ingest(tmp_path, "lane.mcap", lambda p: write_mcap(p, meta, lane, traffic))
     assert res.reason.startswith("/ego/state.lane at message 30 of /ego/state")
@@ -112,8 +119,9 @@ def test_ego_jump_lane_outside_the_road_and_sample_rate_are_refused(tmp_path, re
 
 
 def test_failures_reports_every_failing_row_of_every_column():
-    df = pd.DataFrame({"ego_x_m": [0.0, np.inf, 1.0, 2e7], "ego_v_mps": [1.0, 2.0, -50.0, 3.0],
-                       "ego_lane": [0.0, 1.5, 21.0, 2.0]})
+    df = pd.DataFrame(
+        {"ego_x_m": [0.0, np.inf, 1.0, 2e7], "ego_v_mps": [1.0, 2.0, -50.0, 3.0], "ego_lane": [0.0, 1.5, 21.0, 2.0]}
+    )
     bad = failures(df, EGO_REQUIRED_SCHEMA)
     assert {k: v.tolist() for k, v in bad.items()} == {"ego_x_m": [1, 3], "ego_v_mps": [2], "ego_lane": [1, 2]}
     assert failures(df.iloc[[0]], EGO_REQUIRED_SCHEMA) == {}
@@ -123,8 +131,10 @@ def test_failures_reports_every_failing_row_of_every_column():
 def test_a_broken_time_stamp_far_from_the_others_is_refused(tmp_path, recording):
     # found by benchmarks/fuzz.py (seed 0, case 4636): t=-1e308 on the first line made every relative time equal
     res, _ = _ingest(tmp_path, "t.csv", lambda p: _csv_cell(p, recording, "t", 2, "-1e308"))
-    assert res.reason == ("time 't' jumps 1e+308 s at line 3 (from -1e+308 to 0.02 s), more than 3600 s between two "
-                          "samples; fix or cut the sample with the broken time before ingesting")
+    assert res.reason == (
+        "time 't' jumps 1e+308 s at line 3 (from -1e+308 to 0.02 s), more than 3600 s between two "
+        "samples; fix or cut the sample with the broken time before ingesting"
+    )
 
 
 def _sorted_jumps(tr):
@@ -132,6 +142,7 @@ def _sorted_jumps(tr):
     from unittest import mock
 
     import ingest.values as values
+
     with mock.patch.object(values, "_vehicle_grid", return_value=0):
         return values._traffic_jumps(tr)
 
@@ -154,8 +165,10 @@ def test_traffic_jumps_on_a_vehicle_grid_equal_the_sorted_path():
         got = _traffic_jumps({**tr, "x_m": x_j})
         assert got == _sorted_jumps({**tr, "x_m": x_j}) and len(got) == 1
     # v3 is the first vehicle seen; v2 jumps once (row 0 -> 1), v3, v1 and v4 out and back
-    assert got[0] == ("traffic vehicle 'v3' jumps 50.45 m in 0.02 s at t=3.000 s, further than its speed allows "
-                      "(7 such jump(s) in 4 vehicle(s)); kept")
+    assert got[0] == (
+        "traffic vehicle 'v3' jumps 50.45 m in 0.02 s at t=3.000 s, further than its speed allows "
+        "(7 such jump(s) in 4 vehicle(s)); kept"
+    )
     # not a grid: a vehicle missing from one sample, or one id twice in a sample
     assert _vehicle_grid(pa.array(np.delete(ids, 7)), len(t) - 1) == 0
     assert _vehicle_grid(pa.array(np.tile(["a", "b", "a"], 4)), 12) == 0
@@ -175,8 +188,27 @@ def test_bounds_met_in_numpy_agree_with_pandera():
             return False
 
     rng = np.random.default_rng(3)
-    values = [0.0, np.nan, np.inf, -np.inf, -1e7, 1e7 + 1, -10.0, -10.01, 100.0, 100.1, 0.5, 1.5, 20.0, 21.0, 60.0,
-              60.1, -0.0, 4 * np.pi, -4 * np.pi - 1e-9]
+    values = [
+        0.0,
+        np.nan,
+        np.inf,
+        -np.inf,
+        -1e7,
+        1e7 + 1,
+        -10.0,
+        -10.01,
+        100.0,
+        100.1,
+        0.5,
+        1.5,
+        20.0,
+        21.0,
+        60.0,
+        60.1,
+        -0.0,
+        4 * np.pi,
+        -4 * np.pi - 1e-9,
+    ]
     seen = set()
     for _ in range(100):
         for schema in (EGO_REQUIRED_SCHEMA, EGO_OPTIONAL_SCHEMA, TRAFFIC_SCHEMA):
@@ -196,11 +228,17 @@ def test_a_csv_reader_s_vehicle_grid_warns_of_traffic_jumps_as_the_mcap_path_doe
     meta, ego, _ = recording
     t = ego["t_s"].to_numpy()
     n = len(t)
-    traffic = pd.DataFrame({
-        "t_s": np.repeat(t, 2), "vehicle_id": np.tile(["a", "b"], n),
-        "x_m": np.round(np.repeat(100 + 22 * t, 2) + np.tile([0.0, 40.0], n), 3),
-        "y_m": np.tile([0.0, 3.5], n), "v_mps": 22.0, "lane": np.tile([0, 1], n), "length_m": 4.5,
-    })
+    traffic = pd.DataFrame(
+        {
+            "t_s": np.repeat(t, 2),
+            "vehicle_id": np.tile(["a", "b"], n),
+            "x_m": np.round(np.repeat(100 + 22 * t, 2) + np.tile([0.0, 40.0], n), 3),
+            "y_m": np.tile([0.0, 3.5], n),
+            "v_mps": 22.0,
+            "lane": np.tile([0, 1], n),
+            "length_m": 4.5,
+        }
+    )
     traffic.loc[2 * 50 + 1, "x_m"] += 50.0  # vehicle b jumps at sample 50 and back at 51
     write_csv(tmp_path / "grid.csv", meta, ego, traffic)
     assert read_log((tmp_path / "grid.csv").read_bytes(), "csv", IDENTITY).vehicle_grid == 2  # the reader knows it
@@ -213,6 +251,8 @@ def test_a_csv_reader_s_vehicle_grid_warns_of_traffic_jumps_as_the_mcap_path_doe
         c, m = results
         jumps = [w for w in c.warnings if "jumps" in w]
         assert jumps == [w for w in m.warnings if "jumps" in w]
-        assert jumps == ["traffic vehicle 'b' jumps 50.44 m in 0.02 s at t=1.000 s, further than its speed allows "
-                         "(2 such jump(s) in 1 vehicle(s)); kept"]
+        assert jumps == [
+            "traffic vehicle 'b' jumps 50.44 m in 0.02 s at t=1.000 s, further than its speed allows "
+            "(2 such jump(s) in 1 vehicle(s)); kept"
+        ]
         assert any(w.startswith("traffic: dropped 1 of") for w in c.warnings) == bad_speed

@@ -18,7 +18,9 @@ def test_csv_is_wide_with_empty_cells_for_absent_vehicles(tmp_path, recording):
         write_csv(tmp_path / name, meta, ego, traffic)
         table = pacsv.read_csv(tmp_path / name).to_pandas()
         assert len(table) == len(ego)
-        assert {"t", "driver_id", "ego_x", "ego_v", "ego_lane", "lc_button", "a_x", "b_length", "c12_lane"} <= set(table)
+        assert {"t", "driver_id", "ego_x", "ego_v", "ego_lane", "lc_button", "a_x", "b_length", "c12_lane"} <= set(
+            table
+        )
         assert "c12_y" not in table  # no lateral position logged for c12
         assert table["driver_id"].unique().tolist() == ["D07"]
         np.testing.assert_allclose(table["ego_x"], ego["ego_x_m"], atol=5e-4)
@@ -38,12 +40,18 @@ def test_mcap_has_the_four_topics_metadata_and_button_changes(tmp_path, recordin
         assert summary is not None and summary.chunk_indexes
         assert all(c.compression == "zstd" for c in summary.chunk_indexes)
         topics = {c.topic: c.message_encoding for c in summary.channels.values()}
-        assert topics == {"/ego/state": "json", "/traffic/vehicles": "json",
-                          "/driver/controls": "json", "/driver/lane_change_button": "json"}
+        assert topics == {
+            "/ego/state": "json",
+            "/traffic/vehicles": "json",
+            "/driver/controls": "json",
+            "/driver/lane_change_button": "json",
+        }
         assert {s.encoding for s in summary.schemas.values()} == {"jsonschema"}
         (md,) = list(reader.iter_metadata())
         assert md.name == "session" and md.metadata["driver_id"] == "D07" and md.metadata["speed_limit_kph"] == "80"
-        button = [(m.log_time, json.loads(m.data)) for _, c, m in reader.iter_messages(topics=["/driver/lane_change_button"])]
+        button = [
+            (m.log_time, json.loads(m.data)) for _, c, m in reader.iter_messages(topics=["/driver/lane_change_button"])
+        ]
     assert button == [
         (0, {"pressed": False}),
         (1_000_000_000, {"pressed": True, "direction": "left"}),
@@ -56,8 +64,13 @@ def test_mcap_has_the_four_topics_metadata_and_button_changes(tmp_path, recordin
 def test_mcap_extra_channels_are_interleaved_in_log_time_order(tmp_path, recording):
     meta, ego, traffic = recording
     stamps = [0, 1_500_000_000, 3_990_000_000, 9_000_000_000]  # the last after the final sample
-    extra = ExtraChannel("/x/steps", "x.Step", {"type": "object", "properties": {"k": {"type": "integer"}}},
-                         stamps, [json.dumps({"k": k}).encode() for k in range(len(stamps))])
+    extra = ExtraChannel(
+        "/x/steps",
+        "x.Step",
+        {"type": "object", "properties": {"k": {"type": "integer"}}},
+        stamps,
+        [json.dumps({"k": k}).encode() for k in range(len(stamps))],
+    )
     write_mcap(tmp_path / "r.mcap", meta, ego, traffic, extra=[extra], extra_metadata={"x": {"a": "1"}})
     with open(tmp_path / "r.mcap", "rb") as f:
         reader = make_reader(f, validate_crcs=True)

@@ -47,8 +47,10 @@ def _one_line(text: str) -> None:
 def _read_only(monkeypatch):
     """Files cannot be created anywhere in the workspace (as a read-only mount; the tests may run as root,
     for whom permission bits do not hold)."""
+
     def refuse(*args, **kwargs):
         raise OSError(errno.EROFS, "Read-only file system", kwargs.get("dir"))
+
     monkeypatch.setattr(workspace_module.tempfile, "mkstemp", refuse)
 
 
@@ -76,6 +78,7 @@ def test_a_write_error_of_the_machine_is_one_line_in_any_command(tmp_path, monke
 
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device", str(ws.root / "analysis"))
+
     monkeypatch.setattr(Workspace, "write_tables", full)
     out = CliRunner().invoke(app, ["analyze", "-w", str(ws.root), "--json"])
     assert out.exit_code == 1 and "No space left on device" in out.output
@@ -189,8 +192,14 @@ def test_check_repair_says_what_it_could_not_remove(tmp_path, monkeypatch):
 
     def refuse(path, *args, **kwargs):
         raise PermissionError(errno.EACCES, "Permission denied", str(path))
-    monkeypatch.setattr(shutil, "rmtree", lambda path, onerror=None, **kw: onerror(os.rmdir, str(path), (
-        PermissionError, PermissionError(errno.EACCES, "Permission denied", str(path)), None)))
+
+    monkeypatch.setattr(
+        shutil,
+        "rmtree",
+        lambda path, onerror=None, **kw: onerror(
+            os.rmdir, str(path), (PermissionError, PermissionError(errno.EACCES, "Permission denied", str(path)), None)
+        ),
+    )
     res = check_workspace(ws, repair=True)
     assert res["repaired"] == [] and not res["ok"] and dead.exists()
     (f,) = [f for f in res["findings"] if f["path"] == ".tmp/deadbeef"]

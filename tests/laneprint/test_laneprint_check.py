@@ -71,8 +71,17 @@ def test_leftovers_are_reported_then_repaired_and_live_ones_kept(ws):
     claim = ws.root / ".sessions" / _session_key("D09", "S1")
     claim.write_text("0123456789abcdef")  # an ingest died before storing this recording
     stale_rejection = ws.rejected_dir / f"{rid}.json"
-    atomic_write_json(stale_rejection, {"content_hash": rid, "source_name": "a.csv", "source_path": "/a.csv",
-                                        "format": "csv", "reason": "x", "rejected_at": "2026-11-30T00:00:00+00:00"})
+    atomic_write_json(
+        stale_rejection,
+        {
+            "content_hash": rid,
+            "source_name": "a.csv",
+            "source_path": "/a.csv",
+            "format": "csv",
+            "reason": "x",
+            "rejected_at": "2026-11-30T00:00:00+00:00",
+        },
+    )
     live = ws.root / ".tmp" / "alive"
     live.mkdir()
     _old(live)
@@ -82,8 +91,12 @@ def test_leftovers_are_reported_then_repaired_and_live_ones_kept(ws):
         code, report = _check(ws)
         assert code == 1 and not report["ok"]
         leftovers = "\n".join(_kinds(report)["leftover"])
-        for p in (".tmp/deadbeef", f"recordings/{rid}/.meta.parquet.x1.tmp", f".sessions/{claim.name}",
-                  f"rejected/{rid}.json"):
+        for p in (
+            ".tmp/deadbeef",
+            f"recordings/{rid}/.meta.parquet.x1.tmp",
+            f".sessions/{claim.name}",
+            f"rejected/{rid}.json",
+        ):
             assert p in leftovers
         assert ".tmp/alive: being written by a live process" in _kinds(report)["note"]
 
@@ -132,13 +145,18 @@ def test_a_changed_source_is_a_note_and_an_older_workspace_s_ids_still_match(ws)
     assert code == 0, report["findings"]
     notes = _kinds(report)
     assert list(notes) == ["note"] and len(notes["note"]) == 1
-    assert notes["note"][0].startswith(f"recordings/{a}: its source") and "changed since it was ingested" in notes["note"][0]
+    assert (
+        notes["note"][0].startswith(f"recordings/{a}: its source")
+        and "changed since it was ingested" in notes["note"][0]
+    )
 
 
 def test_a_lock_dies_with_its_process(tmp_path):
     path = tmp_path / "x.lock"
-    code = ("import sys, time; from laneprint.locks import FileLock; FileLock(sys.argv[1]).acquire(); "
-            "print('held', flush=True); time.sleep(60)")
+    code = (
+        "import sys, time; from laneprint.locks import FileLock; FileLock(sys.argv[1]).acquire(); "
+        "print('held', flush=True); time.sleep(60)"
+    )
     proc = subprocess.Popen([sys.executable, "-c", code, str(path)], stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout.readline().strip() == "held"
@@ -162,8 +180,16 @@ def test_exchange_swaps_two_folders(tmp_path):
 def _fake_run(ws: Workspace, rid: str, state: str) -> Path:
     d = ws.runs_dir / rid
     d.mkdir(parents=True)
-    atomic_write_json(d / "config.json", {"run_id": rid, "target": {"kind": "driver", "name": "D02"},
-                                          "reward": "decisions", "seed": 0, "dqn": {"episodes": 4}})
+    atomic_write_json(
+        d / "config.json",
+        {
+            "run_id": rid,
+            "target": {"kind": "driver", "name": "D02"},
+            "reward": "decisions",
+            "seed": 0,
+            "dqn": {"episodes": 4},
+        },
+    )
     atomic_write_json(d / "status.json", {"state": state, "pid": 1, "episode": 2, "episodes": 4})
     (d / "metrics.jsonl").write_text('{"episode": 1}\n{"episode": 2}\n{"epis')  # killed mid-line
     return d
@@ -179,14 +205,18 @@ def test_a_running_status_without_its_lock_is_interrupted(ws):
     assert st["state"] == "interrupted" and "laneprint train --resume r1" in st["message"]
     code, report = _check(ws)
     assert code == 0, report  # interrupted is not damage: a note saying how to resume
-    assert _kinds(report)["note"] == ["runs/r1: training interrupted at episode 2: `laneprint train --resume r1` "
-                                      "continues from the start (no checkpoint); 1 half-written metrics line(s), "
-                                      "dropped on resume"]
+    assert _kinds(report)["note"] == [
+        "runs/r1: training interrupted at episode 2: `laneprint train --resume r1` "
+        "continues from the start (no checkpoint); 1 half-written metrics line(s), "
+        "dropped on resume"
+    ]
     assert json.loads((d / "status.json").read_text())["state"] == "interrupted"  # the file says so too
     with FileLock(d / "run.lock"):  # a resume: it holds the lock and writes 'running'
         atomic_write_json(d / "status.json", {"state": "running", "pid": 1, "episode": 2, "episodes": 4})
-        assert json.loads(CliRunner().invoke(app, ["runs", "-w", str(ws.root), "--json"]).stdout)["runs"][0][
-            "state"] == "running"
+        assert (
+            json.loads(CliRunner().invoke(app, ["runs", "-w", str(ws.root), "--json"]).stdout)["runs"][0]["state"]
+            == "running"
+        )
         assert run_status(ws, "r1")["state"] == "running"
     done = _fake_run(ws, "r2", "done")
     code, report = _check(ws)

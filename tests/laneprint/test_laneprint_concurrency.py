@@ -20,8 +20,12 @@ SAMPLE = Path(__file__).resolve().parents[2] / "sample_logs"
 
 
 def _laneprint(*args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "laneprint.app.cli", *args, "--json"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "laneprint.app.cli", *args, "--json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 @pytest.mark.slow
@@ -44,8 +48,24 @@ def test_two_ingests_an_analysis_and_a_training_at_once(tmp_path):
         "ingest a": _laneprint("ingest", str(a), "-w", w),
         "ingest b": _laneprint("ingest", *[str(b / n) for n in reversed(sorted(p.name for p in b.iterdir()))], "-w", w),
         "analyze": _laneprint("analyze", "-w", w),
-        "train": _laneprint("train", "--style", "Normal", "--lines", "paper", "--scenes", "synthetic",
-                            "--episodes", "30", "--checkpoint-every", "10", "--no-evaluate", "--run-id", "r", "-w", w),
+        "train": _laneprint(
+            "train",
+            "--style",
+            "Normal",
+            "--lines",
+            "paper",
+            "--scenes",
+            "synthetic",
+            "--episodes",
+            "30",
+            "--checkpoint-every",
+            "10",
+            "--no-evaluate",
+            "--run-id",
+            "r",
+            "-w",
+            w,
+        ),
     }
     outs = {k: p.communicate(timeout=240) for k, p in procs.items()}
     for k, p in procs.items():
@@ -62,8 +82,9 @@ def test_two_ingests_an_analysis_and_a_training_at_once(tmp_path):
     assert json.loads(outs["analyze"][0])  # stored an analysis of what was there when it started
     assert ws.read_meta("analysis")["n_recordings"] >= 3
     status = json.loads((ws.runs_dir / "r" / "status.json").read_text())
-    assert status["state"] == "done" and list(read_metrics(ws.runs_dir / "r" / "metrics.jsonl")["episode"]) == \
-        list(range(1, 31))
+    assert status["state"] == "done" and list(read_metrics(ws.runs_dir / "r" / "metrics.jsonl")["episode"]) == list(
+        range(1, 31)
+    )
     report = check_workspace(ws)
     assert report["ok"], report["findings"]
     assert not list((ws.root / ".tmp").iterdir())

@@ -58,12 +58,16 @@ def test_spread_labels_never_overlap_and_prefer_priority():
     placed = np.flatnonzero(sides != "")
     assert 3 <= len(placed) <= 12 and {17, 42, 99} <= set(placed)
     ux, uy = (x - x.min()) / np.ptp(x), (y - y.min()) / np.ptp(y)
-    boxes = [_label_box(ux[i], uy[i], sides[i], 0.014 * len(texts[i]), 0.05, 0.08 if prio[i] else 0.015)
-             for i in placed]
-    assert all(_apart(a, b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
+    boxes = [
+        _label_box(ux[i], uy[i], sides[i], 0.014 * len(texts[i]), 0.05, 0.08 if prio[i] else 0.015) for i in placed
+    ]
+    assert all(_apart(a, b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
     # two points on one spot: the priority one's label stands off (on an arrow), the other's is next to it
-    assert spread_labels([0.0, 0.0, 1.0], [0.0, 0.0, 1.0], ["a", "b", "c"], priority=[0, 1, 0]).tolist() == \
-        ["top", "top", "top"]
+    assert spread_labels([0.0, 0.0, 1.0], [0.0, 0.0, 1.0], ["a", "b", "c"], priority=[0, 1, 0]).tolist() == [
+        "top",
+        "top",
+        "top",
+    ]
     assert spread_labels([0.0, 0.0, 1.0], [0.0, 0.0, 1.0], ["a", "b", "c"]).tolist() == ["top", "bottom", "top"]
     assert spread_labels(range(10), [0.0, 1.0] * 5, ["x"] * 10, max_labels=5).tolist().count("") == 5
     assert spread_labels([], [], []).tolist() == []

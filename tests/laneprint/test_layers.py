@@ -57,5 +57,7 @@ def test_an_upward_import_is_caught():
     graph = build()
     graph.add_import(importer="laneprint.workspace", imported="rl.runs", line_number=1, line_contents="import rl.runs")
     graph.add_import(importer="ingest.cli", imported="laneprint.app.cli", line_number=1, line_contents="import x")
-    assert upward_imports(graph) == ["ingest.cli -> laneprint.app.cli (line 1)",
-                                     "laneprint.workspace -> rl.runs (line 1)"]
+    assert upward_imports(graph) == [
+        "ingest.cli -> laneprint.app.cli (line 1)",
+        "laneprint.workspace -> rl.runs (line 1)",
+    ]

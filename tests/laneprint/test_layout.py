@@ -12,8 +12,10 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def import_graph(package: str) -> dict[str, set[str]]:
     """Module -> the modules of the same package it imports (anywhere in its body)."""
-    mods = {".".join(p.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__"): p
-            for p in (ROOT / package).rglob("*.py")}
+    mods = {
+        ".".join(p.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__"): p
+        for p in (ROOT / package).rglob("*.py")
+    }
     graph: dict[str, set[str]] = {m: set() for m in mods}
     for mod, path in mods.items():
         for node in ast.walk(ast.parse(path.read_text())):
@@ -22,8 +24,11 @@ def import_graph(package: str) -> dict[str, set[str]]:
                 names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
             elif isinstance(node, ast.Import):
                 names = [a.name for a in node.names]
-            graph[mod] |= {n for n in names if n in mods and n != mod and not mod.startswith(n + ".")
-                           and not (mods[n].name == "__init__.py")}
+            graph[mod] |= {
+                n
+                for n in names
+                if n in mods and n != mod and not mod.startswith(n + ".") and not (mods[n].name == "__init__.py")
+            }
     return graph
 
 
@@ -35,7 +40,7 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
         state[node] = "open"
         for nxt in sorted(graph[node]):
             if state.get(nxt) == "open":
-                found.append(stack[stack.index(nxt):] + [nxt])
+                found.append(stack[stack.index(nxt) :] + [nxt])
             elif nxt not in state:
                 visit(nxt, stack + [nxt])
         state[node] = "done"
@@ -51,11 +56,13 @@ def test_no_import_circles(package):
     assert cycles(import_graph(package)) == []
 
 
-TEST_TOOLS = {"laneprint/crash_harness.py": "tests/crash/crash_harness.py",
-              "rl/testing.py": "tests/support/rl_workspaces.py",
-              "ingest/mutations.py": "tests/support/ingest_mutations.py",
-              "ingest/stack_examples.py": "tests/support/stack_examples.py",
-              "indicators/synthetic.py": "tests/support/synthetic_decisions.py"}
+TEST_TOOLS = {
+    "laneprint/crash_harness.py": "tests/crash/crash_harness.py",
+    "rl/testing.py": "tests/support/rl_workspaces.py",
+    "ingest/mutations.py": "tests/support/ingest_mutations.py",
+    "ingest/stack_examples.py": "tests/support/stack_examples.py",
+    "indicators/synthetic.py": "tests/support/synthetic_decisions.py",
+}
 
 
 @pytest.mark.parametrize("product, support", sorted(TEST_TOOLS.items()))
@@ -73,7 +80,12 @@ def test_no_product_module_imports_the_test_tools():
             if "tests" not in text:  # no import of it can be there: parsing only the others keeps this test quick
                 continue
             for node in ast.walk(ast.parse(text)):
-                names = ([node.module or ""] if isinstance(node, ast.ImportFrom)
-                         else [a.name for a in node.names] if isinstance(node, ast.Import) else [])
+                names = (
+                    [node.module or ""]
+                    if isinstance(node, ast.ImportFrom)
+                    else [a.name for a in node.names]
+                    if isinstance(node, ast.Import)
+                    else []
+                )
                 found += [f"{path.relative_to(ROOT)}: {n}" for n in names if n.split(".")[0] == "tests"]
     assert found == []

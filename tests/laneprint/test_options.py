@@ -21,8 +21,11 @@ def visible_options(command: str) -> list[str]:
     import typer
 
     click_cmd = typer.main.get_command(app).commands[command]  # type: ignore[attr-defined]
-    return [p.opts[0] for p in click_cmd.params if not getattr(p, "hidden", False)
-            and p.param_type_name == "option" and p.name != "help"]
+    return [
+        p.opts[0]
+        for p in click_cmd.params
+        if not getattr(p, "hidden", False) and p.param_type_name == "option" and p.name != "help"
+    ]
 
 
 def test_every_field_of_every_section_has_help():
@@ -76,10 +79,12 @@ def test_default_then_file_then_command_line(tmp_path):
 
 def test_config_errors_are_one_line(tmp_path):
     cfg = tmp_path / "c.toml"
-    for text, why in [("[dqn]\nlearning_rat = 0.1\n", "did you mean learning_rate"),
-                      ("[crossval]\nlearnr = 'dqn'\n", "has no option 'learnr' (did you mean learner?)"),
-                      ("[dqn]\nbatch_size = \"big\"\n", "batch_size must be int"),
-                      ("[crossval]\nfolds = 1\n", "folds")]:
+    for text, why in [
+        ("[dqn]\nlearning_rat = 0.1\n", "did you mean learning_rate"),
+        ("[crossval]\nlearnr = 'dqn'\n", "has no option 'learnr' (did you mean learner?)"),
+        ('[dqn]\nbatch_size = "big"\n', "batch_size must be int"),
+        ("[crossval]\nfolds = 1\n", "folds"),
+    ]:
         cfg.write_text(text)
         res = CliRunner().invoke(app, ["crossval", "--all", "-w", str(tmp_path / "ws"), "--config", str(cfg)])
         assert res.exit_code == 1 and "Traceback" not in res.output, (text, res.output)

@@ -65,8 +65,9 @@ def ray_cluster():
 @pytest.mark.slow
 def test_ray_backend_keeps_item_order_and_turns_a_worker_user_error_into_one_line(ray_cluster):
     seen = []
-    assert run_tasks(_square, range(7), backend="ray", progress=lambda d, t, m: seen.append(d)) == \
-        [x * x for x in range(7)]
+    assert run_tasks(_square, range(7), backend="ray", progress=lambda d, t, m: seen.append(d)) == [
+        x * x for x in range(7)
+    ]
     assert seen == list(range(8))
     assert list(iter_tasks(_square, iter(range(5)), backend="ray", in_flight=2)) == [0, 1, 4, 9, 16]
     with pytest.raises(UserError) as err:
@@ -92,8 +93,9 @@ def test_ingest_on_ray_gives_the_local_catalogue(ray_cluster, tmp_path):
     (logs / "notes.txt").write_text("not a log")  # skipped
     local = _ingest(logs, tmp_path / "local")
     ray = _ingest(logs, tmp_path / "ray", "--backend", "ray")
-    assert local["counts"] == ray["counts"] == {"ingested": 5, "warning": 0, "duplicate": 1, "rejected": 1,
-                                                "skipped": 1}
+    assert (
+        local["counts"] == ray["counts"] == {"ingested": 5, "warning": 0, "duplicate": 1, "rejected": 1, "skipped": 1}
+    )
     assert local["files"] == ray["files"]
     cats = [Workspace(tmp_path / w).recordings().drop(columns=["ingested_at"]) for w in ("local", "ray")]
     assert cats[0].equals(cats[1]) and len(cats[0]) == 5
@@ -102,10 +104,25 @@ def test_ingest_on_ray_gives_the_local_catalogue(ray_cluster, tmp_path):
 
 @pytest.mark.slow
 def test_crossval_on_ray_gives_the_local_figures(ray_cluster, tmp_path):
-    write_style_analysis(Workspace(tmp_path), session_decisions(ReferenceLines.paper("Normal"), 4, 5),
-                         ReferenceLines.paper("Normal"))
-    args = ["crossval", "--style", "Normal", "--folds", "2", "--episodes", "100", "--bootstrap", "50",
-            "--seed", "3", "-w", str(tmp_path), "--json"]
+    write_style_analysis(
+        Workspace(tmp_path), session_decisions(ReferenceLines.paper("Normal"), 4, 5), ReferenceLines.paper("Normal")
+    )
+    args = [
+        "crossval",
+        "--style",
+        "Normal",
+        "--folds",
+        "2",
+        "--episodes",
+        "100",
+        "--bootstrap",
+        "50",
+        "--seed",
+        "3",
+        "-w",
+        str(tmp_path),
+        "--json",
+    ]
     out = []
     for extra in ([], ["--backend", "ray"]):
         res = CliRunner().invoke(app, args + extra)
@@ -113,7 +130,9 @@ def test_crossval_on_ray_gives_the_local_figures(ray_cluster, tmp_path):
         out.append(json.loads(res.stdout))
     local, ray = out
 
-    def figures(folds: list[dict]) -> list[dict]:  # the local fleet stops what cannot win and says so; Ray's folds do not
+    def figures(
+        folds: list[dict],
+    ) -> list[dict]:  # the local fleet stops what cannot win and says so; Ray's folds do not
         return [{k: v for k, v in f.items() if k != "learner_stopped"} for f in folds]
 
     assert local["summary"] == ray["summary"] and figures(local["per_fold"]) == figures(ray["per_fold"])

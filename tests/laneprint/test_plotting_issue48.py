@@ -19,8 +19,15 @@ def test_following_figures_label_their_log_ticks():
     from clustering.plots import following_headways
     from indicators.plots import following_vs_speed
 
-    f = pd.DataFrame({"driver_id": ["D1"] * 4, "thw_s": [0.55, 0.7, 0.8, 0.95], "ego_v_mps": [20.0] * 4,
-                      "f_gap_m": [12.0] * 4, "duration_s": [10.0] * 4})
+    f = pd.DataFrame(
+        {
+            "driver_id": ["D1"] * 4,
+            "thw_s": [0.55, 0.7, 0.8, 0.95],
+            "ego_v_mps": [20.0] * 4,
+            "f_gap_m": [12.0] * 4,
+            "duration_s": [10.0] * 4,
+        }
+    )
     styles = pd.DataFrame({"driver_id": ["D1"], "style": ["Normal"], "cluster": [0]})
     for fig in (following_vs_speed(f, "D1"), following_headways(f, styles)):
         y = fig.to_plotly_json()["layout"]["yaxis"]
@@ -41,8 +48,9 @@ def test_training_curves_say_whether_the_reward_levelled_off():
     from rl.plots import training_curves
 
     n = 400
-    m = pd.DataFrame({"episode": np.arange(1, n + 1), "loss": np.linspace(1, 0.1, n),
-                      "mean_step_reward": np.linspace(0, 1, n)})
+    m = pd.DataFrame(
+        {"episode": np.arange(1, n + 1), "loss": np.linspace(1, 0.1, n), "mean_step_reward": np.linspace(0, 1, n)}
+    )
     fig = training_curves(m)
     assert "still rising" in fig.layout.meta["plateau"] and "still rising" in fig.layout.title.text
     raw = [t for t in fig.data if "per episode" in t.name]

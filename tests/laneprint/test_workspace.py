@@ -13,21 +13,48 @@ from laneprint.workspace import Workspace, encode_traffic
 
 def _recording(rid: str = "abcd1234abcd1234", driver: str = "D01"):
     t = np.arange(5) * 0.1
-    ego = pd.DataFrame({
-        "t_s": t, "ego_x_m": 20.0 * t, "ego_y_m": np.zeros(5), "ego_v_mps": np.full(5, 20.0),
-        "ego_lane": np.zeros(5, dtype="int64"), "ego_length_m": np.full(5, 4.5),
-        "steer_rad": np.zeros(5), "throttle": np.zeros(5), "brake": np.zeros(5),
-        "lc_button": [False, True, True, False, False], "lc_direction": [None, "left", "left", None, None],
-    })
-    traffic = pd.DataFrame({
-        "t_s": t, "vehicle_id": ["V1"] * 5, "x_m": 50 + 10.0 * t, "y_m": np.zeros(5),
-        "v_mps": np.full(5, 10.0), "lane": np.zeros(5, dtype="int64"), "length_m": np.full(5, 4.5),
-    })
+    ego = pd.DataFrame(
+        {
+            "t_s": t,
+            "ego_x_m": 20.0 * t,
+            "ego_y_m": np.zeros(5),
+            "ego_v_mps": np.full(5, 20.0),
+            "ego_lane": np.zeros(5, dtype="int64"),
+            "ego_length_m": np.full(5, 4.5),
+            "steer_rad": np.zeros(5),
+            "throttle": np.zeros(5),
+            "brake": np.zeros(5),
+            "lc_button": [False, True, True, False, False],
+            "lc_direction": [None, "left", "left", None, None],
+        }
+    )
+    traffic = pd.DataFrame(
+        {
+            "t_s": t,
+            "vehicle_id": ["V1"] * 5,
+            "x_m": 50 + 10.0 * t,
+            "y_m": np.zeros(5),
+            "v_mps": np.full(5, 10.0),
+            "lane": np.zeros(5, dtype="int64"),
+            "length_m": np.full(5, 4.5),
+        }
+    )
     meta = {
-        "recording_id": rid, "driver_id": driver, "session_id": "S1", "speed_limit_kph": 80.0,
-        "simulator": None, "source_name": "s1.csv", "source_path": "/x/s1.csv", "format": "csv",
-        "n_samples": 5, "duration_s": 0.4, "n_presses": 1, "n_vehicles": 1, "status": "ok",
-        "warnings": "", "ingested_at": "2026-11-22T00:00:00Z",
+        "recording_id": rid,
+        "driver_id": driver,
+        "session_id": "S1",
+        "speed_limit_kph": 80.0,
+        "simulator": None,
+        "source_name": "s1.csv",
+        "source_path": "/x/s1.csv",
+        "format": "csv",
+        "n_samples": 5,
+        "duration_s": 0.4,
+        "n_presses": 1,
+        "n_vehicles": 1,
+        "status": "ok",
+        "warnings": "",
+        "ingested_at": "2026-11-22T00:00:00Z",
     }
     return meta, ego, traffic
 
@@ -80,8 +107,16 @@ def test_stage_tables_swap_and_query(tmp_path):
 def test_rejected_rows_and_fingerprint(tmp_path):
     ws = Workspace(tmp_path / "ws").ensure()
     empty_fp = ws.fingerprint()
-    ws.record_rejected({"content_hash": "ff" * 8, "source_name": "bad.mcap", "source_path": "/x/bad.mcap",
-                        "format": "mcap", "reason": "truncated MCAP", "rejected_at": "2026-11-22T00:00:00Z"})
+    ws.record_rejected(
+        {
+            "content_hash": "ff" * 8,
+            "source_name": "bad.mcap",
+            "source_path": "/x/bad.mcap",
+            "format": "mcap",
+            "reason": "truncated MCAP",
+            "rejected_at": "2026-11-22T00:00:00Z",
+        }
+    )
     assert ws.rejected()["reason"].tolist() == ["truncated MCAP"]
     ws.forget_rejected("ff" * 8)
     assert ws.rejected().empty

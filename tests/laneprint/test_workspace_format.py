@@ -30,8 +30,9 @@ def _unversioned(root: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     for d in ("recordings", "rejected", "runs", "analysis"):
         (root / d).mkdir(parents=True)
     styles = pd.DataFrame({"driver_id": ["D01", "D02"], "style": ["Normal", "Aggressive"]})
-    lines = pd.DataFrame({"scope": ["style"], "name": ["Normal"], "kind": ["typical"], "indicator": ["t_f"],
-                          "a": [1.0], "b": [0.1]})
+    lines = pd.DataFrame(
+        {"scope": ["style"], "name": ["Normal"], "kind": ["typical"], "indicator": ["t_f"], "a": [1.0], "b": [0.1]}
+    )
     styles.to_parquet(root / "analysis" / "styles.parquet", index=False)
     lines.to_parquet(root / "analysis" / "reference_lines.parquet", index=False)
     (root / "analysis" / "meta.json").write_text(json.dumps({"config": {"k": 3}}))
@@ -66,8 +67,12 @@ def test_the_command_line_refuses_a_newer_workspace_in_one_line(tmp_path):
     ws = Workspace(tmp_path / "ws").ensure()
     (ws.root / FORMAT_FILE).write_text(json.dumps({"format": FORMAT + 1}))
     for args in (["runs", "--json"], ["check"], ["ingest", str(ROOT / "sample_logs" / "D01_S60.mcap")]):
-        proc = subprocess.run([sys.executable, "-m", "laneprint.app.cli", *args, "--workspace", str(ws.root)],
-                              capture_output=True, text=True, cwd=ROOT)
+        proc = subprocess.run(
+            [sys.executable, "-m", "laneprint.app.cli", *args, "--workspace", str(ws.root)],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+        )
         assert proc.returncode == 1, (args, proc.stderr)
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1 and "written by a newer laneprint" in lines[0], (args, proc.stderr)

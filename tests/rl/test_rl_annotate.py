@@ -45,8 +45,9 @@ def test_annotated_log_is_valid_mcap_and_ingests_like_the_original(trained_run, 
     ws, run_id = trained_run
     original = ingest(SAMPLE, ws.root)
     out = tmp_path / "annotated.mcap"
-    res = CliRunner().invoke(app, ["annotate", run_id, original["session_id"], "--out", str(out),
-                                   "-w", str(ws.root), "--json"])
+    res = CliRunner().invoke(
+        app, ["annotate", run_id, original["session_id"], "--out", str(out), "-w", str(ws.root), "--json"]
+    )
     assert res.exit_code == 0, res.output
     summary = json.loads(res.stdout)
     assert summary["recording_id"] == original["recording_id"]
@@ -61,7 +62,11 @@ def test_annotated_log_is_valid_mcap_and_ingests_like_the_original(trained_run, 
 
     # the rule for steps without a leader: no decision, no numbers
     status = Counter(m["status"] for m in msgs[TOPIC_AGENT])
-    assert status["ok"] > 0 and status["no_leader"] > 0 and status == {k: v for k, v in summary["steps_by_status"].items() if v}
+    assert (
+        status["ok"] > 0
+        and status["no_leader"] > 0
+        and status == {k: v for k, v in summary["steps_by_status"].items() if v}
+    )
     for agent, greedy, scene in zip(msgs[TOPIC_AGENT], msgs[TOPIC_GREEDY], msgs[TOPIC_SCENE]):
         assert agent["status"] == greedy["status"] == scene["status"]
         if agent["status"] == "ok":

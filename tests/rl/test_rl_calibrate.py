@@ -4,8 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rl.drive.calibrate import (MIN_HEADWAYS, agent_headways, calibrated_headways, deconvolved_dwell,
-                                stays_by_kind)
+from rl.drive.calibrate import MIN_HEADWAYS, agent_headways, calibrated_headways, deconvolved_dwell, stays_by_kind
 
 
 def test_stays_are_the_times_between_consecutive_changes_by_kind():
@@ -49,8 +48,13 @@ def test_the_calibrated_dwell_is_closer_to_the_drivers_than_their_own_times_draw
 
 def test_the_headway_is_calibrated_only_where_the_agent_takes_shorter_ones_than_its_drivers():
     def change(side: str, thw: float | None, source: str = "agent", started: bool = True) -> dict:
-        return {"started": started, "source": source, "thw_nb_s": thw, "from_lane": 1,
-                "target_lane": 2 if side == "left" else 0}
+        return {
+            "started": started,
+            "source": source,
+            "thw_nb_s": thw,
+            "from_lane": 1,
+            "target_lane": 2 if side == "left" else 0,
+        }
 
     rng = np.random.default_rng(5)
     early = list(rng.uniform(0.4, 1.2, 60))  # returns right as soon as the overtaken car is behind
@@ -64,4 +68,4 @@ def test_the_headway_is_calibrated_only_where_the_agent_takes_shorter_ones_than_
     assert "right" not in calibrated_headways({"right": list(rng.uniform(0.2, 2.0, 80))}, mine)  # within their spread
     with_draw = np.maximum(rng.choice(lag["right"], 20000), rng.choice(early, 20000))
     assert np.median(with_draw) == pytest.approx(np.median(drivers["right"]), abs=0.15)
-    assert calibrated_headways(drivers, {"right": early[:MIN_HEADWAYS - 1]}) == {}  # too few of its own
+    assert calibrated_headways(drivers, {"right": early[: MIN_HEADWAYS - 1]}) == {}  # too few of its own

@@ -20,8 +20,9 @@ from rl.settings import resolve_formulation
 from tests.support.rl_workspaces import rule_driver_decisions, session_decisions, write_style_analysis
 
 LINES = ReferenceLines.paper("Normal")
-DECISIONS_ENV = EnvConfig(lines=LINES, reward=RewardSettings(name="decisions"), scenes="recorded",
-                          observation="indicators")
+DECISIONS_ENV = EnvConfig(
+    lines=LINES, reward=RewardSettings(name="decisions"), scenes="recorded", observation="indicators"
+)
 FAST = dict(num_envs=8, batch_size=128, learning_starts=300, episodes_per_approach=0.0)
 
 
@@ -66,8 +67,9 @@ def test_replay_env_walks_the_recorded_approach_then_runs_on_past_the_press():
 
 def test_replay_env_truncates_after_the_late_window():
     approaches, _ = approaches_from_decisions(rule_driver_decisions(LINES, 1, seed=0, window_s=0.5))
-    cfg = EnvConfig(lines=LINES, reward=RewardSettings(name="decisions"), scenes="recorded", replay_late_s=1.0,
-                    end_at_leader=False)
+    cfg = EnvConfig(
+        lines=LINES, reward=RewardSettings(name="decisions"), scenes="recorded", replay_late_s=1.0, end_at_leader=False
+    )
     env = VecReplayEnv(cfg, approaches, 1, np.random.default_rng(0))
     env.index[:] = 1  # the press
     env.scene.put(np.array([0]), env.states.take(np.array([1])))
@@ -91,8 +93,11 @@ def test_agent_on_recorded_scenes_learns_the_drivers_moment():
     dec = rule_driver_decisions(LINES, 40, seed=0, window_s=4.0)
     approaches, _ = approaches_from_decisions(dec)
     trainer = DQNTrainer(DECISIONS_ENV, DQNSettings(episodes=2500, seed=0, **FAST), approaches=approaches).train()
-    ev = evaluate_policies({"agent": agent_policy(trainer.policy_net, DECISIONS_ENV),
-                            "greedy": greedy_policy(DECISIONS_ENV)}, approaches, DECISIONS_ENV)
+    ev = evaluate_policies(
+        {"agent": agent_policy(trainer.policy_net, DECISIONS_ENV), "greedy": greedy_policy(DECISIONS_ENV)},
+        approaches,
+        DECISIONS_ENV,
+    )
     rows = {r["who"]: r for r in ev["summary"]}
     assert rows["agent"]["balanced_accuracy"] >= 0.85
     assert rows["agent"]["timing_mae_s"] < rows["greedy"]["timing_mae_s"]
@@ -116,9 +121,13 @@ def test_imitation_classifier_separates_presses_from_not_yet_states():
 
 
 def test_folds_deal_every_drivers_sessions_and_are_seeded():
-    s = pd.DataFrame({"recording_id": [f"{d}-{k}" for d in ("A", "B") for k in range(4)],
-                      "driver_id": [d for d in ("A", "B") for _ in range(4)],
-                      "speed_limit_kph": [60.0, 70.0, 80.0, 90.0] * 2})
+    s = pd.DataFrame(
+        {
+            "recording_id": [f"{d}-{k}" for d in ("A", "B") for k in range(4)],
+            "driver_id": [d for d in ("A", "B") for _ in range(4)],
+            "speed_limit_kph": [60.0, 70.0, 80.0, 90.0] * 2,
+        }
+    )
     folds = assign_folds(s, CrossvalSettings(folds=4, seed=1))
     assert folds == assign_folds(s, CrossvalSettings(folds=4, seed=1))
     for d in ("A", "B"):
@@ -131,9 +140,13 @@ def test_folds_deal_every_drivers_sessions_and_are_seeded():
 def test_session_folds_keep_every_speed_section_in_training():
     """Three drivers, one session per section: a fold never holds out two sessions of one section
     (a random deal did, and scored extrapolation over speed as a new session)."""
-    s = pd.DataFrame({"recording_id": [f"{d}-{k}" for d in ("A", "B", "C") for k in range(4)],
-                      "driver_id": [d for d in ("A", "B", "C") for _ in range(4)],
-                      "speed_limit_kph": [60.0, 70.0, 80.0, 90.0] * 3})
+    s = pd.DataFrame(
+        {
+            "recording_id": [f"{d}-{k}" for d in ("A", "B", "C") for k in range(4)],
+            "driver_id": [d for d in ("A", "B", "C") for _ in range(4)],
+            "speed_limit_kph": [60.0, 70.0, 80.0, 90.0] * 3,
+        }
+    )
     for seed in range(5):
         folds = assign_folds(s, CrossvalSettings(folds=4, seed=seed))
         s["fold"] = s["recording_id"].map(folds)
@@ -144,8 +157,14 @@ def test_session_folds_keep_every_speed_section_in_training():
 @pytest.mark.slow
 def test_crossval_scores_every_decision_once_on_sessions_not_trained_on():
     dec = sessions(4, 8)
-    res = crossvalidate(dec, ["D01"], ["D01"], DECISIONS_ENV, DQNSettings(episodes=300, **FAST),
-                        CrossvalSettings(folds=4, n_bootstrap=50))
+    res = crossvalidate(
+        dec,
+        ["D01"],
+        ["D01"],
+        DECISIONS_ENV,
+        DQNSettings(episodes=300, **FAST),
+        CrossvalSettings(folds=4, n_bootstrap=50),
+    )
     assert [r["who"] for r in res["summary"]] == ["agent", "greedy", "imitation"]
     for r in res["summary"]:
         lo, hi = r["balanced_accuracy_ci"]
@@ -161,15 +180,38 @@ def test_crossval_scores_every_decision_once_on_sessions_not_trained_on():
 @pytest.mark.slow
 def test_crossval_command_prints_one_row_per_policy(tmp_path):
     write_style_analysis(Workspace(tmp_path), sessions(4, 6), LINES)
-    res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--episodes", "200",
-                                   "--bootstrap", "50", "-w", str(tmp_path), "--json"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "crossval",
+            "--style",
+            "Normal",
+            "--folds",
+            "2",
+            "--episodes",
+            "200",
+            "--bootstrap",
+            "50",
+            "-w",
+            str(tmp_path),
+            "--json",
+        ],
+    )
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     rows = {r["who"]: r for r in out["summary"]}
     assert set(rows) == {"agent", "greedy", "imitation"}
     for r in rows.values():
-        assert {"balanced_accuracy", "balanced_accuracy_ci", "recall", "specificity", "timing_mae_s",
-                "never_rate", "n_decisions", "n_states"} <= set(r)
+        assert {
+            "balanced_accuracy",
+            "balanced_accuracy_ci",
+            "recall",
+            "specificity",
+            "timing_mae_s",
+            "never_rate",
+            "n_decisions",
+            "n_states",
+        } <= set(r)
     assert (tmp_path / "crossval" / out["crossval_id"] / "result.json").exists()
     bad = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "9", "-w", str(tmp_path)])
     assert bad.exit_code == 1 and "--folds" in bad.output
@@ -182,17 +224,47 @@ def test_crossval_scores_each_direction_apart_with_the_pooled_fields(tmp_path):
     right = dec["decision_id"].str.split(":").str[-1].astype(int) % 2 == 1
     dec.loc[right, ["ego_lane", "target_lane"]] = [1, 0]
     write_style_analysis(Workspace(tmp_path), dec, LINES)
-    res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--episodes", "200",
-                                   "--bootstrap", "50", "-w", str(tmp_path), "--json"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "crossval",
+            "--style",
+            "Normal",
+            "--folds",
+            "2",
+            "--episodes",
+            "200",
+            "--bootstrap",
+            "50",
+            "-w",
+            str(tmp_path),
+            "--json",
+        ],
+    )
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     by_dir = out["summary_by_direction"]
-    assert {(r["direction"], r["who"]) for r in by_dir} == {(d, w) for d in ("left", "right")
-                                                            for w in ("agent", "greedy", "imitation")}
+    assert {(r["direction"], r["who"]) for r in by_dir} == {
+        (d, w) for d in ("left", "right") for w in ("agent", "greedy", "imitation")
+    }
     for r in by_dir:
         assert set(out["summary"][0]) <= set(r)
     n = {d: {r["n_decisions"] for r in by_dir if r["direction"] == d} for d in ("left", "right")}
     assert n == {"left": {12}, "right": {12}} and out["summary"][0]["n_decisions"] == 24
-    text = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--episodes", "200",
-                                    "--bootstrap", "50", "-w", str(tmp_path)])
+    text = CliRunner().invoke(
+        app,
+        [
+            "crossval",
+            "--style",
+            "Normal",
+            "--folds",
+            "2",
+            "--episodes",
+            "200",
+            "--bootstrap",
+            "50",
+            "-w",
+            str(tmp_path),
+        ],
+    )
     assert "by direction" in text.output and "right" in text.output

@@ -16,8 +16,14 @@ from tests.support.rl_workspaces import rule_driver_decisions
 
 LINES = ReferenceLines((0.2, 0.0), (0.2, 0.0), (1.0, -10.0))
 # one moving part: no target-lane leader, a far follower; only t_f sets the moment
-TINY = EnvConfig(lines=LINES, nf_present_prob=0.0, nb_gap0_m=(110.0, 140.0), t_f0_s=(1.0, 10.0),
-                 ego_speed_mps=(19.0, 21.0), reward=RewardSettings(name="timing", m_ttc_s=0.2, change_baseline=2.9))
+TINY = EnvConfig(
+    lines=LINES,
+    nf_present_prob=0.0,
+    nb_gap0_m=(110.0, 140.0),
+    t_f0_s=(1.0, 10.0),
+    ego_speed_mps=(19.0, 21.0),
+    reward=RewardSettings(name="timing", m_ttc_s=0.2, change_baseline=2.9),
+)
 FAST = dict(num_envs=8, batch_size=128, learning_starts=500)
 
 
@@ -40,11 +46,14 @@ def test_trainer_forward_is_the_modules():
 
 @pytest.mark.slow
 def test_learns_the_drivers_moment_and_beats_greedy():
-    dec = rule_driver_decisions(LINES, 60, seed=1, cfg=TINY, with_nf=False, nb_gap_m=(110.0, 140.0),
-                                noise=(0.2, 0.2, 0.5))
+    dec = rule_driver_decisions(
+        LINES, 60, seed=1, cfg=TINY, with_nf=False, nb_gap_m=(110.0, 140.0), noise=(0.2, 0.2, 0.5)
+    )
     approaches, _ = approaches_from_decisions(dec)
     trainer = DQNTrainer(TINY, DQNSettings(episodes=2000, seed=0, **FAST)).train()
-    ev = evaluate_policies({"agent": agent_policy(trainer.policy_net, TINY), "greedy": greedy_policy(TINY)}, approaches, TINY)
+    ev = evaluate_policies(
+        {"agent": agent_policy(trainer.policy_net, TINY), "greedy": greedy_policy(TINY)}, approaches, TINY
+    )
     s = pd.DataFrame(ev["summary"]).set_index("who")
     assert s.loc["greedy", "balanced_accuracy"] == 0.5  # the paper's greedy always changes here
     assert s.loc["agent", "balanced_accuracy"] >= 0.8  # 0.925 when written
@@ -61,8 +70,12 @@ def test_train_twice_same_weights():
 
 
 def test_policy_is_the_online_net_then_its_average():
-    t = DQNTrainer(TINY, DQNSettings(episodes=200, seed=3, num_envs=8, batch_size=64, learning_starts=100,
-                                     average_tau=0.02, average_from=0.5))
+    t = DQNTrainer(
+        TINY,
+        DQNSettings(
+            episodes=200, seed=3, num_envs=8, batch_size=64, learning_starts=100, average_tau=0.02, average_from=0.5
+        ),
+    )
     t.train(should_stop=lambda: t.episodes_done >= 60)
     assert t.policy_net is t.q
     t.train()
@@ -84,8 +97,9 @@ def test_resume_with_fewer_episodes_starts_the_average_from_the_online_net():
 
 
 def test_checkpoint_resume_continues_exactly_and_loads_weights_only():
-    s = DQNSettings(episodes=400, seed=2, num_envs=8, batch_size=64, learning_starts=100, target_update_episodes=7,
-                    average_tau=0.02)  # the averaged policy is part of the checkpoint too
+    s = DQNSettings(
+        episodes=400, seed=2, num_envs=8, batch_size=64, learning_starts=100, target_update_episodes=7, average_tau=0.02
+    )  # the averaged policy is part of the checkpoint too
     straight = DQNTrainer(TINY, s).train()
     first = DQNTrainer(TINY, s)
     first.train(should_stop=lambda: first.episodes_done >= 200)
@@ -117,8 +131,18 @@ def _pinned_run() -> tuple[DQNTrainer, dict]:
     lines = ReferenceLines.paper("Normal")
     approaches, _ = approaches_from_decisions(rule_driver_decisions(lines, 30, seed=0, window_s=4.0))
     cfg = formulation_config(lines, "decisions")
-    s = DQNSettings(episodes=600, seed=7, num_envs=8, batch_size=64, learning_starts=200, episodes_per_approach=0.0,
-                    double_q=True, loss="huber", average_tau=0.02, target_update_episodes=15)
+    s = DQNSettings(
+        episodes=600,
+        seed=7,
+        num_envs=8,
+        batch_size=64,
+        learning_starts=200,
+        episodes_per_approach=0.0,
+        double_q=True,
+        loss="huber",
+        average_tau=0.02,
+        target_update_episodes=15,
+    )
     t = DQNTrainer(cfg, s, approaches=approaches).train()
     ev = evaluate_policies({"agent": agent_policy(t.policy_net, cfg)}, approaches, cfg)
     return t, ev["summary"][0]
@@ -137,5 +161,8 @@ def test_a_fixed_seed_trains_what_it_trained_before_the_loops_were_one():
 
 
 #: Measured on the two-loop code at 59d3cf7 (the policy's weights hashed 21d4c7ee4ef65763 there, and after).
-PINNED: dict = {"counts": (600, 1624, 358, True), "balanced_accuracy": 0.9313,
-                "weight_sums": [-23.8402, -4.3785, -112.1842, -1.0845, -46.0108, -0.4125, 0.2664, -0.0085]}
+PINNED: dict = {
+    "counts": (600, 1624, 358, True),
+    "balanced_accuracy": 0.9313,
+    "weight_sums": [-23.8402, -4.3785, -112.1842, -1.0845, -46.0108, -0.4125, 0.2664, -0.0085],
+}

@@ -18,8 +18,7 @@ from laneprint.app.cli import app
 from laneprint.errors import UserError
 from laneprint.simulator.sumo.traffic import VehicleState
 from laneprint.workspace import Workspace
-from rl.drive.loop import (AgentControl, Decision, choose_side, live_scene, match_presses, neighbour_lanes,
-                           target_lane)
+from rl.drive.loop import AgentControl, Decision, choose_side, live_scene, match_presses, neighbour_lanes, target_lane
 from rl.drive.calibrate import MIN_HEADWAYS
 from rl.drive.heldback import lag_headways
 from rl.drive.store import output_paths
@@ -88,8 +87,7 @@ def test_study_traffic_reads_back_the_simulator_text_a_sumo_study_writes():
             assert study_traffic(simulator_text("1.24.0", family, lanes)) == (family, lanes)
     assert simulator_text("1.24.0") == "Eclipse SUMO 1.24.0 (laneprint simulate --engine sumo)"
     # another simulator, the synthetic study, a drive's own logs, nothing: not a study's traffic
-    for other in ("laneprint.simulator v1 (seed 0)", "Eclipse SUMO 1.24.0 (laneprint drive r1, seed 0)",
-                  None, ""):
+    for other in ("laneprint.simulator v1 (seed 0)", "Eclipse SUMO 1.24.0 (laneprint drive r1, seed 0)", None, ""):
         assert study_traffic(other) is None
 
 
@@ -131,12 +129,14 @@ class _Api:
 
 def _stub_q(adv_left: float, adv_right: float, seen: list) -> "object":
     """A stub agent: Q(keep) = 0 and Q(change) = the given advantage of the side each scene asks about."""
+
     def q(scene: Scene) -> np.ndarray:
         seen.append(scene.left.copy())
         out = np.zeros((len(scene), 2))
         out[:, CHANGE] = np.where(scene.left, adv_left, adv_right)
         out[:, KEEP] = 0.0
         return out
+
     return q
 
 
@@ -145,8 +145,11 @@ def _ask_once(q, lane: int, n_lanes: int) -> tuple[AgentControl, _Api]:
     control, api = AgentControl(q, EnvConfig(observation="direction"), 0.1, n_lanes), _Api()
     control.start(api)
     ego = VehicleState(x=100.0, v=25.0, lane=lane, length=4.5)
-    others = {"f": VehicleState(140.0, 18.0, lane, 4.5), "l": VehicleState(160.0, 24.0, 2, 4.5),
-              "r": VehicleState(130.0, 20.0, 0, 4.5)}
+    others = {
+        "f": VehicleState(140.0, 18.0, lane, 4.5),
+        "l": VehicleState(160.0, 24.0, 2, 4.5),
+        "r": VehicleState(130.0, 20.0, 0, 4.5),
+    }
     for i in range(5):
         control.step(api, 0.1 * i, ego, 0.0, others)
     return control, api
@@ -211,12 +214,12 @@ def trained(tmp_path_factory) -> tuple[Path, str]:
         pytest.skip(f"libsumo/traci not importable here ({exc})")
     root = tmp_path_factory.mktemp("drive")
     ws = root / "ws"
-    _invoke("simulate", "--engine", "sumo", "--out", str(root / "study"), "--drivers", "3", "--minutes", "1",
-            "--seed", "3")
+    _invoke(
+        "simulate", "--engine", "sumo", "--out", str(root / "study"), "--drivers", "3", "--minutes", "1", "--seed", "3"
+    )
     _invoke("ingest", str(root / "study"), "-w", str(ws))
     _invoke("analyze", "-w", str(ws))
-    _invoke("train", "--style", "Aggressive", "--episodes", "800", "--run-id", "tiny", "--no-evaluate",
-            "-w", str(ws))
+    _invoke("train", "--style", "Aggressive", "--episodes", "800", "--run-id", "tiny", "--no-evaluate", "-w", str(ws))
     return ws, "tiny"
 
 
@@ -224,8 +227,22 @@ def trained(tmp_path_factory) -> tuple[Path, str]:
 def test_drive_writes_a_log_whose_presses_are_the_agents_lane_changes(trained, tmp_path):
     ws, run_id = trained
     out = tmp_path / "drive.mcap"
-    res = _invoke("drive", run_id, "--engine", "sumo", "--minutes", "1", "--section", "90", "--seed", "1",
-                  "--out", str(out), "-w", str(ws))
+    res = _invoke(
+        "drive",
+        run_id,
+        "--engine",
+        "sumo",
+        "--minutes",
+        "1",
+        "--section",
+        "90",
+        "--seed",
+        "1",
+        "--out",
+        str(out),
+        "-w",
+        str(ws),
+    )
     assert res["files"] == [str(out)] and out.is_file()
     assert res["ego_style"] == "Aggressive"
     # its drivers drove this traffic (the study's family and lanes, read from their logs): the drive takes
@@ -253,7 +270,7 @@ def test_drive_writes_a_log_whose_presses_are_the_agents_lane_changes(trained, t
 
     ingested = _invoke("ingest", str(out), "--driver", "agent", "-w", str(tmp_path / "ws2"))
     assert ingested["counts"]["ingested"] + ingested["counts"]["warning"] == 1
-    (meta, ego, _), = Workspace(tmp_path / "ws2").iter_recordings()
+    ((meta, ego, _),) = Workspace(tmp_path / "ws2").iter_recordings()
     btn = ego["lc_button"].to_numpy(dtype=bool)
     t, lane = ego["t_s"].to_numpy(), ego["ego_lane"].to_numpy()
     presses = np.flatnonzero(btn & ~np.r_[False, btn[:-1]])
@@ -284,8 +301,27 @@ def test_drive_refuses_an_unknown_run_and_section(trained):
 @pytest.mark.slow
 def test_drive_on_three_lanes(trained, tmp_path):
     ws, run_id = trained
-    res = _invoke("drive", run_id, "--engine", "sumo", "--lanes", "3", "--minutes", "1", "--section", "90",
-                  "--seed", "2", "--pace-by", "side", "--dwell-draw", "--out", str(tmp_path / "d3"), "-w", str(ws))
+    res = _invoke(
+        "drive",
+        run_id,
+        "--engine",
+        "sumo",
+        "--lanes",
+        "3",
+        "--minutes",
+        "1",
+        "--section",
+        "90",
+        "--seed",
+        "2",
+        "--pace-by",
+        "side",
+        "--dwell-draw",
+        "--out",
+        str(tmp_path / "d3"),
+        "-w",
+        str(ws),
+    )
     assert res["lanes"] == 3 and res["totals"]["collisions"] == 0
     draws = res["held_back"]["rule"]["dwell_draws"]  # the drivers' own times, drawn from at each change
     assert draws and all(len(v) >= 5 and min(v) > 0 for v in draws.values())
@@ -297,8 +333,9 @@ def test_drive_on_three_lanes(trained, tmp_path):
     assert set(res["changes_by_lane"]) <= {"0>1", "1>0", "1>2", "2>1"}
     assert sum(res["changes_by_lane"].values()) == res["totals"]["lane_changes"] > 0
     for d in res["decisions"]:
-        assert set(d["advantages"]) == ({"left", "right"} if d["from_lane"] == 1 else
-                                        {"left" if d["from_lane"] == 0 else "right"})
+        assert set(d["advantages"]) == (
+            {"left", "right"} if d["from_lane"] == 1 else {"left" if d["from_lane"] == 0 else "right"}
+        )
         side = "left" if d["target_lane"] > d["from_lane"] else "right"
         rule = res["held_back"]["rule"]
         need = {k: rule["min_advantage_by_side"].get(k, rule["min_advantage"]) for k in ("left", "right")}
@@ -311,7 +348,7 @@ def test_drive_on_three_lanes(trained, tmp_path):
             wanted = {k: v for k, v in d["advantages"].items() if k not in d["undone"]}
             assert d["source"] in ("rule", "return") and all(v < need[k] for k, v in wanted.items())
     assert res["totals"]["follow"]["undone"] >= sum(bool(d["undone"]) for d in res["decisions"])
-    (meta, ego, _), = [r for r in _ingested(tmp_path / "d3", tmp_path / "ws3")]
+    ((meta, ego, _),) = [r for r in _ingested(tmp_path / "d3", tmp_path / "ws3")]
     assert set(ego["ego_lane"].unique()) <= {0, 1, 2}
 
 
@@ -325,8 +362,25 @@ def test_drive_in_the_traffic_and_vtypes_of_another_family(trained, tmp_path):
     from laneprint.simulator.sumo.styles import ACCEPTANCE_STYLE_PARAMS, STYLE_PARAMS
 
     ws, run_id = trained
-    res = _invoke("drive", run_id, "--engine", "sumo", "--family", "acceptance", "--minutes", "1", "--section", "90",
-                  "--seed", "1", "--no-sumo-model", "--out", str(tmp_path / "acc"), "-w", str(ws))
+    res = _invoke(
+        "drive",
+        run_id,
+        "--engine",
+        "sumo",
+        "--family",
+        "acceptance",
+        "--minutes",
+        "1",
+        "--section",
+        "90",
+        "--seed",
+        "1",
+        "--no-sumo-model",
+        "--out",
+        str(tmp_path / "acc"),
+        "-w",
+        str(ws),
+    )
     factor = ACCEPTANCE_STYLE_PARAMS["Aggressive"]["speedFactor"]
     assert factor != STYLE_PARAMS["Aggressive"]["speedFactor"]  # else this test could not tell the families apart
     assert res["family"] == "acceptance" and f"speedFactor {factor:g} " in res["held_back"]["desired_speed"]
@@ -342,8 +396,20 @@ def test_drive_in_the_traffic_and_vtypes_of_another_family(trained, tmp_path):
 @pytest.mark.slow
 def test_drive_with_the_dwell_calibrated_in_closed_loop(trained, tmp_path):
     ws, run_id = trained
-    args = ("drive", run_id, "--engine", "sumo", "--minutes", "1", "--section", "90", "--no-sumo-model",
-            "--dwell-calibrated", "-w", str(ws))
+    args = (
+        "drive",
+        run_id,
+        "--engine",
+        "sumo",
+        "--minutes",
+        "1",
+        "--section",
+        "90",
+        "--no-sumo-model",
+        "--dwell-calibrated",
+        "-w",
+        str(ws),
+    )
     res = _invoke(*args, "--seed", "3", "--out", str(tmp_path / "a"))
     cal = res["dwell_calibration"]
     assert cal["seeds"] == [1001, 1002] and cal["family"] == "ttc" and cal["lanes"] == 2
@@ -360,22 +426,59 @@ def test_drive_with_the_dwell_calibrated_in_closed_loop(trained, tmp_path):
     assert stored.read_text() == first and again["dwell_calibration"] == cal
     for kind, draws in again["held_back"]["rule"]["dwell_draws"].items():  # never under the drivers' floor
         assert min(draws) >= again["held_back"]["rule"]["dwell_s"].get(kind, 0.0)
-    for both in (runner.invoke(app, [*args, "--dwell-draw"]), runner.invoke(app, [*args, "--lag-draw", "--lag-calibrated"])):
+    for both in (
+        runner.invoke(app, [*args, "--dwell-draw"]),
+        runner.invoke(app, [*args, "--lag-draw", "--lag-calibrated"]),
+    ):
         assert both.exit_code == 1 and "choose one" in both.output and "Traceback" not in both.output
     for off in ("--no-dwell", "--no-held-back"):  # no dwell to calibrate: refused, nothing driven
         res = runner.invoke(app, [*args, off])
         assert res.exit_code == 1 and "not with --no-held-back or --no-dwell" in res.output
     assert stored.read_text() == first
-    floor = _invoke("drive", run_id, "--engine", "sumo", "--minutes", "1", "--section", "90", "--no-sumo-model",
-                    "--no-dwell-calibrated", "--seed", "3", "--out", str(tmp_path / "c"), "-w", str(ws))
+    floor = _invoke(
+        "drive",
+        run_id,
+        "--engine",
+        "sumo",
+        "--minutes",
+        "1",
+        "--section",
+        "90",
+        "--no-sumo-model",
+        "--no-dwell-calibrated",
+        "--seed",
+        "3",
+        "--out",
+        str(tmp_path / "c"),
+        "-w",
+        str(ws),
+    )
     assert floor["dwell_calibration"] is None and floor["dwell"] == "the drivers' 5th percentile"
     assert not floor["held_back"]["rule"].get("dwell_draws")
     assert floor["lag_calibration"]["headways"] == cal["headways"]  # the headway still calibrated, from the same drives
-    drawn = _invoke("drive", run_id, "--engine", "sumo", "--minutes", "1", "--section", "90", "--no-sumo-model",
-                    "--no-dwell-calibrated", "--lag-draw", "--seed", "3", "--out", str(tmp_path / "d"), "-w", str(ws))
+    drawn = _invoke(
+        "drive",
+        run_id,
+        "--engine",
+        "sumo",
+        "--minutes",
+        "1",
+        "--section",
+        "90",
+        "--no-sumo-model",
+        "--no-dwell-calibrated",
+        "--lag-draw",
+        "--seed",
+        "3",
+        "--out",
+        str(tmp_path / "d"),
+        "-w",
+        str(ws),
+    )
     decisions = Workspace(ws).read_table("analysis", "decisions")
     members, _ = target_drivers(Workspace(ws), Target("style", "Aggressive"))
     presses = lag_headways(decisions[decisions["driver_id"].astype(str).isin(members)])
     assert drawn["held_back"]["rule"]["lag_draws"] == pytest.approx(presses)
-    assert drawn["lag"] == (f"drawn from the drivers' presses ({', '.join(sorted(presses))})" if presses
-                            else "the floors alone")
+    assert drawn["lag"] == (
+        f"drawn from the drivers' presses ({', '.join(sorted(presses))})" if presses else "the floors alone"
+    )

@@ -16,8 +16,22 @@ from tests.support.rl_workspaces import rule_driver_decisions
 
 
 def one_scene(**kw) -> Scene:
-    base = dict(v_e=20.0, x_e=0.0, f_present=True, v_f=10.0, x_f=54.5, hl_f=4.5, nf_present=True, v_nf=12.0,
-                x_nf=44.5, hl_nf=4.5, nb_present=True, v_nb=9.0, x_nb=-24.5, hl_nb=4.5)
+    base = dict(
+        v_e=20.0,
+        x_e=0.0,
+        f_present=True,
+        v_f=10.0,
+        x_f=54.5,
+        hl_f=4.5,
+        nf_present=True,
+        v_nf=12.0,
+        x_nf=44.5,
+        hl_nf=4.5,
+        nb_present=True,
+        v_nb=9.0,
+        x_nb=-24.5,
+        hl_nb=4.5,
+    )
     base.update(kw)
     return Scene(**{k: np.atleast_1d(np.asarray(v)) for k, v in base.items()})
 
@@ -118,8 +132,16 @@ def test_trains_unchanged_with_stable_baselines3():
     import torch
 
     torch.set_num_threads(1)
-    model = sb3.DQN("MlpPolicy", gym.make(rl.ENV_ID), learning_starts=50, buffer_size=500, batch_size=16,
-                    policy_kwargs={"net_arch": [16]}, seed=0, device="cpu")
+    model = sb3.DQN(
+        "MlpPolicy",
+        gym.make(rl.ENV_ID),
+        learning_starts=50,
+        buffer_size=500,
+        batch_size=16,
+        policy_kwargs={"net_arch": [16]},
+        seed=0,
+        device="cpu",
+    )
     model.learn(total_timesteps=200)
     action, _ = model.predict(LaneChangeDecisionEnv().reset(seed=0)[0], deterministic=True)
     assert int(action) in (0, 1)
@@ -157,6 +179,7 @@ def test_approaches_from_a_middle_lane_carry_the_side_not_taken():
 def test_sides_not_taken_are_replayed_as_approaches_without_a_press():
     from rl.problem.env import NO_PRESS_S, VecReplayEnv, replayed_approaches
     from rl.problem.rewards import CHANGE, KEEP, RewardSettings
+
     dec = rule_driver_decisions(ReferenceLines.paper("Normal"), 2, seed=0, window_s=1.0, every_s=0.5)
     approaches, _ = approaches_from_decisions(_middle_lane(dec, dec["decision_id"].unique()[:1]))
     cfg = EnvConfig(scenes="recorded", observation="direction", reward=RewardSettings(name="decisions"))
@@ -181,12 +204,15 @@ def test_sides_not_taken_are_replayed_as_approaches_without_a_press():
 def test_the_setting_changes_nothing_without_a_side_not_taken():
     from rl.problem.env import VecReplayEnv
     from rl.problem.rewards import RewardSettings
+
     approaches, _ = approaches_from_decisions(rule_driver_decisions(ReferenceLines.paper("Normal"), 4, seed=1))
     cfg = EnvConfig(scenes="recorded", observation="indicators", reward=RewardSettings(name="decisions"))
     runs = []
     for on in (True, False):
-        env, rng = VecReplayEnv(replace(cfg, other_side=on), approaches, 4, np.random.default_rng(3)), \
-            np.random.default_rng(5)
+        env, rng = (
+            VecReplayEnv(replace(cfg, other_side=on), approaches, 4, np.random.default_rng(3)),
+            np.random.default_rng(5),
+        )
         runs.append([env.step(rng.integers(2, size=4))["obs"] for _ in range(50)])
     np.testing.assert_array_equal(np.stack(runs[0]), np.stack(runs[1]))
 
@@ -209,8 +235,25 @@ def test_train_names_the_setting_and_two_lanes_train_alike(tmp_path):
 
     ws = analysed_workspace(tmp_path)  # a two-lane analysis: no side not taken anywhere
     for flag, run in (("--other-side", "on"), ("--driver-side-only", "off")):
-        res = CliRunner().invoke(app, ["train", "--style", "Normal", "--episodes", "100", "--seed", "3", flag,
-                                       "--run-id", run, "--no-evaluate", "-w", str(tmp_path), *FAST_CLI])
+        res = CliRunner().invoke(
+            app,
+            [
+                "train",
+                "--style",
+                "Normal",
+                "--episodes",
+                "100",
+                "--seed",
+                "3",
+                flag,
+                "--run-id",
+                run,
+                "--no-evaluate",
+                "-w",
+                str(tmp_path),
+                *FAST_CLI,
+            ],
+        )
         assert res.exit_code == 0, res.output
     configs = {r: json.loads((run_dir(ws, r) / "config.json").read_text())["env"] for r in ("on", "off")}
     assert configs["on"]["other_side"] is True and configs["off"]["other_side"] is False

@@ -42,8 +42,9 @@ json.dump({"q": q.tolist(), "action": action.tolist(), "obs": obs.tolist()}, sys
 def test_export_matches_torch_and_needs_nothing_of_laneprint(trained_run, tmp_path):
     ws, run_id = trained_run
     out = tmp_path / "policy"
-    res = CliRunner().invoke(app, ["export", run_id, "--format", "onnx", "--out", str(out), "-w", str(ws.root),
-                                   "--json"])
+    res = CliRunner().invoke(
+        app, ["export", run_id, "--format", "onnx", "--out", str(out), "-w", str(ws.root), "--json"]
+    )
     assert res.exit_code == 0, res.output
     got = json.loads(res.stdout)
     check = got["check"]
@@ -69,8 +70,9 @@ def test_export_matches_torch_and_needs_nothing_of_laneprint(trained_run, tmp_pa
         assert 0 < defined.sum() < len(defined)  # every undefined rule of policy.json is exercised
     raw_path = tmp_path / "raw.json"
     raw_path.write_text(json.dumps(raw_measurements(scene, cfg)))
-    proc = subprocess.run([sys.executable, "-c", STANDALONE, str(out), str(raw_path)], capture_output=True,
-                          text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-c", STANDALONE, str(out), str(raw_path)], capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == 0, proc.stderr
     standalone = json.loads(proc.stdout)
     obs = observation(scene, cfg)
@@ -107,8 +109,13 @@ def test_export_carries_the_held_back_rule(trained_run, tmp_path, monkeypatch):
     assert doc["held_back_rule"]["available"] is False and "gap_nf" in doc["held_back_rule"]["why"]
     assert "Not available" in (tmp_path / "none" / "README.md").read_text()
 
-    rule = HeldBackRule(5.5, Line(5.5, -61.4, 9.0, 25.8, 8.6), Line(0.0, 29.4, 9.0, 25.8, 6.4),
-                        Line(0.0, 3.4, 9.0, 25.8, 0.75), source={"patience_s": "test"})
+    rule = HeldBackRule(
+        5.5,
+        Line(5.5, -61.4, 9.0, 25.8, 8.6),
+        Line(0.0, 29.4, 9.0, 25.8, 6.4),
+        Line(0.0, 3.4, 9.0, 25.8, 0.75),
+        source={"patience_s": "test"},
+    )
     monkeypatch.setattr(export_mod, "rule_from_analysis", lambda *a, **k: rule)
     res = CliRunner().invoke(app, ["export", run_id, "--out", str(tmp_path / "rule"), "-w", str(ws.root), "--json"])
     assert res.exit_code == 0, res.output

@@ -6,8 +6,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rl.drive.fidelity import (compare_values, lane_change_pairs, lane_changes, lane_use, poisson_interval, press_values,
-                               rate_comparison)
+from rl.drive.fidelity import (
+    compare_values,
+    lane_change_pairs,
+    lane_changes,
+    lane_use,
+    poisson_interval,
+    press_values,
+    rate_comparison,
+)
 
 
 def _ego(lanes: list[int], km: float = 2.0) -> pd.DataFrame:
@@ -32,8 +39,9 @@ def test_lane_use_gives_the_time_in_each_lane_and_the_pairs_per_km():
 
 
 def test_the_rate_is_within_tolerance_only_near_the_drivers():
-    drivers = pd.DataFrame({"driver_id": ["a", "b"], "changes": [30, 50], "left": [15, 25], "right": [15, 25],
-                            "km": [10.0, 10.0]})  # 4 per km pooled
+    drivers = pd.DataFrame(
+        {"driver_id": ["a", "b"], "changes": [30, 50], "left": [15, 25], "right": [15, 25], "km": [10.0, 10.0]}
+    )  # 4 per km pooled
     near = rate_comparison({"changes": 45, "left": 30, "right": 15, "km": 10.0}, drivers)
     assert near["ratio"] == pytest.approx(1.125) and near["within_tolerance"]
     assert near["agent"]["left_share"] == pytest.approx(2 / 3) and near["drivers"]["left_share"] == 0.5
@@ -65,9 +73,16 @@ def test_a_median_outside_the_drivers_iqr_is_said():
 
 
 def test_press_values_keep_defined_values_at_presses_only():
-    d = pd.DataFrame({"label": ["keep", "change", "change"], "t_f_s": [1.0, 2.0, np.nan],
-                      "t_f_status": ["ok", "ok", "not_closing"], "f_gap_m": [5.0, 6.0, 7.0],
-                      "ego_v_mps": [20.0, 20.0, 20.0], "f_v_mps": [19.0, 19.0, 21.0]})
+    d = pd.DataFrame(
+        {
+            "label": ["keep", "change", "change"],
+            "t_f_s": [1.0, 2.0, np.nan],
+            "t_f_status": ["ok", "ok", "not_closing"],
+            "f_gap_m": [5.0, 6.0, 7.0],
+            "ego_v_mps": [20.0, 20.0, 20.0],
+            "f_v_mps": [19.0, 19.0, 21.0],
+        }
+    )
     got = press_values(d)
     assert list(got["t_f"]) == [2.0] and list(got["gap_f"]) == [6.0, 7.0] and list(got["thw_f"]) == [0.3, 0.35]
     assert len(got["gap_nb"]) == 0
@@ -78,10 +93,15 @@ def test_the_drive_figure_draws_the_rate_and_every_indicator_and_marks_a_miss():
 
     rng = np.random.default_rng(1)
     drivers = pd.DataFrame({"driver_id": ["a"], "changes": [30], "left": [15], "right": [15], "km": [10.0]})
-    fid = {"tolerance": 0.2, "medians_in_iqr": "1 of 2",
-           "rate": rate_comparison({"changes": 33, "left": 16, "right": 17, "km": 10.0}, drivers),
-           "indicators": {"t_f": compare_values(rng.normal(8, 1, 40), rng.normal(8, 1, 90), rng),
-                          "gap_f": compare_values(rng.normal(90, 5, 40), rng.normal(50, 5, 90), rng)}}
+    fid = {
+        "tolerance": 0.2,
+        "medians_in_iqr": "1 of 2",
+        "rate": rate_comparison({"changes": 33, "left": 16, "right": 17, "km": 10.0}, drivers),
+        "indicators": {
+            "t_f": compare_values(rng.normal(8, 1, 40), rng.normal(8, 1, 90), rng),
+            "gap_f": compare_values(rng.normal(90, 5, 40), rng.normal(50, 5, 90), rng),
+        },
+    }
     fig = drive_fidelity(fid)
     titles = [a.text for a in fig.layout.annotations]
     assert titles[:3] == ["lane changes per km [1/km]", "t_f [s]", "gap_f [m] (outside the drivers' IQR)"]
@@ -94,12 +114,18 @@ def test_the_drive_figure_shows_where_each_side_drove_by_lane():
     from rl.plots import drive_fidelity
 
     drivers = pd.DataFrame({"driver_id": ["a"], "changes": [30], "left": [15], "right": [15], "km": [10.0]})
-    fid = {"tolerance": 0.2, "medians_in_iqr": "0 of 0", "indicators": {},
-           "rate": rate_comparison({"changes": 33, "left": 16, "right": 17, "km": 10.0}, drivers),
-           "lanes": {"agent": lane_use([_ego([0, 1, 2, 2, 2, 1])]), "drivers": lane_use([_ego([0, 0, 0, 1, 1, 0])])}}
+    fid = {
+        "tolerance": 0.2,
+        "medians_in_iqr": "0 of 0",
+        "indicators": {},
+        "rate": rate_comparison({"changes": 33, "left": 16, "right": 17, "km": 10.0}, drivers),
+        "lanes": {"agent": lane_use([_ego([0, 1, 2, 2, 2, 1])]), "drivers": lane_use([_ego([0, 0, 0, 1, 1, 0])])},
+    }
     fig = drive_fidelity(fid)
-    assert [a.text for a in fig.layout.annotations][1:] == ["time in each lane [share]",
-                                                             "lane changes per km by lane pair"]
+    assert [a.text for a in fig.layout.annotations][1:] == [
+        "time in each lane [share]",
+        "lane changes per km by lane pair",
+    ]
     shares = {t.name: dict(zip(t.x, t.y)) for t in fig.data if t.type == "bar" and "0>1" not in t.x}
     assert shares["agent"] == {"0": pytest.approx(0.2), "1": pytest.approx(0.2), "2": pytest.approx(0.6)}
     assert shares["drivers"] == {"0": pytest.approx(0.6), "1": pytest.approx(0.4), "2": 0.0}

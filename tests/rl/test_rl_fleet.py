@@ -33,8 +33,15 @@ def _members(n_agents: int = 3, episodes: int = 200) -> list[FleetMember]:
     for i, style in enumerate(["Defensive", "Normal", "Aggressive"][:n_agents]):
         lines = ReferenceLines.paper(style)
         approaches, _ = approaches_from_decisions(rule_driver_decisions(lines, 20, seed=i))
-        settings = DQNSettings(episodes=episodes + 50 * i, episodes_per_approach=0, learning_starts=200, seed=i,
-                               checkpoint_every=0, num_envs=8, batch_size=64)
+        settings = DQNSettings(
+            episodes=episodes + 50 * i,
+            episodes_per_approach=0,
+            learning_starts=200,
+            seed=i,
+            checkpoint_every=0,
+            num_envs=8,
+            batch_size=64,
+        )
         members.append(FleetMember(formulation_config(lines, "decisions"), settings, approaches))
     return members
 
@@ -71,24 +78,49 @@ def analysed_two_drivers(root) -> Workspace:
     decisions, refs, styles = [], [], []
     for i, (driver, style) in enumerate(STYLES.items()):
         lines = ReferenceLines.paper(style)
-        decisions.append(rule_driver_decisions(lines, 24, seed=i, cfg=EnvConfig(lines=lines), driver_id=driver)
-                         .assign(decision_id=lambda d, p=driver: p + ":" + d["decision_id"]))
+        decisions.append(
+            rule_driver_decisions(lines, 24, seed=i, cfg=EnvConfig(lines=lines), driver_id=driver).assign(
+                decision_id=lambda d, p=driver: p + ":" + d["decision_id"]
+            )
+        )
         for scope, name in (("driver", driver), ("style", style)):
-            refs += [{"scope": scope, "name": name, "kind": "typical" if scope == "style" else "driver",
-                      "indicator": k, "A": a, "b": b, "A_lo": None, "A_hi": None, "b_lo": None, "b_hi": None,
-                      "r2": None, "n": 24, "source": f"{driver}"}
-                     for k, (a, b) in (("t_f", lines.t_f), ("t_nf", lines.t_nf), ("dv_nb", lines.dv_nb))]
+            refs += [
+                {
+                    "scope": scope,
+                    "name": name,
+                    "kind": "typical" if scope == "style" else "driver",
+                    "indicator": k,
+                    "A": a,
+                    "b": b,
+                    "A_lo": None,
+                    "A_hi": None,
+                    "b_lo": None,
+                    "b_hi": None,
+                    "r2": None,
+                    "n": 24,
+                    "source": f"{driver}",
+                }
+                for k, (a, b) in (("t_f", lines.t_f), ("t_nf", lines.t_nf), ("dv_nb", lines.dv_nb))
+            ]
         styles.append({"driver_id": driver, "style": style, "is_typical": True})
-    ws.write_tables("analysis", {"decisions": pd.concat(decisions, ignore_index=True),
-                                 "reference_lines": pd.DataFrame(refs), "styles": pd.DataFrame(styles)}, meta={})
+    ws.write_tables(
+        "analysis",
+        {
+            "decisions": pd.concat(decisions, ignore_index=True),
+            "reference_lines": pd.DataFrame(refs),
+            "styles": pd.DataFrame(styles),
+        },
+        meta={},
+    )
     return ws
 
 
 @pytest.mark.slow
 def test_fleet_of_every_driver_learns_in_ordinary_run_folders(tmp_path):
     ws = analysed_two_drivers(tmp_path)
-    res = CliRunner().invoke(app, ["train", "--drivers", "all", "--episodes", "1200", "-w", str(tmp_path),
-                                   "--json", *FAST])
+    res = CliRunner().invoke(
+        app, ["train", "--drivers", "all", "--episodes", "1200", "-w", str(tmp_path), "--json", *FAST]
+    )
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     fleet = read_fleet(ws, out["fleet_id"])
@@ -117,8 +149,24 @@ def test_fleet_needs_known_targets(tmp_path):
 @pytest.mark.slow
 def test_a_killed_fleet_resumes(tmp_path):
     ws = analysed_two_drivers(tmp_path)
-    cmd = [sys.executable, "-m", "laneprint.app.cli", "train", "--drivers", "all", "--episodes", "400",
-           "--checkpoint-every", "50", "--run-id", "f1", "-w", str(tmp_path), "--json", *FAST]
+    cmd = [
+        sys.executable,
+        "-m",
+        "laneprint.app.cli",
+        "train",
+        "--drivers",
+        "all",
+        "--episodes",
+        "400",
+        "--checkpoint-every",
+        "50",
+        "--run-id",
+        "f1",
+        "-w",
+        str(tmp_path),
+        "--json",
+        *FAST,
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     checkpoints = [tmp_path / "runs" / f"f1-{d.lower()}-s0" / "checkpoint.pt" for d in STYLES]
     deadline = time.time() + 120
@@ -177,8 +225,9 @@ def test_stacked_environments_step_exactly_as_each_agents_own():
     members = _members()
 
     def envs():
-        return [make_vec_env(m.env_config, 8, np.random.default_rng([m.settings.seed, 1]), m.approaches)
-                for m in members]
+        return [
+            make_vec_env(m.env_config, 8, np.random.default_rng([m.settings.seed, 1]), m.approaches) for m in members
+        ]
 
     alone, together = envs(), envs()
     stack = stack_envs(together)

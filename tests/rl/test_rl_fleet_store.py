@@ -13,8 +13,10 @@ from rl.fleet import store as fleet_store
 
 def summary(agent, greedy, imitation=None):
     """Evaluation rows: (recall, balanced accuracy) per policy."""
-    rows = [{"who": "agent", "recall": agent[0], "balanced_accuracy": agent[1], "timing_mae_s": 0.4},
-            {"who": "greedy", "recall": greedy[0], "balanced_accuracy": greedy[1], "timing_mae_s": 2.0}]
+    rows = [
+        {"who": "agent", "recall": agent[0], "balanced_accuracy": agent[1], "timing_mae_s": 0.4},
+        {"who": "greedy", "recall": greedy[0], "balanced_accuracy": greedy[1], "timing_mae_s": 2.0},
+    ]
     if imitation:
         rows.append({"who": "imitation", "recall": imitation[0], "balanced_accuracy": imitation[1]})
     return rows + [{"who": "driver", "recall": 1.0, "balanced_accuracy": 1.0, "timing_mae_s": 0.0}]
@@ -23,22 +25,41 @@ def summary(agent, greedy, imitation=None):
 def write_run(ws, run_id, fleet_id, driver, seed, state="done", episode=50, episodes=50, pid=None, rows=None):
     d = ws.runs_dir / run_id
     d.mkdir(parents=True)
-    atomic_write_json(d / "config.json", {"run_id": run_id, "target": {"kind": "driver", "name": driver},
-                                          "seed": seed, "fleet_id": fleet_id, "dqn": {"episodes": episodes}})
+    atomic_write_json(
+        d / "config.json",
+        {
+            "run_id": run_id,
+            "target": {"kind": "driver", "name": driver},
+            "seed": seed,
+            "fleet_id": fleet_id,
+            "dqn": {"episodes": episodes},
+        },
+    )
     atomic_write_json(d / "status.json", {"state": state, "pid": pid, "episode": episode, "episodes": episodes})
     if rows is not None:
         atomic_write_json(d / "evaluation.json", {"summary": rows})
 
 
-def write_fleet(ws, fleet_id, runs, state="done", pid=None, created="2026-11-30T10:00:00+00:00",
-                targets=None, seeds=(0,)):
+def write_fleet(
+    ws, fleet_id, runs, state="done", pid=None, created="2026-11-30T10:00:00+00:00", targets=None, seeds=(0,)
+):
     folder = fleet_store.fleet_dir(ws) / fleet_id
     folder.mkdir(parents=True)
-    atomic_write_json(folder / "fleet.json", {
-        "fleet_id": fleet_id, "created_at": created,
-        "targets": targets or [{"kind": "driver", "name": n} for n in ("D01", "D02", "D03")],
-        "seeds": list(seeds), "runs": runs, "backend": "local", "state": state, "pid": pid,
-        "updated_at": created, "message": ""})
+    atomic_write_json(
+        folder / "fleet.json",
+        {
+            "fleet_id": fleet_id,
+            "created_at": created,
+            "targets": targets or [{"kind": "driver", "name": n} for n in ("D01", "D02", "D03")],
+            "seeds": list(seeds),
+            "runs": runs,
+            "backend": "local",
+            "state": state,
+            "pid": pid,
+            "updated_at": created,
+            "message": "",
+        },
+    )
 
 
 @pytest.fixture
@@ -70,8 +91,14 @@ def test_fleet_table_scores_each_agent_against_its_target(tmp_path):
     assert t["meets_target"].tolist() == [True, False, False]
     assert t["timing_mae_s"].tolist() == [0.4] * 3
     progress = fleet_store.fleet_progress(t.reset_index())
-    assert progress == {"n_runs": 3, "n_done": 3, "n_evaluated": 3, "n_meeting_target": 1,
-                        "episode": 150, "episodes": 150}
+    assert progress == {
+        "n_runs": 3,
+        "n_done": 3,
+        "n_evaluated": 3,
+        "n_meeting_target": 1,
+        "episode": 150,
+        "episodes": 150,
+    }
 
 
 def test_meets_target_on_the_edges():
@@ -102,10 +129,23 @@ def test_list_fleets_newest_first_with_counts(tmp_path, dead_pid):
     assert fleet_store.list_fleets(ws).empty and list(fleet_store.list_fleets(ws).columns) == fleet_store.FLEETS_COLUMNS
     write_run(ws, "old-0", "old", "D01", 0, rows=summary((1.0, 0.9), (1.0, 0.7)))
     write_run(ws, "old-1", "old", "D01", 1, state="running", episode=3, pid=dead_pid)
-    write_fleet(ws, "old", ["old-0", "old-1"], state="running", pid=dead_pid, seeds=(0, 1),
-                targets=[{"kind": "driver", "name": "D01"}])
-    write_fleet(ws, "new", ["new-0"], state="done", created="2026-11-30T11:00:00+00:00",
-                targets=[{"kind": "style", "name": s} for s in ("Defensive", "Normal", "Aggressive", "X")])
+    write_fleet(
+        ws,
+        "old",
+        ["old-0", "old-1"],
+        state="running",
+        pid=dead_pid,
+        seeds=(0, 1),
+        targets=[{"kind": "driver", "name": "D01"}],
+    )
+    write_fleet(
+        ws,
+        "new",
+        ["new-0"],
+        state="done",
+        created="2026-11-30T11:00:00+00:00",
+        targets=[{"kind": "style", "name": s} for s in ("Defensive", "Normal", "Aggressive", "X")],
+    )
     (fleet_store.fleet_dir(ws) / "junk").mkdir()  # no fleet.json: not a fleet
     t = fleet_store.list_fleets(ws)
     assert t["fleet_id"].tolist() == ["new", "old"]

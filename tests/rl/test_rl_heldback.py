@@ -10,9 +10,22 @@ import pandas as pd
 import pytest
 
 from laneprint.simulator.sumo.traffic import VehicleState
-from rl.drive.heldback import (DEFAULT_PATIENCE_S, MIN_LAG_PRESSES, FollowStats, HeldBackRule, LeftBehind, Line,
-                               above_floors, accepts, dwell_from, dwell_times, following_before_press, lag_headways,
-                               patience_from, rule_target)
+from rl.drive.heldback import (
+    DEFAULT_PATIENCE_S,
+    MIN_LAG_PRESSES,
+    FollowStats,
+    HeldBackRule,
+    LeftBehind,
+    Line,
+    above_floors,
+    accepts,
+    dwell_from,
+    dwell_times,
+    following_before_press,
+    lag_headways,
+    patience_from,
+    rule_target,
+)
 from rl.drive.loop import AgentControl, Watch, live_scene
 from rl.problem.env import EnvConfig
 from rl.problem.rewards import CHANGE, KEEP
@@ -48,12 +61,18 @@ def _rule(patience: float = 5.0) -> HeldBackRule:
     return HeldBackRule(patience, gap_nf=Line(0.0, 30.0), gap_nb=Line(0.0, 30.0), thw_nb=Line(0.0, 3.0))
 
 
-def _follow(others: dict[str, VehicleState], seconds: float, rule: HeldBackRule | None = None,
-            use_rule: bool = True, v_e: float = 20.0) -> tuple[AgentControl, _Api, list[float]]:
+def _follow(
+    others: dict[str, VehicleState],
+    seconds: float,
+    rule: HeldBackRule | None = None,
+    use_rule: bool = True,
+    v_e: float = 20.0,
+) -> tuple[AgentControl, _Api, list[float]]:
     """The ego in lane 0 of two, following `others['f']` at its speed, for `seconds` of 0.1 s steps;
     the times at which a change was requested."""
-    control = AgentControl(_never_changes, EnvConfig(observation="indicators"), 0.1, 2, rule or _rule(), DESIRED,
-                           use_rule)
+    control = AgentControl(
+        _never_changes, EnvConfig(observation="indicators"), 0.1, 2, rule or _rule(), DESIRED, use_rule
+    )
     api = _Api()
     control.start(api)
     times: list[float] = []
@@ -129,16 +148,20 @@ def test_the_comparator_only_looks():
     control.start(api)
     for i in range(100):
         t = 0.1 * i
-        control.step(api, t, VehicleState(100.0 + 20 * t, 20.0, 0, 4.5), 0.0,
-                     {"f": VehicleState(130.0 + 20 * t, 20.0, 0, 4.5)})
+        control.step(
+            api, t, VehicleState(100.0 + 20 * t, 20.0, 0, 4.5), 0.0, {"f": VehicleState(130.0 + 20 * t, 20.0, 0, 4.5)}
+        )
     assert api.vehicle.modes == [] and api.vehicle.requests == []  # SUMO's own lane changing stays on
     assert control.n_asked == 20 and control.stats.n_held == 20
 
 
 def test_rule_target_takes_the_faster_accepted_lane():
     ego = VehicleState(100.0, 20.0, 1, 4.5)
-    others = {"f": VehicleState(130.0, 20.0, 1, 4.5), "l": VehicleState(170.0, 23.0, 2, 4.5),
-              "r": VehicleState(180.0, 26.0, 0, 4.5)}
+    others = {
+        "f": VehicleState(130.0, 20.0, 1, 4.5),
+        "l": VehicleState(170.0, 23.0, 2, 4.5),
+        "r": VehicleState(180.0, 26.0, 0, 4.5),
+    }
     scenes = {k: live_scene(ego, others, k)[0] for k in (2, 0)}
     assert rule_target(_rule(), scenes, 4.0, 150.0) is None  # not patient long enough yet
     assert rule_target(_rule(), scenes, 5.0, 150.0) == 0
@@ -174,9 +197,17 @@ def test_follow_stats_passed_up_is_per_stretch():
 
 def _approach(rec: str, press: int, closing: list[float]) -> pd.DataFrame:
     n = len(closing)
-    return pd.DataFrame({"recording_id": rec, "press_index": press, "t_s": np.arange(n) * 0.5,
-                         "ego_v_mps": 20.0, "f_v_mps": 20.0 - np.asarray(closing), "f_present": True,
-                         "label": ["keep"] * (n - 1) + ["change"]})
+    return pd.DataFrame(
+        {
+            "recording_id": rec,
+            "press_index": press,
+            "t_s": np.arange(n) * 0.5,
+            "ego_v_mps": 20.0,
+            "f_v_mps": 20.0 - np.asarray(closing),
+            "f_present": True,
+            "label": ["keep"] * (n - 1) + ["change"],
+        }
+    )
 
 
 def test_patience_is_the_median_following_time_before_presses():
@@ -193,6 +224,7 @@ def test_patience_is_the_median_following_time_before_presses():
 def test_the_agent_does_not_return_behind_the_leader_the_rule_left():
     """After the rule's change to the left, an agent that wants back right is not asked to while the
     leader it left is still ahead; once passed, it is."""
+
     def back_right(scene) -> np.ndarray:
         q = np.zeros((len(scene), 2))
         q[:, CHANGE] = np.where(scene.left, -1.5, 0.5)  # keeps about the left, changes back right
@@ -203,24 +235,32 @@ def test_the_agent_does_not_return_behind_the_leader_the_rule_left():
     control.start(api)
     truck = VehicleState(130.0, 20.0, 0, 12.0)
     for i in range(55):  # held behind the truck in lane 0: the rule asks for lane 1 after 5 s (t = 5.4)
-        control.step(api, 0.1 * i, VehicleState(100.0 + 2.0 * i, 20.0, 0, 4.5), 0.0,
-                     {"f": VehicleState(truck.x + 2.0 * i, 20.0, 0, 12.0)})
+        control.step(
+            api,
+            0.1 * i,
+            VehicleState(100.0 + 2.0 * i, 20.0, 0, 4.5),
+            0.0,
+            {"f": VehicleState(truck.x + 2.0 * i, 20.0, 0, 12.0)},
+        )
     assert api.vehicle.requests == [("ego", 1, 0.5)] and control.overtakings[-1].leader_id == "f"
     # now in lane 1, the truck 20 m ahead in lane 0: the agent's wish to go right is vetoed
     control.step(api, 6.0, VehicleState(230.0, 24.0, 1, 4.5), 0.0, {"f": VehicleState(250.0, 20.0, 0, 12.0)})
     for i in range(1, 5):
-        control.step(api, 6.0 + 0.1 * i, VehicleState(230.0, 24.0, 1, 4.5), 0.0,
-                     {"f": VehicleState(250.0, 20.0, 0, 12.0)})
+        control.step(
+            api, 6.0 + 0.1 * i, VehicleState(230.0, 24.0, 1, 4.5), 0.0, {"f": VehicleState(250.0, 20.0, 0, 12.0)}
+        )
     assert len(api.vehicle.requests) == 1 and control.n_vetoed == 1
     for i in range(5, 10):  # the truck passed (its centre 30 m behind the ego's): the agent returns
-        control.step(api, 6.0 + 0.1 * i, VehicleState(300.0, 24.0, 1, 4.5), 0.0,
-                     {"f": VehicleState(270.0, 20.0, 0, 12.0)})
+        control.step(
+            api, 6.0 + 0.1 * i, VehicleState(300.0, 24.0, 1, 4.5), 0.0, {"f": VehicleState(270.0, 20.0, 0, 12.0)}
+        )
     assert api.vehicle.requests[-1] == ("ego", 0, 0.5) and control.decisions[-1].source == "agent"
 
 
 def test_no_veto_behind_a_leader_that_no_longer_holds_the_ego_back():
     """The car the ego changed out behind speeds up and pulls away: the overtaking is over, the agent's
     return behind it is requested (before, it waited until that car was out of sight)."""
+
     def back_right(scene) -> np.ndarray:
         q = np.zeros((len(scene), 2))
         q[:, CHANGE] = np.where(scene.left, -1.5, 0.5)
@@ -243,8 +283,9 @@ def test_no_change_of_the_agent_into_a_gap_below_the_targets_floor():
         q[:, CHANGE] = 0.5
         return q
 
-    rule = HeldBackRule(5.0, Line(0.0, 30.0, floor=8.0), Line(0.0, 30.0, floor=6.0), Line(0.0, 3.0, floor=0.75),
-                        undo_check=False)  # an agent that changes everywhere would undo every change to the left
+    rule = HeldBackRule(
+        5.0, Line(0.0, 30.0, floor=8.0), Line(0.0, 30.0, floor=6.0), Line(0.0, 3.0, floor=0.75), undo_check=False
+    )  # an agent that changes everywhere would undo every change to the left
     ego = VehicleState(100.0, 17.0, 0, 4.5)
     for cut_in, n in ((VehicleState(106.0, 7.0, 1, 4.5), 0), (VehicleState(115.0, 15.0, 1, 4.5), 1)):
         for use_rule in (True, False):  # lead gap 1.5 m (below the floor), then 10.5 m
@@ -256,8 +297,9 @@ def test_no_change_of_the_agent_into_a_gap_below_the_targets_floor():
 
 
 def test_no_change_closing_on_the_target_leader_faster_than_the_floor():
-    rule = HeldBackRule(5.0, Line(0.0, 30.0, floor=8.0), Line(0.0, 30.0, floor=6.0), Line(0.0, 3.0, floor=0.75),
-                        t_nf_floor_s=1.5)
+    rule = HeldBackRule(
+        5.0, Line(0.0, 30.0, floor=8.0), Line(0.0, 30.0, floor=6.0), Line(0.0, 3.0, floor=0.75), t_nf_floor_s=1.5
+    )
     ego = VehicleState(100.0, 23.0, 1, 4.5)
     fast_close = live_scene(ego, {"r": VehicleState(115.0, 10.0, 0, 4.5)}, 0)[0]  # 10.5 m, t_nf 0.8 s
     slow_close = live_scene(ego, {"r": VehicleState(115.0, 20.0, 0, 4.5)}, 0)[0]  # 10.5 m, t_nf 3.5 s
@@ -268,18 +310,29 @@ def test_the_rule_completes_an_overtaking_once_the_leader_is_passed():
     control = AgentControl(_never_changes, EnvConfig(observation="indicators"), 0.1, 2, _rule(), DESIRED, True)
     api = _Api()
     for i in range(55):  # held 5 s behind the truck: the rule changes left
-        control.step(api, 0.1 * i, VehicleState(100.0 + 2.0 * i, 20.0, 0, 4.5), 0.0,
-                     {"f": VehicleState(130.0 + 2.0 * i, 20.0, 0, 12.0)})
+        control.step(
+            api,
+            0.1 * i,
+            VehicleState(100.0 + 2.0 * i, 20.0, 0, 4.5),
+            0.0,
+            {"f": VehicleState(130.0 + 2.0 * i, 20.0, 0, 12.0)},
+        )
     assert api.vehicle.requests == [("ego", 1, 0.5)]
     for k, (ego_x, truck_x) in enumerate(((230.0, 250.0), (300.0, 280.0), (400.0, 300.0))):
         for i in range(5):  # alongside, just passed (lag gap 11.75 m < 30 m), then far ahead (91.75 m)
-            control.step(api, 6.0 + k + 0.1 * i, VehicleState(ego_x, 25.0, 1, 4.5), 0.0,
-                         {"f": VehicleState(truck_x, 20.0, 0, 12.0)})
+            control.step(
+                api,
+                6.0 + k + 0.1 * i,
+                VehicleState(ego_x, 25.0, 1, 4.5),
+                0.0,
+                {"f": VehicleState(truck_x, 20.0, 0, 12.0)},
+            )
         assert len(api.vehicle.requests) == (1 if k < 2 else 2)
     assert api.vehicle.requests[-1] == ("ego", 0, 0.5) and control.decisions[-1].source == "return"
     for i in range(5):  # back in lane 0: the overtaking is complete
-        control.step(api, 10.0 + 0.1 * i, VehicleState(400.0, 25.0, 0, 4.5), 0.0,
-                     {"f": VehicleState(300.0, 20.0, 0, 12.0)})
+        control.step(
+            api, 10.0 + 0.1 * i, VehicleState(400.0, 25.0, 0, 4.5), 0.0, {"f": VehicleState(300.0, 20.0, 0, 12.0)}
+        )
     assert control.overtakings == [] and control.left_behind is None
 
 
@@ -317,9 +370,15 @@ def test_overtakings_stack_on_three_lanes():
 
 def _presses(rows: list[tuple[str, float, str]]) -> pd.DataFrame:
     """Press rows (recording, press time, side); each lane change 1.5 s after its press."""
-    return pd.DataFrame({"recording_id": [r for r, _, _ in rows], "press_t_s": [t for _, t, _ in rows],
-                         "lane_change_t_s": [t + 1.5 for _, t, _ in rows], "lc_direction": [s for _, _, s in rows],
-                         "label": "change"})
+    return pd.DataFrame(
+        {
+            "recording_id": [r for r, _, _ in rows],
+            "press_t_s": [t for _, t, _ in rows],
+            "lane_change_t_s": [t + 1.5 for _, t, _ in rows],
+            "lc_direction": [s for _, _, s in rows],
+            "label": "change",
+        }
+    )
 
 
 def _back_and_forth() -> pd.DataFrame:
@@ -355,8 +414,10 @@ def test_the_agent_is_not_asked_about_a_side_sooner_after_a_change_than_its_driv
 
     rule = HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), dwell_s={"left>right": 4.0})
     for use_rule, first_back in ((True, 4.0), (False, 0.0)):
-        control, api = AgentControl(always, EnvConfig(observation="indicators"), 0.1, 2, rule, DESIRED,
-                                    use_rule), _Api()
+        control, api = (
+            AgentControl(always, EnvConfig(observation="indicators"), 0.1, 2, rule, DESIRED, use_rule),
+            _Api(),
+        )
         control.start(api)
         control.step(api, 0.0, VehicleState(100.0, 20.0, 0, 4.5), 0.0, {})  # in lane 0 ...
         times = []
@@ -376,8 +437,9 @@ def test_drawn_dwells_come_from_the_drivers_own_times():
     times = dwell_times(_back_and_forth())
     assert times["left>right"] == pytest.approx([10.0, 11.0, 12.0, 13.0, 14.0, 15.0])
     assert times["right>left"] == pytest.approx([2.0] * 5)
-    rule = HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), dwell_s={"left>right": 10.25},
-                        dwell_draws=times)
+    rule = HeldBackRule(
+        5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), dwell_s={"left>right": 10.25}, dwell_draws=times
+    )
     drawn = [rule.draw_dwell("left", np.random.default_rng([3, k])) for k in range(50)]
     assert all(set(d) == {"left>right"} and d["left>right"] in times["left>right"] for d in drawn)
     assert len({d["left>right"] for d in drawn}) > 3  # spread over the drivers' times, not one percentile
@@ -396,12 +458,17 @@ def test_the_agent_waits_the_dwell_drawn_at_its_change():
         return q
 
     draws = {"left>right": [2.0, 3.0, 4.0, 5.0, 6.0]}
-    rule = HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), dwell_s={"left>right": 2.0},
-                        dwell_draws=draws)
+    rule = HeldBackRule(
+        5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), dwell_s={"left>right": 2.0}, dwell_draws=draws
+    )
     firsts = []
     for seed in range(6):
-        control, api = AgentControl(always, EnvConfig(observation="indicators"), 0.1, 2, rule, DESIRED, True,
-                                    np.random.default_rng(seed)), _Api()
+        control, api = (
+            AgentControl(
+                always, EnvConfig(observation="indicators"), 0.1, 2, rule, DESIRED, True, np.random.default_rng(seed)
+            ),
+            _Api(),
+        )
         control.start(api)
         control.step(api, 0.0, VehicleState(100.0, 20.0, 0, 4.5), 0.0, {})  # in lane 0 ...
         for i in range(1, 81):  # ... then in lane 1 from t = 0.1 s: a change to the left just made
@@ -438,13 +505,22 @@ def _side_blind(scene) -> np.ndarray:
     return q
 
 
-def _requests(rule: HeldBackRule, lane: int, others: dict[str, VehicleState], n_lanes: int = 2) -> tuple[list, AgentControl]:
-    control, api = AgentControl(_side_blind, EnvConfig(observation="indicators"), 0.1, n_lanes, rule, DESIRED,
-                                True), _Api()
+def _requests(
+    rule: HeldBackRule, lane: int, others: dict[str, VehicleState], n_lanes: int = 2
+) -> tuple[list, AgentControl]:
+    control, api = (
+        AgentControl(_side_blind, EnvConfig(observation="indicators"), 0.1, n_lanes, rule, DESIRED, True),
+        _Api(),
+    )
     control.start(api)
     for i in range(5):
-        control.step(api, 0.1 * i, VehicleState(100.0 + 2.5 * i, 25.0, lane, 4.5), 0.0,
-                     {k: VehicleState(s.x + s.v * 0.1 * i, s.v, s.lane, s.length) for k, s in others.items()})
+        control.step(
+            api,
+            0.1 * i,
+            VehicleState(100.0 + 2.5 * i, 25.0, lane, 4.5),
+            0.0,
+            {k: VehicleState(s.x + s.v * 0.1 * i, s.v, s.lane, s.length) for k, s in others.items()},
+        )
     return [lane for _, lane, _ in api.vehicle.requests], control
 
 
@@ -476,6 +552,7 @@ def test_no_change_to_the_left_that_the_agent_would_at_once_undo():
     assert requests == [1] and control.n_undone == 0
     middle, _ = _requests(rule, 1, {}, n_lanes=3)  # the middle lane of an empty road: right, never left
     assert middle == [0]
+
     # an agent that wants every change would undo every one; behind a leader it is not asked, so it goes
     def always(scene) -> np.ndarray:
         q = np.zeros((len(scene), 2))
@@ -485,16 +562,20 @@ def test_no_change_to_the_left_that_the_agent_would_at_once_undo():
     for others, requested in (({}, []), ({"f": VehicleState(200.0, 25.0, 0, 4.5)}, [1])):
         control, api = AgentControl(always, EnvConfig(observation="indicators"), 0.1, 2, rule, DESIRED, True), _Api()
         for i in range(5):
-            control.step(api, 0.1 * i, VehicleState(100.0 + 2.5 * i, 25.0, 0, 4.5), 0.0,
-                         {k: VehicleState(s.x + 2.5 * i, s.v, s.lane, s.length) for k, s in others.items()})
+            control.step(
+                api,
+                0.1 * i,
+                VehicleState(100.0 + 2.5 * i, 25.0, 0, 4.5),
+                0.0,
+                {k: VehicleState(s.x + 2.5 * i, s.v, s.lane, s.length) for k, s in others.items()},
+            )
         assert [lane for _, lane, _ in api.vehicle.requests] == requested
         assert (control.n_undone > 0) == (not others)
 
 
 def test_follower_headways_are_read_per_side_from_presses_with_a_near_follower():
     def presses(side: str, n: int, thw: float, gap: float = 30.0) -> list[dict]:
-        return [{"label": "change", "lc_direction": side, "nb_gap_m": gap, "thw_nb_s": thw + 0.1 * i}
-                for i in range(n)]
+        return [{"label": "change", "lc_direction": side, "nb_gap_m": gap, "thw_nb_s": thw + 0.1 * i} for i in range(n)]
 
     rows = presses("right", 12, 1.0) + presses("left", 3, 4.0) + presses("left", 5, 9.0, gap=150.0)
     rows += [{"label": "keep", "lc_direction": "left", "nb_gap_m": 10.0, "thw_nb_s": 0.2}]
@@ -511,14 +592,16 @@ def test_the_agent_does_not_cut_in_front_of_a_follower_closer_than_the_headway_d
         q[:, CHANGE] = 0.5
         return q
 
-    rule = HeldBackRule(5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), undo_check=False,
-                        lag_draws={"left": [2.0]})
+    rule = HeldBackRule(
+        5.0, Line(0.0, 0.0), Line(0.0, 0.0), Line(0.0, 0.0), undo_check=False, lag_draws={"left": [2.0]}
+    )
     ego = VehicleState(100.0, 20.0, 0, 4.5)
     # a follower in the left lane at the ego's speed: 15.5 m (0.78 s) behind, then 55.5 m (2.78 s)
     for follower, requested in ((VehicleState(80.0, 20.0, 1, 4.5), 0), (VehicleState(40.0, 20.0, 1, 4.5), 1)):
         for use_lag in (True, False):
-            control = AgentControl(always, EnvConfig(), 0.1, 2, rule if use_lag else replace(rule, lag_draws={}),
-                                   DESIRED, True)
+            control = AgentControl(
+                always, EnvConfig(), 0.1, 2, rule if use_lag else replace(rule, lag_draws={}), DESIRED, True
+            )
             api = _Api()
             for i in range(5):
                 control.step(api, 0.1 * i, ego, 0.0, {"nb": follower})

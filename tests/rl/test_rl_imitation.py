@@ -17,5 +17,6 @@ def test_a_drivers_classifier_is_fitted_once_for_all_its_seeds():
     assert fitted_classifier(approaches, cfg, 1, cache, key=("D01",)) is first
     assert fitted_classifier(approaches, cfg, 1, cache, key=("D02",)) is not first
     X, _ = labelled_states(approaches, cfg)  # the seed changes nothing: the shared fit is seed 1's
-    np.testing.assert_array_equal(first.press_probability(X),
-                                  ImitationClassifier(random_state=1).fit(approaches, cfg).press_probability(X))
+    np.testing.assert_array_equal(
+        first.press_probability(X), ImitationClassifier(random_state=1).fit(approaches, cfg).press_probability(X)
+    )

@@ -58,20 +58,31 @@ SMALL = "[dqn]\ncheckpoint_every = 50\n[trees]\ntrees = 20\niterations = 4\n"
 # learner -> (workspace, options, three moments (status message it starts with, episode at least))
 LEARNERS = {
     # before its first checkpoint (it starts over), after two (metrics past them dropped), evaluating
-    "dqn": ("one", ["--learner", "dqn", "--episodes", "150", *FAST_CLI],
-            [("training", 0), ("training", 110), ("evaluating", 0)]),
+    "dqn": (
+        "one",
+        ["--learner", "dqn", "--episodes", "150", *FAST_CLI],
+        [("training", 0), ("training", 110), ("evaluating", 0)],
+    ),
     # before its first Q function, half way through them, evaluating
-    "trees": ("one", ["--learner", "trees"],
-              [("fitting the tree Q functions", 0), ("tree Q fitted", 2), ("evaluating", 0)]),
+    "trees": (
+        "one",
+        ["--learner", "trees"],
+        [("fitting the tree Q functions", 0), ("tree Q fitted", 2), ("evaluating", 0)],
+    ),
     # four sessions: inner folds, the trees chosen. During the trees' inner fits, during the inner DQNs'
     # training, half way through the chosen trees' fit on every approach
-    "auto": ("sessions", ["--learner", "auto", "--episodes", "120", *FAST_CLI],
-             [("choosing the learner: fitting the trees", 0), ("choosing the learner: training", 60),
-              ("tree Q fitted", 2)]),
+    "auto": (
+        "sessions",
+        ["--learner", "auto", "--episodes", "120", *FAST_CLI],
+        [("choosing the learner: fitting the trees", 0), ("choosing the learner: training", 60), ("tree Q fitted", 2)],
+    ),
     # one session, nothing to hold out: the DQN taken at once. While it trains (in the choice's fleet), once
     # the config names it (before its first checkpoint of the run's own), evaluating
-    "auto-dqn": ("one", ["--learner", "auto", "--episodes", "120", *FAST_CLI],
-                 [("choosing the learner: training", 60), ("training", 0), ("evaluating", 0)]),
+    "auto-dqn": (
+        "one",
+        ["--learner", "auto", "--episodes", "120", *FAST_CLI],
+        [("choosing the learner: training", 60), ("training", 0), ("evaluating", 0)],
+    ),
 }
 
 
@@ -87,14 +98,26 @@ def _workspace(root: Path, kind: str) -> Workspace:
 
 
 def _args(root: Path, run_id: str, extra: list[str]) -> list[str]:
-    return ["train", "--style", "Normal", "--run-id", run_id, "-w", str(root), "--json",
-            "--config", str(root / "small.toml"), *extra]
+    return [
+        "train",
+        "--style",
+        "Normal",
+        "--run-id",
+        run_id,
+        "-w",
+        str(root),
+        "--json",
+        "--config",
+        str(root / "small.toml"),
+        *extra,
+    ]
 
 
 def _same_weights(a: Path, b: Path) -> bool:
     wa, wb = torch.load(a, weights_only=True), torch.load(b, weights_only=True)
     return wa.keys() == wb.keys() and all(
-        torch.equal(x, wb[k]) if isinstance(x, torch.Tensor) else x == wb[k] for k, x in wa.items())
+        torch.equal(x, wb[k]) if isinstance(x, torch.Tensor) else x == wb[k] for k, x in wa.items()
+    )
 
 
 def _episodes(folder: Path) -> list[dict]:
@@ -106,8 +129,7 @@ def _episodes(folder: Path) -> list[dict]:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("learner", list(LEARNERS))
-def test_killed_at_three_moments_each_run_reads_interrupted_and_resumes_to_the_uninterrupted_figures(tmp_path,
-                                                                                                    learner):
+def test_killed_at_three_moments_each_run_reads_interrupted_and_resumes_to_the_uninterrupted_figures(tmp_path, learner):
     from dashboard.jobs import run_status
 
     kind, extra, moments = LEARNERS[learner]
@@ -119,8 +141,9 @@ def test_killed_at_three_moments_each_run_reads_interrupted_and_resumes_to_the_u
     if learner.startswith("auto"):
         assert expected["learner_choice"]["learner"] == ("trees" if kind == "sessions" else "dqn")
     jobs = [[message, episode, _args(tmp_path, f"k{k}", extra)] for k, (message, episode) in enumerate(moments)]
-    killed = subprocess.run([sys.executable, "-c", KILLER, json.dumps(jobs)], capture_output=True, text=True,
-                            timeout=600)
+    killed = subprocess.run(
+        [sys.executable, "-c", KILLER, json.dumps(jobs)], capture_output=True, text=True, timeout=600
+    )
     assert killed.returncode == 0, killed.stderr[-3000:]
     assert json.loads(killed.stdout.splitlines()[-1]) == [-9] * len(moments), killed.stderr[-3000:]
     for k in range(len(moments)):  # as the killed processes left them

@@ -49,8 +49,24 @@ def test_the_estimate_bounds_real_runs(tmp_path):
     """Real 300-episode runs (recorded scenes, seeds 0-2) collect no more than the estimate, and at least half."""
     ws = analysed_workspace(tmp_path)
     for seed in range(3):
-        res = CliRunner().invoke(app, ["train", "--style", "Normal", "--episodes", "300", "--seed", str(seed),
-                                       "--no-evaluate", "--run-id", f"r{seed}", "-w", str(tmp_path), "--json"])
+        res = CliRunner().invoke(
+            app,
+            [
+                "train",
+                "--style",
+                "Normal",
+                "--episodes",
+                "300",
+                "--seed",
+                str(seed),
+                "--no-evaluate",
+                "--run-id",
+                f"r{seed}",
+                "-w",
+                str(tmp_path),
+                "--json",
+            ],
+        )
         assert res.exit_code == 0, res.output
         doc = json.loads(res.stdout)
         expected = doc["learning_check"]["expected_transitions"]
@@ -75,15 +91,48 @@ def test_train_warns_before_the_run_starts(tmp_path, monkeypatch):
 
 def test_train_short_run_still_runs_and_a_run_that_can_learn_says_nothing(tmp_path):
     analysed_workspace(tmp_path)
-    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--episodes", "3",
-                                   "--no-evaluate", "--run-id", "short", "-w", str(tmp_path), "--json"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "train",
+            "--style",
+            "Normal",
+            "--lines",
+            "paper",
+            "--episodes",
+            "3",
+            "--no-evaluate",
+            "--run-id",
+            "short",
+            "-w",
+            str(tmp_path),
+            "--json",
+        ],
+    )
     assert res.exit_code == 0, res.output  # warned, not refused: a smoke test or a run to resume later
     doc = json.loads(res.stdout)
     assert doc["learning_check"]["verdict"] == "never" and doc["learning_check"]["targets"] == ["style Normal"]
     assert "warning: 3 episodes make at most about" in res.stderr
-    ok = CliRunner().invoke(app, ["train", "--style", "Normal", "--episodes", "3", "--learning-starts", "5",
-                                  "--batch-size", "8", "--no-evaluate", "--run-id", "learns", "-w", str(tmp_path),
-                                  "--json"])
+    ok = CliRunner().invoke(
+        app,
+        [
+            "train",
+            "--style",
+            "Normal",
+            "--episodes",
+            "3",
+            "--learning-starts",
+            "5",
+            "--batch-size",
+            "8",
+            "--no-evaluate",
+            "--run-id",
+            "learns",
+            "-w",
+            str(tmp_path),
+            "--json",
+        ],
+    )
     assert ok.exit_code == 0, ok.output
     assert "learning_check" not in json.loads(ok.stdout) and "warning" not in ok.stderr
 
@@ -96,6 +145,7 @@ def test_crossval_warns_before_the_folds(tmp_path, monkeypatch):
         raise AssertionError("the check comes first")
 
     monkeypatch.setattr(store, "run_crossval", never_called)
-    res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--episodes", "40",
-                                   "-w", str(tmp_path)])
+    res = CliRunner().invoke(
+        app, ["crossval", "--style", "Normal", "--folds", "2", "--episodes", "40", "-w", str(tmp_path)]
+    )
     assert res.stderr.strip().startswith("warning: 40 episodes make at most about"), res.stderr

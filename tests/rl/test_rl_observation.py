@@ -13,8 +13,22 @@ from tests.support.rl_workspaces import raw_measurements, spec_value
 
 
 def scene(**over) -> Scene:
-    cols = dict(v_e=25.0, x_e=0.0, f_present=True, v_f=20.0, x_f=30.0, hl_f=4.5, nf_present=True, v_nf=25.0,
-                x_nf=50.0, hl_nf=4.5, nb_present=True, v_nb=30.0, x_nb=-40.0, hl_nb=4.5)
+    cols = dict(
+        v_e=25.0,
+        x_e=0.0,
+        f_present=True,
+        v_f=20.0,
+        x_f=30.0,
+        hl_f=4.5,
+        nf_present=True,
+        v_nf=25.0,
+        x_nf=50.0,
+        hl_nf=4.5,
+        nb_present=True,
+        v_nb=30.0,
+        x_nb=-40.0,
+        hl_nb=4.5,
+    )
     cols.update(over)
     return Scene(**{k: np.array([v]) for k, v in cols.items()})
 
@@ -35,7 +49,7 @@ def test_acceptance_reads_gaps_and_headways_on_log_scales():
     assert got["thw_nb"] == pytest.approx(math.log1p(35.5 / 30.0) / math.log1p(HEADWAY_CAP_S), abs=1e-6)
     # the study's 8 values and the indicator features come first, unchanged
     base = observation(scene(), EnvConfig(observation="indicators"))[0]
-    np.testing.assert_array_equal(observation(scene(), cfg)[0, :len(base)], base)
+    np.testing.assert_array_equal(observation(scene(), cfg)[0, : len(base)], base)
 
 
 def test_acceptance_absent_vehicles_read_far_and_a_car_alongside_reads_as_no_gap():

@@ -22,14 +22,22 @@ from rl.problem.rewards import ReferenceLines
 from tests.support.rl_workspaces import FAST_CLI, session_decisions
 
 #: Two drivers per style of Table 1, three sessions of six decisions each.
-DRIVERS = {"D01": "Defensive", "D02": "Defensive", "D03": "Normal", "D04": "Normal", "D05": "Aggressive",
-           "D06": "Aggressive"}
+DRIVERS = {
+    "D01": "Defensive",
+    "D02": "Defensive",
+    "D03": "Normal",
+    "D04": "Normal",
+    "D05": "Aggressive",
+    "D06": "Aggressive",
+}
 TINY = ["--base-episodes", "60", "--episodes", "40", *FAST_CLI]
 
 
 def _decisions() -> pd.DataFrame:
-    parts = [session_decisions(ReferenceLines.paper(style), 3, 6, driver=d, seed=10 * i)
-             for i, (d, style) in enumerate(DRIVERS.items())]
+    parts = [
+        session_decisions(ReferenceLines.paper(style), 3, 6, driver=d, seed=10 * i)
+        for i, (d, style) in enumerate(DRIVERS.items())
+    ]
     return pd.concat(parts, ignore_index=True)
 
 
@@ -38,13 +46,27 @@ def study(tmp_path_factory) -> Workspace:
     """A hand-made analysis of six drivers in three styles (the decisions table, styles, lines, settings)."""
     ws = Workspace(tmp_path_factory.mktemp("personalize")).ensure()
     dec = _decisions()
-    styles = pd.DataFrame({"driver_id": list(DRIVERS), "style": list(DRIVERS.values()),
-                           "is_typical": [True, False] * 3, "cluster": [0, 0, 1, 1, 2, 2]})
-    refs = pd.DataFrame([{"scope": "style", "name": s, "kind": "typical", "indicator": ind, "A": a, "b": b,
-                          "source": "Table 1"} for s in ("Defensive", "Normal", "Aggressive")
-                         for ind in ("t_f", "t_nf", "dv_nb") for a, b in [getattr(ReferenceLines.paper(s), ind)]])
-    ws.write_tables("analysis", {"decisions": dec, "styles": styles, "reference_lines": refs},
-                    meta={"settings": AnalysisSettings(min_cluster_decisions=3).to_dict()})
+    styles = pd.DataFrame(
+        {
+            "driver_id": list(DRIVERS),
+            "style": list(DRIVERS.values()),
+            "is_typical": [True, False] * 3,
+            "cluster": [0, 0, 1, 1, 2, 2],
+        }
+    )
+    refs = pd.DataFrame(
+        [
+            {"scope": "style", "name": s, "kind": "typical", "indicator": ind, "A": a, "b": b, "source": "Table 1"}
+            for s in ("Defensive", "Normal", "Aggressive")
+            for ind in ("t_f", "t_nf", "dv_nb")
+            for a, b in [getattr(ReferenceLines.paper(s), ind)]
+        ]
+    )
+    ws.write_tables(
+        "analysis",
+        {"decisions": dec, "styles": styles, "reference_lines": refs},
+        meta={"settings": AnalysisSettings(min_cluster_decisions=3).to_dict()},
+    )
     return ws
 
 
@@ -75,8 +97,20 @@ def test_style_of_a_few_decisions_has_a_confidence(study: Workspace) -> None:
 
 @pytest.mark.slow
 def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(study: Workspace) -> None:
-    res = _run(study, "--driver", "D03", "--decisions", "5", "--from", "style", "--fine-tune", "--run-id", "p5",
-               "--json", *TINY)
+    res = _run(
+        study,
+        "--driver",
+        "D03",
+        "--decisions",
+        "5",
+        "--from",
+        "style",
+        "--fine-tune",
+        "--run-id",
+        "p5",
+        "--json",
+        *TINY,
+    )
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     dec = study.read_table("analysis", "decisions")
@@ -91,8 +125,16 @@ def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(s
     assert out["style"]["style"] in ("Defensive", "Normal", "Aggressive")
     assert 0 < out["style"]["confidence"] <= 1
     assert out["later_decisions"]["n_decisions"] == 18 - 5  # scored on the decisions it did not see
-    for name in ("config.json", "status.json", "metrics.jsonl", "weights.pt", "checkpoint.pt", "evaluation.json",
-                 "base_weights.pt", "personalize.json"):
+    for name in (
+        "config.json",
+        "status.json",
+        "metrics.jsonl",
+        "weights.pt",
+        "checkpoint.pt",
+        "evaluation.json",
+        "base_weights.pt",
+        "personalize.json",
+    ):
         assert (folder / name).exists(), name
     assert json.loads((folder / "status.json").read_text())["state"] == "done"
     assert len((folder / "metrics.jsonl").read_text().splitlines()) == 40
@@ -111,8 +153,10 @@ def test_personalize_uses_only_the_first_k_decisions_and_leaves_a_complete_run(s
     split = personalized_split(dec, ["D03"], expected)
     assert set(split["given"]["decision_id"]) == set(expected)
     assert not set(split["scored"]["decision_id"]) & set(expected)
-    assert personalized_split(dec, ["D03"], decision_order(dec[dec["driver_id"] == "D03"]))["scored_on"] == \
-        "in-sample: all 18 decisions given"
+    assert (
+        personalized_split(dec, ["D03"], decision_order(dec[dec["driver_id"] == "D03"]))["scored_on"]
+        == "in-sample: all 18 decisions given"
+    )
     if importlib.util.find_spec("onnxruntime"):
         exp = CliRunner().invoke(app, ["export", "p5", "-w", str(study.root), "--json"])
         assert exp.exit_code == 0, exp.output
@@ -132,8 +176,7 @@ def test_a_second_run_with_the_same_base_reuses_it(study: Workspace) -> None:
 
 
 def test_the_population_base_is_every_other_driver(study: Workspace) -> None:
-    res = _run(study, "--driver", "D06", "--decisions", "6", "--from", "population", "--run-id", "s6", "--json",
-               *TINY)
+    res = _run(study, "--driver", "D06", "--decisions", "6", "--from", "population", "--run-id", "s6", "--json", *TINY)
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["base"]["from"] == "population" and out["base"]["drivers"] == ["D01", "D02", "D03", "D04", "D05"]
@@ -162,8 +205,20 @@ def test_the_fitted_base_is_the_candidate_that_agrees_best_and_every_candidate_i
     text = _run(study, "--driver", "D02", "--decisions", "5", *always, "--run-id", "f5", *TINY)
     assert text.exit_code == 0, text.output
     assert "chosen by agreement with the 5 decisions" in text.stdout and "as it is" in text.stdout
-    sure = _run(study, "--driver", "D02", "--decisions", "6", "--from", "fit", "--no-fine-tune", "--run-id", "f6s",
-                "--json", *TINY)
+    sure = _run(
+        study,
+        "--driver",
+        "D02",
+        "--decisions",
+        "6",
+        "--from",
+        "fit",
+        "--no-fine-tune",
+        "--run-id",
+        "f6s",
+        "--json",
+        *TINY,
+    )
     assert sure.exit_code == 0, sure.output
     out = json.loads(sure.stdout)
     if out["style"]["confidence"] >= 0.8:  # a confident style's agent is taken as assigned
@@ -182,18 +237,36 @@ def test_fine_tuning_when_unsure_follows_the_styles_confidence() -> None:
         personalised_agent({}, [], [], None, None, ps)  # type: ignore[arg-type]
 
 
-@pytest.mark.parametrize("flags, min_conf, requested, tuned", [
-    ([], "1.01", "none", False),  # the default: the base as it is, however unsure the style
-    pytest.param(["--no-fine-tune"], "1.01", "none", False, marks=pytest.mark.slow),  # the default, spelt out
-    (["--fine-tune"], "0", "finetune", True),
-    (["--fine-tune-unsure"], "1.01", "unsure", True),  # never sure above 1: it fine-tunes
-    pytest.param(["--fine-tune-unsure"], "0", "unsure", False, marks=pytest.mark.slow),  # always sure at 0: the base as it is
-])
-def test_fine_tune_flags_and_the_unsure_rule(study: Workspace, flags: list[str], min_conf: str, requested: str,
-                                             tuned: bool) -> None:
+@pytest.mark.parametrize(
+    "flags, min_conf, requested, tuned",
+    [
+        ([], "1.01", "none", False),  # the default: the base as it is, however unsure the style
+        pytest.param(["--no-fine-tune"], "1.01", "none", False, marks=pytest.mark.slow),  # the default, spelt out
+        (["--fine-tune"], "0", "finetune", True),
+        (["--fine-tune-unsure"], "1.01", "unsure", True),  # never sure above 1: it fine-tunes
+        pytest.param(
+            ["--fine-tune-unsure"], "0", "unsure", False, marks=pytest.mark.slow
+        ),  # always sure at 0: the base as it is
+    ],
+)
+def test_fine_tune_flags_and_the_unsure_rule(
+    study: Workspace, flags: list[str], min_conf: str, requested: str, tuned: bool
+) -> None:
     run_id = f"u-{requested}-{len(flags)}-{min_conf.replace('.', '')}"
-    res = _run(study, "--driver", "D01", "--decisions", "4", "--min-confidence", min_conf, *flags, "--run-id", run_id,
-               "--json", *TINY)
+    res = _run(
+        study,
+        "--driver",
+        "D01",
+        "--decisions",
+        "4",
+        "--min-confidence",
+        min_conf,
+        *flags,
+        "--run-id",
+        run_id,
+        "--json",
+        *TINY,
+    )
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["fine_tuned"] is tuned and out["method"] == ("finetune" if tuned else "none")
@@ -205,12 +278,15 @@ def test_fine_tune_flags_and_the_unsure_rule(study: Workspace, flags: list[str],
         assert ("unsure: confidence" if tuned else "sure: confidence") in out["message"]
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--driver", "D99"], "no driver 'D99' in the analysis"),
-    (["--driver", "D01", "--decisions", "19"], "--decisions 19: the driver has 18 decisions"),
-    (["--driver", "D01", "--from", "fleet"], "unknown --from 'fleet'"),
-    (["--driver", "D01", "--fine-tune-unsure", "--fine-tune"], "--fine-tune-unsure and --fine-tune: choose one"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--driver", "D99"], "no driver 'D99' in the analysis"),
+        (["--driver", "D01", "--decisions", "19"], "--decisions 19: the driver has 18 decisions"),
+        (["--driver", "D01", "--from", "fleet"], "unknown --from 'fleet'"),
+        (["--driver", "D01", "--fine-tune-unsure", "--fine-tune"], "--fine-tune-unsure and --fine-tune: choose one"),
+    ],
+)
 def test_errors_are_one_line(study: Workspace, args: list[str], message: str) -> None:
     res = _run(study, *args, *TINY)
     assert res.exit_code == 1
@@ -221,7 +297,9 @@ def test_errors_are_one_line(study: Workspace, args: list[str], message: str) ->
 
 def test_no_analysis_is_one_line(tmp_path) -> None:
     res = _run(Workspace(tmp_path), "--driver", "D01")
-    assert res.exit_code == 1 and res.stderr.strip() == f"error: no analysis in {tmp_path}: run `laneprint analyze` first"
+    assert (
+        res.exit_code == 1 and res.stderr.strip() == f"error: no analysis in {tmp_path}: run `laneprint analyze` first"
+    )
 
 
 def test_agreement_is_the_balanced_accuracy_on_the_recorded_states() -> None:
@@ -240,6 +318,7 @@ def test_agreement_is_the_balanced_accuracy_on_the_recorded_states() -> None:
 @pytest.mark.slow
 def test_the_curve_scores_every_policy_and_the_fitted_base(study: Workspace, monkeypatch) -> None:
     from rl.personalize.agents import PersonalizeSettings
+
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from personalize_curve import ALL, CurveSettings, driver_curve  # the benchmark's harness
     from rl.problem.env import formulation_config
@@ -248,16 +327,28 @@ def test_the_curve_scores_every_policy_and_the_fitted_base(study: Workspace, mon
     dec = study.read_table("analysis", "decisions")
     env = formulation_config(ReferenceLines.paper("Normal"), "decisions")
     dqn = DQNSettings(seed=0, episodes=60, episodes_per_approach=0.0, num_envs=8, batch_size=64, learning_starts=100)
-    variants = {"personalised": PersonalizeSettings(base="fit", method="finetune", min_episodes=30, max_episodes=40),
-                "as is": PersonalizeSettings(base="fit", method="none"),
-                "unsure, never sure": PersonalizeSettings(base="fit", method="unsure", min_confidence=1.01,
-                                                          min_episodes=30, max_episodes=40),
-                "unsure, always sure": PersonalizeSettings(base="fit", method="unsure", min_confidence=0.0)}
-    res = driver_curve(dec, "D05", ["D01", "D02", "D03", "D04", "D06"], env, dqn,
-                       CurveSettings(ks=(3, ALL), variants=variants), stored_settings(study))
+    variants = {
+        "personalised": PersonalizeSettings(base="fit", method="finetune", min_episodes=30, max_episodes=40),
+        "as is": PersonalizeSettings(base="fit", method="none"),
+        "unsure, never sure": PersonalizeSettings(
+            base="fit", method="unsure", min_confidence=1.01, min_episodes=30, max_episodes=40
+        ),
+        "unsure, always sure": PersonalizeSettings(base="fit", method="unsure", min_confidence=0.0),
+    }
+    res = driver_curve(
+        dec,
+        "D05",
+        ["D01", "D02", "D03", "D04", "D06"],
+        env,
+        dqn,
+        CurveSettings(ks=(3, ALL), variants=variants),
+        stored_settings(study),
+    )
     cols = {c for c in res["states"].columns if c.startswith("action_")}
-    assert {f"action_{p}" for p in ("personalised", "as is", "style", "population", "scratch", "imitation_k",
-                                    "imitation_pop_k")} <= cols
+    assert {
+        f"action_{p}"
+        for p in ("personalised", "as is", "style", "population", "scratch", "imitation_k", "imitation_pop_k")
+    } <= cols
     assert list(res["styles"]["k"]) == ["3", "all"]
     assert res["styles"]["fit_base"].str.match(r"style:|population").all()
     s = res["states"]  # 'unsure' is 'none' when the style is sure, 'finetune' (the same seed) when it is not
@@ -335,8 +426,12 @@ def test_the_blend_is_a_run_that_acts_on_the_weighted_advantages(study: Workspac
     env, dqn = EnvConfig.from_dict(config["env"]), DQNSettings(seed=0)
     dec = study.read_table("analysis", "decisions")
     recorded, _ = approaches_from_decisions(dec[dec["driver_id"] == "D03"])
-    mix = sum(base["weights"][n] / cands[n]["advantage_std"] * advantages(
-        torch.load(folder / "bases" / f"{cands[n]['key']}.pt", weights_only=True), env, dqn, recorded) for n in used)
+    mix = sum(
+        base["weights"][n]
+        / cands[n]["advantage_std"]
+        * advantages(torch.load(folder / "bases" / f"{cands[n]['key']}.pt", weights_only=True), env, dqn, recorded)
+        for n in used
+    )
     net = q_network(tuple(config["dqn"]["hidden"]), len(observation_names(env)))
     net.load_state_dict(torch.load(folder / "weights.pt", weights_only=True))
     with torch.no_grad():
@@ -350,13 +445,18 @@ def test_the_blend_is_a_run_that_acts_on_the_weighted_advantages(study: Workspac
     text = _run(study, "--driver", "D03", "--decisions", "5", "--from", "blend", "--run-id", "bl5", *TINY)
     assert text.exit_code == 0, text.output
     assert "blend weights" in text.stdout and "blend of" in text.stdout
-    assert all(c.get("reused_from") for c in  # every candidate kept (bl6's, or an earlier run's)
-               json.loads((study.runs_dir / "bl5" / "config.json").read_text())["base"]["candidates"].values())
+    assert all(
+        c.get("reused_from")
+        for c in json.loads(  # every candidate kept (bl6's, or an earlier run's)
+            (study.runs_dir / "bl5" / "config.json").read_text()
+        )["base"]["candidates"].values()
+    )
 
 
 @pytest.mark.slow
 def test_the_curve_scores_the_blend(study: Workspace, monkeypatch) -> None:
     from rl.personalize.agents import PersonalizeSettings
+
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from personalize import parse_variants
     from personalize_curve import ALL, CurveSettings, driver_curve
@@ -364,16 +464,28 @@ def test_the_curve_scores_the_blend(study: Workspace, monkeypatch) -> None:
     from rl.settings import DQNSettings
 
     v = parse_variants("none:blend,none:blend:blend_prior=equal;blend_fit_power=0")
-    assert v["personalised"].base == "blend" and v["personalised[none/blend blend_prior=equal blend_fit_power=0]"] \
-        .blend_prior == "equal"
+    assert (
+        v["personalised"].base == "blend"
+        and v["personalised[none/blend blend_prior=equal blend_fit_power=0]"].blend_prior == "equal"
+    )
     dec = study.read_table("analysis", "decisions")
     env = formulation_config(ReferenceLines.paper("Normal"), "decisions")
     dqn = DQNSettings(seed=0, episodes=60, episodes_per_approach=0.0, num_envs=8, batch_size=64, learning_starts=100)
-    res = driver_curve(dec, "D04", ["D01", "D02", "D03", "D05", "D06"], env, dqn,
-                       CurveSettings(ks=(3, ALL), variants={"personalised": PersonalizeSettings(base="blend"),
-                                                            "equal": PersonalizeSettings(base="blend",
-                                                                                         blend_prior="equal")}),
-                       stored_settings(study))
+    res = driver_curve(
+        dec,
+        "D04",
+        ["D01", "D02", "D03", "D05", "D06"],
+        env,
+        dqn,
+        CurveSettings(
+            ks=(3, ALL),
+            variants={
+                "personalised": PersonalizeSettings(base="blend"),
+                "equal": PersonalizeSettings(base="blend", blend_prior="equal"),
+            },
+        ),
+        stored_settings(study),
+    )
     assert res["states"]["action_personalised"].notna().all() and res["states"]["action_equal"].notna().all()
     w = res["styles"][[c for c in res["styles"] if c.startswith("blend[personalised]")]]
     assert len(w.columns) == 4 and np.allclose(w.sum(axis=1), 1.0)
@@ -386,9 +498,21 @@ def test_a_new_drivers_style_from_the_headway_it_kept_by_its_kth_press() -> None
     dec, truth = acceptance_table()  # presses every 60 s in session r<d> of driver D<d>
     keep_s = {"Defensive": 3.0, "Normal": 1.8, "Aggressive": 1.0}
     rng = np.random.default_rng(0)
-    eps = pd.DataFrame([{"driver_id": d, "session_id": f"r{int(d[1:])}", "episode_id": f"{d}:f{i}",
-                         "t_start_s": 30.0 * i, "duration_s": 5.0, "ego_v_mps": 20.0,
-                         "thw_s": keep_s[s] * np.exp(rng.normal(0, 0.1))} for d, s in truth.items() for i in range(40)])
+    eps = pd.DataFrame(
+        [
+            {
+                "driver_id": d,
+                "session_id": f"r{int(d[1:])}",
+                "episode_id": f"{d}:f{i}",
+                "t_start_s": 30.0 * i,
+                "duration_s": 5.0,
+                "ego_v_mps": 20.0,
+                "thw_s": keep_s[s] * np.exp(rng.normal(0, 0.1)),
+            }
+            for d, s in truth.items()
+            for i in range(40)
+        ]
+    )
     # D00 (Defensive) tailgates only after its 6th press (at 300 s): those episodes are not yet driven
     late = (eps["driver_id"] == "D00") & (eps["t_start_s"] > 300)
     eps.loc[late, "thw_s"] = 0.8
@@ -423,15 +547,28 @@ def test_personalisation_reports_its_phases_with_their_own_start(study: Workspac
     monkeypatch.setattr(RunWriter, "status", record)
     messages: list[str] = []
     dqn = DQNSettings(num_envs=8, batch_size=64, learning_starts=100)
-    personalize(study, "D01", 4, PersonalizeSettings(base="population", method="finetune"), dqn, episodes=40,
-                base_episodes=60, seed=7, run_id="phases", progress=lambda d, t, m="": messages.append(m))  # seed 7: no base to reuse
+    personalize(
+        study,
+        "D01",
+        4,
+        PersonalizeSettings(base="population", method="finetune"),
+        dqn,
+        episodes=40,
+        base_episodes=60,
+        seed=7,
+        run_id="phases",
+        progress=lambda d, t, m="": messages.append(m),
+    )  # seed 7: no base to reuse
     phases = [m.split(":")[0] for m in dict.fromkeys(messages)]
     assert phases[0] == "phase 1" and "phase 1/4" in phases and "phase 4/4" in phases
     assert any(m.startswith("phase 2/4: base (population): episode") for m in messages)
     assert any(m.startswith("phase 3/4: personalised: episode") for m in messages)
     running = [s for s in written if s["state"] == "running"]
     assert [s["phase"] for s in running] == sorted(s["phase"] for s in running)
-    assert {s["phase_name"] for s in running} == {"training the base agent (population)",
-                                                  "personalising on 4 decisions", "evaluating"}
+    assert {s["phase_name"] for s in running} == {
+        "training the base agent (population)",
+        "personalising on 4 decisions",
+        "evaluating",
+    }
     assert all(s["phases"] == 4 and s["phase_started_at"] >= s["started_at"] for s in running)
     assert written[-1]["state"] == "done" and "phase" not in written[-1]

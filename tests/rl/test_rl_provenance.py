@@ -45,8 +45,9 @@ def test_fingerprint_follows_what_the_analysis_decided(tmp_path):
 
 def test_runs_marks_a_run_made_with_an_earlier_analysis(tmp_path):
     ws = analysed_workspace(tmp_path)
-    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--episodes", "60", "--run-id", "r1",
-                                   "-w", str(tmp_path), "--json", *FAST])
+    res = CliRunner().invoke(
+        app, ["train", "--style", "Normal", "--episodes", "60", "--run-id", "r1", "-w", str(tmp_path), "--json", *FAST]
+    )
     assert res.exit_code == 0, res.output
     config = json.loads((ws.runs_dir / "r1" / "config.json").read_text())
     evaluation = json.loads((ws.runs_dir / "r1" / "evaluation.json").read_text())
@@ -75,8 +76,9 @@ def test_report_marks_runs_of_an_earlier_analysis(tmp_path):
     from dashboard.report import _runs, provenance
 
     ws = analysed_workspace(tmp_path)
-    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--episodes", "60", "--run-id", "r1",
-                                   "-w", str(tmp_path), *FAST])
+    res = CliRunner().invoke(
+        app, ["train", "--style", "Normal", "--episodes", "60", "--run-id", "r1", "-w", str(tmp_path), *FAST]
+    )
     assert res.exit_code == 0, res.output
     texts = lambda: [t for s in _runs(ws) for k, t in s.items if k in ("p", "warn")]  # noqa: E731
     assert any("made with the current analysis" in t for t in texts())
@@ -92,8 +94,16 @@ def test_indicator_errors_are_medians_robust_to_minutes_long_ttcs():
 
     from rl.evaluation.evaluate import FIELDS, _mae
 
-    rows = pd.DataFrame({"t_f_s": [2.0, 3.0, 4.0, 600.0], "t_f_ref": [2.5, 2.5, 2.5, 2.5],
-                         "t_nf_s": [None] * 4, "t_nf_ref": [1.0] * 4, "dv_nb_mps": [1.0] * 4, "dv_nb_ref": [0.0] * 4})
+    rows = pd.DataFrame(
+        {
+            "t_f_s": [2.0, 3.0, 4.0, 600.0],
+            "t_f_ref": [2.5, 2.5, 2.5, 2.5],
+            "t_nf_s": [None] * 4,
+            "t_nf_ref": [1.0] * 4,
+            "dv_nb_mps": [1.0] * 4,
+            "dv_nb_ref": [0.0] * 4,
+        }
+    )
     out = _mae(rows)
     assert out["medae_t_f"] == 1.0 and out["mae_t_f"] > 100  # one slow leader sets the mean, not the median
     assert out["medae_t_nf"] is None and out["medae_dv_nb"] == 1.0

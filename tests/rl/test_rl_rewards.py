@@ -14,8 +14,16 @@ LINES = ReferenceLines((0.2, 0.0), (0.2, 0.0), (1.0, -10.0))  # at v=20: t_f 4, 
 
 def ind(t_f, t_nf, dv_nb, v=20.0):
     arr = lambda x: np.array([np.nan if x is None else x], float)  # noqa: E731
-    return Indicators(arr(v), arr(t_f), arr(t_nf), arr(dv_nb), arr(t_f) == arr(t_f), arr(t_nf) == arr(t_nf),
-                      arr(dv_nb) == arr(dv_nb), arr(0.0))
+    return Indicators(
+        arr(v),
+        arr(t_f),
+        arr(t_nf),
+        arr(dv_nb),
+        arr(t_f) == arr(t_f),
+        arr(t_nf) == arr(t_nf),
+        arr(dv_nb) == arr(dv_nb),
+        arr(0.0),
+    )
 
 
 def test_closeness_eq10():
@@ -57,9 +65,17 @@ def test_greedy_picks_larger_immediate_reward():
 
 
 def test_lines_from_table_and_paper():
-    t = pd.DataFrame({"scope": ["style"] * 3, "name": ["Normal"] * 3, "kind": ["typical"] * 3,
-                      "indicator": ["t_f", "t_nf", "dv_nb"], "A": [0.1, 0.2, 0.9], "b": [1.0, 2.0, -5.0],
-                      "source": ["typical driver D01"] * 3})
+    t = pd.DataFrame(
+        {
+            "scope": ["style"] * 3,
+            "name": ["Normal"] * 3,
+            "kind": ["typical"] * 3,
+            "indicator": ["t_f", "t_nf", "dv_nb"],
+            "A": [0.1, 0.2, 0.9],
+            "b": [1.0, 2.0, -5.0],
+            "source": ["typical driver D01"] * 3,
+        }
+    )
     lines = ReferenceLines.from_table(t, style="normal")
     assert lines.t_nf == (0.2, 2.0)
     assert ReferenceLines.paper("Aggressive").dv_nb == (1.01, -9.25)

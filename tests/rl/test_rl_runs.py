@@ -18,7 +18,6 @@ from rl.runs import Target, list_runs, load_run, replay_env
 from tests.support.rl_workspaces import FAST_CLI as FAST, analysed_workspace
 
 
-
 def test_train_needs_an_analysis_or_paper_lines(tmp_path):
     res = CliRunner().invoke(app, ["train", "--style", "Normal", "-w", str(tmp_path)])
     assert res.exit_code == 1
@@ -26,8 +25,26 @@ def test_train_needs_an_analysis_or_paper_lines(tmp_path):
 
 
 def test_train_with_paper_lines_writes_the_run_folder(tmp_path):
-    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--episodes", "150", "--run-id",
-                                   "r1", "-w", str(tmp_path), "--json", "--average-from", "0.2", *FAST])
+    res = CliRunner().invoke(
+        app,
+        [
+            "train",
+            "--style",
+            "Normal",
+            "--lines",
+            "paper",
+            "--episodes",
+            "150",
+            "--run-id",
+            "r1",
+            "-w",
+            str(tmp_path),
+            "--json",
+            "--average-from",
+            "0.2",
+            *FAST,
+        ],
+    )
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["run_id"] == "r1" and out["state"] == "done"
@@ -35,7 +52,8 @@ def test_train_with_paper_lines_writes_the_run_folder(tmp_path):
     assert run["status"]["state"] == "done" and run["status"]["episode"] == 150
     assert list(run["metrics"]["episode"]) == list(range(1, 151))
     assert {"loss", "mean_step_reward", "epsilon", "length", "changed", "return", "env_steps", "wall_s"} <= set(
-        run["metrics"].columns)
+        run["metrics"].columns
+    )
     cfg = run["config"]
     assert cfg["lines"]["source"] == "Table 1 (Normal)" and cfg["reward"] == "timing" and cfg["seed"] == 0
     assert cfg["dqn"]["average_from"] == 0.2 and cfg["dqn"]["num_envs"] == 8
@@ -46,18 +64,34 @@ def test_train_with_paper_lines_writes_the_run_folder(tmp_path):
     runs = list_runs(Workspace(tmp_path))
     assert runs.loc[0, "run_id"] == "r1" and runs.loc[0, "state"] == "done"
     assert training_curves(run["metrics"]).data
-    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--run-id", "r1",
-                                   "-w", str(tmp_path)])
+    res = CliRunner().invoke(
+        app, ["train", "--style", "Normal", "--lines", "paper", "--run-id", "r1", "-w", str(tmp_path)]
+    )
     assert res.exit_code == 1 and "exists already" in res.output
-    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--average-from", "2",
-                                   "-w", str(tmp_path)])
+    res = CliRunner().invoke(
+        app, ["train", "--style", "Normal", "--lines", "paper", "--average-from", "2", "-w", str(tmp_path)]
+    )
     assert res.exit_code == 1 and "average_from must be in [0, 1]" in res.output  # refused before training
 
 
 def test_evaluate_against_the_drivers(tmp_path):
     ws = analysed_workspace(tmp_path)
-    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--episodes", "100", "--run-id", "r2",
-                                   "--no-evaluate", "-w", str(tmp_path), *FAST])
+    res = CliRunner().invoke(
+        app,
+        [
+            "train",
+            "--style",
+            "Normal",
+            "--episodes",
+            "100",
+            "--run-id",
+            "r2",
+            "--no-evaluate",
+            "-w",
+            str(tmp_path),
+            *FAST,
+        ],
+    )
     assert res.exit_code == 0, res.output
     res = CliRunner().invoke(app, ["evaluate", "r2", "-w", str(tmp_path), "--json"])
     assert res.exit_code == 0, res.output
@@ -80,8 +114,24 @@ def test_evaluate_against_the_drivers(tmp_path):
 
 @pytest.mark.slow
 def test_sigterm_cancels_cleanly_and_resume_finishes(tmp_path):
-    cmd = [sys.executable, "-m", "laneprint.app.cli", "train", "--style", "Normal", "--lines", "paper",
-           "--episodes", "10000000", "--run-id", "sig", "-w", str(tmp_path), "--json", *FAST]
+    cmd = [
+        sys.executable,
+        "-m",
+        "laneprint.app.cli",
+        "train",
+        "--style",
+        "Normal",
+        "--lines",
+        "paper",
+        "--episodes",
+        "10000000",
+        "--run-id",
+        "sig",
+        "-w",
+        str(tmp_path),
+        "--json",
+        *FAST,
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     metrics = tmp_path / "runs" / "sig" / "metrics.jsonl"
     deadline = time.time() + 60
@@ -95,8 +145,9 @@ def test_sigterm_cancels_cleanly_and_resume_finishes(tmp_path):
     assert status["state"] == "cancelled" and status["pid"] == proc.pid
     assert (tmp_path / "runs" / "sig" / "checkpoint.pt").exists()
     done = status["episode"]
-    res = CliRunner().invoke(app, ["train", "--resume", "sig", "--episodes", str(done + 40), "-w", str(tmp_path),
-                                   "--json"])
+    res = CliRunner().invoke(
+        app, ["train", "--resume", "sig", "--episodes", str(done + 40), "-w", str(tmp_path), "--json"]
+    )
     assert res.exit_code == 0, res.output
     run = load_run(Workspace(tmp_path), "sig")
     assert run["status"]["state"] == "done"
@@ -110,13 +161,48 @@ def test_a_run_too_short_to_learn_says_so(tmp_path):
 
     from laneprint.app.cli import app
 
-    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--episodes", "3",
-                                   "--no-evaluate", "--run-id", "short", "-w", str(tmp_path), "--json"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "train",
+            "--style",
+            "Normal",
+            "--lines",
+            "paper",
+            "--episodes",
+            "3",
+            "--no-evaluate",
+            "--run-id",
+            "short",
+            "-w",
+            str(tmp_path),
+            "--json",
+        ],
+    )
     assert res.exit_code == 0, res.output
     doc = _json.loads(res.stdout)
     assert doc["warning"].startswith("the agent never learnt") and "--learning-starts" in doc["warning"]
-    ok = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--episodes", "3",
-                                  "--learning-starts", "10", "--batch-size", "8", "--no-evaluate",
-                                  "--run-id", "learns", "-w", str(tmp_path), "--json"])
+    ok = CliRunner().invoke(
+        app,
+        [
+            "train",
+            "--style",
+            "Normal",
+            "--lines",
+            "paper",
+            "--episodes",
+            "3",
+            "--learning-starts",
+            "10",
+            "--batch-size",
+            "8",
+            "--no-evaluate",
+            "--run-id",
+            "learns",
+            "-w",
+            str(tmp_path),
+            "--json",
+        ],
+    )
     assert ok.exit_code == 0, ok.output
     assert "warning" not in _json.loads(ok.stdout)

@@ -62,8 +62,9 @@ def test_fitted_q_iteration_changes_at_the_press_and_keeps_before():
 
 def test_the_tree_learner_needs_the_decisions_reward(tmp_path):
     analysed_workspace(tmp_path)
-    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--learner", "trees", "--reward", "timing",
-                                   "-w", str(tmp_path)])
+    res = CliRunner().invoke(
+        app, ["train", "--style", "Normal", "--learner", "trees", "--reward", "timing", "-w", str(tmp_path)]
+    )
     assert res.exit_code == 1 and "needs the decisions reward" in res.output
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())  # nothing half written
     fleet = CliRunner().invoke(app, ["train", "--styles", "all", "--learner", "auto", "-w", str(tmp_path)])
@@ -76,8 +77,9 @@ def test_the_tree_learner_needs_the_decisions_reward(tmp_path):
 @pytest.mark.slow
 def test_train_evaluate_export_and_check_a_tree_run(tmp_path):
     ws = analysed_workspace(tmp_path)
-    res = CliRunner().invoke(app, ["train", "--style", "Normal", "--learner", "trees", "--run-id", "t1",
-                                   "-w", str(tmp_path), "--json"])
+    res = CliRunner().invoke(
+        app, ["train", "--style", "Normal", "--learner", "trees", "--run-id", "t1", "-w", str(tmp_path), "--json"]
+    )
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["learner"] == "trees" and out["state"] == "done"
@@ -108,9 +110,25 @@ def test_default_learner_killed_while_choosing_resumes(tmp_path):
     import time
 
     analysed_workspace(tmp_path)
-    proc = subprocess.Popen([sys.executable, "-m", "laneprint.app.cli", "train", "--style", "Normal", "--run-id", "k1",
-                             "--episodes", "300", "-w", str(tmp_path), "--json"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "laneprint.app.cli",
+            "train",
+            "--style",
+            "Normal",
+            "--run-id",
+            "k1",
+            "--episodes",
+            "300",
+            "-w",
+            str(tmp_path),
+            "--json",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     status = tmp_path / "runs" / "k1" / "status.json"
     deadline = time.time() + 120
     while time.time() < deadline and not (status.exists() and "choosing" in status.read_text()):
@@ -129,8 +147,23 @@ def test_default_learner_killed_while_choosing_resumes(tmp_path):
 @pytest.mark.slow
 def test_crossval_with_the_tree_learner_says_so(tmp_path):
     write_style_analysis(Workspace(tmp_path), session_decisions(LINES, 4, 6), LINES)
-    res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--learner", "trees",
-                                   "--bootstrap", "50", "-w", str(tmp_path), "--json"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "crossval",
+            "--style",
+            "Normal",
+            "--folds",
+            "2",
+            "--learner",
+            "trees",
+            "--bootstrap",
+            "50",
+            "-w",
+            str(tmp_path),
+            "--json",
+        ],
+    )
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["learner"] == "trees" and "trees" in out and "dqn" not in out
@@ -147,8 +180,9 @@ def test_the_inner_folds_hold_out_every_session_once_and_keep_each_driver_to_fit
     sessions = lambda apps: {session_of(a.decision_id) for a in apps}  # noqa: E731
     assert len(pairs) == 3
     held_out = [sessions(held) for _, held in pairs]
-    assert sorted(s for h in held_out for s in h) == sorted(sessions(approaches) - sessions(
-        [a for a in approaches if a.driver_id == "D03"]))  # every session of a driver with two or more, once
+    assert sorted(s for h in held_out for s in h) == sorted(
+        sessions(approaches) - sessions([a for a in approaches if a.driver_id == "D03"])
+    )  # every session of a driver with two or more, once
     for fit, held in pairs:
         assert not sessions(fit) & sessions(held) and len(fit) + len(held) == len(approaches)
         assert {a.driver_id for a in fit} == {"D01", "D02", "D03"}
@@ -159,8 +193,25 @@ def test_the_inner_folds_hold_out_every_session_once_and_keep_each_driver_to_fit
 @pytest.mark.slow
 def test_auto_chooses_a_learner_per_fold_and_per_run(tmp_path):
     write_style_analysis(Workspace(tmp_path), session_decisions(LINES, 8, 4), LINES)
-    res = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--folds", "2", "--learner", "auto",
-                                   "--episodes", "200", "--bootstrap", "50", "-w", str(tmp_path), "--json"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "crossval",
+            "--style",
+            "Normal",
+            "--folds",
+            "2",
+            "--learner",
+            "auto",
+            "--episodes",
+            "200",
+            "--bootstrap",
+            "50",
+            "-w",
+            str(tmp_path),
+            "--json",
+        ],
+    )
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert out["learner"] == "auto"
@@ -168,10 +219,28 @@ def test_auto_chooses_a_learner_per_fold_and_per_run(tmp_path):
         assert fold["learner"] in ("dqn", "trees") and set(fold["learner_scores"]) == {"dqn", "trees"}
         sc = fold["learner_scores"]
         for name, sides in fold["learner_scores_by_side"].items():  # the score is the mean over the sides
-            assert set(sides) <= {"left", "right"} and sc[name] == pytest.approx(np.mean(list(sides.values())), abs=1e-4)
+            assert set(sides) <= {"left", "right"} and sc[name] == pytest.approx(
+                np.mean(list(sides.values())), abs=1e-4
+            )
         assert fold["learner"] == ("trees" if sc["trees"] > sc["dqn"] + AutoSettings().margin else "dqn")
-    trained = CliRunner().invoke(app, ["train", "--style", "Normal", "--learner", "auto", "--episodes", "200",
-                                       "--run-id", "a1", "-w", str(tmp_path), "--json", *FAST_CLI])
+    trained = CliRunner().invoke(
+        app,
+        [
+            "train",
+            "--style",
+            "Normal",
+            "--learner",
+            "auto",
+            "--episodes",
+            "200",
+            "--run-id",
+            "a1",
+            "-w",
+            str(tmp_path),
+            "--json",
+            *FAST_CLI,
+        ],
+    )
     assert trained.exit_code == 0, trained.output
     config = json.loads((tmp_path / "runs" / "a1" / "config.json").read_text())
     choice = config["learner_choice"]
@@ -179,8 +248,9 @@ def test_auto_chooses_a_learner_per_fold_and_per_run(tmp_path):
     assert choice["n_holdout"] == choice["n_train"]  # eight sessions a driver: every one scored once
     scale = config["env"]["reward"]["press_scale_s"]
     assert scale == (TREES_PRESS_SCALE_S if choice["learner"] == "trees" else RewardSettings().press_scale_s)
-    bad = CliRunner().invoke(app, ["crossval", "--style", "Normal", "--learner", "auto", "--reward", "timing",
-                                   "-w", str(tmp_path)])
+    bad = CliRunner().invoke(
+        app, ["crossval", "--style", "Normal", "--learner", "auto", "--reward", "timing", "-w", str(tmp_path)]
+    )
     assert bad.exit_code == 1 and "decisions reward" in bad.output
 
 
@@ -193,13 +263,31 @@ def test_the_default_learner_is_auto_for_one_target_and_the_dqn_otherwise(tmp_pa
     assert default_learner("decisions", "recorded", fleet=True) == "dqn"
     assert default_learner("timing", "synthetic") == "dqn"
     analysed_workspace(tmp_path)
-    plain = CliRunner().invoke(app, ["train", "--style", "Normal", "--episodes", "200", "--run-id", "d1",
-                                     "-w", str(tmp_path), "--json", *FAST_CLI])
+    plain = CliRunner().invoke(
+        app,
+        ["train", "--style", "Normal", "--episodes", "200", "--run-id", "d1", "-w", str(tmp_path), "--json", *FAST_CLI],
+    )
     assert plain.exit_code == 0, plain.output
     config = json.loads((tmp_path / "runs" / "d1" / "config.json").read_text())
     assert config["learner_choice"]["learner"] == config["learner"]  # chosen across the inner folds
-    paper = CliRunner().invoke(app, ["train", "--style", "Normal", "--lines", "paper", "--episodes", "20",
-                                     "--run-id", "p1", "-w", str(tmp_path), "--json", *FAST_CLI])
+    paper = CliRunner().invoke(
+        app,
+        [
+            "train",
+            "--style",
+            "Normal",
+            "--lines",
+            "paper",
+            "--episodes",
+            "20",
+            "--run-id",
+            "p1",
+            "-w",
+            str(tmp_path),
+            "--json",
+            *FAST_CLI,
+        ],
+    )
     assert paper.exit_code == 0, paper.output
     config = json.loads((tmp_path / "runs" / "p1" / "config.json").read_text())
     assert config.get("learner", "dqn") == "dqn" and "learner_choice" not in config

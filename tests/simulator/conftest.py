@@ -53,9 +53,13 @@ def scene_at(ego: pd.DataFrame, traffic: pd.DataFrame, t: float, target_lane: in
     nf = pick((cars["lane"] == target_lane) & (dx > 0), True)
     nb = pick((cars["lane"] == target_lane) & (dx < 0), False)
     return {
-        "v_e": float(v), "ego_lane": int(e["ego_lane"]),
-        "f": f, "nf": nf, "nb": nb,
-        "t_f": ttc(f), "t_nf": ttc(nf),
+        "v_e": float(v),
+        "ego_lane": int(e["ego_lane"]),
+        "f": f,
+        "nf": nf,
+        "nb": nb,
+        "t_f": ttc(f),
+        "t_nf": ttc(nf),
         "dv_nb": None if nb is None else float(v - nb["v_mps"]),
         "nb_gap": None if nb is None else float(gap[nb.name]),
     }

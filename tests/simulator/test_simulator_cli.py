@@ -28,8 +28,11 @@ def test_cli_mixed_writes_each_session_once(tmp_path):
     summary = json.loads(res.stdout)
     assert summary["drivers"] == 2 and summary["recordings"] == 8 and summary["decisions"] == 8
     names = sorted(p.name for p in out.iterdir())
-    assert names == sorted([f"D01_S{v}.mcap" for v in (60, 70, 80, 90)]
-                           + [f"D02_S{v}.csv.gz" for v in (60, 70, 80, 90)] + ["README.md", "ground_truth.json"])
+    assert names == sorted(
+        [f"D01_S{v}.mcap" for v in (60, 70, 80, 90)]
+        + [f"D02_S{v}.csv.gz" for v in (60, 70, 80, 90)]
+        + ["README.md", "ground_truth.json"]
+    )
     assert summary["bytes"] == sum(p.stat().st_size for p in out.iterdir())
     gt = json.loads((out / "ground_truth.json").read_text())
     assert gt["generator"] == "laneprint.simulator" and gt["seed"] == 5
@@ -107,15 +110,15 @@ def both_formats(tmp_path_factory):
 
 
 @pytest.mark.parametrize("kind", ["csv", "mcap"])
-def test_written_logs_ingest_back_with_the_same_presses_and_indicators(tmp_path, both_formats, kind,
-                                                                      indicators_at, presses):
+def test_written_logs_ingest_back_with_the_same_presses_and_indicators(
+    tmp_path, both_formats, kind, indicators_at, presses
+):
     """simulate -> files -> ingest -> the presses and the indicators of the ground truth."""
     from ingest.pipeline import ingest_paths
     from laneprint.workspace import Workspace
 
     out, gt = both_formats
-    assert {d["case"] for d in gt["decisions"]} == {"clean", "slowed", "no_target_leader", "far_follower",
-                                                    "cancelled"}
+    assert {d["case"] for d in gt["decisions"]} == {"clean", "slowed", "no_target_leader", "far_follower", "cancelled"}
     ws = Workspace(tmp_path / f"ws_{kind}")
     rep = ingest_paths([out / kind], ws)
     assert rep.counts["ingested"] == 4 and rep.counts["rejected"] == 0

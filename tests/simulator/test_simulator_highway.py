@@ -37,8 +37,23 @@ def tiny():
 @pytest.fixture(scope="module")
 def cli_study(tmp_path_factory) -> tuple[Path, dict]:
     out = tmp_path_factory.mktemp("highway") / "study"
-    res = runner.invoke(app, ["simulate", "--engine", "highway", "--drivers", "2", "--minutes", "0.5", "--seed", "2",
-                              "--out", str(out), "--json"])
+    res = runner.invoke(
+        app,
+        [
+            "simulate",
+            "--engine",
+            "highway",
+            "--drivers",
+            "2",
+            "--minutes",
+            "0.5",
+            "--seed",
+            "2",
+            "--out",
+            str(out),
+            "--json",
+        ],
+    )
     assert res.exit_code == 0, res.output
     return out, json.loads(res.stdout)
 
@@ -67,8 +82,17 @@ def test_styles_are_ordered_and_drivers_seeded():
 
 
 def test_unequal_groups():
-    assert style_order(9, (2, 4, 3)) == ["Defensive", "Normal", "Aggressive", "Defensive", "Normal", "Aggressive",
-                                         "Normal", "Aggressive", "Normal"]
+    assert style_order(9, (2, 4, 3)) == [
+        "Defensive",
+        "Normal",
+        "Aggressive",
+        "Defensive",
+        "Normal",
+        "Aggressive",
+        "Normal",
+        "Aggressive",
+        "Normal",
+    ]
     drivers = study_drivers(replace(HighwaySettings(), style_shares=(2, 4, 3)), 0)
     assert [sum(x.style == s for x in drivers) for s in ("Defensive", "Normal", "Aggressive")] == [2, 4, 3]
     assert true_parameter_ari(drivers) == 1.0
@@ -118,8 +142,17 @@ def test_lanes_are_numbered_from_the_right(tiny):
 def test_presses_match_the_ground_truth(tiny):
     gt = tiny.ground_truth
     assert gt["engine"] == "highway" and gt["n_lanes"] == 2 and gt["seed"] == 4
-    assert {"generator", "version", "highway_env_version", "settings", "style_params", "drivers", "sessions",
-            "decisions", "true_parameter_ari"} <= set(gt)
+    assert {
+        "generator",
+        "version",
+        "highway_env_version",
+        "settings",
+        "style_params",
+        "drivers",
+        "sessions",
+        "decisions",
+        "true_parameter_ari",
+    } <= set(gt)
     assert [set(d["params"]) for d in gt["drivers"]] == [set(STYLE_PARAMS["Defensive"])] * 2
     for meta, ego, _ in tiny.recordings:
         btn = ego["lc_button"].to_numpy(dtype=bool)
@@ -155,8 +188,9 @@ def test_same_seed_same_study_whatever_the_jobs(tiny):
 def test_cli_writes_a_study_that_ingest_accepts(cli_study, tmp_path):
     out, summary = cli_study
     sessions = [f"D0{d}_S{v}" for d in (1, 2) for v in (60, 70, 80, 90)]
-    assert sorted(p.name for p in out.iterdir()) == sorted([f"{s}.csv.gz" for s in sessions]
-                                                           + ["README.md", "ground_truth.json"])
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        [f"{s}.csv.gz" for s in sessions] + ["README.md", "ground_truth.json"]
+    )
     assert summary["engine"] == "highway" and summary["recordings"] == 8 and summary["format"] == "csv"
     assert summary["presses"] == sum(summary["presses_per_driver"].values())
     assert "highway-env" in (out / "README.md").read_text()
@@ -166,12 +200,15 @@ def test_cli_writes_a_study_that_ingest_accepts(cli_study, tmp_path):
     assert counts["ingested"] + counts["warning"] == 8 and counts["rejected"] == 0
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--family", "ttc"], "--family is for --engine sumo"),
-    (["--shares", "1,2"], "--shares '1,2'"),
-    (["--lanes", "4"], "--lanes 4"),
-    (["--decisions", "20"], "--decisions is for --engine synthetic"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--family", "ttc"], "--family is for --engine sumo"),
+        (["--shares", "1,2"], "--shares '1,2'"),
+        (["--lanes", "4"], "--lanes 4"),
+        (["--decisions", "20"], "--decisions is for --engine synthetic"),
+    ],
+)
 def test_cli_refuses_options_that_do_not_apply(args, message, tmp_path):
     res = runner.invoke(app, ["simulate", "--engine", "highway", "--out", str(tmp_path / "x"), *args])
     assert res.exit_code == 1 and message in res.output

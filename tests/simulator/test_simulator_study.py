@@ -21,8 +21,9 @@ def test_same_seed_same_frames_other_seed_other_frames(small_settings, small_stu
         pd.testing.assert_frame_equal(e1, e2)
         pd.testing.assert_frame_equal(t1, t2)
     other = simulate_study(small_settings, seed=8)
-    assert not np.allclose(other.recordings[0][1]["ego_v_mps"].iloc[:100],
-                           small_study.recordings[0][1]["ego_v_mps"].iloc[:100])
+    assert not np.allclose(
+        other.recordings[0][1]["ego_v_mps"].iloc[:100], small_study.recordings[0][1]["ego_v_mps"].iloc[:100]
+    )
     assert [d["press_t_s"] for d in other.decisions] != [d["press_t_s"] for d in small_study.decisions]
 
 

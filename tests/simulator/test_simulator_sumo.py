@@ -92,7 +92,10 @@ def test_ground_truth_lists_drivers_styles_and_lane_changes(study):
     gt = json.loads((study[0] / "ground_truth.json").read_text())
     assert gt["engine"] == "sumo" and gt["seed"] == 3 and gt["generator"] == "laneprint.simulator"
     assert [(d["driver_id"], d["style"], d["typical"]) for d in gt["drivers"]] == [
-        ("D01", "Defensive", True), ("D02", "Normal", True), ("D03", "Aggressive", True)]
+        ("D01", "Defensive", True),
+        ("D02", "Normal", True),
+        ("D03", "Aggressive", True),
+    ]
     assert all(set(d["sumo_params"]) == set(STYLE_PARAMS[d["style"]]) for d in gt["drivers"])
     assert {s["session_id"] for s in gt["sessions"]} == set(SESSIONS)
     assert len(gt["decisions"]) == study[1]["decisions"]

@@ -18,8 +18,12 @@ from laneprint.app.cli import app
 from laneprint.errors import UserError
 from laneprint.simulator.sumo.scenario import routes_xml
 from laneprint.simulator.sumo.settings import DEFAULT_FAMILY, FAMILIES, SumoSettings, family_settings
-from laneprint.simulator.sumo.styles import (ACCEPTANCE_STYLE_PARAMS, FAMILY_STYLE_PARAMS, STYLE_PARAMS,
-                                             make_sumo_drivers)
+from laneprint.simulator.sumo.styles import (
+    ACCEPTANCE_STYLE_PARAMS,
+    FAMILY_STYLE_PARAMS,
+    STYLE_PARAMS,
+    make_sumo_drivers,
+)
 
 runner = CliRunner()
 TINY = ["--engine", "sumo", "--family", "acceptance", "--drivers", "3", "--minutes", "1", "--seed", "5"]
@@ -71,10 +75,13 @@ def test_routes_carry_the_family_car_following_model():
     assert 'carFollowModel="Krauss"' in routes_xml(STYLE_PARAMS["Normal"], SumoSettings())
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--engine", "sumo", "--family", "nope"], "error: unknown --family 'nope'; choose one of ttc, acceptance"),
-    (["--family", "acceptance"], "--family"),  # "error: --minutes, ..., --family ... are for --engine sumo"
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--engine", "sumo", "--family", "nope"], "error: unknown --family 'nope'; choose one of ttc, acceptance"),
+        (["--family", "acceptance"], "--family"),  # "error: --minutes, ..., --family ... are for --engine sumo"
+    ],
+)
 def test_bad_family_is_one_line(tmp_path, args, message):
     res = runner.invoke(app, ["simulate", "--out", str(tmp_path / "x"), *args])
     text = res.output.replace("\n", " ")
@@ -120,6 +127,8 @@ def test_acceptance_logs_ingest(study, tmp_path):
     out = json.loads(res.stdout)
     assert out["counts"]["rejected"] == 0 and out["counts"]["ingested"] + out["counts"]["warning"] == 12
     warned = [f for f in out["files"] if f["status"] == "warning"]  # a 1-minute section may hold no press
-    assert all(f["n_presses"] == 0 and len(f["warnings"]) == 1 and "no lane-change button presses" in f["warnings"][0]
-               for f in warned)
+    assert all(
+        f["n_presses"] == 0 and len(f["warnings"]) == 1 and "no lane-change button presses" in f["warnings"][0]
+        for f in warned
+    )
     assert sum(f["n_presses"] for f in out["files"]) == study[1]["decisions"]

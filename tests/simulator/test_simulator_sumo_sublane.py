@@ -99,8 +99,10 @@ def test_press_at_the_start_sumo_reports_of_the_move_that_crossed():
     started = [("changeStarted", sim_t[20] - STEP, "speedGain", 3.5)]  # stamped with its step's start
     assert sublane_change_starts(y, lane, sim_t, started, STEP) == [(20, "left", 0)]
     # SUMO restarting the manoeuvre with another reason on the way keeps the first start
-    again = started + [("changeEnded", sim_t[30] - STEP, "speedGain", 0.0),
-                       ("changeStarted", sim_t[30] - STEP, "keepRight|sublane", 2.0)]
+    again = started + [
+        ("changeEnded", sim_t[30] - STEP, "speedGain", 0.0),
+        ("changeStarted", sim_t[30] - STEP, "keepRight|sublane", 2.0),
+    ]
     assert sublane_change_starts(y, lane, sim_t, again, STEP) == [(20, "left", 0)]
     # no event: where the move towards the new lane began
     assert sublane_change_starts(y, lane, sim_t, [], STEP) == [(21, "left", 0)]
@@ -110,8 +112,10 @@ def test_a_wait_at_the_lane_edge_or_a_turn_back_is_not_the_press():
     # to the lane edge (0.85 m), wait there 3 s, then across: the press is where it moves on
     y = _trace((0.0, 10), (0.85, 10), (0.85, 30), (3.5, 25), (3.5, 10))
     lane, sim_t = _lane(y), np.arange(len(y)) * STEP + 0.2
-    events = [("changeStarted", sim_t[10] - STEP, "speedGain", 3.5),
-              ("changeStarted", sim_t[50] - STEP, "speedGain", 2.65)]
+    events = [
+        ("changeStarted", sim_t[10] - STEP, "speedGain", 3.5),
+        ("changeStarted", sim_t[50] - STEP, "speedGain", 2.65),
+    ]
     assert sublane_change_starts(y, lane, sim_t, events, STEP) == [(50, "left", 0)]
     # half way to the edge and back to the centre without resting, then across
     y = _trace((0.0, 10), (1.2, 10), (0.0, 8), (3.5, 30), (3.5, 10))
@@ -188,8 +192,27 @@ def test_one_minute_on_sublanes_presses_and_flips_as_log_format_says(tmp_path, l
 def test_a_tiny_sublane_study_through_the_cli(tmp_path):
     _sumo_or_skip()
     out = tmp_path / "study"
-    res = runner.invoke(app, ["simulate", "--engine", "sumo", "--family", "sublane", "--drivers", "1",
-                              "--minutes", "0.5", "--seed", "2", "--format", "csv", "--out", str(out), "--json"])
+    res = runner.invoke(
+        app,
+        [
+            "simulate",
+            "--engine",
+            "sumo",
+            "--family",
+            "sublane",
+            "--drivers",
+            "1",
+            "--minutes",
+            "0.5",
+            "--seed",
+            "2",
+            "--format",
+            "csv",
+            "--out",
+            str(out),
+            "--json",
+        ],
+    )
     assert res.exit_code == 0, res.output
     summary = json.loads(res.stdout)
     gt = json.loads((out / "ground_truth.json").read_text())

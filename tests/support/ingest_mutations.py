@@ -30,16 +30,74 @@ from mcap.writer import CompressionType, IndexType, Writer
 from laneprint.workspace import Workspace
 
 BYTE_KINDS = ("truncate", "flip_bytes", "drop_bytes", "duplicate_bytes", "insert_bytes")
-CSV_KINDS = ("drop_rows", "duplicate_rows", "swap_rows", "shuffle_rows", "drop_column", "duplicate_column",
-             "shuffle_columns", "rename_column", "change_units", "extreme_values", "ragged_row",
-             "reencode_text", "sparse_traffic")
-MCAP_KINDS = ("drop_messages", "duplicate_messages", "swap_times", "shuffle_messages", "change_units",
-              "extreme_values", "drop_field", "rename_topic", "bad_json", "other_encoding", "drop_metadata",
-              "unindexed")
-EXTREMES = ("inf", "-inf", "nan", "1e308", "-1e308", "1e999", "0", "-0", "9" * 40, "", " ", "abc", "1,5",
-            "0x10", "١٢", "true", "None", "1e-320", "-1")
-JSON_EXTREMES: tuple[Any, ...] = (float("inf"), float("-inf"), float("nan"), 1e308, -1e308, 0, -1, 10**40,
-                                  "abc", "", None, True, [], {}, [1.0], {"x": 1})
+CSV_KINDS = (
+    "drop_rows",
+    "duplicate_rows",
+    "swap_rows",
+    "shuffle_rows",
+    "drop_column",
+    "duplicate_column",
+    "shuffle_columns",
+    "rename_column",
+    "change_units",
+    "extreme_values",
+    "ragged_row",
+    "reencode_text",
+    "sparse_traffic",
+)
+MCAP_KINDS = (
+    "drop_messages",
+    "duplicate_messages",
+    "swap_times",
+    "shuffle_messages",
+    "change_units",
+    "extreme_values",
+    "drop_field",
+    "rename_topic",
+    "bad_json",
+    "other_encoding",
+    "drop_metadata",
+    "unindexed",
+)
+EXTREMES = (
+    "inf",
+    "-inf",
+    "nan",
+    "1e308",
+    "-1e308",
+    "1e999",
+    "0",
+    "-0",
+    "9" * 40,
+    "",
+    " ",
+    "abc",
+    "1,5",
+    "0x10",
+    "١٢",
+    "true",
+    "None",
+    "1e-320",
+    "-1",
+)
+JSON_EXTREMES: tuple[Any, ...] = (
+    float("inf"),
+    float("-inf"),
+    float("nan"),
+    1e308,
+    -1e308,
+    0,
+    -1,
+    10**40,
+    "abc",
+    "",
+    None,
+    True,
+    [],
+    {},
+    [1.0],
+    {"x": 1},
+)
 UNITS = (3.6, 1 / 3.6, 1000.0, 0.001, 100.0, 0.3048, -1.0, 1e6)
 
 
@@ -50,6 +108,7 @@ def kinds_for(fmt: str) -> tuple[str, ...]:
 
 # --- bytes ---------------------------------------------------------------------
 
+
 def _span(rng: random.Random, n: int) -> tuple[int, int]:
     a = rng.randrange(max(n, 1))
     return a, min(n, a + rng.choice((1, 2, 8, 64, 512, 4096)))
@@ -58,7 +117,7 @@ def _span(rng: random.Random, n: int) -> tuple[int, int]:
 def _bytes(data: bytes, kind: str, rng: random.Random) -> bytes:
     n = len(data)
     if kind == "truncate":
-        return data[:rng.randrange(n)] if n else data
+        return data[: rng.randrange(n)] if n else data
     if kind == "flip_bytes":
         out = bytearray(data)
         for _ in range(rng.choice((1, 1, 2, 4, 16))):
@@ -77,6 +136,7 @@ def _bytes(data: bytes, kind: str, rng: random.Random) -> bytes:
 
 # --- CSV -----------------------------------------------------------------------
 
+
 def _csv(text: str, kind: str, rng: random.Random) -> str | bytes:
     lines = text.splitlines()
     header, rows = lines[0].split(","), [r.split(",") for r in lines[1:]]
@@ -86,7 +146,7 @@ def _csv(text: str, kind: str, rng: random.Random) -> str | bytes:
     i = rng.randrange(n)
     if kind == "drop_rows":
         a = rng.randrange(n)
-        del rows[a:a + rng.choice((1, 1, 5, n))]
+        del rows[a : a + rng.choice((1, 1, 5, n))]
     elif kind == "duplicate_rows":
         rows.insert(i, list(rows[i]))
     elif kind == "swap_rows":
@@ -98,7 +158,7 @@ def _csv(text: str, kind: str, rng: random.Random) -> str | bytes:
         table = [header] + rows
         c = rng.randrange(k)
         if kind == "drop_column":
-            table = [r[:c] + r[c + 1:] for r in table]
+            table = [r[:c] + r[c + 1 :] for r in table]
         elif kind == "duplicate_column":
             table = [r + [r[c]] for r in table]
         elif kind == "shuffle_columns":
@@ -127,7 +187,7 @@ def _csv(text: str, kind: str, rng: random.Random) -> str | bytes:
     elif kind == "sparse_traffic":  # a traffic vehicle leaves the scene for a while: its cells go empty
         c = rng.randrange(k)
         a = rng.randrange(n)
-        for r in rows[a:a + rng.choice((1, 10, n))]:
+        for r in rows[a : a + rng.choice((1, 10, n))]:
             r[c] = ""
     out = "\n".join(",".join(r) for r in [header] + rows) + "\n"
     if kind == "reencode_text":
@@ -152,6 +212,7 @@ def _csv(text: str, kind: str, rng: random.Random) -> str | bytes:
 
 # --- MCAP ----------------------------------------------------------------------
 
+
 @lru_cache(maxsize=16)
 def _mcap_parts(data: bytes) -> tuple[tuple[tuple[str, int, bytes], ...], tuple[tuple[str, tuple], ...]]:
     """(messages as (topic, log_time, data), metadata records) of a well-formed MCAP."""
@@ -161,11 +222,15 @@ def _mcap_parts(data: bytes) -> tuple[tuple[tuple[str, int, bytes], ...], tuple[
     return msgs, meta
 
 
-def _write_mcap(msgs: list[tuple[str, int, bytes]], meta: list[tuple[str, dict]], encodings: dict[str, str],
-                indexed: bool = True) -> bytes:
+def _write_mcap(
+    msgs: list[tuple[str, int, bytes]], meta: list[tuple[str, dict]], encodings: dict[str, str], indexed: bool = True
+) -> bytes:
     out = io.BytesIO()
-    w = (Writer(out, compression=CompressionType.ZSTD) if indexed else
-         Writer(out, index_types=IndexType.NONE, use_chunking=False, use_summary_offsets=False))
+    w = (
+        Writer(out, compression=CompressionType.ZSTD)
+        if indexed
+        else Writer(out, index_types=IndexType.NONE, use_chunking=False, use_summary_offsets=False)
+    )
     w.start()
     channels: dict[str, int] = {}
     for topic, t, payload in msgs:
@@ -199,7 +264,7 @@ def _mcap(data: bytes, kind: str, rng: random.Random) -> bytes:
     topics = sorted({m[0] for m in msgs})
     if kind == "drop_messages":
         a = rng.randrange(n)
-        del msgs[a:a + rng.choice((1, 1, 10, n))]
+        del msgs[a : a + rng.choice((1, 1, 10, n))]
     elif kind == "duplicate_messages":
         msgs.insert(i, msgs[i])
     elif kind == "swap_times":
@@ -234,8 +299,11 @@ def _mcap(data: bytes, kind: str, rng: random.Random) -> bytes:
     elif kind == "other_encoding":
         encodings[rng.choice(topics)] = rng.choice(("protobuf", "cdr", "", "JSON"))
     elif kind == "drop_metadata":
-        meta = [] if rng.random() < 0.5 else [(name, {k: v for k, v in md.items() if k != "driver_id"})
-                                              for name, md in meta]
+        meta = (
+            []
+            if rng.random() < 0.5
+            else [(name, {k: v for k, v in md.items() if k != "driver_id"}) for name, md in meta]
+        )
     return _write_mcap(msgs, meta, encodings, indexed=kind != "unindexed")
 
 
@@ -265,7 +333,9 @@ def excerpts(sample_dir: Path, seconds: tuple[float, ...] = (4.0, 20.0), n_logs:
     from ingest.writers import write_csv, write_mcap
 
     files = sorted(p for p in sample_dir.iterdir() if log_format(p))
-    picked = [p for p in files if log_format(p) == "csv.gz"][:n_logs] + [p for p in files if log_format(p) == "mcap"][:n_logs]
+    picked = [p for p in files if log_format(p) == "csv.gz"][:n_logs] + [p for p in files if log_format(p) == "mcap"][
+        :n_logs
+    ]
     out: dict[str, bytes] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for p in picked:
@@ -290,9 +360,12 @@ def excerpts(sample_dir: Path, seconds: tuple[float, ...] = (4.0, 20.0), n_logs:
 
 OUTCOMES = ("ingested", "refused", "refused_unlocated", "unexpected", "traceback", "partial", "bad_output")
 # a reason "names a signal or a byte offset" when it matches this
-LOCATED = re.compile(r"byte \d|offset \d|bytes? \(|line \d|message \d|column|field '|topic|vehicle '|time '|signal|"
-                     r"driver_id|header|/ego/|/traffic/|/driver/|\bt=|ego_|speed|sample rate|no samples|"
-                     r"gzip|MCAP", re.IGNORECASE)
+LOCATED = re.compile(
+    r"byte \d|offset \d|bytes? \(|line \d|message \d|column|field '|topic|vehicle '|time '|signal|"
+    r"driver_id|header|/ego/|/traffic/|/driver/|\bt=|ego_|speed|sample rate|no samples|"
+    r"gzip|MCAP",
+    re.IGNORECASE,
+)
 
 
 @dataclass
@@ -321,8 +394,10 @@ def check_workspace(ws: Workspace, stored: str | None) -> str:
         _, ego, traffic = ws.load_recording(d.name)
         validate(ego, EGO)
         validate(traffic, TRAFFIC)
-        bad = {**failures(ego.astype({"ego_lane": float}), EGO_REQUIRED_SCHEMA),
-               **failures(traffic.astype({"lane": float}), TRAFFIC_SCHEMA)}
+        bad = {
+            **failures(ego.astype({"ego_lane": float}), EGO_REQUIRED_SCHEMA),
+            **failures(traffic.astype({"lane": float}), TRAFFIC_SCHEMA),
+        }
         if bad:
             return f"stored values out of bounds in {sorted(bad)}"
         if len(ego) and not (ego["t_s"].diff().iloc[1:] > 0).all():
@@ -348,8 +423,9 @@ def try_ingest(path: Path, ws_root: Path) -> Outcome:
     except Exception:  # noqa: BLE001 - a stored recording that cannot be read back is partial
         wrong = traceback.format_exc()
     if wrong:
-        return Outcome("partial" if "leftovers" in wrong or "lacks" in wrong or "folders" in wrong
-                       else "bad_output", wrong)
+        return Outcome(
+            "partial" if "leftovers" in wrong or "lacks" in wrong or "folders" in wrong else "bad_output", wrong
+        )
     if stored:
         return Outcome("ingested", "; ".join(res.warnings))
     if res.status != "rejected" or not res.reason.strip():

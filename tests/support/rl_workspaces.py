@@ -26,31 +26,48 @@ FAST_CLI: list[str] = ["--num-envs", "8", "--batch-size", "64", "--learning-star
 def _rows(scene: Scene, cfg: EnvConfig) -> dict[str, np.ndarray]:
     ind = indicators(scene, cfg.far_follower_m, cfg.range_m)
 
-    def status(ok: np.ndarray, present: np.ndarray, absent_word: str = "absent", bad: str = "not_closing") -> np.ndarray:
+    def status(
+        ok: np.ndarray, present: np.ndarray, absent_word: str = "absent", bad: str = "not_closing"
+    ) -> np.ndarray:
         return np.where(ok, "ok", np.where(present, bad, absent_word))
 
     gap = lambda d, hl, p: np.where(p, d - hl, np.nan)  # noqa: E731
     return {
-        "ego_v_mps": scene.v_e, "ego_x_m": scene.x_e,
-        "f_present": scene.f_present, "f_x_m": np.where(scene.f_present, scene.x_f, np.nan),
+        "ego_v_mps": scene.v_e,
+        "ego_x_m": scene.x_e,
+        "f_present": scene.f_present,
+        "f_x_m": np.where(scene.f_present, scene.x_f, np.nan),
         "f_v_mps": np.where(scene.f_present, scene.v_f, np.nan),
         "f_gap_m": gap(scene.x_f - scene.x_e, scene.hl_f, scene.f_present),
-        "t_f_s": ind.t_f, "t_f_status": status(ind.t_f_ok, scene.f_present),
-        "nf_present": scene.nf_present, "nf_x_m": np.where(scene.nf_present, scene.x_nf, np.nan),
+        "t_f_s": ind.t_f,
+        "t_f_status": status(ind.t_f_ok, scene.f_present),
+        "nf_present": scene.nf_present,
+        "nf_x_m": np.where(scene.nf_present, scene.x_nf, np.nan),
         "nf_v_mps": np.where(scene.nf_present, scene.v_nf, np.nan),
         "nf_gap_m": gap(scene.x_nf - scene.x_e, scene.hl_nf, scene.nf_present),
-        "t_nf_s": ind.t_nf, "t_nf_status": status(ind.t_nf_ok, scene.nf_present),
-        "nb_present": scene.nb_present, "nb_x_m": np.where(scene.nb_present, scene.x_nb, np.nan),
+        "t_nf_s": ind.t_nf,
+        "t_nf_status": status(ind.t_nf_ok, scene.nf_present),
+        "nb_present": scene.nb_present,
+        "nb_x_m": np.where(scene.nb_present, scene.x_nb, np.nan),
         "nb_v_mps": np.where(scene.nb_present, scene.v_nb, np.nan),
         "nb_gap_m": gap(scene.x_e - scene.x_nb, scene.hl_nb, scene.nb_present),
-        "dv_nb_mps": ind.dv_nb, "dv_nb_status": status(ind.dv_nb_ok, scene.nb_present, bad="far"),
+        "dv_nb_mps": ind.dv_nb,
+        "dv_nb_status": status(ind.dv_nb_ok, scene.nb_present, bad="far"),
     }
 
 
-def rule_driver_decisions(lines: ReferenceLines, n: int, seed: int = 0, cfg: EnvConfig | None = None,
-                          driver_id: str = "D01", noise: tuple[float, float, float] = (0.3, 0.5, 1.0),
-                          window_s: float = 3.0, every_s: float = 0.5, with_nf: bool = True,
-                          nb_gap_m: tuple[float, float] = (5.0, 60.0)) -> pd.DataFrame:
+def rule_driver_decisions(
+    lines: ReferenceLines,
+    n: int,
+    seed: int = 0,
+    cfg: EnvConfig | None = None,
+    driver_id: str = "D01",
+    noise: tuple[float, float, float] = (0.3, 0.5, 1.0),
+    window_s: float = 3.0,
+    every_s: float = 0.5,
+    with_nf: bool = True,
+    nb_gap_m: tuple[float, float] = (5.0, 60.0),
+) -> pd.DataFrame:
     """`n` decisions of a driver whose indicators at the press are its lines plus noise.
 
     Each press scene is built backwards: ego and traffic speeds as in `cfg`, the
@@ -76,13 +93,24 @@ def rule_driver_decisions(lines: ReferenceLines, n: int, seed: int = 0, cfg: Env
     for k, off in enumerate(offsets):
         s = scene.copy()
         s.advance(off)
-        frames.append(pd.DataFrame({
-            "driver_id": driver_id, "recording_id": "rec0", "session_id": "s0",
-            "decision_id": [f"rec0:{i:04d}" for i in range(n)],
-            "t_s": 100.0 * np.arange(n) + off, "press_t_s": 100.0 * np.arange(n),
-            "label": "change" if k == len(offsets) - 1 else "keep",
-            "speed_limit_kph": np.nan, "ego_lane": 0, "target_lane": 1, "cancelled": False, **_rows(s, cfg),
-        }))
+        frames.append(
+            pd.DataFrame(
+                {
+                    "driver_id": driver_id,
+                    "recording_id": "rec0",
+                    "session_id": "s0",
+                    "decision_id": [f"rec0:{i:04d}" for i in range(n)],
+                    "t_s": 100.0 * np.arange(n) + off,
+                    "press_t_s": 100.0 * np.arange(n),
+                    "label": "change" if k == len(offsets) - 1 else "keep",
+                    "speed_limit_kph": np.nan,
+                    "ego_lane": 0,
+                    "target_lane": 1,
+                    "cancelled": False,
+                    **_rows(s, cfg),
+                }
+            )
+        )
     df = pd.concat(frames, ignore_index=True).sort_values(["decision_id", "t_s"], ignore_index=True)
     return validate(df, DECISIONS)
 
@@ -96,13 +124,15 @@ def analysed_workspace(root: Path | str) -> Workspace:
     return ws
 
 
-def session_decisions(lines: ReferenceLines, n_sessions: int, per_session: int, driver: str = "D01",
-                      seed: int = 0) -> pd.DataFrame:
+def session_decisions(
+    lines: ReferenceLines, n_sessions: int, per_session: int, driver: str = "D01", seed: int = 0
+) -> pd.DataFrame:
     """Decisions of a rule driver over several sessions (recordings ``<driver>-rec<k>``, one speed section each)."""
     parts = []
     for k in range(n_sessions):
-        d = rule_driver_decisions(lines, per_session, seed=seed + k, cfg=EnvConfig(lines=lines), driver_id=driver,
-                                  window_s=4.0)
+        d = rule_driver_decisions(
+            lines, per_session, seed=seed + k, cfg=EnvConfig(lines=lines), driver_id=driver, window_s=4.0
+        )
         rid = f"{driver}-rec{k}"
         d["recording_id"] = rid
         d["session_id"] = rid
@@ -112,14 +142,30 @@ def session_decisions(lines: ReferenceLines, n_sessions: int, per_session: int, 
     return pd.concat(parts, ignore_index=True)
 
 
-def write_style_analysis(ws: Workspace, decisions: pd.DataFrame, lines: ReferenceLines, style: str = "Normal",
-                         driver: str = "D01") -> None:
+def write_style_analysis(
+    ws: Workspace, decisions: pd.DataFrame, lines: ReferenceLines, style: str = "Normal", driver: str = "D01"
+) -> None:
     """An analysis in `ws` with one style whose typical driver is `driver` and whose lines are `lines`."""
-    refs = pd.DataFrame([{"scope": "style", "name": style, "kind": "typical", "indicator": k, "A": a, "b": b,
-                          "A_lo": None, "A_hi": None, "b_lo": None, "b_hi": None, "r2": None,
-                          "n": int((decisions["label"] == "change").sum()),
-                          "source": f"typical driver {driver}"} for k, (a, b) in
-                         (("t_f", lines.t_f), ("t_nf", lines.t_nf), ("dv_nb", lines.dv_nb))])
+    refs = pd.DataFrame(
+        [
+            {
+                "scope": "style",
+                "name": style,
+                "kind": "typical",
+                "indicator": k,
+                "A": a,
+                "b": b,
+                "A_lo": None,
+                "A_hi": None,
+                "b_lo": None,
+                "b_hi": None,
+                "r2": None,
+                "n": int((decisions["label"] == "change").sum()),
+                "source": f"typical driver {driver}",
+            }
+            for k, (a, b) in (("t_f", lines.t_f), ("t_nf", lines.t_nf), ("dv_nb", lines.dv_nb))
+        ]
+    )
     styles = pd.DataFrame({"driver_id": [driver], "style": [style], "is_typical": [True], "cluster": [0]})
     ws.ensure().write_tables("analysis", {"decisions": decisions, "reference_lines": refs, "styles": styles}, meta={})
 

@@ -44,11 +44,22 @@ def msgdef(own: str, deps: list[str], defs: dict[str, str] = ROS2_DEFS) -> str:
 ODOMETRY_MSGDEF = msgdef(
     "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/PoseWithCovariance pose\n"
     "geometry_msgs/TwistWithCovariance twist\n",
-    ["std_msgs/Header", "builtin_interfaces/Time", "geometry_msgs/PoseWithCovariance", "geometry_msgs/Pose",
-     "geometry_msgs/Point", "geometry_msgs/Quaternion", "geometry_msgs/TwistWithCovariance", "geometry_msgs/Twist",
-     "geometry_msgs/Vector3"])
-OBJECT_ARRAY_MSGDEF = msgdef("std_msgs/Header header\nsim_msgs/Object[] objects\n",
-                             ["std_msgs/Header", "builtin_interfaces/Time", "sim_msgs/Object", "geometry_msgs/Point"])
+    [
+        "std_msgs/Header",
+        "builtin_interfaces/Time",
+        "geometry_msgs/PoseWithCovariance",
+        "geometry_msgs/Pose",
+        "geometry_msgs/Point",
+        "geometry_msgs/Quaternion",
+        "geometry_msgs/TwistWithCovariance",
+        "geometry_msgs/Twist",
+        "geometry_msgs/Vector3",
+    ],
+)
+OBJECT_ARRAY_MSGDEF = msgdef(
+    "std_msgs/Header header\nsim_msgs/Object[] objects\n",
+    ["std_msgs/Header", "builtin_interfaces/Time", "sim_msgs/Object", "geometry_msgs/Point"],
+)
 
 ROS2_MAPPING = """\
 [mcap.signals]
@@ -93,26 +104,59 @@ def write_ros2(path: Any, meta: dict, ego: pd.DataFrame, traffic: pd.DataFrame) 
         for i, row in enumerate(ego.itertuples()):
             t = T0_NS + round(row.t_s * 1e9)
             header = {"stamp": _stamp(t), "frame_id": "map"}
-            w.write_message("/odom", odom, {
-                "header": header, "child_frame_id": "base_link",
-                "pose": {"pose": {"position": {"x": row.ego_x_m, "y": row.ego_y_m, "z": 0.0},
-                                  "orientation": {"w": 1.0}}, "covariance": [0.0] * 36},
-                "twist": {"twist": {"linear": {"x": row.ego_v_mps, "y": 0.0, "z": 0.0},
-                                    "angular": {"x": 0.0, "y": 0.0, "z": 0.0}}, "covariance": [0.0] * 36},
-            }, log_time=t)
+            w.write_message(
+                "/odom",
+                odom,
+                {
+                    "header": header,
+                    "child_frame_id": "base_link",
+                    "pose": {
+                        "pose": {"position": {"x": row.ego_x_m, "y": row.ego_y_m, "z": 0.0}, "orientation": {"w": 1.0}},
+                        "covariance": [0.0] * 36,
+                    },
+                    "twist": {
+                        "twist": {
+                            "linear": {"x": row.ego_v_mps, "y": 0.0, "z": 0.0},
+                            "angular": {"x": 0.0, "y": 0.0, "z": 0.0},
+                        },
+                        "covariance": [0.0] * 36,
+                    },
+                },
+                log_time=t,
+            )
             if i % 5 == 0:  # the lane at 10 Hz
                 w.write_message("/localization/lane", int32, {"data": int(row.ego_lane)}, log_time=t)
             w.write_message("/vehicle/steering_angle", float64, {"data": row.steer_rad}, log_time=t)
             cars = by_t.get(row.t_s)
-            w.write_message("/perception/objects", objects, {"header": header, "objects": [] if cars is None else [
-                {"id": c.vehicle_id, "position": {"x": c.x_m, "y": np.nan if c.y_m is None else c.y_m, "z": 0.0},
-                 "speed": c.v_mps, "lane": int(c.lane), "length": c.length_m} for c in cars.itertuples()]},
-                log_time=t)
+            w.write_message(
+                "/perception/objects",
+                objects,
+                {
+                    "header": header,
+                    "objects": []
+                    if cars is None
+                    else [
+                        {
+                            "id": c.vehicle_id,
+                            "position": {"x": c.x_m, "y": np.nan if c.y_m is None else c.y_m, "z": 0.0},
+                            "speed": c.v_mps,
+                            "lane": int(c.lane),
+                            "length": c.length_m,
+                        }
+                        for c in cars.itertuples()
+                    ],
+                },
+                log_time=t,
+            )
             if bool(row.lc_button) != pressed:  # the HMI publishes the button on every change
                 pressed = bool(row.lc_button)
                 if pressed:
-                    w.write_message("/hmi/lane_change_direction", int8,
-                                    {"data": 1 if row.lc_direction == "left" else -1}, log_time=t)
+                    w.write_message(
+                        "/hmi/lane_change_direction",
+                        int8,
+                        {"data": 1 if row.lc_direction == "left" else -1},
+                        log_time=t,
+                    )
                 w.write_message("/hmi/lane_change_button", boolean, {"data": pressed}, log_time=t)
         w.finish()
 
@@ -135,21 +179,39 @@ def _message(name: str, fields: list[tuple[str, int, str]]) -> descriptor_pb2.De
 
 def protobuf_classes() -> dict[str, type]:
     """sim.EgoState, sim.ObjectList, sim.LaneChangeButton (the .proto of ingest/README.md), built at run time."""
-    fd = descriptor_pb2.FileDescriptorProto(name="sim/driving.proto", package="sim", syntax="proto3",
-                                            dependency=["google/protobuf/timestamp.proto"])
+    fd = descriptor_pb2.FileDescriptorProto(
+        name="sim/driving.proto", package="sim", syntax="proto3", dependency=["google/protobuf/timestamp.proto"]
+    )
     ts = ("stamp", _F.TYPE_MESSAGE, ".google.protobuf.Timestamp")
     d = _F.TYPE_DOUBLE
-    fd.message_type.append(_message("EgoState", [ts, ("x", d, ""), ("y", d, ""), ("speed_kph", d, ""),
-                                                 ("lane", _F.TYPE_INT32, ""), ("steer", d, "")]))
+    fd.message_type.append(
+        _message(
+            "EgoState",
+            [ts, ("x", d, ""), ("y", d, ""), ("speed_kph", d, ""), ("lane", _F.TYPE_INT32, ""), ("steer", d, "")],
+        )
+    )
     objects = _message("ObjectList", [ts, ("objects", _F.TYPE_MESSAGE, ".sim.ObjectList.Object")])
-    objects.nested_type.append(_message("Object", [("track_id", _F.TYPE_UINT32, ""), ("x", d, ""), ("y", d, ""),
-                                                   ("speed_kph", d, ""), ("lane", _F.TYPE_INT32, ""),
-                                                   ("length", d, "")]))
+    objects.nested_type.append(
+        _message(
+            "Object",
+            [
+                ("track_id", _F.TYPE_UINT32, ""),
+                ("x", d, ""),
+                ("y", d, ""),
+                ("speed_kph", d, ""),
+                ("lane", _F.TYPE_INT32, ""),
+                ("length", d, ""),
+            ],
+        )
+    )
     fd.message_type.append(objects)
-    button = _message("LaneChangeButton", [ts, ("pressed", _F.TYPE_BOOL, ""),
-                                           ("direction", _F.TYPE_ENUM, ".sim.LaneChangeButton.Direction")])
+    button = _message(
+        "LaneChangeButton",
+        [ts, ("pressed", _F.TYPE_BOOL, ""), ("direction", _F.TYPE_ENUM, ".sim.LaneChangeButton.Direction")],
+    )
     button.enum_type.add(name="Direction").value.extend(
-        descriptor_pb2.EnumValueDescriptorProto(name=n, number=i) for i, n in enumerate(("NONE", "LEFT", "RIGHT")))
+        descriptor_pb2.EnumValueDescriptorProto(name=n, number=i) for i, n in enumerate(("NONE", "LEFT", "RIGHT"))
+    )
     fd.message_type.append(button)
     pool = descriptor_pool.DescriptorPool()
     pool.AddSerializedFile(timestamp_pb2.DESCRIPTOR.serialized_pb)
@@ -212,19 +274,38 @@ def write_protobuf(path: Any, meta: dict, ego: pd.DataFrame, traffic: pd.DataFra
         for row in ego.itertuples():
             sim_ns = STAMP0_NS + round(row.t_s * 1e9)
             log_ns = T0_NS + round(row.t_s * 1e9) + int(rng.integers(0, 4_000_000))  # recorder delay up to 4 ms
-            w.write_message("/ego", ego_cls(stamp=stamp(sim_ns), x=row.ego_x_m, y=row.ego_y_m,
-                                            speed_kph=row.ego_v_mps * 3.6, lane=int(row.ego_lane),
-                                            steer=row.steer_rad), log_time=log_ns, publish_time=log_ns)
+            w.write_message(
+                "/ego",
+                ego_cls(
+                    stamp=stamp(sim_ns),
+                    x=row.ego_x_m,
+                    y=row.ego_y_m,
+                    speed_kph=row.ego_v_mps * 3.6,
+                    lane=int(row.ego_lane),
+                    steer=row.steer_rad,
+                ),
+                log_time=log_ns,
+                publish_time=log_ns,
+            )
             msg = list_cls(stamp=stamp(sim_ns))
-            for c in (by_t[row.t_s].itertuples() if row.t_s in by_t else ()):
-                msg.objects.add(track_id=track_ids[c.vehicle_id], x=c.x_m, y=np.nan if c.y_m is None else c.y_m,
-                                speed_kph=c.v_mps * 3.6, lane=int(c.lane), length=c.length_m)
+            for c in by_t[row.t_s].itertuples() if row.t_s in by_t else ():
+                msg.objects.add(
+                    track_id=track_ids[c.vehicle_id],
+                    x=c.x_m,
+                    y=np.nan if c.y_m is None else c.y_m,
+                    speed_kph=c.v_mps * 3.6,
+                    lane=int(c.lane),
+                    length=c.length_m,
+                )
             w.write_message("/objects", msg, log_time=log_ns, publish_time=log_ns)
             if bool(row.lc_button) != pressed:
                 pressed = bool(row.lc_button)
                 direction = {"left": 1, "right": 2}.get(row.lc_direction, 0) if pressed else 0
-                w.write_message("/hmi/lane_change", button_cls(stamp=stamp(sim_ns), pressed=pressed,
-                                                               direction=direction),
-                                log_time=log_ns, publish_time=log_ns)
+                w.write_message(
+                    "/hmi/lane_change",
+                    button_cls(stamp=stamp(sim_ns), pressed=pressed, direction=direction),
+                    log_time=log_ns,
+                    publish_time=log_ns,
+                )
         w.finish()
     return track_ids

@@ -16,11 +16,18 @@ import pandas as pd
 from laneprint.reference import PAPER_TABLE1, STYLES
 
 
-def make_recording(duration_s: float, hz: float, ego_v: float, lanes: Iterable[tuple[float, int]],
-                   presses: Iterable[tuple[float, float, str | None]] = (),
-                   vehicles: Iterable[tuple[str, float, float, int, float]] = (),
-                   ego_x0: float = 0.0, recording_id: str = "rec0", driver_id: str = "D01",
-                   speed_limit_kph: float | None = 70.0) -> tuple[dict[str, Any], pd.DataFrame, pd.DataFrame]:
+def make_recording(
+    duration_s: float,
+    hz: float,
+    ego_v: float,
+    lanes: Iterable[tuple[float, int]],
+    presses: Iterable[tuple[float, float, str | None]] = (),
+    vehicles: Iterable[tuple[str, float, float, int, float]] = (),
+    ego_x0: float = 0.0,
+    recording_id: str = "rec0",
+    driver_id: str = "D01",
+    speed_limit_kph: float | None = 70.0,
+) -> tuple[dict[str, Any], pd.DataFrame, pd.DataFrame]:
     """(meta, ego, traffic) of a constant-speed scene.
 
     `lanes`: (from_t, lane) steps of the ego's lane, e.g. [(0, 0), (7.0, 1)].
@@ -37,26 +44,67 @@ def make_recording(duration_s: float, hz: float, ego_v: float, lanes: Iterable[t
         on = (t >= t_p - 1e-9) & (t < t_p + held - 1e-9)
         btn[on] = True
         direction[np.argmax(on)] = d
-    ego = pd.DataFrame({
-        "t_s": t, "ego_x_m": ego_x0 + ego_v * t, "ego_y_m": np.nan, "ego_v_mps": float(ego_v),
-        "ego_lane": lane, "ego_length_m": 4.5, "steer_rad": np.nan, "throttle": np.nan, "brake": np.nan,
-        "lc_button": btn, "lc_direction": direction,
-    })
-    frames = [pd.DataFrame({"t_s": t, "vehicle_id": vid, "x_m": x0 + v * t, "y_m": np.nan, "v_mps": float(v),
-                            "lane": np.int64(ln), "length_m": float(length)})
-              for vid, x0, v, ln, length in vehicles]
-    traffic = (pd.concat(frames, ignore_index=True) if frames else
-               pd.DataFrame({"t_s": pd.Series(dtype=float), "vehicle_id": pd.Series(dtype=object),
-                             "x_m": pd.Series(dtype=float), "y_m": pd.Series(dtype=float),
-                             "v_mps": pd.Series(dtype=float), "lane": pd.Series(dtype="int64"),
-                             "length_m": pd.Series(dtype=float)}))
-    meta = {"recording_id": recording_id, "driver_id": driver_id, "session_id": recording_id,
-            "speed_limit_kph": speed_limit_kph}
+    ego = pd.DataFrame(
+        {
+            "t_s": t,
+            "ego_x_m": ego_x0 + ego_v * t,
+            "ego_y_m": np.nan,
+            "ego_v_mps": float(ego_v),
+            "ego_lane": lane,
+            "ego_length_m": 4.5,
+            "steer_rad": np.nan,
+            "throttle": np.nan,
+            "brake": np.nan,
+            "lc_button": btn,
+            "lc_direction": direction,
+        }
+    )
+    frames = [
+        pd.DataFrame(
+            {
+                "t_s": t,
+                "vehicle_id": vid,
+                "x_m": x0 + v * t,
+                "y_m": np.nan,
+                "v_mps": float(v),
+                "lane": np.int64(ln),
+                "length_m": float(length),
+            }
+        )
+        for vid, x0, v, ln, length in vehicles
+    ]
+    traffic = (
+        pd.concat(frames, ignore_index=True)
+        if frames
+        else pd.DataFrame(
+            {
+                "t_s": pd.Series(dtype=float),
+                "vehicle_id": pd.Series(dtype=object),
+                "x_m": pd.Series(dtype=float),
+                "y_m": pd.Series(dtype=float),
+                "v_mps": pd.Series(dtype=float),
+                "lane": pd.Series(dtype="int64"),
+                "length_m": pd.Series(dtype=float),
+            }
+        )
+    )
+    meta = {
+        "recording_id": recording_id,
+        "driver_id": driver_id,
+        "session_id": recording_id,
+        "speed_limit_kph": speed_limit_kph,
+    }
     return meta, ego, traffic
 
 
-def make_decision_table(n_drivers: int, n_decisions: int, seed: int = 0, keep_per_press: int = 10,
-                        noise: float = 0.12, p_nf_absent: float = 0.2) -> tuple[pd.DataFrame, dict[str, str]]:
+def make_decision_table(
+    n_drivers: int,
+    n_decisions: int,
+    seed: int = 0,
+    keep_per_press: int = 10,
+    noise: float = 0.12,
+    p_nf_absent: float = 0.2,
+) -> tuple[pd.DataFrame, dict[str, str]]:
     """A decisions table for `n_drivers` x `n_decisions` presses (+ keep states), and the true styles.
 
     Drivers are spread evenly over the three styles of Table 1; each driver's lines
@@ -88,15 +136,28 @@ def make_decision_table(n_drivers: int, n_decisions: int, seed: int = 0, keep_pe
         for k in range(keep_per_press + 1):
             lab = "change" if k == 0 else "keep"
             grow = 1 + 0.15 * k
-            rows.append(pd.DataFrame({
-                "driver_id": did, "recording_id": rid, "session_id": rid,
-                "decision_id": [f"{rid}:{i}" for i in range(n)],
-                "t_s": np.arange(n) * 60.0 - 0.5 * k, "press_t_s": np.arange(n) * 60.0, "label": lab,
-                "speed_limit_kph": limit, "ego_v_mps": v, "ego_x_m": 0.0, "ego_lane": 0, "target_lane": 1,
-                "cancelled": False,
-                "t_f_s": vals["t_f"] * grow, "t_nf_s": np.where(nf_absent, np.nan, vals["t_nf"] / grow),
-                "dv_nb_mps": vals["dv_nb"],
-            }))
+            rows.append(
+                pd.DataFrame(
+                    {
+                        "driver_id": did,
+                        "recording_id": rid,
+                        "session_id": rid,
+                        "decision_id": [f"{rid}:{i}" for i in range(n)],
+                        "t_s": np.arange(n) * 60.0 - 0.5 * k,
+                        "press_t_s": np.arange(n) * 60.0,
+                        "label": lab,
+                        "speed_limit_kph": limit,
+                        "ego_v_mps": v,
+                        "ego_x_m": 0.0,
+                        "ego_lane": 0,
+                        "target_lane": 1,
+                        "cancelled": False,
+                        "t_f_s": vals["t_f"] * grow,
+                        "t_nf_s": np.where(nf_absent, np.nan, vals["t_nf"] / grow),
+                        "dv_nb_mps": vals["dv_nb"],
+                    }
+                )
+            )
     df = pd.concat(rows, ignore_index=True)
     df["f_present"] = True
     df["t_f_status"] = "ok"
@@ -119,10 +180,19 @@ def catalogue_row(meta: dict[str, Any], ego: pd.DataFrame, traffic: pd.DataFrame
     rid = meta.get("recording_id") or hashlib.sha256(f"{meta.get('driver_id')}/{sid}".encode()).hexdigest()[:16]
     btn = ego["lc_button"].to_numpy(dtype=bool)
     return {
-        "recording_id": str(rid), "driver_id": str(meta["driver_id"]), "session_id": sid,
-        "speed_limit_kph": meta.get("speed_limit_kph"), "simulator": meta.get("simulator", "in memory"),
-        "source_name": f"{sid}.memory", "source_path": f"/memory/{sid}", "format": "csv",
-        "n_samples": int(len(ego)), "duration_s": float(ego["t_s"].iloc[-1] - ego["t_s"].iloc[0]) if len(ego) else 0.0,
-        "n_presses": int((btn & ~np.r_[False, btn[:-1]]).sum()), "n_vehicles": int(traffic["vehicle_id"].nunique()),
-        "status": "ok", "warnings": "", "ingested_at": "2026-01-01T00:00:00Z",
+        "recording_id": str(rid),
+        "driver_id": str(meta["driver_id"]),
+        "session_id": sid,
+        "speed_limit_kph": meta.get("speed_limit_kph"),
+        "simulator": meta.get("simulator", "in memory"),
+        "source_name": f"{sid}.memory",
+        "source_path": f"/memory/{sid}",
+        "format": "csv",
+        "n_samples": int(len(ego)),
+        "duration_s": float(ego["t_s"].iloc[-1] - ego["t_s"].iloc[0]) if len(ego) else 0.0,
+        "n_presses": int((btn & ~np.r_[False, btn[:-1]]).sum()),
+        "n_vehicles": int(traffic["vehicle_id"].nunique()),
+        "status": "ok",
+        "warnings": "",
+        "ingested_at": "2026-01-01T00:00:00Z",
     }

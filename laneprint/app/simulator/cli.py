@@ -21,32 +21,66 @@ from laneprint.errors import UserError
 from laneprint.options import configurable
 
 OutOpt = Annotated[Path, typer.Option("--out", "-o", help="Folder to write the study into.")]
-DriversOpt = Annotated[Optional[int], typer.Option(
-    "--drivers", help="Number of drivers (default 10 synthetic, 9 sumo and highway: 3 per style).")]
-DecisionsOpt = Annotated[Optional[int], typer.Option(
-    "--decisions", help="Button presses per driver, over all sections (synthetic; default 50).")]
-EngineOpt = Annotated[str, typer.Option(
-    "--engine", help="synthetic (laneprint's generator), sumo (Eclipse SUMO's models decide) or highway "
-                     "(highway-env's IDM + MOBIL vehicles are the drivers).")]
-MinutesOpt = Annotated[Optional[float], typer.Option(
-    "--minutes", help="Minutes of driving per section (sumo: default 5, 15 for --family acceptance, 6 for "
-                      "--family sublane; highway: default 6).")]
-FamilyOpt = Annotated[Optional[str], typer.Option(
-    "--family", help="sumo study family: ttc (default; styles differ in the times to collision they accept), "
-                     "acceptance (IDM drivers whose styles differ in the gaps and headways they accept; most presses "
-                     "have no closing leader) or sublane (SUMO's sublane model SL2015 for every vehicle: lane changes "
-                     "are lateral moves at the driver's own lateral speed). See the documentation, Simulated studies.")]
-LanesOpt = Annotated[Optional[int], typer.Option(
-    "--lanes", help="sumo and highway: lanes of the highway, 2 (default) or 3 (lane 0 rightmost; the ego changes "
-                    "from every lane, both ways from the middle one).")]
+DriversOpt = Annotated[
+    Optional[int],
+    typer.Option("--drivers", help="Number of drivers (default 10 synthetic, 9 sumo and highway: 3 per style)."),
+]
+DecisionsOpt = Annotated[
+    Optional[int],
+    typer.Option("--decisions", help="Button presses per driver, over all sections (synthetic; default 50)."),
+]
+EngineOpt = Annotated[
+    str,
+    typer.Option(
+        "--engine",
+        help="synthetic (laneprint's generator), sumo (Eclipse SUMO's models decide) or highway "
+        "(highway-env's IDM + MOBIL vehicles are the drivers).",
+    ),
+]
+MinutesOpt = Annotated[
+    Optional[float],
+    typer.Option(
+        "--minutes",
+        help="Minutes of driving per section (sumo: default 5, 15 for --family acceptance, 6 for "
+        "--family sublane; highway: default 6).",
+    ),
+]
+FamilyOpt = Annotated[
+    Optional[str],
+    typer.Option(
+        "--family",
+        help="sumo study family: ttc (default; styles differ in the times to collision they accept), "
+        "acceptance (IDM drivers whose styles differ in the gaps and headways they accept; most presses "
+        "have no closing leader) or sublane (SUMO's sublane model SL2015 for every vehicle: lane changes "
+        "are lateral moves at the driver's own lateral speed). See the documentation, Simulated studies.",
+    ),
+]
+LanesOpt = Annotated[
+    Optional[int],
+    typer.Option(
+        "--lanes",
+        help="sumo and highway: lanes of the highway, 2 (default) or 3 (lane 0 rightmost; the ego changes "
+        "from every lane, both ways from the middle one).",
+    ),
+]
 JobsOpt = Annotated[int, typer.Option("--jobs", help="Recordings simulated in parallel (sumo, highway).")]
-SharesOpt = Annotated[Optional[str], typer.Option(
-    "--shares", help="highway: shares of the styles Defensive,Normal,Aggressive among the drivers, e.g. 2,4,3 "
-                     "(default 1,1,1: equal groups).")]
+SharesOpt = Annotated[
+    Optional[str],
+    typer.Option(
+        "--shares",
+        help="highway: shares of the styles Defensive,Normal,Aggressive among the drivers, e.g. 2,4,3 "
+        "(default 1,1,1: equal groups).",
+    ),
+]
 SeedOpt = Annotated[int, typer.Option("--seed", help="Random seed (same seed, same study).")]
-FormatOpt = Annotated[Optional[str], typer.Option(
-    "--format", help="mixed (odd drivers MCAP, even drivers .csv.gz; the default, csv for highway), csv (all "
-                     ".csv.gz), mcap, or both (csv/ and mcap/).")]
+FormatOpt = Annotated[
+    Optional[str],
+    typer.Option(
+        "--format",
+        help="mixed (odd drivers MCAP, even drivers .csv.gz; the default, csv for highway), csv (all "
+        ".csv.gz), mcap, or both (csv/ and mcap/).",
+    ),
+]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Write into a folder that holds other files.")]
 
 
@@ -54,11 +88,22 @@ ENGINES: tuple[str, ...] = ("synthetic", "sumo", "highway")
 
 
 @configurable("simulate")
-def simulate_command(out: OutOpt, drivers: DriversOpt = None, decisions: DecisionsOpt = None, seed: SeedOpt = 0,
-                     fmt: FormatOpt = None, force: ForceOpt = False, engine: EngineOpt = "synthetic",
-                     minutes: MinutesOpt = None, jobs: JobsOpt = 1, family: FamilyOpt = None,
-                     lanes: LanesOpt = None, shares: SharesOpt = None, workspace: WorkspaceOpt = DEFAULT_WS,
-                     as_json: JsonOpt = False) -> None:
+def simulate_command(
+    out: OutOpt,
+    drivers: DriversOpt = None,
+    decisions: DecisionsOpt = None,
+    seed: SeedOpt = 0,
+    fmt: FormatOpt = None,
+    force: ForceOpt = False,
+    engine: EngineOpt = "synthetic",
+    minutes: MinutesOpt = None,
+    jobs: JobsOpt = 1,
+    family: FamilyOpt = None,
+    lanes: LanesOpt = None,
+    shares: SharesOpt = None,
+    workspace: WorkspaceOpt = DEFAULT_WS,
+    as_json: JsonOpt = False,
+) -> None:
     """Generate a DIL study (CSV and MCAP logs, ground_truth.json, README.md) into --out."""
 
     def work() -> dict[str, Any]:
@@ -82,16 +127,19 @@ def simulate_command(out: OutOpt, drivers: DriversOpt = None, decisions: Decisio
                 raise UserError("--family is for --engine sumo")
             return _simulate_highway(out, drivers, seed, form, force, minutes, jobs, lanes, shares, as_json)
         if minutes is not None or jobs != 1 or family is not None or lanes is not None:
-            raise UserError("--minutes, --jobs, --family and --lanes are for --engine sumo "
-                            "(all but --family also for --engine highway)")
+            raise UserError(
+                "--minutes, --jobs, --family and --lanes are for --engine sumo "
+                "(all but --family also for --engine highway)"
+            )
         return _simulate_synthetic(out, drivers, decisions, seed, form, force, as_json)
 
     render = {"sumo": _render_sumo, "highway": _render_highway}.get(engine, _render)
     run_command(work, as_json, render)
 
 
-def _simulate_synthetic(out: Path, drivers: Optional[int], decisions: Optional[int], seed: int, fmt: str,
-                        force: bool, as_json: bool) -> dict[str, Any]:
+def _simulate_synthetic(
+    out: Path, drivers: Optional[int], decisions: Optional[int], seed: int, fmt: str, force: bool, as_json: bool
+) -> dict[str, Any]:
     from laneprint.simulator.config import StudySettings
     from laneprint.app.simulator.output import check_destination, write_study
     from laneprint.simulator.study import simulate_study
@@ -100,16 +148,25 @@ def _simulate_synthetic(out: Path, drivers: Optional[int], decisions: Optional[i
     decisions = base.decisions_per_driver if decisions is None else decisions
     if decisions < len(base.speed_limits_kph):
         raise UserError(f"--decisions must be at least {len(base.speed_limits_kph)} (one per section)")
-    settings = replace(base, n_drivers=base.n_drivers if drivers is None else drivers,
-                       decisions_per_driver=decisions)
+    settings = replace(base, n_drivers=base.n_drivers if drivers is None else drivers, decisions_per_driver=decisions)
     check_destination(out, force)  # before minutes of work, not after
     with progress_bar(not as_json) as bar:
         study = simulate_study(settings, seed, progress=bar)
         return write_study(study, out, fmt, force=force, progress=bar)
 
 
-def _simulate_sumo(out: Path, drivers: Optional[int], seed: int, fmt: str, force: bool, minutes: Optional[float],
-                   jobs: int, family: Optional[str], lanes: Optional[int], as_json: bool) -> dict[str, Any]:
+def _simulate_sumo(
+    out: Path,
+    drivers: Optional[int],
+    seed: int,
+    fmt: str,
+    force: bool,
+    minutes: Optional[float],
+    jobs: int,
+    family: Optional[str],
+    lanes: Optional[int],
+    as_json: bool,
+) -> dict[str, Any]:
     from laneprint.app.simulator.output import check_destination
     from laneprint.simulator.sumo.backend import check_available
     from laneprint.app.simulator.sumo_output import write_sumo_study
@@ -127,8 +184,11 @@ def _simulate_sumo(out: Path, drivers: Optional[int], seed: int, fmt: str, force
     if jobs < 1:
         raise UserError("--jobs must be at least 1")
     base = family_settings(family, lanes)
-    settings = replace(base, n_drivers=base.n_drivers if drivers is None else drivers,
-                       minutes=base.minutes if minutes is None else minutes)
+    settings = replace(
+        base,
+        n_drivers=base.n_drivers if drivers is None else drivers,
+        minutes=base.minutes if minutes is None else minutes,
+    )
     check_available()  # one line telling how to install SUMO, before anything else
     check_destination(out, force)
     with progress_bar(not as_json) as bar:
@@ -147,8 +207,18 @@ def parse_shares(text: str) -> tuple[float, float, float]:
     return values  # type: ignore[return-value]
 
 
-def _simulate_highway(out: Path, drivers: Optional[int], seed: int, fmt: str, force: bool, minutes: Optional[float],
-                      jobs: int, lanes: Optional[int], shares: Optional[str], as_json: bool) -> dict[str, Any]:
+def _simulate_highway(
+    out: Path,
+    drivers: Optional[int],
+    seed: int,
+    fmt: str,
+    force: bool,
+    minutes: Optional[float],
+    jobs: int,
+    lanes: Optional[int],
+    shares: Optional[str],
+    as_json: bool,
+) -> dict[str, Any]:
     from laneprint.app.simulator.highway_output import write_highway_study
     from laneprint.simulator.highway.settings import DEFAULT_LANES, LANES, HighwaySettings
     from laneprint.simulator.highway.study import check_available, simulate_highway_study
@@ -162,9 +232,13 @@ def _simulate_highway(out: Path, drivers: Optional[int], seed: int, fmt: str, fo
     if jobs < 1:
         raise UserError("--jobs must be at least 1")
     base = HighwaySettings()
-    settings = replace(base, n_lanes=lanes, n_drivers=base.n_drivers if drivers is None else drivers,
-                       minutes=base.minutes if minutes is None else minutes,
-                       style_shares=base.style_shares if shares is None else parse_shares(shares))
+    settings = replace(
+        base,
+        n_lanes=lanes,
+        n_drivers=base.n_drivers if drivers is None else drivers,
+        minutes=base.minutes if minutes is None else minutes,
+        style_shares=base.style_shares if shares is None else parse_shares(shares),
+    )
     check_available()  # one line telling how to install highway-env, before anything else
     check_destination(out, force)
     with progress_bar(not as_json) as bar:
@@ -174,8 +248,11 @@ def _simulate_highway(out: Path, drivers: Optional[int], seed: int, fmt: str, fo
 
 def _render(result: dict[str, Any], console: Console) -> None:
     cases = ", ".join(f"{k} {v}" for k, v in sorted(result["cases"].items()))
-    console.print(f"Wrote a synthetic study to {result['out']} (seed {result['seed']}, format {result['format']})",
-                  highlight=False, soft_wrap=True)
+    console.print(
+        f"Wrote a synthetic study to {result['out']} (seed {result['seed']}, format {result['format']})",
+        highlight=False,
+        soft_wrap=True,
+    )
     console.print(f"  drivers     {result['drivers']}", highlight=False, soft_wrap=True)
     console.print(f"  recordings  {result['recordings']}", highlight=False, soft_wrap=True)
     console.print(f"  decisions   {result['decisions']} ({cases})", highlight=False, soft_wrap=True)

@@ -17,15 +17,15 @@ from laneprint.simulator.highway.study import HighwayStudy
 from laneprint.app.simulator.output import write_study_files
 
 
-def write_highway_study(study: HighwayStudy, out: Path, fmt: str = "csv", force: bool = False,
-                        progress: Optional[ProgressFn] = None) -> dict[str, Any]:
+def write_highway_study(
+    study: HighwayStudy, out: Path, fmt: str = "csv", force: bool = False, progress: Optional[ProgressFn] = None
+) -> dict[str, Any]:
     """Write `study` into `out`; returns a JSON-ready summary."""
     files, total, log_bytes = write_study_files(study, out, fmt, render_readme, force, progress=progress)
     return summary(study, out, fmt, len(files) + 2, total, log_bytes)
 
 
-def summary(study: HighwayStudy, out: Path, fmt: str, n_files: int, total_bytes: int,
-            log_bytes: int) -> dict[str, Any]:
+def summary(study: HighwayStudy, out: Path, fmt: str, n_files: int, total_bytes: int, log_bytes: int) -> dict[str, Any]:
     """The JSON result of `laneprint simulate --engine highway`."""
     gt = study.ground_truth
     per_driver = {d["driver_id"]: 0 for d in gt["drivers"]}

@@ -91,8 +91,9 @@ def check_destination(out: Path, force: bool = False) -> Optional[list[str]]:
     return old_files
 
 
-def write_recordings(recordings: list, plan: list[tuple[str, int, str]], folder: Path,
-                     progress: Optional[ProgressFn] = None) -> list[dict[str, Any]]:
+def write_recordings(
+    recordings: list, plan: list[tuple[str, int, str]], folder: Path, progress: Optional[ProgressFn] = None
+) -> list[dict[str, Any]]:
     """Write each planned (relative path, recording index, kind) into `folder`; one dict per file written."""
     files = []
     for k, (rel, i, kind) in enumerate(plan):
@@ -101,16 +102,28 @@ def write_recordings(recordings: list, plan: list[tuple[str, int, str]], folder:
         path = folder / rel
         path.parent.mkdir(parents=True, exist_ok=True)
         (write_mcap if kind == "mcap" else write_csv)(path, meta, ego, traffic)
-        files.append({"path": rel, "session_id": meta["session_id"], "driver_id": meta["driver_id"],
-                      "format": kind if kind == "mcap" else ("csv.gz" if rel.endswith(".gz") else "csv"),
-                      "bytes": path.stat().st_size})
+        files.append(
+            {
+                "path": rel,
+                "session_id": meta["session_id"],
+                "driver_id": meta["driver_id"],
+                "format": kind if kind == "mcap" else ("csv.gz" if rel.endswith(".gz") else "csv"),
+                "bytes": path.stat().st_size,
+            }
+        )
     report(progress, len(plan), len(plan), "written")
     return files
 
 
-def write_study_files(study: Any, out: Path, fmt: str, readme: Callable[[Any, str, list], str],
-                      force: bool = False, gzip_csv: bool = True,
-                      progress: Optional[ProgressFn] = None) -> tuple[list[dict[str, Any]], int, int]:
+def write_study_files(
+    study: Any,
+    out: Path,
+    fmt: str,
+    readme: Callable[[Any, str, list], str],
+    force: bool = False,
+    gzip_csv: bool = True,
+    progress: Optional[ProgressFn] = None,
+) -> tuple[list[dict[str, Any]], int, int]:
     """Write a study's logs, ground truth and README into `out`, all or nothing.
 
     `study` needs ``recordings`` and ``ground_truth``; `readme(study, fmt, files)`
@@ -136,8 +149,14 @@ def write_study_files(study: Any, out: Path, fmt: str, readme: Callable[[Any, st
     return files, total_bytes, log_bytes
 
 
-def write_study(study: Study, out: Path, fmt: str = "mixed", force: bool = False, gzip_csv: bool = True,
-                progress: Optional[ProgressFn] = None) -> dict[str, Any]:
+def write_study(
+    study: Study,
+    out: Path,
+    fmt: str = "mixed",
+    force: bool = False,
+    gzip_csv: bool = True,
+    progress: Optional[ProgressFn] = None,
+) -> dict[str, Any]:
     """Write `study` into `out`; returns a JSON-ready summary (files, bytes)."""
     out = Path(out)
     files, total_bytes, data_bytes = write_study_files(study, out, fmt, render_readme, force, gzip_csv, progress)

@@ -18,8 +18,9 @@ from laneprint.simulator.sumo.readme import render_readme
 from laneprint.simulator.sumo.study import SumoStudy
 
 
-def write_sumo_study(study: SumoStudy, out: Path, fmt: str = "mixed", force: bool = False,
-                     progress: Optional[ProgressFn] = None) -> dict[str, Any]:
+def write_sumo_study(
+    study: SumoStudy, out: Path, fmt: str = "mixed", force: bool = False, progress: Optional[ProgressFn] = None
+) -> dict[str, Any]:
     """Write `study` into `out`; returns a JSON-ready summary."""
     files, total, log_bytes = write_study_files(study, out, fmt, render_readme, force, progress=progress)
     return summary(study, out, fmt, len(files) + 2, total, log_bytes)

@@ -17,5 +17,12 @@ from laneprint.simulator.highway.styles import STYLE_PARAMS, HighwayDriver, make
 from laneprint.simulator.highway.study import HighwayStudy, simulate_highway_study
 
 
-__all__ = ["STYLE_PARAMS", "HighwayDriver", "HighwaySettings", "HighwayStudy", "make_highway_drivers",
-           "simulate_highway_study", "true_parameter_ari"]
+__all__ = [
+    "STYLE_PARAMS",
+    "HighwayDriver",
+    "HighwaySettings",
+    "HighwayStudy",
+    "make_highway_drivers",
+    "simulate_highway_study",
+    "true_parameter_ari",
+]

@@ -49,11 +49,25 @@ class Decision:
 class HumanDriver(OnStraightRoad, IDMVehicle):
     """highway-env's IDMVehicle with a driver's constants and a human lane-change decision."""
 
-    def __init__(self, road: Any, position: np.ndarray, speed: float, params: dict[str, float], limit_mps: float,
-                 settings: HighwaySettings, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        road: Any,
+        position: np.ndarray,
+        speed: float,
+        params: dict[str, float],
+        limit_mps: float,
+        settings: HighwaySettings,
+        rng: np.random.Generator,
+    ) -> None:
         super().__init__(road, position, speed=speed, target_speed=params["SPEED_FACTOR"] * limit_mps, timer=0.0)
-        for key in ("TIME_WANTED", "DISTANCE_WANTED", "COMFORT_ACC_MAX", "POLITENESS", "LANE_CHANGE_MIN_ACC_GAIN",
-                    "LANE_CHANGE_MAX_BRAKING_IMPOSED"):
+        for key in (
+            "TIME_WANTED",
+            "DISTANCE_WANTED",
+            "COMFORT_ACC_MAX",
+            "POLITENESS",
+            "LANE_CHANGE_MIN_ACC_GAIN",
+            "LANE_CHANGE_MAX_BRAKING_IMPOSED",
+        ):
             setattr(self, key, float(params[key]))
         self.keep_right_bias = float(params["KEEP_RIGHT_BIAS"])
         self.LANE_CHANGE_DELAY = settings.decision_period_s
@@ -91,11 +105,17 @@ class HumanDriver(OnStraightRoad, IDMVehicle):
     def _decide(self, lane_index: LaneIndex, max_braking: float, margin: float) -> None:
         s, rng = self.settings, self.rng
         pressed = bool(rng.random() >= s.missed_press_p)
-        dec = Decision(t_s=self.clock, from_lane=self.lane_index, target_lane=lane_index,
-                       direction="right" if is_right_of(self, lane_index) else "left", pressed=pressed,
-                       hold_s=float(rng.uniform(*s.button_hold_s)),
-                       start_t_s=self.clock + float(rng.uniform(*s.reaction_s)),
-                       max_braking=max_braking, margin=margin)
+        dec = Decision(
+            t_s=self.clock,
+            from_lane=self.lane_index,
+            target_lane=lane_index,
+            direction="right" if is_right_of(self, lane_index) else "left",
+            pressed=pressed,
+            hold_s=float(rng.uniform(*s.button_hold_s)),
+            start_t_s=self.clock + float(rng.uniform(*s.reaction_s)),
+            max_braking=max_braking,
+            margin=margin,
+        )
         self.decisions.append(dec)
         self.pending = dec
         self._maybe_start()

@@ -10,9 +10,14 @@ from laneprint.simulator.highway.study import HighwayStudy
 
 #: Parameters shown in the README's driver table (all are in ground_truth.json), with short headers.
 _SHOWN: dict[str, str] = {
-    "TIME_WANTED": "T [s]", "DISTANCE_WANTED": "d0 [m]", "COMFORT_ACC_MAX": "a [m/s2]", "POLITENESS": "p",
-    "LANE_CHANGE_MIN_ACC_GAIN": "gain [m/s2]", "LANE_CHANGE_MAX_BRAKING_IMPOSED": "b_safe [m/s2]",
-    "SPEED_FACTOR": "v0/limit", "KEEP_RIGHT_BIAS": "keep right [m/s2]",
+    "TIME_WANTED": "T [s]",
+    "DISTANCE_WANTED": "d0 [m]",
+    "COMFORT_ACC_MAX": "a [m/s2]",
+    "POLITENESS": "p",
+    "LANE_CHANGE_MIN_ACC_GAIN": "gain [m/s2]",
+    "LANE_CHANGE_MAX_BRAKING_IMPOSED": "b_safe [m/s2]",
+    "SPEED_FACTOR": "v0/limit",
+    "KEEP_RIGHT_BIAS": "keep right [m/s2]",
 }
 
 
@@ -30,7 +35,7 @@ def render_readme(study: HighwayStudy, fmt: str, files: list[dict[str, Any]]) ->
     """Markdown describing the study in `files`."""
     s, gt = study.settings, study.ground_truth
     lanes_opt = "" if s.n_lanes == DEFAULT_LANES else f" --lanes {s.n_lanes}"
-    shares_opt = ("" if len(set(s.style_shares)) == 1 else " --shares " + ",".join(f"{v:g}" for v in s.style_shares))
+    shares_opt = "" if len(set(s.style_shares)) == 1 else " --shares " + ",".join(f"{v:g}" for v in s.style_shares)
     presses = study.presses
     n_press = {d["driver_id"]: 0 for d in gt["drivers"]}
     for dec in presses:
@@ -44,10 +49,16 @@ def render_readme(study: HighwayStudy, fmt: str, files: list[dict[str, Any]]) ->
     n_missed = sum(d["missed"] for d in study.decisions)
     n_aborted = sum(d["aborted"] for d in presses)
     counts = {st: sum(d["style"] == st for d in gt["drivers"]) for st in STYLES}
-    dens = "; ".join(f"{x['speed_limit_kph']:g} km/h: " + ", ".join(f"{v:.1f}" for v in x["density_per_km"])
-                     for x in gt["sessions"][:len(s.speed_limits_kph)])
-    rows = [f"| {d['driver_id']} | {d['style']} | {'yes' if d['typical'] else ''} | {n_press[d['driver_id']]} | "
-            + " | ".join(f"{d['params'][k]:g}" for k in _SHOWN) + " |" for d in gt["drivers"]]
+    dens = "; ".join(
+        f"{x['speed_limit_kph']:g} km/h: " + ", ".join(f"{v:.1f}" for v in x["density_per_km"])
+        for x in gt["sessions"][: len(s.speed_limits_kph)]
+    )
+    rows = [
+        f"| {d['driver_id']} | {d['style']} | {'yes' if d['typical'] else ''} | {n_press[d['driver_id']]} | "
+        + " | ".join(f"{d['params'][k]:g}" for k in _SHOWN)
+        + " |"
+        for d in gt["drivers"]
+    ]
     ari = gt["true_parameter_ari"]
     lines = [
         "# A driver-in-the-loop-like study simulated with highway-env",
@@ -65,7 +76,8 @@ def render_readme(study: HighwayStudy, fmt: str, files: list[dict[str, Any]]) ->
         f"{len(study.recordings)} recordings, {len(presses)} button presses, {hours:.2f} h of driving at "
         f"{1 / s.step_s:g} Hz.",
         f"- {s.n_lanes} lanes (`n_lanes` in ground_truth.json); presses by lane (from -> target): "
-        + ", ".join(f"{k}: {v}" for k, v in sorted(by_lane.items())) + ".",
+        + ", ".join(f"{k}: {v}" for k, v in sorted(by_lane.items()))
+        + ".",
         f"- {n_aborted} aborted presses (pressed, no lane change) and {n_missed} missed presses (a lane change "
         "without a press).",
         f"- Format `{fmt}`: {n_mcap} MCAP and {len(files) - n_mcap} gzipped CSV files"
@@ -118,10 +130,8 @@ def render_readme(study: HighwayStudy, fmt: str, files: list[dict[str, Any]]) ->
         "aborts the press. "
         f"{s.missed_press_p:.0%} of lane changes are made without a press.",
         "",
-        "Styles are handed out round-robin; the first driver of each style drives its nominal parameters, the "
-        "others",
-        f"each parameter x exp(N(0, {s.perturbation_sd:g})) (clipped at 2 sd; the headway and the desired speed "
-        "less).",
+        "Styles are handed out round-robin; the first driver of each style drives its nominal parameters, the others",
+        f"each parameter x exp(N(0, {s.perturbation_sd:g})) (clipped at 2 sd; the headway and the desired speed less).",
         "",
         "| driver | style | typical | presses | " + " | ".join(_SHOWN.values()) + " |",
         "|---|---|---|---|" + "---|" * len(_SHOWN),

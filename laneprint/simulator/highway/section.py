@@ -53,19 +53,24 @@ def highway_env_version() -> str:
         return "unknown"
 
 
-def run_section(settings: HighwaySettings, params: dict[str, float], limit_kph: float, density_per_km: list[float],
-                seeds: np.random.SeedSequence) -> SectionLog:
+def run_section(
+    settings: HighwaySettings,
+    params: dict[str, float],
+    limit_kph: float,
+    density_per_km: list[float],
+    seeds: np.random.SeedSequence,
+) -> SectionLog:
     """Drive one section (traffic streams of `density_per_km`, rightmost first) with the driver's `params`;
     every random choice from `seeds`."""
     s = settings
     driver_ss, traffic_ss, road_ss = seeds.spawn(3)
     limit = limit_kph / 3.6
     length = s.remove_behind_m + (s.warmup_s + s.duration_s) * limit * 1.6 + _ROAD_MARGIN_M
-    road = straight_road(s.n_lanes, length, s.lane_width_m,
-                         np.random.RandomState(int(road_ss.generate_state(1)[0])))
+    road = straight_road(s.n_lanes, length, s.lane_width_m, np.random.RandomState(int(road_ss.generate_state(1)[0])))
     start = road.network.get_lane(("0", "1", s.n_lanes - 1)).position(s.remove_behind_m + 50.0, 0.0)
-    ego = HumanDriver(road, start, 0.9 * params["SPEED_FACTOR"] * limit, params, limit, s,
-                      np.random.default_rng(driver_ss))
+    ego = HumanDriver(
+        road, start, 0.9 * params["SPEED_FACTOR"] * limit, params, limit, s, np.random.default_rng(driver_ss)
+    )
     set_length(ego, s.ego_length_m)
     ego.clock = -s.warmup_s
     road.vehicles.append(ego)
@@ -85,9 +90,17 @@ def run_section(settings: HighwaySettings, params: dict[str, float], limit_kph: 
             _log_traffic(t, ego, window, s, traffic_rows)
         road.act()
         if logged:
-            ego_rows.append([t, float(ego.position[0]), log_y(ego.position[1], s.n_lanes, s.lane_width_m),
-                             float(ego.speed), log_lane(ego.lane_index, s.n_lanes),
-                             float(ego.action["steering"]), float(ego.action["acceleration"])])
+            ego_rows.append(
+                [
+                    t,
+                    float(ego.position[0]),
+                    log_y(ego.position[1], s.n_lanes, s.lane_width_m),
+                    float(ego.speed),
+                    log_lane(ego.lane_index, s.n_lanes),
+                    float(ego.action["steering"]),
+                    float(ego.action["acceleration"]),
+                ]
+            )
         road.step(s.step_s)
         if ego.crashed:
             if logged and (not collisions or t - collisions[-1] > _SAME_COLLISION_S):
@@ -107,8 +120,17 @@ def _log_traffic(t: float, ego: HumanDriver, window: TrafficWindow, s: HighwaySe
     for v in ego.road.vehicles:
         if v is ego or abs(v.position[0] - ex) > s.scene_range_m:
             continue
-        rows.append((t, window.ids[id(v)], float(v.position[0]), log_y(v.position[1], s.n_lanes, s.lane_width_m),
-                     float(v.speed), log_lane(v.lane_index, s.n_lanes), window.lengths[id(v)]))
+        rows.append(
+            (
+                t,
+                window.ids[id(v)],
+                float(v.position[0]),
+                log_y(v.position[1], s.n_lanes, s.lane_width_m),
+                float(v.speed),
+                log_lane(v.lane_index, s.n_lanes),
+                window.lengths[id(v)],
+            )
+        )
 
 
 def inputs(v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -138,21 +160,41 @@ def _assemble(s: HighwaySettings, ego_rows: list, traffic_rows: list, decisions:
         horizon = min(end, k + int(round(_FLIP_LOOKAHEAD_S / s.step_s)))
         flips = np.flatnonzero(lane[k:horizon] == target)
         flip = k + int(flips[0]) if len(flips) else None
-        out.append({
-            "decision_t_s": float(t[k]), "press_t_s": float(t[k]) if dec.pressed else None,
-            "direction": dec.direction, "from_lane": from_lane, "target_lane": target,
-            "pressed": dec.pressed, "missed": not dec.pressed, "aborted": dec.started is False,
-            "changed": flip is not None, "lane_flip_t_s": float(t[flip]) if flip is not None else None,
-            "reaction_s": round(dec.start_t_s - dec.t_s, 4), "hold_s": round(dec.hold_s, 4),
-            "max_braking_drawn_mps2": round(dec.max_braking, 4), "mobil_margin_mps2": round(dec.margin, 4),
-            "v_e_mps": float(v[k]),
-        })
+        out.append(
+            {
+                "decision_t_s": float(t[k]),
+                "press_t_s": float(t[k]) if dec.pressed else None,
+                "direction": dec.direction,
+                "from_lane": from_lane,
+                "target_lane": target,
+                "pressed": dec.pressed,
+                "missed": not dec.pressed,
+                "aborted": dec.started is False,
+                "changed": flip is not None,
+                "lane_flip_t_s": float(t[flip]) if flip is not None else None,
+                "reaction_s": round(dec.start_t_s - dec.t_s, 4),
+                "hold_s": round(dec.hold_s, 4),
+                "max_braking_drawn_mps2": round(dec.max_braking, 4),
+                "mobil_margin_mps2": round(dec.margin, 4),
+                "v_e_mps": float(v[k]),
+            }
+        )
     throttle, brake = inputs(v, a)
-    ego = pd.DataFrame({
-        "t_s": t, "ego_x_m": x, "ego_y_m": y, "ego_v_mps": v, "ego_lane": lane,
-        "ego_length_m": np.full(n, s.ego_length_m), "steer_rad": steer,
-        "throttle": throttle, "brake": brake, "lc_button": button, "lc_direction": direction,
-    })
+    ego = pd.DataFrame(
+        {
+            "t_s": t,
+            "ego_x_m": x,
+            "ego_y_m": y,
+            "ego_v_mps": v,
+            "ego_lane": lane,
+            "ego_length_m": np.full(n, s.ego_length_m),
+            "steer_rad": steer,
+            "throttle": throttle,
+            "brake": brake,
+            "lc_button": button,
+            "lc_direction": direction,
+        }
+    )
     cols = ["t_s", "vehicle_id", "x_m", "y_m", "v_mps", "lane", "length_m"]
     traffic = pd.DataFrame(traffic_rows, columns=cols)
     traffic["lane"] = traffic["lane"].astype(np.int64)

@@ -85,10 +85,10 @@ class HighwaySettings:
             raise ValueError("speed_limits_kph must name at least one section")
         if self.minutes <= 0:
             raise ValueError("minutes must be positive")
-        if not (self.scene_range_m < self.spawn_ahead_m < self.remove_ahead_m
-                and self.spawn_behind_m < self.remove_behind_m):
-            raise ValueError("need scene_range_m < spawn_ahead_m < remove_ahead_m and "
-                             "spawn_behind_m < remove_behind_m")
+        if not (
+            self.scene_range_m < self.spawn_ahead_m < self.remove_ahead_m and self.spawn_behind_m < self.remove_behind_m
+        ):
+            raise ValueError("need scene_range_m < spawn_ahead_m < remove_ahead_m and spawn_behind_m < remove_behind_m")
         if len(self.lane_speed_frac) != 3 or len(self.lane_spacing_s) != 3:
             raise ValueError("lane_speed_frac and lane_spacing_s need three ranges (right, middle, left)")
 

@@ -78,13 +78,17 @@ def section_densities(settings: HighwaySettings, seed: int) -> list[list[float]]
 
 def study_drivers(settings: HighwaySettings, seed: int) -> list[HighwayDriver]:
     """The study's drivers and their true parameters (no simulation)."""
-    return make_highway_drivers(settings.n_drivers, settings.perturbation_sd,
-                                np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,))),
-                                settings.style_shares)
+    return make_highway_drivers(
+        settings.n_drivers,
+        settings.perturbation_sd,
+        np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,))),
+        settings.style_shares,
+    )
 
 
-def _run_one(settings: HighwaySettings, driver: HighwayDriver, limit: float, density: list[float], seed: int, i: int,
-             j: int) -> "SectionLog":
+def _run_one(
+    settings: HighwaySettings, driver: HighwayDriver, limit: float, density: list[float], seed: int, i: int, j: int
+) -> "SectionLog":
     """One (driver, section) recording (also the entry point of a worker process)."""
     from laneprint.simulator.highway.section import run_section
 
@@ -98,12 +102,14 @@ def check_available() -> None:
     try:
         import highway_env  # noqa: F401
     except ImportError:
-        raise SettingError("{0} highway needs highway-env: pip install -e '.[highway]' "
-                        "(highway-env==1.12.1)", "engine") from None
+        raise SettingError(
+            "{0} highway needs highway-env: pip install -e '.[highway]' (highway-env==1.12.1)", "engine"
+        ) from None
 
 
-def simulate_highway_study(settings: Optional[HighwaySettings] = None, seed: int = 0,
-                           progress: Optional[ProgressFn] = None, jobs: int = 1) -> HighwayStudy:
+def simulate_highway_study(
+    settings: Optional[HighwaySettings] = None, seed: int = 0, progress: Optional[ProgressFn] = None, jobs: int = 1
+) -> HighwayStudy:
     """Drive every (driver, section) in highway-env and collect the recordings and the ground truth."""
     settings = settings or HighwaySettings()
     drivers = study_drivers(settings, seed)
@@ -117,8 +123,9 @@ def simulate_highway_study(settings: Optional[HighwaySettings] = None, seed: int
             logs[i, j] = _run_one(settings, d, lim, densities[j], seed, i, j)
     else:
         with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
-            futures = {pool.submit(_run_one, settings, d, lim, densities[j], seed, i, j): (i, j)
-                       for i, j, d, lim in tasks}
+            futures = {
+                pool.submit(_run_one, settings, d, lim, densities[j], seed, i, j): (i, j) for i, j, d, lim in tasks
+            }
             for fut in as_completed(futures):
                 logs[futures[fut]] = fut.result()
                 report(progress, len(logs), len(tasks), "highway-env runs")
@@ -126,8 +133,13 @@ def simulate_highway_study(settings: Optional[HighwaySettings] = None, seed: int
     return _collect(settings, seed, drivers, tasks, logs)
 
 
-def _collect(settings: HighwaySettings, seed: int, drivers: list[HighwayDriver], tasks: list,
-             logs: dict[tuple[int, int], "SectionLog"]) -> HighwayStudy:
+def _collect(
+    settings: HighwaySettings,
+    seed: int,
+    drivers: list[HighwayDriver],
+    tasks: list,
+    logs: dict[tuple[int, int], "SectionLog"],
+) -> HighwayStudy:
     version = next(iter(logs.values())).version if logs else ""
     simulator = simulator_text(version, settings.n_lanes)
     recordings: list[Recording] = []
@@ -138,16 +150,24 @@ def _collect(settings: HighwaySettings, seed: int, drivers: list[HighwayDriver],
         sid = session_id(d.driver_id, lim)
         meta = {"driver_id": d.driver_id, "session_id": sid, "speed_limit_kph": lim, "simulator": simulator}
         recordings.append((meta, log.ego, log.traffic))
-        sessions.append({"session_id": sid, "driver_id": d.driver_id, "speed_limit_kph": lim,
-                         "n_samples": len(log.ego), "duration_s": float(log.ego["t_s"].iloc[-1]),
-                         "n_presses": sum(dec["pressed"] for dec in log.decisions),
-                         "n_decisions": len(log.decisions), "n_vehicles": log.n_vehicles,
-                         "n_collisions": len(log.collision_t_s), "collision_t_s": log.collision_t_s,
-                         "n_traffic_collisions": log.n_traffic_collisions,
-                         "density_per_km": log.density_per_km})
+        sessions.append(
+            {
+                "session_id": sid,
+                "driver_id": d.driver_id,
+                "speed_limit_kph": lim,
+                "n_samples": len(log.ego),
+                "duration_s": float(log.ego["t_s"].iloc[-1]),
+                "n_presses": sum(dec["pressed"] for dec in log.decisions),
+                "n_decisions": len(log.decisions),
+                "n_vehicles": log.n_vehicles,
+                "n_collisions": len(log.collision_t_s),
+                "collision_t_s": log.collision_t_s,
+                "n_traffic_collisions": log.n_traffic_collisions,
+                "density_per_km": log.density_per_km,
+            }
+        )
         for k, dec in enumerate(log.decisions):
-            decisions.append({"session_id": sid, "driver_id": d.driver_id, "index": k, **dec,
-                              "speed_limit_kph": lim})
+            decisions.append({"session_id": sid, "driver_id": d.driver_id, "index": k, **dec, "speed_limit_kph": lim})
     ground_truth = {
         "generator": GENERATOR,
         "engine": ENGINE,

@@ -34,18 +34,33 @@ from laneprint.simulator.drivers import driver_ids, style_counts
 #: threshold of a change to the right (a free right lane draws the driver back when it exceeds the gain).
 STYLE_PARAMS: dict[str, dict[str, float]] = {
     "Defensive": {
-        "TIME_WANTED": 2.15, "DISTANCE_WANTED": 10.0, "COMFORT_ACC_MAX": 1.0, "POLITENESS": 0.4,
-        "LANE_CHANGE_MIN_ACC_GAIN": 0.3, "LANE_CHANGE_MAX_BRAKING_IMPOSED": 1.0, "SPEED_FACTOR": 0.97,
+        "TIME_WANTED": 2.15,
+        "DISTANCE_WANTED": 10.0,
+        "COMFORT_ACC_MAX": 1.0,
+        "POLITENESS": 0.4,
+        "LANE_CHANGE_MIN_ACC_GAIN": 0.3,
+        "LANE_CHANGE_MAX_BRAKING_IMPOSED": 1.0,
+        "SPEED_FACTOR": 0.97,
         "KEEP_RIGHT_BIAS": 1.0,
     },
     "Normal": {
-        "TIME_WANTED": 1.25, "DISTANCE_WANTED": 7.5, "COMFORT_ACC_MAX": 1.8, "POLITENESS": 0.2,
-        "LANE_CHANGE_MIN_ACC_GAIN": 0.15, "LANE_CHANGE_MAX_BRAKING_IMPOSED": 2.5, "SPEED_FACTOR": 1.05,
+        "TIME_WANTED": 1.25,
+        "DISTANCE_WANTED": 7.5,
+        "COMFORT_ACC_MAX": 1.8,
+        "POLITENESS": 0.2,
+        "LANE_CHANGE_MIN_ACC_GAIN": 0.15,
+        "LANE_CHANGE_MAX_BRAKING_IMPOSED": 2.5,
+        "SPEED_FACTOR": 1.05,
         "KEEP_RIGHT_BIAS": 0.6,
     },
     "Aggressive": {
-        "TIME_WANTED": 0.9, "DISTANCE_WANTED": 6.0, "COMFORT_ACC_MAX": 3.0, "POLITENESS": 0.05,
-        "LANE_CHANGE_MIN_ACC_GAIN": 0.06, "LANE_CHANGE_MAX_BRAKING_IMPOSED": 4.5, "SPEED_FACTOR": 1.13,
+        "TIME_WANTED": 0.9,
+        "DISTANCE_WANTED": 6.0,
+        "COMFORT_ACC_MAX": 3.0,
+        "POLITENESS": 0.05,
+        "LANE_CHANGE_MIN_ACC_GAIN": 0.06,
+        "LANE_CHANGE_MAX_BRAKING_IMPOSED": 4.5,
+        "SPEED_FACTOR": 1.13,
         "KEEP_RIGHT_BIAS": 0.35,
     },
 }
@@ -69,8 +84,7 @@ class HighwayDriver:
     params: dict[str, float]  # STYLE_PARAMS key -> value
 
     def to_dict(self) -> dict[str, Any]:
-        return {"driver_id": self.driver_id, "style": self.style, "typical": self.typical,
-                "params": dict(self.params)}
+        return {"driver_id": self.driver_id, "style": self.style, "typical": self.typical, "params": dict(self.params)}
 
 
 def style_order(n_drivers: int, shares: tuple[float, float, float]) -> list[str]:
@@ -95,8 +109,9 @@ def perturb(nominal: dict[str, float], rng: np.random.Generator, sd: float) -> d
     return {k: out[k] for k in nominal}
 
 
-def make_highway_drivers(n_drivers: int, sd: float, rng: np.random.Generator,
-                         shares: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> list[HighwayDriver]:
+def make_highway_drivers(
+    n_drivers: int, sd: float, rng: np.random.Generator, shares: tuple[float, float, float] = (1.0, 1.0, 1.0)
+) -> list[HighwayDriver]:
     """The study's drivers: styles by `style_order`, the first of each style typical (nominal values)."""
     drivers, seen = [], set()
     for did, style in zip(driver_ids(n_drivers), style_order(n_drivers, shares)):

@@ -41,8 +41,14 @@ _SPOT_MARGIN_M = 20.0  # [m] ... down to this far outside the logged scene
 class TrafficWindow:
     """Adds and removes the traffic vehicles of one recording around the ego."""
 
-    def __init__(self, road: FastRoad, settings: HighwaySettings, limit_mps: float, density_per_km: list[float],
-                 rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        road: FastRoad,
+        settings: HighwaySettings,
+        limit_mps: float,
+        density_per_km: list[float],
+        rng: np.random.Generator,
+    ) -> None:
         self.road, self.s, self.limit, self.rng = road, settings, limit_mps, rng
         n = settings.n_lanes
         self.density = list(density_per_km)  # vehicles per km of each stream, by home lane (rightmost first)
@@ -77,8 +83,13 @@ class TrafficWindow:
         hw = self.s.n_lanes - 1 - lane
         keeps_lane = kind == "truck" or (lane == 0 and self.s.right_lane_keeps)
         cls = LaneKeeper if keeps_lane else TrafficCar
-        v = cls(self.road, self.road.network.get_lane(("0", "1", hw)).position(x, 0.0), speed=desired,
-                target_speed=desired, timer=float(self.rng.uniform(0.0, 1.0)))
+        v = cls(
+            self.road,
+            self.road.network.get_lane(("0", "1", hw)).position(x, 0.0),
+            speed=desired,
+            target_speed=desired,
+            timer=float(self.rng.uniform(0.0, 1.0)),
+        )
         length = float(self.rng.uniform(*(self.s.truck_length_m if kind == "truck" else self.s.car_length_m)))
         set_length(v, length)
         v.DELTA = float(self.rng.uniform(*IDM_DELTA_RANGE))
@@ -168,5 +179,5 @@ class TrafficWindow:
         behind = other.position[0] < x
         v_rear, v_front = (other.speed, v_new) if behind else (v_new, other.speed)
         closing = max(0.0, v_rear - v_front)
-        need = 10.0 + self.s.min_spawn_gap_s * v_rear + closing ** 2 / (2 * 3.0) + (other.LENGTH + 16.0) / 2
+        need = 10.0 + self.s.min_spawn_gap_s * v_rear + closing**2 / (2 * 3.0) + (other.LENGTH + 16.0) / 2
         return abs(other.position[0] - x) >= need

@@ -85,7 +85,7 @@ class FastRoad(Road):
         order = sorted(self.vehicles, key=lambda v: v.position[0])
         reach = max(v.diagonal for v in order) + max(abs(v.speed) for v in order) * dt
         for i, a in enumerate(order):
-            for b in order[i + 1:]:
+            for b in order[i + 1 :]:
                 if b.position[0] - a.position[0] > reach:
                     break
                 a.handle_collisions(b, dt)
@@ -121,8 +121,9 @@ def is_right_of(vehicle: Any, lane_index: LaneIndex) -> bool:
     return lane_index[2] > vehicle.lane_index[2]
 
 
-def mobil_margin(vehicle: IDMVehicle, lane_index: LaneIndex, max_braking: float,
-                 keep_right_bias: float) -> Optional[float]:
+def mobil_margin(
+    vehicle: IDMVehicle, lane_index: LaneIndex, max_braking: float, keep_right_bias: float
+) -> Optional[float]:
     """highway-env's MOBIL for a change to `lane_index`: None when the new follower would have to brake
     harder than `max_braking` [m/s^2] (as the vehicle predicts it, with its own IDM), else the incentive
     minus the threshold (LANE_CHANGE_MIN_ACC_GAIN, less `keep_right_bias` for a change to the right)."""
@@ -137,8 +138,11 @@ def mobil_margin(vehicle: IDMVehicle, lane_index: LaneIndex, max_braking: float,
     self_a = vehicle.acceleration(ego_vehicle=vehicle, front_vehicle=old_preceding)
     old_following_a = vehicle.acceleration(ego_vehicle=old_following, front_vehicle=vehicle)
     old_following_pred_a = vehicle.acceleration(ego_vehicle=old_following, front_vehicle=old_preceding)
-    gain = self_pred_a - self_a + vehicle.POLITENESS * (
-        new_following_pred_a - new_following_a + old_following_pred_a - old_following_a)
+    gain = (
+        self_pred_a
+        - self_a
+        + vehicle.POLITENESS * (new_following_pred_a - new_following_a + old_following_pred_a - old_following_a)
+    )
     threshold = vehicle.LANE_CHANGE_MIN_ACC_GAIN - (keep_right_bias if is_right_of(vehicle, lane_index) else 0.0)
     return float(gain - threshold)
 
@@ -152,12 +156,15 @@ def is_safe(vehicle: IDMVehicle, lane_index: LaneIndex, max_braking: float) -> b
     for other in (front, rear):
         if other is not None and abs(other.position[0] - vehicle.position[0]) < (other.LENGTH + vehicle.LENGTH) / 2:
             return False
-    return (vehicle.acceleration(ego_vehicle=rear, front_vehicle=vehicle) >= -max_braking
-            and vehicle.acceleration(ego_vehicle=vehicle, front_vehicle=front) >= -max_braking)
+    return (
+        vehicle.acceleration(ego_vehicle=rear, front_vehicle=vehicle) >= -max_braking
+        and vehicle.acceleration(ego_vehicle=vehicle, front_vehicle=front) >= -max_braking
+    )
 
 
-def best_lane(vehicle: IDMVehicle, max_braking: float, keep_right_bias: float,
-              look_ahead: bool = False) -> tuple[Optional[LaneIndex], float]:
+def best_lane(
+    vehicle: IDMVehicle, max_braking: float, keep_right_bias: float, look_ahead: bool = False
+) -> tuple[Optional[LaneIndex], float]:
     """The side lane MOBIL (`mobil_margin`) recommends most, with its margin, or (None, 0); with `look_ahead`
     only lanes where `is_safe` holds too."""
     best, best_margin = None, 0.0

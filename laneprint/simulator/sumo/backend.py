@@ -75,8 +75,19 @@ def check_available() -> str:
 
 def run_netconvert(nodes: Path, edges: Path, out: Path) -> Path:
     """Build `out` (a .net.xml) from plain node and edge files."""
-    cmd = [str(binary("netconvert")), "-n", str(nodes), "-e", str(edges), "-o", str(out),
-           "--no-turnarounds", "true", "--no-warnings", "true"]
+    cmd = [
+        str(binary("netconvert")),
+        "-n",
+        str(nodes),
+        "-e",
+        str(edges),
+        "-o",
+        str(out),
+        "--no-turnarounds",
+        "true",
+        "--no-warnings",
+        "true",
+    ]
     res = subprocess.run(cmd, capture_output=True, text=True, env=sumo_env(), check=False)
     if res.returncode != 0:
         raise RuntimeError(f"netconvert failed: {res.stderr.strip() or res.stdout.strip()}")
@@ -104,8 +115,9 @@ class SumoSession:
             self.api: Any = self._module
         else:
             port = _free_port()
-            proc = subprocess.Popen([str(binary("sumo")), *args, "--remote-port", str(port)],
-                                    stdout=subprocess.DEVNULL, env=sumo_env())
+            proc = subprocess.Popen(
+                [str(binary("sumo")), *args, "--remote-port", str(port)], stdout=subprocess.DEVNULL, env=sumo_env()
+            )
             with contextlib.redirect_stdout(io.StringIO()):  # traci prints its connection retries
                 self.api = self._module.connect(port, numRetries=200, proc=proc, waitBetweenRetries=0.05)
         self.version = str(self.api.getVersion()[1]).replace("SUMO ", "")

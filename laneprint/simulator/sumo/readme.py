@@ -9,21 +9,39 @@ from laneprint.simulator.sumo.study import SumoStudy
 
 #: family -> parameters shown in the README's driver table (all are in ground_truth.json).
 _SHOWN: dict[str, tuple[str, ...]] = {
-    "ttc": ("tau", "decel", "speedFactor", "lcSpeedGainLookahead", "lcAssertive", "lcKeepRight",
-            "lcKeepRightAcceptanceTime"),
+    "ttc": (
+        "tau",
+        "decel",
+        "speedFactor",
+        "lcSpeedGainLookahead",
+        "lcAssertive",
+        "lcKeepRight",
+        "lcKeepRightAcceptanceTime",
+    ),
     "acceptance": ("tau", "minGap", "accel", "decel", "speedFactor", "lcAssertive", "lcSpeedGain", "lcKeepRight"),
-    "sublane": ("tau", "speedFactor", "lcAssertive", "lcSpeedGain", "lcKeepRight", "lcKeepRightAcceptanceTime",
-                "lcPushy", "lcImpatience", "minGapLat", "maxSpeedLat", "lcSigma"),
+    "sublane": (
+        "tau",
+        "speedFactor",
+        "lcAssertive",
+        "lcSpeedGain",
+        "lcKeepRight",
+        "lcKeepRightAcceptanceTime",
+        "lcPushy",
+        "lcImpatience",
+        "minGapLat",
+        "maxSpeedLat",
+        "lcSigma",
+    ),
 }
 #: family -> what its styles differ in, for the README.
 _ABOUT: dict[str, str] = {
     "ttc": "Family `ttc` (the default): the styles differ in the times to collision they accept.",
     "acceptance": "Family `acceptance`: the styles differ in the gaps and headways they accept (IDM headway and "
-                  "standstill gap,\nLC2013 `lcAssertive`), in traffic where most presses have no closing leader.",
+    "standstill gap,\nLC2013 `lcAssertive`), in traffic where most presses have no closing leader.",
     "sublane": "Family `sublane`: SUMO's sublane model. Every vehicle changes lane with SL2015 on sublanes "
-               "(`--lateral-resolution`),\nso a lane change is a lateral move at the driver's own lateral speed that "
-               "can pause, turn back or wander;\nthe styles differ in the headway they keep (Krauss tau) and in SL2015's "
-               "eagerness, assertiveness and lateral manners.",
+    "(`--lateral-resolution`),\nso a lane change is a lateral move at the driver's own lateral speed that "
+    "can pause, turn back or wander;\nthe styles differ in the headway they keep (Krauss tau) and in SL2015's "
+    "eagerness, assertiveness and lateral manners.",
 }
 
 
@@ -41,18 +59,28 @@ def render_readme(study: SumoStudy, fmt: str, files: list[dict[str, Any]]) -> st
     for dec in study.decisions:
         key = f"{dec['from_lane']} -> {dec['target_lane']}"
         by_lane[key] = by_lane.get(key, 0) + 1
-    road = ("two-lane road, lane 0 on the right (`y = 0`), lane 1 at `y = {w:g}` m" if s.n_lanes == 2 else
-            "three-lane road, lane 0 on the right (`y = 0`), lane 1 (middle) at `y = {w:g}` m, lane 2 at "
-            "`y = {w2:g}` m").format(w=s.lane_width_m, w2=2 * s.lane_width_m)
-    middle = (f" slower middle-lane cars at {_range(s.middle_speed_frac)} x the limit, spaced "
-              f"{_range(s.middle_spacing_s)} s;" if "middle" in s.ahead_streams else "")
+    road = (
+        "two-lane road, lane 0 on the right (`y = 0`), lane 1 at `y = {w:g}` m"
+        if s.n_lanes == 2
+        else "three-lane road, lane 0 on the right (`y = 0`), lane 1 (middle) at `y = {w:g}` m, lane 2 at "
+        "`y = {w2:g}` m"
+    ).format(w=s.lane_width_m, w2=2 * s.lane_width_m)
+    middle = (
+        f" slower middle-lane cars at {_range(s.middle_speed_frac)} x the limit, spaced {_range(s.middle_spacing_s)} s;"
+        if "middle" in s.ahead_streams
+        else ""
+    )
     n_dec = {d["driver_id"]: 0 for d in gt["drivers"]}
     for dec in study.decisions:
         n_dec[dec["driver_id"]] += 1
     hours = sum(x["duration_s"] for x in gt["sessions"]) / 3600
     n_mcap = sum(f["format"] == "mcap" for f in files)
-    rows = [f"| {d['driver_id']} | {d['style']} | {'yes' if d['typical'] else ''} | {n_dec[d['driver_id']]} | "
-            + " | ".join(f"{d['sumo_params'][k]:g}" for k in shown) + " |" for d in gt["drivers"]]
+    rows = [
+        f"| {d['driver_id']} | {d['style']} | {'yes' if d['typical'] else ''} | {n_dec[d['driver_id']]} | "
+        + " | ".join(f"{d['sumo_params'][k]:g}" for k in shown)
+        + " |"
+        for d in gt["drivers"]
+    ]
     lines = [
         "# A driver-in-the-loop-like study simulated with Eclipse SUMO",
         "",
@@ -71,7 +99,8 @@ def render_readme(study: SumoStudy, fmt: str, files: list[dict[str, Any]]) -> st
         f"(one SUMO run each), {len(study.decisions)} lane changes, {hours:.2f} h of driving at "
         f"{1 / s.step_s:g} Hz.",
         f"- {s.n_lanes} lanes (`n_lanes` in ground_truth.json); lane changes by lane (from -> target): "
-        + ", ".join(f"{k}: {v}" for k, v in sorted(by_lane.items())) + ".",
+        + ", ".join(f"{k}: {v}" for k, v in sorted(by_lane.items()))
+        + ".",
         f"- Format `{fmt}`: {n_mcap} MCAP and {len(files) - n_mcap} gzipped CSV files"
         + (" (odd-numbered drivers MCAP, even-numbered CSV)" if fmt == "mixed" else "")
         + "; file names are session ids (`D03_S80`: driver D03, 80 km/h section).",
@@ -89,12 +118,13 @@ def render_readme(study: SumoStudy, fmt: str, files: list[dict[str, Any]]) -> st
         "",
         "## The runs",
         "",
-        f"A straight {road}; "
-        f"edge speed = the section's limit; `--step-length {s.step_s:g}`,",
-        (f"`--lanechange.duration {s.lane_change_s:g}` (a lane change is a continuous lateral move); "
-         if s.lateral_resolution_m <= 0 else
-         f"`--lateral-resolution {s.lateral_resolution_m:g}` (sublanes: a lane change is a lateral move at the "
-         "vehicle's lateral speed); ")
+        f"A straight {road}; edge speed = the section's limit; `--step-length {s.step_s:g}`,",
+        (
+            f"`--lanechange.duration {s.lane_change_s:g}` (a lane change is a continuous lateral move); "
+            if s.lateral_resolution_m <= 0
+            else f"`--lateral-resolution {s.lateral_resolution_m:g}` (sublanes: a lane change is a lateral move at the "
+            "vehicle's lateral speed); "
+        )
         + f"{s.minutes:g} min logged per run.",
         "Background traffic is a bubble around the ego: right-lane cars and trucks at "
         f"{_range(s.slow_speed_frac)} x the limit ({s.truck_share:.0%} trucks), spaced {_range(s.slow_spacing_s)} s",
@@ -102,20 +132,30 @@ def render_readme(study: SumoStudy, fmt: str, files: list[dict[str, Any]]) -> st
         + (f" slower left-lane cars at {_range(s.left_speed_frac)} x the limit;" if "left" in s.ahead_streams else "")
         + f" now and then a faster car ({_range(s.fast_speed_frac)} x) from behind",
         f"in the {'left' if s.n_lanes == 2 else 'leftmost'} lane. A vehicle is in the log while its centre is within {s.scene_range_m:g} m of the ego's.",
-        *([f"Background vehicles dawdle (Krauss sigma {s.background_sigma:g}): their speeds waver."]
-          if s.background_sigma > 0 else []),
+        *(
+            [f"Background vehicles dawdle (Krauss sigma {s.background_sigma:g}): their speeds waver."]
+            if s.background_sigma > 0
+            else []
+        ),
         "",
-        *(["The lane-change button is pressed at the first sample at which the ego leaves its lane",
-           f"centre (SUMO has begun the manoeuvre), held {s.button_hold_s:g} s, with `lc_direction`; "
-           "`ego_lane` flips half way through."] if s.lateral_resolution_m <= 0 else
-          ["`ego_lane` is the lane the ego's centre is in. Each time it flips the lane-change button has been "
-           "pressed at the",
-           "sample after SUMO started the manoeuvre that crossed (its lanechange-output `changeStarted` on the "
-           "final approach:",
-           "a wait at the lane edge or a turn back does not count), in the lane the ego leaves, held "
-           f"{s.button_hold_s:g} s,",
-           "with `lc_direction`. Lateral moves that stay within the lane (SL2015 shifts within a lane, or lcSigma's "
-           "wander) are not presses."]),
+        *(
+            [
+                "The lane-change button is pressed at the first sample at which the ego leaves its lane",
+                f"centre (SUMO has begun the manoeuvre), held {s.button_hold_s:g} s, with `lc_direction`; "
+                "`ego_lane` flips half way through.",
+            ]
+            if s.lateral_resolution_m <= 0
+            else [
+                "`ego_lane` is the lane the ego's centre is in. Each time it flips the lane-change button has been "
+                "pressed at the",
+                "sample after SUMO started the manoeuvre that crossed (its lanechange-output `changeStarted` on the "
+                "final approach:",
+                "a wait at the lane edge or a turn back does not count), in the lane the ego leaves, held "
+                f"{s.button_hold_s:g} s,",
+                "with `lc_direction`. Lateral moves that stay within the lane (SL2015 shifts within a lane, or lcSigma's "
+                "wander) are not presses.",
+            ]
+        ),
         "Throttle and brake follow the ego's acceleration; steering is not logged.",
         f"SUMO reported {sum(x['n_collisions'] for x in gt['sessions'])} collisions.",
         "",

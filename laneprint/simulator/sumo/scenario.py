@@ -30,8 +30,9 @@ _EMERGENCY_DECEL_MPS2 = 9.0  # [m/s^2] SUMO's default for passenger cars; never 
 
 def road_length_m(settings: SumoSettings, limit_kph: float) -> float:
     """Edge length: the ego at 1.5 x the limit for the whole section, plus margins [m]."""
-    return round(settings.ego_start_m + 1.5 * limit_kph / 3.6 * (settings.duration_s + 60.0)
-                 + settings.road_margin_m, -2)
+    return round(
+        settings.ego_start_m + 1.5 * limit_kph / 3.6 * (settings.duration_s + 60.0) + settings.road_margin_m, -2
+    )
 
 
 def _attrs(values: dict[str, object]) -> str:
@@ -40,14 +41,43 @@ def _attrs(values: dict[str, object]) -> str:
 
 def routes_xml(ego_params: dict[str, float], settings: SumoSettings) -> str:
     """The route file: vehicle types and the single route (vehicles are added at run time)."""
-    ego = {"id": EGO_TYPE, "vClass": "passenger", "length": settings.ego_length_m, "maxSpeed": _MAX_SPEED_MPS,
-           "speedDev": 0, "carFollowModel": settings.car_follow_model, "laneChangeModel": settings.lane_change_model,
-           "emergencyDecel": max(_EMERGENCY_DECEL_MPS2, ego_params.get("decel", 0.0)), **ego_params}
-    car = {"id": CAR_TYPE, "vClass": "passenger", "length": 4.5, "maxSpeed": _MAX_SPEED_MPS, "speedFactor": 2.0,
-           "speedDev": 0, "sigma": settings.background_sigma, "tau": 1.0, "accel": 2.6, "decel": 4.5, **_BG_LC}
-    truck = {"id": TRUCK_TYPE, "vClass": "passenger", "length": 12.0, "maxSpeed": _MAX_SPEED_MPS,
-             "speedFactor": 2.0, "speedDev": 0, "sigma": settings.background_sigma, "tau": 1.2, "accel": 1.0,
-             "decel": 4.0, **_BG_LC}
+    ego = {
+        "id": EGO_TYPE,
+        "vClass": "passenger",
+        "length": settings.ego_length_m,
+        "maxSpeed": _MAX_SPEED_MPS,
+        "speedDev": 0,
+        "carFollowModel": settings.car_follow_model,
+        "laneChangeModel": settings.lane_change_model,
+        "emergencyDecel": max(_EMERGENCY_DECEL_MPS2, ego_params.get("decel", 0.0)),
+        **ego_params,
+    }
+    car = {
+        "id": CAR_TYPE,
+        "vClass": "passenger",
+        "length": 4.5,
+        "maxSpeed": _MAX_SPEED_MPS,
+        "speedFactor": 2.0,
+        "speedDev": 0,
+        "sigma": settings.background_sigma,
+        "tau": 1.0,
+        "accel": 2.6,
+        "decel": 4.5,
+        **_BG_LC,
+    }
+    truck = {
+        "id": TRUCK_TYPE,
+        "vClass": "passenger",
+        "length": 12.0,
+        "maxSpeed": _MAX_SPEED_MPS,
+        "speedFactor": 2.0,
+        "speedDev": 0,
+        "sigma": settings.background_sigma,
+        "tau": 1.2,
+        "accel": 1.0,
+        "decel": 4.0,
+        **_BG_LC,
+    }
     if settings.lateral_resolution_m > 0:  # sublanes: the traffic changes lanes with SL2015 too
         car = {**car, **_BG_SUBLANE}
         truck = {**truck, **_BG_SUBLANE}
@@ -62,8 +92,10 @@ def build_network(folder: Path, settings: SumoSettings, limit_kph: float) -> Pat
     stem = f"road{int(round(limit_kph))}"
     nodes, edges = folder / f"{stem}.nod.xml", folder / f"{stem}.edg.xml"
     nodes.write_text(f'<nodes>\n    <node id="a" x="0" y="0"/>\n    <node id="b" x="{length:.0f}" y="0"/>\n</nodes>\n')
-    edges.write_text(f'<edges>\n    <edge id="{EDGE}" from="a" to="b" numLanes="{settings.n_lanes}" speed="{limit_kph / 3.6:.6f}" '
-                     f'width="{settings.lane_width_m}"/>\n</edges>\n')
+    edges.write_text(
+        f'<edges>\n    <edge id="{EDGE}" from="a" to="b" numLanes="{settings.n_lanes}" speed="{limit_kph / 3.6:.6f}" '
+        f'width="{settings.lane_width_m}"/>\n</edges>\n'
+    )
     return run_netconvert(nodes, edges, folder / f"{stem}.net.xml")
 
 

@@ -32,7 +32,7 @@ from laneprint.simulator.sumo.settings import SumoSettings
 from laneprint.simulator.sumo.traffic import TrafficBubble, VehicleState
 
 EGO_ID = "ego"
-_POS, _SPEED, _LANE, _LAT, _LEN, _ACC, _SPEED_LAT = 0x56, 0x40, 0x52, 0xb8, 0x44, 0x72, 0x32  # traci.constants VAR_*
+_POS, _SPEED, _LANE, _LAT, _LEN, _ACC, _SPEED_LAT = 0x56, 0x40, 0x52, 0xB8, 0x44, 0x72, 0x32  # traci.constants VAR_*
 _VARS = [_POS, _SPEED, _LANE, _LAT, _LEN]
 _AT_CENTRE_M = 1e-6  # [m] lateral offset below which the ego is at its lane's centre
 _FINISH_S = 10.0  # [s] at most this long past the section's end to finish a lane change
@@ -64,21 +64,42 @@ class EgoControl(Protocol):
     def start(self, api: Any) -> None:
         """Called once the ego is in the simulation."""
 
-    def step(self, api: Any, t: float, ego: VehicleState, lateral_m: float,
-             others: dict[str, VehicleState]) -> None:
+    def step(self, api: Any, t: float, ego: VehicleState, lateral_m: float, others: dict[str, VehicleState]) -> None:
         """Called after every step with the ego, its offset from its lane centre and the other vehicles."""
 
 
 def sumo_args(net: Path, routes: Path, lc_out: Path, settings: SumoSettings, seed: int) -> list[str]:
     """Command-line options of one run."""
     # sublanes (SL2015) or a lane change of fixed duration (LC2013): SUMO takes one of the two
-    lateral = (["--lateral-resolution", f"{settings.lateral_resolution_m:g}"] if settings.lateral_resolution_m > 0
-               else ["--lanechange.duration", f"{settings.lane_change_s:g}"])
-    return ["-n", str(net), "-r", str(routes), "--step-length", f"{settings.step_s:g}",
-            *lateral, "--seed", str(seed),
-            "--begin", "0", "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true",
-            "--collision.action", "warn", "--lanechange-output", str(lc_out),
-            *(["--lanechange-output.started", "true"] if settings.lateral_resolution_m > 0 else [])]
+    lateral = (
+        ["--lateral-resolution", f"{settings.lateral_resolution_m:g}"]
+        if settings.lateral_resolution_m > 0
+        else ["--lanechange.duration", f"{settings.lane_change_s:g}"]
+    )
+    return [
+        "-n",
+        str(net),
+        "-r",
+        str(routes),
+        "--step-length",
+        f"{settings.step_s:g}",
+        *lateral,
+        "--seed",
+        str(seed),
+        "--begin",
+        "0",
+        "--no-step-log",
+        "true",
+        "--no-warnings",
+        "true",
+        "--duration-log.disable",
+        "true",
+        "--collision.action",
+        "warn",
+        "--lanechange-output",
+        str(lc_out),
+        *(["--lanechange-output.started", "true"] if settings.lateral_resolution_m > 0 else []),
+    ]
 
 
 def lane_change_starts(y: np.ndarray, lane: np.ndarray, width: float) -> list[tuple[int, str, int]]:
@@ -88,8 +109,9 @@ def lane_change_starts(y: np.ndarray, lane: np.ndarray, width: float) -> list[tu
     return [(int(k), "left" if y[k] > y[k - 1] else "right", int(lane[k - 1])) for k in starts]
 
 
-def sublane_change_starts(y: np.ndarray, lane: np.ndarray, sim_t: np.ndarray,
-                          events: list[tuple[str, float, str, float]], step_s: float) -> list[tuple[int, str, int]]:
+def sublane_change_starts(
+    y: np.ndarray, lane: np.ndarray, sim_t: np.ndarray, events: list[tuple[str, float, str, float]], step_s: float
+) -> list[tuple[int, str, int]]:
     """(sample, direction, from lane) of every lane change on sublanes (SL2015), as `lane_change_starts`.
 
     A lane change is a lane flip of the log (the ego's centre has crossed into the new lane). Its press is
@@ -108,16 +130,19 @@ def sublane_change_starts(y: np.ndarray, lane: np.ndarray, sim_t: np.ndarray,
     slow = np.r_[0, np.cumsum(np.abs(vy) < _REST_MPS)]
     rest_n = max(1, int(round(_REST_S / step_s)))
     rested = np.zeros(len(y), dtype=bool)  # slower than _REST_MPS over the rest_n samples up to each one
-    rested[rest_n - 1:] = (slow[rest_n:] - slow[:-rest_n]) == rest_n
-    started = [(int(np.argmin(np.abs(sim_t - (tt + step_s)))), dist)  # SUMO stamps an event with its step's start
-               for tag, tt, _, dist in events if tag == "changeStarted"]
+    rested[rest_n - 1 :] = (slow[rest_n:] - slow[:-rest_n]) == rest_n
+    started = [
+        (int(np.argmin(np.abs(sim_t - (tt + step_s)))), dist)  # SUMO stamps an event with its step's start
+        for tag, tt, _, dist in events
+        if tag == "changeStarted"
+    ]
     prev_f = -1
     for f in (int(x) for x in flips):
         d = 1 if lane[f] > lane[f - 1] else -1
         lo = prev_f + 1
         calm = np.flatnonzero(rested[lo:f])
         start = lo + int(calm[-1]) if len(calm) else lo
-        approach = start + _no_retreat_from(d * y[start:f + 1])
+        approach = start + _no_retreat_from(d * y[start : f + 1])
         first: Optional[int] = None
         for k, dist in started:
             if k < approach - 1 or k > f:
@@ -127,7 +152,7 @@ def sublane_change_starts(y: np.ndarray, lane: np.ndarray, sim_t: np.ndarray,
             elif k < f:  # a manoeuvre the other way before the crossing step: the one that crossed came later
                 first = None
         if first is None:
-            moving = np.flatnonzero(d * vy[approach:f + 1] > _REST_MPS)
+            moving = np.flatnonzero(d * vy[approach : f + 1] > _REST_MPS)
             first = approach + int(moving[0]) if len(moving) else f
         # pressed in the lane it leaves, and released between two presses
         k = max(min(first, f - 1), lo, out[-1][0] + 2 if out else 0)
@@ -162,8 +187,14 @@ def _ego_events(lc_out: Path) -> list[tuple[str, float, str, float]]:
     for _, el in ET.iterparse(lc_out):
         if el.tag in ("change", "changeStarted") and el.get("id") == EGO_ID:
             dist = el.get("maneuverDistance")
-            out.append((el.tag, float(el.get("time", "nan")), el.get("reason", ""),
-                        float(dist) if dist not in (None, "None") else 0.0))
+            out.append(
+                (
+                    el.tag,
+                    float(el.get("time", "nan")),
+                    el.get("reason", ""),
+                    float(dist) if dist not in (None, "None") else 0.0,
+                )
+            )
         el.clear()
     return out
 
@@ -176,8 +207,16 @@ def _inputs(v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return throttle, brake
 
 
-def run_section(settings: SumoSettings, net: Path, routes: Path, limit_kph: float, seed: int,
-                rng: np.random.Generator, workdir: Path, control: Optional[EgoControl] = None) -> SectionLog:
+def run_section(
+    settings: SumoSettings,
+    net: Path,
+    routes: Path,
+    limit_kph: float,
+    seed: int,
+    rng: np.random.Generator,
+    workdir: Path,
+    control: Optional[EgoControl] = None,
+) -> SectionLog:
     """Run one section (SUMO seed `seed`, traffic choices from `rng`) and log it; scratch files in `workdir`.
 
     With `control`, it makes the ego's lane changes (called after every step, before the traffic moves on).
@@ -191,8 +230,9 @@ def run_section(settings: SumoSettings, net: Path, routes: Path, limit_kph: floa
     collisions = emergency = 0
     with SumoSession(sumo_args(net, routes, lc_out, s, seed)) as sim:
         veh = sim.api.vehicle
-        veh.add(EGO_ID, ROUTE, EGO_TYPE, depart="now", departLane="0", departPos=f"{s.ego_start_m:g}",
-                departSpeed="desired")
+        veh.add(
+            EGO_ID, ROUTE, EGO_TYPE, depart="now", departLane="0", departPos=f"{s.ego_start_m:g}", departSpeed="desired"
+        )
         veh.subscribe(EGO_ID, _VARS + [_ACC, _SPEED_LAT])
         bubble = TrafficBubble(sim.api, s, limit_kph / 3.6, rng, _VARS)
         if control is not None:
@@ -211,8 +251,7 @@ def run_section(settings: SumoSettings, net: Path, routes: Path, limit_kph: floa
             if i + 1 >= n_steps and _settled(s, ey - lane * s.lane_width_m, res[EGO_ID][_SPEED_LAT]):
                 break  # the section is over and no lane change is under way
             if control is not None and i + 1 < n_steps:
-                control.step(sim.api, t, VehicleState(ex, ev, lane, s.ego_length_m), ey - lane * s.lane_width_m,
-                             states)
+                control.step(sim.api, t, VehicleState(ex, ev, lane, s.ego_length_m), ey - lane * s.lane_width_m, states)
             bubble.update(t, ex, ev, states)
         version, api = sim.version, sim.api_name
     log = _assemble(s, ego_rows, np.asarray(sim_t), traffic_rows, _ego_events(lc_out), collisions, version, api)
@@ -228,8 +267,9 @@ def _settled(s: SumoSettings, lateral_m: float, speed_lat_mps: float) -> bool:
     return abs(lateral_m) <= _AT_CENTRE_M
 
 
-def _log_step(res: dict[str, dict[int, Any]], t: float, s: SumoSettings, ego_rows: list,
-              traffic_rows: list) -> dict[str, VehicleState]:
+def _log_step(
+    res: dict[str, dict[int, Any]], t: float, s: SumoSettings, ego_rows: list, traffic_rows: list
+) -> dict[str, VehicleState]:
     """Append the ego's state and the traffic within range at `t`; every background vehicle's state."""
     e = res.get(EGO_ID)
     if e is None:
@@ -247,8 +287,16 @@ def _log_step(res: dict[str, dict[int, Any]], t: float, s: SumoSettings, ego_row
     return states
 
 
-def _assemble(s: SumoSettings, ego_rows: list, sim_t: np.ndarray, traffic_rows: list,
-              events: list[tuple[str, float, str, float]], collisions: int, version: str, api: str) -> SectionLog:
+def _assemble(
+    s: SumoSettings,
+    ego_rows: list,
+    sim_t: np.ndarray,
+    traffic_rows: list,
+    events: list[tuple[str, float, str, float]],
+    collisions: int,
+    version: str,
+    api: str,
+) -> SectionLog:
     t, x, y, v, lane, a = (np.asarray(c) for c in zip(*ego_rows))
     lane = lane.astype(np.int64)
     n = len(t)
@@ -257,28 +305,51 @@ def _assemble(s: SumoSettings, ego_rows: list, sim_t: np.ndarray, traffic_rows: 
     direction = np.full(n, None, dtype=object)
     changes = []
     reasons = [(tt, r) for tag, tt, r, _ in events if tag == "change"]
-    starts = (sublane_change_starts(y, lane, sim_t, events, s.step_s) if s.lateral_resolution_m > 0
-              else lane_change_starts(y, lane, s.lane_width_m))
+    starts = (
+        sublane_change_starts(y, lane, sim_t, events, s.step_s)
+        if s.lateral_resolution_m > 0
+        else lane_change_starts(y, lane, s.lane_width_m)
+    )
     for j, (k, d, from_lane) in enumerate(starts):
         end = starts[j + 1][0] if j + 1 < len(starts) else n
         release = min(k + hold, end - 1 if j + 1 < len(starts) else end)  # released before the next press
-        button[k:max(release, k + 1)] = True
-        direction[k:max(release, k + 1)] = d
+        button[k : max(release, k + 1)] = True
+        direction[k : max(release, k + 1)] = d
         flips = np.flatnonzero(lane[k:end] != from_lane)
         flip = k + int(flips[0]) if len(flips) else None
         # SUMO stamps a change with the time the step that made it began: one step before the flip sample
-        reason = next((r for tt, r in reasons
-                       if flip is not None and abs(tt + s.step_s - sim_t[flip]) < s.step_s / 2), "")
-        changes.append({"sample": k, "press_t_s": float(t[k]), "direction": d, "from_lane": from_lane,
-                        "target_lane": from_lane + (1 if d == "left" else -1), "changed": flip is not None,
-                        "lane_flip_t_s": float(t[flip]) if flip is not None else None,
-                        "v_e_mps": float(v[k]), "sumo_reason": reason})
+        reason = next(
+            (r for tt, r in reasons if flip is not None and abs(tt + s.step_s - sim_t[flip]) < s.step_s / 2), ""
+        )
+        changes.append(
+            {
+                "sample": k,
+                "press_t_s": float(t[k]),
+                "direction": d,
+                "from_lane": from_lane,
+                "target_lane": from_lane + (1 if d == "left" else -1),
+                "changed": flip is not None,
+                "lane_flip_t_s": float(t[flip]) if flip is not None else None,
+                "v_e_mps": float(v[k]),
+                "sumo_reason": reason,
+            }
+        )
     throttle, brake = _inputs(v, a)
-    ego = pd.DataFrame({
-        "t_s": t, "ego_x_m": x, "ego_y_m": y, "ego_v_mps": v, "ego_lane": lane,
-        "ego_length_m": np.full(n, s.ego_length_m), "steer_rad": np.full(n, np.nan),
-        "throttle": throttle, "brake": brake, "lc_button": button, "lc_direction": direction,
-    })
+    ego = pd.DataFrame(
+        {
+            "t_s": t,
+            "ego_x_m": x,
+            "ego_y_m": y,
+            "ego_v_mps": v,
+            "ego_lane": lane,
+            "ego_length_m": np.full(n, s.ego_length_m),
+            "steer_rad": np.full(n, np.nan),
+            "throttle": throttle,
+            "brake": brake,
+            "lc_button": button,
+            "lc_direction": direction,
+        }
+    )
     cols = ["t_s", "vehicle_id", "x_m", "y_m", "v_mps", "lane", "length_m"]
     traffic = pd.DataFrame(traffic_rows, columns=cols)
     traffic["lane"] = traffic["lane"].astype(np.int64)

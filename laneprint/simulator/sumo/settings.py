@@ -153,8 +153,11 @@ FAMILY_OVERRIDES: dict[str, dict[str, Any]] = {
 #: 2 and 1 (keep right). The `left` and `fast` streams move to the top lane (`STREAM_LANES`).
 LANE_OVERRIDES: dict[tuple[str, int], dict[str, Any]] = {
     ("ttc", 3): {"ahead_streams": ("slow", "middle", "left")},
-    ("acceptance", 3): {"ahead_streams": ("slow", "middle"), "middle_speed_frac": (0.8, 0.95),
-                        "middle_spacing_s": (4.0, 16.0)},
+    ("acceptance", 3): {
+        "ahead_streams": ("slow", "middle"),
+        "middle_speed_frac": (0.8, 0.95),
+        "middle_spacing_s": (4.0, 16.0),
+    },
     ("sublane", 3): {"ahead_streams": ("slow", "middle", "left")},
 }
 
@@ -165,8 +168,12 @@ def family_settings(family: str = DEFAULT_FAMILY, n_lanes: int = DEFAULT_LANES, 
         raise ValueError(f"unknown family {family!r}; choose one of {', '.join(FAMILIES)}")
     if n_lanes not in LANES:
         raise ValueError(f"n_lanes must be one of {', '.join(map(str, LANES))}")
-    return replace(SumoSettings(), family=family, n_lanes=n_lanes,
-                   **{**FAMILY_OVERRIDES[family], **LANE_OVERRIDES.get((family, n_lanes), {}), **changes})
+    return replace(
+        SumoSettings(),
+        family=family,
+        n_lanes=n_lanes,
+        **{**FAMILY_OVERRIDES[family], **LANE_OVERRIDES.get((family, n_lanes), {}), **changes},
+    )
 
 
 def simulator_text(sumo_version: str, family: str = DEFAULT_FAMILY, n_lanes: int = DEFAULT_LANES) -> str:

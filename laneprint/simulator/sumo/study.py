@@ -52,8 +52,9 @@ def run_seed(seed: int, driver_index: int, section_index: int) -> tuple[np.rando
     return np.random.default_rng(ss), sumo_seed
 
 
-def _run_one(settings: SumoSettings, driver: SumoDriver, limit: float, seed: int, i: int, j: int,
-             workdir: str) -> SectionLog:
+def _run_one(
+    settings: SumoSettings, driver: SumoDriver, limit: float, seed: int, i: int, j: int, workdir: str
+) -> SectionLog:
     """One (driver, section) run in its own scratch folder (also the entry point of a worker process)."""
     folder = Path(workdir) / f"{driver.driver_id}_{j}"
     folder.mkdir()
@@ -63,13 +64,17 @@ def _run_one(settings: SumoSettings, driver: SumoDriver, limit: float, seed: int
     return run_section(settings, net, routes, limit, sumo_seed, rng, folder)
 
 
-def simulate_sumo_study(settings: Optional[SumoSettings] = None, seed: int = 0,
-                        progress: Optional[ProgressFn] = None, jobs: int = 1) -> SumoStudy:
+def simulate_sumo_study(
+    settings: Optional[SumoSettings] = None, seed: int = 0, progress: Optional[ProgressFn] = None, jobs: int = 1
+) -> SumoStudy:
     """Run every (driver, section) in SUMO and collect the recordings and the ground truth."""
     settings = settings or SumoSettings()
-    drivers = make_sumo_drivers(settings.n_drivers, settings.perturbation_sd,
-                                np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,))),
-                                settings.family)
+    drivers = make_sumo_drivers(
+        settings.n_drivers,
+        settings.perturbation_sd,
+        np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,))),
+        settings.family,
+    )
     tasks = [(i, j, d, float(lim)) for i, d in enumerate(drivers) for j, lim in enumerate(settings.speed_limits_kph)]
     logs: dict[tuple[int, int], SectionLog] = {}
     report(progress, 0, len(tasks), "starting SUMO")
@@ -80,8 +85,9 @@ def simulate_sumo_study(settings: Optional[SumoSettings] = None, seed: int = 0,
                 logs[i, j] = _run_one(settings, d, lim, seed, i, j, workdir)
         else:
             with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
-                futures = {pool.submit(_run_one, settings, d, lim, seed, i, j, workdir): (i, j)
-                           for i, j, d, lim in tasks}
+                futures = {
+                    pool.submit(_run_one, settings, d, lim, seed, i, j, workdir): (i, j) for i, j, d, lim in tasks
+                }
                 for fut in as_completed(futures):
                     logs[futures[fut]] = fut.result()
                     report(progress, len(logs), len(tasks), "SUMO runs")
@@ -89,8 +95,9 @@ def simulate_sumo_study(settings: Optional[SumoSettings] = None, seed: int = 0,
     return _collect(settings, seed, drivers, tasks, logs)
 
 
-def _collect(settings: SumoSettings, seed: int, drivers: list[SumoDriver], tasks: list,
-             logs: dict[tuple[int, int], SectionLog]) -> SumoStudy:
+def _collect(
+    settings: SumoSettings, seed: int, drivers: list[SumoDriver], tasks: list, logs: dict[tuple[int, int], SectionLog]
+) -> SumoStudy:
     version = next(iter(logs.values())).sumo_version if logs else ""
     simulator = simulator_text(version, settings.family, settings.n_lanes)
     recordings: list[Recording] = []
@@ -101,16 +108,36 @@ def _collect(settings: SumoSettings, seed: int, drivers: list[SumoDriver], tasks
         sid = session_id(d.driver_id, lim)
         meta = {"driver_id": d.driver_id, "session_id": sid, "speed_limit_kph": lim, "simulator": simulator}
         recordings.append((meta, log.ego, log.traffic))
-        sessions.append({"session_id": sid, "driver_id": d.driver_id, "speed_limit_kph": lim,
-                         "sumo_seed": log.sumo_seed, "n_samples": len(log.ego),
-                         "duration_s": float(log.ego["t_s"].iloc[-1]), "n_decisions": len(log.lane_changes),
-                         "n_vehicles": log.n_vehicles, "n_collisions": log.n_collisions})
+        sessions.append(
+            {
+                "session_id": sid,
+                "driver_id": d.driver_id,
+                "speed_limit_kph": lim,
+                "sumo_seed": log.sumo_seed,
+                "n_samples": len(log.ego),
+                "duration_s": float(log.ego["t_s"].iloc[-1]),
+                "n_decisions": len(log.lane_changes),
+                "n_vehicles": log.n_vehicles,
+                "n_collisions": log.n_collisions,
+            }
+        )
         for k, c in enumerate(log.lane_changes):
-            decisions.append({"session_id": sid, "driver_id": d.driver_id, "index": k,
-                              "press_t_s": c["press_t_s"], "direction": c["direction"],
-                              "from_lane": c["from_lane"], "target_lane": c["target_lane"],
-                              "changed": c["changed"], "lane_flip_t_s": c["lane_flip_t_s"],
-                              "speed_limit_kph": lim, "v_e_mps": c["v_e_mps"], "sumo_reason": c["sumo_reason"]})
+            decisions.append(
+                {
+                    "session_id": sid,
+                    "driver_id": d.driver_id,
+                    "index": k,
+                    "press_t_s": c["press_t_s"],
+                    "direction": c["direction"],
+                    "from_lane": c["from_lane"],
+                    "target_lane": c["target_lane"],
+                    "changed": c["changed"],
+                    "lane_flip_t_s": c["lane_flip_t_s"],
+                    "speed_limit_kph": lim,
+                    "v_e_mps": c["v_e_mps"],
+                    "sumo_reason": c["sumo_reason"],
+                }
+            )
     apis = sorted({log.api for log in logs.values()})
     ground_truth = {
         "generator": GENERATOR,

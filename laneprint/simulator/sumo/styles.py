@@ -27,19 +27,46 @@ from laneprint.simulator.drivers import driver_ids
 #: lcAssertive, lcKeepRight, lcKeepRightAcceptanceTime [s], lcCooperative.
 STYLE_PARAMS: dict[str, dict[str, float]] = {
     "Defensive": {
-        "tau": 1.3, "minGap": 3.0, "accel": 1.8, "decel": 3.5, "speedFactor": 0.97, "sigma": 0.2,
-        "lcSpeedGain": 1.5, "lcSpeedGainLookahead": 6.0, "lcAssertive": 0.7, "lcKeepRight": 1.0,
-        "lcKeepRightAcceptanceTime": 6.0, "lcCooperative": 1.0,
+        "tau": 1.3,
+        "minGap": 3.0,
+        "accel": 1.8,
+        "decel": 3.5,
+        "speedFactor": 0.97,
+        "sigma": 0.2,
+        "lcSpeedGain": 1.5,
+        "lcSpeedGainLookahead": 6.0,
+        "lcAssertive": 0.7,
+        "lcKeepRight": 1.0,
+        "lcKeepRightAcceptanceTime": 6.0,
+        "lcCooperative": 1.0,
     },
     "Normal": {
-        "tau": 0.9, "minGap": 2.5, "accel": 2.6, "decel": 4.5, "speedFactor": 1.05, "sigma": 0.15,
-        "lcSpeedGain": 2.0, "lcSpeedGainLookahead": 1.5, "lcAssertive": 1.2, "lcKeepRight": 2.0,
-        "lcKeepRightAcceptanceTime": 3.0, "lcCooperative": 0.7,
+        "tau": 0.9,
+        "minGap": 2.5,
+        "accel": 2.6,
+        "decel": 4.5,
+        "speedFactor": 1.05,
+        "sigma": 0.15,
+        "lcSpeedGain": 2.0,
+        "lcSpeedGainLookahead": 1.5,
+        "lcAssertive": 1.2,
+        "lcKeepRight": 2.0,
+        "lcKeepRightAcceptanceTime": 3.0,
+        "lcCooperative": 0.7,
     },
     "Aggressive": {
-        "tau": 0.4, "minGap": 1.5, "accel": 3.5, "decel": 8.0, "speedFactor": 1.13, "sigma": 0.1,
-        "lcSpeedGain": 4.0, "lcSpeedGainLookahead": 0.0, "lcAssertive": 2.5, "lcKeepRight": 3.0,
-        "lcKeepRightAcceptanceTime": 2.0, "lcCooperative": 0.3,
+        "tau": 0.4,
+        "minGap": 1.5,
+        "accel": 3.5,
+        "decel": 8.0,
+        "speedFactor": 1.13,
+        "sigma": 0.1,
+        "lcSpeedGain": 4.0,
+        "lcSpeedGainLookahead": 0.0,
+        "lcAssertive": 2.5,
+        "lcKeepRight": 3.0,
+        "lcKeepRightAcceptanceTime": 2.0,
+        "lcCooperative": 0.3,
     },
 }
 
@@ -53,16 +80,37 @@ STYLE_PARAMS: dict[str, dict[str, float]] = {
 #: of the `ttc` family (lcSpeedGainLookahead, lcKeepRightAcceptanceTime) are SUMO's defaults for all.
 ACCEPTANCE_STYLE_PARAMS: dict[str, dict[str, float]] = {
     "Defensive": {
-        "tau": 2.8, "minGap": 5.0, "accel": 1.2, "decel": 2.0, "speedFactor": 1.0,
-        "lcAssertive": 1.6, "lcSpeedGain": 2.5, "lcKeepRight": 1.5, "lcCooperative": 1.0,
+        "tau": 2.8,
+        "minGap": 5.0,
+        "accel": 1.2,
+        "decel": 2.0,
+        "speedFactor": 1.0,
+        "lcAssertive": 1.6,
+        "lcSpeedGain": 2.5,
+        "lcKeepRight": 1.5,
+        "lcCooperative": 1.0,
     },
     "Normal": {
-        "tau": 1.4, "minGap": 2.5, "accel": 2.0, "decel": 2.8, "speedFactor": 1.07,
-        "lcAssertive": 1.8, "lcSpeedGain": 1.0, "lcKeepRight": 1.0, "lcCooperative": 0.7,
+        "tau": 1.4,
+        "minGap": 2.5,
+        "accel": 2.0,
+        "decel": 2.8,
+        "speedFactor": 1.07,
+        "lcAssertive": 1.8,
+        "lcSpeedGain": 1.0,
+        "lcKeepRight": 1.0,
+        "lcCooperative": 0.7,
     },
     "Aggressive": {
-        "tau": 0.7, "minGap": 1.0, "accel": 3.0, "decel": 4.5, "speedFactor": 1.14,
-        "lcAssertive": 3.0, "lcSpeedGain": 0.6, "lcKeepRight": 1.0, "lcCooperative": 0.3,
+        "tau": 0.7,
+        "minGap": 1.0,
+        "accel": 3.0,
+        "decel": 4.5,
+        "speedFactor": 1.14,
+        "lcAssertive": 3.0,
+        "lcSpeedGain": 0.6,
+        "lcKeepRight": 1.0,
+        "lcCooperative": 0.3,
     },
 }
 
@@ -80,21 +128,57 @@ ACCEPTANCE_STYLE_PARAMS: dict[str, dict[str, float]] = {
 #: clusters them).
 SUBLANE_STYLE_PARAMS: dict[str, dict[str, float]] = {
     "Defensive": {
-        "tau": 2.2, "minGap": 4.0, "accel": 1.4, "decel": 2.5, "speedFactor": 1.0, "sigma": 0.3,
-        "lcAssertive": 0.7, "lcSpeedGain": 1.5, "lcKeepRight": 0.7, "lcKeepRightAcceptanceTime": 5.0,
-        "lcCooperative": 1.0, "lcPushy": 0.05, "lcImpatience": 0.1, "minGapLat": 0.9, "maxSpeedLat": 0.8,
+        "tau": 2.2,
+        "minGap": 4.0,
+        "accel": 1.4,
+        "decel": 2.5,
+        "speedFactor": 1.0,
+        "sigma": 0.3,
+        "lcAssertive": 0.7,
+        "lcSpeedGain": 1.5,
+        "lcKeepRight": 0.7,
+        "lcKeepRightAcceptanceTime": 5.0,
+        "lcCooperative": 1.0,
+        "lcPushy": 0.05,
+        "lcImpatience": 0.1,
+        "minGapLat": 0.9,
+        "maxSpeedLat": 0.8,
         "lcSigma": 0.05,
     },
     "Normal": {
-        "tau": 1.3, "minGap": 2.5, "accel": 2.0, "decel": 3.0, "speedFactor": 1.07, "sigma": 0.2,
-        "lcAssertive": 1.4, "lcSpeedGain": 2.5, "lcKeepRight": 1.5, "lcKeepRightAcceptanceTime": 3.0,
-        "lcCooperative": 0.7, "lcPushy": 0.3, "lcImpatience": 0.4, "minGapLat": 0.6, "maxSpeedLat": 1.2,
+        "tau": 1.3,
+        "minGap": 2.5,
+        "accel": 2.0,
+        "decel": 3.0,
+        "speedFactor": 1.07,
+        "sigma": 0.2,
+        "lcAssertive": 1.4,
+        "lcSpeedGain": 2.5,
+        "lcKeepRight": 1.5,
+        "lcKeepRightAcceptanceTime": 3.0,
+        "lcCooperative": 0.7,
+        "lcPushy": 0.3,
+        "lcImpatience": 0.4,
+        "minGapLat": 0.6,
+        "maxSpeedLat": 1.2,
         "lcSigma": 0.1,
     },
     "Aggressive": {
-        "tau": 0.7, "minGap": 1.2, "accel": 3.0, "decel": 4.5, "speedFactor": 1.14, "sigma": 0.1,
-        "lcAssertive": 3.0, "lcSpeedGain": 4.0, "lcKeepRight": 3.0, "lcKeepRightAcceptanceTime": 2.0,
-        "lcCooperative": 0.3, "lcPushy": 0.7, "lcImpatience": 0.8, "minGapLat": 0.3, "maxSpeedLat": 1.8,
+        "tau": 0.7,
+        "minGap": 1.2,
+        "accel": 3.0,
+        "decel": 4.5,
+        "speedFactor": 1.14,
+        "sigma": 0.1,
+        "lcAssertive": 3.0,
+        "lcSpeedGain": 4.0,
+        "lcKeepRight": 3.0,
+        "lcKeepRightAcceptanceTime": 2.0,
+        "lcCooperative": 0.3,
+        "lcPushy": 0.7,
+        "lcImpatience": 0.8,
+        "minGapLat": 0.3,
+        "maxSpeedLat": 1.8,
         "lcSigma": 0.2,
     },
 }
@@ -107,8 +191,12 @@ FAMILY_STYLE_PARAMS: dict[str, dict[str, dict[str, float]]] = {
 }
 
 #: Parameters kept within these bounds after a perturbation (SUMO rejects some values outside).
-_BOUNDS: dict[str, tuple[float, float]] = {"sigma": (0.0, 1.0), "lcCooperative": (0.0, 1.0), "lcPushy": (0.0, 1.0),
-                                          "lcImpatience": (-1.0, 1.0)}
+_BOUNDS: dict[str, tuple[float, float]] = {
+    "sigma": (0.0, 1.0),
+    "lcCooperative": (0.0, 1.0),
+    "lcPushy": (0.0, 1.0),
+    "lcImpatience": (-1.0, 1.0),
+}
 #: Relative perturbation of a parameter, as a multiple of `perturbation_sd` (1 when not listed).
 _SD_SCALE: dict[str, float] = {"speedFactor": 0.2}
 
@@ -123,8 +211,12 @@ class SumoDriver:
     params: dict[str, float]  # SUMO vType attribute -> value
 
     def to_dict(self) -> dict[str, Any]:
-        return {"driver_id": self.driver_id, "style": self.style, "typical": self.typical,
-                "sumo_params": dict(self.params)}
+        return {
+            "driver_id": self.driver_id,
+            "style": self.style,
+            "typical": self.typical,
+            "sumo_params": dict(self.params),
+        }
 
 
 def style_of(index: int) -> str:
@@ -142,8 +234,7 @@ def perturb(nominal: dict[str, float], rng: np.random.Generator, sd: float) -> d
     return {k: out[k] for k in nominal}
 
 
-def make_sumo_drivers(n_drivers: int, sd: float, rng: np.random.Generator,
-                      family: str = "ttc") -> list[SumoDriver]:
+def make_sumo_drivers(n_drivers: int, sd: float, rng: np.random.Generator, family: str = "ttc") -> list[SumoDriver]:
     """The study's drivers of `family`: styles round-robin, the first of each style typical (nominal values)."""
     styles = FAMILY_STYLE_PARAMS[family]
     drivers = []

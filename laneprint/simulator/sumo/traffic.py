@@ -57,8 +57,9 @@ class VehicleState:
 class TrafficBubble:
     """Adds and removes background vehicles around the ego; all choices from `rng`."""
 
-    def __init__(self, api: Any, settings: SumoSettings, limit_mps: float, rng: np.random.Generator,
-                 subscribe_vars: list[int]) -> None:
+    def __init__(
+        self, api: Any, settings: SumoSettings, limit_mps: float, rng: np.random.Generator, subscribe_vars: list[int]
+    ) -> None:
         self.api = api
         self.s = settings
         self.limit = limit_mps
@@ -136,8 +137,7 @@ class TrafficBubble:
 
     def _free(self, lane: int, x: float, v: float, length: float, live: dict[str, VehicleState]) -> bool:
         clearance = self.s.spawn_clearance_s * v + 10.0
-        return all(abs(st.x - x) - (st.length + length) / 2 >= clearance
-                   for st in live.values() if st.lane == lane)
+        return all(abs(st.x - x) - (st.length + length) / 2 >= clearance for st in live.values() if st.lane == lane)
 
     def _add(self, stream: str, x: float, v: float, live: dict[str, VehicleState]) -> bool:
         """Insert a vehicle with centre `x` and desired speed `v` unless the spot is taken."""
@@ -148,8 +148,15 @@ class TrafficBubble:
         self.n_added += 1
         vid = f"V{self.n_added:03d}"
         veh = self.api.vehicle
-        veh.add(vid, ROUTE, vtype, depart="now", departLane=str(lane), departPos=f"{x + length / 2:.3f}",
-                departSpeed=f"{v:.3f}")
+        veh.add(
+            vid,
+            ROUTE,
+            vtype,
+            depart="now",
+            departLane=str(lane),
+            departPos=f"{x + length / 2:.3f}",
+            departSpeed=f"{v:.3f}",
+        )
         veh.setLength(vid, round(length, 3))
         veh.setMaxSpeed(vid, v)
         veh.subscribe(vid, self.vars)
