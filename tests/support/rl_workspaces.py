@@ -81,7 +81,7 @@ def rule_driver_decisions(lines: ReferenceLines, n: int, seed: int = 0, cfg: Env
             "decision_id": [f"rec0:{i:04d}" for i in range(n)],
             "t_s": 100.0 * np.arange(n) + off, "press_t_s": 100.0 * np.arange(n),
             "label": "change" if k == len(offsets) - 1 else "keep",
-            "speed_limit_kph": np.nan, "ego_lane": 0, "target_lane": 1, "cancelled": False, **_rows(s, cfg),
+            "speed_limit_kph": np.nan, "ego_v_free_mps": np.nan, "ego_lane": 0, "target_lane": 1, "cancelled": False, **_rows(s, cfg),
         }))
     df = pd.concat(frames, ignore_index=True).sort_values(["decision_id", "t_s"], ignore_index=True)
     return validate(df, DECISIONS)
