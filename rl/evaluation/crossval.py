@@ -197,7 +197,7 @@ def fold_agents(jobs: list["FoldJob"], progress: ProgressFn | None) -> None:
     if not auto:
         return
     tasks = [ChoiceTask(j.train, j.env, j.dqn, f"fold {j.fold + 1}/{j.n_folds}") for j in auto]  # type: ignore[arg-type]
-    for job, fitted in zip(auto, choose_and_fit(tasks, progress, label=f"{len(auto)} folds")):
+    for job, fitted in zip(auto, choose_and_fit(tasks, progress, label=f"{len(auto)} folds", keep_state=False)):
         c = fitted.choice
         job.agent = (agent_policy(fitted.net, job.env), {"learner": c.learner, "learner_scores": c.scores,
                                                          "learner_scores_by_side": c.by_side,

@@ -35,7 +35,7 @@ from rl.problem.rewards import CHANGE
 from rl.settings import AutoSettings, DQNSettings, TreeQSettings
 
 __all__ = ["ChoiceTask", "Choice", "Fitted", "choose_and_fit", "choose_learner", "chosen_settings", "fit_learner",
-           "inner_folds"]
+           "inner_folds", "inner_trees"]
 
 
 @dataclass(frozen=True)
@@ -144,16 +144,29 @@ def choose_learner(approaches: list[Approach], cfg: EnvConfig, settings: AutoSet
     if not pairs:
         return Choice("dqn", {}, len(approaches), 0)
     scores, by_side = {}, {}
-    for name, s in (("dqn", settings.dqn), ("trees", settings.trees)):
+    for name in ("dqn", "trees"):
         pooled = []
         for i, (fit, held) in enumerate(pairs):
-            net = fit_learner(fit, cfg, s, progress, f"{label}: choosing, {name} {i + 1}/{len(pairs)}")
+            if name == "trees":  # the inner trees' (`inner_trees`) predictions, as `choose_and_fit` takes them
+                report(progress, i, len(pairs), f"{label}: choosing, trees {i + 1}/{len(pairs)}")
+                pooled.append(_trees_fit(fit, held, cfg, inner_trees(settings), None))
+                continue
+            net = fit_learner(fit, cfg, settings.dqn, progress, f"{label}: choosing, {name} {i + 1}/{len(pairs)}")
             pooled.append(held_out_changes(net, held, learner_env(cfg, name)))
         by_side[name] = side_scores(*(np.concatenate(parts) for parts in zip(*pooled)))
         scores[name] = round(float(np.mean(list(by_side[name].values()))), 4) if by_side[name] else float("nan")
     gain = np.nan_to_num(scores["trees"], nan=-1.0) - np.nan_to_num(scores["dqn"], nan=-1.0)
     return Choice("trees" if gain > settings.margin else "dqn", scores, len(approaches),
                   sum(len(held) for _, held in pairs), len(pairs), by_side)
+
+
+def inner_trees(settings: AutoSettings) -> TreeQSettings:
+    """The trees fitted on the inner folds: `AutoSettings.inner_trees` of the boosting stages, each step as much
+    larger (the trees kept, when they win, are fitted with `settings.trees`)."""
+    share, trees = settings.inner_trees, settings.trees
+    if share >= 1:
+        return trees
+    return replace(trees, trees=max(1, round(trees.trees * share)), learning_rate=trees.learning_rate / share)
 
 
 def chosen_settings(settings: AutoSettings, choice: Choice) -> DQNSettings | TreeQSettings:
@@ -236,7 +249,7 @@ def _trees_fit(fit: list[Approach], held: list[Approach], cfg: EnvConfig, settin
                stop: Any) -> tuple[np.ndarray, ...]:
     """The trees fitted on `fit`: (changes, labels, left) on `held`; `stop` (an event, or an index into
     `_STOP_EVENTS` in a worker process) ends the fit at its next regression."""
-    from rl.learners.trees import fit_tree_q
+    from rl.learners.trees import ensemble_changes, fit_tree_ensembles
 
     event = _STOP_EVENTS[stop] if isinstance(stop, int) else stop
 
@@ -245,7 +258,9 @@ def _trees_fit(fit: list[Approach], held: list[Approach], cfg: EnvConfig, settin
             raise _Stopped
 
     tenv = learner_env(cfg, "trees")
-    return held_out_changes(fit_tree_q(fit, tenv, settings, check), held, tenv)
+    models, _ = fit_tree_ensembles(fit, tenv, settings, check)
+    x, y = labelled_states(held, tenv)
+    return ensemble_changes(models, x), y, np.concatenate([a.scene.left for a in held])
 
 
 def _bounds(done: dict[int, tuple[np.ndarray, ...]], held: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -261,8 +276,24 @@ def _gain(trees: float, dqn: float) -> float:
     return float(np.nan_to_num(trees, nan=-1.0) - np.nan_to_num(dqn, nan=-1.0))
 
 
+def _fleet_keeping(members: list[Any], threads: int, keep: set[int]) -> Any:
+    """A `FleetTrainer` that copies out the complete state (`Fitted.dqn_state`: the replay memory, the optimiser,
+    the environments) of the members in `keep` only: every finished agent's costs about as much as a second of
+    its training (a cross-validation's four outer DQNs 3 s each on the busy 2-core machine), and only a run
+    keeps one (its checkpoint)."""
+    from rl.fleet.batch import FleetTrainer
+
+    class Fleet(FleetTrainer):
+        def agent_state_dict(self, j: int, *args: Any, **kwargs: Any) -> dict[str, Any]:
+            if self.agents[j].member not in keep:
+                return {}
+            return super().agent_state_dict(j, *args, **kwargs)
+
+    return Fleet(members, threads=threads)
+
+
 def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, fit_trees: bool = True,
-                   label: str = "") -> list[Fitted]:
+                   label: str = "", keep_state: bool = True) -> list[Fitted]:
     """`choose_learner` and `fit_learner` of the chosen learner for every task, the DQNs trained as one fleet.
 
     Per task: the inner folds' DQNs and the task's own DQN (kept if the DQN wins) are members of one
@@ -273,7 +304,8 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
     share of their episodes left, the trees by what their folds still to fit could add at best (all
     right) or at worst (all wrong). The stored scores are then the ones that settled it (the DQNs'
     running score, the trees' bound) and `Choice.stopped` says so. `fit_trees`: also fit the trees on all
-    approaches where they win (a run fits them itself, with its own status). `progress` is told the
+    approaches where they win (a run fits them itself, with its own status). `keep_state`: each task's DQN
+    comes with its complete state (`Fitted.dqn_state`, a run's checkpoint); off, with its network only. `progress` is told the
     phase: inner folds, scenes, training (episodes summed over the fleet, the trees' folds), evaluation.
     """
     import multiprocessing
@@ -325,15 +357,15 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
             for fit, held in t.pairs:
                 if beside in ("process", "thread"):
                     stop = k if beside == "process" else t.stop_trees
-                    t.trees.append(pool.submit(_trees_fit, fit, held, t.task.cfg, t.settings.trees, stop))
+                    t.trees.append(pool.submit(_trees_fit, fit, held, t.task.cfg, inner_trees(t.settings), stop))
                 else:
                     report(progress, sum(len(u.trees) for u in targets), trees_total,
                            f"{head}choosing the learner: fitting the trees")
                     done_f: Future = Future()
-                    done_f.set_result(_trees_fit(fit, held, t.task.cfg, t.settings.trees, None))
+                    done_f.set_result(_trees_fit(fit, held, t.task.cfg, inner_trees(t.settings), None))
                     t.trees.append(done_f)
         report(progress, 0, len(members), f"{head}choosing the learner: building the scenes of {len(members)} DQNs")
-        fleet = FleetTrainer(members, threads=members[0].settings.threads)
+        fleet = _fleet_keeping(members, members[0].settings.threads, {t.final for t in targets} if keep_state else set())
         n_obs = len(observation_names(tasks[0].cfg))
         hidden = members[0].settings.hidden
         episodes = [s.episodes for s in fleet.settings]
@@ -348,7 +380,7 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
             t = owner[member]
             if member == t.final:
                 t.fitted = Fitted(t.choice or Choice("dqn", {}, len(t.task.approaches), 0), fleet.settings[member],
-                                  as_net(policy), state, t.fitted.rows if t.fitted else [])
+                                  as_net(policy), state or None, t.fitted.rows if t.fitted else [])
                 return
             i = t.inner.index(member)
             t.changes[i] = held_out_changes(as_net(policy), t.pairs[i][1], t.task.cfg)[0]

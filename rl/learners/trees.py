@@ -35,7 +35,7 @@ from rl.problem.env import NO_PRESS_S, Approach, EnvConfig, observation
 from rl.problem.rewards import CHANGE, KEEP, press_reward
 from rl.settings import TreeQSettings, trees_fit
 
-__all__ = ["TreeQNetwork", "fit_tree_q", "fitted_q_data"]
+__all__ = ["TreeQNetwork", "ensemble_changes", "fit_tree_ensembles", "fit_tree_q", "fitted_q_data"]
 
 def fitted_q_data(approaches: list[Approach], cfg: EnvConfig) -> dict[str, np.ndarray]:
     """The recorded transitions as arrays, one row per state: `obs`, `r_change` (TO CHANGE's
@@ -158,6 +158,15 @@ def _predict(model: HistGradientBoostingRegressor, x: np.ndarray) -> np.ndarray:
 def fit_tree_q(approaches: list[Approach], cfg: EnvConfig, settings: TreeQSettings,
                progress: ProgressFn | None = None, label: str = "tree Q") -> "TreeQNetwork":
     """Fitted Q iteration on `approaches` (the `decisions` reward); the Q function as a torch module."""
+    models, x0 = fit_tree_ensembles(approaches, cfg, settings, progress, label)
+    return TreeQNetwork.from_ensembles(models, x0)
+
+
+def fit_tree_ensembles(approaches: list[Approach], cfg: EnvConfig, settings: TreeQSettings,
+                       progress: ProgressFn | None = None, label: str = "tree Q"
+                       ) -> tuple[dict[int, HistGradientBoostingRegressor], np.ndarray]:
+    """Fitted Q iteration on `approaches`: (one fitted ensemble per action index, one observation) as
+    `TreeQNetwork.from_ensembles` takes them."""
     if not trees_fit(cfg.reward.name, cfg.scenes):
         raise UserError("the tree learner fits the 'decisions' reward on recorded scenes: "
                         "leave out --reward/--scenes or use --learner dqn")
@@ -175,7 +184,14 @@ def fit_tree_q(approaches: list[Approach], cfg: EnvConfig, settings: TreeQSettin
         q_keep = _fit(_regressor(settings, settings.seed + 1 + it, bins), x, target, weight)
         keep_x = _predict(q_keep, x)
         report(progress, it + 2, total, label)
-    return TreeQNetwork.from_ensembles({CHANGE: q_change, KEEP: q_keep}, x[:1])
+    return {CHANGE: q_change, KEEP: q_keep}, x[:1]
+
+
+def ensemble_changes(models: dict[int, HistGradientBoostingRegressor], obs: np.ndarray) -> np.ndarray:
+    """Whether the greedy action of the fitted ensembles is TO CHANGE at `obs` (ties change, as `greedy_actions`),
+    by scikit-learn's predictions (in double precision: `TreeQNetwork` compares single-precision observations
+    with single-precision thresholds, so a state on a threshold may go the other way)."""
+    return _predict(models[CHANGE], obs) >= _predict(models[KEEP], obs)
 
 
 class TreeQNetwork(nn.Module):
