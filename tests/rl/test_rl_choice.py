@@ -82,3 +82,25 @@ def test_old_choice_settings_read_with_the_new_defaults():
         AutoSettings(check_every=0.0)
     with pytest.raises(ValueError):
         AutoSettings(inner_trees=0.0)
+
+
+def test_a_crossvals_inner_folds_are_its_other_outer_folds_each_fitted_once(study):
+    from rl.evaluation.crossval import FoldJob, outer_inner_folds
+    from rl.learners.choice import session_of
+
+    approaches, cfg = study  # one driver, four sessions: four outer folds of one session each
+    sessions = sorted({session_of(a.decision_id) for a in approaches})
+    jobs = [FoldJob(k, 4, [a for a in approaches if session_of(a.decision_id) != s],
+                    [a for a in approaches if session_of(a.decision_id) == s], {}, cfg, AutoSettings(seed=10 + k), k)
+            for k, s in enumerate(sessions)]
+    outer_inner_folds(jobs)
+    keys = {}
+    for job in jobs:
+        assert job.inner is not None and len(job.inner) == 3
+        held = sorted(a.decision_id for f in job.inner for a in f.held)
+        assert held == sorted(a.decision_id for a in job.train)  # every training session scored once
+        for f in job.inner:
+            assert not {session_of(a.decision_id) for a in f.fit} & {session_of(a.decision_id) for a in f.held}
+            keys.setdefault(f.key, []).append((sorted(a.decision_id for a in f.fit), f.seed))
+    assert len(keys) == 6 and all(len(v) == 2 and v[0] == v[1] for v in keys.values())  # one fit, two folds
+    assert {seed for v in keys.values() for _, seed in v} == {10, 11, 12}  # the lower fold's seed
