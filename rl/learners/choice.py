@@ -16,7 +16,7 @@ batched fleet (`rl.fleet.batch.FleetTrainer`, each agent computing what `DQNTrai
 floating-point summation order), for every target at once (a cross-validation's outer folds), while
 the trees are fitted in a thread beside them. With `AutoSettings.stop_early`, from `check_from` of
 the inner DQNs' episodes on, their pooled inner score is read every `check_every`; where the trees'
-score lies beyond that running score +- `reach` x the share of episodes left (beyond the margin for
+score lies beyond that running score + `reach` (or - `reach_down`) x the share of episodes left (beyond the margin for
 the trees, within it for the DQN), the choice cannot change: the inner DQNs stop (and, when the
 trees win, the target's DQN too), and the stored choice says so (`Choice.stopped`).
 """
@@ -356,7 +356,7 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
     `FleetTrainer` with every other task's; the trees' inner fits run beside them in a thread, fold after
     fold (`AutoSettings.trees_beside`). The choice is `choose_learner`'s for the same seed (each fleet
     agent computes what `DQNTrainer` does, up to floating-point summation order) unless `stop_early`
-    stopped a learner that could no longer win: the inner DQNs by their running score +- `reach` x the
+    stopped a learner that could no longer win: the inner DQNs by their running score + `reach` (- `reach_down`) x the
     share of their episodes left, the trees by what their folds still to fit could add at best (all
     right) or at worst (all wrong). The stored scores are then the ones that settled it (the DQNs'
     running score, the trees' bound) and `Choice.stopped` says so. `fit_trees`: also fit the trees on all
@@ -513,7 +513,8 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
                 now = {i: running_changes(m, t.held[i][0]) for i, m in enumerate(t.inner) if m in shares}
                 score = _pooled([({**t.changes, **now}[i], *t.held[i][1:]) for i in range(len(t.pairs))])[0]
                 t.running = (score, s.reach * (1.0 - share), share, now)
-                t.checks.append({"share": round(share, 3), "dqn": score, "reach": round(t.running[1], 4)})
+                t.checks.append({"share": round(share, 3), "dqn": score, "reach": round(t.running[1], 4),
+                                 "reach_down": round(s.reach_down * (1.0 - share), 4)})
             tdone = trees_done(t)
             seen = (len(tdone), len(t.changes), len(t.checks))
             if seen == t.seen:
@@ -525,10 +526,11 @@ def choose_and_fit(tasks: list[ChoiceTask], progress: ProgressFn | None = None, 
                 dqn_note = ""
             elif t.running is not None:
                 score, reach, share, now = t.running
+                down = s.reach_down * (1.0 - share)
                 d = _pooled([({**t.changes, **now}[i], *t.held[i][1:]) for i in range(len(t.pairs))])
-                d_lo, d_hi = (score - reach, d[1]), (score + reach, d[1])
+                d_lo, d_hi = (score - down, d[1]), (score + reach, d[1])
                 dqn_note = (f"the inner DQNs stopped at {100 * share:.0f} % of their episodes (running score "
-                            f"{score:.3f} +- {reach:.3f})")
+                            f"{score:.3f}, still to rise by up to {reach:.3f} or fall by {down:.3f})")
             else:
                 return
             trees_note = "" if len(tdone) == len(t.pairs) else (

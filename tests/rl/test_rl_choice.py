@@ -59,9 +59,9 @@ def test_what_cannot_win_stops_early_and_the_choice_says_so(study):
     trees = choose_and_fit([ChoiceTask(approaches, cfg, replace(auto, margin=-2.0))])[0]
     assert trees.choice.learner == "trees" and "stopped at" in trees.choice.stopped
     assert isinstance(trees.settings, TreeQSettings) and trees.net is not None and trees.dqn_state is None
-    # a reach larger than any score can move: nothing stops, as `stop_early=False`
+    # reaches larger than any score can move (up and down): nothing stops, as `stop_early=False`
     # (and a cross-validation's DQNs come without their complete state: nothing keeps it)
-    full = choose_and_fit([ChoiceTask(approaches, cfg, replace(auto, reach=10.0))], keep_state=False)[0]
+    full = choose_and_fit([ChoiceTask(approaches, cfg, replace(auto, reach=10.0, reach_down=10.0))], keep_state=False)[0]
     assert not full.choice.stopped and np.isfinite(full.choice.scores["dqn"])
     assert full.net is not None and full.dqn_state is None
 
