@@ -76,7 +76,7 @@ def test_the_inner_trees_are_quicker_ones_with_the_same_shrinkage():
 def test_old_choice_settings_read_with_the_new_defaults():
     old = {"dqn": DQNSettings().to_dict(), "trees": TreeQSettings().to_dict(), "folds": 3, "margin": 0.01, "seed": 0}
     assert AutoSettings.from_dict(old) == AutoSettings()
-    assert AutoSettings.from_dict(AutoSettings(reach=0.3).to_dict()).reach == 0.3
+    assert AutoSettings.from_dict(AutoSettings(reach=0.2, reach_down=0.05).to_dict()).reach_down == 0.05
     assert AutoSettings.from_dict(AutoSettings(inner_trees=1.0).to_dict()).inner_trees == 1.0
     with pytest.raises(ValueError):
         AutoSettings(check_every=0.0)
