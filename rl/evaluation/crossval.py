@@ -182,7 +182,12 @@ def bootstrap_scores(
 
 
 def _train_agent(
-    approaches: list[Approach], cfg: EnvConfig, dqn: LearnerSettings, progress: ProgressFn | None, label: str
+    approaches: list[Approach],
+    cfg: EnvConfig,
+    dqn: LearnerSettings,
+    progress: ProgressFn | None,
+    label: str,
+    inner: list[Any] | None = None,
 ) -> tuple[Any, dict[str, Any]]:
     """(the fold's agent as a policy, which learner made it: ``{"learner": ...}`` and, for 'auto', the
     inner scores it chose by)."""
@@ -190,7 +195,7 @@ def _train_agent(
     from rl.learners.choice import choose_learner, chosen_settings, fit_learner
 
     if isinstance(dqn, AutoSettings):
-        choice = choose_learner(approaches, cfg, dqn, progress, label)
+        choice = choose_learner(approaches, cfg, dqn, progress, label, inner)
         net = fit_learner(approaches, cfg, chosen_settings(dqn, choice), progress, f"{label}: {choice.learner}")
         return agent_policy(net, cfg), {
             "learner": choice.learner,
@@ -198,6 +203,34 @@ def _train_agent(
             "learner_scores_by_side": choice.by_side,
         }
     return agent_policy(fit_learner(approaches, cfg, dqn, progress, label), cfg), {"learner": learner_name(dqn)}
+
+
+def outer_inner_folds(jobs: list["FoldJob"]) -> None:
+    """`auto`'s inner folds in a cross-validation are the other outer folds: each job's `inner` holds, per other
+    fold j, its training approaches outside j (to fit on) and in j (to score), seeded with the lower fold's seed.
+
+    So the fit of fold k's inner fold j is fold j's inner fold k (the sessions of neither), and `choose_and_fit`
+    fits it once (`InnerFold.key`): half the inner fits of dealing each fold's training sessions afresh
+    (`inner_folds`), and, as there, every training session is scored once. Fewer than three folds: `inner_folds`."""
+    from rl.learners.choice import InnerFold, session_of
+
+    auto = [j for j in jobs if isinstance(j.dqn, AutoSettings)]
+    if len(auto) < 3:
+        return
+    fold_of = {session_of(a.decision_id): j.fold for j in auto for a in j.test}
+    for job in auto:
+        base = job.dqn.seed - job.fold  # the cross-validation's seed (job k's is base + k)
+        where = [fold_of.get(session_of(a.decision_id)) for a in job.train]
+        job.inner = []
+        for other in auto:
+            if other.fold == job.fold:
+                continue
+            fit = [a for a, f in zip(job.train, where) if f != other.fold]
+            held = [a for a, f in zip(job.train, where) if f == other.fold]
+            if fit and held:
+                job.inner.append(
+                    InnerFold(fit, held, base + min(job.fold, other.fold), frozenset((job.fold, other.fold)))
+                )
 
 
 def fold_agents(jobs: list["FoldJob"], progress: ProgressFn | None) -> None:
@@ -210,8 +243,11 @@ def fold_agents(jobs: list["FoldJob"], progress: ProgressFn | None) -> None:
     auto = [j for j in jobs if isinstance(j.dqn, AutoSettings) and j.agent is None]
     if not auto:
         return
-    tasks = [ChoiceTask(j.train, j.env, j.dqn, f"fold {j.fold + 1}/{j.n_folds}") for j in auto]  # type: ignore[arg-type]
-    for job, fitted in zip(auto, choose_and_fit(tasks, progress, label=f"{len(auto)} folds")):
+    tasks = [
+        ChoiceTask(j.train, j.env, j.dqn, f"fold {j.fold + 1}/{j.n_folds}", j.inner)  # type: ignore[arg-type]
+        for j in auto
+    ]
+    for job, fitted in zip(auto, choose_and_fit(tasks, progress, label=f"{len(auto)} folds", keep_state=False)):
         c = fitted.choice
         job.agent = (
             agent_policy(fitted.net, job.env),
@@ -239,6 +275,7 @@ class FoldJob:
     progress: ProgressFn | None = None  # the agent's episodes; in-process only (local backend)
     agent: tuple[Any, dict[str, Any]] | None = None  # the fold's agent fitted already (`auto` on the local
     # backend: every fold's learner choice in one fleet, `fold_agents`), as `_train_agent` returns it
+    inner: list[Any] | None = None  # `auto`'s inner folds (`InnerFold`s: the other outer folds, `outer_inner_folds`)
 
 
 def score_fold(job: FoldJob) -> dict[str, Any]:
@@ -247,7 +284,7 @@ def score_fold(job: FoldJob) -> dict[str, Any]:
     Returns `evaluate_policies`'s dict (``states`` and ``changes`` tagged with the fold).
     """
     label = f"fold {job.fold + 1}/{job.n_folds}: agent"
-    agent, learner = job.agent or _train_agent(job.train, job.env, job.dqn, job.progress, label)
+    agent, learner = job.agent or _train_agent(job.train, job.env, job.dqn, job.progress, label, job.inner)
     policies = {
         "agent": agent,
         "greedy": greedy_policy(job.env),
@@ -358,6 +395,7 @@ def crossvalidate(
         )
     if not jobs:
         raise UserError("no fold could be scored: " + "; ".join(notes))
+    outer_inner_folds(jobs)
     if in_process:
         fold_agents(jobs, progress)
     evs = run_tasks(

@@ -16,7 +16,7 @@ batched fleet (`rl.fleet.batch.FleetTrainer`, each agent computing what `DQNTrai
 floating-point summation order), for every target at once (a cross-validation's outer folds), while
 the trees are fitted in a thread beside them. With `AutoSettings.stop_early`, from `check_from` of
 the inner DQNs' episodes on, their pooled inner score is read every `check_every`; where the trees'
-score lies beyond that running score +- `reach` x the share of episodes left (beyond the margin for
+score lies beyond that running score + `reach` (or - `reach_down`) x the share of episodes left (beyond the margin for
 the trees, within it for the DQN), the choice cannot change: the inner DQNs stop (and, when the
 trees win, the target's DQN too), and the stored choice says so (`Choice.stopped`).
 """
@@ -38,11 +38,13 @@ __all__ = [
     "ChoiceTask",
     "Choice",
     "Fitted",
+    "InnerFold",
     "choose_and_fit",
     "choose_learner",
     "chosen_settings",
     "fit_learner",
     "inner_folds",
+    "inner_trees",
 ]
 
 
@@ -157,22 +159,30 @@ def choose_learner(
     settings: AutoSettings,
     progress: ProgressFn | None = None,
     label: str = "agent",
+    inner: list[InnerFold] | None = None,
 ) -> Choice:
     """Which learner to fit on `approaches`: both fitted and scored across inner folds of the sessions.
 
     Each learner's held-out changes from every inner fold are pooled and scored once, so every
     session the target drove takes part in the choice. `cfg` is the DQN's environment; the trees read
     it with their own press scale (`learner_env`). With too few sessions to hold any out, the DQN is taken.
+    `inner`: the inner folds, each with its seed (a cross-validation's other outer folds); None: `inner_folds`.
     """
     settings = with_seed(settings, settings.seed)
-    pairs = inner_folds(approaches, settings.folds, settings.seed)
+    given = _given_folds(approaches, settings, inner)
+    pairs = [(f.fit, f.held) for f in given]
     if not pairs:
         return Choice("dqn", {}, len(approaches), 0)
     scores, by_side = {}, {}
-    for name, s in (("dqn", settings.dqn), ("trees", settings.trees)):
+    for name in ("dqn", "trees"):
         pooled = []
         for i, (fit, held) in enumerate(pairs):
-            net = fit_learner(fit, cfg, s, progress, f"{label}: choosing, {name} {i + 1}/{len(pairs)}")
+            seeded = with_seed(settings, given[i].seed)
+            if name == "trees":  # the inner trees' (`inner_trees`) predictions, as `choose_and_fit` takes them
+                report(progress, i, len(pairs), f"{label}: choosing, trees {i + 1}/{len(pairs)}")
+                pooled.append(_trees_fit(fit, [held], cfg, inner_trees(seeded), None)[0])
+                continue
+            net = fit_learner(fit, cfg, seeded.dqn, progress, f"{label}: choosing, {name} {i + 1}/{len(pairs)}")
             pooled.append(held_out_changes(net, held, learner_env(cfg, name)))
         by_side[name] = side_scores(*(np.concatenate(parts) for parts in zip(*pooled)))
         scores[name] = round(float(np.mean(list(by_side[name].values()))), 4) if by_side[name] else float("nan")
@@ -185,6 +195,22 @@ def choose_learner(
         len(pairs),
         by_side,
     )
+
+
+def _given_folds(approaches: list[Approach], settings: AutoSettings, inner: list[InnerFold] | None) -> list[InnerFold]:
+    """`inner`, or `inner_folds` of `approaches` with the settings' seed (seeded settings)."""
+    if inner is not None:
+        return inner
+    return [InnerFold(fit, held, settings.seed) for fit, held in inner_folds(approaches, settings.folds, settings.seed)]
+
+
+def inner_trees(settings: AutoSettings) -> TreeQSettings:
+    """The trees fitted on the inner folds: `AutoSettings.inner_trees` of the boosting stages, each step as much
+    larger (the trees kept, when they win, are fitted with `settings.trees`)."""
+    share, trees = settings.inner_trees, settings.trees
+    if share >= 1:
+        return trees
+    return replace(trees, trees=max(1, round(trees.trees * share)), learning_rate=trees.learning_rate / share)
 
 
 def chosen_settings(settings: AutoSettings, choice: Choice) -> DQNSettings | TreeQSettings:
@@ -209,6 +235,18 @@ class ChoiceTask:
     cfg: EnvConfig  # the DQN's environment (the trees read it through `learner_env`)
     settings: AutoSettings
     label: str = "agent"
+    inner: list[InnerFold] | None = None  # the inner folds (None: `inner_folds` of the approaches)
+
+
+@dataclass(frozen=True)
+class InnerFold:
+    """An inner fold given by the caller: fit on `fit`, score on `held`, both learners seeded with `seed`.
+    Folds of equal `key` (in `choose_and_fit`'s tasks) fit the same approaches with the same seed: fitted once."""
+
+    fit: list[Approach]
+    held: list[Approach]
+    seed: int
+    key: Any = None  # None: its own
 
 
 @dataclass
@@ -234,11 +272,10 @@ class _Target:
     settings: AutoSettings  # seeded
     pairs: list[tuple[list[Approach], list[Approach]]]
     held: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # per pair: the DQN's held-out (states, labels, left)
-    inner: list[int] = field(default_factory=list)  # fleet members of the inner folds' DQNs
+    inner: list[int] = field(default_factory=list)  # fleet members of the inner folds' DQNs (maybe shared)
     final: int = -1  # fleet member of the target's DQN
     changes: dict[int, np.ndarray] = field(default_factory=dict)  # pair -> finished inner DQN's changes
-    trees: list[Any] = field(default_factory=list)  # per pair: future of the trees' (changes, labels, left)
-    stop_trees: Any = None  # threading.Event: the trees' fits stop at their next regression
+    trees: list[Any] = field(default_factory=list)  # per pair: its `_Part` of a trees fit, (changes, labels, left)
     choice: Choice | None = None
     next_check: float = 0.0
     running: tuple[float, float, float, dict[int, np.ndarray]] | None = None  # DQN (score, reach, share, changes)
@@ -254,7 +291,7 @@ def _pooled(parts: list[tuple[np.ndarray, ...]]) -> tuple[float, dict[str, float
     return (round(float(np.mean(list(by_side.values()))), 4) if by_side else float("nan")), by_side
 
 
-#: Set in a trees worker process (`_trees_worker`): one event per target, set when its trees cannot win.
+#: Set in a trees worker process (`_trees_worker`): one event per trees fit, set when no target needs it.
 _STOP_EVENTS: list[Any] = []
 
 
@@ -264,11 +301,11 @@ def _trees_worker(events: list[Any]) -> None:
 
 
 def _trees_fit(
-    fit: list[Approach], held: list[Approach], cfg: EnvConfig, settings: TreeQSettings, stop: Any
-) -> tuple[np.ndarray, ...]:
-    """The trees fitted on `fit`: (changes, labels, left) on `held`; `stop` (an event, or an index into
+    fit: list[Approach], helds: list[list[Approach]], cfg: EnvConfig, settings: TreeQSettings, stop: Any
+) -> list[tuple[np.ndarray, ...]]:
+    """The trees fitted on `fit`: (changes, labels, left) on each of `helds`; `stop` (an event, or an index into
     `_STOP_EVENTS` in a worker process) ends the fit at its next regression."""
-    from rl.learners.trees import fit_tree_q
+    from rl.learners.trees import ensemble_changes, fit_tree_ensembles
 
     event = _STOP_EVENTS[stop] if isinstance(stop, int) else stop
 
@@ -277,7 +314,43 @@ def _trees_fit(
             raise _Stopped
 
     tenv = learner_env(cfg, "trees")
-    return held_out_changes(fit_tree_q(fit, tenv, settings, check), held, tenv)
+    models, _ = fit_tree_ensembles(fit, tenv, settings, check)
+    out: list[tuple[np.ndarray, ...]] = []
+    for held in helds:
+        x, y = labelled_states(held, tenv)
+        out.append((ensemble_changes(models, x), y, np.concatenate([a.scene.left for a in held])))
+    return out
+
+
+@dataclass
+class _TreesJob:
+    """One inner trees fit, for every (target, pair) that shares it."""
+
+    fit: list[Approach]
+    cfg: EnvConfig
+    settings: TreeQSettings
+    users: list[tuple[Any, int]]  # (_Target, pair index)
+    event: Any = None  # set when no user needs it any more: the fit stops at its next regression
+    future: Any = None  # its `_trees_fit` list, one entry per user
+
+
+class _Part:
+    """One user's share of a `_TreesJob`, read as a future of its (changes, labels, left)."""
+
+    def __init__(self, job: _TreesJob, index: int) -> None:
+        self.job, self.index = job, index
+
+    def done(self) -> bool:
+        return bool(self.job.future is not None and self.job.future.done())
+
+    def cancelled(self) -> bool:
+        return bool(self.job.future.cancelled())
+
+    def exception(self) -> BaseException | None:
+        return self.job.future.exception()
+
+    def result(self) -> tuple[np.ndarray, ...]:
+        return self.job.future.result()[self.index]
 
 
 def _bounds(
@@ -294,8 +367,28 @@ def _gain(trees: float, dqn: float) -> float:
     return float(np.nan_to_num(trees, nan=-1.0) - np.nan_to_num(dqn, nan=-1.0))
 
 
+def _fleet_keeping(members: list[Any], threads: int, keep: set[int]) -> Any:
+    """A `FleetTrainer` that copies out the complete state (`Fitted.dqn_state`: the replay memory, the optimiser,
+    the environments) of the members in `keep` only: every finished agent's costs about as much as a second of
+    its training (a cross-validation's four outer DQNs 3 s each on the busy 2-core machine), and only a run
+    keeps one (its checkpoint)."""
+    from rl.fleet.batch import FleetTrainer
+
+    class Fleet(FleetTrainer):
+        def agent_state_dict(self, j: int, *args: Any, **kwargs: Any) -> dict[str, Any]:
+            if self.agents[j].member not in keep:
+                return {}
+            return super().agent_state_dict(j, *args, **kwargs)
+
+    return Fleet(members, threads=threads)
+
+
 def choose_and_fit(
-    tasks: list[ChoiceTask], progress: ProgressFn | None = None, fit_trees: bool = True, label: str = ""
+    tasks: list[ChoiceTask],
+    progress: ProgressFn | None = None,
+    fit_trees: bool = True,
+    label: str = "",
+    keep_state: bool = True,
 ) -> list[Fitted]:
     """`choose_learner` and `fit_learner` of the chosen learner for every task, the DQNs trained as one fleet.
 
@@ -303,11 +396,12 @@ def choose_and_fit(
     `FleetTrainer` with every other task's; the trees' inner fits run beside them in a thread, fold after
     fold (`AutoSettings.trees_beside`). The choice is `choose_learner`'s for the same seed (each fleet
     agent computes what `DQNTrainer` does, up to floating-point summation order) unless `stop_early`
-    stopped a learner that could no longer win: the inner DQNs by their running score +- `reach` x the
+    stopped a learner that could no longer win: the inner DQNs by their running score + `reach` (- `reach_down`) x the
     share of their episodes left, the trees by what their folds still to fit could add at best (all
     right) or at worst (all wrong). The stored scores are then the ones that settled it (the DQNs'
     running score, the trees' bound) and `Choice.stopped` says so. `fit_trees`: also fit the trees on all
-    approaches where they win (a run fits them itself, with its own status). `progress` is told the
+    approaches where they win (a run fits them itself, with its own status). `keep_state`: each task's DQN
+    comes with its complete state (`Fitted.dqn_state`, a run's checkpoint); off, with its network only. `progress` is told the
     phase: inner folds, scenes, training (episodes summed over the fleet, the trees' folds), evaluation.
     """
     import multiprocessing
@@ -323,27 +417,39 @@ def choose_and_fit(
     report(progress, 0, len(tasks), f"{head}choosing the learner: dealing the inner folds")
     targets: list[_Target] = []
     members: list[FleetMember] = []
+    shared: dict[Any, tuple[int, _TreesJob]] = {}  # key -> (fleet member, trees job) of an inner fold
+    jobs: list[_TreesJob] = []
+    users: dict[int, list[tuple[_Target, int]]] = {}  # inner member -> (target, pair index) it serves
     for task in tasks:
         s = with_seed(task.settings, task.settings.seed)
-        pairs = inner_folds(task.approaches, s.folds, s.seed)
+        given = _given_folds(task.approaches, s, task.inner)
+        pairs = [(f.fit, f.held) for f in given]
         t = _Target(
             task,
             s,
             pairs,
             [labelled_states(held, task.cfg) + (np.concatenate([a.scene.left for a in held]),) for _, held in pairs],
             next_check=s.check_from,
-            stop_trees=threading.Event(),
         )
-        for fit, _ in pairs:
-            t.inner.append(len(members))
-            members.append(FleetMember(task.cfg, s.dqn, fit))
+        for i, f in enumerate(given):
+            key = f.key if f.key is not None else (len(targets), i)
+            if key not in shared:
+                seeded = with_seed(s, f.seed)
+                jobs.append(_TreesJob(f.fit, task.cfg, inner_trees(seeded), []))
+                shared[key] = (len(members), jobs[-1])
+                members.append(FleetMember(task.cfg, seeded.dqn, f.fit))
+            member, job = shared[key]
+            t.inner.append(member)
+            users.setdefault(member, []).append((t, i))
+            t.trees.append(_Part(job, len(job.users)))
+            job.users.append((t, i))
         t.final = len(members)
         members.append(FleetMember(task.cfg, s.dqn, task.approaches))
         if not pairs:
             t.choice = Choice("dqn", {}, len(task.approaches), 0)
         targets.append(t)
-    owner = {m: t for t in targets for m in [*t.inner, t.final]}
-    trees_total = sum(len(t.pairs) for t in targets)
+    owner = {t.final: t for t in targets}
+    trees_total = len(jobs)
     beside = tasks[0].settings.trees_beside if trees_total else "no"
     if beside == "process" and sys.platform != "linux":
         beside = "thread"  # a forked copy of this process is safe on Linux only
@@ -351,30 +457,28 @@ def choose_and_fit(
     if beside == "process":  # the other core, without the interpreter's lock: a forked copy of this process (no
         # imports to repeat, no main module to run again), before the fleet has run a torch operation
         ctx = multiprocessing.get_context("fork")
-        events = [ctx.Event() for _ in targets]
-        for t, e in zip(targets, events):
-            t.stop_trees = e
+        events = [ctx.Event() for _ in jobs]
+        for job, e in zip(jobs, events):
+            job.event = e
         pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_trees_worker, initargs=(events,))
     else:
         pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="trees")
+        for job in jobs:
+            job.event = threading.Event()
     try:
-        for k, t in enumerate(targets):
-            for fit, held in t.pairs:
-                if beside in ("process", "thread"):
-                    stop = k if beside == "process" else t.stop_trees
-                    t.trees.append(pool.submit(_trees_fit, fit, held, t.task.cfg, t.settings.trees, stop))
-                else:
-                    report(
-                        progress,
-                        sum(len(u.trees) for u in targets),
-                        trees_total,
-                        f"{head}choosing the learner: fitting the trees",
-                    )
-                    done_f: Future = Future()
-                    done_f.set_result(_trees_fit(fit, held, t.task.cfg, t.settings.trees, None))
-                    t.trees.append(done_f)
+        for k, job in enumerate(jobs):
+            helds = [u.pairs[i][1] for u, i in job.users]
+            if beside in ("process", "thread"):
+                stop = k if beside == "process" else job.event
+                job.future = pool.submit(_trees_fit, job.fit, helds, job.cfg, job.settings, stop)
+            else:
+                report(progress, k, trees_total, f"{head}choosing the learner: fitting the trees")
+                job.future = Future()
+                job.future.set_result(_trees_fit(job.fit, helds, job.cfg, job.settings, None))
         report(progress, 0, len(members), f"{head}choosing the learner: building the scenes of {len(members)} DQNs")
-        fleet = FleetTrainer(members, threads=members[0].settings.threads)
+        fleet = _fleet_keeping(
+            members, members[0].settings.threads, {t.final for t in targets} if keep_state else set()
+        )
         n_obs = len(observation_names(tasks[0].cfg))
         hidden = members[0].settings.hidden
         episodes = [s.episodes for s in fleet.settings]
@@ -386,22 +490,23 @@ def choose_and_fit(
             return net
 
         def on_finish(member: int, policy: dict[str, Any], state: dict[str, Any]) -> None:
-            t = owner[member]
-            if member == t.final:
+            if member in owner:
+                t = owner[member]
                 t.fitted = Fitted(
                     t.choice or Choice("dqn", {}, len(t.task.approaches), 0),
                     fleet.settings[member],
                     as_net(policy),
-                    state,
+                    state or None,
                     t.fitted.rows if t.fitted else [],
                 )
                 return
-            i = t.inner.index(member)
-            t.changes[i] = held_out_changes(as_net(policy), t.pairs[i][1], t.task.cfg)[0]
+            net = as_net(policy)
+            for t, i in users[member]:
+                t.changes[i] = held_out_changes(net, t.pairs[i][1], t.task.cfg)[0]
 
         def on_episode(member: int, row: dict[str, Any]) -> None:
-            t = owner[member]
-            if member == t.final:
+            t = owner.get(member)
+            if t is not None:
                 if t.fitted is None:
                     t.fitted = Fitted(Choice("dqn", {}, 0, 0), fleet.settings[member])
                 t.fitted.rows.append(row)
@@ -433,7 +538,12 @@ def choose_and_fit(
                 f"{learner} chosen: {'; '.join(stopped)}" if stopped else "",
                 t.checks,
             )
-            drop = {m for m in t.inner if fleet.position(m) is not None}
+            drop = {
+                m
+                for m in t.inner
+                if fleet.position(m) is not None  # unless another target still needs it
+                and all(u.choice is not None for u, _ in users[m])
+            }
             if learner == "trees":
                 drop.add(t.final)
                 if fit_trees:
@@ -442,9 +552,11 @@ def choose_and_fit(
                     t.trees_net = pool.submit(
                         fit_tree_q, t.task.approaches, learner_env(t.task.cfg, "trees"), t.settings.trees
                     )
-            t.stop_trees.set()
-            for f in t.trees:
-                f.cancel()
+            for part in t.trees:
+                job = part.job
+                if all(u.choice is not None for u, _ in job.users):
+                    job.event.set()
+                    job.future.cancel()
             gone.update(drop)
             fleet.drop(drop)
 
@@ -463,7 +575,14 @@ def choose_and_fit(
                 now = {i: running_changes(m, t.held[i][0]) for i, m in enumerate(t.inner) if m in shares}
                 score = _pooled([({**t.changes, **now}[i], *t.held[i][1:]) for i in range(len(t.pairs))])[0]
                 t.running = (score, s.reach * (1.0 - share), share, now)
-                t.checks.append({"share": round(share, 3), "dqn": score, "reach": round(t.running[1], 4)})
+                t.checks.append(
+                    {
+                        "share": round(share, 3),
+                        "dqn": score,
+                        "reach": round(t.running[1], 4),
+                        "reach_down": round(s.reach_down * (1.0 - share), 4),
+                    }
+                )
             tdone = trees_done(t)
             seen = (len(tdone), len(t.changes), len(t.checks))
             if seen == t.seen:
@@ -475,11 +594,12 @@ def choose_and_fit(
                 dqn_note = ""
             elif t.running is not None:
                 score, reach, share, now = t.running
+                down = s.reach_down * (1.0 - share)
                 d = _pooled([({**t.changes, **now}[i], *t.held[i][1:]) for i in range(len(t.pairs))])
-                d_lo, d_hi = (score - reach, d[1]), (score + reach, d[1])
+                d_lo, d_hi = (score - down, d[1]), (score + reach, d[1])
                 dqn_note = (
                     f"the inner DQNs stopped at {100 * share:.0f} % of their episodes (running score "
-                    f"{score:.3f} +- {reach:.3f})"
+                    f"{score:.3f}, still to rise by up to {reach:.3f} or fall by {down:.3f})"
                 )
             else:
                 return
@@ -503,7 +623,7 @@ def choose_and_fit(
                 check(t)
             done = f.episodes_done
             total = sum(d if m in gone else episodes[m] for m, d in enumerate(done))
-            trees = sum(f.done() for t in targets for f in t.trees)
+            trees = sum(job.future.done() for job in jobs)
             chosen = sum(t.choice is not None for t in targets)
             report(
                 progress,
@@ -519,7 +639,7 @@ def choose_and_fit(
             while t.choice is None:
                 report(
                     progress,
-                    sum(f.done() for u in targets for f in u.trees),
+                    sum(job.future.done() for job in jobs),
                     trees_total,
                     f"{head}choosing the learner: trees beside",
                 )
@@ -542,7 +662,8 @@ def choose_and_fit(
                 assert t.fitted is not None
                 t.fitted.choice = t.choice
     finally:
-        for t in targets:
-            t.stop_trees.set()  # a fit still running ends at its next regression
+        for job in jobs:
+            if job.event is not None:
+                job.event.set()  # a fit still running ends at its next regression
         pool.shutdown(wait=True, cancel_futures=True)
     return [t.fitted for t in targets if t.fitted is not None]

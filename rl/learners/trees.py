@@ -19,11 +19,13 @@ evaluation, `drive`, `annotate` and the ONNX export read it as they read the DQN
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import numpy as np
 import torch
 from sklearn.ensemble import HistGradientBoostingRegressor
+from sklearn.ensemble._hist_gradient_boosting import binning as _binning
 from threadpoolctl import threadpool_limits
 from torch import nn
 
@@ -33,7 +35,7 @@ from rl.problem.env import NO_PRESS_S, Approach, EnvConfig, observation
 from rl.problem.rewards import CHANGE, KEEP, press_reward
 from rl.settings import TreeQSettings, trees_fit
 
-__all__ = ["TreeQNetwork", "fit_tree_q", "fitted_q_data"]
+__all__ = ["TreeQNetwork", "ensemble_changes", "fit_tree_ensembles", "fit_tree_q", "fitted_q_data"]
 
 
 def fitted_q_data(approaches: list[Approach], cfg: EnvConfig) -> dict[str, np.ndarray]:
@@ -64,6 +66,55 @@ def fitted_q_data(approaches: list[Approach], cfg: EnvConfig) -> dict[str, np.nd
     }
 
 
+_BINNING_LOCK = threading.Lock()
+
+
+def _weighted_percentiles(values: np.ndarray, weight: np.ndarray, ranks: np.ndarray) -> np.ndarray:
+    """scikit-learn's `_weighted_percentile(values, weight, ranks, average=True)` of a 1-D column with no
+    NaN and no zero weight, every rank at once: the same sort, cumulative sum and float operations, one
+    percentile after another in scikit-learn and element by element here."""
+    order = np.argsort(values.reshape(-1, 1), axis=0)[:, 0]  # scikit-learn's sort (not stable) of the column
+    cdf = np.cumsum(weight[order])
+    rank = ranks / 100 * cdf[-1]
+    rank[rank == 0] = np.nextafter(rank[rank == 0], rank[rank == 0] + 1)
+    last = len(values) - 1
+    at = np.clip(np.searchsorted(cdf, rank), 0, last)
+    above = (cdf[at] - rank) > np.finfo(values.dtype).eps
+    low, high = values[order[at]], values[order[np.clip(at + 1, 0, last)]]
+    return np.where(above, low, (low + high) / 2)
+
+
+def _thresholds_batched(col_data: np.ndarray, max_bins: int, sample_weight: np.ndarray | None = None) -> np.ndarray:
+    """scikit-learn's `_find_binning_thresholds` with the weighted percentiles of a column taken at once.
+
+    scikit-learn takes the 255 weighted percentiles of a column one call at a time, each sorting the column
+    again (about 2 s of a 7 s fit on a style's states); `_weighted_percentiles` takes them from one sort with
+    the same arithmetic, so the thresholds are the same to the bit (tests/rl/test_rl_trees.py checks them
+    against scikit-learn's). Without weights, or with at most `max_bins` distinct values, scikit-learn's own."""
+    from sklearn.ensemble._hist_gradient_boosting.common import ALMOST_INF, X_DTYPE
+
+    if sample_weight is None:
+        return _SKLEARN_THRESHOLDS(col_data, max_bins, sample_weight)
+    missing = np.isnan(col_data)
+    if missing.any():
+        col_data, sample_weight = col_data[~missing], sample_weight[~missing]
+    nonzero = sample_weight != 0
+    col_data, sample_weight = col_data[nonzero], sample_weight[nonzero]
+    order = np.argsort(col_data)
+    col_data, sample_weight = col_data[order], sample_weight[order]
+    if len(np.unique(col_data)) <= max_bins or col_data.dtype != np.float64 or sample_weight.dtype != np.float64:
+        return _SKLEARN_THRESHOLDS(col_data, max_bins, sample_weight)
+    thresholds = _weighted_percentiles(col_data, sample_weight, np.linspace(0, 100, num=max_bins + 1)[1:-1])
+    unique = np.unique(thresholds)
+    if unique.shape[0] != thresholds.shape[0]:
+        thresholds = unique
+    np.clip(thresholds, a_min=None, a_max=ALMOST_INF, out=thresholds)
+    return thresholds.astype(X_DTYPE, copy=False)
+
+
+_SKLEARN_THRESHOLDS = _binning._find_binning_thresholds
+
+
 class _SharedBins(HistGradientBoostingRegressor):
     """`HistGradientBoostingRegressor` whose training data is binned once for all the regressions of one
     fitted Q iteration: they share the states and weights, so they share the bins. With sample weights,
@@ -78,9 +129,13 @@ class _SharedBins(HistGradientBoostingRegressor):
         if not is_training_data or shared is None or X.shape[0] > self._bin_mapper.subsample:
             return super()._bin_data(X, sample_weight, is_training_data)
         if "binned" not in shared or shared["shape"] != X.shape:
-            shared.update(
-                binned=super()._bin_data(X, sample_weight, is_training_data), mapper=self._bin_mapper, shape=X.shape
-            )
+            with _BINNING_LOCK:  # scikit-learn's binning, its weighted percentiles taken one column at a time
+                _binning._find_binning_thresholds = _thresholds_batched
+                try:
+                    binned = super()._bin_data(X, sample_weight, is_training_data)
+                finally:
+                    _binning._find_binning_thresholds = _SKLEARN_THRESHOLDS
+            shared.update(binned=binned, mapper=self._bin_mapper, shape=X.shape)
         self._bin_mapper = shared["mapper"]
         return shared["binned"].copy(order="F")
 
@@ -119,6 +174,19 @@ def fit_tree_q(
     label: str = "tree Q",
 ) -> "TreeQNetwork":
     """Fitted Q iteration on `approaches` (the `decisions` reward); the Q function as a torch module."""
+    models, x0 = fit_tree_ensembles(approaches, cfg, settings, progress, label)
+    return TreeQNetwork.from_ensembles(models, x0)
+
+
+def fit_tree_ensembles(
+    approaches: list[Approach],
+    cfg: EnvConfig,
+    settings: TreeQSettings,
+    progress: ProgressFn | None = None,
+    label: str = "tree Q",
+) -> tuple[dict[int, HistGradientBoostingRegressor], np.ndarray]:
+    """Fitted Q iteration on `approaches`: (one fitted ensemble per action index, one observation) as
+    `TreeQNetwork.from_ensembles` takes them."""
     if not trees_fit(cfg.reward.name, cfg.scenes):
         raise UserError(
             "the tree learner fits the 'decisions' reward on recorded scenes: "
@@ -138,7 +206,14 @@ def fit_tree_q(
         q_keep = _fit(_regressor(settings, settings.seed + 1 + it, bins), x, target, weight)
         keep_x = _predict(q_keep, x)
         report(progress, it + 2, total, label)
-    return TreeQNetwork.from_ensembles({CHANGE: q_change, KEEP: q_keep}, x[:1])
+    return {CHANGE: q_change, KEEP: q_keep}, x[:1]
+
+
+def ensemble_changes(models: dict[int, HistGradientBoostingRegressor], obs: np.ndarray) -> np.ndarray:
+    """Whether the greedy action of the fitted ensembles is TO CHANGE at `obs` (ties change, as `greedy_actions`),
+    by scikit-learn's predictions (in double precision: `TreeQNetwork` compares single-precision observations
+    with single-precision thresholds, so a state on a threshold may go the other way)."""
+    return _predict(models[CHANGE], obs) >= _predict(models[KEEP], obs)
 
 
 class TreeQNetwork(nn.Module):
@@ -237,14 +312,14 @@ class TreeQNetwork(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         n_trees, width = self.feature.shape
-        offset = torch.arange(n_trees) * width
-        f, thr, lft, rgt, val, miss = (
-            t.reshape(-1) for t in (self.feature, self.threshold, self.left, self.right, self.value, self.missing_left)
-        )
-        node = offset.unsqueeze(0).expand(x.shape[0], n_trees)
-        for _ in range(self.n_levels):
-            xv = x.gather(1, f[node])
-            go_left = (xv <= thr[node]) | (torch.isnan(xv) & miss[node])  # NaN: the side trained for it
-            node = offset + torch.where(go_left, lft[node], rgt[node])
-        leaves = val[node].reshape(x.shape[0], self.n_actions, n_trees // self.n_actions)
+        n = x.shape[0]
+        offset = (torch.arange(n_trees) * width).unsqueeze(1)  # a tree's first node in the flat arrays
+        f, thr, val, miss = (t.reshape(-1) for t in (self.feature, self.threshold, self.value, self.missing_left))
+        lft, rgt = ((t + offset).reshape(-1) for t in (self.left, self.right))  # children as flat indices
+        node = offset.reshape(1, n_trees).expand(n, n_trees).reshape(-1)  # every row at every tree's root
+        for _ in range(self.n_levels):  # gathers along one flat axis (indexing a tensor by a tensor: 10x slower)
+            xv = x.gather(1, f.gather(0, node).reshape(n, n_trees)).reshape(-1)
+            go_left = (xv <= thr.gather(0, node)) | (torch.isnan(xv) & miss.gather(0, node))  # NaN: its trained side
+            node = torch.where(go_left, lft.gather(0, node), rgt.gather(0, node))
+        leaves = val.gather(0, node).reshape(n, self.n_actions, n_trees // self.n_actions)
         return leaves.sum(dim=2) + self.base

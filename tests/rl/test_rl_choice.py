@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from rl.baselines.imitation import labelled_states
-from rl.learners.choice import ChoiceTask, choose_and_fit, choose_learner, chosen_settings, fit_learner
+from rl.learners.choice import ChoiceTask, choose_and_fit, choose_learner, chosen_settings, fit_learner, inner_trees
 from rl.problem.env import approaches_from_decisions, formulation_config
 from rl.problem.rewards import ReferenceLines
 from rl.settings import AutoSettings, DQNSettings, TreeQSettings
@@ -58,14 +58,60 @@ def test_what_cannot_win_stops_early_and_the_choice_says_so(study):
     trees = choose_and_fit([ChoiceTask(approaches, cfg, replace(auto, margin=-2.0))])[0]
     assert trees.choice.learner == "trees" and "stopped at" in trees.choice.stopped
     assert isinstance(trees.settings, TreeQSettings) and trees.net is not None and trees.dqn_state is None
-    # a reach larger than any score can move: nothing stops, as `stop_early=False`
-    full = choose_and_fit([ChoiceTask(approaches, cfg, replace(auto, reach=10.0))])[0]
+    # reaches larger than any score can move (up and down): nothing stops, as `stop_early=False`
+    # (and a cross-validation's DQNs come without their complete state: nothing keeps it)
+    full = choose_and_fit([ChoiceTask(approaches, cfg, replace(auto, reach=10.0, reach_down=10.0))], keep_state=False)[
+        0
+    ]
     assert not full.choice.stopped and np.isfinite(full.choice.scores["dqn"])
+    assert full.net is not None and full.dqn_state is None
+
+
+def test_the_inner_trees_are_quicker_ones_with_the_same_shrinkage():
+    auto = AutoSettings(trees=TreeQSettings(trees=200, learning_rate=0.05))
+    assert (inner_trees(auto).trees, inner_trees(auto).learning_rate) == (100, pytest.approx(0.1))
+    assert inner_trees(replace(auto, inner_trees=1.0)) == auto.trees
+    assert inner_trees(replace(auto, trees=WEAK_TREES)).trees == 1
 
 
 def test_old_choice_settings_read_with_the_new_defaults():
     old = {"dqn": DQNSettings().to_dict(), "trees": TreeQSettings().to_dict(), "folds": 3, "margin": 0.01, "seed": 0}
     assert AutoSettings.from_dict(old) == AutoSettings()
-    assert AutoSettings.from_dict(AutoSettings(reach=0.3).to_dict()).reach == 0.3
+    assert AutoSettings.from_dict(AutoSettings(reach=0.2, reach_down=0.05).to_dict()).reach_down == 0.05
+    assert AutoSettings.from_dict(AutoSettings(inner_trees=1.0).to_dict()).inner_trees == 1.0
     with pytest.raises(ValueError):
         AutoSettings(check_every=0.0)
+    with pytest.raises(ValueError):
+        AutoSettings(inner_trees=0.0)
+
+
+def test_a_crossvals_inner_folds_are_its_other_outer_folds_each_fitted_once(study):
+    from rl.evaluation.crossval import FoldJob, outer_inner_folds
+    from rl.learners.choice import session_of
+
+    approaches, cfg = study  # one driver, four sessions: four outer folds of one session each
+    sessions = sorted({session_of(a.decision_id) for a in approaches})
+    jobs = [
+        FoldJob(
+            k,
+            4,
+            [a for a in approaches if session_of(a.decision_id) != s],
+            [a for a in approaches if session_of(a.decision_id) == s],
+            {},
+            cfg,
+            AutoSettings(seed=10 + k),
+            k,
+        )
+        for k, s in enumerate(sessions)
+    ]
+    outer_inner_folds(jobs)
+    keys = {}
+    for job in jobs:
+        assert job.inner is not None and len(job.inner) == 3
+        held = sorted(a.decision_id for f in job.inner for a in f.held)
+        assert held == sorted(a.decision_id for a in job.train)  # every training session scored once
+        for f in job.inner:
+            assert not {session_of(a.decision_id) for a in f.fit} & {session_of(a.decision_id) for a in f.held}
+            keys.setdefault(f.key, []).append((sorted(a.decision_id for a in f.fit), f.seed))
+    assert len(keys) == 6 and all(len(v) == 2 and v[0] == v[1] for v in keys.values())  # one fit, two folds
+    assert {seed for v in keys.values() for _, seed in v} == {10, 11, 12}  # the lower fold's seed

@@ -17,7 +17,7 @@ from laneprint.workspace import Workspace
 from rl.baselines.imitation import labelled_states
 from rl.learners.choice import inner_folds, session_of
 from rl.learners.dqn import q_values
-from rl.learners.trees import TreeQNetwork, fit_tree_q, fitted_q_data
+from rl.learners.trees import _SKLEARN_THRESHOLDS, TreeQNetwork, _thresholds_batched, fit_tree_q, fitted_q_data
 from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config
 from rl.problem.rewards import CHANGE, KEEP, ReferenceLines, RewardSettings
 from rl.runs import load_weights
@@ -42,6 +42,21 @@ def test_the_module_predicts_what_the_ensembles_predict():
     assert np.abs(q[:, KEEP] - keep.predict(x)).max() < 1e-5
     again = TreeQNetwork.from_state_dict(net.state_dict())  # what a run's weights.pt holds
     assert torch.equal(again(torch.as_tensor(x)), net(torch.as_tensor(x)))
+
+
+def test_the_weighted_bins_are_scikit_learns_to_the_bit():
+    rng = np.random.default_rng(0)
+    for trial in range(40):
+        n = int(rng.integers(50, 3000))
+        x = rng.normal(size=n) * 10.0 ** int(rng.integers(-3, 4))
+        if trial % 3 == 0:  # ties
+            x = np.round(x, 1)
+        if trial % 4 == 0:
+            x[rng.random(n) < 0.1] = np.nan
+        w = np.where(rng.random(n) < 0.1, 2.0, 1.0) if trial % 2 else rng.random(n) * 3
+        w[rng.random(n) < 0.05 * (trial % 5 == 0)] = 0.0
+        ours, theirs = _thresholds_batched(x, 255, w), _SKLEARN_THRESHOLDS(x, 255, w)
+        assert ours.dtype == theirs.dtype and np.array_equal(ours, theirs)
 
 
 @pytest.mark.slow
