@@ -82,6 +82,16 @@ def without(scores: list, param: str) -> list:
     return [r for r in scores if param not in r.parameters]
 
 
+def variant_aris(truth: dict[str, str], scores: list) -> dict[str, float]:
+    """Every variant's ARI on one study, and each one's without every parameter of `WITHOUT`."""
+    out = {}
+    for name, (n, link, floor) in VARIANTS.items():
+        out[name] = variant_ari(truth, scores, n, link, floor)
+        for param in WITHOUT:
+            out[f"{name}/no-{param}"] = variant_ari(truth, without(scores, param), n, link, floor)
+    return out
+
+
 def variant_ari(truth: dict[str, str], scores: list, voters: int, method: str, floor: float = 0.0, k: int = 3) -> float:
     from clustering.consensus import consensus_groups, weight
 
@@ -107,11 +117,7 @@ def main() -> None:
     args = ap.parse_args()
     worlds = list(zoo.WORLDS) if args.worlds == "all" else args.worlds.split(",")
     truth, scores = shipped(args.root)
-    on_shipped = {}
-    for name, (n, link, floor) in VARIANTS.items():
-        on_shipped[name] = variant_ari(truth, scores, n, link, floor)
-        for param in WITHOUT:
-            on_shipped[f"{name}/no-{param}"] = variant_ari(truth, without(scores, param), n, link, floor)
+    on_shipped = variant_aris(truth, scores)
     rows = []
     for world in worlds:
         for seed in args.seeds:
@@ -123,26 +129,16 @@ def main() -> None:
             except Exception as exc:  # a study that cannot be generated is reported, the rest go on
                 print(f"  {world} seed {seed}: {exc}", flush=True)
                 continue
-            for name, (n, link, floor) in VARIANTS.items():
-                rows.append(
-                    {"world": world, "seed": seed, "variant": name, "ari": variant_ari(truth, scores, n, link, floor)}
-                )
-                for param in WITHOUT:
-                    rows.append(
-                        {
-                            "world": world,
-                            "seed": seed,
-                            "variant": f"{name}/no-{param}",
-                            "ari": variant_ari(truth, without(scores, param), n, link, floor),
-                        }
-                    )
+            rows += [
+                {"world": world, "seed": seed, "variant": v, "ari": a} for v, a in variant_aris(truth, scores).items()
+            ]
             print(f"  {world:<18} seed {seed:5d}  ({time.perf_counter() - t0:.0f} s)", flush=True)
     df = pd.DataFrame(rows)
     per = df.groupby(["variant", "world"]).ari.agg(mean_ari="mean", min_ari="min", seeds="count").reset_index()
     means = per.pivot(index="variant", columns="world", values="mean_ari")
     eligible = means[[on_shipped.get(str(v), 0.0) >= 1.0 - 1e-9 for v in means.index]]
     lowo = []
-    for world in means.columns:
+    for world in means.columns if len(means.columns) > 1 else []:  # one world leaves none to choose on
         pick = str(eligible.drop(columns=world).mean(axis=1).idxmax())
         lowo.append(
             {

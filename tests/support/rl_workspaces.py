@@ -104,7 +104,6 @@ def rule_driver_decisions(
                     "press_t_s": 100.0 * np.arange(n),
                     "label": "change" if k == len(offsets) - 1 else "keep",
                     "speed_limit_kph": np.nan,
-                    "ego_v_free_mps": np.nan,
                     "ego_lane": 0,
                     "target_lane": 1,
                     "cancelled": False,
