@@ -53,6 +53,18 @@ def style_counts(n_drivers: int, shares: tuple[float, float, float]) -> dict[str
     return dict(zip(STYLES, counts.tolist()))
 
 
+def style_order(n_drivers: int, shares: tuple[float, float, float]) -> list[str]:
+    """Styles of drivers 1..n: round-robin over the styles, skipping those whose count is used up."""
+    left = dict(style_counts(n_drivers, shares))
+    out: list[str] = []
+    while len(out) < n_drivers:
+        for style in STYLES:
+            if left[style] > 0:
+                out.append(style)
+                left[style] -= 1
+    return out
+
+
 def driver_ids(n_drivers: int) -> list[str]:
     """D01, D02, ... (wider when there are 100 drivers or more)."""
     width = max(2, len(str(n_drivers)))

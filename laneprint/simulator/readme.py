@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 from laneprint.reference import INDICATORS
+from laneprint.simulator.config import StudySettings
 from laneprint.simulator.study import Study
 
 
@@ -67,7 +68,12 @@ def render_readme(study: Study, fmt: str, files: list[dict[str, Any]]) -> str:
         "",
         "```",
         f"laneprint simulate --out sample_logs --seed {study.seed} --drivers {len(gt['drivers'])} "
-        f"--format {fmt} --force",
+        f"--format {fmt} --force"
+        + (
+            ""
+            if s.style_shares == StudySettings().style_shares
+            else " --shares " + ",".join(f"{v:g}" for v in s.style_shares)
+        ),
         "```",
         "",
         "## The scene",

@@ -19,7 +19,8 @@ from typer.testing import CliRunner
 from laneprint.app.cli import app
 from laneprint.schemas import EGO, TRAFFIC
 from laneprint.simulator.highway.settings import HighwaySettings, simulator_text, study_world
-from laneprint.simulator.highway.styles import STYLE_PARAMS, make_highway_drivers, style_order, true_parameter_ari
+from laneprint.simulator.drivers import style_order
+from laneprint.simulator.highway.styles import STYLE_PARAMS, make_highway_drivers, true_parameter_ari
 from laneprint.simulator.highway.study import section_densities, simulate_highway_study, study_drivers
 
 pytest.importorskip("highway_env")

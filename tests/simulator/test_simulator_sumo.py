@@ -140,3 +140,14 @@ def test_same_seed_same_bytes(study, tmp_path):
     assert _simulate(again)["decisions_per_driver"] == summary["decisions_per_driver"]
     for f in out.iterdir():
         assert (again / f.name).read_bytes() == f.read_bytes(), f.name
+
+
+def test_sumo_drivers_follow_the_shares_and_equal_shares_keep_the_round_robin():
+    """`--shares 2,4,3` gives 2/4/3 drivers; the default keeps D, N, A, D, ... and the same perturbations."""
+    unequal = make_sumo_drivers(9, 0.1, np.random.default_rng(3), "ttc", (2, 4, 3))
+    assert [d.style for d in unequal].count("Normal") == 4
+    assert [d.style for d in unequal].count("Defensive") == 2
+    assert sum(d.typical for d in unequal) == 3
+    equal = make_sumo_drivers(9, 0.1, np.random.default_rng(3))
+    assert [d.style for d in equal] == ["Defensive", "Normal", "Aggressive"] * 3
+    assert [d.typical for d in equal] == [True] * 3 + [False] * 6

@@ -68,8 +68,8 @@ SharesOpt = Annotated[
     Optional[str],
     typer.Option(
         "--shares",
-        help="highway: shares of the styles Defensive,Normal,Aggressive among the drivers, e.g. 2,4,3 "
-        "(default 1,1,1: equal groups).",
+        help="Shares of the styles Defensive,Normal,Aggressive among the drivers, e.g. 2,4,3 "
+        "(default 1,1,1 for sumo and highway: equal groups; 3,4,3 synthetic).",
     ),
 ]
 SeedOpt = Annotated[int, typer.Option("--seed", help="Random seed (same seed, same study).")]
@@ -116,12 +116,10 @@ def simulate_command(
             raise UserError(f"unknown --format {form!r}; choose one of {', '.join(FORMATS)}")
         if drivers is not None and drivers < 1:
             raise UserError("--drivers must be at least 1")
-        if shares is not None and engine != "highway":
-            raise UserError("--shares is for --engine highway")
         if engine in ("sumo", "highway") and decisions is not None:
             raise UserError(f"--decisions is for --engine synthetic; with {engine} the drivers decide (use --minutes)")
         if engine == "sumo":
-            return _simulate_sumo(out, drivers, seed, form, force, minutes, jobs, family, lanes, as_json)
+            return _simulate_sumo(out, drivers, seed, form, force, minutes, jobs, family, lanes, shares, as_json)
         if engine == "highway":
             if family is not None:
                 raise UserError("--family is for --engine sumo")
@@ -131,14 +129,21 @@ def simulate_command(
                 "--minutes, --jobs, --family and --lanes are for --engine sumo "
                 "(all but --family also for --engine highway)"
             )
-        return _simulate_synthetic(out, drivers, decisions, seed, form, force, as_json)
+        return _simulate_synthetic(out, drivers, decisions, seed, form, force, shares, as_json)
 
     render = {"sumo": _render_sumo, "highway": _render_highway}.get(engine, _render)
     run_command(work, as_json, render)
 
 
 def _simulate_synthetic(
-    out: Path, drivers: Optional[int], decisions: Optional[int], seed: int, fmt: str, force: bool, as_json: bool
+    out: Path,
+    drivers: Optional[int],
+    decisions: Optional[int],
+    seed: int,
+    fmt: str,
+    force: bool,
+    shares: Optional[str],
+    as_json: bool,
 ) -> dict[str, Any]:
     from laneprint.simulator.config import StudySettings
     from laneprint.app.simulator.output import check_destination, write_study
@@ -148,7 +153,12 @@ def _simulate_synthetic(
     decisions = base.decisions_per_driver if decisions is None else decisions
     if decisions < len(base.speed_limits_kph):
         raise UserError(f"--decisions must be at least {len(base.speed_limits_kph)} (one per section)")
-    settings = replace(base, n_drivers=base.n_drivers if drivers is None else drivers, decisions_per_driver=decisions)
+    settings = replace(
+        base,
+        n_drivers=base.n_drivers if drivers is None else drivers,
+        decisions_per_driver=decisions,
+        style_shares=base.style_shares if shares is None else parse_shares(shares),
+    )
     check_destination(out, force)  # before minutes of work, not after
     with progress_bar(not as_json) as bar:
         study = simulate_study(settings, seed, progress=bar)
@@ -165,6 +175,7 @@ def _simulate_sumo(
     jobs: int,
     family: Optional[str],
     lanes: Optional[int],
+    shares: Optional[str],
     as_json: bool,
 ) -> dict[str, Any]:
     from laneprint.app.simulator.output import check_destination
@@ -188,6 +199,7 @@ def _simulate_sumo(
         base,
         n_drivers=base.n_drivers if drivers is None else drivers,
         minutes=base.minutes if minutes is None else minutes,
+        style_shares=base.style_shares if shares is None else parse_shares(shares),
     )
     check_available()  # one line telling how to install SUMO, before anything else
     check_destination(out, force)

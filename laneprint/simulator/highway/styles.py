@@ -22,8 +22,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from laneprint.reference import STYLES
-from laneprint.simulator.drivers import driver_ids, style_counts
+from laneprint.simulator.drivers import driver_ids, style_order
 
 #: style -> parameter -> nominal value. TIME_WANTED [s]: IDM desired time headway; DISTANCE_WANTED [m]:
 #: IDM jam distance, centre to centre as highway-env measures it (its default is 5 m + the 5 m LENGTH);
@@ -85,18 +84,6 @@ class HighwayDriver:
 
     def to_dict(self) -> dict[str, Any]:
         return {"driver_id": self.driver_id, "style": self.style, "typical": self.typical, "params": dict(self.params)}
-
-
-def style_order(n_drivers: int, shares: tuple[float, float, float]) -> list[str]:
-    """Styles of drivers 1..n: round-robin over the styles, skipping those whose count is used up."""
-    left = dict(style_counts(n_drivers, shares))
-    out: list[str] = []
-    while len(out) < n_drivers:
-        for style in STYLES:
-            if left[style] > 0:
-                out.append(style)
-                left[style] -= 1
-    return out
 
 
 def perturb(nominal: dict[str, float], rng: np.random.Generator, sd: float) -> dict[str, float]:

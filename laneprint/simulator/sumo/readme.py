@@ -54,6 +54,7 @@ def render_readme(study: SumoStudy, fmt: str, files: list[dict[str, Any]]) -> st
     s, gt = study.settings, study.ground_truth
     shown = _SHOWN[s.family]
     family_opt = "" if s.family == DEFAULT_FAMILY else f" --family {s.family}"
+    shares_opt = "" if len(set(s.style_shares)) == 1 else " --shares " + ",".join(f"{v:g}" for v in s.style_shares)
     family_opt += "" if s.n_lanes == DEFAULT_LANES else f" --lanes {s.n_lanes}"
     by_lane: dict[str, int] = {}
     for dec in study.decisions:
@@ -113,7 +114,7 @@ def render_readme(study: SumoStudy, fmt: str, files: list[dict[str, Any]]) -> st
         "",
         "```",
         f"laneprint simulate --engine sumo{family_opt} --out DIR --seed {study.seed} --drivers {len(gt['drivers'])} "
-        f"--minutes {s.minutes:g} --format {fmt}",
+        f"--minutes {s.minutes:g} --format {fmt}{shares_opt}",
         "```",
         "",
         "## The runs",

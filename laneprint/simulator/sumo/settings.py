@@ -35,6 +35,8 @@ class SumoSettings:
     # --- the study -------------------------------------------------------------
     family: str = DEFAULT_FAMILY  # one of FAMILIES: which styles (styles.FAMILY_STYLE_PARAMS) and traffic
     n_drivers: int = 9  # drivers D01..Dnn, styles round-robin Defensive, Normal, Aggressive
+    style_shares: tuple[float, float, float] = (1.0, 1.0, 1.0)  # Defensive, Normal, Aggressive shares of the
+    # drivers (drivers.style_counts); the round-robin skips a style whose count is used up
     speed_limits_kph: tuple[int, ...] = SPEED_LIMITS_KPH  # one SUMO run (= one recording) per limit [km/h]
     minutes: float = 5.0  # [min] logged driving per section (a lane change in progress is finished)
     step_s: float = 0.1  # [s] SUMO step length = log period (10 Hz)
@@ -85,6 +87,8 @@ class SumoSettings:
             raise ValueError(f"unknown family {self.family!r}; choose one of {', '.join(FAMILIES)}")
         if self.n_drivers < 1:
             raise ValueError("n_drivers must be at least 1")
+        if len(self.style_shares) != 3 or min(self.style_shares) < 0 or sum(self.style_shares) <= 0:
+            raise ValueError("style_shares needs three non-negative shares (Defensive, Normal, Aggressive)")
         if self.n_lanes not in LANES:
             raise ValueError(f"n_lanes must be one of {', '.join(map(str, LANES))}")
         bad = [st for st in self.ahead_streams if st not in STREAM_LANES or self.stream_lane(st) >= self.n_lanes]

@@ -74,6 +74,7 @@ def simulate_sumo_study(
         settings.perturbation_sd,
         np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,))),
         settings.family,
+        settings.style_shares,
     )
     tasks = [(i, j, d, float(lim)) for i, d in enumerate(drivers) for j, lim in enumerate(settings.speed_limits_kph)]
     logs: dict[tuple[int, int], SectionLog] = {}

@@ -18,8 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from laneprint.reference import STYLES
-from laneprint.simulator.drivers import driver_ids
+from laneprint.simulator.drivers import driver_ids, style_order
 
 #: style -> SUMO vType attribute -> nominal value. Car following (Krauss): tau [s],
 #: minGap [m], accel/decel [m/s^2], speedFactor (desired speed / limit), sigma
@@ -219,11 +218,6 @@ class SumoDriver:
         }
 
 
-def style_of(index: int) -> str:
-    """Round-robin style of the driver at 0-based `index`."""
-    return STYLES[index % len(STYLES)]
-
-
 def perturb(nominal: dict[str, float], rng: np.random.Generator, sd: float) -> dict[str, float]:
     """Each value times exp(N(0, sd)) clipped to +-2 sd (in a fixed key order), rounded."""
     out = {}
@@ -234,13 +228,19 @@ def perturb(nominal: dict[str, float], rng: np.random.Generator, sd: float) -> d
     return {k: out[k] for k in nominal}
 
 
-def make_sumo_drivers(n_drivers: int, sd: float, rng: np.random.Generator, family: str = "ttc") -> list[SumoDriver]:
-    """The study's drivers of `family`: styles round-robin, the first of each style typical (nominal values)."""
+def make_sumo_drivers(
+    n_drivers: int,
+    sd: float,
+    rng: np.random.Generator,
+    family: str = "ttc",
+    shares: tuple[float, float, float] = (1.0, 1.0, 1.0),
+) -> list[SumoDriver]:
+    """The study's drivers of `family`: styles by `style_order`, the first of each style typical (nominal values)."""
     styles = FAMILY_STYLE_PARAMS[family]
-    drivers = []
-    for i, did in enumerate(driver_ids(n_drivers)):
-        style = style_of(i)
-        typical = i < len(STYLES)
+    drivers, seen = [], set()
+    for did, style in zip(driver_ids(n_drivers), style_order(n_drivers, shares)):
+        typical = style not in seen
+        seen.add(style)
         params = dict(styles[style]) if typical else perturb(styles[style], rng, sd)
         drivers.append(SumoDriver(did, style, typical, params))
     return drivers
