@@ -329,6 +329,12 @@ def main() -> None:
     ap.add_argument("--zoo-methods", default="auto,heldout,behaviour", help="--features values to judge")
     ap.add_argument("--zoo-out", default="analysis_zoo.json", help="file name under benchmarks/results/")
     ap.add_argument(
+        "--zoo-shares",
+        default="",
+        help="style shares Defensive,Normal,Aggressive of the studies, ';'-separated sets judged in turn "
+        "('world;2,4,3': each world's own and 2/4/3 of 9 drivers); default the world's own",
+    )
+    ap.add_argument(
         "--zoo-cached-only",
         action="store_true",
         help="judge only the studies already generated under --zoo-root (generate none)",
@@ -346,6 +352,7 @@ def main() -> None:
             tuple(args.zoo_methods.split(",")),
             args.zoo_out,
             args.zoo_cached_only,
+            tuple("" if part in ("", "world") else part for part in args.zoo_shares.split(";")),
         )
         return
     figures: dict = {}

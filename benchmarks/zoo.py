@@ -51,11 +51,20 @@ def laneprint(*args: str) -> None:
     subprocess.run([str(exe), *args], check=True, stdout=subprocess.DEVNULL)
 
 
-def study(world: str, seed: int, root: Path) -> tuple[Path, Path]:
+def folder(world: str, seed: int, root: Path, shares: str = "") -> Path:
+    """Where the study of `world`, `seed` (and style `shares`, e.g. "2,4,3"; "" the world's own) is cached."""
+    return root / (f"{world}-{seed}" + (f"-shares{shares.replace(',', '')}" if shares else ""))
+
+
+def study(world: str, seed: int, root: Path, shares: str = "") -> tuple[Path, Path]:
     """(study folder, workspace) of one world and seed, generated and ingested unless cached."""
-    out, ws = root / f"{world}-{seed}", root / f"{world}-{seed}.ws"
+    out = folder(world, seed, root, shares)
+    ws = out.with_name(out.name + ".ws")
     if not (out / "ground_truth.json").exists():
-        laneprint("simulate", "--out", str(out), "--seed", str(seed), "--format", "csv", "--force", *WORLDS[world])
+        extra = ["--shares", shares] if shares else []
+        laneprint(
+            "simulate", "--out", str(out), "--seed", str(seed), "--format", "csv", "--force", *WORLDS[world], *extra
+        )
     if not (ws / "recordings").is_dir():
         laneprint("ingest", str(out), "-w", str(ws), "--json")
     return out, ws
@@ -96,12 +105,12 @@ def decisions_of(ws: Path) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
     return dec, following, drivers
 
 
-def judge(world: str, seed: int, root: Path, methods: tuple[str, ...]) -> list[dict]:
+def judge(world: str, seed: int, root: Path, methods: tuple[str, ...], shares: str = "") -> list[dict]:
     """One row per (method, driver): truth, style, confidence, presses; plus the method's ARI."""
     from clustering.pipeline import analyze_tables
     from indicators.settings import AnalysisSettings
 
-    out, ws = study(world, seed, root)
+    out, ws = study(world, seed, root, shares)
     truth = {d["driver_id"]: d["style"] for d in json.loads((out / "ground_truth.json").read_text())["drivers"]}
     dec, following, drivers = decisions_of(ws)
     rows = []
@@ -116,6 +125,7 @@ def judge(world: str, seed: int, root: Path, methods: tuple[str, ...]) -> list[d
                 {
                     "world": world,
                     "seed": seed,
+                    "shares": shares or "world",
                     "method": method,
                     "driver": r.driver_id,
                     "truth": truth[r.driver_id],
@@ -132,7 +142,9 @@ def judge(world: str, seed: int, root: Path, methods: tuple[str, ...]) -> list[d
 
 def summarise(df: pd.DataFrame) -> dict:
     """Per world and method, leave-one-world-out, and reliability tables (JSON-ready)."""
-    studies = df.groupby(["world", "method", "seed"]).agg(
+    if "shares" not in df:
+        df = df.assign(shares="world")
+    studies = df.groupby(["world", "method", "seed", "shares"]).agg(
         ari=("ari", "first"), named=("right", "mean"), seconds=("seconds", "first")
     )
     per = (
@@ -183,45 +195,60 @@ def summarise(df: pd.DataFrame) -> dict:
                 "share_right": float(hi["right"].mean()) if len(hi) else None,
             }
         )
-    return {"per_world": per.to_dict("records"), "leave_one_world_out": lowo, "reliability": rel}
+    by_shares = (
+        studies.groupby(["world", "method", "shares"])
+        .agg(mean_ari=("ari", "mean"), min_ari=("ari", "min"), names_right=("named", "mean"), seeds=("ari", "size"))
+        .reset_index()
+    )
+    return {
+        "per_world": per.to_dict("records"),
+        "per_world_and_shares": by_shares.to_dict("records"),
+        "leave_one_world_out": lowo,
+        "reliability": rel,
+    }
 
 
-def cached(world: str, seed: int, root: Path) -> bool:
+def cached(world: str, seed: int, root: Path, shares: str = "") -> bool:
     """Whether the study of `world` and `seed` is generated, ingested and its decisions extracted under `root`."""
-    return (root / f"{world}-{seed}" / "ground_truth.json").exists() and (
-        root / f"{world}-{seed}.ws" / "zoo_decisions.parquet"
-    ).exists()
+    out = folder(world, seed, root, shares)
+    return (out / "ground_truth.json").exists() and (out.with_name(out.name + ".ws") / "zoo_decisions.parquet").exists()
 
 
 def run(
-    worlds: list[str], seeds: list[int], root: Path, methods: tuple[str, ...], out_name: str, cached_only: bool = False
+    worlds: list[str],
+    seeds: list[int],
+    root: Path,
+    methods: tuple[str, ...],
+    out_name: str,
+    cached_only: bool = False,
+    shares: tuple[str, ...] = ("",),
 ) -> dict:
     """Judge every method on every (world, seed), generating what is not cached (`cached_only`: skip it)."""
     root.mkdir(parents=True, exist_ok=True)
     rows = []
-    for world in worlds:
-        for seed in seeds:
-            if cached_only and not cached(world, seed, root):
-                print(f"  {world:<18} seed {seed:5d} not generated yet: left out", flush=True)
-                continue
-            t0 = time.perf_counter()
-            try:
-                rows += judge(world, seed, root, methods)
-            except subprocess.CalledProcessError as exc:
-                print(f"  {world} seed {seed}: generation failed ({exc})", flush=True)
-                continue
-            last = [r for r in rows if r["world"] == world and r["seed"] == seed]
-            print(
-                f"  {world:<18} seed {seed:5d} "
-                + "  ".join(f"{m} {next(r['ari'] for r in last if r['method'] == m):.2f}" for m in methods)
-                + f"  ({time.perf_counter() - t0:.0f} s)",
-                flush=True,
-            )
+    for world, share, seed in ((w, sh, s) for w in worlds for sh in shares for s in seeds):
+        if cached_only and not cached(world, seed, root, share):
+            print(f"  {world:<18} seed {seed:5d} {share} not generated yet: left out", flush=True)
+            continue
+        t0 = time.perf_counter()
+        try:
+            rows += judge(world, seed, root, methods, share)
+        except subprocess.CalledProcessError as exc:
+            print(f"  {world} seed {seed} {share}: generation failed ({exc})", flush=True)
+            continue
+        last = [r for r in rows if r["world"] == world and r["seed"] == seed and r["shares"] == (share or "world")]
+        print(
+            f"  {world:<18} seed {seed:5d} {share:6s}"
+            + "  ".join(f"{m} {next(r['ari'] for r in last if r['method'] == m):.2f}" for m in methods)
+            + f"  ({time.perf_counter() - t0:.0f} s)",
+            flush=True,
+        )
     df = pd.DataFrame(rows)
     df["right"] = df["style"] == df["truth"]
     result = {
         "worlds": worlds,
         "seeds": seeds,
+        "shares": [sh or "world" for sh in shares],
         "methods": list(methods),
         **summarise(df),
         "drivers": df.to_dict("records"),
@@ -241,6 +268,14 @@ def print_tables(result: dict) -> None:
                 f"{r.method} {r.mean_ari:.2f} ({r.min_ari:.2f}) {100 * r.names_right:.0f} %" for r in g.itertuples()
             )
         )
+    by_shares = pd.DataFrame(result.get("per_world_and_shares", []))
+    if not by_shares.empty and by_shares["shares"].nunique() > 1:
+        print("\nper style shares (the world's own, or Defensive,Normal,Aggressive): mean ARI (min), names right")
+        for r in by_shares.itertuples():
+            print(
+                f"  {r.world:<18} {r.shares:<7} {r.method:<10} {r.mean_ari:.2f} ({r.min_ari:.2f}) "
+                f"{100 * r.names_right:.0f} %  {r.seeds} seeds"
+            )
     print("\nleave one world out: the method best on the other worlds, judged on this one")
     for r in result["leave_one_world_out"]:
         print(
