@@ -18,6 +18,9 @@ ARI >= 0.9); with several SUMO seeds (never judge on one), a last table of every
 margins and which checks failed. The figures and checks are written to
 `benchmarks/results/generalization.json` (`--out NAME`) with the command, commit, date and machine.
 
+Each world of the zoo (`benchmarks/zoo.py`), one study per world from its cache, instead of the SUMO
+seeds: `--zoo all --zoo-root /tmp/laneprint-zoo-final --zoo-seed 9501 --skip-sumo`.
+
 Run: python benchmarks/generalization.py [--sumo-seed 7 [8 ...]] [--jobs 2] [--drivers 9]
      [--episodes 10000] [--learner auto|dqn|trees] [--folds 4] [--seed 0] [--workdir /tmp/lp-generalization]
      [--skip-shipped] [--skip-sumo]
@@ -206,6 +209,14 @@ def sumo_study(seed: int, args: argparse.Namespace) -> tuple[str, Checks, list[d
     return out.getvalue(), checks, results, score
 
 
+def zoo_study(world: str, args: argparse.Namespace) -> tuple[Checks, list[dict], float | None]:
+    """Analyse and cross-validate the zoo's study of `world` at `--zoo-seed` (generated once, cached)."""
+    import zoo  # beside this file
+
+    logs, _ = zoo.study(world, args.zoo_seed, args.zoo_root)
+    return study(f"{world}, seed {args.zoo_seed}", logs, args.workdir / f"ws_{world}_{args.zoo_seed}", args)
+
+
 def seeds_table(runs: dict[int, tuple[Checks, list[dict], float | None]]) -> None:
     """One row per SUMO seed: ARI, per style agent - greedy / agent - imitation, failed checks."""
     print("\n## SUMO seeds: agent - greedy / agent - imitation, balanced accuracy points")
@@ -301,6 +312,9 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0, help="seed of folds, agents, classifier, bootstrap")
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/lp-generalization"))
     ap.add_argument("--skip-sumo", action="store_true")
+    ap.add_argument("--zoo", default="", help="worlds of benchmarks/zoo.py, comma-separated ('all': every one)")
+    ap.add_argument("--zoo-root", type=Path, default=Path("/tmp/laneprint-zoo"), help="where zoo studies are cached")
+    ap.add_argument("--zoo-seed", type=int, default=9501, help="the zoo study's seed (one per world)")
     ap.add_argument("--skip-shipped", action="store_true")
     ap.add_argument("--out", default="generalization", help="result file name under benchmarks/results/")
     args = ap.parse_args()
@@ -321,6 +335,15 @@ def main() -> None:
                 checks[f"SUMO study, seed {seed}"] = c
                 runs[seed] = (c, results, score)
                 held_out += [{"study": f"SUMO seed {seed}", "styles_ari": score, **r} for r in held_out_rows(results)]
+    if args.zoo:
+        from zoo import WORLDS  # beside this file
+
+        for world in list(WORLDS) if args.zoo == "all" else args.zoo.split(","):
+            c, results, score = zoo_study(world, args)
+            checks[f"{world}, seed {args.zoo_seed}"] = c
+            held_out += [
+                {"study": world, "seed": args.zoo_seed, "styles_ari": score, **r} for r in held_out_rows(results)
+            ]
     if not args.skip_shipped:
         ws = args.workdir / "ws_shipped"
         checks["shipped study"], results, score = study("shipped study", ROOT / "sample_logs", ws, args)
@@ -339,6 +362,8 @@ def main() -> None:
         args.out,
         {
             "sumo_seeds": [] if args.skip_sumo else args.sumo_seed,
+            "zoo": args.zoo.split(",") if args.zoo else [],
+            "zoo_seed": args.zoo_seed if args.zoo else None,
             "drivers": args.drivers,
             "folds": args.folds,
             "seed": args.seed,
