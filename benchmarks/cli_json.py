@@ -119,12 +119,18 @@ def snapshot() -> dict[str, object]:
         return out
 
 
-def compare(a: Path, b: Path) -> int:
-    """Print the commands whose documents differ; 0 when none."""
+def compare(a: Path, b: Path, record: str = "", commits: tuple[str, str] = ("", "")) -> int:
+    """Print the commands whose documents differ; 0 when none. `record`: also write the verdicts to
+    benchmarks/results/`record`.json with the commits the two snapshots were taken at."""
     left, right = (normalise(json.loads(p.read_text()), "<tmp>") for p in (a, b))
     differ = [k for k in sorted(set(left) | set(right)) if left.get(k) != right.get(k)]
     for k in sorted(set(left) | set(right)):
         print(f"{k:10s} {'DIFFERS' if k in differ else 'same'}")
+    if record:
+        from results_file import write_result  # beside this file
+
+        verdicts = {k: ("differs" if k in differ else "same") for k in sorted(set(left) | set(right))}
+        write_result(record, {"before_commit": commits[0], "after_commit": commits[1], "commands": verdicts})
     return 1 if differ else 0
 
 
@@ -132,9 +138,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, help="write the snapshot here")
     parser.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"))
+    parser.add_argument("--record", default="", help="--compare: write the verdicts to benchmarks/results/NAME.json")
+    parser.add_argument(
+        "--commits", nargs=2, default=("", ""), metavar=("BEFORE", "AFTER"), help="--record: the trees' commits"
+    )
     args = parser.parse_args()
     if args.compare:
-        return compare(*args.compare)
+        return compare(*args.compare, record=args.record, commits=tuple(args.commits))
     snap = snapshot()
     text = json.dumps(snap, indent=1, sort_keys=True)
     if args.out:
