@@ -356,7 +356,7 @@ CROSSVAL_COLUMNS = {
 
 
 def _number(row: dict | None, key: str, scale: float) -> float | None:
-    v = (row or {}).get(key)
+    v: Any = (row or {}).get(key)
     try:
         v = float(v) * scale
     except (TypeError, ValueError):
