@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pandas as pd
 import plotly.graph_objects as go
@@ -15,7 +17,7 @@ _EXTRA_COLORS = ["#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22"]
 
 
 #: Annotation offsets [px] of a label written on each side of its point.
-_LABEL_OFFSETS = {
+_LABEL_OFFSETS: dict[str, dict[str, Any]] = {
     "top": {"yshift": 12},
     "bottom": {"yshift": -12},
     "right": {"xshift": 8, "xanchor": "left"},
@@ -178,8 +180,9 @@ def cluster_scatter(
         )
     fig.update_layout(annotations=labels)  # at once: one validation, not one per label
     for axis, c in (("xaxis", x), ("yaxis", y)):
-        if ranges[c]:
-            fig.update_layout({axis: {"range": list(ranges[c])}})
+        axis_range = ranges[c]
+        if axis_range:
+            fig.update_layout({axis: {"range": list(axis_range)}})
     # on a line of its own: one line of both was wider than the plot of a narrow page (measured in Chromium)
     off_note = (
         f"<br><sub>{n_off} driver{'s' if n_off != 1 else ''} beyond the axes, drawn at the edge (open diamond)</sub>"

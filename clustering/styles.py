@@ -108,7 +108,11 @@ class StyleClusterer:
                 scores[k] = float(gm.bic(Z))
             else:
                 raise ValueError(f"unknown choose_k {self.choose_k!r}: use 'silhouette' or 'bic'")
-        best = max(scores, key=scores.get) if self.choose_k == "silhouette" else min(scores, key=scores.get)
+        best = (
+            max(scores, key=scores.__getitem__)
+            if self.choose_k == "silhouette"
+            else min(scores, key=scores.__getitem__)
+        )
         return best, scores
 
     # --- API -----------------------------------------------------------------

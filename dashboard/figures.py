@@ -243,12 +243,16 @@ def _scaled(row: dict | None, key: str, scale: float) -> float | None:
 
 def _error_bars(rows: list[dict | None], key: str, ci_key: str, scale: float) -> dict:
     """`error_y` of a bar trace from [lo, hi] intervals (no bar where an interval is missing)."""
-    plus, minus = [], []
+    plus: list[float | None] = []
+    minus: list[float | None] = []
     for row in rows:
         v, ci = _scaled(row, key, scale), (row or {}).get(ci_key)
-        ok = v is not None and ci is not None and len(ci) == 2 and None not in ci
-        plus.append(max(0.0, float(ci[1]) * scale - v) if ok else None)
-        minus.append(max(0.0, v - float(ci[0]) * scale) if ok else None)
+        if v is not None and ci is not None and len(ci) == 2 and None not in ci:
+            plus.append(max(0.0, float(ci[1]) * scale - v))
+            minus.append(max(0.0, v - float(ci[0]) * scale))
+        else:
+            plus.append(None)
+            minus.append(None)
     return dict(type="data", symmetric=False, array=plus, arrayminus=minus, thickness=1.5, width=6)
 
 

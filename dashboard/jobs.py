@@ -260,7 +260,7 @@ def cancel(ws: Workspace, run_id: str) -> bool:
     """Ask a running run to stop (SIGTERM: the trainer checkpoints and marks it cancelled)."""
     st = run_status(ws, run_id)
     pid = st.get("pid")
-    if st.get("state") not in ACTIVE_STATES or not pid_alive(pid):
+    if st.get("state") not in ACTIVE_STATES or pid is None or not pid_alive(pid):
         return False
     try:
         os.kill(int(pid), signal.SIGTERM)

@@ -63,7 +63,7 @@ def upload_rows(saved: Iterable[SavedUpload], report: dict[str, Any] | None) -> 
 _MD_SPECIAL = "\\`*_{}[]()#+-.!|<>~$"
 
 
-def md_escape(text: str) -> str:
+def md_escape(text: object) -> str:
     """Text shown verbatim inside Streamlit markdown (file names come from the user's browser)."""
     return "".join("\\" + c if c in _MD_SPECIAL else c for c in str(text))
 
@@ -356,7 +356,7 @@ CROSSVAL_COLUMNS = {
 
 
 def _number(row: dict | None, key: str, scale: float) -> float | None:
-    v = (row or {}).get(key)
+    v: Any = (row or {}).get(key)
     try:
         v = float(v) * scale
     except (TypeError, ValueError):

@@ -203,7 +203,8 @@ class AnalysisSettings:
         """Settings from `to_dict`'s output (as stored in analysis/meta.json); unknown keys are
         ignored and missing ones take their defaults, so older workspaces read."""
         known = cls.__dataclass_fields__
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in known})
+        values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in known}
+        return cls(**values)
 
     def with_(self, **changes: Any) -> "AnalysisSettings":
         """A copy with some fields changed."""

@@ -17,6 +17,7 @@ statsmodels stays inside this module: callers get tables and `LineFit` dataclass
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -402,7 +403,7 @@ def fit_lines(
     rows = []
     for g in groups:
         reason = _why_not(g, settings)
-        row = {c: np.nan for c in FIT_COLUMNS}
+        row: dict[str, Any] = {c: np.nan for c in FIT_COLUMNS}
         row.update(
             driver_id=g.driver_id,
             indicator=g.indicator,

@@ -205,7 +205,7 @@ def _parse_typed(
         except (pa.ArrowInvalid, pa.ArrowTypeError, UnicodeDecodeError) as exc:
             m = _CONVERSION.match(str(exc))
             column = names[int(m.group(1))] if m and int(m.group(1)) < len(names) else None
-            if column is None:
+            if m is None or column is None:  # column is None whenever m is
                 raise Rejected(f"malformed CSV: {_parse_failure(data, names, exc, mapping, limits)}") from None
             if column in optional and column not in as_text:
                 as_text.append(column)

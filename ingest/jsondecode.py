@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import operator
 from functools import lru_cache
+from types import GenericAlias
 from typing import Any, Optional
 
 import msgspec
@@ -38,7 +39,7 @@ def _rows_decoder(names: tuple[str, ...]) -> msgspec.json.Decoder:
     """A decoder of a list of objects whose fields `names` are numbers or null (other fields ignored)."""
     fields = [(f"f{i}", Optional[float], None) for i in range(len(names))]
     row = msgspec.defstruct("Row", fields, rename={f"f{i}": n for i, n in enumerate(names)}, gc=False)
-    return msgspec.json.Decoder(list[row])
+    return msgspec.json.Decoder(GenericAlias(list, (row,)))  # list[row], spelled for a struct made at run time
 
 
 def float_columns(datas: list[bytes], names: list[str]) -> dict[str, np.ndarray] | None:

@@ -13,6 +13,7 @@ import os
 import struct
 import zlib
 from dataclasses import dataclass, fields
+from typing import Any
 from typing import Mapping as TypingMapping
 
 from ingest.mcap_records import top_records
@@ -52,7 +53,7 @@ class IngestLimits:
     def from_env(cls, environ: TypingMapping[str, str] | None = None) -> "IngestLimits":
         """Defaults overridden by `LANEPRINT_<FIELD>` variables; `UserError` for a value that is not a positive number."""
         env = os.environ if environ is None else environ
-        values: dict[str, float | int] = {}
+        values: dict[str, Any] = {}  # float or int, by the field's type
         for f in fields(cls):
             var = f"LANEPRINT_{f.name.upper()}"
             if var not in env:
@@ -99,7 +100,7 @@ def gunzip(data: bytes, limits: IngestLimits) -> bytes:
     try:
         while True:
             d = zlib.decompressobj(wbits=31)
-            buf = memoryview(data)[pos:]
+            buf: memoryview | bytes = memoryview(data)[pos:]
             while True:
                 out += d.decompress(buf, _INFLATE_STEP)
                 buf = d.unconsumed_tail

@@ -341,7 +341,7 @@ class _SignalReader:
 
     def numbers(self, sig: Signal | None, scale: float = 1.0) -> np.ndarray:
         got = self.raw(sig) if sig is not None else None
-        if got is None:
+        if sig is None or got is None:
             return np.full(len(self.base.times), np.nan)
         dec, values = got
         return self.on_samples(dec, _numbers(dec, sig.path, values, scale))
@@ -375,7 +375,7 @@ def _button(
     dirs = np.full(len(values), None, dtype=object)
     dsig = signals.ego.get("lc_direction")
     dgot = reader.raw(dsig) if dsig is not None else None
-    if dgot is not None:
+    if dsig is not None and dgot is not None:
         ddec, dvalues = dgot
         raw_dirs = _directions(ddec.plain(dvalues), dsig)
         if ddec is dec:
@@ -437,6 +437,7 @@ def _traffic(
     out["length_m"] = np.where(np.isnan(out["length_m"]), DEFAULT_LENGTH_M, out["length_m"])
     if "lane" not in ts.fields:
         tracks = pc.dictionary_encode(out["vehicle_id"]).indices.to_numpy(zero_copy_only=False)
+        assert signals.lane_from_y is not None  # mcap_signals requires it when the lane is not mapped
         out["lane"] = signals.lane_from_y.lanes(out["y_m"], tracks)
     for key, name in (("vehicle_id", "id"), ("x_m", "x"), ("v_mps", "v"), ("lane", "lane")):
         bad = out[key].is_null().to_numpy(zero_copy_only=False) if key == "vehicle_id" else np.isnan(out[key])
@@ -498,6 +499,7 @@ def _read_decoded(
     known = ", ".join(sorted({ch.topic for ch in got.channels.values()})) or "none"
     for name in ("ego_x", "ego_v", "ego_lane"):
         sig = signals.ego.get(name, signals.ego.get("ego_y"))  # ego_lane may come from ego_y (lane_from_y)
+        assert sig is not None  # mcap_signals requires ego_x, ego_v and ego_lane or ego_y
         if decoded[sig.topic] is None:
             raise Rejected(
                 f"missing required topic {sig.topic} ({name}); topics in the file: {known}; name it with "
@@ -527,6 +529,7 @@ def _read_decoded(
     }
     ego["ego_length_m"] = np.where(np.isnan(ego["ego_length_m"]), DEFAULT_LENGTH_M, ego["ego_length_m"])
     if "ego_lane" not in signals.ego:
+        assert signals.lane_from_y is not None  # mcap_signals requires it when ego_lane is not mapped
         ego["ego_lane"] = signals.lane_from_y.lanes(ego["ego_y_m"])
     ego["lc_button"], ego["lc_direction"], has_button = _button(reader, signals, warnings)
     t0 = int(base.times[0])

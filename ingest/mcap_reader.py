@@ -230,6 +230,7 @@ def read_collected(got: Collected, mapping: Mapping, warnings: list[str] | None 
         elif table is not None:
             vals = _column_floats(table.column(f(fld)), scale)
         else:
+            assert ego_msgs is not None  # decoded above when neither the columns nor the table were
             get = _getter(f(fld))
             vals = _floats([get(m) if isinstance(m, dict) else None for m in ego_msgs], scale)
         if not sorted_already:

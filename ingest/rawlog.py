@@ -37,8 +37,8 @@ class RawLog:
     # every sample (`values._vehicle_grid`); 0 when it does not
 
 
-def first_line(text: str, limit: int = 200) -> str:
-    """The first line of an error text, shortened for a one-line reason."""
+def first_line(text: str | BaseException, limit: int = 200) -> str:
+    """The first line of an error text (or of an exception's message), shortened for a one-line reason."""
     line = str(text).strip().splitlines()[0] if str(text).strip() else type(text).__name__
     return line if len(line) <= limit else line[: limit - 3] + "..."
 

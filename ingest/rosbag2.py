@@ -49,9 +49,10 @@ def is_bag_folder(path: Path) -> bool:
 
 
 def _nested(doc: dict[str, Any], *keys: str) -> Any:
+    node: Any = doc
     for k in keys:
-        doc = doc.get(k) if isinstance(doc, dict) else None
-    return doc
+        node = node.get(k) if isinstance(node, dict) else None
+    return node
 
 
 def _int(value: Any) -> int | None:

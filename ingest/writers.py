@@ -439,7 +439,7 @@ def write_mcap(
                 pending.write_until(ts)
                 w.add_message(ce, log_time=ts, data=ego_msgs[i], publish_time=ts, sequence=i)
                 w.add_message(ct, log_time=ts, data=traffic_msgs[i], publish_time=ts, sequence=i)
-                if control_msgs is not None:
+                if control_msgs is not None and cc is not None:  # cc is registered whenever there are controls
                     w.add_message(cc, log_time=ts, data=control_msgs[i], publish_time=ts, sequence=i)
                 if i in button_msgs:
                     w.add_message(cb, log_time=ts, data=button_msgs[i], publish_time=ts)

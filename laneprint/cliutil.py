@@ -111,7 +111,11 @@ def run_command(
 def progress_bar(enabled: bool = True) -> Iterator[ProgressFn]:
     """A `ProgressFn` drawing a Rich bar on stderr (silent when disabled or not a terminal under --json)."""
     if not enabled:
-        yield lambda done, total, message="": None
+
+        def silent(done: int, total: int, message: str = "") -> None:
+            return None
+
+        yield silent
         return
     bar = Progress(
         TextColumn("{task.description}"),

@@ -91,11 +91,7 @@ def field_docs(cls: type) -> dict[str, str]:
             if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)):
                 continue
             nxt = body[i + 1] if i + 1 < len(body) else None
-            if (
-                isinstance(nxt, ast.Expr)
-                and isinstance(getattr(nxt, "value", None), ast.Constant)
-                and isinstance(nxt.value.value, str)
-            ):
+            if isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant) and isinstance(nxt.value.value, str):
                 docs[node.target.id] = " ".join(inspect.cleandoc(nxt.value.value).split())
                 continue
             parts = [comments[n] for n in range(node.lineno, (node.end_lineno or node.lineno) + 1) if n in comments]
@@ -204,7 +200,8 @@ def coerce(where: str, key: str, value: Any, typ: Any) -> Any:
     origin = typing.get_origin(typ)
     if origin in (tuple, list) or any(typing.get_origin(a) in (tuple, list) for a in typing.get_args(typ)):
         if isinstance(value, tuple):
-            return list(value) if origin is list or list in map(typing.get_origin, typing.get_args(typ)) else value
+            as_list = origin is list or any(typing.get_origin(a) is list for a in typing.get_args(typ))
+            return list(value) if as_list else value
         raise UserError(f"{where}: {key} must be a list, not {value!r}")
     return value
 
@@ -328,11 +325,11 @@ def configurable(command: str, *sections: Section) -> Callable[[Callable[..., An
                     for name, (table, field) in generated.items()
                     if table == sec.table and kwargs.get(name) is not None
                 }
-                table = {
+                merged = {
                     **{k: v for k, v in tables.get(sec.table, {}).items() if sec.table != command or k not in by_key},
                     **from_command.get(sec.table, {}),
                 }
-                values[sec.table], given[sec.table] = build(sec, table, cli, where)
+                values[sec.table], given[sec.table] = build(sec, merged, cli, where)
             if takes_settings:
                 call["settings"] = Settings(values, given)
             return call

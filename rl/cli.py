@@ -301,7 +301,12 @@ def train_command(
         ws = Workspace(workspace)
         dqn, episodes = dqn_as_asked(settings)
         threads = dqn.threads if "threads" in settings.given("dqn") else None
-        fleet_opts = {"backend": backend, "ray_address": ray_address, "threads": threads, "evaluate": evaluate}
+        fleet_opts: dict[str, Any] = {
+            "backend": backend,
+            "ray_address": ray_address,
+            "threads": threads,
+            "evaluate": evaluate,
+        }
         if resume:
             if style or driver or drivers or styles:
                 raise UserError("--resume takes the run's own target: leave out --style/--driver/--drivers/--styles")
@@ -506,7 +511,7 @@ def crossval_command(
         dqn, episodes = dqn_as_asked(settings)
         if "seed" not in settings.given("dqn"):  # the folds' seed seeds the agents too
             dqn = replace(dqn, seed=cv.seed)
-        where = {"backend": backend, "ray_address": ray_address}
+        where: dict[str, Any] = {"backend": backend, "ray_address": ray_address}
         with backend_session(**where), progress_bar(not as_json) as progress:  # one Ray instance for every target
             if run:
                 if style or driver or all_styles:

@@ -506,7 +506,7 @@ def _choose_learner(
     env_config: EnvConfig,
     settings: AutoSettings,
     progress: ProgressFn | None,
-) -> tuple[Any, EnvConfig]:
+) -> tuple[DQNSettings | TreeQSettings, EnvConfig]:
     """`--learner auto`: choose across inner folds of the target's sessions (`rl.learners.choice`); the run's
     config then names the chosen learner (its settings and environment) and keeps the choice.
 
@@ -632,6 +632,7 @@ def _load_q(folder: Path, settings: LearnerSettings, env: EnvConfig) -> torch.nn
         from rl.learners.trees import TreeQNetwork
 
         return TreeQNetwork.from_state_dict(state).eval()
+    assert isinstance(settings, DQNSettings)  # an `auto` run names its chosen learner before it has weights
     net = q_network(settings.hidden, len(observation_names(env)))
     net.load_state_dict(state)
     net.eval()
@@ -845,7 +846,7 @@ def list_runs(workspace: Workspace) -> pd.DataFrame:
             continue
         status = mark_interrupted(folder, _read_json(folder / "status.json")) or {}
         ev = _read_json(folder / "evaluation.json") or {}
-        agent = next((r for r in ev.get("summary", []) if r.get("who") == "agent"), {})
+        agent: dict[str, Any] = next((r for r in ev.get("summary", []) if r.get("who") == "agent"), {})
         rows.append(
             {
                 "run_id": folder.name,

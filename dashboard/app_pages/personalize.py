@@ -24,6 +24,8 @@ def upload_session(ws) -> None:
     driver_id = c2.text_input("Driver id", key="p_driver_id", placeholder="e.g. D11")
     if not st.button("Ingest and analyse", key="p_ingest", disabled=not (file and driver_id.strip()), type="primary"):
         return
+    if file is None:  # the button is disabled without a file
+        return
     from clustering.pipeline import analyze
     from ingest.pipeline import ingest_paths
     from clustering.pipeline import stored_settings

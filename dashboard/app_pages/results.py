@@ -103,13 +103,21 @@ def held_out(ws, run_id: str, run: dict) -> None:
         if not ids:
             return
         pick = st.selectbox(
-            "Or show a stored cross-validation", ids, index=None, format_func=labels.get, key=f"cv_pick_{run_id}"
+            "Or show a stored cross-validation",
+            ids,
+            index=None,
+            format_func=labels.__getitem__,
+            key=f"cv_pick_{run_id}",
         )
         if pick is None:
             return
     else:
         pick = st.selectbox(
-            "Held-out figures from", ids, index=ids.index(default), format_func=labels.get, key=f"cv_pick_{run_id}"
+            "Held-out figures from",
+            ids,
+            index=ids.index(default),
+            format_func=labels.__getitem__,
+            key=f"cv_pick_{run_id}",
         )
     if own and pick == own.get("crossval_id"):
         result = own
@@ -307,7 +315,7 @@ def fleets(ws) -> None:
         return
     st.subheader(f"Fleets ({len(listed)})")
     labels = {r["fleet_id"]: views.fleet_label(r) for r in listed.to_dict("records")}
-    fleet_id = st.selectbox("Fleet", list(labels), format_func=labels.get, key="fleet_pick")
+    fleet_id = st.selectbox("Fleet", list(labels), format_func=labels.__getitem__, key="fleet_pick")
     table = loaders.fleet_table(root, fleet_id, key)
     st.caption(views.fleet_headline(table) + " Click a column header to sort.")
     st.dataframe(views.fleet_view(table), hide_index=True, width="stretch", key="fleet_agents")
@@ -349,7 +357,7 @@ def stored_crossvals(ws, show_one: bool) -> None:
     st.dataframe(table, hide_index=True, width="stretch")
     if show_one:
         labels = {r["crossval_id"]: views.crossval_label(r) for r in table.to_dict("records")}
-        pick = st.selectbox("Show", list(labels), format_func=labels.get, key="cv_pick_any")
+        pick = st.selectbox("Show", list(labels), format_func=labels.__getitem__, key="cv_pick_any")
         held_out_figures(loaders.crossval(str(ws.root), pick, loaders.crossvals_stamp(ws.root)), None, key="any")
 
 

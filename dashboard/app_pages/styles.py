@@ -79,9 +79,9 @@ def rerun_form(ws, current: dict) -> None:
         }
         settings = views.analysis_settings(current, **changes)
         bar = st.progress(0.0, text="Analysing...")
-        labels = views.recording_names(loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root)))
+        names = views.recording_names(loaders.recordings(str(ws.root), loaders.recordings_stamp(ws.root)))
         try:
-            analyze(ws, settings, progress_to(bar, "Analysing...", views.progress_text(labels)))
+            analyze(ws, settings, progress_to(bar, "Analysing...", views.progress_text(names)))
         except UserError as exc:  # the stage's one-line reason; keep the app alive
             bar.empty()
             st.warning(f"Analysis did not run: {exc}")

@@ -2,6 +2,7 @@
 train a fleet (an agent for every driver or every style) and follow it agent by agent;
 cross-validate a finished run (held-out figures, shown on the Results page)."""
 
+import pandas as pd
 import streamlit as st
 
 from dashboard import docs_site, jobs, loaders, training, views, widgets
@@ -247,7 +248,7 @@ def main() -> None:
         if jobs.run_status(ws, rid).get("state") in jobs.ACTIVE_STATES and not jobs.in_fleet(ws, rid)
     ]
 
-    listed: dict[str, object] = {}  # the runs table the live view drew, reused below in the same run
+    listed: dict[str, pd.DataFrame] = {}  # the runs table the live view drew, reused below in the same run
 
     @st.fragment(run_every=poll_seconds() if active else None)
     def live_runs() -> None:

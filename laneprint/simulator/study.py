@@ -75,7 +75,7 @@ def case_plan(settings: StudySettings, rng: np.random.Generator) -> list[list[st
         CASE_CANCELLED: round(settings.share_cancelled * n),
     }
     while sum(counts.values()) > n:  # tiny studies: drop untidy cases before clean ones vanish
-        counts[max(counts, key=counts.get)] -= 1
+        counts[max(counts, key=counts.__getitem__)] -= 1
     counts[CASE_CLEAN] = n - sum(counts.values())
     cases = [c for c, k in counts.items() for _ in range(k)]
     cases = [cases[i] for i in rng.permutation(len(cases))]

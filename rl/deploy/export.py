@@ -101,7 +101,7 @@ def onnx_bytes(net: torch.nn.Module, n_inputs: int, metadata: dict[str, str]) ->
         torch.onnx.export(
             _Policy(net).eval(),
             (torch.zeros(1, n_inputs),),
-            buf,
+            buf,  # type: ignore[arg-type]  # torch annotates a path only; the TorchScript exporter writes to files too
             input_names=[INPUT],
             output_names=list(OUTPUTS),
             opset_version=OPSET,
@@ -191,7 +191,7 @@ def held_back_rule(
         drivers = target_drivers(workspace, target)[0] if net is not None else None
     except UserError:
         drivers = None
-    if drivers:
+    if drivers and net is not None:  # drivers are looked up only with a net
         rule = rule.with_pace(pace_threshold(workspace, drivers, net, cfg))
     return {
         "available": True,

@@ -86,8 +86,8 @@ def lane_use(egos: Iterable[pd.DataFrame]) -> dict[str, dict[str, float]]:
     for ego in egos:
         for k, v in lane_seconds(ego).items():
             seconds[k] = seconds.get(k, 0.0) + v
-        for k, n in lane_change_pairs(ego).items():
-            pairs[k] = pairs.get(k, 0) + n
+        for pair, n in lane_change_pairs(ego).items():
+            pairs[pair] = pairs.get(pair, 0) + n
         km += driven_km(ego)
     total = sum(seconds.values())
     return {

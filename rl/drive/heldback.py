@@ -302,7 +302,7 @@ class LeftBehind:
         the Aggressive agent waited in the fast lane, its return vetoed, while the car it had changed out
         behind pulled away to 146 m ahead)."""
         st = others.get(self.leader_id)
-        return self.passed(ego_x, others, range_m) or st.v >= holding_mps
+        return self.passed(ego_x, others, range_m) or (st is not None and st.v >= holding_mps)
 
     def vetoes(self, target: int, ego_x: float, others: dict[str, Any], range_m: float, holding_mps: float) -> bool:
         """A change to `target` would return behind the leader while the overtaking is not over."""

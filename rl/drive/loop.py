@@ -385,7 +385,11 @@ class AgentControl(Watch):
             self.n_gated += 1
             agent = None
         side = None if agent is None else _side(ego.lane, agent)
-        if side in self.lag_drawn and not lag_accepted(self.rule, asked[agent][0], r, self.lag_drawn[side])[0]:
+        if (
+            agent is not None
+            and side in self.lag_drawn
+            and not lag_accepted(self.rule, asked[agent][0], r, self.lag_drawn[side])[0]
+        ):
             self.n_lagged += 1
             agent = None
         if agent is not None:

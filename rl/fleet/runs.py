@@ -89,6 +89,7 @@ def fleet_targets(workspace: Workspace, drivers: str | None = None, styles: str 
         known = sorted(table["driver_id"].astype(str).unique())
         kind, wanted = "driver", drivers
     else:
+        assert styles is not None  # exactly one of drivers and styles is given (checked above)
         known = list(dict.fromkeys(table["style"].astype(str)))
         kind, wanted = "style", styles
     names = known if wanted.strip().lower() == "all" else [n.strip() for n in wanted.split(",") if n.strip()]
@@ -157,6 +158,7 @@ def create_fleet(
         for seed in seeds:
             settings = replace(base, seed=seed)
             if env.scenes == "recorded":
+                assert counts is not None  # counted above for recorded scenes
                 if not counts.get(target):
                     raise UserError(
                         f"no recorded approaches for {target.label}: nothing to replay (try --scenes synthetic)"

@@ -234,7 +234,7 @@ def list_fleets(workspace: Workspace) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=FLEETS_COLUMNS)
 
 
-def fleet_of_pid(workspace: Workspace, pid: int) -> str | None:
+def fleet_of_pid(workspace: Workspace, pid: int | None) -> str | None:
     """The fleet whose trainer process is `pid` (a launcher knows the pid before the fleet's id)."""
     for fid in fleet_ids(workspace):
         fleet = _read_json(fleet_dir(workspace) / fid / "fleet.json") or {}

@@ -45,6 +45,7 @@ def fitted_q_data(approaches: list[Approach], cfg: EnvConfig) -> dict[str, np.nd
     approach ends). A side not taken sits `NO_PRESS_S` before a press that never comes, as
     `VecReplayEnv` replays it."""
     reward = cfg.reward
+    assert reward.pass_penalty is not None  # default resolved by RewardSettings.__post_init__
     after_press = -reward.pass_penalty + float(press_reward(np.array([cfg.dt_s]), reward)[0])
     sides = [(a.scene, a.t_s - a.press_t_s, after_press) for a in approaches]
     if cfg.other_side:
@@ -123,6 +124,7 @@ class _SharedBins(HistGradientBoostingRegressor):
     draws from `random_state` only to subsample above `_BinMapper.subsample` rows: there it bins itself."""
 
     _bins: dict[str, Any] | None = None  # the fitted bin mapper and binned states, set by the first fit
+    _bin_mapper: Any  # scikit-learn's, set by its fit (declared for the type checker)
 
     def _bin_data(self, X: Any, sample_weight: Any, is_training_data: bool) -> Any:
         shared = self._bins
@@ -224,6 +226,16 @@ class TreeQNetwork(nn.Module):
     is its own child). Its state dict is plain tensors, so a run's `weights.pt` holds it and
     `torch.onnx.export` writes it as Gather and Where operators.
     """
+
+    # the buffers registered in __init__ (declared for the type checker: nn.Module types them as Tensor | Module)
+    feature: torch.Tensor
+    threshold: torch.Tensor
+    left: torch.Tensor
+    right: torch.Tensor
+    value: torch.Tensor
+    missing_left: torch.Tensor
+    base: torch.Tensor
+    depth: torch.Tensor
 
     def __init__(
         self,

@@ -50,7 +50,7 @@ from rl.personalize.agents import (
 from rl.personalize.split import decision_order, driver_rows, first_decisions
 from clustering.pipeline import stored_settings
 from rl.personalize.style import estimate_style, fit_population
-from rl.problem.env import EnvConfig, approaches_from_decisions, formulation_config, replayed_approaches
+from rl.problem.env import Approach, EnvConfig, approaches_from_decisions, formulation_config, replayed_approaches
 from rl.problem.rewards import ReferenceLines
 from rl.runs import RunWriter, Target, create_run, evaluate_run, new_run_id, now_iso, run_dir
 from rl.settings import DQNSettings
@@ -155,15 +155,12 @@ def personalize(
     est = estimate_style(pop, own_rows, ps.n_bootstrap, seed, following)
     used_ps = ps.resolved(est.confidence)  # method 'unsure': fine-tune only when the style is unsure
     env = formulation_config(_lines(workspace, est.style), "decisions")
-    base_dqn = replace(
-        dqn,
-        seed=base_seed(seed),
-        **({"episodes": base_episodes, "episodes_per_approach": 0.0} if base_episodes else {}),
-    )
+    sized: dict[str, Any] = {"episodes": base_episodes, "episodes_per_approach": 0.0} if base_episodes else {}
+    base_dqn = replace(dqn, seed=base_seed(seed), **sized)
     own_app, _ = approaches_from_decisions(own_rows)
     if not own_app:
         raise UserError(f"none of {driver}'s first {len(used)} decisions can be replayed (no press rows)")
-    cands = {
+    cands: dict[str, dict[str, Any]] = {
         name: {"drivers": d, "key": _base_key(d, env, base_dqn, workspace.fingerprint())}
         for name, d in candidates(ps, est, pop, others).items()
     }
@@ -172,7 +169,7 @@ def personalize(
     with ExitStack() as held:
         run_id = run_id or new_run_id(target, f"personalized-k{len(used)}", seed)
         ft_settings = personalised_settings(dqn, used_ps, len(own_app), episodes)
-        base = {
+        base: dict[str, Any] = {
             "from": ps.base,
             "style": est.style,
             "chosen": first,
@@ -227,7 +224,8 @@ def personalize(
             return tick
 
         try:
-            weights, apps = {}, {}
+            weights: dict[str, dict[str, torch.Tensor]] = {}
+            apps: dict[str, list[Approach]] = {}
             for name, c in cands.items():
                 app, _ = approaches_from_decisions(decisions[decisions["driver_id"].astype(str).isin(c["drivers"])])
                 apps[name], c["n_approaches"] = app, len(app)
@@ -254,12 +252,8 @@ def personalize(
                     blend_w = blend_weights(used_ps, shares, fits)
                     scales = {n: advantage_scale(w, env, dqn, apps["population"]) for n, w in weights.items()}
                 for n, c in cands.items():
-                    base["candidates"][n].update(
-                        {
-                            "agreement": fits[n],
-                            **{x: c[x] for x in ("n_approaches", "episodes", "reused_from") if x in c},
-                        }
-                    )
+                    counted: dict[str, Any] = {x: c[x] for x in ("n_approaches", "episodes", "reused_from") if x in c}
+                    base["candidates"][n].update({"agreement": fits[n], **counted})
                     if blending:
                         base["candidates"][n].update({"weight": blend_w[n], "advantage_std": scales[n]})
                     if n != chosen:
@@ -279,16 +273,15 @@ def personalize(
                 )
                 config["dqn"]["hidden"] = list(net_dqn.hidden)  # the blended network's widths (evaluate, export)
             else:
+                counted = {
+                    x: cands[chosen][x] for x in ("n_approaches", "episodes", "reused_from") if x in cands[chosen]
+                }
                 base.update(
                     {
                         "chosen": chosen,
                         "drivers": cands[chosen]["drivers"],
                         "key": cands[chosen]["key"],
-                        **{
-                            x: cands[chosen][x]
-                            for x in ("n_approaches", "episodes", "reused_from")
-                            if x in cands[chosen]
-                        },
+                        **counted,
                     }
                 )
                 base_w, base_app = weights[chosen], apps[chosen]

@@ -50,6 +50,7 @@ value of the indicator: the indicator itself stays undefined.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import cast
 
 import numpy as np
 import pandas as pd
@@ -161,11 +162,13 @@ def closeness(error: np.ndarray, m: float, n: float) -> np.ndarray:
 def change_scores(ind: Indicators, lines: ReferenceLines, settings: RewardSettings) -> dict[str, np.ndarray]:
     """Per-indicator change score in [0, 1] (the `undefined_*` scores where undefined)."""
     ref = lines.at(ind.v_e)
+    m_ttc_s, m_dv_mps = settings.m_ttc_s, settings.m_dv_mps
+    assert m_ttc_s is not None and m_dv_mps is not None  # defaults resolved by RewardSettings.__post_init__
     out = {}
     for key, term, ok, m, n, undefined in (
-        ("t_f", "r_f", ind.t_f_ok, settings.m_ttc_s, settings.n_ttc_s, settings.undefined_t_f_score),
-        ("t_nf", "r_nf", ind.t_nf_ok, settings.m_ttc_s, settings.n_ttc_s, settings.undefined_score),
-        ("dv_nb", "r_nb", ind.dv_nb_ok, settings.m_dv_mps, settings.n_dv_mps, settings.undefined_score),
+        ("t_f", "r_f", ind.t_f_ok, m_ttc_s, settings.n_ttc_s, settings.undefined_t_f_score),
+        ("t_nf", "r_nf", ind.t_nf_ok, m_ttc_s, settings.n_ttc_s, settings.undefined_score),
+        ("dv_nb", "r_nb", ind.dv_nb_ok, m_dv_mps, settings.n_dv_mps, settings.undefined_score),
     ):
         err = np.abs(np.where(ok, getattr(ind, key), 0.0) - ref[key])
         out[term] = np.where(ok, closeness(err, m, n), undefined)
@@ -191,8 +194,10 @@ def decisions_step_reward(
     t = np.asarray(t_from_press_s, float)
     zero = np.zeros(len(is_change))
     terms = {k: zero for k in TERMS}
+    pass_penalty = settings.pass_penalty
+    assert pass_penalty is not None  # default resolved by RewardSettings.__post_init__
     terms["press"] = np.where(is_change, press_reward(t, settings), 0.0)
-    terms["pass"] = np.where(~is_change & (t >= 0), -settings.pass_penalty, 0.0)
+    terms["pass"] = np.where(~is_change & (t >= 0), -pass_penalty, 0.0)
     return terms["press"] + terms["pass"], terms
 
 
@@ -208,6 +213,8 @@ def action_terms(
     if settings.name == "paper":
         keep = {k: 1.0 - v for k, v in c.items()} | {"base": zero, "pass": zero, "late": zero, "press": zero}
     else:
+        pass_penalty = settings.pass_penalty
+        assert pass_penalty is not None  # default resolved by RewardSettings.__post_init__
         change["base"] = np.full_like(zero, -settings.change_baseline)
         acceptable = sum(c.values()) > settings.change_baseline
         keep = {
@@ -215,7 +222,7 @@ def action_terms(
             "r_nf": zero,
             "r_nb": zero,
             "base": zero,
-            "pass": np.where(acceptable, -settings.pass_penalty, 0.0),
+            "pass": np.where(acceptable, -pass_penalty, 0.0),
             "late": np.where(past_reference(ind, lines), -settings.late_penalty_per_s * dt, 0.0),
             "press": zero,
         }
@@ -227,7 +234,12 @@ def action_rewards(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Total reward of TO CHANGE and of NOT TO CHANGE for every scene."""
     change, keep = action_terms(ind, lines, settings, dt)
-    return sum(change.values()), sum(keep.values())
+    return _total(change), _total(keep)
+
+
+def _total(terms: dict[str, np.ndarray]) -> np.ndarray:
+    """The sum of named reward terms (never none: typeshed's `sum` allows the 0 of an empty sum)."""
+    return cast(np.ndarray, sum(terms.values()))
 
 
 def step_reward(
@@ -237,4 +249,4 @@ def step_reward(
     change, keep = action_terms(ind, lines, settings, dt)
     is_change = np.asarray(actions) == CHANGE
     terms = {k: np.where(is_change, change[k], keep[k]) for k in TERMS}
-    return sum(terms.values()), terms
+    return _total(terms), terms

@@ -96,6 +96,14 @@ class OnStraightRoad:
     `get_closest_lane_index` weighs the distance to each lane's centre line and the heading
     relative to it, which is the same for parallel lanes: the same lane, found without a search)."""
 
+    # attributes of the highway-env vehicle this is mixed into (declared for the type checker only)
+    road: Any
+    position: np.ndarray
+    lane_index: LaneIndex
+    lane: Any
+    target_lane_index: LaneIndex
+    timer: float
+
     def on_state_update(self) -> None:
         road = self.road
         if road:
