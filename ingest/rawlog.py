@@ -39,7 +39,9 @@ class RawLog:
 
 def first_line(text: str | BaseException, limit: int = 200) -> str:
     """The first line of an error text (or of an exception's message), shortened for a one-line reason."""
-    line = str(text).strip().splitlines()[0] if str(text).strip() else type(text).__name__
+    if not str(text).strip():  # a blank text says itself; an exception without a message, its type
+        return repr(text) if isinstance(text, str) else type(text).__name__
+    line = str(text).strip().splitlines()[0]
     return line if len(line) <= limit else line[: limit - 3] + "..."
 
 

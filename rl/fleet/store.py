@@ -236,6 +236,8 @@ def list_fleets(workspace: Workspace) -> pd.DataFrame:
 
 def fleet_of_pid(workspace: Workspace, pid: int | None) -> str | None:
     """The fleet whose trainer process is `pid` (a launcher knows the pid before the fleet's id)."""
+    if pid is None:  # a job without a pid is no fleet's (a fleet.json without one would match it)
+        return None
     for fid in fleet_ids(workspace):
         fleet = _read_json(fleet_dir(workspace) / fid / "fleet.json") or {}
         if fleet.get("pid") == pid:

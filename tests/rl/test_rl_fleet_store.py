@@ -171,6 +171,8 @@ def test_missing_fleet_and_fleet_of_pid(tmp_path):
     assert fleet_store.fleet_of_pid(ws, 4242) == "f" and fleet_store.fleet_of_pid(ws, 1) is None
     (fleet_store.fleet_dir(ws) / "f" / "fleet.json").write_text("{half")  # half-written: skipped
     assert fleet_store.list_fleets(ws).empty
+    write_fleet(ws, "g", [], pid=None)  # a fleet.json without a pid is not the fleet of a job without one
+    assert fleet_store.fleet_of_pid(ws, None) is None
 
 
 def test_a_created_fleet_reads_as_its_process(tmp_path, dead_pid, live_pid):
