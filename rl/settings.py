@@ -195,9 +195,10 @@ class AutoSettings:
     # each step 1/share larger (the same shrinkage); the trees a run keeps are fitted as `trees` says. 1: the same
     # trees inside. On the shipped study (3 styles x 2 seeds) 0.5 moved the trees' inner score by at most 0.005 (0.25:
     # up to 0.018) for half their fitting time
-    trees_beside: str = "no"  # 'no': fit the trees' inner folds first, then the DQNs (their exact score stops the
-    # DQNs sooner); 'process' (forked, Linux) or 'thread': beside the DQNs. On the busy 2-core machine neither
-    # beat 'no' (shipped study, Normal: 24-26 s against 24-36 s for either)
+    trees_beside: str = "no"  # 'no': fit the trees' inner folds first, then the DQNs; 'process' (forked, Linux) or
+    # 'thread': beside the DQNs, the first check of the DQNs' score waiting for them (the same choice, stops and
+    # weights as 'no'). On the busy 2-core machine neither beat 'no' (shipped study, Normal, load 4.5-5.5: 27 s
+    # wall and 26 s CPU for either against 25 s and 24 s)
 
     def __post_init__(self) -> None:
         if self.reach < 0 or self.reach_down < 0 or not 0 <= self.check_from <= 1 or not 0 < self.check_every <= 1:

@@ -13,8 +13,8 @@ this happens within each fold's training sessions: the held-out fold never takes
 `choose_and_fit` makes the choice at about the price of one learner: the inner folds' DQNs and the
 target's own DQN (the one kept when the DQN wins, as `fit_learner` would fit it) train as one
 batched fleet (`rl.fleet.batch.FleetTrainer`, each agent computing what `DQNTrainer` computes up to
-floating-point summation order), for every target at once (a cross-validation's outer folds), while
-the trees are fitted in a thread beside them. With `AutoSettings.stop_early`, from `check_from` of
+floating-point summation order), for every target at once (a cross-validation's outer folds), the
+trees' inner fits before them (or beside them: `AutoSettings.trees_beside`). With `AutoSettings.stop_early`, from `check_from` of
 the inner DQNs' episodes on, their pooled inner score is read every `check_every`; where the trees'
 score lies beyond that running score + `reach` (or - `reach_down`) x the share of episodes left (beyond the margin for
 the trees, within it for the DQN), the choice cannot change: the inner DQNs stop (and, when the
@@ -393,8 +393,9 @@ def choose_and_fit(
     """`choose_learner` and `fit_learner` of the chosen learner for every task, the DQNs trained as one fleet.
 
     Per task: the inner folds' DQNs and the task's own DQN (kept if the DQN wins) are members of one
-    `FleetTrainer` with every other task's; the trees' inner fits run beside them in a thread, fold after
-    fold (`AutoSettings.trees_beside`). The choice is `choose_learner`'s for the same seed (each fleet
+    `FleetTrainer` with every other task's; the trees' inner fits run first or, fold after fold, beside them
+    (`AutoSettings.trees_beside`: then a check of the DQNs' score waits for the task's trees, so that it chooses
+    and stops as it does after them, and the weights are the same). The choice is `choose_learner`'s for the same seed (each fleet
     agent computes what `DQNTrainer` does, up to floating-point summation order) unless `stop_early`
     stopped a learner that could no longer win: the inner DQNs by their running score + `reach` (- `reach_down`) x the
     share of their episodes left, the trees by what their folds still to fit could add at best (all
@@ -407,7 +408,7 @@ def choose_and_fit(
     import multiprocessing
     import sys
     import threading
-    from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
+    from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
 
     from rl.fleet.batch import FleetMember, FleetTrainer
     from rl.learners.dqn import q_network
@@ -583,6 +584,10 @@ def choose_and_fit(
                         "reach_down": round(s.reach_down * (1.0 - share), 4),
                     }
                 )
+            if beside != "no" and (t.running is not None or len(t.changes) == len(t.pairs)):
+                # the DQNs' score is in: wait for the trees beside, so that this check sees what it sees when
+                # they were fitted first ('no'), and chooses and stops as it does
+                wait([f.job.future for f in t.trees if f.job.future is not None])
             tdone = trees_done(t)
             seen = (len(tdone), len(t.changes), len(t.checks))
             if seen == t.seen:

@@ -20,7 +20,8 @@ evaluation, `drive`, `annotate` and the ONNX export read it as they read the DQN
 from __future__ import annotations
 
 import threading
-from typing import Any
+from contextlib import contextmanager
+from typing import Any, Iterator
 
 import numpy as np
 import torch
@@ -155,16 +156,34 @@ def _regressor(settings: TreeQSettings, seed: int, bins: dict[str, Any] | None =
     return model
 
 
+_ONE_THREAD = threading.local()
+
+
+@contextmanager
+def _one_thread() -> Iterator[None]:
+    """One OpenMP thread, as the imitation classifier (a busy machine's spinning thread team cost 10x), set
+    once for a whole fitted Q iteration: `threadpool_limits` looks up the loaded libraries on every call
+    (2-3 ms, about 0.2 s of an inner fold's 72 fits and predictions); nested calls keep the outer limit."""
+    if getattr(_ONE_THREAD, "depth", 0):
+        yield
+        return
+    with threadpool_limits(limits=1, user_api="openmp"):
+        _ONE_THREAD.depth = 1
+        try:
+            yield
+        finally:
+            _ONE_THREAD.depth = 0
+
+
 def _fit(
     model: HistGradientBoostingRegressor, x: np.ndarray, y: np.ndarray, weight: np.ndarray
 ) -> HistGradientBoostingRegressor:
-    # one OpenMP thread, as the imitation classifier (a busy machine's spinning thread team cost 10x)
-    with threadpool_limits(limits=1, user_api="openmp"):
+    with _one_thread():
         return model.fit(x, y, sample_weight=weight)
 
 
 def _predict(model: HistGradientBoostingRegressor, x: np.ndarray) -> np.ndarray:
-    with threadpool_limits(limits=1, user_api="openmp"):
+    with _one_thread():
         return model.predict(x)
 
 
@@ -199,15 +218,16 @@ def fit_tree_ensembles(
     weight = np.where(d["press"], settings.press_weight, 1.0)
     total = settings.iterations + 1
     bins: dict[str, Any] = {}  # every regression below fits the same states with the same weights
-    q_change = _fit(_regressor(settings, settings.seed, bins), x, d["r_change"], weight)
-    change_x = _predict(q_change, x)
-    report(progress, 1, total, label)
-    keep_x = np.zeros(len(x))
-    for it in range(settings.iterations):  # at least one (`TreeQSettings` checks)
-        target = np.where(end, d["end_keep"], settings.gamma * np.maximum(change_x[nxt], keep_x[nxt]))
-        q_keep = _fit(_regressor(settings, settings.seed + 1 + it, bins), x, target, weight)
-        keep_x = _predict(q_keep, x)
-        report(progress, it + 2, total, label)
+    with _one_thread():
+        q_change = _fit(_regressor(settings, settings.seed, bins), x, d["r_change"], weight)
+        change_x = _predict(q_change, x)
+        report(progress, 1, total, label)
+        keep_x = np.zeros(len(x))
+        for it in range(settings.iterations):  # at least one (`TreeQSettings` checks)
+            target = np.where(end, d["end_keep"], settings.gamma * np.maximum(change_x[nxt], keep_x[nxt]))
+            q_keep = _fit(_regressor(settings, settings.seed + 1 + it, bins), x, target, weight)
+            keep_x = _predict(q_keep, x)
+            report(progress, it + 2, total, label)
     return {CHANGE: q_change, KEEP: q_keep}, x[:1]
 
 
@@ -215,7 +235,8 @@ def ensemble_changes(models: dict[int, HistGradientBoostingRegressor], obs: np.n
     """Whether the greedy action of the fitted ensembles is TO CHANGE at `obs` (ties change, as `greedy_actions`),
     by scikit-learn's predictions (in double precision: `TreeQNetwork` compares single-precision observations
     with single-precision thresholds, so a state on a threshold may go the other way)."""
-    return _predict(models[CHANGE], obs) >= _predict(models[KEEP], obs)
+    with _one_thread():
+        return _predict(models[CHANGE], obs) >= _predict(models[KEEP], obs)
 
 
 class TreeQNetwork(nn.Module):

@@ -67,6 +67,28 @@ def test_what_cannot_win_stops_early_and_the_choice_says_so(study):
     assert full.net is not None and full.dqn_state is None
 
 
+@pytest.mark.slow
+def test_trees_beside_the_fleet_choose_stop_and_train_as_trees_first(study, monkeypatch):
+    import time
+
+    import rl.learners.choice as choice_module
+
+    approaches, cfg = study
+    auto = AutoSettings(dqn=DQN, trees=TreeQSettings(trees=20, iterations=2), margin=0.2, reach=0.0)
+    first = choose_and_fit([ChoiceTask(approaches, cfg, auto)])[0]
+    fit = choice_module._trees_fit
+
+    def slow_fit(*args):  # trees still fitting when the DQNs reach their first check
+        time.sleep(3.0)
+        return fit(*args)
+
+    monkeypatch.setattr(choice_module, "_trees_fit", slow_fit)
+    beside = choose_and_fit([ChoiceTask(approaches, cfg, replace(auto, trees_beside="thread"))])[0]
+    assert beside.choice == first.choice and "stopped at" in first.choice.stopped
+    for key, value in first.net.state_dict().items():
+        assert torch.equal(beside.net.state_dict()[key], value)
+
+
 def test_the_inner_trees_are_quicker_ones_with_the_same_shrinkage():
     auto = AutoSettings(trees=TreeQSettings(trees=200, learning_rate=0.05))
     assert (inner_trees(auto).trees, inner_trees(auto).learning_rate) == (100, pytest.approx(0.1))
