@@ -238,8 +238,8 @@ RESULT_TOPICS: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
         "results-speed.md",
         "Results: speed",
         "How long the stages take: a fleet against one agent at a time, the local backend against Ray, "
-        "the analysis, the simulator.",
-        ("fleet", "parallel", "analyze_speed", "simulate"),
+        "the analysis, the simulator, the test lanes.",
+        ("fleet", "parallel", "analyze_speed", "simulate", "lanes"),
     ),
     (
         "results-ingest.md",
