@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from laneprint.workspace import Workspace
 
@@ -196,6 +197,7 @@ def study_figures(ws: Workspace) -> list[tuple[str, object]]:
     return [item for sec in sections for kind, item in sec.items if kind == "figure"]
 
 
+@pytest.mark.slow  # a study of its own and the report's figures: ~6 s
 def test_every_axis_is_set_by_the_bulk_on_a_study_with_ttcs_of_minutes(sample_ws, tmp_path):
     import shutil
 

@@ -312,6 +312,7 @@ def test_the_onnx_guides_code_builds_the_observation_the_policy_was_trained_on()
         np.testing.assert_allclose(rebuilt, observation(scenes, cfg), atol=1e-6, err_msg=name)
 
 
+@pytest.mark.slow  # builds the site: ~4 s
 def test_every_dashboard_help_link_opens_a_page_and_anchor_of_the_site_it_serves(tmp_path):
     """The dashboard's "More:" links (`dashboard.docs_site.LINKS`) against the site as the dashboard builds and
     serves it (`--no-directory-urls`, one .html file per page): each page is a file, each anchor a heading id."""
