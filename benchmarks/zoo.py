@@ -51,15 +51,16 @@ def laneprint(*args: str) -> None:
     subprocess.run([str(exe), *args], check=True, stdout=subprocess.DEVNULL)
 
 
-def folder(world: str, seed: int, root: Path, shares: str = "") -> Path:
-    """Where the study of `world`, `seed` (and style `shares`, e.g. "2,4,3"; "" the world's own) is cached."""
-    return root / (f"{world}-{seed}" + (f"-shares{shares.replace(',', '')}" if shares else ""))
+def paths(world: str, seed: int, root: Path, shares: str = "") -> tuple[Path, Path]:
+    """(study folder, workspace) where the study of `world`, `seed` (and style `shares`, e.g. "2,4,3"; ""
+    the world's own) is cached."""
+    out = root / (f"{world}-{seed}" + (f"-shares{shares.replace(',', '')}" if shares else ""))
+    return out, out.with_name(out.name + ".ws")
 
 
 def study(world: str, seed: int, root: Path, shares: str = "") -> tuple[Path, Path]:
     """(study folder, workspace) of one world and seed, generated and ingested unless cached."""
-    out = folder(world, seed, root, shares)
-    ws = out.with_name(out.name + ".ws")
+    out, ws = paths(world, seed, root, shares)
     if not (out / "ground_truth.json").exists():
         extra = ["--shares", shares] if shares else []
         laneprint(
@@ -210,8 +211,8 @@ def summarise(df: pd.DataFrame) -> dict:
 
 def cached(world: str, seed: int, root: Path, shares: str = "") -> bool:
     """Whether the study of `world` and `seed` is generated, ingested and its decisions extracted under `root`."""
-    out = folder(world, seed, root, shares)
-    return (out / "ground_truth.json").exists() and (out.with_name(out.name + ".ws") / "zoo_decisions.parquet").exists()
+    out, ws = paths(world, seed, root, shares)
+    return (out / "ground_truth.json").exists() and (ws / "zoo_decisions.parquet").exists()
 
 
 def run(
