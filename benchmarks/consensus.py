@@ -4,12 +4,13 @@ On the zoo of worlds (`benchmarks/zoo.py`, studies cached under `--root`), every
 readings are ranked once as `--features separated` ranks them (`clustering.choice.ranked_readings`);
 then each variant of the consensus (the N best readings vote, cut by average or complete
 linkage; N = 1 is `separated` itself) reads the drivers, and its ARI against the study's truth is
-recorded; '<variant>/no-v_free' is the same without the readings of the free speed. A variant is
+recorded; '<variant>/no-v_free' is the same without the readings of the free speed, '/no-lc_rate' without
+those of the lane-change rate. A variant is
 chosen only if it reads the study shipped in `sample_logs/` right (ARI 1: the acceptance asks it). The leave-one-world-out table gives, for each world, the variant with the best mean ARI
 on the *other* worlds and its ARI on this one. Written to `benchmarks/results/<--out>` with the
 command, commit, date and machine.
 
-Run: .venv/bin/python benchmarks/consensus.py [--worlds highway-2,...] [--seeds 9001 9101 ...]
+Run: .venv/bin/python benchmarks/consensus.py [--worlds highway-2,...] [--seeds 9001 9101 ...] [--shares 'world;2,4,3']
 """
 
 from __future__ import annotations
@@ -40,9 +41,9 @@ VARIANTS: dict[str, tuple[int, str, float]] = (
 SHIPPED = Path(__file__).resolve().parent.parent / "sample_logs"
 
 
-def ranked(world: str, seed: int, root: Path) -> tuple[dict[str, str], list]:
-    """(truth, readings best first) of one cached study."""
-    out, ws = zoo.study(world, seed, root)
+def ranked(world: str, seed: int, root: Path, shares: str = "") -> tuple[dict[str, str], list]:
+    """(truth, readings best first) of one cached study (style `shares` "2,4,3"; "" the world's own)."""
+    out, ws = zoo.study(world, seed, root, shares)
     return ranked_study(out, ws)
 
 
@@ -74,7 +75,7 @@ def ranked_study(out: Path, ws: Path) -> tuple[dict[str, str], list]:
 
 
 #: Behaviour parameters a variant can do without: '<variant>/no-<param>' drops every reading of it.
-WITHOUT: tuple[str, ...] = ("v_free",)
+WITHOUT: tuple[str, ...] = ("v_free", "lc_rate")
 
 
 def without(scores: list, param: str) -> list:
@@ -114,25 +115,33 @@ def main() -> None:
     ap.add_argument("--root", type=Path, default=Path("/tmp/laneprint-zoo"), help="where studies are cached")
     ap.add_argument("--out", default="analysis_consensus_dev.json", help="file name under benchmarks/results/")
     ap.add_argument("--cached-only", action="store_true", help="only the studies already generated under --root")
+    ap.add_argument(
+        "--shares",
+        default="world",
+        help="style groups of the studies, ';'-separated: 'world' (each world's own) and/or D,N,A e.g. '2,4,3'",
+    )
     args = ap.parse_args()
     worlds = list(zoo.WORLDS) if args.worlds == "all" else args.worlds.split(",")
     truth, scores = shipped(args.root)
     on_shipped = variant_aris(truth, scores)
+    shares_list = ["" if s == "world" else s for s in args.shares.split(";")]
     rows = []
     for world in worlds:
         for seed in args.seeds:
-            if args.cached_only and not zoo.cached(world, seed, args.root):
-                continue
-            t0 = time.perf_counter()
-            try:
-                truth, scores = ranked(world, seed, args.root)
-            except Exception as exc:  # a study that cannot be generated is reported, the rest go on
-                print(f"  {world} seed {seed}: {exc}", flush=True)
-                continue
-            rows += [
-                {"world": world, "seed": seed, "variant": v, "ari": a} for v, a in variant_aris(truth, scores).items()
-            ]
-            print(f"  {world:<18} seed {seed:5d}  ({time.perf_counter() - t0:.0f} s)", flush=True)
+            for shares in shares_list:
+                if args.cached_only and not zoo.cached(world, seed, args.root, shares):
+                    continue
+                t0 = time.perf_counter()
+                try:
+                    truth, scores = ranked(world, seed, args.root, shares)
+                except Exception as exc:  # a study that cannot be generated is reported, the rest go on
+                    print(f"  {world} seed {seed}: {exc}", flush=True)
+                    continue
+                rows += [
+                    {"world": world, "seed": seed, "shares": shares or "world", "variant": v, "ari": a}
+                    for v, a in variant_aris(truth, scores).items()
+                ]
+                print(f"  {world:<18} seed {seed:5d} {shares}  ({time.perf_counter() - t0:.0f} s)", flush=True)
     df = pd.DataFrame(rows)
     per = df.groupby(["variant", "world"]).ari.agg(mean_ari="mean", min_ari="min", seeds="count").reset_index()
     means = per.pivot(index="variant", columns="world", values="mean_ari")
@@ -156,6 +165,10 @@ def main() -> None:
         {
             "worlds": worlds,
             "seeds": args.seeds,
+            "shares": args.shares,
+            "per_study": df.pivot_table(index=["world", "seed", "shares"], columns="variant", values="ari")
+            .reset_index()
+            .to_dict("records"),
             "variants": {k: list(v) for k, v in VARIANTS.items()},
             "per_world": per.to_dict("records"),
             "overall": overall.reset_index().to_dict("records"),

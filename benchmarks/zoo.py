@@ -71,20 +71,6 @@ def study(world: str, seed: int, root: Path, shares: str = "") -> tuple[Path, Pa
     return out, ws
 
 
-def with_free_speed(dec: pd.DataFrame, workspace) -> pd.DataFrame:
-    """`dec` with the column `ego_v_free_mps` as the extraction now writes it, read from the recordings."""
-    from indicators.speed import free_speed
-
-    free = {
-        str(meta["recording_id"]): free_speed(ego["ego_v_mps"].to_numpy(dtype=float))
-        for meta, ego, _ in workspace.iter_recordings()
-    }
-    pos = dec.columns.get_loc("ego_v_mps") + 1
-    dec = dec.copy()
-    dec.insert(pos, "ego_v_free_mps", dec["recording_id"].astype(str).map(free).astype(float))
-    return dec
-
-
 def decisions_of(ws: Path) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
     """The workspace's decisions and following episodes (cached beside it) and its drivers."""
     from clustering.pipeline import extract_all
@@ -96,10 +82,8 @@ def decisions_of(ws: Path) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
     drivers = sorted(w.recordings()["driver_id"].astype(str).unique())
     if cache_d.exists() and cache_f.exists():
         dec = pd.read_parquet(cache_d)
-        if "ego_v_free_mps" not in dec:  # cached before the decisions carried the free speed
-            dec = with_free_speed(dec, w)
-            dec.to_parquet(cache_d)
-        return dec, pd.read_parquet(cache_f), drivers
+        if "drive_s" in dec:  # else cached before the decisions carried the drive time: extracted again
+            return dec, pd.read_parquet(cache_f), drivers
     dec, _, _, following = extract_all(w, AnalysisSettings())
     dec.to_parquet(cache_d)
     following.to_parquet(cache_f)

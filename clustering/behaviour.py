@@ -31,7 +31,12 @@ The **headway kept while following** (`thw_follow`, `indicators.following`) is r
 them: the lower quartile of the driver's steady-following headways, its standard error
 bootstrapped over episodes. So is the **free speed** (`v_free`): the speed the driver drives
 at when nothing holds it back (`indicators.speed.free_speed`), as a share of the posted
-limit, the median over its recordings, its standard error bootstrapped over recordings.
+limit, the median over its recordings, its standard error bootstrapped over recordings. And so
+is the **lane-change rate** (`lc_rate`): the driver's presses per minute of driving, pooled over
+its recordings (each press once, whatever its not-yet states), its standard error bootstrapped
+over recordings. How often a driver asks to change lanes in the same traffic is a classic mark
+of its style; a recording with no press yields no decisions, so the rate is that of the drives
+in which the driver pressed at all.
 
 Everything here is pure: frames in, frames and small dataclasses out.
 """
@@ -56,14 +61,15 @@ VARIABLES: dict[str, tuple[str, int, float, str, str]] = {
 DRIVE_PARAMETERS: dict[str, tuple[str, str]] = {
     "thw_follow": ("s", "time headway kept while following a leader"),
     "v_free": ("x limit", "free speed, as a share of the posted limit"),
+    "lc_rate": ("/min", "lane-change presses per minute of driving"),
 }
 #: The behaviour parameters a driver is read by: the critical value of each decision variable
 #: and the headway kept while following.
 PARAMETERS: tuple[str, ...] = tuple(VARIABLES) + tuple(DRIVE_PARAMETERS)
 #: Parameters that measure the room a driver needs (larger = more defensive), for naming styles.
 ROOM_PARAMETERS: tuple[str, ...] = ("thw_nb", "gap_nf", "t_nf", "thw_follow")
-#: Parameters that read larger = bolder (a faster free speed), for naming styles.
-BOLD_PARAMETERS: tuple[str, ...] = ("v_free",)
+#: Parameters that read larger = bolder (a faster free speed, more lane changes), for naming styles.
+BOLD_PARAMETERS: tuple[str, ...] = ("v_free", "lc_rate")
 #: Prefix of a behaviour reading's name (`laneprint analyze --features behaviour:thw_nb+thw_follow`).
 BEHAVIOUR = "behaviour:"
 #: Standard deviation of the partial-pooling prior of a driver's log critical value.
@@ -338,6 +344,38 @@ def free_speed_parameter(
     return value, se, count
 
 
+def change_rate_parameter(
+    decisions: pd.DataFrame, drivers: list[str], seed: int = 0
+) -> tuple[pd.Series, pd.Series, pd.Series]:
+    """(log presses per minute of driving, its bootstrap SE over recordings, recordings) per driver,
+    pooled over its recordings. NaN with fewer than `_MIN_RECORDINGS` recordings, and for every
+    driver when the decisions carry no drive time (extracted before they did)."""
+    value = pd.Series(np.nan, index=drivers, dtype=float)
+    se = pd.Series(np.nan, index=drivers, dtype=float)
+    count = pd.Series(0, index=drivers, dtype=int)
+    if "drive_s" not in decisions or decisions.empty:
+        return value, se, count
+    presses = decisions[decisions["label"] == "change"].groupby("recording_id")["decision_id"].nunique()
+    per_rec = decisions.groupby("recording_id", sort=True).agg(
+        driver_id=("driver_id", "first"), minutes=("drive_s", "first")
+    )
+    per_rec = per_rec.assign(presses=presses.reindex(per_rec.index).fillna(0), minutes=per_rec["minutes"] / 60.0)
+    per_rec = per_rec[np.isfinite(per_rec["minutes"]) & (per_rec["minutes"] > 0)]
+    rng = np.random.default_rng(seed)
+    for drv, grp in per_rec.groupby(per_rec["driver_id"].astype(str)):
+        if drv not in value.index:
+            continue
+        n, t = grp["presses"].to_numpy(dtype=float), grp["minutes"].to_numpy(dtype=float)
+        count[drv] = len(n)
+        if len(n) < _MIN_RECORDINGS or n.sum() <= 0:
+            continue
+        value[drv] = float(np.log(n.sum() / t.sum()))
+        draw = rng.integers(0, len(n), (_FOLLOW_BOOT, len(n)))
+        boots = np.log(np.maximum(n[draw].sum(axis=1), 0.5) / t[draw].sum(axis=1))
+        se[drv] = float(max(np.std(boots), 1e-3))
+    return value, se, count
+
+
 @dataclass(frozen=True)
 class Behaviour:
     """Every driver's behaviour parameters (log units) with standard errors."""
@@ -346,7 +384,7 @@ class Behaviour:
     se: pd.DataFrame  # same shape
     presses: pd.Series  # presses per driver
     defined: pd.DataFrame  # driver x PARAMETERS: presses (episodes for thw_follow, recordings for
-    # v_free) that inform each
+    # v_free and lc_rate) that inform each
     model: GapModel | None
 
     def in_units(self) -> pd.DataFrame:
@@ -383,4 +421,8 @@ def driver_behaviour(
     values["v_free"] = free
     se["v_free"] = free_se
     defined["v_free"] = recordings
+    rate, rate_se, rated = change_rate_parameter(decisions, drivers, seed)
+    values["lc_rate"] = rate
+    se["lc_rate"] = rate_se
+    defined["lc_rate"] = rated
     return Behaviour(values, se, presses, defined, model)

@@ -10,7 +10,7 @@ Two kinds of reading compete on the same held-out criterion (`clustering.reading
 
 `--features heldout` takes whichever predicts held-out behaviour best; `--features behaviour`
 only the behaviour readings; a set name or `behaviour:<params>` that reading alone.
-`--features consensus`, the default, reads the styles the three best separated and most stable
+`--features consensus`, the default, reads the styles the five best separated and most stable
 readings of either kind agree on (`clustering.consensus`); `--features separated` takes the one
 best of them (no margin for any); `--features reliable` the two behaviour parameters the drivers
 differ in most reliably; 'auto' the choice among indicator sets by silhouette x stability
@@ -328,6 +328,8 @@ def column(param: str) -> str:
         return "kept_thw_follow_s"
     if param == "v_free":
         return "drive_v_free_share"
+    if param == "lc_rate":
+        return "drive_lc_rate_permin"
     return f"crit_{param}_{'m' if VARIABLES[param][3] == 'm' else 's'}"
 
 
@@ -414,6 +416,7 @@ _WORDS = {
     "t_f": "wants out at a TTC to its leader of {v:.2g} s",
     "thw_follow": "follows at {v:.2g} s",
     "v_free": "drives free at {v:.0%} of the limit",
+    "lc_rate": "asks for a lane change {v:.2g} times a minute",
 }
 
 

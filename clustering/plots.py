@@ -32,9 +32,9 @@ def style_color(style: str, i: int = 0) -> str:
     return STYLE_COLORS.get(style, _EXTRA_COLORS[i % len(_EXTRA_COLORS)])
 
 
-_FEATURE_UNITS = {"s": "s", "m": "m", "mps": "m/s", "share": "x limit"}
+_FEATURE_UNITS = {"s": "s", "m": "m", "mps": "m/s", "share": "x limit", "permin": "/min"}
 #: Prefixes of the behaviour parameters' columns, and what each reads.
-_BEHAVIOUR_PREFIXES = {"crit_": "critical value", "kept_": "kept while following", "drive_": "when free"}
+_BEHAVIOUR_PREFIXES = {"crit_": "critical value", "kept_": "kept while following", "drive_": "over the drive"}
 
 
 #: Features that are a level over the whole drive, not a line read at a speed.

@@ -72,6 +72,7 @@ OTHER_SIDE = Schema(
 #: Columns added to the DECISIONS contract by this stage.
 EXTRA_COLUMNS: tuple[str, ...] = (
     "ego_v_free_mps",  # the ego's free speed over its recording [m/s] (`indicators.speed.free_speed`)
+    "drive_s",  # how long its recording drove [s]: the exposure of the lane-change rate (`clustering.behaviour`)
     "press_index",
     "lc_direction",
     "lane_change_t_s",
@@ -93,6 +94,7 @@ def empty_decisions() -> pd.DataFrame:
     cols.update(
         {
             "ego_v_free_mps": pd.Series(dtype="float64"),
+            "drive_s": pd.Series(dtype="float64"),
             "press_index": pd.Series(dtype="int64"),
             "lc_direction": pd.Series(dtype="object"),
             "lane_change_t_s": pd.Series(dtype="float64"),
@@ -411,6 +413,7 @@ def extract_decisions(
             "speed_limit_kph": _float_or_nan(meta.get("speed_limit_kph")),
             "ego_v_mps": v_e,
             "ego_v_free_mps": free_speed(ego["ego_v_mps"].to_numpy(dtype=float)),
+            "drive_s": float(ego["t_s"].iloc[-1] - ego["t_s"].iloc[0]),
             "ego_x_m": e["ego_x_m"].to_numpy(dtype=float),
             "ego_lane": e["ego_lane"].to_numpy(dtype=np.int64),
             "target_lane": p["target_lane"].to_numpy(dtype=np.int64),

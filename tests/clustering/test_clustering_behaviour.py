@@ -198,3 +198,42 @@ def test_faster_free_speed_reads_bolder():
     clf = StyleClusterer(k=3, random_state=0, room=["v_free"]).fit(X)
     names = dict(zip(X.index, (clf.names_[i] for i in clf.labels_)))
     assert names["a"] == names["b"] == "Defensive" and names["e"] == names["f"] == "Aggressive"
+
+
+def rate_decisions(presses: dict[str, list[int]], minutes: float = 5.0) -> pd.DataFrame:
+    """Per recording, `presses` presses (each with one not-yet state before it) in `minutes` of driving."""
+    rows = []
+    for d, counts in presses.items():
+        for i, n in enumerate(counts):
+            for j in range(n):
+                for label in ("keep", "change"):
+                    rows.append(
+                        {
+                            "driver_id": d,
+                            "recording_id": f"{d}-{i}",
+                            "session_id": f"{d}_S{i}",
+                            "decision_id": f"{d}-{i}:{j}",
+                            "label": label,
+                            "drive_s": 60.0 * minutes,
+                        }
+                    )
+    return pd.DataFrame(rows)
+
+
+def test_lane_change_rate_is_presses_per_minute_pooled_over_recordings():
+    d = rate_decisions({"calm": [2, 3, 5], "sporty": [20, 30], "once": [10]})
+    value, se, recordings = B.change_rate_parameter(d, ["calm", "sporty", "once", "absent"])
+    assert np.exp(value["calm"]) == pytest.approx(10 / 15) and np.exp(value["sporty"]) == pytest.approx(50 / 10)
+    assert se["calm"] > 0 and recordings.to_dict() == {"calm": 3, "sporty": 2, "once": 1, "absent": 0}
+    assert np.isnan(value["once"]) and np.isnan(value["absent"])  # one recording says nothing of a spread
+    old = d.drop(columns="drive_s")  # extracted before the decisions carried the drive time
+    assert B.change_rate_parameter(old, ["calm"])[0].isna().all()
+
+
+def test_more_lane_changes_read_bolder():
+    from clustering.styles import StyleClusterer
+
+    X = pd.DataFrame({"lc_rate": np.log([0.5, 0.55, 2.0, 2.1, 6.0, 6.3])}, index=list("abcdef"))
+    clf = StyleClusterer(k=3, random_state=0, room=["lc_rate"]).fit(X)
+    names = dict(zip(X.index, (clf.names_[i] for i in clf.labels_)))
+    assert names["a"] == names["b"] == "Defensive" and names["e"] == names["f"] == "Aggressive"
