@@ -18,7 +18,8 @@ every style of the study).
 
 Quick by default (`--episodes 2000`: every agent capped at 2,000 episodes, one repeat, train only
 with `--quick`); `--full` takes the study's episodes (30 per recorded approach), and `--repeats 3`
-medians over three. Written to `benchmarks/results/learners.json` (`--out`) with the command,
+medians over three; `--seeds 0,1,2` runs every command once per training seed (the medians are over
+seeds and repeats, the balanced accuracy its mean over them). Written to `benchmarks/results/learners.json` (`--out`) with the command,
 commit, date and machine, and the held-out / in-sample figures of each command, so a faster
 learner choice that chose differently shows.
 
@@ -151,12 +152,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         for study in args.studies:
             ws = workspace(root, study, cache, args.sumo_seed)
             styles[study] = style = study_style(ws, args.style)
-            for repeat in range(args.repeats):
+            for repeat, seed in ((r, sd) for sd in args.seeds for r in range(args.repeats)):
                 for code_name, code in codes.items():
                     for command in args.commands:
                         for learner in args.learners:
                             target = ["--all"] if command == "crossval-all" else ["--style", style]
-                            opts = [*target, "--learner", learner, "--seed", str(args.seed), "-w", str(ws)]
+                            opts = [*target, "--learner", learner, "--seed", str(seed), "-w", str(ws)]
                             if args.episodes:
                                 opts += ["--config", str(capped)]
                             if command != "train" and args.folds:
@@ -170,6 +171,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                                     "command": command,
                                     "learner": learner,
                                     "repeat": repeat,
+                                    "seed": seed,
                                     "wall_s": round(wall, 1),
                                 }
                             )
@@ -196,6 +198,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                     for lr in args.learners
                 }
                 ratio = round(m["auto"] / m["dqn"], 2) if "auto" in m and "dqn" in m else None
+                held = {
+                    lr: _mean_held_out(
+                        [
+                            r
+                            for r in rows
+                            if (r["study"], r["code"], r["command"], r["learner"]) == (study, code_name, command, lr)
+                        ]
+                    )
+                    for lr in args.learners
+                }
                 medians.append(
                     {
                         "study": study,
@@ -204,6 +216,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                         "command": command,
                         "median_s": m,
                         "auto_over_dqn": ratio,
+                        "mean_balanced_accuracy_over_seeds": held,
                     }
                 )
     result = {
@@ -212,7 +225,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "studies": args.studies,
         "sumo_seed": args.sumo_seed,
         "style": args.style,
-        "seed": args.seed,
+        "seeds": args.seeds,
         "episodes": args.episodes or "the study's",
         "folds": args.folds or "crossval's default",
         "repeats": args.repeats,
@@ -227,9 +240,21 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             f"  {m['study']:<8} {m['code']:<5} {m['command']:<12} "
             + "  ".join(f"{lr} {s:6.1f}" for lr, s in m["median_s"].items())
             + (f"   auto/dqn {m['auto_over_dqn']:.2f}" if m["auto_over_dqn"] else "")
+            + "   balanced accuracy "
+            + "  ".join(f"{lr} {v:.3f}" for lr, v in m["mean_balanced_accuracy_over_seeds"].items() if v is not None)
         )
     print(f"written to {out}")
     return result
+
+
+def _mean_held_out(runs: list[dict[str, Any]]) -> float | None:
+    """Mean balanced accuracy of `runs` (held out for crossval, pooled over styles with --all; in-sample for
+    train), over seeds and repeats."""
+    values: list[float] = []
+    for r in runs:
+        v = r.get("held_out_balanced_accuracy", r.get("in_sample_balanced_accuracy"))
+        values += [x for x in (v if isinstance(v, list) else [v]) if x is not None]
+    return round(sum(values) / len(values), 4) if values else None
 
 
 def _commit(path: Path) -> str:
@@ -249,7 +274,12 @@ def main() -> None:
     p.add_argument("--full", action="store_true", help="the study's episodes (30 per recorded approach)")
     p.add_argument("--quick", action="store_true", help="train only")
     p.add_argument("--folds", type=int, default=0, help="crossval's folds (0: its default)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--seeds",
+        type=lambda s: [int(x) for x in s.split(",")],
+        default=[0],
+        help="training seeds, e.g. 0,1,2: every command runs once per seed (and repeat)",
+    )
     p.add_argument("--base", help="another laneprint checkout, timed side by side (before / after)")
     p.add_argument("--out", default="learners.json")
     p.add_argument(
