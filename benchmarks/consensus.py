@@ -35,6 +35,12 @@ VARIANTS: dict[str, tuple[int, str, float]] = (
     | {f"top{n}-{link}": (n, link, 0.0) for n in (3, 5, 8, 99) for link in ("average", "complete")}
     | {f"top{n}-complete-floor{f}": (n, "complete", f) for n in (5, 8) for f in (0.3, 0.5)}
 )
+#: Variants whose voters share no parameter: a reading that reads a parameter a better one already reads
+#: does not vote (the headway at the press, the headway while following and the reading of both are not
+#: three opinions).
+DISJOINT: dict[str, tuple[int, str, float]] = {
+    f"top{n}-{link}-disjoint": (n, link, 0.0) for n in (3, 5) for link in ("average", "complete")
+}
 
 
 #: The study shipped in `sample_logs/`: a variant must read it right (ARI 1) to be chosen.
@@ -86,11 +92,24 @@ def without(scores: list, param: str) -> list:
 def variant_aris(truth: dict[str, str], scores: list) -> dict[str, float]:
     """Every variant's ARI on one study, and each one's without every parameter of `WITHOUT`."""
     out = {}
-    for name, (n, link, floor) in VARIANTS.items():
-        out[name] = variant_ari(truth, scores, n, link, floor)
+    for name, (n, link, floor) in (VARIANTS | DISJOINT).items():
+        pick = disjoint if name in DISJOINT else list
+        out[name] = variant_ari(truth, pick(scores), n, link, floor)
         for param in WITHOUT:
-            out[f"{name}/no-{param}"] = variant_ari(truth, without(scores, param), n, link, floor)
+            out[f"{name}/no-{param}"] = variant_ari(truth, pick(without(scores, param)), n, link, floor)
     return out
+
+
+def disjoint(scores: list) -> list:
+    """The readings, best first, that share no parameter with a better reading kept before them."""
+    kept, used = [], set()
+    for r in scores:
+        params = set(r.parameters)
+        if params & used:
+            continue
+        kept.append(r)
+        used |= params
+    return kept
 
 
 def variant_ari(truth: dict[str, str], scores: list, voters: int, method: str, floor: float = 0.0, k: int = 3) -> float:
@@ -169,7 +188,7 @@ def main() -> None:
             "per_study": df.pivot_table(index=["world", "seed", "shares"], columns="variant", values="ari")
             .reset_index()
             .to_dict("records"),
-            "variants": {k: list(v) for k, v in VARIANTS.items()},
+            "variants": {k: list(v) for k, v in (VARIANTS | DISJOINT).items()},
             "per_world": per.to_dict("records"),
             "overall": overall.reset_index().to_dict("records"),
             "leave_one_world_out": lowo,
