@@ -406,7 +406,9 @@ def driver_behaviour(
     data = decision_data(decisions)
     keep = np.isin(data.driver, drivers)
     data = subset(data, keep)
-    if (data.y > 0).any():
+    # a critical gap lies between the gaps taken and the gaps let pass: with no not-yet state in the
+    # table nothing places it (a driver with few pools with the others), and the critical values stay NaN
+    if (data.y > 0).any() and (data.y == 0).any():
         model = fit_gap_model(data, data.driver)
         for k, drv in enumerate(model.groups):
             values.loc[drv, list(VARIABLES)] = model.mu[k]

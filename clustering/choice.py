@@ -246,10 +246,13 @@ def choose_consensus(
     The voters are the plausible readings. The styles' centres sit in the space of the behaviour
     parameters the voters read (every usable one if only indicator sets voted), where drivers
     with too few presses to place a centre are assigned and each driver's estimates are drawn
-    for its confidence. With `settings.choose_k` ('silhouette' or 'bic' alike), the readings are
+    for its confidence; with no usable behaviour parameter (a table without not-yet states) the
+    drivers are read as by `choose_separated`. With `settings.choose_k` ('silhouette' or 'bic' alike), the readings are
     made at every k of `settings.k_range` and the k whose voters are best separated and most stable
     (their mean silhouette x stability, the score that ranks them) is kept; its scores per k are the
     clusterer's `k_scores_`."""
+    if not usable_parameters(behaviour, fit_on):
+        return choose_separated(points, drivers, fit_on, n_dec, behaviour, settings)
     if settings.choose_k:
         lo, hi = settings.k_range
         ks = list(range(max(lo, 2), min(hi, len(fit_on) - 1) + 1)) or [settings.k]

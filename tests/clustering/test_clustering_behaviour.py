@@ -74,6 +74,16 @@ def test_few_presses_give_wide_errors_and_are_pooled():
     assert b.se.loc["few", "thw_nb"] > 2 * b.se.loc["many", "thw_nb"]
 
 
+def test_critical_values_need_gaps_let_pass():
+    """A table of presses only (no not-yet state) does not place a critical gap: the values stay NaN."""
+    d = gap_world({"calm": 2.5, "sporty": 0.5}, approaches=40)
+    b = B.driver_behaviour(d[d["label"] == "change"], None, ["calm", "sporty"])
+    assert b.values[list(B.VARIABLES)].isna().all().all() and (b.presses == 0).all()
+    assert B.driver_behaviour(d, None, ["calm", "sporty"]).in_units().loc["calm", "thw_nb"] == pytest.approx(
+        2.5, rel=0.25
+    )
+
+
 @pytest.mark.slow
 def test_heldout_choice_prefers_the_parameter_that_tells_styles_apart():
     truth = (
