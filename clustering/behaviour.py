@@ -43,6 +43,7 @@ Everything here is pure: frames in, frames and small dataclasses out.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -315,33 +316,19 @@ def free_speed_parameter(
     """(log free speed over the posted limit, its bootstrap SE over recordings, recordings) per
     driver: the median over the driver's recordings. NaN with fewer than `_MIN_RECORDINGS`
     recordings, and for every driver when a recording has no posted limit."""
-    value = pd.Series(np.nan, index=drivers, dtype=float)
-    se = pd.Series(np.nan, index=drivers, dtype=float)
-    count = pd.Series(0, index=drivers, dtype=int)
     if "ego_v_free_mps" not in decisions or decisions.empty:
-        return value, se, count  # decisions extracted before the free speed was
+        return _no_values(drivers)  # decisions extracted before the free speed was
     per_rec = decisions.groupby("recording_id", sort=True).agg(
         driver_id=("driver_id", "first"), v=("ego_v_free_mps", "first"), limit=("speed_limit_kph", "first")
     )
     limit = per_rec["limit"].to_numpy(dtype=float) / 3.6
     v = per_rec["v"].to_numpy(dtype=float)
     if not np.all(np.isfinite(limit) & (limit > 0)):
-        return value, se, count
+        return _no_values(drivers)
     with np.errstate(invalid="ignore", divide="ignore"):
         x = np.log(v / limit)
     per_rec = per_rec.assign(x=x)[np.isfinite(x)]
-    rng = np.random.default_rng(seed)
-    for drv, grp in per_rec.groupby(per_rec["driver_id"].astype(str)):
-        if drv not in value.index:
-            continue
-        xs = grp["x"].to_numpy(dtype=float)
-        count[drv] = len(xs)
-        if len(xs) < _MIN_RECORDINGS:
-            continue
-        value[drv] = float(np.median(xs))
-        boots = np.median(xs[rng.integers(0, len(xs), (_FOLLOW_BOOT, len(xs)))], axis=1)
-        se[drv] = float(max(np.std(boots), 1e-3))
-    return value, se, count
+    return _over_recordings(per_rec, drivers, lambda g, idx: np.median(g["x"].to_numpy(dtype=float)[idx], axis=1), seed)
 
 
 def change_rate_parameter(
@@ -350,29 +337,49 @@ def change_rate_parameter(
     """(log presses per minute of driving, its bootstrap SE over recordings, recordings) per driver,
     pooled over its recordings. NaN with fewer than `_MIN_RECORDINGS` recordings, and for every
     driver when the decisions carry no drive time (extracted before they did)."""
-    value = pd.Series(np.nan, index=drivers, dtype=float)
-    se = pd.Series(np.nan, index=drivers, dtype=float)
-    count = pd.Series(0, index=drivers, dtype=int)
     if "drive_s" not in decisions or decisions.empty:
-        return value, se, count
+        return _no_values(drivers)
     presses = decisions[decisions["label"] == "change"].groupby("recording_id")["decision_id"].nunique()
     per_rec = decisions.groupby("recording_id", sort=True).agg(
         driver_id=("driver_id", "first"), minutes=("drive_s", "first")
     )
     per_rec = per_rec.assign(presses=presses.reindex(per_rec.index).fillna(0), minutes=per_rec["minutes"] / 60.0)
     per_rec = per_rec[np.isfinite(per_rec["minutes"]) & (per_rec["minutes"] > 0)]
+    per_rec = per_rec[per_rec.groupby("driver_id")["presses"].transform("sum") > 0]  # a rate of 0 has no log
+
+    def rate(g: pd.DataFrame, idx: np.ndarray) -> np.ndarray:
+        n, t = g["presses"].to_numpy(dtype=float), g["minutes"].to_numpy(dtype=float)
+        return np.log(np.maximum(n[idx].sum(axis=1), 0.5) / t[idx].sum(axis=1))  # a draw of no press: half of one
+
+    return _over_recordings(per_rec, drivers, rate, seed)
+
+
+def _no_values(drivers: list[str]) -> tuple[pd.Series, pd.Series, pd.Series]:
+    """(value, SE, count) of a drive parameter no driver has."""
+    nan = pd.Series(np.nan, index=drivers, dtype=float)
+    return nan, nan.copy(), pd.Series(0, index=drivers, dtype=int)
+
+
+def _over_recordings(
+    per_rec: pd.DataFrame,
+    drivers: list[str],
+    estimate: Callable[[pd.DataFrame, np.ndarray], np.ndarray],
+    seed: int,
+) -> tuple[pd.Series, pd.Series, pd.Series]:
+    """(value, bootstrap SE over recordings, recordings) per driver from one row per recording:
+    `estimate(rows, idx)` is the value of the driver's recordings drawn in each row of `idx`
+    (draws x recordings). NaN with fewer than `_MIN_RECORDINGS` recordings."""
+    value, se, count = _no_values(drivers)
     rng = np.random.default_rng(seed)
     for drv, grp in per_rec.groupby(per_rec["driver_id"].astype(str)):
         if drv not in value.index:
             continue
-        n, t = grp["presses"].to_numpy(dtype=float), grp["minutes"].to_numpy(dtype=float)
-        count[drv] = len(n)
-        if len(n) < _MIN_RECORDINGS or n.sum() <= 0:
+        m = len(grp)
+        count[drv] = m
+        if m < _MIN_RECORDINGS:
             continue
-        value[drv] = float(np.log(n.sum() / t.sum()))
-        draw = rng.integers(0, len(n), (_FOLLOW_BOOT, len(n)))
-        boots = np.log(np.maximum(n[draw].sum(axis=1), 0.5) / t[draw].sum(axis=1))
-        se[drv] = float(max(np.std(boots), 1e-3))
+        value[drv] = float(estimate(grp, np.arange(m)[None, :])[0])
+        se[drv] = float(max(np.std(estimate(grp, rng.integers(0, m, (_FOLLOW_BOOT, m)))), 1e-3))
     return value, se, count
 
 

@@ -201,11 +201,16 @@ def test_free_speed_needs_every_recordings_limit():
     assert B.free_speed_parameter(old, ["a"])[0].isna().all()
 
 
-def test_faster_free_speed_reads_bolder():
+@pytest.mark.parametrize(
+    "param, values",
+    [("v_free", [0.9, 0.91, 1.0, 1.01, 1.1, 1.11]), ("lc_rate", [0.5, 0.55, 2.0, 2.1, 6.0, 6.3])],
+)
+def test_larger_drive_parameters_read_bolder(param, values):
+    """A faster free speed and more lane changes name a driver bolder (`BOLD_PARAMETERS`)."""
     from clustering.styles import StyleClusterer
 
-    X = pd.DataFrame({"v_free": np.log([0.9, 0.91, 1.0, 1.01, 1.1, 1.11])}, index=list("abcdef"))
-    clf = StyleClusterer(k=3, random_state=0, room=["v_free"]).fit(X)
+    X = pd.DataFrame({param: np.log(values)}, index=list("abcdef"))
+    clf = StyleClusterer(k=3, random_state=0, room=[param]).fit(X)
     names = dict(zip(X.index, (clf.names_[i] for i in clf.labels_)))
     assert names["a"] == names["b"] == "Defensive" and names["e"] == names["f"] == "Aggressive"
 
@@ -238,12 +243,3 @@ def test_lane_change_rate_is_presses_per_minute_pooled_over_recordings():
     assert np.isnan(value["once"]) and np.isnan(value["absent"])  # one recording says nothing of a spread
     old = d.drop(columns="drive_s")  # extracted before the decisions carried the drive time
     assert B.change_rate_parameter(old, ["calm"])[0].isna().all()
-
-
-def test_more_lane_changes_read_bolder():
-    from clustering.styles import StyleClusterer
-
-    X = pd.DataFrame({"lc_rate": np.log([0.5, 0.55, 2.0, 2.1, 6.0, 6.3])}, index=list("abcdef"))
-    clf = StyleClusterer(k=3, random_state=0, room=["lc_rate"]).fit(X)
-    names = dict(zip(X.index, (clf.names_[i] for i in clf.labels_)))
-    assert names["a"] == names["b"] == "Defensive" and names["e"] == names["f"] == "Aggressive"
