@@ -5,7 +5,8 @@ readings are ranked once as `--features separated` ranks them (`clustering.choic
 then each variant of the consensus (the N best readings vote, cut by average or complete
 linkage; N = 1 is `separated` itself) reads the drivers, and its ARI against the study's truth is
 recorded; '<variant>/no-v_free' is the same without the readings of the free speed, '/no-lc_rate' without
-those of the lane-change rate. A variant is
+those of the lane-change rate; '-disjoint' variants let only voters that share no parameter with a better
+one vote, '-shared' ones let every parameter speak once (`shared_weights`). A variant is
 chosen only if it reads the study shipped in `sample_logs/` right (ARI 1: the acceptance asks it). The leave-one-world-out table gives, for each world, the variant with the best mean ARI
 on the *other* worlds and its ARI on this one. Written to `benchmarks/results/<--out>` with the
 command, commit, date and machine.
@@ -19,6 +20,7 @@ import argparse
 import json
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 import pandas as pd
@@ -41,6 +43,12 @@ VARIANTS: dict[str, tuple[int, str, float]] = (
 DISJOINT: dict[str, tuple[int, str, float]] = {
     f"top{n}-{link}-disjoint": (n, link, 0.0) for n in (3, 5) for link in ("average", "complete")
 }
+#: Variants whose voters share their parameters' say: each voter's weight times the mean over its parameters
+#: of 1 / (the number of voters reading that parameter), so a parameter read by three voters speaks once.
+SHARED: dict[str, tuple[int, str, float]] = {
+    f"top{n}-{link}-shared": (n, link, 0.0) for n in (3, 5, 8) for link in ("average", "complete")
+}
+ALL_VARIANTS = VARIANTS | DISJOINT | SHARED
 
 
 #: The study shipped in `sample_logs/`: a variant must read it right (ARI 1) to be chosen.
@@ -92,11 +100,12 @@ def without(scores: list, param: str) -> list:
 def variant_aris(truth: dict[str, str], scores: list) -> dict[str, float]:
     """Every variant's ARI on one study, and each one's without every parameter of `WITHOUT`."""
     out = {}
-    for name, (n, link, floor) in (VARIANTS | DISJOINT).items():
+    for name, (n, link, floor) in ALL_VARIANTS.items():
         pick = disjoint if name in DISJOINT else list
-        out[name] = variant_ari(truth, pick(scores), n, link, floor)
+        share = name in SHARED
+        out[name] = variant_ari(truth, pick(scores), n, link, floor, shared=share)
         for param in WITHOUT:
-            out[f"{name}/no-{param}"] = variant_ari(truth, pick(without(scores, param)), n, link, floor)
+            out[f"{name}/no-{param}"] = variant_ari(truth, pick(without(scores, param)), n, link, floor, shared=share)
     return out
 
 
@@ -112,7 +121,23 @@ def disjoint(scores: list) -> list:
     return kept
 
 
-def variant_ari(truth: dict[str, str], scores: list, voters: int, method: str, floor: float = 0.0, k: int = 3) -> float:
+def shared_weights(voting: list) -> list[float]:
+    """Each voter's weight times the mean over its parameters of 1 / (voters reading that parameter)."""
+    from clustering.consensus import weight
+
+    readers = Counter(p for r in voting for p in r.parameters)
+    return [weight(r) * float(sum(1 / readers[p] for p in r.parameters) / len(r.parameters)) for r in voting]
+
+
+def variant_ari(
+    truth: dict[str, str],
+    scores: list,
+    voters: int,
+    method: str,
+    floor: float = 0.0,
+    k: int = 3,
+    shared: bool = False,
+) -> float:
     from clustering.consensus import consensus_groups, weight
 
     if not scores:
@@ -122,7 +147,7 @@ def variant_ari(truth: dict[str, str], scores: list, voters: int, method: str, f
     if len(voting) == 1:
         labels = [voting[0].labels[d] for d in drivers]
     else:
-        labels = list(consensus_groups(voting, drivers, k, method))
+        labels = list(consensus_groups(voting, drivers, k, method, shared_weights(voting) if shared else None))
     keep = [i for i, d in enumerate(drivers) if d in truth]
     return float(adjusted_rand_score([truth[drivers[i]] for i in keep], [labels[i] for i in keep]))
 
@@ -188,7 +213,7 @@ def main() -> None:
             "per_study": df.pivot_table(index=["world", "seed", "shares"], columns="variant", values="ari")
             .reset_index()
             .to_dict("records"),
-            "variants": {k: list(v) for k, v in (VARIANTS | DISJOINT).items()},
+            "variants": {k: list(v) for k, v in ALL_VARIANTS.items()},
             "per_world": per.to_dict("records"),
             "overall": overall.reset_index().to_dict("records"),
             "leave_one_world_out": lowo,

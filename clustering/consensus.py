@@ -48,13 +48,15 @@ def weight(reading: ReadingScore) -> float:
     return max(float(reading.silhouette) * stab, 0.0) if np.isfinite(reading.silhouette) else 0.0
 
 
-def co_association(readings: Sequence[ReadingScore], drivers: list[str]) -> np.ndarray:
+def co_association(
+    readings: Sequence[ReadingScore], drivers: list[str], weights: Sequence[float] | None = None
+) -> np.ndarray:
     """Weighted share of the readings (among those that read both) that put each pair of
-    `drivers` in the same style (1 on the diagonal)."""
+    `drivers` in the same style (1 on the diagonal); each reading weighs its `weight` unless
+    `weights` are given."""
     n = len(drivers)
     together, seen = np.zeros((n, n)), np.zeros((n, n))
-    for r in readings:
-        w = weight(r)
+    for r, w in zip(readings, weights if weights is not None else [weight(r) for r in readings]):
         rows = np.array([i for i, d in enumerate(drivers) if d in r.labels], dtype=int)
         if w <= 0 or len(rows) == 0:
             continue
@@ -66,11 +68,17 @@ def co_association(readings: Sequence[ReadingScore], drivers: list[str]) -> np.n
     return out
 
 
-def consensus_groups(readings: Sequence[ReadingScore], drivers: list[str], k: int, method: str = LINKAGE) -> np.ndarray:
+def consensus_groups(
+    readings: Sequence[ReadingScore],
+    drivers: list[str],
+    k: int,
+    method: str = LINKAGE,
+    weights: Sequence[float] | None = None,
+) -> np.ndarray:
     """Group (0 .. k-1, unnamed) of every driver: `method` linkage on 1 - co-association, cut at k."""
     if len(drivers) <= k:
         return np.arange(len(drivers))
-    distance = 1.0 - co_association(readings, drivers)
+    distance = 1.0 - co_association(readings, drivers, weights)
     tree = linkage(squareform(distance, checks=False), method=method)
     return fcluster(tree, k, criterion="maxclust") - 1
 

@@ -145,6 +145,18 @@ def test_reliability_tells_a_trait_from_noise():
     assert R.most_reliable(b, drivers, 2)[0] == "thw_nb"
 
 
+def test_a_parameter_counted_but_valued_for_few_drivers_is_not_usable():
+    from dataclasses import replace
+
+    _, drivers, b = _three_styles_with_a_noise_variable()
+    values, defined = b.values.copy(), b.defined.copy()
+    defined["thw_follow"] = 2  # every driver has following episodes ...
+    values["thw_follow"] = np.nan  # ... but too few to read a headway from, for all but two
+    values.loc[drivers[:2], "thw_follow"] = 0.0
+    usable = R.usable_parameters(replace(b, values=values, defined=defined), drivers)
+    assert "thw_follow" not in usable and "thw_nb" in usable
+
+
 def test_separated_reads_the_styles_by_the_parameter_that_separates_them(monkeypatch):
     from indicators.settings import AnalysisSettings
 
