@@ -24,8 +24,8 @@ from clustering.styles import style_names
 
 #: How many of the best separated readings vote, with no floor, cut by average linkage: chosen one world
 #: out among the variants that read the shipped study right (`benchmarks/consensus.py`).
-CONSENSUS_READINGS = 5
-#: A reading scoring under this share of the best one's silhouette x stability does not vote (0: the five
+CONSENSUS_READINGS = 3
+#: A reading scoring under this share of the best one's silhouette x stability does not vote (0: the three
 #: best all vote; a floor keeps readings of parameters the data hardly inform from outvoting a clear one
 #: when more vote).
 VOTE_FLOOR = 0.0
