@@ -339,6 +339,7 @@ def main() -> None:
         action="store_true",
         help="judge only the studies already generated under --zoo-root (generate none)",
     )
+    ap.add_argument("--zoo-jobs", type=int, default=1, help="studies judged at a time (one process each)")
     ap.add_argument("--out", default="analysis", help="result file name under benchmarks/results/ (sections 1-5)")
     args = ap.parse_args()
     if args.zoo:
@@ -353,6 +354,7 @@ def main() -> None:
             args.zoo_out,
             args.zoo_cached_only,
             tuple("" if part in ("", "world") else part for part in args.zoo_shares.split(";")),
+            args.zoo_jobs,
         )
         return
     figures: dict = {}

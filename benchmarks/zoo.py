@@ -22,6 +22,8 @@ import json
 import subprocess
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import nullcontext
 from pathlib import Path
 
 import pandas as pd
@@ -207,27 +209,31 @@ def run(
     out_name: str,
     cached_only: bool = False,
     shares: tuple[str, ...] = ("",),
+    jobs: int = 1,
 ) -> dict:
-    """Judge every method on every (world, seed), generating what is not cached (`cached_only`: skip it)."""
+    """Judge every method on every (world, seed), generating what is not cached (`cached_only`: skip it),
+    `jobs` studies at a time (each in its own process; the rows are the same as one at a time)."""
     root.mkdir(parents=True, exist_ok=True)
-    rows = []
+    todo = []
     for world, share, seed in ((w, sh, s) for w in worlds for sh in shares for s in seeds):
         if cached_only and not cached(world, seed, root, share):
             print(f"  {world:<18} seed {seed:5d} {share} not generated yet: left out", flush=True)
             continue
-        t0 = time.perf_counter()
-        try:
-            rows += judge(world, seed, root, methods, share)
-        except subprocess.CalledProcessError as exc:
-            print(f"  {world} seed {seed} {share}: generation failed ({exc})", flush=True)
-            continue
-        last = [r for r in rows if r["world"] == world and r["seed"] == seed and r["shares"] == (share or "world")]
-        print(
-            f"  {world:<18} seed {seed:5d} {share:6s}"
-            + "  ".join(f"{m} {next(r['ari'] for r in last if r['method'] == m):.2f}" for m in methods)
-            + f"  ({time.perf_counter() - t0:.0f} s)",
-            flush=True,
-        )
+        todo.append((world, seed, root, methods, share))
+    rows = []
+    with ProcessPoolExecutor(max_workers=jobs) if jobs > 1 else nullcontext() as pool:
+        results = pool.map(_timed_judge, todo) if pool else map(_timed_judge, todo)
+        for (world, seed, _, _, share), (study_rows, seconds) in zip(todo, results):
+            if study_rows is None:
+                print(f"  {world} seed {seed} {share}: generation failed", flush=True)
+                continue
+            rows += study_rows
+            print(
+                f"  {world:<18} seed {seed:5d} {share:6s}"
+                + "  ".join(f"{m} {next(r['ari'] for r in study_rows if r['method'] == m):.2f}" for m in methods)
+                + f"  ({seconds:.0f} s)",
+                flush=True,
+            )
     df = pd.DataFrame(rows)
     df["right"] = df["style"] == df["truth"]
     result = {
@@ -241,6 +247,15 @@ def run(
     write_result(out_name, result)
     print_tables(result)
     return result
+
+
+def _timed_judge(task: tuple) -> tuple[list[dict] | None, float]:
+    """`judge(*task)` and its seconds; None for a study that could not be generated."""
+    t0 = time.perf_counter()
+    try:
+        return judge(*task), time.perf_counter() - t0
+    except subprocess.CalledProcessError:
+        return None, time.perf_counter() - t0
 
 
 def print_tables(result: dict) -> None:
