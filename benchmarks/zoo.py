@@ -223,9 +223,9 @@ def run(
     rows = []
     with ProcessPoolExecutor(max_workers=jobs) if jobs > 1 else nullcontext() as pool:
         results = pool.map(_timed_judge, todo) if pool else map(_timed_judge, todo)
-        for (world, seed, _, _, share), (study_rows, seconds) in zip(todo, results):
+        for (world, seed, _, _, share), (study_rows, seconds, error) in zip(todo, results):
             if study_rows is None:
-                print(f"  {world} seed {seed} {share}: generation failed", flush=True)
+                print(f"  {world} seed {seed} {share}: generation failed ({error})", flush=True)
                 continue
             rows += study_rows
             print(
@@ -249,13 +249,13 @@ def run(
     return result
 
 
-def _timed_judge(task: tuple) -> tuple[list[dict] | None, float]:
-    """`judge(*task)` and its seconds; None for a study that could not be generated."""
+def _timed_judge(task: tuple) -> tuple[list[dict] | None, float, str]:
+    """(`judge(*task)`, its seconds, ""); (None, seconds, why) for a study that could not be generated."""
     t0 = time.perf_counter()
     try:
-        return judge(*task), time.perf_counter() - t0
-    except subprocess.CalledProcessError:
-        return None, time.perf_counter() - t0
+        return judge(*task), time.perf_counter() - t0, ""
+    except subprocess.CalledProcessError as exc:
+        return None, time.perf_counter() - t0, str(exc)
 
 
 def print_tables(result: dict) -> None:

@@ -183,7 +183,7 @@ def usable_parameters(behaviour: Behaviour, drivers: list[str]) -> tuple[str, ..
     """Parameters estimated (informed by the data, and a value given) for most of `drivers`: the headway
     kept while following is counted from one episode but valued only from a few, so
     a driver can have episodes and no value."""
-    informed = (behaviour.defined.loc[drivers] > 0) & behaviour.values.loc[drivers, list(PARAMETERS)].notna()
+    informed = (behaviour.defined.loc[drivers] > 0) & behaviour.values.loc[drivers].notna()
     return tuple(p for p in PARAMETERS if informed[p].mean() >= 1 - MAX_MISSING)
 
 
