@@ -195,16 +195,20 @@ class AutoSettings:
     # each step 1/share larger (the same shrinkage); the trees a run keeps are fitted as `trees` says. 1: the same
     # trees inside. On the shipped study (3 styles x 2 seeds) 0.5 moved the trees' inner score by at most 0.005 (0.25:
     # up to 0.018) for half their fitting time
-    trees_beside: str = "no"  # 'no': fit the trees' inner folds first, then the DQNs; 'process' (forked, Linux) or
-    # 'thread': beside the DQNs, the first check of the DQNs' score waiting for them (the same choice, stops and
-    # weights as 'no'). On the busy 2-core machine neither beat 'no' (shipped study, Normal, load 4.5-5.5: 27 s
-    # wall and 26 s CPU for either against 25 s and 24 s)
+    trees_beside: str = "process"  # 'process' (forked; Linux, else 'no') or 'thread': fit the trees' inner folds
+    # beside the DQNs, on the other core; the DQNs' running scores wait for the trees' and are settled against them
+    # in order, so the choice, its stops and the weights are those of 'no': the trees' inner folds first, then the
+    # DQNs (which leaves a core idle all along: torch and the trees each run one thread)
+    fleet_threads: int = 2  # torch threads of the choice's fleet while two or more DQNs train and no tree fit
+    # runs (capped at the machine's cores; the lone DQN left at the end runs on `dqn.threads`, quicker for one net)
 
     def __post_init__(self) -> None:
         if self.reach < 0 or self.reach_down < 0 or not 0 <= self.check_from <= 1 or not 0 < self.check_every <= 1:
             raise ValueError("auto needs reach >= 0, reach_down >= 0, check_from in [0, 1] and check_every in (0, 1]")
         if not 0 < self.inner_trees <= 1:
             raise ValueError("auto needs inner_trees in (0, 1]")
+        if self.fleet_threads < 1:
+            raise ValueError("auto needs fleet_threads >= 1")
         if self.trees_beside not in ("process", "thread", "no"):
             raise ValueError(f"trees_beside must be 'process', 'thread' or 'no', not {self.trees_beside!r}")
 
@@ -222,13 +226,23 @@ class AutoSettings:
             "check_every": self.check_every,
             "inner_trees": self.inner_trees,
             "trees_beside": self.trees_beside,
+            "fleet_threads": self.fleet_threads,
         }
 
     @staticmethod
     def from_dict(d: dict[str, Any]) -> "AutoSettings":
         extra = {
             k: d[k]
-            for k in ("stop_early", "reach", "reach_down", "check_from", "check_every", "inner_trees", "trees_beside")
+            for k in (
+                "stop_early",
+                "reach",
+                "reach_down",
+                "check_from",
+                "check_every",
+                "inner_trees",
+                "trees_beside",
+                "fleet_threads",
+            )
             if k in d
         }
         return AutoSettings(

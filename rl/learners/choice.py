@@ -279,7 +279,10 @@ class _Target:
     choice: Choice | None = None
     next_check: float = 0.0
     running: tuple[float, float, float, dict[int, np.ndarray]] | None = None  # DQN (score, reach, share, changes)
-    seen: tuple[int, ...] = ()  # what `check` last looked at
+    seen: tuple[int, ...] = ()  # what `check` last noted
+    notes: list[tuple[dict[int, np.ndarray], Any, int]] = field(default_factory=list)  # the DQNs' (changes,
+    # running, checks so far)
+    # not yet settled against the trees (fitted beside: notes wait for them)
     checks: list[dict[str, float]] = field(default_factory=list)
     fitted: Fitted | None = None
     trees_net: Any = None  # future of the chosen trees' fit on all approaches
@@ -296,8 +299,16 @@ _STOP_EVENTS: list[Any] = []
 
 
 def _trees_worker(events: list[Any]) -> None:
-    """Initialise a trees worker process (`AutoSettings.trees_beside='process'`)."""
+    """Initialise a trees worker process (`AutoSettings.trees_beside='process'`): it dies with its parent (a
+    killed run leaves no fit running)."""
+    import ctypes
+    import signal
+
     _STOP_EVENTS[:] = events
+    try:
+        ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG (Linux: the only platform forked here)
+    except (OSError, AttributeError):  # pragma: no cover
+        pass
 
 
 def _trees_fit(
@@ -353,16 +364,6 @@ class _Part:
         return self.job.future.result()[self.index]
 
 
-def _bounds(
-    done: dict[int, tuple[np.ndarray, ...]], held: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
-) -> tuple[tuple[float, dict[str, float]], tuple[float, dict[str, float]]]:
-    """The lowest and highest pooled scores a learner can end with, given its held-out changes of the pairs
-    `done`: every other pair all wrong, or all right (equal once every pair is done)."""
-    worst = [done[i] if i in done else (y == 0, y, left) for i, (_, y, left) in enumerate(held)]
-    best = [done[i] if i in done else (y == 1, y, left) for i, (_, y, left) in enumerate(held)]
-    return _pooled(worst), _pooled(best)
-
-
 def _gain(trees: float, dqn: float) -> float:
     return float(np.nan_to_num(trees, nan=-1.0) - np.nan_to_num(dqn, nan=-1.0))
 
@@ -393,22 +394,25 @@ def choose_and_fit(
     """`choose_learner` and `fit_learner` of the chosen learner for every task, the DQNs trained as one fleet.
 
     Per task: the inner folds' DQNs and the task's own DQN (kept if the DQN wins) are members of one
-    `FleetTrainer` with every other task's; the trees' inner fits run first or, fold after fold, beside them
-    (`AutoSettings.trees_beside`: then a check of the DQNs' score waits for the task's trees, so that it chooses
-    and stops as it does after them, and the weights are the same). The choice is `choose_learner`'s for the same seed (each fleet
-    agent computes what `DQNTrainer` does, up to floating-point summation order) unless `stop_early`
-    stopped a learner that could no longer win: the inner DQNs by their running score + `reach` (- `reach_down`) x the
-    share of their episodes left, the trees by what their folds still to fit could add at best (all
-    right) or at worst (all wrong). The stored scores are then the ones that settled it (the DQNs'
-    running score, the trees' bound) and `Choice.stopped` says so. `fit_trees`: also fit the trees on all
-    approaches where they win (a run fits them itself, with its own status). `keep_state`: each task's DQN
-    comes with its complete state (`Fitted.dqn_state`, a run's checkpoint); off, with its network only. `progress` is told the
-    phase: inner folds, scenes, training (episodes summed over the fleet, the trees' folds), evaluation.
+    `FleetTrainer` with every other task's; the trees' inner fits run first or beside them
+    (`AutoSettings.trees_beside`: then the DQNs' running scores wait for the task's trees and are settled in
+    order, so that it chooses and stops as it does after them, and the weights are the same). The choice is
+    `choose_learner`'s for the same seed (each fleet agent computes what `DQNTrainer` does, up to floating-point
+    summation order) unless `stop_early` stopped the inner DQNs once they could no longer change it (their
+    running score + `reach` (- `reach_down`) x the share of their episodes left). The stored scores are then the
+    ones that settled it (the DQNs' running score) and `Choice.stopped` says so. `fit_trees`: also fit the
+    trees on all approaches where they win (a run fits them itself, with its own status). `keep_state`: each
+    task's DQN comes with its complete state (`Fitted.dqn_state`, a run's checkpoint); off, with its network
+    only. `progress` is told the phase: inner folds, scenes, training (episodes summed over the fleet, the
+    trees' folds), evaluation.
     """
     import multiprocessing
+    import os
     import sys
     import threading
-    from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
+    from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
+
+    import torch
 
     from rl.fleet.batch import FleetMember, FleetTrainer
     from rl.learners.dqn import q_network
@@ -453,7 +457,7 @@ def choose_and_fit(
     trees_total = len(jobs)
     beside = tasks[0].settings.trees_beside if trees_total else "no"
     if beside == "process" and sys.platform != "linux":
-        beside = "thread"  # a forked copy of this process is safe on Linux only
+        beside = "no"  # a forked copy of this process is safe on Linux only (a thread would share the interpreter)
     pool: Executor
     if beside == "process":  # the other core, without the interpreter's lock: a forked copy of this process (no
         # imports to repeat, no main module to run again), before the fleet has run a torch operation
@@ -528,6 +532,7 @@ def choose_and_fit(
             dqn: tuple[float, dict[str, float]],
             trees: tuple[float, dict[str, float]],
             stopped: list[str],
+            checks: int,
         ) -> None:
             t.choice = Choice(
                 learner,
@@ -537,7 +542,7 @@ def choose_and_fit(
                 len(t.pairs),
                 {"dqn": dqn[1], "trees": trees[1]},
                 f"{learner} chosen: {'; '.join(stopped)}" if stopped else "",
-                t.checks,
+                t.checks[:checks],
             )
             drop = {
                 m
@@ -562,8 +567,9 @@ def choose_and_fit(
             fleet.drop(drop)
 
         def check(t: _Target) -> None:
-            """Decide `t` once both learners' inner scores are in, or (`stop_early`) once the one still
-            learning cannot change the choice."""
+            """Note what the DQNs say of `t` (their running score at each check, each finished inner DQN) and,
+            once `t`'s trees are in, settle `t` at the first of those notes that decides it: the trees fitted
+            beside decide where they would have decided fitted first ('no'), however late they come in."""
             if t.choice is not None:
                 return
             s = t.settings
@@ -584,44 +590,47 @@ def choose_and_fit(
                         "reach_down": round(s.reach_down * (1.0 - share), 4),
                     }
                 )
-            if beside != "no" and (t.running is not None or len(t.changes) == len(t.pairs)):
-                # the DQNs' score is in: wait for the trees beside, so that this check sees what it sees when
-                # they were fitted first ('no'), and chooses and stops as it does
-                wait([f.job.future for f in t.trees if f.job.future is not None])
+            seen = (len(t.changes), len(t.checks))
+            complete = len(t.changes) == len(t.pairs)
+            if seen != t.seen and (complete or (s.stop_early and t.running is not None)):
+                t.seen = seen
+                t.notes.append((dict(t.changes), t.running, len(t.checks)))
             tdone = trees_done(t)
-            seen = (len(tdone), len(t.changes), len(t.checks))
-            if seen == t.seen:
+            if len(tdone) < len(t.pairs):  # fitted beside: still fitting
                 return
-            t.seen = seen
-            (t_lo, t_lo_side), (t_hi, t_hi_side) = _bounds(tdone, t.held)
-            if len(t.changes) == len(t.pairs):
-                d = d_lo = d_hi = _pooled([(t.changes[i], *t.held[i][1:]) for i in range(len(t.pairs))])
-                dqn_note = ""
-            elif t.running is not None:
-                score, reach, share, now = t.running
+            trees = _pooled([tdone[i] for i in range(len(t.pairs))])
+            while t.notes and t.choice is None:
+                settle(t, *t.notes.pop(0), trees)
+
+        def settle(
+            t: _Target,
+            changes: dict[int, np.ndarray],
+            running: tuple[float, float, float, dict[int, np.ndarray]] | None,
+            checks: int,
+            trees: tuple[float, dict[str, float]],
+        ) -> None:
+            """Decide `t` if the DQNs' note (`changes` of the finished inner DQNs, the `running` check, the first
+            `checks` checks) and the
+            trees' score settle it: both scores complete, or the DQNs' interval out of reach."""
+            s = t.settings
+            if len(changes) == len(t.pairs):
+                d = _pooled([(changes[i], *t.held[i][1:]) for i in range(len(t.pairs))])
+                d_lo = d_hi = d[0]
+                note = ""
+            else:
+                assert running is not None
+                score, reach, share, now = running
                 down = s.reach_down * (1.0 - share)
-                d = _pooled([({**t.changes, **now}[i], *t.held[i][1:]) for i in range(len(t.pairs))])
-                d_lo, d_hi = (score - down, d[1]), (score + reach, d[1])
-                dqn_note = (
+                d = _pooled([({**changes, **now}[i], *t.held[i][1:]) for i in range(len(t.pairs))])
+                d_lo, d_hi = score - down, score + reach
+                note = (
                     f"the inner DQNs stopped at {100 * share:.0f} % of their episodes (running score "
                     f"{score:.3f}, still to rise by up to {reach:.3f} or fall by {down:.3f})"
                 )
-            else:
-                return
-            trees_note = (
-                ""
-                if len(tdone) == len(t.pairs)
-                else (
-                    f"the trees stopped after {len(tdone)}/{len(t.pairs)} folds (score between {t_lo:.3f} and {t_hi:.3f})"
-                )
-            )
-            complete = not dqn_note and not trees_note
-            if not complete and not s.stop_early:
-                return
-            if _gain(t_lo, d_hi[0]) > s.margin:  # the trees win whatever is left
-                decide(t, "trees", d, (t_lo, t_lo_side), [n for n in (dqn_note, trees_note) if n])
-            elif _gain(t_hi, d_lo[0]) <= s.margin:  # the DQN wins whatever is left
-                decide(t, "dqn", d, (t_hi, t_hi_side), [n for n in (dqn_note, trees_note) if n])
+            if _gain(trees[0], d_hi) > s.margin:  # the trees win whatever is left
+                decide(t, "trees", d, trees, [note] if note else [], checks)
+            elif _gain(trees[0], d_lo) <= s.margin:  # the DQN wins whatever is left
+                decide(t, "dqn", d, trees, [note] if note else [], checks)
 
         def on_vector_step(f: FleetTrainer) -> bool:
             for t in targets:
@@ -630,6 +639,10 @@ def choose_and_fit(
             total = sum(d if m in gone else episodes[m] for m, d in enumerate(done))
             trees = sum(job.future.done() for job in jobs)
             chosen = sum(t.choice is not None for t in targets)
+            fitting = trees < trees_total or any(t.trees_net is not None and not t.trees_net.done() for t in targets)
+            threads = fleet_threads if len(f.agents) >= 2 and not fitting else lone_threads
+            if threads != torch.get_num_threads():  # the spare core to the stack once no tree fit needs it
+                torch.set_num_threads(threads)
             report(
                 progress,
                 sum(done),
@@ -639,7 +652,12 @@ def choose_and_fit(
             )
             return False
 
-        fleet.train(on_episode=on_episode, on_finish=on_finish, on_vector_step=on_vector_step)
+        lone_threads = members[0].settings.threads
+        fleet_threads = max(lone_threads, min(tasks[0].settings.fleet_threads, os.cpu_count() or 1))
+        try:
+            fleet.train(on_episode=on_episode, on_finish=on_finish, on_vector_step=on_vector_step)
+        finally:
+            torch.set_num_threads(lone_threads)
         for t in targets:  # the trees still fitting: fold by fold, until they settle the choice
             while t.choice is None:
                 report(

@@ -3,12 +3,14 @@ the chosen DQN of `fit_learner`, and what cannot win stopped early."""
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
 
+import rl.learners.choice as choice_module
 from rl.baselines.imitation import labelled_states
 from rl.learners.choice import ChoiceTask, choose_and_fit, choose_learner, chosen_settings, fit_learner, inner_trees
 from rl.problem.env import approaches_from_decisions, formulation_config
@@ -67,26 +69,27 @@ def test_what_cannot_win_stops_early_and_the_choice_says_so(study):
     assert full.net is not None and full.dqn_state is None
 
 
+_TREES_FIT = choice_module._trees_fit
+
+
+def _slow_trees_fit(*args):
+    """The trees still fitting when the DQNs reach their first check (a module function: a process pickles it)."""
+    time.sleep(3.0)
+    return _TREES_FIT(*args)
+
+
 @pytest.mark.slow
-def test_trees_beside_the_fleet_choose_stop_and_train_as_trees_first(study, monkeypatch):
-    import time
-
-    import rl.learners.choice as choice_module
-
+@pytest.mark.parametrize("beside", ["thread", "process"])
+def test_trees_beside_the_fleet_choose_stop_and_train_as_trees_first(study, monkeypatch, beside):
     approaches, cfg = study
-    auto = AutoSettings(dqn=DQN, trees=TreeQSettings(trees=20, iterations=2), margin=0.2, reach=0.0)
+    auto = AutoSettings(dqn=DQN, trees=TreeQSettings(trees=20, iterations=2), margin=0.2, reach=0.0, trees_beside="no")
     first = choose_and_fit([ChoiceTask(approaches, cfg, auto)])[0]
-    fit = choice_module._trees_fit
-
-    def slow_fit(*args):  # trees still fitting when the DQNs reach their first check
-        time.sleep(3.0)
-        return fit(*args)
-
-    monkeypatch.setattr(choice_module, "_trees_fit", slow_fit)
-    beside = choose_and_fit([ChoiceTask(approaches, cfg, replace(auto, trees_beside="thread"))])[0]
-    assert beside.choice == first.choice and "stopped at" in first.choice.stopped
+    monkeypatch.setattr(choice_module, "_trees_fit", _slow_trees_fit)
+    fitted = choose_and_fit([ChoiceTask(approaches, cfg, replace(auto, trees_beside=beside))])[0]
+    assert fitted.choice == first.choice and "stopped at" in first.choice.stopped
+    assert len(fitted.choice.checks) == 1  # the checks up to the one that settled it, not those made while waiting
     for key, value in first.net.state_dict().items():
-        assert torch.equal(beside.net.state_dict()[key], value)
+        assert torch.equal(fitted.net.state_dict()[key], value)
 
 
 def test_the_inner_trees_are_quicker_ones_with_the_same_shrinkage():

@@ -69,12 +69,13 @@ LEARNERS = {
         ["--learner", "trees"],
         [("fitting the tree Q functions", 0), ("tree Q fitted", 2), ("evaluating", 0)],
     ),
-    # four sessions: inner folds, the trees chosen. During the trees' inner fits, during the inner DQNs'
-    # training, half way through the chosen trees' fit on every approach
+    # four sessions: inner folds, the trees chosen. As the fleet starts (the trees' inner fits beside it, in a
+    # forked process that dies with the run), during the inner DQNs' training, half way through the chosen
+    # trees' fit on every approach
     "auto": (
         "sessions",
         ["--learner", "auto", "--episodes", "120", *FAST_CLI],
-        [("choosing the learner: fitting the trees", 0), ("choosing the learner: training", 60), ("tree Q fitted", 2)],
+        [("choosing the learner: training", 0), ("choosing the learner: training", 60), ("tree Q fitted", 2)],
     ),
     # one session, nothing to hold out: the DQN taken at once. While it trains (in the choice's fleet), once
     # the config names it (before its first checkpoint of the run's own), evaluating
