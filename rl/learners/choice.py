@@ -303,8 +303,12 @@ def _trees_worker(events: list[Any]) -> None:
     killed run leaves no fit running)."""
     import ctypes
     import signal
+    import sys
 
     _STOP_EVENTS[:] = events
+    torch = sys.modules.get("torch")
+    if torch is not None:  # a forked copy of torch's thread pool hangs at its first parallel operation
+        torch.set_num_threads(1)
     try:
         ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG (Linux: the only platform forked here)
     except (OSError, AttributeError):  # pragma: no cover
@@ -552,11 +556,12 @@ def choose_and_fit(
             }
             if learner == "trees":
                 drop.add(t.final)
-                if fit_trees:
-                    from rl.learners.trees import fit_tree_q
+                if fit_trees:  # the ensembles come back (scikit-learn's, plain arrays); the torch module is built
+                    # here: a forked worker must not run torch (its thread pool is the parent's, and may hang)
+                    from rl.learners.trees import fit_tree_ensembles
 
                     t.trees_net = pool.submit(
-                        fit_tree_q, t.task.approaches, learner_env(t.task.cfg, "trees"), t.settings.trees
+                        fit_tree_ensembles, t.task.approaches, learner_env(t.task.cfg, "trees"), t.settings.trees
                     )
             for part in t.trees:
                 job = part.job
@@ -679,7 +684,11 @@ def choose_and_fit(
         for t in targets:
             assert t.choice is not None
             if t.choice.learner == "trees":
-                net = t.trees_net.result() if t.trees_net is not None else None
+                net = None
+                if t.trees_net is not None:
+                    from rl.learners.trees import TreeQNetwork
+
+                    net = TreeQNetwork.from_ensembles(*t.trees_net.result())
                 t.fitted = Fitted(t.choice, t.settings.trees, net)
             else:
                 assert t.fitted is not None
