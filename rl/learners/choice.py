@@ -280,9 +280,8 @@ class _Target:
     next_check: float = 0.0
     running: tuple[float, float, float, dict[int, np.ndarray]] | None = None  # DQN (score, reach, share, changes)
     seen: tuple[int, ...] = ()  # what `check` last noted
-    notes: list[tuple[dict[int, np.ndarray], Any, int]] = field(default_factory=list)  # the DQNs' (changes,
-    # running, checks so far)
-    # not yet settled against the trees (fitted beside: notes wait for them)
+    # the DQNs' (changes, running, checks so far) not yet settled against the trees (fitted beside, they wait)
+    notes: list[tuple[dict[int, np.ndarray], Any, int]] = field(default_factory=list)
     checks: list[dict[str, float]] = field(default_factory=list)
     fitted: Fitted | None = None
     trees_net: Any = None  # future of the chosen trees' fit on all approaches
@@ -615,8 +614,8 @@ def choose_and_fit(
             trees: tuple[float, dict[str, float]],
         ) -> None:
             """Decide `t` if the DQNs' note (`changes` of the finished inner DQNs, the `running` check, the first
-            `checks` checks) and the
-            trees' score settle it: both scores complete, or the DQNs' interval out of reach."""
+            `checks` checks) and the trees' score settle it: both scores complete, or the DQNs' interval out of
+            reach."""
             s = t.settings
             if len(changes) == len(t.pairs):
                 d = _pooled([(changes[i], *t.held[i][1:]) for i in range(len(t.pairs))])
