@@ -6,7 +6,8 @@ then each variant of the consensus (the N best readings vote, cut by average or 
 linkage; N = 1 is `separated` itself) reads the drivers, and its ARI against the study's truth is
 recorded; '<variant>/no-v_free' is the same without the readings of the free speed, '/no-lc_rate' without
 those of the lane-change rate; '-disjoint' variants let only voters that share no parameter with a better
-one vote, '-shared' ones let every parameter speak once (`shared_weights`). A variant is
+one vote, '-shared' ones let every parameter speak once (`shared_weights`); '+read' and '+nosingle' ones
+leave out the votes a reading has not earned (`PRUNED`). A variant is
 chosen only if it reads the study shipped in `sample_logs/` right (ARI 1: the acceptance asks it). The leave-one-world-out table gives, for each world, the variant with the best mean ARI
 on the *other* worlds and its ARI on this one. Written to `benchmarks/results/<--out>` with the
 command, commit, date and machine.
@@ -48,7 +49,16 @@ DISJOINT: dict[str, tuple[int, str, float]] = {
 SHARED: dict[str, tuple[int, str, float]] = {
     f"top{n}-{link}-shared": (n, link, 0.0) for n in (3, 5, 8) for link in ("average", "complete")
 }
-ALL_VARIANTS = VARIANTS | DISJOINT | SHARED
+#: Variants that give no reading a say it has not earned: '+read' leaves out a reading's vote on the drivers it
+#: could not estimate (a parameter missing, imputed as the median), '+nosingle' lets no reading vote whose smallest
+#: style holds one driver (`clustering.consensus`); the library's default is one of these.
+PRUNED: dict[str, tuple[int, str, float]] = {
+    f"top{n}-{link}{flags}": (n, link, 0.0)
+    for n in (3, 4, 5)
+    for link in ("average", "complete")
+    for flags in ("+read", "+nosingle", "+read+nosingle")
+} | {f"top4-{link}": (4, link, 0.0) for link in ("average", "complete")}
+ALL_VARIANTS = VARIANTS | DISJOINT | SHARED | PRUNED
 
 
 #: The study shipped in `sample_logs/`: a variant must read it right (ARI 1) to be chosen.
@@ -103,9 +113,12 @@ def variant_aris(truth: dict[str, str], scores: list) -> dict[str, float]:
     for name, (n, link, floor) in ALL_VARIANTS.items():
         pick = disjoint if name in DISJOINT else list
         share = name in SHARED
-        out[name] = variant_ari(truth, pick(scores), n, link, floor, shared=share)
+        flags = {"read": "+read" in name, "nosingle": "+nosingle" in name}
+        out[name] = variant_ari(truth, pick(scores), n, link, floor, shared=share, **flags)
         for param in WITHOUT:
-            out[f"{name}/no-{param}"] = variant_ari(truth, pick(without(scores, param)), n, link, floor, shared=share)
+            out[f"{name}/no-{param}"] = variant_ari(
+                truth, pick(without(scores, param)), n, link, floor, shared=share, **flags
+            )
     return out
 
 
@@ -137,17 +150,24 @@ def variant_ari(
     floor: float = 0.0,
     k: int = 3,
     shared: bool = False,
+    read: bool = False,
+    nosingle: bool = False,
 ) -> float:
-    from clustering.consensus import consensus_groups, weight
+    """ARI of one variant on one study: the `voters` best readings (those with a one-driver style left out
+    with `nosingle`) vote, each on every driver it labels (with `read`, not on those it could not estimate)."""
+    from clustering.consensus import MIN_STYLE_SIZE, consensus_groups, smallest_style, weight
 
     if not scores:
         return float("nan")
     drivers = sorted(scores[0].labels)
+    if nosingle:
+        scores = [r for r in scores if smallest_style(r) >= MIN_STYLE_SIZE] or scores
     voting = [r for r in scores[:voters] if weight(r) >= floor * weight(scores[0])]
     if len(voting) == 1:
         labels = [voting[0].labels[d] for d in drivers]
     else:
-        labels = list(consensus_groups(voting, drivers, k, method, shared_weights(voting) if shared else None))
+        weights = shared_weights(voting) if shared else None
+        labels = list(consensus_groups(voting, drivers, k, method, weights, skip_unread=read))
     keep = [i for i, d in enumerate(drivers) if d in truth]
     return float(adjusted_rand_score([truth[drivers[i]] for i in keep], [labels[i] for i in keep]))
 

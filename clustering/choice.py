@@ -185,10 +185,21 @@ def ranked_readings(
             sil = float(silhouette_score(clf.transform(behaviour.values.loc[fit_on, list(ps)]), clf.labels_))
             stab = float(draw_confidence(behaviour, fit_on, clf, clf.labels_, settings.random_state).mean())
             labels = {d: clf.names_[i] for d, i in zip(fit_on, clf.labels_)}
+            missing = behaviour.values.loc[fit_on, list(ps)].isna().any(axis=1)
             clusterers[BEHAVIOUR + n] = clf
             scores.append(
                 ReadingScore(
-                    BEHAVIOUR + n, ps, np.nan, np.nan, np.nan, False, False, labels, silhouette=sil, stability=stab
+                    BEHAVIOUR + n,
+                    ps,
+                    np.nan,
+                    np.nan,
+                    np.nan,
+                    False,
+                    False,
+                    labels,
+                    silhouette=sil,
+                    stability=stab,
+                    unread=tuple(missing.index[missing.to_numpy()]),
                 )
             )
     _, set_scores = choose_features(points, drivers, n_dec, settings)
@@ -282,7 +293,8 @@ def choose_consensus(
     votes = vote_defensiveness(voting, fit_on, groups)
     clf.order_by(votes[np.asarray(ids)[clf.order_]])  # named as the voters name their members
     labels = {d: clf.names_[i] for d, i in zip(fit_on, clf.labels_)}
-    scores = [replace(r, plausible=i < len(voting)) for i, r in enumerate(scores)]
+    voted = {r.name for r in voting}
+    scores = [replace(r, plausible=r.name in voted) for r in scores]
     sil = (
         float(silhouette_score(clf.transform(behaviour.values.loc[fit_on, list(params)]), clf.labels_))
         if 1 < len(set(clf.labels_.tolist())) < len(fit_on)
@@ -363,14 +375,15 @@ def assign(
 
 def reading_agreement(choice: Choice, styles: pd.Series) -> tuple[pd.Series, dict[str, list[str]]]:
     """Per driver: the share of plausible readings that give it its style, and the readings that
-    read it otherwise (with the style they give)."""
+    read it otherwise (with the style they give); a reading that could not estimate the driver
+    (`ReadingScore.unread`) has no say on it."""
     plausible = [s for s in choice.scores if s.plausible]
     share = pd.Series(1.0, index=styles.index)
     other: dict[str, list[str]] = {d: [] for d in styles.index}
     if len(plausible) <= 1:
         return share, other
     for d in styles.index:
-        votes = [s for s in plausible if d in s.labels]
+        votes = [s for s in plausible if d in s.labels and d not in s.unread]
         if not votes:
             continue
         agree = [s for s in votes if s.labels[d] == styles[d]]

@@ -8,11 +8,20 @@ in most of the good readings. Here the `CONSENSUS_READINGS` best separated readi
 them together, weighted by each reading's silhouette x stability (the co-association matrix of
 ensemble clustering, Fred & Jain 2005), and the drivers are cut into k groups by average
 linkage on it (`LINKAGE`).
+Two kinds of reading do not get a say they have not earned:
+
+- a reading that puts one driver alone in a style (a style of fewer than `MIN_STYLE_SIZE` drivers)
+  has split off an outlier, not found a style, and does not vote (unless no reading is left);
+- a reading says nothing of a driver it could not estimate (one of its parameters missing, where
+  the clusterer imputes the median and so calls the driver Normal): such a driver is among the
+  reading's `unread` ones, and the reading's vote on every pair with it is left out.
+
 Each group is named by the readings' votes: the style name they give its members, weighted alike.
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Sequence
 
 import numpy as np
@@ -24,7 +33,9 @@ from clustering.styles import style_names
 
 #: How many of the best separated readings vote, with no floor, cut by average linkage: chosen one world
 #: out among the variants that read the shipped study right (`benchmarks/consensus.py`).
-CONSENSUS_READINGS = 3
+CONSENSUS_READINGS = 4
+#: A reading whose smallest style has fewer drivers than this does not vote (it split off an outlier).
+MIN_STYLE_SIZE = 2
 #: A reading scoring under this share of the best one's silhouette x stability does not vote (0: the three
 #: best all vote; a floor keeps readings of parameters the data hardly inform from outvoting a clear one
 #: when more vote).
@@ -34,12 +45,19 @@ LINKAGE = "average"
 
 
 def voters(ranked: Sequence[ReadingScore]) -> list[ReadingScore]:
-    """The readings that vote: the `CONSENSUS_READINGS` best of `ranked` (best first) that score at least
-    `VOTE_FLOOR` times the best one."""
+    """The readings that vote: the `CONSENSUS_READINGS` best of `ranked` (best first) with no style of
+    fewer than `MIN_STYLE_SIZE` drivers (all of `ranked` if none is left), that score at least
+    `VOTE_FLOOR` times the best of them."""
     if not ranked:
         return []
-    floor = VOTE_FLOOR * weight(ranked[0])
-    return [r for r in ranked[:CONSENSUS_READINGS] if weight(r) >= floor]
+    pool = [r for r in ranked if smallest_style(r) >= MIN_STYLE_SIZE] or list(ranked)
+    floor = VOTE_FLOOR * weight(pool[0])
+    return [r for r in pool[:CONSENSUS_READINGS] if weight(r) >= floor]
+
+
+def smallest_style(reading: ReadingScore) -> int:
+    """How many drivers the reading's smallest style holds (0 for a reading of no driver)."""
+    return min(Counter(reading.labels.values()).values()) if reading.labels else 0
 
 
 def weight(reading: ReadingScore) -> float:
@@ -49,15 +67,19 @@ def weight(reading: ReadingScore) -> float:
 
 
 def co_association(
-    readings: Sequence[ReadingScore], drivers: list[str], weights: Sequence[float] | None = None
+    readings: Sequence[ReadingScore],
+    drivers: list[str],
+    weights: Sequence[float] | None = None,
+    skip_unread: bool = True,
 ) -> np.ndarray:
     """Weighted share of the readings (among those that read both) that put each pair of
     `drivers` in the same style (1 on the diagonal); each reading weighs its `weight` unless
-    `weights` are given."""
+    `weights` are given. A reading does not read its `unread` drivers unless `skip_unread` is False."""
     n = len(drivers)
     together, seen = np.zeros((n, n)), np.zeros((n, n))
     for r, w in zip(readings, weights if weights is not None else [weight(r) for r in readings]):
-        rows = np.array([i for i, d in enumerate(drivers) if d in r.labels], dtype=int)
+        unread = set(r.unread) if skip_unread else set()
+        rows = np.array([i for i, d in enumerate(drivers) if d in r.labels and d not in unread], dtype=int)
         if w <= 0 or len(rows) == 0:
             continue
         lab = np.array([r.labels[drivers[i]] for i in rows], dtype=object)
@@ -74,11 +96,12 @@ def consensus_groups(
     k: int,
     method: str = LINKAGE,
     weights: Sequence[float] | None = None,
+    skip_unread: bool = True,
 ) -> np.ndarray:
     """Group (0 .. k-1, unnamed) of every driver: `method` linkage on 1 - co-association, cut at k."""
     if len(drivers) <= k:
         return np.arange(len(drivers))
-    distance = 1.0 - co_association(readings, drivers, weights)
+    distance = 1.0 - co_association(readings, drivers, weights, skip_unread)
     tree = linkage(squareform(distance, checks=False), method=method)
     return fcluster(tree, k, criterion="maxclust") - 1
 
@@ -92,7 +115,7 @@ def vote_defensiveness(readings: Sequence[ReadingScore], drivers: list[str], gro
         names = style_names(len(set(r.labels.values()))) if r.labels else []
         w = weight(r)
         for d, g in zip(drivers, groups):
-            if d in r.labels and r.labels[d] in names:
+            if d in r.labels and d not in r.unread and r.labels[d] in names:
                 score[g] += w * -names.index(r.labels[d]) / max(len(names) - 1, 1)
                 total[g] += w
     return np.divide(score, total, out=np.zeros_like(score), where=total > 0)

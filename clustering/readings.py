@@ -62,6 +62,7 @@ class ReadingScore:
     reliability: float = float("nan")  # the least reliable of its parameters (`parameter_reliability`)
     silhouette: float = float("nan")  # of its styles, in its standardised space
     stability: float = float("nan")  # mean share of each driver's redraws (or resamples) left in its style
+    unread: tuple[str, ...] = ()  # drivers in `labels` only by imputation (a parameter of the reading missing)
 
 
 def session_folds(driver: np.ndarray, session: np.ndarray, n_folds: int = FOLDS) -> np.ndarray:
