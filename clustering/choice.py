@@ -26,7 +26,15 @@ import numpy as np
 import pandas as pd
 from sklearn.metrics import silhouette_score
 
-from clustering.consensus import consensus_groups, vote_defensiveness, voters, weight
+from clustering.consensus import (
+    CONSENSUS_READINGS,
+    MIN_STYLE_SIZE,
+    consensus_groups,
+    smallest_style,
+    vote_defensiveness,
+    voters,
+    weight,
+)
 from clustering.behaviour import BEHAVIOUR, PARAMETERS, VARIABLES, Behaviour, behaviour_params, decision_data, subset
 from clustering.features import driver_features, transform_features
 from clustering.readings import (
@@ -259,9 +267,8 @@ def choose_consensus(
     with too few presses to place a centre are assigned and each driver's estimates are drawn
     for its confidence; with no usable behaviour parameter (a table without not-yet states) the
     drivers are read as by `choose_separated`. With `settings.choose_k` ('silhouette' or 'bic' alike), the readings are
-    made at every k of `settings.k_range` and the k whose voters are best separated and most stable
-    (their mean silhouette x stability, the score that ranks them) is kept; its scores per k are the
-    clusterer's `k_scores_`."""
+    made at every k of `settings.k_range` and the k whose readings are best separated and most stable
+    (`k_score`) is kept; its scores per k are the clusterer's `k_scores_`."""
     if not usable_parameters(behaviour, fit_on):
         return choose_separated(points, drivers, fit_on, n_dec, behaviour, settings)
     if settings.choose_k:
@@ -276,7 +283,7 @@ def choose_consensus(
         if not scores:
             continue
         groups = consensus_groups(voters(scores), fit_on, k)
-        k_scores[k] = float(np.mean([weight(r) for r in voters(scores)]))
+        k_scores[k] = k_score(scores)
         if best is None or k_scores[k] > best[0]:
             best = (k_scores[k], k, scores, groups)
     if best is None:
@@ -305,6 +312,14 @@ def choose_consensus(
         CONSENSUS, params, np.nan, np.nan, np.nan, False, True, labels, silhouette=sil, stability=stab
     )
     return Choice(CONSENSUS, params, [chosen, *scores], clf)
+
+
+def k_score(ranked: list[ReadingScore]) -> float:
+    """How well k styles show in the readings made at k: the mean silhouette x stability of the
+    `CONSENSUS_READINGS` best, a reading that puts one driver alone in a style scoring 0 (it split off
+    an outlier: at a k above the styles' count every reading can do so, and that is no style)."""
+    best = ranked[:CONSENSUS_READINGS]
+    return float(np.mean([weight(r) if smallest_style(r) >= MIN_STYLE_SIZE else 0.0 for r in best]))
 
 
 def silhouette_alternatives(

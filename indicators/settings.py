@@ -126,7 +126,7 @@ class AnalysisSettings:
 
     # --- styles ----------------------------------------------------------------
     features: str = "consensus"
-    """What the styles are read by: 'consensus' (the default: the styles the three best separated
+    """What the styles are read by: 'consensus' (the default: the styles the four best separated
     and most stable readings, indicator sets and behaviour readings alike, agree on; chosen one
     world out on the zoo of worlds), 'separated' (the one best separated and most stable of those
     readings), 'auto' (the indicator set whose styles are best separated and most

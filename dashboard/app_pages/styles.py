@@ -37,7 +37,7 @@ def rerun_form(ws, current: dict) -> None:
             "Features",
             sets,
             key="features",
-            help="What the styles are read by; 'consensus' (the default): the styles the three best "
+            help="What the styles are read by; 'consensus' (the default): the styles the four best "
             "separated and most stable readings agree on; 'auto': the indicator set best separated and "
             "most stable; 'separated': the best separated and most stable of the indicator "
             "sets and the behaviour readings; 'reliable': the two behaviour parameters in "

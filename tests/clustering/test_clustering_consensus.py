@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 
@@ -83,3 +85,53 @@ def test_readings_far_below_the_best_do_not_vote_with_a_floor(monkeypatch):
     assert [r.name for r in K.voters(ranked)] == ["clear"]
     groups = K.consensus_groups(K.voters(ranked), DRIVERS, 3)
     assert groups[DRIVERS.index("n0")] == groups[DRIVERS.index("n1")] != groups[DRIVERS.index("d0")]
+
+
+def test_a_reading_that_splits_off_one_driver_does_not_vote():
+    """A reading whose smallest style is one driver split off an outlier: it does not vote, unless every
+    reading does so."""
+    outlier = {**RIGHT, "d0": "Defensive", "d1": "Normal", "n0": "Normal", "n1": "Normal"}  # d0 alone
+    ranked = [reading("outlier", outlier, 0.9), *(reading(f"right{i}", RIGHT, 0.5) for i in range(4))]
+    assert K.smallest_style(ranked[0]) == 1 and K.smallest_style(ranked[1]) == 2
+    assert "outlier" not in [r.name for r in K.voters(ranked)]
+    assert len(K.voters(ranked)) == K.CONSENSUS_READINGS
+    assert [r.name for r in K.voters(ranked[:1])] == ["outlier"]  # none left: the readings there are vote
+
+
+def test_a_reading_has_no_say_on_a_driver_it_could_not_estimate():
+    """A driver missing a reading's parameter is labelled by imputation (the median: Normal); that reading's
+    votes on every pair with it are left out, in the groups and in the driver's agreement."""
+    imputed = {**RIGHT, "a0": "Normal"}
+    voting = [
+        replace(reading("imputes", imputed, 0.9), unread=("a0",)),
+        reading("right", RIGHT, 0.3),
+    ]
+    co = K.co_association(voting, DRIVERS)
+    a0, a1, n0 = (DRIVERS.index(d) for d in ("a0", "a1", "n0"))
+    assert np.isclose(co[a0, a1], 1.0) and np.isclose(co[a0, n0], 0.0)
+    assert np.isclose(K.co_association(voting, DRIVERS, skip_unread=False)[a0, n0], 0.9 / 1.2)
+    groups = K.consensus_groups(voting, DRIVERS, 3)
+    assert groups[a0] == groups[a1] != groups[n0]
+    choice = C.Choice(C.CONSENSUS, (), [replace(r, plausible=True) for r in voting], None)
+    share, others = C.reading_agreement(choice, pd.Series(RIGHT))
+    assert share["a0"] == 1.0 and others["a0"] == []
+
+
+def test_behaviour_readings_mark_the_drivers_they_impute(monkeypatch):
+    from test_clustering_behaviour import _three_styles_with_a_noise_variable  # this folder is on the path
+
+    _, drivers, b = _three_styles_with_a_noise_variable()
+    values = b.values.copy()
+    values.loc["a0", "thw_nb"] = np.nan
+    monkeypatch.setattr(C, "choose_features", lambda *a, **k: ("", []))
+    scores, _ = C.ranked_readings(
+        pd.DataFrame(),
+        drivers,
+        drivers,
+        pd.Series(24, index=drivers),
+        replace(b, values=values),
+        AnalysisSettings(n_init=5),
+    )
+    with_thw_nb = [r for r in scores if "thw_nb" in r.parameters]
+    assert with_thw_nb and all(r.unread == ("a0",) for r in with_thw_nb)
+    assert all(r.unread == () for r in scores if "thw_nb" not in r.parameters)
