@@ -124,7 +124,8 @@ def variant_aris(truth: dict[str, str], scores: list) -> dict[str, float]:
 
 def disjoint(scores: list) -> list:
     """The readings, best first, that share no parameter with a better reading kept before them."""
-    kept, used = [], set()
+    kept: list = []
+    used: set[str] = set()
     for r in scores:
         params = set(r.parameters)
         if params & used:

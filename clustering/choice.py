@@ -10,7 +10,7 @@ Two kinds of reading compete on the same held-out criterion (`clustering.reading
 
 `--features heldout` takes whichever predicts held-out behaviour best; `--features behaviour`
 only the behaviour readings; a set name or `behaviour:<params>` that reading alone.
-`--features consensus`, the default, reads the styles the three best separated and most stable
+`--features consensus`, the default, reads the styles the four best separated and most stable
 readings of either kind agree on (`clustering.consensus`); `--features separated` takes the one
 best of them (no margin for any); `--features reliable` the two behaviour parameters the drivers
 differ in most reliably; 'auto' the choice among indicator sets by silhouette x stability
