@@ -58,7 +58,11 @@ PRUNED: dict[str, tuple[int, str, float]] = {
     for link in ("average", "complete")
     for flags in ("+read", "+nosingle", "+read+nosingle")
 } | {f"top4-{link}": (4, link, 0.0) for link in ("average", "complete")}
-ALL_VARIANTS = VARIANTS | DISJOINT | SHARED | PRUNED
+#: The pruned votes with each parameter speaking once ('-shared', '-disjoint' after '+read+nosingle').
+PRUNED_ONCE: dict[str, tuple[int, str, float]] = {
+    f"top{n}-average+read+nosingle{once}": (n, "average", 0.0) for n in (3, 4, 5) for once in ("-shared", "-disjoint")
+}
+ALL_VARIANTS = VARIANTS | DISJOINT | SHARED | PRUNED | PRUNED_ONCE
 
 
 #: The study shipped in `sample_logs/`: a variant must read it right (ARI 1) to be chosen.
@@ -111,14 +115,15 @@ def variant_aris(truth: dict[str, str], scores: list) -> dict[str, float]:
     """Every variant's ARI on one study, and each one's without every parameter of `WITHOUT`."""
     out = {}
     for name, (n, link, floor) in ALL_VARIANTS.items():
-        pick = disjoint if name in DISJOINT else list
-        share = name in SHARED
-        flags = {"read": "+read" in name, "nosingle": "+nosingle" in name}
-        out[name] = variant_ari(truth, pick(scores), n, link, floor, shared=share, **flags)
+        flags = {
+            "read": "+read" in name,
+            "nosingle": "+nosingle" in name,
+            "shared": "-shared" in name,
+            "disjoint_voters": "-disjoint" in name,
+        }
+        out[name] = variant_ari(truth, scores, n, link, floor, **flags)
         for param in WITHOUT:
-            out[f"{name}/no-{param}"] = variant_ari(
-                truth, pick(without(scores, param)), n, link, floor, shared=share, **flags
-            )
+            out[f"{name}/no-{param}"] = variant_ari(truth, without(scores, param), n, link, floor, **flags)
     return out
 
 
@@ -153,9 +158,11 @@ def variant_ari(
     shared: bool = False,
     read: bool = False,
     nosingle: bool = False,
+    disjoint_voters: bool = False,
 ) -> float:
     """ARI of one variant on one study: the `voters` best readings (those with a one-driver style left out
-    with `nosingle`) vote, each on every driver it labels (with `read`, not on those it could not estimate)."""
+    with `nosingle`, then those sharing a parameter with a better one with `disjoint_voters`) vote, each on
+    every driver it labels (with `read`, not on those it could not estimate)."""
     from clustering.consensus import MIN_STYLE_SIZE, consensus_groups, smallest_style, weight
 
     if not scores:
@@ -163,6 +170,8 @@ def variant_ari(
     drivers = sorted(scores[0].labels)
     if nosingle:
         scores = [r for r in scores if smallest_style(r) >= MIN_STYLE_SIZE] or scores
+    if disjoint_voters:
+        scores = disjoint(scores)
     voting = [r for r in scores[:voters] if weight(r) >= floor * weight(scores[0])]
     if len(voting) == 1:
         labels = [voting[0].labels[d] for d in drivers]
