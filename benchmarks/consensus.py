@@ -163,13 +163,13 @@ def variant_ari(
     """ARI of one variant on one study: the `voters` best readings (those with a one-driver style left out
     with `nosingle`, then those sharing a parameter with a better one with `disjoint_voters`) vote, each on
     every driver it labels (with `read`, not on those it could not estimate)."""
-    from clustering.consensus import MIN_STYLE_SIZE, consensus_groups, smallest_style, weight
+    from clustering.consensus import consensus_groups, weight, without_outlier_splits
 
     if not scores:
         return float("nan")
     drivers = sorted(scores[0].labels)
     if nosingle:
-        scores = [r for r in scores if smallest_style(r) >= MIN_STYLE_SIZE] or scores
+        scores = without_outlier_splits(scores)
     if disjoint_voters:
         scores = disjoint(scores)
     voting = [r for r in scores[:voters] if weight(r) >= floor * weight(scores[0])]

@@ -398,7 +398,7 @@ def reading_agreement(choice: Choice, styles: pd.Series) -> tuple[pd.Series, dic
     if len(plausible) <= 1:
         return share, other
     for d in styles.index:
-        votes = [s for s in plausible if d in s.labels and d not in s.unread]
+        votes = [s for s in plausible if s.reads(d)]
         if not votes:
             continue
         agree = [s for s in votes if s.labels[d] == styles[d]]

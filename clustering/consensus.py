@@ -36,8 +36,8 @@ from clustering.styles import style_names
 CONSENSUS_READINGS = 4
 #: A reading whose smallest style has fewer drivers than this does not vote (it split off an outlier).
 MIN_STYLE_SIZE = 2
-#: A reading scoring under this share of the best one's silhouette x stability does not vote (0: the three
-#: best all vote; a floor keeps readings of parameters the data hardly inform from outvoting a clear one
+#: A reading scoring under this share of the best one's silhouette x stability does not vote (0: the
+#: `CONSENSUS_READINGS` best all vote; a floor keeps readings of parameters the data hardly inform from outvoting a clear one
 #: when more vote).
 VOTE_FLOOR = 0.0
 #: The linkage the drivers are cut by (scipy's names).
@@ -50,9 +50,14 @@ def voters(ranked: Sequence[ReadingScore]) -> list[ReadingScore]:
     `VOTE_FLOOR` times the best of them."""
     if not ranked:
         return []
-    pool = [r for r in ranked if smallest_style(r) >= MIN_STYLE_SIZE] or list(ranked)
+    pool = without_outlier_splits(ranked)
     floor = VOTE_FLOOR * weight(pool[0])
     return [r for r in pool[:CONSENSUS_READINGS] if weight(r) >= floor]
+
+
+def without_outlier_splits(ranked: Sequence[ReadingScore]) -> list[ReadingScore]:
+    """The readings of `ranked` with no style of fewer than `MIN_STYLE_SIZE` drivers (all of them if none is left)."""
+    return [r for r in ranked if smallest_style(r) >= MIN_STYLE_SIZE] or list(ranked)
 
 
 def smallest_style(reading: ReadingScore) -> int:
@@ -78,8 +83,7 @@ def co_association(
     n = len(drivers)
     together, seen = np.zeros((n, n)), np.zeros((n, n))
     for r, w in zip(readings, weights if weights is not None else [weight(r) for r in readings]):
-        unread = set(r.unread) if skip_unread else set()
-        rows = np.array([i for i, d in enumerate(drivers) if d in r.labels and d not in unread], dtype=int)
+        rows = np.array([i for i, d in enumerate(drivers) if (r.reads(d) if skip_unread else d in r.labels)], dtype=int)
         if w <= 0 or len(rows) == 0:
             continue
         lab = np.array([r.labels[drivers[i]] for i in rows], dtype=object)
@@ -115,7 +119,7 @@ def vote_defensiveness(readings: Sequence[ReadingScore], drivers: list[str], gro
         names = style_names(len(set(r.labels.values()))) if r.labels else []
         w = weight(r)
         for d, g in zip(drivers, groups):
-            if d in r.labels and d not in r.unread and r.labels[d] in names:
+            if r.reads(d) and r.labels[d] in names:
                 score[g] += w * -names.index(r.labels[d]) / max(len(names) - 1, 1)
                 total[g] += w
     return np.divide(score, total, out=np.zeros_like(score), where=total > 0)

@@ -64,6 +64,10 @@ class ReadingScore:
     stability: float = float("nan")  # mean share of each driver's redraws (or resamples) left in its style
     unread: tuple[str, ...] = ()  # drivers in `labels` only by imputation (a parameter of the reading missing)
 
+    def reads(self, driver: str) -> bool:
+        """Whether the reading places `driver` from its estimates (labelled, and not by imputation)."""
+        return driver in self.labels and driver not in self.unread
+
 
 def session_folds(driver: np.ndarray, session: np.ndarray, n_folds: int = FOLDS) -> np.ndarray:
     """Fold of every row: each driver's sessions, sorted, dealt round-robin into folds."""

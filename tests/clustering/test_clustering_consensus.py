@@ -95,7 +95,7 @@ def test_a_reading_that_splits_off_one_driver_does_not_vote():
     assert K.smallest_style(ranked[0]) == 1 and K.smallest_style(ranked[1]) == 2
     assert "outlier" not in [r.name for r in K.voters(ranked)]
     assert len(K.voters(ranked)) == K.CONSENSUS_READINGS
-    assert [r.name for r in K.voters(ranked[:1])] == ["outlier"]  # none left: the readings there are vote
+    assert [r.name for r in K.voters(ranked[:1])] == ["outlier"]  # none without an outlier split: those there vote
 
 
 def test_a_reading_has_no_say_on_a_driver_it_could_not_estimate():
