@@ -62,7 +62,12 @@ PRUNED: dict[str, tuple[int, str, float]] = {
 PRUNED_ONCE: dict[str, tuple[int, str, float]] = {
     f"top{n}-average+read+nosingle{once}": (n, "average", 0.0) for n in (3, 4, 5) for once in ("-shared", "-disjoint")
 }
-ALL_VARIANTS = VARIANTS | DISJOINT | SHARED | PRUNED | PRUNED_ONCE
+#: The pruned votes with each reading's say weighed by the other parameters' agreement with it and the voters
+#: those with the most say ('+agree-mean', '+agree-top3': `clustering.consensus.agreement`).
+AGREED: dict[str, tuple[int, str, float]] = {
+    f"top{n}-average+read+nosingle+agree-{how}": (n, "average", 0.0) for n in (3, 4, 5, 6) for how in ("mean", "top3")
+}
+ALL_VARIANTS = VARIANTS | DISJOINT | SHARED | PRUNED | PRUNED_ONCE | AGREED
 
 
 #: The study shipped in `sample_logs/`: a variant must read it right (ARI 1) to be chosen.
@@ -120,6 +125,7 @@ def variant_aris(truth: dict[str, str], scores: list) -> dict[str, float]:
             "nosingle": "+nosingle" in name,
             "shared": "-shared" in name,
             "disjoint_voters": "-disjoint" in name,
+            "agree": name.split("+agree-")[1] if "+agree-" in name else "",
         }
         out[name] = variant_ari(truth, scores, n, link, floor, **flags)
         for param in WITHOUT:
@@ -159,15 +165,22 @@ def variant_ari(
     read: bool = False,
     nosingle: bool = False,
     disjoint_voters: bool = False,
+    agree: str = "",
 ) -> float:
     """ARI of one variant on one study: the `voters` best readings (those with a one-driver style left out
     with `nosingle`, then those sharing a parameter with a better one with `disjoint_voters`) vote, each on
-    every driver it labels (with `read`, not on those it could not estimate)."""
-    from clustering.consensus import consensus_groups, weight, without_outlier_splits
+    every driver it labels (with `read`, not on those it could not estimate). With `agree` ('mean', 'top3'),
+    the library's `votes` choose the voters and their say (`nosingle` and `read` implied)."""
+    from clustering.consensus import consensus_groups, votes, weight, without_outlier_splits
 
     if not scores:
         return float("nan")
     drivers = sorted(scores[0].labels)
+    if agree:
+        voting, say = votes(scores, n=voters, how=agree)
+        labels = list(consensus_groups(voting, drivers, k, method, say, skip_unread=True))
+        keep = [i for i, d in enumerate(drivers) if d in truth]
+        return float(adjusted_rand_score([truth[drivers[i]] for i in keep], [labels[i] for i in keep]))
     if nosingle:
         scores = without_outlier_splits(scores)
     if disjoint_voters:

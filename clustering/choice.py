@@ -32,7 +32,7 @@ from clustering.consensus import (
     consensus_groups,
     smallest_style,
     vote_defensiveness,
-    voters,
+    votes,
     weight,
 )
 from clustering.behaviour import BEHAVIOUR, PARAMETERS, VARIABLES, Behaviour, behaviour_params, decision_data, subset
@@ -282,14 +282,15 @@ def choose_consensus(
         scores, _ = ranked_readings(points, drivers, fit_on, n_dec, behaviour, settings.with_(k=k))
         if not scores:
             continue
-        groups = consensus_groups(voters(scores), fit_on, k)
+        voting, say = votes(scores)
+        groups = consensus_groups(voting, fit_on, k, weights=say)
         k_scores[k] = k_score(scores)
         if best is None or k_scores[k] > best[0]:
             best = (k_scores[k], k, scores, groups)
     if best is None:
         return Choice("", (), [], None)
     _, k, scores, groups = best
-    voting = voters(scores)
+    voting, say = votes(scores)
     params = tuple(dict.fromkeys(p for r in voting if is_behaviour(r.name) for p in r.parameters)) or usable_parameters(
         behaviour, fit_on
     )
@@ -297,8 +298,8 @@ def choose_consensus(
     clf.fit_partition(behaviour.values.loc[fit_on, list(params)], groups)
     clf.k_scores_ = k_scores if settings.choose_k else {}
     ids = sorted(set(groups.tolist()))
-    votes = vote_defensiveness(voting, fit_on, groups)
-    clf.order_by(votes[np.asarray(ids)[clf.order_]])  # named as the voters name their members
+    defensive = vote_defensiveness(voting, fit_on, groups, say)
+    clf.order_by(defensive[np.asarray(ids)[clf.order_]])  # named as the voters name their members
     labels = {d: clf.names_[i] for d, i in zip(fit_on, clf.labels_)}
     voted = {r.name for r in voting}
     scores = [replace(r, plausible=r.name in voted) for r in scores]

@@ -14,7 +14,13 @@ Two kinds of reading do not get a say they have not earned:
   has split off an outlier, not found a style, and does not vote (unless no reading is left);
 - a reading says nothing of a driver it could not estimate (one of its parameters missing, where
   the clusterer imputes the median and so calls the driver Normal): such a driver is among the
-  reading's `unread` ones, and the reading's vote on every pair with it is left out.
+  reading's `unread` ones, and the reading's vote on every pair with it is left out;
+- a reading counts as much as the *other* parameters agree with it (`agreement`). A style shows in
+  many parameters at once, while a parameter that splits the drivers by a trait of its own (a lead
+  gap some drivers keep whatever their style) or misplaces one driver agrees with few others. Without
+  this, several readings of one parameter (`t_f`, `t_f+v_free`, `t_f+lc_rate`) outvote the rest with
+  one opinion. Each reading's say is its silhouette x stability times its agreement
+  (`AGREEMENT`), and the voters are the readings with the most say.
 
 Each group is named by the readings' votes: the style name they give its members, weighted alike.
 """
@@ -27,7 +33,9 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.spatial.distance import squareform
+from sklearn.metrics import adjusted_rand_score
 
+from clustering.behaviour import BEHAVIOUR
 from clustering.readings import ReadingScore
 from clustering.styles import style_names
 
@@ -42,17 +50,64 @@ MIN_STYLE_SIZE = 2
 VOTE_FLOOR = 0.0
 #: The linkage the drivers are cut by (scipy's names).
 LINKAGE = "average"
+#: How the other parameters' agreement with a reading weighs its say (`agreement`): 'mean' over the one-parameter
+#: readings of the other parameters, 'top3' over the three that agree most, 'none' (every reading agrees fully,
+#: the say is silhouette x stability alone, as before). Chosen one world out (`benchmarks/consensus.py`).
+AGREEMENT = "mean"
+
+
+def votes(
+    ranked: Sequence[ReadingScore], n: int = CONSENSUS_READINGS, how: str = AGREEMENT
+) -> tuple[list[ReadingScore], list[float]]:
+    """The readings that vote and the say of each: among the readings of `ranked` with no style of fewer
+    than `MIN_STYLE_SIZE` drivers (all of `ranked` if none is left), the `n` with the
+    most say (silhouette x stability x `agreement`), that score at least `VOTE_FLOOR` times the best of them."""
+    if not ranked:
+        return [], []
+    pool = without_outlier_splits(ranked)
+    say = {r.name: weight(r) * agreement(r, ranked, how) for r in pool}
+    if not any(say.values()):  # no reading agrees with another: silhouette x stability alone
+        say = {r.name: weight(r) for r in pool}
+    pool = sorted(pool, key=lambda r: -say[r.name])  # stable: ties keep the ranking's order
+    floor = VOTE_FLOOR * say[pool[0].name]
+    voting = [r for r in pool[:n] if say[r.name] >= floor]
+    return voting, [say[r.name] for r in voting]
 
 
 def voters(ranked: Sequence[ReadingScore]) -> list[ReadingScore]:
-    """The readings that vote: the `CONSENSUS_READINGS` best of `ranked` (best first) with no style of
-    fewer than `MIN_STYLE_SIZE` drivers (all of `ranked` if none is left), that score at least
-    `VOTE_FLOOR` times the best of them."""
-    if not ranked:
-        return []
-    pool = without_outlier_splits(ranked)
-    floor = VOTE_FLOOR * weight(pool[0])
-    return [r for r in pool[:CONSENSUS_READINGS] if weight(r) >= floor]
+    """The readings that vote (`votes`), most say first."""
+    return votes(ranked)[0]
+
+
+def agreement(reading: ReadingScore, ranked: Sequence[ReadingScore], how: str = AGREEMENT) -> float:
+    """How much the other parameters agree with `reading`: the ARI (at least 0) of its styles with those of
+    every one-parameter behaviour reading of `ranked` that shares no parameter with it, on the drivers both
+    read, averaged ('mean') or over the three that agree most ('top3'); 1 with `how` 'none' or with no such
+    reading to compare."""
+    if how == "none":
+        return 1.0
+    others = [
+        r
+        for r in ranked
+        if r.name.startswith(BEHAVIOUR) and len(r.parameters) == 1 and not set(r.parameters) & set(reading.parameters)
+    ]
+    aris = [a for a in (_ari_on_both(reading, r) for r in others) if np.isfinite(a)]
+    if not aris:
+        return 1.0
+    clipped = np.clip(np.asarray(aris, dtype=float), 0.0, None)
+    if how == "top3":
+        return float(np.sort(clipped)[::-1][:3].mean())
+    if how == "mean":
+        return float(clipped.mean())
+    raise ValueError(f"unknown agreement {how!r}: 'mean', 'top3' or 'none'")
+
+
+def _ari_on_both(a: ReadingScore, b: ReadingScore) -> float:
+    """ARI of two readings' styles on the drivers both read (NaN under three such drivers)."""
+    both = [d for d in a.labels if a.reads(d) and b.reads(d)]
+    if len(both) < 3:
+        return float("nan")
+    return float(adjusted_rand_score([a.labels[d] for d in both], [b.labels[d] for d in both]))
 
 
 def without_outlier_splits(ranked: Sequence[ReadingScore]) -> list[ReadingScore]:
@@ -110,14 +165,18 @@ def consensus_groups(
     return fcluster(tree, k, criterion="maxclust") - 1
 
 
-def vote_defensiveness(readings: Sequence[ReadingScore], drivers: list[str], groups: np.ndarray) -> np.ndarray:
-    """Per group, how defensive the readings call its members: the weighted mean of the names'
-    rank (Defensive highest), for ordering and naming the groups."""
+def vote_defensiveness(
+    readings: Sequence[ReadingScore],
+    drivers: list[str],
+    groups: np.ndarray,
+    weights: Sequence[float] | None = None,
+) -> np.ndarray:
+    """Per group, how defensive the readings call its members: the mean of the names' rank (Defensive
+    highest) weighted by each reading's `weight` (or `weights`), for ordering and naming the groups."""
     n_groups = int(groups.max()) + 1
     score, total = np.zeros(n_groups), np.zeros(n_groups)
-    for r in readings:
+    for r, w in zip(readings, weights if weights is not None else [weight(r) for r in readings]):
         names = style_names(len(set(r.labels.values()))) if r.labels else []
-        w = weight(r)
         for d, g in zip(drivers, groups):
             if r.reads(d) and r.labels[d] in names:
                 score[g] += w * -names.index(r.labels[d]) / max(len(names) - 1, 1)

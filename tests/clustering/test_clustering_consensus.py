@@ -135,3 +135,33 @@ def test_behaviour_readings_mark_the_drivers_they_impute(monkeypatch):
     with_thw_nb = [r for r in scores if "thw_nb" in r.parameters]
     assert with_thw_nb and all(r.unread == ("a0",) for r in with_thw_nb)
     assert all(r.unread == () for r in scores if "thw_nb" not in r.parameters)
+
+
+def test_copies_of_one_parameter_do_not_outvote_the_others():
+    """Four readings of `t_f` misplace a2; the other parameters, each read once and less well separated, place
+    it right. Counted by silhouette alone the copies outvote them; weighed by how much the other parameters
+    agree with each reading (`agreement`), they do not."""
+    drivers = [f"{s}{i}" for s in "dna" for i in range(3)]
+    right = {d: {"d": "Defensive", "n": "Normal", "a": "Aggressive"}[d[0]] for d in drivers}
+    misplaced = {**right, "a2": "Normal"}
+
+    def behaviour_reading(params: str, labels: dict[str, str], silhouette: float) -> ReadingScore:
+        return replace(reading(C.BEHAVIOUR + params, labels, silhouette), parameters=tuple(params.split("+")))
+
+    ranked = [
+        behaviour_reading("t_f", misplaced, 0.9),
+        *(behaviour_reading(f"t_f+{p}", misplaced, 0.85) for p in ("v_free", "lc_rate", "gap_nf")),
+        *(behaviour_reading(p, right, 0.7) for p in ("v_free", "lc_rate", "thw_f")),
+    ]
+    assert K.agreement(ranked[0], ranked) < K.agreement(ranked[4], ranked) == K.agreement(ranked[6], ranked)
+    assert K.agreement(ranked[0], ranked, how="none") == 1.0
+
+    def a2_with(how: str) -> str:
+        voting, say = K.votes(ranked, how=how)
+        groups = K.consensus_groups(voting, drivers, 3, weights=say)
+        same = [d for d in drivers if d != "a2" and groups[drivers.index(d)] == groups[drivers.index("a2")]]
+        return right[same[0]]
+
+    assert {r.name for r in K.voters(ranked)} & {C.BEHAVIOUR + p for p in ("v_free", "lc_rate", "thw_f")}
+    assert a2_with("none") == "Normal"  # the four copies of t_f are the four best: they alone vote
+    assert a2_with("mean") == a2_with("top3") == "Aggressive"
