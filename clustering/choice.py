@@ -10,8 +10,8 @@ Two kinds of reading compete on the same held-out criterion (`clustering.reading
 
 `--features heldout` takes whichever predicts held-out behaviour best; `--features behaviour`
 only the behaviour readings; a set name or `behaviour:<params>` that reading alone.
-`--features consensus`, the default, reads the styles the four best separated and most stable
-readings of either kind agree on (`clustering.consensus`); `--features separated` takes the one
+`--features consensus`, the default, reads the styles the readings of either kind with
+the most say agree on (separated, stable, and agreed with by the other parameters: `clustering.consensus`); `--features separated` takes the one
 best of them (no margin for any); `--features reliable` the two behaviour parameters the drivers
 differ in most reliably; 'auto' the choice among indicator sets by silhouette x stability
 (`clustering.selection`). The default was chosen one world out on the zoo of worlds
@@ -260,7 +260,8 @@ def choose_consensus(
     behaviour: Behaviour,
     settings: AnalysisSettings,
 ) -> Choice:
-    """The styles the `CONSENSUS_READINGS` best separated readings agree on (`clustering.consensus`).
+    """The styles the `CONSENSUS_READINGS` readings with the most say agree on (`clustering.consensus.votes`:
+    silhouette x stability x the other parameters' agreement).
 
     The voters are the plausible readings. The styles' centres sit in the space of the behaviour
     parameters the voters read (every usable one if only indicator sets voted), where drivers

@@ -39,9 +39,9 @@ from clustering.behaviour import BEHAVIOUR
 from clustering.readings import ReadingScore
 from clustering.styles import style_names
 
-#: How many of the best separated readings vote, with no floor, cut by average linkage: chosen one world
-#: out among the variants that read the shipped study right (`benchmarks/consensus.py`).
-CONSENSUS_READINGS = 4
+#: How many readings vote (those with the most say, `votes`), with no floor, cut by average linkage: chosen one
+#: world out among the variants that read the shipped study right (`benchmarks/consensus.py`).
+CONSENSUS_READINGS = 5
 #: A reading whose smallest style has fewer drivers than this does not vote (it split off an outlier).
 MIN_STYLE_SIZE = 2
 #: A reading scoring under this share of the best one's silhouette x stability does not vote (0: the
@@ -53,7 +53,7 @@ LINKAGE = "average"
 #: How the other parameters' agreement with a reading weighs its say (`agreement`): 'mean' over the one-parameter
 #: readings of the other parameters, 'top3' over the three that agree most, 'none' (every reading agrees fully,
 #: the say is silhouette x stability alone, as before). Chosen one world out (`benchmarks/consensus.py`).
-AGREEMENT = "mean"
+AGREEMENT = "top3"
 
 
 def votes(

@@ -126,9 +126,10 @@ class AnalysisSettings:
 
     # --- styles ----------------------------------------------------------------
     features: str = "consensus"
-    """What the styles are read by: 'consensus' (the default: the styles the four best separated
-    and most stable readings, indicator sets and behaviour readings alike, agree on; chosen one
-    world out on the zoo of worlds), 'separated' (the one best separated and most stable of those
+    """What the styles are read by: 'consensus' (the default: the styles the readings with the
+    most say agree on, indicator sets and behaviour readings alike, a reading's say being how well
+    separated and stable it is and how much the other parameters agree with it; chosen one world
+    out on the zoo of worlds), 'separated' (the one best separated and most stable of those
     readings), 'auto' (the indicator set whose styles are best separated and most
     stable, the study's TTCs unless another is clearly better), 'reliable' (the two behaviour parameters in which the drivers differ most reliably),
     'heldout' (the reading whose styles best predict the drivers' held-out decisions and

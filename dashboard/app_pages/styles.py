@@ -37,8 +37,8 @@ def rerun_form(ws, current: dict) -> None:
             "Features",
             sets,
             key="features",
-            help="What the styles are read by; 'consensus' (the default): the styles the four best "
-            "separated and most stable readings agree on; 'auto': the indicator set best separated and "
+            help="What the styles are read by; 'consensus' (the default): the styles the readings with the "
+            "most say agree on (well separated, stable, and agreed with by the other parameters); 'auto': the indicator set best separated and "
             "most stable; 'separated': the best separated and most stable of the indicator "
             "sets and the behaviour readings; 'reliable': the two behaviour parameters in "
             "which the drivers differ most reliably; 'heldout': the reading whose styles best predict the drivers' "

@@ -91,7 +91,10 @@ def test_a_reading_that_splits_off_one_driver_does_not_vote():
     """A reading whose smallest style is one driver split off an outlier: it does not vote, unless every
     reading does so."""
     outlier = {**RIGHT, "d0": "Defensive", "d1": "Normal", "n0": "Normal", "n1": "Normal"}  # d0 alone
-    ranked = [reading("outlier", outlier, 0.9), *(reading(f"right{i}", RIGHT, 0.5) for i in range(4))]
+    ranked = [
+        reading("outlier", outlier, 0.9),
+        *(reading(f"right{i}", RIGHT, 0.5) for i in range(K.CONSENSUS_READINGS)),
+    ]
     assert K.smallest_style(ranked[0]) == 1 and K.smallest_style(ranked[1]) == 2
     assert "outlier" not in [r.name for r in K.voters(ranked)]
     assert len(K.voters(ranked)) == K.CONSENSUS_READINGS
