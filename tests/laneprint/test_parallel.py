@@ -38,7 +38,7 @@ def test_local_backend_runs_in_order_and_reports_each_task():
     assert ray is None or not ray.is_initialized()  # no Ray instance started for nothing
 
 
-def test_bad_backend_options_are_one_line_errors(monkeypatch):
+def test_bad_backend_options_are_one_line_errors(monkeypatch, tmp_path):
     with pytest.raises(UserError, match="unknown backend 'dask'"):
         run_tasks(_square, [1], backend="dask")
     with pytest.raises(UserError, match="add (--)?backend ray"):
@@ -49,7 +49,7 @@ def test_bad_backend_options_are_one_line_errors(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # as if Ray were not installed
     with pytest.raises(UserError, match=r"pip install -e '\.\[ray\]'"):
         run_tasks(_square, [1], backend="ray")
-    res = CliRunner().invoke(app, ["ingest", str(SAMPLE / "D01_S60.mcap"), "--backend", "ray", "-w", "unused"])
+    res = CliRunner().invoke(app, ["ingest", str(SAMPLE / "D01_S60.mcap"), "--backend", "ray", "-w", str(tmp_path / "ws")])
     assert res.exit_code == 1 and "pip install -e '.[ray]'" in res.output and "Traceback" not in res.output
 
 
