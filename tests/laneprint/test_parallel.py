@@ -49,7 +49,9 @@ def test_bad_backend_options_are_one_line_errors(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "ray", None)  # as if Ray were not installed
     with pytest.raises(UserError, match=r"pip install -e '\.\[ray\]'"):
         run_tasks(_square, [1], backend="ray")
-    res = CliRunner().invoke(app, ["ingest", str(SAMPLE / "D01_S60.mcap"), "--backend", "ray", "-w", str(tmp_path / "ws")])
+    res = CliRunner().invoke(
+        app, ["ingest", str(SAMPLE / "D01_S60.mcap"), "--backend", "ray", "-w", str(tmp_path / "ws")]
+    )
     assert res.exit_code == 1 and "pip install -e '.[ray]'" in res.output and "Traceback" not in res.output
 
 
