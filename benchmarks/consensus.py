@@ -8,7 +8,9 @@ recorded; '<variant>/no-v_free' is the same without the readings of the free spe
 those of the lane-change rate; '-disjoint' variants let only voters that share no parameter with a better
 one vote, '-shared' ones let every parameter speak once (`shared_weights`); '+read' and '+nosingle' ones
 leave out the votes a reading has not earned (`PRUNED`). A variant is
-chosen only if it reads the study shipped in `sample_logs/` right (ARI 1: the acceptance asks it). The leave-one-world-out table gives, for each world, the variant with the best mean ARI
+chosen only if it reads the study shipped in `sample_logs/` right (ARI 1 and every name right: the acceptance
+asks it). Each variant's groups are named as the library names them, and the share of drivers named right is
+recorded beside the ARI. The leave-one-world-out table gives, for each world, the variant with the best mean ARI
 on the *other* worlds and its ARI on this one. Written to `benchmarks/results/<--out>` with the
 command, commit, date and machine.
 
@@ -63,9 +65,13 @@ PRUNED_ONCE: dict[str, tuple[int, str, float]] = {
     f"top{n}-average+read+nosingle{once}": (n, "average", 0.0) for n in (3, 4, 5) for once in ("-shared", "-disjoint")
 }
 #: The pruned votes with each reading's say weighed by the other parameters' agreement with it and the voters
-#: those with the most say ('+agree-mean', '+agree-top3': `clustering.consensus.agreement`).
+#: those with the most say ('+agree-mean', '+agree-top3': `clustering.consensus.agreement`); '+plainnames' names
+#: the groups by the voters' silhouette x stability instead of their say (the agreement is an ARI: blind to names).
 AGREED: dict[str, tuple[int, str, float]] = {
-    f"top{n}-average+read+nosingle+agree-{how}": (n, "average", 0.0) for n in (3, 4, 5, 6) for how in ("mean", "top3")
+    f"top{n}-average+read+nosingle+agree-{how}{names}": (n, "average", 0.0)
+    for n in (3, 4, 5, 6)
+    for how in ("mean", "top3")
+    for names in ("", "+plainnames")
 }
 ALL_VARIANTS = VARIANTS | DISJOINT | SHARED | PRUNED | PRUNED_ONCE | AGREED
 
@@ -116,8 +122,9 @@ def without(scores: list, param: str) -> list:
     return [r for r in scores if param not in r.parameters]
 
 
-def variant_aris(truth: dict[str, str], scores: list) -> dict[str, float]:
-    """Every variant's ARI on one study, and each one's without every parameter of `WITHOUT`."""
+def variant_aris(truth: dict[str, str], scores: list) -> dict[str, tuple[float, float]]:
+    """Every variant's (ARI, share of drivers named right) on one study, and each one's without every parameter
+    of `WITHOUT`."""
     out = {}
     for name, (n, link, floor) in ALL_VARIANTS.items():
         flags = {
@@ -125,7 +132,8 @@ def variant_aris(truth: dict[str, str], scores: list) -> dict[str, float]:
             "nosingle": "+nosingle" in name,
             "shared": "-shared" in name,
             "disjoint_voters": "-disjoint" in name,
-            "agree": name.split("+agree-")[1] if "+agree-" in name else "",
+            "agree": name.split("+agree-")[1].removesuffix("+plainnames") if "+agree-" in name else "",
+            "plain_names": name.endswith("+plainnames"),
         }
         out[name] = variant_ari(truth, scores, n, link, floor, **flags)
         for param in WITHOUT:
@@ -166,33 +174,54 @@ def variant_ari(
     nosingle: bool = False,
     disjoint_voters: bool = False,
     agree: str = "",
-) -> float:
-    """ARI of one variant on one study: the `voters` best readings (those with a one-driver style left out
-    with `nosingle`, then those sharing a parameter with a better one with `disjoint_voters`) vote, each on
-    every driver it labels (with `read`, not on those it could not estimate). With `agree` ('mean', 'top3'),
-    the library's `votes` choose the voters and their say (`nosingle` and `read` implied)."""
+    plain_names: bool = False,
+) -> tuple[float, float]:
+    """(ARI, share of drivers named right) of one variant on one study: the `voters` best readings (those with a
+    one-driver style left out with `nosingle`, then those sharing a parameter with a better one with
+    `disjoint_voters`) vote, each on every driver it labels (with `read`, not on those it could not estimate),
+    and name the groups as the library does (`vote_defensiveness`). With `agree` ('mean', 'top3'), the
+    library's `votes` choose the voters and their say (`nosingle` and `read` implied), and the groups are named
+    by that say unless `plain_names`."""
     from clustering.consensus import consensus_groups, votes, weight, without_outlier_splits
 
     if not scores:
-        return float("nan")
+        return float("nan"), float("nan")
     drivers = sorted(scores[0].labels)
     if agree:
         voting, say = votes(scores, n=voters, how=agree)
-        labels = list(consensus_groups(voting, drivers, k, method, say, skip_unread=True))
-        keep = [i for i, d in enumerate(drivers) if d in truth]
-        return float(adjusted_rand_score([truth[drivers[i]] for i in keep], [labels[i] for i in keep]))
+        groups = consensus_groups(voting, drivers, k, method, say, skip_unread=True)
+        return scored(truth, drivers, groups, voting, None if plain_names else say)
     if nosingle:
         scores = without_outlier_splits(scores)
     if disjoint_voters:
         scores = disjoint(scores)
     voting = [r for r in scores[:voters] if weight(r) >= floor * weight(scores[0])]
     if len(voting) == 1:
-        labels = [voting[0].labels[d] for d in drivers]
-    else:
-        weights = shared_weights(voting) if shared else None
-        labels = list(consensus_groups(voting, drivers, k, method, weights, skip_unread=read))
+        keep = [d for d in drivers if d in truth]
+        ari = float(adjusted_rand_score([truth[d] for d in keep], [voting[0].labels[d] for d in keep]))
+        return ari, float(sum(voting[0].labels[d] == truth[d] for d in keep) / max(len(keep), 1))
+    weights = shared_weights(voting) if shared else None
+    groups = consensus_groups(voting, drivers, k, method, weights, skip_unread=read)
+    return scored(truth, drivers, groups, voting, weights)
+
+
+def scored(truth: dict[str, str], drivers: list[str], groups, voting: list, weights: list[float] | None):
+    """(ARI, share of drivers named right) of `groups`, named as `voting` (weighed by `weights`, or by each
+    reading's silhouette x stability) name their members, as `clustering.choice.choose_consensus` does."""
+    import numpy as np
+
+    from clustering.consensus import vote_defensiveness
+    from clustering.styles import style_names
+
+    groups = np.asarray(groups)
     keep = [i for i, d in enumerate(drivers) if d in truth]
-    return float(adjusted_rand_score([truth[drivers[i]] for i in keep], [labels[i] for i in keep]))
+    ari = float(adjusted_rand_score([truth[drivers[i]] for i in keep], [groups[i] for i in keep]))
+    defensive = vote_defensiveness(voting, drivers, groups, weights)
+    ids = sorted(set(groups.tolist()))
+    ranked = sorted(ids, key=lambda g: -defensive[g])  # most defensive first; ties keep the ids' order
+    names = dict(zip(ranked, style_names(len(ids))))
+    right = sum(names[groups[i]] == truth[drivers[i]] for i in keep)
+    return ari, float(right / max(len(keep), 1))
 
 
 def main() -> None:
@@ -210,7 +239,7 @@ def main() -> None:
     args = ap.parse_args()
     worlds = list(zoo.WORLDS) if args.worlds == "all" else args.worlds.split(",")
     truth, scores = shipped(args.root)
-    on_shipped = variant_aris(truth, scores)
+    on_shipped = variant_aris(truth, scores)  # variant -> (ARI, share named right)
     shares_list = ["" if s == "world" else s for s in args.shares.split(";")]
     rows = []
     for world in worlds:
@@ -225,14 +254,31 @@ def main() -> None:
                     print(f"  {world} seed {seed}: {exc}", flush=True)
                     continue
                 rows += [
-                    {"world": world, "seed": seed, "shares": shares or "world", "variant": v, "ari": a}
-                    for v, a in variant_aris(truth, scores).items()
+                    {
+                        "world": world,
+                        "seed": seed,
+                        "shares": shares or "world",
+                        "variant": v,
+                        "ari": a,
+                        "names_right": nr,
+                    }
+                    for v, (a, nr) in variant_aris(truth, scores).items()
                 ]
                 print(f"  {world:<18} seed {seed:5d} {shares}  ({time.perf_counter() - t0:.0f} s)", flush=True)
     df = pd.DataFrame(rows)
-    per = df.groupby(["variant", "world"]).ari.agg(mean_ari="mean", min_ari="min", seeds="count").reset_index()
+    per = (
+        df.groupby(["variant", "world"])
+        .agg(
+            mean_ari=("ari", "mean"),
+            min_ari=("ari", "min"),
+            names_right=("names_right", "mean"),
+            seeds=("ari", "count"),
+        )
+        .reset_index()
+    )
     means = per.pivot(index="variant", columns="world", values="mean_ari")
-    eligible = means[[on_shipped.get(str(v), 0.0) >= 1.0 - 1e-9 for v in means.index]]
+    names = per.pivot(index="variant", columns="world", values="names_right")
+    eligible = means[[min(on_shipped.get(str(v), (0.0, 0.0))) >= 1.0 - 1e-9 for v in means.index]]
     lowo = []
     for world in means.columns if len(means.columns) > 1 else []:  # one world leaves none to choose on
         pick = str(eligible.drop(columns=world).mean(axis=1).idxmax())
@@ -241,11 +287,18 @@ def main() -> None:
                 "world": world,
                 "variant_chosen_elsewhere": pick,
                 "mean_ari": float(means.loc[pick, world]),
+                "names_right": float(names.loc[pick, world]),
                 "separated_mean_ari": float(means.loc["separated", world]),
             }
         )
     overall = pd.DataFrame(
-        {"mean_over_worlds": means.mean(axis=1), "worst_world": means.min(axis=1), "shipped_ari": pd.Series(on_shipped)}
+        {
+            "mean_over_worlds": means.mean(axis=1),
+            "worst_world": means.min(axis=1),
+            "names_right_over_worlds": names.mean(axis=1),
+            "shipped_ari": pd.Series({v: a for v, (a, _) in on_shipped.items()}),
+            "shipped_names_right": pd.Series({v: nr for v, (_, nr) in on_shipped.items()}),
+        }
     )
     write_result(
         args.out,
@@ -256,22 +309,29 @@ def main() -> None:
             "per_study": df.pivot_table(index=["world", "seed", "shares"], columns="variant", values="ari")
             .reset_index()
             .to_dict("records"),
+            "per_study_names_right": df.pivot_table(
+                index=["world", "seed", "shares"], columns="variant", values="names_right"
+            )
+            .reset_index()
+            .to_dict("records"),
             "variants": {k: list(v) for k, v in ALL_VARIANTS.items()},
             "per_world": per.to_dict("records"),
             "overall": overall.reset_index().to_dict("records"),
             "leave_one_world_out": lowo,
         },
     )
-    print("\nmean ARI over worlds (worst world; the shipped study) per variant")
+    print("\nmean ARI over worlds (worst world; names right; the shipped study's ARI) per variant")
     for v, r in overall.sort_values("mean_over_worlds", ascending=False).iterrows():
-        print(f"  {v:<18} {r.mean_over_worlds:.3f} ({r.worst_world:.2f}; {r.shipped_ari:.2f})")
+        print(
+            f"  {v:<18} {r.mean_over_worlds:.3f} ({r.worst_world:.2f}; {r.names_right_over_worlds:.1%}; {r.shipped_ari:.2f})"
+        )
     print(
-        "\nleave one world out: the variant best on the other worlds among those that read the shipped study right, "
-        "judged on this one"
+        "\nleave one world out: the variant best on the other worlds among those that read the shipped study right "
+        "(groups and names), judged on this one"
     )
     for r in lowo:
         print(
-            f"  {r['world']:<18} {r['variant_chosen_elsewhere']:<16} {r['mean_ari']:.2f} "
+            f"  {r['world']:<18} {r['variant_chosen_elsewhere']:<16} {r['mean_ari']:.2f}, names {r['names_right']:.1%} "
             f"(separated {r['separated_mean_ari']:.2f})"
         )
 
