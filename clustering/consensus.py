@@ -3,12 +3,11 @@
 Picking the single best separated reading (`--features separated`) is fragile: on a study of
 nine drivers one parameter alone (the headway kept while following, say) can split the drivers
 cleanly and still wrongly, while the styles, which differ in many parameters at once, show up
-in most of the good readings. Here the `CONSENSUS_READINGS` best separated readings vote
-(`clustering.choice.ranked_readings`): two drivers are together as often as the readings put
-them together, weighted by each reading's silhouette x stability (the co-association matrix of
-ensemble clustering, Fred & Jain 2005), and the drivers are cut into k groups by average
-linkage on it (`LINKAGE`).
-Two kinds of reading do not get a say they have not earned:
+in most of the good readings. Here `CONSENSUS_READINGS` of the separated readings
+(`clustering.choice.ranked_readings`) vote (`votes`): two drivers are together as often as the
+voters put them together, weighted by each voter's say (the co-association matrix of ensemble
+clustering, Fred & Jain 2005), and the drivers are cut into k groups by average linkage on it
+(`LINKAGE`). No reading gets a say it has not earned:
 
 - a reading that puts one driver alone in a style (a style of fewer than `MIN_STYLE_SIZE` drivers)
   has split off an outlier, not found a style, and does not vote (unless no reading is left);
@@ -22,7 +21,7 @@ Two kinds of reading do not get a say they have not earned:
   one opinion. Each reading's say is its silhouette x stability times its agreement
   (`AGREEMENT`), and the voters are the readings with the most say.
 
-Each group is named by the readings' votes: the style name they give its members, weighted alike.
+Each group is named by the voters: the style name they give its members, weighted by their say.
 """
 
 from __future__ import annotations
@@ -44,8 +43,8 @@ from clustering.styles import style_names
 CONSENSUS_READINGS = 5
 #: A reading whose smallest style has fewer drivers than this does not vote (it split off an outlier).
 MIN_STYLE_SIZE = 2
-#: A reading scoring under this share of the best one's silhouette x stability does not vote (0: the
-#: `CONSENSUS_READINGS` best all vote; a floor keeps readings of parameters the data hardly inform from outvoting a clear one
+#: A reading whose say is under this share of the largest one's does not vote (0: the `CONSENSUS_READINGS` with
+#: the most say all vote; a floor keeps readings of parameters the data hardly inform from outvoting a clear one
 #: when more vote).
 VOTE_FLOOR = 0.0
 #: The linkage the drivers are cut by (scipy's names).
@@ -72,11 +71,6 @@ def votes(
     floor = VOTE_FLOOR * say[pool[0].name]
     voting = [r for r in pool[:n] if say[r.name] >= floor]
     return voting, [say[r.name] for r in voting]
-
-
-def voters(ranked: Sequence[ReadingScore]) -> list[ReadingScore]:
-    """The readings that vote (`votes`), most say first."""
-    return votes(ranked)[0]
 
 
 def agreement(reading: ReadingScore, ranked: Sequence[ReadingScore], how: str = AGREEMENT) -> float:

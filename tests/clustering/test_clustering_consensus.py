@@ -67,7 +67,7 @@ def test_choose_consensus_names_the_styles_and_reports_its_voters(monkeypatch):
     assert choice.name == C.CONSENSUS and C.reads_behaviour(choice.name)
     chosen = [s for s in choice.scores if s.chosen]
     assert len(chosen) == 1 and chosen[0].name == C.CONSENSUS
-    assert sum(s.plausible for s in choice.scores) == len(K.voters(choice.scores[1:]))
+    assert sum(s.plausible for s in choice.scores) == len(K.votes(choice.scores[1:])[0])
     labels = chosen[0].labels
     assert {labels[x] for x in ("d0", "d1", "d2")} == {"Defensive"}
     assert {labels[x] for x in ("a0", "a1", "a2")} == {"Aggressive"}
@@ -80,10 +80,10 @@ def test_readings_far_below_the_best_do_not_vote_with_a_floor(monkeypatch):
     outvote a clear one; without it (the default) the `CONSENSUS_READINGS` best vote."""
     wrong = {**RIGHT, "n0": "Defensive", "n1": "Defensive", "d0": "Normal", "d1": "Normal"}
     ranked = [reading("clear", RIGHT, 0.8), *(reading(f"weak{i}", wrong, 0.3) for i in range(3))]
-    assert len(K.voters(ranked)) == min(len(ranked), K.CONSENSUS_READINGS)
+    assert len(K.votes(ranked)[0]) == min(len(ranked), K.CONSENSUS_READINGS)
     monkeypatch.setattr(K, "VOTE_FLOOR", 0.5)
-    assert [r.name for r in K.voters(ranked)] == ["clear"]
-    groups = K.consensus_groups(K.voters(ranked), DRIVERS, 3)
+    assert [r.name for r in K.votes(ranked)[0]] == ["clear"]
+    groups = K.consensus_groups(K.votes(ranked)[0], DRIVERS, 3)
     assert groups[DRIVERS.index("n0")] == groups[DRIVERS.index("n1")] != groups[DRIVERS.index("d0")]
 
 
@@ -96,9 +96,9 @@ def test_a_reading_that_splits_off_one_driver_does_not_vote():
         *(reading(f"right{i}", RIGHT, 0.5) for i in range(K.CONSENSUS_READINGS)),
     ]
     assert K.smallest_style(ranked[0]) == 1 and K.smallest_style(ranked[1]) == 2
-    assert "outlier" not in [r.name for r in K.voters(ranked)]
-    assert len(K.voters(ranked)) == K.CONSENSUS_READINGS
-    assert [r.name for r in K.voters(ranked[:1])] == ["outlier"]  # none without an outlier split: those there vote
+    assert "outlier" not in [r.name for r in K.votes(ranked)[0]]
+    assert len(K.votes(ranked)[0]) == K.CONSENSUS_READINGS
+    assert [r.name for r in K.votes(ranked[:1])[0]] == ["outlier"]  # none without an outlier split: those there vote
 
 
 def test_a_reading_has_no_say_on_a_driver_it_could_not_estimate():
@@ -165,6 +165,6 @@ def test_copies_of_one_parameter_do_not_outvote_the_others():
         same = [d for d in drivers if d != "a2" and groups[drivers.index(d)] == groups[drivers.index("a2")]]
         return right[same[0]]
 
-    assert {r.name for r in K.voters(ranked)} & {C.BEHAVIOUR + p for p in ("v_free", "lc_rate", "thw_f")}
+    assert {r.name for r in K.votes(ranked)[0]} & {C.BEHAVIOUR + p for p in ("v_free", "lc_rate", "thw_f")}
     assert a2_with("none") == "Normal"  # the four copies of t_f are the four best: they alone vote
     assert a2_with("mean") == a2_with("top3") == "Aggressive"
